@@ -1,0 +1,49 @@
+"""What every device shares: the error the server turns into E_DEVICE, and the interface.
+
+Each device package (ptu, tof, stereo, trigger) exposes ``create(config, world)`` that picks a
+backend from ``config["backend"]`` (pyserial-style: one interface, the backend chosen by
+config) and returns an object that satisfies :class:`Device`. A real backend whose hardware or
+library is missing raises :class:`DeviceError` from ``open()``; it never falls back to the
+simulator.
+"""
+
+from __future__ import annotations
+
+from typing import Any, Protocol, runtime_checkable
+
+
+class DeviceError(Exception):
+    """A device failed, timed out or is absent.
+
+    ``device`` is the registry name ("ptu", "tof", "stereo", "trigger") so the server can name
+    it in the E_DEVICE reply; the message says what went wrong and, where known, how to fix it.
+    """
+
+    def __init__(self, device: str, message: str) -> None:
+        super().__init__(f"{device}: {message}")
+        self.device = device
+        self.message = message
+
+
+@runtime_checkable
+class Device(Protocol):
+    """The surface the server's device registry relies on (reset, reinit, continue, status)."""
+
+    name: str
+    backend: str
+
+    def open(self) -> None: ...
+
+    def close(self) -> None: ...
+
+    def status(self) -> dict[str, Any]:
+        """A thread-safe snapshot, cheap enough to call from the event loop."""
+        ...
+
+    def check(self) -> dict[str, Any]:
+        """Talk to the device to prove it answers; raise DeviceError if it does not."""
+        ...
+
+    def reinit(self) -> None: ...
+
+    def reset(self) -> None: ...
