@@ -1,0 +1,348 @@
+"""System commands of appendix C (quit, standby, break, continue, reset, reinit, sleep, logbook)
+and the extensions (help, status, version, events, format, config, pose, auth)."""
+
+from __future__ import annotations
+
+import hmac
+import platform
+import shutil
+import time
+from dataclasses import dataclass
+from datetime import UTC, datetime
+from typing import Any, ClassVar
+
+from .. import PROTOCOL_VERSION, __version__
+from ..app import Context
+from ..config import ModuleConfig, param
+from ..jobs import Job
+from ..protocol import Fixed, ProtocolError
+from ..table import ALWAYS, COMMANDS, CONTROL, command, lookup
+
+# ------------------------------------------------------------------ config classes
+
+
+@dataclass
+class SleepConfig(ModuleConfig):
+    module: ClassVar[str] = "sleep"
+    seconds: float = param(10.0, "how long to sleep", unit="s", min=0.0, max=86400.0)
+
+
+@dataclass
+class ReinitConfig(ModuleConfig):
+    module: ClassVar[str] = "reinit"
+    device: str = param("all", "device to re-initialise", choices=("all", "ptu", "tof", "stereo", "trigger"))
+
+
+@dataclass
+class LogbookConfig(ModuleConfig):
+    module: ClassVar[str] = "logbook"
+    name: str = param("", "stem of the copy (default rvs_<time>)", stem=True)
+
+
+@dataclass
+class PoseConfig(ModuleConfig):
+    module: ClassVar[str] = "pose"
+    x: float = param(float("nan"), "rover x in the global frame", unit="m", min=-1e6, max=1e6)
+    y: float = param(float("nan"), "rover y in the global frame", unit="m", min=-1e6, max=1e6)
+    heading: float = param(float("nan"), "rover heading, counter-clockwise from +x", unit="deg", min=-360.0, max=360.0)
+
+
+@dataclass
+class AuthConfig(ModuleConfig):
+    module: ClassVar[str] = "auth"
+    token: str = param("", "the server's token", required=True)
+
+
+# ------------------------------------------------------------------ helpers
+
+
+def _devices(summary: dict[str, str]) -> list[str] | str:
+    return [f"{name}:{state}" for name, state in summary.items()] or "none"
+
+
+def _ptu_position(app: Any) -> list[Fixed] | None:
+    dev = app.devices.devices.get("ptu")
+    if dev is None:
+        return None
+    try:
+        pos = dev.status().get("position")
+    except Exception:  # noqa: BLE001 - status never fails because a device does
+        return None
+    return [Fixed(p, 3) for p in pos] if pos else None
+
+
+# ------------------------------------------------------------------ appendix C
+
+
+@command("quit", klass=ALWAYS, help="interrupt every job, close all connections and exit")
+async def quit_(ctx: Context, cfg: None) -> dict[str, Any]:
+    job = await ctx.app.interrupt()
+    ctx.app.loop.call_soon(ctx.app.stopping.set)
+    return {"interrupted": job.id if job else "none"}
+
+
+@command("standby", klass=ALWAYS, help="wait for a change-of-mode command (continue, reset, reinit)")
+def standby(ctx: Context, cfg: None) -> dict[str, Any]:
+    app = ctx.app
+    if app.jobs.current is not None:
+        raise ProtocolError("E_BUSY", f"job {app.jobs.current.id} is running; wait for it or send break")
+    if app.base_mode == "fault" or not app.devices.healthy():
+        raise ProtocolError("E_STATE", "not healthy (a device failed); send reset first")
+    app.set_mode("standby")
+    return {"mode": "standby"}
+
+
+@command("break", klass=ALWAYS, help="interrupt all jobs and store a recovery data set")
+async def break_(ctx: Context, cfg: None) -> dict[str, Any]:
+    app = ctx.app
+    job = app.jobs.current
+    if job is not None:
+        job.cancel.set()
+    # The recovery set is written while the job winds down: its parameters and the maps as
+    # they were are what a later run needs, and the wait stays within the 1 s budget.
+    recovery = await app.loop.run_in_executor(None, app.write_recovery, job)
+    await app.interrupt()
+    app.set_mode("break")
+    return {"interrupted": job.id if job else "none", "recovery": recovery}
+
+
+def _control_done(job: Job, summary: dict[str, str]) -> dict[str, Any]:
+    app = job.app  # type: ignore[attr-defined]
+    app.loop.call_soon_threadsafe(app.set_mode, "ready")
+    return {"mode": "ready", "devices": _devices(summary)}
+
+
+@command("continue", job=True, klass=CONTROL, help="check (or re-initialise) the hardware and return to ready")
+def continue_(job: Job, cfg: None) -> dict[str, Any]:
+    app = job.app  # type: ignore[attr-defined]
+    job.progress(0, 1, "checking hardware" if app.last_used_hardware else "re-initialising hardware")
+    summary = app.devices.check() if app.last_used_hardware else app.devices.reinit()
+    job.progress(1, 1, "hardware ready")
+    return _control_done(job, summary)
+
+
+@command("reset", job=True, klass=CONTROL, help="check the hardware status, then re-initialise all hardware")
+def reset(job: Job, cfg: None) -> dict[str, Any]:
+    app = job.app  # type: ignore[attr-defined]
+    names = app.devices.names
+    checked: dict[str, str] = {}
+    for i, name in enumerate(names):
+        job.check()
+        job.progress(i, 2 * len(names), f"checking {name}")
+        try:
+            app.devices.check([name])
+            checked[name] = "ok"
+        except Exception as exc:  # noqa: BLE001 - reset goes on to re-initialise what failed
+            checked[name] = f"failed: {exc}"
+    for i, name in enumerate(names):
+        job.check()
+        job.progress(len(names) + i, 2 * len(names), f"re-initialising {name}")
+        dev = app.devices.devices.get(name)
+        if dev is not None and hasattr(dev, "reset"):
+            try:
+                dev.reset()
+                app.devices.errors.pop(name, None)
+                continue
+            except Exception:  # noqa: BLE001 - fall back to reopening the device
+                pass
+        app.devices.open(name)
+    out = _control_done(job, app.devices.summary())
+    out["checked"] = [f"{n}:{'ok' if s == 'ok' else 'failed'}" for n, s in checked.items()] or "none"
+    return out
+
+
+@command("reinit", job=True, klass=CONTROL, config=ReinitConfig, help="re-initialise the hardware (-device for one)")
+def reinit(job: Job, cfg: ReinitConfig) -> dict[str, Any]:
+    app = job.app  # type: ignore[attr-defined]
+    names = None if cfg.device == "all" else [cfg.device]
+    if names and names[0] not in app.devices.names:
+        raise ProtocolError("E_ARG", f"-device {cfg.device} is not configured in this build")
+    job.progress(0, 1, f"re-initialising {cfg.device}")
+    summary = app.devices.reinit(names)
+    return _control_done(job, summary)
+
+
+@command("sleep", job=True, config=SleepConfig, help="no operations for -seconds (break ends it early)")
+def sleep(job: Job, cfg: SleepConfig) -> dict[str, Any]:
+    start = time.monotonic()
+    job.sleep(cfg.seconds)
+    return {"slept": Fixed(time.monotonic() - start, 3)}
+
+
+@command("logbook", klass=ALWAYS, config=LogbookConfig, help="copy the current log file to the shared directory")
+def logbook(ctx: Context, cfg: LogbookConfig) -> dict[str, Any]:
+    app = ctx.app
+    src = app.log_file()
+    if not src.is_file():
+        raise ProtocolError("E_IO", f"no log file at {src}; is logging to a file enabled?")
+    stem = cfg.name or "rvs_" + datetime.now(UTC).strftime("%Y%m%dT%H%M%S")
+    dest = app.data_path(app.server_cfg.shared_dir, stem + ".log")
+    shutil.copyfile(src, dest)
+    return {"file": app.rel(dest)}
+
+
+# ------------------------------------------------------------------ extensions
+
+
+@command("help", klass=ALWAYS, positional=("command",), open=True, help="list commands, or explain one")
+def help_(ctx: Context, cfg: None) -> dict[str, Any]:
+    req = ctx.request
+    world = ctx.app.world is not None
+    if not req.positional:
+        names = [n for n, c in COMMANDS.items() if world or not c.sim_only]
+        return {"commands": " ".join(names), "text": "help <command> shows its options; requests are: [@tag] command -option value ..."}
+    cmd = lookup(req.positional[0])
+    if cmd is None or (cmd.sim_only and not world):
+        raise ProtocolError("E_ARG", f"no command '{req.positional[0][:40]}'; help lists them")
+    out: dict[str, Any] = {
+        "command": cmd.name,
+        "module": cmd.module,
+        "kind": "job" if cmd.job else "immediate",
+        "usage": cmd.usage(),
+        "text": cmd.help,
+    }
+    if cmd.config is not None and not cmd.raw:
+        current = ctx.app.config.values.get(cmd.config.module)
+        for spec in cmd.config.specs().values():
+            if spec.option:
+                default = getattr(current, spec.name, spec.default)
+                out["opt_" + spec.name] = f"{spec.describe()}; default {_show(default)}: {spec.help}"
+    return out
+
+
+def _show(value: Any) -> str:
+    if isinstance(value, list):
+        return ",".join(_show(v) for v in value)
+    if isinstance(value, float):
+        return format(value, "g")
+    return str(value) if value != "" else '""'
+
+
+@command("status", klass=ALWAYS, help="mode, running job, pose, devices and connections")
+def status(ctx: Context, cfg: None) -> dict[str, Any]:
+    app = ctx.app
+    job = app.jobs.current
+    out: dict[str, Any] = {"mode": app.mode, "job": job.id if job else "none"}
+    if job is not None:
+        out["job_command"] = job.command
+        out["progress"] = f"{job.done}/{job.total}"
+    pose = app.pose
+    out["pose"] = [Fixed(pose.x, 3), Fixed(pose.y, 3), Fixed(pose.heading, 2)]
+    ptu = _ptu_position(app)
+    if ptu is not None:
+        out["ptu"] = ptu
+    out["devices"] = _devices(app.devices.summary())
+    for name, err in app.devices.errors.items():
+        out[f"error_{name}"] = err
+    out["clients"] = len(app.connections)
+    out["uptime"] = Fixed(time.monotonic() - app.started, 1)
+    out["recovery"] = app.last_recovery or "none"
+    if app.world is not None:
+        out["scene"] = app.world.scene_name
+    return out
+
+
+@command("version", klass=ALWAYS, open=True, help="server, protocol and Python versions")
+def version(ctx: Context, cfg: None) -> dict[str, Any]:
+    return {
+        "server": ctx.app.name,
+        "version": __version__,
+        "protocol": PROTOCOL_VERSION,
+        "python": platform.python_version(),
+    }
+
+
+@command("events", klass=ALWAYS, positional=("on|off",), help="switch EVENT lines on or off for this connection")
+def events(ctx: Context, cfg: None) -> dict[str, Any]:
+    if ctx.request.positional:
+        word = ctx.request.positional[0].lower()
+        if word not in ("on", "off"):
+            raise ProtocolError("E_ARG", f"events takes on or off, not '{word[:20]}'")
+        ctx.conn.events = word == "on"
+    return {"events": "on" if ctx.conn.events else "off"}
+
+
+@command("format", klass=ALWAYS, positional=("text|json",), help="reply as text lines or JSON objects")
+def format_(ctx: Context, cfg: None) -> dict[str, Any]:
+    if ctx.request.positional:
+        word = ctx.request.positional[0].lower()
+        if word not in ("text", "json"):
+            raise ProtocolError("E_ARG", f"format takes text or json, not '{word[:20]}'")
+        ctx.conn.json = word == "json"
+    return {"format": "json" if ctx.conn.json else "text"}
+
+
+@command("config", klass=ALWAYS, raw=True, help="config -module X [-set key=value ...]: show or change a module's configuration")
+def config(ctx: Context, cfg: None) -> dict[str, Any]:
+    store = ctx.app.config
+    module: str | None = None
+    sets: list[str] = []
+    for name, value in ctx.request.options:
+        if name == "module" and isinstance(value, str):
+            module = value
+        elif name == "set" and isinstance(value, str):
+            sets.append(value)
+        else:
+            raise ProtocolError("E_ARG", f"config takes -module NAME and -set key=value, not -{name.replace('_', '-')}")
+    if module is None:
+        if sets:
+            raise ProtocolError("E_ARG", "config -set needs -module NAME")
+        return {"modules": " ".join(store.module_names())}
+    name = store.resolve(module)
+    if sets:
+        if ctx.app.jobs.current is not None and name == "drivers":
+            raise ProtocolError("E_BUSY", "drivers cannot change while a job runs")
+        for item in sets:
+            key, sep, raw = item.partition("=")
+            if not sep:
+                raise ProtocolError("E_ARG", f"-set {item[:40]}: write key=value")
+            store.set(name, key, raw)
+    out: dict[str, Any] = {"module": name}
+    for key, value in store.values[name].as_dict().items():
+        if key == "token" and value:
+            value = "***"
+        if isinstance(value, dict):
+            for sub, subval in _flatten(value, key):
+                out[sub] = subval
+        else:
+            out[key] = value
+    return out
+
+
+def _flatten(d: dict[str, Any], prefix: str) -> list[tuple[str, Any]]:
+    out: list[tuple[str, Any]] = []
+    for key, value in d.items():
+        full = f"{prefix}_{key}"
+        if isinstance(value, dict):
+            out.extend(_flatten(value, full))
+        else:
+            out.append((full, value if value is not None else "none"))
+    return out
+
+
+@command("pose", klass=ALWAYS, config=PoseConfig, help="the GNC reports where the rover is (-x -y -heading)")
+def pose(ctx: Context, cfg: PoseConfig) -> dict[str, Any]:
+    app = ctx.app
+    given = {k for k, _ in ctx.request.options}
+    if given:
+        cur = app.pose
+        x = cfg.x if "x" in given else cur.x
+        y = cfg.y if "y" in given else cur.y
+        heading = cfg.heading if "heading" in given else cur.heading
+        heading = (heading + 180.0) % 360.0 - 180.0
+        app.set_pose(x, y, heading)
+    p = app.pose
+    return {"x": Fixed(p.x, 3), "y": Fixed(p.y, 3), "heading": Fixed(p.heading, 2)}
+
+
+@command("auth", klass=ALWAYS, config=AuthConfig, open=True, help="authenticate this connection with the server's token")
+def auth(ctx: Context, cfg: AuthConfig) -> dict[str, Any]:
+    token = ctx.app.server_cfg.token
+    if not token:
+        ctx.conn.authenticated = True
+        return {"authenticated": True, "required": False}
+    if not hmac.compare_digest(cfg.token.encode(), token.encode()):
+        ctx.conn.log.warning("auth_failed")
+        raise ProtocolError("E_AUTH", "wrong token; check server.token in the server's configuration")
+    ctx.conn.authenticated = True
+    return {"authenticated": True}

@@ -1,0 +1,158 @@
+"""The job runner: one hardware-or-map job at a time, run off the event loop.
+
+A job's handler runs in a worker thread so that status queries stay fast while it computes;
+it reports through :meth:`Job.progress` and checks :meth:`Job.check` at view and step
+boundaries, which is how ``break`` stops it within a second.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import threading
+import time
+import traceback
+from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass, field
+from typing import Any
+
+import structlog
+
+from drivers.base import DeviceError
+
+from .protocol import ProtocolError
+
+log = structlog.get_logger("rvs.jobs")
+
+
+class Interrupted(Exception):
+    """Raised inside a job when break or quit asked it to stop."""
+
+
+@dataclass
+class Job:
+    id: int
+    command: str
+    module: str
+    params: dict[str, Any]
+    tag: str | None
+    emit: Callable[[str, dict[str, Any]], None]  # (status, fields) -> line to the requester
+    cancel: threading.Event = field(default_factory=threading.Event)
+    started: float = field(default_factory=time.monotonic)
+    done: int = 0
+    total: int = 0
+    message: str = ""
+    uses_hardware: bool = False
+    finished: threading.Event = field(default_factory=threading.Event)
+
+    @property
+    def cancelled(self) -> bool:
+        return self.cancel.is_set()
+
+    def check(self) -> None:
+        """Stop here if break or quit asked for it (call at every view and step boundary)."""
+        if self.cancel.is_set():
+            raise Interrupted(f"{self.command} job {self.id} was interrupted")
+
+    def sleep(self, seconds: float) -> None:
+        """Wait that long unless interrupted first."""
+        if self.cancel.wait(seconds):
+            self.check()
+
+    def progress(self, done: int, total: int, message: str = "") -> None:
+        self.done, self.total, self.message = done, total, message
+        self.emit("PROGRESS", {"done": done, "total": total, "message": message})
+
+
+def error_fields(exc: BaseException) -> tuple[dict[str, Any], bool]:
+    """Map an exception from a handler to ERROR fields; the flag says whether a device failed."""
+    if isinstance(exc, ProtocolError):
+        return {"code": exc.code, "message": exc.message}, False
+    if isinstance(exc, Interrupted):
+        return {"code": "E_INTERRUPTED", "message": f"{exc}; its earlier outputs are kept"}, False
+    if isinstance(exc, DeviceError):
+        return {
+            "code": "E_DEVICE",
+            "device": exc.device,
+            "message": f"{exc}; the server is in fault mode, send reset to recover",
+        }, True
+    if isinstance(exc, TimeoutError):
+        return {"code": "E_DEVICE", "message": f"timeout: {exc}; send reset to recover"}, True
+    if isinstance(exc, OSError):
+        return {"code": "E_IO", "message": f"file system refused: {exc}; check the data directory"}, False
+    if isinstance(exc, ValueError):
+        return {"code": "E_ARG", "message": str(exc)}, False
+    return {
+        "code": "E_INTERNAL",
+        "message": f"internal error ({type(exc).__name__}: {exc}); logged, the server keeps serving",
+    }, False
+
+
+class JobRunner:
+    """Holds the single job slot and the worker thread it runs in."""
+
+    def __init__(self, loop: asyncio.AbstractEventLoop) -> None:
+        self.loop = loop
+        self.current: Job | None = None
+        self.last: Job | None = None
+        self._next_id = 1
+        self._pool = ThreadPoolExecutor(max_workers=2, thread_name_prefix="rvs-job")
+
+    def new_id(self) -> int:
+        n = self._next_id
+        self._next_id += 1
+        return n
+
+    def start(
+        self,
+        job: Job,
+        work: Callable[[Job], dict[str, Any]],
+        on_done: Callable[[Job, dict[str, Any] | None, BaseException | None], None],
+    ) -> None:
+        """Run ``work(job)`` in the worker thread; ``on_done`` runs on the event loop."""
+        assert self.current is None
+        self.current = job
+
+        def run() -> None:
+            result: dict[str, Any] | None = None
+            error: BaseException | None = None
+            try:
+                result = work(job)
+                if job.cancel.is_set():
+                    raise Interrupted(f"{job.command} job {job.id} was interrupted")
+            except BaseException as exc:  # noqa: BLE001 - every failure becomes an ERROR line
+                error = exc
+                if not isinstance(exc, ProtocolError | Interrupted | DeviceError | OSError | ValueError):
+                    log.error("job_failed", job=job.id, command=job.command, trace=traceback.format_exc())
+            self.loop.call_soon_threadsafe(self._finish, job, result, error, on_done)
+
+        self._pool.submit(run)
+
+    def _finish(
+        self,
+        job: Job,
+        result: dict[str, Any] | None,
+        error: BaseException | None,
+        on_done: Callable[[Job, dict[str, Any] | None, BaseException | None], None],
+    ) -> None:
+        if self.current is job:
+            self.current = None
+        self.last = job
+        job.finished.set()
+        on_done(job, result, error)
+
+    async def interrupt(self, timeout: float = 1.5) -> Job | None:
+        """Ask the running job to stop and wait (without blocking the loop) until it has."""
+        job = self.current
+        if job is None:
+            return None
+        job.cancel.set()
+        deadline = time.monotonic() + timeout
+        while not job.finished.is_set() and time.monotonic() < deadline:
+            await asyncio.sleep(0.01)
+        return job
+
+    def shutdown(self) -> None:
+        if self.current is not None:
+            self.current.cancel.set()
+        self._pool.shutdown(wait=False, cancel_futures=True)

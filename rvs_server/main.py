@@ -1,0 +1,94 @@
+"""Command line of ``rvs-server``: configuration, logging, the simulated world, the event loop."""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import sys
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+from . import commands as _commands  # noqa: F401 - fills the command table
+from .app import App
+from .config import ConfigStore, DriversConfig, ModuleConfig, ServerConfig
+from .logs import setup as setup_logging
+from .server import serve
+from .table import COMMANDS
+
+
+def config_classes() -> list[type[ModuleConfig]]:
+    classes: dict[str, type[ModuleConfig]] = {"server": ServerConfig, "drivers": DriversConfig}
+    for cmd in COMMANDS.values():
+        if cmd.config is not None:
+            classes.setdefault(cmd.config.module, cmd.config)
+    return list(classes.values())
+
+
+def build_config(config_dir: str | None = None, overrides: list[str] | None = None) -> ConfigStore:
+    store = ConfigStore(config_classes(), Path(config_dir) if config_dir else None)
+    store.apply_overrides(overrides or [])
+    return store
+
+
+def make_world(store: ConfigStore) -> Any:
+    """The simulated world, when any device is simulated (sim commands exist only then)."""
+    drivers = store.get("drivers")
+    if not any(section.get("backend") == "sim" for section in drivers.as_dict().values()):
+        return None
+    try:
+        from drivers.sim.world import World
+    except ImportError:
+        return None
+    return World.from_scene(store.get("server").scene)
+
+
+def make_app(store: ConfigStore, loop: asyncio.AbstractEventLoop) -> App:
+    server = store.get("server")
+    return App(store, data_dir=Path(server.data), world=make_world(store), loop=loop)
+
+
+async def run(store: ConfigStore, *, ready: Callable[[int], None] | None = None, handle_signals: bool = True,
+              on_app: Callable[[App], None] | None = None) -> int:
+    app = make_app(store, asyncio.get_running_loop())
+    if on_app is not None:
+        on_app(app)
+    server = store.get("server")
+    return await serve(app, server.host, server.port, ready=ready, handle_signals=handle_signals)
+
+
+def parse_args(argv: list[str] | None) -> argparse.Namespace:
+    p = argparse.ArgumentParser(
+        prog="rvs-server",
+        description="Rover vision system server (simulated hardware unless config/drivers.yaml says otherwise).",
+    )
+    p.add_argument("--host", help="listen address (default 127.0.0.1)")
+    p.add_argument("--port", type=int, help="listen port (default 7070; 0 picks a free one)")
+    p.add_argument("--data", help="data directory (default ./data)")
+    p.add_argument("--scene", help="simulated scene: office, quarry, marsyard (default office)")
+    p.add_argument("--config", help="folder of YAML files overriding config/")
+    p.add_argument("--set", action="append", default=[], metavar="MODULE.KEY=VALUE",
+                   help="override one configuration value (repeatable)")
+    return p.parse_args(argv)
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = parse_args(argv)
+    overrides = list(args.set)
+    for key in ("host", "port", "data", "scene"):
+        value = getattr(args, key)
+        if value is not None:
+            overrides.append(f"server.{key}={value}")
+    try:
+        store = build_config(args.config, overrides)
+    except (ValueError, OSError) as exc:
+        print(f"rvs-server: {exc}", file=sys.stderr)
+        return 2
+    server = store.get("server")
+    data = Path(server.data)
+    setup_logging(server.log_level, data / server.log_file)
+    try:
+        return asyncio.run(run(store))
+    except OSError as exc:
+        print(f"rvs-server: cannot listen on {server.host}:{server.port}: {exc}", file=sys.stderr)
+        return 1

@@ -1,0 +1,396 @@
+"""The RVS wire protocol (PROTOCOL.md): request parsing and reply formatting, pure and without I/O.
+
+Kept free of sockets and state so that the server, the client, the replay tool and the property
+tests all share one definition of the grammar.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import re
+from dataclasses import dataclass, field
+from typing import Any
+
+MAX_LINE = 4096
+DASHES = ("--", "-", "\u2013")  # longest first; the en dash is how the thesis prints "-output"
+TAG_RE = re.compile(r"[A-Za-z0-9_.:\-]{1,32}")
+NAME_RE = re.compile(r"[A-Za-z][A-Za-z0-9_\-]*")
+KEY_RE = re.compile(r"[a-z][a-z0-9_]*")
+STEM_RE = re.compile(r"[A-Za-z0-9_\-][A-Za-z0-9_.\-]{0,63}")
+BARE_VALUE_RE = re.compile(r"[^\s\"=]+")
+STATUSES = ("ACK", "PROGRESS", "OK", "ERROR", "EVENT")
+
+
+class ProtocolError(Exception):
+    """A request the server must answer with an ERROR line; carries the protocol's error code."""
+
+    def __init__(self, code: str, message: str) -> None:
+        super().__init__(message)
+        self.code = code
+        self.message = message
+
+
+@dataclass
+class Request:
+    """One parsed request line.
+
+    ``options`` keeps the order and repeats of the line (``config -set a=1 -set b=2``); option
+    names are lower case with ``-`` folded to ``_`` so they match config field names. A flag's
+    value is ``True``. ``positional`` holds bare words that follow the command before any option
+    (``help grab-tof``, ``events off``).
+    """
+
+    command: str
+    tag: str | None = None
+    options: list[tuple[str, str | bool]] = field(default_factory=list)
+    positional: list[str] = field(default_factory=list)
+
+
+@dataclass
+class Reply:
+    """One reply line: ``module status key=value...``; ``tag`` is rendered as the first key."""
+
+    module: str
+    status: str
+    fields: dict[str, Any] = field(default_factory=dict)
+    tag: str | None = None
+
+
+class Fixed(float):
+    """A float that keeps its number of decimals on the wire (``pan=-30.000``).
+
+    A float subclass so JSON still renders it as a number.
+    """
+
+    decimals: int
+
+    def __new__(cls, value: float, decimals: int = 3) -> Fixed:
+        obj = super().__new__(cls, value)
+        obj.decimals = decimals
+        return obj
+
+
+# --------------------------------------------------------------------------------------------
+# requests
+
+
+def _tokenize(line: str) -> list[tuple[str, bool, int | None]]:
+    """Split a request into tokens: (text, started_quoted, index of the first unquoted '=').
+
+    Quoted sections may be glued to bare text (``-name="a b"``), as in a shell.
+    """
+    tokens: list[tuple[str, bool, int | None]] = []
+    i, n = 0, len(line)
+    while i < n:
+        while i < n and line[i] in " \t":
+            i += 1
+        if i >= n:
+            break
+        buf: list[str] = []
+        started_quoted = line[i] == '"'
+        eq: int | None = None
+        while i < n and line[i] not in " \t":
+            c = line[i]
+            if c == '"':
+                i += 1
+                while True:
+                    if i >= n:
+                        raise ProtocolError("E_SYNTAX", "unbalanced double quote; close it with \"")
+                    c = line[i]
+                    if c == "\\":
+                        if i + 1 >= n:
+                            raise ProtocolError("E_SYNTAX", "backslash at end of line inside a quoted value")
+                        e = line[i + 1]
+                        if e in '"\\':
+                            buf.append(e)
+                        elif e == "n":
+                            buf.append("\n")
+                        else:
+                            raise ProtocolError(
+                                "E_SYNTAX", f"unknown escape \\{e} in a quoted value; use \\\" or \\\\"
+                            )
+                        i += 2
+                    elif c == '"':
+                        i += 1
+                        break
+                    else:
+                        buf.append(c)
+                        i += 1
+            else:
+                if c == "=" and eq is None:
+                    eq = len(buf)
+                buf.append(c)
+                i += 1
+        tokens.append(("".join(buf), started_quoted, eq))
+    return tokens
+
+
+def _option_name(text: str, quoted: bool) -> str | None:
+    """The option name if the token is an option: dashes followed by a letter."""
+    if quoted:
+        return None
+    for dash in DASHES:
+        if text.startswith(dash):
+            rest = text[len(dash) :]
+            if rest[:1].isascii() and rest[:1].isalpha():
+                return rest
+            return None
+    return None
+
+
+def parse_request(line: str) -> Request | None:
+    """Parse one request line (already stripped of CR/LF and telnet bytes).
+
+    Returns None for blank and comment lines, which get no reply.
+    """
+    stripped = line.strip(" \t")
+    if not stripped or stripped.startswith("#"):
+        return None
+    tokens = _tokenize(stripped)
+    tag: str | None = None
+    text, quoted, _ = tokens[0]
+    if text.startswith("@") and not quoted:
+        tag = text[1:]
+        if not TAG_RE.fullmatch(tag):
+            raise ProtocolError(
+                "E_SYNTAX", "bad tag: use @ followed by 1-32 of letters, digits, '_', '.', ':', '-'"
+            )
+        tokens = tokens[1:]
+        if not tokens:
+            raise _tagged_error(tag, "E_SYNTAX", "a tag must be followed by a command")
+    text, quoted, _ = tokens[0]
+    if quoted or not text or _option_name(text, quoted) is not None:
+        raise _tagged_error(tag, "E_SYNTAX", "a request starts with a command name; try help")
+    req = Request(command=text.lower(), tag=tag)
+    i = 1
+    while i < len(tokens):
+        text, quoted, eq = tokens[i]
+        name = _option_name(text, quoted)
+        if name is None:
+            if req.options:
+                raise _tagged_error(
+                    tag, "E_ARG", f"value '{_clip(text)}' does not follow an option; write -option value"
+                )
+            req.positional.append(text)
+            i += 1
+            continue
+        value: str | bool
+        if eq is not None:
+            # eq counts characters of the token's text; the dash prefix is part of it
+            dash_len = len(text) - len(name)
+            name, value = text[dash_len:eq], text[eq + 1 :]
+        elif i + 1 < len(tokens) and _option_name(tokens[i + 1][0], tokens[i + 1][1]) is None:
+            value = tokens[i + 1][0]
+            i += 1
+        else:
+            value = True
+        if not NAME_RE.fullmatch(name):
+            raise _tagged_error(tag, "E_ARG", f"bad option name '-{_clip(name)}'; names are letters, digits, '-', '_'")
+        req.options.append((name.lower().replace("-", "_"), value))
+        i += 1
+    return req
+
+
+def _tagged_error(tag: str | None, code: str, message: str) -> ProtocolError:
+    err = ProtocolError(code, message)
+    err.tag = tag  # type: ignore[attr-defined]
+    return err
+
+
+def _clip(text: str, n: int = 40) -> str:
+    return text if len(text) <= n else text[: n - 3] + "..."
+
+
+def tag_of(line: str) -> str | None:
+    """Best-effort tag of a line that failed to parse, so its ERROR still carries it."""
+    m = re.match(r"\s*@([A-Za-z0-9_.:\-]{1,32})(\s|$)", line)
+    return m.group(1) if m else None
+
+
+def valid_stem(name: str) -> bool:
+    """Output names are file stems confined to the data directory (PROTOCOL.md)."""
+    return bool(STEM_RE.fullmatch(name)) and not name.startswith(".") and ".." not in name
+
+
+# --------------------------------------------------------------------------------------------
+# replies
+
+
+def render_value(value: Any) -> str:
+    """A value as it appears on a text line: bare when it can be, quoted otherwise."""
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, Fixed):
+        return f"{float(value):.{value.decimals}f}" if math.isfinite(value) else "nan"
+    if isinstance(value, float):
+        return format(value, ".6g") if math.isfinite(value) else "nan"
+    if isinstance(value, int):
+        return str(value)
+    if value is None:
+        return "none"
+    if isinstance(value, list | tuple):
+        value = ",".join(render_value(v) for v in value)
+    text = str(value)
+    if text and BARE_VALUE_RE.fullmatch(text):
+        return text
+    return '"' + text.replace("\\", "\\\\").replace('"', '\\"').replace("\n", "\\n") + '"'
+
+
+def format_reply(reply: Reply) -> str:
+    """The text line of a reply, without its line end."""
+    parts = [reply.module, reply.status]
+    if reply.tag is not None:
+        parts.append(f"tag={reply.tag}")
+    for key, value in reply.fields.items():
+        parts.append(f"{key}={render_value(value)}")
+    return " ".join(parts)
+
+
+def _json_value(value: Any) -> Any:
+    if isinstance(value, bool | int | str) or value is None:
+        return value
+    if isinstance(value, float):
+        return float(value) if math.isfinite(value) else None
+    if isinstance(value, list | tuple):
+        return [_json_value(v) for v in value]
+    return str(value)
+
+
+def format_reply_json(reply: Reply) -> str:
+    """The JSON line of a reply: the same content, numbers as JSON numbers."""
+    obj: dict[str, Any] = {"module": reply.module, "status": reply.status}
+    if reply.tag is not None:
+        obj["tag"] = reply.tag
+    for key, value in reply.fields.items():
+        obj[key] = _json_value(value)
+    return json.dumps(obj, separators=(",", ":"), ensure_ascii=False)
+
+
+def parse_reply(line: str) -> Reply:
+    """Parse a text reply line (for clients, replays and tests); values come back as strings."""
+    line = line.rstrip("\r\n")
+    if line.startswith("{"):
+        try:
+            obj = json.loads(line)
+            module, status = obj.pop("module"), obj.pop("status")
+        except (ValueError, KeyError, AttributeError) as exc:
+            raise ProtocolError("E_SYNTAX", f"bad JSON reply: {exc}") from None
+        tag = obj.pop("tag", None)
+        return Reply(module, status, obj, tag)
+    head = line.split(" ", 2)
+    if len(head) < 2 or head[1] not in STATUSES:
+        raise ProtocolError("E_SYNTAX", f"not a reply line: {_clip(line)!r}")
+    module, status = head[0], head[1]
+    rest = head[2] if len(head) == 3 else ""
+    fields: dict[str, Any] = {}
+    tag: str | None = None
+    i, n = 0, len(rest)
+    while i < n:
+        if rest[i] == " ":
+            i += 1
+            continue
+        eq = rest.find("=", i)
+        if eq < 0:
+            raise ProtocolError("E_SYNTAX", f"key without value in reply: {_clip(rest[i:])!r}")
+        key = rest[i:eq]
+        i = eq + 1
+        if i < n and rest[i] == '"':
+            i += 1
+            buf: list[str] = []
+            while True:
+                if i >= n:
+                    raise ProtocolError("E_SYNTAX", "unbalanced quote in reply")
+                c = rest[i]
+                if c == "\\" and i + 1 < n:
+                    e = rest[i + 1]
+                    buf.append("\n" if e == "n" else e)
+                    i += 2
+                elif c == '"':
+                    i += 1
+                    break
+                else:
+                    buf.append(c)
+                    i += 1
+            value = "".join(buf)
+        else:
+            end = rest.find(" ", i)
+            end = n if end < 0 else end
+            value = rest[i:end]
+            i = end
+        if key == "tag" and tag is None and not fields:
+            tag = value
+        else:
+            fields[key] = value
+    return Reply(module, status, fields, tag)
+
+
+# --------------------------------------------------------------------------------------------
+# bytes to lines
+
+
+class LineSplitter:
+    """Turns the byte stream of one connection into request lines.
+
+    Strips telnet IAC sequences (never negotiating), drops the CR of CRLF, and enforces the
+    line limit: an over-long line yields ``None`` once and the rest up to the next LF is
+    discarded, so one runaway client line costs nothing but itself.
+    """
+
+    IAC = 0xFF
+
+    def __init__(self, max_line: int = MAX_LINE) -> None:
+        self.max_line = max_line
+        self._buf = bytearray()
+        self._discarding = False
+        self._iac_pending = 0  # bytes of a telnet command still to drop after a chunk boundary
+        self._iac_need_cmd = False
+
+    def _strip_iac(self, data: bytes) -> bytes:
+        if self.IAC not in data and not self._iac_pending and not self._iac_need_cmd:
+            return data
+        out = bytearray()
+        for b in data:
+            if self._iac_need_cmd:
+                self._iac_need_cmd = False
+                self._iac_pending = 1 if 251 <= b <= 254 else 0  # WILL/WONT/DO/DONT take an option byte
+                continue
+            if self._iac_pending:
+                self._iac_pending -= 1
+                continue
+            if b == self.IAC:
+                self._iac_need_cmd = True
+                continue
+            out.append(b)
+        return bytes(out)
+
+    def feed(self, data: bytes) -> list[bytes | None]:
+        """Feed received bytes; returns complete lines (bytes) and ``None`` for each too-long line."""
+        data = self._strip_iac(data)
+        out: list[bytes | None] = []
+        start = 0
+        while True:
+            nl = data.find(b"\n", start)
+            chunk = data[start:] if nl < 0 else data[start:nl]
+            if self._discarding:
+                if nl >= 0:
+                    self._discarding = False
+            else:
+                self._buf += chunk
+                if nl >= 0:
+                    line = bytes(self._buf)
+                    self._buf.clear()
+                    if line.endswith(b"\r"):
+                        line = line[:-1]
+                    if len(line) > self.max_line:
+                        out.append(None)
+                    else:
+                        out.append(line)
+                elif len(self._buf) > self.max_line + 1:  # +1: a CR may still precede the LF
+                    self._buf.clear()
+                    self._discarding = True
+                    out.append(None)
+            if nl < 0:
+                break
+            start = nl + 1
+        return out

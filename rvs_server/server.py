@@ -1,0 +1,168 @@
+"""The asyncio TCP server: connections, their line handling and output, graceful shutdown.
+
+Connections are asyncio Protocols rather than streams: lines are split and dispatched straight
+from ``data_received`` (no task per line), and output goes to the transport's buffer, so a slow
+reader only ever costs its own buffer, never the other clients' latency.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import itertools
+import signal
+from collections import deque
+from typing import Any
+
+import structlog
+
+from . import PROTOCOL_VERSION
+from .app import App
+from .protocol import LineSplitter, Reply, format_reply, format_reply_json
+
+log = structlog.get_logger("rvs.server")
+
+MAX_PENDING_LINES = 256  # stop reading from a client that is this far ahead of us
+MAX_OUTPUT_BYTES = 8 * 1024 * 1024  # a client that reads nothing is dropped past this
+_conn_ids = itertools.count(1)
+
+
+class Connection(asyncio.Protocol):
+    def __init__(self, app: App) -> None:
+        self.app = app
+        self.id = next(_conn_ids)
+        self.transport: asyncio.Transport | None = None
+        self.splitter = LineSplitter(app.server_cfg.max_line)
+        self.pending: deque[bytes | None] = deque()
+        self.waiting: asyncio.Future[Any] | None = None
+        self.events = True
+        self.json = False
+        self.authenticated = False
+        self.closed = False
+        self.paused = False
+        self.peer = "?"
+        self.log = log
+
+    # ------------------------------------------------------------ asyncio.Protocol
+
+    def connection_made(self, transport: asyncio.BaseTransport) -> None:
+        assert isinstance(transport, asyncio.Transport)
+        self.transport = transport
+        peer = transport.get_extra_info("peername")
+        self.peer = f"{peer[0]}:{peer[1]}" if isinstance(peer, tuple) else str(peer)
+        self.log = log.bind(conn=self.id, peer=self.peer)
+        if len(self.app.connections) >= self.app.server_cfg.max_clients:
+            self.send(Reply("RVS", "ERROR", {
+                "code": "E_BUSY",
+                "message": f"too many clients ({self.app.server_cfg.max_clients}); try again later",
+            }))
+            self.log.warning("client_refused", reason="max_clients")
+            self.close()
+            return
+        self.app.connections.add(self)
+        self.log.info("client_connected", clients=len(self.app.connections))
+        self.send(Reply("RVS", "EVENT", {
+            "kind": "hello", "protocol": PROTOCOL_VERSION, "server": self.app.name, "mode": self.app.mode,
+        }))
+
+    def data_received(self, data: bytes) -> None:
+        if self.closed:
+            return
+        self.pending.extend(self.splitter.feed(data))
+        self._drain()
+
+    def eof_received(self) -> bool | None:
+        # Let queued requests finish (a one-shot `printf 'status\n' | nc` still gets its answer);
+        # the transport closes once the last reply is written.
+        self._close_after_drain = True
+        if not self.pending and self.waiting is None:
+            self.close()
+        return True
+
+    def connection_lost(self, exc: Exception | None) -> None:
+        self.closed = True
+        self.app.connections.discard(self)
+        self.log.info("client_disconnected", clients=len(self.app.connections))
+
+    # ------------------------------------------------------------ lines in
+
+    _close_after_drain = False
+
+    def _drain(self) -> None:
+        while self.pending and self.waiting is None and not self.closed:
+            result = self.app.dispatch(self, self.pending.popleft())
+            if result is not None:
+                self.waiting = asyncio.ensure_future(result)
+                self.waiting.add_done_callback(self._resume)
+        if self.transport is not None and not self.closed:
+            if len(self.pending) > MAX_PENDING_LINES and not self.paused:
+                self.transport.pause_reading()
+                self.paused = True
+            elif self.paused and len(self.pending) < MAX_PENDING_LINES // 2:
+                self.transport.resume_reading()
+                self.paused = False
+        if self._close_after_drain and not self.pending and self.waiting is None:
+            self.close()
+
+    def _resume(self, fut: asyncio.Future[Any]) -> None:
+        self.waiting = None
+        self._drain()
+
+    # ------------------------------------------------------------ lines out
+
+    def send(self, reply: Reply) -> None:
+        if self.closed or self.transport is None or self.transport.is_closing():
+            return
+        line = format_reply_json(reply) + "\n" if self.json else format_reply(reply) + "\r\n"
+        self.transport.write(line.encode("utf-8"))
+        if self.transport.get_write_buffer_size() > MAX_OUTPUT_BYTES:
+            self.log.warning("client_dropped", reason="not reading its replies")
+            self.transport.abort()
+            self.closed = True
+            self.app.connections.discard(self)
+
+    def close(self) -> None:
+        if self.transport is not None and not self.closed:
+            self.closed = True
+            self.transport.close()
+        self.app.connections.discard(self)
+
+
+async def serve(app: App, host: str, port: int, *, ready: Any = None, handle_signals: bool = True) -> int:
+    """Listen, open the devices, serve until quit or a signal; returns the exit status."""
+    loop = asyncio.get_running_loop()
+    server = await loop.create_server(lambda: Connection(app), host, port, start_serving=False,
+                                      reuse_address=True)
+    bound = server.sockets[0].getsockname()
+    log.info("listening", host=bound[0], port=bound[1], server=app.name, data=str(app.data_dir))
+    if handle_signals:
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            try:
+                loop.add_signal_handler(sig, app.stopping.set)
+            except (NotImplementedError, RuntimeError):
+                pass
+    await loop.run_in_executor(None, app.devices.open_all)
+    if not app.devices.healthy():
+        app.set_mode("fault")
+    await server.start_serving()
+    if ready is not None:
+        ready(bound[1])
+    try:
+        await app.stopping.wait()
+    finally:
+        log.info("shutting_down")
+        await app.interrupt()
+        server.close()
+        for conn in list(app.connections):
+            conn.close()
+        with contextlib.suppress(TimeoutError):
+            await asyncio.wait_for(server.wait_closed(), 1.0)
+        app.jobs.shutdown()
+        await loop.run_in_executor(None, app.devices.close)
+        if handle_signals:
+            for sig in (signal.SIGINT, signal.SIGTERM):
+                try:
+                    loop.remove_signal_handler(sig)
+                except (NotImplementedError, RuntimeError):
+                    pass
+    return 0

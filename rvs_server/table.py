@@ -1,0 +1,119 @@
+"""The command table: every command declared as data next to its one handler function.
+
+As in Redis's command table, the declaration (name, module id, job or immediate, mode rules,
+config class) is what help, the E_ARG checks, the mode checks and the dispatcher read; handlers
+never re-check their own arguments.
+"""
+
+from __future__ import annotations
+
+import copy
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any
+
+from .config import ModuleConfig
+from .protocol import ProtocolError, Request
+
+# What may run in which mode. "always": help, status and the like, answered even while a job
+# runs; "control": the change-of-mode commands; "hardware": hardware and map commands, refused
+# in standby, sleep, break and fault.
+ALWAYS, CONTROL, HARDWARE, PLAIN = "always", "control", "hardware", "plain"
+
+
+@dataclass(frozen=True)
+class Command:
+    name: str
+    module: str
+    handler: Callable[..., Any]
+    config: type[ModuleConfig] | None
+    job: bool
+    klass: str
+    help: str
+    positional: tuple[str, ...] = ()  # accepted bare words, e.g. ("command",) for help
+    open: bool = False  # answered before auth (help, version, auth)
+    raw: bool = False  # the handler reads the Request itself (config, sim)
+    sim_only: bool = False
+
+    def usage(self) -> str:
+        parts = [self.name] + [f"[{p}]" for p in self.positional]
+        if self.config is not None and not self.raw:
+            for spec in self.config.specs().values():
+                if spec.option:
+                    item = f"{spec.flag} {spec.describe().split(' in [')[0]}"
+                    parts.append(item if spec.required else f"[{item}]")
+        return " ".join(parts)
+
+
+COMMANDS: dict[str, Command] = {}
+
+
+def command(
+    name: str,
+    *,
+    job: bool = False,
+    klass: str = PLAIN,
+    config: type[ModuleConfig] | None = None,
+    help: str,
+    positional: tuple[str, ...] = (),
+    open: bool = False,
+    raw: bool = False,
+    sim_only: bool = False,
+    module: str | None = None,
+) -> Callable[[Callable[..., Any]], Callable[..., Any]]:
+    """Register a handler; a job handler runs in a worker thread as ``handler(job, cfg)``."""
+
+    def register(fn: Callable[..., Any]) -> Callable[..., Any]:
+        mod = module or "EGP-RVS-" + name.upper()
+        cmd = Command(name, mod, fn, config, job, klass, help, positional, open, raw, sim_only)
+        COMMANDS[name] = cmd
+        return fn
+
+    return register
+
+
+def lookup(name: str) -> Command | None:
+    """Command names and module ids are both accepted, case-insensitively."""
+    name = name.lower()
+    if name.startswith("egp-rvs-"):
+        name = name[len("egp-rvs-") :]
+    return COMMANDS.get(name)
+
+
+def bind_options(cmd: Command, base: ModuleConfig | None, req: Request) -> ModuleConfig | None:
+    """The request's options over a copy of the module's effective config, checked per option."""
+    if cmd.raw:
+        return copy.deepcopy(base) if base is not None else None
+    if base is None:
+        if req.options:
+            name = req.options[0][0].replace("_", "-")
+            raise ProtocolError("E_ARG", f"{cmd.name} takes no options (got -{name}); see help {cmd.name}")
+        return None
+    cfg = copy.deepcopy(base)
+    specs = cfg.specs()
+    seen: set[str] = set()
+    for name, raw in req.options:
+        spec = specs.get(name)
+        if spec is None or not spec.option:
+            accepted = " ".join(s.flag for s in specs.values() if s.option) or "none"
+            raise ProtocolError(
+                "E_ARG", f"unknown option -{name.replace('_', '-')} for {cmd.name}; options: {accepted}"
+            )
+        if name in seen:
+            raise ProtocolError("E_ARG", f"option {spec.flag} given twice")
+        seen.add(name)
+        setattr(cfg, name, spec.parse(raw))
+    for spec in specs.values():
+        if spec.required and spec.name not in seen:
+            raise ProtocolError("E_ARG", f"{cmd.name} needs {spec.flag} ({spec.describe()})")
+    return cfg
+
+
+def check_positional(cmd: Command, req: Request) -> None:
+    if len(req.positional) > len(cmd.positional):
+        extra = req.positional[len(cmd.positional)]
+        if cmd.positional:
+            raise ProtocolError("E_ARG", f"{cmd.name} takes {' '.join(cmd.positional)}, not '{extra[:40]}'")
+        raise ProtocolError(
+            "E_ARG", f"{cmd.name} takes options like -name value, not the bare word '{extra[:40]}'"
+        )
