@@ -1,0 +1,257 @@
+"""``rvs-ptu``: an interactive console for the PTU, like the thesis's rvs-tof and rvs-cam tools.
+
+Every public driver operation has a prompt command; every error is caught and printed, so a
+bench session survives a pulled cable. ``-c "move 30 -10" -c position`` runs lines one-shot
+(also ``;``-separated) for scripts and tests; the exit status is 1 if any of them failed.
+"""
+
+from __future__ import annotations
+
+import argparse
+import cmd
+import shlex
+import sys
+from pathlib import Path
+from typing import Any, TextIO
+
+import yaml
+
+from drivers.base import DeviceError
+from drivers.ptu import DEFAULTS, FAULTS, Ptu, create
+
+DEFAULT_CONFIG = Path(__file__).resolve().parents[2] / "config" / "drivers.yaml"
+
+
+def _floats(arg: str, n_min: int, n_max: int, usage: str) -> list[float]:
+    words = shlex.split(arg)
+    if not n_min <= len(words) <= n_max:
+        raise ValueError(f"usage: {usage}")
+    try:
+        return [float(w) for w in words]
+    except ValueError:
+        raise ValueError(f"numbers expected; usage: {usage}") from None
+
+
+def _fmt_pos(pan: float, tilt: float) -> str:
+    return f"pan {pan:.3f} deg, tilt {tilt:.3f} deg"
+
+
+class PtuConsole(cmd.Cmd):
+    intro = "rvs-ptu: PTU-D46 console; 'help' lists the commands, 'quit' leaves."
+    prompt = "ptu> "
+
+    def __init__(self, ptu: Ptu, stdout: TextIO | None = None) -> None:
+        super().__init__(stdout=stdout or sys.stdout)
+        self.ptu = ptu
+        self.failed = False
+
+    # -- plumbing ------------------------------------------------------------------------------
+    def say(self, text: str) -> None:
+        self.stdout.write(text + "\n")
+        self.stdout.flush()
+
+    def onecmd(self, line: str) -> bool:
+        try:
+            return bool(super().onecmd(line))
+        except KeyboardInterrupt:
+            self.say("interrupted; halting the PTU")
+            self._quietly(self.ptu.halt)
+        except (DeviceError, ValueError) as exc:
+            self.failed = True
+            self.say(f"error: {exc}")
+        except Exception as exc:  # noqa: BLE001 - a console reports everything and carries on
+            self.failed = True
+            self.say(f"error: {type(exc).__name__}: {exc}")
+        return False
+
+    def _quietly(self, fn: Any) -> None:
+        try:
+            fn()
+        except Exception as exc:  # noqa: BLE001
+            self.say(f"error: {exc}")
+
+    def emptyline(self) -> bool:
+        return False  # never repeat the last command (it may be a move)
+
+    def default(self, line: str) -> bool:
+        self.failed = True
+        self.say(f"error: unknown command {line.split()[0]!r}; 'help' lists the commands")
+        return False
+
+    # -- motion --------------------------------------------------------------------------------
+    def do_move(self, arg: str) -> None:
+        """move PAN TILT [nowait]: absolute move in degrees; waits unless 'nowait' (Ctrl-C halts)."""
+        words = shlex.split(arg)
+        wait = not (words and words[-1].lower() == "nowait")
+        if not wait:
+            words = words[:-1]
+        pan, tilt = _floats(" ".join(words), 2, 2, "move PAN TILT [nowait]")
+        self.say(_fmt_pos(*self.ptu.move(pan, tilt, wait=wait)))
+
+    def do_pan(self, arg: str) -> None:
+        """pan DEG: move the pan axis only."""
+        (pan,) = _floats(arg, 1, 1, "pan DEG")
+        self.say(_fmt_pos(*self.ptu.move(pan, None)))
+
+    def do_tilt(self, arg: str) -> None:
+        """tilt DEG: move the tilt axis only."""
+        (tilt,) = _floats(arg, 1, 1, "tilt DEG")
+        self.say(_fmt_pos(*self.ptu.move(None, tilt)))
+
+    def do_wait(self, arg: str) -> None:
+        """wait: await the end of a 'move ... nowait'."""
+        self.say(_fmt_pos(*self.ptu.wait()))
+
+    def do_position(self, arg: str) -> None:
+        """position: the current pan and tilt as the unit reports them."""
+        self.say(_fmt_pos(*self.ptu.position()))
+
+    do_pos = do_position
+
+    def do_halt(self, arg: str) -> None:
+        """halt: stop both axes."""
+        self.ptu.halt()
+        self.say("halted at " + _fmt_pos(*self.ptu.position()))
+
+    def do_reset(self, arg: str) -> None:
+        """reset: the unit's R command (runs the axes into their limits, then home)."""
+        self.say("reset done, " + _fmt_pos(*self.ptu.reset()))
+
+    # -- settings and queries ------------------------------------------------------------------
+    def do_limits(self, arg: str) -> None:
+        """limits: axis bounds in degrees and positions, and the resolution."""
+        for axis, lim in self.ptu.limits().items():
+            self.say(f"{axis}: {lim['min_deg']:.3f} .. {lim['max_deg']:.3f} deg "
+                     f"(positions {lim['min']} .. {lim['max']}, {lim['resolution_arcsec']} arcsec/position)")
+
+    def do_speed(self, arg: str) -> None:
+        """speed [PAN [TILT]]: query, or set the speeds in positions/s (one value sets both)."""
+        values = _floats(arg, 0, 2, "speed [PAN [TILT]]")
+        if values:
+            self.ptu.set_speed(values[0], values[-1])
+        pan, tilt = self.ptu.speed()
+        self.say(f"speed pan {pan} tilt {tilt} positions/s")
+
+    def do_accel(self, arg: str) -> None:
+        """accel [PAN [TILT]]: query, or set the accelerations in positions/s^2."""
+        values = _floats(arg, 0, 2, "accel [PAN [TILT]]")
+        if values:
+            self.ptu.set_acceleration(values[0], values[-1])
+        pan, tilt = self.ptu.acceleration()
+        self.say(f"acceleration pan {pan} tilt {tilt} positions/s^2")
+
+    def do_power(self, arg: str) -> None:
+        """power: supply voltage and controller temperature (the O query)."""
+        p = self.ptu.power_status()
+        temps = ", ".join(f"{t:g} F" for t in p.get("temperatures_f", []))
+        self.say(f"supply {p['voltage_v']:g} V, temperatures {temps or 'n/a'}")
+
+    def do_firmware(self, arg: str) -> None:
+        """firmware: the unit's version string (V)."""
+        self.say(self.ptu.firmware())
+
+    def do_status(self, arg: str) -> None:
+        """status: the driver's snapshot (no serial traffic)."""
+        for key, value in self.ptu.status().items():
+            self.say(f"{key}: {value}")
+
+    def do_check(self, arg: str) -> None:
+        """check: talk to the unit to prove it answers."""
+        for key, value in self.ptu.check().items():
+            self.say(f"{key}: {value}")
+
+    def do_raw(self, arg: str) -> None:
+        """raw CMD: send one D46 command as is (e.g. 'raw PP', 'raw FV') and print the reply."""
+        if not arg.strip():
+            raise ValueError("usage: raw CMD")
+        self.say(self.ptu.raw(arg.strip()))
+
+    # -- device lifecycle ----------------------------------------------------------------------
+    def do_open(self, arg: str) -> None:
+        """open: open the port (and start the emulator for the sim backend)."""
+        self.ptu.open()
+        self.say(f"open on {self.ptu.status()['port']}")
+
+    def do_reinit(self, arg: str) -> None:
+        """reinit: close and reopen the port, redoing the set-up sequence."""
+        self.ptu.reinit()
+        self.say(f"reinitialised on {self.ptu.status()['port']}")
+
+    def do_close(self, arg: str) -> None:
+        """close: close the port (and stop the emulator)."""
+        self.ptu.close()
+        self.say("closed")
+
+    def do_fault(self, arg: str) -> None:
+        """fault KIND: sim only; silent, garbage, stall or none."""
+        kind = arg.strip() or None
+        self.ptu.inject_fault(kind)
+        self.say(f"fault {kind or 'none'} injected (kinds: {', '.join(str(f) for f in FAULTS)})")
+
+    def do_quit(self, arg: str) -> bool:
+        """quit: leave the console."""
+        return True
+
+    do_exit = do_quit
+
+    def do_EOF(self, arg: str) -> bool:  # noqa: N802 - cmd.Cmd's name for end of input
+        self.say("")
+        return True
+
+
+def _load_config(path: Path | None) -> dict[str, Any]:
+    config = dict(DEFAULTS)
+    source = path or (DEFAULT_CONFIG if DEFAULT_CONFIG.exists() else None)
+    if source is not None:
+        data = yaml.safe_load(Path(source).read_text()) or {}
+        config.update(data.get("ptu", {}) or {})
+    return config
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="rvs-ptu", description="PTU-D46 console (sim or serial backend)")
+    parser.add_argument("--backend", choices=("sim", "serial"), help="default: drivers.yaml ptu.backend")
+    parser.add_argument("--port", help="serial port or pyserial URL (serial backend)")
+    parser.add_argument("--baudrate", type=int)
+    parser.add_argument("--timeout", type=float, help="seconds to wait for a reply")
+    parser.add_argument("--move-timeout", type=float, help="seconds to wait for a move")
+    parser.add_argument("--time-scale", type=float, help="sim: 0 instant, 1 real time")
+    parser.add_argument("--config", type=Path, help=f"drivers YAML (default {DEFAULT_CONFIG})")
+    parser.add_argument("-c", "--command", action="append", default=[],
+                        help="run this line (';' separates several) and exit; repeatable")
+    args = parser.parse_args(argv)
+
+    try:
+        config = _load_config(args.config)
+    except (OSError, yaml.YAMLError) as exc:
+        print(f"error: cannot read the config: {exc}", file=sys.stderr)
+        return 2
+    for key in ("backend", "port", "baudrate", "timeout", "move_timeout", "time_scale"):
+        value = getattr(args, key)
+        if value is not None:
+            config[key] = value
+    try:
+        ptu = create(config)
+    except DeviceError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    console = PtuConsole(ptu)
+    try:
+        if args.command:
+            for line in args.command:
+                for part in line.split(";"):
+                    if part.strip() and console.onecmd(part.strip()):
+                        return 1 if console.failed else 0
+            return 1 if console.failed else 0
+        console.onecmd("open")
+        console.cmdloop()
+        return 0
+    finally:
+        try:
+            ptu.close()
+        except Exception:  # noqa: BLE001 - leaving the console must not trace back
+            pass
+
+
+if __name__ == "__main__":
+    sys.exit(main())
