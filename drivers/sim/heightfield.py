@@ -1,0 +1,111 @@
+"""The terrain as a regular heightfield with bilinear patches, plus its max-height pyramid.
+
+Heights sit on the nodes ``x = x0 + j*cell``, ``y = y0 + i*cell`` (row 0 = southmost, the
+array's natural order; ``World.true_dem`` flips to north-up). Between nodes the surface is the
+bilinear patch of the four corners, which is what both the renderer and ``sample`` use, so
+rendered depth and ground truth describe one and the same surface.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+
+@dataclass
+class Heightfield:
+    x0: float
+    y0: float
+    cell: float
+    heights: np.ndarray  # (ny, nx) float32
+    albedo: np.ndarray  # (ny, nx) float32, 0..1
+    pyramid: list[np.ndarray] = field(default_factory=list, repr=False)
+
+    def __post_init__(self) -> None:
+        self.heights = np.ascontiguousarray(self.heights, np.float32)
+        self.albedo = np.ascontiguousarray(self.albedo, np.float32)
+        self.build_pyramid()
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        return self.heights.shape  # type: ignore[return-value]
+
+    @property
+    def bounds(self) -> tuple[float, float, float, float]:
+        ny, nx = self.shape
+        return (self.x0, self.y0, self.x0 + (nx - 1) * self.cell, self.y0 + (ny - 1) * self.cell)
+
+    def build_pyramid(self) -> None:
+        """Max-height mipmap: level 0 holds each bilinear patch's highest corner.
+
+        Levels are padded with -inf to even sizes so a ray over padding never stops there.
+        Flattened into one array with per-level offsets so the renderer can look up cells of
+        mixed levels in one fancy-indexing call.
+        """
+        h = self.heights
+        m = np.maximum(np.maximum(h[:-1, :-1], h[1:, :-1]), np.maximum(h[:-1, 1:], h[1:, 1:]))
+        levels = [m]
+        while max(levels[-1].shape) > 4:
+            a = levels[-1]
+            py, px = a.shape[0] % 2, a.shape[1] % 2
+            if py or px:
+                a = np.pad(a, ((0, py), (0, px)), constant_values=-np.inf)
+            a = a.reshape(a.shape[0] // 2, 2, a.shape[1] // 2, 2).max(axis=(1, 3))
+            levels.append(a)
+        self.pyramid = levels
+        self.pyr_flat = np.concatenate([lv.ravel() for lv in levels]).astype(np.float32)
+        sizes = [lv.size for lv in levels]
+        self.pyr_offset = np.concatenate([[0], np.cumsum(sizes)[:-1]]).astype(np.int64)
+        self.pyr_width = np.array([lv.shape[1] for lv in levels], np.int64)
+        self.pyr_height = np.array([lv.shape[0] for lv in levels], np.int64)
+        self.pyr_cell = self.cell * (2.0 ** np.arange(len(levels)))
+        finite = h[np.isfinite(h)]
+        self.zmin = float(finite.min())
+        self.zmax = float(finite.max())
+
+    def _frac(self, x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        return (np.asarray(x, np.float64) - self.x0) / self.cell, (np.asarray(y, np.float64) - self.y0) / self.cell
+
+    def sample(self, x: np.ndarray | float, y: np.ndarray | float) -> np.ndarray:
+        """Bilinear height at world (x, y); NaN outside the grid."""
+        return self._bilinear(self.heights, x, y)
+
+    def sample_albedo(self, x: np.ndarray | float, y: np.ndarray | float) -> np.ndarray:
+        return self._bilinear(self.albedo, x, y)
+
+    def _bilinear(self, grid: np.ndarray, x: np.ndarray | float, y: np.ndarray | float) -> np.ndarray:
+        fx, fy = self._frac(x, y)
+        ny, nx = grid.shape
+        inside = (fx >= 0) & (fx <= nx - 1) & (fy >= 0) & (fy <= ny - 1)
+        ix = np.clip(np.floor(fx).astype(np.int64), 0, nx - 2)
+        iy = np.clip(np.floor(fy).astype(np.int64), 0, ny - 2)
+        u = fx - ix
+        v = fy - iy
+        g = grid
+        out = (g[iy, ix] * (1 - u) * (1 - v) + g[iy, ix + 1] * u * (1 - v)
+               + g[iy + 1, ix] * (1 - u) * v + g[iy + 1, ix + 1] * u * v)
+        return np.where(inside, out, np.nan)
+
+    def gradient(self, x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """dz/dx, dz/dy of the bilinear patch containing (x, y)."""
+        fx, fy = self._frac(x, y)
+        ny, nx = self.shape
+        ix = np.clip(np.floor(fx).astype(np.int64), 0, nx - 2)
+        iy = np.clip(np.floor(fy).astype(np.int64), 0, ny - 2)
+        u = np.clip(fx - ix, 0.0, 1.0)
+        v = np.clip(fy - iy, 0.0, 1.0)
+        g = self.heights
+        h00, h10, h01, h11 = g[iy, ix], g[iy, ix + 1], g[iy + 1, ix], g[iy + 1, ix + 1]
+        e = h00 - h10 - h01 + h11
+        gx = ((h10 - h00) + e * v) / self.cell
+        gy = ((h01 - h00) + e * u) / self.cell
+        return gx, gy
+
+    def resample(self, xs: np.ndarray, ys: np.ndarray) -> np.ndarray:
+        """Heights on the grid xs (columns) x ys (rows), exact bilinear, NaN outside; float32.
+
+        (Not cv2.remap: its fixed-point weights would cost millimetres at steps.)
+        """
+        X, Y = np.meshgrid(np.asarray(xs, np.float64), np.asarray(ys, np.float64))
+        return self.sample(X, Y).astype(np.float32)

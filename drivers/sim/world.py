@@ -1,0 +1,323 @@
+"""The simulated world every simulated device sees: terrain, objects, rover, sensor head.
+
+One ``World`` is shared by the PTU emulator (which moves the head), the ToF and stereo
+simulators (which render from the head) and the trigger (which wakes the cameras). State that
+moves (PTU angles, rover pose, target time, checkerboard) sits behind one lock; ``render``
+copies a consistent snapshot under the lock and ray casts outside it.
+"""
+
+from __future__ import annotations
+
+import copy
+import threading
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from drivers.sim.head import HeadGeometry
+from drivers.sim.heightfield import Heightfield
+from drivers.sim.noise import periodic_tile
+from drivers.sim.objects import Rect, SceneObject, checker_albedo
+from drivers.sim.render import Detail, Render, render
+from drivers.sim.scene import (
+    CHECKERBOARD_ID,
+    FIRST_OBJECT_ID,
+    build_object,
+    build_rover,
+    build_target,
+    load_scene_spec,
+)
+from drivers.sim.terrain import build_terrain
+from drivers.sim.trajectory import Trajectory
+from drivers.sim.transforms import invert, make_T, rot_z
+from drivers.sim.trigger import TriggerBus
+
+__all__ = ["World", "Render", "CameraTruth", "HeadGeometry"]
+
+
+@dataclass
+class CameraTruth:
+    """The true calibration of one sensor, to test calibration code against.
+
+    ``K``: intrinsics; ``dist``: OpenCV distortion (zero: the renderer is an ideal pinhole);
+    ``T_world_cam``: current pose; ``T_tilt_cam``: the mount on the PTU's tilt frame (the
+    hand-eye transform); ``T_rover_cam``: camera in the rover frame at the current PTU angles.
+    """
+
+    K: np.ndarray
+    dist: np.ndarray
+    T_world_cam: np.ndarray
+    T_tilt_cam: np.ndarray
+    T_rover_cam: np.ndarray
+
+
+class World:
+    def __init__(self, spec: dict, seed: int | None = None) -> None:
+        self._lock = threading.RLock()
+        self.trigger = TriggerBus()
+        self._pan = 0.0
+        self._tilt = 0.0
+        self._load(spec, seed)
+
+    # -- construction ---------------------------------------------------------------------
+    @classmethod
+    def from_scene(cls, name_or_path: str | Path, seed: int | None = None) -> World:
+        """Build from ``config/scenes/<name>.yaml`` (or a path); ``seed`` overrides the file's."""
+        return cls(load_scene_spec(name_or_path), seed)
+
+    def load_scene(self, name_or_path: str | Path, seed: int | None = None) -> None:
+        """Swap in another scene in place (devices keep their reference to this world); the
+        PTU angles and the trigger count carry over, the rover goes to the scene's start."""
+        spec = load_scene_spec(name_or_path)
+        with self._lock:
+            self._load(spec, seed)
+
+    def _load(self, spec: dict, seed: int | None) -> None:
+        seed = int(spec.get("seed", 0) if seed is None else seed)
+        rng = np.random.default_rng(seed)
+        terrain = build_terrain(spec["terrain"], rng)
+        detail = Detail(periodic_tile(512, rng), **spec.get("detail", {}))
+        head = HeadGeometry.from_spec(spec.get("head"))
+        objects = [build_object(o, FIRST_OBJECT_ID + i) for i, o in enumerate(spec.get("objects", []))]
+        rover_spec = spec.get("rover", {})
+        rover = build_rover(rover_spec, head)
+        target = build_target(spec["target"]) if spec.get("target") else None
+        traj = None
+        if target is not None:
+            traj = Trajectory.from_spec(spec["target"].get("waypoints", [[0.0, 3.0, 0.0]]),
+                                        bool(spec["target"].get("loop", False)))
+        with self._lock:
+            self.spec = spec
+            self.scene_name = str(spec.get("name"))
+            self.seed = seed
+            self.terrain: Heightfield = terrain
+            self.detail = detail
+            self.head = head
+            self._objects = objects
+            self._rover_obj = rover
+            self._target_obj = target
+            self._trajectory = traj
+            self._target_time = 0.0
+            self._target_clock: tuple[float, float] | None = None
+            self._board: SceneObject | None = None
+            self._board_geom: tuple[np.ndarray, int, int, float] | None = None
+            start = rover_spec.get("start", {})
+            self._rover = (float(start.get("x", 0.0)), float(start.get("y", 0.0)),
+                           float(start.get("heading", 0.0)))
+            cb = spec.get("checkerboard")
+            if cb:
+                from drivers.sim.transforms import pose_from_spec
+
+                self.place_checkerboard(pose_from_spec(cb.get("pose")), int(cb.get("rows", 7)),
+                                        int(cb.get("cols", 9)), float(cb.get("square", 0.05)))
+
+    @property
+    def object_ids(self) -> dict[str, int]:
+        """Names of everything the renderer can hit, to decode ``Render.object_id``."""
+        with self._lock:
+            ids = {"terrain": 0, "rover": self._rover_obj.oid}
+            if self._target_obj is not None:
+                ids["target"] = self._target_obj.oid
+            if self._board is not None:
+                ids["checkerboard"] = self._board.oid
+            ids.update({o.name: o.oid for o in self._objects})
+            return ids
+
+    # -- PTU and rover ----------------------------------------------------------------------
+    def set_ptu(self, pan_deg: float, tilt_deg: float) -> None:
+        with self._lock:
+            self._pan, self._tilt = float(pan_deg), float(tilt_deg)
+
+    def ptu(self) -> tuple[float, float]:
+        with self._lock:
+            return self._pan, self._tilt
+
+    def rover_pose(self) -> tuple[float, float, float]:
+        """x, y, heading_deg in the global frame."""
+        with self._lock:
+            return self._rover
+
+    def rover_z(self) -> float:
+        """Height of the rover frame origin: the terrain under the rover centre (the rover is
+        kept level; 0 off the map)."""
+        x, y, _ = self.rover_pose()
+        z = float(self.terrain.sample(x, y))
+        return z if np.isfinite(z) else 0.0
+
+    def set_rover_pose(self, x: float, y: float, heading_deg: float) -> None:
+        with self._lock:
+            self._rover = (float(x), float(y), _wrap180(float(heading_deg)))
+
+    def move_rover(self, dx: float, dy: float, dyaw_deg: float) -> None:
+        """Move by (dx forward, dy left) in the rover's current frame, then turn by dyaw."""
+        with self._lock:
+            x, y, h = self._rover
+            c, s = np.cos(np.radians(h)), np.sin(np.radians(h))
+            self._rover = (x + c * dx - s * dy, y + s * dx + c * dy, _wrap180(h + dyaw_deg))
+
+    def T_world_rover(self) -> np.ndarray:
+        x, y, h = self.rover_pose()
+        return make_T(rot_z(h), (x, y, self.rover_z()))
+
+    def sensor_pose(self, sensor: str) -> np.ndarray:
+        """T_world_from_camera (OpenCV optical frame) of "tof", "left" or "right"."""
+        with self._lock:
+            pan, tilt = self._pan, self._tilt
+            T_wr = self.T_world_rover()
+            return T_wr @ self.head.T_rover_from_sensor(sensor, pan, tilt)
+
+    def camera_intrinsics(self, sensor: str, width: int, height: int) -> np.ndarray:
+        return self.head.intrinsics(sensor, width, height)
+
+    def true_calibration(self, sensor: str, width: int, height: int) -> CameraTruth:
+        with self._lock:
+            pan, tilt = self._pan, self._tilt
+            T_rc = self.head.T_rover_from_sensor(sensor, pan, tilt)
+            return CameraTruth(self.head.intrinsics(sensor, width, height), np.zeros(5),
+                               self.T_world_rover() @ T_rc, self.head.mounts[sensor].copy(), T_rc)
+
+    def true_stereo_extrinsics(self) -> tuple[np.ndarray, np.ndarray]:
+        """(R, T) as cv2.stereoCalibrate returns them: X_right = R X_left + T."""
+        T = invert(self.head.mounts["right"]) @ self.head.mounts["left"]
+        return T[:3, :3], T[:3, 3]
+
+    # -- target and checkerboard -------------------------------------------------------------
+    def set_target_time(self, t: float) -> None:
+        """Put the target where its trajectory is at time t (seconds); stops a running clock."""
+        with self._lock:
+            self._target_time = float(t)
+            self._target_clock = None
+
+    def run_target(self, start_time: float = 0.0, speed: float = 1.0) -> None:
+        """Let the target follow its trajectory in real time (scaled by ``speed``)."""
+        with self._lock:
+            self._target_clock = (time.monotonic() - start_time / max(speed, 1e-9), speed)
+
+    def target_time(self) -> float:
+        with self._lock:
+            if self._target_clock is not None:
+                t0, speed = self._target_clock
+                return (time.monotonic() - t0) * speed
+            return self._target_time
+
+    def target_pose(self) -> tuple[float, float, float, float] | None:
+        """x, y, z (ground under it), heading_deg of the target now; None if the scene has none."""
+        with self._lock:
+            if self._trajectory is None:
+                return None
+            x, y, h = self._trajectory.at(self.target_time())
+            z = float(self.terrain.sample(x, y))
+            return x, y, (z if np.isfinite(z) else 0.0), h
+
+    def place_checkerboard(self, T_world_board: np.ndarray, rows: int, cols: int, square: float,
+                           margin: float | None = None) -> None:
+        """Show a calibration board: ``rows`` x ``cols`` squares of side ``square``.
+
+        Board frame as OpenCV's object points: origin at the outer corner of the square grid,
+        x along the columns, y along the rows, z into the board (the camera looks at it along
+        +z). The top-left square is dark; a white margin (default one square) surrounds them.
+        """
+        margin = square if margin is None else float(margin)
+        shape = Rect(-margin, cols * square + margin, -margin, rows * square + margin)
+        obj = SceneObject("checkerboard", CHECKERBOARD_ID, [shape], checker_albedo(rows, cols, square, margin),
+                          np.asarray(T_world_board, float).copy(), in_dem=False, texture=0.0)
+        with self._lock:
+            self._board = obj
+            self._board_geom = (obj.pose.copy(), int(rows), int(cols), float(square))
+
+    def remove_checkerboard(self) -> None:
+        with self._lock:
+            self._board = None
+            self._board_geom = None
+
+    def checkerboard_corners(self) -> np.ndarray:
+        """World coordinates of the inner corners ((rows-1)*(cols-1) x 3), in the order
+        cv2.findChessboardCorners returns them for pattern size (cols-1, rows-1)."""
+        with self._lock:
+            if self._board_geom is None:
+                raise RuntimeError("no checkerboard placed")
+            T, rows, cols, sq = self._board_geom
+        ii, jj = np.meshgrid(np.arange(1, rows), np.arange(1, cols), indexing="ij")
+        pts = np.stack([jj.ravel() * sq, ii.ravel() * sq, np.zeros(ii.size)], axis=1)
+        return pts @ T[:3, :3].T + T[:3, 3]
+
+    # -- rendering and truth -----------------------------------------------------------------
+    def _snapshot(self) -> tuple[Heightfield, list[SceneObject], Detail]:
+        """Objects with their poses frozen at this instant (copies, so later moves don't leak in)."""
+        with self._lock:
+            objs = list(self._objects)
+            rover = copy.copy(self._rover_obj)
+            rover.pose = self.T_world_rover()
+            objs.append(rover)
+            pose = self.target_pose()
+            if self._target_obj is not None and pose is not None:
+                tgt = copy.copy(self._target_obj)
+                x, y, z, h = pose
+                tgt.pose = make_T(rot_z(h), (x, y, z))
+                objs.append(tgt)
+            if self._board is not None:
+                objs.append(self._board)
+            return self.terrain, objs, self.detail
+
+    def render(self, K: np.ndarray, width: int, height: int, T_world_cam: np.ndarray) -> Render:
+        hf, objs, detail = self._snapshot()
+        return render(hf, objs, detail, K, int(width), int(height), T_world_cam)
+
+    def render_sensor(self, sensor: str, width: int, height: int) -> Render:
+        """Render what a sensor sees now with its true intrinsics (PTU and rover read once)."""
+        with self._lock:
+            K = self.camera_intrinsics(sensor, width, height)
+            T = self.sensor_pose(sensor)
+            hf, objs, detail = self._snapshot()
+        return render(hf, objs, detail, K, int(width), int(height), T)
+
+    def true_dem(self, cell: float, bounds: tuple[float, float, float, float], include_objects: bool = True,
+                 include_rover: bool = False, include_target: bool = False) -> np.ndarray:
+        """Ground-truth heights on a north-up grid (float32).
+
+        The grid has ``round((xmax-xmin)/cell)`` columns and ``round((ymax-ymin)/cell)`` rows;
+        each value is the height at the cell centre: column j at x = xmin + (j + 0.5) cell, row
+        i at y = ymax - (i + 0.5) cell (row 0 north, as in a GeoTIFF with pixel-is-area). It
+        is the terrain's bilinear surface (rocks, steps, boxes, sandbox included) and, with
+        ``include_objects``, the top of static objects that stand on the ground (walls and
+        boxes: the highest point of the object above that cell centre). The rover, the target
+        and a checkerboard are left out unless asked for. NaN off the terrain grid where no
+        object stands.
+        """
+        xmin, ymin, xmax, ymax = bounds
+        nx = int(round((xmax - xmin) / cell))
+        ny = int(round((ymax - ymin) / cell))
+        xs = xmin + (np.arange(nx) + 0.5) * cell
+        ys = ymax - (np.arange(ny) + 0.5) * cell
+        hf, objs, _ = self._snapshot()
+        dem = hf.resample(xs, ys).astype(np.float64)
+        keep = []
+        for o in objs:
+            if o.oid == 1:
+                if include_rover:
+                    keep.append(o)
+            elif o.name == "target":
+                if include_target:
+                    keep.append(o)
+            elif o.in_dem and include_objects:
+                keep.append(o)
+        if keep:
+            X, Y = np.meshgrid(xs, ys)
+            ztop = max(hf.zmax, max(float(o.world_corners()[:, 2].max()) for o in keep)) + 1.0
+            orig = np.stack([X.ravel(), Y.ravel(), np.full(X.size, ztop)], axis=1)
+            down = np.tile([0.0, 0.0, -1.0], (X.size, 1))
+            flat = dem.ravel()
+            for o in keep:
+                t, _, _ = o.intersect(orig, down)
+                hit = np.isfinite(t)
+                z = ztop - t[hit]
+                cur = flat[hit]
+                flat[hit] = np.where(np.isnan(cur) | (z > cur), z, cur)
+            dem = flat.reshape(ny, nx)
+        return dem.astype(np.float32)
+
+
+def _wrap180(a: float) -> float:
+    return (a + 180.0) % 360.0 - 180.0
