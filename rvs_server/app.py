@@ -228,8 +228,11 @@ class App:
             check_positional(cmd, req)
             base = self.config.values.get(cmd.config.module) if cmd.config is not None else None
             cfg = bind_options(cmd, base, req)
-            if cmd.klass == HARDWARE and self.mode in BLOCKING_MODES:
-                raise ProtocolError("E_STATE", BLOCKING_MODES[self.mode])
+            mode = self.mode
+            if mode in BLOCKING_MODES and (
+                cmd.klass == HARDWARE or (mode == "standby" and cmd.job and cmd.klass != CONTROL)
+            ):
+                raise ProtocolError("E_STATE", BLOCKING_MODES[mode])
             if cmd.job:
                 return self._start_job(conn, cmd, req, cfg)
             result = cmd.handler(Context(self, conn, req, cmd), cfg)

@@ -11,6 +11,7 @@ import asyncio
 import contextlib
 import itertools
 import signal
+import socket
 from collections import deque
 from typing import Any
 
@@ -131,9 +132,11 @@ class Connection(asyncio.Protocol):
 async def serve(app: App, host: str, port: int, *, ready: Any = None, handle_signals: bool = True) -> int:
     """Listen, open the devices, serve until quit or a signal; returns the exit status."""
     loop = asyncio.get_running_loop()
-    server = await loop.create_server(lambda: Connection(app), host, port, start_serving=False,
-                                      reuse_address=True)
-    bound = server.sockets[0].getsockname()
+    # Listen before opening the devices, so the port in the first log line already accepts;
+    # early clients wait in the backlog until the devices are up.
+    family = socket.AF_INET6 if ":" in host else socket.AF_INET
+    sock = socket.create_server((host, port), family=family, reuse_port=False, backlog=512)
+    bound = sock.getsockname()
     log.info("listening", host=bound[0], port=bound[1], server=app.name, data=str(app.data_dir))
     if handle_signals:
         for sig in (signal.SIGINT, signal.SIGTERM):
@@ -144,7 +147,7 @@ async def serve(app: App, host: str, port: int, *, ready: Any = None, handle_sig
     await loop.run_in_executor(None, app.devices.open_all)
     if not app.devices.healthy():
         app.set_mode("fault")
-    await server.start_serving()
+    server = await loop.create_server(lambda: Connection(app), sock=sock, backlog=512)
     if ready is not None:
         ready(bound[1])
     try:

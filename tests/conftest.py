@@ -1,0 +1,152 @@
+"""Shared fixtures: a real server on a real TCP port, in a background thread, and a line client."""
+
+from __future__ import annotations
+
+import asyncio
+import socket
+import threading
+import time
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from rvs_server.logs import setup as setup_logging
+from rvs_server.main import build_config, run
+from rvs_server.protocol import Reply, parse_reply
+
+FINAL = ("OK", "ERROR")
+
+
+class LineClient:
+    """A plain socket client: what a GNC program would do, with no help from the server's code."""
+
+    def __init__(self, port: int, host: str = "127.0.0.1", timeout: float = 10.0) -> None:
+        self.sock = socket.create_connection((host, port), timeout=timeout)
+        self.buf = b""
+        self.timeout = timeout
+        self.greeting = self.line()
+
+    def send(self, text: str | bytes) -> None:
+        data = text if isinstance(text, bytes) else text.encode()
+        if not data.endswith(b"\n"):
+            data += b"\n"
+        self.sock.sendall(data)
+
+    def line(self, timeout: float | None = None) -> str:
+        self.sock.settimeout(timeout or self.timeout)
+        while b"\n" not in self.buf:
+            chunk = self.sock.recv(65536)
+            if not chunk:
+                raise ConnectionError("server closed the connection")
+            self.buf += chunk
+        raw, self.buf = self.buf.split(b"\n", 1)
+        return raw.decode().rstrip("\r")
+
+    def reply(self, timeout: float | None = None) -> Reply:
+        return parse_reply(self.line(timeout))
+
+    def until_final(self, timeout: float | None = None, job: str | None = None) -> list[Reply]:
+        """Replies up to the final line (of ``job`` if given; an ACK makes the job the target)."""
+        out: list[Reply] = []
+        while True:
+            r = self.reply(timeout)
+            out.append(r)
+            if r.status == "ACK" and job is None:
+                job = r.fields["job"]
+                continue
+            if r.status in FINAL and (job is None or r.fields.get("job") == job):
+                return out
+
+    def request(self, text: str, timeout: float | None = None) -> Reply:
+        """Send one request and return its final line (skipping EVENT and PROGRESS lines)."""
+        self.send(text)
+        return self.until_final(timeout)[-1]
+
+    def close(self) -> None:
+        self.sock.close()
+
+
+class ServerThread:
+    """The real server (same code path as rvs-server) on an ephemeral port in a thread."""
+
+    def __init__(self, data: Path, overrides: list[str] | None = None, config_dir: str | None = None) -> None:
+        sets = [f"server.data={data}", "server.port=0", "drivers.ptu.time_scale=0", *(overrides or [])]
+        self.store = build_config(config_dir, sets)
+        self.data = data
+        self.port = 0
+        self.app: Any = None
+        self.loop: asyncio.AbstractEventLoop | None = None
+        self._ready = threading.Event()
+        self.exit_code: int | None = None
+        self.thread = threading.Thread(target=self._main, daemon=True)
+
+    def _main(self) -> None:
+        async def go() -> int:
+            self.loop = asyncio.get_running_loop()
+
+            def ready(port: int) -> None:
+                self.port = port
+                self._ready.set()
+
+            def on_app(app: Any) -> None:
+                self.app = app
+
+            return await run(self.store, ready=ready, handle_signals=False, on_app=on_app)
+
+        try:
+            self.exit_code = asyncio.run(go())
+        finally:
+            self._ready.set()
+
+    def start(self) -> ServerThread:
+        srv = self.store.get("server")
+        setup_logging("info", self.data / srv.log_file, console=False)
+        self.thread.start()
+        if not self._ready.wait(60) or not self.port:
+            raise RuntimeError("server did not start")
+        return self
+
+    def client(self, **kw: Any) -> LineClient:
+        return LineClient(self.port, **kw)
+
+    def stop(self) -> None:
+        if self.loop is not None and self.thread.is_alive():
+            self.loop.call_soon_threadsafe(self.app.stopping.set)
+        self.thread.join(20)
+
+
+@pytest.fixture
+def server_factory(tmp_path: Path) -> Iterator[Any]:
+    servers: list[ServerThread] = []
+
+    def make(overrides: list[str] | None = None, data: Path | None = None, **kw: Any) -> ServerThread:
+        srv = ServerThread(data or tmp_path / f"data{len(servers)}", overrides, **kw).start()
+        servers.append(srv)
+        return srv
+
+    yield make
+    for srv in servers:
+        srv.stop()
+
+
+@pytest.fixture
+def server(server_factory: Any) -> ServerThread:
+    return server_factory()
+
+
+@pytest.fixture
+def client(server: ServerThread) -> Iterator[LineClient]:
+    c = server.client()
+    yield c
+    c.close()
+
+
+def wait_for(predicate: Any, timeout: float = 5.0, interval: float = 0.01) -> bool:
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        if predicate():
+            return True
+        time.sleep(interval)
+    return predicate()
