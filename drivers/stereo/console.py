@@ -1,0 +1,369 @@
+"""rvs-cam: an interactive console over the stereo driver, like the thesis's rvs-cam (sect. 4.1.6).
+
+Every public function of the pair is a command; every error is caught and printed, so a failing
+camera never ends the session. ``-c "command"`` runs lines non-interactively (repeatable); the
+exit status is 1 if any of them failed.
+"""
+
+from __future__ import annotations
+
+import argparse
+import cmd
+import shlex
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import yaml
+
+from drivers.stereo import create
+from drivers.stereo.modes import PIXEL_FORMATS, RESOLUTIONS, SIDES
+
+DEFAULT_CONFIG = Path(__file__).resolve().parents[2] / "config" / "drivers.yaml"
+
+
+def save_image(path: str | Path, image: np.ndarray) -> Path:
+    """TIFF through tifffile (RGB as is), anything else through OpenCV (RGB turned to BGR)."""
+    target = Path(path)
+    target.parent.mkdir(parents=True, exist_ok=True)
+    if target.suffix.lower() in (".tif", ".tiff"):
+        import tifffile
+
+        tifffile.imwrite(target, image, photometric="rgb" if image.ndim == 3 else "minisblack")
+    else:
+        import cv2
+
+        out = image[..., ::-1] if image.ndim == 3 else image
+        if not cv2.imwrite(str(target), np.ascontiguousarray(out)):
+            raise ValueError(f"cannot write {target}: unknown image extension")
+    return target
+
+
+def _kv(args: list[str]) -> dict[str, str]:
+    out = {}
+    for arg in args:
+        if "=" not in arg:
+            raise ValueError(f"expected key=value, got {arg!r}")
+        key, value = arg.split("=", 1)
+        out[key.strip()] = value.strip()
+    return out
+
+
+class CamShell(cmd.Cmd):
+    intro = "rvs-cam: PIKE stereo pair console. 'help' lists commands, 'quit' leaves."
+    prompt = "rvs-cam> "
+
+    def __init__(self, camera: Any, trigger: Any = None, out_dir: str | Path = ".", stdout: Any = None) -> None:
+        super().__init__(stdout=stdout)
+        self.cam = camera
+        self.trigger = trigger
+        self.out_dir = Path(out_dir)
+        self.failed = 0
+
+    # -- plumbing -----------------------------------------------------------------------------
+    def say(self, *parts: Any) -> None:
+        print(*parts, file=self.stdout)
+
+    def precmd(self, line: str) -> str:
+        head, _, rest = line.strip().partition(" ")
+        return f"{head.replace('-', '_')} {rest}".strip()
+
+    def onecmd(self, line: str) -> bool:
+        try:
+            return bool(super().onecmd(line))
+        except Exception as exc:  # the console's job is to survive anything a command raises
+            self.failed += 1
+            self.say(f"error: {type(exc).__name__}: {exc}")
+            return False
+
+    def default(self, line: str) -> None:
+        self.failed += 1
+        self.say(f"error: unknown command {line.split()[0]!r}; 'help' lists commands")
+
+    def emptyline(self) -> bool:
+        return False
+
+    def show(self, data: Any) -> None:
+        self.say(yaml.safe_dump(_plain(data), sort_keys=False).rstrip())
+
+    def _grab_args(self, arg: str, default_name: str) -> tuple[str, dict[str, str]]:
+        tokens = shlex.split(arg)
+        opts = _kv([t for t in tokens if "=" in t])
+        names = [t for t in tokens if "=" not in t]
+        unknown = sorted(set(opts) - {"res", "fmt"})
+        if unknown:
+            raise ValueError(f"unknown option(s) {', '.join(unknown)}; use res=<{'|'.join(RESOLUTIONS)}> fmt=<{'|'.join(PIXEL_FORMATS)}>")
+        name = names[0] if names else str(self.out_dir / f"{default_name}-{time.strftime('%Y%m%d-%H%M%S')}.tif")
+        return name, opts
+
+    def _save(self, name: str, images: dict[str, np.ndarray]) -> None:
+        base = Path(name)
+        suffix = base.suffix or ".tif"
+        for side, image in images.items():
+            path = base if len(images) == 1 else base.with_name(f"{base.stem}_{side}{suffix}")
+            if not path.suffix:
+                path = path.with_suffix(suffix)
+            save_image(path, image)
+            shape = "x".join(str(v) for v in image.shape)
+            self.say(f"{side}: {path} ({shape}, mean {float(image.mean()):.1f})")
+
+    # -- init / de-init -----------------------------------------------------------------------
+    def do_init(self, arg: str) -> None:
+        """init: initialise the library and open both cameras (RvsCam_InitLibrary)."""
+        self.cam.open()
+        self.show(self.cam.camera_ids())
+
+    def do_deinit(self, arg: str) -> None:
+        """deinit: close the cameras (RvsCam_DeInitLibrary)."""
+        self.cam.close()
+        self.say("closed")
+
+    def do_reset(self, arg: str) -> None:
+        """reset: full hardware reset of both cameras, then the default settings (RvsCam_Reset)."""
+        self.cam.reset()
+        self.say("reset done")
+
+    def do_reinit(self, arg: str) -> None:
+        """reinit: reopen the cameras and write the default settings (RvsCam_ReInit)."""
+        self.cam.reinit()
+        self.say("reinit done")
+
+    def do_status(self, arg: str) -> None:
+        """status: the thread-safe status structure of both cameras (RvsCam_GetStatus)."""
+        self.show(self.cam.status())
+
+    def do_check(self, arg: str) -> None:
+        """check: talk to both cameras to prove they answer."""
+        self.show(self.cam.check()["check"])
+
+    # -- ids ------------------------------------------------------------------------------------
+    def do_ids(self, arg: str) -> None:
+        """ids: the left and right camera ids (RvsCam_GetCameraIDs)."""
+        self.show(self.cam.camera_ids())
+
+    def do_list(self, arg: str) -> None:
+        """list: the camera ids found on the bus, in bus order."""
+        self.show(self.cam.available_ids())
+
+    def do_set_ids(self, arg: str) -> None:
+        """set-ids LEFT RIGHT: choose the cameras by GUID or bus index (RvsCam_SetCameraIDs)."""
+        parts = shlex.split(arg)
+        if len(parts) != 2:
+            raise ValueError("usage: set-ids LEFT RIGHT")
+        self.show(self.cam.set_camera_ids(parts[0], parts[1]))
+
+    def do_swap_ids(self, arg: str) -> None:
+        """swap-ids: exchange left and right (RvsCam_SwapCameraIDs)."""
+        self.show(self.cam.swap_camera_ids())
+
+    # -- settings -------------------------------------------------------------------------------
+    def do_settings(self, arg: str) -> None:
+        """settings [left|right]: the current settings (RvsCam_GetSettings)."""
+        side = arg.strip() or None
+        self.show(self.cam.get_settings(side))
+
+    def do_set(self, arg: str) -> None:
+        """set [left|right|both] key=value ...: e.g. set left shutter_us=4000 gain_db=6 (RvsCam_SetSettings)."""
+        tokens = shlex.split(arg)
+        side = "both"
+        if tokens and "=" not in tokens[0]:
+            side = tokens.pop(0)
+        if not tokens:
+            raise ValueError("usage: set [left|right|both] key=value ...")
+        changes = _kv(tokens)
+        if "white_balance" in changes:
+            changes["white_balance"] = changes["white_balance"].replace(",", " ")
+        self.show(self.cam.set_settings(side, **changes))
+
+    def do_load(self, arg: str) -> None:
+        """load FILE: load both cameras' settings from YAML (RvsCam_LoadSettings)."""
+        self.show(self.cam.load_settings(_one(arg, "load FILE")))
+
+    def do_save(self, arg: str) -> None:
+        """save FILE: save both cameras' settings to YAML (RvsCam_SaveSettings)."""
+        self.say(f"saved {self.cam.save_settings(_one(arg, 'save FILE'))}")
+
+    def do_mode(self, arg: str) -> None:
+        """mode [RESOLUTION] [FORMAT]: default grab mode, e.g. mode highest rgb8 (low|medium|high|highest, mono8|rgb8)."""
+        res = fmt = None
+        for token in shlex.split(arg):
+            if token.lower() in PIXEL_FORMATS or token.lower().endswith("8"):
+                fmt = token
+            else:
+                res = token
+        self.show(self.cam.set_mode(res, fmt))
+
+    def do_calibration(self, arg: str) -> None:
+        """calibration [RESOLUTION]: K1 D1 K2 D2 R T image_size of the pair."""
+        self.show(self.cam.calibration(arg.strip() or None))
+
+    # -- grabs ----------------------------------------------------------------------------------
+    def do_grab_stereo(self, arg: str) -> None:
+        """grab-stereo [FILE] [res=..] [fmt=..]: both cameras on one trigger pulse; saves FILE_left/_right (RvsCam_GrabStereo)."""
+        name, o = self._grab_args(arg, "stereo")
+        left, right = self.cam.grab_stereo(o.get("res"), o.get("fmt"))
+        self._save(name, {"left": left, "right": right})
+
+    def do_grab_stereo_direct(self, arg: str) -> None:
+        """grab-stereo-direct [FILE] [res=..] [fmt=..]: both cameras free-running, no trigger (RvsCam_GrabStereoDirect)."""
+        name, o = self._grab_args(arg, "stereo-direct")
+        left, right = self.cam.grab_stereo_direct(o.get("res"), o.get("fmt"))
+        self._save(name, {"left": left, "right": right})
+
+    def do_grab_mono(self, arg: str) -> None:
+        """grab-mono SIDE [FILE] [res=..] [fmt=..]: one camera on a trigger pulse (RvsCam_GrabMono)."""
+        side, rest = _side_first(arg)
+        name, o = self._grab_args(rest, f"mono-{side}")
+        self._save(name, {side: self.cam.grab_mono(side, o.get("res"), o.get("fmt"))})
+
+    def do_grab_mono_direct(self, arg: str) -> None:
+        """grab-mono-direct SIDE [FILE] [res=..] [fmt=..]: one camera free-running (RvsCam_GrabMonoDirect)."""
+        side, rest = _side_first(arg)
+        name, o = self._grab_args(rest, f"mono-direct-{side}")
+        self._save(name, {side: self.cam.grab_mono_direct(side, o.get("res"), o.get("fmt"))})
+
+    def do_grab_left(self, arg: str) -> None:
+        """grab-left [FILE] [res=..] [fmt=..]: the left camera on a trigger pulse (RvsCam_GrabLeft)."""
+        name, o = self._grab_args(arg, "left")
+        self._save(name, {"left": self.cam.grab_left(o.get("res"), o.get("fmt"))})
+
+    def do_grab_right(self, arg: str) -> None:
+        """grab-right [FILE] [res=..] [fmt=..]: the right camera on a trigger pulse (RvsCam_GrabRight)."""
+        name, o = self._grab_args(arg, "right")
+        self._save(name, {"right": self.cam.grab_right(o.get("res"), o.get("fmt"))})
+
+    # -- trigger and faults ---------------------------------------------------------------------
+    def do_pulse(self, arg: str) -> None:
+        """pulse: fire the trigger box once."""
+        if self.trigger is None:
+            raise ValueError("no trigger box attached")
+        self.say(f"pulse {self.trigger.pulse()}")
+
+    def do_fault(self, arg: str) -> None:
+        """fault KIND|none [left|right]: inject a simulated fault (no_trigger, unplug) or clear it."""
+        parts = shlex.split(arg)
+        if not parts:
+            raise ValueError("usage: fault KIND|none [left|right]")
+        kind = None if parts[0].lower() in ("none", "clear", "off") else parts[0]
+        self.cam.inject_fault(kind, parts[1] if len(parts) > 1 else None)
+        self.say(f"fault {kind}")
+
+    def do_quit(self, arg: str) -> bool:
+        """quit: close the cameras and leave."""
+        return True
+
+    do_exit = do_quit
+    do_EOF = do_quit
+
+
+def _one(arg: str, usage: str) -> str:
+    parts = shlex.split(arg)
+    if len(parts) != 1:
+        raise ValueError(f"usage: {usage}")
+    return parts[0]
+
+
+def _side_first(arg: str) -> tuple[str, str]:
+    parts = arg.strip().split(None, 1)
+    if not parts or parts[0].lower() not in SIDES:
+        raise ValueError(f"usage: grab-mono {'|'.join(SIDES)} [FILE] [res=..] [fmt=..]")
+    return parts[0].lower(), parts[1] if len(parts) > 1 else ""
+
+
+def _plain(data: Any) -> Any:
+    if isinstance(data, dict):
+        return {str(k): _plain(v) for k, v in data.items()}
+    if isinstance(data, list | tuple):
+        return [_plain(v) for v in data]
+    if isinstance(data, np.ndarray):
+        return np.round(data, 6).tolist()
+    if isinstance(data, np.generic):
+        return data.item()
+    return data
+
+
+def load_config(path: str | Path | None) -> dict[str, Any]:
+    source = Path(path) if path else DEFAULT_CONFIG
+    if not source.exists():
+        if path:
+            raise SystemExit(f"rvs-cam: config file {source} not found")
+        return {}
+    return yaml.safe_load(source.read_text()) or {}
+
+
+def parse_args(argv: list[str] | None) -> argparse.Namespace:
+    p = argparse.ArgumentParser(prog="rvs-cam", description=__doc__)
+    p.add_argument("--config", help=f"drivers.yaml to read (default {DEFAULT_CONFIG})")
+    p.add_argument("--backend", choices=("sim", "dc1394"), help="camera backend (default: from the config)")
+    p.add_argument("--left-id", help="left camera GUID (hex) or bus index")
+    p.add_argument("--right-id", help="right camera GUID (hex) or bus index")
+    p.add_argument("--trigger-backend", choices=("sim", "ppdev", "none"), help="trigger box backend")
+    p.add_argument("--trigger-device", help="parallel port of the trigger box, e.g. /dev/parport0")
+    p.add_argument("--library", help="path of libdc1394")
+    p.add_argument("--scene", default="office", help="simulated scene (sim backend)")
+    p.add_argument("--resolution", choices=tuple(RESOLUTIONS), help="default grab resolution")
+    p.add_argument("--pixel-format", choices=PIXEL_FORMATS, help="default pixel format")
+    p.add_argument("--out", default=".", help="directory for images saved without a file name")
+    p.add_argument("-c", dest="commands", action="append", default=[], help="run this command line and exit (repeatable)")
+    return p.parse_args(argv)
+
+
+def main(argv: list[str] | None = None, *, world: Any = None, stdout: Any = None) -> int:
+    args = parse_args(argv)
+    out = stdout or sys.stdout
+    config = load_config(args.config)
+    cam_cfg = dict(config.get("stereo") or {})
+    trg_cfg = dict(config.get("trigger") or {})
+    for key, value in (
+        ("backend", args.backend),
+        ("left_id", args.left_id),
+        ("right_id", args.right_id),
+        ("library", args.library),
+        ("resolution", args.resolution),
+        ("pixel_format", args.pixel_format),
+    ):
+        if value is not None:
+            cam_cfg[key] = value
+    cam_cfg.setdefault("backend", "sim")
+    trg_cfg["backend"] = args.trigger_backend or ("sim" if cam_cfg["backend"] == "sim" else trg_cfg.get("backend", "ppdev"))
+    if args.trigger_device:
+        trg_cfg["device"] = args.trigger_device
+    if cam_cfg["backend"] == "sim" and world is None:
+        from drivers.sim.world import World
+
+        world = World.from_scene(args.scene, seed=int(cam_cfg.get("seed", 0)))
+
+    trigger = None
+    if trg_cfg["backend"] != "none":
+        from drivers import trigger as trigger_pkg
+
+        try:
+            trigger = trigger_pkg.create(trg_cfg, world)
+            trigger.open()
+        except Exception as exc:
+            print(f"warning: trigger box unavailable ({exc}); only direct grabs will work", file=out)
+            trigger = None
+    camera = create(cam_cfg, world, trigger)
+    shell = CamShell(camera, trigger, args.out, stdout=out)
+    shell.onecmd("init")
+    try:
+        if args.commands:
+            for line in args.commands:
+                print(f"{shell.prompt}{line}", file=out)
+                if shell.onecmd(shell.precmd(line)):
+                    break
+        else:
+            shell.cmdloop()
+    finally:
+        try:
+            camera.close()
+        finally:
+            if trigger is not None:
+                trigger.close()
+    return 1 if shell.failed else 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

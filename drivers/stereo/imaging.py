@@ -1,0 +1,175 @@
+"""Image formation for the simulated PIKE cameras: shading, lens distortion, exposure and noise.
+
+The world renders geometry (depth, albedo, normals) for a pinhole camera; this module turns that
+into what a CCD would deliver: a Lambertian sun-lit radiance, distorted by the lens with OpenCV's
+radial-tangential model (so undistorting with the same K, D recovers the pinhole image), then
+converted to electrons by the shutter time, with shot and read noise, a full well, the analogue
+gain and 8-bit quantisation with saturation at 255.
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+from dataclasses import dataclass
+from typing import Any
+
+import cv2
+import numpy as np
+
+
+@dataclass(frozen=True)
+class SensorModel:
+    """Radiometry of one camera; defaults give ~230 DN for a white sunlit surface at 8 ms, 0 dB."""
+
+    full_well_e: float = 20000.0  # electrons (PIKE F-210B class CCD)
+    read_noise_e: float = 12.0  # electrons rms
+    white_dn_at_ref: float = 230.0  # DN of albedo 1, lambert 1 at ref_shutter_us and 0 dB
+    ref_shutter_us: float = 8000.0
+    noise: bool = True
+
+    @property
+    def electrons_per_us(self) -> float:
+        return self.white_dn_at_ref / 255.0 * self.full_well_e / self.ref_shutter_us
+
+
+@dataclass(frozen=True)
+class Lighting:
+    sun_azimuth_deg: float = 30.0  # CCW from +x (global frame)
+    sun_elevation_deg: float = 50.0
+    ambient: float = 0.25  # fraction of light that does not depend on the surface orientation
+    sky: float = 0.85  # radiance of pixels that hit nothing, relative to a white lit surface
+
+    @property
+    def sun_direction(self) -> np.ndarray:
+        az, el = math.radians(self.sun_azimuth_deg), math.radians(self.sun_elevation_deg)
+        return np.array([math.cos(el) * math.cos(az), math.cos(el) * math.sin(az), math.sin(el)])
+
+
+def radiance(albedo: np.ndarray, normal: np.ndarray, hit: np.ndarray, lighting: Lighting) -> np.ndarray:
+    """Albedo times a Lambert term with ambient light; sky where nothing was hit (float32, HxW)."""
+    lambert = np.clip(normal @ lighting.sun_direction.astype(np.float32), 0.0, 1.0)
+    shade = lighting.ambient + (1.0 - lighting.ambient) * lambert
+    out = np.where(hit, np.nan_to_num(albedo) * shade, lighting.sky)
+    return out.astype(np.float32)
+
+
+@dataclass(frozen=True)
+class DistortionMap:
+    """Where each pixel of the distorted image lies in an undistorted render made with ``K_render``."""
+
+    K_render: np.ndarray
+    render_size: tuple[int, int]  # (width, height), larger than the image when barrel distortion needs margin
+    map_x: np.ndarray | None  # None: no distortion, render directly
+    map_y: np.ndarray | None
+
+
+def distortion_map(K: np.ndarray, D: np.ndarray, size: tuple[int, int]) -> DistortionMap:
+    """Cached per (K, D, size): the inverse of OpenCV's distortion for every output pixel."""
+    K = np.asarray(K, dtype=np.float64)
+    D = np.asarray(D, dtype=np.float64).ravel()
+    return _distortion_map(K.tobytes(), D.tobytes(), (int(size[0]), int(size[1])))
+
+
+@functools.lru_cache(maxsize=16)
+def _distortion_map(K_bytes: bytes, D_bytes: bytes, size: tuple[int, int]) -> DistortionMap:
+    K = np.frombuffer(K_bytes, dtype=np.float64).reshape(3, 3).copy()
+    D = np.frombuffer(D_bytes, dtype=np.float64).copy()
+    w, h = size
+    if not np.any(D):
+        return DistortionMap(K, size, None, None)
+    us, vs = np.meshgrid(np.arange(w, dtype=np.float64), np.arange(h, dtype=np.float64))
+    pts = np.stack([us.ravel(), vs.ravel()], axis=1).reshape(-1, 1, 2)
+    und = _undistort_pixels(pts, K, D).reshape(h, w, 2)
+    ux, uy = und[..., 0], und[..., 1]
+    # Margins so every sample (plus the bilinear neighbour) falls inside the undistorted render.
+    left = max(0, math.ceil(-ux.min()) + 2)
+    top = max(0, math.ceil(-uy.min()) + 2)
+    right = max(0, math.ceil(ux.max() - (w - 1)) + 2)
+    bottom = max(0, math.ceil(uy.max() - (h - 1)) + 2)
+    K_render = K.copy()
+    K_render[0, 2] += left
+    K_render[1, 2] += top
+    map_x = (ux + left).astype(np.float32)
+    map_y = (uy + top).astype(np.float32)
+    return DistortionMap(K_render, (w + left + right, h + top + bottom), map_x, map_y)
+
+
+def _undistort_pixels(pts: np.ndarray, K: np.ndarray, D: np.ndarray) -> np.ndarray:
+    """OpenCV's iterative inverse of its own distortion model, converged tightly (4.x and 5.x APIs)."""
+    criteria = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 40, 1e-10)
+    if hasattr(cv2, "undistortPointsIter"):  # OpenCV 4.x
+        return cv2.undistortPointsIter(pts, K, D, None, K, criteria)
+    return cv2.undistortPoints(pts, K, D, R=None, P=K, criteria=criteria)
+
+
+def apply_distortion(image: np.ndarray, dmap: DistortionMap) -> np.ndarray:
+    if dmap.map_x is None:
+        return image
+    return cv2.remap(image, dmap.map_x, dmap.map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+
+
+def white_balance_gains(white_balance: tuple[int, int]) -> np.ndarray:
+    """RGB channel gains of the IIDC white balance registers (U/B, V/R); 512 is unity."""
+    ub, vr = white_balance
+    return np.array([vr / 512.0, 1.0, ub / 512.0], dtype=np.float32)
+
+
+def expected_dn(rad: np.ndarray, shutter_us: float, gain_db: float, sensor: SensorModel) -> np.ndarray:
+    """Noise-free DN before quantisation (full well and 255 clipping applied)."""
+    electrons = np.minimum(rad * (sensor.electrons_per_us * shutter_us), sensor.full_well_e)
+    dn = electrons * (255.0 / sensor.full_well_e) * 10.0 ** (gain_db / 20.0)
+    return np.clip(dn, 0.0, 255.0)
+
+
+def auto_shutter(rad: np.ndarray, target_grey: float, gain_db: float, sensor: SensorModel) -> float:
+    """The shutter time whose mean grey matches ``target_grey`` (the PIKE's auto exposure)."""
+    shutter = sensor.ref_shutter_us
+    sample = rad[::4, ::4]
+    for _ in range(6):  # clipping makes the response non-linear; a few proportional steps settle it
+        mean = float(expected_dn(sample, shutter, gain_db, sensor).mean())
+        if mean <= 0.5:
+            shutter *= 8.0
+            continue
+        shutter *= target_grey / mean
+        shutter = float(np.clip(shutter, 10.0, 1_000_000.0))
+    return shutter
+
+
+def expose(
+    rad: np.ndarray,
+    shutter_us: float,
+    gain_db: float,
+    sensor: SensorModel,
+    rng: np.random.Generator | None,
+) -> np.ndarray:
+    """Radiance (HxW or HxWx3, white lit surface = 1) to uint8 counts with CCD noise."""
+    electrons = rad.astype(np.float32) * np.float32(sensor.electrons_per_us * shutter_us)
+    if sensor.noise and rng is not None:
+        noise = rng.standard_normal(electrons.shape, dtype=np.float32)
+        electrons += noise * np.sqrt(electrons + np.float32(sensor.read_noise_e**2))
+    np.clip(electrons, 0.0, sensor.full_well_e, out=electrons)
+    electrons *= np.float32(255.0 / sensor.full_well_e * 10.0 ** (gain_db / 20.0))
+    np.clip(electrons, 0.0, 255.0, out=electrons)
+    return np.rint(electrons).astype(np.uint8)
+
+
+def sensor_from_config(config: dict[str, Any]) -> SensorModel:
+    base = SensorModel()
+    return SensorModel(
+        full_well_e=float(config.get("sim_full_well_e", base.full_well_e)),
+        read_noise_e=float(config.get("sim_read_noise_e", base.read_noise_e)),
+        white_dn_at_ref=float(config.get("sim_white_dn", base.white_dn_at_ref)),
+        ref_shutter_us=base.ref_shutter_us,
+        noise=bool(config.get("sim_noise", True)),
+    )
+
+
+def lighting_from_config(config: dict[str, Any]) -> Lighting:
+    base = Lighting()
+    return Lighting(
+        sun_azimuth_deg=float(config.get("sim_sun_azimuth_deg", base.sun_azimuth_deg)),
+        sun_elevation_deg=float(config.get("sim_sun_elevation_deg", base.sun_elevation_deg)),
+        ambient=float(config.get("sim_ambient", base.ambient)),
+        sky=float(config.get("sim_sky", base.sky)),
+    )

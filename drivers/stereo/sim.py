@@ -1,0 +1,234 @@
+"""Simulated PIKE F-210B pair: renders the shared world from the left and right mounts.
+
+In external trigger mode a simulated camera captures only when the world's trigger bus pulses
+(fired by the simulated trigger box); both cameras take their poses from one snapshot read at
+the pulse, so a pair always shows one instant even while the rover or the PTU moves.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from concurrent.futures import ThreadPoolExecutor
+from typing import Any
+
+import numpy as np
+
+from drivers.stereo import imaging
+from drivers.stereo.errors import CameraLost, GrabCancelled, MissedTrigger, is_cancelled
+from drivers.stereo.modes import channels
+from drivers.stereo.settings import CameraSettings
+
+# GUID-like ids with AVT's IEEE OUI (00:0a:47); the first is mounted left, the second right.
+SIM_GUIDS = ("000a470112f20001", "000a470112f20002")
+MOUNTS = ("left", "right")
+FAULTS = ("no_trigger", "unplug")
+DEFAULT_DISTORTION = (-0.06, 0.012, 0.0, 0.0, 0.0)  # mild barrel of a ~60 deg lens
+
+
+class SimCameras:
+    kind = "sim"
+
+    def __init__(self, config: dict[str, Any], world: Any = None) -> None:
+        self.config = config
+        self.world = world
+        guids = [str(g).lower() for g in config.get("sim_guids", SIM_GUIDS)]
+        if len(guids) != 2:
+            raise ValueError("sim_guids must list two camera ids (left mount, right mount)")
+        self._mount = dict(zip(guids, MOUNTS, strict=True))
+        self._guids = guids
+        self.distortion = np.asarray(config.get("sim_distortion", DEFAULT_DISTORTION), dtype=np.float64)
+        if self.distortion.size not in (4, 5, 8):
+            raise ValueError("sim_distortion must hold 4, 5 or 8 OpenCV coefficients (k1 k2 p1 p2 [k3 ...])")
+        self.sensor = imaging.sensor_from_config(config)
+        self.lighting = imaging.lighting_from_config(config)
+        self.hfov_deg = config.get("sim_hfov_deg")
+        self.seed = int(config.get("seed", 0))
+        self._lock = threading.Lock()  # faults, lost set, settings
+        self._faults: dict[str, str | None] = dict.fromkeys(guids)
+        self._lost: set[str] = set()
+        self._settings: dict[str, CameraSettings] = {}
+        self._rngs: dict[str, np.random.Generator] = {}
+        self._effective_shutter: dict[str, float] = {}
+        self._pool: ThreadPoolExecutor | None = None
+        self._open = False
+
+    # -- bus ---------------------------------------------------------------------------------
+    def open(self) -> list[str]:
+        if self.world is None:
+            from drivers.sim.world import World  # the default world only when nobody shared one
+
+            self.world = World.from_scene(str(self.config.get("sim_scene", "office")), seed=self.seed)
+        with self._lock:
+            self._lost = {g for g in self._guids if self._faults[g] == "unplug"}
+            self._rngs = {g: np.random.default_rng([self.seed, i]) for i, g in enumerate(self._guids)}
+        if self._pool is None and bool(self.config.get("sim_parallel", True)):
+            self._pool = ThreadPoolExecutor(max_workers=2, thread_name_prefix="sim-cam")
+        self._open = True
+        return self.available()
+
+    def available(self) -> list[str]:
+        with self._lock:
+            return [g for g in self._guids if self._faults[g] != "unplug"]
+
+    def close(self) -> None:
+        self._open = False
+        if self._pool is not None:
+            self._pool.shutdown(wait=True)
+            self._pool = None
+
+    def describe(self, guid: str) -> dict[str, Any]:
+        return {"vendor": "AVT (simulated)", "model": "PIKE F-210B", "mount": self._mount.get(guid)}
+
+    # -- faults ------------------------------------------------------------------------------
+    def inject_fault(self, kind: str | None, guids: list[str] | None = None) -> None:
+        if kind is not None and kind not in FAULTS:
+            raise ValueError(f"unknown stereo fault {kind!r}; accepted: {', '.join(FAULTS)} or None")
+        with self._lock:
+            for guid in guids or self._guids:
+                self._faults[guid] = kind
+
+    def faults(self) -> dict[str, str | None]:
+        with self._lock:
+            return dict(self._faults)
+
+    def _require(self, guid: str) -> None:
+        with self._lock:
+            if guid not in self._mount:
+                raise CameraLost(guid, "(no such camera on the simulated bus)")
+            if self._faults[guid] == "unplug":
+                self._lost.add(guid)
+            if guid in self._lost:
+                raise CameraLost(guid)
+
+    # -- settings ----------------------------------------------------------------------------
+    def apply_settings(self, guid: str, settings: CameraSettings) -> None:
+        self._require(guid)
+        with self._lock:
+            self._settings[guid] = settings
+
+    def hardware_reset(self, guids: list[str]) -> None:
+        for guid in guids:
+            with self._lock:
+                if self._faults[guid] == "unplug":
+                    raise CameraLost(guid)
+                self._lost.discard(guid)
+                self._settings.pop(guid, None)
+
+    def check(self, guids: list[str]) -> dict[str, Any]:
+        for guid in guids:
+            self._require(guid)
+        return {g: {"responding": True, "shutter_us": self._settings_of(g).shutter_us} for g in guids}
+
+    def _settings_of(self, guid: str) -> CameraSettings:
+        with self._lock:
+            return self._settings.get(guid, CameraSettings())
+
+    # -- capture -----------------------------------------------------------------------------
+    def arm(self, guids: list[str], size: tuple[int, int], pixel_format: str) -> dict[str, Any]:
+        for guid in guids:
+            self._require(guid)
+        return {"guids": list(guids), "size": size, "format": pixel_format, "after": self.world.trigger.count}
+
+    def disarm(self, token: dict[str, Any]) -> None:
+        pass
+
+    def collect(self, token: dict[str, Any], timeout: float, cancel: Any = None) -> dict[str, np.ndarray]:
+        guids: list[str] = token["guids"]
+        after: int = token["after"]
+        bus = self.world.trigger
+        deadline = time.monotonic() + timeout
+        pulse = None
+        deaf = [g for g in guids if self.faults()[g] == "no_trigger"]
+        while pulse is None and len(deaf) < len(guids):
+            if is_cancelled(cancel):
+                raise GrabCancelled("grab cancelled while waiting for the trigger")
+            remaining = deadline - time.monotonic()
+            if remaining <= 0:
+                raise MissedTrigger(guids, timeout, after)
+            pulse = bus.wait_for_pulse(after, min(0.05, remaining))
+        if pulse is not None:
+            poses = self._snapshot([self._mount[g] for g in guids])  # the instant of the pulse
+        if deaf:  # a camera that never sees the pulse waits out its timeout like the real one
+            while (remaining := deadline - time.monotonic()) > 0:
+                if is_cancelled(cancel):
+                    raise GrabCancelled("grab cancelled while waiting for the trigger")
+                time.sleep(min(0.05, remaining))
+            raise MissedTrigger(deaf, timeout, after)
+        for guid in guids:  # unplugged between arming and the pulse
+            self._require(guid)
+        return self._render_all(guids, poses, token["size"], token["format"])
+
+    def capture_direct(
+        self, guids: list[str], size: tuple[int, int], pixel_format: str, timeout: float, cancel: Any = None
+    ) -> dict[str, np.ndarray]:
+        for guid in guids:
+            self._require(guid)
+        if is_cancelled(cancel):
+            raise GrabCancelled("grab cancelled")
+        poses = self._snapshot([self._mount[g] for g in guids])
+        return self._render_all(guids, poses, size, pixel_format)
+
+    def last_shutter(self) -> dict[str, float]:
+        with self._lock:
+            return dict(self._effective_shutter)
+
+    def _snapshot(self, mounts: list[str]) -> dict[str, np.ndarray]:
+        """Poses of all mounts at one instant: re-read until nothing moved while reading."""
+        poses: dict[str, np.ndarray] = {}
+        for _ in range(10):
+            poses = {m: np.array(self.world.sensor_pose(m), dtype=np.float64) for m in mounts}
+            again = np.asarray(self.world.sensor_pose(mounts[0]), dtype=np.float64)
+            if np.array_equal(again, poses[mounts[0]]):
+                break
+        return poses
+
+    def intrinsics(self, mount: str, size: tuple[int, int]) -> np.ndarray:
+        w, h = size
+        if self.hfov_deg is not None:
+            f = (w / 2.0) / np.tan(np.radians(float(self.hfov_deg)) / 2.0)
+            return np.array([[f, 0.0, (w - 1) / 2.0], [0.0, f, (h - 1) / 2.0], [0.0, 0.0, 1.0]])
+        return np.asarray(self.world.camera_intrinsics(mount, w, h), dtype=np.float64)
+
+    def _render_all(
+        self, guids: list[str], poses: dict[str, np.ndarray], size: tuple[int, int], pixel_format: str
+    ) -> dict[str, np.ndarray]:
+        jobs = [(g, poses[self._mount[g]]) for g in guids]
+        if self._pool is not None and len(jobs) > 1:
+            futures = [self._pool.submit(self._render_one, g, pose, size, pixel_format) for g, pose in jobs]
+            return {g: f.result() for (g, _), f in zip(jobs, futures, strict=True)}
+        return {g: self._render_one(g, pose, size, pixel_format) for g, pose in jobs}
+
+    def _render_one(self, guid: str, pose: np.ndarray, size: tuple[int, int], pixel_format: str) -> np.ndarray:
+        settings = self._settings_of(guid)
+        K = self.intrinsics(self._mount[guid], size)
+        dmap = imaging.distortion_map(K, self.distortion, size)
+        r = self.world.render(dmap.K_render, dmap.render_size[0], dmap.render_size[1], pose)
+        hit = np.isfinite(r.depth)
+        rad = imaging.radiance(r.albedo, r.normal, hit, self.lighting)
+        if channels(pixel_format) == 3:
+            rad = rad[..., None] * imaging.white_balance_gains(settings.white_balance)
+        rad = imaging.apply_distortion(rad, dmap)
+        shutter = float(settings.shutter_us)
+        if settings.auto_exposure:
+            shutter = imaging.auto_shutter(rad, settings.target_grey, settings.gain_db, self.sensor)
+        with self._lock:
+            self._effective_shutter[guid] = shutter
+            rng = self._rngs.get(guid)
+        return imaging.expose(rad, shutter, settings.gain_db, self.sensor, rng)
+
+    def calibration(self, left: str, right: str, size: tuple[int, int]) -> dict[str, Any]:
+        """Ground truth: the world's intrinsics, the configured distortion, the mounts' relative pose."""
+        poses = self._snapshot([self._mount[left], self._mount[right]])
+        T_w_l, T_w_r = poses[self._mount[left]], poses[self._mount[right]]
+        T_r_l = np.linalg.inv(T_w_r) @ T_w_l  # x_right = R x_left + T (cv2.stereoCalibrate convention)
+        return {
+            "K1": self.intrinsics(self._mount[left], size),
+            "D1": self.distortion.copy(),
+            "K2": self.intrinsics(self._mount[right], size),
+            "D2": self.distortion.copy(),
+            "R": T_r_l[:3, :3].copy(),
+            "T": T_r_l[:3, 3].copy(),
+            "image_size": [int(size[0]), int(size[1])],
+            "source": "simulated world (ground truth)",
+        }
