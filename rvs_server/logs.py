@@ -40,6 +40,8 @@ def setup(level: str = "info", log_file: Path | None = None, console: bool = Tru
             foreign_pre_chain=shared,
         ))
         root.addHandler(handler)
+    if not console and log_file is None:
+        root.addHandler(logging.NullHandler())
     if log_file is not None:
         log_file.parent.mkdir(parents=True, exist_ok=True)
         fh = logging.FileHandler(log_file, encoding="utf-8")
