@@ -143,16 +143,21 @@ class ReplyParser:
     def _parse_line(self, raw: bytes) -> Reply | None:
         if not raw:
             return None
-        if any(b not in _CLEAN for b in raw):
-            self._noise(raw)
-            return None
-        line = raw.decode("ascii")
-        i = _first_marker(line)
+        i = _first_marker(raw)
+        # Before the marker is echo or junk, never part of the reply: a stray byte there costs
+        # nothing; from the marker on, one byte no D46 sends makes the whole reply suspect.
+        head, body = (raw, b"") if i < 0 else (raw[:i], raw[i:])
+        if any(b not in _CLEAN for b in head):
+            self._noise(head)
         if i < 0:
-            if line.strip():
-                self.skipped_lines.append(line)  # echo of a CR-ended command, a banner line
+            if head.strip() and not any(b not in _CLEAN for b in head):
+                self.skipped_lines.append(head.decode("ascii"))  # echo of a CR-ended command, a banner
             return None
-        rest = line[i:]
+        if any(b not in _CLEAN for b in body):
+            self._noise(body)
+            return None
+        line = raw.decode("ascii", "replace")
+        rest = body.decode("ascii")
         while len(rest) >= 2 and rest[0] == "!" and rest[1] in "PTpt" and not rest[2:3].isalnum():
             self.async_events.append("!" + rest[1].upper())
             rest = rest[2:].lstrip()
@@ -174,6 +179,7 @@ def _line_end(buf: bytearray) -> int:
     return min(cr, lf)
 
 
-def _first_marker(line: str) -> int:
-    positions = [p for p in (line.find("*"), line.find("!")) if p >= 0]
+def _first_marker(line: str | bytes) -> int:
+    star, bang = ("*", "!") if isinstance(line, str) else (b"*", b"!")
+    positions = [p for p in (line.find(star), line.find(bang)) if p >= 0]  # type: ignore[arg-type]
     return min(positions) if positions else -1

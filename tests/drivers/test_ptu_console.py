@@ -1,0 +1,81 @@
+"""rvs-ptu: one-shot lines, error reporting, and a prompt command for every driver operation."""
+
+from __future__ import annotations
+
+import io
+
+import pytest
+
+from drivers.ptu import Ptu, create
+from drivers.ptu.console import PtuConsole, main
+
+
+def test_one_shot_move_prints_the_position(capsys: pytest.CaptureFixture[str]) -> None:
+    rc = main(["--backend", "sim", "--time-scale", "0", "--timeout", "0.5", "-c", "move 30 -10", "-c", "position"])
+    out = capsys.readouterr().out.splitlines()
+    assert rc == 0
+    assert out == ["pan 29.983 deg, tilt -9.977 deg", "pan 29.983 deg, tilt -9.977 deg"]
+
+
+def test_errors_are_printed_and_the_console_carries_on(capsys: pytest.CaptureFixture[str]) -> None:
+    rc = main(["--backend", "sim", "--time-scale", "0", "-c", "move 200 0; pan 10; speed 9000; frobnicate"])
+    out = capsys.readouterr().out.splitlines()
+    assert rc == 1
+    assert out[0].startswith("error: ptu: pan 200 deg is beyond the pan maximum 158.91 deg")
+    assert out[1] == "pan 9.977 deg, tilt 0.000 deg"  # 194 positions
+    assert out[2] == "error: ptu: the PTU refused PS9000: Pan speed cannot exceed 2902 positions/sec"
+    assert out[3].startswith("error: unknown command 'frobnicate'")
+
+
+def test_serial_backend_missing_port(capsys: pytest.CaptureFixture[str]) -> None:
+    rc = main(["--backend", "serial", "--port", "/dev/does-not-exist-ptu", "-c", "position"])
+    assert rc == 1
+    assert "cannot open serial port /dev/does-not-exist-ptu" in capsys.readouterr().out
+
+
+@pytest.fixture
+def console() -> tuple[PtuConsole, io.StringIO, Ptu]:
+    ptu = create({"backend": "sim", "time_scale": 0.0, "timeout": 0.3})
+    out = io.StringIO()
+    yield PtuConsole(ptu, stdout=out), out, ptu
+    ptu.close()
+
+
+def run(con: PtuConsole, out: io.StringIO, line: str) -> str:
+    out.seek(0)
+    out.truncate()
+    con.onecmd(line)
+    return out.getvalue()
+
+
+def test_every_driver_operation_has_a_command(console: tuple[PtuConsole, io.StringIO, Ptu]) -> None:
+    con, out, ptu = console
+    commands = {name[3:] for name in dir(con) if name.startswith("do_")}
+    assert {"move", "pan", "tilt", "wait", "position", "limits", "speed", "accel", "halt", "reset",
+            "status", "power", "check", "raw", "reinit", "open", "close", "fault", "firmware"} <= commands
+    assert run(con, out, "raw PP") == "* 0\n"
+    assert run(con, out, "speed 1500 800") == "speed pan 1500 tilt 800 positions/s\n"
+    assert run(con, out, "accel 3000") == "acceleration pan 3000 tilt 3000 positions/s^2\n"
+    assert "pan: -158.914 .. 158.914 deg (positions -3090 .. 3090" in run(con, out, "limits")
+    assert run(con, out, "power") == "supply 30 V, temperatures 86 F\n"
+    assert run(con, out, "tilt -20") == "pan 0.000 deg, tilt -20.006 deg\n"  # -389 positions
+    assert run(con, out, "move 10 5 nowait") == "pan 9.977 deg, tilt 4.989 deg\n"
+    assert run(con, out, "wait") == "pan 9.977 deg, tilt 4.989 deg\n"
+    assert run(con, out, "halt") == "halted at pan 9.977 deg, tilt 4.989 deg\n"
+    assert run(con, out, "reset") == "reset done, pan 0.000 deg, tilt 0.000 deg\n"
+    assert "backend: sim" in run(con, out, "status")
+    assert "voltage_v: 30.0" in run(con, out, "check")
+    assert "PTU-D46" in run(con, out, "firmware")
+
+
+def test_faults_and_recovery_from_the_prompt(console: tuple[PtuConsole, io.StringIO, Ptu]) -> None:
+    con, out, ptu = console
+    assert run(con, out, "open").startswith("open on /dev/")
+    assert run(con, out, "fault silent").startswith("fault silent injected")
+    assert run(con, out, "position").startswith("error: ptu: no reply to PP within 0.3s")
+    assert run(con, out, "fault none").startswith("fault none injected")
+    assert run(con, out, "reinit").startswith("reinitialised on /dev/")
+    assert run(con, out, "position") == "pan 0.000 deg, tilt 0.000 deg\n"
+    assert run(con, out, "move 1").startswith("error: usage: move PAN TILT")
+    assert run(con, out, "raw").startswith("error: usage: raw CMD")
+    assert con.onecmd("quit") is True

@@ -1,0 +1,247 @@
+"""The PTU client against the PTU-D46 emulator through a real pseudo-terminal (os.openpty)."""
+
+from __future__ import annotations
+
+import threading
+
+import pytest
+from ptu_rig import bench
+
+from drivers.base import DeviceError
+from drivers.ptu.client import MoveInterrupted, PtuClient
+from drivers.ptu.motion import trapezoid_time
+
+OPEN_SEQUENCE = ["FT", "ED", "CI", "I", "PR", "TR", "PN", "PX", "TN", "TX"]
+
+
+def test_open_sequence_leaves_the_unit_terse_without_echo() -> None:
+    with bench() as (emu, ptu):
+        assert emu.commands[: len(OPEN_SEQUENCE)] == OPEN_SEQUENCE
+        # the unit powered up verbose with echo on and a banner; the client changed both
+        assert emu.verbose is False and emu.echo is False
+        assert emu.tx.startswith(b"PTU-D46 emulator")
+        assert ptu.resolution == {"pan": 185.1428, "tilt": 185.1428}
+        assert ptu.bounds == {"pan": (-3090, 3090), "tilt": (-907, 604)}
+        lim = ptu.limits()
+        assert lim["pan"]["max_deg"] == pytest.approx(158.914, abs=1e-3)
+        assert lim["tilt"]["min_deg"] == pytest.approx(-46.646, abs=1e-3)
+        assert lim["tilt"]["max_deg"] == pytest.approx(31.063, abs=1e-3)
+
+
+def test_move_sends_pp583_and_tp_minus_194() -> None:
+    with bench() as (emu, ptu):
+        start = len(emu.rx)
+        pan, tilt = ptu.move(30, -10)
+        sent = bytes(emu.rx[start:])
+        assert sent == b"PP583 TP-194 A PP TP "
+        assert emu.positions() == (583, -194)
+        assert pan == pytest.approx(583 * 185.1428 / 3600) and tilt == pytest.approx(-194 * 185.1428 / 3600)
+        snap = ptu.snapshot()
+        assert snap["pan_pos"] == 583 and snap["tilt_pos"] == -194 and snap["moving"] is False
+
+
+def test_limits_are_checked_before_anything_is_sent() -> None:
+    with bench() as (emu, ptu):
+        before = list(emu.commands)
+        with pytest.raises(DeviceError) as err:
+            ptu.move(170, 0)
+        assert err.value.device == "ptu" and "maximum 158.91 deg" in err.value.message
+        with pytest.raises(DeviceError) as err:
+            ptu.move(0, -50)
+        assert "tilt minimum -46.65 deg" in err.value.message
+        with pytest.raises(DeviceError):
+            ptu.move(10, 40)  # pan fine, tilt beyond +31.06: neither axis moves
+        assert emu.commands == before and emu.positions() == (0, 0)
+
+
+def test_device_error_replies_carry_the_units_text() -> None:
+    with bench() as (emu, ptu):
+        with pytest.raises(DeviceError) as err:
+            ptu.set_speed(5000, 1000)
+        assert err.value.message == "the PTU refused PS5000: Pan speed cannot exceed 2902 positions/sec"
+        with pytest.raises(DeviceError) as err:
+            ptu.set_speed(1000, 10)
+        assert "Tilt speed cannot be less than 31" in err.value.message
+        # the emulator enforces its own bounds too (raw bypasses the client's check)
+        assert ptu.raw("PP4000") == "! Maximum allowable Pan position is 3090"
+        assert ptu.raw("TP-1000") == "! Minimum allowable Tilt position is -907"
+        assert ptu.raw("XYZ") == "! Illegal command"
+        ptu.set_speed(2000, 500)
+        ptu.set_acceleration(4000, 1500)
+        assert ptu.get_speed() == (2000, 500) and ptu.get_acceleration() == (4000, 1500)
+
+
+def test_power_and_firmware() -> None:
+    with bench(supply_v=24.5, temperature_f=95) as (emu, ptu):
+        power = ptu.power_status()
+        assert power["voltage_v"] == 24.5 and power["temperature_f"] == 95
+        assert power["temperature_c"] == pytest.approx(35.0)
+        assert "PTU-D46" in ptu.firmware()
+
+
+def test_client_copes_with_a_unit_left_verbose_with_echo() -> None:
+    with bench() as (emu, ptu):
+        assert ptu.raw("FV") == "*" and ptu.raw("EE") == "*"
+        assert emu.verbose and emu.echo
+        assert ptu.query_number("PR") == pytest.approx(185.1428)
+        assert ptu.query_number("PN") == -3090
+        assert ptu.move(-20, 15) == pytest.approx((-389 * 185.1428 / 3600, 292 * 185.1428 / 3600))
+        assert ptu.raw("PP") == "* Current Pan position is -389"
+
+
+def test_open_against_a_unit_in_verbose_echo_mode_with_cr_delimited_input() -> None:
+    """A unit left verbose with echo on by someone's terminal session, and half a command in
+    its buffer: the leading delimiter flushes it and the handshake still lands."""
+    with bench(open_client=False) as (emu, ptu):
+        emu.write_raw(b"* Current Pan position is 12\r\n")  # stale output from a previous session
+        ptu.open()
+        assert emu.echo is False and ptu.position() == (0.0, 0.0)
+
+
+@pytest.mark.parametrize("eol", [b"\r", b"\n", b"\r\n"], ids=["CR", "LF", "CRLF"])
+def test_line_endings(eol: bytes) -> None:
+    with bench(eol=eol) as (emu, ptu):
+        assert ptu.move(30, -10) == pytest.approx((29.98285, -9.97714), abs=1e-5)
+        ptu.raw("FV")
+        assert ptu.position() == pytest.approx((29.98285, -9.97714), abs=1e-5)
+
+
+def test_replies_split_into_single_bytes() -> None:
+    with bench(chunk=1) as (emu, ptu):
+        assert ptu.move(30, -10) == pytest.approx((29.98285, -9.97714), abs=1e-5)
+        assert ptu.query_number("TR") == pytest.approx(185.1428)
+
+
+def test_async_limit_notifications_in_the_stream() -> None:
+    with bench() as (emu, ptu):
+        ptu.move(30, -10)
+        emu.prefix_next_reply(b"!P\r\n")
+        assert ptu.position()[0] == pytest.approx(29.98285, abs=1e-5)
+        emu.prefix_next_reply(b"!T")  # glued to the reply, no line end
+        assert ptu.query_number("TP") == -194
+        snap = ptu.snapshot()
+        assert snap["limit_hits"] == 2 and snap["last_async"] == "!T"
+
+
+def test_stale_bytes_before_a_reply_are_discarded() -> None:
+    with bench() as (emu, ptu):
+        ptu.move(30, -10)
+        emu.write_raw(b"* 9999\r\n* Current Tilt pos")  # a late reply and half a line
+        assert ptu.query_number("PP") == 583
+        emu.prefix_next_reply(b"x\x13 junk ")  # junk on the reply's own line
+        assert ptu.query_number("TP") == -194
+
+
+def test_reset_runs_into_the_limits_and_home() -> None:
+    with bench() as (emu, ptu):
+        ptu.move(30, -10)
+        assert ptu.reset() == (0.0, 0.0)
+        assert b"!T!T!P!P*" in bytes(emu.tx)
+        assert ptu.snapshot()["limit_hits"] == 4
+        reached = {(m["axis"], m["to"]) for m in emu.moves}
+        assert {("tilt", 604), ("tilt", -907), ("pan", 3090), ("pan", -3090)} <= reached
+
+
+def test_silent_unit_times_out_with_a_helpful_error() -> None:
+    with bench(open_client=False, fault="silent", client={"timeout": 0.3}) as (emu, ptu):
+        with pytest.raises(DeviceError) as err:
+            ptu.open()
+        assert err.value.device == "ptu"
+        assert "no reply to FT within 0.3s; check cable, power and baud rate" in err.value.message
+        assert not ptu.is_open
+        assert emu.commands == [] and b"FT " in bytes(emu.rx)  # it heard, it never answered
+
+
+def test_unit_going_silent_after_open() -> None:
+    with bench(client={"timeout": 0.3}) as (emu, ptu):
+        emu.inject_fault("silent")
+        with pytest.raises(DeviceError) as err:
+            ptu.move(30, -10)
+        assert "no reply to PP583 within 0.3s" in err.value.message
+        emu.inject_fault(None)
+        assert ptu.move(30, -10) == pytest.approx((29.98285, -9.97714), abs=1e-5)
+
+
+def test_wrong_baud_rate_garbage_is_named() -> None:
+    with bench(open_client=False, fault="garbage", client={"timeout": 0.3}) as (emu, ptu):
+        with pytest.raises(DeviceError) as err:
+            ptu.open()
+        msg = err.value.message
+        assert "unreadable bytes" in msg and "baud rate mismatch" in msg and "within 0.3s" in msg
+        assert "9600" in msg
+
+
+def test_stalled_move_times_out_halts_and_recovers() -> None:
+    with bench(client={"move_timeout": 0.3}) as (emu, ptu):
+        emu.inject_fault("stall")
+        with pytest.raises(DeviceError) as err:
+            ptu.move(30, -10)
+        msg = err.value.message
+        assert "did not finish within 0.3s" in msg and "stalled" in msg and "pan 0.00 deg" in msg
+        assert emu.commands[-3:] == ["H", "PP", "TP"]
+        emu.inject_fault(None)
+        assert ptu.move(30, -10) == pytest.approx((29.98285, -9.97714), abs=1e-5)
+
+
+@pytest.mark.parametrize("time_scale", [0.0, 0.02])
+def test_move_takes_the_trapezoid_time_in_simulated_time(time_scale: float) -> None:
+    with bench(time_scale=time_scale, speed=1000, acceleration=2000,
+               client={"speed": 1000, "acceleration": 2000}) as (emu, ptu):
+        t0 = emu.sim_time
+        ptu.move(30, 0)
+        pan = [m for m in emu.moves if m["axis"] == "pan"][-1]
+        expected = 583 / 1000 + 1000 / 2000  # ramps of v/a each, cruise for the rest
+        assert pan["duration"] == pytest.approx(expected, abs=0.005)
+        assert pan["t_start"] >= t0 and emu.sim_time >= pan["t_end"]
+        ptu.set_speed(500, 500)
+        ptu.move(0, 0)
+        back = [m for m in emu.moves if m["axis"] == "pan"][-1]
+        assert back["duration"] == pytest.approx(trapezoid_time(583, 500, 2000), abs=0.005)
+        assert back["duration"] == pytest.approx(583 / 500 + 500 / 2000, abs=0.005)
+
+
+def test_halt_from_another_thread_interrupts_a_move() -> None:
+    with bench(time_scale=0.5) as (emu, ptu):  # a 150 deg pan takes about 1.7 s of wall time
+        result: dict[str, object] = {}
+
+        def mover() -> None:
+            try:
+                result["pos"] = ptu.move(150, 0)
+            except MoveInterrupted as exc:
+                result["interrupted"] = exc
+
+        t = threading.Thread(target=mover)
+        t.start()
+        assert emu.wait_for(lambda e: "A" in e.commands, timeout=2.0)
+        ptu.halt()
+        t.join(timeout=5.0)
+        exc = result.get("interrupted")
+        assert isinstance(exc, MoveInterrupted), result
+        assert exc.position is not None and 0 < exc.position[0] < 150
+        assert "H" in emu.commands
+        assert emu.positions()[0] == pytest.approx(exc.position[0] * 3600 / 185.1428, abs=1)
+        assert not ptu.snapshot()["moving"]
+
+
+def test_cancel_event_interrupts_the_await() -> None:
+    with bench(time_scale=0.5) as (emu, ptu):
+        cancel = threading.Event()
+        threading.Thread(
+            target=lambda: emu.wait_for(lambda e: "A" in e.commands, 2.0) and cancel.set()).start()
+        with pytest.raises(MoveInterrupted) as err:
+            ptu.move(-150, 0, cancel=cancel)
+        assert -150 < err.value.position[0] < 0
+        # the line is in step afterwards: the next exchange gets its own reply
+        assert ptu.move(0, 0) == (0.0, 0.0)
+
+
+def test_any_pyserial_url_works_and_a_dead_loop_times_out() -> None:
+    ptu = PtuClient("loop://", 9600, timeout=0.2)
+    with pytest.raises(DeviceError) as err:
+        ptu.open()
+    assert "no reply to FT within 0.2s" in err.value.message and "loop://" in err.value.message
+    missing = PtuClient("/dev/does-not-exist-ptu", 9600, timeout=0.2)
+    with pytest.raises(DeviceError) as err:
+        missing.open()
+    assert "cannot open serial port /dev/does-not-exist-ptu" in err.value.message
+    assert "dialout" in err.value.message
