@@ -18,10 +18,11 @@ from typing import TYPE_CHECKING, Any
 
 import structlog
 
+from prox_workflows.products import write_yaml_atomic
+
 from . import __version__
 from .config import ConfigStore
 from .devices import DeviceRegistry
-from .files import write_yaml_atomic
 from .jobs import Job, JobRunner, error_fields
 from .protocol import ProtocolError, Reply, parse_request, tag_of
 from .table import ALWAYS, CONTROL, HARDWARE, Command, bind_options, check_positional, lookup
