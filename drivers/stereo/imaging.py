@@ -35,8 +35,8 @@ class SensorModel:
 
 @dataclass(frozen=True)
 class Lighting:
-    sun_azimuth_deg: float = 30.0  # CCW from +x (global frame)
-    sun_elevation_deg: float = 50.0
+    sun_azimuth_deg: float = 200.0  # CCW from +x (global frame): behind-left of the start pose
+    sun_elevation_deg: float = 45.0
     ambient: float = 0.25  # fraction of light that does not depend on the surface orientation
     sky: float = 0.85  # radiance of pixels that hit nothing, relative to a white lit surface
 
