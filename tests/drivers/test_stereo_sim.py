@@ -19,7 +19,6 @@ from drivers.stereo import GrabCancelled, StereoPair, create
 from drivers.trigger import create as create_trigger
 
 
-
 def _load_fakeworld() -> Any:
     """Import the helper next to this file whatever pytest's import mode or package layout."""
     name = "rvs_tests_stereo_fakeworld"
