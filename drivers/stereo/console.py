@@ -189,10 +189,11 @@ class CamShell(cmd.Cmd):
         """mode [RESOLUTION] [FORMAT]: default grab mode, e.g. mode highest rgb8 (low|medium|high|highest, mono8|rgb8)."""
         res = fmt = None
         for token in shlex.split(arg):
-            if token.lower() in PIXEL_FORMATS or token.lower().endswith("8"):
-                fmt = token
-            else:
+            # Resolution names are words, pixel formats carry a bit depth: route unknowns by that.
+            if token.lower() in RESOLUTIONS or not any(c.isdigit() for c in token):
                 res = token
+            else:
+                fmt = token
         self.show(self.cam.set_mode(res, fmt))
 
     def do_calibration(self, arg: str) -> None:
@@ -327,7 +328,8 @@ def main(argv: list[str] | None = None, *, world: Any = None, stdout: Any = None
         if value is not None:
             cam_cfg[key] = value
     cam_cfg.setdefault("backend", "sim")
-    trg_cfg["backend"] = args.trigger_backend or ("sim" if cam_cfg["backend"] == "sim" else trg_cfg.get("backend", "ppdev"))
+    # Real cameras want the real box and simulated cameras the simulated one, unless told otherwise.
+    trg_cfg["backend"] = args.trigger_backend or ("sim" if cam_cfg["backend"] == "sim" else "ppdev")
     if args.trigger_device:
         trg_cfg["device"] = args.trigger_device
     if cam_cfg["backend"] == "sim" and world is None:
