@@ -18,6 +18,7 @@ from typing import TYPE_CHECKING, Any
 
 import structlog
 
+from drivers.base import DeviceError
 from prox_workflows.products import write_yaml_atomic
 
 from . import __version__
@@ -128,6 +129,18 @@ class App:
             self.pose = Pose(x, y, heading)
             self.pose_changed.notify_all()
 
+    def ptu_position(self) -> tuple[float, float] | None:
+        """The PTU's last reported position, without touching the serial line."""
+        dev = self.devices.devices.get("ptu")
+        if dev is None:
+            return None
+        try:
+            state = dev.status()
+        except Exception:  # noqa: BLE001 - status never fails because a device does
+            return None
+        pan, tilt = state.get("pan_deg"), state.get("tilt_deg")
+        return None if pan is None or tilt is None else (float(pan), float(tilt))
+
     # ---------------------------------------------------------------- files
 
     def data_path(self, *parts: str) -> Path:
@@ -162,13 +175,7 @@ class App:
         root.mkdir(parents=True, exist_ok=True)
         tmp = root / f".{stamp}.tmp"
         tmp.mkdir()
-        ptu: Any = None
-        try:
-            dev = self.devices.devices.get("ptu")
-            if dev is not None:
-                ptu = list(dev.status().get("position", ())) or None
-        except Exception as exc:  # noqa: BLE001 - a broken PTU must not lose the recovery set
-            ptu = f"unavailable: {exc}"
+        ptu = self.ptu_position()
         copied: dict[str, str] = {}
         with self.maps_lock:
             maps = dict(self.maps)
@@ -185,7 +192,7 @@ class App:
             if job is None
             else {"id": job.id, "command": job.command, "parameters": job.params, "progress": [job.done, job.total]},
             "pose": {"x": self.pose.x, "y": self.pose.y, "heading": self.pose.heading},
-            "ptu": ptu,
+            "ptu": None if ptu is None else {"pan": ptu[0], "tilt": ptu[1]},
             "maps": copied,
         }
         write_yaml_atomic(tmp / "manifest.yaml", manifest)
@@ -305,8 +312,10 @@ class App:
                 jlog.info("job_ok", seconds=round(time.monotonic() - j.started, 3))
             else:
                 fields, device_failed = error_fields(error)
-                if device_failed and self.base_mode != "fault":
+                if device_failed:
                     self.base_mode = "fault"
+                    if isinstance(error, DeviceError):
+                        self.devices.errors[error.device] = error.message
                 conn.send(Reply(module, "ERROR", {"job": j.id, **fields}, tag))
                 jlog.warning("job_error", code=fields["code"], error=fields["message"])
             self.announce_mode()

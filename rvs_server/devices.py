@@ -18,7 +18,7 @@ from drivers.base import Device, DeviceError
 
 log = structlog.get_logger("rvs.devices")
 
-DEVICE_NAMES = ("ptu", "tof", "stereo", "trigger")
+DEVICE_NAMES = ("ptu", "tof", "trigger", "stereo")  # the trigger box first: the cameras fire it
 
 
 @functools.cache

@@ -89,23 +89,28 @@ def bind_options(cmd: Command, base: ModuleConfig | None, req: Request) -> Modul
             name = req.options[0][0].replace("_", "-")
             raise ProtocolError("E_ARG", f"{cmd.name} takes no options (got -{name}); see help {cmd.name}")
         return None
+    return apply_options(cmd.name, base, req.options)
+
+
+def apply_options(name: str, base: ModuleConfig, options: list[tuple[str, str | bool]]) -> ModuleConfig:
+    """Options over a copy of ``base``; unknown, repeated, mistyped and missing ones are E_ARG."""
     cfg = copy.deepcopy(base)
     specs = cfg.specs()
     seen: set[str] = set()
-    for name, raw in req.options:
-        spec = specs.get(name)
+    for opt, raw in options:
+        spec = specs.get(opt)
         if spec is None or not spec.option:
             accepted = " ".join(s.flag for s in specs.values() if s.option) or "none"
             raise ProtocolError(
-                "E_ARG", f"unknown option -{name.replace('_', '-')} for {cmd.name}; options: {accepted}"
+                "E_ARG", f"unknown option -{opt.replace('_', '-')} for {name}; options: {accepted}"
             )
-        if name in seen:
+        if opt in seen:
             raise ProtocolError("E_ARG", f"option {spec.flag} given twice")
-        seen.add(name)
-        setattr(cfg, name, spec.parse(raw))
+        seen.add(opt)
+        setattr(cfg, opt, spec.parse(raw))
     for spec in specs.values():
         if spec.required and spec.name not in seen:
-            raise ProtocolError("E_ARG", f"{cmd.name} needs {spec.flag} ({spec.describe()})")
+            raise ProtocolError("E_ARG", f"{name} needs {spec.flag} ({spec.describe()})")
     return cfg
 
 

@@ -13,11 +13,10 @@ import time
 from pathlib import Path
 
 import yaml
+from conftest import LineClient, wait_for
 
 from rvs_server.protocol import parse_reply
 from rvs_server.table import COMMANDS, command
-
-from conftest import LineClient, wait_for
 
 
 def test_greeting_help_and_typo(client: LineClient) -> None:

@@ -1,3 +1,3 @@
 """Command modules; importing this package fills the command table."""
 
-from . import system  # noqa: F401
+from . import hardware, sim, system  # noqa: F401

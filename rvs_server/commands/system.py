@@ -60,17 +60,6 @@ def _devices(summary: dict[str, str]) -> list[str] | str:
     return [f"{name}:{state}" for name, state in summary.items()] or "none"
 
 
-def _ptu_position(app: Any) -> list[Fixed] | None:
-    dev = app.devices.devices.get("ptu")
-    if dev is None:
-        return None
-    try:
-        pos = dev.status().get("position")
-    except Exception:  # noqa: BLE001 - status never fails because a device does
-        return None
-    return [Fixed(p, 3) for p in pos] if pos else None
-
-
 # ------------------------------------------------------------------ appendix C
 
 
@@ -214,7 +203,7 @@ def _show(value: Any) -> str:
     if isinstance(value, list):
         return ",".join(_show(v) for v in value)
     if isinstance(value, float):
-        return format(value, "g")
+        return "none" if value != value else format(value, "g")
     return str(value) if value != "" else '""'
 
 
@@ -228,9 +217,9 @@ def status(ctx: Context, cfg: None) -> dict[str, Any]:
         out["progress"] = f"{job.done}/{job.total}"
     pose = app.pose
     out["pose"] = [Fixed(pose.x, 3), Fixed(pose.y, 3), Fixed(pose.heading, 2)]
-    ptu = _ptu_position(app)
+    ptu = app.ptu_position()
     if ptu is not None:
-        out["ptu"] = ptu
+        out["ptu"] = [Fixed(ptu[0], 3), Fixed(ptu[1], 3)]
     out["devices"] = _devices(app.devices.summary())
     for name, err in app.devices.errors.items():
         out[f"error_{name}"] = err

@@ -1,0 +1,155 @@
+"""Hardware commands: move-ptu, grab-stereo, grab-tof."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from datetime import UTC, datetime
+from pathlib import Path
+from typing import Any, ClassVar
+
+import cv2
+import numpy as np
+
+from prox_workflows.products import preview, write_png, write_sidecar, write_tiff
+
+from ..config import ModuleConfig, param
+from ..jobs import Interrupted, Job
+from ..protocol import Fixed, ProtocolError
+from ..table import HARDWARE, command
+
+
+def device_call(job: Job, fn: Any, *args: Any, **kwargs: Any) -> Any:
+    """Call a driver with the job's cancel event; a stop caused by break is E_INTERRUPTED, not a fault."""
+    try:
+        return fn(*args, cancel=job.cancel, **kwargs)
+    except Exception:
+        if job.cancelled:
+            raise Interrupted(f"{job.command} job {job.id} was interrupted") from None
+        raise
+
+
+def default_stem(prefix: str) -> str:
+    return f"{prefix}_{datetime.now(UTC).strftime('%Y%m%dT%H%M%S_%f')[:-3]}"
+
+
+def acquisition_context(app: Any) -> dict[str, Any]:
+    """Where the rover and the PTU were: goes into every image's sidecar."""
+    pose = app.pose
+    ptu = app.ptu_position()
+    out: dict[str, Any] = {"pose": {"x": pose.x, "y": pose.y, "heading": pose.heading}}
+    if ptu is not None:
+        out["ptu"] = {"pan": ptu[0], "tilt": ptu[1]}
+    return out
+
+
+# ------------------------------------------------------------------ move-ptu
+
+
+@dataclass
+class MovePtuConfig(ModuleConfig):
+    module: ClassVar[str] = "move_ptu"
+    pan: float = param(float("nan"), "pan angle (default: keep)", unit="deg", min=-360.0, max=360.0)
+    tilt: float = param(float("nan"), "tilt angle (default: keep)", unit="deg", min=-90.0, max=90.0)
+
+
+@command("move-ptu", job=True, klass=HARDWARE, config=MovePtuConfig, help="move the PTU to -pan, -tilt")
+def move_ptu(job: Job, cfg: MovePtuConfig) -> dict[str, Any]:
+    app = job.app  # type: ignore[attr-defined]
+    ptu = app.devices.get("ptu")
+    pan = None if math.isnan(cfg.pan) else cfg.pan
+    tilt = None if math.isnan(cfg.tilt) else cfg.tilt
+    if pan is None and tilt is None:
+        raise ProtocolError("E_ARG", "move-ptu needs -pan and/or -tilt (degrees)")
+    limits = ptu.limits()
+    for axis, value in (("pan", pan), ("tilt", tilt)):
+        lim = limits.get(axis)
+        if value is not None and lim and not lim["min_deg"] <= value <= lim["max_deg"]:
+            raise ProtocolError(
+                "E_ARG", f"-{axis} {value:g} is outside the PTU's limits [{lim['min_deg']:.2f}, {lim['max_deg']:.2f}] deg"
+            )
+    job.progress(0, 1, f"moving to pan={_deg(pan)} tilt={_deg(tilt)}")
+    reached = device_call(job, ptu.move, pan, tilt, True)
+    return {"pan": Fixed(reached[0], 3), "tilt": Fixed(reached[1], 3)}
+
+
+def _deg(value: float | None) -> str:
+    return "keep" if value is None else f"{value:.3f}"
+
+
+# ------------------------------------------------------------------ grab-tof
+
+
+@dataclass
+class GrabTofConfig(ModuleConfig):
+    module: ClassVar[str] = "grab_tof"
+    output: str = param("", "file stem (default tof_<UTC time>)", stem=True)
+    type: str = param("distance", "image type", choices=("amplitude", "distance", "confidence", "z", "xyz"))
+    integrate: int = param(1, "frames to integrate", min=1, max=100)
+    confidence: float = param(0.0, "discard pixels below this confidence", min=0.0, max=1.0)
+
+
+@command("grab-tof", job=True, klass=HARDWARE, config=GrabTofConfig,
+         help="acquire a ToF image (-type) integrating -integrate frames above -confidence, store it as -output")
+def grab_tof(job: Job, cfg: GrabTofConfig) -> dict[str, Any]:
+    app = job.app  # type: ignore[attr-defined]
+    tof = app.devices.get("tof")
+    stem = cfg.output or default_stem("tof")
+    job.progress(0, 2, f"grabbing {cfg.integrate} {cfg.type} frame(s)")
+    image = device_call(job, tof.grab, cfg.type, cfg.integrate, cfg.confidence)
+    job.check()
+    job.progress(1, 2, "writing")
+    path = app.data_path("tof", f"{stem}_{cfg.type}.tif")
+    write_tiff(path, np.asarray(image, dtype=np.float32))
+    if cfg.type == "xyz":
+        z = np.where(image[..., 2] > 0, image[..., 2], np.nan)
+        view = preview(z, cv2.COLORMAP_JET)
+    else:
+        view = preview(image, cv2.COLORMAP_JET if cfg.type in ("distance", "z") else None)
+    write_png(path.with_suffix(".png"), view)
+    units = {"distance": "m", "z": "m", "xyz": "m (x, y, z camera frame; -1 undefined)",
+             "amplitude": "counts", "confidence": "0..1"}[cfg.type]
+    write_sidecar(path, "grab-tof", cfg.as_dict(), units=units, nan="undefined pixel",
+                  device=_device_info(tof), **acquisition_context(app))
+    valid = np.isfinite(image) if cfg.type != "xyz" else image[..., 2] > 0
+    return {"file": app.rel(path), "valid": Fixed(float(valid.mean()), 3)}
+
+
+def _device_info(dev: Any) -> dict[str, Any]:
+    try:
+        st = dev.status()
+    except Exception:  # noqa: BLE001
+        return {}
+    return {k: v for k, v in st.items() if isinstance(v, str | int | float | bool) and v is not None}
+
+
+# ------------------------------------------------------------------ grab-stereo
+
+
+@dataclass
+class GrabStereoConfig(ModuleConfig):
+    module: ClassVar[str] = "grab_stereo"
+    output: str = param("", "file stem (default stereo_<UTC time>)", stem=True)
+    resolution: str = param("high", "resolution mode", choices=("low", "medium", "high", "highest"))
+    format: str = param("mono8", "pixel format", choices=("mono8", "rgb8"))
+
+
+@command("grab-stereo", job=True, klass=HARDWARE, config=GrabStereoConfig,
+         help="grab a triggered stereo pair and store it as -output")
+def grab_stereo(job: Job, cfg: GrabStereoConfig) -> dict[str, Any]:
+    app = job.app  # type: ignore[attr-defined]
+    cams = app.devices.get("stereo")
+    stem = cfg.output or default_stem("stereo")
+    job.progress(0, 2, f"grabbing a {cfg.resolution} {cfg.format} pair")
+    left, right = device_call(job, cams.grab_stereo, cfg.resolution, cfg.format)
+    job.check()
+    job.progress(1, 2, "writing")
+    out: dict[str, Any] = {}
+    for side, image in (("left", left), ("right", right)):
+        path: Path = app.data_path("stereo", f"{stem}_{side}.tif")
+        write_tiff(path, image)
+        write_png(path.with_suffix(".png"), image)
+        write_sidecar(path, "grab-stereo", cfg.as_dict(), side=side, device=_device_info(cams),
+                      **acquisition_context(app))
+        out[side] = app.rel(path)
+    return out
