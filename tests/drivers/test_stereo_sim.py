@@ -459,3 +459,15 @@ def test_office_scene_pair_matches_the_true_depth() -> None:
     assert ok.mean() > 0.2
     error = np.abs(disp[ok] - expected[ok])
     assert np.median(error) < 1.0, np.median(error)
+
+
+def test_the_shipped_drivers_yaml_section_builds_a_working_pair() -> None:
+    config = yaml.safe_load((Path(__file__).parents[2] / "config" / "drivers.yaml").read_text())
+    world = FakeWorld()
+    box = create_trigger(config["trigger"], world)
+    box.open()
+    cam = create({**config["stereo"], "resolution": "low"}, world, box)
+    cam.open()
+    left, right = cam.grab_stereo()
+    assert left.shape == (480, 640) and cam.status()["backend"] == "sim"
+    assert cam.get_settings("left")["white_balance"] == [512, 512]

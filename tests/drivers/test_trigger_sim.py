@@ -98,3 +98,13 @@ def test_without_a_world_the_box_still_counts() -> None:
     dev = make(None)
     assert dev.pulse() == 1
     assert dev.status()["bus_count"] is None
+
+
+def test_the_shared_world_trigger_bus() -> None:
+    from drivers.sim.world import World
+
+    world = World.from_scene("office", seed=0)
+    dev = make(world)
+    after = world.trigger.count
+    assert dev.pulse() == 1
+    assert world.trigger.wait_for_pulse(after, 0.0) == after + 1
