@@ -1,0 +1,165 @@
+"""Map geometry and layers (grid_map's idea: named layers on one geometry), and GeoTIFF I/O.
+
+Every DEM product (elevation, variance, count, ortho, slope, step, roughness, hazard,
+traversability) is a layer on one :class:`GridGeometry`. Rasters are north-up as GeoTIFF wants
+them: row 0 is the northern edge (largest y), column 0 the western edge (smallest x); cell
+(row, col) covers x in [xmin + col*cell, xmin + (col+1)*cell) and y in (ymax - (row+1)*cell,
+ymax - row*cell]. The global frame is local (x forward at the start pose, y left, z up, metres),
+so GeoTIFFs carry a local engineering CRS: GDAL, QGIS and rasterio open them in place with the
+right cell size and origin.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import tifffile
+
+from .products import write_atomic
+
+# GeoTIFF tags (GeoTIFF 1.1 spec) and GDAL's nodata tag
+MODEL_PIXEL_SCALE = 33550
+MODEL_TIEPOINT = 33922
+GEO_KEY_DIRECTORY = 34735
+GEO_ASCII_PARAMS = 34737
+GDAL_NODATA = 42113
+GDAL_METADATA = 42112
+
+
+@dataclass(frozen=True)
+class GridGeometry:
+    """A north-up grid: cell size in metres, the north-west corner, and the size in cells."""
+
+    cell: float
+    xmin: float
+    ymax: float
+    width: int
+    height: int
+
+    @classmethod
+    def covering(cls, xmin: float, ymin: float, xmax: float, ymax: float, cell: float) -> GridGeometry:
+        """The grid aligned to multiples of ``cell`` that covers the bounds."""
+        x0 = math.floor(xmin / cell + 1e-9) * cell
+        y1 = math.ceil(ymax / cell - 1e-9) * cell
+        width = max(1, math.ceil((xmax - x0) / cell - 1e-9))
+        height = max(1, math.ceil((y1 - ymin) / cell - 1e-9))
+        return cls(cell, x0, y1, width, height)
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        return (self.height, self.width)
+
+    @property
+    def xmax(self) -> float:
+        return self.xmin + self.width * self.cell
+
+    @property
+    def ymin(self) -> float:
+        return self.ymax - self.height * self.cell
+
+    @property
+    def bounds(self) -> tuple[float, float, float, float]:
+        return (self.xmin, self.ymin, self.xmax, self.ymax)
+
+    def transform(self) -> tuple[float, float, float, float, float, float]:
+        """GDAL geotransform: x = c0 + col*c1 + row*c2, y = c3 + col*c4 + row*c5 (cell corners)."""
+        return (self.xmin, self.cell, 0.0, self.ymax, 0.0, -self.cell)
+
+    def cell_of(self, x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Row and column of the cell holding each point (may be outside the grid)."""
+        col = np.floor((np.asarray(x) - self.xmin) / self.cell).astype(np.int64)
+        row = np.floor((self.ymax - np.asarray(y)) / self.cell).astype(np.int64)
+        return row, col
+
+    def centers(self) -> tuple[np.ndarray, np.ndarray]:
+        """x of each column's centre and y of each row's centre."""
+        xs = self.xmin + (np.arange(self.width) + 0.5) * self.cell
+        ys = self.ymax - (np.arange(self.height) + 0.5) * self.cell
+        return xs, ys
+
+    def inside(self, row: np.ndarray, col: np.ndarray) -> np.ndarray:
+        return (row >= 0) & (row < self.height) & (col >= 0) & (col < self.width)
+
+
+@dataclass
+class Layers:
+    """Named float32 (or uint8) layers on one geometry, with free-form metadata."""
+
+    geometry: GridGeometry
+    layers: dict[str, np.ndarray] = field(default_factory=dict)
+    meta: dict[str, Any] = field(default_factory=dict)
+
+    def __getitem__(self, name: str) -> np.ndarray:
+        return self.layers[name]
+
+    def __setitem__(self, name: str, value: np.ndarray) -> None:
+        if value.shape[:2] != self.geometry.shape:
+            raise ValueError(f"layer {name} has shape {value.shape[:2]}, grid is {self.geometry.shape}")
+        self.layers[name] = value
+
+    def __contains__(self, name: str) -> bool:
+        return name in self.layers
+
+
+# ------------------------------------------------------------------------------ GeoTIFF
+
+
+def _geo_tags(geometry: GridGeometry, nodata: float | None) -> list[tuple[int, str, int, Any, bool]]:
+    # GeoKeyDirectory: version 1.1.0, then (key, location, count, value) entries.
+    #   GTModelTypeGeoKey (1024) = 32767 user-defined (a local engineering frame)
+    #   GTRasterTypeGeoKey (1025) = 1 RasterPixelIsArea
+    #   GTCitationGeoKey (1026) -> ASCII params
+    #   ProjLinearUnitsGeoKey (3076) = 9001 metre
+    citation = "RVS local frame: x forward at the start pose, y left, z up (m)|"
+    keys = [1, 1, 0, 4,
+            1024, 0, 1, 32767,
+            1025, 0, 1, 1,
+            1026, GEO_ASCII_PARAMS, len(citation), 0,
+            3076, 0, 1, 9001]
+    tags: list[tuple[int, str, int, Any, bool]] = [
+        (MODEL_PIXEL_SCALE, "d", 3, (geometry.cell, geometry.cell, 0.0), False),
+        (MODEL_TIEPOINT, "d", 6, (0.0, 0.0, 0.0, geometry.xmin, geometry.ymax, 0.0), False),
+        (GEO_KEY_DIRECTORY, "H", len(keys), tuple(keys), False),
+        (GEO_ASCII_PARAMS, "s", 0, citation, False),
+    ]
+    if nodata is not None:
+        tags.append((GDAL_NODATA, "s", 0, "nan" if math.isnan(nodata) else repr(nodata), False))
+    return tags
+
+
+def write_geotiff(path: Path, image: np.ndarray, geometry: GridGeometry, nodata: float | None = None) -> Path:
+    """One layer as a GeoTIFF (atomically). Float layers default to NaN as nodata."""
+    if image.shape[:2] != geometry.shape:
+        raise ValueError(f"image shape {image.shape[:2]} does not match the grid {geometry.shape}")
+    if nodata is None and np.issubdtype(image.dtype, np.floating):
+        nodata = float("nan")
+    rgb = image.ndim == 3 and image.shape[2] in (3, 4) and image.dtype == np.uint8
+    tags = _geo_tags(geometry, nodata)
+
+    def write(p: Path) -> None:
+        tifffile.imwrite(p, image, photometric="rgb" if rgb else "minisblack", extratags=tags,
+                         compression="zlib" if image.size > 65536 else None)
+
+    return write_atomic(Path(path), write)
+
+
+def read_geotiff(path: Path) -> tuple[np.ndarray, GridGeometry]:
+    """Read a GeoTIFF written here or by GDAL (north-up, no rotation)."""
+    with tifffile.TiffFile(path) as tif:
+        page = tif.pages[0]
+        image = page.asarray()
+        scale = page.tags.get(MODEL_PIXEL_SCALE)
+        tie = page.tags.get(MODEL_TIEPOINT)
+        if scale is None or tie is None:
+            raise ValueError(f"{path} has no GeoTIFF georeferencing (ModelPixelScale/ModelTiepoint)")
+        sx, sy = scale.value[0], scale.value[1]
+        i, j, _, x, y, _ = tie.value[:6]
+        if not math.isclose(sx, sy, rel_tol=1e-9):
+            raise ValueError(f"{path}: non-square cells ({sx} x {sy}) are not supported")
+    xmin = x - i * sx
+    ymax = y + j * sy
+    return image, GridGeometry(float(sx), float(xmin), float(ymax), image.shape[1], image.shape[0])
