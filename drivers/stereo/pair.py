@@ -335,11 +335,12 @@ class StereoPair:
                         if fire:
                             assert self._fire is not None
                             pulse = self._fire()
-                        raw = self._backend.collect(token, self.trigger_timeout, cancel)
+                        raw = self._backend.collect(token, self._frame_timeout(sides, self.trigger_timeout), cancel)
                     finally:
                         self._backend.disarm(token)
                 else:
-                    raw = self._backend.capture_direct(guids, size, fmt, self.direct_timeout, cancel)
+                    timeout = self._frame_timeout(sides, self.direct_timeout)
+                    raw = self._backend.capture_direct(guids, size, fmt, timeout, cancel)
             except MissedTrigger as exc:
                 err = self._missed_error(exc)
                 self._set_error(sides, err.message)
@@ -383,6 +384,11 @@ class StereoPair:
                     self._status[side]["frames"] += 1
                     self._status[side]["last_error"] = None
             return frames
+
+    def _frame_timeout(self, sides: tuple[str, ...], base: float) -> float:
+        """A frame cannot arrive before its exposure ends: long shutters extend the wait."""
+        exposure = max(0 if self._settings[s].auto_exposure else self._settings[s].shutter_us for s in sides)
+        return base + exposure / 1e6
 
     # -- calibration ------------------------------------------------------------------------------------
     def calibration(self, resolution: str | None = None) -> dict[str, Any]:
