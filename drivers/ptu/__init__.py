@@ -161,6 +161,10 @@ class Ptu:
         return self._call(lambda c: c.limits())
 
     def halt(self) -> None:
+        """Stop both axes; a move awaiting in another thread stops at once with MoveInterrupted."""
+        client = self._client
+        if client is not None:
+            client.interrupt()  # before any lock: a reinit queued behind the move must not delay it
         self._call(lambda c: c.halt())
 
     def set_speed(self, pan_pos_s: float | None, tilt_pos_s: float | None = None) -> None:

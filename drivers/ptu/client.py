@@ -354,7 +354,13 @@ class PtuClient:
             try:
                 reply = self._read_reply("A", timeout, stop=lambda: user_stop() or self._halt.is_set())
             except ReplyTimeout as exc:
-                where = self._halt_after_await()
+                answered, where = self._halt_after_await()
+                if not answered:
+                    raise ReplyTimeout(
+                        f"no reply to A within {timeout:g}s and none to H after it: the unit stopped "
+                        f"answering mid-move; check cable, power and baud rate ({self.port} at "
+                        f"{self.baudrate} baud)"
+                    ) from exc
                 raise DeviceError(
                     DEVICE,
                     f"move did not finish within {timeout:g}s (drivers.ptu.move_timeout); the unit stopped "
@@ -362,32 +368,40 @@ class PtuClient:
                     "overloaded; check the load and power, then reset the PTU",
                 ) from exc
             if reply is None:
-                where = self._halt_after_await()
-                pos = self._last_position()
-                raise MoveInterrupted(f"move interrupted by halt at {where}", pos)
+                _, where = self._halt_after_await()
+                raise MoveInterrupted(f"move interrupted by halt at {where}", self._last_position())
             if not reply.ok:
                 raise DeviceError(DEVICE, f"the PTU refused A: {reply.text}")
             self._set_state(moving=False)
 
-    def _halt_after_await(self) -> str:
-        """Send H while an A is outstanding and collect both replies; say where the unit is."""
+    def _halt_after_await(self) -> tuple[bool, str]:
+        """Send H while an A is outstanding and collect both replies (the H's and the A's, in
+        whichever order the unit sends them); whether the unit answered, and where it is."""
         self._send("H", flush=False)
-        for _ in range(2):  # the H and the pending A answer, in whichever order the unit sends them
+        answered = False
+        for _ in range(2):
             try:
                 self._read_reply("H", self.timeout)
-            except DeviceError:
+                answered = True
+            except ReplyTimeout:
                 break
         self._set_state(moving=False)
+        if not answered:
+            return False, "an unknown position"
         try:
             pan, tilt = self.position()
-            return f"pan {pan:.2f} deg, tilt {tilt:.2f} deg"
+            return True, f"pan {pan:.2f} deg, tilt {tilt:.2f} deg"
         except DeviceError:
-            return "an unknown position (no reply to PP/TP)"
+            return True, "an unknown position (no reply to PP/TP)"
 
     def _last_position(self) -> tuple[float, float] | None:
         with self._state_lock:
             pan, tilt = self._state["pan_deg"], self._state["tilt_deg"]
         return None if pan is None or tilt is None else (pan, tilt)
+
+    def interrupt(self) -> None:
+        """Ask a move that is awaiting (in another thread) to halt; ``halt()`` does this first."""
+        self._halt.set()
 
     def halt(self) -> None:
         """Stop both axes now, also from another thread while a move is awaiting."""
@@ -400,11 +414,16 @@ class PtuClient:
             self._halt.clear()
 
     def reset(self, timeout: float | None = None) -> tuple[float, float]:
-        """``R``: the unit runs both axes into their limits and back home; wait for the end."""
+        """``R``: the unit runs both axes into their limits and back home; wait for the end.
+
+        The D46 measures its axis bounds during a reset, so they are read again afterwards.
+        """
         with self.lock:
             self._set_state(moving=True, target_pan_deg=0.0, target_tilt_deg=0.0)
             self.command("R", self.reset_timeout if timeout is None else timeout)
             self._set_state(moving=False)
+            for axis, letter in (("pan", "P"), ("tilt", "T")):
+                self.bounds[axis] = (int(self.query_number(f"{letter}N")), int(self.query_number(f"{letter}X")))
             return self.position()
 
     # -- speeds, accelerations, health -----------------------------------------------------------

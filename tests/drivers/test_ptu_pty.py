@@ -138,6 +138,8 @@ def test_reset_runs_into_the_limits_and_home() -> None:
         assert ptu.reset() == (0.0, 0.0)
         assert b"!T!T!P!P*" in bytes(emu.tx)
         assert ptu.snapshot()["limit_hits"] == 4
+        r = len(emu.commands) - 1 - emu.commands[::-1].index("R")
+        assert emu.commands[r + 1 :] == ["PN", "PX", "TN", "TX", "PP", "TP"]  # bounds measured anew
         reached = {(m["axis"], m["to"]) for m in emu.moves}
         assert {("tilt", 604), ("tilt", -907), ("pan", 3090), ("pan", -3090)} <= reached
 
@@ -183,6 +185,18 @@ def test_stalled_move_times_out_halts_and_recovers() -> None:
         assert ptu.move(30, -10) == pytest.approx((29.98285, -9.97714), abs=1e-5)
 
 
+def test_unit_dying_mid_move_is_a_line_fault_not_a_stall() -> None:
+    with bench(time_scale=1.0, client={"timeout": 0.2}) as (emu, ptu):
+        ptu.move(150, 0, wait=False)  # about 3.4 s of motion
+        assert ptu.snapshot()["moving"] is True
+        emu.inject_fault("silent")
+        with pytest.raises(DeviceError) as err:
+            ptu.await_motion(timeout=0.3)
+        msg = err.value.message
+        assert "no reply to A within 0.3s and none to H" in msg and "check cable, power and baud rate" in msg
+        assert ptu.snapshot()["moving"] is False
+
+
 @pytest.mark.parametrize("time_scale", [0.0, 0.02])
 def test_move_takes_the_trapezoid_time_in_simulated_time(time_scale: float) -> None:
     with bench(time_scale=time_scale, speed=1000, acceleration=2000,
@@ -212,7 +226,7 @@ def test_halt_from_another_thread_interrupts_a_move() -> None:
 
         t = threading.Thread(target=mover)
         t.start()
-        assert emu.wait_for(lambda e: "A" in e.commands, timeout=2.0)
+        assert emu.wait_for(lambda e: "A" in e.commands and e.positions()[0] > 100, timeout=3.0)
         ptu.halt()
         t.join(timeout=5.0)
         exc = result.get("interrupted")
@@ -227,7 +241,8 @@ def test_cancel_event_interrupts_the_await() -> None:
     with bench(time_scale=0.5) as (emu, ptu):
         cancel = threading.Event()
         threading.Thread(
-            target=lambda: emu.wait_for(lambda e: "A" in e.commands, 2.0) and cancel.set()).start()
+            target=lambda: emu.wait_for(lambda e: "A" in e.commands and e.positions()[0] < -100, 3.0)
+            and cancel.set()).start()
         with pytest.raises(MoveInterrupted) as err:
             ptu.move(-150, 0, cancel=cancel)
         assert -150 < err.value.position[0] < 0
