@@ -498,11 +498,13 @@ class Tof:
     def _settle_exposure(self, cancel: Callable[[], None]) -> None:
         """Acquire (and discard) until the auto-exposed integration time stops changing.
 
-        The camera only updates the integration time on acquisition, so each frame moves it one
-        step; the loop stops when a frame changes it by at most one register step, or after
+        The camera only updates the integration time on acquisition, so each frame moves it a
+        step. It counts as settled when a frame leaves it unchanged, or when it dithers by one
+        register step back and forth around its target; the loop gives up after
         ``auto_exposure_max_iterations`` frames (then status says exposure_settled: false).
         """
         previous = self._cam.get_integration()
+        last_step = 0
         settled = False
         frames = 0
         for frames in range(1, self._settings.auto_exposure_max_iterations + 1):  # noqa: B007
@@ -510,10 +512,11 @@ class Tof:
             frame = self._cam.acquire()
             self._bump_frames(frame.integration)
             current = self._cam.get_integration()
-            if abs(current - previous) <= 1:
+            step = current - previous
+            if step == 0 or (abs(step) == 1 and step == -last_step):
                 settled = True
                 break
-            previous = current
+            previous, last_step = current, step
         current = self._cam.get_integration()
         self._settings.integration = current
         self._set_status(

@@ -1,0 +1,145 @@
+"""rvs-tof: one-shot command lines, TIFF grabs, errors caught and printed."""
+
+from __future__ import annotations
+
+import io
+import json
+
+import cv2
+import numpy as np
+import pytest
+import tifffile
+import usb.core
+from tof_rig import floor_world, open_camera
+
+from drivers.tof import Tof, mesasr
+from drivers.tof import constants as k
+from drivers.tof.console import TofConsole, main
+
+# Every public camera function and the console command that reaches it.
+COMMANDS = {
+    "open": "open",
+    "close": "close",
+    "status": "status",
+    "check": "check",
+    "reinit": "reinit",
+    "reset": "reset",
+    "query": "query",
+    "serial": "query",
+    "inject_fault": "fault",
+    "get_settings": "settings",
+    "set_settings": "threshold",
+    "set_amplitude_threshold": "threshold",
+    "set_modulation": "modulation",
+    "set_max_distance": "maxdist",
+    "set_integration": "integration",
+    "set_integration_ms": "intms",
+    "set_auto_exposure": "autoexp",
+    "get_correction_modes": "modes",
+    "set_correction_modes": "modes",
+    "get_mode": "modes",
+    "set_enhanced_xyz": "enhanced",
+    "get_enhanced_xyz": "enhanced",
+    "set_undistort": "undistort",
+    "set_colour_range": "colourrange",
+    "get_colour_range": "colourrange",
+    "save_settings": "save",
+    "load_settings": "load",
+    "create_default_settings_file": "default",
+    "grab": "grab",
+    "grab_xyz": "xyz",
+    "intrinsics": "intrinsics",
+    "undistort": "grab",
+    "fake_colour": "grab",
+}
+
+
+def test_every_public_function_has_a_command():
+    public = {n for n in dir(Tof) if not n.startswith("_") and n not in ("name", "backend", "settings_file")}
+    assert public <= set(COMMANDS), f"no console command for {sorted(public - set(COMMANDS))}"
+    for command in set(COMMANDS.values()):
+        assert hasattr(TofConsole, f"do_{command}")
+
+
+def test_one_shot_grab_writes_a_tiff_and_a_preview(tmp_path, capsys):
+    tif, png = tmp_path / "floor_z.tif", tmp_path / "floor_z.png"
+    rc = main(["--backend", "sim", "-c", "ptu 0 -55", "-c", f"grab z {tif} -n 4 -c 0.2 --preview {png}"])
+    out = capsys.readouterr().out
+    assert rc == 0, out
+    image = tifffile.imread(tif)
+    assert image.shape == (k.HEIGHT, k.WIDTH) and image.dtype == np.float32
+    assert 1.0 < float(np.nanmedian(image)) < 1.6  # the office floor below the tilted head
+    preview = cv2.imread(str(png))
+    assert preview.shape == (k.HEIGHT, k.WIDTH, 3)
+    assert f"z -> {tif}" in out
+
+
+def test_xyz_and_settings_commands(tmp_path, capsys):
+    xyz_path, amp_path, settings = tmp_path / "v.tif", tmp_path / "a.tif", tmp_path / "s.yaml"
+    rc = main(
+        [
+            "-c",
+            f"ptu 0 -40; modulation 15; integration 55; modes median=on conv_gray=off; save {settings}",
+            "-c",
+            f"xyz {xyz_path} -n 2 --amplitude {amp_path}; integration 10; load {settings}; check",
+        ]
+    )
+    out = capsys.readouterr().out
+    assert rc == 0, out
+    xyz = tifffile.imread(xyz_path)
+    assert xyz.shape == (k.HEIGHT, k.WIDTH, 3) and (xyz[..., 2] > 0).mean() > 0.9
+    assert tifffile.imread(amp_path).shape == (k.HEIGHT, k.WIDTH)
+    checked = json.loads(out[out.rindex("{") :])
+    assert checked["integration"] == 55 and checked["modulation_mhz"] == 15.0
+    assert "median=on" in out and "conv_gray=off" in out
+
+
+def test_errors_are_printed_and_the_console_carries_on(capsys, tmp_path):
+    tif = tmp_path / "d.tif"
+    rc = main(["-c", "modulation 20; integration 999; grab colour x.tif; fault unplug; status", "-c", f"fault none; reinit; grab distance {tif}"])
+    out = capsys.readouterr().out
+    assert rc == 1
+    assert "error: modulation frequency 20" in out
+    assert "error: integration register 999" in out
+    assert "error: argument type: invalid choice" in out
+    assert '"fault": "unplug"' in out  # status still answers while unplugged
+    assert tif.exists()  # reinit recovered and the last grab worked
+
+
+def test_disconnect_is_reported_with_the_device_name():
+    cam = open_camera(floor_world())
+    out = io.StringIO()
+    console = TofConsole(cam, stdout=out)
+    console.onecmd("fault unplug")
+    console.onecmd("grab distance /tmp/never.tif")
+    assert "error: tof: SR4000 disconnected (USB)" in out.getvalue() and console.failed
+
+
+def test_real_backend_without_libmesasr_still_offers_the_usb_query(monkeypatch, capsys):
+    monkeypatch.setattr(mesasr.ctypes.util, "find_library", lambda name: None)
+    monkeypatch.setattr(usb.core, "find", lambda **kw: iter(()))
+    rc = main(["--backend", "mesasr", "--library", "/nonexistent/libmesasr.so", "-c", "usb"])
+    out = capsys.readouterr().out
+    assert rc == 1
+    assert "error: tof: libmesasr not found" in out and "libmesasr-dev" in out
+    assert "no SR4000 (1ad2:0074/0075) on the USB bus" in out
+
+
+def test_bad_options_exit_2(capsys):
+    with pytest.raises(SystemExit) as exc:
+        main(["--backend", "gige"])
+    assert exc.value.code == 2
+    assert main(["--serial", "zz", "-c", "status"]) == 2
+    assert "not hex" in capsys.readouterr().err
+
+
+def test_interactive_session_from_stdin(tmp_path):
+    cam = open_camera(floor_world())
+    out = io.StringIO()
+    console = TofConsole(cam, stdout=out)
+    console.use_rawinput = False
+    console.stdin = io.StringIO(f"maxdist 7\nintms 5\ncolourrange distance 0 3\ngrab distance {tmp_path / 'd.tif'} --preview {tmp_path / 'd.png'} --grey\nquit\n")
+    console.cmdloop(intro="")
+    text = out.getvalue()
+    assert "modulation 15 MHz" in text and "integration 47 = 5.0 ms" in text
+    assert (tmp_path / "d.png").exists() and not console.failed
