@@ -438,7 +438,7 @@ class Tof:
     def _require_open(self) -> None:
         if not self._cam.is_open:
             # Let a backend with a fault explain itself (e.g. "disconnected") before the generic text.
-            check = getattr(self._cam, "_check_link", None)
+            check = getattr(self._cam, "check_link", None)
             if check is not None:
                 check()
             raise DeviceError("tof", "SR4000 not open; open it, or run reinit/reset after an error")

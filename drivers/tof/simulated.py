@@ -142,7 +142,8 @@ class SimTof:
         if kind == "unplug":
             self._open = False
 
-    def _check_link(self) -> None:
+    def check_link(self) -> None:
+        """Raise the disconnect error while unplugged (before any generic "not open")."""
         with self._lock:
             fault = self._fault
         if fault == "unplug":
@@ -154,7 +155,7 @@ class SimTof:
             )
 
     def _check_open(self) -> None:
-        self._check_link()
+        self.check_link()
         if not self._open:
             raise DeviceError("tof", "SR4000 not open (the handle was lost or closed); run reinit or reset")
 
@@ -236,7 +237,7 @@ class SimTof:
                 else:
                     self._pending = (kind, left - 1)
             fault = self._fault
-        self._check_link()
+        self.check_link()
         if fault == "timeout":
             raise DeviceError(
                 "tof",
