@@ -89,6 +89,7 @@ class App:
         self.maps_lock = threading.RLock()
         self.started = time.monotonic()
         self.stopping = asyncio.Event()
+        self.quitting = False
         self.name = f"{self.server_cfg.name}/{__version__}"
         self._find_last_recovery()
 
@@ -205,6 +206,8 @@ class App:
 
     def dispatch(self, conn: Connection, raw: bytes | None) -> Any:
         """Handle one request line; returns an awaitable when the handler is asynchronous."""
+        if self.quitting:
+            return None  # quit was answered; every connection is about to close
         if raw is None:
             conn.send(Reply("RVS", "ERROR", {
                 "code": "E_TOOLONG",
@@ -298,6 +301,7 @@ class App:
         job = Job(job_id, cmd.name, module, params, tag, emit, uses_hardware=cmd.klass in (HARDWARE, CONTROL))
         job.app = self  # type: ignore[attr-defined]
         conn.send(Reply(module, "ACK", {"job": job_id}, tag))
+        conn.jobs_running += 1
         jlog = conn.log.bind(command=cmd.name, job=job_id, tag=tag)
         jlog.info("job_start", params=params)
 
@@ -319,6 +323,8 @@ class App:
                 conn.send(Reply(module, "ERROR", {"job": j.id, **fields}, tag))
                 jlog.warning("job_error", code=fields["code"], error=fields["message"])
             self.announce_mode()
+            conn.jobs_running -= 1
+            conn.close_if_done()
 
         self.jobs.start(job, work, done)
         self.announce_mode()

@@ -13,7 +13,7 @@ from . import commands as _commands  # noqa: F401 - fills the command table
 from .app import App
 from .config import ConfigStore, DriversConfig, ModuleConfig, ServerConfig
 from .logs import setup as setup_logging
-from .server import serve
+from .server import listen, serve
 from .table import COMMANDS
 
 
@@ -48,13 +48,24 @@ def make_app(store: ConfigStore, loop: asyncio.AbstractEventLoop) -> App:
     return App(store, data_dir=Path(server.data), world=make_world(store), loop=loop)
 
 
+class StartupError(Exception):
+    """The server cannot start (port taken, unknown scene...): said once, exit status 1."""
+
+
 async def run(store: ConfigStore, *, ready: Callable[[int], None] | None = None, handle_signals: bool = True,
               on_app: Callable[[App], None] | None = None) -> int:
-    app = make_app(store, asyncio.get_running_loop())
+    try:
+        app = make_app(store, asyncio.get_running_loop())
+    except (OSError, ValueError, KeyError) as exc:
+        raise StartupError(f"cannot set up: {exc}") from exc
     if on_app is not None:
         on_app(app)
     server = store.get("server")
-    return await serve(app, server.host, server.port, ready=ready, handle_signals=handle_signals)
+    try:
+        sock = listen(server.host, server.port)
+    except OSError as exc:
+        raise StartupError(f"cannot listen on {server.host}:{server.port}: {exc}") from exc
+    return await serve(app, sock, ready=ready, handle_signals=handle_signals)
 
 
 def parse_args(argv: list[str] | None) -> argparse.Namespace:
@@ -89,6 +100,6 @@ def main(argv: list[str] | None = None) -> int:
     setup_logging(server.log_level, data / server.log_file)
     try:
         return asyncio.run(run(store))
-    except OSError as exc:
-        print(f"rvs-server: cannot listen on {server.host}:{server.port}: {exc}", file=sys.stderr)
+    except StartupError as exc:
+        print(f"rvs-server: {exc}", file=sys.stderr)
         return 1

@@ -43,6 +43,7 @@ class Connection(asyncio.Protocol):
         self.paused = False
         self.peer = "?"
         self.log = log
+        self.jobs_running = 0  # jobs this connection started: their final lines still owed
 
     # ------------------------------------------------------------ asyncio.Protocol
 
@@ -76,9 +77,13 @@ class Connection(asyncio.Protocol):
         # Let queued requests finish (a one-shot `printf 'status\n' | nc` still gets its answer);
         # the transport closes once the last reply is written.
         self._close_after_drain = True
-        if not self.pending and self.waiting is None:
-            self.close()
+        self.close_if_done()
         return True
+
+    def close_if_done(self) -> None:
+        """After the client's EOF: close once every request it sent has its final line."""
+        if self._close_after_drain and not self.pending and self.waiting is None and not self.jobs_running:
+            self.close()
 
     def connection_lost(self, exc: Exception | None) -> None:
         self.closed = True
@@ -102,8 +107,7 @@ class Connection(asyncio.Protocol):
             elif self.paused and len(self.pending) < MAX_PENDING_LINES // 2:
                 self.transport.resume_reading()
                 self.paused = False
-        if self._close_after_drain and not self.pending and self.waiting is None:
-            self.close()
+        self.close_if_done()
 
     def _resume(self, fut: asyncio.Future[Any]) -> None:
         self.waiting = None
@@ -129,13 +133,16 @@ class Connection(asyncio.Protocol):
         self.app.connections.discard(self)
 
 
-async def serve(app: App, host: str, port: int, *, ready: Any = None, handle_signals: bool = True) -> int:
-    """Listen, open the devices, serve until quit or a signal; returns the exit status."""
-    loop = asyncio.get_running_loop()
-    # Listen before opening the devices, so the port in the first log line already accepts;
-    # early clients wait in the backlog until the devices are up.
+def listen(host: str, port: int) -> socket.socket:
+    """Bind and listen before the devices open, so the port in the first log line already
+    accepts; early clients wait in the backlog until the devices are up."""
     family = socket.AF_INET6 if ":" in host else socket.AF_INET
-    sock = socket.create_server((host, port), family=family, reuse_port=False, backlog=512)
+    return socket.create_server((host, port), family=family, backlog=512)
+
+
+async def serve(app: App, sock: socket.socket, *, ready: Any = None, handle_signals: bool = True) -> int:
+    """Open the devices, serve until quit or a signal; returns the exit status."""
+    loop = asyncio.get_running_loop()
     bound = sock.getsockname()
     log.info("listening", host=bound[0], port=bound[1], server=app.name, data=str(app.data_dir))
     if handle_signals:

@@ -328,3 +328,28 @@ def test_sigterm_shuts_down_gracefully(tmp_path: Path) -> None:
         if proc.poll() is None:
             proc.kill()
     assert os.path.exists(tmp_path / "d" / "rvs.log")
+
+
+def test_half_closed_client_still_gets_its_job_result(server) -> None:
+    c = server.client()
+    c.send("@last sleep -seconds 0.3")
+    c.sock.shutdown(socket.SHUT_WR)  # as `printf 'sleep ...\n' | nc` does
+    lines = []
+    try:
+        while True:
+            lines.append(c.reply())
+    except ConnectionError:
+        pass
+    finals = [r for r in lines if r.module == "EGP-RVS-SLEEP" and r.status == "OK"]
+    assert len(finals) == 1 and finals[0].tag == "last"
+
+
+def test_startup_errors_are_reported_once(tmp_path: Path) -> None:
+    proc = subprocess.run(
+        [sys.executable, "-m", "rvs_server", "--port", "0", "--data", str(tmp_path), "--scene", "nosuch"],
+        capture_output=True, text=True, timeout=60, cwd=Path(__file__).parent.parent,
+    )
+    assert proc.returncode == 1 and "nosuch" in proc.stderr and "listen" not in proc.stderr
+    proc = subprocess.run([sys.executable, "-m", "rvs_server", "--set", "sleep.seconds=-1"],
+                          capture_output=True, text=True, timeout=60, cwd=Path(__file__).parent.parent)
+    assert proc.returncode == 2 and "-seconds" in proc.stderr

@@ -65,6 +65,7 @@ def _devices(summary: dict[str, str]) -> list[str] | str:
 
 @command("quit", klass=ALWAYS, help="interrupt every job, close all connections and exit")
 async def quit_(ctx: Context, cfg: None) -> dict[str, Any]:
+    ctx.app.quitting = True
     job = await ctx.app.interrupt()
     ctx.app.loop.call_soon(ctx.app.stopping.set)
     return {"interrupted": job.id if job else "none"}
