@@ -12,8 +12,9 @@ from typing import Any
 from drivers.base import DeviceError
 
 from .device import Cancelled, Tof, parse_serial
+from .query import find_cameras
 
-__all__ = ["BACKENDS", "Cancelled", "Tof", "create", "parse_serial"]
+__all__ = ["BACKENDS", "Cancelled", "Tof", "create", "find_cameras", "parse_serial"]
 
 BACKENDS = ("sim", "mesasr")
 

@@ -13,6 +13,11 @@ Faults (``inject_fault``), chosen so a server test can script them:
 * ``"timeout"``: the camera stays enumerated but no frame arrives: every acquire raises a
   timeout DeviceError until ``inject_fault(None)``; settings calls still work.
 * ``after=n`` delays the fault by n successful acquisitions ("unplugged mid-stream").
+
+AM_SHORT_RANGE (enhanced XYZ) is accepted and reported, but the simulated optics have no
+short-range coordinate error for it to correct, so it changes nothing in the images. Renders
+are cached per camera pose, modulation, integration time and world state, so the N frames of
+one integration cost one render; every frame draws fresh noise from the seeded generator.
 """
 
 from __future__ import annotations
