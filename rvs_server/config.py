@@ -398,3 +398,17 @@ class DriversConfig(ModuleConfig):
     tof: dict = param({}, "SwissRanger SR4000 time-of-flight camera (USB)")
     stereo: dict = param({}, "PIKE F-210B stereo pair (FireWire)")
     trigger: dict = param({}, "LPT trigger box")
+
+
+@dataclass
+class HeadConfig(ModuleConfig):
+    """config/head.yaml: the sensor head's mount calibration and the rover body, as the server
+    believes them (the simulator has its own truth; calibration corrects this file)."""
+
+    module: ClassVar[str] = "head"
+    ptu_base: list[float] = param([0.10, 0.0, 1.20], "pan axis foot in the rover frame", unit="m", length=3)
+    tilt_offset: float = param(0.06, "tilt axis above the pan base", unit="m", min=0.0, max=2.0)
+    mounts: dict = param({}, "per sensor: xyz (optical centre in the tilt frame, m) and rpy (deg)")
+    rover_length: float = param(0.51, "rover body length (masked out of its own scans)", unit="m", min=0.0, max=10.0)
+    rover_width: float = param(0.40, "rover body width", unit="m", min=0.0, max=10.0)
+    rover_margin: float = param(0.10, "extra margin around the body when masking", unit="m", min=0.0, max=2.0)
