@@ -24,6 +24,7 @@ class Heightfield:
 
     def __post_init__(self) -> None:
         self.heights = np.ascontiguousarray(self.heights, np.float32)
+        self._coef = None
         self.albedo = np.ascontiguousarray(self.albedo, np.float32)
         self.build_pyramid()
 
@@ -45,14 +46,18 @@ class Heightfield:
         """
         h = self.heights
         m = np.maximum(np.maximum(h[:-1, :-1], h[1:, :-1]), np.maximum(h[:-1, 1:], h[1:, 1:]))
+        # Pad level 0 to a multiple of 2^top so level L is exactly level 0 shifted by L bits
+        # (the renderer computes coarse cell indices with shifts, not per-level tables).
+        top = 0
+        while max(m.shape) > 4 * (1 << top):
+            top += 1
+        mult = 1 << top
+        py, px = (-m.shape[0]) % mult, (-m.shape[1]) % mult
+        m = np.pad(m, ((0, py), (0, px)), constant_values=-np.inf)
         levels = [m]
-        while max(levels[-1].shape) > 4:
+        for _ in range(top):
             a = levels[-1]
-            py, px = a.shape[0] % 2, a.shape[1] % 2
-            if py or px:
-                a = np.pad(a, ((0, py), (0, px)), constant_values=-np.inf)
-            a = a.reshape(a.shape[0] // 2, 2, a.shape[1] // 2, 2).max(axis=(1, 3))
-            levels.append(a)
+            levels.append(a.reshape(a.shape[0] // 2, 2, a.shape[1] // 2, 2).max(axis=(1, 3)))
         self.pyramid = levels
         self.pyr_flat = np.concatenate([lv.ravel() for lv in levels]).astype(np.float32)
         sizes = [lv.size for lv in levels]
@@ -63,6 +68,15 @@ class Heightfield:
         finite = h[np.isfinite(h)]
         self.zmin = float(finite.min())
         self.zmax = float(finite.max())
+
+    def patch_coefficients(self) -> np.ndarray:
+        """Per cell (row-major over (ny-1) x (nx-1)): h00, h10-h00, h01-h00, h00-h10-h01+h11,
+        so h(u, v) = h00 + b u + c v + e u v inside the cell; cached."""
+        if getattr(self, "_coef", None) is None:
+            h = self.heights
+            h00, h10, h01, h11 = h[:-1, :-1], h[:-1, 1:], h[1:, :-1], h[1:, 1:]
+            self._coef = np.stack([h00, h10 - h00, h01 - h00, h00 - h10 - h01 + h11], axis=-1).reshape(-1, 4)
+        return self._coef
 
     def _frac(self, x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         return (np.asarray(x, np.float64) - self.x0) / self.cell, (np.asarray(y, np.float64) - self.y0) / self.cell

@@ -16,7 +16,7 @@ import cv2
 import numpy as np
 
 from drivers.sim.heightfield import Heightfield
-from drivers.sim.objects import SceneObject
+from drivers.sim.objects import Rect, SceneObject
 from drivers.sim.raycast import cast_heightfield
 
 _POOL: ThreadPoolExecutor | None = None
@@ -72,14 +72,15 @@ class Detail:
 
 
 def camera_rays(K: np.ndarray, width: int, height: int, T_world_cam: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Ray origin (3,) and world directions (H*W, 3) scaled so that t equals depth."""
+    """Ray origin (3,) and world directions (H*W, 3, float64) scaled so that t equals depth."""
     Kinv = np.linalg.inv(K)
-    u, v = np.meshgrid(np.arange(width, dtype=np.float64), np.arange(height, dtype=np.float64))
-    pix = np.stack([u.ravel(), v.ravel(), np.ones(u.size)], axis=1)
-    dc = pix @ Kinv.T
-    dc /= dc[:, 2:3]
-    d = dc @ T_world_cam[:3, :3].T
-    return T_world_cam[:3, 3].copy(), d
+    M = T_world_cam[:3, :3] @ Kinv  # pixel (u, v, 1) -> world direction with camera z = 1
+    u = np.arange(width, dtype=np.float64)
+    v = np.arange(height, dtype=np.float64)
+    d = np.empty((height, width, 3))
+    for k in range(3):
+        d[:, :, k] = M[k, 0] * u[None, :] + (M[k, 1] * v[:, None] + M[k, 2])
+    return T_world_cam[:3, 3].copy(), d.reshape(-1, 3)
 
 
 def _screen_rect(obj: SceneObject, K: np.ndarray, T_world_cam: np.ndarray, width: int, height: int):
@@ -117,82 +118,130 @@ def _screen_rect(obj: SceneObject, K: np.ndarray, T_world_cam: np.ndarray, width
     return r0, r1, c0, c1
 
 
+def _filtered_plane_albedo(obj: SceneObject, K: np.ndarray, T_world_cam: np.ndarray, o: np.ndarray,
+                           rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
+    """Albedo of a flat object box-filtered over each pixel's footprint on it.
+
+    The ray through (u, v) is M (u, v, 1), linear in u and v, so the footprint corners come
+    from intersecting the plane with the rays half a pixel either way.
+    """
+    M = T_world_cam[:3, :3] @ np.linalg.inv(K)
+    Ti = np.linalg.inv(obj.pose)
+    Ml = Ti[:3, :3] @ M
+    ol = Ti[:3, :3] @ o + Ti[:3, 3]
+    pix = np.stack([cols.astype(np.float64), rows.astype(np.float64), np.ones(rows.size)])
+
+    def hit(du: float, dv: float) -> np.ndarray:
+        dl = Ml @ (pix + np.array([[du], [dv], [0.0]]))
+        t = -ol[2] / dl[2]
+        return (ol[:, None] + t * dl)[:2]
+
+    pu = hit(0.5, 0.0) - hit(-0.5, 0.0)
+    pv = hit(0.0, 0.5) - hit(0.0, -0.5)
+    centre = hit(0.0, 0.0)
+    wx = np.abs(pu[0]) + np.abs(pv[0])
+    wy = np.abs(pu[1]) + np.abs(pv[1])
+    return obj.albedo.filtered(centre.T, wx, wy)
+
+
 def render(hf: Heightfield, objects: list[SceneObject], detail: Detail, K: np.ndarray, width: int, height: int,
            T_world_cam: np.ndarray) -> Render:
     K = np.asarray(K, np.float64)
     T_world_cam = np.asarray(T_world_cam, np.float64)
-    o, d = camera_rays(K, width, height, T_world_cam)
+    H, W = height, width
+    o, d = camera_rays(K, W, H, T_world_cam)
     n = d.shape[0]
     t_best = np.full(n, np.inf)
     oid = np.full(n, -1, np.int16)
-    normal = np.zeros((n, 3))
-    albedo = np.zeros(n, np.float32)
-    tex_amp = np.zeros(n, np.float32)
+    tb2, oid2, d3 = t_best.reshape(H, W), oid.reshape(H, W), d.reshape(H, W, 3)
+    obj_normal: dict[int, tuple[np.ndarray, np.ndarray, np.ndarray, float]] = {}
 
-    grid = np.arange(n).reshape(height, width)
+    # Objects first, each over the image rectangle its bounding box covers.
     for obj in objects:
         if not obj.visible:
             continue
-        rect = _screen_rect(obj, K, T_world_cam, width, height)
+        rect = _screen_rect(obj, K, T_world_cam, W, H)
         if rect is None:
             continue
         r0, r1, c0, c1 = rect
-        sel = grid[r0:r1, c0:c1].ravel()
-        t, nw, alb = obj.intersect(o, d[sel])
-        better = t < t_best[sel]
-        s = sel[better]
-        t_best[s] = t[better]
-        normal[s] = nw[better]
-        albedo[s] = alb[better]
-        oid[s] = obj.oid
-        tex_amp[s] = obj.texture
+        t, nw, alb = obj.intersect(o, d3[r0:r1, c0:c1].reshape(-1, 3))
+        t = t.reshape(r1 - r0, c1 - c0)
+        better = t < tb2[r0:r1, c0:c1]
+        if not better.any():
+            continue
+        tb2[r0:r1, c0:c1][better] = t[better]
+        oid2[r0:r1, c0:c1][better] = obj.oid
+        rows, cols = np.nonzero(better)
+        flat_idx = (rows + r0) * W + cols + c0
+        alb = alb[better.ravel()]
+        if hasattr(obj.albedo, "filtered") and len(obj.shapes) == 1 and isinstance(obj.shapes[0], Rect):
+            alb = _filtered_plane_albedo(obj, K, T_world_cam, o, rows + r0, cols + c0)
+        obj_normal[obj.oid] = (flat_idx, nw[better.ravel()], alb, obj.texture)
 
-    # Terrain, in parallel row bands.
-    ob = np.broadcast_to(o, (n, 3))
-    bands = np.array_split(np.arange(n), _THREADS * 2 if n > 20000 else 1)
-    futures = [_pool().submit(cast_heightfield, hf, ob[b], d[b], t_best[b]) for b in bands]
+    # Terrain, in parallel bands, stopped at the nearest object already hit.
+    nb = _THREADS * 2 if n > 20000 else 1
+    bands = np.array_split(np.arange(n), nb)
+    futures = [_pool().submit(cast_heightfield, hf, o, d[b], t_best[b]) for b in bands]
     t_ter = np.concatenate([f.result() for f in futures])
     ter = t_ter < t_best
     t_best[ter] = t_ter[ter]
     oid[ter] = 0
 
-    hit = np.isfinite(t_best)
-    pts = np.full((n, 3), np.nan)
-    pts[hit] = o + t_best[hit, None] * d[hit]
-    ti = np.nonzero(ter)[0]
+    hi = np.nonzero(np.isfinite(t_best))[0]
+    th = t_best[hi]
+    dh = d[hi]
+    pts = o + th[:, None] * dh
+    normal = np.zeros((hi.size, 3))
+    albedo = np.zeros(hi.size, np.float32)
+    tex = np.zeros(hi.size, np.float32)
+    pos = np.full(n, -1, np.int64)
+    pos[hi] = np.arange(hi.size)
+    for obj_id, (flat_idx, nw, alb, amp) in obj_normal.items():
+        # Keep only the pixels this object still owns (terrain or a later object may be nearer).
+        own = oid[flat_idx] == obj_id
+        k = pos[flat_idx[own]]
+        normal[k] = nw[own]
+        albedo[k] = alb[own]
+        tex[k] = amp
+    ti = np.nonzero(oid[hi] == 0)[0]
     if ti.size:
         gx, gy = hf.gradient(pts[ti, 0], pts[ti, 1])
         normal[ti, 0], normal[ti, 1], normal[ti, 2] = -gx, -gy, 1.0
         albedo[ti] = hf.sample_albedo(pts[ti, 0], pts[ti, 1])
-        tex_amp[ti] = 1.0
-    nn = np.linalg.norm(normal, axis=1)
-    normal[hit] /= nn[hit, None]
-    dn = np.linalg.norm(d, axis=1)
-    cosi = -(normal * d).sum(1) / dn
-    flip = hit & (cosi < 0)
-    normal[flip] *= -1
+        tex[ti] = 1.0
+    normal /= np.linalg.norm(normal, axis=1, keepdims=True)
+    dn = np.sqrt((dh * dh).sum(1))
+    cosi = -(normal * dh).sum(1) / dn
+    normal[cosi < 0] *= -1
     cosi = np.abs(cosi)
 
     # Fine albedo detail, projected along the dominant normal axis (triplanar style) so walls
     # and rock flanks carry texture as well as the ground.
-    hi = np.nonzero(hit & (tex_amp > 0))[0]
-    if hi.size:
-        p = pts[hi]
-        ax = np.abs(normal[hi]).argmax(axis=1)
+    tx = np.nonzero(tex > 0)[0]
+    if tx.size:
+        p = pts[tx]
+        ax = np.abs(normal[tx]).argmax(axis=1)
         u = np.where(ax == 0, p[:, 1], p[:, 0])
         v = np.where(ax == 2, p[:, 1], p[:, 2])
-        mod = detail.modulate(u, v)
-        albedo[hi] = albedo[hi] * (1.0 + tex_amp[hi] * (mod - 1.0))
-    albedo = np.clip(albedo, 0.0, 1.0)
+        albedo[tx] *= 1.0 + tex[tx] * (detail.modulate(u, v) - 1.0)
+    np.clip(albedo, 0.0, 1.0, out=albedo)
 
-    depth = np.where(hit, t_best, np.nan)
-    shape = (height, width)
+    def img(vals: np.ndarray, fill: float, dtype=np.float32) -> np.ndarray:
+        out = np.full(n, fill, dtype)
+        out[hi] = vals
+        return out.reshape(H, W)
+
+    def img3(vals: np.ndarray, fill: float) -> np.ndarray:
+        out = np.full((n, 3), fill, np.float32)
+        out[hi] = vals
+        return out.reshape(H, W, 3)
+
     return Render(
-        depth=depth.reshape(shape).astype(np.float32),
-        range=(depth * dn).reshape(shape).astype(np.float32),
-        albedo=np.where(hit, albedo, 0.0).reshape(shape).astype(np.float32),
-        normal=normal.reshape(height, width, 3).astype(np.float32),
-        points=pts.reshape(height, width, 3).astype(np.float32),
-        cos_incidence=np.where(hit, cosi, 0.0).reshape(shape).astype(np.float32),
-        object_id=oid.reshape(shape),
+        depth=img(th, np.nan),
+        range=img(th * dn, np.nan),
+        albedo=img(albedo, 0.0),
+        normal=img3(normal, 0.0),
+        points=img3(pts, np.nan),
+        cos_incidence=img(cosi, 0.0),
+        object_id=oid.reshape(H, W),
     )
