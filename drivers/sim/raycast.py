@@ -124,8 +124,13 @@ def cast_heightfield(hf: Heightfield, o: np.ndarray, d: np.ndarray, t_limit: np.
             A = -e * du * dv
             B = dz[f] - b * du - c * dv - e * (u0 * dv + v0 * du)
             C = zt[f] - (h00 + b * u0 + c * v0 + e * u0 * v0)
-            s_len = t_exit[f] - t[f]
-            s_hit = _first_root(A, B, C, s_len)
+            tf_ = t[f]
+            s_len = t_exit[f] - tf_
+            # A ray found already under the patch crossed it within the nudge that carried
+            # it over the cell edge: step back along the surface's local slope (f is close
+            # to linear over such a sliver), so steep faces are hit where they stand.
+            back = nudge * (1 + tf_)
+            s_hit = _first_root(A, B, C, s_len, back)
             ok = s_hit <= s_len
             fo = f[ok]
             hit[fo] = True
@@ -163,9 +168,10 @@ def cast_heightfield(hf: Heightfield, o: np.ndarray, d: np.ndarray, t_limit: np.
     return t_hit
 
 
-def _first_root(A: np.ndarray, B: np.ndarray, C: np.ndarray, s_len: np.ndarray) -> np.ndarray:
-    """Smallest s >= 0 with A s^2 + B s + C = 0 given C = f(0) > 0 (0 if C <= 0); inf if none
-    (callers compare with the segment length)."""
+def _first_root(A: np.ndarray, B: np.ndarray, C: np.ndarray, s_len: np.ndarray, back: np.ndarray) -> np.ndarray:
+    """Smallest s >= 0 with A s^2 + B s + C = 0 when C = f(0) > 0; inf if none (callers
+    compare with the segment length). When C <= 0 (already under the patch), the linear
+    root in [-back, 0]."""
     with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
         disc = B * B - 4.0 * A * C
         sq = np.sqrt(np.maximum(disc, 0.0))
@@ -175,7 +181,8 @@ def _first_root(A: np.ndarray, B: np.ndarray, C: np.ndarray, s_len: np.ndarray) 
         r1 = np.where(r1 >= 0, r1, np.inf)
         r2 = np.where(r2 >= 0, r2, np.inf)
         s = np.where(disc >= 0, np.minimum(r1, r2), np.inf)
-    s = np.where(C <= 0, 0.0, s)
+        s_back = np.where(B < 0, np.clip(-C / B, -back, 0.0), 0.0)
+    s = np.where(C <= 0, s_back, s)
     # A root a hair past the end (rounding) still belongs to this patch.
     tol = 1e-6 * (1 + s_len)
     return np.where((s > s_len) & (s <= s_len + tol), s_len, s).astype(s_len.dtype)

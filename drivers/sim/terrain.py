@@ -153,8 +153,10 @@ def rock(g: _Grid, p: dict) -> None:
 
 def _rock_shape(g: _Grid, d: float, h_ratio: list[float]) -> dict:
     rng = g.rng
-    elong = rng.uniform(0.65, 1.0)
-    return {"a": d / 2.0, "b": d / 2.0 * elong, "h": d * rng.uniform(*h_ratio), "yaw": rng.uniform(0, 180),
+    # Elongated footprints keep the area of a disc of diameter d (the size-frequency models
+    # count rocks by area-equivalent diameter).
+    elong = np.sqrt(rng.uniform(0.65, 1.0))
+    return {"a": d / 2.0 / elong, "b": d / 2.0 * elong, "h": d * rng.uniform(*h_ratio), "yaw": rng.uniform(0, 180),
             "embed": d * rng.uniform(0.0, 0.1)}
 
 

@@ -190,6 +190,12 @@ class World:
             self._target_time = float(t)
             self._target_clock = None
 
+    def set_target_visible(self, visible: bool) -> None:
+        """Show or hide the target (scenes may start with it hidden to keep DEMs clean)."""
+        with self._lock:
+            if self._target_obj is not None:
+                self._target_obj.visible = bool(visible)
+
     def run_target(self, start_time: float = 0.0, speed: float = 1.0) -> None:
         """Let the target follow its trajectory in real time (scaled by ``speed``)."""
         with self._lock:
