@@ -116,6 +116,25 @@ class Heightfield:
         gy = ((h01 - h00) + e * u) / self.cell
         return gx, gy
 
+    def shade(self, x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """dz/dx, dz/dy and albedo at points on the surface (float32), sharing one lookup."""
+        fx, fy = self._frac(x, y)
+        ny, nx = self.shape
+        ix = np.clip(fx.astype(np.int64), 0, nx - 2)
+        iy = np.clip(fy.astype(np.int64), 0, ny - 2)
+        u = np.clip(fx - ix, 0.0, 1.0).astype(np.float32)
+        v = np.clip(fy - iy, 0.0, 1.0).astype(np.float32)
+        k = iy * (nx - 1) + ix
+        _, b, c, e = np.take(self.patch_coefficients(), k, axis=0).T
+        inv = np.float32(1.0 / self.cell)
+        gx = (b + e * v) * inv
+        gy = (c + e * u) * inv
+        a = self.albedo.ravel()
+        kk = iy * nx + ix
+        a00, a10, a01, a11 = np.take(a, kk), np.take(a, kk + 1), np.take(a, kk + nx), np.take(a, kk + nx + 1)
+        alb = a00 + (a10 - a00) * u + (a01 - a00) * v + (a00 - a10 - a01 + a11) * u * v
+        return gx, gy, alb
+
     def resample(self, xs: np.ndarray, ys: np.ndarray) -> np.ndarray:
         """Heights on the grid xs (columns) x ys (rows), exact bilinear, NaN outside; float32.
 

@@ -13,7 +13,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from drivers.sim.transforms import invert
+from drivers.sim.transforms import invert, rotate, transform
 
 AlbedoFn = Callable[[np.ndarray, np.ndarray], np.ndarray]  # (points_obj N x 3, normals_obj N x 3) -> N
 
@@ -181,8 +181,8 @@ class SceneObject:
         """
         Ti = invert(self.pose)
         R, tr = Ti[:3, :3], Ti[:3, 3]
-        ol = o @ R.T + tr
-        dl = d @ R.T
+        ol = rotate(o, R) + tr
+        dl = rotate(d, R)
         m = d.shape[0]
         best = np.full(m, np.inf)
         nw = np.zeros((m, 3))
@@ -195,7 +195,7 @@ class SceneObject:
             if hit.size:
                 oh = ol if ol.ndim == 1 else ol[hit]
                 alb[hit] = self.albedo(oh + best[hit, None] * dl[hit], nl[hit])
-                nw[hit] = nl[hit] @ self.pose[:3, :3].T
+                nw[hit] = rotate(nl[hit], self.pose[:3, :3])
             return best, nw, alb
         lo, hi = self.local_bounds()
         tn, tf, _ = slab(ol, inv, lo, hi)
@@ -217,7 +217,7 @@ class SceneObject:
             pl = oh + bc[hit, None] * dc[hit]
             alb[cand[hit]] = self.albedo(pl, nl[hit])
         best[cand] = bc
-        nw[cand] = nl @ self.pose[:3, :3].T
+        nw[cand] = rotate(nl, self.pose[:3, :3])
         return best, nw, alb
 
     def local_bounds(self) -> tuple[np.ndarray, np.ndarray]:
@@ -227,7 +227,7 @@ class SceneObject:
 
     def world_corners(self) -> np.ndarray:
         pts = np.concatenate([s.corners() for s in self.shapes])
-        return pts @ self.pose[:3, :3].T + self.pose[:3, 3]
+        return transform(pts, self.pose)
 
 
 def _odd_integral(x: np.ndarray) -> np.ndarray:
@@ -326,11 +326,11 @@ class Posed:
 
     def intersect(self, o: np.ndarray, d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         Ti = invert(self.T)
-        t, n = self.shape.intersect(o @ Ti[:3, :3].T + Ti[:3, 3], d @ Ti[:3, :3].T)
-        return t, n @ self.T[:3, :3].T
+        t, n = self.shape.intersect(transform(o, Ti), rotate(d, Ti[:3, :3]))
+        return t, rotate(n, self.T[:3, :3])
 
     def corners(self) -> np.ndarray:
-        return self.shape.corners() @ self.T[:3, :3].T + self.T[:3, 3]
+        return transform(self.shape.corners(), self.T)
 
 
 Shape = Box | Cylinder | Sphere | Rect | Posed

@@ -18,6 +18,7 @@ import numpy as np
 from drivers.sim.heightfield import Heightfield
 from drivers.sim.objects import Rect, SceneObject
 from drivers.sim.raycast import cast_heightfield
+from drivers.sim.transforms import rotate
 
 _POOL: ThreadPoolExecutor | None = None
 _THREADS = max(1, min(4, os.cpu_count() or 1))
@@ -132,7 +133,7 @@ def _filtered_plane_albedo(obj: SceneObject, K: np.ndarray, T_world_cam: np.ndar
     pix = np.stack([cols.astype(np.float64), rows.astype(np.float64), np.ones(rows.size)])
 
     def hit(du: float, dv: float) -> np.ndarray:
-        dl = Ml @ (pix + np.array([[du], [dv], [0.0]]))
+        dl = rotate((pix + np.array([[du], [dv], [0.0]])).T, Ml).T
         t = -ol[2] / dl[2]
         return (ol[:, None] + t * dl)[:2]
 
@@ -180,68 +181,83 @@ def render(hf: Heightfield, objects: list[SceneObject], detail: Detail, K: np.nd
 
     # Terrain, in parallel bands, stopped at the nearest object already hit.
     nb = _THREADS * 2 if n > 20000 else 1
-    bands = np.array_split(np.arange(n), nb)
-    futures = [_pool().submit(cast_heightfield, hf, o, d[b], t_best[b]) for b in bands]
+    edges = np.linspace(0, n, nb + 1).astype(int)
+    futures = [_pool().submit(cast_heightfield, hf, o, d[a:b], t_best[a:b]) for a, b in zip(edges[:-1], edges[1:],
+                                                                                             strict=True)]
     t_ter = np.concatenate([f.result() for f in futures])
     ter = t_ter < t_best
     t_best[ter] = t_ter[ter]
     oid[ter] = 0
 
-    hi = np.nonzero(np.isfinite(t_best))[0]
+    # Shading, on hit pixels only, one array per component (no N x 3 temporaries).
+    hi = np.flatnonzero(np.isfinite(t_best))
     th = t_best[hi]
-    dh = d[hi]
-    pts = o + th[:, None] * dh
-    normal = np.zeros((hi.size, 3))
-    albedo = np.zeros(hi.size, np.float32)
-    tex = np.zeros(hi.size, np.float32)
+    M = T_world_cam[:3, :3] @ np.linalg.inv(K)
+    uu = (hi % W).astype(np.float64)
+    vv = (hi // W).astype(np.float64)
+    dx, dy, dz = (M[k, 0] * uu + M[k, 1] * vv + M[k, 2] for k in range(3))
+    px, py, pz = o[0] + th * dx, o[1] + th * dy, o[2] + th * dz
+    m = hi.size
+    nx = np.zeros(m, np.float32)
+    ny = np.zeros(m, np.float32)
+    nz = np.zeros(m, np.float32)
+    albedo = np.zeros(m, np.float32)
+    tex = np.zeros(m, np.float32)
     pos = np.full(n, -1, np.int64)
-    pos[hi] = np.arange(hi.size)
+    pos[hi] = np.arange(m)
     for obj_id, (flat_idx, nw, alb, amp) in obj_normal.items():
         # Keep only the pixels this object still owns (terrain or a later object may be nearer).
         own = oid[flat_idx] == obj_id
         k = pos[flat_idx[own]]
-        normal[k] = nw[own]
+        nwo = nw[own]
+        nx[k], ny[k], nz[k] = nwo[:, 0], nwo[:, 1], nwo[:, 2]
         albedo[k] = alb[own]
         tex[k] = amp
-    ti = np.nonzero(oid[hi] == 0)[0]
+    ti = np.flatnonzero(oid[hi] == 0)
     if ti.size:
-        gx, gy = hf.gradient(pts[ti, 0], pts[ti, 1])
-        normal[ti, 0], normal[ti, 1], normal[ti, 2] = -gx, -gy, 1.0
-        albedo[ti] = hf.sample_albedo(pts[ti, 0], pts[ti, 1])
+        gx, gy, alb = hf.shade(px[ti], py[ti])
+        nx[ti], ny[ti], nz[ti] = -gx, -gy, 1.0
+        albedo[ti] = alb
         tex[ti] = 1.0
-    normal /= np.linalg.norm(normal, axis=1, keepdims=True)
-    dn = np.sqrt((dh * dh).sum(1))
-    cosi = -(normal * dh).sum(1) / dn
-    normal[cosi < 0] *= -1
-    cosi = np.abs(cosi)
+    inv_len = 1.0 / np.sqrt(nx * nx + ny * ny + nz * nz)
+    dn = np.sqrt(dx * dx + dy * dy + dz * dz)
+    cosi = (-(nx * dx + ny * dy + nz * dz) / dn).astype(np.float32) * inv_len
+    # Normals face the camera (walls and boards are seen from both sides).
+    sgn = np.where(cosi < 0, -inv_len, inv_len)
+    nx *= sgn
+    ny *= sgn
+    nz *= sgn
+    np.abs(cosi, out=cosi)
 
     # Fine albedo detail, projected along the dominant normal axis (triplanar style) so walls
     # and rock flanks carry texture as well as the ground.
-    tx = np.nonzero(tex > 0)[0]
+    tx = np.flatnonzero(tex > 0)
     if tx.size:
-        p = pts[tx]
-        ax = np.abs(normal[tx]).argmax(axis=1)
-        u = np.where(ax == 0, p[:, 1], p[:, 0])
-        v = np.where(ax == 2, p[:, 1], p[:, 2])
+        ax, ay, az = np.abs(nx[tx]), np.abs(ny[tx]), np.abs(nz[tx])
+        xdom = (ax >= ay) & (ax >= az)
+        zdom = ~xdom & (az >= ay)
+        u = np.where(xdom, py[tx], px[tx])
+        v = np.where(zdom, py[tx], pz[tx])
         albedo[tx] *= 1.0 + tex[tx] * (detail.modulate(u, v) - 1.0)
     np.clip(albedo, 0.0, 1.0, out=albedo)
 
-    def img(vals: np.ndarray, fill: float, dtype=np.float32) -> np.ndarray:
-        out = np.full(n, fill, dtype)
+    def img(vals: np.ndarray, fill: float) -> np.ndarray:
+        out = np.full(n, fill, np.float32)
         out[hi] = vals
         return out.reshape(H, W)
 
-    def img3(vals: np.ndarray, fill: float) -> np.ndarray:
+    def img3(a: np.ndarray, b: np.ndarray, c: np.ndarray, fill: float) -> np.ndarray:
         out = np.full((n, 3), fill, np.float32)
-        out[hi] = vals
+        for k, vals in enumerate((a, b, c)):
+            out[hi, k] = vals
         return out.reshape(H, W, 3)
 
     return Render(
         depth=img(th, np.nan),
         range=img(th * dn, np.nan),
         albedo=img(albedo, 0.0),
-        normal=img3(normal, 0.0),
-        points=img3(pts, np.nan),
+        normal=img3(nx, ny, nz, 0.0),
+        points=img3(px, py, pz, np.nan),
         cos_incidence=img(cosi, 0.0),
         object_id=oid.reshape(H, W),
     )

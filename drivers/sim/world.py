@@ -31,7 +31,7 @@ from drivers.sim.scene import (
 )
 from drivers.sim.terrain import build_terrain
 from drivers.sim.trajectory import Trajectory
-from drivers.sim.transforms import invert, make_T, rot_z
+from drivers.sim.transforms import invert, make_T, rot_z, transform
 from drivers.sim.trigger import TriggerBus
 
 __all__ = ["World", "Render", "CameraTruth", "HeadGeometry"]
@@ -157,6 +157,13 @@ class World:
             c, s = np.cos(np.radians(h)), np.sin(np.radians(h))
             self._rover = (x + c * dx - s * dy, y + s * dx + c * dy, _wrap180(h + dyaw_deg))
 
+    def truth(self) -> dict[str, float]:
+        """The true state for ``sim truth``: x, y, z, heading (deg) of the rover in the global
+        frame and the PTU's pan and tilt (deg), read together under the lock."""
+        with self._lock:
+            x, y, h = self._rover
+            return {"x": x, "y": y, "z": self.rover_z(), "heading": h, "pan": self._pan, "tilt": self._tilt}
+
     def T_world_rover(self) -> np.ndarray:
         x, y, h = self.rover_pose()
         return make_T(rot_z(h), (x, y, self.rover_z()))
@@ -247,7 +254,7 @@ class World:
             T, rows, cols, sq = self._board_geom
         ii, jj = np.meshgrid(np.arange(1, rows), np.arange(1, cols), indexing="ij")
         pts = np.stack([jj.ravel() * sq, ii.ravel() * sq, np.zeros(ii.size)], axis=1)
-        return pts @ T[:3, :3].T + T[:3, 3]
+        return transform(pts, T)
 
     # -- rendering and truth -----------------------------------------------------------------
     def _snapshot(self) -> tuple[Heightfield, list[SceneObject], Detail]:

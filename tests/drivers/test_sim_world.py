@@ -211,3 +211,14 @@ def test_state_is_thread_safe_and_render_sees_one_snapshot(office: World) -> Non
     finally:
         stop.set()
         th.join()
+
+
+def test_truth_reports_pose_and_ptu_together() -> None:
+    w = World.from_scene("quarry")
+    w.set_rover_pose(10.0, 0.0, 45.0)  # on the slope: the rover stands on the ground there
+    w.set_ptu(12.5, -7.0)
+    t = w.truth()
+    assert (t["x"], t["y"], t["heading"], t["pan"], t["tilt"]) == (10.0, 0.0, 45.0, 12.5, -7.0)
+    assert t["z"] == pytest.approx(float(w.terrain.sample(10.0, 0.0)))
+    assert t["z"] > 1.0
+    assert w.sensor_pose("tof")[2, 3] == pytest.approx(t["z"] + 1.26 - 0.06 * np.sin(np.radians(7.0)))
