@@ -6,8 +6,9 @@ order to a grid that starts at ``base_height``:
 - ``plane``      gx, gy (slopes), x0, y0 (where it is zero), clip: [lo, hi] (optional)
 - ``hill``       x, y, amp, sigma (or sx, sy), yaw: a gaussian bump (negative amp: a hollow)
 - ``roughness``  amplitude, scales: [m, ...], bounds (optional): fractal relief
-- ``rock``       x, y, d (or a, b), h, yaw, shape: ellipsoid | cap, embed, albedo: a rock
-                 resting on the local ground (union with what is there: max)
+- ``rock``       x, y, d (or a, b), h, yaw, shape: ellipsoid | cap, embed, albedo, roughness:
+                 a rock resting on the local ground (union with what is there: max);
+                 roughness (default 0, random rocks 0.12) makes its surface knobbly
 - ``rocks``      n, bounds, d: [min, max], h_ratio: [min, max]: n rocks of uniform size
 - ``rock_field`` bounds, k, d_min, d_max, h_ratio, exclude: [[x, y, r], ...]: rocks drawn from
                  the Golombek & Rapp (1997) size-frequency model, cumulative area fraction
@@ -140,6 +141,11 @@ def rock(g: _Grid, p: dict) -> None:
         prof = np.sqrt(np.maximum(R * R - rn2 * a * a, 0.0)) - (R - h)
     else:
         prof = h * np.sqrt(np.maximum(1.0 - rn2, 0.0))
+    rough = float(p.get("roughness", 0.0))
+    if rough:
+        # Knobbly surface: the shared fractal field, scaled by the rock's own height, so
+        # rocks are not perfect domes (and carry relief that stereo and DEMs can see).
+        prof = prof * (1.0 + rough * g.speckle[sl])
     base = g.ground(x, y) - float(p.get("embed", 0.0))
     top = np.where(inside, base + prof, -np.inf)
     zsl = g.z[sl]
@@ -157,7 +163,7 @@ def _rock_shape(g: _Grid, d: float, h_ratio: list[float]) -> dict:
     # count rocks by area-equivalent diameter).
     elong = np.sqrt(rng.uniform(0.65, 1.0))
     return {"a": d / 2.0 / elong, "b": d / 2.0 * elong, "h": d * rng.uniform(*h_ratio), "yaw": rng.uniform(0, 180),
-            "embed": d * rng.uniform(0.0, 0.1)}
+            "embed": d * rng.uniform(0.0, 0.1), "roughness": 0.12}
 
 
 def _place(g: _Grid, bounds: list[float], n: int, exclude: list[list[float]]) -> tuple[np.ndarray, np.ndarray]:

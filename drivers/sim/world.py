@@ -312,7 +312,7 @@ class World:
                 if include_rover:
                     keep.append(o)
             elif o.name == "target":
-                if include_target:
+                if include_target and o.visible:
                     keep.append(o)
             elif o.in_dem and include_objects:
                 keep.append(o)
