@@ -41,10 +41,12 @@ SCRIPTS_DIR = Path(__file__).resolve().parent / "scripts"
 # Step name -> "module:function", imported on first use so that a script only pays for its steps.
 STEPS: dict[str, str] = {
     "get_ptu_positions": "prox_workflows.steps.ptu_positions:get_ptu_positions",
-    "dem_import": "prox_workflows.steps.dem_import:dem_import",
-    "dem_mosaik": "prox_workflows.steps.dem_mosaik:dem_mosaik",
-    "fill_holes": "prox_workflows.steps.holes:fill_holes",
-    "dem2hazard": "prox_workflows.steps.dem2hazard:dem2hazard_layers",
+    "join_views": "prox_workflows.steps.dem_chain:join_views",
+    "view_dem": "prox_workflows.steps.dem_chain:view_dem",
+    "mosaic": "prox_workflows.steps.dem_chain:mosaic",
+    "fill_holes_layers": "prox_workflows.steps.dem_chain:fill_holes_layers",
+    "hazard_layers": "prox_workflows.steps.dem_chain:hazard_layers",
+    "ortho_layer": "prox_workflows.steps.dem_chain:ortho_layer",
 }
 
 

@@ -370,7 +370,16 @@ def _merge(base: dict[str, Any], over: dict[str, Any]) -> None:
 # ------------------------------------------------------------------------------------------
 # the server's own modules (not commands)
 
+STANDALONE: dict[str, type[ModuleConfig]] = {}
 
+
+def standalone(cls: type[ModuleConfig]) -> type[ModuleConfig]:
+    """Register a config module that belongs to no single command (server, drivers, head...)."""
+    STANDALONE[cls.module] = cls
+    return cls
+
+
+@standalone
 @dataclass
 class ServerConfig(ModuleConfig):
     """config/server.yaml: where the server listens and keeps its data."""
@@ -389,6 +398,7 @@ class ServerConfig(ModuleConfig):
     shared_dir: str = param("shared", "where logbook copies go, relative to the data directory")
 
 
+@standalone
 @dataclass
 class DriversConfig(ModuleConfig):
     """config/drivers.yaml: one section per device; ``backend`` picks sim or the real driver."""
@@ -400,6 +410,7 @@ class DriversConfig(ModuleConfig):
     trigger: dict = param({}, "LPT trigger box")
 
 
+@standalone
 @dataclass
 class HeadConfig(ModuleConfig):
     """config/head.yaml: the sensor head's mount calibration and the rover body, as the server

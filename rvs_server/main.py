@@ -11,14 +11,14 @@ from typing import Any
 
 from . import commands as _commands  # noqa: F401 - fills the command table
 from .app import App
-from .config import ConfigStore, DriversConfig, HeadConfig, ModuleConfig, ServerConfig
+from .config import STANDALONE, ConfigStore, ModuleConfig
 from .logs import setup as setup_logging
 from .server import listen, serve
 from .table import COMMANDS
 
 
 def config_classes() -> list[type[ModuleConfig]]:
-    classes: dict[str, type[ModuleConfig]] = {"server": ServerConfig, "drivers": DriversConfig, "head": HeadConfig}
+    classes: dict[str, type[ModuleConfig]] = dict(STANDALONE)
     for cmd in COMMANDS.values():
         if cmd.config is not None:
             classes.setdefault(cmd.config.module, cmd.config)

@@ -90,6 +90,7 @@ def acquire_coord_images(
     max_range: float = np.inf,
     progress: Callable[[int, int, str], None] | None = None,
     cancelled: Callable[[], bool] | None = None,
+    on_view: Callable[[View], None] | None = None,
 ) -> list[View]:
     """Acquire every pointing; ``pose`` = (x, y, heading, z) of the rover in the global frame.
 
@@ -119,6 +120,8 @@ def acquire_coord_images(
                          "time": view.time, "points": len(view.points)})
             _write_list(Path(out_dir) / f"{stem}_images.csv", rows)
         views.append(view)
+        if on_view is not None:
+            on_view(view)
         if progress is not None:
             progress(i + 1, len(positions), f"view {i + 1}/{len(positions)}: {len(view.points)} points")
     return views

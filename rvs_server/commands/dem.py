@@ -1,0 +1,200 @@
+"""DEM commands: dem-full-tof and dem-update-tof (and the shared machinery the stereo twins use).
+
+The job runs the ``dem_tof`` workflow script with an acquisition step bound to this server's PTU
+and ToF camera, then writes the products under ``<data>/dem/`` and makes the result the current
+DEM (what dem-update merges into, what check-move and navigate read).
+"""
+
+from __future__ import annotations
+
+import math
+import threading
+from dataclasses import dataclass
+from typing import Any, ClassVar
+
+import numpy as np
+from prox_workflows.steps.noise import tof_sigma
+
+from prox_workflows.engine import Cancelled, run_workflow
+from prox_workflows.grid import Layers
+from prox_workflows.steps.acquire import acquire_coord_images
+from prox_workflows.steps.dem_products import write_dem_products
+from prox_workflows.steps.transforms import HeadCalibration
+
+from ..config import ModuleConfig, param, standalone
+from ..jobs import Interrupted, Job
+from ..protocol import Fixed, ProtocolError
+from ..table import HARDWARE, command
+from .hardware import default_stem, device_call
+
+
+@standalone
+@dataclass
+class Dem2HazardConfig(ModuleConfig):
+    """config/dem2hazard.yaml: the rover's limits that turn a DEM into hazard maps."""
+
+    module: ClassVar[str] = "dem2hazard"
+    window: float = param(0.3, "side of the square window the plane is fitted over", unit="m", min=0.02, max=5.0)
+    step_max: float = param(0.15, "greatest step a wheel may climb", unit="m", min=0.0, max=2.0)
+    slope_max: float = param(20.0, "steepest slope the rover may stand on", unit="deg", min=0.0, max=90.0)
+    roughness_max: float = param(0.05, "largest spread about the fitted plane", unit="m", min=0.0, max=2.0)
+    min_fraction: float = param(0.5, "share of a window's cells that must be defined", min=0.0, max=1.0)
+    weight_slope: float = param(1.0, "weight of slope in traversability", min=0.0, max=100.0)
+    weight_step: float = param(1.0, "weight of step in traversability", min=0.0, max=100.0)
+    weight_roughness: float = param(1.0, "weight of roughness in traversability", min=0.0, max=100.0)
+
+
+@dataclass
+class DemTofConfig(ModuleConfig):
+    module: ClassVar[str] = "dem_full_tof"
+    range: list[float] = param([-150.0, 150.0, -50.0, -15.0], "view range pan_min,pan_max,tilt_min,tilt_max",
+                               unit="deg", length=4, min=-360.0, max=360.0)
+    name: str = param("", "stem of the products (default dem_<UTC time>)", stem=True)
+    cell: float = param(0.02, "DEM cell size", unit="m", min=0.005, max=1.0)
+    overlap: float = param(0.2, "share of the field of view that neighbouring views overlap", min=0.0, max=0.9)
+    integrate: int = param(4, "ToF frames integrated per view", min=1, max=100)
+    confidence: float = param(0.3, "discard ToF pixels below this confidence", min=0.0, max=1.0)
+    max_range: float = param(4.5, "ignore points farther than this from the sensor", unit="m", min=0.3, max=30.0)
+    rule: str = param("fuse", "how views and the current DEM merge", choices=("fuse", "max", "newest"))
+    fill_radius: float = param(0.06, "fill holes up to this radius", unit="m", min=0.0, max=2.0)
+    mesh: bool = param(True, "also write a textured mesh (PLY)")
+
+
+@dataclass
+class DemUpdateTofConfig(DemTofConfig):
+    module: ClassVar[str] = "dem_update_tof"
+
+
+class MapState:
+    """The current DEM and the views a stopped acquisition left behind (for the next update)."""
+
+    def __init__(self) -> None:
+        self.lock = threading.RLock()
+        self.current: Layers | None = None
+        self.name: str | None = None
+        self.pending_views: list[Any] = []
+
+
+def maps_of(app: Any) -> MapState:
+    state = getattr(app, "map_state", None)
+    if state is None:
+        state = app.map_state = MapState()
+    return state
+
+
+def rover_mask_polygon(app: Any, pose: tuple[float, float, float, float]) -> np.ndarray:
+    """The rover body's footprint (with margin) in the global frame, to mask it out of scans."""
+    head = app.config.get("head")
+    half_l = head.rover_length / 2 + head.rover_margin
+    half_w = head.rover_width / 2 + head.rover_margin
+    corners = np.array([[half_l, half_w], [-half_l, half_w], [-half_l, -half_w], [half_l, -half_w]])
+    c, s = math.cos(math.radians(pose[2])), math.sin(math.radians(pose[2]))
+    R = np.array([[c, -s], [s, c]])
+    return corners @ R.T + np.array(pose[:2])
+
+
+def current_pose(app: Any) -> tuple[float, float, float, float]:
+    """x, y, heading and the ground height under the rover (from the current DEM if known)."""
+    p = app.pose
+    z = getattr(p, "z", None)
+    if z is None or not math.isfinite(z):
+        z = 0.0
+        state = maps_of(app)
+        with state.lock:
+            dem = state.current
+        if dem is not None:
+            row, col = dem.geometry.cell_of(np.array([p.x]), np.array([p.y]))
+            r, c = int(row[0]), int(col[0])
+            k = max(1, int(round(0.5 / dem.geometry.cell)))
+            window = dem["dem"][max(r - k, 0): r + k + 1, max(c - k, 0): c + k + 1]
+            if window.size and np.isfinite(window).any():
+                z = float(np.nanmedian(window))
+    return (p.x, p.y, p.heading, z)
+
+
+def run_dem(job: Job, cfg: DemTofConfig, *, update: bool, sensor: str = "tof") -> dict[str, Any]:
+    app = job.app  # type: ignore[attr-defined]
+    state = maps_of(app)
+    with state.lock:
+        base = state.current if update else None
+        pending = list(state.pending_views) if update else []
+    if update and base is None and not pending:
+        raise ProtocolError("E_DATA", "there is no current DEM to update; run dem-full-tof first")
+    ptu = app.devices.get("ptu")
+    tof = app.devices.get("tof")
+    head = HeadCalibration.from_dict(app.config.get("head").as_dict())
+    pose = current_pose(app)
+    lim = ptu.limits()
+    limits = (lim["pan"]["min_deg"], lim["pan"]["max_deg"], lim["tilt"]["min_deg"], lim["tilt"]["max_deg"])
+    K, _ = tof.intrinsics()
+    h, w = 144, 176
+    fov = (math.degrees(2 * math.atan(w / 2 / K[0, 0])), math.degrees(2 * math.atan(h / 2 / K[1, 1])))
+    name = cfg.name or default_stem("dem")
+    views_dir = app.data_path("dem", f"{name}_views", "x").parent
+
+    def grab(pan: float, tilt: float) -> tuple[np.ndarray, np.ndarray, float, float]:
+        reached = device_call(job, ptu.move, pan, tilt, True)
+        xyz, amplitude = device_call(job, tof.grab_xyz, cfg.integrate, cfg.confidence)
+        return xyz, amplitude, reached[0], reached[1]
+
+    acquired: list[Any] = []
+
+    def acquire(positions: list[tuple[float, float]], progress: Any = None, cancelled: Any = None) -> list[Any]:
+        def keep(done: int, total: int, message: str) -> None:
+            if progress is not None:
+                progress(done, total, message)
+
+        try:
+            views = acquire_coord_images(positions, grab, head, pose, K, views_dir, name, sensor, tof_sigma,
+                                         cfg.max_range, keep, cancelled, on_view=acquired.append)
+        except BaseException:
+            with state.lock:  # the views acquired before a fault or a break are kept for the next update
+                state.pending_views = pending + acquired
+            raise
+        return views
+
+    hazard = app.config.get("dem2hazard").as_dict()
+    params = {
+        "range": cfg.range, "fov": fov, "overlap": cfg.overlap, "ptu_limits": limits, "cell": cfg.cell,
+        "rule": cfg.rule, "fill_radius": cfg.fill_radius, "max_range": cfg.max_range, "hazard": hazard,
+        "rover_mask": rover_mask_polygon(app, pose),
+    }
+    try:
+        ws, log = run_workflow("dem_tof", params, {"base": base, "pending_views": pending},
+                               steps={"acquire": acquire}, progress=job.progress, cancelled=lambda: job.cancelled)
+    except Cancelled:
+        raise Interrupted(f"{job.command} job {job.id} was interrupted; {len(acquired)} views kept for dem-update") \
+            from None
+    job.check()
+    dem: Layers = ws["dem"]
+    inputs = [f"{name}_views/{v.files['image']}" for v in ws["views"] if v.files]
+    files = write_dem_products(dem, app.data_dir / "dem", name, made_by=job.command, parameters=job.params,
+                               inputs=inputs, run_log=log.as_dict(), mesh=cfg.mesh)
+    with state.lock:
+        state.current = dem
+        state.name = name
+        state.pending_views = []
+    rel = {layer: app.rel(path) for layer, path in files.items()}
+    with app.maps_lock:
+        app.maps = dict(rel)
+    defined = np.isfinite(dem["dem"])
+    out: dict[str, Any] = {k: rel[k] for k in ("dem", "ortho", "hazard", "slope", "step", "roughness") if k in rel}
+    out.update(cells=int(defined.sum()), coverage=Fixed(float(defined.mean()), 3), views=len(ws["views"]))
+    if "traversability" in rel:
+        out["traversability"] = rel["traversability"]
+    if "mesh" in rel:
+        out["mesh"] = rel["mesh"]
+    return out
+
+
+@command("dem-full-tof", job=True, klass=HARDWARE, config=DemTofConfig,
+         help="new DEM from ToF views over -range, with ortho-image and hazard maps")
+def dem_full_tof(job: Job, cfg: DemTofConfig) -> dict[str, Any]:
+    return run_dem(job, cfg, update=False)
+
+
+@command("dem-update-tof", job=True, klass=HARDWARE, config=DemUpdateTofConfig,
+         help="as dem-full-tof, merged into the current DEM (which it may extend)")
+def dem_update_tof(job: Job, cfg: DemUpdateTofConfig) -> dict[str, Any]:
+    return run_dem(job, cfg, update=True)
+
