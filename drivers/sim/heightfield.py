@@ -10,6 +10,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+import cv2
 import numpy as np
 
 
@@ -129,10 +130,16 @@ class Heightfield:
         inv = np.float32(1.0 / self.cell)
         gx = (b + e * v) * inv
         gy = (c + e * u) * inv
-        a = self.albedo.ravel()
-        kk = iy * nx + ix
-        a00, a10, a01, a11 = np.take(a, kk), np.take(a, kk + 1), np.take(a, kk + nx), np.take(a, kk + nx + 1)
-        alb = a00 + (a10 - a00) * u + (a01 - a00) * v + (a00 - a10 - a01 + a11) * u * v
+        # Albedo through cv2.remap (its 1/32-step weights are fine for reflectance, and it
+        # is several times faster than four gathers on a large grid).
+        m = fx.size
+        rows = -(-m // 1024)
+        mx = np.zeros(rows * 1024, np.float32)
+        my = np.zeros(rows * 1024, np.float32)
+        mx[:m] = fx
+        my[:m] = fy
+        alb = cv2.remap(self.albedo, mx.reshape(rows, 1024), my.reshape(rows, 1024), cv2.INTER_LINEAR,
+                        borderMode=cv2.BORDER_REPLICATE).ravel()[:m]
         return gx, gy, alb
 
     def resample(self, xs: np.ndarray, ys: np.ndarray) -> np.ndarray:

@@ -93,10 +93,12 @@ def cast_heightfield(hf: Heightfield, o: np.ndarray, d: np.ndarray, t_limit: np.
         lev = S[_LEV].astype(np.int64)
         fx = (ox + t * dx) * ic0
         fy = (oy + t * dy) * ic0
+        # Rays are inside the box, so fx, fy >= -epsilon (truncation gives 0); only the top
+        # edge needs a clamp. (np.minimum, not np.clip: clip's wrapper costs more than the work.)
         ix0 = fx.astype(np.int64)
-        np.clip(ix0, 0, nx0 - 1, out=ix0)
+        np.minimum(ix0, nx0 - 1, out=ix0)
         iy0 = fy.astype(np.int64)
-        np.clip(iy0, 0, ny0 - 1, out=iy0)
+        np.minimum(iy0, ny0 - 1, out=iy0)
         ixl = ix0 >> lev
         iyl = iy0 >> lev
         hmax = flat[off[lev] + iyl * (w0 >> lev) + ixl]
@@ -181,7 +183,7 @@ def _first_root(A: np.ndarray, B: np.ndarray, C: np.ndarray, s_len: np.ndarray, 
         r1 = np.where(r1 >= 0, r1, np.inf)
         r2 = np.where(r2 >= 0, r2, np.inf)
         s = np.where(disc >= 0, np.minimum(r1, r2), np.inf)
-        s_back = np.where(B < 0, np.clip(-C / B, -back, 0.0), 0.0)
+        s_back = np.where(B < 0, np.minimum(np.maximum(-C / B, -back), 0.0), 0.0)
     s = np.where(C <= 0, s_back, s)
     # A root a hair past the end (rounding) still belongs to this patch.
     tol = 1e-6 * (1 + s_len)

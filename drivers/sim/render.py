@@ -21,7 +21,8 @@ from drivers.sim.raycast import cast_heightfield
 from drivers.sim.transforms import rotate
 
 _POOL: ThreadPoolExecutor | None = None
-_THREADS = max(1, min(4, os.cpu_count() or 1))
+# RVS_SIM_THREADS overrides the number of threads a large render is split across.
+_THREADS = max(1, int(os.environ.get("RVS_SIM_THREADS", 0)) or min(4, os.cpu_count() or 1))
 
 
 def _pool() -> ThreadPoolExecutor:
@@ -179,12 +180,20 @@ def render(hf: Heightfield, objects: list[SceneObject], detail: Detail, K: np.nd
             alb = _filtered_plane_albedo(obj, K, T_world_cam, o, rows + r0, cols + c0)
         obj_normal[obj.oid] = (flat_idx, nw[better.ravel()], alb, obj.texture)
 
-    # Terrain, in parallel bands, stopped at the nearest object already hit.
-    nb = _THREADS * 2 if n > 20000 else 1
-    edges = np.linspace(0, n, nb + 1).astype(int)
-    futures = [_pool().submit(cast_heightfield, hf, o, d[a:b], t_best[a:b]) for a, b in zip(edges[:-1], edges[1:],
-                                                                                             strict=True)]
-    t_ter = np.concatenate([f.result() for f in futures])
+    # Terrain, stopped at the nearest object already hit. Large images are split between
+    # the threads in interleaved blocks of rows, so each gets its share of the costly rays
+    # near the horizon (and only one tail of slow rays each).
+    nb = _THREADS if n > 300_000 else 1
+    if nb == 1:
+        t_ter = cast_heightfield(hf, o, d, t_best)
+    else:
+        block = np.arange(n).reshape(H, W)
+        groups = [block[r0:r0 + 8] for r0 in range(0, H, 8)]
+        parts = [np.concatenate([g.ravel() for g in groups[k::nb]]) for k in range(nb)]
+        futures = [_pool().submit(cast_heightfield, hf, o, d[ix], t_best[ix]) for ix in parts]
+        t_ter = np.empty(n)
+        for ix, f in zip(parts, futures, strict=True):
+            t_ter[ix] = f.result()
     ter = t_ter < t_best
     t_best[ter] = t_ter[ter]
     oid[ter] = 0
