@@ -104,7 +104,8 @@ def write_tiff(path: Path, image: np.ndarray, **tags: Any) -> Path:
 
 def preview(image: np.ndarray, colormap: int | None = None, lo: float | None = None,
             hi: float | None = None) -> np.ndarray:
-    """An 8-bit view of any image for a PNG preview: robust min/max stretch, NaN black."""
+    """An 8-bit view of any image for a PNG preview: robust min/max stretch, NaN black; with a
+    colour map the result is RGB, as :func:`write_png` expects."""
     img = np.asarray(image)
     if img.dtype == np.uint8:
         return img
@@ -117,7 +118,7 @@ def preview(image: np.ndarray, colormap: int | None = None, lo: float | None = N
     scaled = np.clip((data - lo) / max(hi - lo, 1e-12), 0, 1) * 255
     out = np.where(valid, scaled, 0).astype(np.uint8)
     if colormap is not None and out.ndim == 2:
-        out = cv2.applyColorMap(out, colormap)
+        out = cv2.cvtColor(cv2.applyColorMap(out, colormap), cv2.COLOR_BGR2RGB)
         out[~valid] = 0
     return out
 

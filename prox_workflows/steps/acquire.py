@@ -22,6 +22,8 @@ import numpy as np
 from ..products import write_text_atomic, write_tiff
 from .transforms import HeadCalibration, T_global_from_rover, apply, camera_matrix, write_cal
 
+# variance(points N x 3 global, sensor position, amplitude N) -> height variance N (m^2)
+Variance = Callable[[np.ndarray, np.ndarray, np.ndarray], np.ndarray]
 # grab(pan, tilt) -> (xyz in the camera frame H x W x 3 with -1 or NaN undefined, intensity H x W,
 #                     pan reached, tilt reached)
 Grab = Callable[[float, float], tuple[np.ndarray, np.ndarray, float, float]]
@@ -57,7 +59,7 @@ def view_from_xyz(
     tilt: float,
     T_global_camera: np.ndarray,
     K: np.ndarray,
-    sigma: Callable[[np.ndarray, np.ndarray], np.ndarray] | None = None,
+    variance: Variance | None = None,
     max_range: float = np.inf,
 ) -> View:
     """Transform one camera-frame XYZ image to the global frame and keep its defined points."""
@@ -69,11 +71,12 @@ def view_from_xyz(
     glob = apply(T_global_camera, xyz[defined])
     amp = np.asarray(intensity, dtype=np.float32)[defined]
     r = rng[defined].astype(np.float32)
-    s = sigma(r, amp) if sigma is not None else np.full(len(r), 0.01, np.float32)
+    var = (variance(glob, T_global_camera[:3, 3], amp) if variance is not None
+           else np.full(len(r), 1e-4, np.float32))
     points = np.concatenate([glob, amp[:, None]], axis=1).astype(np.float32)
     depth = np.where(defined, z, np.nan).astype(np.float32)
     P = camera_matrix(K, T_global_camera)
-    return View(index, pan, tilt, _stamp(), points, (np.asarray(s, np.float32) ** 2), r, P,
+    return View(index, pan, tilt, _stamp(), points, np.asarray(var, np.float32), r, P,
                 np.asarray(intensity, np.float32), depth, T_global_camera)
 
 
@@ -86,7 +89,7 @@ def acquire_coord_images(
     out_dir: Path | None = None,
     stem: str = "view",
     sensor: str = "tof",
-    sigma: Callable[[np.ndarray, np.ndarray], np.ndarray] | None = None,
+    variance: Variance | None = None,
     max_range: float = np.inf,
     progress: Callable[[int, int, str], None] | None = None,
     cancelled: Callable[[], bool] | None = None,
@@ -107,7 +110,7 @@ def acquire_coord_images(
             progress(i, len(positions), f"pan={pan:.1f} tilt={tilt:.1f}")
         xyz, intensity, pan_r, tilt_r = grab(pan, tilt)
         T_gc = T_gr @ head.T_rover_from_sensor(sensor, pan_r, tilt_r)
-        view = view_from_xyz(i, xyz, intensity, pan_r, tilt_r, T_gc, K, sigma, max_range)
+        view = view_from_xyz(i, xyz, intensity, pan_r, tilt_r, T_gc, K, variance, max_range)
         if out_dir is not None:
             name = f"{stem}_{view.time}_v{i:02d}"
             image = np.concatenate([apply(T_gc, np.where(np.isfinite(xyz) & (xyz[..., 2:3] > 0), xyz, np.nan)),

@@ -21,26 +21,48 @@ def join_views(earlier: list[View] | None, new: list[View]) -> list[View]:
     return list(earlier or []) + list(new)
 
 
-def view_dem(view: View, cell: float, rover_mask: np.ndarray | None = None) -> Layers:
-    """DemImport of one view's points, each with its noise-model variance."""
+def view_dem(view: View, cell: float, rover_mask: np.ndarray | None = None, height: str = "mean") -> Layers:
+    """DemImport of one view's points, each with its noise-model variance.
+
+    ``height="mean"`` makes the view's height the information-weighted mean of its cell's
+    points: the greatest of several noisy ToF heights sits about a sigma above the ground, which
+    is a bias the fusion cannot average away; ``"max"`` keeps the thesis's direct rule.
+    """
     layers = dem_import(view.points, cell=cell, point_variance=view.variance, rover_mask=rover_mask)
+    if height == "mean" and "wmean" in layers:
+        layers["dem"] = layers["wmean"]
+        layers["variance"] = np.zeros_like(layers["variance"])  # the mean's spread is in measurement_variance
     layers.meta["view"] = view.index
     return layers
 
 
 def mosaic(dems: list[Layers], base: Layers | None, rule: str, cell: float) -> Layers:
-    """DemMosaik of the views onto the current DEM (if any), on the union of their extents."""
-    inputs = ([base] if base is not None else []) + [d for d in dems if np.isfinite(d["dem"]).any()]
-    if not inputs:
+    """DemMosaik of the views, then onto the current DEM (if any), on the union of extents.
+
+    Views of one scan disagree mostly where one sees a rock's top and another its foot, so there
+    the higher wins; between scans a disagreement is a change or an outlier, so the gate rejects
+    it and inflates the prior's variance (elevation_mapping's two rules).
+    """
+    views = [d for d in dems if np.isfinite(d["dem"]).any()]
+    if not views and base is None:
         raise ValueError("no view produced any point: nothing to map (check the view range and the sensor)")
-    return dem_mosaik(inputs, rule=rule, cell=cell)
+    if rule != "fuse":
+        return dem_mosaik(([base] if base is not None else []) + views, rule=rule, cell=cell)
+    scan = dem_mosaik(views, rule="fuse", cell=cell, on_conflict="higher") if views else None
+    if base is None:
+        assert scan is not None
+        return scan
+    if scan is None:
+        return base
+    return dem_mosaik([base, scan], rule="fuse", cell=cell, on_conflict="inflate")
 
 
 def fill_holes_layers(layers: Layers, radius: float) -> Layers:
     filled, mask = fill_holes(layers["dem"], layers.geometry.cell, radius)
-    layers["dem"] = filled
-    layers["filled"] = mask.astype(np.uint8)
-    return layers
+    out = Layers(layers.geometry, dict(layers.layers), dict(layers.meta))
+    out["dem"] = filled
+    out["filled"] = mask.astype(np.uint8)
+    return out
 
 
 def hazard_layers(layers: Layers, params: dict[str, Any] | None = None) -> Layers:

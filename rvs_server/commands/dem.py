@@ -10,15 +10,16 @@ from __future__ import annotations
 import math
 import threading
 from dataclasses import dataclass
+from functools import partial
 from typing import Any, ClassVar
 
 import numpy as np
-from prox_workflows.steps.noise import tof_sigma
 
 from prox_workflows.engine import Cancelled, run_workflow
 from prox_workflows.grid import Layers
 from prox_workflows.steps.acquire import acquire_coord_images
 from prox_workflows.steps.dem_products import write_dem_products
+from prox_workflows.steps.noise import tof_height_variance
 from prox_workflows.steps.transforms import HeadCalibration
 
 from ..config import ModuleConfig, param, standalone
@@ -35,10 +36,10 @@ class Dem2HazardConfig(ModuleConfig):
 
     module: ClassVar[str] = "dem2hazard"
     window: float = param(0.3, "side of the square window the plane is fitted over", unit="m", min=0.02, max=5.0)
-    step_max: float = param(0.15, "greatest step a wheel may climb", unit="m", min=0.0, max=2.0)
-    slope_max: float = param(20.0, "steepest slope the rover may stand on", unit="deg", min=0.0, max=90.0)
-    roughness_max: float = param(0.05, "largest spread about the fitted plane", unit="m", min=0.0, max=2.0)
-    min_fraction: float = param(0.5, "share of a window's cells that must be defined", min=0.0, max=1.0)
+    step_max: float = param(0.15, "greatest step a wheel may climb", unit="m", min=0.001, max=2.0)
+    slope_max: float = param(20.0, "steepest slope the rover may stand on", unit="deg", min=0.1, max=89.0)
+    roughness_max: float = param(0.05, "largest spread about the fitted plane", unit="m", min=0.001, max=2.0)
+    min_fraction: float = param(0.5, "share of a window's cells that must be defined", min=0.01, max=1.0)
     weight_slope: float = param(1.0, "weight of slope in traversability", min=0.0, max=100.0)
     weight_step: float = param(1.0, "weight of step in traversability", min=0.0, max=100.0)
     weight_roughness: float = param(1.0, "weight of roughness in traversability", min=0.0, max=100.0)
@@ -145,7 +146,8 @@ def run_dem(job: Job, cfg: DemTofConfig, *, update: bool, sensor: str = "tof") -
                 progress(done, total, message)
 
         try:
-            views = acquire_coord_images(positions, grab, head, pose, K, views_dir, name, sensor, tof_sigma,
+            views = acquire_coord_images(positions, grab, head, pose, K, views_dir, name, sensor,
+                                         partial(tof_height_variance, frames=cfg.integrate),
                                          cfg.max_range, keep, cancelled, on_view=acquired.append)
         except BaseException:
             with state.lock:  # the views acquired before a fault or a break are kept for the next update
