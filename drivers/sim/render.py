@@ -2,8 +2,8 @@
 
 Rays of all pixels are cast at once: first against the analytic objects (each only over the
 image rectangle its bounding box projects to), then against the terrain, which stops early
-at the nearest object already hit. Large images are split into row bands cast in parallel
-threads (numpy releases the GIL inside its array operations).
+at the nearest object already hit. Large images are split into vertical strips rendered in
+parallel threads (numpy releases the GIL inside its array operations).
 """
 
 from __future__ import annotations
@@ -148,6 +148,26 @@ def _filtered_plane_albedo(obj: SceneObject, K: np.ndarray, T_world_cam: np.ndar
 
 def render(hf: Heightfield, objects: list[SceneObject], detail: Detail, K: np.ndarray, width: int, height: int,
            T_world_cam: np.ndarray) -> Render:
+    """Render a view; large images are cut into vertical strips rendered in parallel threads
+    (strips, not row bands, so each holds a share of the costly rays near the horizon)."""
+    K = np.asarray(K, np.float64)
+    T_world_cam = np.asarray(T_world_cam, np.float64)
+    parts = _THREADS if width * height > 300_000 else 1
+    if parts == 1:
+        return _render(hf, objects, detail, K, width, height, T_world_cam)
+    cuts = np.linspace(0, width, parts + 1).astype(int)
+    futures = []
+    for c0, c1 in zip(cuts[:-1], cuts[1:], strict=True):
+        Kp = K.copy()
+        Kp[0, 2] -= c0  # the strip's own principal point: same rays as in the full image
+        futures.append(_pool().submit(_render, hf, objects, detail, Kp, int(c1 - c0), height, T_world_cam))
+    strips = [f.result() for f in futures]
+    return Render(**{name: np.concatenate([getattr(r, name) for r in strips], axis=1)
+                     for name in Render.__dataclass_fields__})
+
+
+def _render(hf: Heightfield, objects: list[SceneObject], detail: Detail, K: np.ndarray, width: int, height: int,
+            T_world_cam: np.ndarray) -> Render:
     K = np.asarray(K, np.float64)
     T_world_cam = np.asarray(T_world_cam, np.float64)
     H, W = height, width
@@ -180,20 +200,8 @@ def render(hf: Heightfield, objects: list[SceneObject], detail: Detail, K: np.nd
             alb = _filtered_plane_albedo(obj, K, T_world_cam, o, rows + r0, cols + c0)
         obj_normal[obj.oid] = (flat_idx, nw[better.ravel()], alb, obj.texture)
 
-    # Terrain, stopped at the nearest object already hit. Large images are split between
-    # the threads in interleaved blocks of rows, so each gets its share of the costly rays
-    # near the horizon (and only one tail of slow rays each).
-    nb = _THREADS if n > 300_000 else 1
-    if nb == 1:
-        t_ter = cast_heightfield(hf, o, d, t_best)
-    else:
-        block = np.arange(n).reshape(H, W)
-        groups = [block[r0:r0 + 8] for r0 in range(0, H, 8)]
-        parts = [np.concatenate([g.ravel() for g in groups[k::nb]]) for k in range(nb)]
-        futures = [_pool().submit(cast_heightfield, hf, o, d[ix], t_best[ix]) for ix in parts]
-        t_ter = np.empty(n)
-        for ix, f in zip(parts, futures, strict=True):
-            t_ter[ix] = f.result()
+    # Terrain, stopped at the nearest object already hit.
+    t_ter = cast_heightfield(hf, o, d, t_best)
     ter = t_ter < t_best
     t_best[ter] = t_ter[ter]
     oid[ter] = 0

@@ -14,17 +14,20 @@ import time
 from drivers.sim.world import World
 
 
-def _median_time(fn, runs: int) -> float:
+def _median_time(fn, runs: int) -> tuple[float, float]:
+    """Median wall and CPU (all threads of this process) seconds; on a shared machine the
+    CPU time is the steadier figure."""
     fn()  # warm-up: thread pool, caches
-    times = []
+    wall, cpu = [], []
     for _ in range(runs):
-        t = time.perf_counter()
+        t, c = time.perf_counter(), time.process_time()
         fn()
-        times.append(time.perf_counter() - t)
-    return statistics.median(times)
+        wall.append(time.perf_counter() - t)
+        cpu.append(time.process_time() - c)
+    return statistics.median(wall), statistics.median(cpu)
 
 
-def bench(scene: str, runs: int, tilt: float) -> dict[str, float]:
+def bench(scene: str, runs: int, tilt: float) -> dict[str, tuple[float, float] | float]:
     t0 = time.perf_counter()
     world = World.from_scene(scene)
     build = time.perf_counter() - t0
@@ -45,11 +48,13 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--runs", type=int, default=5)
     ap.add_argument("--tilt", type=float, default=-20.0, help="PTU tilt in degrees (negative looks down)")
     args = ap.parse_args(argv)
-    print(f"cpus: {os.cpu_count()}  runs: {args.runs}  pan 0, tilt {args.tilt}")
+    load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
+    print(f"cpus: {os.cpu_count()}  load: {load:.2f}  runs: {args.runs}  pan 0, tilt {args.tilt}  (median wall, cpu)")
     for scene in args.scenes:
         r = bench(scene, args.runs, args.tilt)
-        print(f"{scene:10s} build {r['build_s']:.2f} s   ToF 176x144 {r['tof_s'] * 1000:7.1f} ms   "
-              f"stereo pair 2x1920x1080 {r['stereo_pair_s']:.2f} s")
+        (tw, tc), (sw, sc) = r["tof_s"], r["stereo_pair_s"]
+        print(f"{scene:10s} build {r['build_s']:.2f} s   ToF 176x144 {tw * 1000:6.1f} ms (cpu {tc * 1000:6.1f})   "
+              f"stereo pair 2x1920x1080 {sw:5.2f} s (cpu {sc:5.2f})")
     return 0
 
 
