@@ -316,19 +316,22 @@ class World:
                     keep.append(o)
             elif o.in_dem and include_objects:
                 keep.append(o)
-        if keep:
-            X, Y = np.meshgrid(xs, ys)
-            ztop = max(hf.zmax, max(float(o.world_corners()[:, 2].max()) for o in keep)) + 1.0
+        for o in keep:
+            # Vertical rays from above, only over the cells under the object's bounding box.
+            c = o.world_corners()
+            cols = np.flatnonzero((xs >= c[:, 0].min()) & (xs <= c[:, 0].max()))
+            rows = np.flatnonzero((ys >= c[:, 1].min()) & (ys <= c[:, 1].max()))
+            if cols.size == 0 or rows.size == 0:
+                continue
+            X, Y = np.meshgrid(xs[cols], ys[rows])
+            ztop = float(c[:, 2].max()) + 1.0
             orig = np.stack([X.ravel(), Y.ravel(), np.full(X.size, ztop)], axis=1)
             down = np.tile([0.0, 0.0, -1.0], (X.size, 1))
-            flat = dem.ravel()
-            for o in keep:
-                t, _, _ = o.intersect(orig, down)
-                hit = np.isfinite(t)
-                z = ztop - t[hit]
-                cur = flat[hit]
-                flat[hit] = np.where(np.isnan(cur) | (z > cur), z, cur)
-            dem = flat.reshape(ny, nx)
+            t, _, _ = o.intersect(orig, down)
+            z = (ztop - t).reshape(X.shape)  # -inf where the ray missed
+            sub = dem[rows[0]:rows[-1] + 1, cols[0]:cols[-1] + 1]
+            higher = np.isfinite(z) & (np.isnan(sub) | (z > sub))
+            sub[higher] = z[higher]
         return dem.astype(np.float32)
 
 
