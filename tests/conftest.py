@@ -59,6 +59,16 @@ class LineClient:
             if r.status in FINAL and (job is None or r.fields.get("job") == job):
                 return out
 
+    def start_job(self, text: str, timeout: float | None = None) -> str:
+        """Send a job request and return its job id (EVENT lines before the ACK are skipped)."""
+        self.send(text)
+        while True:
+            r = self.reply(timeout)
+            if r.status == "ACK":
+                return r.fields["job"]
+            if r.status in FINAL:
+                raise AssertionError(f"job refused: {r}")
+
     def request(self, text: str, timeout: float | None = None) -> Reply:
         """Send one request and return its final line (skipping EVENT and PROGRESS lines)."""
         self.send(text)

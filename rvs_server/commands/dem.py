@@ -164,7 +164,7 @@ def run_dem(job: Job, cfg: DemTofConfig, *, update: bool, sensor: str = "tof") -
     try:
         ws, log = run_workflow("dem_tof", params, {"base": base, "pending_views": pending},
                                steps={"acquire": acquire}, progress=job.progress, cancelled=lambda: job.cancelled)
-    except Cancelled:
+    except (Cancelled, Interrupted):
         raise Interrupted(f"{job.command} job {job.id} was interrupted; {len(acquired)} views kept for dem-update") \
             from None
     job.check()
