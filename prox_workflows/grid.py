@@ -127,7 +127,8 @@ def _geo_tags(geometry: GridGeometry, nodata: float | None) -> list[tuple[int, s
         (GEO_ASCII_PARAMS, "s", 0, citation, False),
     ]
     if nodata is not None:
-        tags.append((GDAL_NODATA, "s", 0, "nan" if math.isnan(nodata) else repr(nodata), False))
+        text = "nan" if math.isnan(nodata) else str(int(nodata)) if float(nodata).is_integer() else repr(nodata)
+        tags.append((GDAL_NODATA, "s", 0, text, False))
     return tags
 
 

@@ -53,11 +53,19 @@ class StartupError(Exception):
 
 
 async def run(store: ConfigStore, *, ready: Callable[[int], None] | None = None, handle_signals: bool = True,
-              on_app: Callable[[App], None] | None = None) -> int:
+              on_app: Callable[[App], None] | None = None, recover: str | None = None) -> int:
     try:
         app = make_app(store, asyncio.get_running_loop())
     except (OSError, ValueError, KeyError) as exc:
         raise StartupError(f"cannot set up: {exc}") from exc
+    if recover is not None:
+        from .commands.dem import load_recovery
+        from .protocol import ProtocolError
+
+        try:
+            load_recovery(app, recover)
+        except ProtocolError as exc:
+            raise StartupError(f"--recover {recover}: {exc.message}") from exc
     if on_app is not None:
         on_app(app)
     server = store.get("server")
@@ -80,6 +88,8 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     p.add_argument("--config", help="folder of YAML files overriding config/")
     p.add_argument("--set", action="append", default=[], metavar="MODULE.KEY=VALUE",
                    help="override one configuration value (repeatable)")
+    p.add_argument("--recover", nargs="?", const="last", metavar="SET",
+                   help="load a recovery set written by break (default: the last one) before serving")
     return p.parse_args(argv)
 
 
@@ -99,7 +109,7 @@ def main(argv: list[str] | None = None) -> int:
     data = Path(server.data)
     setup_logging(server.log_level, data / server.log_file)
     try:
-        return asyncio.run(run(store))
+        return asyncio.run(run(store, recover=args.recover))
     except StartupError as exc:
         print(f"rvs-server: {exc}", file=sys.stderr)
         return 1

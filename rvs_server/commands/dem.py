@@ -11,12 +11,14 @@ import math
 import threading
 from dataclasses import dataclass
 from functools import partial
+from pathlib import Path
 from typing import Any, ClassVar
 
 import numpy as np
+import yaml
 
 from prox_workflows.engine import Cancelled, run_workflow
-from prox_workflows.grid import Layers
+from prox_workflows.grid import Layers, read_geotiff
 from prox_workflows.steps.acquire import acquire_coord_images
 from prox_workflows.steps.dem_products import write_dem_products
 from prox_workflows.steps.noise import tof_height_variance
@@ -24,8 +26,8 @@ from prox_workflows.steps.transforms import HeadCalibration
 
 from ..config import ModuleConfig, param, standalone
 from ..jobs import Interrupted, Job
-from ..protocol import Fixed, ProtocolError
-from ..table import HARDWARE, command
+from ..protocol import Fixed, ProtocolError, valid_stem
+from ..table import CONTROL, HARDWARE, command
 from .hardware import default_stem, device_call
 
 
@@ -200,3 +202,67 @@ def dem_full_tof(job: Job, cfg: DemTofConfig) -> dict[str, Any]:
 def dem_update_tof(job: Job, cfg: DemUpdateTofConfig) -> dict[str, Any]:
     return run_dem(job, cfg, update=True)
 
+
+
+# ------------------------------------------------------------------ recovery
+
+
+@dataclass
+class RecoverConfig(ModuleConfig):
+    module: ClassVar[str] = "recover"
+    set: str = param("last", "recovery set to load: last, or its folder under recovery/")
+
+
+def load_layers(paths: dict[str, Path]) -> Layers:
+    """Read a DEM's layer GeoTIFFs back into one Layers (they share the DEM's grid)."""
+    if "dem" not in paths:
+        raise ProtocolError("E_DATA", "the recovery set holds no DEM layer")
+    dem, geometry = read_geotiff(paths["dem"])
+    layers = Layers(geometry, {"dem": dem})
+    for layer, path in paths.items():
+        if layer in ("dem", "mesh") or path.suffix != ".tif":
+            continue
+        image, g = read_geotiff(path)
+        if g == geometry:
+            layers[layer] = image
+    return layers
+
+
+def load_recovery(app: Any, which: str) -> dict[str, Any]:
+    """Restore pose and maps from a recovery set; returns what was restored."""
+    root = app.data_dir / "recovery"
+    if which == "last":
+        if not app.last_recovery:
+            raise ProtocolError("E_DATA", "there is no recovery set under the data directory")
+        folder = app.data_dir / app.last_recovery
+    else:
+        if not valid_stem(which):
+            raise ProtocolError("E_ARG", "-set is last or the name of a folder under recovery/")
+        folder = root / which
+    manifest_path = folder / "manifest.yaml"
+    if not manifest_path.is_file():
+        raise ProtocolError("E_DATA", f"no recovery set at {app.rel(folder)}; status shows the last one")
+    manifest = yaml.safe_load(manifest_path.read_text()) or {}
+    pose = manifest.get("pose") or {}
+    app.set_pose(float(pose.get("x", 0.0)), float(pose.get("y", 0.0)), float(pose.get("heading", 0.0)))
+    maps = {layer: folder / rel for layer, rel in (manifest.get("maps") or {}).items()}
+    out: dict[str, Any] = {"recovery": app.rel(folder), "pose": [Fixed(app.pose.x, 3), Fixed(app.pose.y, 3),
+                                                                    Fixed(app.pose.heading, 2)]}
+    if maps:
+        layers = load_layers(maps)
+        state = maps_of(app)
+        with state.lock:
+            state.current = layers
+        with app.maps_lock:
+            app.maps = {layer: app.rel(path) for layer, path in maps.items()}
+        out["cells"] = int(np.isfinite(layers["dem"]).sum())
+    job = manifest.get("job") or {}
+    out["interrupted_job"] = job.get("command", "none")
+    return out
+
+
+@command("recover", job=True, klass=CONTROL, config=RecoverConfig,
+         help="load a recovery set written by break: the pose and the maps it held (-set last or a folder)")
+def recover(job: Job, cfg: RecoverConfig) -> dict[str, Any]:
+    job.progress(0, 1, f"loading recovery set {cfg.set}")
+    return load_recovery(job.app, cfg.set)  # type: ignore[attr-defined]
