@@ -37,28 +37,28 @@ def ortho_image(
     h, w = dem.shape
     defined = np.isfinite(dem)
     rows, cols = np.nonzero(defined)
-    pts = np.stack([xs[cols], ys[rows], dem[rows, cols]], axis=1).astype(np.float64)
-    best_depth = np.full(len(pts), np.inf)
-    best_value = np.zeros(len(pts), np.float32)
-    best_view = np.full(len(pts), -1, np.int16)
+    px, py, pz = xs[cols].astype(np.float64), ys[rows].astype(np.float64), dem[rows, cols].astype(np.float64)
+    best_depth = np.full(len(px), np.inf)
+    best_value = np.zeros(len(px), np.float32)
+    best_view = np.full(len(px), -1, np.int16)
     lo, hi = _intensity_range(views)
     for index, view in enumerate(views):
-        hom = pts @ view.P[:, :3].T + view.P[:, 3]
-        z = hom[:, 2]
+        P = view.P  # element-wise rather than a (N x 3) @ (3 x 3) product: no BLAS thread start-up
+        z = P[2, 0] * px + P[2, 1] * py + P[2, 2] * pz + P[2, 3]
         with np.errstate(divide="ignore", invalid="ignore"):
-            u = hom[:, 0] / z
-            v = hom[:, 1] / z
+            u = (P[0, 0] * px + P[0, 1] * py + P[0, 2] * pz + P[0, 3]) / z
+            v = (P[1, 0] * px + P[1, 1] * py + P[1, 2] * pz + P[1, 3]) / z
         ih, iw = view.intensity.shape[:2]
-        ui = np.round(u).astype(np.int64, copy=False) if len(u) else u.astype(np.int64)
-        vi = np.round(v).astype(np.int64, copy=False) if len(v) else v.astype(np.int64)
-        ok = (z > 0) & (ui >= 0) & (ui < iw) & (vi >= 0) & (vi < ih) & np.isfinite(u) & np.isfinite(v)
+        ok = (z > 0) & (u > -0.5) & (u < iw - 0.5) & (v > -0.5) & (v < ih - 0.5)
         idx = np.nonzero(ok)[0]
+        ui = np.rint(u[idx]).astype(np.int64)
+        vi = np.rint(v[idx]).astype(np.int64)
         if view.depth is not None and len(idx):
-            seen = view.depth[vi[idx], ui[idx]]
+            seen = view.depth[vi, ui]
             tol = occlusion_tol + occlusion_rel * z[idx]
             visible = np.isfinite(seen) & (seen > 0) & (np.abs(seen - z[idx]) <= tol)
-            idx = idx[visible]
-        value = view.intensity[vi[idx], ui[idx]].astype(np.float32)
+            idx, ui, vi = idx[visible], ui[visible], vi[visible]
+        value = view.intensity[vi, ui].astype(np.float32)
         finite = np.isfinite(value)
         idx, value = idx[finite], value[finite]
         better = z[idx] < best_depth[idx]
