@@ -78,6 +78,13 @@ class World:
         seed = int(spec.get("seed", 0) if seed is None else seed)
         rng = np.random.default_rng(seed)
         terrain = build_terrain(spec["terrain"], rng)
+        # The global frame's origin is the ground under the rover's start (x forward at the start
+        # pose, z up from there), as the server assumes; scenes are shifted to it.
+        start_spec = spec.get("rover", {}).get("start", {})
+        z0 = float(terrain.sample(float(start_spec.get("x", 0.0)), float(start_spec.get("y", 0.0))))
+        if np.isfinite(z0) and z0 != 0.0:
+            terrain = Heightfield(terrain.x0, terrain.y0, terrain.cell, terrain.heights - np.float32(z0),
+                                  terrain.albedo)
         detail = Detail(periodic_tile(512, rng), **spec.get("detail", {}))
         head = HeadGeometry.from_spec(spec.get("head"))
         objects = [build_object(o, FIRST_OBJECT_ID + i) for i, o in enumerate(spec.get("objects", []))]

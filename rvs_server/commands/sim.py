@@ -49,13 +49,12 @@ VERBS: dict[str, type[ModuleConfig]] = {
 
 
 def _truth(world: Any) -> dict[str, Any]:
-    x, y, heading = world.rover_pose()
-    pan, tilt = world.ptu()
-    return {"x": Fixed(x, 4), "y": Fixed(y, 4), "z": Fixed(world.rover_z(), 4), "heading": Fixed(heading, 3),
-            "pan": Fixed(pan, 3), "tilt": Fixed(tilt, 3)}
+    t = world.truth()
+    return {"x": Fixed(t["x"], 4), "y": Fixed(t["y"], 4), "z": Fixed(t["z"], 4), "heading": Fixed(t["heading"], 3),
+            "pan": Fixed(t["pan"], 3), "tilt": Fixed(t["tilt"], 3)}
 
 
-@command("sim", klass=ALWAYS, raw=True, sim_only=True, positional=("move-rover|truth|scene NAME|fault",),
+@command("sim", klass=ALWAYS, raw=True, sim_only=True, positional=("move-rover|truth|scene|fault", "NAME"),
          help="simulation control: sim move-rover -dx -dy -dyaw | sim truth | sim scene NAME | "
               "sim fault -device D -kind K")
 def sim(ctx: Context, cfg: None) -> dict[str, Any]:

@@ -79,7 +79,8 @@ def test_golombek_rock_field_covers_the_model_area_fraction() -> None:
 def test_marsyard_and_quarry_relief() -> None:
     mars = World.from_scene("marsyard")
     dem = mars.true_dem(0.05, (5.0, 0.5, 9.0, 4.5))
-    assert dem.min() < -0.2  # the big crater's floor, 7.0, 2.5
+    assert mars.true_dem(0.05, (-0.025, -0.025, 0.025, 0.025))[0, 0] == pytest.approx(0.0, abs=2e-3)  # origin
+    assert dem.min() < np.median(dem) - 0.2  # the big crater's floor, 7.0, 2.5
     assert dem[40, 40] == pytest.approx(dem.min(), abs=0.1)
     quarry = World.from_scene("quarry")
     assert float(quarry.true_dem(0.1, (14.0, -0.5, 15.0, 0.5)).mean()) > 2.5  # top of the slope
