@@ -22,6 +22,7 @@ class Heightfield:
     heights: np.ndarray  # (ny, nx) float32
     albedo: np.ndarray  # (ny, nx) float32, 0..1
     pyramid: list[np.ndarray] = field(default_factory=list, repr=False)
+    rocks: list[dict[str, float]] = field(default_factory=list, repr=False)  # as placed, for ground truth
 
     def __post_init__(self) -> None:
         self.heights = np.ascontiguousarray(self.heights, np.float32)

@@ -53,6 +53,7 @@ class _Grid:
         # texture at all scales, not only flat colour.
         self.speckle = fractal((self.ny, self.nx), self.cell, [0.5, 0.15, 0.04, 0.015], rng, falloff=0.8)
         self.albedo = (albedo * (1.0 + contrast * self.speckle)).astype(np.float64)
+        self.rocks: list[dict[str, float]] = []  # ground truth for hazard tests: every rock placed
 
     def window(self, xmin: float, ymin: float, xmax: float, ymax: float):
         """Index slices and node coordinates of the part of the grid inside a box, or None."""
@@ -148,6 +149,8 @@ def rock(g: _Grid, p: dict) -> None:
         prof = prof * (1.0 + rough * g.speckle[sl])
     base = g.ground(x, y) - float(p.get("embed", 0.0))
     top = np.where(inside, base + prof, -np.inf)
+    g.rocks.append({"x": x, "y": y, "a": a, "b": b, "yaw": float(p.get("yaw", 0.0)),
+                    "height": float(prof.max(initial=0.0)) - float(p.get("embed", 0.0))})
     zsl = g.z[sl]
     higher = top > zsl
     g.z[sl] = np.where(higher, top, zsl)
@@ -353,4 +356,5 @@ def build_terrain(spec: dict, rng: np.random.Generator) -> Heightfield:
         if kind not in PRIMITIVES:
             raise ValueError(f"unknown terrain primitive {kind!r}; known: {sorted(PRIMITIVES)}")
         PRIMITIVES[kind](g, p)
-    return Heightfield(g.x0, g.y0, g.cell, g.z.astype(np.float32), np.clip(g.albedo, 0.02, 0.98).astype(np.float32))
+    return Heightfield(g.x0, g.y0, g.cell, g.z.astype(np.float32), np.clip(g.albedo, 0.02, 0.98).astype(np.float32),
+                       rocks=g.rocks)

@@ -84,7 +84,7 @@ class World:
         z0 = float(terrain.sample(float(start_spec.get("x", 0.0)), float(start_spec.get("y", 0.0))))
         if np.isfinite(z0) and z0 != 0.0:
             terrain = Heightfield(terrain.x0, terrain.y0, terrain.cell, terrain.heights - np.float32(z0),
-                                  terrain.albedo)
+                                  terrain.albedo, rocks=terrain.rocks)
         detail = Detail(periodic_tile(512, rng), **spec.get("detail", {}))
         head = HeadGeometry.from_spec(spec.get("head"))
         objects = [build_object(o, FIRST_OBJECT_ID + i) for i, o in enumerate(spec.get("objects", []))]
@@ -119,6 +119,11 @@ class World:
 
                 self.place_checkerboard(pose_from_spec(cb.get("pose")), int(cb.get("rows", 7)),
                                         int(cb.get("cols", 9)), float(cb.get("square", 0.05)))
+
+    def rocks(self) -> list[dict[str, float]]:
+        """Every rock the terrain holds: centre x, y, half-axes a, b, yaw and the height it
+        stands above the ground around it (ground truth for hazard detection)."""
+        return [dict(r) for r in self.terrain.rocks]
 
     @property
     def object_ids(self) -> dict[str, int]:
