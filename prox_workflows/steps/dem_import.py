@@ -35,8 +35,8 @@ from ..grid import GridGeometry, Layers
 
 CHUNK = 1 << 16  # points per chunk: index, heights and weights of one chunk stay in L2 cache
 
-LAYERS = ("dem", "mean", "min", "count", "variance")  # always; plus measurement_variance, wmean,
-# intensity when point variances / a fourth column are given
+LAYERS = ("dem", "mean", "min", "count", "variance")  # by default; plus measurement_variance,
+# wmean, intensity when point variances / a fourth column are given
 
 
 def geometry_for(points: np.ndarray, cell: float, bounds: Sequence[float] | None = None) -> GridGeometry:
@@ -124,6 +124,7 @@ def dem_import(
     point_variance: np.ndarray | None = None,
     rover_mask: np.ndarray | Sequence[float] | None = None,
     rover_ground_z: float | None = None,
+    stats: Sequence[str] = LAYERS,
     chunk: int = CHUNK,
 ) -> Layers:
     """Direct reconstruction of ``points`` (N x 3 x, y, z or N x 4 with intensity, global frame).
@@ -140,7 +141,8 @@ def dem_import(
     variance of the cell's heights (0 for one point); with ``point_variance`` (N, m^2) also
     ``measurement_variance`` = 1 / sum(1 / s_i^2), the variance of the information-weighted mean
     height ``wmean``, which is what DemMosaik's ``fuse`` rule weighs the cell by; with a fourth
-    column ``intensity``, its mean.
+    column ``intensity``, its mean. ``stats`` names the layers wanted of the first five (each
+    costs a pass over the points; ``("dem",)`` is the bare direct reconstruction).
     """
     pts = np.asarray(points)
     if pts.ndim != 2 or pts.shape[1] not in (3, 4):
@@ -156,6 +158,12 @@ def dem_import(
             raise ValueError("point_variance must be positive (a measurement has some noise)")
     if cell <= 0:
         raise ValueError(f"cell must be positive, got {cell}")
+    unknown = set(stats) - set(LAYERS)
+    if unknown or "dem" not in stats:
+        raise ValueError(f"stats must include 'dem' and be among {', '.join(LAYERS)}; got {list(stats)}")
+    want_min = "min" in stats
+    want_moments = "mean" in stats or "variance" in stats
+    want_count = "count" in stats or want_moments or var is not None or pts.shape[1] == 4
 
     lo, hi = _extremes(pts) if len(pts) else (np.full(pts.shape[1], np.nan), np.full(pts.shape[1], np.nan))
     finite = bool(np.all(np.isfinite(lo[:3])) and np.all(np.isfinite(hi[:3])))
@@ -190,9 +198,9 @@ def dem_import(
     z0 = float(0.5 * (lo[2] + hi[2])) if len(pts) else 0.0  # reference height for the sums
     with_intensity = pts.shape[1] == 4
     zmax = np.full(ncell, -np.inf, np.float32)
-    zmin = np.full(ncell, np.inf, np.float32)
-    count = np.zeros(ncell, np.int32)
-    moments = np.zeros(ncell, np.complex128)  # sum d + i sum d^2
+    zmin = np.full(ncell, np.inf, np.float32) if want_min else None
+    count = np.zeros(ncell, np.int32) if want_count else None
+    moments = np.zeros(ncell, np.complex128) if want_moments else None  # sum d + i sum d^2
     info = np.zeros(ncell, np.complex128) if var is not None else None  # sum 1/s^2 + i sum d/s^2
     isum = np.zeros(ncell, np.float64) if with_intensity else None
     ones = np.ones(min(chunk, max(len(pts), 1)), np.int32)
@@ -201,8 +209,10 @@ def dem_import(
         q = pts[start:start + chunk]
         x, y = q[:, 0], q[:, 1]
         # exactly GridGeometry.cell_of's arithmetic (floor of the same expression)
-        tc = (x - g.xmin) / g.cell
-        tr = (g.ymax - y) / g.cell
+        tc = x - g.xmin
+        tc /= g.cell
+        tr = g.ymax - y
+        tr /= g.cell
         sel = None
         if need_clip:
             sel = (tc >= 0) & (tc < w) & (tr >= 0) & (tr < h)
@@ -223,15 +233,19 @@ def dem_import(
         idx = tr.astype(itype)
         idx *= w
         idx += tc.astype(itype)
-        zc = q[:, 2] if q.dtype == np.float32 else q[:, 2].astype(np.float32)
+        zc = np.ascontiguousarray(q[:, 2], dtype=np.float32)
         np.maximum.at(zmax, idx, zc)
-        np.minimum.at(zmin, idx, zc)
-        np.add.at(count, idx, ones[:len(idx)])
-        wgt = np.empty(len(idx), np.complex128)
-        d = wgt.real
-        np.subtract(q[:, 2], z0, out=d, dtype=np.float64)
-        np.multiply(d, d, out=wgt.imag)
-        np.add.at(moments, idx, wgt)
+        if zmin is not None:
+            np.minimum.at(zmin, idx, zc)
+        if count is not None:
+            np.add.at(count, idx, ones[:len(idx)])
+        if moments is not None or info is not None:
+            wgt = np.empty(len(idx), np.complex128)
+            d = wgt.real
+            np.subtract(zc, z0, out=d, dtype=np.float64)
+        if moments is not None:
+            np.multiply(d, d, out=wgt.imag)
+            np.add.at(moments, idx, wgt)
         if info is not None:
             v = var[start:start + chunk]
             if sel is not None:
@@ -243,28 +257,36 @@ def dem_import(
         if isum is not None:
             np.add.at(isum, idx, q[:, 3].astype(np.float64))
 
-    return _finish(g, zmax, zmin, count, moments, info, isum, z0)
+    return _finish(g, stats, zmax, zmin, count, moments, info, isum, z0)
 
 
-def _finish(g: GridGeometry, zmax: np.ndarray, zmin: np.ndarray, count: np.ndarray,
-            moments: np.ndarray, info: np.ndarray | None, isum: np.ndarray | None, z0: float) -> Layers:
+def _finish(g: GridGeometry, stats: Sequence[str], zmax: np.ndarray, zmin: np.ndarray | None,
+            count: np.ndarray | None, moments: np.ndarray | None, info: np.ndarray | None,
+            isum: np.ndarray | None, z0: float) -> Layers:
     shape = g.shape
-    empty = count == 0
-    n = count.astype(np.float64)
-    n[empty] = np.nan  # empty cells come out NaN from every division below
-    mean_d = moments.real / n
-    variance = moments.imag / n
-    variance -= mean_d * mean_d
-    np.maximum(variance, 0.0, out=variance)  # rounding can leave -1e-20 for a flat cell
-    mean_d += z0
+    empty = count == 0 if count is not None else np.isneginf(zmax)
     zmax[empty] = np.nan
-    zmin[empty] = np.nan
     out = Layers(g, meta={"method": "direct reconstruction (max height per cell)"})
     out["dem"] = zmax.reshape(shape)
-    out["mean"] = mean_d.astype(np.float32).reshape(shape)
-    out["min"] = zmin.reshape(shape)
-    out["count"] = count.reshape(shape)
-    out["variance"] = variance.astype(np.float32).reshape(shape)
+    if zmin is not None:
+        zmin[empty] = np.nan
+        out["min"] = zmin.reshape(shape)
+    if count is None:
+        return out
+    if "count" in stats:
+        out["count"] = count.reshape(shape)
+    n = count.astype(np.float64)
+    n[empty] = np.nan  # empty cells come out NaN from every division below
+    if moments is not None:
+        mean_d = moments.real / n
+        variance = moments.imag / n
+        variance -= mean_d * mean_d
+        np.maximum(variance, 0.0, out=variance)  # rounding can leave -1e-20 for a flat cell
+        mean_d += z0
+        if "mean" in stats:
+            out["mean"] = mean_d.astype(np.float32).reshape(shape)
+        if "variance" in stats:
+            out["variance"] = variance.astype(np.float32).reshape(shape)
     if info is not None:
         with np.errstate(divide="ignore", invalid="ignore"):
             mvar = 1.0 / info.real

@@ -151,6 +151,23 @@ def test_rover_mask_drops_the_body_but_keeps_ground() -> None:
     assert cut["count"].sum() == len(ground) - in_tri.sum()
 
 
+def test_a_subset_of_statistics_gives_the_same_layers() -> None:
+    rng = np.random.default_rng(8)
+    pts = np.column_stack([rng.uniform(0, 1, 2000), rng.uniform(0, 1, 2000), rng.normal(0, 1, 2000)])
+    full = dem_import(pts, cell=0.05)
+    bare = dem_import(pts, cell=0.05, stats=("dem",))
+    assert set(bare.layers) == {"dem"}
+    assert np.array_equal(bare["dem"], full["dem"], equal_nan=True)
+    some = dem_import(pts, cell=0.05, stats=("dem", "min", "variance"))
+    assert set(some.layers) == {"dem", "min", "variance"}
+    for name in some.layers:
+        assert np.array_equal(some[name], full[name], equal_nan=True)
+    with pytest.raises(ValueError):
+        dem_import(pts, stats=("mean",))
+    with pytest.raises(ValueError):
+        dem_import(pts, stats=("dem", "median"))
+
+
 def test_bad_input_is_refused() -> None:
     with pytest.raises(ValueError):
         dem_import(np.zeros((5, 2)))
