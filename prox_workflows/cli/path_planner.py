@@ -1,0 +1,164 @@
+"""``rvs-path-planner``: the path planning application (seed 000 sect. 4.4.1) on GeoTIFF maps.
+
+    rvs-path-planner --hazard H.tif --slope S.tif [--global-hazard G.tif --global-slope GS.tif]
+                     [--ortho O.tif] --start x,y --goal x,y [--weight 0.5]
+                     [--heuristic euclidean|manhattan|octile] [--grid M] [--margin M]
+                     [--rover-radius M] [--max-deviation M] [--border M] -o PREFIX
+
+Start, goal and every output are in the maps' world coordinates (their GeoTIFF transform).
+Without global maps, blank ones are made to cover the local map, the start and the goal. Writes
+PREFIX_path.csv, PREFIX_waypoints.csv, PREFIX_plan.yaml and PREFIX_plan_map.png (plus
+PREFIX_plan_ortho.png with ``--ortho``); prints the path cost and the waypoints. Exit status 1
+with the reason when there is no path, 2 for bad arguments or unreadable maps.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import tifffile
+
+from ..grid import GDAL_NODATA, GridGeometry, read_geotiff
+from ..steps.planner import NavMaps, PlannerParams, PlanningError, plan_path, write_plan
+
+MADE_BY = "rvs-path-planner (prox_workflows.steps.planner)"
+
+
+def _point(text: str) -> tuple[float, float]:
+    try:
+        x, y = (float(v) for v in text.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected x,y in metres, got {text!r}") from None
+    if not (math.isfinite(x) and math.isfinite(y)):
+        raise argparse.ArgumentTypeError(f"expected finite x,y, got {text!r}")
+    return x, y
+
+
+def _read_layer(path: Path) -> tuple[np.ndarray, GridGeometry]:
+    """A single-band GeoTIFF; float layers get NaN where the file's GDAL nodata value is."""
+    image, geometry = read_geotiff(path)
+    if image.ndim != 2:
+        raise ValueError(f"{path}: expected a single-band map, got shape {image.shape}")
+    if np.issubdtype(image.dtype, np.floating):
+        with tifffile.TiffFile(path) as tif:
+            tag = tif.pages[0].tags.get(GDAL_NODATA)
+        if tag is not None:
+            try:
+                nodata = float(str(tag.value).strip("\x00 "))
+            except ValueError:
+                nodata = math.nan
+            if not math.isnan(nodata):
+                image = np.where(image == nodata, np.nan, image)
+        image = image.astype(np.float32)
+    return image, geometry
+
+
+def read_maps(hazard: Path, slope: Path) -> NavMaps:
+    """A hazard map (0 / 128 / 255) and its slope map (degrees) on the same grid."""
+    hz, hgeom = _read_layer(hazard)
+    sl, sgeom = _read_layer(slope)
+    if hgeom != sgeom:
+        raise ValueError(f"{hazard} and {slope} are on different grids ({hgeom} vs {sgeom})")
+    if np.issubdtype(hz.dtype, np.floating):
+        hz = np.where(np.isnan(hz), 128, hz)
+    values = set(np.unique(hz).tolist())
+    if not values <= {0, 128, 255}:
+        raise ValueError(f"{hazard}: a hazard map holds 0, 128 and 255 only, found {sorted(values)[:8]}")
+    return NavMaps(hz.astype(np.uint8), sl.astype(np.float32), hgeom)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    d = PlannerParams()
+    ap = argparse.ArgumentParser(prog="rvs-path-planner", description=__doc__.split("\n\n")[0],
+                                 formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+    ap.add_argument("--hazard", type=Path, required=True, help="local hazard map GeoTIFF (0/128/255)")
+    ap.add_argument("--slope", type=Path, required=True, help="local slope map GeoTIFF (degrees)")
+    ap.add_argument("--global-hazard", type=Path, help="global hazard map GeoTIFF")
+    ap.add_argument("--global-slope", type=Path, help="global slope map GeoTIFF")
+    ap.add_argument("--ortho", type=Path, help="ortho-image GeoTIFF to draw the plan on")
+    ap.add_argument("--start", type=_point, required=True, help="x,y in metres")
+    ap.add_argument("--goal", type=_point, required=True, help="x,y in metres")
+    ap.add_argument("--start-heading", type=float, help="the rover's heading at the start, degrees")
+    ap.add_argument("--weight", type=float, default=d.weight, help="w: 1 distance only, 0 slope cost only")
+    ap.add_argument("--heuristic", choices=("euclidean", "manhattan", "octile"), default=d.heuristic)
+    ap.add_argument("--grid", type=float, help="planning cell size, m (default: the local map's)")
+    ap.add_argument("--rover-radius", type=float, default=d.rover_radius, help="m")
+    ap.add_argument("--margin", type=float, default=d.margin, help="added to the rover radius, m")
+    ap.add_argument("--max-deviation", type=float, default=d.max_deviation,
+                    help="of the waypoint legs from the A* path, m")
+    ap.add_argument("--border", type=float, default=d.border,
+                    help="the rover stops this far inside the local map's border, m")
+    ap.add_argument("--critical-slope", type=float, default=d.critical_slope,
+                    help="slope (deg) whose cost equals unknown ground's at --unknown-cost 1")
+    ap.add_argument("--unknown-cost", type=float, default=d.unknown_cost,
+                    help="environmental cost of unknown ground (inf: never enter it)")
+    ap.add_argument("-o", "--output", required=True, help="output prefix (PREFIX_path.csv ...)")
+    return ap
+
+
+def _join_negative(argv: list[str]) -> list[str]:
+    """``--start -1.5,2`` as ``--start=-1.5,2``: argparse takes "-1.5,2" for an option."""
+    out: list[str] = []
+    i = 0
+    while i < len(argv):
+        a = argv[i]
+        if a in ("--start", "--goal", "--start-heading") and i + 1 < len(argv) \
+                and argv[i + 1][:1] == "-" and argv[i + 1][1:2] in tuple("0123456789."):
+            out.append(f"{a}={argv[i + 1]}")
+            i += 2
+            continue
+        out.append(a)
+        i += 1
+    return out
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(_join_negative(list(sys.argv[1:] if argv is None else argv)))
+    if (args.global_hazard is None) != (args.global_slope is None):
+        print("rvs-path-planner: --global-hazard and --global-slope go together", file=sys.stderr)
+        return 2
+    try:
+        params = PlannerParams(grid=args.grid, weight=args.weight, heuristic=args.heuristic,
+                               rover_radius=args.rover_radius, margin=args.margin,
+                               critical_slope=args.critical_slope, unknown_cost=args.unknown_cost,
+                               max_deviation=args.max_deviation, border=args.border)
+        local = read_maps(args.hazard, args.slope)
+        global_ = read_maps(args.global_hazard, args.global_slope) if args.global_hazard else None
+        ortho = read_geotiff(args.ortho) if args.ortho else None
+    except (OSError, ValueError) as exc:
+        print(f"rvs-path-planner: {exc}", file=sys.stderr)
+        return 2
+    inputs = [str(p) for p in (args.hazard, args.slope, args.global_hazard, args.global_slope, args.ortho) if p]
+    t0 = time.perf_counter()
+    try:
+        result = plan_path(local, global_, args.start, args.goal, params, start_heading=args.start_heading)
+    except PlanningError as exc:
+        print(f"rvs-path-planner: no path ({exc.reason}): {exc.message}", file=sys.stderr)
+        return 1
+    elapsed = time.perf_counter() - t0
+    written = write_plan(result, args.output, ortho=ortho, made_by=MADE_BY, inputs=inputs)
+    geom = result.image.geometry
+    print(f"planning grid {geom.height} x {geom.width} cells of {geom.cell:g} m, {result.expanded} expanded, "
+          f"{elapsed * 1000:.0f} ms")
+    print(f"path cost {result.cost:.3f} over {len(result.path)} points to the goal; the rover drives "
+          f"{result.cut} points (cost {float(result.cost_so_far[result.cut - 1]):.3f})"
+          + ("" if result.reaches_goal else ", cut at the local map's border"))
+    for note in result.warnings:
+        print(f"note: {note}")
+    wp = result.waypoints
+    print(f"{len(wp)} waypoints:")
+    print(f"{'#':>3} {'x':>10} {'y':>10} {'heading':>9} {'turn':>8} {'leg':>8}")
+    for i, (x, y, hd, tn, leg) in enumerate(wp.table()):
+        print(f"{i:>3} {x:>10.3f} {y:>10.3f} {hd:>9.1f} {tn:>8.1f} {leg:>8.3f}")
+    for p in written:
+        print(p)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
