@@ -1,0 +1,526 @@
+"""Stereo to 3D (seed 000 sect. 3.1.3): rectification, semi-global matching, reprojection, noise.
+
+The thesis's RVS matched with JR's HFVM; this step uses OpenCV's semi-global matcher instead,
+wrapped so that what leaves it can be trusted point by point: a left-right consistency check
+(each left match must be found again when matching from the right), speckle filtering (small
+islands of disparity are mismatches more often than small objects) and a texture mask (a
+patch without intensity variation has no match to find, whatever the cost function says).
+
+Two geometries, both float32 disparity in pixels with NaN where invalid:
+
+* **rectified**: the left image after ``cv2.stereoRectify`` (alpha 0, same size as the input):
+  rows are epipolar lines, ``x_right = x_left - d`` and ``Z = f * b / d``. This is where the
+  matcher works and where ``cv2.reprojectImageTo3D(d, Q)`` applies.
+* **left**: the left camera's original (distorted) image. Each left pixel gets the rectified
+  disparity of the spot it sees (sampled at its rectified position), so the disparity image
+  overlays the left image a user looks at, and the 3D point of every left pixel is exact
+  (the rectified position, not a resampled one, goes into Q).
+
+Points leave in the left camera's original frame (OpenCV optical: x right, y down, z forward):
+the rectified frame is rotated by R1, which :func:`reproject_rectified` undoes.
+
+The calibration is OpenCV's ``stereoCalibrate`` naming: K1 D1 K2 D2 R T image_size, with
+``x_right = R x_left + T`` in metres (a right camera 0.2 m to the right has T = [-0.2, 0, 0]).
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import threading
+import time
+from collections import OrderedDict
+from collections.abc import Mapping
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+import yaml
+
+from ..products import write_yaml_atomic
+
+CALIB_KEYS = ("image_size", "K1", "D1", "K2", "D2", "R", "T")
+MODES = {
+    "sgbm": cv2.StereoSGBM_MODE_SGBM,
+    "sgbm_3way": cv2.StereoSGBM_MODE_SGBM_3WAY,
+    "hh": cv2.StereoSGBM_MODE_HH,
+    "hh4": cv2.StereoSGBM_MODE_HH4,
+}
+# px (full resolution): disparity noise of the matcher. On the simulated pairs the error of the
+# LR-consistent matches has a standard deviation of 0.19 px at full scale and 0.30 px at half
+# scale (SGBM's sub-pixel step locks towards whole pixels); 0.25 / sqrt(scale) covers both.
+DEFAULT_SIGMA_D = 0.25
+
+
+def sigma_d_for(scale: float) -> float:
+    """Disparity noise (full-resolution px) of matching at ``scale``."""
+    return DEFAULT_SIGMA_D / math.sqrt(scale)
+
+
+# -- calibration file -------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class StereoCalibration:
+    """Intrinsics and distortion of both cameras and the right camera's pose in the left frame."""
+
+    K1: np.ndarray
+    D1: np.ndarray
+    K2: np.ndarray
+    D2: np.ndarray
+    R: np.ndarray
+    T: np.ndarray
+    image_size: tuple[int, int]  # (width, height)
+
+    @property
+    def baseline(self) -> float:
+        return float(np.linalg.norm(self.T))
+
+    def key(self) -> bytes:
+        """Identity for caches: equal calibrations share their rectification maps."""
+        parts = [np.ascontiguousarray(a, np.float64).tobytes() for a in (self.K1, self.D1, self.K2, self.D2, self.R, self.T)]
+        return b"|".join(parts) + repr(tuple(self.image_size)).encode()
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "image_size": [int(self.image_size[0]), int(self.image_size[1])],
+            "K1": self.K1.tolist(), "D1": self.D1.tolist(),
+            "K2": self.K2.tolist(), "D2": self.D2.tolist(),
+            "R": self.R.tolist(), "T": self.T.tolist(),
+        }
+
+
+def load_calibration(source: str | os.PathLike[str] | Mapping[str, Any] | StereoCalibration) -> StereoCalibration:
+    """A calibration from a YAML file (plain lists, or OpenCV FileStorage ``!!opencv-matrix``),
+    a mapping with the same keys (what ``drivers.stereo`` returns), or one already loaded."""
+    if isinstance(source, StereoCalibration):
+        return source
+    where = "calibration"
+    if isinstance(source, Mapping):
+        doc: Mapping[str, Any] = source
+    else:
+        path = Path(source)
+        where = f"calibration file {path}"
+        text = path.read_text()
+        doc = _read_opencv_yaml(path) if text.lstrip().startswith("%YAML") else yaml.safe_load(text)
+        if not isinstance(doc, Mapping):
+            raise ValueError(f"{where} must be a mapping with {', '.join(CALIB_KEYS)}")
+    missing = [k for k in CALIB_KEYS if k not in doc]
+    if missing:
+        raise ValueError(f"{where} lacks {', '.join(missing)} (keys: {', '.join(CALIB_KEYS)})")
+    out: dict[str, Any] = {}
+    for key, shape in (("K1", (3, 3)), ("K2", (3, 3)), ("R", (3, 3)), ("T", (3,))):
+        arr = np.asarray(doc[key], dtype=np.float64)
+        if arr.size != int(np.prod(shape)):
+            raise ValueError(f"{where}: {key} must have {int(np.prod(shape))} values, has {arr.size}")
+        out[key] = arr.reshape(shape)
+    for key in ("D1", "D2"):
+        arr = np.asarray(doc[key] if doc[key] is not None else [], dtype=np.float64).ravel()
+        if arr.size not in (0, 4, 5, 8, 12, 14):
+            raise ValueError(f"{where}: {key} must hold 4, 5, 8, 12 or 14 OpenCV distortion coefficients")
+        out[key] = arr if arr.size else np.zeros(5)
+    size = [int(v) for v in np.asarray(doc["image_size"]).ravel()]
+    if len(size) != 2 or min(size) <= 0:
+        raise ValueError(f"{where}: image_size must be [width, height]")
+    if not np.isclose(np.linalg.det(out["R"]), 1.0, atol=1e-3):
+        raise ValueError(f"{where}: R is not a rotation (det {np.linalg.det(out['R']):.4f})")
+    if np.linalg.norm(out["T"]) <= 0:
+        raise ValueError(f"{where}: T is zero: the cameras need a baseline")
+    return StereoCalibration(out["K1"], out["D1"], out["K2"], out["D2"], out["R"], out["T"], (size[0], size[1]))
+
+
+def _read_opencv_yaml(path: Path) -> dict[str, Any]:
+    fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_READ)
+    try:
+        doc: dict[str, Any] = {}
+        for key in CALIB_KEYS:
+            node = fs.getNode(key)
+            if node.empty():
+                continue
+            if node.isSeq():
+                doc[key] = [node.at(i).real() for i in range(node.size())]
+            else:
+                doc[key] = node.mat()
+        return doc
+    finally:
+        fs.release()
+
+
+def save_calibration(path: str | os.PathLike[str], calib: StereoCalibration | Mapping[str, Any],
+                     **extra: Any) -> Path:
+    """Write the CALIB.yaml that :func:`load_calibration` and ``rvs-stereo --calib`` read."""
+    data = load_calibration(calib).to_dict()
+    data.update(extra)
+    return write_yaml_atomic(Path(path), data)
+
+
+# -- rectification ----------------------------------------------------------------------------------
+@dataclass(frozen=True, eq=False)
+class Rectification:
+    """The rectified pair and the maps between it and the original images (read-only arrays).
+
+    ``left_to_rect`` holds, for every left original pixel, its (x, y) in the rectified left
+    image: the map that brings rectified results back to the left image.
+    """
+
+    calib: StereoCalibration
+    R1: np.ndarray
+    R2: np.ndarray
+    P1: np.ndarray
+    P2: np.ndarray
+    Q: np.ndarray
+    map_left: tuple[np.ndarray, np.ndarray]
+    map_right: tuple[np.ndarray, np.ndarray]
+    left_to_rect: np.ndarray  # H x W x 2 float32
+    size: tuple[int, int]
+
+    @property
+    def focal(self) -> float:
+        return float(self.P1[0, 0])
+
+    @property
+    def baseline(self) -> float:
+        return float(abs(self.P2[0, 3] / self.P2[0, 0]))
+
+
+def rectification(calib: StereoCalibration | Mapping[str, Any] | str | os.PathLike[str]) -> Rectification:
+    """``cv2.stereoRectify`` + ``initUndistortRectifyMap`` for both cameras, cached per calibration
+    (a pair of 1920 x 1080 maps costs ~0.5 s; a sequence of views reuses them)."""
+    cal = load_calibration(calib)
+    key = cal.key()
+    with _CACHE_LOCK:
+        hit = _CACHE.get(key)
+        if hit is not None:
+            _CACHE.move_to_end(key)
+            return hit
+    rect = _rectify(cal)
+    with _CACHE_LOCK:
+        _CACHE[key] = rect
+        while len(_CACHE) > _CACHE_SIZE:
+            _CACHE.popitem(last=False)
+    return rect
+
+
+_CACHE: OrderedDict[bytes, Rectification] = OrderedDict()
+_CACHE_LOCK = threading.Lock()
+_CACHE_SIZE = 4
+
+
+def _rectify(cal: StereoCalibration) -> Rectification:
+    size = (int(cal.image_size[0]), int(cal.image_size[1]))
+    R1, R2, P1, P2, Q, _, _ = cv2.stereoRectify(
+        cal.K1, cal.D1, cal.K2, cal.D2, size, cal.R, cal.T.reshape(3, 1),
+        flags=cv2.CALIB_ZERO_DISPARITY, alpha=0.0,
+    )
+    if abs(P2[0, 3]) < abs(P2[1, 3]):
+        raise ValueError("vertical stereo (right camera above/below the left) is not supported: "
+                         "the matcher needs a horizontal baseline")
+    if P2[0, 3] > 0:
+        raise ValueError(f"T = {cal.T.tolist()} puts the right camera LEFT of the left one (T[0] > 0): "
+                         "left and right are swapped (images, camera ids or the calibration)")
+    map_left = cv2.initUndistortRectifyMap(cal.K1, cal.D1, R1, P1, size, cv2.CV_16SC2)
+    map_right = cv2.initUndistortRectifyMap(cal.K2, cal.D2, R2, P2, size, cv2.CV_16SC2)
+    w, h = size
+    us, vs = np.meshgrid(np.arange(w, dtype=np.float64), np.arange(h, dtype=np.float64))
+    pts = np.stack([us.ravel(), vs.ravel()], axis=1).reshape(-1, 1, 2)
+    criteria = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 20, 1e-6)
+    rect_pts = cv2.undistortPointsIter(pts, cal.K1, cal.D1, R1, P1, criteria) if hasattr(cv2, "undistortPointsIter") \
+        else cv2.undistortPoints(pts, cal.K1, cal.D1, R=R1, P=P1, criteria=criteria)
+    left_to_rect = rect_pts.reshape(h, w, 2).astype(np.float32)
+    for arr in (R1, R2, P1, P2, Q, *map_left, *map_right, left_to_rect):
+        arr.flags.writeable = False
+    return Rectification(cal, R1, R2, P1, P2, Q, map_left, map_right, left_to_rect, size)
+
+
+def to_gray8(image: np.ndarray, white: float | None = None) -> np.ndarray:
+    """mono8 as it is; RGB to grey (luma); deeper images (mono16, float) scaled so ``white`` (default:
+    the image's 99.9th percentile) becomes 255."""
+    img = np.asarray(image)
+    if img.ndim == 3:
+        if img.dtype not in (np.uint8, np.uint16, np.float32):
+            img = img.astype(np.float32)
+        img = cv2.cvtColor(img, cv2.COLOR_RGB2GRAY if img.shape[2] == 3 else cv2.COLOR_RGBA2GRAY)
+    if img.dtype == np.uint8:
+        return img
+    data = img.astype(np.float32)
+    if white is None:
+        white = _white(data)
+    return np.clip(data * (255.0 / max(white, 1e-6)), 0, 255).astype(np.uint8)
+
+
+def _white(image: np.ndarray) -> float:
+    data = np.asarray(image, dtype=np.float32)
+    ok = np.isfinite(data)
+    return float(np.percentile(data[ok], 99.9)) if ok.any() else 1.0
+
+
+def rectify_pair(left: np.ndarray, right: np.ndarray, rect: Rectification) -> tuple[np.ndarray, np.ndarray]:
+    w, h = rect.size
+    for name, img in (("left", left), ("right", right)):
+        if img.shape[1] != w or img.shape[0] != h:
+            raise ValueError(f"{name} image is {img.shape[1]}x{img.shape[0]}, the calibration is for {w}x{h}: "
+                             "calibrate this resolution mode")
+    white = None
+    if np.asarray(left).dtype != np.uint8:  # one scale for both, so the pair keeps equal brightness
+        white = max(_white(left), _white(right))
+    rl = cv2.remap(to_gray8(left, white), *rect.map_left, cv2.INTER_LINEAR)
+    rr = cv2.remap(to_gray8(right, white), *rect.map_right, cv2.INTER_LINEAR)
+    return rl, rr
+
+
+# -- matching ---------------------------------------------------------------------------------------
+@dataclass
+class SgbmParams:
+    """Matcher settings. The defaults are tuned on the simulated PIKE pair (see tools/bench/stereo.py).
+
+    ``num_disparities`` None: enough for ``min_depth`` (f * b / min_depth, rounded up to 16).
+    ``scale`` < 1 matches a downsampled pair (0.5: half resolution) and scales the disparity back
+    up: ~4x faster, coarser detail. ``lr_max_diff`` <= 0 switches the left-right check off;
+    ``texture_threshold`` is the local grey-level standard deviation (DN, over
+    ``texture_window``) below which a pixel is declared unmatchable.
+    """
+
+    num_disparities: int | None = None
+    min_depth: float = 1.5
+    min_disparity: int = 0
+    block_size: int = 5
+    mode: str = "sgbm_3way"
+    uniqueness: int = 10
+    pre_filter_cap: int = 31
+    p1_factor: int = 8
+    p2_factor: int = 32
+    lr_max_diff: float = 1.0
+    speckle_window: int = 200
+    speckle_range: float = 1.0
+    texture_window: int = 7
+    texture_threshold: float = 2.5
+    scale: float = 1.0
+    pad: bool = True  # pad the left border so the first num_disparities columns are matched too
+
+    @classmethod
+    def from_dict(cls, values: Mapping[str, Any] | None) -> SgbmParams:
+        known = {f for f in cls.__dataclass_fields__}
+        values = dict(values or {})
+        unknown = sorted(set(values) - known)
+        if unknown:
+            raise ValueError(f"unknown stereo parameter(s) {', '.join(unknown)}; known: {', '.join(sorted(known))}")
+        out = cls(**values)
+        out.check()
+        return out
+
+    def check(self) -> None:
+        if self.mode not in MODES:
+            raise ValueError(f"mode {self.mode!r} not one of {', '.join(MODES)}")
+        if self.block_size < 1 or self.block_size % 2 == 0:
+            raise ValueError("block_size must be odd and >= 1")
+        if not 0.1 <= self.scale <= 1.0:
+            raise ValueError("scale must be in [0.1, 1]")
+
+    def disparities_for(self, rect: Rectification) -> int:
+        """numDisparities at the matching scale (a multiple of 16)."""
+        if self.num_disparities is not None:
+            nd = int(self.num_disparities * self.scale)
+        else:
+            nd = int(math.ceil(rect.focal * rect.baseline / max(self.min_depth, 1e-3) * self.scale))
+        return max(16, -(-nd // 16) * 16)
+
+    def to_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+
+@dataclass
+class Disparity:
+    """Disparity of one pair in both geometries (float32 px, NaN invalid), with its rectification."""
+
+    left: np.ndarray
+    rectified: np.ndarray
+    rect: Rectification
+    params: SgbmParams
+    timings: dict[str, float] = field(default_factory=dict)
+
+    def points(self) -> np.ndarray:
+        """H x W x 3 float32 in the left camera frame, per left original pixel (NaN invalid)."""
+        return reproject_left(self.left, self.rect)
+
+    def sigma_z(self, sigma_d: float | None = None) -> np.ndarray:
+        """Depth standard deviation per left pixel (m), from the noise model (``sigma_d`` None:
+        the measured noise at this matching scale)."""
+        with np.errstate(divide="ignore", invalid="ignore"):
+            z = self.rect.focal * self.rect.baseline / self.left
+        sd = sigma_d_for(self.params.scale) if sigma_d is None else sigma_d
+        return depth_sigma(z, self.rect.baseline, self.rect.focal, sd)
+
+
+def _matcher(params: SgbmParams, nd: int) -> Any:
+    bs = params.block_size
+    return cv2.StereoSGBM_create(
+        minDisparity=params.min_disparity,
+        numDisparities=nd,
+        blockSize=bs,
+        P1=params.p1_factor * bs * bs,
+        P2=params.p2_factor * bs * bs,
+        disp12MaxDiff=-1,  # our own, full left-right check below
+        preFilterCap=params.pre_filter_cap,
+        uniquenessRatio=params.uniqueness,
+        speckleWindowSize=0,  # filterSpeckles below, after the consistency check
+        speckleRange=0,
+        mode=MODES[params.mode],
+    )
+
+
+def _compute(matcher: Any, a: np.ndarray, b: np.ndarray, pad: int) -> np.ndarray:
+    """Fixed-point (x16) disparity of ``a`` against ``b``; the left ``pad`` columns are padding
+    that lets the matcher score the first columns of ``a`` instead of leaving them invalid."""
+    if pad:
+        a = cv2.copyMakeBorder(a, 0, 0, pad, 0, cv2.BORDER_REPLICATE)
+        b = cv2.copyMakeBorder(b, 0, 0, pad, 0, cv2.BORDER_REPLICATE)
+    d = matcher.compute(a, b)
+    return d[:, pad:] if pad else d
+
+
+def texture_mask(image: np.ndarray, window: int, threshold: float) -> np.ndarray:
+    """True where the local grey-level standard deviation reaches ``threshold`` (matchable)."""
+    img = image.astype(np.float32)
+    mean = cv2.boxFilter(img, -1, (window, window), borderType=cv2.BORDER_REFLECT)
+    mean2 = cv2.boxFilter(img * img, -1, (window, window), borderType=cv2.BORDER_REFLECT)
+    var = np.maximum(mean2 - mean * mean, 0.0)
+    return var >= threshold * threshold
+
+
+def disparity_rectified(rl: np.ndarray, rr: np.ndarray, params: SgbmParams, nd: int,
+                        timings: dict[str, float] | None = None) -> np.ndarray:
+    """SGBM with left-right check, speckle filter and texture mask on a rectified pair at its own
+    resolution; float32 px, NaN invalid."""
+    timings = {} if timings is None else timings
+    t0 = time.perf_counter()
+    matcher = _matcher(params, nd)
+    pad = nd + max(params.min_disparity, 0) if params.pad else 0
+    invalid16 = (params.min_disparity - 1) * 16
+    dl16 = _compute(matcher, rl, rr, pad)
+    timings["match_left"] = time.perf_counter() - t0
+    valid = dl16 > invalid16
+    if params.lr_max_diff > 0:
+        t1 = time.perf_counter()
+        # The right image's disparity: match the mirrored pair, the right image taking the left's
+        # role, and mirror back. Its values are positive: right x + d = left x.
+        dr16 = _compute(matcher, cv2.flip(rr, 1), cv2.flip(rl, 1), pad)[:, ::-1]
+        timings["match_right"] = time.perf_counter() - t1
+        h, w = dl16.shape
+        xs = np.arange(w, dtype=np.int32)[None, :]
+        xr = xs - np.rint(dl16.astype(np.float32) / 16.0).astype(np.int32)
+        inside = valid & (xr >= 0) & (xr < w)
+        back = np.take_along_axis(dr16, np.clip(xr, 0, w - 1), axis=1)
+        agree = np.abs(dl16.astype(np.int32) - back.astype(np.int32)) <= params.lr_max_diff * 16
+        valid &= inside & agree & (back > invalid16)
+    t2 = time.perf_counter()
+    if params.speckle_window > 0:
+        d16 = np.where(valid, dl16, invalid16).astype(np.int16)
+        cv2.filterSpeckles(d16, invalid16, params.speckle_window, int(round(params.speckle_range * 16)))
+        valid &= d16 > invalid16
+    if params.texture_threshold > 0:
+        valid &= texture_mask(rl, params.texture_window, params.texture_threshold)
+    out = dl16.astype(np.float32) / 16.0
+    out[~valid] = np.nan
+    timings["filters"] = time.perf_counter() - t2
+    return out
+
+
+def sample_disparity(disp: np.ndarray, map_xy: np.ndarray, jump: float = 1.0) -> np.ndarray:
+    """``disp`` at sub-pixel positions ``map_xy`` (H x W x 2): bilinear where the four neighbours are
+    valid and agree (within ``jump`` px of the nearest), else the nearest valid value, so a
+    depth edge is not smeared into flying pixels."""
+    mx = np.ascontiguousarray(map_xy[..., 0], np.float32)
+    my = np.ascontiguousarray(map_xy[..., 1], np.float32)
+    valid = np.isfinite(disp)
+    d0 = np.where(valid, disp, 0.0).astype(np.float32)
+    nan = float("nan")
+    lin = cv2.remap(d0, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0.0)
+    weight = cv2.remap(valid.astype(np.float32), mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT,
+                       borderValue=0.0)
+    near = cv2.remap(disp.astype(np.float32), mx, my, cv2.INTER_NEAREST, borderMode=cv2.BORDER_CONSTANT,
+                     borderValue=nan)
+    use_lin = (weight > 0.999) & (np.abs(lin - near) <= jump)
+    return np.where(use_lin, lin, near).astype(np.float32)
+
+
+def disparity(left: np.ndarray, right: np.ndarray,
+              calib: StereoCalibration | Mapping[str, Any] | str | os.PathLike[str],
+              params: SgbmParams | Mapping[str, Any] | None = None) -> Disparity:
+    """Disparity of an unrectified pair as taken (any of mono8, mono16, rgb8), in both geometries."""
+    p = params if isinstance(params, SgbmParams) else SgbmParams.from_dict(params)
+    p.check()
+    timings: dict[str, float] = {}
+    t0 = time.perf_counter()
+    rect = rectification(calib)
+    timings["rectification_maps"] = time.perf_counter() - t0
+    t1 = time.perf_counter()
+    rl, rr = rectify_pair(left, right, rect)
+    timings["rectify"] = time.perf_counter() - t1
+    nd = p.disparities_for(rect)
+    if p.scale < 1.0:
+        t2 = time.perf_counter()
+        w, h = rect.size
+        sw, sh = max(1, int(round(w * p.scale))), max(1, int(round(h * p.scale)))
+        sl = cv2.resize(rl, (sw, sh), interpolation=cv2.INTER_AREA)
+        sr = cv2.resize(rr, (sw, sh), interpolation=cv2.INTER_AREA)
+        timings["downsample"] = time.perf_counter() - t2
+        small = disparity_rectified(sl, sr, p, nd, timings)
+        t3 = time.perf_counter()
+        fx, fy = sw / w, sh / h
+        xs = ((np.arange(w, dtype=np.float32) + 0.5) * fx - 0.5)
+        ys = ((np.arange(h, dtype=np.float32) + 0.5) * fy - 0.5)
+        grid = np.stack(np.meshgrid(xs, ys), axis=-1)
+        rectified = sample_disparity(small, grid, jump=1.0) / np.float32(fx)
+        timings["upsample"] = time.perf_counter() - t3
+    else:
+        rectified = disparity_rectified(rl, rr, p, nd, timings)
+    t4 = time.perf_counter()
+    left_disp = sample_disparity(rectified, rect.left_to_rect, jump=1.0)
+    timings["unrectify"] = time.perf_counter() - t4
+    timings["total"] = time.perf_counter() - t0
+    return Disparity(left_disp, rectified, rect, p, timings)
+
+
+# -- 3D -------------------------------------------------------------------------------------------
+def reproject_rectified(disp_rect: np.ndarray, rect: Rectification) -> np.ndarray:
+    """H x W x 3 float32 points in the left camera's original frame for a rectified-geometry
+    disparity (``cv2.reprojectImageTo3D`` with Q, then the rectifying rotation undone)."""
+    valid = np.isfinite(disp_rect) & (disp_rect > 0)
+    d = np.where(valid, disp_rect, 0).astype(np.float32)
+    pts = cv2.reprojectImageTo3D(d, rect.Q.astype(np.float64), handleMissingValues=False).astype(np.float64)
+    pts[~valid] = np.nan  # zero disparity reprojects to infinity
+    out = (pts.reshape(-1, 3) @ np.asarray(rect.R1)).reshape(pts.shape)  # R1^T x, row-wise
+    return out.astype(np.float32)
+
+
+def reproject_left(disp_left: np.ndarray, rect: Rectification) -> np.ndarray:
+    """H x W x 3 float32 points in the left camera frame, one per left original pixel: Q applied
+    to each pixel's exact rectified position and its disparity."""
+    valid = np.isfinite(disp_left) & (disp_left > 0)
+    xy = rect.left_to_rect[valid].astype(np.float64)
+    d = disp_left[valid].astype(np.float64)
+    hom = np.column_stack([xy, d, np.ones_like(d)]) @ np.asarray(rect.Q).T
+    x_rect = hom[:, :3] / hom[:, 3:4]
+    out = np.full((*disp_left.shape, 3), np.nan, np.float32)
+    out[valid] = (x_rect @ np.asarray(rect.R1)).astype(np.float32)
+    return out
+
+
+def depth_sigma(z: np.ndarray | float, baseline: float, focal: float,
+                sigma_d: float = DEFAULT_SIGMA_D) -> np.ndarray:
+    """Stereo depth noise sigma_z = z^2 * sigma_d / (b * f): first-order propagation of the
+    disparity noise through Z = f b / d. Grows with the square of the range, which is why the
+    stereo pair loses to the ToF camera near and wins far (seed 000 sect. 6.1)."""
+    z = np.asarray(z, dtype=np.float64)
+    return (z * z * sigma_d / (baseline * focal)).astype(np.float32)
+
+
+def cloud(disp: Disparity, sigma_d: float | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(N x 3 points in the left camera frame, N depth sigmas, N x 2 int left pixel (row, col))."""
+    pts = disp.points()
+    ok = np.isfinite(pts[..., 2])
+    rows, cols = np.nonzero(ok)
+    p = pts[ok]
+    sd = sigma_d_for(disp.params.scale) if sigma_d is None else sigma_d
+    sig = depth_sigma(p[:, 2], disp.rect.baseline, disp.rect.focal, sd)
+    return p, sig, np.stack([rows, cols], axis=1)
