@@ -241,26 +241,33 @@ def _astar_kernel(k, width, start, goal, c_orth, c_diag, share, corner, htype, h
     return found, expanded
 
 
-HAVE_NUMBA = importlib.util.find_spec("numba") is not None
+def _find_numba() -> bool:
+    try:
+        return importlib.util.find_spec("numba") is not None
+    except (ImportError, ValueError):
+        return False
+
+
+HAVE_NUMBA = _find_numba()
 _compiled: list[Any] = []  # the compiled kernel, made on first use (importing numba takes ~0.3 s)
 
 
 def _compiled_kernel() -> Any:
     """numba's compiled kernel; the plain-Python one (with a warning) when numba is missing."""
     if not _compiled:
-        if not HAVE_NUMBA:  # pragma: no cover - exercised only where numba is missing
+        try:
+            import numba
+        except ImportError:  # pragma: no cover - exercised only where numba is missing
             import warnings
 
             warnings.warn("numba is not installed: the path planner's A* runs as plain Python, about "
                           "100x slower", RuntimeWarning, stacklevel=3)
             _compiled.append(_astar_kernel)
-        else:
-            import numba
-
-            try:  # compiled once, then loaded from numba's cache (beside this file or the user's)
-                _compiled.append(numba.njit(cache=True, nogil=True)(_astar_kernel))
-            except RuntimeError:  # no writable cache location: compile in each process instead
-                _compiled.append(numba.njit(cache=False, nogil=True)(_astar_kernel))
+            return _astar_kernel
+        try:  # compiled once, then loaded from numba's cache (beside this file or the user's)
+            _compiled.append(numba.njit(cache=True, nogil=True)(_astar_kernel))
+        except RuntimeError:  # no writable cache location: compile in each process instead
+            _compiled.append(numba.njit(cache=False, nogil=True)(_astar_kernel))
     return _compiled[0]
 
 
