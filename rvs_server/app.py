@@ -83,6 +83,7 @@ class App:
         self._announced_mode = "ready"
         self.pose = Pose()
         self.pose_changed = threading.Condition()
+        self.pose_version = 0
         self.last_used_hardware = False
         self.last_recovery: str | None = None
         self.maps: dict[str, str] = {}  # current map products: layer -> path under the data dir
@@ -128,6 +129,7 @@ class App:
         """Thread-safe; wakes a navigation job waiting for the rover to move."""
         with self.pose_changed:
             self.pose = Pose(x, y, heading)
+            self.pose_version += 1
             self.pose_changed.notify_all()
 
     def ptu_position(self) -> tuple[float, float] | None:

@@ -165,7 +165,10 @@ class ParamSpec:
 def _num(v: float | None) -> str:
     if v is None:
         return "..."
-    return str(int(v)) if float(v).is_integer() else format(v, "g")
+    if isinstance(v, int):  # any size: "-integrate 999...9" must be E_ARG, not an OverflowError
+        text = str(v)
+        return text if len(text) <= 16 else f"{text[:4]}...({len(text)} digits)"
+    return str(int(v)) if v.is_integer() and abs(v) < 1e15 else format(v, "g")
 
 
 _KIND = {float: "float", int: "int", str: "str", bool: "bool"}
@@ -395,7 +398,7 @@ class ServerConfig(ModuleConfig):
     max_line: int = param(4096, "longest request line", unit="bytes", min=64, max=1048576, protected=True)
     log_level: str = param("info", "console and file log level", choices=("debug", "info", "warning", "error"))
     log_file: str = param("rvs.log", "log file, relative to the data directory", protected=True)
-    shared_dir: str = param("shared", "where logbook copies go, relative to the data directory")
+    shared_dir: str = param("shared", "where logbook copies go, relative to the data directory", protected=True)
 
 
 @standalone

@@ -70,6 +70,10 @@ def parse_serial(value: Any) -> int:
     return serial
 
 
+COHERENCE = 0.9  # |mean phasor| below this: the frames disagree about the range (wrap boundary)
+STRADDLE_M = 0.2  # mean point range this far from the phasor range: some frames wrapped
+
+
 @dataclass
 class _Sums:
     """Running per-pixel sums of an integration."""
@@ -381,9 +385,20 @@ class Tof:
         z forward), -1 where undefined; and the mean amplitude of all frames (intensity image)."""
         with self._lock, self._op("xyz"):
             sums = self._integrate(integrate, confidence, cancel)
+            # A pixel near the unambiguous range reads ~0 in one frame and ~rmax in the next;
+            # the mean of such points lands half way, a phantom at rmax/2. Where the frames
+            # straddle the wrap like that, the range is the phasor mean (as in the distance
+            # image) along the pixel's ray; frames that disagree altogether (phasor coherence
+            # below COHERENCE) leave the pixel undefined.
             with np.errstate(invalid="ignore", divide="ignore"):
+                coherence = np.abs(sums.phase) / sums.used
                 xyz = sums.xyz / sums.used[..., None]
-            xyz[sums.used == 0] = -1.0
+                norm = np.linalg.norm(xyz, axis=2)
+                phasor = np.mod(np.angle(sums.phase), 2 * math.pi) / (2 * math.pi) * sums.rmax
+                straddle = np.abs(norm - phasor) > STRADDLE_M
+                xyz = np.where(straddle[..., None], xyz / norm[..., None] * phasor[..., None], xyz)
+            bad = (sums.used == 0) | ~(coherence >= COHERENCE) | ~(norm > 0)
+            xyz[bad] = -1.0
             amplitude = sums.amplitude_all / sums.frames
             return xyz.astype(np.float32), amplitude.astype(np.float32)
 

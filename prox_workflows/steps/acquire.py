@@ -61,13 +61,23 @@ def view_from_xyz(
     K: np.ndarray,
     variance: Variance | None = None,
     max_range: float = np.inf,
+    min_reflectivity: float = 0.0,
 ) -> View:
-    """Transform one camera-frame XYZ image to the global frame and keep its defined points."""
+    """Transform one camera-frame XYZ image to the global frame and keep its defined points.
+
+    ``min_reflectivity`` > 0 drops ToF returns whose amplitude is implausibly weak for their
+    range: amplitude falls as 1/r^2, so amplitude * r^2 is a surface's apparent reflectivity;
+    a far surface whose phase wrapped past c/(2f) shows up close by with a tiny reflectivity
+    (a wall 5.5 m away read as 0.5 m). Relative to the view's median, so exposure cancels out.
+    """
     xyz = np.asarray(xyz_cam, dtype=np.float32)
     z = xyz[..., 2]
     defined = np.isfinite(z) & (z > 0)
     rng = np.linalg.norm(np.where(defined[..., None], xyz, 0), axis=2)
     defined &= rng <= max_range
+    if min_reflectivity > 0 and defined.any():
+        refl = np.asarray(intensity, dtype=np.float64) * rng.astype(np.float64) ** 2
+        defined &= refl >= min_reflectivity * float(np.median(refl[defined]))
     glob = apply(T_global_camera, xyz[defined])
     amp = np.asarray(intensity, dtype=np.float32)[defined]
     r = rng[defined].astype(np.float32)
@@ -91,6 +101,7 @@ def acquire_coord_images(
     sensor: str = "tof",
     variance: Variance | None = None,
     max_range: float = np.inf,
+    min_reflectivity: float = 0.0,
     progress: Callable[[int, int, str], None] | None = None,
     cancelled: Callable[[], bool] | None = None,
     on_view: Callable[[View], None] | None = None,
@@ -110,7 +121,7 @@ def acquire_coord_images(
             progress(i, len(positions), f"pan={pan:.1f} tilt={tilt:.1f}")
         xyz, intensity, pan_r, tilt_r = grab(pan, tilt)
         T_gc = T_gr @ head.T_rover_from_sensor(sensor, pan_r, tilt_r)
-        view = view_from_xyz(i, xyz, intensity, pan_r, tilt_r, T_gc, K, variance, max_range)
+        view = view_from_xyz(i, xyz, intensity, pan_r, tilt_r, T_gc, K, variance, max_range, min_reflectivity)
         if out_dir is not None:
             name = f"{stem}_{view.time}_v{i:02d}"
             image = np.concatenate([apply(T_gc, np.where(np.isfinite(xyz) & (xyz[..., 2:3] > 0), xyz, np.nan)),

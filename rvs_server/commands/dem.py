@@ -58,6 +58,9 @@ class DemTofConfig(ModuleConfig):
     integrate: int = param(4, "ToF frames integrated per view", min=1, max=100)
     confidence: float = param(0.3, "discard ToF pixels below this confidence", min=0.0, max=1.0)
     max_range: float = param(4.5, "ignore points farther than this from the sensor", unit="m", min=0.3, max=30.0)
+    min_reflectivity: float = param(0.1, "drop ToF returns weaker than this share of the view's median "
+                                    "amplitude x range^2 (phase-wrapped far surfaces)", min=0.0, max=1.0,
+                                    option=False)
     rule: str = param("fuse", "how views and the current DEM merge", choices=("fuse", "max", "newest"))
     fill_radius: float = param(0.06, "fill holes up to this radius", unit="m", min=0.0, max=2.0)
     mesh: bool = param(True, "also write a textured mesh (PLY)")
@@ -115,7 +118,8 @@ def current_pose(app: Any) -> tuple[float, float, float, float]:
     return (p.x, p.y, p.heading, z)
 
 
-def run_dem(job: Job, cfg: DemTofConfig, *, update: bool, sensor: str = "tof") -> dict[str, Any]:
+def run_dem(job: Job, cfg: DemTofConfig, *, update: bool, sensor: str = "tof",
+            progress: Any = None, out_dir: str = "dem") -> dict[str, Any]:
     app = job.app  # type: ignore[attr-defined]
     state = maps_of(app)
     with state.lock:
@@ -133,7 +137,7 @@ def run_dem(job: Job, cfg: DemTofConfig, *, update: bool, sensor: str = "tof") -
     h, w = 144, 176
     fov = (math.degrees(2 * math.atan(w / 2 / K[0, 0])), math.degrees(2 * math.atan(h / 2 / K[1, 1])))
     name = cfg.name or default_stem("dem")
-    views_dir = app.data_path("dem", f"{name}_views", "x").parent
+    views_dir = app.data_path(out_dir, f"{name}_views", "x").parent
 
     def grab(pan: float, tilt: float) -> tuple[np.ndarray, np.ndarray, float, float]:
         reached = device_call(job, ptu.move, pan, tilt, True)
@@ -150,7 +154,8 @@ def run_dem(job: Job, cfg: DemTofConfig, *, update: bool, sensor: str = "tof") -
         try:
             views = acquire_coord_images(positions, grab, head, pose, K, views_dir, name, sensor,
                                          partial(tof_height_variance, frames=cfg.integrate),
-                                         cfg.max_range, keep, cancelled, on_view=acquired.append)
+                                         cfg.max_range, cfg.min_reflectivity, keep, cancelled,
+                                         on_view=acquired.append)
         except BaseException:
             with state.lock:  # the views acquired before a fault or a break are kept for the next update
                 state.pending_views = pending + acquired
@@ -165,14 +170,15 @@ def run_dem(job: Job, cfg: DemTofConfig, *, update: bool, sensor: str = "tof") -
     }
     try:
         ws, log = run_workflow("dem_tof", params, {"base": base, "pending_views": pending},
-                               steps={"acquire": acquire}, progress=job.progress, cancelled=lambda: job.cancelled)
+                               steps={"acquire": acquire}, progress=progress or job.progress,
+                               cancelled=lambda: job.cancelled)
     except (Cancelled, Interrupted):
         raise Interrupted(f"{job.command} job {job.id} was interrupted; {len(acquired)} views kept for dem-update") \
             from None
     job.check()
     dem: Layers = ws["dem"]
     inputs = [f"{name}_views/{v.files['image']}" for v in ws["views"] if v.files]
-    files = write_dem_products(dem, app.data_dir / "dem", name, made_by=job.command, parameters=job.params,
+    files = write_dem_products(dem, app.data_dir / out_dir, name, made_by=job.command, parameters=job.params,
                                inputs=inputs, run_log=log.as_dict(), mesh=cfg.mesh)
     with state.lock:
         state.current = dem

@@ -1,18 +1,24 @@
-"""Navigation commands: check-move (the safety gate)."""
+"""Navigation commands: check-move (the safety gate) and navigate (seed 000 sect. 4.4.4, appendix F)."""
 
 from __future__ import annotations
 
+import copy
 import math
+import time
 from dataclasses import dataclass
 from typing import Any, ClassVar
+
+import numpy as np
 
 from prox_workflows.steps.safety import check_move
 
 from ..app import Context
 from ..config import ModuleConfig, param
-from ..protocol import Fixed, ProtocolError
-from ..table import command
+from ..jobs import Job
+from ..protocol import Fixed, ProtocolError, Reply
+from ..table import HARDWARE, command
 from .dem import maps_of
+from .hardware import default_stem
 
 
 @dataclass
@@ -60,3 +66,181 @@ def check_move_cmd(ctx: Context, cfg: CheckMoveConfig) -> dict[str, Any]:
         "blocked_cells": result.blocked_cells,
         "to": [Fixed(end[0], 3), Fixed(end[1], 3), Fixed((end[2] + 180) % 360 - 180, 2)],
     }
+
+
+# ------------------------------------------------------------------ navigate
+
+
+@dataclass
+class NavigateConfig(ModuleConfig):
+    module: ClassVar[str] = "navigate"
+    goal: list[float] = param([], "goal x,y in the global frame", unit="m", length=2, min=-1e6, max=1e6,
+                              required=True)
+    start: list[float] = param([], "start x,y[,heading] (default: the current pose)", unit="m,m,deg",
+                               length=(2, 3), min=-1e6, max=1e6)
+    sensor: str = param("tof", "sensor for the 360-degree DEMs", choices=("tof",))
+    auto: bool = param(False, "simulated rover only: drive the waypoints without waiting for pose")
+    tolerance: float = param(0.3, "the goal is reached within this distance", unit="m", min=0.05, max=10.0)
+    max_legs: int = param(12, "give up after this many legs", min=1, max=200)
+    name: str = param("", "stem of the products (default nav_<UTC time>)", stem=True)
+    weight: float = param(0.5, "A* weight w: 1 distance only, 0 environmental cost only", min=0.0, max=1.0)
+    heuristic: str = param("octile", "A* heuristic", choices=("euclidean", "manhattan", "octile"))
+    grid: float = param(0.05, "planning cell size", unit="m", min=0.01, max=1.0)
+    margin: float = param(0.1, "added to the rover radius around hazards", unit="m", min=0.0, max=2.0)
+    max_deviation: float = param(0.1, "waypoint polyline's largest deviation from the A* path", unit="m",
+                                 min=0.0, max=5.0)
+    border: float = param(0.3, "stop this far inside the local map's border", unit="m", min=0.0, max=5.0)
+    range: list[float] = param([-180.0, 180.0, -50.0, -10.0], "view range of each leg's DEM", unit="deg",
+                               length=4, min=-360.0, max=360.0, option=False)
+    overlap: float = param(0.3, "view overlap of each leg's DEM", min=0.0, max=0.9, option=False)
+    wait_timeout: float = param(0.0, "seconds to wait for the GNC's pose after a leg (0: forever)", unit="s",
+                                min=0.0, max=86400.0, option=False)
+    global_maps: str = param("", "folder with global hazard.tif and slope.tif (empty: blank maps)",
+                             option=False)
+
+
+def _load_global(folder: str) -> Any:
+    from pathlib import Path
+
+    from prox_workflows.grid import read_geotiff
+    from prox_workflows.steps.planner import NavMaps
+
+    if not folder:
+        return None
+    root = Path(folder)
+    try:
+        hazard, g = read_geotiff(root / "hazard.tif")
+        slope, g2 = read_geotiff(root / "slope.tif")
+    except (OSError, ValueError) as exc:
+        raise ProtocolError("E_DATA", f"global maps in {folder} unusable ({exc}); fix navigate.global_maps") from None
+    if g2 != g:
+        raise ProtocolError("E_DATA", f"global hazard and slope maps in {folder} are on different grids")
+    return NavMaps(hazard, slope, g)
+
+
+def drive_simulated(world: Any, start: tuple[float, float, float], waypoints: Any,
+                    track: list[tuple[float, float]], step: float = 0.05) -> None:
+    """The simulated rover drives the waypoints: turn on the spot, then straight (sect. 5.4)."""
+    x, y, heading = world.rover_pose()
+    for wx, wy in waypoints.xy[1:]:
+        dist = math.hypot(wx - x, wy - y)
+        if dist < 1e-6:
+            continue
+        want = math.degrees(math.atan2(wy - y, wx - x))
+        world.move_rover(0.0, 0.0, (want - heading + 180.0) % 360.0 - 180.0)
+        n = max(1, math.ceil(dist / step))
+        for _ in range(n):
+            world.move_rover(dist / n, 0.0, 0.0)
+            tx, ty, _ = world.rover_pose()
+            track.append((tx, ty))
+        x, y, heading = world.rover_pose()
+
+
+@command("navigate", job=True, klass=HARDWARE, config=NavigateConfig,
+         help="navigate to -goal: 360-degree DEM, A* plan, waypoints, wait for the rover (pose), repeat")
+def navigate(job: Job, cfg: NavigateConfig) -> dict[str, Any]:
+    from prox_workflows.products import write_png, write_text_atomic
+    from prox_workflows.steps.planner import (
+        NavMaps,
+        PlannerParams,
+        PlanningError,
+        draw_plan,
+        ortho_rgb,
+        plan_path,
+        write_plan,
+    )
+
+    from .dem import run_dem
+
+    app = job.app  # type: ignore[attr-defined]
+    if cfg.auto and app.world is None:
+        raise ProtocolError("E_ARG", "-auto drives the simulated rover; with real hardware the GNC sends pose")
+    global_maps = _load_global(cfg.global_maps)
+    if cfg.start:
+        heading = cfg.start[2] if len(cfg.start) == 3 else app.pose.heading
+        app.set_pose(cfg.start[0], cfg.start[1], heading)
+        if cfg.auto:
+            app.world.set_rover_pose(cfg.start[0], cfg.start[1], heading)
+    name = cfg.name or default_stem("nav")
+    goal = (cfg.goal[0], cfg.goal[1])
+    head = app.config.get("head")
+    params = PlannerParams(grid=cfg.grid, weight=cfg.weight, heuristic=cfg.heuristic,
+                           rover_radius=math.hypot(head.rover_length, head.rover_width) / 2, margin=cfg.margin,
+                           critical_slope=app.config.get("dem2hazard").slope_max,
+                           max_deviation=cfg.max_deviation, border=cfg.border)
+    dem_cfg = copy.deepcopy(app.config.get("dem_full_tof"))
+    dem_cfg.range, dem_cfg.overlap = list(cfg.range), cfg.overlap
+    all_paths: list[Any] = []
+    all_waypoints: list[Any] = []
+    track: list[tuple[float, float]] = [(app.pose.x, app.pose.y)]
+    files: list[str] = []
+    for leg in range(1, cfg.max_legs + 1):
+        job.check()
+        pose = app.pose
+        if math.hypot(goal[0] - pose.x, goal[1] - pose.y) <= cfg.tolerance:
+            break
+        dem_cfg.name = f"{name}_leg{leg}"
+
+        def leg_progress(done: int, total: int, message: str, leg: int = leg) -> None:
+            job.progress(done, total, f"leg {leg}: {message}")
+
+        run_dem(job, dem_cfg, update=leg > 1, sensor=cfg.sensor, progress=leg_progress, out_dir="nav")
+        state = maps_of(app)
+        with state.lock:
+            maps = state.current
+        local = NavMaps(maps["hazard"], maps["slope"], maps.geometry)
+        try:
+            plan = plan_path(local, global_maps, (pose.x, pose.y), goal, params, start_heading=pose.heading)
+        except PlanningError as exc:
+            raise ProtocolError("E_DATA", f"goal unreachable ({exc.reason}): {exc.message}") from None
+        prefix = app.data_path("nav", f"{name}_leg{leg}")
+        files += write_plan(plan, str(prefix), ortho=(maps["ortho"], maps.geometry), made_by="navigate")
+        driven = plan.path[: plan.cut]
+        if len(plan.waypoints) < 2 or math.hypot(*(driven[-1] - driven[0])) < 0.05:
+            raise ProtocolError("E_DATA", f"no progress on leg {leg}: the path leaves the locally seen ground at once "
+                                          f"({'; '.join(plan.warnings) or 'nothing to drive'})")
+        all_paths.append(driven)
+        all_waypoints.append(plan.waypoints.xy)
+        flat = [Fixed(v, 3) for xy in plan.waypoints.xy for v in xy]
+        app.broadcast_threadsafe(Reply("RVS", "EVENT", {
+            "kind": "waiting", "job": job.id, "leg": leg, "waypoints": flat,
+            "file": app.rel(prefix.with_name(prefix.name + "_waypoints.csv"))}))
+        job.progress(leg, cfg.max_legs, f"leg {leg}: waiting for the rover to drive {len(plan.waypoints) - 1} legs")
+        if cfg.auto:
+            drive_simulated(app.world, (pose.x, pose.y, pose.heading), plan.waypoints, track)
+            t = app.world.truth()
+            app.set_pose(t["x"], t["y"], t["heading"])
+        else:
+            _wait_for_pose(app, job, cfg.wait_timeout)
+            track.append((app.pose.x, app.pose.y))
+    pose = app.pose
+    reached = math.hypot(goal[0] - pose.x, goal[1] - pose.y) <= cfg.tolerance
+    if not reached:
+        raise ProtocolError("E_DATA", f"goal not reached after {cfg.max_legs} legs; the rover is at "
+                                      f"({pose.x:.2f}, {pose.y:.2f}), {math.hypot(goal[0] - pose.x, goal[1] - pose.y):.2f} m away")
+    state = maps_of(app)
+    with state.lock:
+        maps = state.current
+    path = np.concatenate(all_paths) if all_paths else np.zeros((0, 2))
+    wps = np.concatenate(all_waypoints) if all_waypoints else np.zeros((0, 2))
+    traverse = app.data_path("nav", f"{name}_traverse.png")
+    write_png(traverse, draw_plan(ortho_rgb(maps["ortho"]), maps.geometry, path, wps))
+    wfile = app.data_path("nav", f"{name}_waypoints.csv")
+    write_text_atomic(wfile, "x,y,leg\n" + "".join(
+        f"{x:.4f},{y:.4f},{i + 1}\n" for i, leg_wps in enumerate(all_waypoints) for x, y in leg_wps))
+    tfile = app.data_path("nav", f"{name}_track.csv")
+    write_text_atomic(tfile, "x,y\n" + "".join(f"{x:.4f},{y:.4f}\n" for x, y in track))
+    return {"reached": True, "legs": len(all_paths), "path": app.rel(traverse), "waypoints": app.rel(wfile),
+            "track": app.rel(tfile), "x": Fixed(pose.x, 3), "y": Fixed(pose.y, 3)}
+
+
+def _wait_for_pose(app: Any, job: Job, timeout: float) -> None:
+    """Until the GNC reports a new pose (the rover has moved), break, or the timeout."""
+    deadline = time.monotonic() + timeout if timeout > 0 else math.inf
+    with app.pose_changed:
+        version = app.pose_version
+        while app.pose_version == version:
+            job.check()
+            if time.monotonic() >= deadline:
+                raise ProtocolError("E_DATA", f"no pose from the GNC within {timeout:g} s; send pose -x -y -heading")
+            app.pose_changed.wait(0.1)

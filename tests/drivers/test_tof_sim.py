@@ -381,3 +381,23 @@ def test_the_sim_camera_sees_the_office_world_from_the_ptu_pose():
     world.set_ptu(30.0, -10.0)  # the head moved: the camera sees something else
     xyz2, _ = cam.grab_xyz(1)
     assert np.nanmedian(np.abs(xyz2[..., 2] - xyz[..., 2])) > 0.1
+
+
+def test_integrating_across_the_wrap_leaves_no_phantom_half_way() -> None:
+    """A wall at the unambiguous range reads ~0 m in some frames and ~5 m in others; the
+    integrated XYZ must not put it at ~2.5 m (the mean of the two)."""
+    from drivers.sim.world import World
+    from drivers.tof import create
+
+    world = World.from_scene("office")
+    world.set_rover_pose(0.34, 0.0, 0.0)  # the front wall (x = 5.5) ~5.0 m from the camera
+    world.set_ptu(0.0, 0.0)
+    cam = create({"backend": "sim", "seed": 3}, world)
+    cam.open()
+    xyz, _ = cam.grab_xyz(integrate=8)
+    rng = np.linalg.norm(xyz, axis=2)
+    defined = xyz[..., 2] > 0
+    centre = np.zeros_like(defined)
+    centre[50:94, 60:116] = True
+    assert (defined & centre).sum() > 100
+    assert not (defined & centre & (rng > 1.0) & (rng < 4.0)).any()
