@@ -89,7 +89,8 @@ class NavigateConfig(ModuleConfig):
     margin: float = param(0.1, "added to the rover radius around hazards", unit="m", min=0.0, max=2.0)
     max_deviation: float = param(0.1, "waypoint polyline's largest deviation from the A* path", unit="m",
                                  min=0.0, max=5.0)
-    border: float = param(0.3, "stop this far inside the local map's border", unit="m", min=0.0, max=5.0)
+    border: float = param(1.0, "stop this far inside the locally seen ground: at least the radius the next "
+                          "scan cannot see around the rover, so the legs join", unit="m", min=0.0, max=5.0)
     range: list[float] = param([-180.0, 180.0, -50.0, -10.0], "view range of each leg's DEM", unit="deg",
                                length=4, min=-360.0, max=360.0, option=False)
     overlap: float = param(0.3, "view overlap of each leg's DEM", min=0.0, max=0.9, option=False)
