@@ -21,13 +21,16 @@ def join_views(earlier: list[View] | None, new: list[View]) -> list[View]:
     return list(earlier or []) + list(new)
 
 
-def view_dem(view: View, cell: float, rover_mask: np.ndarray | None = None, height: str = "mean") -> Layers:
+def view_dem(view: View, cell: float, rover_mask: np.ndarray | None = None, height: str = "mean") -> Layers | None:
     """DemImport of one view's points, each with its noise-model variance.
 
     ``height="mean"`` makes the view's height the information-weighted mean of its cell's
     points: the greatest of several noisy ToF heights sits about a sigma above the ground, which
     is a bias the fusion cannot average away; ``"max"`` keeps the thesis's direct rule.
+    A view that saw nothing (sky, all beyond range) gives None.
     """
+    if len(view.points) == 0:
+        return None
     layers = dem_import(view.points, cell=cell, point_variance=view.variance, rover_mask=rover_mask)
     if height == "mean" and "wmean" in layers:
         layers["dem"] = layers["wmean"]
@@ -36,14 +39,14 @@ def view_dem(view: View, cell: float, rover_mask: np.ndarray | None = None, heig
     return layers
 
 
-def mosaic(dems: list[Layers], base: Layers | None, rule: str, cell: float) -> Layers:
+def mosaic(dems: list[Layers | None], base: Layers | None, rule: str, cell: float) -> Layers:
     """DemMosaik of the views, then onto the current DEM (if any), on the union of extents.
 
     Views of one scan disagree mostly where one sees a rock's top and another its foot, so there
     the higher wins; between scans a disagreement is a change or an outlier, so the gate rejects
     it and inflates the prior's variance (elevation_mapping's two rules).
     """
-    views = [d for d in dems if np.isfinite(d["dem"]).any()]
+    views = [d for d in dems if d is not None and np.isfinite(d["dem"]).any()]
     if not views and base is None:
         raise ValueError("no view produced any point: nothing to map (check the view range and the sensor)")
     if rule != "fuse":
