@@ -193,3 +193,17 @@ def test_recovery_set_holds_the_maps_and_loads_back(server_factory, tmp_path) ->
     assert loaded.fields["pose"] == "0.500,0.250,10.00"
     assert c2.request("check-move -dx 0.2").status == "OK"
     assert c2.request("recover -set nosuch").fields["code"] == "E_DATA"
+
+
+def test_check_move_on_a_real_scan(scan) -> None:
+    srv, c, _ = scan("office", name="gate")
+    blind = c.request("check-move -dx 0.5")  # the ground under and right around the rover: unseen
+    assert blind.fields["verdict"] == "unknown"
+    c.request("pose -x 0.8 -y -1.3 -heading 0")  # on floor the scan saw
+    ok = c.request("check-move -dx 0.5")
+    assert ok.status == "OK" and ok.fields["verdict"] == "ok", ok.fields
+    rock = c.request("check-move -to 2.3,-0.45")  # the 0.20 m rock
+    assert rock.fields["verdict"] == "not_traversable"
+    behind = c.request("check-move -to -2,-1.2")  # the scan looked forward only (pan -90..90)
+    assert behind.fields["verdict"] == "unknown"
+    assert c.request("check-move -dx 1 -to 1,1").fields["code"] == "E_ARG"
