@@ -105,7 +105,7 @@ def start_echo() -> int:
     return port[0]
 
 
-def start_rvs(data: Path) -> tuple[int, object]:
+def start_rvs(data: Path, overrides: list[str] | None = None) -> tuple[int, object]:
     from rvs_server.jobs import Job
     from rvs_server.logs import setup
     from rvs_server.main import build_config, run
@@ -121,7 +121,7 @@ def start_rvs(data: Path) -> tuple[int, object]:
 
     setup("warning", None, console=False)
     store = build_config(None, [f"server.data={data}", "server.port=0", "server.max_clients=256",
-                                "drivers.ptu.time_scale=0"])
+                                "drivers.ptu.time_scale=0", *(overrides or [])])
     ready = threading.Event()
     box: dict = {}
 
