@@ -91,3 +91,12 @@ def test_navigate_errors(server_factory) -> None:
     assert r.fields["code"] == "E_DATA" and "goal_in_hazard" in r.fields["message"]
     r = c.request("navigate -goal 40,0 -auto", timeout=300)  # far outside any map: blank maps, then no progress
     assert r.status == "ERROR" and r.fields["code"] == "E_DATA"
+
+
+def test_navigate_with_the_fused_sensor(server_factory) -> None:
+    srv = server_factory(["server.scene=office"])
+    c = srv.client()
+    r = c.request("navigate -goal 1.6,-1.3 -sensor fused -auto -name fused", timeout=600)
+    assert r.status == "OK" and r.fields["reached"] == "true", r.fields
+    truth = srv.app.world.truth()
+    assert np.hypot(truth["x"] - 1.6, truth["y"] + 1.3) <= 0.3

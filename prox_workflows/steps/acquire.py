@@ -1,10 +1,10 @@
-"""AcquireTofCoordImages (seed 000 sect. 4.3.1): for each PTU pointing, the sensor's XYZ image
-transformed to the global frame and kept as a 4-channel image (x, y, z, intensity) with a
-time-tagged name, its ``.cal`` file and an entry in the image list.
+"""AcquireTofCoordImages (seed 000 sect. 4.3.1) and its stereo twin: for each PTU pointing,
+each sensor's 3D image transformed to the global frame and kept as a 4-channel image (x, y, z,
+intensity) with a time-tagged name, its ``.cal`` file and an entry in the image list.
 
-The device is reached through a ``grab`` callable the caller supplies (the server passes one
-that moves its PTU and grabs from its ToF camera), so this step never imports a driver and
-runs the same on recorded data.
+The devices are reached through a ``grab`` callable the caller supplies (the server passes one
+that moves its PTU and grabs from its ToF camera, its stereo pair, or both), so this step never
+imports a driver and runs the same on recorded data.
 """
 
 from __future__ import annotations
@@ -24,9 +24,26 @@ from .transforms import HeadCalibration, T_global_from_rover, apply, camera_matr
 
 # variance(points N x 3 global, sensor position, amplitude N) -> height variance N (m^2)
 Variance = Callable[[np.ndarray, np.ndarray, np.ndarray], np.ndarray]
-# grab(pan, tilt) -> (xyz in the camera frame H x W x 3 with -1 or NaN undefined, intensity H x W,
-#                     pan reached, tilt reached)
-Grab = Callable[[float, float], tuple[np.ndarray, np.ndarray, float, float]]
+
+
+@dataclass
+class Frame:
+    """What one sensor saw at one pointing, in its own camera frame (a ToF XYZ image, or the
+    points a stereo pair triangulated per left pixel)."""
+
+    sensor: str  # "tof" or "left": the mount in the head calibration
+    xyz: np.ndarray  # H x W x 3 camera frame, NaN or z <= 0 undefined
+    intensity: np.ndarray  # H x W, each point's intensity
+    K: np.ndarray  # camera matrix of the ortho images below
+    variance: Variance | None = None
+    max_range: float = np.inf
+    min_reflectivity: float = 0.0
+    ortho_intensity: np.ndarray | None = None  # undistorted image for the ortho-image (default: intensity)
+    ortho_depth: np.ndarray | None = None  # its camera z, for the occlusion test (default: xyz z)
+
+
+# grab(pan, tilt) -> (frames, pan reached, tilt reached)
+Grab = Callable[[float, float], tuple[list[Frame], float, float]]
 
 
 @dataclass
@@ -34,6 +51,7 @@ class View:
     """One acquired view: where it was taken from and what it saw, in the global frame."""
 
     index: int
+    sensor: str
     pan: float
     tilt: float
     time: str
@@ -51,43 +69,34 @@ def _stamp() -> str:
     return datetime.now(UTC).strftime("%Y%m%dT%H%M%S_%f")[:-3] + "Z"
 
 
-def view_from_xyz(
-    index: int,
-    xyz_cam: np.ndarray,
-    intensity: np.ndarray,
-    pan: float,
-    tilt: float,
-    T_global_camera: np.ndarray,
-    K: np.ndarray,
-    variance: Variance | None = None,
-    max_range: float = np.inf,
-    min_reflectivity: float = 0.0,
-) -> View:
-    """Transform one camera-frame XYZ image to the global frame and keep its defined points.
+def view_from_frame(index: int, frame: Frame, pan: float, tilt: float, T_global_camera: np.ndarray) -> View:
+    """Transform one frame to the global frame and keep its defined points.
 
-    ``min_reflectivity`` > 0 drops ToF returns whose amplitude is implausibly weak for their
-    range: amplitude falls as 1/r^2, so amplitude * r^2 is a surface's apparent reflectivity;
-    a far surface whose phase wrapped past c/(2f) shows up close by with a tiny reflectivity
-    (a wall 5.5 m away read as 0.5 m). Relative to the view's median, so exposure cancels out.
+    ``frame.min_reflectivity`` > 0 drops ToF returns whose amplitude is implausibly weak for
+    their range: amplitude falls as 1/r^2, so amplitude * r^2 is a surface's apparent
+    reflectivity; a far surface whose phase wrapped past c/(2f) shows up close by with a tiny
+    reflectivity. Relative to the view's median, so exposure cancels out.
     """
-    xyz = np.asarray(xyz_cam, dtype=np.float32)
+    xyz = np.asarray(frame.xyz, dtype=np.float32)
     z = xyz[..., 2]
     defined = np.isfinite(z) & (z > 0)
     rng = np.linalg.norm(np.where(defined[..., None], xyz, 0), axis=2)
-    defined &= rng <= max_range
-    if min_reflectivity > 0 and defined.any():
-        refl = np.asarray(intensity, dtype=np.float64) * rng.astype(np.float64) ** 2
-        defined &= refl >= min_reflectivity * float(np.median(refl[defined]))
+    defined &= rng <= frame.max_range
+    intensity = np.asarray(frame.intensity, dtype=np.float32)
+    if frame.min_reflectivity > 0 and defined.any():
+        refl = intensity.astype(np.float64) * rng.astype(np.float64) ** 2
+        defined &= refl >= frame.min_reflectivity * float(np.median(refl[defined]))
     glob = apply(T_global_camera, xyz[defined])
-    amp = np.asarray(intensity, dtype=np.float32)[defined]
+    amp = intensity[defined]
     r = rng[defined].astype(np.float32)
-    var = (variance(glob, T_global_camera[:3, 3], amp) if variance is not None
+    var = (frame.variance(glob, T_global_camera[:3, 3], amp) if frame.variance is not None
            else np.full(len(r), 1e-4, np.float32))
     points = np.concatenate([glob, amp[:, None]], axis=1).astype(np.float32)
-    depth = np.where(defined, z, np.nan).astype(np.float32)
-    P = camera_matrix(K, T_global_camera)
-    return View(index, pan, tilt, _stamp(), points, np.asarray(var, np.float32), r, P,
-                np.asarray(intensity, np.float32), depth, T_global_camera)
+    depth = frame.ortho_depth if frame.ortho_depth is not None else np.where(defined, z, np.nan)
+    ortho = frame.ortho_intensity if frame.ortho_intensity is not None else intensity
+    P = camera_matrix(frame.K, T_global_camera)
+    return View(index, frame.sensor, pan, tilt, _stamp(), points, np.asarray(var, np.float32), r, P,
+                np.asarray(ortho, np.float32), np.asarray(depth, np.float32), T_global_camera)
 
 
 def acquire_coord_images(
@@ -95,21 +104,18 @@ def acquire_coord_images(
     grab: Grab,
     head: HeadCalibration,
     pose: tuple[float, float, float, float],
-    K: np.ndarray,
     out_dir: Path | None = None,
     stem: str = "view",
-    sensor: str = "tof",
-    variance: Variance | None = None,
-    max_range: float = np.inf,
-    min_reflectivity: float = 0.0,
     progress: Callable[[int, int, str], None] | None = None,
     cancelled: Callable[[], bool] | None = None,
     on_view: Callable[[View], None] | None = None,
 ) -> list[View]:
     """Acquire every pointing; ``pose`` = (x, y, heading, z) of the rover in the global frame.
 
-    Views acquired before a cancellation are kept on disk (and in the image list), so a
-    following dem-update can use them; the cancellation itself is raised by the caller's check.
+    Each frame becomes a view: a 4-channel image (x, y, z global, intensity; NaN undefined)
+    with a time-tagged name, its ``.cal`` and a row of the image list. Views acquired before a
+    cancellation or a device fault are kept on disk and passed to ``on_view`` as they come, so a
+    following dem-update can use them.
     """
     T_gr = T_global_from_rover(pose[0], pose[1], pose[2], pose[3])
     views: list[View] = []
@@ -119,25 +125,29 @@ def acquire_coord_images(
             break
         if progress is not None:
             progress(i, len(positions), f"pan={pan:.1f} tilt={tilt:.1f}")
-        xyz, intensity, pan_r, tilt_r = grab(pan, tilt)
-        T_gc = T_gr @ head.T_rover_from_sensor(sensor, pan_r, tilt_r)
-        view = view_from_xyz(i, xyz, intensity, pan_r, tilt_r, T_gc, K, variance, max_range, min_reflectivity)
-        if out_dir is not None:
-            name = f"{stem}_{view.time}_v{i:02d}"
-            image = np.concatenate([apply(T_gc, np.where(np.isfinite(xyz) & (xyz[..., 2:3] > 0), xyz, np.nan)),
-                                    np.asarray(intensity, np.float32)[..., None]], axis=2)
-            tif = write_tiff(Path(out_dir) / f"{name}.tif", image.astype(np.float32))
-            cal = write_cal(Path(out_dir) / f"{name}.cal", K, T_gc, (xyz.shape[1], xyz.shape[0]),
-                            sensor=sensor, pan=pan_r, tilt=tilt_r, time=view.time)
-            view.files = {"image": tif.name, "cal": cal.name}
-            rows.append({"file": tif.name, "cal": cal.name, "pan": round(pan_r, 4), "tilt": round(tilt_r, 4),
-                         "time": view.time, "points": len(view.points)})
-            _write_list(Path(out_dir) / f"{stem}_images.csv", rows)
-        views.append(view)
-        if on_view is not None:
-            on_view(view)
+        frames, pan_r, tilt_r = grab(pan, tilt)
+        for frame in frames:
+            T_gc = T_gr @ head.T_rover_from_sensor(frame.sensor, pan_r, tilt_r)
+            view = view_from_frame(len(views), frame, pan_r, tilt_r, T_gc)
+            if out_dir is not None:
+                name = f"{stem}_{view.time}_v{i:02d}_{frame.sensor}"
+                xyz = np.asarray(frame.xyz, np.float32)
+                ok = np.isfinite(xyz[..., 2:3]) & (xyz[..., 2:3] > 0)
+                image = np.concatenate([apply(T_gc, np.where(ok, xyz, np.nan)),
+                                        np.asarray(frame.intensity, np.float32)[..., None]], axis=2)
+                tif = write_tiff(Path(out_dir) / f"{name}.tif", image.astype(np.float32))
+                cal = write_cal(Path(out_dir) / f"{name}.cal", frame.K, T_gc, (xyz.shape[1], xyz.shape[0]),
+                                sensor=frame.sensor, pan=pan_r, tilt=tilt_r, time=view.time)
+                view.files = {"image": tif.name, "cal": cal.name}
+                rows.append({"file": tif.name, "cal": cal.name, "sensor": frame.sensor, "pan": round(pan_r, 4),
+                             "tilt": round(tilt_r, 4), "time": view.time, "points": len(view.points)})
+                _write_list(Path(out_dir) / f"{stem}_images.csv", rows)
+            views.append(view)
+            if on_view is not None:
+                on_view(view)
         if progress is not None:
-            progress(i + 1, len(positions), f"view {i + 1}/{len(positions)}: {len(view.points)} points")
+            progress(i + 1, len(positions), f"view {i + 1}/{len(positions)}: "
+                                            f"{sum(len(v.points) for v in views[-len(frames):])} points")
     return views
 
 

@@ -39,19 +39,22 @@ def view_dem(view: View, cell: float, rover_mask: np.ndarray | None = None, heig
     return layers
 
 
-def mosaic(dems: list[Layers | None], base: Layers | None, rule: str, cell: float) -> Layers:
+def mosaic(dems: list[Layers | None], base: Layers | None, rule: str, cell: float,
+           within_scan: str = "higher") -> Layers:
     """DemMosaik of the views, then onto the current DEM (if any), on the union of extents.
 
-    Views of one scan disagree mostly where one sees a rock's top and another its foot, so there
-    the higher wins; between scans a disagreement is a change or an outlier, so the gate rejects
-    it and inflates the prior's variance (elevation_mapping's two rules).
+    Views of one sensor in one scan disagree mostly where one sees a rock's top and another its
+    foot, so there the higher wins (``within_scan="higher"``); between scans, and between two
+    sensors (``"inflate"``), a disagreement is a change or an outlier (multipath, a stereo
+    mismatch), so the gate rejects it and inflates the prior's variance (elevation_mapping's
+    two rules).
     """
     views = [d for d in dems if d is not None and np.isfinite(d["dem"]).any()]
     if not views and base is None:
         raise ValueError("no view produced any point: nothing to map (check the view range and the sensor)")
     if rule != "fuse":
         return dem_mosaik(([base] if base is not None else []) + views, rule=rule, cell=cell)
-    scan = dem_mosaik(views, rule="fuse", cell=cell, on_conflict="higher") if views else None
+    scan = dem_mosaik(views, rule="fuse", cell=cell, on_conflict=within_scan) if views else None
     if base is None:
         assert scan is not None
         return scan

@@ -14,14 +14,17 @@ from functools import partial
 from pathlib import Path
 from typing import Any, ClassVar
 
+import cv2
 import numpy as np
 import yaml
 
 from prox_workflows.engine import Cancelled, run_workflow
 from prox_workflows.grid import Layers, read_geotiff
-from prox_workflows.steps.acquire import acquire_coord_images
+from prox_workflows.steps.acquire import Frame, acquire_coord_images
 from prox_workflows.steps.dem_products import write_dem_products
-from prox_workflows.steps.noise import tof_height_variance
+from prox_workflows.steps.noise import stereo_height_variance, tof_height_variance
+from prox_workflows.steps.stereo import disparity as stereo_disparity
+from prox_workflows.steps.stereo import sigma_d_for
 from prox_workflows.steps.transforms import HeadCalibration
 
 from ..config import ModuleConfig, param, standalone
@@ -71,6 +74,26 @@ class DemUpdateTofConfig(DemTofConfig):
     module: ClassVar[str] = "dem_update_tof"
 
 
+TOF_MAX_RANGE = 4.5  # m: the SR4000 wraps at 5 m (30 MHz); farther returns are not trusted
+
+
+@dataclass
+class DemStereoConfig(DemTofConfig):
+    """dem-full / dem-update: the same options as the ToF commands, plus the stereo ones."""
+
+    module: ClassVar[str] = "dem_full"
+    sensor: str = param("stereo", "sensor: the stereo pair, or stereo and ToF fused", choices=("stereo", "fused"))
+    max_range: float = param(6.0, "ignore points farther than this from the sensor", unit="m", min=0.3, max=30.0)
+    resolution: str = param("low", "stereo resolution mode", choices=("low", "medium", "high", "highest"))
+    stereo_scale: float = param(1.0, "matching scale (0.5: half resolution, faster)", min=0.25, max=1.0,
+                                option=False)
+
+
+@dataclass
+class DemUpdateStereoConfig(DemStereoConfig):
+    module: ClassVar[str] = "dem_update"
+
+
 class MapState:
     """The current DEM and the views a stopped acquisition left behind (for the next update)."""
 
@@ -118,58 +141,90 @@ def current_pose(app: Any) -> tuple[float, float, float, float]:
     return (p.x, p.y, p.heading, z)
 
 
-def run_dem(job: Job, cfg: DemTofConfig, *, update: bool, sensor: str = "tof",
+def _stereo_frame(left: np.ndarray, right: np.ndarray, calib: dict[str, Any], cfg: Any) -> Frame:
+    """The points a stereo pair triangulates per left pixel, with undistorted ortho images."""
+    disp = stereo_disparity(left, right, calib, {"scale": cfg.stereo_scale})
+    pts = disp.points()
+    K1, D1 = np.asarray(calib["K1"], float), np.asarray(calib["D1"], float)
+    h, w = left.shape[:2]
+    mx, my = cv2.initUndistortRectifyMap(K1, D1, None, K1, (w, h), cv2.CV_32FC1)
+    grey = left if left.ndim == 2 else cv2.cvtColor(left, cv2.COLOR_RGB2GRAY)
+    depth = np.where(np.isfinite(pts[..., 2]), pts[..., 2], 0).astype(np.float32)
+    return Frame(
+        "left", pts, grey.astype(np.float32), K1,
+        variance=partial(stereo_height_variance, baseline=disp.rect.baseline, focal=disp.rect.focal,
+                         sigma_d=sigma_d_for(cfg.stereo_scale)),
+        max_range=cfg.max_range,
+        ortho_intensity=cv2.remap(grey, mx, my, cv2.INTER_LINEAR).astype(np.float32),
+        ortho_depth=cv2.remap(depth, mx, my, cv2.INTER_NEAREST),
+    )
+
+
+def run_dem(job: Job, cfg: Any, *, update: bool, sensor: str = "tof",
             progress: Any = None, out_dir: str = "dem") -> dict[str, Any]:
+    """One DEM job: views from ``sensor`` (tof, stereo or fused) through the dem workflow."""
     app = job.app  # type: ignore[attr-defined]
     state = maps_of(app)
     with state.lock:
         base = state.current if update else None
         pending = list(state.pending_views) if update else []
     if update and base is None and not pending:
-        raise ProtocolError("E_DATA", "there is no current DEM to update; run dem-full-tof first")
+        raise ProtocolError("E_DATA", "there is no current DEM to update; run dem-full-tof or dem-full first")
     ptu = app.devices.get("ptu")
-    tof = app.devices.get("tof")
+    use_tof, use_stereo = sensor in ("tof", "fused"), sensor in ("stereo", "fused")
+    tof = app.devices.get("tof") if use_tof else None
+    cams = app.devices.get("stereo") if use_stereo else None
     head = HeadCalibration.from_dict(app.config.get("head").as_dict())
     pose = current_pose(app)
     lim = ptu.limits()
     limits = (lim["pan"]["min_deg"], lim["pan"]["max_deg"], lim["tilt"]["min_deg"], lim["tilt"]["max_deg"])
-    K, _ = tof.intrinsics()
-    h, w = 144, 176
-    fov = (math.degrees(2 * math.atan(w / 2 / K[0, 0])), math.degrees(2 * math.atan(h / 2 / K[1, 1])))
+    if tof is not None:  # the narrower field of view sets the pointings
+        K, _ = tof.intrinsics()
+        size = (176, 144)
+    else:
+        calib = cams.calibration(cfg.resolution)
+        K, size = np.asarray(calib["K1"], float), tuple(calib["image_size"])
+    fov = (math.degrees(2 * math.atan(size[0] / 2 / K[0, 0])), math.degrees(2 * math.atan(size[1] / 2 / K[1, 1])))
+    calib = cams.calibration(cfg.resolution) if cams is not None else None
     name = cfg.name or default_stem("dem")
     views_dir = app.data_path(out_dir, f"{name}_views", "x").parent
 
-    def grab(pan: float, tilt: float) -> tuple[np.ndarray, np.ndarray, float, float]:
+    def grab(pan: float, tilt: float) -> tuple[list[Frame], float, float]:
         reached = device_call(job, ptu.move, pan, tilt, True)
-        xyz, amplitude = device_call(job, tof.grab_xyz, cfg.integrate, cfg.confidence)
-        return xyz, amplitude, reached[0], reached[1]
+        frames: list[Frame] = []
+        if tof is not None:
+            xyz, amplitude = device_call(job, tof.grab_xyz, cfg.integrate, cfg.confidence)
+            frames.append(Frame("tof", xyz, amplitude, K,
+                                variance=partial(tof_height_variance, frames=cfg.integrate),
+                                max_range=min(cfg.max_range, TOF_MAX_RANGE),
+                                min_reflectivity=cfg.min_reflectivity))
+        if cams is not None:
+            left, right = device_call(job, cams.grab_stereo, cfg.resolution, "mono8")
+            job.check()
+            frames.append(_stereo_frame(left, right, calib, cfg))
+        return frames, reached[0], reached[1]
 
     acquired: list[Any] = []
 
     def acquire(positions: list[tuple[float, float]], progress: Any = None, cancelled: Any = None) -> list[Any]:
-        def keep(done: int, total: int, message: str) -> None:
-            if progress is not None:
-                progress(done, total, message)
-
         try:
-            views = acquire_coord_images(positions, grab, head, pose, K, views_dir, name, sensor,
-                                         partial(tof_height_variance, frames=cfg.integrate),
-                                         cfg.max_range, cfg.min_reflectivity, keep, cancelled,
-                                         on_view=acquired.append)
+            return acquire_coord_images(positions, grab, head, pose, views_dir, name, progress, cancelled,
+                                        on_view=acquired.append)
         except BaseException:
             with state.lock:  # the views acquired before a fault or a break are kept for the next update
                 state.pending_views = pending + acquired
             raise
-        return views
 
-    hazard = app.config.get("dem2hazard").as_dict()
     params = {
         "range": cfg.range, "fov": fov, "overlap": cfg.overlap, "ptu_limits": limits, "cell": cfg.cell,
-        "rule": cfg.rule, "fill_radius": cfg.fill_radius, "max_range": cfg.max_range, "hazard": hazard,
+        "rule": cfg.rule, "fill_radius": cfg.fill_radius, "hazard": app.config.get("dem2hazard").as_dict(),
         "rover_mask": rover_mask_polygon(app, pose),
+        # views of one sensor: the higher wins a conflict (a rock's top over its foot); ToF and
+        # stereo together: the gate rejects what the other sensor contradicts
+        "within_scan": "inflate" if sensor == "fused" else "higher",
     }
     try:
-        ws, log = run_workflow("dem_tof", params, {"base": base, "pending_views": pending},
+        ws, log = run_workflow("dem", params, {"base": base, "pending_views": pending},
                                steps={"acquire": acquire}, progress=progress or job.progress,
                                cancelled=lambda: job.cancelled)
     except (Cancelled, Interrupted):
@@ -190,10 +245,9 @@ def run_dem(job: Job, cfg: DemTofConfig, *, update: bool, sensor: str = "tof",
     defined = np.isfinite(dem["dem"])
     out: dict[str, Any] = {k: rel[k] for k in ("dem", "ortho", "hazard", "slope", "step", "roughness") if k in rel}
     out.update(cells=int(defined.sum()), coverage=Fixed(float(defined.mean()), 3), views=len(ws["views"]))
-    if "traversability" in rel:
-        out["traversability"] = rel["traversability"]
-    if "mesh" in rel:
-        out["mesh"] = rel["mesh"]
+    for key in ("traversability", "mesh"):
+        if key in rel:
+            out[key] = rel[key]
     return out
 
 
@@ -207,6 +261,18 @@ def dem_full_tof(job: Job, cfg: DemTofConfig) -> dict[str, Any]:
          help="as dem-full-tof, merged into the current DEM (which it may extend)")
 def dem_update_tof(job: Job, cfg: DemUpdateTofConfig) -> dict[str, Any]:
     return run_dem(job, cfg, update=True)
+
+
+@command("dem-full", job=True, klass=HARDWARE, config=DemStereoConfig,
+         help="new DEM from stereo pairs (or -sensor fused: stereo and ToF) over -range, with ortho-image and hazard maps")
+def dem_full(job: Job, cfg: DemStereoConfig) -> dict[str, Any]:
+    return run_dem(job, cfg, update=False, sensor=cfg.sensor)
+
+
+@command("dem-update", job=True, klass=HARDWARE, config=DemUpdateStereoConfig,
+         help="as dem-full, merged into the current DEM (which it may extend)")
+def dem_update(job: Job, cfg: DemUpdateStereoConfig) -> dict[str, Any]:
+    return run_dem(job, cfg, update=True, sensor=cfg.sensor)
 
 
 

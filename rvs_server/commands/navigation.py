@@ -78,7 +78,7 @@ class NavigateConfig(ModuleConfig):
                               required=True)
     start: list[float] = param([], "start x,y[,heading] (default: the current pose)", unit="m,m,deg",
                                length=(2, 3), min=-1e6, max=1e6)
-    sensor: str = param("tof", "sensor for the 360-degree DEMs", choices=("tof",))
+    sensor: str = param("tof", "sensor for the 360-degree DEMs", choices=("tof", "stereo", "fused"))
     auto: bool = param(False, "simulated rover only: drive the waypoints without waiting for pose")
     tolerance: float = param(0.3, "the goal is reached within this distance", unit="m", min=0.05, max=10.0)
     max_legs: int = param(12, "give up after this many legs", min=1, max=200)
@@ -169,7 +169,7 @@ def navigate(job: Job, cfg: NavigateConfig) -> dict[str, Any]:
                            rover_radius=math.hypot(head.rover_length, head.rover_width) / 2, margin=cfg.margin,
                            critical_slope=app.config.get("dem2hazard").slope_max,
                            max_deviation=cfg.max_deviation, border=cfg.border)
-    dem_cfg = copy.deepcopy(app.config.get("dem_full_tof"))
+    dem_cfg = copy.deepcopy(app.config.get("dem_full_tof" if cfg.sensor == "tof" else "dem_full"))
     dem_cfg.range, dem_cfg.overlap = list(cfg.range), cfg.overlap
     all_paths: list[Any] = []
     all_waypoints: list[Any] = []
