@@ -1,3 +1,3 @@
 """Command modules; importing this package fills the command table."""
 
-from . import dem, hardware, navigation, sim, system  # noqa: F401
+from . import awareness, dem, hardware, navigation, sim, system  # noqa: F401
