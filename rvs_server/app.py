@@ -88,6 +88,11 @@ class App:
         self.last_recovery: str | None = None
         self.maps: dict[str, str] = {}  # current map products: layer -> path under the data dir
         self.maps_lock = threading.RLock()
+        # Background monitors (hazard-start, track3d-start) by name; each has status_fields() and
+        # stop(). A job holds device_lock while it runs, a monitor for each of its cycles: so a
+        # monitor yields the PTU and cameras to any job and resumes after it.
+        self.monitors: dict[str, Any] = {}
+        self.device_lock = threading.RLock()
         self.started = time.monotonic()
         self.stopping = asyncio.Event()
         self.quitting = False
@@ -308,7 +313,8 @@ class App:
         jlog.info("job_start", params=params)
 
         def work(j: Job) -> dict[str, Any]:
-            return cmd.handler(j, cfg) or {}
+            with self.device_lock:
+                return cmd.handler(j, cfg) or {}
 
         def done(j: Job, result: dict[str, Any] | None, error: BaseException | None) -> None:
             if cmd.klass != ALWAYS:
@@ -334,4 +340,10 @@ class App:
     async def interrupt(self) -> Job | None:
         """Stop the running job (break and quit)."""
         return await self.jobs.interrupt()
+
+    def stop_monitors(self) -> None:
+        """Stop every background monitor and wait for its thread (server shutdown; blocking)."""
+        for monitor in list(self.monitors.values()):
+            monitor.stop()
+        self.monitors.clear()
 

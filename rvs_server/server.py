@@ -168,6 +168,7 @@ async def serve(app: App, sock: socket.socket, *, ready: Any = None, handle_sign
         with contextlib.suppress(TimeoutError):
             await asyncio.wait_for(server.wait_closed(), 1.0)
         app.jobs.shutdown()
+        await loop.run_in_executor(None, app.stop_monitors)
         await loop.run_in_executor(None, app.devices.close)
         if handle_signals:
             for sig in (signal.SIGINT, signal.SIGTERM):

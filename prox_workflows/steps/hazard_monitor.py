@@ -172,7 +172,7 @@ def check_corridor(points_rover: np.ndarray, params: MonitorParams) -> CorridorC
 
 
 def _transform_xy(T: np.ndarray, xy: np.ndarray) -> np.ndarray:
-    return xy @ T[:2, :2].T + T[:2, 3]
+    return xy @ T[:2, :2].T + T[:2, 2]
 
 
 def _planar(x: float, y: float, heading: float) -> np.ndarray:

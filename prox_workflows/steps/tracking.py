@@ -38,6 +38,7 @@ class SizePrior:
     width_range: tuple[float, float] = (0.2, 0.9)  # apparent width across the line of sight
     min_height: float = 0.25  # a point stands on the ground when this far above it
     foot_height: float = 0.6  # a standing object has points this low (a floating sheet does not)
+    reflectivity: float = 1.0  # at least this times the ground's amplitude x range^2 (see detect_standing)
     min_points: int = 25
     cell: float = 0.1  # clustering grid
     ground_cell: float = 0.2  # grid of the ground surface
@@ -57,6 +58,7 @@ class Detection:
     radius: float  # fitted body radius
     points: int
     score: float = 0.0  # 0 perfect match of the prior; larger is worse
+    marker_id: int | None = None  # ArUco id when a marker was seen
 
 
 def _nan_filter(a: np.ndarray, k: int, op: str) -> np.ndarray:
@@ -229,13 +231,16 @@ def segment_image(points: np.ndarray, sensor: np.ndarray, mask: np.ndarray, jump
 
 
 def detect_standing(points: np.ndarray, sensor: np.ndarray, prior: SizePrior = SizePrior(),
-                    ground: np.ndarray | None = None) -> list[Detection]:
+                    amplitude: np.ndarray | None = None, ground: np.ndarray | None = None) -> list[Detection]:
     """Objects standing on the ground that match the size prior, best first.
 
     ``points`` an organised H x W x 3 image of points (z up, NaN where undefined) as a ToF camera
     gives them, moved into the output frame; ``sensor`` the sensor's position in that frame (for
-    ranges and the line of sight); ``ground`` the ground height under each pixel if known (else
-    :func:`ground_under`).
+    ranges and the line of sight); ``amplitude`` the ToF amplitude image, with which pixels
+    standing above the ground must look at least ``prior.reflectivity`` times as bright as the
+    ground (amplitude x range^2): a suit is white, while phase-wrapped returns of far surfaces,
+    which float in the air at a wrong range, are faint for the range they claim. ``ground`` the
+    ground height under each pixel if known (else :func:`ground_under`).
     """
     img = np.asarray(points, dtype=np.float64)
     if img.ndim != 3 or img.shape[2] != 3:
@@ -249,6 +254,11 @@ def detect_standing(points: np.ndarray, sensor: np.ndarray, prior: SizePrior = S
     h[defined] = img[defined][:, 2] - g[defined]
     with np.errstate(invalid="ignore"):
         up = defined & (h > prior.min_height)
+    if amplitude is not None and prior.reflectivity > 0:
+        refl = np.asarray(amplitude, dtype=np.float64) * np.sum((img - np.asarray(sensor, float)) ** 2, axis=2)
+        low = defined & ~up
+        if low.any():
+            up &= refl >= prior.reflectivity * float(np.median(refl[low]))
     if up.sum() < prior.min_points:
         return []
     labels, n = segment_image(img, sensor, up)
@@ -325,7 +335,7 @@ def detect_markers(left: np.ndarray, right: np.ndarray, K1: np.ndarray, D1: np.n
         if gray.dtype != np.uint8:
             gray = cv2.normalize(gray, None, 0, 255, cv2.NORM_MINMAX).astype(np.uint8)
         corners, ids, _ = det.detectMarkers(gray)
-        found.append({} if ids is None else {int(i): c.reshape(4, 2) for i, c in zip(ids.ravel(), corners)})
+        found.append({} if ids is None else {int(i): c.reshape(4, 2) for i, c in zip(ids.ravel(), corners, strict=True)})
     P1 = np.hstack([np.eye(3), np.zeros((3, 1))])
     P2 = np.hstack([np.asarray(R, float), np.asarray(T, float).reshape(3, 1)])
     out: list[MarkerSighting] = []

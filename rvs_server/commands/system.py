@@ -229,6 +229,8 @@ def status(ctx: Context, cfg: None) -> dict[str, Any]:
     out["recovery"] = app.last_recovery or "none"
     if app.world is not None:
         out["scene"] = app.world.scene_name
+    for monitor in list(app.monitors.values()):
+        out.update(monitor.status_fields())
     return out
 
 

@@ -1,0 +1,597 @@
+"""Awareness commands: hazard-start / hazard-stop (dynamic hazard detection, seed 000 sect. 6.2)
+and track3d-detect / track3d-start / track3d-stop (target tracking, appendix C).
+
+The monitor and the tracker are background threads, not jobs: they run while the GNC drives and
+while other commands are answered. The rules they follow (documented in the protocol page):
+
+- **They yield to jobs.** A job holds ``app.device_lock`` for its whole run, a monitor only for
+  one cycle at a time; while a job runs (or the server is in standby, sleep, break or fault) the
+  monitor pauses without touching a device, then resumes and points the PTU back where it was.
+  A job asked for while a monitor runs is therefore accepted as usual (it waits at most one
+  monitor cycle for the devices). The hazard monitor says so with ``EVENT kind=hazard
+  level=paused``; after the pause its next level is always sent.
+- **One holder of the PTU.** The hazard monitor and the tracker both steer the PTU, so starting
+  one while the other runs is ``E_BUSY`` naming it.
+- **break stops jobs, not monitors**; the monitors pause in the break mode and resume after
+  continue/reset. hazard-stop / track3d-stop, quit and server shutdown stop them.
+- A device failure inside a monitor puts the server in fault mode as a job's would, and ends the
+  monitor with a last EVENT carrying ``code=E_DEVICE``.
+"""
+
+from __future__ import annotations
+
+import math
+import threading
+import time
+from collections import deque
+from dataclasses import dataclass
+from typing import Any, ClassVar
+
+import numpy as np
+import structlog
+
+from drivers.base import DeviceError
+from prox_workflows.steps import hazard_monitor as hm
+from prox_workflows.steps import tracking as tr
+from prox_workflows.steps.ptu_positions import get_ptu_positions
+from prox_workflows.steps.transforms import HeadCalibration, T_global_from_rover, invert
+
+from ..app import BLOCKING_MODES, Context
+from ..config import ModuleConfig, param
+from ..jobs import Job
+from ..protocol import Fixed, ProtocolError, Reply
+from ..table import HARDWARE, command
+from .dem import current_pose
+from .hardware import device_call
+
+log = structlog.get_logger("rvs.awareness")
+
+TOF_SHAPE = (144, 176)
+
+
+def _fov(K: np.ndarray, shape: tuple[int, int]) -> tuple[float, float]:
+    h, w = shape
+    return (math.degrees(2 * math.atan(w / 2 / K[0, 0])), math.degrees(2 * math.atan(h / 2 / K[1, 1])))
+
+
+def _limits(ptu: Any) -> tuple[float, float, float, float]:
+    lim = ptu.limits()
+    return (lim["pan"]["min_deg"], lim["pan"]["max_deg"], lim["tilt"]["min_deg"], lim["tilt"]["max_deg"])
+
+
+class Stopped(Exception):
+    """The monitor was asked to stop in the middle of a device call."""
+
+
+class Monitor:
+    """A background loop that uses the PTU and a camera between jobs (see the module docstring)."""
+
+    name: ClassVar[str] = "monitor"
+
+    def __init__(self, app: Any, period: float) -> None:
+        self.app = app
+        self.period = period
+        self.stop_event = threading.Event()
+        self.thread = threading.Thread(target=self._run, name=f"rvs-{self.name}", daemon=True)
+        self.state = "starting"
+        self.cycles = 0
+        self.cycle_ms: deque[float] = deque(maxlen=20)  # without PTU motion
+        self.cycle_max_ms = 0.0
+        self.starts: deque[float] = deque(maxlen=10)
+        self.pointing: tuple[float, float] | None = None  # where the PTU should look (pan, tilt)
+        self.error: str | None = None
+        self._move_s = 0.0
+
+    # -- life cycle ---------------------------------------------------------------------------
+    def start(self) -> None:
+        self.thread.start()
+
+    def stop(self, timeout: float = 5.0) -> None:
+        """Ask the loop to end and wait for it (blocking: call it off the event loop)."""
+        self.stop_event.set()
+        if self.thread.is_alive() and threading.current_thread() is not self.thread:
+            self.thread.join(timeout)
+        if self.state != "failed":
+            self.state = "stopped"
+
+    def _pause_reason(self) -> dict[str, Any] | None:
+        job = self.app.jobs.current
+        if job is not None:
+            return {"reason": "job", "job": job.id}
+        if self.app.base_mode in BLOCKING_MODES:
+            return {"reason": self.app.base_mode}
+        return None
+
+    def _run(self) -> None:
+        app = self.app
+        log.info("monitor_start", monitor=self.name, period=self.period)
+        try:
+            while not self.stop_event.is_set():
+                reason = self._pause_reason()
+                if reason is not None:
+                    if self.state != "paused":
+                        self.state = "paused"
+                        self.on_pause(reason)
+                    self.stop_event.wait(0.02)
+                    continue
+                if not app.device_lock.acquire(timeout=0.1):
+                    continue
+                try:
+                    if self._pause_reason() is not None or self.stop_event.is_set():
+                        continue
+                    resumed = self.state == "paused"
+                    self.state = "running"
+                    if resumed:
+                        self.on_resume()
+                    started = time.monotonic()
+                    self.starts.append(started)
+                    self._move_s = 0.0
+                    self.cycle()
+                    spent = time.monotonic() - started
+                    ms = 1000.0 * max(0.0, spent - self._move_s)
+                    self.cycle_ms.append(ms)
+                    self.cycle_max_ms = max(self.cycle_max_ms, ms)
+                    self.cycles += 1
+                finally:
+                    app.device_lock.release()
+                self.stop_event.wait(max(0.0, self.period - (time.monotonic() - started)))
+        except Stopped:
+            pass
+        except DeviceError as exc:
+            if not self.stop_event.is_set():
+                self._fail(exc, device=exc.device)
+        except Exception as exc:  # noqa: BLE001 - a monitor bug must end the monitor, not the server
+            if not self.stop_event.is_set():
+                log.exception("monitor_failed", monitor=self.name)
+                self._fail(exc)
+        log.info("monitor_end", monitor=self.name, cycles=self.cycles, state=self.state)
+
+    def _fail(self, exc: Exception, device: str | None = None) -> None:
+        self.state = "failed"
+        self.error = str(exc)
+        app = self.app
+
+        def on_loop() -> None:
+            if app.monitors.get(self.name) is self:
+                del app.monitors[self.name]
+            fields: dict[str, Any]
+            if device is not None:
+                app.base_mode = "fault"
+                app.devices.errors[device] = exc.message  # type: ignore[attr-defined]
+                fields = {"code": "E_DEVICE", "device": device,
+                          "message": f"{exc}; the {self.name} monitor stopped, send reset to recover"}
+            else:
+                fields = {"code": "E_INTERNAL", "message": f"{type(exc).__name__}: {exc}; the {self.name} "
+                                                          "monitor stopped (logged)"}
+            app.broadcast(Reply("RVS", "EVENT", {**self.failure_fields(), **fields}))
+            app.announce_mode()
+
+        app.loop.call_soon_threadsafe(on_loop)
+
+    # -- device helpers -----------------------------------------------------------------------
+    def call(self, fn: Any, *args: Any, **kwargs: Any) -> Any:
+        """A driver call that a stop interrupts (the cancel event of a job, for a monitor)."""
+        try:
+            return fn(*args, cancel=self.stop_event, **kwargs)
+        except Exception:
+            if self.stop_event.is_set():
+                raise Stopped() from None
+            raise
+
+    def point(self, pan: float, tilt: float, tolerance: float = 0.05) -> tuple[float, float]:
+        """Move the PTU unless it is there already; the motion's time is not cycle time."""
+        self.pointing = (pan, tilt)
+        here = self.app.ptu_position()
+        if here is not None and abs(here[0] - pan) <= tolerance and abs(here[1] - tilt) <= tolerance:
+            return here
+        t0 = time.monotonic()
+        reached = self.call(self.app.devices.get("ptu").move, pan, tilt, True)
+        self._move_s += time.monotonic() - t0
+        return float(reached[0]), float(reached[1])
+
+    def rate(self) -> float:
+        """Cycles per second over the last few cycles."""
+        if len(self.starts) < 2:
+            return 0.0
+        span = self.starts[-1] - self.starts[0]
+        return (len(self.starts) - 1) / span if span > 0 else 0.0
+
+    def head(self) -> HeadCalibration:
+        return HeadCalibration.from_dict(self.app.config.get("head").as_dict())
+
+    def emit(self, fields: dict[str, Any]) -> None:
+        self.app.broadcast_threadsafe(Reply("RVS", "EVENT", fields))
+
+    def timing_fields(self) -> dict[str, Any]:
+        ms = list(self.cycle_ms)
+        return {"cycle_ms": Fixed(float(np.mean(ms)) if ms else 0.0, 1), "cycle_ms_max": Fixed(self.cycle_max_ms, 1)}
+
+    # -- what a concrete monitor fills in -----------------------------------------------------
+    def cycle(self) -> None:
+        raise NotImplementedError
+
+    def on_pause(self, reason: dict[str, Any]) -> None:
+        pass
+
+    def on_resume(self) -> None:
+        """After a pause the PTU is wherever the job left it: point it back."""
+        if self.pointing is not None:
+            self.point(*self.pointing)
+
+    def status_fields(self) -> dict[str, Any]:
+        raise NotImplementedError
+
+    def failure_fields(self) -> dict[str, Any]:
+        raise NotImplementedError
+
+
+def _holder(app: Any, wanted: str) -> None:
+    """E_BUSY if the other PTU-steering monitor runs."""
+    for name, monitor in app.monitors.items():
+        if name != wanted:
+            what = {"hazard": "the hazard monitor", "track": "the target tracker"}.get(name, name)
+            stop = {"hazard": "hazard-stop", "track": "track3d-stop"}.get(name, "stop it")
+            raise ProtocolError("E_BUSY", f"{what} is running and holds the PTU; send {stop} first "
+                                          f"({monitor.state}, {monitor.cycles} cycles)")
+
+
+async def _stop_monitor(app: Any, name: str) -> Any:
+    monitor = app.monitors.pop(name, None)
+    if monitor is not None:
+        await app.loop.run_in_executor(None, monitor.stop)
+    return monitor
+
+
+# ------------------------------------------------------------------ hazard-start / hazard-stop
+
+
+@dataclass
+class HazardStartConfig(ModuleConfig):
+    module: ClassVar[str] = "hazard_start"
+    period: float = param(0.3, "time from one cycle's start to the next (shorter cycles wait)", unit="s",
+                          min=0.0, max=60.0)
+    tilt: float = param(-45.0, "PTU tilt while monitoring (down is negative)", unit="deg", min=-90.0, max=30.0)
+    heading: float = param(0.0, "direction of motion in the rover frame (CCW from forward); the PTU pans to it",
+                           unit="deg", min=-180.0, max=180.0)
+    width: float = param(0.0, "corridor width (0: the rover's width plus both margins, config head)",
+                         unit="m", min=0.0, max=10.0)
+    lookahead: float = param(2.0, "corridor length past the rover's front", unit="m", min=0.2, max=10.0)
+    stop_distance: float = param(0.5, "level stop when a hazard is this close to the rover's front", unit="m",
+                                 min=0.0, max=10.0)
+    warn_distance: float = param(1.0, "level warning when a hazard is this close", unit="m", min=0.0, max=10.0)
+    cell: float = param(0.05, "coarse DEM cell", unit="m", min=0.01, max=0.5, option=False)
+    subsample: int = param(2, "use every n-th ToF pixel in both directions", min=1, max=8, option=False)
+    integrate: int = param(1, "ToF frames per cycle", min=1, max=20, option=False)
+    max_range: float = param(4.5, "ignore ToF points farther than this", unit="m", min=0.5, max=30.0, option=False)
+    min_reflectivity: float = param(0.1, "drop ToF returns weaker than this share of the frame's median "
+                                    "amplitude x range^2 (phase-wrapped far surfaces)", min=0.0, max=1.0,
+                                    option=False)
+    hysteresis: float = param(0.1, "a level is left only this far past its threshold", unit="m", min=0.0,
+                              max=2.0, option=False)
+
+
+class HazardMonitor(Monitor):
+    """The per-cycle loop of sect. 6.2: ToF forward, coarse DEM, corridor, level events."""
+
+    name = "hazard"
+
+    def __init__(self, app: Any, cfg: HazardStartConfig) -> None:
+        super().__init__(app, cfg.period)
+        self.cfg = cfg
+        head = app.config.get("head")
+        width = cfg.width or head.rover_width + 2 * head.rover_margin
+        self.params = hm.MonitorParams(
+            width=width, lookahead=cfg.lookahead, heading=cfg.heading, stop_distance=cfg.stop_distance,
+            warn_distance=cfg.warn_distance, cell=cfg.cell, rover_length=head.rover_length,
+            rover_width=head.rover_width, hysteresis=cfg.hysteresis,
+            hazard=app.config.get("dem2hazard").as_dict())
+        self.memory = hm.HazardMemory(cfg.cell)
+        self.levels = hm.LevelTracker(self.params)
+        self.level = "none"  # last level sent
+        self.last: dict[str, Any] = {}
+        self.pointing = (cfg.heading, cfg.tilt)
+
+    def cycle(self) -> None:
+        cfg, app = self.cfg, self.app
+        pan, tilt = self.point(cfg.heading, cfg.tilt)
+        tof = app.devices.get("tof")
+        t0 = time.monotonic()
+        xyz, amplitude = self.call(tof.grab_xyz, cfg.integrate, 0.0)
+        t_grab = (t0 + time.monotonic()) / 2
+        T = self.head().T_rover_from_sensor("tof", pan, tilt)
+        points = hm.rover_points(xyz, T, cfg.subsample, cfg.max_range, amplitude, cfg.min_reflectivity)
+        check = hm.check_corridor(points, self.params)
+        pose = app.pose
+        planar = (pose.x, pose.y, pose.heading)
+        self.memory.update(check, planar)
+        nearest = self.memory.nearest(planar, self.params)
+        spent = time.monotonic() - t0
+        lead = max(self.period, spent) + (time.monotonic() - t_grab)
+        level, expected = self.levels.update(None if nearest is None else nearest[0], t_grab, lead)
+        self.last = {"distance": None if nearest is None else nearest[0],
+                     "bearing": None if nearest is None else nearest[1], "observed": check.observed,
+                     "blind": check.blind, "seen": check.distance is not None}
+        if level != self.level:
+            self.level = level
+            fields: dict[str, Any] = {"kind": "hazard", "level": level}
+            if nearest is not None and level != "clear":
+                fields.update(distance=Fixed(nearest[0], 2), bearing=Fixed(nearest[1], 1),
+                              x=Fixed(nearest[2], 2), y=Fixed(nearest[3], 2),
+                              seen="true" if check.distance is not None else "remembered")
+            fields["cycle"] = self.cycles + 1
+            self.emit(fields)
+            log.info("hazard_level", level=level, distance=self.last["distance"], expected=expected,
+                     speed=round(self.levels.speed, 3))
+
+    def on_pause(self, reason: dict[str, Any]) -> None:
+        self.level = "paused"
+        self.levels.speed = 0.0
+        self.emit({"kind": "hazard", "level": "paused", **reason})
+
+    def status_fields(self) -> dict[str, Any]:
+        out: dict[str, Any] = {"hazard_monitor": self.state, "hazard_level": self.level,
+                               "hazard_cycles": self.cycles}
+        out.update(self.timing_fields())
+        d = self.last.get("distance")
+        if d is not None:
+            out["hazard_distance"] = Fixed(d, 2)
+        return out
+
+    def failure_fields(self) -> dict[str, Any]:
+        return {"kind": "hazard", "level": "error"}
+
+
+@command("hazard-start", klass=HARDWARE, config=HazardStartConfig,
+         help="start dynamic hazard detection: ToF forward at -tilt, coarse DEM of the corridor (-width, "
+              "-heading, -lookahead) every -period; EVENT kind=hazard level=warning|stop|clear on changes")
+async def hazard_start(ctx: Context, cfg: HazardStartConfig) -> dict[str, Any]:
+    app = ctx.app
+    if cfg.stop_distance > cfg.warn_distance:
+        raise ProtocolError("E_ARG", f"-stop-distance {cfg.stop_distance:g} must not exceed -warn-distance "
+                                     f"{cfg.warn_distance:g}")
+    _holder(app, "hazard")
+    for dev in ("ptu", "tof"):
+        app.devices.get(dev)  # E_DEVICE now rather than a failing thread
+    lim = _limits(app.devices.get("ptu"))
+    if not (lim[0] <= cfg.heading <= lim[1] and lim[2] <= cfg.tilt <= lim[3]):
+        raise ProtocolError("E_ARG", f"-heading {cfg.heading:g} / -tilt {cfg.tilt:g} is outside the PTU's limits "
+                                     f"pan [{lim[0]:.1f}, {lim[1]:.1f}], tilt [{lim[2]:.1f}, {lim[3]:.1f}] deg")
+    restarted = await _stop_monitor(app, "hazard") is not None
+    monitor = HazardMonitor(app, cfg)
+    app.monitors["hazard"] = monitor
+    monitor.start()
+    p = monitor.params
+    return {"period": Fixed(cfg.period, 3), "tilt": Fixed(cfg.tilt, 2), "heading": Fixed(cfg.heading, 2),
+            "width": Fixed(p.width, 3), "lookahead": Fixed(p.lookahead, 3),
+            "stop_distance": Fixed(p.stop_distance, 3), "warn_distance": Fixed(p.warn_distance, 3),
+            "state": "paused" if monitor._pause_reason() else "running", "restarted": restarted}
+
+
+@command("hazard-stop", help="stop dynamic hazard detection")
+async def hazard_stop(ctx: Context, cfg: None) -> dict[str, Any]:
+    monitor = await _stop_monitor(ctx.app, "hazard")
+    if monitor is None:
+        return {"stopped": False, "cycles": 0}
+    return {"stopped": True, "cycles": monitor.cycles, "level": monitor.level, **monitor.timing_fields()}
+
+
+# ------------------------------------------------------------------ track3d
+
+
+@dataclass
+class TrackDetectConfig(ModuleConfig):
+    module: ClassVar[str] = "track3d_detect"
+    range: list[float] = param([-90.0, 90.0, -20.0, 0.0], "view range pan_min,pan_max,tilt_min,tilt_max",
+                               unit="deg", length=4, min=-360.0, max=360.0)
+    sensor: str = param("tof", "tof: astronaut-sized objects in ToF points; stereo: ArUco markers",
+                        choices=("tof", "stereo"))
+    overlap: float = param(0.2, "share of the field of view that neighbouring views overlap", min=0.0, max=0.9)
+    height: float = param(1.8, "size prior: the target's height", unit="m", min=0.3, max=5.0, option=False)
+    width: float = param(0.5, "size prior: the target's width", unit="m", min=0.1, max=3.0, option=False)
+    marker_id: int = param(-1, "ArUco 6x6 marker id of the target (-1: any)", min=-1, max=249, option=False)
+    marker_box: float = param(0.4, "side of the cube carrying the marker (the position is its foot point)",
+                              unit="m", min=0.0, max=5.0, option=False)
+    max_range: float = param(4.8, "ignore ToF points farther than this", unit="m", min=0.5, max=30.0, option=False)
+    resolution: str = param("high", "stereo resolution", choices=("low", "medium", "high", "highest"),
+                            option=False)
+
+
+@dataclass
+class TrackStartConfig(TrackDetectConfig):
+    module: ClassVar[str] = "track3d_start"
+    period: float = param(0.0, "time from one cycle's start to the next (0: as fast as it goes)", unit="s",
+                          min=0.0, max=60.0)
+    aim: float = param(0.9, "the PTU aims this high above the target's foot point", unit="m", min=0.0, max=5.0,
+                       option=False)
+    lost_after: int = param(2, "missed cycles before the target counts as lost", min=1, max=100, option=False)
+
+
+def _prior(cfg: TrackDetectConfig) -> tr.SizePrior:
+    return tr.SizePrior(height=cfg.height, width=cfg.width, height_tolerance=0.25 * cfg.height,
+                        width_range=(0.4 * cfg.width, 1.8 * cfg.width))
+
+
+def _frame(app: Any) -> np.ndarray:
+    """T_global_from_rover from the server's pose (the ground under the rover from the DEM)."""
+    x, y, heading, z = current_pose(app)
+    return T_global_from_rover(x, y, heading, z)
+
+
+def look_at(head: HeadCalibration, target_rover: np.ndarray) -> tuple[float, float]:
+    """Pan and tilt that put a rover-frame point on the PTU's axis of view (sensor offsets are
+    a few centimetres against metres of range, so the PTU's own axes stand in for the sensor)."""
+    base = np.array(head.ptu_base, dtype=float) + np.array([0.0, 0.0, head.tilt_offset])
+    d = np.asarray(target_rover, float) - base
+    pan = math.degrees(math.atan2(d[1], d[0]))
+    tilt = math.degrees(math.atan2(d[2], math.hypot(d[0], d[1])))
+    return pan, tilt
+
+
+def _sense(app: Any, cfg: TrackDetectConfig, pan: float, tilt: float, call: Any
+           ) -> tuple[list[tr.Detection], float, float]:
+    """One view's detections in the global frame; returns them with the acquisition's monotonic
+    and wall-clock time (mid-exposure)."""
+    head = HeadCalibration.from_dict(app.config.get("head").as_dict())
+    T_gr = _frame(app)
+    t0, w0 = time.monotonic(), time.time()
+    if cfg.sensor == "tof":
+        xyz, amplitude = call(app.devices.get("tof").grab_xyz, 1, 0.0)
+        t1, w1 = time.monotonic(), time.time()
+        T = T_gr @ head.T_rover_from_sensor("tof", pan, tilt)
+        img = tr.point_image(xyz, T, cfg.max_range)
+        dets = tr.detect_standing(img, T[:3, 3], _prior(cfg), amplitude=amplitude)
+    else:
+        cams = app.devices.get("stereo")
+        left, right = call(cams.grab_stereo, cfg.resolution, "mono8")
+        t1, w1 = time.monotonic(), time.time()
+        cal = cams.calibration(cfg.resolution)
+        sightings = tr.detect_markers(left, right, np.asarray(cal["K1"]), np.asarray(cal["D1"]),
+                                      np.asarray(cal["K2"]), np.asarray(cal["D2"]), np.asarray(cal["R"]),
+                                      np.asarray(cal["T"]), None if cfg.marker_id < 0 else cfg.marker_id)
+        T = T_gr @ head.T_rover_from_sensor("left", pan, tilt)
+        dets = []
+        for s in sightings:
+            centre = T[:3, :3] @ s.centre + T[:3, 3]
+            normal = T[:3, :3] @ s.normal
+            foot = tr.marker_box_foot(centre, normal, cfg.marker_box)
+            side = float(np.mean(np.linalg.norm(np.diff(np.vstack([s.corners, s.corners[:1]]), axis=0), axis=1)))
+            dets.append(tr.Detection(float(foot[0]), float(foot[1]), float(foot[2]), cfg.marker_box, side, 0.0,
+                                     4, 0.0, marker_id=s.marker_id))
+    return dets, (t0 + t1) / 2, (w0 + w1) / 2
+
+
+def _target_fields(d: tr.Detection) -> dict[str, Any]:
+    out: dict[str, Any] = {"x": Fixed(d.x, 3), "y": Fixed(d.y, 3), "z": Fixed(d.z, 3)}
+    if d.marker_id is not None:
+        out["marker"] = d.marker_id
+    else:
+        out.update(height=Fixed(d.height, 2), width=Fixed(d.width, 2))
+    return out
+
+
+@command("track3d-detect", job=True, klass=HARDWARE, config=TrackDetectConfig,
+         help="search -range for the target (an astronaut in ToF points, or an ArUco marker with -sensor stereo); "
+              "OK found=true x y z (global) or found=false")
+def track3d_detect(job: Job, cfg: TrackDetectConfig) -> dict[str, Any]:
+    app = job.app  # type: ignore[attr-defined]
+    ptu = app.devices.get("ptu")
+    if cfg.sensor == "tof":
+        K, _ = app.devices.get("tof").intrinsics()
+        fov = _fov(K, TOF_SHAPE)
+    else:
+        cal = app.devices.get("stereo").calibration(cfg.resolution)
+        w, h = cal["image_size"]
+        fov = _fov(np.asarray(cal["K1"]), (int(h), int(w)))
+    positions = get_ptu_positions(cfg.range, fov, cfg.overlap, _limits(ptu))
+    found: list[tr.Detection] = []
+    for i, (pan, tilt) in enumerate(positions):
+        job.check()
+        job.progress(i, len(positions), f"pan={pan:.1f} tilt={tilt:.1f}")
+        reached = device_call(job, ptu.move, pan, tilt, True)
+        dets, _, _ = _sense(app, cfg, float(reached[0]), float(reached[1]), lambda fn, *a: device_call(job, fn, *a))
+        found += dets
+    job.progress(len(positions), len(positions), f"{len(found)} sighting(s)")
+    merged = tr.merge_detections(found)
+    if not merged:
+        app.track_target = None
+        return {"found": False, "views": len(positions)}
+    best = merged[0]
+    app.track_target = best
+    return {"found": True, **_target_fields(best), "views": len(positions), "candidates": len(merged)}
+
+
+class TargetTracker(Monitor):
+    """Keeps the PTU on the target and reports its position every cycle."""
+
+    name = "track"
+
+    def __init__(self, app: Any, cfg: TrackStartConfig, start: tr.Detection | None) -> None:
+        super().__init__(app, cfg.period)
+        self.cfg = cfg
+        self.filter = tr.Tracker(lost_after=cfg.lost_after)
+        if start is not None:
+            self.filter.reset(np.array([start.x, start.y, start.z]), time.monotonic())
+            self.filter.lost = False
+        self.fixes = 0
+        self.losses = 0
+        self.lost_sent = start is None
+        self.last: tr.Detection | None = start
+
+    def cycle(self) -> None:
+        cfg, app = self.cfg, self.app
+        now = time.monotonic()
+        pred = self.filter.predict(now)
+        pan_tilt = self.pointing
+        if pred is not None:
+            T_rg = invert(_frame(app))
+            aim = T_rg[:3, :3] @ (pred + np.array([0.0, 0.0, cfg.aim])) + T_rg[:3, 3]
+            pan, tilt = look_at(self.head(), aim)
+            lim = _limits(app.devices.get("ptu"))
+            pan_tilt = (float(np.clip(pan, lim[0], lim[1])), float(np.clip(tilt, lim[2], lim[3])))
+        if pan_tilt is None:
+            here = app.ptu_position()
+            pan_tilt = here if here is not None else (0.0, 0.0)
+        pan, tilt = self.point(*pan_tilt)
+        dets, t, wall = _sense(app, cfg, pan, tilt, self.call)
+        det = self.filter.choose(dets, t)
+        reacquired = self.filter.update(det, t)
+        if det is not None:
+            self.fixes += 1
+            self.last = det
+            self.lost_sent = False
+            v = self.filter.velocity
+            fields: dict[str, Any] = {"kind": "track", **_target_fields(det), "vx": Fixed(float(v[0]), 2),
+                                      "vy": Fixed(float(v[1]), 2), "rate": Fixed(self.rate(), 2),
+                                      "time": Fixed(wall, 3)}
+            if reacquired:
+                fields["reacquired"] = True
+            self.emit(fields)
+        elif self.filter.lost and not self.lost_sent:
+            self.lost_sent = True
+            self.losses += 1
+            fields = {"kind": "track", "lost": True, "time": Fixed(wall, 3)}
+            if self.last is not None:
+                fields.update(last_x=Fixed(self.last.x, 3), last_y=Fixed(self.last.y, 3))
+            self.emit(fields)
+
+    def status_fields(self) -> dict[str, Any]:
+        out: dict[str, Any] = {"track": self.state, "track_lost": self.filter.lost, "track_cycles": self.cycles,
+                               "track_rate": Fixed(self.rate(), 2)}
+        out.update(self.timing_fields())
+        return out
+
+    def failure_fields(self) -> dict[str, Any]:
+        return {"kind": "track", "lost": True, "stopped": True}
+
+
+@command("track3d-start", klass=HARDWARE, config=TrackStartConfig,
+         help="start tracking the target found by track3d-detect (or the first one that comes into view): the PTU "
+              "follows it, EVENT kind=track x y z rate each cycle, lost=true when it is gone")
+async def track3d_start(ctx: Context, cfg: TrackStartConfig) -> dict[str, Any]:
+    app = ctx.app
+    _holder(app, "track")
+    for dev in ("ptu", cfg.sensor):
+        app.devices.get(dev)
+    await _stop_monitor(app, "track")
+    start = getattr(app, "track_target", None)
+    tracker = TargetTracker(app, cfg, start)
+    app.monitors["track"] = tracker
+    tracker.start()
+    out: dict[str, Any] = {"sensor": cfg.sensor, "period": Fixed(cfg.period, 3)}
+    if start is None:
+        out["target"] = "none"
+    else:
+        out["target"] = [Fixed(start.x, 3), Fixed(start.y, 3), Fixed(start.z, 3)]
+    return out
+
+
+@command("track3d-stop", help="stop tracking the target")
+async def track3d_stop(ctx: Context, cfg: None) -> dict[str, Any]:
+    tracker = await _stop_monitor(ctx.app, "track")
+    if tracker is None:
+        return {"stopped": False, "cycles": 0}
+    out: dict[str, Any] = {"stopped": True, "cycles": tracker.cycles, "fixes": tracker.fixes,
+                           "losses": tracker.losses, **tracker.timing_fields()}
+    if tracker.last is not None:
+        out.update(_target_fields(tracker.last))
+    return out
