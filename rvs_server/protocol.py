@@ -83,14 +83,14 @@ def _tokenize(line: str) -> list[tuple[str, bool, int | None]]:
     tokens: list[tuple[str, bool, int | None]] = []
     i, n = 0, len(line)
     while i < n:
-        while i < n and line[i] in " \t":
+        while i < n and line[i] in " \t\r":
             i += 1
         if i >= n:
             break
         buf: list[str] = []
         started_quoted = line[i] == '"'
         eq: int | None = None
-        while i < n and line[i] not in " \t":
+        while i < n and line[i] not in " \t\r":
             c = line[i]
             if c == '"':
                 i += 1
@@ -144,7 +144,7 @@ def parse_request(line: str) -> Request | None:
 
     Returns None for blank and comment lines, which get no reply.
     """
-    stripped = line.strip(" \t")
+    stripped = line.strip(" \t\r")  # telnet clients may send CR CR LF
     if not stripped or stripped.startswith("#"):
         return None
     tokens = _tokenize(stripped)

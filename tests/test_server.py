@@ -353,3 +353,8 @@ def test_startup_errors_are_reported_once(tmp_path: Path) -> None:
     proc = subprocess.run([sys.executable, "-m", "rvs_server", "--set", "sleep.seconds=-1"],
                           capture_output=True, text=True, timeout=60, cwd=Path(__file__).parent.parent)
     assert proc.returncode == 2 and "-seconds" in proc.stderr
+
+
+def test_telnet_cr_cr_lf_line_ends(client: LineClient) -> None:
+    client.send(b"version\r\r\n")  # what `telnet` sends for a piped CR LF
+    assert client.reply().module == "EGP-RVS-VERSION"

@@ -207,13 +207,8 @@ def run_dem(job: Job, cfg: Any, *, update: bool, sensor: str = "tof",
     acquired: list[Any] = []
 
     def acquire(positions: list[tuple[float, float]], progress: Any = None, cancelled: Any = None) -> list[Any]:
-        try:
-            return acquire_coord_images(positions, grab, head, pose, views_dir, name, progress, cancelled,
-                                        on_view=acquired.append)
-        except BaseException:
-            with state.lock:  # the views acquired before a fault or a break are kept for the next update
-                state.pending_views = pending + acquired
-            raise
+        return acquire_coord_images(positions, grab, head, pose, views_dir, name, progress, cancelled,
+                                    on_view=acquired.append)
 
     params = {
         "range": cfg.range, "fov": fov, "overlap": cfg.overlap, "ptu_limits": limits, "cell": cfg.cell,
@@ -227,10 +222,14 @@ def run_dem(job: Job, cfg: Any, *, update: bool, sensor: str = "tof",
         ws, log = run_workflow("dem", params, {"base": base, "pending_views": pending},
                                steps={"acquire": acquire}, progress=progress or job.progress,
                                cancelled=lambda: job.cancelled)
-    except (Cancelled, Interrupted):
-        raise Interrupted(f"{job.command} job {job.id} was interrupted; {len(acquired)} views kept for dem-update") \
-            from None
-    job.check()
+        job.check()
+    except BaseException as exc:
+        with state.lock:  # the views acquired before a fault or a break are kept for the next update
+            state.pending_views = pending + acquired
+        if isinstance(exc, Cancelled | Interrupted):
+            raise Interrupted(f"{job.command} job {job.id} was interrupted; {len(acquired)} views kept "
+                              "for dem-update") from None
+        raise
     dem: Layers = ws["dem"]
     inputs = [f"{name}_views/{v.files['image']}" for v in ws["views"] if v.files]
     files = write_dem_products(dem, app.data_dir / out_dir, name, made_by=job.command, parameters=job.params,
