@@ -366,7 +366,7 @@ class LineSplitter:
 
     def feed(self, data: bytes) -> list[bytes | None]:
         """Feed received bytes; returns complete lines (bytes) and ``None`` for each too-long line."""
-        data = self._strip_iac(data)
+        data = self._strip_iac(data).replace(b"\r\x00", b"\r")  # telnet's CR NUL is a bare CR
         out: list[bytes | None] = []
         start = 0
         while True:

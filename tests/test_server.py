@@ -358,3 +358,5 @@ def test_startup_errors_are_reported_once(tmp_path: Path) -> None:
 def test_telnet_cr_cr_lf_line_ends(client: LineClient) -> None:
     client.send(b"version\r\r\n")  # what `telnet` sends for a piped CR LF
     assert client.reply().module == "EGP-RVS-VERSION"
+    client.send(b"help\r\x00\r\n")  # and telnet's CR NUL
+    assert client.reply().fields["commands"]
