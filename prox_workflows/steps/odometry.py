@@ -32,6 +32,7 @@ from scipy.optimize import least_squares
 from .transforms import invert
 
 DETECTORS = ("shi-tomasi", "harris")
+TOF_GREY_PER_LOG = 200.0  # grey levels per unit of log amplitude: +-0.64 (a factor 1.9) spans 0..255
 
 
 class OdometryError(ValueError):
@@ -87,6 +88,7 @@ class OdometryParams:
     depth_sigma: float = 0.01  # relative depth noise at 1 m ...
     depth_sigma_growth: float = 1.0  # ... growing as range^growth (stereo: 1 -> sigma_z ~ z^2)
     guided: bool = True  # second tracking pass started from the first pass's motion
+    warp: bool = True  # guided pass tracks against the new image warped into the old view
     orb_features: int = 1500  # descriptor matching when blind tracking finds too little
     orb_ratio: float = 0.8
     min_matches: int = 20
@@ -154,17 +156,28 @@ class Motion:
 
 
 def to_gray(image: np.ndarray) -> np.ndarray:
-    """8-bit grey for the detector and the tracker; ToF amplitudes (float, wide range) are
-    compressed with a square root and stretched to their 1-99.5 % range, so that the bright
-    near field does not leave the far field black."""
+    """8-bit grey for the detector and the tracker. Camera images (8-bit) are used as they are.
+    ToF amplitudes (float) fall with the square of the range and the incidence angle, so the
+    same ground gets brighter as the rover approaches it: their logarithm minus its local mean
+    (a high-pass over ~1/10 of the image) keeps the albedo texture and drops the falloff."""
     img = np.asarray(image)
     if img.ndim == 3:
         img = cv2.cvtColor(img, cv2.COLOR_RGB2GRAY if img.shape[2] == 3 else cv2.COLOR_RGBA2GRAY)
     if img.dtype == np.uint8:
         return img
-    data = np.sqrt(np.clip(np.nan_to_num(img.astype(np.float32), nan=0.0), 0.0, None))
-    lo, hi = np.percentile(data, [1.0, 99.5])
-    return np.clip((data - lo) * (255.0 / max(hi - lo, 1e-6)), 0, 255).astype(np.uint8)
+    data = img.astype(np.float32)
+    ok = np.isfinite(data) & (data > 0)
+    if not ok.any():
+        return np.zeros(data.shape, np.uint8)
+    log = np.log(np.where(ok, data, np.median(data[ok])))
+    sigma = max(data.shape) / 10.0
+    weight = cv2.GaussianBlur(ok.astype(np.float32), (0, 0), sigma)
+    mean = cv2.GaussianBlur(np.where(ok, log, 0.0).astype(np.float32), (0, 0), sigma) / np.maximum(weight, 1e-3)
+    high = np.where(ok, log - mean, 0.0)
+    # a fixed scale (log units are relative contrast already): two frames must map the same
+    # surface to the same grey, or the tracker sees a change of gain a percentile stretch
+    # would make whenever a few dark far pixels come or go
+    return np.clip(128.0 + high * TOF_GREY_PER_LOG, 0, 255).astype(np.uint8)
 
 
 def usable(frame: DepthFrame, params: OdometryParams) -> np.ndarray:
@@ -384,6 +397,60 @@ def _solve(a: DepthFrame, b: DepthFrame, pa: np.ndarray, pb: np.ndarray, Xa: np.
     return T, inliers, Xb
 
 
+def warp_into(a: DepthFrame, b: DepthFrame, T: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """B's image as A would see it if the motion were ``T`` (X_B = T X_A), and for each A pixel
+    the B pixel it was taken from (H x W x 2, NaN where A has no depth or B does not see it).
+
+    Each A pixel's 3D point is moved into B and projected there; sampling B at that spot undoes
+    the change of scale and perspective between the views, so the tracker only has to correct
+    what the coarse motion got wrong, with patches that look alike."""
+    pts = np.asarray(a.points, dtype=np.float64)
+    h, w = pts.shape[:2]
+    ok = np.isfinite(pts).all(axis=2) & (pts[..., 2] > 0)
+    X = pts[ok] @ T[:3, :3].T + T[:3, 3]
+    front = X[:, 2] > 1e-3
+    uv = np.full((len(X), 2), np.nan, np.float32)
+    if front.any():
+        uv[front] = project_points(b, X[front])
+    src = np.full((h, w, 2), np.nan, np.float32)
+    src[ok] = uv
+    gb = _gray(b)
+    hb, wb = gb.shape[:2]
+    inside = np.isfinite(src).all(axis=2) & (src[..., 0] >= 0) & (src[..., 1] >= 0) & \
+        (src[..., 0] <= wb - 1) & (src[..., 1] <= hb - 1)
+    src[~inside] = np.nan
+    mx = np.where(inside, src[..., 0], -1.0).astype(np.float32)
+    my = np.where(inside, src[..., 1], -1.0).astype(np.float32)
+    warped = cv2.remap(gb, mx, my, cv2.INTER_LINEAR,
+                       borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+    return warped, src
+
+
+def track_warped(a: DepthFrame, b: DepthFrame, pts: np.ndarray, T: np.ndarray,
+                 p: OdometryParams) -> tuple[np.ndarray, np.ndarray]:
+    """Where A's points ``pts`` are in B (N x 2) and which were found, by tracking them from A
+    into B's image warped into A's view with the coarse motion ``T`` (forward-backward
+    checked), then carrying each tracked position through the warp into B."""
+    warped, src = warp_into(a, b, T)
+    valid = np.isfinite(src).all(axis=2)
+    wf = DepthFrame(warped, a.points, a.K, a.dist, a.T_rover_sensor)
+    wf.gray = warped
+    q, ok = track(a, wf, pts, p, guess=pts, levels=1)
+    # a window that straddles the warp's holes or borders compares against black
+    k = max(1, p.window // 2)
+    core = cv2.erode(valid.astype(np.uint8), np.ones((2 * k + 1, 2 * k + 1), np.uint8)).astype(bool)
+    qi = np.clip(np.rint(q).astype(int), 0, [valid.shape[1] - 1, valid.shape[0] - 1])
+    ok &= core[qi[:, 1], qi[:, 0]]
+    mx = np.nan_to_num(src[..., 0], nan=-1e6).astype(np.float32)
+    my = np.nan_to_num(src[..., 1], nan=-1e6).astype(np.float32)
+    qx = q[:, 0].reshape(-1, 1).astype(np.float32)
+    qy = q[:, 1].reshape(-1, 1).astype(np.float32)
+    ub = cv2.remap(mx, qx, qy, cv2.INTER_LINEAR).ravel()
+    vb = cv2.remap(my, qx, qy, cv2.INTER_LINEAR).ravel()
+    ok &= (ub >= 0) & (vb >= 0)
+    return np.stack([ub, vb], axis=1).astype(np.float32), ok
+
+
 def match_descriptors(a: DepthFrame, b: DepthFrame, p: OdometryParams) -> tuple[np.ndarray, np.ndarray]:
     """Coarse correspondences (A pixels, B pixels) from ORB descriptors with the ratio test:
     found at any scale and any image distance, so they bridge motions too large for the
@@ -406,84 +473,87 @@ def match_descriptors(a: DepthFrame, b: DepthFrame, p: OdometryParams) -> tuple[
 
 
 def estimate_motion(a: DepthFrame, b: DepthFrame, params: OdometryParams | None = None,
-                    pts_a: np.ndarray | None = None) -> Motion:
-    """The rover's motion from A to B; :class:`OdometryError` (with the counts) when too few
-    points are tracked or agree on one motion.
+                    prior: np.ndarray | None = None) -> Motion:
+    """The rover's motion from A to B; :class:`OdometryError` (with the best counts reached)
+    when too few points are tracked or agree on one motion.
 
-    Two passes: the first tracks from scratch (pyramids absorb the large image motion near
-    the rover) and gives a motion; the second starts each track where that motion puts the
-    point, so points whose patch changed too much for a blind search are found too, and the
-    final motion rests on many more of them.
+    A coarse motion first: blind pyramidal tracking, or ORB descriptor matching when that
+    finds too little (or ``prior``, rover B in rover A, when the caller knows roughly how the
+    rover moved). Then, twice, B's image is warped into A's view with the current motion and
+    A's points are tracked into it: the patches then differ only by what the motion got wrong,
+    not by the change of scale and perspective a metre of driving makes near the rover, so
+    far more points are found and each to a fraction of a pixel.
     """
     p = params or OdometryParams()
     p.check()
-    if pts_a is None:
-        pts_a = detect(a, p)
-    X_a_all = lift(a, pts_a, p)
-    has_a = np.isfinite(X_a_all).all(axis=1)
-    pts_a = pts_a[has_a]
-    X_a_all = X_a_all[has_a]
+    pts_a = detect(a, p)
+    X_a = lift(a, pts_a, p)
+    has = np.isfinite(X_a).all(axis=1)
+    pts_a, X_a = pts_a[has], X_a[has]
     n_points = int(len(pts_a))
-    pts_b, ok = track(a, b, pts_a, p)
-    matches = int(ok.sum())
-    T: np.ndarray | None = None
-    inliers = np.zeros(0, bool)
-    Xb = np.zeros((0, 3))
-    first_error: OdometryError | None = None
-    if matches >= p.min_matches:
+    best: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None = None
+    most = [0, 0]  # matches, inliers: the best counts seen, for the error
+
+    def attempt(pts_b: np.ndarray, ok: np.ndarray) -> np.ndarray | None:
+        nonlocal best
+        n = int(ok.sum())
+        most[0] = max(most[0], n)
+        if n < p.min_matches:
+            return None
         try:
-            T, inliers, Xb = _solve(a, b, pts_a[ok], pts_b[ok], X_a_all[ok], p, (n_points, matches))
+            T, inl, Xb = _solve(a, b, pts_a[ok], pts_b[ok], X_a[ok], p, (n_points, n))
         except OdometryError as exc:
-            first_error = exc
+            most[1] = max(most[1], exc.inliers)
+            return None
+        most[1] = max(most[1], int(inl.sum()))
+        if best is None or inl.sum() >= best[3].sum():
+            best = (pts_b, ok, T, inl, Xb)
+        return T
+
+    coarse: np.ndarray | None = None
+    if prior is not None:
+        # X_B = T X_A with T = T_sB_rB T_rB_rA T_rA_sA
+        coarse = invert(b.T_rover_sensor) @ invert(np.asarray(prior, np.float64)) @ a.T_rover_sensor
     else:
-        first_error = OdometryError(
-            f"only {matches} of {n_points} interest points were tracked into the new image "
-            f"(need {p.min_matches})", n_points, matches, 0)
-    coarse: np.ndarray | None = T
-    if T is None or int(inliers.sum()) < 2 * p.min_inliers:
-        # blind tracking found too little: a coarse motion from descriptors seeds the tracker
-        da, db = match_descriptors(a, b, p)
-        Xd = lift(a, da, p)
-        keep = np.isfinite(Xd).all(axis=1)
-        if keep.sum() >= p.min_matches:
-            try:
-                coarse, inl_d, _ = _solve(a, b, da[keep], db[keep], Xd[keep], p, (n_points, int(keep.sum())))
-            except OdometryError:
-                coarse = T
-    if coarse is None:
-        assert first_error is not None
-        raise first_error
-    if p.guided or T is None:
-        P = X_a_all @ coarse[:3, :3].T + coarse[:3, 3]
-        front = P[:, 2] > p.min_range
-        guess = project_points(b, np.where(front[:, None], P, 1.0))
-        pts_g, ok_g = track(a, b, pts_a, p, guess=guess, levels=1)
-        ok_g &= front
-        if ok_g.sum() >= p.min_matches and (T is None or ok_g.sum() > matches):
-            try:
-                T_g, inl_g, Xb_g = _solve(a, b, pts_a[ok_g], pts_g[ok_g], X_a_all[ok_g], p,
-                                          (n_points, int(ok_g.sum())))
-            except OdometryError:
-                if T is None:
-                    raise
+        coarse = attempt(*track(a, b, pts_a, p))
+        if coarse is None or best is None or best[3].sum() < 2 * p.min_inliers:
+            da, db = match_descriptors(a, b, p)
+            Xd = lift(a, da, p)
+            keep = np.isfinite(Xd).all(axis=1)
+            if keep.sum() >= p.min_matches:
+                try:
+                    coarse = _solve(a, b, da[keep], db[keep], Xd[keep], p, (n_points, int(keep.sum())))[0]
+                except OdometryError:
+                    pass
+    if coarse is not None and p.guided:
+        for _ in range(2):
+            if p.warp:
+                refined = attempt(*track_warped(a, b, pts_a, coarse, p))
             else:
-                if T is None or inl_g.sum() > inliers.sum():
-                    pts_b, ok, matches, T, inliers, Xb = pts_g, ok_g, int(ok_g.sum()), T_g, inl_g, Xb_g
-    if T is None:
-        assert first_error is not None
-        raise first_error
-    n_in = int(inliers.sum())
-    if n_in < p.min_inliers:
-        raise OdometryError(f"only {n_in} of {matches} tracked points agree on one motion (need {p.min_inliers})",
-                            n_points, matches, n_in)
-    pa, pb, Xa = pts_a[ok][inliers], pts_b[ok][inliers], X_a_all[ok][inliers]
+                P = X_a @ coarse[:3, :3].T + coarse[:3, 3]
+                front = P[:, 2] > p.min_range
+                guess = project_points(b, np.where(front[:, None], P, 1.0))
+                pts_g, ok_g = track(a, b, pts_a, p, guess=guess, levels=1)
+                refined = attempt(pts_g, ok_g & front)
+            if refined is None:
+                break
+            coarse = refined
+    if best is None:
+        if most[0] < p.min_matches:
+            msg = f"only {most[0]} of {n_points} interest points were tracked into the new image (need {p.min_matches})"
+        else:
+            msg = f"only {most[1]} of {most[0]} tracked points agree on one motion (need {p.min_inliers})"
+        raise OdometryError(msg, n_points, most[0], most[1])
+    pts_b, ok, T, inliers, Xb = best
+    matches = int(ok.sum())
+    pa, pb, Xa = pts_a[ok][inliers], pts_b[ok][inliers], X_a[ok][inliers]
     K_b = np.asarray(b.K, np.float64)
     focal = float(np.sqrt(K_b[0, 0] * K_b[1, 1]))
     P = Xa @ T[:3, :3].T + T[:3, 3]
     err = np.linalg.norm((P[:, :2] / P[:, 2:3] - normalised(b, pb)) * focal, axis=1)
     # X_B = T X_A in the sensor frames; rover B in rover A: T_rA_sA T_sA_sB T_sB_rB
     T_rover = a.T_rover_sensor @ invert(T) @ invert(b.T_rover_sensor)
-    return Motion(T_rover, T, n_points, matches, n_in, float(np.sqrt(np.mean(err ** 2))),
+    return Motion(T_rover, T, n_points, matches, int(inliers.sum()), float(np.sqrt(np.mean(err ** 2))),
                   _coverage(pb, _gray(b).shape), used={"a": pa, "b": pb, "X_a": Xa, "X_b": Xb[inliers]})
 
 
