@@ -284,11 +284,18 @@ def config(ctx: Context, cfg: None) -> dict[str, Any]:
     if sets:
         if ctx.app.jobs.current is not None and name == "drivers":
             raise ProtocolError("E_BUSY", "drivers cannot change while a job runs")
-        for item in sets:
-            key, sep, raw = item.partition("=")
-            if not sep:
-                raise ProtocolError("E_ARG", f"-set {item[:40]}: write key=value")
-            store.set(name, key, raw)
+        current = store.values[name]
+        before = current.as_dict()
+        try:
+            for item in sets:
+                key, sep, raw = item.partition("=")
+                if not sep:
+                    raise ProtocolError("E_ARG", f"-set {item[:40]}: write key=value")
+                store.set(name, key, raw)
+        except ProtocolError:
+            for key, value in before.items():  # all or nothing: an E_ARG request changes nothing
+                setattr(current, key, value)
+            raise
     out: dict[str, Any] = {"module": name}
     for key, value in store.values[name].as_dict().items():
         if key == "token" and value:
