@@ -5,16 +5,25 @@ Per pair of acquisitions A (earlier) and B (later), both looking roughly the sam
 
 1. interest points in A's image (Shi-Tomasi by default, or Harris as the thesis names it),
    only where A has a depth and the point is not on the rover's own body;
-2. tracked into B with pyramidal Lucas-Kanade, kept when tracking B back lands on the start
-   (forward-backward check): a track that does not come back is a mismatch or an occlusion;
-3. lifted to 3D in both frames (bilinear in the point image, dropped at depth edges);
-4. the motion by PnP inside RANSAC (A's 3D points, B's pixels): pixel residuals treat near and
-   far points alike, while a 3D-3D threshold would have to grow with the square of the range;
+2. a coarse motion: the points tracked into B with pyramidal Lucas-Kanade, kept when tracking
+   back lands on the start (forward-backward check), or, when that finds too little, ORB
+   descriptor matches (any scale, any distance), or a motion the caller expects;
+3. twice: B's image warped into A's view with the current motion (through A's depth), and A's
+   points tracked into it; the patches then differ only by what the motion got wrong, not by
+   the change of scale and perspective a metre of driving makes near the rover;
+4. the tracked points lifted to 3D (bilinear in the point image, dropped at depth edges) and the
+   motion found by PnP inside RANSAC (A's 3D points, B's pixels): pixel residuals treat near
+   and far points alike, while a 3D-3D threshold would have to grow with the square of range;
 5. refined by least squares over the inliers in both directions (A's points into B's image and
    B's points into A's), each residual weighted by what the depth noise of its point moves it in
    the image, so far points (noisy depth) do not pull the translation;
 6. expressed as the rover's motion with the two sensor poses on the rover (mount calibration at
    the PTU angles of each acquisition): ``T_roverA_roverB``.
+
+Measured on the simulator (tests/prox/test_odometry.py, tests/test_orient.py): ideal frames
+give the motion to 2 mm; simulated 640 x 480 stereo pairs 1 m apart to 0.1-0.3 % of the
+distance and 0.01 deg. The ToF camera (176 x 144, 1-5 m, its own light moving with it) holds
+about a centimetre over 0.3 m steps and loses track beyond ~0.5 m.
 
 Everything is arrays in, arrays out; the server grabs and passes the frames.
 """
@@ -61,7 +70,7 @@ class DepthFrame:
     dist: np.ndarray
     T_rover_sensor: np.ndarray
     mask: np.ndarray | None = None
-    # filled by :func:`prepare` (cached so a frame serves as B once and as A next time)
+    # 8-bit image for the detector and tracker, made once (a frame serves as B, then as A)
     gray: np.ndarray | None = field(default=None, repr=False)
 
 
@@ -76,7 +85,7 @@ class OdometryParams:
     min_distance: float = 6.0  # px between interest points
     block_size: int = 5
     harris_k: float = 0.04
-    window: int = 21  # LK window side, px
+    window: int = 11  # LK window side, px: small, so a patch stays planar and rigid
     levels: int = 4  # LK pyramid levels above the image
     fb_max: float = 0.5  # px: forward-backward disagreement that rejects a track
     min_range: float = 0.3  # m
@@ -93,7 +102,7 @@ class OdometryParams:
     orb_ratio: float = 0.8
     min_matches: int = 20
     min_inliers: int = 12
-    seed: int = 0
+    seed: int = 0  # OpenCV's RANSAC sampling, for repeatable results
 
     def check(self) -> None:
         if self.detector not in DETECTORS:
@@ -370,6 +379,7 @@ def _solve(a: DepthFrame, b: DepthFrame, pa: np.ndarray, pb: np.ndarray, Xa: np.
     n_points, matches = counts
     Xb = lift(b, pb, p)
     K_b = np.asarray(b.K, np.float64)
+    cv2.setRNGSeed(p.seed)
     ok_pnp, rvec, tvec, inl = cv2.solvePnPRansac(
         Xa.astype(np.float64), pb.astype(np.float64), K_b, np.asarray(b.dist, np.float64),
         iterationsCount=p.ransac_iterations, reprojectionError=p.reprojection, confidence=0.999,
