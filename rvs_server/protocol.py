@@ -345,6 +345,7 @@ class LineSplitter:
         self._discarding = False
         self._iac_pending = 0  # bytes of a telnet command still to drop after a chunk boundary
         self._iac_need_cmd = False
+        self._cr_pending = False
 
     def _strip_iac(self, data: bytes) -> bytes:
         if self.IAC not in data and not self._iac_pending and not self._iac_need_cmd:
@@ -366,7 +367,12 @@ class LineSplitter:
 
     def feed(self, data: bytes) -> list[bytes | None]:
         """Feed received bytes; returns complete lines (bytes) and ``None`` for each too-long line."""
-        data = self._strip_iac(data).replace(b"\r\x00", b"\r")  # telnet's CR NUL is a bare CR
+        data = self._strip_iac(data)
+        if self._cr_pending and data[:1] == b"\x00":
+            data = data[1:]
+        data = data.replace(b"\r\x00", b"\r")  # telnet's CR NUL is a bare CR, also across chunks
+        if data:
+            self._cr_pending = data.endswith(b"\r")
         out: list[bytes | None] = []
         start = 0
         while True:
