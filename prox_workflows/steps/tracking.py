@@ -39,6 +39,7 @@ class SizePrior:
     min_height: float = 0.25  # a point stands on the ground when this far above it
     foot_height: float = 0.6  # a standing object has points this low (a floating sheet does not)
     reflectivity: float = 1.0  # at least this times the ground's amplitude x range^2 (see detect_standing)
+    torso: tuple[float, float] = (0.3, 0.75)  # share of the height where width and axis are measured
     min_points: int = 25
     cell: float = 0.1  # clustering grid
     ground_cell: float = 0.2  # grid of the ground surface
@@ -150,37 +151,37 @@ def ground_under(points: np.ndarray, prior: SizePrior = SizePrior()) -> np.ndarr
     return np.where(bad, plane, local)
 
 
-def fit_circle(xy: np.ndarray, radius: float | None = None, toward: np.ndarray | None = None
-               ) -> tuple[float, float, float]:
+def fit_circle(xy: np.ndarray, toward: np.ndarray | None = None, radius_range: tuple[float, float] = (0.05, 0.6),
+               fallback: float = 0.22) -> tuple[float, float, float]:
     """Centre and radius of the circle through plan-view points of a round body's visible side.
 
-    Algebraic (Kasa) fit refined by Gauss-Newton on the geometric distances; with ``radius``
-    given (or when the free fit is implausible) the radius is held fixed and the centre is
-    started behind the centroid, away from ``toward`` (the sensor), where a body's axis lies.
+    Algebraic (Kasa) fit refined by Gauss-Newton on the geometric distances. A visible half-arc
+    with centimetres of noise can bend the free fit far off; when its radius leaves
+    ``radius_range`` the radius is held at ``fallback`` and only the centre is fitted, started
+    behind the centroid, away from ``toward`` (the sensor), where a body's axis lies.
     """
     xy = np.asarray(xy, dtype=np.float64)
     m = xy.mean(axis=0)
     d = xy - m
-    if radius is None:
-        A = np.column_stack([d, np.ones(len(d))])
-        b = (d ** 2).sum(axis=1)
-        try:
-            sol, *_ = np.linalg.lstsq(A, b, rcond=None)
-            c = sol[:2] / 2
-            r = math.sqrt(max(sol[2] + c @ c, 1e-12))
-        except np.linalg.LinAlgError:
-            c, r = np.zeros(2), 0.0
-        if 0.05 <= r <= 0.6 and np.hypot(*c) <= 0.6:
-            c, r = _refine(d, c, r, fixed=False)
-            if 0.05 <= r <= 0.6:
-                return float(c[0] + m[0]), float(c[1] + m[1]), float(r)
-        radius = 0.22
+    lo, hi = radius_range
+    A = np.column_stack([d, np.ones(len(d))])
+    b = (d ** 2).sum(axis=1)
+    try:
+        sol, *_ = np.linalg.lstsq(A, b, rcond=None)
+        c = sol[:2] / 2
+        r = math.sqrt(max(sol[2] + c @ c, 1e-12))
+    except np.linalg.LinAlgError:
+        c, r = np.zeros(2), 0.0
+    if lo <= r <= hi:
+        c, r = _refine(d, c, r, fixed=False)
+        if lo <= r <= hi:
+            return float(c[0] + m[0]), float(c[1] + m[1]), float(r)
     away = np.zeros(2)
     if toward is not None:
         v = m - np.asarray(toward, dtype=np.float64)[:2]
         away = v / max(np.hypot(*v), 1e-9)
-    c0 = away * radius * math.pi / 4  # the visible half's mean sits r*pi/4 in front of the axis
-    c, r = _refine(d, c0, radius, fixed=True)
+    c0 = away * fallback * math.pi / 4  # the visible half's mean sits r*pi/4 in front of the axis
+    c, r = _refine(d, c0, fallback, fixed=True)
     return float(c[0] + m[0]), float(c[1] + m[1]), float(r)
 
 
@@ -272,19 +273,33 @@ def detect_standing(points: np.ndarray, sensor: np.ndarray, prior: SizePrior = S
         top = float(np.percentile(hh, 99))
         if abs(top - prior.height) > prior.height_tolerance or hh.min() > prior.foot_height:
             continue  # too short or too tall, or floating (not standing on the ground)
-        centroid = pts[:, :2].mean(axis=0)
+        # Width and axis from the torso only: at the feet a body may merge with a rock or a box
+        # it stands by, and the head is narrower.
+        body = (hh > prior.torso[0] * prior.height) & (hh < prior.torso[1] * prior.height)
+        if body.sum() < prior.min_points // 2:
+            continue
+        torso = pts[body, :2]
+        centroid = np.median(torso, axis=0)
         los = centroid - np.asarray(sensor, dtype=np.float64)[:2]
         los /= max(np.hypot(*los), 1e-9)
-        across = (pts[:, :2] - centroid) @ np.array([-los[1], los[0]])
+        across = (torso - centroid) @ np.array([-los[1], los[0]])
         width = float(np.percentile(across, 98) - np.percentile(across, 2))
         if not prior.width_range[0] <= width <= prior.width_range[1]:
             continue
-        body = hh < 0.75 * prior.height
-        use = pts[body] if body.sum() >= 10 else pts
-        cx, cy, r = fit_circle(use[:, :2], toward=np.asarray(sensor)[:2])
-        if not 0.05 <= r <= prior.width_range[1]:
+        # Fit the torso's core: what lies within a body width of its median (a stray sheet of
+        # returns that joined the segment lies to one side and would drag the fit).
+        core = np.hypot(*(torso - centroid).T) <= 0.8 * prior.width
+        if core.sum() < prior.min_points // 2:
             continue
-        gz = float(np.median(g[sel]))
+        torso = torso[core]
+        cx, cy, r = fit_circle(torso, toward=np.asarray(sensor)[:2], radius_range=(0.25 * prior.width,
+                                                                                   0.75 * prior.width),
+                               fallback=max(width, 0.5 * prior.width) / 2)
+        # The ground height at the foot: the median of the ground returns around it (the
+        # per-cell minimum that found the ground reads low by about two noise sigmas).
+        near = defined & (h < 0.4 * prior.min_height) & \
+            (np.hypot(img[..., 0] - cx, img[..., 1] - cy) < prior.ground_window / 2)
+        gz = float(np.median(img[..., 2][near])) if near.sum() >= 10 else float(np.median(g[sel]))
         score = abs(top - prior.height) / prior.height + abs(width - prior.width) / prior.width
         out.append(Detection(cx, cy, gz, top, width, r, int(sel.sum()), score))
     out.sort(key=lambda d: d.score)
@@ -321,34 +336,52 @@ def aruco_detector() -> cv2.aruco.ArucoDetector:
 
 
 def detect_markers(left: np.ndarray, right: np.ndarray, K1: np.ndarray, D1: np.ndarray, K2: np.ndarray,
-                   D2: np.ndarray, R: np.ndarray, T: np.ndarray, marker_id: int | None = None
-                   ) -> list[MarkerSighting]:
+                   D2: np.ndarray, R: np.ndarray, T: np.ndarray, marker_id: int | None = None,
+                   max_error_px: float = 3.0) -> list[MarkerSighting]:
     """ArUco 6x6 markers found in both images of a stereo pair, triangulated.
 
     ``R``, ``T`` as cv2.stereoCalibrate gives them (X_right = R X_left + T). Corners are found in
     the raw images and undistorted as points, so no image is resampled.
     """
     det = aruco_detector()
-    found = []
+    found: list[list[tuple[int, np.ndarray]]] = []
     for img in (left, right):
         gray = img if img.ndim == 2 else cv2.cvtColor(img, cv2.COLOR_RGB2GRAY)
         if gray.dtype != np.uint8:
             gray = cv2.normalize(gray, None, 0, 255, cv2.NORM_MINMAX).astype(np.uint8)
         corners, ids, _ = det.detectMarkers(gray)
-        found.append({} if ids is None else {int(i): c.reshape(4, 2) for i, c in zip(ids.ravel(), corners, strict=True)})
+        found.append([] if ids is None else
+                     [(int(i), c.reshape(4, 2)) for i, c in zip(ids.ravel(), corners, strict=True)])
     P1 = np.hstack([np.eye(3), np.zeros((3, 1))])
     P2 = np.hstack([np.asarray(R, float), np.asarray(T, float).reshape(3, 1)])
     out: list[MarkerSighting] = []
-    for mid, cl in found[0].items():
-        if mid not in found[1] or (marker_id is not None and mid != marker_id):
+    used: set[int] = set()
+    for mid, cl in found[0]:
+        if marker_id is not None and mid != marker_id:
             continue
-        cr = found[1][mid]
         ul = cv2.undistortPoints(cl.reshape(-1, 1, 2).astype(np.float64), K1, D1).reshape(-1, 2)
-        ur = cv2.undistortPoints(cr.reshape(-1, 1, 2).astype(np.float64), K2, D2).reshape(-1, 2)
-        X = cv2.triangulatePoints(P1, P2, ul.T, ur.T)
-        pts = (X[:3] / X[3]).T
-        if not np.all(np.isfinite(pts)) or np.any(pts[:, 2] <= 0):
+        best: tuple[float, int, np.ndarray] | None = None
+        # One id may show on several faces of a marker box: pair each left sighting with the
+        # right one whose triangulation reprojects best (the epipolar match), not the first.
+        for j, (rid, cr) in enumerate(found[1]):
+            if rid != mid or j in used:
+                continue
+            ur = cv2.undistortPoints(cr.reshape(-1, 1, 2).astype(np.float64), K2, D2).reshape(-1, 2)
+            X = cv2.triangulatePoints(P1, P2, ul.T, ur.T)
+            pts = (X[:3] / X[3]).T
+            if not np.all(np.isfinite(pts)) or np.any(pts[:, 2] <= 0):
+                continue
+            p2 = pts @ P2[:, :3].T + P2[:, 3]
+            if np.any(p2[:, 2] <= 0):
+                continue
+            err = float(np.abs(pts[:, :2] / pts[:, 2:] - ul).max() + np.abs(p2[:, :2] / p2[:, 2:] - ur).max())
+            err *= float(K1[0, 0])  # in pixels
+            if err <= max_error_px and (best is None or err < best[0]):
+                best = (err, j, pts)
+        if best is None:
             continue
+        used.add(best[1])
+        pts = best[2]
         centre = pts.mean(axis=0)
         normal = np.cross(pts[1] - pts[0], pts[3] - pts[0])
         normal /= max(np.linalg.norm(normal), 1e-12)

@@ -77,10 +77,12 @@ class Monitor:
         self.cycles = 0
         self.cycle_ms: deque[float] = deque(maxlen=20)  # without PTU motion
         self.cycle_max_ms = 0.0
+        self.io_ms: deque[float] = deque(maxlen=20)  # of which waiting for the camera
         self.starts: deque[float] = deque(maxlen=10)
         self.pointing: tuple[float, float] | None = None  # where the PTU should look (pan, tilt)
         self.error: str | None = None
         self._move_s = 0.0
+        self._io_s = 0.0
 
     # -- life cycle ---------------------------------------------------------------------------
     def start(self) -> None:
@@ -125,11 +127,12 @@ class Monitor:
                         self.on_resume()
                     started = time.monotonic()
                     self.starts.append(started)
-                    self._move_s = 0.0
+                    self._move_s = self._io_s = 0.0
                     self.cycle()
                     spent = time.monotonic() - started
                     ms = 1000.0 * max(0.0, spent - self._move_s)
                     self.cycle_ms.append(ms)
+                    self.io_ms.append(1000.0 * self._io_s)
                     self.cycle_max_ms = max(self.cycle_max_ms, ms)
                     self.cycles += 1
                 finally:
@@ -171,12 +174,15 @@ class Monitor:
     # -- device helpers -----------------------------------------------------------------------
     def call(self, fn: Any, *args: Any, **kwargs: Any) -> Any:
         """A driver call that a stop interrupts (the cancel event of a job, for a monitor)."""
+        t0 = time.monotonic()
         try:
             return fn(*args, cancel=self.stop_event, **kwargs)
         except Exception:
             if self.stop_event.is_set():
                 raise Stopped() from None
             raise
+        finally:
+            self._io_s += time.monotonic() - t0
 
     def point(self, pan: float, tilt: float, tolerance: float = 0.05) -> tuple[float, float]:
         """Move the PTU unless it is there already; the motion's time is not cycle time."""
@@ -186,8 +192,14 @@ class Monitor:
             return here
         t0 = time.monotonic()
         reached = self.call(self.app.devices.get("ptu").move, pan, tilt, True)
-        self._move_s += time.monotonic() - t0
+        dt = time.monotonic() - t0
+        self._move_s += dt
+        self._io_s -= dt
         return float(reached[0]), float(reached[1])
+
+    def intervals(self) -> list[float]:
+        """Start-to-start times of the last few cycles."""
+        return list(np.diff(self.starts)) if len(self.starts) > 1 else []
 
     def rate(self) -> float:
         """Cycles per second over the last few cycles."""
@@ -203,8 +215,9 @@ class Monitor:
         self.app.broadcast_threadsafe(Reply("RVS", "EVENT", fields))
 
     def timing_fields(self) -> dict[str, Any]:
-        ms = list(self.cycle_ms)
-        return {"cycle_ms": Fixed(float(np.mean(ms)) if ms else 0.0, 1), "cycle_ms_max": Fixed(self.cycle_max_ms, 1)}
+        ms, io = list(self.cycle_ms), list(self.io_ms)
+        return {"cycle_ms": Fixed(float(np.mean(ms)) if ms else 0.0, 1), "cycle_ms_max": Fixed(self.cycle_max_ms, 1),
+                "grab_ms": Fixed(float(np.mean(io)) if io else 0.0, 1)}
 
     # -- what a concrete monitor fills in -----------------------------------------------------
     def cycle(self) -> None:
@@ -297,7 +310,7 @@ class HazardMonitor(Monitor):
         tof = app.devices.get("tof")
         t0 = time.monotonic()
         xyz, amplitude = self.call(tof.grab_xyz, cfg.integrate, 0.0)
-        t_grab = (t0 + time.monotonic()) / 2
+        t_grab = t0  # the frame is exposed at the start of the call, then read out
         T = self.head().T_rover_from_sensor("tof", pan, tilt)
         points = hm.rover_points(xyz, T, cfg.subsample, cfg.max_range, amplitude, cfg.min_reflectivity)
         check = hm.check_corridor(points, self.params)
@@ -305,8 +318,10 @@ class HazardMonitor(Monitor):
         planar = (pose.x, pose.y, pose.heading)
         self.memory.update(check, planar)
         nearest = self.memory.nearest(planar, self.params)
-        spent = time.monotonic() - t0
-        lead = max(self.period, spent) + (time.monotonic() - t_grab)
+        # The next verdict comes one cycle interval after this one; the rover closes in on the
+        # hazard from this exposure until then. The interval is the longest of the last few, so
+        # a loaded machine stops the rover earlier rather than later.
+        lead = (time.monotonic() - t_grab) + max(self.period, time.monotonic() - t0, *self.intervals())
         level, expected = self.levels.update(None if nearest is None else nearest[0], t_grab, lead)
         self.last = {"distance": None if nearest is None else nearest[0],
                      "bearing": None if nearest is None else nearest[1], "observed": check.observed,
@@ -429,21 +444,20 @@ def look_at(head: HeadCalibration, target_rover: np.ndarray) -> tuple[float, flo
 
 def _sense(app: Any, cfg: TrackDetectConfig, pan: float, tilt: float, call: Any
            ) -> tuple[list[tr.Detection], float, float]:
-    """One view's detections in the global frame; returns them with the acquisition's monotonic
-    and wall-clock time (mid-exposure)."""
+    """One view's detections in the global frame; returns them with the monotonic and wall-clock
+    time of the exposure: the start of the acquisition call (the frame is exposed first, then
+    read out and transferred, which is most of the call)."""
     head = HeadCalibration.from_dict(app.config.get("head").as_dict())
     T_gr = _frame(app)
     t0, w0 = time.monotonic(), time.time()
     if cfg.sensor == "tof":
         xyz, amplitude = call(app.devices.get("tof").grab_xyz, 1, 0.0)
-        t1, w1 = time.monotonic(), time.time()
         T = T_gr @ head.T_rover_from_sensor("tof", pan, tilt)
         img = tr.point_image(xyz, T, cfg.max_range)
         dets = tr.detect_standing(img, T[:3, 3], _prior(cfg), amplitude=amplitude)
     else:
         cams = app.devices.get("stereo")
         left, right = call(cams.grab_stereo, cfg.resolution, "mono8")
-        t1, w1 = time.monotonic(), time.time()
         cal = cams.calibration(cfg.resolution)
         sightings = tr.detect_markers(left, right, np.asarray(cal["K1"]), np.asarray(cal["D1"]),
                                       np.asarray(cal["K2"]), np.asarray(cal["D2"]), np.asarray(cal["R"]),
@@ -457,7 +471,7 @@ def _sense(app: Any, cfg: TrackDetectConfig, pan: float, tilt: float, call: Any
             side = float(np.mean(np.linalg.norm(np.diff(np.vstack([s.corners, s.corners[:1]]), axis=0), axis=1)))
             dets.append(tr.Detection(float(foot[0]), float(foot[1]), float(foot[2]), cfg.marker_box, side, 0.0,
                                      4, 0.0, marker_id=s.marker_id))
-    return dets, (t0 + t1) / 2, (w0 + w1) / 2
+    return dets, t0, w0
 
 
 def _target_fields(d: tr.Detection) -> dict[str, Any]:
