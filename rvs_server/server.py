@@ -24,6 +24,7 @@ from .protocol import LineSplitter, Reply, format_reply, format_reply_json
 log = structlog.get_logger("rvs.server")
 
 MAX_PENDING_LINES = 256  # stop reading from a client that is this far ahead of us
+LINES_PER_TURN = 64  # lines of one connection handled before the event loop serves the others
 MAX_OUTPUT_BYTES = 8 * 1024 * 1024  # a client that reads nothing is dropped past this
 _conn_ids = itertools.count(1)
 
@@ -94,8 +95,17 @@ class Connection(asyncio.Protocol):
 
     _close_after_drain = False
 
+    _drain_scheduled = False
+
     def _drain(self) -> None:
+        budget = LINES_PER_TURN
         while self.pending and self.waiting is None and not self.closed:
+            if budget == 0:  # let the other connections in; a flood costs only its sender
+                if not self._drain_scheduled:
+                    self._drain_scheduled = True
+                    self.app.loop.call_soon(self._drain_later)
+                break
+            budget -= 1
             result = self.app.dispatch(self, self.pending.popleft())
             if result is not None:
                 self.waiting = asyncio.ensure_future(result)
@@ -108,6 +118,10 @@ class Connection(asyncio.Protocol):
                 self.transport.resume_reading()
                 self.paused = False
         self.close_if_done()
+
+    def _drain_later(self) -> None:
+        self._drain_scheduled = False
+        self._drain()
 
     def _resume(self, fut: asyncio.Future[Any]) -> None:
         self.waiting = None
