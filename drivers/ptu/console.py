@@ -8,7 +8,6 @@ bench session survives a pulled cable. ``-c "move 30 -10" -c position`` runs lin
 from __future__ import annotations
 
 import argparse
-import cmd
 import shlex
 import sys
 from pathlib import Path
@@ -17,15 +16,12 @@ from typing import Any, TextIO
 import yaml
 
 from drivers.base import DeviceError
+from drivers.console import DEFAULT_CONFIG, DeviceConsole, load_section, run, split_words
 from drivers.ptu import DEFAULTS, FAULTS, Ptu, create
-
-DEFAULT_CONFIG = Path(__file__).resolve().parents[2] / "config" / "drivers.yaml"
 
 
 def _floats(arg: str, n_min: int, n_max: int, usage: str) -> list[float]:
-    words = shlex.split(arg)
-    if not n_min <= len(words) <= n_max:
-        raise ValueError(f"usage: {usage}")
+    words = split_words(arg, n_min, n_max, usage)
     try:
         return [float(w) for w in words]
     except ValueError:
@@ -36,47 +32,25 @@ def _fmt_pos(pan: float, tilt: float) -> str:
     return f"pan {pan:.3f} deg, tilt {tilt:.3f} deg"
 
 
-class PtuConsole(cmd.Cmd):
+class PtuConsole(DeviceConsole):
     intro = "rvs-ptu: PTU-D46 console; 'help' lists the commands, 'quit' leaves."
     prompt = "ptu> "
 
     def __init__(self, ptu: Ptu, stdout: TextIO | None = None) -> None:
-        super().__init__(stdout=stdout or sys.stdout)
+        super().__init__(stdout)
         self.ptu = ptu
-        self.failed = False
 
     # -- plumbing ------------------------------------------------------------------------------
-    def say(self, text: str) -> None:
-        self.stdout.write(text + "\n")
-        self.stdout.flush()
-
-    def onecmd(self, line: str) -> bool:
-        try:
-            return bool(super().onecmd(line))
-        except KeyboardInterrupt:
-            self.say("interrupted; halting the PTU")
-            self._quietly(self.ptu.halt)
-        except (DeviceError, ValueError) as exc:
-            self.failed = True
-            self.say(f"error: {exc}")
-        except Exception as exc:  # noqa: BLE001 - a console reports everything and carries on
-            self.failed = True
-            self.say(f"error: {type(exc).__name__}: {exc}")
-        return False
+    def interrupted(self) -> None:
+        """Ctrl-C during a move must stop the axes too, not only the wait for them."""
+        self.say("interrupted; halting the PTU")
+        self._quietly(self.ptu.halt)
 
     def _quietly(self, fn: Any) -> None:
         try:
             fn()
         except Exception as exc:  # noqa: BLE001
             self.say(f"error: {exc}")
-
-    def emptyline(self) -> bool:
-        return False  # never repeat the last command (it may be a move)
-
-    def default(self, line: str) -> bool:
-        self.failed = True
-        self.say(f"error: unknown command {line.split()[0]!r}; 'help' lists the commands")
-        return False
 
     # -- motion --------------------------------------------------------------------------------
     def do_move(self, arg: str) -> None:
@@ -188,25 +162,6 @@ class PtuConsole(cmd.Cmd):
         self.ptu.inject_fault(kind)
         self.say(f"fault {kind or 'none'} injected (kinds: {', '.join(str(f) for f in FAULTS)})")
 
-    def do_quit(self, arg: str) -> bool:
-        """quit: leave the console."""
-        return True
-
-    do_exit = do_quit
-
-    def do_EOF(self, arg: str) -> bool:  # noqa: N802 - cmd.Cmd's name for end of input
-        self.say("")
-        return True
-
-
-def _load_config(path: Path | None) -> dict[str, Any]:
-    config = dict(DEFAULTS)
-    source = path or (DEFAULT_CONFIG if DEFAULT_CONFIG.exists() else None)
-    if source is not None:
-        data = yaml.safe_load(Path(source).read_text()) or {}
-        config.update(data.get("ptu", {}) or {})
-    return config
-
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="rvs-ptu", description="PTU-D46 console (sim or serial backend)")
@@ -222,7 +177,7 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
 
     try:
-        config = _load_config(args.config)
+        config = load_section("ptu", DEFAULTS, args.config)
     except (OSError, yaml.YAMLError) as exc:
         print(f"error: cannot read the config: {exc}", file=sys.stderr)
         return 2
@@ -235,22 +190,8 @@ def main(argv: list[str] | None = None) -> int:
     except DeviceError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
-    console = PtuConsole(ptu)
-    try:
-        if args.command:
-            for line in args.command:
-                for part in line.split(";"):
-                    if part.strip() and console.onecmd(part.strip()):
-                        return 1 if console.failed else 0
-            return 1 if console.failed else 0
-        console.onecmd("open")
-        console.cmdloop()
-        return 0
-    finally:
-        try:
-            ptu.close()
-        except Exception:  # noqa: BLE001 - leaving the console must not trace back
-            pass
+    # One-shot lines open the port on first use; opening up front would add a line to their output.
+    return run(PtuConsole(ptu), args.command, start=None if args.command else "open", close=ptu.close)
 
 
 if __name__ == "__main__":

@@ -8,7 +8,6 @@ exit status is 1 if any of them failed.
 from __future__ import annotations
 
 import argparse
-import cmd
 import shlex
 import sys
 import time
@@ -18,10 +17,9 @@ from typing import Any
 import numpy as np
 import yaml
 
+from drivers.console import DEFAULT_CONFIG, DeviceConsole, read_config, run, split_words
 from drivers.stereo import create
 from drivers.stereo.modes import PIXEL_FORMATS, RESOLUTIONS, SIDES
-
-DEFAULT_CONFIG = Path(__file__).resolve().parents[2] / "config" / "drivers.yaml"
 
 
 def save_image(path: str | Path, image: np.ndarray) -> Path:
@@ -51,39 +49,36 @@ def _kv(args: list[str]) -> dict[str, str]:
     return out
 
 
-class CamShell(cmd.Cmd):
+class CamShell(DeviceConsole):
     intro = "rvs-cam: PIKE stereo pair console. 'help' lists commands, 'quit' leaves."
     prompt = "rvs-cam> "
+    # As rvs-cam always did: every error names its type, and Ctrl-C ends the session (main closes
+    # the cameras on the way out) instead of returning to the prompt.
+    plain_errors = ()
+    catch_interrupts = False
+    unknown_hint = "'help' lists commands"
 
     def __init__(self, camera: Any, trigger: Any = None, out_dir: str | Path = ".", stdout: Any = None) -> None:
-        super().__init__(stdout=stdout)
+        super().__init__(stdout)
         self.cam = camera
         self.trigger = trigger
         self.out_dir = Path(out_dir)
         self.failed = 0
 
     # -- plumbing -----------------------------------------------------------------------------
-    def say(self, *parts: Any) -> None:
-        print(*parts, file=self.stdout)
+    def fail(self, message: str) -> None:
+        """rvs-cam's ``failed`` has always been a count of failed commands, not a flag."""
+        self.failed += 1
+        self.say(message)
 
     def precmd(self, line: str) -> str:
         head, _, rest = line.strip().partition(" ")
         return f"{head.replace('-', '_')} {rest}".strip()
 
-    def onecmd(self, line: str) -> bool:
-        try:
-            return bool(super().onecmd(line))
-        except Exception as exc:  # the console's job is to survive anything a command raises
-            self.failed += 1
-            self.say(f"error: {type(exc).__name__}: {exc}")
-            return False
-
-    def default(self, line: str) -> None:
-        self.failed += 1
-        self.say(f"error: unknown command {line.split()[0]!r}; 'help' lists commands")
-
-    def emptyline(self) -> bool:
-        return False
+    def run_line(self, line: str) -> bool:
+        """Each ``-c`` is one command, echoed after the prompt so the output reads as a transcript."""
+        self.say(f"{self.prompt}{line}")
+        return self.onecmd(self.precmd(line))
 
     def show(self, data: Any) -> None:
         self.say(yaml.safe_dump(_plain(data), sort_keys=False).rstrip())
@@ -149,9 +144,7 @@ class CamShell(cmd.Cmd):
 
     def do_set_ids(self, arg: str) -> None:
         """set-ids LEFT RIGHT: choose the cameras by GUID or bus index (RvsCam_SetCameraIDs)."""
-        parts = shlex.split(arg)
-        if len(parts) != 2:
-            raise ValueError("usage: set-ids LEFT RIGHT")
+        parts = split_words(arg, 2, 2, "set-ids LEFT RIGHT")
         self.show(self.cam.set_camera_ids(parts[0], parts[1]))
 
     def do_swap_ids(self, arg: str) -> None:
@@ -255,15 +248,11 @@ class CamShell(cmd.Cmd):
         """quit: close the cameras and leave."""
         return True
 
-    do_exit = do_quit
-    do_EOF = do_quit
+    do_exit = do_EOF = do_quit  # EOF leaves without the blank line the other consoles print
 
 
 def _one(arg: str, usage: str) -> str:
-    parts = shlex.split(arg)
-    if len(parts) != 1:
-        raise ValueError(f"usage: {usage}")
-    return parts[0]
+    return split_words(arg, 1, 1, usage)[0]
 
 
 def _side_first(arg: str) -> tuple[str, str]:
@@ -286,12 +275,10 @@ def _plain(data: Any) -> Any:
 
 
 def load_config(path: str | Path | None) -> dict[str, Any]:
-    source = Path(path) if path else DEFAULT_CONFIG
-    if not source.exists():
-        if path:
-            raise SystemExit(f"rvs-cam: config file {source} not found")
-        return {}
-    return yaml.safe_load(source.read_text()) or {}
+    """The whole file, as rvs-cam reads both its stereo and its trigger section."""
+    if path and not Path(path).exists():
+        raise SystemExit(f"rvs-cam: config file {Path(path)} not found")
+    return read_config(path) or {}
 
 
 def parse_args(argv: list[str] | None) -> argparse.Namespace:
@@ -351,20 +338,14 @@ def main(argv: list[str] | None = None, *, world: Any = None, stdout: Any = None
     shell = CamShell(camera, trigger, args.out, stdout=out)
     shell.onecmd("init")
     try:
-        if args.commands:
-            for line in args.commands:
-                print(f"{shell.prompt}{line}", file=out)
-                if shell.onecmd(shell.precmd(line)):
-                    break
-        else:
-            shell.cmdloop()
+        return run(shell, args.commands, prompt_status=True)
     finally:
+        # Not run(close=...): a camera or trigger that fails to close is worth a traceback here.
         try:
             camera.close()
         finally:
             if trigger is not None:
                 trigger.close()
-    return 1 if shell.failed else 0
 
 
 if __name__ == "__main__":

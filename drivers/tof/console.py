@@ -9,7 +9,6 @@ lines one-shot (``;`` separates several); the exit status is 1 if any of them fa
 from __future__ import annotations
 
 import argparse
-import cmd
 import json
 import shlex
 import sys
@@ -21,12 +20,11 @@ import tifffile
 import yaml
 
 from drivers.base import DeviceError
+from drivers.console import DEFAULT_CONFIG, DeviceConsole, load_section, run, split_words
 
 from . import constants as k
 from .device import Cancelled, Tof, parse_serial
 from .query import find_cameras
-
-DEFAULT_CONFIG = Path(__file__).resolve().parents[2] / "config" / "drivers.yaml"
 
 
 class _ArgParser(argparse.ArgumentParser):
@@ -48,13 +46,6 @@ def _on_off(word: str) -> bool:
     raise ValueError(f"expected on or off, got {word!r}")
 
 
-def _words(arg: str, n_min: int, n_max: int, usage: str) -> list[str]:
-    words = shlex.split(arg)
-    if not n_min <= len(words) <= n_max:
-        raise ValueError(f"usage: {usage}")
-    return words
-
-
 def _stats(image: np.ndarray) -> str:
     finite = image[np.isfinite(image)]
     if image.ndim == 3:
@@ -68,44 +59,16 @@ def _stats(image: np.ndarray) -> str:
     )
 
 
-class TofConsole(cmd.Cmd):
+class TofConsole(DeviceConsole):
     intro = "rvs-tof: SR4000 console; 'help' lists the commands, 'quit' leaves."
     prompt = "tof> "
+    # As before: file errors and cancelled grabs print their message alone, like device errors.
+    plain_errors = (*DeviceConsole.plain_errors, OSError, Cancelled)
 
     def __init__(self, camera: Tof, world: Any = None, stdout: TextIO | None = None) -> None:
-        super().__init__(stdout=stdout or sys.stdout)
+        super().__init__(stdout)
         self.cam = camera
         self.world = world
-        self.failed = False
-
-    # -- plumbing ----------------------------------------------------------------------------
-    def say(self, text: str) -> None:
-        self.stdout.write(text + "\n")
-        self.stdout.flush()
-
-    def onecmd(self, line: str) -> bool:
-        try:
-            return bool(super().onecmd(line))
-        except KeyboardInterrupt:
-            self.say("interrupted")
-        except (DeviceError, ValueError, OSError, Cancelled) as exc:
-            self.failed = True
-            self.say(f"error: {exc}")
-        except Exception as exc:  # noqa: BLE001 - a console reports everything and carries on
-            self.failed = True
-            self.say(f"error: {type(exc).__name__}: {exc}")
-        return False
-
-    def emptyline(self) -> bool:
-        return False
-
-    def default(self, line: str) -> bool:
-        self.failed = True
-        self.say(f"error: unknown command {line.split()[0]!r}; 'help' lists the commands")
-        return False
-
-    def _dump(self, data: Any) -> None:
-        self.say(json.dumps(data, indent=2, default=str))
 
     # -- camera maintenance --------------------------------------------------------------------
     def do_open(self, arg: str) -> None:
@@ -130,15 +93,15 @@ class TofConsole(cmd.Cmd):
 
     def do_status(self, arg: str) -> None:
         """status: the status structure (busy, trigger mode, image type, exposure, frequency ...)."""
-        self._dump(self.cam.status())
+        self.dump(self.cam.status())
 
     def do_check(self, arg: str) -> None:
         """check: ask the camera for its serial number and integration time."""
-        self._dump(self.cam.check())
+        self.dump(self.cam.check())
 
     def do_query(self, arg: str) -> None:
         """query: serial number, vendor/product ids, manufacturer and product of the open camera."""
-        self._dump(self.cam.query())
+        self.dump(self.cam.query())
 
     def do_usb(self, arg: str) -> None:
         """usb: list the SR4000 cameras on the USB bus (pyusb; works without libmesasr)."""
@@ -155,37 +118,37 @@ class TofConsole(cmd.Cmd):
 
     def do_threshold(self, arg: str) -> None:
         """threshold N: amplitude threshold 0..65535 (distances below it read 0)."""
-        (n,) = _words(arg, 1, 1, "threshold N")
+        (n,) = split_words(arg, 1, 1, "threshold N")
         self.cam.set_amplitude_threshold(int(n))
         self.say(f"amplitude threshold {int(n)}")
 
     def do_modulation(self, arg: str) -> None:
         """modulation MHZ: 29, 30, 31, 14.5, 15 or 15.5 MHz."""
-        (f,) = _words(arg, 1, 1, "modulation MHZ")
+        (f,) = split_words(arg, 1, 1, "modulation MHZ")
         self.cam.set_modulation(float(f))
         self.say(f"modulation {float(f):g} MHz: unambiguous range {k.unambiguous_range(float(f)):.3f} m")
 
     def do_maxdist(self, arg: str) -> None:
         """maxdist METRES: choose the modulation frequency that measures up to this distance."""
-        (d,) = _words(arg, 1, 1, "maxdist METRES")
+        (d,) = split_words(arg, 1, 1, "maxdist METRES")
         f = self.cam.set_max_distance(float(d))
         self.say(f"modulation {f:g} MHz: unambiguous range {k.unambiguous_range(f):.3f} m")
 
     def do_integration(self, arg: str) -> None:
         """integration REG: integration register 0..255 (0.3 ms + 0.1 ms per step)."""
-        (n,) = _words(arg, 1, 1, "integration REG")
+        (n,) = split_words(arg, 1, 1, "integration REG")
         self.cam.set_integration(int(n))
         self.say(f"integration {int(n)} = {k.integration_ms(int(n)):.1f} ms")
 
     def do_intms(self, arg: str) -> None:
         """intms MS: integration time in ms (0.3 .. 25.8), rounded to a register step."""
-        (ms,) = _words(arg, 1, 1, "intms MS")
+        (ms,) = split_words(arg, 1, 1, "intms MS")
         reg = self.cam.set_integration_ms(float(ms))
         self.say(f"integration {reg} = {k.integration_ms(reg):.1f} ms")
 
     def do_autoexp(self, arg: str) -> None:
         """autoexp on|off [MIN MAX PERCENT DESIRED [ITERATIONS]]: auto exposure and its settling cap."""
-        words = _words(arg, 1, 6, "autoexp on|off [MIN MAX PERCENT DESIRED [ITERATIONS]]")
+        words = split_words(arg, 1, 6, "autoexp on|off [MIN MAX PERCENT DESIRED [ITERATIONS]]")
         nums = [int(w) for w in words[1:]]
         if len(nums) not in (0, 4, 5):
             raise ValueError("usage: autoexp on|off [MIN MAX PERCENT DESIRED [ITERATIONS]]")
@@ -218,7 +181,7 @@ class TofConsole(cmd.Cmd):
 
     def do_colourrange(self, arg: str) -> None:
         """colourrange TYPE LOW HIGH | colourrange TYPE auto: colour range for fake colouring."""
-        words = _words(arg, 2, 3, "colourrange TYPE LOW HIGH | colourrange TYPE auto")
+        words = split_words(arg, 2, 3, "colourrange TYPE LOW HIGH | colourrange TYPE auto")
         if len(words) == 2:
             if words[1] != "auto":
                 raise ValueError("usage: colourrange TYPE LOW HIGH | colourrange TYPE auto")
@@ -290,41 +253,23 @@ class TofConsole(cmd.Cmd):
     def do_intrinsics(self, arg: str) -> None:
         """intrinsics: camera matrix and distortion used for undistortion."""
         K, dist = self.cam.intrinsics()
-        self._dump({"camera_matrix": K.round(4).tolist(), "distortion": dist.tolist()})
+        self.dump({"camera_matrix": K.round(4).tolist(), "distortion": dist.tolist()})
 
     # -- simulation ----------------------------------------------------------------------------
     def do_fault(self, arg: str) -> None:
         """fault KIND [AFTER]: sim only; unplug, timeout or none, optionally after AFTER frames."""
-        words = _words(arg, 1, 2, "fault unplug|timeout|none [AFTER]")
+        words = split_words(arg, 1, 2, "fault unplug|timeout|none [AFTER]")
         kind = None if words[0] == "none" else words[0]
         self.cam.inject_fault(kind, int(words[1]) if len(words) > 1 else 0)
         self.say(f"fault {words[0]}")
 
     def do_ptu(self, arg: str) -> None:
         """ptu PAN TILT: sim only; point the simulated sensor head (degrees)."""
-        pan, tilt = (float(w) for w in _words(arg, 2, 2, "ptu PAN TILT"))
+        pan, tilt = (float(w) for w in split_words(arg, 2, 2, "ptu PAN TILT"))
         if self.world is None:
             raise ValueError("ptu needs the simulated world (--backend sim)")
         self.world.set_ptu(pan, tilt)
         self.say(f"head at pan {pan:g} tilt {tilt:g}")
-
-    def do_quit(self, arg: str) -> bool:
-        """quit: leave the console."""
-        return True
-
-    do_exit = do_quit
-
-    def do_EOF(self, arg: str) -> bool:  # noqa: N802 - cmd.Cmd's name for end of input
-        self.say("")
-        return True
-
-
-def _load_config(path: Path | None) -> dict[str, Any]:
-    source = path or (DEFAULT_CONFIG if DEFAULT_CONFIG.exists() else None)
-    if source is None:
-        return {"backend": "sim"}
-    data = yaml.safe_load(Path(source).read_text()) or {}
-    return dict(data.get("tof", {}) or {})
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -341,7 +286,8 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
 
     try:
-        config = _load_config(args.config)
+        # drivers.tof.create defaults the backend to sim too, so the default only matters with no file.
+        config = load_section("tof", {"backend": "sim"}, args.config)
         if args.backend:
             config["backend"] = args.backend
         if args.serial is not None:
@@ -361,23 +307,7 @@ def main(argv: list[str] | None = None) -> int:
     except (OSError, ValueError, DeviceError, yaml.YAMLError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
-    console = TofConsole(camera, world)
-    try:
-        if not args.no_open:
-            console.onecmd("open")
-        if args.command:
-            for line in args.command:
-                for part in line.split(";"):
-                    if part.strip() and console.onecmd(part.strip()):
-                        return 1 if console.failed else 0
-            return 1 if console.failed else 0
-        console.cmdloop()
-        return 0
-    finally:
-        try:
-            camera.close()
-        except Exception:  # noqa: BLE001 - leaving the console must not trace back
-            pass
+    return run(TofConsole(camera, world), args.command, start=None if args.no_open else "open", close=camera.close)
 
 
 if __name__ == "__main__":

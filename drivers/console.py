@@ -1,0 +1,159 @@
+"""What the device consoles (``rvs-ptu``, ``rvs-tof``, ``rvs-cam``) share.
+
+A bench console must outlive whatever the hardware does, so every command's error is caught and
+printed, and a one-shot run (``-c``) reports through its exit status whether any line failed.
+The consoles differ in which errors are worth a bare message, what Ctrl-C means and how a ``-c``
+line is echoed; those are class attributes or small overrides here, so each tool keeps its exact
+output while the scaffolding lives once.
+"""
+
+from __future__ import annotations
+
+import cmd
+import json
+import shlex
+import sys
+from collections.abc import Callable, Sequence
+from pathlib import Path
+from typing import Any, TextIO
+
+import yaml
+
+from drivers.base import DeviceError
+
+DEFAULT_CONFIG = Path(__file__).resolve().parents[1] / "config" / "drivers.yaml"
+
+
+def split_words(arg: str, n_min: int, n_max: int, usage: str) -> list[str]:
+    """Shell-style words of a command's argument, so a wrong count answers with the usage line."""
+    words = shlex.split(arg)
+    if not n_min <= len(words) <= n_max:
+        raise ValueError(f"usage: {usage}")
+    return words
+
+
+def read_config(path: str | Path | None = None) -> dict[str, Any] | None:
+    """The whole drivers YAML, or None when none was named and the default file is absent.
+
+    A named file that is missing raises OSError: the user asked for it, so silently falling back to
+    built-in defaults would hide a typo.
+    """
+    source = Path(path) if path else (DEFAULT_CONFIG if DEFAULT_CONFIG.exists() else None)
+    if source is None:
+        return None
+    return yaml.safe_load(source.read_text()) or {}
+
+
+def load_section(section: str, defaults: dict[str, Any], path: str | Path | None = None) -> dict[str, Any]:
+    """A device's section of drivers.yaml over its defaults, so a console runs with no config at all."""
+    config = dict(defaults)
+    data = read_config(path)
+    if data is not None:
+        config.update(data.get(section, {}) or {})
+    return config
+
+
+class DeviceConsole(cmd.Cmd):
+    """A bench session must outlive whatever a command raises: errors are printed, never fatal."""
+
+    #: Errors the message of which is self-explanatory; anything else is printed with its type.
+    plain_errors: tuple[type[Exception], ...] = (DeviceError, ValueError)
+    #: False lets Ctrl-C during a command end the session instead of returning to the prompt.
+    catch_interrupts = True
+    #: Tail of the unknown-command message. Not named help_*: cmd.Cmd would list that as a help topic.
+    unknown_hint = "'help' lists the commands"
+
+    def __init__(self, stdout: TextIO | None = None) -> None:
+        super().__init__(stdout=stdout or sys.stdout)
+        self.failed: bool | int = False
+
+    def say(self, text: str) -> None:
+        """Flushed at once, so a long command's progress shows while it runs."""
+        self.stdout.write(text + "\n")
+        self.stdout.flush()
+
+    def dump(self, data: Any) -> None:
+        """Device structures as indented JSON, readable and still parseable by scripts."""
+        self.say(json.dumps(data, indent=2, default=str))
+
+    def fail(self, message: str) -> None:
+        """Every failure passes here so a one-shot run can report it in its exit status."""
+        self.failed = True
+        self.say(message)
+
+    def interrupted(self) -> None:
+        """Ctrl-C stops only the running command; a console whose device keeps moving overrides this."""
+        self.say("interrupted")
+
+    def onecmd(self, line: str) -> bool:
+        try:
+            return bool(super().onecmd(line))
+        except KeyboardInterrupt:
+            if not self.catch_interrupts:
+                raise
+            self.interrupted()
+        except self.plain_errors as exc:
+            self.fail(f"error: {exc}")
+        except Exception as exc:  # noqa: BLE001 - a console reports everything and carries on
+            self.fail(f"error: {type(exc).__name__}: {exc}")
+        return False
+
+    def emptyline(self) -> bool:
+        return False  # never repeat the last command (it may be a move or a grab)
+
+    def default(self, line: str) -> bool:
+        self.fail(f"error: unknown command {line.split()[0]!r}; {self.unknown_hint}")
+        return False
+
+    def run_line(self, line: str) -> bool:
+        """One ``-c`` argument; ``;`` separates commands so a script needs one argument per step.
+
+        True once a command asks to leave, like ``cmdloop`` would stop.
+        """
+        for part in line.split(";"):
+            command = part.strip()
+            if command and self.onecmd(self.precmd(command)):
+                return True
+        return False
+
+    def do_quit(self, arg: str) -> bool:
+        """quit: leave the console."""
+        return True
+
+    do_exit = do_quit
+
+    def do_EOF(self, arg: str) -> bool:  # noqa: N802 - cmd.Cmd's name for end of input
+        self.say("")
+        return True
+
+
+def run(
+    console: DeviceConsole,
+    lines: Sequence[str],
+    *,
+    start: str | None = None,
+    close: Callable[[], object] | None = None,
+    prompt_status: bool = False,
+) -> int:
+    """The console's session: ``lines`` one-shot if any, else the interactive prompt.
+
+    ``start`` (e.g. ``open``) runs first so the device is ready; ``close`` runs however the session
+    ends and its errors are swallowed, since leaving must never trace back. One-shot runs exit 1
+    if any command failed; the prompt exits 0 unless ``prompt_status``, as a person saw the errors.
+    """
+    try:
+        if start is not None:
+            console.onecmd(start)
+        if lines:
+            for line in lines:
+                if console.run_line(line):
+                    break
+            return 1 if console.failed else 0
+        console.cmdloop()
+        return (1 if console.failed else 0) if prompt_status else 0
+    finally:
+        if close is not None:
+            try:
+                close()
+            except Exception:  # noqa: BLE001 - leaving the console must not trace back
+                pass
