@@ -120,7 +120,11 @@ def test_stop_arrives_before_the_stopping_distance_in_10_seeded_runs(server_fact
     assert min(true_gap(world, r, WIDTH + 0.4) for r in world.rocks()) > 2.5  # truly clear ahead
     t = world.truth()
     c.request(f"pose -x {t['x']:.4f} -y {t['y']:.4f} -heading {t['heading']:.3f}")
-    assert next_event(c, "hazard", timeout=5.0)["level"] == "clear"
+    # (Standing still short of the rock, the level may have eased from stop to warning first:
+    # the stop also covered where the moving rover would have been by the next verdict.)
+    deadline = time.monotonic() + 5.0
+    while next_event(c, "hazard", timeout=max(0.1, deadline - time.monotonic()))["level"] != "clear":
+        pass
     st = c.request("status").fields
     assert st["hazard_monitor"] == "running"
     # Cycle time without PTU motion: the spec's bound is 0.5 s; measured 80-150 ms on an idle

@@ -16,7 +16,8 @@ rover's size and its direction of motion whether it must stop. One cycle here is
 Two things make the stop timely and keep it honest:
 
 - the level is decided on the distance *expected when the next cycle's answer can arrive*: the
-  closing speed is estimated from successive distances, so a rover moving at v is stopped
+  closing speed (from the pose the GNC reports, else from successive distances) makes a rover
+  moving at v stop
   v x (latency) earlier than a static reading would (:class:`LevelTracker`);
 - the ToF view starts some way ahead of the rover (a blind zone under the tilt). A hazard seen and
   then lost into that zone is remembered in the global frame (:class:`HazardMemory`), moved with
@@ -55,7 +56,8 @@ class MonitorParams:
     rover_width: float = 0.40
     hysteresis: float = 0.1  # a level is left only this far past its threshold
     min_points: int = 2  # a cell with fewer points is undefined
-    max_speed: float = 2.0  # cap on the estimated closing speed (m/s): one bad reading cannot explode
+    max_speed: float = 1.0  # cap on the closing speed estimated from readings (m/s; the rover's top
+    # speed is 0.7): a hazard cell appearing nearer than the last one is not a rover at full tilt
     hazard: dict[str, float] = field(default_factory=dict)  # Dem2Hazard overrides (step_max, ...)
 
     def __post_init__(self) -> None:
@@ -236,25 +238,37 @@ class LevelTracker:
         self.params = params
         self.level = "clear"
         self.speed = 0.0  # estimated closing speed, m/s
+        self._raw: list[float] = []  # the last few speeds from readings
         self._last: tuple[float, float] | None = None  # (time, distance)
 
     def _rank(self, distance: float) -> int:
         p = self.params
         return 2 if distance <= p.stop_distance else 1 if distance <= p.warn_distance else 0
 
-    def update(self, distance: float | None, t: float, lead: float) -> tuple[str, float | None]:
+    def update(self, distance: float | None, t: float, lead: float, speed: float | None = None
+               ) -> tuple[str, float | None]:
         """The level after a reading at time ``t`` whose successor arrives ``lead`` s later;
-        returns it with the distance it was judged on (the reading minus speed x lead)."""
+        returns it with the distance it was judged on (the reading minus speed x lead).
+
+        ``speed`` is the closing speed when known from elsewhere (the rover's reported motion);
+        without it the speed comes from successive readings: the median of the last three
+        differences, so one jump of the nearest cell is not taken for a sprint.
+        """
         p = self.params
+        if distance is not None and self._last is not None and t > self._last[0]:
+            v = (self._last[1] - distance) / (t - self._last[0])
+            self._raw = [*self._raw[-2:], float(np.clip(v, 0.0, p.max_speed))]
+        if speed is not None:
+            self.speed = max(0.0, float(speed))
+        elif distance is None:
+            self.speed *= 0.5
+        elif self._raw:
+            self.speed = float(np.median(self._raw))
         if distance is None:
             self._last = None
-            self.speed *= 0.5
+            self._raw = []
             expected = None
         else:
-            if self._last is not None and t > self._last[0]:
-                v = (self._last[1] - distance) / (t - self._last[0])
-                v = float(np.clip(v, 0.0, p.max_speed))
-                self.speed = 0.5 * self.speed + 0.5 * v if self.speed > 0 else v
             self._last = (t, distance)
             expected = max(0.0, distance - self.speed * max(lead, 0.0))
         rank = LEVELS.index(self.level)

@@ -303,6 +303,8 @@ class HazardMonitor(Monitor):
         self.level = "none"  # last level sent
         self.last: dict[str, Any] = {}
         self.pointing = (cfg.heading, cfg.tilt)
+        self._pose_seen: tuple[int, Any] | None = None
+        self._pose_v: tuple[float, float] | None = None  # (speed, monotonic time it was measured)
 
     def cycle(self) -> None:
         cfg, app = self.cfg, self.app
@@ -318,11 +320,12 @@ class HazardMonitor(Monitor):
         planar = (pose.x, pose.y, pose.heading)
         self.memory.update(check, planar)
         nearest = self.memory.nearest(planar, self.params)
+        speed = self.pose_speed(pose, app.pose_version)
         # The next verdict comes one cycle interval after this one; the rover closes in on the
         # hazard from this exposure until then. The interval is the longest of the last few, so
         # a loaded machine stops the rover earlier rather than later.
         lead = (time.monotonic() - t_grab) + max(self.period, time.monotonic() - t0, *self.intervals())
-        level, expected = self.levels.update(None if nearest is None else nearest[0], t_grab, lead)
+        level, expected = self.levels.update(None if nearest is None else nearest[0], t_grab, lead, speed)
         self.last = {"distance": None if nearest is None else nearest[0],
                      "bearing": None if nearest is None else nearest[1], "observed": check.observed,
                      "blind": check.blind, "seen": check.distance is not None}
@@ -336,7 +339,21 @@ class HazardMonitor(Monitor):
             fields["cycle"] = self.cycles + 1
             self.emit(fields)
             log.info("hazard_level", level=level, distance=self.last["distance"], expected=expected,
-                     speed=round(self.levels.speed, 3))
+                     speed=round(self.levels.speed, 3), speed_from="pose" if speed is not None else "readings")
+
+    def pose_speed(self, pose: Any, version: int) -> float | None:
+        """The rover's speed along the corridor from the poses the GNC reported since the last
+        cycle; None when it has reported none for a second (then the readings tell)."""
+        now = time.monotonic()
+        seen = self._pose_seen
+        self._pose_seen = (version, pose)
+        if seen is not None and version != seen[0] and pose.time > seen[1].time:
+            direction = math.radians(pose.heading + self.cfg.heading)
+            along = (pose.x - seen[1].x) * math.cos(direction) + (pose.y - seen[1].y) * math.sin(direction)
+            self._pose_v = (max(0.0, along / (pose.time - seen[1].time)), now)
+        if self._pose_v is not None and now - self._pose_v[1] <= 1.0:
+            return self._pose_v[0]
+        return None
 
     def on_pause(self, reason: dict[str, Any]) -> None:
         self.level = "paused"
@@ -419,6 +436,8 @@ class TrackStartConfig(TrackDetectConfig):
     aim: float = param(0.9, "the PTU aims this high above the target's foot point", unit="m", min=0.0, max=5.0,
                        option=False)
     lost_after: int = param(2, "missed cycles before the target counts as lost", min=1, max=100, option=False)
+    resolution: str = param("low", "stereo resolution (low: ~0.5 s cycles in the simulator, high: ~2 s)",
+                            choices=("low", "medium", "high", "highest"), option=False)
 
 
 def _prior(cfg: TrackDetectConfig) -> tr.SizePrior:
