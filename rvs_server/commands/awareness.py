@@ -411,13 +411,12 @@ async def hazard_stop(ctx: Context, cfg: None) -> dict[str, Any]:
 
 
 @dataclass
-class TrackDetectConfig(ModuleConfig):
-    module: ClassVar[str] = "track3d_detect"
-    range: list[float] = param([-90.0, 90.0, -20.0, 0.0], "view range pan_min,pan_max,tilt_min,tilt_max",
-                               unit="deg", length=4, min=-360.0, max=360.0)
+class TrackConfig(ModuleConfig):
+    """What detection and tracking share: the sensor and the target's description."""
+
+    module: ClassVar[str] = "track3d"
     sensor: str = param("tof", "tof: astronaut-sized objects in ToF points; stereo: ArUco markers",
                         choices=("tof", "stereo"))
-    overlap: float = param(0.2, "share of the field of view that neighbouring views overlap", min=0.0, max=0.9)
     height: float = param(1.8, "size prior: the target's height", unit="m", min=0.3, max=5.0, option=False)
     width: float = param(0.5, "size prior: the target's width", unit="m", min=0.1, max=3.0, option=False)
     marker_id: int = param(-1, "ArUco 6x6 marker id of the target (-1: any)", min=-1, max=249, option=False)
@@ -429,7 +428,15 @@ class TrackDetectConfig(ModuleConfig):
 
 
 @dataclass
-class TrackStartConfig(TrackDetectConfig):
+class TrackDetectConfig(TrackConfig):
+    module: ClassVar[str] = "track3d_detect"
+    range: list[float] = param([-90.0, 90.0, -20.0, 0.0], "view range pan_min,pan_max,tilt_min,tilt_max",
+                               unit="deg", length=4, min=-360.0, max=360.0)
+    overlap: float = param(0.2, "share of the field of view that neighbouring views overlap", min=0.0, max=0.9)
+
+
+@dataclass
+class TrackStartConfig(TrackConfig):
     module: ClassVar[str] = "track3d_start"
     period: float = param(0.0, "time from one cycle's start to the next (0: as fast as it goes)", unit="s",
                           min=0.0, max=60.0)
@@ -440,7 +447,7 @@ class TrackStartConfig(TrackDetectConfig):
                             choices=("low", "medium", "high", "highest"), option=False)
 
 
-def _prior(cfg: TrackDetectConfig) -> tr.SizePrior:
+def _prior(cfg: TrackConfig) -> tr.SizePrior:
     return tr.SizePrior(height=cfg.height, width=cfg.width, height_tolerance=0.25 * cfg.height,
                         width_range=(0.4 * cfg.width, 1.8 * cfg.width))
 
@@ -461,7 +468,7 @@ def look_at(head: HeadCalibration, target_rover: np.ndarray) -> tuple[float, flo
     return pan, tilt
 
 
-def _sense(app: Any, cfg: TrackDetectConfig, pan: float, tilt: float, call: Any
+def _sense(app: Any, cfg: TrackConfig, pan: float, tilt: float, call: Any
            ) -> tuple[list[tr.Detection], float, float]:
     """One view's detections in the global frame; returns them with the monotonic and wall-clock
     time of the exposure: the start of the acquisition call (the frame is exposed first, then
