@@ -133,7 +133,8 @@ class Monitor:
                     ms = 1000.0 * max(0.0, spent - self._move_s)
                     self.cycle_ms.append(ms)
                     self.io_ms.append(1000.0 * self._io_s)
-                    self.cycle_max_ms = max(self.cycle_max_ms, ms)
+                    if self.cycles:  # the first cycle warms the camera's caches
+                        self.cycle_max_ms = max(self.cycle_max_ms, ms)
                     self.cycles += 1
                 finally:
                     app.device_lock.release()
