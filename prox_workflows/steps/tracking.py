@@ -2,14 +2,18 @@
 
 Two detectors, both on arrays:
 
-- :func:`detect_standing` finds astronaut-sized objects in 3-D points (ToF): points standing
-  above the ground (a coarse min-height surface, opened so that a body cannot raise it) are
-  clustered on a horizontal grid, and a cluster counts when its height and its width across the
-  line of sight match the size prior (1.8 m tall, 0.5 m wide by default). Its position is the
-  axis of the body: a circle fitted to the body's points in plan view, since a sensor sees only
-  the near half of a round body and the plain centroid would sit some 0.17 m too close.
-- :func:`detect_markers` finds ArUco markers (6x6 dictionary) in a rectified stereo pair and
-  triangulates their corners, so the marker's 3-D pose needs no size prior.
+- :func:`detect_standing` finds astronaut-sized objects in an organised ToF point image: pixels
+  standing above the ground (the per-cell lowest points, opened so that a body cannot raise
+  them, with a RANSAC plane where only floating returns were seen) and bright enough for their
+  range are split into smooth surfaces at range discontinuities in the image, and a surface
+  counts when it stands on the ground and its height and its torso's width across the line of
+  sight match the size prior (1.8 m tall, 0.5 m wide by default). Its position is the axis of
+  the body: a circle fitted to the torso in plan view, since a sensor sees only the near half of
+  a round body and the plain centroid would sit some 0.17 m too close. The image, not 3-D
+  proximity, separates objects because the SR4000's phase wrap puts far slopes beyond 5 m as
+  faint sheets floating right beside a body at its range.
+- :func:`detect_markers` finds ArUco markers (6x6 dictionary) in both images of a stereo pair
+  and triangulates their corners, so the marker's 3-D pose needs no size prior.
 
 Positions are the target's *foot point*: its vertical axis where it meets the ground, in the
 frame the points were given in (the caller passes global points).
