@@ -1,0 +1,153 @@
+"""Fuzzing a live server (issue 8, item 1): generated, junk and mutated request lines over 20
+concurrent connections to ``rvs_server`` in a child process.
+
+Every non-blank, non-comment request gets exactly one final line (counted per connection
+against the reference model of reliability_harness, and per tag for the unmutated requests),
+no reply is E_INTERNAL or unparseable, the server never dies, its resident memory stays flat
+and its file descriptors come back. The short version (about 10,000 lines) runs always; the long
+one (100,000 lines) with RVS_LONG=1.
+"""
+
+from __future__ import annotations
+
+import random
+import time
+from collections.abc import Iterator
+
+import pytest
+from conftest import LineClient
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+from reliability_harness import (
+    FAST,
+    LONG,
+    LineGen,
+    Plan,
+    Sampler,
+    close_iac,
+    drive,
+    fd_count,
+    hazard,
+    logical_line,
+    long_suite,
+    make_plan,
+    record,
+    rss_kb,
+    summarize,
+    wait_until,
+)
+
+from tools.session import ServerProcess
+
+CONNECTIONS = 20
+WARM_UP = ["grab-stereo -output fz2 -resolution low", "grab-tof -output fz0 -type z", "move-ptu -pan 20 -tilt -20",
+           "sim move-rover -dx 50", "grab-stereo -output fz2 -resolution low", "grab-tof -output fz1 -integrate 2",
+           "sim move-rover -dx -50 -dyaw 90", "grab-stereo -output fz2 -resolution low", "reset", "break", "recover",
+           "continue", "format json", "format text"]
+
+
+@pytest.fixture(scope="module")
+def server() -> Iterator[ServerProcess]:
+    srv = ServerProcess(extra_args=FAST)
+    srv.start()
+    yield srv
+    srv.stop()
+
+
+def alive(srv: ServerProcess) -> bool:
+    if srv.proc is None or srv.proc.poll() is not None:
+        return False
+    c = LineClient(srv.port)
+    try:
+        return c.request("@alive status").status == "OK"
+    finally:
+        c.close()
+
+
+def fuzz(srv: ServerProcess, lines_per_connection: int, rounds: int, seed: int) -> dict:
+    """A warm-up round, then ``rounds`` rounds of 20 connections; RSS after the warm-up against
+    the end, fds before against after."""
+    pid = srv.proc.pid
+    c = LineClient(srv.port)  # warm-up: the first stereo render alone allocates ~100 MB for good
+    for line in WARM_UP:
+        assert c.request(line, timeout=60).status in ("OK", "ERROR")
+    c.close()
+    warm = [make_plan(LineGen(random.Random(seed * 7919 + i)), 100, f"w{i}") for i in range(CONNECTIONS)]
+    totals = summarize(drive(srv.port, warm, seed))
+    assert totals["finals"] == totals["expected"] and not totals["errors"], totals
+    rss_warm = rss_kb(pid)
+    time.sleep(0.5)  # the warm-up connections are closed by now
+    fds_before = fd_count(pid)
+    sent = expected = finals = 0
+    failures: list[dict] = []
+    t0 = time.monotonic()
+    with Sampler(pid) as sampler:
+        for r in range(rounds):
+            plans = [make_plan(LineGen(random.Random(seed * 104729 + r * 100 + i)), lines_per_connection, f"r{r}c{i}")
+                     for i in range(CONNECTIONS)]
+            summary = summarize(drive(srv.port, plans, seed + r))
+            sent += sum(len(p.pieces) for p in plans)
+            expected += summary["expected"]
+            finals += summary["finals"]
+            if summary["miscounted"] or summary["errors"] or summary["missing_tags"] or summary["internal"] \
+                    or summary["malformed"]:
+                failures.append(summary)
+    seconds = time.monotonic() - t0
+    assert alive(srv), srv.log_tail()
+    assert wait_until(lambda: fd_count(pid) <= fds_before, 10), (fd_count(pid), fds_before)
+    rss_end = rss_kb(pid)
+    figures = {
+        "lines": sent, "requests": expected, "finals": finals, "connections": CONNECTIONS, "seconds": round(seconds, 1),
+        "rss_warm_kb": rss_warm, "rss_end_kb": rss_end, "rss_peak_kb": sampler.peak_kb(),
+        "rss_growth": round((rss_end - rss_warm) / rss_warm, 4), "fds_before": fds_before, "fds_after": fd_count(pid),
+    }
+    record("fuzz_server", **figures)
+    assert not failures, [{k: v for k, v in f.items() if v} for f in failures[:2]]
+    assert finals == expected
+    return figures
+
+
+def test_fuzz_20_connections(server: ServerProcess) -> None:
+    figures = fuzz(server, lines_per_connection=500, rounds=1, seed=1)
+    assert figures["lines"] >= 10_000
+    assert figures["rss_growth"] < 0.10, figures
+
+
+@long_suite
+def test_fuzz_100k_lines_over_20_connections(server: ServerProcess) -> None:
+    figures = fuzz(server, lines_per_connection=1000, rounds=5, seed=2)
+    assert figures["lines"] >= 100_000
+    assert figures["rss_growth"] < 0.10, figures
+
+
+# ------------------------------------------------------------------------------------ hypothesis
+
+
+def piece_lists(draw_rng: random.Random) -> Plan:
+    gen = LineGen(draw_rng)
+    plan = Plan()
+    for i in range(draw_rng.randint(1, 12)):
+        r = draw_rng.random()
+        if r < 0.3:
+            raw, tag = gen.junk().encode("utf-8", "surrogatepass"), None
+        elif r < 0.7:
+            raw, tag = gen.mutate(gen.request().line.encode("utf-8", "surrogatepass")), None
+        else:
+            tag = f"h{i}"
+            raw = gen.request(tag=tag).line.encode("utf-8", "surrogatepass")
+        if any(hazard(logical_line(close_iac(p))) for p in raw.split(b"\n")):
+            continue
+        plan.add(raw, tag, "h")
+    return plan
+
+
+@settings(max_examples=200 if LONG else 40, deadline=None,
+          suppress_health_check=[HealthCheck.too_slow, HealthCheck.function_scoped_fixture])
+@given(st.randoms(use_true_random=False).map(piece_lists))
+def test_hypothesis_batches_get_one_final_line_each(server: ServerProcess, plan: Plan) -> None:
+    """The same generators under hypothesis, one connection per example: a failure shrinks to
+    the few lines that cause it."""
+    summary = summarize(drive(server.port, [plan], 0, timeout=60))
+    assert not summary["errors"] and not summary["internal"] and not summary["malformed"], summary
+    assert summary["finals"] == summary["expected"], (summary, plan.pieces)
+    assert not summary["missing_tags"], summary
