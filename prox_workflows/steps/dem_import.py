@@ -8,32 +8,53 @@ from one that straddles an edge; with per-point measurement variances (from the 
 the cell also gets the fused measurement variance that DemMosaik's ``fuse`` rule weighs by.
 
 Speed is the point of the implementation: a full 24-view scan is millions of points. There is no
-per-point Python and no sort; the points are streamed in chunks small enough to stay in cache,
-and every statistic is one scatter of a chunk into a grid-sized accumulator with numpy's
-``ufunc.at`` (whose contiguous fast path runs at bincount speed since numpy 1.25):
+per-point Python and no sort. Two implementations give the same layers (dem, min and count bit
+for bit, the moments to rounding); ``IMPL`` picks one, tests run both.
+
+**numba** (the default; a project dependency): one compiled pass over the points computes every
+statistic, a block of 2048 points at a time. First the block's flat cell indices, in a loop the
+compiler vectorises (the N x 3 / N x 4 rows read with a constant stride); then one scatter loop
+that keeps the current cell's max, min, count and sums in registers while consecutive points fall
+in the same cell (a ToF image's pixel order puts neighbours together) and adds them to the grid
+when the cell changes; then a finishing pass per block of cells. Sums are float64 of
+d = z - z0 (z0 the cloud's mid height, or that of a sample of it when the grid is given), so
+E[d^2] - E[d]^2 keeps its precision for millimetre spreads on metre-scale terrain. With at
+least 400 000 points, two a cell, and a core idle, two threads (the kernels release the GIL) each
+read every point but scatter into their own half of the cells - no second set of sums to merge,
+and the same result, bit for bit, as one thread. The kernels are compiled on first use and
+cached by numba (``cache=True``: 2-6 s once per installation, then ~0.4 s per process with
+numba's import); :func:`warm_up` does it ahead of time. See ``tools/bench/dem.py`` for the figures.
+
+**numpy** (the fallback without numba, and for dtypes numba is not given): the points are
+streamed in chunks small enough to stay in cache, and every statistic is one scatter of a chunk
+into a grid-sized accumulator with numpy's ``ufunc.at`` (whose contiguous fast path runs at
+bincount speed since numpy 1.25):
 
 * max and min: ``np.maximum.at`` / ``np.minimum.at`` (exact, order-independent);
 * count: ``np.add.at`` of ones;
-* sum and sum of squares in one complex128 ``np.add.at`` (real = d, imaginary = d^2, with d the
-  height relative to the cloud's mid height, in float64, so E[d^2] - E[d]^2 keeps its precision
-  for millimetre spreads on metre-scale terrain);
+* sum and sum of squares in one complex128 ``np.add.at`` (real = d, imaginary = d^2);
 * with point variances, information 1/s^2 and information-weighted height in a second complex
   scatter.
 
-Cell assignment is exactly :meth:`GridGeometry.cell_of`'s arithmetic (same expression, same
-dtype), so points on a cell border land where ``cell_of`` says, whatever the input precision.
+In both, cell assignment is exactly :meth:`GridGeometry.cell_of`'s arithmetic (same expression,
+same dtype), so points on a cell border land where ``cell_of`` says, whatever the input precision.
 """
 
 from __future__ import annotations
 
+import importlib.util
 import math
+import os
+import threading
 from collections.abc import Sequence
+from concurrent.futures import ThreadPoolExecutor
+from typing import Any
 
 import numpy as np
 
 from ..grid import GridGeometry, Layers
 
-CHUNK = 1 << 16  # points per chunk: index, heights and weights of one chunk stay in L2 cache
+CHUNK = 1 << 16  # points per chunk (numpy): index, heights and weights of one chunk stay in L2 cache
 
 LAYERS = ("dem", "mean", "min", "count", "variance")  # by default; plus measurement_variance,
 # wmean, intensity when point variances / a fourth column are given
@@ -141,8 +162,9 @@ def dem_import(
     variance of the cell's heights (0 for one point); with ``point_variance`` (N, m^2) also
     ``measurement_variance`` = 1 / sum(1 / s_i^2), the variance of the information-weighted mean
     height ``wmean``, which is what DemMosaik's ``fuse`` rule weighs the cell by; with a fourth
-    column ``intensity``, its mean. ``stats`` names the layers wanted of the first five (each
-    costs a pass over the points; ``("dem",)`` is the bare direct reconstruction).
+    column ``intensity``, its mean. ``stats`` names the layers wanted of the first five (fewer
+    cost less; ``("dem",)`` is the bare direct reconstruction). ``chunk`` is the points per chunk
+    of the numpy implementation (the compiled one takes blocks of at most 2048).
     """
     pts = np.asarray(points)
     if pts.ndim != 2 or pts.shape[1] not in (3, 4):
@@ -161,6 +183,15 @@ def dem_import(
     unknown = set(stats) - set(LAYERS)
     if unknown or "dem" not in stats:
         raise ValueError(f"stats must include 'dem' and be among {', '.join(LAYERS)}; got {list(stats)}")
+    if _choose(pts) == "numba":
+        return _import_numba(pts, var, geometry, cell, bounds, rover_mask, rover_ground_z, stats, chunk)
+    return _import_numpy(pts, var, geometry, cell, bounds, rover_mask, rover_ground_z, stats, chunk)
+
+
+def _import_numpy(pts: np.ndarray, var: np.ndarray | None, geometry: GridGeometry | None, cell: float,
+                  bounds: Sequence[float] | None, rover_mask: np.ndarray | Sequence[float] | None,
+                  rover_ground_z: float | None, stats: Sequence[str], chunk: int) -> Layers:
+    """The numpy implementation: one ``ufunc.at`` scatter per statistic and chunk."""
     want_min = "min" in stats
     want_moments = "mean" in stats or "variance" in stats
     want_count = "count" in stats or want_moments or var is not None or pts.shape[1] == 4
@@ -298,6 +329,473 @@ def _finish(g: GridGeometry, stats: Sequence[str], zmax: np.ndarray, zmin: np.nd
     if isum is not None:
         out["intensity"] = (isum / n).astype(np.float32).reshape(shape)
     return out
+
+
+# ---------------------------------------------------------------------------------------------
+# The compiled implementation: one pass over the points (numba)
+# ---------------------------------------------------------------------------------------------
+NUMBA_BLOCK = 2048  # points per block: their cell indices and heights stay in L1 between the phases
+FINISH_BLOCK = 1024  # cells per block of the finishing pass
+IMPL = "numba"  # "numba" (when installed) or "numpy"; tests switch it to run both implementations
+THREADS = min(2, os.cpu_count() or 1)  # threads the compiled pass splits the grid's cells over ...
+THREAD_MIN_POINTS = 400_000  # ... when there are this many points, at least 2 a cell, and a free core
+
+
+def _accumulate_kernel(pts, var, clo, chi, block, xmin, ymax, cell, fw, fh, w, z0,
+                       want_min, want_count, want_moments, poly, pbox, use_ground, ground32, ground,
+                       zmax, zmin, count, s1, s2, i1, i2, isum, idx, zb, ib):
+    """Every statistic of the points that fall in cells ``clo <= c < chi``, in one pass over the
+    points, a block at a time: first the block's flat cell indices (-1 for a point outside the
+    grid, with a non-finite coordinate, or on the rover's body) in a loop the compiler
+    vectorises, then one scatter loop, which sums runs of consecutive points in the same cell
+    (pixel order puts neighbours together) in registers before touching the grid.
+    Written in the subset of Python numba compiles; the arrays of statistics not wanted are
+    empty. ``d`` is the height relative to ``z0`` in float64, as in the numpy implementation."""
+    n = pts.shape[0]
+    ncol = pts.shape[1]
+    use_var = var.shape[0] > 0
+    with_int = isum.shape[0] > 0
+    npoly = poly.shape[0]
+    for s in range(0, n, block):
+        m = min(n - s, block)
+        flat = pts[s:s + m].reshape(-1)  # a constant stride below: the loads vectorise
+        if ncol == 3:
+            for j in range(m):
+                x = flat[3 * j]
+                y = flat[3 * j + 1]
+                z = flat[3 * j + 2]
+                tc = (x - xmin) / cell  # GridGeometry.cell_of's expression, in the points' dtype
+                tr = (ymax - y) / cell
+                ok = (tc >= 0) & (tc < fw) & (tr >= 0) & (tr < fh) & (z - z == 0)
+                c = np.int32(tr) * np.int32(w) + np.int32(tc)  # t >= 0 where kept: truncation is floor
+                idx[j] = c if ok else np.int32(-1)
+                zb[j] = np.float32(z)
+        else:
+            for j in range(m):
+                x = flat[4 * j]
+                y = flat[4 * j + 1]
+                z = flat[4 * j + 2]
+                v = flat[4 * j + 3]  # loading all four keeps the stride-4 loads vectorised
+                tc = (x - xmin) / cell
+                tr = (ymax - y) / cell
+                ok = (tc >= 0) & (tc < fw) & (tr >= 0) & (tr < fh) & (z - z == 0)
+                c = np.int32(tr) * np.int32(w) + np.int32(tc)
+                idx[j] = c if ok else np.int32(-1)
+                zb[j] = np.float32(z)
+                ib[j] = v
+        if npoly:  # the rover's body: _in_polygon's even-odd rule, in float64
+            for j in range(m):
+                if idx[j] < 0:
+                    continue
+                x = np.float64(flat[ncol * j])
+                y = np.float64(flat[ncol * j + 1])
+                if not (x >= pbox[0] and x <= pbox[2] and y >= pbox[1] and y <= pbox[3]):
+                    continue
+                inside = False
+                for e in range(npoly):
+                    x0 = poly[e, 0]
+                    y0 = poly[e, 1]
+                    x1 = poly[e - 1 if e > 0 else npoly - 1, 0]
+                    y1 = poly[e - 1 if e > 0 else npoly - 1, 1]
+                    if y0 == y1:
+                        continue
+                    if (y0 > y) != (y1 > y):
+                        xc = x0 + (y - y0) * (x1 - x0) / (y1 - y0)
+                        if x < xc:
+                            inside = not inside
+                if inside and use_ground:
+                    zz = flat[ncol * j + 2]
+                    inside = (np.float32(zz) > np.float32(ground)) if ground32 else (np.float64(zz) > ground)
+                if inside:
+                    idx[j] = -1
+        if want_min and want_count and want_moments and not use_var and not with_int:  # the usual case
+            cur = -1
+            mx = np.float32(0.0)
+            mn = np.float32(0.0)
+            k = 0
+            a1 = 0.0
+            a2 = 0.0
+            for j in range(m):
+                c = idx[j]
+                if c < clo or c >= chi:  # -1 included: clo >= 0
+                    continue
+                zf = zb[j]
+                d = np.float64(zf) - z0
+                if c == cur:  # the same cell as the point before: sum in registers
+                    mx = max(mx, zf)
+                    mn = min(mn, zf)
+                    k += 1
+                    a1 += d
+                    a2 += d * d
+                    continue
+                if cur >= 0:
+                    zmax[cur] = max(zmax[cur], mx)
+                    zmin[cur] = min(zmin[cur], mn)
+                    count[cur] += k
+                    s1[cur] += a1
+                    s2[cur] += a2
+                cur = c
+                mx = zf
+                mn = zf
+                k = 1
+                a1 = d
+                a2 = d * d
+            if cur >= 0:
+                zmax[cur] = max(zmax[cur], mx)
+                zmin[cur] = min(zmin[cur], mn)
+                count[cur] += k
+                s1[cur] += a1
+                s2[cur] += a2
+        elif want_min and want_count and want_moments:  # and point variances or intensity
+            cur = -1
+            mx = np.float32(0.0)
+            mn = np.float32(0.0)
+            k = 0
+            a1 = 0.0
+            a2 = 0.0
+            b1 = 0.0
+            b2 = 0.0
+            bi = 0.0
+            for j in range(m):
+                c = idx[j]
+                if c < clo or c >= chi:
+                    continue
+                zf = zb[j]
+                d = np.float64(zf) - z0
+                iv = 1.0 / var[s + j] if use_var else 0.0
+                it = np.float64(ib[j]) if with_int else 0.0
+                if c == cur:
+                    mx = max(mx, zf)
+                    mn = min(mn, zf)
+                    k += 1
+                    a1 += d
+                    a2 += d * d
+                    b1 += iv
+                    b2 += iv * d
+                    bi += it
+                    continue
+                if cur >= 0:
+                    zmax[cur] = max(zmax[cur], mx)
+                    zmin[cur] = min(zmin[cur], mn)
+                    count[cur] += k
+                    s1[cur] += a1
+                    s2[cur] += a2
+                    if use_var:
+                        i1[cur] += b1
+                        i2[cur] += b2
+                    if with_int:
+                        isum[cur] += bi
+                cur = c
+                mx = zf
+                mn = zf
+                k = 1
+                a1 = d
+                a2 = d * d
+                b1 = iv
+                b2 = iv * d
+                bi = it
+            if cur >= 0:
+                zmax[cur] = max(zmax[cur], mx)
+                zmin[cur] = min(zmin[cur], mn)
+                count[cur] += k
+                s1[cur] += a1
+                s2[cur] += a2
+                if use_var:
+                    i1[cur] += b1
+                    i2[cur] += b2
+                if with_int:
+                    isum[cur] += bi
+        else:  # a subset of the statistics: point by point
+            for j in range(m):
+                c = idx[j]
+                if c < clo or c >= chi:
+                    continue
+                zf = zb[j]
+                zmax[c] = max(zmax[c], zf)
+                if want_min:
+                    zmin[c] = min(zmin[c], zf)
+                if want_count:
+                    count[c] += 1
+                d = np.float64(zf) - z0
+                if want_moments:
+                    s1[c] += d
+                    s2[c] += d * d
+                if use_var:
+                    iv = 1.0 / var[s + j]
+                    i1[c] += iv
+                    i2[c] += iv * d
+                if with_int:
+                    isum[c] += np.float64(ib[j])
+
+
+def _finish_kernel(acc, clo, chi, block, z0, want_min, want_count, want_moments, rezero,
+                   mean, variance, mvar, wmean, inten):
+    """The layers of cells ``clo <= c < chi`` from their sums, as :func:`_finish` does (NaN where
+    no point fell), a block of cells at a time in loops the compiler vectorises. ``acc`` =
+    (zmax, zmin, count, s1, s2, i1, i2, isum); dem, min and count are finished in place, and
+    with ``rezero`` the float64 sums are zeroed again for the next call (while in cache)."""
+    zmax, zmin, count, s1, s2, i1, i2, isum = acc
+    nan = np.float32(np.nan)
+    use_var = i1.shape[0] > 0
+    with_int = isum.shape[0] > 0
+    for b0 in range(clo, chi, block):
+        b1 = min(chi, b0 + block)
+        m = b1 - b0
+        zm = zmax[b0:b1]
+        if not want_count:  # dem (and min) only: a cell is empty while its max is -inf
+            for j in range(m):
+                zm[j] = nan if zm[j] == -np.inf else zm[j]
+            if want_min:
+                zn = zmin[b0:b1]
+                for j in range(m):
+                    zn[j] = nan if zn[j] == np.inf else zn[j]
+            continue
+        ct = count[b0:b1]
+        for j in range(m):
+            zm[j] = nan if ct[j] == 0 else zm[j]
+        if want_min:
+            zn = zmin[b0:b1]
+            for j in range(m):
+                zn[j] = nan if ct[j] == 0 else zn[j]
+        if want_moments:
+            t1 = s1[b0:b1]
+            t2 = s2[b0:b1]
+            me = mean[b0:b1]
+            va = variance[b0:b1]
+            for j in range(m):
+                nk = np.float64(ct[j])
+                md = t1[j] / nk
+                v = t2[j] / nk - md * md
+                me[j] = nan if ct[j] == 0 else np.float32(md + z0)
+                va[j] = nan if ct[j] == 0 else np.float32(max(v, 0.0))  # rounding can leave -1e-20
+        if use_var:
+            u1 = i1[b0:b1]
+            u2 = i2[b0:b1]
+            mv = mvar[b0:b1]
+            wm = wmean[b0:b1]
+            for j in range(m):
+                mv[j] = nan if ct[j] == 0 else np.float32(1.0 / u1[j])
+                wm[j] = nan if ct[j] == 0 else np.float32(u2[j] / u1[j] + z0)
+        if with_int:
+            u = isum[b0:b1]
+            it = inten[b0:b1]
+            for j in range(m):
+                it[j] = nan if ct[j] == 0 else np.float32(u[j] / np.float64(ct[j]))
+        if rezero:
+            for q in (s1, s2, i1, i2, isum):  # the same type: a homogeneous tuple
+                if q.shape[0] > 0:
+                    u = q[b0:b1]
+                    for j in range(m):
+                        u[j] = 0.0
+
+
+def _find_numba() -> bool:
+    try:
+        return importlib.util.find_spec("numba") is not None
+    except (ImportError, ValueError):
+        return False
+
+
+HAVE_NUMBA = _find_numba()
+_compiled: dict[str, Any] = {}  # the compiled kernels, made on first use (importing numba takes ~0.3 s)
+_compile_lock = threading.Lock()
+_pool_made: list[ThreadPoolExecutor] = []  # the worker that takes the second part of the grid
+
+
+def _pool() -> ThreadPoolExecutor:
+    with _compile_lock:
+        if not _pool_made:
+            _pool_made.append(ThreadPoolExecutor(max_workers=1, thread_name_prefix="dem_import"))
+    return _pool_made[0]
+
+
+def _kernels() -> dict[str, Any] | None:
+    """numba's compiled kernels (compiled once per installation, then loaded from numba's cache),
+    or None when numba is missing. Division follows IEEE (``error_model="numpy"``): no check for
+    zero in the loops, which would keep them from vectorising; no divisor can be zero here
+    (cell > 0, point variances > 0, and empty cells are overwritten with NaN)."""
+    if not HAVE_NUMBA:
+        return None
+    with _compile_lock:
+        if not _compiled:
+            import numba
+
+            for name, fn in (("accumulate", _accumulate_kernel), ("finish", _finish_kernel)):
+                try:  # cached beside this file (or in NUMBA_CACHE_DIR)
+                    _compiled[name] = numba.njit(cache=True, nogil=True, error_model="numpy")(fn)
+                except RuntimeError:  # no writable cache location: compile in each process instead
+                    _compiled[name] = numba.njit(cache=False, nogil=True, error_model="numpy")(fn)
+    return _compiled
+
+
+def warm_up() -> None:
+    """Compile (or load from numba's cache) the kernels now rather than in the first import:
+    float32 and float64 points (N x 3 and N x 4 share a kernel), with every option."""
+    if _kernels() is None:
+        return
+    for dtype in (np.float32, np.float64):
+        pts = np.zeros((4, 4), dtype)
+        pts[:, :2] = [[0.01, 0.01], [0.03, 0.01], [0.5, 0.5], [0.01, 0.03]]
+        _import_numba(pts, np.ones(4), None, 0.02, None, (0.4, 0.4, 0.6, 0.6), 0.1, LAYERS, CHUNK)
+
+
+def _choose(pts: np.ndarray) -> str:
+    if IMPL == "numba" and pts.dtype in (np.float32, np.float64) and _kernels() is not None:
+        return "numba"
+    return "numpy"
+
+
+def _import_numba(pts: np.ndarray, var: np.ndarray | None, geometry: GridGeometry | None, cell: float,
+                  bounds: Sequence[float] | None, rover_mask: np.ndarray | Sequence[float] | None,
+                  rover_ground_z: float | None, stats: Sequence[str], chunk: int) -> Layers:
+    """The compiled implementation: the layers of :func:`_import_numpy` in one pass."""
+    kern = _kernels()
+    assert kern is not None
+    z0 = None
+    if geometry is None and bounds is None:
+        if not len(pts):
+            raise ValueError("no points and no geometry or bounds to make an empty grid")
+        lo, hi = _extremes(pts)
+        if not (np.all(np.isfinite(lo[:3])) and np.all(np.isfinite(hi[:3]))):
+            finite = pts[np.all(np.isfinite(pts[:, :3]), axis=1)]
+            if not len(finite):
+                raise ValueError("no points and no geometry or bounds to make an empty grid")
+            lo, hi = _extremes(finite)
+        geometry = _grid_holding(pts.dtype, lo, hi, cell)
+        z0 = float(0.5 * (lo[2] + hi[2]))  # as the numpy implementation
+    elif geometry is None:
+        geometry = geometry_for(pts, cell, bounds)
+    g = geometry
+    h, w = g.shape
+    ncell = h * w
+    # cell_of computes in the dtype numpy gives (x - xmin) / cell: the points' own for Python
+    # floats, float64 for float32 points and numpy float64 numbers in the geometry; so does the kernel
+    adt = np.result_type((pts[:0, 0] - g.xmin) / g.cell, (g.ymax - pts[:0, 1]) / g.cell)
+    if ncell >= 2**31 or adt not in (np.float32, np.float64):  # int32 cell indices only
+        return _import_numpy(pts, var, g, cell, bounds, rover_mask, rover_ground_z, stats, chunk)
+    kp = np.ascontiguousarray(pts, dtype=adt)
+    # rover_ground_z compares as numpy compares it with the points' heights (a Python float: in
+    # the points' dtype)
+    ground32 = bool(rover_ground_z is not None and np.result_type(pts.dtype, rover_ground_z) == np.float32)
+    if z0 is None:  # a reference height amid the data, for the precision of the sums of squares
+        zs = kp[:: max(1, len(kp) // 4096), 2].astype(np.float64)
+        zs = zs[np.isfinite(zs)]
+        z0 = float(0.5 * (zs.min() + zs.max())) if len(zs) else 0.0
+
+    want_min = "min" in stats
+    want_moments = "mean" in stats or "variance" in stats
+    want_count = "count" in stats or want_moments or var is not None or pts.shape[1] == 4
+    with_intensity = pts.shape[1] == 4
+    f32 = np.float32
+    none32, none64 = np.empty(0, f32), np.empty(0)
+    # zmax, zmin, count, s1, s2 (sum d, sum d^2), i1, i2 (sum 1/s^2, sum d/s^2), isum; those not
+    # wanted are empty (the kernels' types stay the same)
+    kept, sums = _sums(2 * want_moments + 2 * (var is not None) + with_intensity, ncell)
+    rows = iter(sums)
+    acc = (np.full(ncell, -np.inf, f32), np.full(ncell, np.inf, f32) if want_min else none32,
+           np.zeros(ncell if want_count else 0, np.int32),
+           next(rows) if want_moments else none64, next(rows) if want_moments else none64,
+           next(rows) if var is not None else none64, next(rows) if var is not None else none64,
+           next(rows) if with_intensity else none64)
+    mean = np.empty(ncell, f32) if want_moments else none32
+    variance = np.empty(ncell, f32) if want_moments else none32
+    mvar = np.empty(ncell, f32) if var is not None else none32
+    wmean = np.empty(ncell, f32) if var is not None else none32
+    inten = np.empty(ncell, f32) if with_intensity else none32
+    if rover_mask is not None:
+        poly = np.ascontiguousarray(_rover_polygon(rover_mask))
+        pbox = np.concatenate([poly.min(axis=0), poly.max(axis=0)])
+    else:
+        poly, pbox = np.empty((0, 2)), np.empty(4)
+    block = max(1, min(int(chunk), NUMBA_BLOCK))
+    t = kp.dtype.type
+    fixed = (block, t(g.xmin), t(g.ymax), t(g.cell), t(w), t(h), w, z0, want_min, want_count, want_moments,
+             poly, pbox, rover_ground_z is not None, ground32, float(rover_ground_z or 0.0))
+    vv = var if var is not None else none64
+
+    def run(clo: int, chi: int) -> None:
+        """Accumulate and finish the cells clo <= c < chi (the threads' parts share no cell)."""
+        kern["accumulate"](kp, vv, clo, chi, *fixed, *acc, np.empty(block, np.int32), np.empty(block, f32),
+                           np.empty(block if with_intensity else 0, kp.dtype))
+        kern["finish"](acc, clo, chi, FINISH_BLOCK, z0, want_min, want_count, want_moments, kept,
+                       mean, variance, mvar, wmean, inten)
+
+    n = len(kp)
+    split = _split_cell(kp, g) if THREADS > 1 and n >= THREAD_MIN_POINTS and n >= 2 * ncell and _core_free() else 0
+    if 0 < split < ncell:
+        # two threads, each over all the points but scattering only into its own cells (about
+        # half the points each, by a sample): no second set of sums, nothing to merge. If the
+        # worker has not started by the time this thread is done, this thread does its part too.
+        job = _pool().submit(run, split, ncell)
+        run(0, split)
+        if job.cancel():
+            run(split, ncell)
+        else:
+            job.result()
+    else:
+        run(0, ncell)
+    if kept:
+        _scratch.dirty = False  # zeroed again by the finishing pass
+
+    shape = g.shape
+    out = Layers(g, meta={"method": "direct reconstruction (max height per cell)"})
+    out["dem"] = acc[0].reshape(shape)
+    if want_min:
+        out["min"] = acc[1].reshape(shape)
+    if not want_count:
+        return out
+    if "count" in stats:
+        out["count"] = acc[2].reshape(shape)
+    if "mean" in stats:
+        out["mean"] = mean.reshape(shape)
+    if "variance" in stats:
+        out["variance"] = variance.reshape(shape)
+    if var is not None:
+        out["measurement_variance"] = mvar.reshape(shape)
+        out["wmean"] = wmean.reshape(shape)
+    if with_intensity:
+        out["intensity"] = inten.reshape(shape)
+    return out
+
+
+_scratch = threading.local()  # per thread: the float64 sums, kept zeroed between calls
+SCRATCH_MAX_BYTES = 64 << 20  # ... up to this size (a 500 x 500 grid with all sums: 10 MB)
+
+
+def _sums(k: int, ncell: int) -> tuple[bool, np.ndarray]:
+    """``k`` zeroed float64 rows of ``ncell`` for the sums, and whether they are this thread's
+    kept buffer (which the finishing pass zeroes again). Reusing it spares the page faults of
+    fresh memory on every call, which cost more than the pass itself on a 100 000-point view."""
+    need = k * ncell
+    if need * 8 > SCRATCH_MAX_BYTES:
+        return False, np.zeros((k, ncell))
+    buf = getattr(_scratch, "buf", None)
+    if buf is None or len(buf) < need or getattr(_scratch, "dirty", False):
+        buf = _scratch.buf = np.zeros(max(need, len(buf) if buf is not None else 0))
+    _scratch.dirty = True  # until the finishing pass has zeroed it again
+    return True, buf[:need].reshape(k, ncell)
+
+
+def _core_free() -> bool:
+    """Whether another core looks idle (the 1-minute load average, which counts this thread, is
+    below the number of cores less a half). On a shared machine a second thread only pays when
+    it gets a core to itself: time-sliced with another process it makes the call slower."""
+    try:
+        return os.getloadavg()[0] < (os.cpu_count() or 1) - 0.5
+    except (AttributeError, OSError):  # no load average (Windows): assume a free core
+        return True
+
+
+def _split_cell(pts: np.ndarray, g: GridGeometry) -> int:
+    """The flat cell index that splits a sample of the points into halves (0: no split)."""
+    sample = pts[:: max(1, len(pts) // 8192)]
+    with np.errstate(invalid="ignore"):
+        rows, cols = g.cell_of(sample[:, 0], sample[:, 1])
+    inside = g.inside(rows, cols)
+    if inside.sum() < 2:
+        return 0
+    flat = rows[inside] * g.width + cols[inside]
+    return int(np.median(flat))
 
 
 def cells_from_bounds(bounds: str | Sequence[float]) -> tuple[float, float, float, float]:

@@ -1,13 +1,34 @@
 """DemImport (direct reconstruction) against a brute-force per-cell loop, cell borders, clipping
-and the rover mask."""
+and the rover mask - every test for each implementation (numba's one pass, on one thread and
+split over two, and the numpy fallback) - and the implementations against each other."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
+import prox_workflows.steps.dem_import as dem_import_module
 from prox_workflows.grid import GridGeometry
 from prox_workflows.steps.dem_import import dem_import, geometry_for
+
+IMPLS = ["numba", "numba-threads", "numpy"]
+
+
+def use_impl(monkeypatch: pytest.MonkeyPatch, impl: str) -> None:
+    """Run dem_import with ``impl``: the compiled pass on one thread, the compiled pass split over
+    two threads whatever the size, or the numpy fallback."""
+    if impl.startswith("numba"):
+        pytest.importorskip("numba")
+    monkeypatch.setattr(dem_import_module, "IMPL", impl.split("-")[0])
+    monkeypatch.setattr(dem_import_module, "THREADS", 2 if impl == "numba-threads" else 1)
+    monkeypatch.setattr(dem_import_module, "THREAD_MIN_POINTS", 0)
+    monkeypatch.setattr(dem_import_module, "_core_free", lambda: True)
+
+
+@pytest.fixture(autouse=True, params=IMPLS)
+def impl(request: pytest.FixtureRequest, monkeypatch: pytest.MonkeyPatch) -> str:
+    use_impl(monkeypatch, request.param)
+    return request.param
 
 
 def brute(points: np.ndarray, g: GridGeometry, var: np.ndarray | None = None) -> dict[tuple[int, int], dict]:
