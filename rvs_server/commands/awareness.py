@@ -235,6 +235,13 @@ class Monitor:
     def status_fields(self) -> dict[str, Any]:
         raise NotImplementedError
 
+    def shown_state(self) -> str:
+        """The state as status shows it: paused as soon as a job or a mode calls for it, not
+        only once the monitor's thread has noticed at its next cycle."""
+        if self.state == "running" and self._pause_reason():
+            return "paused"
+        return self.state
+
     def failure_fields(self) -> dict[str, Any]:
         raise NotImplementedError
 
@@ -362,7 +369,7 @@ class HazardMonitor(Monitor):
         self.emit({"kind": "hazard", "level": "paused", **reason})
 
     def status_fields(self) -> dict[str, Any]:
-        out: dict[str, Any] = {"hazard_monitor": self.state, "hazard_level": self.level,
+        out: dict[str, Any] = {"hazard_monitor": self.shown_state(), "hazard_level": self.level,
                                "hazard_cycles": self.cycles}
         out.update(self.timing_fields())
         d = self.last.get("distance")
@@ -596,7 +603,8 @@ class TargetTracker(Monitor):
             self.emit(fields)
 
     def status_fields(self) -> dict[str, Any]:
-        out: dict[str, Any] = {"track": self.state, "track_lost": self.filter.lost, "track_cycles": self.cycles,
+        out: dict[str, Any] = {"track": self.shown_state(), "track_lost": self.filter.lost,
+                               "track_cycles": self.cycles,
                                "track_rate": Fixed(self.rate(), 2)}
         out.update(self.timing_fields())
         return out
