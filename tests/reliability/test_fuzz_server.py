@@ -114,6 +114,7 @@ def test_fuzz_20_connections(server: ServerProcess) -> None:
 
 
 @long_suite
+@pytest.mark.timeout(1200)
 def test_fuzz_100k_lines_over_20_connections(server: ServerProcess) -> None:
     figures = fuzz(server, lines_per_connection=1000, rounds=5, seed=2)
     assert figures["lines"] >= 100_000

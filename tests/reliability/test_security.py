@@ -250,8 +250,8 @@ def test_a_flood_of_connections_past_max_clients(child: ServerProcess) -> None:
     for m in members:
         m.close()
     assert wait_until(lambda: fd_count(pid) <= base_fds, 10), (fd_count(pid), base_fds)
-    assert LineClient(child.port).request("version").status == "OK"
     record("security_max_clients", refused=refused, fds_before=base_fds, fds_after=fd_count(pid))
+    assert LineClient(child.port).request("version").status == "OK"
 
 
 def latencies(port: int, seconds: float, clients: int = 5) -> list[float]:

@@ -40,6 +40,7 @@ def test_soak_short(tmp_path: Path) -> None:
 
 
 @long_suite
+@pytest.mark.timeout(1200)  # pyproject's 300 s is for ordinary tests
 def test_soak_ten_minutes(tmp_path: Path) -> None:
     result = run(tmp_path, seconds=600, warmup=60, max_growth=0.10)
     assert result["requests"] > 500_000
