@@ -44,6 +44,7 @@ class Job:
     message: str = ""
     uses_hardware: bool = False
     finished: threading.Event = field(default_factory=threading.Event)
+    succeeded: bool | None = None  # set when it finished: True if its final line is OK
 
     @property
     def cancelled(self) -> bool:
@@ -138,6 +139,7 @@ class JobRunner:
         if self.current is job:
             self.current = None
         self.last = job
+        job.succeeded = error is None
         job.finished.set()
         on_done(job, result, error)
 

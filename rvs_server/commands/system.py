@@ -93,7 +93,9 @@ async def break_(ctx: Context, cfg: None) -> dict[str, Any]:
     recovery = await app.loop.run_in_executor(None, app.write_recovery, job)
     await app.interrupt()
     app.set_mode("break")
-    return {"interrupted": job.id if job else "none", "recovery": recovery}
+    # A job whose last step was done when the break came ends OK: then nothing was interrupted.
+    interrupted = job.id if job is not None and not job.succeeded else "none"
+    return {"interrupted": interrupted, "recovery": recovery}
 
 
 def _control_done(job: Job, summary: dict[str, str]) -> dict[str, Any]:
