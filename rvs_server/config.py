@@ -399,6 +399,7 @@ class ServerConfig(ModuleConfig):
     log_level: str = param("info", "console and file log level", choices=("debug", "info", "warning", "error"))
     log_file: str = param("rvs.log", "log file, relative to the data directory", protected=True)
     shared_dir: str = param("shared", "where logbook copies go, relative to the data directory", protected=True)
+    warm_up: bool = param(True, "compile or load the numba kernels (DemImport, A*) in the background at start")
 
 
 @standalone

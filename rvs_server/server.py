@@ -154,6 +154,18 @@ class Connection(asyncio.Protocol):
         self.app.connections.discard(self)
 
 
+def warm_up_kernels() -> None:
+    """Compile (first run after installing) or load from cache the numba kernels."""
+    from prox_workflows.steps import dem_import, planner
+
+    try:
+        dem_import.warm_up()
+        planner.warm_up()
+        log.info("kernels_ready")
+    except Exception as exc:  # noqa: BLE001 - the plain-Python paths still work
+        log.warning("kernels_not_compiled", error=str(exc))
+
+
 def listen(host: str, port: int) -> socket.socket:
     """Bind and listen before the devices open, so the port in the first log line already
     accepts; early clients wait in the backlog until the devices are up."""
@@ -176,6 +188,8 @@ async def serve(app: App, sock: socket.socket, *, ready: Any = None, handle_sign
     if not app.devices.healthy():
         app.set_mode("fault")
     server = await loop.create_server(lambda: Connection(app), sock=sock, backlog=512)
+    if app.server_cfg.warm_up:
+        loop.run_in_executor(None, warm_up_kernels)  # the first DEM or plan then skips the JIT
     if ready is not None:
         ready(bound[1])
     try:

@@ -82,7 +82,9 @@ class ServerThread:
     """The real server (same code path as rvs-server) on an ephemeral port in a thread."""
 
     def __init__(self, data: Path, overrides: list[str] | None = None, config_dir: str | None = None) -> None:
-        sets = [f"server.data={data}", "server.port=0", "drivers.ptu.time_scale=0", *(overrides or [])]
+        # warm_up off: a hundred short-lived test servers would each load the numba kernels
+        sets = [f"server.data={data}", "server.port=0", "drivers.ptu.time_scale=0", "server.warm_up=false",
+                *(overrides or [])]
         self.store = build_config(config_dir, sets)
         self.data = data
         self.port = 0

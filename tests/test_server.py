@@ -360,3 +360,10 @@ def test_telnet_cr_cr_lf_line_ends(client: LineClient) -> None:
     assert client.reply().module == "EGP-RVS-VERSION"
     client.send(b"help\r\x00\r\n")  # and telnet's CR NUL
     assert client.reply().fields["commands"]
+
+
+def test_kernels_warm_up_in_the_background(server_factory) -> None:
+    srv = server_factory(["server.warm_up=true"])
+    c = srv.client()
+    assert c.request("version").status == "OK"  # served while the kernels load
+    assert wait_for(lambda: "kernels_ready" in (srv.data / "rvs.log").read_text(), timeout=120)
