@@ -9,37 +9,13 @@ from __future__ import annotations
 
 import math
 import threading
-import time
 from dataclasses import dataclass
 
 import numpy as np
 
+from drivers.sim.trigger import TriggerBus
 
-class Bus:
-    def __init__(self) -> None:
-        self._cond = threading.Condition()
-        self._count = 0
-
-    def pulse(self) -> int:
-        with self._cond:
-            self._count += 1
-            self._cond.notify_all()
-            return self._count
-
-    @property
-    def count(self) -> int:
-        with self._cond:
-            return self._count
-
-    def wait_for_pulse(self, after: int, timeout: float) -> int | None:
-        deadline = time.monotonic() + max(timeout, 0.0)
-        with self._cond:
-            while self._count <= after:
-                left = deadline - time.monotonic()
-                if left <= 0:
-                    return None
-                self._cond.wait(left)
-            return self._count
+Bus = TriggerBus  # the real bus: the fake world only replaces the geometry
 
 
 @dataclass

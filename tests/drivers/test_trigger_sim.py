@@ -7,32 +7,11 @@ import threading
 import pytest
 
 from drivers.base import DeviceError
+from drivers.sim.trigger import TriggerBus
 from drivers.trigger import create
 from drivers.trigger.sim import SimTrigger
 
-
-class Bus:
-    """The TriggerBus part of the world contract: pulse(), count, wait_for_pulse(after, timeout)."""
-
-    def __init__(self) -> None:
-        self._cond = threading.Condition()
-        self._count = 0
-
-    def pulse(self) -> int:
-        with self._cond:
-            self._count += 1
-            self._cond.notify_all()
-            return self._count
-
-    @property
-    def count(self) -> int:
-        with self._cond:
-            return self._count
-
-    def wait_for_pulse(self, after: int, timeout: float) -> int | None:
-        with self._cond:
-            ok = self._cond.wait_for(lambda: self._count > after, timeout)
-            return self._count if ok else None
+Bus = TriggerBus  # the world contract's bus, as the simulated world has it
 
 
 class World:
