@@ -110,11 +110,23 @@ class _Axis:
         return self.profile is not None or self.target != self.position
 
 
+HOOK_BYTES = 1 << 18  # rx and tx keep the last 256 KiB or so
+HOOK_ITEMS = 2_000  # commands and each axis's move log keep the last two thousand or so
+
+
+def _bounded(seq: list | bytearray, keep: int) -> None:
+    """Trim a test hook to its last ``keep`` items once it holds twice that (amortised O(1)): a
+    simulated server that runs for days must not keep every byte it ever heard."""
+    if len(seq) > 2 * keep:
+        del seq[: len(seq) - keep]
+
+
 class PtuEmulator:
     """A PTU-D46 serving one pty master fd from a background thread.
 
     Test hooks: ``commands`` (every command token received, as sent), ``rx`` (all bytes
-    received), ``moves`` (completed moves with simulated start, end and duration),
+    received), ``moves`` (completed moves with simulated start, end and duration; these three
+    and ``tx`` keep only their recent part past ``HOOK_ITEMS`` / ``HOOK_BYTES``),
     ``sim_time``, ``prefix_next_reply`` (bytes slipped in front of the next reply: an async
     ``!P``, junk), ``write_raw`` (bytes on the line now: stale replies), ``chunk`` (write
     replies this many bytes at a time, to split them across the client's reads).
@@ -281,6 +293,7 @@ class PtuEmulator:
 
     def _receive(self, data: bytes) -> None:
         self.rx.extend(data)
+        _bounded(self.rx, HOOK_BYTES)
         if self._fault == "silent":
             return
         if self.echo:
@@ -299,6 +312,7 @@ class PtuEmulator:
         while self._deferred and self._reset_phases is None:
             token = self._deferred.pop(0)
             self.commands.append(token)
+            _bounded(self.commands, HOOK_ITEMS)
             self._advance()
             self._execute(token.upper())
             self._advance()
@@ -333,6 +347,7 @@ class PtuEmulator:
             "axis": ax.name.lower(), "from": ax.move_p0, "to": ax.target,
             "t_start": ax.move_t0, "t_end": t, "duration": t - ax.move_t0,
         })
+        _bounded(ax.log, HOOK_ITEMS)
 
     def _move(self, ax: _Axis, target: int, new_move: bool = True) -> None:
         if new_move or ax.profile is None:
@@ -563,6 +578,7 @@ class PtuEmulator:
 
     def _write(self, data: bytes) -> None:
         self.tx.extend(data)
+        _bounded(self.tx, HOOK_BYTES)
         step = self.chunk or len(data) or 1
         try:
             for i in range(0, len(data), step):
