@@ -83,11 +83,17 @@ def standby(ctx: Context, cfg: None) -> dict[str, Any]:
 
 
 @command("break", klass=ALWAYS, help="interrupt all jobs and store a recovery data set")
-async def break_(ctx: Context, cfg: None) -> dict[str, Any]:
+def break_(ctx: Context, cfg: None) -> Any:
+    # The job is told to stop here, synchronously, before anything else the event loop runs:
+    # a job started by the same batch of lines is caught however short it is.
     app = ctx.app
     job = app.jobs.current
     if job is not None:
         job.cancel.set()
+    return _finish_break(app, job)
+
+
+async def _finish_break(app: Any, job: Job | None) -> dict[str, Any]:
     # The recovery set is written while the job winds down: its parameters and the maps as
     # they were are what a later run needs, and the wait stays within the 1 s budget.
     recovery = await app.loop.run_in_executor(None, app.write_recovery, job)
