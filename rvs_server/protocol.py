@@ -263,7 +263,8 @@ def format_reply_json(reply: Reply) -> str:
     if reply.tag is not None:
         obj["tag"] = reply.tag
     for key, value in reply.fields.items():
-        obj[key] = _json_value(value)
+        # a field never overwrites the line's own module, status or tag
+        obj[key + "_" if key in ("module", "status", "tag") else key] = _json_value(value)
     return json.dumps(obj, separators=(",", ":"), ensure_ascii=False)
 
 

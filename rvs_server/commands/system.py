@@ -194,7 +194,7 @@ def help_(ctx: Context, cfg: None) -> dict[str, Any]:
         raise ProtocolError("E_ARG", f"no command '{req.positional[0][:40]}'; help lists them")
     out: dict[str, Any] = {
         "command": cmd.name,
-        "module": cmd.module,
+        "module_id": cmd.module,
         "kind": "job" if cmd.job else "immediate",
         "usage": cmd.usage(),
         "text": cmd.help,
@@ -304,7 +304,7 @@ def config(ctx: Context, cfg: None) -> dict[str, Any]:
             for key, value in before.items():  # all or nothing: an E_ARG request changes nothing
                 setattr(current, key, value)
             raise
-    out: dict[str, Any] = {"module": name}
+    out: dict[str, Any] = {"name": name}
     for key, value in store.values[name].as_dict().items():
         if key == "token" and value:
             value = "***"

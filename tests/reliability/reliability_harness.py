@@ -172,10 +172,7 @@ def expects_reply(piece: bytes, max_line: int = MAX_LINE, logical: bytes | None 
 
 
 def reply_facts(raw: str) -> tuple[str, str, str | None, str | None, str | None]:
-    """(module, status, tag, job, code) of one reply line, text or JSON; ValueError if neither.
-
-    In JSON a reply key named ``module`` (config, help CMD) overwrites the module; the
-    correlation below needs only status, tag, job and code."""
+    """(module, status, tag, job, code) of one reply line, text or JSON; ValueError if neither."""
     if raw.startswith("{"):
         obj = json.loads(raw)
         if not isinstance(obj, dict) or "module" not in obj or "status" not in obj:

@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import math
 
-import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from reliability_harness import LONG, LineGen, close_iac, expects_reply, logical_line, telnet_text
@@ -198,8 +197,6 @@ def test_every_command_and_option_of_the_table_is_generated() -> None:
         assert options <= seen[name], (name, options - seen[name])
 
 
-@pytest.mark.xfail(strict=True, reason="bug: in JSON a reply key named module/status/tag (help CMD, config "
-                                       "-module) overwrites the line's own module/status/tag")
 @given(st.sampled_from(["module", "status", "tag"]), st.text(max_size=10))
 def test_json_keeps_the_module_whatever_the_keys(key, value) -> None:
     reply = Reply("EGP-RVS-HELP", "OK", {key: value}, "t1")
