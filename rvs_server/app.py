@@ -85,6 +85,7 @@ class App:
         self.pose_changed = threading.Condition()
         self.pose_version = 0
         self.last_used_hardware = False
+        self.last_ptu: tuple[float, float] | None = None
         self.last_recovery: str | None = None
         self.maps: dict[str, str] = {}  # current map products: layer -> path under the data dir
         self.maps_lock = threading.RLock()
@@ -147,7 +148,10 @@ class App:
         except Exception:  # noqa: BLE001 - status never fails because a device does
             return None
         pan, tilt = state.get("pan_deg"), state.get("tilt_deg")
-        return None if pan is None or tilt is None else (float(pan), float(tilt))
+        if pan is None or tilt is None:
+            return None
+        self.last_ptu = (float(pan), float(tilt))
+        return self.last_ptu
 
     # ---------------------------------------------------------------- files
 
@@ -183,7 +187,7 @@ class App:
         root.mkdir(parents=True, exist_ok=True)
         tmp = root / f".{stamp}.tmp"
         tmp.mkdir()
-        ptu = self.ptu_position()
+        ptu = self.ptu_position() or self.last_ptu  # mid-reinit the PTU may not answer: its last position
         copied: dict[str, str] = {}
         with self.maps_lock:
             maps = dict(self.maps)
@@ -299,6 +303,7 @@ class App:
             )
         job_id = self.jobs.new_id()
         module, tag = cmd.module, req.tag
+        self.ptu_position()  # remember where the PTU is, for a recovery set written mid-job
 
         def emit(status: str, fields: dict[str, Any]) -> None:
             reply = Reply(module, status, {"job": job_id, **fields}, tag)

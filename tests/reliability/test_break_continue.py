@@ -81,7 +81,7 @@ RECIPES: dict[str, Recipe] = {
     # break while the PTU re-opens stores ptu: null (reported), which this test is not about.
     "continue": Recipe("continue", setup=["move-ptu -pan 1"], again="continue"),
     "reset": Recipe("reset", again="reset"),
-    "reinit": Recipe("reinit -device tof", params={"device": "tof"}, again="reinit -device all"),
+    "reinit": Recipe("reinit", params={"device": "all"}, again="reinit -device tof"),  # all: long enough to be caught
     "recover": Recipe("recover -set last", setup=["break", "continue"], params={"set": "last"}, again="recover"),
 }
 
