@@ -371,9 +371,10 @@ class LineSplitter:
         data = self._strip_iac(data)
         if self._cr_pending and data[:1] == b"\x00":
             data = data[1:]
-        data = data.replace(b"\r\x00", b"\r")  # telnet's CR NUL is a bare CR, also across chunks
-        if data:
+            self._cr_pending = False  # that NUL was the CR's; a second one is a byte of the line
+        if data:  # a CR whose NUL is already here is not pending
             self._cr_pending = data.endswith(b"\r")
+        data = data.replace(b"\r\x00", b"\r")  # telnet's CR NUL is a bare CR, also across chunks
         out: list[bytes | None] = []
         start = 0
         while True:
