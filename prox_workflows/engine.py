@@ -118,20 +118,43 @@ def evaluate(expr: Any, workspace: dict[str, Any], params: dict[str, Any]) -> An
     return expr
 
 
+Progress = Callable[..., None]  # progress(done, total, message, phase=name)
+
+
+def phases_of(plan: list[dict[str, Any]]) -> list[tuple[str, list[int]]]:
+    """The script's phases in order: runs of steps with the same ``phase`` (default process).
+
+    A phase is what a progress bar shows; one that came back later in the script would make
+    its count run twice, so a script must keep each phase's steps together.
+    """
+    out: list[tuple[str, list[int]]] = []
+    for index, spec in enumerate(plan):
+        name = str(spec.get("phase", "process"))
+        if out and out[-1][0] == name:
+            out[-1][1].append(index)
+        elif any(p == name for p, _ in out):
+            raise WorkflowError(f"phase '{name}' is split: its steps must follow one another")
+        else:
+            out.append((name, [index]))
+    return out
+
+
 def run_workflow(
     script: dict[str, Any] | str | Path,
     params: dict[str, Any] | None = None,
     workspace: dict[str, Any] | None = None,
     *,
     steps: dict[str, Callable[..., Any]] | None = None,
-    progress: Callable[[int, int, str], None] | None = None,
+    progress: Progress | None = None,
     cancelled: Callable[[], bool] | None = None,
 ) -> tuple[dict[str, Any], RunLog]:
     """Run a script; returns the final workspace and the run log.
 
     ``steps`` adds or overrides step functions (the server passes its device-backed
-    acquisition this way, so this package never imports the drivers). A step function that
-    accepts ``progress``/``cancelled`` keyword arguments gets sub-step callbacks.
+    acquisition this way, so this package never imports the drivers). Progress is reported
+    per phase (``phase:`` of the steps): a phase of several steps counts its steps; a phase of
+    one step that accepts a ``progress`` keyword reports that step's own count (views).
+    Within a phase ``total`` is fixed and ``done`` only grows.
     """
     if not isinstance(script, dict):
         script = load_script(script)
@@ -139,12 +162,10 @@ def run_workflow(
     ws: dict[str, Any] = dict(workspace or {})
     log = RunLog(str(script.get("name", "workflow")))
     plan = script["steps"]
-    units = [1] * len(plan)  # progress units per step: 1, or its items / its own sub-steps
-    finished = 0  # units of the steps already done
-
-    def report(done_in_step: int, message: str) -> None:
-        if progress is not None:
-            progress(finished + done_in_step, sum(units), message)
+    phase_of: dict[int, tuple[str, list[int]]] = {}
+    for phase in phases_of(plan):
+        for index in phase[1]:
+            phase_of[index] = phase
 
     def check() -> None:
         if cancelled is not None and cancelled():
@@ -155,40 +176,43 @@ def run_workflow(
         name = spec.get("step")
         if not name:
             raise WorkflowError(f"a step without a name in {log.script}: {spec}")
+        phase, members = phase_of[index]
+        own_count = len(members) == 1  # the step's own progress is the phase's
+
+        def report(message: str, phase: str = phase, members: list[int] = members, index: int = index) -> None:
+            if progress is not None:
+                progress(members.index(index) + 1, len(members), message, phase=phase)
+
         if "when" in spec and not evaluate(spec["when"], ws, merged):
-            finished += units[index]
             log.add(name, 0.0, skipped=True)
+            report(f"{name} skipped")
             continue
         fn = resolve_step(name, steps)
         accepts = inspect.signature(fn).parameters
         t0 = time.perf_counter()
         if "foreach" in spec:
             items = list(evaluate(spec["foreach"], ws, merged))
-            units[index] = max(1, len(items))
             results = []
-            for i, item in enumerate(items):
+            for item in items:
                 check()
                 ws["item"] = item
                 results.append(fn(**evaluate(spec.get("in") or {}, ws, merged)))
-                report(i + 1, f"{name} {i + 1}/{len(items)}")
             ws.pop("item", None)
             result: Any = results
         else:
             kwargs = evaluate(spec.get("in") or {}, ws, merged)
             if "progress" in accepts:
-
-                def sub(done: int, total: int, message: str, index: int = index) -> None:
-                    units[index] = max(1, total)
-                    report(done, message)
-
-                kwargs["progress"] = sub
+                if own_count and progress is not None:
+                    kwargs["progress"] = lambda d, t, m, phase=phase: progress(d, t, m, phase=phase)
+                else:
+                    kwargs["progress"] = lambda d, t, m: None
             if "cancelled" in accepts:
                 kwargs["cancelled"] = cancelled or (lambda: False)
             result = fn(**kwargs)
         _store(spec, result, ws, name)
-        finished += units[index]
-        report(0, name)
         log.add(name, time.perf_counter() - t0, outputs=_names(spec.get("out")))
+        if not (own_count and "progress" in accepts):
+            report(name if "foreach" not in spec else f"{name} x{len(result)}")
     return ws, log
 
 
@@ -239,10 +263,11 @@ def main(argv: list[str] | None = None) -> int:
             ap.error(f"--set {item}: write key=value")
         params[key] = _parse_value(raw)
 
-    def show(done: int, total: int, message: str) -> None:
+    def show(done: int, total: int, message: str, phase: str = "") -> None:
         width = 30
         filled = int(width * done / max(total, 1))
-        sys.stderr.write(f"\r[{'#' * filled}{'.' * (width - filled)}] {done}/{total} {message[:40]:<40}")
+        sys.stderr.write(f"\r{phase[:10]:<10} [{'#' * filled}{'.' * (width - filled)}] {done}/{total} "
+                         f"{message[:40]:<40}")
         sys.stderr.flush()
 
     try:

@@ -60,15 +60,17 @@ def write_text_atomic(path: Path, text: str) -> Path:
 
 
 def write_yaml_atomic(path: Path, data: Any) -> Path:
-    return write_text_atomic(path, yaml.safe_dump(data, sort_keys=False, default_flow_style=None))
+    """Every YAML the project writes goes through ``plain``: a numpy scalar that reached a
+    manifest or sidecar once made safe_dump fail mid-break and lose the recovery set."""
+    return write_text_atomic(path, yaml.safe_dump(plain(data), sort_keys=False, default_flow_style=None))
 
 
-def _plain(value: Any) -> Any:
-    """Make parameters YAML-safe (numpy scalars and arrays, paths, tuples)."""
+def plain(value: Any) -> Any:
+    """Make values YAML-safe (numpy scalars and arrays, paths, tuples)."""
     if isinstance(value, dict):
-        return {str(k): _plain(v) for k, v in value.items()}
+        return {str(k): plain(v) for k, v in value.items()}
     if isinstance(value, list | tuple):
-        return [_plain(v) for v in value]
+        return [plain(v) for v in value]
     if isinstance(value, np.ndarray):
         return value.tolist()
     if isinstance(value, np.generic):
@@ -89,8 +91,8 @@ def write_sidecar(product: Path, made_by: str, parameters: dict[str, Any] | None
         "made_by": made_by,
         "time": datetime.now(UTC).isoformat(timespec="milliseconds"),
         "inputs": inputs or [],
-        "parameters": _plain(parameters or {}),
-        **_plain(extra),
+        "parameters": plain(parameters or {}),
+        **plain(extra),
     }
     return write_yaml_atomic(product.with_suffix(".yaml"), data)
 

@@ -53,12 +53,20 @@ class Context:
 
 @dataclass
 class Pose:
-    """The rover pose the server believes in (reported by the GNC with ``pose``)."""
+    """The rover pose the server believes in (reported by the GNC with ``pose``).
+
+    Coerced to plain floats: a pose from the simulator or an estimator arrives as numpy scalars,
+    and those must never reach a recovery manifest, a sidecar or a reply.
+    """
 
     x: float = 0.0
     y: float = 0.0
     heading: float = 0.0
     time: float = field(default_factory=time.time)
+    stopped: bool = False  # the GNC said the rover stands still here (it gave up on a leg)
+
+    def __post_init__(self) -> None:
+        self.x, self.y, self.heading = float(self.x), float(self.y), float(self.heading)
 
 
 class App:
@@ -131,10 +139,10 @@ class App:
 
     # ---------------------------------------------------------------- pose
 
-    def set_pose(self, x: float, y: float, heading: float) -> None:
+    def set_pose(self, x: float, y: float, heading: float, *, stopped: bool = False) -> None:
         """Thread-safe; wakes a navigation job waiting for the rover to move."""
         with self.pose_changed:
-            self.pose = Pose(x, y, heading)
+            self.pose = Pose(x, y, heading, stopped=stopped)
             self.pose_version += 1
             self.pose_changed.notify_all()
 
@@ -171,45 +179,57 @@ class App:
         return self.data_dir / self.server_cfg.log_file
 
     def _find_last_recovery(self) -> None:
+        """The newest complete recovery set; temp folders of a set a crash cut short are removed."""
         root = self.data_dir / "recovery"
-        if root.is_dir():
-            sets = sorted(p for p in root.iterdir() if (p / "manifest.yaml").is_file())
-            if sets:
-                self.last_recovery = self.rel(sets[-1])
+        if not root.is_dir():
+            return
+        for stray in root.glob(".*.tmp"):
+            shutil.rmtree(stray, ignore_errors=True)
+            log.warning("recovery_tmp_removed", folder=stray.name)
+        sets = sorted(p for p in root.iterdir() if (p / "manifest.yaml").is_file())
+        if sets:
+            self.last_recovery = self.rel(sets[-1])
 
     def write_recovery(self, job: Job | None) -> str:
         """Store the recovery data set of a break: job, parameters, pose, PTU, current maps.
 
-        Written into a temporary folder and renamed, so a set is either complete or absent.
+        Written into a temporary folder and renamed, so a set is either complete or absent;
+        a failure removes the temporary folder before it is raised.
         """
         stamp = datetime.now(UTC).strftime("%Y%m%dT%H%M%S_%fZ")
         root = self.data_dir / "recovery"
         root.mkdir(parents=True, exist_ok=True)
         tmp = root / f".{stamp}.tmp"
         tmp.mkdir()
-        ptu = self.ptu_position() or self.last_ptu  # mid-reinit the PTU may not answer: its last position
-        copied: dict[str, str] = {}
-        with self.maps_lock:
-            maps = dict(self.maps)
-        for layer, rel in maps.items():
-            src = self.data_dir / rel
-            if src.is_file():
-                (tmp / "maps").mkdir(exist_ok=True)
-                shutil.copy2(src, tmp / "maps" / src.name)
-                copied[layer] = f"maps/{src.name}"
-        manifest = {
-            "time": datetime.now(UTC).isoformat(),
-            "server": self.name,
-            "job": None
-            if job is None
-            else {"id": job.id, "command": job.command, "parameters": job.params, "progress": [job.done, job.total]},
-            "pose": {"x": self.pose.x, "y": self.pose.y, "heading": self.pose.heading},
-            "ptu": None if ptu is None else {"pan": ptu[0], "tilt": ptu[1]},
-            "maps": copied,
-        }
-        write_yaml_atomic(tmp / "manifest.yaml", manifest)
-        final = root / stamp
-        tmp.rename(final)
+        try:
+            ptu = self.ptu_position() or self.last_ptu  # mid-reinit the PTU may not answer: its last position
+            copied: dict[str, str] = {}
+            with self.maps_lock:
+                maps = dict(self.maps)
+            for layer, rel in maps.items():
+                src = self.data_dir / rel
+                if src.is_file():
+                    (tmp / "maps").mkdir(exist_ok=True)
+                    shutil.copy2(src, tmp / "maps" / src.name)
+                    copied[layer] = f"maps/{src.name}"
+            pose = self.pose
+            manifest = {
+                "time": datetime.now(UTC).isoformat(),
+                "server": self.name,
+                "job": None if job is None else {
+                    "id": job.id, "command": job.command, "parameters": job.params,
+                    "progress": {"phase": job.phase, "done": job.done, "total": job.total},
+                },
+                "pose": {"x": pose.x, "y": pose.y, "heading": pose.heading},
+                "ptu": None if ptu is None else {"pan": ptu[0], "tilt": ptu[1]},
+                "maps": copied,
+            }
+            write_yaml_atomic(tmp / "manifest.yaml", manifest)
+            final = root / stamp
+            tmp.rename(final)
+        except BaseException:
+            shutil.rmtree(tmp, ignore_errors=True)
+            raise
         self.last_recovery = self.rel(final)
         return self.last_recovery
 
@@ -252,7 +272,7 @@ class App:
             cfg = bind_options(cmd, base, req)
             mode = self.mode
             if mode in BLOCKING_MODES and (
-                cmd.klass == HARDWARE or (mode == "standby" and cmd.job and cmd.klass != CONTROL)
+                cmd.klass == HARDWARE or (mode in ("standby", "break", "fault") and cmd.job and cmd.klass != CONTROL)
             ):
                 raise ProtocolError("E_STATE", BLOCKING_MODES[mode])
             if cmd.job:
@@ -301,6 +321,8 @@ class App:
             raise ProtocolError(
                 "E_BUSY", f"job {running.id} ({running.command}) is running; wait for it or send break"
             )
+        if cmd.check is not None:
+            cmd.check(self, cfg)
         job_id = self.jobs.new_id()
         module, tag = cmd.module, req.tag
         self.ptu_position()  # remember where the PTU is, for a recovery set written mid-job
@@ -310,7 +332,8 @@ class App:
             self.loop.call_soon_threadsafe(conn.send, reply)
 
         params = cfg.as_dict() if cfg is not None else {}
-        job = Job(job_id, cmd.name, module, params, tag, emit, uses_hardware=cmd.klass in (HARDWARE, CONTROL))
+        job = Job(job_id, cmd.name, module, params, tag, emit, uses_hardware=cmd.klass in (HARDWARE, CONTROL),
+                  connection=conn.id)
         job.app = self  # type: ignore[attr-defined]
         conn.send(Reply(module, "ACK", {"job": job_id}, tag))
         conn.jobs_running += 1

@@ -42,9 +42,14 @@ class Job:
     done: int = 0
     total: int = 0
     message: str = ""
+    phase: str = ""  # the phase the last PROGRESS line was about ("" for a job without phases)
+    context: dict[str, Any] = field(default_factory=dict)  # e.g. {"leg": 2}: part of the phase's identity
+    progress_dropped: int = 0  # lines a handler reported against the progress contract (a bug)
     uses_hardware: bool = False
+    connection: int = 0  # id of the connection that started it (telnet's interrupt stops only its own)
     finished: threading.Event = field(default_factory=threading.Event)
     succeeded: bool | None = None  # set when it finished: True if its final line is OK
+    _reported: bool = False
 
     @property
     def cancelled(self) -> bool:
@@ -60,9 +65,26 @@ class Job:
         if self.cancel.wait(seconds):
             self.check()
 
-    def progress(self, done: int, total: int, message: str = "") -> None:
-        self.done, self.total, self.message = done, total, message
-        self.emit("PROGRESS", {"done": done, "total": total, "message": message})
+    def progress(self, done: int, total: int, message: str = "", *, phase: str = "", **context: Any) -> None:
+        """Send a PROGRESS line that a progress bar can use.
+
+        The contract (docs/PROTOCOL.md): within one phase (``phase`` plus ``context``, e.g. the
+        leg of a navigate) ``total`` never changes and ``done`` only grows. A new phase starts
+        its own count. A line that would break the contract is not sent; it is counted in
+        ``progress_dropped`` so that the tests catch the handler that reported it.
+        """
+        new_phase = not self._reported or phase != self.phase or context != self.context
+        if not new_phase and (total != self.total or done <= self.done):
+            self.progress_dropped += 1
+            log.warning("progress_dropped", job=self.id, phase=phase, done=done, total=total,
+                        last_done=self.done, last_total=self.total)
+            return
+        self._reported = True
+        self.done, self.total, self.message, self.phase, self.context = done, total, message, phase, context
+        fields: dict[str, Any] = {"phase": phase} if phase else {}
+        fields.update(context)
+        fields.update(done=done, total=total, message=message)
+        self.emit("PROGRESS", fields)
 
 
 def error_fields(exc: BaseException) -> tuple[dict[str, Any], bool]:

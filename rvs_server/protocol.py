@@ -330,15 +330,34 @@ def parse_reply(line: str) -> Reply:
 # bytes to lines
 
 
+class Telnet:
+    """A telnet command that means something to the server, in order among the lines.
+
+    Telnet's Ctrl-C sends IAC IP and then IAC DO TIMING-MARK, and discards all output until
+    the server answers the mark: a server that ignores the mark leaves the operator blind.
+    """
+
+    def __init__(self, name: str) -> None:
+        self.name = name
+
+    def __repr__(self) -> str:
+        return f"Telnet({self.name})"
+
+
+INTERRUPT = Telnet("interrupt")  # IAC IP
+TIMING_MARK = Telnet("timing-mark")  # IAC DO TIMING-MARK
+WILL_TIMING_MARK = bytes([255, 251, 6])  # the answer to DO TIMING-MARK (RFC 860)
+
+
 class LineSplitter:
     """Turns the byte stream of one connection into request lines.
 
-    Strips telnet IAC sequences (never negotiating), drops the CR of CRLF, and enforces the
-    line limit: an over-long line yields ``None`` once and the rest up to the next LF is
-    discarded, so one runaway client line costs nothing but itself.
+    Strips telnet IAC sequences (answering only the timing mark, see :class:`Telnet`), drops
+    the CR of CRLF, and enforces the line limit: an over-long line yields ``None`` once and the
+    rest up to the next LF is discarded, so one runaway client line costs nothing but itself.
     """
 
-    IAC = 0xFF
+    IAC, IP, DO, TM = 0xFF, 244, 253, 6
 
     def __init__(self, max_line: int = MAX_LINE) -> None:
         self.max_line = max_line
@@ -346,36 +365,56 @@ class LineSplitter:
         self._discarding = False
         self._iac_pending = 0  # bytes of a telnet command still to drop after a chunk boundary
         self._iac_need_cmd = False
+        self._iac_do = False  # the pending byte is the option of a DO
         self._cr_pending = False
 
-    def _strip_iac(self, data: bytes) -> bytes:
+    def _strip_iac(self, data: bytes) -> list[bytes | Telnet]:
+        """The data without telnet commands, split where an interrupt or a timing mark was."""
         if self.IAC not in data and not self._iac_pending and not self._iac_need_cmd:
-            return data
+            return [data]
+        pieces: list[bytes | Telnet] = []
         out = bytearray()
         for b in data:
             if self._iac_need_cmd:
                 self._iac_need_cmd = False
                 self._iac_pending = 1 if 251 <= b <= 254 else 0  # WILL/WONT/DO/DONT take an option byte
+                self._iac_do = b == self.DO
+                if b == self.IP:
+                    pieces += [bytes(out), INTERRUPT]
+                    out.clear()
                 continue
             if self._iac_pending:
                 self._iac_pending -= 1
+                if self._iac_do and b == self.TM:
+                    pieces += [bytes(out), TIMING_MARK]
+                    out.clear()
+                self._iac_do = False
                 continue
             if b == self.IAC:
                 self._iac_need_cmd = True
                 continue
             out.append(b)
-        return bytes(out)
+        pieces.append(bytes(out))
+        return pieces
 
-    def feed(self, data: bytes) -> list[bytes | None]:
-        """Feed received bytes; returns complete lines (bytes) and ``None`` for each too-long line."""
-        data = self._strip_iac(data)
+    def feed(self, data: bytes) -> list[bytes | None | Telnet]:
+        """Feed received bytes; returns complete lines (bytes), ``None`` for each too-long line
+        and the telnet commands the server acts on, in the order they came."""
+        out: list[bytes | None | Telnet] = []
+        for piece in self._strip_iac(data):
+            if isinstance(piece, Telnet):
+                out.append(piece)
+            elif piece:
+                self._lines(piece, out)
+        return out
+
+    def _lines(self, data: bytes, out: list[bytes | None | Telnet]) -> None:
         if self._cr_pending and data[:1] == b"\x00":
             data = data[1:]
             self._cr_pending = False  # that NUL was the CR's; a second one is a byte of the line
         if data:  # a CR whose NUL is already here is not pending
             self._cr_pending = data.endswith(b"\r")
         data = data.replace(b"\r\x00", b"\r")  # telnet's CR NUL is a bare CR, also across chunks
-        out: list[bytes | None] = []
         start = 0
         while True:
             nl = data.find(b"\n", start)
@@ -401,4 +440,3 @@ class LineSplitter:
             if nl < 0:
                 break
             start = nl + 1
-        return out

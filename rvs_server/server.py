@@ -19,7 +19,16 @@ import structlog
 
 from . import PROTOCOL_VERSION
 from .app import App
-from .protocol import LineSplitter, Reply, format_reply, format_reply_json
+from .protocol import (
+    INTERRUPT,
+    TIMING_MARK,
+    WILL_TIMING_MARK,
+    LineSplitter,
+    Reply,
+    Telnet,
+    format_reply,
+    format_reply_json,
+)
 
 log = structlog.get_logger("rvs.server")
 
@@ -35,7 +44,7 @@ class Connection(asyncio.Protocol):
         self.id = next(_conn_ids)
         self.transport: asyncio.Transport | None = None
         self.splitter = LineSplitter(app.server_cfg.max_line)
-        self.pending: deque[bytes | None] = deque()
+        self.pending: deque[bytes | None | Telnet] = deque()
         self.waiting: asyncio.Future[Any] | None = None
         self.events = True
         self.json = False
@@ -45,6 +54,7 @@ class Connection(asyncio.Protocol):
         self.peer = "?"
         self.log = log
         self.jobs_running = 0  # jobs this connection started: their final lines still owed
+        self.exiting = False  # `exit` was answered: close once that reply is out, read nothing more
 
     # ------------------------------------------------------------ asyncio.Protocol
 
@@ -58,6 +68,10 @@ class Connection(asyncio.Protocol):
             # line (an EVENT, an ACK) waits for the client's delayed ACK, about 40 ms.
             with contextlib.suppress(OSError):
                 sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+            # telnet marks its interrupt with urgent data (IAC DM): read inline, the DM is
+            # stripped with the other telnet commands instead of leaving a lone IAC behind
+            with contextlib.suppress(OSError):
+                sock.setsockopt(socket.SOL_SOCKET, socket.SO_OOBINLINE, 1)
         peer = transport.get_extra_info("peername")
         self.peer = f"{peer[0]}:{peer[1]}" if isinstance(peer, tuple) else str(peer)
         self.log = log.bind(conn=self.id, peer=self.peer)
@@ -76,10 +90,28 @@ class Connection(asyncio.Protocol):
         }))
 
     def data_received(self, data: bytes) -> None:
-        if self.closed:
+        if self.closed or self.exiting:
             return
-        self.pending.extend(self.splitter.feed(data))
+        for item in self.splitter.feed(data):
+            if item is INTERRUPT:
+                self._interrupt()  # at once, ahead of lines still queued: it is an interrupt
+            else:
+                self.pending.append(item)
         self._drain()
+
+    def _interrupt(self) -> None:
+        """Telnet's Ctrl-C (IAC IP): break the job this connection started, and nothing else.
+
+        The break's reply is not waited for here, so the timing mark that follows the interrupt
+        is answered at once and telnet shows the lines that come after it."""
+        job = self.app.jobs.current
+        if job is None or job.connection != self.id or job.cancelled:
+            self.log.info("telnet_interrupt", job="none")
+            return
+        self.log.info("telnet_interrupt", job=job.id)
+        result = self.app.dispatch(self, b"break")
+        if result is not None:
+            asyncio.ensure_future(result)
 
     def eof_received(self) -> bool | None:
         # Let queued requests finish (a one-shot `printf 'status\n' | nc` still gets its answer);
@@ -113,7 +145,17 @@ class Connection(asyncio.Protocol):
                     self.app.loop.call_soon(self._drain_later)
                 break
             budget -= 1
-            result = self.app.dispatch(self, self.pending.popleft())
+            item = self.pending.popleft()
+            if item is TIMING_MARK:  # RFC 860: answered once the input before it was handled
+                if self.transport is not None:
+                    self.transport.write(WILL_TIMING_MARK)
+                continue
+            assert not isinstance(item, Telnet)
+            result = self.app.dispatch(self, item)
+            if self.exiting:
+                self.pending.clear()
+                self.close()
+                return
             if result is not None:
                 self.waiting = asyncio.ensure_future(result)
                 self.waiting.add_done_callback(self._resume)

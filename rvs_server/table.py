@@ -34,6 +34,9 @@ class Command:
     open: bool = False  # answered before auth (help, version, auth)
     raw: bool = False  # the handler reads the Request itself (config, sim)
     sim_only: bool = False
+    # check(app, cfg) runs on the event loop before a job's ACK: every refusal that needs no
+    # hardware I/O (the PTU's limits read at open, a sim-only option) is an ERROR, never an ACK
+    check: Callable[[Any, Any], None] | None = None
 
     def usage(self) -> str:
         parts = [self.name] + [f"[{p}]" for p in self.positional]
@@ -46,6 +49,7 @@ class Command:
 
 
 COMMANDS: dict[str, Command] = {}
+ALIASES: dict[str, str] = {}  # other names a command answers to (bye -> exit); help lists the command
 
 
 def command(
@@ -60,13 +64,16 @@ def command(
     raw: bool = False,
     sim_only: bool = False,
     module: str | None = None,
+    check: Callable[[Any, Any], None] | None = None,
+    aliases: tuple[str, ...] = (),
 ) -> Callable[[Callable[..., Any]], Callable[..., Any]]:
     """Register a handler; a job handler runs in a worker thread as ``handler(job, cfg)``."""
 
     def register(fn: Callable[..., Any]) -> Callable[..., Any]:
         mod = module or "EGP-RVS-" + name.upper()
-        cmd = Command(name, mod, fn, config, job, klass, help, positional, open, raw, sim_only)
+        cmd = Command(name, mod, fn, config, job, klass, help, positional, open, raw, sim_only, check)
         COMMANDS[name] = cmd
+        ALIASES.update(dict.fromkeys(aliases, name))
         return fn
 
     return register
@@ -77,7 +84,7 @@ def lookup(name: str) -> Command | None:
     name = name.lower()
     if name.startswith("egp-rvs-"):
         name = name[len("egp-rvs-") :]
-    return COMMANDS.get(name)
+    return COMMANDS.get(ALIASES.get(name, name))
 
 
 def bind_options(cmd: Command, base: ModuleConfig | None, req: Request) -> ModuleConfig | None:

@@ -40,26 +40,52 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
                    help=f"seconds to wait for each request's final line (default {DEFAULT_TIMEOUT:g}; 0: forever)")
     p.add_argument("-c", "--command", action="append", default=[], metavar="REQUEST",
                    help="send this request (repeatable, in order) and exit")
+    p.add_argument("--progress", choices=("auto", "bar", "lines"), default="auto",
+                   help="PROGRESS lines as a progress bar redrawn in place, or as lines (default: a bar when "
+                        "the output is a terminal)")
     p.add_argument("-v", "--verbose", action="store_true",
                    help="one-shot: also print the greeting and the replies to --token and --json")
     return p.parse_args(argv)
+
+
+BAR_WIDTH = 24
+
+
+def progress_bar(reply: Any) -> str:
+    """One PROGRESS line as a bar: phase (and leg) first, because done/total count per phase."""
+    f = reply.fields
+    try:
+        done, total = int(f["done"]), int(f["total"])
+    except (KeyError, ValueError):
+        return ""
+    filled = BAR_WIDTH * min(done, total) // max(total, 1)
+    where = " ".join(x for x in (f.get("phase", ""), f"leg {f['leg']}" if "leg" in f else "") if x)
+    job = f"job {f['job']} " if "job" in f else ""
+    return f"{job}{where + ' ' if where else ''}[{'#' * filled}{'.' * (BAR_WIDTH - filled)}] {done}/{total} " \
+           f"{f.get('message', '')}"
 
 
 class Printer:
     """Serialises output from the main and reader threads, and keeps the prompt intact.
 
     While the user is at the prompt, an asynchronous line is printed above it and the prompt
-    and what they have typed so far are drawn again (the usual readline idiom).
+    and what they have typed so far are drawn again (the usual readline idiom). With ``bar``,
+    a request's PROGRESS lines redraw one progress bar in place instead of scrolling by.
     """
 
-    def __init__(self, out: TextIO, readline: Any = None) -> None:
+    def __init__(self, out: TextIO, readline: Any = None, bar: bool = False) -> None:
         self.out = out
         self.readline = readline
         self.lock = threading.Lock()
         self.at_prompt = False
+        self.bar = bar
+        self.bar_shown = False
 
     def line(self, text: str) -> None:
         with self.lock:
+            if self.bar_shown:  # the bar's line becomes this line
+                self.out.write("\r\x1b[2K")
+                self.bar_shown = False
             if self.at_prompt and self.readline is not None:
                 buf = self.readline.get_line_buffer()
                 self.out.write(f"\r\x1b[2K{text}\n{PROMPT}{buf}")
@@ -70,6 +96,14 @@ class Printer:
             self.out.flush()
 
     def reply(self, line: Line) -> None:
+        if self.bar and line.status == "PROGRESS" and not self.at_prompt:
+            text = progress_bar(line.reply)
+            if text:
+                with self.lock:
+                    self.out.write("\r\x1b[2K" + text)
+                    self.out.flush()
+                    self.bar_shown = True
+                return
         self.line(line.shown)
 
 
@@ -184,7 +218,8 @@ def main(argv: list[str] | None = None) -> int:
     timeout = args.timeout if args.timeout > 0 else None
     interactive = not args.command and sys.stdin.isatty()
     readline = _load_readline() if interactive else None
-    printer = Printer(sys.stdout, readline)
+    bar = args.progress == "bar" or (args.progress == "auto" and sys.stdout.isatty())
+    printer = Printer(sys.stdout, readline, bar=bar)
 
     def closed() -> None:
         if interactive:

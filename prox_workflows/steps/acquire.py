@@ -123,8 +123,8 @@ def acquire_coord_images(
     for i, (pan, tilt) in enumerate(positions):
         if cancelled is not None and cancelled():
             break
-        if progress is not None:
-            progress(i, len(positions), f"pan={pan:.1f} tilt={tilt:.1f}")
+        if progress is not None and i == 0:  # the phase's first line: its size before the first view
+            progress(0, len(positions), f"view 1/{len(positions)}: pan={pan:.1f} tilt={tilt:.1f}")
         frames, pan_r, tilt_r = grab(pan, tilt)
         for frame in frames:
             T_gc = T_gr @ head.T_rover_from_sensor(frame.sensor, pan_r, tilt_r)

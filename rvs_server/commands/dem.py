@@ -160,6 +160,13 @@ def _stereo_frame(left: np.ndarray, right: np.ndarray, calib: dict[str, Any], cf
     )
 
 
+def _check_update(app: Any, cfg: Any) -> None:
+    state = maps_of(app)
+    with state.lock:
+        if state.current is None and not state.pending_views:
+            raise ProtocolError("E_DATA", "there is no current DEM to update; run dem-full-tof or dem-full first")
+
+
 def run_dem(job: Job, cfg: Any, *, update: bool, sensor: str = "tof",
             progress: Any = None, out_dir: str = "dem") -> dict[str, Any]:
     """One DEM job: views from ``sensor`` (tof, stereo or fused) through the dem workflow."""
@@ -168,8 +175,8 @@ def run_dem(job: Job, cfg: Any, *, update: bool, sensor: str = "tof",
     with state.lock:
         base = state.current if update else None
         pending = list(state.pending_views) if update else []
-    if update and base is None and not pending:
-        raise ProtocolError("E_DATA", "there is no current DEM to update; run dem-full-tof or dem-full first")
+    if update:
+        _check_update(app, cfg)
     ptu = app.devices.get("ptu")
     use_tof, use_stereo = sensor in ("tof", "fused"), sensor in ("stereo", "fused")
     tof = app.devices.get("tof") if use_tof else None
@@ -218,10 +225,10 @@ def run_dem(job: Job, cfg: Any, *, update: bool, sensor: str = "tof",
         # stereo together: the gate rejects what the other sensor contradicts
         "within_scan": "inflate" if sensor == "fused" else "higher",
     }
+    report = progress or job.progress
     try:
         ws, log = run_workflow("dem", params, {"base": base, "pending_views": pending},
-                               steps={"acquire": acquire}, progress=progress or job.progress,
-                               cancelled=lambda: job.cancelled)
+                               steps={"acquire": acquire}, progress=report, cancelled=lambda: job.cancelled)
         job.check()
     except BaseException as exc:
         with state.lock:  # the views acquired before a fault or a break are kept for the next update
@@ -231,6 +238,7 @@ def run_dem(job: Job, cfg: Any, *, update: bool, sensor: str = "tof",
                               "for dem-update") from None
         raise
     dem: Layers = ws["dem"]
+    report(0, 1, f"writing the products of {len(ws['views'])} views", phase="write")
     inputs = [f"{name}_views/{v.files['image']}" for v in ws["views"] if v.files]
     files = write_dem_products(dem, app.data_dir / out_dir, name, made_by=job.command, parameters=job.params,
                                inputs=inputs, run_log=log.as_dict(), mesh=cfg.mesh)
@@ -256,7 +264,7 @@ def dem_full_tof(job: Job, cfg: DemTofConfig) -> dict[str, Any]:
     return run_dem(job, cfg, update=False)
 
 
-@command("dem-update-tof", job=True, klass=HARDWARE, config=DemUpdateTofConfig,
+@command("dem-update-tof", job=True, klass=HARDWARE, config=DemUpdateTofConfig, check=_check_update,
          help="as dem-full-tof, merged into the current DEM (which it may extend)")
 def dem_update_tof(job: Job, cfg: DemUpdateTofConfig) -> dict[str, Any]:
     return run_dem(job, cfg, update=True)
@@ -268,7 +276,7 @@ def dem_full(job: Job, cfg: DemStereoConfig) -> dict[str, Any]:
     return run_dem(job, cfg, update=False, sensor=cfg.sensor)
 
 
-@command("dem-update", job=True, klass=HARDWARE, config=DemUpdateStereoConfig,
+@command("dem-update", job=True, klass=HARDWARE, config=DemUpdateStereoConfig, check=_check_update,
          help="as dem-full, merged into the current DEM (which it may extend)")
 def dem_update(job: Job, cfg: DemUpdateStereoConfig) -> dict[str, Any]:
     return run_dem(job, cfg, update=True, sensor=cfg.sensor)
@@ -299,8 +307,8 @@ def load_layers(paths: dict[str, Path]) -> Layers:
     return layers
 
 
-def load_recovery(app: Any, which: str) -> dict[str, Any]:
-    """Restore pose and maps from a recovery set; returns what was restored."""
+def recovery_folder(app: Any, which: str) -> Path:
+    """The folder of a recovery set (``last`` or a name under recovery/), checked to hold one."""
     root = app.data_dir / "recovery"
     if which == "last":
         if not app.last_recovery:
@@ -310,10 +318,15 @@ def load_recovery(app: Any, which: str) -> dict[str, Any]:
         if not valid_stem(which):
             raise ProtocolError("E_ARG", "-set is last or the name of a folder under recovery/")
         folder = root / which
-    manifest_path = folder / "manifest.yaml"
-    if not manifest_path.is_file():
+    if not (folder / "manifest.yaml").is_file():
         raise ProtocolError("E_DATA", f"no recovery set at {app.rel(folder)}; status shows the last one")
-    manifest = yaml.safe_load(manifest_path.read_text()) or {}
+    return folder
+
+
+def load_recovery(app: Any, which: str) -> dict[str, Any]:
+    """Restore pose and maps from a recovery set; returns what was restored."""
+    folder = recovery_folder(app, which)
+    manifest = yaml.safe_load((folder / "manifest.yaml").read_text()) or {}
     pose = manifest.get("pose") or {}
     app.set_pose(float(pose.get("x", 0.0)), float(pose.get("y", 0.0)), float(pose.get("heading", 0.0)))
     maps = {layer: folder / rel for layer, rel in (manifest.get("maps") or {}).items()}
@@ -333,6 +346,7 @@ def load_recovery(app: Any, which: str) -> dict[str, Any]:
 
 
 @command("recover", job=True, klass=CONTROL, config=RecoverConfig,
+         check=lambda app, cfg: recovery_folder(app, cfg.set) and None,
          help="load a recovery set written by break: the pose and the maps it held (-set last or a folder)")
 def recover(job: Job, cfg: RecoverConfig) -> dict[str, Any]:
     job.progress(0, 1, f"loading recovery set {cfg.set}")

@@ -43,6 +43,24 @@ def acquisition_context(app: Any) -> dict[str, Any]:
     return out
 
 
+def check_ptu_angles(app: Any, pan: float | None, tilt: float | None) -> None:
+    """Angles outside the PTU's limits (read from the unit when it opened) are E_ARG before any
+    ACK. An unopened PTU is left to the job, which says E_DEVICE."""
+    dev = app.devices.devices.get("ptu")
+    if dev is None:
+        return
+    try:
+        limits = dev.limits()
+    except Exception:  # noqa: BLE001 - no limits known yet: the unit answers for itself
+        return
+    for axis, value in (("pan", pan), ("tilt", tilt)):
+        lim = limits.get(axis)
+        if value is not None and lim and not lim["min_deg"] <= value <= lim["max_deg"]:
+            raise ProtocolError(
+                "E_ARG", f"-{axis} {value:g} is outside the PTU's limits [{lim['min_deg']:.2f}, {lim['max_deg']:.2f}] deg"
+            )
+
+
 # ------------------------------------------------------------------ move-ptu
 
 
@@ -53,21 +71,23 @@ class MovePtuConfig(ModuleConfig):
     tilt: float = param(float("nan"), "tilt angle (default: keep)", unit="deg", min=-90.0, max=90.0)
 
 
-@command("move-ptu", job=True, klass=HARDWARE, config=MovePtuConfig, help="move the PTU to -pan, -tilt")
+def _axes(cfg: MovePtuConfig) -> tuple[float | None, float | None]:
+    return (None if math.isnan(cfg.pan) else cfg.pan, None if math.isnan(cfg.tilt) else cfg.tilt)
+
+
+def _check_move_ptu(app: Any, cfg: MovePtuConfig) -> None:
+    pan, tilt = _axes(cfg)
+    if pan is None and tilt is None:
+        raise ProtocolError("E_ARG", "move-ptu needs -pan and/or -tilt (degrees)")
+    check_ptu_angles(app, pan, tilt)
+
+
+@command("move-ptu", job=True, klass=HARDWARE, config=MovePtuConfig, check=_check_move_ptu,
+         help="move the PTU to -pan, -tilt")
 def move_ptu(job: Job, cfg: MovePtuConfig) -> dict[str, Any]:
     app = job.app  # type: ignore[attr-defined]
     ptu = app.devices.get("ptu")
-    pan = None if math.isnan(cfg.pan) else cfg.pan
-    tilt = None if math.isnan(cfg.tilt) else cfg.tilt
-    if pan is None and tilt is None:
-        raise ProtocolError("E_ARG", "move-ptu needs -pan and/or -tilt (degrees)")
-    limits = ptu.limits()
-    for axis, value in (("pan", pan), ("tilt", tilt)):
-        lim = limits.get(axis)
-        if value is not None and lim and not lim["min_deg"] <= value <= lim["max_deg"]:
-            raise ProtocolError(
-                "E_ARG", f"-{axis} {value:g} is outside the PTU's limits [{lim['min_deg']:.2f}, {lim['max_deg']:.2f}] deg"
-            )
+    pan, tilt = _axes(cfg)
     job.progress(0, 1, f"moving to pan={_deg(pan)} tilt={_deg(tilt)}")
     reached = device_call(job, ptu.move, pan, tilt, True)
     return {"pan": Fixed(reached[0], 3), "tilt": Fixed(reached[1], 3)}

@@ -28,7 +28,7 @@ from ..config import ModuleConfig, param
 from ..jobs import Job
 from ..protocol import Fixed, ProtocolError
 from ..table import HARDWARE, command
-from .hardware import device_call
+from .hardware import check_ptu_angles, device_call
 
 DEFAULT_TILT = {"stereo": -20.0, "tof": -30.0}
 
@@ -38,12 +38,6 @@ DEFAULT_TILT = {"stereo": -20.0, "tof": -30.0}
 
 def _point_ptu(job: Job, app: Any, pan: float, tilt: float) -> tuple[float, float]:
     ptu = app.devices.get("ptu")
-    limits = ptu.limits()
-    for axis, value in (("pan", pan), ("tilt", tilt)):
-        lim = limits.get(axis)
-        if lim and not lim["min_deg"] <= value <= lim["max_deg"]:
-            raise ProtocolError("E_ARG", f"-{axis} {value:g} is outside the PTU's limits "
-                                         f"[{lim['min_deg']:.2f}, {lim['max_deg']:.2f}] deg")
     reached = device_call(job, ptu.move, pan, tilt, True)
     return float(reached[0]), float(reached[1])
 
@@ -130,13 +124,18 @@ def _pose_fields(x: float, y: float, heading: float) -> dict[str, Any]:
     return {"x": Fixed(x, 4), "y": Fixed(y, 4), "heading": Fixed(heading, 3)}
 
 
+def _orient_tilt(cfg: Any) -> float:
+    return DEFAULT_TILT[cfg.sensor] if math.isnan(cfg.tilt) else cfg.tilt
+
+
 @command("orient", job=True, klass=HARDWARE, config=OrientConfig,
+         check=lambda app, cfg: check_ptu_angles(app, cfg.pan, _orient_tilt(cfg)),
          help="acquire in the moving direction and estimate the rover's motion since the last orient "
               "(visual odometry); the first one (or -reset) sets the reference")
 def orient(job: Job, cfg: OrientConfig) -> dict[str, Any]:
     app = job.app  # type: ignore[attr-defined]
     state = odometry_of(app)
-    tilt = DEFAULT_TILT[cfg.sensor] if math.isnan(cfg.tilt) else cfg.tilt
+    tilt = _orient_tilt(cfg)
     with state.lock:
         ref = state.reference
     if ref is not None and ref.sensor != cfg.sensor and not cfg.reset:
@@ -212,6 +211,7 @@ def _store_mount(app: Any, sensor: str, mount: dict[str, list[float]]) -> None:
 
 
 @command("ground-align", job=True, klass=HARDWARE, config=GroundAlignConfig,
+         check=lambda app, cfg: check_ptu_angles(app, cfg.pan, cfg.tilt),
          help="with the rover still on level ground, fit the ground plane over -frames frames and correct the "
               "sensor mount's tilt and roll in the head calibration")
 def ground_align(job: Job, cfg: GroundAlignConfig) -> dict[str, Any]:

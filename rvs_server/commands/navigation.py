@@ -90,12 +90,16 @@ class NavigateConfig(ModuleConfig):
     max_deviation: float = param(0.1, "waypoint polyline's largest deviation from the A* path", unit="m",
                                  min=0.0, max=5.0)
     border: float = param(1.0, "stop this far inside the locally seen ground: at least the radius the next "
-                          "scan cannot see around the rover, so the legs join", unit="m", min=0.0, max=5.0)
+                          "scan cannot see around the rover, so the legs join; halved (down to 0) where the "
+                          "seen ground is too narrow for the rover to move at all", unit="m", min=0.0, max=5.0)
     range: list[float] = param([-180.0, 180.0, -50.0, -10.0], "view range of each leg's DEM", unit="deg",
                                length=4, min=-360.0, max=360.0, option=False)
     overlap: float = param(0.3, "view overlap of each leg's DEM", min=0.0, max=0.9, option=False)
     wait_timeout: float = param(0.0, "seconds to wait for the GNC's pose after a leg (0: forever)", unit="s",
                                 min=0.0, max=86400.0, option=False)
+    min_progress: float = param(0.1, "a leg that starts closer than this to the previous leg's start made no "
+                                "progress; the second such leg in a row ends the job", unit="m", min=0.0, max=5.0,
+                                option=False)
     global_maps: str = param("", "folder with global hazard.tif and slope.tif (empty: blank maps)",
                              option=False)
 
@@ -119,25 +123,27 @@ def _load_global(folder: str) -> Any:
     return NavMaps(hazard, slope, g)
 
 
-def drive_simulated(world: Any, start: tuple[float, float, float], waypoints: Any,
-                    track: list[tuple[float, float]], step: float = 0.05) -> None:
-    """The simulated rover drives the waypoints: turn on the spot, then straight (sect. 5.4)."""
+def drive_simulated(world: Any, waypoints: Any, track: list[tuple[float, float]],
+                    reached: Any = None, step: float = 0.05) -> None:
+    """The simulated rover drives the waypoints: turn on the spot, then straight (sect. 5.4);
+    ``reached(k)`` is called as it arrives at waypoint k."""
     x, y, heading = world.rover_pose()
-    for wx, wy in waypoints.xy[1:]:
+    for k, (wx, wy) in enumerate(waypoints.xy[1:], start=1):
         dist = math.hypot(wx - x, wy - y)
-        if dist < 1e-6:
-            continue
-        want = math.degrees(math.atan2(wy - y, wx - x))
-        world.move_rover(0.0, 0.0, (want - heading + 180.0) % 360.0 - 180.0)
-        n = max(1, math.ceil(dist / step))
-        for _ in range(n):
-            world.move_rover(dist / n, 0.0, 0.0)
-            tx, ty, _ = world.rover_pose()
-            track.append((tx, ty))
-        x, y, heading = world.rover_pose()
+        if dist >= 1e-6:
+            want = math.degrees(math.atan2(wy - y, wx - x))
+            world.move_rover(0.0, 0.0, (want - heading + 180.0) % 360.0 - 180.0)
+            n = max(1, math.ceil(dist / step))
+            for _ in range(n):
+                world.move_rover(dist / n, 0.0, 0.0)
+                tx, ty, _ = world.rover_pose()
+                track.append((float(tx), float(ty)))
+            x, y, heading = world.rover_pose()
+        if reached is not None:
+            reached(k)
 
 
-@command("navigate", job=True, klass=HARDWARE, config=NavigateConfig,
+@command("navigate", job=True, klass=HARDWARE, config=NavigateConfig, check=lambda app, cfg: _check(app, cfg),
          help="navigate to -goal: 360-degree DEM, A* plan, waypoints, wait for the rover (pose), repeat")
 def navigate(job: Job, cfg: NavigateConfig) -> dict[str, Any]:
     from prox_workflows.products import write_png, write_text_atomic
@@ -154,8 +160,6 @@ def navigate(job: Job, cfg: NavigateConfig) -> dict[str, Any]:
     from .dem import run_dem
 
     app = job.app  # type: ignore[attr-defined]
-    if cfg.auto and app.world is None:
-        raise ProtocolError("E_ARG", "-auto drives the simulated rover; with real hardware the GNC sends pose")
     global_maps = _load_global(cfg.global_maps)
     if cfg.start:
         heading = cfg.start[2] if len(cfg.start) == 3 else app.pose.heading
@@ -174,16 +178,26 @@ def navigate(job: Job, cfg: NavigateConfig) -> dict[str, Any]:
     all_paths: list[Any] = []
     all_waypoints: list[Any] = []
     track: list[tuple[float, float]] = [(app.pose.x, app.pose.y)]
-    files: list[str] = []
+    leg_starts: list[tuple[float, float]] = []
+    stalled = 0  # legs in a row that started where the previous one did
     for leg in range(1, cfg.max_legs + 1):
         job.check()
         pose = app.pose
         if math.hypot(goal[0] - pose.x, goal[1] - pose.y) <= cfg.tolerance:
             break
+        if leg_starts and math.hypot(pose.x - leg_starts[-1][0], pose.y - leg_starts[-1][1]) < cfg.min_progress:
+            stalled += 1
+            if stalled >= 2:
+                raise ProtocolError("E_DATA", f"no progress: legs {leg - 2} to {leg} all started at ({pose.x:.2f}, "
+                                              f"{pose.y:.2f}) (within {cfg.min_progress:g} m); the rover does not "
+                                              "get along the waypoints, so a further scan from here would not help")
+        else:
+            stalled = 0
+        leg_starts.append((pose.x, pose.y))
         dem_cfg.name = f"{name}_leg{leg}"
 
-        def leg_progress(done: int, total: int, message: str, leg: int = leg) -> None:
-            job.progress(done, total, f"leg {leg}: {message}")
+        def leg_progress(done: int, total: int, message: str, phase: str = "", leg: int = leg) -> None:
+            job.progress(done, total, message, phase=phase, leg=leg)
 
         run_dem(job, dem_cfg, update=leg > 1, sensor=cfg.sensor, progress=leg_progress, out_dir="nav")
         state = maps_of(app)
@@ -195,25 +209,33 @@ def navigate(job: Job, cfg: NavigateConfig) -> dict[str, Any]:
         except PlanningError as exc:
             raise ProtocolError("E_DATA", f"goal unreachable ({exc.reason}): {exc.message}") from None
         prefix = app.data_path("nav", f"{name}_leg{leg}")
-        files += write_plan(plan, str(prefix), ortho=(maps["ortho"], maps.geometry), made_by="navigate")
+        write_plan(plan, str(prefix), ortho=(maps["ortho"], maps.geometry), made_by="navigate")
         driven = plan.path[: plan.cut]
         if len(plan.waypoints) < 2 or math.hypot(*(driven[-1] - driven[0])) < 0.05:
             raise ProtocolError("E_DATA", f"no progress on leg {leg}: the path leaves the locally seen ground at once "
                                           f"({'; '.join(plan.warnings) or 'nothing to drive'})")
+        segments = len(plan.waypoints) - 1
+        end = (float(plan.waypoints.xy[-1][0]), float(plan.waypoints.xy[-1][1]))
+        leg_progress(1, 1, f"{segments} segments to ({end[0]:.2f}, {end[1]:.2f})", "plan")
         all_paths.append(driven)
         all_waypoints.append(plan.waypoints.xy)
         flat = [Fixed(v, 3) for xy in plan.waypoints.xy for v in xy]
+        version = app.pose_version  # before the event: a GNC may answer it at once
         app.broadcast_threadsafe(Reply("RVS", "EVENT", {
             "kind": "waiting", "job": job.id, "leg": leg, "waypoints": flat,
             "file": app.rel(prefix.with_name(prefix.name + "_waypoints.csv"))}))
-        job.progress(leg, cfg.max_legs, f"leg {leg}: waiting for the rover to drive {len(plan.waypoints) - 1} legs")
+        leg_progress(0, segments, f"waiting for the rover to drive {segments} segments to "
+                                  f"({end[0]:.2f}, {end[1]:.2f})", "drive")
         if cfg.auto:
-            drive_simulated(app.world, (pose.x, pose.y, pose.heading), plan.waypoints, track)
+            drive_simulated(app.world, plan.waypoints, track, reached=lambda k, n=segments: leg_progress(
+                k, n, f"segment {k}/{n} driven", "drive"))
             t = app.world.truth()
             app.set_pose(t["x"], t["y"], t["heading"])
         else:
-            _wait_for_pose(app, job, cfg.wait_timeout)
-            track.append((app.pose.x, app.pose.y))
+            arrived = _wait_for_rover(app, job, version, end, cfg.tolerance, cfg.wait_timeout)
+            track.append((arrived.x, arrived.y))
+            leg_progress(segments, segments, f"rover {'stopped' if arrived.stopped else 'arrived'} at "
+                                             f"({arrived.x:.2f}, {arrived.y:.2f})", "drive")
     pose = app.pose
     reached = math.hypot(goal[0] - pose.x, goal[1] - pose.y) <= cfg.tolerance
     if not reached:
@@ -235,13 +257,27 @@ def navigate(job: Job, cfg: NavigateConfig) -> dict[str, Any]:
             "track": app.rel(tfile), "x": Fixed(pose.x, 3), "y": Fixed(pose.y, 3)}
 
 
-def _wait_for_pose(app: Any, job: Job, timeout: float) -> None:
-    """Until the GNC reports a new pose (the rover has moved), break, or the timeout."""
+def _check(app: Any, cfg: NavigateConfig) -> None:
+    if cfg.auto and app.world is None:
+        raise ProtocolError("E_ARG", "-auto drives the simulated rover; with real hardware the GNC sends pose")
+
+
+def _wait_for_rover(app: Any, job: Job, version: int, end: tuple[float, float], tolerance: float,
+                    timeout: float) -> Any:
+    """Until a pose report says the rover has stopped: within ``tolerance`` of the leg's last
+    waypoint, or ``-stopped true``. A GNC streaming its pose while it drives must not end the
+    wait (each pose report would start a new 360-degree scan from wherever the rover is)."""
     deadline = time.monotonic() + timeout if timeout > 0 else math.inf
     with app.pose_changed:
-        version = app.pose_version
-        while app.pose_version == version:
+        while True:
             job.check()
+            if app.pose_version != version:
+                version = app.pose_version
+                p = app.pose
+                if p.stopped or math.hypot(p.x - end[0], p.y - end[1]) <= tolerance:
+                    return p
             if time.monotonic() >= deadline:
-                raise ProtocolError("E_DATA", f"no pose from the GNC within {timeout:g} s; send pose -x -y -heading")
+                raise ProtocolError("E_DATA", f"no pose at the leg's end ({end[0]:.2f}, {end[1]:.2f}) within "
+                                              f"{timeout:g} s; send pose -x -y -heading (with -stopped true if the "
+                                              "rover stopped short)")
             app.pose_changed.wait(0.1)

@@ -11,12 +11,16 @@ from dataclasses import dataclass
 from datetime import UTC, datetime
 from typing import Any, ClassVar
 
+import structlog
+
 from .. import PROTOCOL_VERSION, __version__
 from ..app import Context
 from ..config import ModuleConfig, param
 from ..jobs import Job
-from ..protocol import Fixed, ProtocolError
+from ..protocol import Fixed, ProtocolError, render_value
 from ..table import ALWAYS, COMMANDS, CONTROL, command, lookup
+
+log = structlog.get_logger("rvs.system")
 
 # ------------------------------------------------------------------ config classes
 
@@ -45,6 +49,7 @@ class PoseConfig(ModuleConfig):
     x: float = param(float("nan"), "rover x in the global frame", unit="m", min=-1e6, max=1e6)
     y: float = param(float("nan"), "rover y in the global frame", unit="m", min=-1e6, max=1e6)
     heading: float = param(float("nan"), "rover heading, counter-clockwise from +x", unit="deg", min=-360.0, max=360.0)
+    stopped: bool = param(False, "the rover stands still here: ends a navigate wait short of the leg's end")
 
 
 @dataclass
@@ -63,7 +68,9 @@ def _devices(summary: dict[str, str]) -> list[str] | str:
 # ------------------------------------------------------------------ appendix C
 
 
-@command("quit", klass=ALWAYS, help="interrupt every job, close all connections and exit")
+@command("quit", klass=ALWAYS,
+         help="stop the server: interrupt every job, close all connections and exit (exit or bye closes only "
+              "this connection)")
 async def quit_(ctx: Context, cfg: None) -> dict[str, Any]:
     ctx.app.quitting = True
     job = await ctx.app.interrupt()
@@ -85,23 +92,41 @@ def standby(ctx: Context, cfg: None) -> dict[str, Any]:
 @command("break", klass=ALWAYS, help="interrupt all jobs and store a recovery data set")
 def break_(ctx: Context, cfg: None) -> Any:
     # The job is told to stop here, synchronously, before anything else the event loop runs:
-    # a job started by the same batch of lines is caught however short it is.
+    # a job started by the same batch of lines is caught however short it is. The mode is
+    # break from here on, so the job's end announces break, never a passing ready.
     app = ctx.app
     job = app.jobs.current
     if job is not None:
         job.cancel.set()
+    app.base_mode = "break"
     return _finish_break(app, job)
 
 
 async def _finish_break(app: Any, job: Job | None) -> dict[str, Any]:
     # The recovery set is written while the job winds down: its parameters and the maps as
     # they were are what a later run needs, and the wait stays within the 1 s budget.
-    recovery = await app.loop.run_in_executor(None, app.write_recovery, job)
+    try:
+        recovery = await app.loop.run_in_executor(None, app.write_recovery, job)
+        failure = None
+    except Exception as exc:  # noqa: BLE001 - the break itself must still happen
+        recovery, failure = None, exc
+        log.exception("recovery_failed")
     await app.interrupt()
     app.set_mode("break")
     # A job whose last step was done when the break came ends OK: then nothing was interrupted.
     interrupted = job.id if job is not None and not job.succeeded else "none"
+    if failure is not None:
+        raise ProtocolError("E_IO", f"job {interrupted} was interrupted and the server is in break mode, but no "
+                                    f"recovery set was written ({type(failure).__name__}: {failure}); check the "
+                                    "data directory, then send continue")
     return {"interrupted": interrupted, "recovery": recovery}
+
+
+@command("exit", klass=ALWAYS, open=True, aliases=("bye",),
+         help="close this connection (alias bye); jobs it started run on; quit stops the whole server")
+def exit_(ctx: Context, cfg: None) -> dict[str, Any]:
+    ctx.conn.exiting = True
+    return {"closing": True}
 
 
 def _control_done(job: Job, summary: dict[str, str]) -> dict[str, Any]:
@@ -149,12 +174,15 @@ def reset(job: Job, cfg: None) -> dict[str, Any]:
     return out
 
 
-@command("reinit", job=True, klass=CONTROL, config=ReinitConfig, help="re-initialise the hardware (-device for one)")
+def _check_reinit(app: Any, cfg: ReinitConfig) -> None:
+    if cfg.device != "all" and cfg.device not in app.devices.names:
+        raise ProtocolError("E_ARG", f"-device {cfg.device} is not configured in this build")
+
+
+@command("reinit", job=True, klass=CONTROL, config=ReinitConfig, check=_check_reinit, help="re-initialise the hardware (-device for one)")
 def reinit(job: Job, cfg: ReinitConfig) -> dict[str, Any]:
     app = job.app  # type: ignore[attr-defined]
     names = None if cfg.device == "all" else [cfg.device]
-    if names and names[0] not in app.devices.names:
-        raise ProtocolError("E_ARG", f"-device {cfg.device} is not configured in this build")
     job.progress(0, 1, f"re-initialising {cfg.device}")
     summary = app.devices.reinit(names)
     return _control_done(job, summary)
@@ -204,16 +232,21 @@ def help_(ctx: Context, cfg: None) -> dict[str, Any]:
         for spec in cmd.config.specs().values():
             if spec.option:
                 default = getattr(current, spec.name, spec.default)
-                out["opt_" + spec.name] = f"{spec.describe()}; default {_show(default)}: {spec.help}"
+                shown = _show(default)
+                out["opt_" + spec.name] = f"{spec.describe()}{f'; default {shown}' if shown else ''}: {spec.help}"
     return out
 
 
 def _show(value: Any) -> str:
+    """A default as it is typed on the wire (true, 0.3, -150,150,-50,-15); "" for none, whose
+    meaning the option's help gives (default tof_<UTC time>, keep the axis)."""
+    if isinstance(value, float) and value != value:
+        return ""
     if isinstance(value, list):
         return ",".join(_show(v) for v in value)
     if isinstance(value, float):
-        return "none" if value != value else format(value, "g")
-    return str(value) if value != "" else '""'
+        return format(value, "g")
+    return render_value(value) if value != "" else ""
 
 
 @command("status", klass=ALWAYS, help="mode, running job, pose, devices and connections")
@@ -223,6 +256,8 @@ def status(ctx: Context, cfg: None) -> dict[str, Any]:
     out: dict[str, Any] = {"mode": app.mode, "job": job.id if job else "none"}
     if job is not None:
         out["job_command"] = job.command
+        if job.phase:
+            out["phase"] = job.phase
         out["progress"] = f"{job.done}/{job.total}"
     pose = app.pose
     out["pose"] = [Fixed(pose.x, 3), Fixed(pose.y, 3), Fixed(pose.heading, 2)]
@@ -337,9 +372,9 @@ def pose(ctx: Context, cfg: PoseConfig) -> dict[str, Any]:
         y = cfg.y if "y" in given else cur.y
         heading = cfg.heading if "heading" in given else cur.heading
         heading = (heading + 180.0) % 360.0 - 180.0
-        app.set_pose(x, y, heading)
+        app.set_pose(x, y, heading, stopped=cfg.stopped)
     p = app.pose
-    return {"x": Fixed(p.x, 3), "y": Fixed(p.y, 3), "heading": Fixed(p.heading, 2)}
+    return {"x": Fixed(p.x, 3), "y": Fixed(p.y, 3), "heading": Fixed(p.heading, 2), "stopped": p.stopped}
 
 
 @command("auth", klass=ALWAYS, config=AuthConfig, open=True, help="authenticate this connection with the server's token")

@@ -31,37 +31,54 @@ def test_wiring_loops_and_conditions() -> None:
     assert ws["sum"] == 60 and "doubled" not in ws and log.entries[-1]["skipped"] is True
 
 
-def test_progress_counts_items_and_sub_steps() -> None:
-    seen: list[tuple[int, int]] = []
+def test_progress_is_per_phase_with_a_fixed_total_and_a_growing_done() -> None:
+    seen: list[tuple[str, int, int, str]] = []
 
     def with_sub(n: int, progress=None) -> int:  # noqa: ANN001
+        progress(0, n, "starting")
         for i in range(n):
             progress(i + 1, n, f"sub {i}")
         return n
 
     script = {"steps": [{"step": "make", "in": {"n": 3}, "out": "items"},
                         {"step": "times", "foreach": "@items", "in": {"x": "@item", "k": 1}, "out": "y"},
-                        {"step": "sub", "in": {"n": 5}, "out": "z"}]}
-    run_workflow(script, steps={**STEPS, "sub": with_sub}, progress=lambda d, t, m: seen.append((d, t)))
-    assert seen[-1] == (9, 9)  # 1 + 3 items + 5 sub-steps
-    assert all(d <= t for d, t in seen) and [d for d, _ in seen] == sorted(d for d, _ in seen)
+                        {"step": "sub", "in": {"n": 5}, "out": "z", "phase": "acquire"},
+                        {"step": "total", "in": {"values": "@y"}, "out": ["sum", "count"], "phase": "sum"},
+                        {"step": "times", "in": {"x": "@sum", "k": 2}, "out": "d", "phase": "sum",
+                         "when": False}]}
+    run_workflow(script, steps={**STEPS, "sub": with_sub},
+                 progress=lambda d, t, m, phase: seen.append((phase, d, t, m)))
+    # two steps of "process" (the loop counts once), the sub-step's own five, two of "sum"
+    assert [(p, d, t) for p, d, t, _ in seen] == [
+        ("process", 1, 2), ("process", 2, 2),
+        ("acquire", 0, 5), ("acquire", 1, 5), ("acquire", 2, 5), ("acquire", 3, 5), ("acquire", 4, 5),
+        ("acquire", 5, 5),
+        ("sum", 1, 2), ("sum", 2, 2)]
+    assert seen[1][3] == "times x3" and seen[-1][3] == "times skipped"
+
+
+def test_a_split_phase_is_refused_before_anything_runs() -> None:
+    ran: list[int] = []
+    script = {"steps": [{"step": "make", "in": {"n": 1}, "out": "a", "phase": "one"},
+                        {"step": "make", "in": {"n": 2}, "out": "b", "phase": "two"},
+                        {"step": "make", "in": {"n": 3}, "out": "c", "phase": "one"}]}
+    with pytest.raises(WorkflowError, match="phase 'one' is split"):
+        run_workflow(script, steps={"make": lambda n: ran.append(n) or [n]})
+    assert ran == []
 
 
 def test_cancellation_between_items() -> None:
     calls: list[int] = []
+    stop = {"now": False}
 
     def slow(x: int) -> int:
         calls.append(x)
+        stop["now"] = len(calls) >= 2
         return x
 
-    stop = {"now": False}
     script = {"steps": [{"step": "slow", "foreach": [1, 2, 3, 4], "in": {"x": "@item"}, "out": "y"}]}
-
-    def progress(done: int, total: int, message: str) -> None:
-        stop["now"] = done >= 2
-
     with pytest.raises(Cancelled):
-        run_workflow(script, steps={"slow": slow}, progress=progress, cancelled=lambda: stop["now"])
+        run_workflow(script, steps={"slow": slow}, cancelled=lambda: stop["now"])
     assert calls == [1, 2]
 
 
