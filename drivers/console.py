@@ -24,6 +24,14 @@ from drivers.base import DeviceError
 DEFAULT_CONFIG = Path(__file__).resolve().parents[1] / "config" / "drivers.yaml"
 
 
+def default_data_dir() -> Path:
+    """The server's default data directory (``data`` in config/server.yaml), so bench images land
+    beside the server's own products rather than wherever the console was started."""
+    server_yaml = DEFAULT_CONFIG.with_name("server.yaml")
+    data = (yaml.safe_load(server_yaml.read_text()) or {}).get("data") if server_yaml.is_file() else None
+    return Path(data or "data")
+
+
 def split_words(arg: str, n_min: int, n_max: int, usage: str) -> list[str]:
     """Shell-style words of a command's argument, so a wrong count answers with the usage line."""
     words = shlex.split(arg)

@@ -85,7 +85,7 @@ class App:
         self.world = world
         self.loop = loop
         self.jobs = JobRunner(loop)
-        self.devices = DeviceRegistry(config.get("drivers").as_dict(), world)
+        self.devices = DeviceRegistry(config.get("drivers"), world)  # live: config -set reaches it
         self.connections: set[Connection] = set()
         self.base_mode = "ready"
         self._announced_mode = "ready"

@@ -3,10 +3,16 @@
 Backends are chosen per device in ``config/drivers.yaml``; the registry only knows the
 ``create(config, world)`` factory each driver package exposes, as pyusb's core only knows its
 backend protocol.
+
+The registry reads the live ``drivers`` configuration (the config store's object, which
+``config -set`` changes) every time it builds a device, and remembers the section each device
+was built from: a device whose section changed since is built anew at its next reinit or reset,
+and one that can take some keys while open (``reconfigure``) gets them at once.
 """
 
 from __future__ import annotations
 
+import copy
 import functools
 import importlib
 import threading
@@ -30,27 +36,73 @@ def _factory(name: str) -> Any:
 class DeviceRegistry:
     """Open devices by name, with the error of each one that failed to open or check."""
 
-    def __init__(self, drivers_config: dict[str, dict[str, Any]], world: Any = None) -> None:
-        self.config = drivers_config
+    def __init__(self, drivers: Any, world: Any = None) -> None:
+        """``drivers`` is the live DriversConfig (one dict attribute per device), never a copy."""
+        self.drivers = drivers
         self.world = world
         self.devices: dict[str, Device] = {}
         self.errors: dict[str, str] = {}
+        self.built: dict[str, dict[str, Any]] = {}  # per device: the section it runs with
         self.lock = threading.RLock()
+
+    def section(self, name: str) -> dict[str, Any]:
+        """A device's configuration as it is now (a copy: a device must not see later edits)."""
+        return copy.deepcopy(getattr(self.drivers, name, None) or {})
 
     @property
     def names(self) -> list[str]:
         """Devices that have a driver in this build, in a fixed order."""
-        return [n for n in DEVICE_NAMES if n in self.config and _factory(n) is not None]
+        return [n for n in DEVICE_NAMES if getattr(self.drivers, n, None) is not None and _factory(n) is not None]
 
     def uses_sim(self) -> bool:
-        return any(self.config.get(n, {}).get("backend") == "sim" for n in DEVICE_NAMES)
+        return any(self.section(n).get("backend") == "sim" for n in DEVICE_NAMES)
+
+    def pending(self) -> list[str]:
+        """``device.key`` of every drivers value that waits for its device's reinit or reset."""
+        out: list[str] = []
+        for name in self.names:
+            built = self.built.get(name)
+            if built is not None:
+                live = self.section(name)
+                out += [f"{name}.{k}" for k in sorted(live.keys() | built.keys()) if live.get(k) != built.get(k)]
+        return out
+
+    def reconfigure(self) -> None:
+        """Give each open device the keys of its changed section that it can take while open.
+
+        Runs on the event loop, with no job running (config -set refuses drivers changes then);
+        a ToF grab of a background monitor may hold the camera for one grab meanwhile. A value a
+        device refuses raises ValueError before that device changes; a device that fails while
+        taking a value keeps it pending, for the reinit or reset that failure calls for anyway.
+        """
+        with self.lock:
+            for name, dev in self.devices.items():
+                take = getattr(dev, "reconfigure", None)
+                live = self.section(name)
+                if take is None or live == self.built.get(name):
+                    continue
+                try:
+                    taken = take(live)
+                except ValueError as exc:
+                    raise ValueError(f"drivers.{name}: {exc}") from None
+                except DeviceError as exc:
+                    log.warning("device_reconfigure_failed", device=name, error=exc.message)
+                    continue
+                for key in taken:
+                    self.built[name][key] = copy.deepcopy(live.get(key))
+                log.info("device_reconfigured", device=name, keys=",".join(taken) or "none")
+
+    def _stale(self, name: str) -> bool:
+        return self.section(name) != self.built.get(name)
 
     def _create(self, name: str) -> Device:
         create = _factory(name)
         kwargs: dict[str, Any] = {}
         if name == "stereo" and "trigger" in self.devices:
             kwargs["trigger"] = self.devices["trigger"]
-        return create(dict(self.config[name]), self.world, **kwargs)
+        section = self.section(name)
+        self.built[name] = copy.deepcopy(section)
+        return create(section, self.world, **kwargs)
 
     def open(self, name: str) -> None:
         """(Re)open one device; a failure is kept as its error and raised."""
@@ -72,6 +124,8 @@ class DeviceRegistry:
                 raise DeviceError(name, self.errors[name]) from exc
             self.devices[name] = dev
             self.errors.pop(name, None)
+            if name == "trigger" and "stereo" in self.devices:  # the cameras fire the new box
+                self.devices["stereo"].set_trigger(dev)  # type: ignore[attr-defined]
             log.info("device_open", device=name, backend=getattr(dev, "backend", "?"))
 
     def open_all(self) -> dict[str, str]:
@@ -106,10 +160,11 @@ class DeviceRegistry:
         return self.summary()
 
     def reinit(self, names: list[str] | None = None) -> dict[str, str]:
+        """Re-initialise each device; one whose section changed since it was built is rebuilt."""
         first: DeviceError | None = None
         for name in names or self.names:
             try:
-                if name in self.devices:
+                if name in self.devices and not self._stale(name):
                     self.devices[name].reinit()
                     self.errors.pop(name, None)
                 else:
@@ -120,6 +175,18 @@ class DeviceRegistry:
         if first is not None:
             raise first
         return self.summary()
+
+    def reset(self, name: str) -> None:
+        """Reset one device (reopen it if its reset fails); rebuilt if its section changed."""
+        dev = self.devices.get(name)
+        if dev is not None and not self._stale(name) and hasattr(dev, "reset"):
+            try:
+                dev.reset()
+                self.errors.pop(name, None)
+                return
+            except Exception:  # noqa: BLE001 - fall back to reopening the device
+                pass
+        self.open(name)
 
     def healthy(self) -> bool:
         return not self.errors

@@ -10,6 +10,7 @@ from pathlib import Path
 
 import pytest
 
+from rvs_server import __version__
 from tools import replay
 from tools.replay import ScriptError, Step, check, parse_script, pattern_for
 from tools.session import Line, ServerProcess
@@ -151,6 +152,33 @@ def test_failures_show_expected_and_actual_lines(
     assert "< EGP-RVS-STATUS OK mode=busy .*" in out
     assert re.search(r"^    EGP-RVS-STATUS OK mode=ready ", out, re.M)  # actual, auto tag removed
     assert "tag=r" not in out
+
+
+def test_without_a_named_server_nothing_is_contacted(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    script = tmp_path / "s.rvs"
+    script.write_text("> version\n")
+    with pytest.raises(SystemExit) as exc:
+        replay.main([str(script)])
+    err = capsys.readouterr().err
+    assert exc.value.code == 2 and "say which server" in err and "--server" in err and "--host/--port" in err
+    assert "passed" not in err and "cannot talk to" not in err
+    with pytest.raises(SystemExit) as exc:
+        replay.main(["--server", "--port", "7070", str(script)])
+    assert exc.value.code == 2 and "drop --host/--port" in capsys.readouterr().err
+
+
+def test_stderr_names_the_server_it_talks_to(
+    server: ServerProcess, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    script = tmp_path / "s.rvs"
+    script.write_text("> version\n")
+    assert replay.main(["--port", str(server.port), str(script)]) == 0
+    err = capsys.readouterr().err
+    assert f"the running server at 127.0.0.1:{server.port} (rvs/{__version__}, protocol 1, mode ready)" in err
+    assert replay.main([*SERVER, str(script)]) == 0
+    err = capsys.readouterr().err
+    assert re.search(rf"a fresh simulated server at 127\.0\.0\.1:(\d+) \(rvs/{re.escape(__version__)},", err)
+    assert f":{server.port} " not in err
 
 
 def test_no_server_is_exit_status_2(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:

@@ -12,6 +12,10 @@ lines in order (with the tag the replay added removed, so scripts read like a te
 PROGRESS and EVENT lines, and lines about other requests, may be skipped; an ACK, OK or ERROR
 that matches no expectation fails the request, as does the final line arriving early.
 ``--record`` writes such a script from a live run, with volatile values turned into patterns.
+
+The server is always named: ``--server`` starts a fresh simulated one per script, ``--host`` /
+``--port`` replay against a running one (whose pose, PTU and mode the replay changes); the
+server's address and hello line go to stderr.
 """
 
 from __future__ import annotations
@@ -36,6 +40,7 @@ from .session import (
     Session,
     SessionError,
     is_request,
+    try_parse,
 )
 
 DEFAULT_TIMEOUT = 120.0
@@ -306,8 +311,9 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     )
     p.add_argument("scripts", nargs="+", type=Path, metavar="SCRIPT", help="replay script(s); with --record, "
                    "one script or plain file of requests")
-    p.add_argument("--host", default=DEFAULT_HOST, help=f"server address (default {DEFAULT_HOST})")
-    p.add_argument("--port", type=int, default=DEFAULT_PORT, help=f"server port (default {DEFAULT_PORT})")
+    p.add_argument("--host", help=f"address of a running server to replay against (default {DEFAULT_HOST} "
+                   "when --port is given); replays change its state")
+    p.add_argument("--port", type=int, help=f"port of a running server (default {DEFAULT_PORT} when --host is given)")
     p.add_argument("--token", help="send 'auth -token TOKEN' before each script")
     p.add_argument("--timeout", type=float, default=DEFAULT_TIMEOUT,
                    help=f"seconds to wait for each request's final line (default {DEFAULT_TIMEOUT:g})")
@@ -318,12 +324,25 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     p.add_argument("--record", type=Path, metavar="FILE",
                    help="run the requests live and write a script with their replies as expectations")
     p.add_argument("-v", "--verbose", action="store_true", help="also list the requests that pass")
-    return p.parse_args(argv)
+    args = p.parse_args(argv)
+    # A replay moves the PTU, sets the pose, breaks jobs: it must never land on whatever server
+    # happens to listen on the default port, so the target is always named.
+    running = args.host is not None or args.port is not None
+    if args.server and running:
+        p.error("--server starts a fresh server of its own; drop --host/--port (or --server to use a running one)")
+    if not args.server and not running:
+        p.error("say which server to replay against: --server for a fresh simulated one, or --host/--port "
+                f"for a running one (e.g. --port {DEFAULT_PORT}; the replay changes its state)")
+    if running:
+        args.host = args.host if args.host is not None else DEFAULT_HOST
+        args.port = args.port if args.port is not None else DEFAULT_PORT
+    return args
 
 
-def _session(args: argparse.Namespace, port: int, retry_for: float) -> Session:
-    session = Session(args.host, port, tag_prefix="r")
+def _session(args: argparse.Namespace, host: str, port: int, retry_for: float, what: str) -> Session:
+    session = Session(host, port, tag_prefix="r")
     session.connect(retry_for=retry_for)
+    print(f"rvs-replay: replaying against {what} {host}:{port} ({_server_name(session.greeting)})", file=sys.stderr)
     if args.token is not None:
         result = session.request("auth -token=" + render_value(args.token), timeout=args.timeout)
         if not result.ok:
@@ -333,19 +352,26 @@ def _session(args: argparse.Namespace, port: int, retry_for: float) -> Session:
     return session
 
 
+def _server_name(greeting: str | None) -> str:
+    """``rvs/0.1.0, protocol 1, mode ready`` from the hello line, so an operator sees what it hit."""
+    reply = try_parse(greeting or "")
+    fields = reply.fields if reply is not None else {}
+    return f"{fields.get('server', '?')}, protocol {fields.get('protocol', '?')}, mode {fields.get('mode', '?')}"
+
+
 def run_file(args: argparse.Namespace, items: list[Item]) -> list[Outcome]:
     steps = [item for item in items if isinstance(item, Step)]
     timeout = args.timeout if args.timeout > 0 else None
     server: ServerProcess | None = None
     try:
-        port = args.port
+        host, port, what = args.host, args.port, "the running server at"
         if args.server:
             server = ServerProcess(extra_args=args.server_arg)
-            port = server.start()
+            host, port, what = DEFAULT_HOST, server.start(), "a fresh simulated server at"
         try:
-            session = _session(args, port, retry_for=30.0 if server else 0.0)
+            session = _session(args, host, port, retry_for=30.0 if server else 0.0, what=what)
         except (OSError, SessionError) as exc:
-            where = f"{args.host}:{port}"
+            where = f"{host}:{port}"
             tail = f"\n{server.log_tail()}" if server is not None else ""
             raise SessionError(f"cannot talk to {where}: {exc}{tail}") from None
         with session:

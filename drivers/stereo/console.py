@@ -2,7 +2,9 @@
 
 Every public function of the pair is a command; every error is caught and printed, so a failing
 camera never ends the session. ``-c "command"`` runs lines non-interactively (repeatable); the
-exit status is 1 if any of them failed.
+exit status is 1 if any of them failed. Images go under ``--data DIR/stereo/`` (the server's data
+directory by default): a relative FILE is taken there, an absolute one as it is; each grab prints
+the absolute path it wrote.
 """
 
 from __future__ import annotations
@@ -17,7 +19,7 @@ from typing import Any
 import numpy as np
 import yaml
 
-from drivers.console import DEFAULT_CONFIG, DeviceConsole, read_config, run, split_words
+from drivers.console import DEFAULT_CONFIG, DeviceConsole, default_data_dir, read_config, run, split_words
 from drivers.stereo import create
 from drivers.stereo.modes import PIXEL_FORMATS, RESOLUTIONS, SIDES
 
@@ -58,11 +60,11 @@ class CamShell(DeviceConsole):
     catch_interrupts = False
     unknown_hint = "'help' lists commands"
 
-    def __init__(self, camera: Any, trigger: Any = None, out_dir: str | Path = ".", stdout: Any = None) -> None:
+    def __init__(self, camera: Any, trigger: Any = None, data_dir: str | Path | None = None, stdout: Any = None) -> None:
         super().__init__(stdout)
         self.cam = camera
         self.trigger = trigger
-        self.out_dir = Path(out_dir)
+        self.out_dir = Path(data_dir if data_dir is not None else default_data_dir()) / "stereo"
         self.failed = 0
 
     # -- plumbing -----------------------------------------------------------------------------
@@ -90,8 +92,8 @@ class CamShell(DeviceConsole):
         unknown = sorted(set(opts) - {"res", "fmt"})
         if unknown:
             raise ValueError(f"unknown option(s) {', '.join(unknown)}; use res=<{'|'.join(RESOLUTIONS)}> fmt=<{'|'.join(PIXEL_FORMATS)}>")
-        name = names[0] if names else str(self.out_dir / f"{default_name}-{time.strftime('%Y%m%d-%H%M%S')}.tif")
-        return name, opts
+        name = names[0] if names else f"{default_name}-{time.strftime('%Y%m%d-%H%M%S')}.tif"
+        return str(self.out_dir / name), opts
 
     def _save(self, name: str, images: dict[str, np.ndarray]) -> None:
         base = Path(name)
@@ -102,7 +104,7 @@ class CamShell(DeviceConsole):
                 path = path.with_suffix(suffix)
             save_image(path, image)
             shape = "x".join(str(v) for v in image.shape)
-            self.say(f"{side}: {path} ({shape}, mean {float(image.mean()):.1f})")
+            self.say(f"{side}: {path.absolute()} ({shape}, mean {float(image.mean()):.1f})")
 
     # -- init / de-init -----------------------------------------------------------------------
     def do_init(self, arg: str) -> None:
@@ -195,7 +197,7 @@ class CamShell(DeviceConsole):
 
     # -- grabs ----------------------------------------------------------------------------------
     def do_grab_stereo(self, arg: str) -> None:
-        """grab-stereo [FILE] [res=..] [fmt=..]: both cameras on one trigger pulse; saves FILE_left/_right (RvsCam_GrabStereo)."""
+        """grab-stereo [FILE] [res=..] [fmt=..]: both cameras on one trigger pulse; saves FILE_left/_right, relative to DATA/stereo (RvsCam_GrabStereo)."""
         name, o = self._grab_args(arg, "stereo")
         left, right = self.cam.grab_stereo(o.get("res"), o.get("fmt"))
         self._save(name, {"left": left, "right": right})
@@ -293,7 +295,8 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     p.add_argument("--scene", default="office", help="simulated scene (sim backend)")
     p.add_argument("--resolution", choices=tuple(RESOLUTIONS), help="default grab resolution")
     p.add_argument("--pixel-format", choices=PIXEL_FORMATS, help="default pixel format")
-    p.add_argument("--out", default=".", help="directory for images saved without a file name")
+    p.add_argument("--data", type=Path, default=default_data_dir(),
+                   help="data directory: images go under DATA/stereo/ (default: the server's, %(default)s)")
     p.add_argument("-c", dest="commands", action="append", default=[], help="run this command line and exit (repeatable)")
     return p.parse_args(argv)
 
@@ -335,7 +338,7 @@ def main(argv: list[str] | None = None, *, world: Any = None, stdout: Any = None
             print(f"warning: trigger box unavailable ({exc}); only direct grabs will work", file=out)
             trigger = None
     camera = create(cam_cfg, world, trigger)
-    shell = CamShell(camera, trigger, args.out, stdout=out)
+    shell = CamShell(camera, trigger, args.data, stdout=out)
     shell.onecmd("init")
     try:
         return run(shell, args.commands, prompt_status=True)

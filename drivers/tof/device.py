@@ -37,6 +37,7 @@ from . import constants as k
 from .backend import Backend, DeviceInfo
 from .colour import fake_colour
 from .settings import (
+    CAMERA_KEYS,
     TofSettings,
     check_colour_range,
     check_colour_type,
@@ -127,6 +128,7 @@ class Tof:
             "amplitude_threshold": self._settings.amplitude_threshold,
             "correction_modes": [],
             "enhanced_xyz": False,
+            "undistort": self._settings.undistort,
             "frames": 0,
             "last_error": None,
         }
@@ -180,6 +182,36 @@ class Tof:
                 self._cam.close()
             self._set_status(open=False)
             self.open()
+
+    def reconfigure(self, config: dict[str, Any]) -> list[str]:
+        """Take the camera settings (CAMERA_KEYS) of a changed config section while open, so a
+        running server changes the modulation frequency without a reinit; returns the keys taken.
+
+        Other keys (backend, serial, calibration, the simulator's model) need a new device. A
+        value the camera cannot take is a ValueError before anything changes. With a settings
+        file configured, that file (loaded at every open) owns the camera settings: changing
+        them here would be lost at the next reinit, so it is a ValueError too. A closed camera
+        takes nothing: it gets the values when the server rebuilds it.
+        """
+        changed = [key for key in CAMERA_KEYS if config.get(key) != self._config.get(key)]
+        if not changed:
+            return []
+        if config.get("settings_file"):
+            raise ValueError(
+                f"drivers.tof.settings_file ({config['settings_file']}) holds the camera settings; "
+                f"change {', '.join(changed)} there (rvs-tof save) or set settings_file to null first"
+            )
+        defaults = TofSettings.from_config(config)
+        with self._lock:
+            if not self._cam.is_open:
+                return []
+            settings = self._settings.copy()
+            for key in changed:
+                setattr(settings, key, getattr(defaults, key))
+            self._apply_checked(settings)
+            self._defaults = defaults
+            self._config.update({key: config.get(key) for key in changed})
+        return changed
 
     # -- identification --------------------------------------------------------------------
     def query(self) -> dict[str, Any]:
@@ -489,6 +521,7 @@ class Tof:
             amplitude_threshold=settings.amplitude_threshold,
             correction_modes=[n for n, on in k.corrections_from_mode(mode).items() if on],
             enhanced_xyz=bool(mode & k.AcquireMode.AM_SHORT_RANGE),
+            undistort=settings.undistort,
         )
 
     def _set_status(self, **values: Any) -> None:

@@ -28,6 +28,22 @@ DEFAULT_COLOUR_RANGE: dict[str, list[float] | None] = {
 }
 
 
+# The drivers.tof keys that are camera settings: a running server applies a change of them to the
+# open camera at once (Tof.reconfigure); the other keys only take effect in a new device.
+CAMERA_KEYS = (
+    "amplitude_threshold",
+    "modulation_mhz",
+    "integration",
+    "auto_exposure",
+    "auto_exposure_params",
+    "auto_exposure_max_iterations",
+    "corrections",
+    "enhanced_xyz",
+    "undistort",
+    "colour_range",
+)
+
+
 @dataclass
 class AutoExposure:
     """SR_SetAutoExposure's parameters; MESA's suggested SR4000 values are 1, 150, 5, 70."""
@@ -116,18 +132,8 @@ class TofSettings:
     def from_config(cls, config: dict[str, Any]) -> TofSettings:
         """Defaults from the driver config section (keys named as in config/drivers.yaml)."""
         data: dict[str, Any] = {}
-        for key in (
-            "amplitude_threshold",
-            "modulation_mhz",
-            "integration",
-            "auto_exposure",
-            "auto_exposure_params",
-            "auto_exposure_max_iterations",
-            "enhanced_xyz",
-            "undistort",
-            "colour_range",
-        ):
-            if config.get(key) is not None:
+        for key in CAMERA_KEYS:
+            if key != "corrections" and config.get(key) is not None:
                 data[key] = config[key]
         corrections = config.get("corrections")
         if corrections is not None:

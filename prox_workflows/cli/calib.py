@@ -45,6 +45,7 @@ from ..steps.calibration import (
 )
 from ..steps.stereo import load_calibration, save_calibration
 from ..steps.transforms import write_cal
+from .parser import ToolParser
 from .stereo import read_image
 
 IMAGE_EXT = (".tif", ".tiff", ".png", ".pgm", ".ppm", ".bmp", ".jpg", ".jpeg", ".npy")
@@ -277,7 +278,7 @@ def cmd_sim_truth(args: argparse.Namespace) -> int:
 
 # -- parser -------------------------------------------------------------------------------------------
 def build_parser() -> argparse.ArgumentParser:
-    ap = argparse.ArgumentParser(prog="rvs-calib", description="Camera, stereo and ToF-to-stereo calibration.")
+    ap = ToolParser(prog="rvs-calib", description="Camera, stereo and ToF-to-stereo calibration.")
     sub = ap.add_subparsers(dest="verb", required=True, metavar="VERB")
 
     cp = sub.add_parser("control-points", help="camera calibration matrix from 3D-2D control points (DLT + refinement)")

@@ -25,6 +25,7 @@ from ..grid import GDAL_NODATA, GridGeometry, read_geotiff, write_geotiff
 from ..products import write_png, write_sidecar
 from ..steps import colormaps
 from ..steps.dem2hazard import UNDEFINED, UNITS, HazardParams, dem2hazard, hazard_summary, load_params
+from .parser import ToolParser
 
 MADE_BY = "rvs-dem2hazard (prox_workflows.steps.dem2hazard)"
 
@@ -82,7 +83,7 @@ def _parse_set(items: list[str], ap: argparse.ArgumentParser) -> dict[str, Any]:
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(
+    ap = ToolParser(
         prog="rvs-dem2hazard",
         description="Slope, roughness, step, hazard and traversability maps of a GeoTIFF DEM (seed 000 sect. 3.1.6).")
     ap.add_argument("dem", type=Path, help="DEM GeoTIFF (float, NaN or its nodata value where undefined)")

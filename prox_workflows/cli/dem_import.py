@@ -35,6 +35,7 @@ from ..products import preview, write_png, write_sidecar
 from ..steps.dem_import import cells_from_bounds, dem_import
 from ..steps.noise import tof_sigma
 from ..steps.transforms import read_cal
+from .parser import ToolParser
 
 MADE_BY = "rvs-dem-import (prox_workflows.steps.dem_import)"
 
@@ -177,7 +178,7 @@ def load_inputs(paths: list[Path], noise: str, sensor: np.ndarray | None,
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="rvs-dem-import", description=__doc__.split("\n\n")[0],
+    ap = ToolParser(prog="rvs-dem-import", description=__doc__.split("\n\n")[0],
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("inputs", nargs="+", type=Path, help="PLY, .npy, x y z text or 4-channel coordinate TIFF")
     ap.add_argument("--cell", type=float, required=True, help="cell size (m)")

@@ -28,12 +28,13 @@ from ..steps.dem_import import cells_from_bounds
 from ..steps.dem_mosaik import RULES, dem_mosaik
 from ..steps.holes import fill_layers
 from .dem_import import read_layers, write_layers
+from .parser import ToolParser
 
 MADE_BY = "rvs-dem-mosaik (prox_workflows.steps.dem_mosaik)"
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="rvs-dem-mosaik", description=__doc__.split("\n\n")[0],
+    ap = ToolParser(prog="rvs-dem-mosaik", description=__doc__.split("\n\n")[0],
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("inputs", nargs="+", type=Path, help="DEM GeoTIFFs, oldest first")
     ap.add_argument("--rule", choices=RULES, default="max", help="merge rule (default max)")

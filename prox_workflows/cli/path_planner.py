@@ -25,6 +25,7 @@ import tifffile
 
 from ..grid import GDAL_NODATA, GridGeometry, read_geotiff
 from ..steps.planner import NavMaps, PlannerParams, PlanningError, plan_path, write_plan
+from .parser import ToolParser
 
 MADE_BY = "rvs-path-planner (prox_workflows.steps.planner)"
 
@@ -74,7 +75,7 @@ def read_maps(hazard: Path, slope: Path) -> NavMaps:
 
 def build_parser() -> argparse.ArgumentParser:
     d = PlannerParams()
-    ap = argparse.ArgumentParser(prog="rvs-path-planner", description=__doc__.split("\n\n")[0],
+    ap = ToolParser(prog="rvs-path-planner", description=__doc__.split("\n\n")[0],
                                  formatter_class=argparse.ArgumentDefaultsHelpFormatter)
     ap.add_argument("--hazard", type=Path, required=True, help="local hazard map GeoTIFF (0/128/255)")
     ap.add_argument("--slope", type=Path, required=True, help="local slope map GeoTIFF (degrees)")
@@ -101,24 +102,8 @@ def build_parser() -> argparse.ArgumentParser:
     return ap
 
 
-def _join_negative(argv: list[str]) -> list[str]:
-    """``--start -1.5,2`` as ``--start=-1.5,2``: argparse takes "-1.5,2" for an option."""
-    out: list[str] = []
-    i = 0
-    while i < len(argv):
-        a = argv[i]
-        if a in ("--start", "--goal", "--start-heading") and i + 1 < len(argv) \
-                and argv[i + 1][:1] == "-" and argv[i + 1][1:2] in tuple("0123456789."):
-            out.append(f"{a}={argv[i + 1]}")
-            i += 2
-            continue
-        out.append(a)
-        i += 1
-    return out
-
-
 def main(argv: list[str] | None = None) -> int:
-    args = build_parser().parse_args(_join_negative(list(sys.argv[1:] if argv is None else argv)))
+    args = build_parser().parse_args(argv)
     if (args.global_hazard is None) != (args.global_slope is None):
         print("rvs-path-planner: --global-hazard and --global-slope go together", file=sys.stderr)
         return 2

@@ -40,6 +40,7 @@ from ..steps.stereo import (
     sigma_d_for,
     to_gray8,
 )
+from .parser import ToolParser
 
 MADE_BY = "rvs-stereo (prox_workflows.steps.stereo)"
 
@@ -75,7 +76,7 @@ def _parse_set(items: list[str], ap: argparse.ArgumentParser) -> dict[str, Any]:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    ap = argparse.ArgumentParser(
+    ap = ToolParser(
         prog="rvs-stereo",
         description="Disparity and 3D points of one stereo pair (SGBM with left-right check, speckle filter "
                     "and texture mask). Disparity in pixels in the left image's geometry, points in the left "

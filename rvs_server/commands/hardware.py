@@ -136,11 +136,18 @@ def grab_tof(job: Job, cfg: GrabTofConfig) -> dict[str, Any]:
 
 
 def _device_info(dev: Any) -> dict[str, Any]:
+    """The device's own account of its settings (modulation, integration, corrections...), read
+    right after the grab: the job holds the devices and config -set cannot change them meanwhile,
+    so it is what the image was measured with, whatever the configuration says by now."""
     try:
         st = dev.status()
     except Exception:  # noqa: BLE001
         return {}
-    return {k: v for k, v in st.items() if isinstance(v, str | int | float | bool) and v is not None}
+    return {k: v for k, v in st.items() if _scalar(v) or (isinstance(v, list) and all(map(_scalar, v)))}
+
+
+def _scalar(value: Any) -> bool:
+    return isinstance(value, str | int | float | bool)
 
 
 # ------------------------------------------------------------------ grab-stereo

@@ -13,6 +13,8 @@ from typing import Any, ClassVar
 
 import structlog
 
+from drivers.tof.settings import CAMERA_KEYS
+
 from .. import PROTOCOL_VERSION, __version__
 from ..app import Context
 from ..config import ModuleConfig, param
@@ -160,15 +162,7 @@ def reset(job: Job, cfg: None) -> dict[str, Any]:
     for i, name in enumerate(names):
         job.check()
         job.progress(len(names) + i, 2 * len(names), f"re-initialising {name}")
-        dev = app.devices.devices.get(name)
-        if dev is not None and hasattr(dev, "reset"):
-            try:
-                dev.reset()
-                app.devices.errors.pop(name, None)
-                continue
-            except Exception:  # noqa: BLE001 - fall back to reopening the device
-                pass
-        app.devices.open(name)
+        app.devices.reset(name)
     out = _control_done(job, app.devices.summary())
     out["checked"] = [f"{n}:{'ok' if s == 'ok' else 'failed'}" for n, s in checked.items()] or "none"
     return out
@@ -307,7 +301,16 @@ def format_(ctx: Context, cfg: None) -> dict[str, Any]:
     return {"format": "json" if ctx.conn.json else "text"}
 
 
-@command("config", klass=ALWAYS, raw=True, help="config -module X [-set key=value ...]: show or change a module's configuration")
+CONFIG_HELP = (
+    "config -module X [-set key=value ...]: show or change a module's configuration. "
+    "drivers (refused while a job runs): the ToF camera settings tof.KEY for KEY in "
+    f"{'|'.join(CAMERA_KEYS)} go to the open camera at once (with tof.settings_file set they are refused); "
+    "any other drivers key takes effect when its device is next re-initialised (reinit, reset, "
+    "or a continue that re-initialises), and the reply's pending= lists those keys until then"
+)
+
+
+@command("config", klass=ALWAYS, raw=True, help=CONFIG_HELP)
 def config(ctx: Context, cfg: None) -> dict[str, Any]:
     store = ctx.app.config
     module: str | None = None
@@ -335,11 +338,17 @@ def config(ctx: Context, cfg: None) -> dict[str, Any]:
                 if not sep:
                     raise ProtocolError("E_ARG", f"-set {item[:40]}: write key=value")
                 store.set(name, key, raw)
-        except ProtocolError:
+            if name == "drivers":
+                ctx.app.devices.reconfigure()
+        except (ProtocolError, ValueError) as exc:
             for key, value in before.items():  # all or nothing: an E_ARG request changes nothing
                 setattr(current, key, value)
+            if isinstance(exc, ValueError):
+                raise ProtocolError("E_ARG", f"{exc}; nothing was changed") from None
             raise
     out: dict[str, Any] = {"name": name}
+    if name == "drivers":
+        out["pending"] = ctx.app.devices.pending() or "none"
     for key, value in store.values[name].as_dict().items():
         if key == "token" and value:
             value = "***"

@@ -69,6 +69,24 @@ def test_grabs_write_tiff_and_png(tmp_path: Path) -> None:
     assert f"left: {tmp_path}/pair_left.tif (480x640" in out
 
 
+def test_images_go_under_the_data_directory_not_the_working_directory(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.chdir(tmp_path)
+    rc, out = run("grab-stereo", "grab-left rel.tif")  # default: the server's data directory, ./data
+    assert rc == 0, out
+    stereo = tmp_path / "data" / "stereo"
+    pair = sorted(stereo.glob("stereo-*_left.tif"))
+    assert len(pair) == 1 and pair[0].with_name(pair[0].name.replace("_left", "_right")).is_file()
+    assert tifffile.imread(stereo / "rel.tif").shape == (480, 640)
+    assert f"left: {pair[0]} (480x640" in out and f"left: {stereo / 'rel.tif'} (480x640" in out
+    assert not list(tmp_path.glob("*.tif"))
+
+    rc, out = run("grab-right sub/r.png", extra=("--data", "elsewhere"))
+    assert rc == 0 and (tmp_path / "elsewhere/stereo/sub/r.png").is_file()
+    assert f"right: {tmp_path}/elsewhere/stereo/sub/r.png (480x640" in out
+
+
 def test_rgb_png_keeps_the_channel_order(tmp_path: Path) -> None:
     image = np.zeros((4, 4, 3), np.uint8)
     image[..., 0] = 200  # red
@@ -90,7 +108,7 @@ def test_errors_are_printed_and_the_session_goes_on(tmp_path: Path) -> None:
         "fault none",
         f"grab-stereo {tmp_path}/ok.tif",
         "ids",
-        extra=("--out", str(tmp_path)),
+        extra=("--data", str(tmp_path)),
     )
     assert rc == 1
     assert "error: ValueError: invalid pixel format 'yuv422'; accepted: mono8, rgb8" in out
