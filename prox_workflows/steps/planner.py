@@ -276,6 +276,9 @@ def warm_up() -> None:
     astar_grid(np.ones((3, 3)), (0, 0), (2, 2))
 
 
+MIN_LEG = 0.05  # m: a leg shorter than this makes no progress (navigate says E_DATA)
+
+
 @dataclass
 class GridPath:
     """An A* result on a grid: the cells from start to goal and the cost so far at each."""
@@ -662,7 +665,7 @@ def plan_path(local: NavMaps, global_: NavMaps | None, start: Sequence[float], g
               goal_heading: float | None = None) -> PlanResult:
     """Plan from ``start`` to ``goal`` (world x, y): merge, expand, A*, cut at the local map's
     border, simplify into waypoints. Raises :class:`PlanningError` when there is no path."""
-    from .waypoints import cut_at_border, make_waypoints, simplify
+    from .waypoints import make_waypoints, simplify
 
     params = params or PlannerParams()
     start = (float(start[0]), float(start[1]))
@@ -712,7 +715,11 @@ def plan_path(local: NavMaps, global_: NavMaps | None, start: Sequence[float], g
     path = np.stack([xs[gp.cells[:, 1]], ys[gp.cells[:, 0]]], axis=1)
     path[0] = start
     path[-1] = goal
-    cut = cut_at_border(image.border_distance[gp.cells[:, 0], gp.cells[:, 1]], params.border)
+    cut, border = _adaptive_cut(path, image.border_distance[gp.cells[:, 0], gp.cells[:, 1]], params.border,
+                                geom.cell)
+    if border < params.border:
+        notes.append(f"border relaxed from {params.border:g} m to {border:g} m: the seen ground is too narrow "
+                     "to stop that far inside it")
     if cut < len(path):
         notes.append(f"path cut at the local map's border: the rover drives {cut} of {len(path)} points")
     if cut <= 1 and len(path) > 1:
@@ -723,6 +730,20 @@ def plan_path(local: NavMaps, global_: NavMaps | None, start: Sequence[float], g
                          goal_heading=goal_heading if cut == len(path) else None)
     return PlanResult(image=image, params=params, start=start, goal=goal, path=path, path_cells=gp.cells,
                       cost_so_far=gp.g, cut=max(cut, 1), waypoints=wps, expanded=gp.expanded, warnings=notes)
+
+
+def _adaptive_cut(path: np.ndarray, border_distance: np.ndarray, border: float, cell: float) -> tuple[int, float]:
+    """Cut the path ``border`` inside the seen ground, halving the border where that leaves the
+    rover nothing to drive (a scan from a corner sees a narrow strip, seed 000's ~1 m border
+    would stop every leg at its start); returns the cut and the border used."""
+    from .waypoints import cut_at_border
+
+    while True:
+        cut = cut_at_border(border_distance, border)
+        moved = float(np.hypot(*(path[max(cut, 1) - 1] - path[0])))
+        if moved >= MIN_LEG or border <= 0.0:
+            return cut, border
+        border = border / 2 if border / 2 >= 2 * cell else 0.0
 
 
 def _enclosed_message(free: np.ndarray, start: tuple[int, int], goal: tuple[int, int], cell: float) -> str:

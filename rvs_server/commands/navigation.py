@@ -148,6 +148,7 @@ def drive_simulated(world: Any, waypoints: Any, track: list[tuple[float, float]]
 def navigate(job: Job, cfg: NavigateConfig) -> dict[str, Any]:
     from prox_workflows.products import write_png, write_text_atomic
     from prox_workflows.steps.planner import (
+        MIN_LEG,
         NavMaps,
         PlannerParams,
         PlanningError,
@@ -211,7 +212,7 @@ def navigate(job: Job, cfg: NavigateConfig) -> dict[str, Any]:
         prefix = app.data_path("nav", f"{name}_leg{leg}")
         write_plan(plan, str(prefix), ortho=(maps["ortho"], maps.geometry), made_by="navigate")
         driven = plan.path[: plan.cut]
-        if len(plan.waypoints) < 2 or math.hypot(*(driven[-1] - driven[0])) < 0.05:
+        if len(plan.waypoints) < 2 or math.hypot(*(driven[-1] - driven[0])) < MIN_LEG:
             raise ProtocolError("E_DATA", f"no progress on leg {leg}: the path leaves the locally seen ground at once "
                                           f"({'; '.join(plan.warnings) or 'nothing to drive'})")
         segments = len(plan.waypoints) - 1
