@@ -15,7 +15,7 @@ from prox_workflows.steps.safety import check_move
 from ..app import Context
 from ..config import ModuleConfig, param
 from ..jobs import Job
-from ..protocol import Fixed, ProtocolError, Reply
+from ..protocol import Fixed, ProtocolError, Reply, Rows
 from ..table import HARDWARE, command
 from .dem import maps_of
 from .hardware import default_stem
@@ -202,7 +202,7 @@ def navigate(job: Job, cfg: NavigateConfig) -> dict[str, Any]:
                                           f"({'; '.join(plan.warnings) or 'nothing to drive'})")
         all_paths.append(driven)
         all_waypoints.append(plan.waypoints.xy)
-        flat = [Fixed(v, 3) for xy in plan.waypoints.xy for v in xy]
+        flat = Rows((Fixed(x, 3), Fixed(y, 3), Fixed(h, 2)) for x, y, h in plan.waypoints.table()[:, :3])
         app.broadcast_threadsafe(Reply("RVS", "EVENT", {
             "kind": "waiting", "job": job.id, "leg": leg, "waypoints": flat,
             "file": app.rel(prefix.with_name(prefix.name + "_waypoints.csv"))}))

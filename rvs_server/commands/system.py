@@ -15,7 +15,7 @@ from .. import PROTOCOL_VERSION, __version__
 from ..app import Context
 from ..config import ModuleConfig, param
 from ..jobs import Job
-from ..protocol import Fixed, ProtocolError
+from ..protocol import Fixed, Group, ProtocolError
 from ..table import ALWAYS, COMMANDS, CONTROL, command, lookup
 
 # ------------------------------------------------------------------ config classes
@@ -56,8 +56,8 @@ class AuthConfig(ModuleConfig):
 # ------------------------------------------------------------------ helpers
 
 
-def _devices(summary: dict[str, str]) -> list[str] | str:
-    return [f"{name}:{state}" for name, state in summary.items()] or "none"
+def _devices(summary: dict[str, str]) -> list[str]:
+    return [f"{name}:{state}" for name, state in summary.items()]
 
 
 # ------------------------------------------------------------------ appendix C
@@ -68,7 +68,7 @@ async def quit_(ctx: Context, cfg: None) -> dict[str, Any]:
     ctx.app.quitting = True
     job = await ctx.app.interrupt()
     ctx.app.loop.call_soon(ctx.app.stopping.set)
-    return {"interrupted": job.id if job else "none"}
+    return {"interrupted": job.id if job else None}
 
 
 @command("standby", klass=ALWAYS, help="wait for a change-of-mode command (continue, reset, reinit)")
@@ -100,7 +100,7 @@ async def _finish_break(app: Any, job: Job | None) -> dict[str, Any]:
     await app.interrupt()
     app.set_mode("break")
     # A job whose last step was done when the break came ends OK: then nothing was interrupted.
-    interrupted = job.id if job is not None and not job.succeeded else "none"
+    interrupted = job.id if job is not None and not job.succeeded else None
     return {"interrupted": interrupted, "recovery": recovery}
 
 
@@ -145,7 +145,7 @@ def reset(job: Job, cfg: None) -> dict[str, Any]:
                 pass
         app.devices.open(name)
     out = _control_done(job, app.devices.summary())
-    out["checked"] = [f"{n}:{'ok' if s == 'ok' else 'failed'}" for n, s in checked.items()] or "none"
+    out["checked"] = [f"{n}:{'ok' if s == 'ok' else 'failed'}" for n, s in checked.items()]
     return out
 
 
@@ -220,7 +220,7 @@ def _show(value: Any) -> str:
 def status(ctx: Context, cfg: None) -> dict[str, Any]:
     app = ctx.app
     job = app.jobs.current
-    out: dict[str, Any] = {"mode": app.mode, "job": job.id if job else "none"}
+    out: dict[str, Any] = {"mode": app.mode, "job": job.id if job else None}
     if job is not None:
         out["job_command"] = job.command
         out["progress"] = f"{job.done}/{job.total}"
@@ -234,7 +234,7 @@ def status(ctx: Context, cfg: None) -> dict[str, Any]:
         out[f"error_{name}"] = err
     out["clients"] = len(app.connections)
     out["uptime"] = Fixed(time.monotonic() - app.started, 1)
-    out["recovery"] = app.last_recovery or "none"
+    out["recovery"] = app.last_recovery
     if app.world is not None:
         out["scene"] = app.world.scene_name
     for monitor in list(app.monitors.values()):
@@ -269,6 +269,8 @@ def format_(ctx: Context, cfg: None) -> dict[str, Any]:
         if word not in ("text", "json"):
             raise ProtocolError("E_ARG", f"format takes text or json, not '{word[:20]}'")
         ctx.conn.json = word == "json"
+        if ctx.conn.json and not ctx.conn.jobs_started:
+            ctx.after_ok.append(ctx.conn.greet)
     return {"format": "json" if ctx.conn.json else "text"}
 
 
@@ -304,27 +306,10 @@ def config(ctx: Context, cfg: None) -> dict[str, Any]:
             for key, value in before.items():  # all or nothing: an E_ARG request changes nothing
                 setattr(current, key, value)
             raise
-    out: dict[str, Any] = {"name": name}
-    for key, value in store.values[name].as_dict().items():
-        if key == "token" and value:
-            value = "***"
-        if isinstance(value, dict):
-            for sub, subval in _flatten(value, key):
-                out[sub] = subval
-        else:
-            out[key] = value
-    return out
-
-
-def _flatten(d: dict[str, Any], prefix: str) -> list[tuple[str, Any]]:
-    out: list[tuple[str, Any]] = []
-    for key, value in d.items():
-        full = f"{prefix}_{key}"
-        if isinstance(value, dict):
-            out.extend(_flatten(value, full))
-        else:
-            out.append((full, value if value is not None else "none"))
-    return out
+    settings = store.values[name].as_dict()
+    if settings.get("token"):
+        settings["token"] = "***"
+    return {"name": name, "settings": Group(settings)}
 
 
 @command("pose", klass=ALWAYS, config=PoseConfig, help="the GNC reports where the rover is (-x -y -heading)")
