@@ -11,6 +11,7 @@ import difflib
 import shutil
 import threading
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from datetime import UTC, datetime
 from pathlib import Path
@@ -49,6 +50,9 @@ class Context:
     conn: Connection
     request: Any
     command: Command
+    # Run once the OK line is out: what must follow the reply rather than precede it (the JSON
+    # greeting that format json sends).
+    after_ok: list[Callable[[], None]] = field(default_factory=list)
 
 
 @dataclass
@@ -277,10 +281,11 @@ class App:
                 raise ProtocolError("E_STATE", BLOCKING_MODES[mode])
             if cmd.job:
                 return self._start_job(conn, cmd, req, cfg)
-            result = cmd.handler(Context(self, conn, req, cmd), cfg)
+            ctx = Context(self, conn, req, cmd)
+            result = cmd.handler(ctx, cfg)
             if asyncio.iscoroutine(result):
-                return self._finish_async(conn, cmd, req, result)
-            self._reply_ok(conn, cmd, req.tag, result)
+                return self._finish_async(ctx, result)
+            self._reply_ok(ctx, result)
         except ProtocolError as exc:
             fields = {"code": exc.code}
             if exc.code == "E_BUSY" and self.jobs.current is not None:
@@ -302,13 +307,16 @@ class App:
         hint = f"; did you mean {close[0]}?" if close else "; try help"
         return f"unknown command '{name[:40]}'{hint}"
 
-    def _reply_ok(self, conn: Connection, cmd: Command, tag: str | None, result: dict[str, Any] | None) -> None:
-        conn.send(Reply(cmd.module, "OK", dict(result or {}), tag))
+    def _reply_ok(self, ctx: Context, result: dict[str, Any] | None) -> None:
+        ctx.conn.send(Reply(ctx.command.module, "OK", dict(result or {}), ctx.request.tag))
+        for then in ctx.after_ok:
+            then()
 
-    async def _finish_async(self, conn: Connection, cmd: Command, req: Any, coro: Any) -> None:
+    async def _finish_async(self, ctx: Context, coro: Any) -> None:
+        conn, cmd, req = ctx.conn, ctx.command, ctx.request
         try:
             result = await coro
-            self._reply_ok(conn, cmd, req.tag, result)
+            self._reply_ok(ctx, result)
         except ProtocolError as exc:
             conn.send(Reply(cmd.module, "ERROR", {"code": exc.code, "message": exc.message}, req.tag))
         except Exception as exc:  # noqa: BLE001
@@ -337,6 +345,7 @@ class App:
         job.app = self  # type: ignore[attr-defined]
         conn.send(Reply(module, "ACK", {"job": job_id}, tag))
         conn.jobs_running += 1
+        conn.jobs_started += 1
         jlog = conn.log.bind(command=cmd.name, job=job_id, tag=tag)
         jlog.info("job_start", params=params)
 

@@ -8,7 +8,9 @@ from __future__ import annotations
 
 import json
 import math
+import numbers
 import re
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -69,6 +71,30 @@ class Fixed(float):
         obj = super().__new__(cls, value)
         obj.decimals = decimals
         return obj
+
+
+class Rows(list[tuple[Any, ...]]):
+    """Records of one width (waypoints as x, y, heading).
+
+    The text grammar has only flat comma lists, so text runs the records together
+    (``x1,y1,h1,x2,...``) and the reader splits them by the width the protocol page gives; JSON
+    keeps each record an array (``[[x1, y1, h1], ...]``) so a JSON client needs no such knowledge.
+    """
+
+
+class Group(dict[str, Any]):
+    """Keys that belong to one thing rather than to the reply (a module's settings in ``config``).
+
+    Their names and types are the module's, not the protocol's, and clash with reply keys
+    (``height`` is a flag in one module and a length in a reply), so JSON nests them in one object
+    under the group's key; text, which has no nesting, spreads them into the line as before
+    (a nested mapping's keys joined with ``_``: ``ptu_backend=sim``).
+    """
+
+
+# Keys whose value is a number or a word (``worst=0.850`` or ``worst=unknown``): JSON carries
+# their text, so that the key keeps one type.
+TEXT_VALUED_KEYS = frozenset({"worst"})
 
 
 # --------------------------------------------------------------------------------------------
@@ -217,16 +243,24 @@ def valid_stem(name: str) -> bool:
 # replies
 
 
+def _scalar(value: Any) -> Any:
+    """A numpy scalar (a count summed over an array, a comparison) as its Python twin, so both
+    formats give it the type of a plain number or flag."""
+    item = getattr(value, "item", None)
+    return item() if callable(item) and getattr(value, "shape", None) == () else value
+
+
 def render_value(value: Any) -> str:
     """A value as it appears on a text line: bare when it can be, quoted otherwise."""
+    value = _scalar(value)
     if isinstance(value, bool):
         return "true" if value else "false"
+    if isinstance(value, numbers.Integral):
+        return str(int(value))
     if isinstance(value, Fixed):
         return f"{float(value):.{value.decimals}f}" if math.isfinite(value) else "nan"
-    if isinstance(value, float):
-        return format(value, ".6g") if math.isfinite(value) else "nan"
-    if isinstance(value, int):
-        return str(value)
+    if isinstance(value, numbers.Real):
+        return format(float(value), ".6g") if math.isfinite(value) else "nan"
     if value is None:
         return "none"
     if isinstance(value, list | tuple):
@@ -242,16 +276,32 @@ def format_reply(reply: Reply) -> str:
     parts = [reply.module, reply.status]
     if reply.tag is not None:
         parts.append(f"tag={reply.tag}")
-    for key, value in reply.fields.items():
-        parts.append(f"{key}={render_value(value)}")
+    parts.extend(_text_pairs(reply.fields))
     return " ".join(parts)
 
 
+def _text_pairs(fields: dict[str, Any], prefix: str = "") -> Iterator[str]:
+    for key, value in fields.items():
+        if isinstance(value, Group):
+            yield from _text_pairs(value, prefix)
+        elif isinstance(value, dict):
+            yield from _text_pairs(value, f"{prefix}{key}_")
+        else:
+            yield f"{prefix}{key}={render_value(value)}"
+
+
 def _json_value(value: Any) -> Any:
-    if isinstance(value, bool | int | str) or value is None:
+    """The JSON twin of :func:`render_value`: a number is the figure text prints (so both
+    formats carry the same digits), absent (None) and undefined (NaN) values are null."""
+    value = _scalar(value)
+    if isinstance(value, bool | str) or value is None:
         return value
-    if isinstance(value, float):
-        return float(value) if math.isfinite(value) else None
+    if isinstance(value, numbers.Integral):
+        return int(value)
+    if isinstance(value, numbers.Real):
+        return float(render_value(value)) if math.isfinite(value) else None
+    if isinstance(value, dict):
+        return {key: _json_value(v) for key, v in value.items()}
     if isinstance(value, list | tuple):
         return [_json_value(v) for v in value]
     return str(value)
@@ -264,7 +314,9 @@ def format_reply_json(reply: Reply) -> str:
         obj["tag"] = reply.tag
     for key, value in reply.fields.items():
         # a field never overwrites the line's own module, status or tag
-        obj[key + "_" if key in ("module", "status", "tag") else key] = _json_value(value)
+        name = key + "_" if key in ("module", "status", "tag") else key
+        text_valued = key in TEXT_VALUED_KEYS and not isinstance(value, str)
+        obj[name] = render_value(value) if text_valued else _json_value(value)
     return json.dumps(obj, separators=(",", ":"), ensure_ascii=False)
 
 

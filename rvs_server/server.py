@@ -55,6 +55,7 @@ class Connection(asyncio.Protocol):
         self.log = log
         self.jobs_running = 0  # jobs this connection started: their final lines still owed
         self.exiting = False  # `exit` was answered: close once that reply is out, read nothing more
+        self.jobs_started = 0  # until its first job, format json counts as said at connect time
 
     # ------------------------------------------------------------ asyncio.Protocol
 
@@ -85,6 +86,11 @@ class Connection(asyncio.Protocol):
             return
         self.app.connections.add(self)
         self.log.info("client_connected", clients=len(self.app.connections))
+        self.greet()
+
+    def greet(self) -> None:
+        """The hello EVENT: at connect, and again in JSON when format json comes at connect time
+        (a JSON-only client then has a greeting it can parse)."""
         self.send(Reply("RVS", "EVENT", {
             "kind": "hello", "protocol": PROTOCOL_VERSION, "server": self.app.name, "mode": self.app.mode,
         }))

@@ -124,8 +124,9 @@ def test_a_streamed_pose_does_not_end_the_wait_the_leg_end_does(server_factory) 
     assert st.fields["job"] == job and st.fields["phase"] == "drive", st.fields
     assert srv.app.jobs.current is not None and srv.app.jobs.current.context == {"leg": 1}
     # arrival at the leg's last waypoint ends the wait
-    srv.app.world.set_rover_pose(wps[-2], wps[-1], 0.0)
-    assert gnc.request(f"pose -x {wps[-2]} -y {wps[-1]} -heading 0").status == "OK"
+    end = wps[-3:-1]  # x,y,heading triples
+    srv.app.world.set_rover_pose(end[0], end[1], 0.0)
+    assert gnc.request(f"pose -x {end[0]} -y {end[1]} -heading 0").status == "OK"
     final = c.until_final(job=job, timeout=300)[-1]
     assert final.status == "OK" and final.fields["reached"] == "true", final.fields
 

@@ -75,7 +75,8 @@ def test_navigate_waits_for_the_gnc_pose(server_factory) -> None:
             event = line
     assert event.fields["job"] == job and event.fields["leg"] == "1"
     wps = [float(v) for v in event.fields["waypoints"].split(",")]
-    end = wps[-2:]
+    assert len(wps) % 3 == 0  # x, y, heading per waypoint
+    end = wps[-3:-1]
     # the GNC drives the rover (here: the simulator) and reports where it is
     srv.app.world.set_rover_pose(end[0], end[1], 0.0)
     assert gnc.request(f"pose -x {end[0]} -y {end[1]} -heading 0").status == "OK"

@@ -4,15 +4,18 @@ from __future__ import annotations
 
 import json
 
+import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from rvs_server.protocol import (
     Fixed,
+    Group,
     LineSplitter,
     ProtocolError,
     Reply,
+    Rows,
     format_reply,
     format_reply_json,
     parse_reply,
@@ -166,3 +169,16 @@ def test_splitter_chunking_does_not_matter(lines: list[bytes], step: int) -> Non
         out += s.feed(stream[i : i + step])
     telnet = [line.replace(b"\r\x00", b"\r") for line in lines]  # CR NUL is a bare CR
     assert out == [line[:-1] if line.endswith(b"\r") else line for line in telnet]
+
+
+def test_json_values_are_the_text_values_typed() -> None:
+    r = Reply("X", "OK", {
+        "pan": Fixed(29.98349, 3), "g": 0.123456789, "n": np.int64(3), "b": np.bool_(True), "absent": None,
+        "nan": float("nan"), "rows": Rows([(Fixed(1, 3), Fixed(2, 3), Fixed(45.678, 2))] * 2),
+        "settings": Group({"height": False, "ptu": {"backend": "sim"}}), "worst": Fixed(0.85, 3)})
+    assert format_reply(r) == ("X OK pan=29.983 g=0.123457 n=3 b=true absent=none nan=nan "
+                               "rows=1.000,2.000,45.68,1.000,2.000,45.68 height=false ptu_backend=sim worst=0.850")
+    assert json.loads(format_reply_json(r)) == {
+        "module": "X", "status": "OK", "pan": 29.983, "g": 0.123457, "n": 3, "b": True, "absent": None,
+        "nan": None, "rows": [[1.0, 2.0, 45.68], [1.0, 2.0, 45.68]],
+        "settings": {"height": False, "ptu": {"backend": "sim"}}, "worst": "0.850"}

@@ -12,7 +12,7 @@ import argparse
 import os
 import sys
 import threading
-from collections.abc import Iterable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 from pathlib import Path
 from typing import Any, TextIO
 
@@ -35,7 +35,10 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     p.add_argument("--host", default=DEFAULT_HOST, help=f"server address (default {DEFAULT_HOST})")
     p.add_argument("--port", type=int, default=DEFAULT_PORT, help=f"server port (default {DEFAULT_PORT})")
     p.add_argument("--token", help="send 'auth -token TOKEN' before anything else")
-    p.add_argument("--json", action="store_true", help="switch the connection to 'format json' and print JSON lines")
+    p.add_argument("--format", choices=("text", "json"), default="text",
+                   help="reply format: json sends 'format json' at connect and prints the greeting and every "
+                        "line as JSON (default text)")
+    p.add_argument("--json", action="store_const", dest="format", const="json", help="same as --format json")
     p.add_argument("--timeout", type=float, default=DEFAULT_TIMEOUT,
                    help=f"seconds to wait for each request's final line (default {DEFAULT_TIMEOUT:g}; 0: forever)")
     p.add_argument("-c", "--command", action="append", default=[], metavar="REQUEST",
@@ -44,7 +47,7 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
                    help="PROGRESS lines as a progress bar redrawn in place, or as lines (default: a bar when "
                         "the output is a terminal)")
     p.add_argument("-v", "--verbose", action="store_true",
-                   help="one-shot: also print the greeting and the replies to --token and --json")
+                   help="one-shot: also print the greeting and the replies to --token and --format json")
     return p.parse_args(argv)
 
 
@@ -125,13 +128,13 @@ def _report(result: Result, timeout: float | None) -> None:
 
 def _setup(session: Session, args: argparse.Namespace, printer: Printer, verbose: bool, timeout: float | None) -> bool:
     """Authenticate and switch format as asked; False if the server said no."""
-    steps: list[str] = []
+    steps: list[Callable[[], Result]] = []
     if args.token is not None:
-        steps.append("auth -token=" + render_value(args.token))
-    if args.json:
-        steps.append("format json")
-    for request in steps:
-        result = session.request(request, timeout=timeout)
+        steps.append(lambda: session.request("auth -token=" + render_value(args.token), timeout=timeout))
+    if args.format == "json":
+        steps.append(lambda: session.set_format("json", timeout))
+    for step in steps:
+        result = step()
         if verbose or not result.ok:
             for line in result.own:
                 printer.reply(line)
@@ -227,15 +230,15 @@ def main(argv: list[str] | None = None) -> int:
 
     session = Session(args.host, args.port, on_async=printer.reply, on_close=closed)
     try:
-        greeting = session.connect()
+        session.connect()
     except (OSError, SessionError) as exc:
         print(f"rvs-client: cannot talk to {args.host}:{args.port}: {exc}", file=sys.stderr)
         return 2
     try:
-        if interactive or args.verbose:
-            printer.line(greeting)
         if not _setup(session, args, printer, args.verbose, timeout):
             return 1
+        if (interactive or args.verbose) and session.greeting is not None:
+            printer.line(session.greeting)  # after setup: in the format the session goes on in
         if interactive:
             return run_interactive(session, printer, timeout)
         requests = _split(args.command) if args.command else _split(sys.stdin)

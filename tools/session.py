@@ -30,6 +30,7 @@ from rvs_server.protocol import MAX_LINE, TAG_RE, ProtocolError, Reply, parse_re
 FINAL = ("OK", "ERROR")
 DEFAULT_HOST = "127.0.0.1"
 DEFAULT_PORT = 7070
+GREETING_WAIT = 5.0  # s: the JSON greeting follows format json's OK at once; an old server sends none
 
 
 class SessionError(Exception):
@@ -164,6 +165,7 @@ class Session:
         self.on_close = on_close
         self.tag_prefix = tag_prefix
         self.greeting: str | None = None
+        self._greeted = threading.Event()
         self._sock: socket.socket | None = None
         self._buf = b""
         self._lock = threading.Lock()
@@ -228,6 +230,16 @@ class Session:
         self.close()
 
     # ------------------------------------------------------------------ requests
+
+    def set_format(self, fmt: str, timeout: float | None = None) -> Result:
+        """``format text|json``. Said at connect time, ``format json`` makes the server send its
+        greeting again in JSON; that one becomes :attr:`greeting`, so a JSON client never has to
+        parse the text greeting."""
+        self._greeted.clear()
+        result = self.request(f"format {fmt}", timeout=timeout)
+        if result.ok and fmt == "json":
+            self._greeted.wait(GREETING_WAIT if timeout is None else min(timeout, GREETING_WAIT))
+        return result
 
     def next_tag(self) -> str:
         self._n += 1
@@ -309,6 +321,10 @@ class Session:
 
     def _route(self, text: str) -> None:
         reply = try_parse(text)
+        if reply is not None and reply.status == "EVENT" and reply.fields.get("kind") == "hello":
+            self.greeting = text  # the greeting again, in JSON (set_format): not news for on_async
+            self._greeted.set()
+            return
         with self._lock:
             pending = self._pending
             line = pending.claim(text, reply) if pending is not None else None

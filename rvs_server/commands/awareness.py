@@ -626,12 +626,8 @@ async def track3d_start(ctx: Context, cfg: TrackStartConfig) -> dict[str, Any]:
     tracker = TargetTracker(app, cfg, start)
     app.monitors["track"] = tracker
     tracker.start()
-    out: dict[str, Any] = {"sensor": cfg.sensor, "period": Fixed(cfg.period, 3)}
-    if start is None:
-        out["target"] = "none"
-    else:
-        out["target"] = [Fixed(start.x, 3), Fixed(start.y, 3), Fixed(start.z, 3)]
-    return out
+    target = None if start is None else [Fixed(start.x, 3), Fixed(start.y, 3), Fixed(start.z, 3)]
+    return {"sensor": cfg.sensor, "period": Fixed(cfg.period, 3), "target": target}
 
 
 @command("track3d-stop", help="stop tracking the target")

@@ -341,7 +341,7 @@ def load_recovery(app: Any, which: str) -> dict[str, Any]:
             app.maps = {layer: app.rel(path) for layer, path in maps.items()}
         out["cells"] = int(np.isfinite(layers["dem"]).sum())
     job = manifest.get("job") or {}
-    out["interrupted_job"] = job.get("command", "none")
+    out["interrupted_job"] = job.get("command")
     return out
 
 

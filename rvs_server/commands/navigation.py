@@ -15,7 +15,7 @@ from prox_workflows.steps.safety import check_move
 from ..app import Context
 from ..config import ModuleConfig, param
 from ..jobs import Job
-from ..protocol import Fixed, ProtocolError, Reply
+from ..protocol import Fixed, ProtocolError, Reply, Rows
 from ..table import HARDWARE, command
 from .dem import maps_of
 from .hardware import default_stem
@@ -220,10 +220,10 @@ def navigate(job: Job, cfg: NavigateConfig) -> dict[str, Any]:
         leg_progress(1, 1, f"{segments} segments to ({end[0]:.2f}, {end[1]:.2f})", "plan")
         all_paths.append(driven)
         all_waypoints.append(plan.waypoints.xy)
-        flat = [Fixed(v, 3) for xy in plan.waypoints.xy for v in xy]
+        rows = Rows((Fixed(x, 3), Fixed(y, 3), Fixed(h, 2)) for x, y, h in plan.waypoints.table()[:, :3])
         version = app.pose_version  # before the event: a GNC may answer it at once
         app.broadcast_threadsafe(Reply("RVS", "EVENT", {
-            "kind": "waiting", "job": job.id, "leg": leg, "waypoints": flat,
+            "kind": "waiting", "job": job.id, "leg": leg, "waypoints": rows,
             "file": app.rel(prefix.with_name(prefix.name + "_waypoints.csv"))}))
         leg_progress(0, segments, f"waiting for the rover to drive {segments} segments to "
                                   f"({end[0]:.2f}, {end[1]:.2f})", "drive")

@@ -19,7 +19,7 @@ from .. import PROTOCOL_VERSION, __version__
 from ..app import Context
 from ..config import ModuleConfig, param
 from ..jobs import Job
-from ..protocol import Fixed, ProtocolError, render_value
+from ..protocol import Fixed, Group, ProtocolError, render_value
 from ..table import ALWAYS, COMMANDS, CONTROL, command, lookup
 
 log = structlog.get_logger("rvs.system")
@@ -63,8 +63,8 @@ class AuthConfig(ModuleConfig):
 # ------------------------------------------------------------------ helpers
 
 
-def _devices(summary: dict[str, str]) -> list[str] | str:
-    return [f"{name}:{state}" for name, state in summary.items()] or "none"
+def _devices(summary: dict[str, str]) -> list[str]:
+    return [f"{name}:{state}" for name, state in summary.items()]
 
 
 # ------------------------------------------------------------------ appendix C
@@ -77,7 +77,7 @@ async def quit_(ctx: Context, cfg: None) -> dict[str, Any]:
     ctx.app.quitting = True
     job = await ctx.app.interrupt()
     ctx.app.loop.call_soon(ctx.app.stopping.set)
-    return {"interrupted": job.id if job else "none"}
+    return {"interrupted": job.id if job else None}
 
 
 @command("standby", klass=ALWAYS, help="wait for a change-of-mode command (continue, reset, reinit)")
@@ -116,11 +116,11 @@ async def _finish_break(app: Any, job: Job | None) -> dict[str, Any]:
     await app.interrupt()
     app.set_mode("break")
     # A job whose last step was done when the break came ends OK: then nothing was interrupted.
-    interrupted = job.id if job is not None and not job.succeeded else "none"
+    interrupted = job.id if job is not None and not job.succeeded else None
     if failure is not None:
-        raise ProtocolError("E_IO", f"job {interrupted} was interrupted and the server is in break mode, but no "
-                                    f"recovery set was written ({type(failure).__name__}: {failure}); check the "
-                                    "data directory, then send continue")
+        raise ProtocolError("E_IO", f"job {interrupted or 'none'} was interrupted and the server is in break mode, "
+                                    f"but no recovery set was written ({type(failure).__name__}: {failure}); check "
+                                    "the data directory, then send continue")
     return {"interrupted": interrupted, "recovery": recovery}
 
 
@@ -164,7 +164,7 @@ def reset(job: Job, cfg: None) -> dict[str, Any]:
         job.progress(len(names) + i, 2 * len(names), f"re-initialising {name}")
         app.devices.reset(name)
     out = _control_done(job, app.devices.summary())
-    out["checked"] = [f"{n}:{'ok' if s == 'ok' else 'failed'}" for n, s in checked.items()] or "none"
+    out["checked"] = [f"{n}:{'ok' if s == 'ok' else 'failed'}" for n, s in checked.items()]
     return out
 
 
@@ -247,7 +247,7 @@ def _show(value: Any) -> str:
 def status(ctx: Context, cfg: None) -> dict[str, Any]:
     app = ctx.app
     job = app.jobs.current
-    out: dict[str, Any] = {"mode": app.mode, "job": job.id if job else "none"}
+    out: dict[str, Any] = {"mode": app.mode, "job": job.id if job else None}
     if job is not None:
         out["job_command"] = job.command
         if job.phase:
@@ -263,7 +263,7 @@ def status(ctx: Context, cfg: None) -> dict[str, Any]:
         out[f"error_{name}"] = err
     out["clients"] = len(app.connections)
     out["uptime"] = Fixed(time.monotonic() - app.started, 1)
-    out["recovery"] = app.last_recovery or "none"
+    out["recovery"] = app.last_recovery
     if app.world is not None:
         out["scene"] = app.world.scene_name
     for monitor in list(app.monitors.values()):
@@ -298,6 +298,8 @@ def format_(ctx: Context, cfg: None) -> dict[str, Any]:
         if word not in ("text", "json"):
             raise ProtocolError("E_ARG", f"format takes text or json, not '{word[:20]}'")
         ctx.conn.json = word == "json"
+        if ctx.conn.json and not ctx.conn.jobs_started:
+            ctx.after_ok.append(ctx.conn.greet)
     return {"format": "json" if ctx.conn.json else "text"}
 
 
@@ -346,28 +348,13 @@ def config(ctx: Context, cfg: None) -> dict[str, Any]:
             if isinstance(exc, ValueError):
                 raise ProtocolError("E_ARG", f"{exc}; nothing was changed") from None
             raise
+    settings = store.values[name].as_dict()
+    if settings.get("token"):
+        settings["token"] = "***"
     out: dict[str, Any] = {"name": name}
     if name == "drivers":
-        out["pending"] = ctx.app.devices.pending() or "none"
-    for key, value in store.values[name].as_dict().items():
-        if key == "token" and value:
-            value = "***"
-        if isinstance(value, dict):
-            for sub, subval in _flatten(value, key):
-                out[sub] = subval
-        else:
-            out[key] = value
-    return out
-
-
-def _flatten(d: dict[str, Any], prefix: str) -> list[tuple[str, Any]]:
-    out: list[tuple[str, Any]] = []
-    for key, value in d.items():
-        full = f"{prefix}_{key}"
-        if isinstance(value, dict):
-            out.extend(_flatten(value, full))
-        else:
-            out.append((full, value if value is not None else "none"))
+        out["pending"] = ctx.app.devices.pending() or None
+    out["settings"] = Group(settings)
     return out
 
 
