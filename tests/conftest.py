@@ -11,6 +11,8 @@ from pathlib import Path
 from typing import Any
 
 import pytest
+from hypothesis import HealthCheck, settings
+from simtime import SimTime
 
 from rvs_server.logs import setup as setup_logging
 from rvs_server.main import build_config, run
@@ -18,11 +20,18 @@ from rvs_server.protocol import Reply, parse_reply
 
 FINAL = ("OK", "ERROR")
 
+# Hypothesis times its examples (a 200 ms deadline, the too_slow health check): that is the
+# machine's speed, which no test may depend on. Tests that set their own settings keep them.
+settings.register_profile("rvs", deadline=None, suppress_health_check=[HealthCheck.too_slow])
+settings.load_profile("rvs")
+
 
 class LineClient:
     """A plain socket client: what a GNC program would do, with no help from the server's code."""
 
-    def __init__(self, port: int, host: str = "127.0.0.1", timeout: float = 10.0) -> None:
+    def __init__(self, port: int, host: str = "127.0.0.1", timeout: float = 60.0) -> None:
+        # The timeout is a safety net against a hang, not a speed bound: a loaded machine may
+        # take seconds between two lines of a job.
         self.sock = socket.create_connection((host, port), timeout=timeout)
         self.buf = b""
         self.timeout = timeout
@@ -155,7 +164,22 @@ def client(server: ServerThread) -> Iterator[LineClient]:
     c.close()
 
 
-def wait_for(predicate: Any, timeout: float = 5.0, interval: float = 0.01) -> bool:
+@pytest.fixture
+def sim_time(monkeypatch: pytest.MonkeyPatch) -> Iterator[Any]:
+    """``sim_time(app, frame, on_frame)``: run a server's monitors in simulated time (tests/simtime.py)."""
+    made: list[SimTime] = []
+
+    def make(app: Any, frame: float, on_frame: Any = None) -> SimTime:
+        made.append(SimTime(monkeypatch, app, frame, on_frame))
+        return made[-1]
+
+    yield make
+    for sim in made:
+        sim.close()
+
+
+def wait_for(predicate: Any, timeout: float = 60.0, interval: float = 0.01) -> bool:
+    """Poll until ``predicate()`` is true; the timeout is a safety net, not a speed bound."""
     deadline = time.monotonic() + timeout
     while time.monotonic() < deadline:
         if predicate():
