@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import asyncio
+import os
 import socket
 import threading
 import time
@@ -19,6 +20,20 @@ from rvs_server.main import build_config, run
 from rvs_server.protocol import Reply, parse_reply
 
 FINAL = ("OK", "ERROR")
+LONG = os.environ.get("RVS_LONG", "") == "1"
+long = pytest.mark.long  # RVS_LONG=1 runs this test longer (more examples, seeds, kill points, ...)
+
+
+def long_suite(obj: Any) -> Any:
+    """A test (or a ``pytest.param``'s marks) that runs only with RVS_LONG=1, where a shorter
+    version of the same check runs always; CI's second pass (``-m long``) runs it."""
+    skip = pytest.mark.skipif(not LONG, reason="long suite: run with RVS_LONG=1 (see docs/RELIABILITY.md)")
+    return long(skip(obj))
+
+
+def long_only() -> list[Any]:
+    """The marks of a ``pytest.param`` that runs only with RVS_LONG=1."""
+    return [long, pytest.mark.skipif(not LONG, reason="long variant: run with RVS_LONG=1")]
 
 # Hypothesis times its examples (a 200 ms deadline, the too_slow health check): that is the
 # machine's speed, which no test may depend on. Tests that set their own settings keep them.

@@ -25,7 +25,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-import pytest
+from conftest import LONG, long, long_suite  # noqa: F401 - the suites import them from here
 
 from rvs_server import commands as _commands  # noqa: F401 - fills the command table
 from rvs_server.main import build_config
@@ -33,15 +33,6 @@ from rvs_server.protocol import MAX_LINE, WILL_TIMING_MARK, ProtocolError, parse
 from rvs_server.table import COMMANDS, Command, bind_options, check_positional, lookup
 
 ROOT = Path(__file__).resolve().parents[2]
-LONG = os.environ.get("RVS_LONG", "") == "1"
-long = pytest.mark.long  # RVS_LONG=1 runs this test longer (more examples, more kill points, ...)
-
-
-def long_suite(fn: Any) -> Any:
-    """A test that runs only with RVS_LONG=1 (its short version runs always)."""
-    return long(pytest.mark.skipif(not LONG, reason="long suite: run with RVS_LONG=1 (see docs/RELIABILITY.md)")(fn))
-
-
 FAST = ("--set", "drivers.ptu.time_scale=0")  # a simulated PTU that moves instantly
 FINAL = ("OK", "ERROR")
 TAIL_KEEP = 40

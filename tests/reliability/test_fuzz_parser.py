@@ -31,7 +31,7 @@ from rvs_server.protocol import (
 from rvs_server.table import COMMANDS, bind_options, check_positional, lookup
 
 SCALE = 20 if LONG else 1  # RVS_LONG=1 runs twenty times the examples
-pytestmark = pytest.mark.long
+pytestmark = [pytest.mark.long, *([pytest.mark.timeout(1200)] if LONG else [])]  # 20x: minutes, not seconds
 STORE = build_config(None, [])
 randoms = st.randoms(use_true_random=False)
 
