@@ -312,3 +312,18 @@ def test_sleep_is_refused_in_break_and_break_during_a_job_announces_break_only(s
     assert client.request("continue").fields["mode"] == "ready"
     assert client.request("sleep -seconds 0").status == "OK"
 
+
+
+# ------------------------------------------------------------------ 11. the README
+
+
+def test_the_readme_command_table_lists_every_command() -> None:
+    import re
+
+    from rvs_server.table import COMMANDS
+
+    readme = (Path(__file__).resolve().parent.parent / "README.md").read_text()
+    table = readme[readme.index("| commands | what |"):]
+    table = table[: table.index("\n\n")]
+    listed = {word for cell in re.findall(r"^\| `([^`]+)`", table, re.M) for word in cell.split()}
+    assert set(COMMANDS) <= listed, f"missing from the README: {sorted(set(COMMANDS) - listed)}"
