@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import asyncio
+import os
 import socket
 import threading
 import time
@@ -11,18 +12,41 @@ from pathlib import Path
 from typing import Any
 
 import pytest
+from hypothesis import HealthCheck, settings
+from simtime import SimTime
 
 from rvs_server.logs import setup as setup_logging
 from rvs_server.main import build_config, run
 from rvs_server.protocol import Reply, parse_reply
 
 FINAL = ("OK", "ERROR")
+LONG = os.environ.get("RVS_LONG", "") == "1"
+long = pytest.mark.long  # RVS_LONG=1 runs this test longer (more examples, seeds, kill points, ...)
+
+
+def long_suite(obj: Any) -> Any:
+    """A test (or a ``pytest.param``'s marks) that runs only with RVS_LONG=1, where a shorter
+    version of the same check runs always; CI's second pass (``-m long``) runs it."""
+    skip = pytest.mark.skipif(not LONG, reason="long suite: run with RVS_LONG=1 (see docs/RELIABILITY.md)")
+    return long(skip(obj))
+
+
+def long_only() -> list[Any]:
+    """The marks of a ``pytest.param`` that runs only with RVS_LONG=1."""
+    return [long, pytest.mark.skipif(not LONG, reason="long variant: run with RVS_LONG=1")]
+
+# Hypothesis times its examples (a 200 ms deadline, the too_slow health check): that is the
+# machine's speed, which no test may depend on. Tests that set their own settings keep them.
+settings.register_profile("rvs", deadline=None, suppress_health_check=[HealthCheck.too_slow])
+settings.load_profile("rvs")
 
 
 class LineClient:
     """A plain socket client: what a GNC program would do, with no help from the server's code."""
 
-    def __init__(self, port: int, host: str = "127.0.0.1", timeout: float = 10.0) -> None:
+    def __init__(self, port: int, host: str = "127.0.0.1", timeout: float = 60.0) -> None:
+        # The timeout is a safety net against a hang, not a speed bound: a loaded machine may
+        # take seconds between two lines of a job.
         self.sock = socket.create_connection((host, port), timeout=timeout)
         self.buf = b""
         self.timeout = timeout
@@ -166,7 +190,22 @@ def client(server: ServerThread) -> Iterator[LineClient]:
     c.close()
 
 
-def wait_for(predicate: Any, timeout: float = 5.0, interval: float = 0.01) -> bool:
+@pytest.fixture
+def sim_time(monkeypatch: pytest.MonkeyPatch) -> Iterator[Any]:
+    """``sim_time(app, frame, on_frame)``: run a server's monitors in simulated time (tests/simtime.py)."""
+    made: list[SimTime] = []
+
+    def make(app: Any, frame: float, on_frame: Any = None) -> SimTime:
+        made.append(SimTime(monkeypatch, app, frame, on_frame))
+        return made[-1]
+
+    yield make
+    for sim in made:
+        sim.close()
+
+
+def wait_for(predicate: Any, timeout: float = 60.0, interval: float = 0.01) -> bool:
+    """Poll until ``predicate()`` is true; the timeout is a safety net, not a speed bound."""
     deadline = time.monotonic() + timeout
     while time.monotonic() < deadline:
         if predicate():

@@ -10,15 +10,16 @@ shutdown stops its thread.
 from __future__ import annotations
 
 import math
-import threading
 import time
 from typing import Any
 
 import numpy as np
 import pytest
+from conftest import wait_for
 
 STOP, WARN, WIDTH, ROVER_LENGTH = 0.5, 1.0, 0.6, 0.51
 SPEED = 0.7  # m/s, the Pioneer 3-AT's top speed
+PERIOD = 0.2  # s: the monitor's -period, and a frame of simulated time (a cycle on a busy machine)
 
 
 def true_gap(world: Any, rock: dict[str, float], width: float = WIDTH) -> float:
@@ -48,7 +49,8 @@ def place(world: Any, rock: dict[str, float], gap: float, lateral: float, headin
     world.set_rover_pose(pos[0], pos[1], heading)
 
 
-def next_event(client: Any, kind: str, timeout: float = 5.0) -> dict[str, str]:
+def next_event(client: Any, kind: str, timeout: float = 60.0) -> dict[str, str]:
+    """The next EVENT of ``kind`` (the timeout is a safety net for a hang, not a speed bound)."""
     deadline = time.monotonic() + timeout
     while True:
         left = deadline - time.monotonic()
@@ -59,32 +61,41 @@ def next_event(client: Any, kind: str, timeout: float = 5.0) -> dict[str, str]:
             return r.fields
 
 
-class Driver(threading.Thread):
-    """Drives the simulated rover straight on at SPEED (wall-clock, so a slow CPU does not slow
-    the rover) and reports its pose to the server as a GNC would, until told to stop."""
+class Gnc:
+    """Drives the simulated rover straight on at SPEED and reports its pose to the server as a
+    GNC would, frame by frame in simulated time (tests/simtime.py): where the rover is when a
+    frame is taken does not depend on how fast the machine is."""
 
     def __init__(self, app: Any, world: Any) -> None:
-        super().__init__(daemon=True)
         self.app, self.world = app, world
-        self.halt = threading.Event()
+        self.since: float | None = None  # simulated time of the last move; None: standing
 
-    def run(self) -> None:
-        start, done = time.monotonic(), 0.0
-        while not self.halt.is_set():
-            want = SPEED * (time.monotonic() - start)
-            self.world.move_rover(want - done, 0.0, 0.0)
-            done = want
-            t = self.world.truth()
-            self.app.set_pose(t["x"], t["y"], t["heading"])
-            if done > 3.0:
-                return
-            self.halt.wait(0.02)
+    def drive(self, t: float) -> None:
+        self.since = t
+
+    def halt(self) -> None:
+        self.since = None
+
+    def on_frame(self, t: float) -> None:
+        if self.since is not None:
+            self.move(t)
+
+    def move(self, t: float) -> None:
+        self.world.move_rover(SPEED * (t - self.since), 0.0, 0.0)
+        self.since = t
+        pose = self.world.truth()
+        self.app.set_pose(pose["x"], pose["y"], pose["heading"])
 
 
-def test_stop_arrives_before_the_stopping_distance_in_10_seeded_runs(server_factory: Any) -> None:
+def test_stop_arrives_before_the_stopping_distance_in_10_seeded_runs(server_factory: Any, sim_time: Any) -> None:
+    """A frame every PERIOD s of simulated time (the monitor's -period): the stop must come
+    while the rover, still driving on until the verdict is out (one frame later), is short of
+    the stopping distance. In real time a loaded machine's slow cycles decided it instead."""
     srv = server_factory(["server.scene=office"])
     c = srv.client()
     world, app = srv.app.world, srv.app
+    gnc = Gnc(app, world)
+    sim = sim_time(app, PERIOD, gnc.on_frame)
     rock = max(world.rocks(), key=lambda r: r["height"])  # 0.20 m, above the 0.15 m step limit
     assert rock["height"] > 0.15
     results = []
@@ -95,29 +106,31 @@ def test_stop_arrives_before_the_stopping_distance_in_10_seeded_runs(server_fact
         place(world, rock, gap0, lateral, heading)
         t = world.truth()
         app.set_pose(t["x"], t["y"], t["heading"])
-        r = c.request(f"hazard-start -period 0.1 -stop-distance {STOP} -warn-distance {WARN}")
+        r = c.request(f"hazard-start -period {PERIOD} -stop-distance {STOP} -warn-distance {WARN}")
         assert r.status == "OK", r
-        assert next_event(c, "hazard")["level"] == "clear"  # first cycle: nothing within the warn distance
-        driver = Driver(app, world)
-        driver.start()
-        levels = []
-        while True:
-            ev = next_event(c, "hazard", timeout=6.0)
-            gap = true_gap(world, rock)
-            levels.append(ev["level"])
-            if ev["level"] == "stop":
-                driver.halt.set()
+        sim.run()
+        first, _ = sim.sync(c, "hazard")
+        assert [e["level"] for e in first] == ["clear"]  # first cycle: nothing within the warn distance
+        gnc.drive(sim.t)
+        levels: list[str] = []
+        for _ in range(round(gap0 / SPEED / PERIOD)):  # it would hit the rock before the last one
+            sim.run()
+            events, _ = sim.sync(c, "hazard")
+            levels += [e["level"] for e in events]
+            if "stop" in levels:
                 break
-        driver.join()
+        assert levels and levels[-1] == "stop", (seed, levels)
+        ev = events[-1]
+        gnc.move(sim.t)  # where the rover is when the verdict is out, and where the GNC stops it
+        gnc.halt()
+        gap = true_gap(world, rock)
         results.append((seed, gap, float(ev["distance"])))
         assert gap > STOP, f"seed {seed}: stop arrived {gap:.3f} m from the rock (stop distance {STOP})"
         assert 0.0 <= float(ev["distance"]) <= gap + 0.35, (seed, ev, gap)
         warned_first += levels[0] == "warning"  # it started beyond the warn distance
         if seed < 9:
             assert c.request("hazard-stop").fields["stopped"] == "true"
-    # A warning came first (unless a cycle took so long on a loaded machine that the look-ahead
-    # went from beyond the warn distance to inside the stop distance at once).
-    assert warned_first >= 8, warned_first
+    assert warned_first == 10, warned_first  # a warning came first, every time
     # The rover turns away from the rock (and the GNC says so): the corridor clears. (To the
     # right: on its left stands the 0.14 m rock, whose flanks are steeper than the slope limit.)
     world.move_rover(0.0, 0.0, -90.0)
@@ -126,20 +139,16 @@ def test_stop_arrives_before_the_stopping_distance_in_10_seeded_runs(server_fact
     c.request(f"pose -x {t['x']:.4f} -y {t['y']:.4f} -heading {t['heading']:.3f}")
     # (Standing still short of the rock, the level may have eased from stop to warning first:
     # the stop also covered where the moving rover would have been by the next verdict.)
-    deadline = time.monotonic() + 5.0
-    while next_event(c, "hazard", timeout=max(0.1, deadline - time.monotonic()))["level"] != "clear":
-        pass
-    st = c.request("status").fields
+    sim.run(3)
+    events, st = sim.sync(c, "hazard")
+    assert events and events[-1]["level"] == "clear", events
     assert st["hazard_monitor"] == "running"
-    # Cycle time without PTU motion: the spec's bound is 0.5 s; measured 80-150 ms on an idle
-    # 2-core machine, nearly all of it the simulated ToF's rendering (grab_ms). Generous here, as
-    # other processes share the machine; the corridor processing itself is a few milliseconds.
-    assert float(st["cycle_ms"]) <= 1000.0, st
-    assert float(st["cycle_ms"]) - float(st["grab_ms"]) <= 250.0, st
+    # Cycle time without PTU motion, in simulated time: a frame's; the spec's bound (0.5 s on
+    # the machine) is a speed, which tools/bench measures rather than a test.
+    assert float(st["cycle_ms"]) == pytest.approx(1000 * PERIOD) == float(st["grab_ms"]), st
     r = c.request("hazard-stop")
     assert r.fields["stopped"] == "true" and int(r.fields["cycles"]) > 0
-    print("gaps at stop:", [(s, round(g, 3), d) for s, g, d in results], "cycle_ms", st["cycle_ms"],
-          "max", st["cycle_ms_max"], "grab_ms", st["grab_ms"])
+    print("gaps at stop:", [(s, round(g, 3), d) for s, g, d in results])
 
 
 def test_monitor_yields_to_jobs_and_restores_its_pointing(server_factory: Any) -> None:
@@ -149,19 +158,23 @@ def test_monitor_yields_to_jobs_and_restores_its_pointing(server_factory: Any) -
     r = c.request("hazard-start -period 0.05 -tilt -40")
     assert r.status == "OK" and r.fields["state"] == "running"
     next_event(c, "hazard")
-    # A job is accepted as usual; the monitor pauses while it runs and says so.
-    job = c.start_job("sleep -seconds 0.4")
+    # A job is accepted as usual; the monitor pauses while it runs and says so. (The job lasts
+    # until the break: a short one could end before a slow cycle of the monitor does.)
+    job = c.start_job("sleep -seconds 60")
     ev = next_event(c, "hazard")
     assert ev["level"] == "paused" and ev["reason"] == "job" and ev["job"] == job
-    assert c.until_final(job=job)[-1].status == "OK"
+    operator = srv.client()
+    assert operator.request("break").fields["interrupted"] == job
+    assert c.until_final(job=job)[-1].fields["code"] == "E_INTERRUPTED"
+    assert operator.request("continue").status == "OK"
     assert next_event(c, "hazard")["level"] == "clear"  # resumed: its level is sent again
-    # A hardware job gets the PTU (it waits at most one monitor cycle), then the monitor points back.
+    # A hardware job gets the PTU (it waits at most one monitor cycle), then the monitor points
+    # back at its next cycle. (The move is instant at time_scale 0: the monitor may not even see
+    # the job, so there is no EVENT to wait for; the wait is a safety net, not a speed bound.)
     final = c.request("move-ptu -pan 60 -tilt -10")
     assert final.status == "OK" and float(final.fields["pan"]) == pytest.approx(60, abs=0.1)
-    deadline = time.monotonic() + 3
-    while abs(world.truth()["pan"]) > 0.1 or abs(world.truth()["tilt"] + 40) > 0.1:
-        assert time.monotonic() < deadline, world.truth()
-        time.sleep(0.02)
+    assert wait_for(lambda: abs(world.truth()["pan"]) <= 0.1 and abs(world.truth()["tilt"] + 40) <= 0.1,
+                    timeout=60), world.truth()
     st = c.request("status").fields
     assert st["hazard_monitor"] == "running" and float(st["cycle_ms"]) > 0
     # Only one holder of the PTU.
@@ -170,11 +183,11 @@ def test_monitor_yields_to_jobs_and_restores_its_pointing(server_factory: Any) -
     # break stops jobs, not monitors: it pauses in the break mode and runs again after continue.
     assert c.request("break").status == "OK"
     assert c.request("status").fields["hazard_monitor"] == "paused"
+    ev = next_event(c, "hazard")  # once its thread has seen the break (it may be mid-cycle)
+    assert ev["level"] == "paused" and ev["reason"] == "break", ev
     assert c.request("continue").status == "OK"
-    deadline = time.monotonic() + 3
-    while c.request("status").fields["hazard_monitor"] != "running":
-        assert time.monotonic() < deadline
-        time.sleep(0.05)
+    assert next_event(c, "hazard")["level"] == "clear"  # resumed: its level is sent again
+    assert c.request("status").fields["hazard_monitor"] == "running"
     # hazard-start while running restarts it with the new options.
     assert c.request("hazard-start -period 0.05 -tilt -45").fields["restarted"] == "true"
     r = c.request("hazard-stop")

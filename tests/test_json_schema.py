@@ -270,10 +270,13 @@ def test_hazard_events_in_json(server: ServerThread, jclient: JsonClient) -> Non
     assert warning["level"] == "warning" and warning["seen"] == "true" and isinstance(warning["cycle"], int)
     assert warning["distance"] == round(warning["distance"], 2) and 0 < warning["distance"] <= 3
     mark = len(jclient.lines)
-    tag, job = jclient.start("sleep -seconds 0.3")
+    # (a job that lasts until the break: a short one could end before a slow monitor cycle does)
+    tag, job = jclient.start("sleep -seconds 60")
     paused = jclient.event("hazard", after=mark, level="paused")
     assert (paused["reason"], paused["job"]) == ("job", job)
-    jclient.final(tag)
+    assert jclient.request("break")["interrupted"] == job
+    assert jclient.final(tag)["code"] == "E_INTERRUPTED"
+    assert jclient.request("continue")["mode"] == "ready"
     mark = len(jclient.lines)
     assert jclient.request("sim fault -device tof -kind unplug")["fault"] == "unplug"
     failed = jclient.event("hazard", after=mark, level="error")

@@ -84,7 +84,7 @@ def test_job_lines_carry_tag_and_status_answers_during_job(server, client: LineC
 
 
 def test_busy_names_the_running_job(server, client: LineClient) -> None:
-    client.send("sleep -seconds 5")
+    client.send("sleep -seconds 60")
     job = client.reply().fields["job"]
     other = server.client()
     r = other.request("sleep -seconds 1")
@@ -93,7 +93,8 @@ def test_busy_names_the_running_job(server, client: LineClient) -> None:
     r = other.request("break")
     assert r.status == "OK" and r.fields["interrupted"] == job
     final = client.until_final(job=job)[-1]
-    assert final.fields["code"] == "E_INTERRUPTED" and time.monotonic() - t0 < 1.0
+    # interrupted, not slept out: far less than the 60 s (how much less is the machine's speed)
+    assert final.fields["code"] == "E_INTERRUPTED" and time.monotonic() - t0 < 30.0
     other.close()
 
 

@@ -5,7 +5,9 @@ model of how many replies a byte stream must get, a fuzzing client for many conn
 Not a conftest (a second ``conftest.py`` would shadow ``tests/conftest.py`` for modules that do
 ``from conftest import ...``); test modules import it by name, as ``tests/drivers`` does its rigs.
 
-The long versions of the suites run only with ``RVS_LONG=1``; ``long_suite`` marks them.
+The long versions of the suites run only with ``RVS_LONG=1``: ``long_suite`` marks the tests that
+run only then, ``long`` (the pytest marker) every test that ``RVS_LONG=1`` makes longer, so that
+CI's second pass (``RVS_LONG=1 pytest -m long``) runs exactly those and not the whole suite again.
 """
 
 from __future__ import annotations
@@ -23,7 +25,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-import pytest
+from conftest import LONG, long, long_suite  # noqa: F401 - the suites import them from here
 
 from rvs_server import commands as _commands  # noqa: F401 - fills the command table
 from rvs_server.main import build_config
@@ -31,8 +33,6 @@ from rvs_server.protocol import MAX_LINE, WILL_TIMING_MARK, ProtocolError, parse
 from rvs_server.table import COMMANDS, Command, bind_options, check_positional, lookup
 
 ROOT = Path(__file__).resolve().parents[2]
-LONG = os.environ.get("RVS_LONG", "") == "1"
-long_suite = pytest.mark.skipif(not LONG, reason="long suite: run with RVS_LONG=1 (see docs/RELIABILITY.md)")
 FAST = ("--set", "drivers.ptu.time_scale=0")  # a simulated PTU that moves instantly
 FINAL = ("OK", "ERROR")
 TAIL_KEEP = 40
@@ -138,12 +138,6 @@ def strip_iac(data: bytes) -> tuple[bytes, bool]:
     return _IAC.sub(b"", data), open_
 
 
-def telnet_interrupts(data: bytes) -> bool:
-    """Whether the stream holds telnet's interrupt (IAC IP): the server breaks the sender's job
-    on it (docs/PROTOCOL.md, tested on purpose in test_gnc_integration), which is no parser fuzz."""
-    return any(m.group() == b"\xff\xf4" for m in _IAC.finditer(data))
-
-
 def close_iac(piece: bytes) -> bytes:
     """Make a line piece self-contained: an IAC left open at its end would eat the LF after it
     (and join it to the next line); one more byte closes it."""
@@ -155,6 +149,16 @@ def telnet_text(data: bytes) -> bytes:
     """A stream as the server reads it: IAC sequences out, telnet's CR NUL as a bare CR."""
     text, _ = strip_iac(data)
     return text.replace(b"\r\x00", b"\r")
+
+
+def telnet_commands(piece: bytes) -> tuple[int, int]:
+    """(interrupts, timing marks) in a self-contained piece: telnet's Ctrl-C sends IAC IP (the
+    server breaks the job this connection started, if one runs) and IAC DO TIMING-MARK (the
+    server answers IAC WILL TIMING-MARK, in order with the replies; PROTOCOL.md, Transport)."""
+    if b"\xff" not in piece:
+        return 0, 0
+    seqs = [m.group() for m in _IAC.finditer(piece)]
+    return seqs.count(b"\xff\xf4"), seqs.count(b"\xff\xfd\x06")
 
 
 def logical_line(piece: bytes) -> bytes:
@@ -506,11 +510,16 @@ class Plan:
     tags: set[str] = field(default_factory=set)  # unique tags of unmutated requests: one final each
     kinds: dict[str, int] = field(default_factory=dict)
     seen_tags: dict[str, int] = field(default_factory=dict)  # every line that starts with @word
+    interrupts: int = 0  # telnet IAC IP: each may add one untagged break reply (if a job of ours runs)
+    marks: int = 0  # telnet IAC DO TIMING-MARK: each is answered by exactly one IAC WILL TIMING-MARK
 
     def add(self, raw: bytes, tag: str | None, kind: str) -> None:
         for part in raw.split(b"\n"):
             piece = close_iac(part)
             self.pieces.append(piece)
+            interrupts, marks = telnet_commands(piece)
+            self.interrupts += interrupts
+            self.marks += marks
             logical = logical_line(piece)
             if expects_reply(piece, logical=logical):
                 self.expected += 1
@@ -560,7 +569,7 @@ def make_plan(gen: LineGen, n: int, prefix: str, mutate_share: float = 0.45, jun
             tag = f"{prefix}n{i}"
             raw, kind = gen.request(tag=tag).line.encode("utf-8", "surrogatepass"), "request"
         parts = [close_iac(p) for p in raw.split(b"\n")]
-        if any(hazard(logical_line(p)) or telnet_interrupts(p) for p in parts):
+        if any(hazard(logical_line(p)) for p in parts):
             continue
         plan.add(raw, tag, kind)
         i += 1
@@ -572,8 +581,19 @@ def make_plan(gen: LineGen, n: int, prefix: str, mutate_share: float = 0.45, jun
 
 @dataclass
 class ConnResult:
+    """What one connection got back. ``finals`` counts the final lines that answer the plan's
+    lines: a telnet interrupt (IAC IP) that found a job of this connection running is answered by
+    an untagged ``break`` reply of its own; whether the job still ran then is up to timing, so
+    those replies (at most one per interrupt, and only untagged EGP-RVS-BREAK ones) are counted
+    apart in ``interrupt_breaks``."""
+
     expected: int
     finals: int = 0
+    interrupts: int = 0  # IAC IP sent
+    untagged_breaks: int = 0  # untagged EGP-RVS-BREAK final lines read
+    interrupt_breaks: int = 0
+    marks_expected: int = 0
+    marks: int = 0  # IAC WILL TIMING-MARK read
     tag_finals: dict[str, int] = field(default_factory=dict)
     missing_tags: list[str] = field(default_factory=list)
     internal: list[str] = field(default_factory=list)
@@ -589,7 +609,7 @@ async def drive_connection(port: int, plan: Plan, sync_tag: str, rng: random.Ran
     """Send a plan (in random chunk sizes, as TCP may cut it) while reading every reply; then a
     tagged ``version`` whose final line marks the end of the immediate replies, then wait for
     the final lines of the jobs still running."""
-    res = ConnResult(plan.expected)
+    res = ConnResult(plan.expected, interrupts=plan.interrupts, marks_expected=plan.marks)
     t0 = time.monotonic()
     reader, writer = await asyncio.open_connection(host, port, limit=1 << 22)
     hello = await asyncio.wait_for(reader.readline(), 30)
@@ -617,9 +637,10 @@ async def drive_connection(port: int, plan: Plan, sync_tag: str, rng: random.Ran
             if not raw:
                 raise ConnectionError("server closed the connection")
             res.lines += 1
-            # the server answers a DO TIMING-MARK among the fuzz with WILL TIMING-MARK, which a
-            # telnet client consumes before the next line
-            text = raw.replace(WILL_TIMING_MARK, b"").decode("utf-8", "replace").rstrip("\r\n")
+            while raw.startswith(WILL_TIMING_MARK):  # written between two reply lines
+                res.marks += 1
+                raw = raw[len(WILL_TIMING_MARK):]
+            text = raw.decode("utf-8", "replace").rstrip("\r\n")
             res.tail.append(text[:160])
             if len(res.tail) > TAIL_KEEP:
                 del res.tail[:20]
@@ -638,6 +659,8 @@ async def drive_connection(port: int, plan: Plan, sync_tag: str, rng: random.Ran
                 synced.set()
             else:
                 res.finals += 1
+                if tag is None and module == "EGP-RVS-BREAK":
+                    res.untagged_breaks += 1
                 if tag is not None and tag in plan.tags:
                     res.tag_finals[tag] = res.tag_finals.get(tag, 0) + 1
             # A job's own final line: its id, module and tag, and not E_BUSY (which names the
@@ -658,6 +681,10 @@ async def drive_connection(port: int, plan: Plan, sync_tag: str, rng: random.Ran
         except (ConnectionError, OSError):
             pass
     res.missing_tags = sorted(t for t in plan.unique_tags if res.tag_finals.get(t, 0) != 1)
+    extra = res.finals - res.expected
+    if 0 < extra <= min(res.interrupts, res.untagged_breaks):
+        res.interrupt_breaks = extra
+        res.finals -= extra
     res.seconds = time.monotonic() - t0
     return res
 
@@ -680,7 +707,9 @@ def summarize(results: Sequence[ConnResult]) -> dict[str, Any]:
         "finals": sum(r.finals for r in results),
         "lines_read": sum(r.lines for r in results),
         "errors": [r.error for r in results if r.error],
-        "miscounted": [(i, r.expected, r.finals) for i, r in enumerate(results) if r.finals != r.expected],
+        "interrupt_breaks": sum(r.interrupt_breaks for r in results),
+        "miscounted": [(i, r.expected, r.finals, r.marks_expected, r.marks) for i, r in enumerate(results)
+                       if r.finals != r.expected or r.marks != r.marks_expected],
         "missing_tags": [t for r in results for t in r.missing_tags][:20],
         "internal": [x for r in results for x in r.internal][:5],
         "malformed": [x for r in results for x in r.malformed][:5],

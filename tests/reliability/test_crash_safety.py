@@ -120,6 +120,7 @@ def kill_points(n_long: int, n_short: int, hi: int) -> list[int]:
     return sorted({1, hi, *(rng.randint(2, hi - 1) for _ in range(n_long - 2))})
 
 
+@pytest.mark.long
 @pytest.mark.parametrize("k", kill_points(10, 1, 30))
 def test_sigkill_while_writing_a_dem_keeps_the_previous_products(data: Path, k: int) -> None:
     srv, c = start(data)
@@ -156,6 +157,7 @@ def test_sigkill_mid_rewrite_leaves_one_whole_dem(data: Path) -> None:
     assert len(set(grids.values())) == 1, grids
 
 
+@pytest.mark.long
 @pytest.mark.parametrize("res", ["highest", "high"] if LONG else ["high"])
 def test_sigkill_while_writing_a_stereo_pair_keeps_the_previous_pair(data: Path, res: str) -> None:
     srv, c = start(data)

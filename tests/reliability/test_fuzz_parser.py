@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import math
 
+import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from reliability_harness import LONG, LineGen, close_iac, expects_reply, logical_line, telnet_text
@@ -30,6 +31,7 @@ from rvs_server.protocol import (
 from rvs_server.table import COMMANDS, bind_options, check_positional, lookup
 
 SCALE = 20 if LONG else 1  # RVS_LONG=1 runs twenty times the examples
+pytestmark = [pytest.mark.long, *([pytest.mark.timeout(1200)] if LONG else [])]  # 20x: minutes, not seconds
 STORE = build_config(None, [])
 randoms = st.randoms(use_true_random=False)
 

@@ -119,7 +119,7 @@ def fuzz(srv: ServerProcess, lines_per_connection: int, rounds: int, seed: int, 
                 failures.append(summary)
     seconds = time.monotonic() - t0
     assert alive(srv), srv.log_tail()
-    assert wait_until(lambda: fd_count(pid) <= fds_before, 10), (fd_count(pid), fds_before)
+    assert wait_until(lambda: fd_count(pid) <= fds_before, 60), (fd_count(pid), fds_before)
     rss_end = rss_kb(pid)
     figures = {
         "lines": sent, "requests": expected, "finals": finals, "connections": CONNECTIONS, "seconds": round(seconds, 1),
@@ -167,6 +167,7 @@ def piece_lists(draw_rng: random.Random) -> Plan:
     return plan
 
 
+@pytest.mark.long
 @settings(max_examples=200 if LONG else 40, deadline=None,
           suppress_health_check=[HealthCheck.too_slow, HealthCheck.function_scoped_fixture])
 @given(st.randoms(use_true_random=False).map(piece_lists))
