@@ -7,7 +7,6 @@ from __future__ import annotations
 
 import csv
 import math
-import os
 import time
 
 import numpy as np
@@ -20,7 +19,6 @@ from prox_workflows.grid import GridGeometry
 from prox_workflows.steps.dem2hazard import HazardParams, dem2hazard
 
 AREA = {"office": (-2.5, -3.0, 5.5, 3.0), "quarry": (-3.0, -4.0, 7.0, 4.0), "marsyard": (-4.0, -6.0, 8.0, 6.0)}
-LONG = os.environ.get("RVS_LONG", "") == "1"
 
 
 def true_hazard(world: World, bounds) -> tuple[np.ndarray, GridGeometry]:
@@ -133,8 +131,8 @@ def corners_and_centre(world: World, scene: str, clearance: float = 0.8) -> tupl
 # The office corners the issue reported (ERROR goal_in_hazard from phantom wall returns, and
 # enclosed) run by default; the other ten with RVS_LONG=1 (marsyard's are ~7 m from the goal).
 DEFAULT_CORNERS = {("office", 0), ("office", 3)}
-CORNER_CASES = [pytest.param(scene, k, marks=() if (scene, k) in DEFAULT_CORNERS or LONG else pytest.mark.skip(
-    reason="long suite: run with RVS_LONG=1")) for scene in ("office", "quarry", "marsyard") for k in range(4)]
+CORNER_CASES = [pytest.param(scene, k, marks=() if (scene, k) in DEFAULT_CORNERS else long_only())
+                for scene in ("office", "quarry", "marsyard") for k in range(4)]
 
 
 @pytest.mark.parametrize(("scene", "corner"), CORNER_CASES)
