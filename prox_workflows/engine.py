@@ -44,6 +44,7 @@ STEPS: dict[str, str] = {
     "join_views": "prox_workflows.steps.dem_chain:join_views",
     "view_dem": "prox_workflows.steps.dem_chain:view_dem",
     "mosaic": "prox_workflows.steps.dem_chain:mosaic",
+    "remove_spikes_layers": "prox_workflows.steps.spikes:remove_spikes_layers",
     "fill_holes_layers": "prox_workflows.steps.dem_chain:fill_holes_layers",
     "hazard_layers": "prox_workflows.steps.dem_chain:hazard_layers",
     "ortho_layer": "prox_workflows.steps.dem_chain:ortho_layer",

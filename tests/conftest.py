@@ -98,6 +98,17 @@ class LineClient:
         self.send(text)
         return self.until_final(timeout)[-1]
 
+    def lines_before_status(self) -> list[Reply]:
+        """Every line received before the answer to a status sent now: the server writes a
+        connection's lines in order, so this collects the events caused by what came before."""
+        self.send("status")
+        out: list[Reply] = []
+        while True:
+            r = self.reply()
+            if r.module == "EGP-RVS-STATUS":
+                return out
+            out.append(r)
+
     def close(self) -> None:
         self.sock.close()
 

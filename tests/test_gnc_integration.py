@@ -50,22 +50,11 @@ def test_break_after_every_job_that_sets_the_pose_writes_a_complete_recovery_set
     pose = srv.app.pose
     manifest = _assert_complete_recovery(srv, c.request("break"))
     assert manifest["pose"] == pytest.approx({"x": pose.x, "y": pose.y, "heading": pose.heading})
-    modes = [r.fields["mode"] for r in _events_until_status(watcher) if r.fields.get("kind") == "mode"]
+    modes = [r.fields["mode"] for r in watcher.lines_before_status() if r.fields.get("kind") == "mode"]
     assert modes[-1] == "break" and "ready" not in modes[modes.index("break"):]
     assert c.request("status").fields["mode"] == "break"
     r = c.request("recover", timeout=60)
     assert r.status == "OK" and r.fields["pose"].split(",")[0] == f"{pose.x:.3f}"
-
-
-def _events_until_status(c: LineClient) -> list[Reply]:
-    """Every line the connection got before the answer to a status sent now."""
-    c.send("status")
-    out = []
-    while True:
-        r = c.reply()
-        if r.module == "EGP-RVS-STATUS":
-            return out
-        out.append(r)
 
 
 def test_a_recovery_set_that_cannot_be_written_leaves_no_temp_folder_and_still_breaks(
@@ -307,10 +296,25 @@ def test_sleep_is_refused_in_break_and_break_during_a_job_announces_break_only(s
     job = client.start_job("sleep -seconds 30")
     assert server.client().request("break").status == "OK"
     assert client.until_final(job=job)[-1].fields["code"] == "E_INTERRUPTED"
-    modes = [r.fields["mode"] for r in _events_until_status(watcher) if r.fields.get("kind") == "mode"]
+    modes = [r.fields["mode"] for r in watcher.lines_before_status() if r.fields.get("kind") == "mode"]
     assert modes == ["sleep", "break"]
     r = client.request("sleep -seconds 0")
     assert r.status == "ERROR" and r.fields["code"] == "E_STATE"
     assert client.request("continue").fields["mode"] == "ready"
     assert client.request("sleep -seconds 0").status == "OK"
 
+
+
+# ------------------------------------------------------------------ 11. the README
+
+
+def test_the_readme_command_table_lists_every_command() -> None:
+    import re
+
+    from rvs_server.table import COMMANDS
+
+    readme = (Path(__file__).resolve().parent.parent / "README.md").read_text()
+    table = readme[readme.index("| commands | what |"):]
+    table = table[: table.index("\n\n")]
+    listed = {word for cell in re.findall(r"^\| `([^`]+)`", table, re.M) for word in cell.split()}
+    assert set(COMMANDS) <= listed, f"missing from the README: {sorted(set(COMMANDS) - listed)}"

@@ -60,15 +60,8 @@ REQUESTS = {
 
 
 def mode_events(watcher: LineClient) -> list[str]:
-    """The mode events the watcher got up to now (a status round trip orders them)."""
-    watcher.send("status")
-    out = []
-    while True:
-        r = watcher.reply()
-        if r.module == "EGP-RVS-STATUS":
-            return out
-        if r.status == "EVENT" and r.fields.get("kind") == "mode":
-            out.append(r.fields["mode"])
+    return [r.fields["mode"] for r in watcher.lines_before_status()
+            if r.status == "EVENT" and r.fields.get("kind") == "mode"]
 
 
 def run_step(c: LineClient, name: str) -> str:

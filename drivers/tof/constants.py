@@ -110,6 +110,12 @@ IT_CONF_MAP = 8
 
 IMAGE_TYPES = ("distance", "amplitude", "confidence", "z", "xyz")
 
+# The second frequency of a two-frequency wrap check (Droeschel, Holz, Behnke 2010, multi-frequency
+# phase unwrapping with an SR4000): half the modulation frequency, twice the unambiguous range.
+# A surface beyond c/2f reads r - c/2f at the high frequency and r at the low one; a true return
+# reads the same at both. The low frequencies have no partner (their 10 m already covers a room).
+WRAP_CHECK_FREQUENCY: dict[float, float] = {30.0: 15.0, 29.0: 14.5, 31.0: 15.5}
+
 
 def unambiguous_range(frequency_mhz: float) -> float:
     """Distance at which the phase wraps: c / (2 f)."""

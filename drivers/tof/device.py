@@ -73,6 +73,7 @@ def parse_serial(value: Any) -> int:
 
 COHERENCE = 0.9  # |mean phasor| below this: the frames disagree about the range (wrap boundary)
 STRADDLE_M = 0.2  # mean point range this far from the phasor range: some frames wrapped
+WRAP_TOLERANCE = 0.25  # share of the unambiguous range two frequencies may disagree by (noise, multipath)
 
 
 @dataclass
@@ -412,9 +413,18 @@ class Tof:
                 image = self.undistort(image)
             return image
 
-    def grab_xyz(self, integrate: int = 1, confidence: float = 0.0, cancel: Any = None) -> tuple[np.ndarray, np.ndarray]:
+    def grab_xyz(self, integrate: int = 1, confidence: float = 0.0, cancel: Any = None,
+                 wrap_check: bool = False) -> tuple[np.ndarray, np.ndarray]:
         """(xyz, amplitude): H x W x 3 metres in the camera frame (OpenCV: x right, y down,
-        z forward), -1 where undefined; and the mean amplitude of all frames (intensity image)."""
+        z forward), -1 where undefined; and the mean amplitude of all frames (intensity image).
+
+        ``wrap_check``: one more frame at half the modulation frequency (twice the unambiguous
+        range, :data:`constants.WRAP_CHECK_FREQUENCY`) and pixels whose two ranges disagree by
+        more than ``WRAP_TOLERANCE`` of the unambiguous range are left undefined. A bright wall
+        7 m away reads 2 m at 30 MHz, as a phantom floating in the room that the amplitude
+        alone cannot tell from a dark rock at grazing incidence (a DEM turns it into a step
+        hazard on open floor); at 15 MHz it reads 7 m. Pixels the check frame does not see
+        (amplitude below the threshold) are kept."""
         with self._lock, self._op("xyz"):
             sums = self._integrate(integrate, confidence, cancel)
             # A pixel near the unambiguous range reads ~0 in one frame and ~rmax in the next;
@@ -430,9 +440,31 @@ class Tof:
                 straddle = np.abs(norm - phasor) > STRADDLE_M
                 xyz = np.where(straddle[..., None], xyz / norm[..., None] * phasor[..., None], xyz)
             bad = (sums.used == 0) | ~(coherence >= COHERENCE) | ~(norm > 0)
+            if wrap_check:
+                bad |= self._wrapped(np.linalg.norm(xyz, axis=2), sums.rmax, cancel)
             xyz[bad] = -1.0
             amplitude = sums.amplitude_all / sums.frames
             return xyz.astype(np.float32), amplitude.astype(np.float32)
+
+    def _wrapped(self, ranges: np.ndarray, rmax: float, cancel: Any) -> np.ndarray:
+        """Pixels whose range ``ranges`` (at the set frequency, unambiguous up to ``rmax``) a
+        frame at the check frequency contradicts: the surface lies beyond ``rmax``."""
+        check_mhz = k.WRAP_CHECK_FREQUENCY.get(self._settings.modulation_mhz)
+        if check_mhz is None:
+            return np.zeros(ranges.shape, bool)
+        _canceller(cancel)()
+        self._cam.set_modulation(check_mhz)
+        try:
+            frame = self._cam.acquire()
+        finally:
+            self._cam.set_modulation(self._settings.modulation_mhz)
+        self._bump_frames(frame.integration)
+        rcheck = k.unambiguous_range(check_mhz)
+        seen = frame.distance > 0
+        with np.errstate(invalid="ignore"):
+            diff = np.mod(frame.distance.astype(np.float64) / k.RAW_MAX * rcheck - ranges, rcheck)
+            diff = np.minimum(diff, rcheck - diff)  # around the check frequency's own wrap
+            return seen & np.isfinite(ranges) & (diff > WRAP_TOLERANCE * rmax)
 
     def intrinsics(self) -> tuple[np.ndarray, np.ndarray]:
         """Camera matrix and distortion (k1, k2, p1, p2, k3) used for undistortion."""

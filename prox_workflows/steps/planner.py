@@ -732,6 +732,39 @@ def plan_path(local: NavMaps, global_: NavMaps | None, start: Sequence[float], g
                       cost_so_far=gp.g, cut=max(cut, 1), waypoints=wps, expanded=gp.expanded, warnings=notes)
 
 
+def nearest_reachable(local: NavMaps, global_: NavMaps | None, start: Sequence[float], goal: Sequence[float],
+                      params: PlannerParams | None = None) -> tuple[float, float]:
+    """The free cell reachable from ``start`` that is nearest ``goal`` (world x, y): where to
+    drive when the goal itself is judged unreachable from far, to judge it again from closer.
+
+    Reachable as :func:`plan_path` sees it: the same planning image, the same relaxed start, and
+    8-connected free cells (a diagonal between two blocked cells may make a cell look reachable
+    that A* will not reach; plan_path to it then fails as enclosed, which is the honest answer).
+    Raises :class:`PlanningError` (``start_in_hazard``, ``outside_maps``) as plan_path does."""
+    params = params or PlannerParams()
+    start = (float(start[0]), float(start[1]))
+    goal = (float(goal[0]), float(goal[1]))
+    image = planning_image(local, global_, params, points=[start, goal])
+    geom = image.geometry
+    r, c = geom.cell_of(np.array(start[0]), np.array(start[1]))
+    if not geom.inside(r, c):
+        raise PlanningError("outside_maps", f"start ({start[0]:.3f}, {start[1]:.3f}) is outside the maps")
+    cell = (int(r), int(c))
+    if image.hazard[cell] == HAZARDOUS:
+        raise PlanningError("start_in_hazard", f"start ({start[0]:.3f}, {start[1]:.3f}) is on a hazardous cell")
+    _relax_start(image, cell)
+    free = np.isfinite(image.cost_per_metre(params.weight))
+    if not free[cell]:
+        raise PlanningError("start_in_hazard", f"start ({start[0]:.3f}, {start[1]:.3f}) is on unknown ground, "
+                                               "which is not traversable (unknown_cost = inf)")
+    labels, _ = ndimage.label(free, structure=np.ones((3, 3), bool))
+    rows, cols = np.nonzero(labels == labels[cell])
+    xs, ys = geom.centers()
+    d = np.hypot(xs[cols] - goal[0], ys[rows] - goal[1])
+    i = int(np.argmin(d))
+    return float(xs[cols[i]]), float(ys[rows[i]])
+
+
 def _adaptive_cut(path: np.ndarray, border_distance: np.ndarray, border: float, cell: float) -> tuple[int, float]:
     """Cut the path ``border`` inside the seen ground, halving the border where that leaves the
     rover nothing to drive (a scan from a corner sees a narrow strip, seed 000's ~1 m border

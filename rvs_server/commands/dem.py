@@ -64,6 +64,9 @@ class DemTofConfig(ModuleConfig):
     min_reflectivity: float = param(0.1, "drop ToF returns weaker than this share of the view's median "
                                     "amplitude x range^2 (phase-wrapped far surfaces)", min=0.0, max=1.0,
                                     option=False)
+    wrap_check: bool = param(True, "one more ToF frame per view at half the modulation frequency: drop returns "
+                             "from beyond the unambiguous range (a far wall read as a phantom close by)",
+                             option=False)
     rule: str = param("fuse", "how views and the current DEM merge", choices=("fuse", "max", "newest"))
     fill_radius: float = param(0.06, "fill holes up to this radius", unit="m", min=0.0, max=2.0)
     mesh: bool = param(True, "also write a textured mesh (PLY)")
@@ -200,7 +203,8 @@ def run_dem(job: Job, cfg: Any, *, update: bool, sensor: str = "tof",
         reached = device_call(job, ptu.move, pan, tilt, True)
         frames: list[Frame] = []
         if tof is not None:
-            xyz, amplitude = device_call(job, tof.grab_xyz, cfg.integrate, cfg.confidence)
+            xyz, amplitude = device_call(job, tof.grab_xyz, cfg.integrate, cfg.confidence,
+                                        wrap_check=cfg.wrap_check)
             frames.append(Frame("tof", xyz, amplitude, K,
                                 variance=partial(tof_height_variance, frames=cfg.integrate),
                                 max_range=min(cfg.max_range, TOF_MAX_RANGE),

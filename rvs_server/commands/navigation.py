@@ -97,6 +97,10 @@ class NavigateConfig(ModuleConfig):
     overlap: float = param(0.3, "view overlap of each leg's DEM", min=0.0, max=0.9, option=False)
     wait_timeout: float = param(0.0, "seconds to wait for the GNC's pose after a leg (0: forever)", unit="s",
                                 min=0.0, max=86400.0, option=False)
+    judge_range: float = param(3.0, "a goal judged unreachable (goal_in_hazard, enclosed) from farther than this "
+                               "is driven toward and judged again from closer, where the ToF sees it densely and "
+                               "reliably (its returns thin out and get noisier toward the 4.5 m it keeps)", unit="m",
+                               min=0.0, max=50.0, option=False)
     min_progress: float = param(0.1, "a leg that starts closer than this to the previous leg's start made no "
                                 "progress; the second such leg in a row ends the job", unit="m", min=0.0, max=5.0,
                                 option=False)
@@ -153,6 +157,7 @@ def navigate(job: Job, cfg: NavigateConfig) -> dict[str, Any]:
         PlannerParams,
         PlanningError,
         draw_plan,
+        nearest_reachable,
         ortho_rgb,
         plan_path,
         write_plan,
@@ -205,14 +210,30 @@ def navigate(job: Job, cfg: NavigateConfig) -> dict[str, Any]:
         with state.lock:
             maps = state.current
         local = NavMaps(maps["hazard"], maps["slope"], maps.geometry)
+        here = (pose.x, pose.y)
+        distance = math.hypot(goal[0] - pose.x, goal[1] - pose.y)
+        judged: PlanningError | None = None  # the goal's verdict from too far to be final
         try:
-            plan = plan_path(local, global_maps, (pose.x, pose.y), goal, params, start_heading=pose.heading)
+            plan = plan_path(local, global_maps, here, goal, params, start_heading=pose.heading)
         except PlanningError as exc:
-            raise ProtocolError("E_DATA", f"goal unreachable ({exc.reason}): {exc.message}") from None
+            if exc.reason not in ("goal_in_hazard", "enclosed") or distance <= cfg.judge_range:
+                raise ProtocolError("E_DATA", f"goal unreachable ({exc.reason}): {exc.message}") from None
+            judged = exc
+            try:  # drive toward the goal, as close as the maps allow, and judge it again from there
+                toward = nearest_reachable(local, global_maps, here, goal, params)
+                plan = plan_path(local, global_maps, here, toward, params, start_heading=pose.heading)
+            except PlanningError:
+                raise ProtocolError("E_DATA", f"goal unreachable ({exc.reason}): {exc.message}") from None
+            leg_progress(0, 1, f"goal judged unreachable ({exc.reason}) from {distance:.2f} m, farther than "
+                               f"{cfg.judge_range:g} m: driving toward it to ({toward[0]:.2f}, {toward[1]:.2f}) "
+                               "to judge it again from closer", "plan")
         prefix = app.data_path("nav", f"{name}_leg{leg}")
         write_plan(plan, str(prefix), ortho=(maps["ortho"], maps.geometry), made_by="navigate")
         driven = plan.path[: plan.cut]
         if len(plan.waypoints) < 2 or math.hypot(*(driven[-1] - driven[0])) < MIN_LEG:
+            if judged is not None:  # it cannot get closer: the verdict from here stands
+                raise ProtocolError("E_DATA", f"goal unreachable ({judged.reason}): {judged.message}; judged from "
+                                              f"{distance:.2f} m, and the rover can get no closer")
             raise ProtocolError("E_DATA", f"no progress on leg {leg}: the path leaves the locally seen ground at once "
                                           f"({'; '.join(plan.warnings) or 'nothing to drive'})")
         segments = len(plan.waypoints) - 1

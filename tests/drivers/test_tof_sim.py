@@ -401,3 +401,36 @@ def test_integrating_across_the_wrap_leaves_no_phantom_half_way() -> None:
     centre[50:94, 60:116] = True
     assert (defined & centre).sum() > 100
     assert not (defined & centre & (rng > 1.0) & (rng < 4.0)).any()
+
+
+def test_the_wrap_check_drops_a_far_wall_read_close_by_and_keeps_every_true_return() -> None:
+    """From the office corner of issue 11 item 9 the top rows of a view see the front wall about
+    7 m away; at 30 MHz it reads 2.2 m, phantoms above the floor that the amplitude filter keeps
+    (a bright wall is as bright as a dark rock at grazing incidence). The frame at 15 MHz reads
+    them at 7 m: the check drops them, and no pixel whose range is right."""
+    from drivers.sim.world import World
+    from drivers.tof import create
+
+    world = World.from_scene("office")
+    world.set_rover_pose(-1.52, -1.12, 20.0)
+    world.set_ptu(14.4, -27.3)
+    cam = create({"backend": "sim", "seed": 3}, world)
+    cam.open()
+    truth = world.render_sensor("tof", k.WIDTH, k.HEIGHT)
+    counts = {}
+    for check in (False, True):
+        frames = cam.status()["frames"]
+        xyz, _ = cam.grab_xyz(4, 0.3, wrap_check=check)
+        counts[check, "frames"] = cam.status()["frames"] - frames
+        defined = xyz[..., 2] > 0
+        err = np.abs(np.linalg.norm(xyz, axis=2) - truth.range)
+        counts[check, "wrapped"] = int((defined & (err > 1.0)).sum())
+        counts[check, "right"] = int((defined & (err < 0.2)).sum())
+        if not check:
+            wrapped = defined & (err > 1.0)
+            assert (truth.range[wrapped] > k.unambiguous_range(30.0) - 0.1).all()  # all of them beyond 5 m
+    assert counts[False, "wrapped"] > 200  # the defect: phantoms from beyond the unambiguous range
+    assert counts[True, "wrapped"] == 0
+    assert counts[True, "right"] >= 0.99 * counts[False, "right"]
+    assert counts[True, "frames"] == counts[False, "frames"] + 1  # one check frame
+    assert cam.get_settings().modulation_mhz == 30.0 and cam._cam.get_modulation() == 30.0  # restored

@@ -18,6 +18,7 @@ from prox_workflows.steps.planner import (
     PlannerParams,
     PlanningError,
     expand_hazards,
+    nearest_reachable,
     plan_path,
     planning_image,
 )
@@ -217,6 +218,36 @@ def test_unreachable_reasons() -> None:
     with pytest.raises(PlanningError) as err:
         plan_path(maps, None, (0.2, 0.2), (4.0, 1.0), PlannerParams(unknown_cost=math.inf))
     assert err.value.reason == "goal_in_hazard" and "unknown" in err.value.message
+
+
+def test_nearest_reachable_is_where_to_judge_an_unreachable_goal_from() -> None:
+    """navigate drives there when the goal was judged unreachable from far: the free cell the
+    start reaches that is nearest the goal, outside the ring that encloses the goal, and just
+    outside the margin of a hazard the goal lies on; A* reaches it."""
+    geom = GridGeometry(0.05, 0.0, 3.0, 60, 60)
+    hz = np.zeros(geom.shape, np.uint8)
+    hz[10:14, 10:14] = HAZARDOUS  # x 0.5..0.7, y 2.3..2.5
+    yy, xx = np.mgrid[:60, :60]
+    hz[np.abs(np.hypot(yy - 40, xx - 40) - 10) < 1.5] = HAZARDOUS  # a closed ring around (2.0, 1.0)
+    maps = NavMaps(hz, np.full(geom.shape, 5.0, np.float32), geom)
+    p = PlannerParams(rover_radius=0.1, margin=0.05)
+    image = planning_image(maps, None, p, points=[(0.2, 0.2), (2.0, 1.0)])
+    free = ~image.blocked
+    for goal, lo, hi in (((2.0, 1.0), 0.5 + 0.15, 0.5 + 0.15 + 0.2), ((0.6, 2.4), 0.1 + 0.15, 0.1 + 0.15 + 0.1)):
+        with pytest.raises(PlanningError):
+            plan_path(maps, None, (0.2, 0.2), goal, p)
+        x, y = nearest_reachable(maps, None, (0.2, 0.2), goal, p)
+        r, c = geom.cell_of(np.array(x), np.array(y))
+        assert free[int(r), int(c)]
+        assert lo <= math.hypot(x - goal[0], y - goal[1]) <= hi  # outside ring (radius 0.5 m) / rock + margin
+        plan = plan_path(maps, None, (0.2, 0.2), (x, y), p)
+        assert plan.reaches_goal
+    # a reachable goal is its own nearest reachable cell (to the grid)
+    x, y = nearest_reachable(maps, None, (0.2, 0.2), (1.0, 0.5), p)
+    assert math.hypot(x - 1.0, y - 0.5) <= 0.05
+    with pytest.raises(PlanningError) as err:
+        nearest_reachable(maps, None, (0.6, 2.4), (0.2, 0.2), p)
+    assert err.value.reason == "start_in_hazard"
 
 
 def test_start_inside_the_margin_may_leave_it() -> None:
