@@ -121,7 +121,7 @@ class Sampler:
 # ------------------------------------------------------------------------------------------ model
 
 
-_IAC = re.compile(rb"\xff(?:[\xfb-\xfe][\x00-\xff]?|[\x00-\xfa\xff])?")
+IAC_SEQUENCE = re.compile(rb"\xff(?:[\xfb-\xfe][\x00-\xff]?|[\x00-\xfa\xff])?")
 
 
 def strip_iac(data: bytes) -> tuple[bytes, bool]:
@@ -131,11 +131,11 @@ def strip_iac(data: bytes) -> tuple[bytes, bool]:
     if b"\xff" not in data:
         return data, False
     last = None
-    for match in _IAC.finditer(data):
+    for match in IAC_SEQUENCE.finditer(data):
         last = match
     seq = last.group() if last is not None else b""
     open_ = last is not None and last.end() == len(data) and (len(seq) == 1 or (len(seq) == 2 and 0xFB <= seq[1] <= 0xFE))
-    return _IAC.sub(b"", data), open_
+    return IAC_SEQUENCE.sub(b"", data), open_
 
 
 def close_iac(piece: bytes) -> bytes:
@@ -157,7 +157,7 @@ def telnet_commands(piece: bytes) -> tuple[int, int]:
     server answers IAC WILL TIMING-MARK, in order with the replies; PROTOCOL.md, Transport)."""
     if b"\xff" not in piece:
         return 0, 0
-    seqs = [m.group() for m in _IAC.finditer(piece)]
+    seqs = [m.group() for m in IAC_SEQUENCE.finditer(piece)]
     return seqs.count(b"\xff\xf4"), seqs.count(b"\xff\xfd\x06")
 
 

@@ -15,14 +15,24 @@ import math
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
-from reliability_harness import LONG, LineGen, close_iac, expects_reply, logical_line, telnet_text
+from reliability_harness import (
+    IAC_SEQUENCE,
+    LONG,
+    LineGen,
+    close_iac,
+    expects_reply,
+    logical_line,
+)
 
 from rvs_server.main import build_config
 from rvs_server.protocol import (
+    INTERRUPT,
     MAX_LINE,
+    TIMING_MARK,
     LineSplitter,
     ProtocolError,
     Reply,
+    Telnet,
     format_reply,
     format_reply_json,
     parse_reply,
@@ -141,23 +151,55 @@ def test_junk_lines_parse_or_fail_cleanly(lines) -> None:
 # ------------------------------------------------------------------------------------ bytes to lines
 
 
-def model_lines(stream: bytes, max_line: int) -> list[bytes | None]:
-    """PROTOCOL.md, Transport, written out independently of LineSplitter: IAC sequences out,
-    CR NUL as CR (telnet), split at LF, one CR before the LF dropped, a line over the limit is
-    one None."""
-    *parts, unfinished = telnet_text(stream).split(b"\n")
-    out: list[bytes | None] = []
-    for p in parts:
-        p = p[:-1] if p.endswith(b"\r") else p
-        out.append(None if len(p) > max_line else p)
-    if len(unfinished) > max_line + 1:  # refused before its LF arrives (one byte kept for a CR)
-        out.append(None)
-    return out
+def model_lines(stream: bytes, max_line: int) -> list[bytes | None | Telnet]:
+    """PROTOCOL.md, Transport, written out independently of LineSplitter: IAC sequences out (IAC
+    IP and IAC DO TIMING-MARK reported where they stood), CR NUL as CR (telnet), split at LF, one
+    CR before the LF dropped, a line over the limit is one None.
+
+    Order: a line is reported when its LF is read, an over-long one as soon as it cannot fit
+    (one byte kept for a CR), a telnet command when it is read; so a command that stands before
+    the byte that decides a line comes before that line."""
+    raw = bytearray()
+    marks: list[tuple[int, Telnet]] = []  # (text bytes before it, command)
+    pos = 0
+    for m in IAC_SEQUENCE.finditer(stream):
+        raw += stream[pos : m.start()]
+        kind = {b"\xff\xf4": INTERRUPT, b"\xff\xfd\x06": TIMING_MARK}.get(m.group())
+        if kind is not None:
+            marks.append((len(raw), kind))
+        pos = m.end()
+    raw += stream[pos:]
+    text = bytearray()  # CR NUL as CR, keeping where each raw byte went
+    at = [0] * (len(raw) + 1)
+    i = 0
+    while i < len(raw):
+        at[i] = len(text)
+        text.append(raw[i])
+        if raw[i : i + 2] == b"\r\x00":
+            at[i + 1] = len(text)
+            i += 1
+        i += 1
+    at[len(raw)] = len(text)
+    events: list[tuple[int, int, bytes | None | Telnet]] = [(at[p], 0, kind) for p, kind in marks]
+    start = 0
+    while True:
+        nl = text.find(b"\n", start)
+        end = len(text) if nl < 0 else nl
+        if end - start > max_line + 1:
+            events.append((start + max_line + 1, 1, None))
+        elif nl >= 0:
+            line = bytes(text[start:nl].removesuffix(b"\r"))
+            events.append((nl, 1, None if len(line) > max_line else line))
+        if nl < 0:
+            break
+        start = nl + 1
+    return [item for _, _, item in sorted(events, key=lambda e: (e[0], e[1]))]
 
 
 stream_parts = st.one_of(
     st.binary(max_size=40),
     st.sampled_from([b"\n", b"\r\n", b"\r", b"\xff", b"\xff\xfb", b"\xff\xfd\x03", b"\xff\xff", b"\xff\n",
+                     b"\xff\xf4", b"\xff\xfd\x06",
                      b"\x00", b"\r\x00", b"#", b" ", b"\xe2\x80\x93"]),
     st.integers(10, 80).map(lambda n: b"y" * n),
 )
