@@ -252,7 +252,7 @@ def test_navigate_progress_per_leg_and_phase(server_factory) -> None:
 
 
 def test_rvs_client_draws_a_progress_bar(server, capsys) -> None:
-    from tools.client import main
+    from rvs_server.client.console import main
 
     assert main(["--port", str(server.port), "--progress", "bar", "-c", "dem-full-tof -range -30,30,-50,-30"]) == 0
     out = capsys.readouterr().out
