@@ -69,7 +69,8 @@ class Context:
 
 @dataclass
 class Pose:
-    """The rover pose the server believes in (reported by the GNC with ``pose``).
+    """The rover pose the server believes in (reported by the GNC with ``pose``, or set by
+    orient, navigate and recover; ``source`` says which).
 
     Coerced to plain floats: a pose from the simulator or an estimator arrives as numpy scalars,
     and those must never reach a recovery manifest, a sidecar or a reply.
