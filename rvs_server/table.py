@@ -12,7 +12,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
-from .config import ModuleConfig
+from .config import ModuleConfig, SettingError
 from .protocol import ProtocolError, Request
 
 # What may run in which mode. "always": help, status and the like, answered even while a job
@@ -114,7 +114,10 @@ def apply_options(name: str, base: ModuleConfig, options: list[tuple[str, str | 
         if opt in seen:
             raise ProtocolError("E_ARG", f"option {spec.flag} given twice")
         seen.add(opt)
-        setattr(cfg, opt, spec.parse(raw))
+        try:
+            setattr(cfg, opt, spec.parse(raw))
+        except SettingError as exc:
+            raise ProtocolError("E_ARG", exc.message) from None
     for spec in specs.values():
         if spec.required and spec.name not in seen:
             raise ProtocolError("E_ARG", f"{name} needs {spec.flag} ({spec.describe()})")

@@ -17,7 +17,7 @@ import yaml
 
 from drivers.base import DeviceError
 from drivers.console import DEFAULT_CONFIG, DeviceConsole, load_section, run, split_words
-from drivers.ptu import DEFAULTS, FAULTS, Ptu, create
+from drivers.ptu import Ptu, create
 
 
 def _floats(arg: str, n_min: int, n_max: int, usage: str) -> list[float]:
@@ -160,7 +160,7 @@ class PtuConsole(DeviceConsole):
         """fault KIND: sim only; silent, garbage, stall or none."""
         kind = arg.strip() or None
         self.ptu.inject_fault(kind)
-        self.say(f"fault {kind or 'none'} injected (kinds: {', '.join(str(f) for f in FAULTS)})")
+        self.say(f"fault {kind or 'none'} injected (kinds: {', '.join(('None',) + self.ptu.line.faults)})")
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -177,7 +177,7 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
 
     try:
-        config = load_section("ptu", DEFAULTS, args.config)
+        config = load_section("ptu", {}, args.config)
     except (OSError, yaml.YAMLError) as exc:
         print(f"error: cannot read the config: {exc}", file=sys.stderr)
         return 2
