@@ -8,7 +8,8 @@ end's and every registered backend's, so ``config/drivers.yaml``, ``--set`` and
 ``config -set`` accept exactly the keys some backend reads.
 
 :data:`DEVICE_KINDS` is the one list of device kinds the server builds, checks, resets and
-re-initialises, in the order it opens them (the trigger box before the cameras that fire it).
+re-initialises; :func:`open_order` puts each kind after the peers its package declares
+(``PEERS``: the stereo pair needs the trigger box that fires it).
 """
 
 from __future__ import annotations
@@ -22,7 +23,7 @@ from typing import Any, ClassVar, Generic, Protocol, TypeVar
 from drivers.base import DeviceError
 from drivers.settings import Settings, param
 
-DEVICE_KINDS: tuple[str, ...] = ("ptu", "tof", "trigger", "stereo")
+DEVICE_KINDS: tuple[str, ...] = ("ptu", "tof", "stereo", "trigger")
 
 
 class Capability(enum.StrEnum):
@@ -78,7 +79,7 @@ class BackendRegistry(Generic[B]):
                 raise ValueError(f"{self.device} backend {name!r} registered twice")
             cls.name = name  # type: ignore[attr-defined]
             for attr, empty in (("settings", _NoSettings), ("capabilities", frozenset()), ("faults", ())):
-                if attr not in vars(cls) and not hasattr(cls, attr):
+                if not any(attr in vars(k) for k in cls.__mro__):
                     setattr(cls, attr, empty)
             self._classes[name] = cls
             self._settings_cls = None
@@ -87,7 +88,8 @@ class BackendRegistry(Generic[B]):
         return register
 
     def names(self) -> list[str]:
-        return list(self._classes)
+        """The registered backends, the default (the simulator) first, then as registered."""
+        return sorted(self._classes, key=lambda n: n != self.default)
 
     def get(self, name: str) -> type[B]:
         try:
@@ -106,7 +108,7 @@ class BackendRegistry(Generic[B]):
         bases = [self.front] + [c.settings for c in self._classes.values()]  # type: ignore[attr-defined]
         unique = list(dict.fromkeys(b for b in bases if b is not _NoSettings))
         backend = ("backend", str, param(self.default, f"{self.device} backend",
-                                         choices=tuple(self._classes)))
+                                         choices=tuple(self.names())))
         cls = dataclasses.make_dataclass(f"{self.device.capitalize()}Settings", [backend],
                                          bases=tuple(reversed(unique)))
         cls.__doc__ = f"drivers.{self.device}: the front end's and every backend's settings."
@@ -136,6 +138,30 @@ def registry(kind: str) -> BackendRegistry[Any]:
     if kind not in DEVICE_KINDS:
         raise ValueError(f"no device kind {kind!r}; kinds: {', '.join(DEVICE_KINDS)}")
     return importlib.import_module(f"drivers.{kind}").BACKENDS
+
+
+def peers(kind: str) -> tuple[str, ...]:
+    """The kinds a device of ``kind`` is given at creation (its package's ``PEERS``)."""
+    registry(kind)  # the kind check
+    return tuple(importlib.import_module(f"drivers.{kind}").PEERS)
+
+
+def open_order() -> list[str]:
+    """DEVICE_KINDS with every kind after its peers (a device is built with its peers open)."""
+    order: list[str] = []
+
+    def visit(kind: str, path: tuple[str, ...]) -> None:
+        if kind in order:
+            return
+        if kind in path:
+            raise ValueError(f"device peers form a cycle: {' -> '.join(path + (kind,))}")
+        for peer in peers(kind):
+            visit(peer, path + (kind,))
+        order.append(kind)
+
+    for kind in DEVICE_KINDS:
+        visit(kind, ())
+    return order
 
 
 def fault_kinds() -> dict[str, tuple[str, ...]]:

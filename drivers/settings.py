@@ -132,8 +132,11 @@ class ParamSpec:
                 raise SettingError(f"{name} needs a value: {self.describe()}")
             import yaml  # only for the few free-form keys (a camera matrix, a mapping)
 
+            text = str(raw)
+            if isinstance(self.default, list) and not text.lstrip().startswith("["):
+                text = f"[{text}]"  # a list typed as on the wire: a,b,c
             try:
-                return yaml.safe_load(str(raw))
+                return yaml.safe_load(text)
             except yaml.YAMLError:
                 raise SettingError(f"{name} takes {self.describe()}, not '{str(raw)[:40]}'") from None
         if self.kind == "bool":
@@ -257,7 +260,7 @@ def _kind_of(hint: Any) -> tuple[str, bool, type[Settings] | None]:
         return ("floats" if inner and inner[0] is float else "any"), optional, None
     if origin is dict or hint is dict:
         return "dict", optional, None
-    if hint is Any:
+    if hint is Any or hint is list:
         return "any", optional, None
     return _KIND.get(hint, "str"), optional, None
 
@@ -329,7 +332,7 @@ class Settings:
         """Plain values (nested settings as mappings), for replies, sidecars and YAML."""
         out: dict[str, Any] = {}
         for f in fields(self):
-            value = getattr(self, f.name)
+            value = vars(self)[f.name]
             out[f.name] = value.as_dict() if isinstance(value, Settings) else copy.deepcopy(value)
         return out
 

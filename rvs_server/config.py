@@ -10,12 +10,15 @@ Defaults come from ``config/<module>.yaml``, then ``rvs-server --set module.key=
 from __future__ import annotations
 
 import copy
+import dataclasses
+import importlib
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, ClassVar
 
 import yaml
 
+from drivers.registry import DEVICE_KINDS, registry
 from drivers.settings import ParamSpec, SettingError, Settings, merge, param
 
 from .protocol import ProtocolError
@@ -192,16 +195,22 @@ class ServerConfig(ModuleConfig):
     warm_up: bool = param(True, "compile or load the numba kernels (DemImport, A*) in the background at start")
 
 
-@standalone
-@dataclass
-class DriversConfig(ModuleConfig):
-    """config/drivers.yaml: one section per device; ``backend`` picks sim or the real driver."""
+def _drivers_config() -> type[ModuleConfig]:
+    """config/drivers.yaml: one section per device kind (drivers.registry.DEVICE_KINDS), each typed
+    by the settings its front end and its registered backends declare; ``backend`` picks one."""
+    sections = []
+    for kind in DEVICE_KINDS:
+        reg = registry(kind)
+        title = (importlib.import_module(f"drivers.{kind}").__doc__ or kind).strip().splitlines()[0]
+        sections.append((kind, reg.settings_class(), dataclasses.field(
+            default_factory=reg.settings_class(), metadata={"help": title})))
+    cls = dataclasses.make_dataclass("DriversConfig", sections, bases=(ModuleConfig,), namespace={"module": "drivers"})
+    cls.__doc__ = _drivers_config.__doc__
+    cls.__module__ = __name__
+    return cls
 
-    module: ClassVar[str] = "drivers"
-    ptu: dict = param({}, "pan-tilt unit (PTU-D46 over RS232)")
-    tof: dict = param({}, "SwissRanger SR4000 time-of-flight camera (USB)")
-    stereo: dict = param({}, "PIKE F-210B stereo pair (FireWire)")
-    trigger: dict = param({}, "LPT trigger box")
+
+DriversConfig = standalone(_drivers_config())
 
 
 @standalone

@@ -22,7 +22,7 @@ from drivers.ptu.emulator import PtuEmulator
 from drivers.registry import Capability
 from drivers.settings import Settings
 
-__all__ = ["BACKENDS", "MoveInterrupted", "Ptu", "PtuSettings", "ReplyTimeout", "create"]
+__all__ = ["BACKENDS", "PEERS", "MoveInterrupted", "Ptu", "PtuSettings", "ReplyTimeout", "create"]
 
 
 class Ptu:
@@ -208,6 +208,9 @@ class Ptu:
 
 def _public(power: dict[str, Any]) -> dict[str, Any]:
     return {k: v for k, v in power.items() if k != "raw"}
+
+
+PEERS: tuple[str, ...] = ()  # built after, and given to create() as, these device kinds
 
 
 def create(settings: Mapping[str, Any] | Settings | None, world: Any = None) -> Ptu:

@@ -317,15 +317,17 @@ def main(argv: list[str] | None = None, *, world: Any = None, stdout: Any = None
     ):
         if value is not None:
             cam_cfg[key] = value
-    cam_cfg.setdefault("backend", "sim")
+    from drivers.stereo import BACKENDS
+
+    settings = BACKENDS.settings(cam_cfg)
     # Real cameras want the real box and simulated cameras the simulated one, unless told otherwise.
-    trg_cfg["backend"] = args.trigger_backend or ("sim" if cam_cfg["backend"] == "sim" else "ppdev")
+    trg_cfg["backend"] = args.trigger_backend or ("sim" if settings.backend == "sim" else "ppdev")
     if args.trigger_device:
         trg_cfg["device"] = args.trigger_device
-    if cam_cfg["backend"] == "sim" and world is None:
+    if settings.backend == "sim" and world is None:
         from drivers.sim.world import World
 
-        world = World.from_scene(args.scene, seed=int(cam_cfg.get("seed", 0)))
+        world = World.from_scene(args.scene, seed=settings.seed)
 
     trigger = None
     if trg_cfg["backend"] != "none":
@@ -337,7 +339,7 @@ def main(argv: list[str] | None = None, *, world: Any = None, stdout: Any = None
         except Exception as exc:
             print(f"warning: trigger box unavailable ({exc}); only direct grabs will work", file=out)
             trigger = None
-    camera = create(cam_cfg, world, trigger)
+    camera = create(settings, world, trigger)
     shell = CamShell(camera, trigger, args.data, stdout=out)
     shell.onecmd("init")
     try:

@@ -296,14 +296,15 @@ def main(argv: list[str] | None = None) -> int:
             config["library"] = args.library
         if args.settings:
             config["settings_file"] = str(args.settings)
+        from . import BACKENDS, create
+
+        settings = BACKENDS.settings(config)
         world = None
-        if config.get("backend", "sim") == "sim":
+        if settings.backend == "sim":
             from drivers.sim.world import World
 
-            world = World.from_scene(args.scene, seed=int(config.get("seed", 0) or 0))
-        from . import create
-
-        camera = create(config, world)
+            world = World.from_scene(args.scene, seed=settings.seed)
+        camera = create(settings, world)
     except (OSError, ValueError, DeviceError, yaml.YAMLError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2

@@ -12,9 +12,11 @@ from collections.abc import Mapping
 from typing import Any
 
 from drivers.settings import Settings
-from drivers.trigger import sim, ppdev  # noqa: F401, I001 - registers the backends, sim first
+from drivers.trigger import ppdev, sim  # noqa: F401 - registers the backends
 from drivers.trigger.backend import BACKENDS, TriggerBackend, TriggerSettings
 from drivers.trigger.device import Trigger
+
+PEERS: tuple[str, ...] = ()  # built after, and given to create() as, these device kinds
 
 
 def create(settings: Mapping[str, Any] | Settings | None, world: Any = None) -> Trigger:
@@ -22,4 +24,4 @@ def create(settings: Mapping[str, Any] | Settings | None, world: Any = None) -> 
     return Trigger(settings, world)
 
 
-__all__ = ["BACKENDS", "Trigger", "TriggerBackend", "TriggerSettings", "create"]
+__all__ = ["BACKENDS", "PEERS", "Trigger", "TriggerBackend", "TriggerSettings", "create"]

@@ -9,9 +9,8 @@ from __future__ import annotations
 
 import threading
 import time
-from typing import Any
-
 from collections.abc import Mapping
+from typing import Any
 
 from drivers.base import DeviceError
 from drivers.registry import Capability

@@ -12,9 +12,8 @@ import fcntl
 import os
 import struct
 import time
-from typing import Any
-
 from dataclasses import dataclass
+from typing import Any
 
 from drivers.base import DeviceError
 from drivers.settings import Settings, param
