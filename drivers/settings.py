@@ -202,7 +202,7 @@ class ParamSpec:
             return copy.deepcopy(value)
         if self.kind == "section":
             assert self.section is not None
-            return self.section.from_mapping(value, where=f"{where}.{self.name}")
+            return self.section.from_mapping(value, where=f"{where}, section {self.name}")
         if self.kind == "dict":
             if not isinstance(value, dict):
                 raise SettingError(f"{where}: {self.name} must be a mapping")

@@ -114,6 +114,7 @@ class ConfigStore:
         dirs = [DEFAULT_CONFIG_DIR] + ([Path(config_dir)] if config_dir else [])
         for name, cls in self.classes.items():
             data: dict[str, Any] = {}
+            sources = []
             for d in dirs:
                 path = d / f"{name}.yaml"
                 if path.is_file():
@@ -121,7 +122,8 @@ class ConfigStore:
                     if not isinstance(loaded, dict):
                         raise ValueError(f"{path}: expected a mapping of key: value")
                     merge(data, loaded)
-            self.values[name] = self._build(cls, data, f"config/{name}.yaml")
+                    sources.append(f"config/{name}.yaml" if d == DEFAULT_CONFIG_DIR else str(path))
+            self.values[name] = self._build(cls, data, " over ".join(reversed(sources)) or f"config/{name}.yaml")
 
     @staticmethod
     def _build(cls: type[ModuleConfig], data: dict[str, Any], where: str) -> ModuleConfig:

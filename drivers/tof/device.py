@@ -536,8 +536,8 @@ class Tof:
         cam.set_modulation(settings.modulation_mhz)
         trigger_bits = cam.get_mode() & int(k.AcquireMode.AM_HW_TRIGGER | k.AcquireMode.AM_SW_TRIGGER)
         cam.set_mode(settings.mode(trigger_bits or int(k.AcquireMode.AM_SW_TRIGGER)))
+        p = settings.auto_exposure_params
         if settings.auto_exposure:
-            p = settings.auto_exposure_params
             cam.set_auto_exposure(p.min_integration, p.max_integration, p.percent_over, p.desired)
         else:
             cam.set_auto_exposure(0xFF, 0, 0, 0)
@@ -555,6 +555,11 @@ class Tof:
             correction_modes=[n for n, on in k.corrections_from_mode(mode).items() if on],
             enhanced_xyz=bool(mode & k.AcquireMode.AM_SHORT_RANGE),
             undistort=settings.undistort,
+            # the rest of the camera settings, so a grab's sidecar holds every one it was taken with
+            auto_exposure_params=[p.min_integration, p.max_integration, p.percent_over, p.desired],
+            auto_exposure_max_iterations=settings.auto_exposure_max_iterations,
+            colour_range=[f"{t}:{'auto' if r is None else ','.join(format(v, 'g') for v in r)}"
+                          for t, r in settings.colour_range.items()],
         )
 
     def _set_status(self, **values: Any) -> None:
