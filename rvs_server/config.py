@@ -51,14 +51,14 @@ def _set_in(cfg: Settings, path: list[str], raw: str, where: str, *, runtime: bo
         if len(path) < 2:
             raise ProtocolError("E_ARG", f"{where}.{spec.name} is a section; set one of its keys "
                                          f"({where}.{spec.name}.KEY for KEY in {', '.join(spec.section.specs())})")
-        section = copy.deepcopy(getattr(cfg, spec.name))
+        section = copy.deepcopy(vars(cfg)[spec.name])
         _set_in(section, path[1:], raw, f"{where}.{spec.name}", runtime=runtime)
         setattr(cfg, spec.name, section)
         return
     if spec.kind == "dict":
         if len(path) < 2:
             raise ProtocolError("E_ARG", f"{where}.{spec.name} is a section; set one of its keys ({where}.{spec.name}.KEY)")
-        nested = copy.deepcopy(getattr(cfg, spec.name))
+        nested = copy.deepcopy(vars(cfg)[spec.name])
         _set_nested(nested, path[1:], raw, f"{where}.{'.'.join(path)}")
         setattr(cfg, spec.name, nested)
         return
