@@ -17,7 +17,7 @@ import yaml
 
 from drivers.base import DeviceError
 from drivers.console import DEFAULT_CONFIG, DeviceConsole, load_section, run, split_words
-from drivers.ptu import Ptu, create
+from drivers.ptu import BACKENDS, Ptu, create
 
 
 def _floats(arg: str, n_min: int, n_max: int, usage: str) -> list[float]:
@@ -165,7 +165,7 @@ class PtuConsole(DeviceConsole):
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="rvs-ptu", description="PTU-D46 console (sim or serial backend)")
-    parser.add_argument("--backend", choices=("sim", "serial"), help="default: drivers.yaml ptu.backend")
+    parser.add_argument("--backend", choices=BACKENDS.names(), help="default: drivers.yaml ptu.backend")
     parser.add_argument("--port", help="serial port or pyserial URL (serial backend)")
     parser.add_argument("--baudrate", type=int)
     parser.add_argument("--timeout", type=float, help="seconds to wait for a reply")

@@ -2,7 +2,8 @@
 
 One dataclass holds everything SetSettings, SetColorRange, SetImgCorrectModes and
 SetEnhancedXyz change, so that SaveSettings/LoadSettings is a YAML dump and load of it. The
-defaults come from ``config/drivers.yaml``; a settings file, when configured, overrides them and
+defaults come from the typed drivers.tof settings (their ``live`` keys, declared in
+:class:`drivers.tof.backend.SR4000Settings`); a settings file, when configured, overrides them and
 is created from them when it does not exist (rvs-libtof's CreateDefaultSettingsFile).
 """
 
