@@ -10,217 +10,36 @@ Defaults come from ``config/<module>.yaml``, then ``rvs-server --set module.key=
 from __future__ import annotations
 
 import copy
-import dataclasses
-import math
-import typing
-from dataclasses import dataclass, field, fields
+from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, ClassVar
 
 import yaml
 
-from .protocol import ProtocolError, valid_stem
+from prox_workflows.params import ParamSet, ParamSpec, param
+
+from .protocol import ProtocolError
+
+__all__ = ["ConfigStore", "ModuleConfig", "ParamSpec", "param", "standalone", "STANDALONE"]
 
 DEFAULT_CONFIG_DIR = Path(__file__).resolve().parent.parent / "config"
 
 
-def param(
-    default: Any,
-    help: str,
-    *,
-    unit: str = "",
-    min: float | None = None,
-    max: float | None = None,
-    choices: tuple[str, ...] = (),
-    length: int | tuple[int, int] | None = None,
-    stem: bool = False,
-    option: bool = True,
-    required: bool = False,
-    protected: bool = False,
-) -> Any:
-    """Declare a config field with what the command table needs to check and explain it.
-
-    ``option=False`` keeps a parameter out of the request line (set it with ``config -set``);
-    ``protected`` refuses run-time changes (host, port, token); ``stem`` marks output names.
-    """
-    meta = {
-        "help": help,
-        "unit": unit,
-        "min": min,
-        "max": max,
-        "choices": tuple(choices),
-        "length": length,
-        "stem": stem,
-        "option": option,
-        "required": required,
-        "protected": protected,
-    }
-    if isinstance(default, list | dict):
-        return field(default_factory=lambda d=default: copy.deepcopy(d), metadata=meta)
-    return field(default=default, metadata=meta)
-
-
-@dataclass(frozen=True)
-class ParamSpec:
-    """What one parameter accepts; built from a dataclass field."""
-
-    name: str
-    kind: str  # float, int, str, bool, floats, dict
-    help: str
-    unit: str
-    min: float | None
-    max: float | None
-    choices: tuple[str, ...]
-    length: tuple[int, int] | None
-    stem: bool
-    option: bool
-    required: bool
-    protected: bool
-    default: Any
-
-    @property
-    def flag(self) -> str:
-        return "-" + self.name.replace("_", "-")
-
-    def describe(self) -> str:
-        """One phrase for help and error messages: type, range, unit, default."""
-        if self.choices:
-            what = "|".join(self.choices)
-        elif self.kind == "floats":
-            lo, hi = self.length or (1, 99)
-            what = f"{lo} numbers a,b,..." if lo == hi else f"{lo}-{hi} numbers a,b,..."
-        elif self.stem:
-            what = "file stem"
-        else:
-            what = {"float": "number", "int": "integer", "bool": "true|false", "str": "text"}.get(self.kind, self.kind)
-        if self.min is not None or self.max is not None:
-            what += f" in [{_num(self.min)}, {_num(self.max)}]"
-        if self.unit:
-            what += f" {self.unit}"
-        return what
-
-    def parse(self, raw: str | bool) -> Any:
-        """Convert and validate one value from a request or a ``-set``; E_ARG names the option."""
-        name = self.flag
-        if self.kind == "bool":
-            if isinstance(raw, bool):
-                return raw
-            low = raw.lower()
-            if low in ("true", "1", "yes", "on"):
-                return True
-            if low in ("false", "0", "no", "off"):
-                return False
-            raise ProtocolError("E_ARG", f"{name} takes true or false, not '{raw}'")
-        if raw is True:
-            raise ProtocolError("E_ARG", f"{name} needs a value: {self.describe()}")
-        assert isinstance(raw, str)
-        if self.kind == "floats":
-            parts = [p for p in raw.split(",")] if raw else []
-            try:
-                values = [float(p) for p in parts]
-            except ValueError:
-                raise ProtocolError("E_ARG", f"{name} takes {self.describe()}, not '{raw[:40]}'") from None
-            lo, hi = self.length or (1, 99)
-            if not lo <= len(values) <= hi or not all(math.isfinite(v) for v in values):
-                raise ProtocolError("E_ARG", f"{name} takes {self.describe()}, not '{raw[:40]}'")
-            for v in values:
-                self._check_range(v)
-            return values
-        if self.kind == "float":
-            try:
-                value = float(raw)
-            except ValueError:
-                raise ProtocolError("E_ARG", f"{name} takes a {self.describe()}, not '{raw[:40]}'") from None
-            if not math.isfinite(value):
-                raise ProtocolError("E_ARG", f"{name} must be a finite {self.describe()}")
-            self._check_range(value)
-            return value
-        if self.kind == "int":
-            try:
-                value = int(raw, 10)
-            except ValueError:
-                raise ProtocolError("E_ARG", f"{name} takes an {self.describe()}, not '{raw[:40]}'") from None
-            self._check_range(value)
-            return value
-        if self.choices:
-            low = raw.lower()
-            if low not in self.choices:
-                raise ProtocolError("E_ARG", f"{name} takes {'|'.join(self.choices)}, not '{raw[:40]}'")
-            return low
-        if self.stem and not valid_stem(raw):
-            raise ProtocolError(
-                "E_ARG",
-                f"{name} must be a file stem of 1-64 letters, digits, '_', '.', '-' not starting with '.'",
-            )
-        return raw
-
-    def _check_range(self, value: float) -> None:
-        if (self.min is not None and value < self.min) or (self.max is not None and value > self.max):
-            raise ProtocolError(
-                "E_ARG", f"{self.flag} is {_num(value)}, out of range [{_num(self.min)}, {_num(self.max)}]"
-                + (f" {self.unit}" if self.unit else "")
-            )
-
-
-def _num(v: float | None) -> str:
-    if v is None:
-        return "..."
-    if isinstance(v, int):  # any size: "-integrate 999...9" must be E_ARG, not an OverflowError
-        text = str(v)
-        return text if len(text) <= 16 else f"{text[:4]}...({len(text)} digits)"
-    return str(int(v)) if v.is_integer() and abs(v) < 1e15 else format(v, "g")
-
-
-_KIND = {float: "float", int: "int", str: "str", bool: "bool"}
+def _arg_error(message: str) -> ProtocolError:
+    return ProtocolError("E_ARG", message)
 
 
 @dataclass
-class ModuleConfig:
-    """Base of every module's config class; ``module`` names its YAML file and ``config -module``."""
+class ModuleConfig(ParamSet):
+    """Base of every module's config class; ``module`` names its YAML file and ``config -module``.
+
+    A command whose parameters a workflow script also receives derives from the script's
+    parameter class (``prox_workflows.parameters``) and this, so they are declared once.
+    """
 
     module: ClassVar[str] = ""
-
-    @classmethod
-    def specs(cls) -> dict[str, ParamSpec]:
-        cached = cls.__dict__.get("_specs")
-        if cached is not None:
-            return cached
-        hints = typing.get_type_hints(cls)
-        out: dict[str, ParamSpec] = {}
-        for f in fields(cls):
-            meta = f.metadata
-            hint = hints[f.name]
-            origin = typing.get_origin(hint)
-            if origin is list:
-                kind = "floats"
-            elif origin is dict or hint is dict:
-                kind = "dict"
-            else:
-                kind = _KIND.get(hint, "str")
-            default = f.default if f.default is not dataclasses.MISSING else f.default_factory()  # type: ignore[misc]
-            length = meta.get("length")
-            if isinstance(length, int):
-                length = (length, length)
-            out[f.name] = ParamSpec(
-                name=f.name,
-                kind=kind,
-                help=meta.get("help", ""),
-                unit=meta.get("unit", ""),
-                min=meta.get("min"),
-                max=meta.get("max"),
-                choices=meta.get("choices", ()),
-                length=length,
-                stem=meta.get("stem", False),
-                option=meta.get("option", True) and kind != "dict",
-                required=meta.get("required", False),
-                protected=meta.get("protected", False),
-                default=default,
-            )
-        cls._specs = out  # type: ignore[attr-defined]
-        return out
-
-    def as_dict(self) -> dict[str, Any]:
-        return {f.name: copy.deepcopy(getattr(self, f.name)) for f in fields(self)}
+    error: ClassVar[Callable[[str], Exception]] = _arg_error
 
 
 def _coerce_yaml(spec: ParamSpec, value: Any, where: str) -> Any:
@@ -237,8 +56,8 @@ def _coerce_yaml(spec: ParamSpec, value: Any, where: str) -> Any:
         value = str(value)
     try:
         return spec.parse(value)
-    except ProtocolError as exc:
-        raise ValueError(f"{where}: {exc.message}") from None
+    except (ProtocolError, ValueError) as exc:
+        raise ValueError(f"{where}: {getattr(exc, 'message', exc)}") from None
 
 
 def _set_nested(target: dict[str, Any], path: list[str], raw: str, where: str) -> None:

@@ -7,6 +7,7 @@ from typing import Any
 
 import numpy as np
 
+from ..engine import step
 from ..grid import GridGeometry, Layers
 from .acquire import View
 from .dem2hazard import dem2hazard_layers
@@ -16,29 +17,54 @@ from .holes import fill_holes
 from .ortho import OrthoView, ortho_image
 
 
+@step("acquire", inputs={"positions": "list"}, outputs={"views": "list[View]"})
+def acquire(positions: list[tuple[float, float]], progress: Any = None, cancelled: Any = None) -> list[View]:
+    """The declaration of the acquisition step; its implementation is the caller's.
+
+    The server supplies it (its PTU and sensors: ``run_workflow(..., steps={"acquire": fn})``),
+    so this package never imports a driver; offline a script reads recorded views instead
+    (``read_views``).
+    """
+    raise NotImplementedError("acquire is supplied by the server; offline, read recorded views with read_views")
+
+
+@step("scan_rule", inputs={"views": "list[View]"}, outputs={"within_scan": "str"})
+def scan_rule(views: list[View]) -> str:
+    """How views of one scan settle a conflict, from the sensors that took them: views of one
+    sensor, the higher wins (a rock's top over its foot); ToF and stereo together, the gate
+    rejects what the other sensor contradicts. Derived from the views, so the server and a
+    reprocessing of its recorded views choose alike."""
+    return "inflate" if len({v.sensor for v in views}) > 1 else "higher"
+
+
+@step("join_views", inputs={"earlier": "list[View]?", "new": "list[View]"}, outputs={"views": "list[View]"})
 def join_views(earlier: list[View] | None, new: list[View]) -> list[View]:
     """Views a stopped acquisition left behind, then the new ones (newest last)."""
     return list(earlier or []) + list(new)
 
 
+@step("view_dem", inputs={"view": "View", "cell": "float", "rover_mask": "array?", "height": "str"},
+      outputs={"dem": "Layers?"})
 def view_dem(view: View, cell: float, rover_mask: np.ndarray | None = None, height: str = "mean") -> Layers | None:
     """DemImport of one view's points, each with its noise-model variance.
 
-    ``height="mean"`` makes the view's height the information-weighted mean of its cell's
-    points: the greatest of several noisy ToF heights sits about a sigma above the ground, which
-    is a bias the fusion cannot average away; ``"max"`` keeps the thesis's direct rule.
-    A view that saw nothing (sky, all beyond range) gives None.
+    ``height`` is DemImport's rule for the ``dem`` layer (the mean for measured data, see
+    :func:`dem_import`). With the mean, the cell's spread is in ``measurement_variance``, so
+    ``variance`` is cleared for the fusion. A view that saw nothing (sky, all beyond range)
+    gives None.
     """
     if len(view.points) == 0:
         return None
-    layers = dem_import(view.points, cell=cell, point_variance=view.variance, rover_mask=rover_mask)
-    if height == "mean" and "wmean" in layers:
-        layers["dem"] = layers["wmean"]
+    layers = dem_import(view.points, cell=cell, point_variance=view.variance, rover_mask=rover_mask, height=height)
+    if height == "mean":
+        layers.layers.pop("max", None)
         layers["variance"] = np.zeros_like(layers["variance"])  # the mean's spread is in measurement_variance
     layers.meta["view"] = view.index
     return layers
 
 
+@step("mosaic", inputs={"dems": "list[Layers?]", "base": "Layers?", "rule": "str", "cell": "float",
+                        "within_scan": "str"}, outputs={"mosaic": "Layers"})
 def mosaic(dems: list[Layers | None], base: Layers | None, rule: str, cell: float,
            within_scan: str = "higher") -> Layers:
     """DemMosaik of the views, then onto the current DEM (if any), on the union of extents.
@@ -63,7 +89,9 @@ def mosaic(dems: list[Layers | None], base: Layers | None, rule: str, cell: floa
     return dem_mosaik([base, scan], rule="fuse", cell=cell, on_conflict="inflate")
 
 
+@step("fill_holes_layers", inputs={"layers": "Layers", "radius": "float"}, outputs={"layers": "Layers"})
 def fill_holes_layers(layers: Layers, radius: float) -> Layers:
+    """Holes up to ``radius`` filled from their neighbours; a ``filled`` layer marks them."""
     filled, mask = fill_holes(layers["dem"], layers.geometry.cell, radius)
     out = Layers(layers.geometry, dict(layers.layers), dict(layers.meta))
     out["dem"] = filled
@@ -71,10 +99,14 @@ def fill_holes_layers(layers: Layers, radius: float) -> Layers:
     return out
 
 
+@step("hazard_layers", inputs={"layers": "Layers", "params": "dict?"}, outputs={"layers": "Layers"})
 def hazard_layers(layers: Layers, params: dict[str, Any] | None = None) -> Layers:
+    """Dem2Hazard on the ``dem`` layer: slope, step, roughness, hazard, traversability."""
     return dem2hazard_layers(layers, params)
 
 
+@step("ortho_layer", inputs={"layers": "Layers", "views": "list[View]", "base": "Layers?"},
+      outputs={"layers": "Layers"})
 def ortho_layer(layers: Layers, views: list[View], base: Layers | None = None) -> Layers:
     """The ortho-image from the views; where none sees a cell, the current DEM's ortho is kept."""
     g: GridGeometry = layers.geometry
@@ -95,3 +127,10 @@ def resample_nearest(image: np.ndarray, src: GridGeometry, dst: GridGeometry, fi
     out = np.full(dst.shape, fill, dtype=image.dtype)
     out[inside] = image[row[inside], col[inside]]
     return out
+
+
+@step("view_files", inputs={"views": "list[View]", "folder": "str?"}, outputs={"inputs": "list[str]"})
+def view_files(views: list[View], folder: str | None = None) -> list[str]:
+    """The recorded images the views came from, as the products' sidecars cite them."""
+    prefix = f"{folder}/" if folder else ""
+    return [f"{prefix}{v.files['image']}" for v in views if v.files]
