@@ -62,7 +62,7 @@ LAYERS: dict[str, LayerSpec] = {spec.name: spec for spec in (
     _L("measurement_variance", "m^2", "float32", None,
        "1 / sum(1 / point variance): variance of the information-weighted mean height"),
     _L("intensity", "grey", "float32", None, "mean intensity of the points in the cell", cv2.COLORMAP_BONE),
-    _L("source", "index", "int32", None, "index of the input that last set the height (-1 none)"),
+    _L("source", "index", "int16", None, "index of the input that last set the height (-1 none)"),
     _L("filled", "0/1", "uint8", None, "1 where a hole was filled from neighbours", cv2.COLORMAP_BONE),
     _L("spikes", "0/1", "uint8", None, "1 where a spike was removed", cv2.COLORMAP_BONE),
     _L("ortho", "grey", "uint8", None, "ortho-image: what the cell looks like from above, 0 = unseen", None,
@@ -152,6 +152,35 @@ def prefix_of(dem_path: Path) -> Path:
     if stem.endswith("_dem") and len(stem) > 4:
         stem = stem[:-4]
     return dem_path.with_name(stem)
+
+
+def write_layers(dem_path: Path, layers: Layers, made_by: str, parameters: dict[str, Any] | None = None,
+                 inputs: list[str] | None = None, *, select: list[str] | tuple[str, ...] | None = None,
+                 png: bool = True, run_log: dict[str, Any] | None = None) -> dict[str, Path]:
+    """The selected layers (every registered one present if ``select`` is None): the DEM at
+    ``dem_path``, each companion at ``<prefix>_<layer>.tif``; the DEM's sidecar lists the layer
+    files and the layers' meta, so :func:`read_layers` restores both. The one writer of every
+    entry point (server, toolbox CLIs, scripts)."""
+    dem_path = Path(dem_path)
+    wanted = [n for n in (select if select is not None else LAYERS) if n in layers.layers]
+    for n in wanted:
+        spec_of(n)
+    prefix = prefix_of(dem_path)
+    files = {n: dem_path if n == "dem" else layer_path(prefix, n) for n in wanted}
+    g = layers.geometry
+    summary = (layers.meta.get("dem2hazard") or {}).get("summary")
+    for name in wanted:
+        extra: dict[str, Any] = {}
+        if name == "dem":
+            extra = {"layers": {k: p.name for k, p in files.items()}, "meta": layers.meta,
+                     "defined_cells": int(np.isfinite(layers["dem"]).sum())}
+            if run_log:
+                extra["run_log"] = run_log
+        if name == "hazard" and summary:
+            extra["shares"] = {k: round(float(v), 6) for k, v in summary.items()}
+        write_layer(files[name], name, layers[name], g, made_by=made_by, parameters=parameters, inputs=inputs,
+                    context=layers.meta, png=png, **extra)
+    return files
 
 
 def read_layers(dem_path: Path) -> Layers:

@@ -13,7 +13,7 @@ from .acquire import View
 from .dem2hazard import dem2hazard_layers
 from .dem_import import dem_import
 from .dem_mosaik import dem_mosaik
-from .holes import fill_holes
+from .holes import fill_layers
 from .ortho import OrthoView, ortho_image
 
 
@@ -63,6 +63,22 @@ def view_dem(view: View, cell: float, rover_mask: np.ndarray | None = None, heig
     return layers
 
 
+@step("dem_mosaik", inputs={"dems": "list[Layers]", "rule": "str", "bounds": "floats?", "cell": "float",
+                            "sigma": "float", "gate": "float", "inflation": "float", "on_conflict": "str"},
+      outputs={"mosaic": "Layers"})
+def mosaik_layers(dems: list[Layers], rule: str = "max", bounds: list[float] | None = None, cell: float = 0.0,
+                  sigma: float = 0.01, gate: float = 3.0, inflation: float = 0.0025,
+                  on_conflict: str = "inflate") -> Layers:
+    """DemMosaik of DEM products (``rvs-dem-mosaik``): on ``bounds`` if given, else the union of
+    the inputs; ``cell`` 0 takes the finest input's."""
+    geometry = None
+    size = cell if cell > 0 else None
+    if bounds is not None:
+        geometry = GridGeometry.covering(*bounds, size or min(d.geometry.cell for d in dems))
+    return dem_mosaik(dems, rule=rule, geometry=geometry, cell=size, sigma=sigma, gate=gate, inflation=inflation,
+                      on_conflict=on_conflict)
+
+
 @step("mosaic", inputs={"dems": "list[Layers?]", "base": "Layers?", "rule": "str", "cell": "float",
                         "within_scan": "str"}, outputs={"mosaic": "Layers"})
 def mosaic(dems: list[Layers | None], base: Layers | None, rule: str, cell: float,
@@ -92,11 +108,7 @@ def mosaic(dems: list[Layers | None], base: Layers | None, rule: str, cell: floa
 @step("fill_holes_layers", inputs={"layers": "Layers", "radius": "float"}, outputs={"layers": "Layers"})
 def fill_holes_layers(layers: Layers, radius: float) -> Layers:
     """Holes up to ``radius`` filled from their neighbours; a ``filled`` layer marks them."""
-    filled, mask = fill_holes(layers["dem"], layers.geometry.cell, radius)
-    out = Layers(layers.geometry, dict(layers.layers), dict(layers.meta))
-    out["dem"] = filled
-    out["filled"] = mask.astype(np.uint8)
-    return out
+    return fill_layers(layers, radius)
 
 
 @step("hazard_layers", inputs={"layers": "Layers", "params": "dict?"}, outputs={"layers": "Layers"})

@@ -52,6 +52,7 @@ from typing import Any
 
 import numpy as np
 
+from ..engine import step
 from ..grid import GridGeometry, Layers
 
 CHUNK = 1 << 16  # points per chunk (numpy): index, heights and weights of one chunk stay in L2 cache
@@ -137,6 +138,10 @@ def _rover_polygon(rover_mask: np.ndarray | Sequence[float]) -> np.ndarray:
     return poly
 
 
+@step("dem_import", inputs={"points": "array", "geometry": "any", "cell": "float", "bounds": "floats?",
+                          "point_variance": "array?", "rover_mask": "any", "rover_ground_z": "float?",
+                          "stats": "list", "chunk": "int", "height": "str"},
+      outputs={"dem": "Layers"})
 def dem_import(
     points: np.ndarray,
     geometry: GridGeometry | None = None,

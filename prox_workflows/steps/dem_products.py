@@ -12,8 +12,8 @@ import numpy as np
 
 from ..engine import step
 from ..grid import Layers
-from ..layers import LAYERS, layer_path, write_layer
 from ..layers import preview as _preview
+from ..layers import write_layers
 from .mesh import dem_mesh, write_mesh_ply
 
 # what a DEM job publishes (the server's products); the other registered layers are a script's choice
@@ -38,25 +38,16 @@ def write_dem_products(
     mesh: bool = True,
     select: list[str] | tuple[str, ...] | None = DEM_PRODUCTS,
     preview: bool = True,
+    dem_file: str | None = None,
 ) -> dict[str, Path]:
     """Write the selected layers (all registered ones present if ``select`` is None) as
-    ``<out_dir>/<name>_<layer>.tif``; returns layer name -> GeoTIFF path (and "mesh" -> PLY).
-    The DEM's sidecar lists the layer files and the layers' meta, so :func:`read_layers`
-    restores both."""
+    ``<out_dir>/<name>_<layer>.tif`` (the DEM as ``dem_file`` if given); returns layer name ->
+    GeoTIFF path (and "mesh" -> PLY)."""
     out_dir = Path(out_dir)
     g = layers.geometry
-    wanted = [n for n in (select if select is not None else LAYERS) if n in layers.layers and n in LAYERS]
-    files = {n: layer_path(out_dir / name, n) for n in wanted}
-    written: dict[str, Path] = {}
-    for layer in wanted:
-        extra: dict[str, Any] = {}
-        if layer == "dem":
-            extra = {"layers": {k: p.name for k, p in files.items()}, "meta": layers.meta,
-                     "defined_cells": int(np.isfinite(layers["dem"]).sum())}
-            if run_log:
-                extra["run_log"] = run_log
-        written[layer] = write_layer(files[layer], layer, layers[layer], g, made_by=made_by, parameters=parameters,
-                                     inputs=inputs, context=layers.meta, png=preview, **extra)
+    dem_path = out_dir / (dem_file or f"{name}_dem.tif")
+    written: dict[str, Path] = write_layers(dem_path, layers, made_by=made_by, parameters=parameters,
+                                            inputs=inputs, select=select, png=preview, run_log=run_log)
     if mesh and "dem" in layers:
         xs, ys = g.centers()
         colours = layers.layers.get("ortho")
@@ -67,17 +58,18 @@ def write_dem_products(
 
 @step("write_products", inputs={"layers": "Layers", "out_dir": "path", "name": "str", "made_by": "str?",
                                 "parameters": "dict?", "inputs": "list?", "mesh": "bool", "select": "list?",
-                                "preview": "bool"},
+                                "preview": "bool", "dem_file": "str?"},
       outputs={"files": "dict"})
 def write_products(layers: Layers, out_dir: str | Path, name: str, made_by: str | None = None,
                    parameters: dict[str, Any] | None = None, inputs: list[str] | None = None,
                    mesh: bool = False, select: list[str] | None = None, preview: bool = True,
-                   progress: Any = None, run_log: dict[str, Any] | None = None) -> dict[str, Path]:
+                   dem_file: str | None = None, progress: Any = None, run_log: dict[str, Any] | None = None) -> dict[str, Path]:
     """The writer step: the layers as products under ``out_dir`` (see :func:`write_dem_products`)."""
     if progress is not None:
         progress(0, 1, f"writing {name}")
     files = write_dem_products(layers, Path(out_dir), name, made_by=made_by or "rvs-prox", parameters=parameters, inputs=inputs,
-                               run_log=run_log, mesh=mesh, select=select, preview=preview)
+                               run_log=run_log, mesh=mesh, select=select, preview=preview,
+                               dem_file=dem_file)
     if progress is not None:
         progress(1, 1, f"wrote {len(files)} files")
     return files

@@ -9,6 +9,7 @@ companion layers; ``read_points`` stacks point clouds for DemImport.
 from __future__ import annotations
 
 import csv
+import math
 from pathlib import Path
 from typing import Any
 
@@ -17,7 +18,7 @@ import tifffile
 import yaml
 
 from ..engine import step
-from ..grid import Layers
+from ..grid import GDAL_NODATA, Layers, read_geotiff
 from ..layers import read_layers as _read_layers
 from ..pointcloud import read_points as _read_points
 from .acquire import AUX_SUFFIX, View, view_from_images
@@ -58,6 +59,27 @@ def read_views(folder: str | Path) -> dict[str, Any]:
 def read_layers(path: str | Path) -> Layers:
     """A DEM GeoTIFF and its companion layers (the layer registry's names beside it)."""
     return _read_layers(Path(path))
+
+
+@step("read_dem", inputs={"path": "path", "nodata": "float?"}, outputs={"layers": "Layers"})
+def read_dem(path: str | Path, nodata: float | None = None) -> Layers:
+    """A single-band DEM GeoTIFF (ours or GDAL's) as a lone ``dem`` layer, float32 with NaN
+    where undefined (the file's GDAL nodata value, or ``nodata``)."""
+    image, geometry = read_geotiff(Path(path))
+    if image.ndim != 2:
+        raise ValueError(f"{path}: expected a single-band DEM, got shape {image.shape}")
+    if nodata is None:
+        with tifffile.TiffFile(path) as tif:
+            tag = tif.pages[0].tags.get(GDAL_NODATA)
+            if tag is not None:
+                try:
+                    nodata = float(str(tag.value).strip("\x00 "))
+                except ValueError:
+                    nodata = None
+    dem = image.astype(np.float32)
+    if nodata is not None and not math.isnan(nodata):
+        dem[image == nodata] = np.nan
+    return Layers(geometry, {"dem": dem})
 
 
 @step("read_points", inputs={"paths": "list", "noise": "str", "sensor": "floats?", "frequency": "float"},
