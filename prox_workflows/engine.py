@@ -56,6 +56,7 @@ STEP_MODULES: tuple[str, ...] = (
     "prox_workflows.steps.spikes",
     "prox_workflows.steps.readers",
     "prox_workflows.steps.dem_products",
+    "prox_workflows.steps.planner",
     "prox_workflows.parameters",
 )
 

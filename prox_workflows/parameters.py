@@ -85,3 +85,19 @@ class DemMosaikParams(ParamSet):
     on_conflict: str = param("inflate", "fuse: reject and inflate (separate scans) or let the higher win "
                              "(views of one scan)", choices=("inflate", "higher"))
     fill: float = param(0.0, "fill holes narrower than a disk of this radius", unit="m", min=0.0, max=100.0)
+
+
+@parameters("plan")
+@dataclass
+class PlanParams(ParamSet):
+    """Path planning on hazard and slope maps (a navigate leg, ``rvs-path-planner``)."""
+
+    weight: float = param(0.5, "A* weight w: 1 distance only, 0 environmental cost only", min=0.0, max=1.0)
+    heuristic: str = param("octile", "A* heuristic", choices=("euclidean", "manhattan", "octile"))
+    grid: float = param(0.05, "planning cell size", unit="m", min=0.01, max=1.0)
+    margin: float = param(0.1, "added to the rover radius around hazards", unit="m", min=0.0, max=2.0)
+    max_deviation: float = param(0.1, "waypoint polyline's largest deviation from the A* path", unit="m",
+                                 min=0.0, max=5.0)
+    border: float = param(1.0, "stop this far inside the locally seen ground: at least the radius the next "
+                          "scan cannot see around the rover, so the legs join; halved (down to 0) where the "
+                          "seen ground is too narrow for the rover to move at all", unit="m", min=0.0, max=5.0)

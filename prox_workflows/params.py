@@ -254,6 +254,16 @@ def show_value(value: Any) -> str:
     return str(value) if value != "" else ""
 
 
+def reuse(cls: type[ParamSet], name: str) -> Any:
+    """A field declared as ``cls.<name>`` is, for a class that cannot derive from ``cls`` (its
+    own fields come first, and their order is its help's): the same default and metadata, so
+    the declaration still lives in one place."""
+    f = next(f for f in fields(cls) if f.name == name)
+    if f.default_factory is not dataclasses.MISSING:  # type: ignore[misc]
+        return field(default_factory=f.default_factory, metadata=f.metadata)  # type: ignore[misc]
+    return field(default=f.default, metadata=f.metadata)
+
+
 # Parameter classes of the workflow scripts, by the name a script's ``params:`` gives.
 PARAMETER_SETS: dict[str, type[ParamSet]] = {}
 

@@ -57,10 +57,11 @@ def check_scripts() -> None:
     or input stops the start with the line and the fix, instead of an E_INTERNAL after a sweep."""
     from prox_workflows.engine import WorkflowError
 
-    from .commands.dem import validate_scripts
+    from .commands import dem, navigation
 
     try:
-        validate_scripts()
+        dem.validate_scripts()
+        navigation.validate_scripts()
     except WorkflowError as exc:
         raise StartupError(f"a command's workflow script is broken, not serving: {exc}") from exc
 

@@ -123,3 +123,31 @@ def test_recorded_views_round_trip_exactly(tof_scan: dict[str, Any]) -> None:
     assert len(got["views"]) == int(tof_scan["fields"]["views"]) and got["rover_mask"].shape == (4, 2)
     v = got["views"][0]
     assert v.points.dtype == np.float32 and len(v.points) == len(v.variance) == len(v.ranges)
+
+
+def test_a_plan_from_a_navigate_leg_and_from_rvs_path_planner_is_byte_identical(
+        tof_scan: dict[str, Any], tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    from prox_workflows.cli import path_planner
+    from prox_workflows.layers import read_layers
+    from prox_workflows.steps.planner import NavMaps
+
+    dem = tof_scan["data"] / "dem"
+    maps = read_layers(dem / "site_dem.tif")  # what a leg holds in memory, as it wrote it
+    g = maps.geometry
+    rows, cols = np.nonzero(maps["hazard"] == 0)
+    xs, ys = g.centers()
+    pts = np.column_stack([xs[cols], ys[rows]])
+    start = pts[np.argmin(pts[:, 0])]  # the nearest and the farthest safe cells
+    goal = pts[np.argmax(pts[:, 0])]
+    # a navigate leg: the plan_leg script on the maps in memory, with navigate's parameters
+    ws, _ = run_workflow("plan_leg", {"border": 0.1}, {
+        "local": NavMaps(maps["hazard"], maps["slope"], g), "global_maps": None, "ortho": (maps["ortho"], g),
+        "start": list(start), "goal": list(goal), "start_heading": 0.0, "rover_radius": 0.3, "critical_slope": 20.0,
+        "prefix": tmp_path / "leg", "made_by": "navigate"})
+    assert len(ws["plan"].path) > 2
+    assert path_planner.main(["--hazard", str(dem / "site_hazard.tif"), "--slope", str(dem / "site_slope.tif"),
+                              "--ortho", str(dem / "site_ortho.tif"), "--start", f"{start[0]},{start[1]}",
+                              "--goal", f"{goal[0]},{goal[1]}", "--start-heading", "0", "--border", "0.1",
+                              "-o", str(tmp_path / "cli")]) == 0
+    for kind in ("path.csv", "waypoints.csv", "plan_map.png", "plan_ortho.png"):
+        assert (tmp_path / f"leg_{kind}").read_bytes() == (tmp_path / f"cli_{kind}").read_bytes(), kind

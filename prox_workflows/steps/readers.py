@@ -120,3 +120,56 @@ def read_points(paths: list[str | Path], noise: str = "recorded", sensor: list[f
     points = np.concatenate([c[:, :width] for c in clouds]) if clouds else np.zeros((0, 3), np.float32)
     variance = np.concatenate(variances) if variances and len(variances) == len(clouds) else None
     return {"points": points, "variance": variance}
+
+
+def _read_map_layer(path: Path) -> tuple[np.ndarray, Any]:
+    """A single-band GeoTIFF; float layers get NaN where the file's GDAL nodata value is."""
+    image, geometry = read_geotiff(path)
+    if image.ndim != 2:
+        raise ValueError(f"{path}: expected a single-band map, got shape {image.shape}")
+    if np.issubdtype(image.dtype, np.floating):
+        with tifffile.TiffFile(path) as tif:
+            tag = tif.pages[0].tags.get(GDAL_NODATA)
+        if tag is not None:
+            try:
+                nodata = float(str(tag.value).strip("\x00 "))
+            except ValueError:
+                nodata = math.nan
+            if not math.isnan(nodata):
+                image = np.where(image == nodata, np.nan, image)
+        image = image.astype(np.float32)
+    return image, geometry
+
+
+@step("read_global_maps", inputs={"hazard": "path?", "slope": "path?"}, outputs={"maps": "NavMaps?"})
+def read_global_maps(hazard: str | Path | None, slope: str | Path | None) -> Any:
+    """Global maps (as :func:`read_nav_maps`) if given; None means blank ones."""
+    if hazard is None and slope is None:
+        return None
+    if hazard is None or slope is None:
+        raise ValueError("a hazard map and its slope map go together")
+    return read_nav_maps(hazard, slope)
+
+
+@step("read_nav_maps", inputs={"hazard": "path", "slope": "path"}, outputs={"maps": "NavMaps"})
+def read_nav_maps(hazard: str | Path, slope: str | Path) -> Any:
+    """A hazard map (0 / 128 / 255) and its slope map (degrees) on the same grid, as the planner
+    takes them."""
+    from .planner import NavMaps
+
+    hz, hgeom = _read_map_layer(Path(hazard))
+    sl, sgeom = _read_map_layer(Path(slope))
+    if hgeom != sgeom:
+        raise ValueError(f"{hazard} and {slope} are on different grids ({hgeom} vs {sgeom})")
+    if np.issubdtype(hz.dtype, np.floating):
+        hz = np.where(np.isnan(hz), 128, hz)
+    values = set(np.unique(hz).tolist())
+    if not values <= {0, 128, 255}:
+        raise ValueError(f"{hazard}: a hazard map holds 0, 128 and 255 only, found {sorted(values)[:8]}")
+    return NavMaps(hz.astype(np.uint8), sl.astype(np.float32), hgeom)
+
+
+@step("read_image", inputs={"path": "path?"}, outputs={"image": "any"})
+def read_image(path: str | Path | None) -> Any:
+    """A GeoTIFF image and its grid (an ortho-image to draw on), or None without a path."""
+    return None if path is None else read_geotiff(Path(path))

@@ -145,3 +145,8 @@ def test_the_server_refuses_to_start_with_a_broken_command_script(
     assert "workflow script is broken" in text and "unknown step 'fill_hole_layers'" in text, text
     line = next(i for i, t in enumerate(chain.read_text().splitlines(), 1) if "fill_hole_layers" in t)
     assert f"dem_chain.yaml:{line}:" in text and "did you mean 'fill_holes_layers'" in text
+
+
+@pytest.mark.parametrize("name", sorted(p.stem for p in engine.SCRIPTS_DIR.glob("*.yaml")))
+def test_every_packaged_script_is_valid(name: str, capsys: pytest.CaptureFixture[str]) -> None:
+    assert main([name, "--validate"]) == 0, capsys.readouterr().err
