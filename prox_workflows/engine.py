@@ -60,6 +60,7 @@ STEP_MODULES: tuple[str, ...] = (
     "prox_workflows.steps.dem_products",
     "prox_workflows.steps.planner",
     "prox_workflows.steps.stereo_products",
+    "prox_workflows.steps.stereo_odometry",
     "prox_workflows.parameters",
 )
 

@@ -3,9 +3,12 @@
 The port is any pyserial URL (``/dev/ttyUSB0``, a pty path, ``loop://``, ``socket://``), so
 the same code drives the real unit and the emulator. At open the unit is put in a known state
 whatever it was left in (terse feedback, echo off, independent speed control, immediate
-position execution) and its resolution and axis bounds are read back: positions are computed
-from what the unit says, never from a hard-coded constant. Targets are checked against those
-bounds before anything is sent.
+position execution) and its resolution, axis bounds and speed bounds are read back: positions are
+computed from what the unit says, never from a hard-coded constant. Targets are checked against
+those bounds before anything is sent. Real units differ from the manual by a few counts (3091 where
+the manual says 3090) and in wording ("pos/sec" for "positions/sec"): every number is read from
+the reply by position, not by matching the manual's sentence, and a refusal that states a bound
+updates the bound the client believes (see shared/realdata/ptu/PTU-D46_reply_reference.md).
 
 Every exchange holds ``lock`` (re-entrant, so a move holds it across its PP/TP/A/PP/TP
 sequence). A move's await can be cut short by a ``cancel`` callable/Event or by ``halt()``
@@ -29,6 +32,7 @@ from drivers.ptu.protocol import (
     ReplyParser,
     deg_to_pos,
     encode_command,
+    parse_bound,
     parse_power,
     pos_to_deg,
 )
@@ -92,11 +96,13 @@ class PtuClient:
         self._halt = threading.Event()
         self.resolution: dict[str, float] = {}
         self.bounds: dict[str, tuple[int, int]] = {}
+        # (PL, PU) per axis; an axis whose unit does not answer PL/PU (older firmware) has none
+        self.speed_bounds: dict[str, tuple[int, int]] = {}
         self._state_lock = threading.Lock()
         self._state: dict[str, Any] = {
             "open": False, "pan_deg": None, "tilt_deg": None, "pan_pos": None, "tilt_pos": None,
             "target_pan_deg": None, "target_tilt_deg": None, "moving": False, "limit_hits": 0,
-            "last_async": None,
+            "last_async": None, "speed_clamped": None,
         }
 
     # -- open / close --------------------------------------------------------------------------
@@ -151,11 +157,54 @@ class PtuClient:
         for axis, letter in (("pan", "P"), ("tilt", "T")):
             lo, hi = int(self.query_number(f"{letter}N")), int(self.query_number(f"{letter}X"))
             self.bounds[axis] = (lo, hi)
+        self._read_speed_bounds()
         if self.speed is not None:
-            self.set_speed(self.speed, self.speed)
+            self.set_speed(*self._speed_within_bounds(self.speed))
         if self.acceleration is not None:
             self.set_acceleration(self.acceleration, self.acceleration)
         self.position()
+
+    def _read_speed_bounds(self) -> None:
+        """PL/PU and TL/TU, as the ROS flir_ptu driver reads them at init: a real unit's ceiling
+        may be far below the manual's (600 pos/sec pan on a recorded unit, against 2902), and a
+        configured speed above it would fail the open."""
+        for axis, letter in (("pan", "P"), ("tilt", "T")):
+            try:
+                lo, hi = int(self.query_number(f"{letter}L")), int(self.query_number(f"{letter}U"))
+            except ReplyTimeout:
+                raise
+            except DeviceError:
+                continue  # refused: this firmware has no speed bounds to ask; the unit enforces its own
+            self.speed_bounds[axis] = (lo, hi)
+
+    def _speed_within_bounds(self, speed: float) -> tuple[int, int]:
+        """The configured speed per axis, brought inside the unit's (PL, PU): one setting
+        (drivers.ptu.speed) serves units with different ceilings; the snapshot says when it was cut."""
+        out: list[int] = []
+        notes: list[str] = []
+        for axis in AXES:
+            value = int(round(speed))
+            lo, hi = self.speed_bounds.get(axis, (value, value))
+            clamped = min(max(value, lo), hi)
+            if clamped != value:
+                notes.append(f"{axis} {value} -> {clamped} positions/s (unit bounds {lo}..{hi})")
+            out.append(clamped)
+        self._set_state(speed_clamped="; ".join(notes) or None)
+        return out[0], out[1]
+
+    def _learn_bound(self, text: str) -> None:
+        """Believe a bound the unit states in a refusal over the one read earlier: limits differ
+        between units by a few counts and a reset re-measures them."""
+        bound = parse_bound(text)
+        if bound is None:
+            return
+        table = self.bounds if bound.kind == "position" else self.speed_bounds
+        axes = [bound.axis] if bound.axis else [a for a in AXES if a in table]
+        for axis in axes:
+            if axis not in table:
+                continue
+            lo, hi = table[axis]
+            table[axis] = (lo, bound.value) if bound.side == "max" else (bound.value, hi)
 
     # -- one exchange ----------------------------------------------------------------------------
     def command(self, cmd: str, timeout: float | None = None, *, number: bool = False) -> Reply:
@@ -165,6 +214,7 @@ class PtuClient:
             reply = self._read_reply(cmd, self.timeout if timeout is None else timeout, number=number)
             assert reply is not None
             if not reply.ok:
+                self._learn_bound(reply.text)
                 raise DeviceError(DEVICE, f"the PTU refused {cmd}: {reply.text}")
             return reply
 
@@ -298,13 +348,15 @@ class PtuClient:
 
     def limits(self) -> dict[str, dict[str, float]]:
         self._require_setup()
-        return {
-            axis: {
+        out: dict[str, dict[str, float]] = {}
+        for axis, (lo, hi) in self.bounds.items():
+            out[axis] = {
                 "min_deg": self.to_degrees(axis, lo), "max_deg": self.to_degrees(axis, hi),
                 "min": lo, "max": hi, "resolution_arcsec": self.resolution[axis],
             }
-            for axis, (lo, hi) in self.bounds.items()
-        }
+            if axis in self.speed_bounds:
+                out[axis]["speed_min"], out[axis]["speed_max"] = self.speed_bounds[axis]
+        return out
 
     def position(self) -> tuple[float, float]:
         with self.lock:

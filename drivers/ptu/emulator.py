@@ -11,6 +11,13 @@ time, 0.1 ten times faster, 0 instantly); ``!`` errors for out-of-range position
 Faults reproduce what goes wrong on a bench: ``silent`` (unpowered or wrong cable: reads,
 never answers), ``garbage`` (the host at a wrong baud rate: every byte re-framed as a faster
 UART sees it) and ``stall`` (moves accepted, the axes never turn, ``A`` never returns).
+
+Flavours (:data:`FLAVOURS`) choose whose replies the emulator prints: ``manual`` answers as the
+PTU-D46 manual prints (axis bounds 3090/-3090 and 604/-907, "positions/sec"); ``field`` as the
+recorded real units in shared/realdata/ptu/PTU-D46_reply_reference.md (bounds a few counts off,
+3091/-3090 and 601/-903, per-axis speed ceilings of 600 and 4002 "pos/sec", "Motor speed cannot
+be less than 31 pos/sec", a lower-case axis in verbose positions, the real V and O wording). The
+client must drive both: a driver tested only against the manual breaks on the first real unit.
 """
 
 from __future__ import annotations
@@ -38,6 +45,33 @@ from drivers.ptu.protocol import (
 
 FAULTS = (None, "silent", "garbage", "stall")
 FIRMWARE = "PTU-D46 emulator v2.14.0 (RVS simulated backend)"
+
+
+@dataclass(frozen=True)
+class Flavour:
+    """Whose wording and bounds the emulator answers with (see the module docstring)."""
+
+    name: str
+    limits: dict[str, tuple[int, int]]
+    speed_bounds: dict[str, tuple[int, int]]  # per axis (PL, PU)
+    speed_unit: str  # "positions/sec" (manual) or "pos/sec" (recorded units)
+    firmware: str
+    speed_floor_error: str  # PS below PL; {name} and {lo} and {unit} are filled in
+    lower_case_position: bool  # "Current pan position is 0" (the manual's FV example) vs "Pan"
+    power_format: str  # the verbose O reply; {v} and {f} are filled in
+
+
+FLAVOURS: dict[str, Flavour] = {
+    "manual": Flavour(
+        "manual", dict(D46_LIMITS), {"pan": D46_SPEED_BOUNDS, "tilt": D46_SPEED_BOUNDS}, "positions/sec",
+        FIRMWARE, "{name} speed cannot be less than {lo} {unit}", False, "Input {v:.1f} VDC @ {f:.0f} degF",
+    ),
+    "field": Flavour(
+        "field", {"pan": (-3090, 3091), "tilt": (-903, 601)}, {"pan": (31, 600), "tilt": (31, 4002)}, "pos/sec",
+        "Pan-Tilt Controller v2.12.1d1(C14/E), (C)2003 Directed Perception, Inc., All Rights Reserved",
+        "Motor speed cannot be less than {lo} {unit}", True, "Input {v:.0f} VDC @ {f:.0f} degF",
+    ),
+}
 _TOKEN = re.compile(r"^([A-Z?]+)(.*)$")
 _INT = re.compile(r"^[-+]?\d+$")
 
@@ -150,10 +184,16 @@ class PtuEmulator:
         garbage_ratio: float = 4.0,
         supply_v: float = 30.0,
         temperature_f: float = 86.0,
+        flavour: str | Flavour = "manual",
     ) -> None:
         if time_scale < 0:
             raise ValueError("time_scale must be >= 0 (0 = instant moves)")
-        lim = dict(D46_LIMITS, **(limits or {}))
+        if isinstance(flavour, str):
+            if flavour not in FLAVOURS:
+                raise ValueError(f"unknown PTU flavour {flavour!r}; use one of {', '.join(FLAVOURS)}")
+            flavour = FLAVOURS[flavour]
+        self.flavour = flavour
+        lim = dict(flavour.limits, **(limits or {}))
         self.fd = fd
         self.on_position = on_position
         self.eol = eol
@@ -168,10 +208,8 @@ class PtuEmulator:
         self.verbose = True
         self.limits_enforced = True
         self.slaved = False
-        self.axes = {
-            "P": _Axis("Pan", *lim["pan"], speed=speed, accel=acceleration),
-            "T": _Axis("Tilt", *lim["tilt"], speed=speed, accel=acceleration),
-        }
+        self.axes = {key: self._new_axis(name, lim[name.lower()], speed, acceleration)
+                     for key, name in (("P", "Pan"), ("T", "Tilt"))}
         self.commands: list[str] = []
         self.rx = bytearray()
         self.tx = bytearray()
@@ -191,13 +229,19 @@ class PtuEmulator:
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
 
+    def _new_axis(self, name: str, bounds: tuple[int, int], speed: int, accel: int) -> _Axis:
+        """An axis with the flavour's speed bounds; a power-up speed above the unit's ceiling
+        comes up at the ceiling, as a unit whose PU was lowered keeps its speed under it."""
+        lo, hi = self.flavour.speed_bounds[name.lower()]
+        return _Axis(name, *bounds, speed=min(max(speed, lo), hi), accel=accel, speed_lo=lo, speed_hi=hi)
+
     # -- lifecycle ---------------------------------------------------------------------------
     def start(self) -> PtuEmulator:
         if self._thread is not None:
             return self
         if self.banner:
             self._send(
-                f"{FIRMWARE}, {self.resolution:.4f} seconds arc per position".encode() + self.eol
+                f"{self.flavour.firmware}, {self.resolution:.4f} seconds arc per position".encode() + self.eol
                 + b"Initializing..." + self.eol + b"*" + self.eol
             )
         self._report_position()
@@ -427,9 +471,11 @@ class PtuEmulator:
 
     def _axis_command(self, ax: _Axis, op: str, value: int | None) -> None:
         name = ax.name
+        unit = self.flavour.speed_unit
         if op in "PO":
             if value is None:
-                return self._result(f"Current {name} position is {ax.position}", ax.position)
+                said = name.lower() if self.flavour.lower_case_position else name
+                return self._result(f"Current {said} position is {ax.position}", ax.position)
             target = value if op == "P" else ax.position + value
             if self.limits_enforced and target > ax.hi:
                 return self._error(f"Maximum allowable {name} position is {ax.hi}")
@@ -447,36 +493,37 @@ class PtuEmulator:
                 "R": (f"{self.resolution:.4f} seconds arc per {name} position", f"{self.resolution:.4f}"),
                 "N": (f"Minimum {name} position is {ax.lo}", ax.lo),
                 "X": (f"Maximum {name} position is {ax.hi}", ax.hi),
-                "S": (f"Desired {name} speed is {ax.speed} positions/sec", ax.speed),
-                "A": (f"{name} acceleration is {ax.accel} positions/sec^2", ax.accel),
-                "U": (f"Maximum {name} speed is {ax.speed_hi} positions/sec", ax.speed_hi),
-                "L": (f"Minimum {name} speed is {ax.speed_lo} positions/sec", ax.speed_lo),
-                "B": (f"Current {name} base speed is {ax.base} positions/sec", ax.base),
+                "S": (f"Desired {name} speed is {ax.speed} {unit}", ax.speed),
+                "A": (f"{name} acceleration is {ax.accel} {unit}^2", ax.accel),
+                "U": (f"Maximum {name} speed is {ax.speed_hi} {unit}", ax.speed_hi),
+                "L": (f"Minimum {name} speed is {ax.speed_lo} {unit}", ax.speed_lo),
+                "B": (f"Current {name} base speed is {ax.base} {unit}", ax.base),
             }
             verbose, terse = queries[op]
             return self._result(verbose, terse)
         if op == "S":
             if value > ax.speed_hi:
-                return self._error(f"{name} speed cannot exceed {ax.speed_hi} positions/sec")
+                return self._error(f"{name} speed cannot exceed {ax.speed_hi} {unit}")
             if value < ax.speed_lo:
-                return self._error(f"{name} speed cannot be less than {ax.speed_lo} positions/sec")
+                return self._error(self.flavour.speed_floor_error.format(name=name, lo=ax.speed_lo, unit=unit))
             ax.speed = value
             if ax.profile is not None:  # speed changes take effect on the fly
                 self._move(ax, ax.target, new_move=False)
             return self._ack()
         if op == "A":
             if not 1 <= value <= D46_MAX_ACCEL:
-                return self._error(f"{name} acceleration must be 1 to {D46_MAX_ACCEL} positions/sec^2")
+                return self._error(f"{name} acceleration must be 1 to {D46_MAX_ACCEL} {unit}^2")
             ax.accel = value
             return self._ack()
         if op == "U":
             if value <= ax.speed_lo:
-                return self._error(f"Maximum {name} speed must exceed {ax.speed_lo} positions/sec")
+                return self._error(f"Maximum {name} speed must exceed {ax.speed_lo} {unit}")
             ax.speed_hi = value
             return self._ack()
         if op == "L":
-            if value < D46_SPEED_BOUNDS[0] or value >= ax.speed_hi:
-                return self._error(f"Motor speed cannot be less than {D46_SPEED_BOUNDS[0]} pos/sec")
+            if value < self.flavour.speed_bounds[name.lower()][0] or value >= ax.speed_hi:
+                floor = self.flavour.speed_bounds[name.lower()][0]
+                return self._error(f"Motor speed cannot be less than {floor} pos/sec")
             ax.speed_lo = value
             return self._ack()
         if op == "B":
@@ -514,8 +561,8 @@ class PtuEmulator:
 
     def _factory_defaults(self) -> None:
         for ax in self.axes.values():
-            ax.speed, ax.accel, ax.speed_lo, ax.speed_hi = (
-                D46_DEFAULT_SPEED, D46_DEFAULT_ACCEL, *D46_SPEED_BOUNDS)
+            lo, hi = self.flavour.speed_bounds[ax.name.lower()]
+            ax.speed, ax.accel, ax.speed_lo, ax.speed_hi = min(D46_DEFAULT_SPEED, hi), D46_DEFAULT_ACCEL, lo, hi
         self._ack()
 
     def _help(self) -> None:
@@ -546,9 +593,9 @@ class PtuEmulator:
         "LD": lambda self: self._set(limits_enforced=False),
         "L": lambda self: self._result(f"Limit bounds are {'ENABLED' if self.limits_enforced else 'DISABLED'}",
                                        "E" if self.limits_enforced else "D"),
-        "O": lambda self: self._result(f"Input {self.supply_v:.1f} VDC @ {self.temperature_f:.0f} degF",
+        "O": lambda self: self._result(self.flavour.power_format.format(v=self.supply_v, f=self.temperature_f),
                                        f"{self.supply_v:.1f} VDC {self.temperature_f:.0f} degF"),
-        "V": lambda self: self._result(FIRMWARE, FIRMWARE),
+        "V": lambda self: self._result(self.flavour.firmware, self.flavour.firmware),
         "DS": lambda self: self._ack(),
         "DR": lambda self: self._ack(),
         "DF": _factory_defaults,

@@ -7,7 +7,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from drivers.ptu.backend import BACKENDS, PtuSettings
-from drivers.ptu.emulator import FAULTS, PtuEmulator, open_pty
+from drivers.ptu.emulator import FAULTS, FLAVOURS, PtuEmulator, open_pty
 from drivers.registry import Capability
 from rvs_params import Settings, param
 
@@ -15,6 +15,12 @@ from rvs_params import Settings, param
 @dataclass
 class SimPtuSettings(Settings):
     time_scale: float = param(1.0, "sim: 0 moves instantly, 1 real time", min=0.0, max=1000.0)
+    sim_flavour: str = param(
+        "manual",
+        "sim: whose replies the emulated unit gives: manual (the PTU-D46 manual's wording and bounds) or "
+        "field (a recorded real unit's: pos/sec, axis limits a few counts off, lower speed ceilings)",
+        choices=tuple(FLAVOURS),
+    )
 
 
 @BACKENDS.backend("sim")
@@ -28,6 +34,7 @@ class EmulatedLine:
 
     def __init__(self, settings: SimPtuSettings, world: Any = None) -> None:
         self.time_scale = settings.time_scale
+        self.flavour = settings.sim_flavour
         self.world = world
         self._emulator: PtuEmulator | None = None
         self._fds: tuple[int, int] | None = None
@@ -45,7 +52,7 @@ class EmulatedLine:
         self._fds, self._path = (master, slave), path
         on_position = self.world.set_ptu if self.world is not None else None
         self._emulator = PtuEmulator(
-            master, time_scale=self.time_scale, on_position=on_position, fault=self._fault
+            master, time_scale=self.time_scale, on_position=on_position, fault=self._fault, flavour=self.flavour
         ).start()
         return path
 
@@ -64,7 +71,8 @@ class EmulatedLine:
 
     def status(self) -> dict[str, Any]:
         emu = self._emulator
-        return {"fault": self._fault, "time_scale": self.time_scale, "emulator_running": bool(emu and emu.running)}
+        return {"fault": self._fault, "time_scale": self.time_scale, "flavour": self.flavour,
+                "emulator_running": bool(emu and emu.running)}
 
     def inject_fault(self, kind: str | None) -> None:
         self._fault = kind

@@ -63,6 +63,44 @@ def first_number(text: str) -> float | None:
     return float(m.group()) if m else None
 
 
+# Refusals that state a bound. Units word them differently: the D46 manual prints "positions/sec",
+# a recorded unit "pos/sec"; a speed below PL is "<Axis> speed cannot be less than" in one and
+# "Motor speed cannot be less than" (no axis named) in another. Case is not to be relied on.
+_POSITION_BOUND = re.compile(r"(maximum|minimum)\s+allowable\s+(pan|tilt)\s+position\s+is\s+([-+]?\d+)", re.I)
+_SPEED_BOUND = re.compile(
+    r"(?:(pan|tilt|motor)\s+)?speed\s+cannot\s+(exceed|be\s+less\s+than)\s+(\d+)\s*pos(?:itions?)?\s*/\s*s(?:ec)?",
+    re.I,
+)
+
+
+@dataclass(frozen=True)
+class Bound:
+    """A bound a refusal stated: ``kind`` "position" or "speed", ``side`` "min" or "max",
+    ``axis`` "pan"/"tilt" or None when the unit did not name it ("Motor speed ...")."""
+
+    kind: str
+    side: str
+    axis: str | None
+    value: int
+
+
+def parse_bound(text: str) -> Bound | None:
+    """The bound stated in a ``!`` reply ("Maximum allowable Pan position is 3091", "Tilt speed
+    cannot exceed 4002 pos/sec"), or None for any other refusal. The client updates what it
+    believes the unit's bounds are from these, so a unit whose limits differ by a few counts
+    from what was read at open (a reset re-measures them) is believed over the earlier figure."""
+    m = _POSITION_BOUND.search(text)
+    if m:
+        side = "max" if m.group(1).lower() == "maximum" else "min"
+        return Bound("position", side, m.group(2).lower(), int(m.group(3)))
+    m = _SPEED_BOUND.search(text)
+    if m:
+        who = (m.group(1) or "").lower()
+        side = "max" if m.group(2).lower() == "exceed" else "min"
+        return Bound("speed", side, who if who in ("pan", "tilt") else None, int(m.group(3)))
+    return None
+
+
 def parse_power(text: str) -> dict[str, object]:
     """The ``O`` reply. The D46 prints "Input 30 VDC @ 86 degF" (verbose) and other firmware
     lists more sensors ("12.1 volts, 30 F, 29 F (tilt), 31 F (pan)"); the first number is the

@@ -8,7 +8,7 @@ import pytest
 
 from drivers.ptu.emulator import misframe
 from drivers.ptu.motion import Profile, plan, trapezoid_time
-from drivers.ptu.protocol import ReplyParser, deg_to_pos, encode_command, parse_power, pos_to_deg
+from drivers.ptu.protocol import ReplyParser, deg_to_pos, encode_command, parse_bound, parse_power, pos_to_deg
 
 RES = 185.1428
 
@@ -109,3 +109,29 @@ def test_profile_replans_from_any_velocity(v0: float, target: float) -> None:
         assert abs(p1 - p0) <= max(abs(v0_), abs(v1)) * dt + 2000 * dt * dt
     end_p, end_v = Profile(2.0, 50.0, v0, target, segs).at(prof.end - 1e-12)
     assert end_p == pytest.approx(target, abs=1e-3) and end_v == pytest.approx(0, abs=1e-6)
+
+
+@pytest.mark.parametrize(("text", "bound"), [
+    # the manual's wording and the recorded units' (PTU-D46_reply_reference.md)
+    ("Pan speed cannot exceed 2902 positions/sec", ("speed", "max", "pan", 2902)),
+    ("Tilt speed cannot exceed 4002 pos/sec", ("speed", "max", "tilt", 4002)),
+    ("Pan speed cannot exceed 600 pos/sec", ("speed", "max", "pan", 600)),
+    ("Motor speed cannot be less than 31 pos/sec", ("speed", "min", None, 31)),
+    ("Tilt speed cannot be less than 31 positions/sec", ("speed", "min", "tilt", 31)),
+    ("Maximum allowable Tilt position is 601", ("position", "max", "tilt", 601)),
+    ("Minimum allowable Tilt position is -903", ("position", "min", "tilt", -903)),
+    ("Maximum allowable Pan position is 3091", ("position", "max", "pan", 3091)),
+    ("maximum allowable pan position is 3090", ("position", "max", "pan", 3090)),
+    ("Illegal command", None),
+    ("Pan acceleration must be 1 to 30000 positions/sec^2", None),
+])
+def test_bounds_stated_in_refusals_are_read_in_every_wording(text: str, bound: tuple | None) -> None:
+    got = parse_bound(text)
+    assert (None if got is None else (got.kind, got.side, got.axis, got.value)) == bound
+
+
+def test_speed_replies_read_the_same_in_both_wordings() -> None:
+    p = ReplyParser()
+    out = p.feed(b"PU * Maximum Pan speed is 1985 positions/sec\r\n"
+                 b"PL * Minimum Pan speed is 31 pos/sec\r\n* Current Pan base speed is 1000 positions/sec\r\n")
+    assert [r.number() for r in out] == [1985, 31, 1000]

@@ -1,35 +1,87 @@
-"""The PTU client against the PTU-D46 emulator through a real pseudo-terminal (os.openpty)."""
+"""The PTU client against the PTU-D46 emulator through a real pseudo-terminal (os.openpty).
+
+Every behaviour runs against both emulator flavours: ``manual`` (the D46 manual's replies) and
+``field`` (a recorded real unit's: "pos/sec", limits a few counts off, lower speed ceilings;
+shared/realdata/ptu/PTU-D46_reply_reference.md). Expectations come from the flavour's own table,
+so a client that hard-codes the manual's figures fails the field runs. The field variants of the
+tests that run in wall-clock time (time_scale > 0) only run in the long suite.
+"""
 
 from __future__ import annotations
 
 import threading
 
 import pytest
+from conftest import LONG, long_only
 from ptu_rig import bench
 
 from drivers.base import DeviceError
 from drivers.ptu.client import MoveInterrupted, PtuClient
+from drivers.ptu.emulator import FLAVOURS, Flavour
 from drivers.ptu.motion import trapezoid_time
 
-OPEN_SEQUENCE = ["FT", "ED", "CI", "I", "PR", "TR", "PN", "PX", "TN", "TX"]
+OPEN_SEQUENCE = ["FT", "ED", "CI", "I", "PR", "TR", "PN", "PX", "TN", "TX", "PL", "PU", "TL", "TU"]
+RES = 185.1428
 
 
-def test_open_sequence_leaves_the_unit_terse_without_echo() -> None:
-    with bench() as (emu, ptu):
+@pytest.fixture(params=list(FLAVOURS))
+def flavour(request: pytest.FixtureRequest) -> Flavour:
+    return FLAVOURS[request.param]
+
+
+# the field run of a wall-clock test: the manual run keeps the behaviour covered in the default suite
+SLOW = pytest.fixture(params=["manual", pytest.param("field", marks=long_only())])
+
+
+@SLOW
+def slow_flavour(request: pytest.FixtureRequest) -> Flavour:
+    return FLAVOURS[request.param]
+
+
+def deg(pos: int) -> float:
+    return pos * RES / 3600
+
+
+def test_open_sequence_leaves_the_unit_terse_without_echo(flavour: Flavour) -> None:
+    with bench(flavour=flavour) as (emu, ptu):
         assert emu.commands[: len(OPEN_SEQUENCE)] == OPEN_SEQUENCE
         # the unit powered up verbose with echo on and a banner; the client changed both
         assert emu.verbose is False and emu.echo is False
-        assert emu.tx.startswith(b"PTU-D46 emulator")
-        assert ptu.resolution == {"pan": 185.1428, "tilt": 185.1428}
-        assert ptu.bounds == {"pan": (-3090, 3090), "tilt": (-907, 604)}
+        assert emu.tx.startswith(flavour.firmware.encode())
+        assert ptu.resolution == {"pan": RES, "tilt": RES}
+        assert ptu.bounds == flavour.limits  # read from the unit, never the manual's constants
+        assert ptu.speed_bounds == flavour.speed_bounds
         lim = ptu.limits()
-        assert lim["pan"]["max_deg"] == pytest.approx(158.914, abs=1e-3)
-        assert lim["tilt"]["min_deg"] == pytest.approx(-46.646, abs=1e-3)
-        assert lim["tilt"]["max_deg"] == pytest.approx(31.063, abs=1e-3)
+        assert lim["pan"]["max_deg"] == pytest.approx(deg(flavour.limits["pan"][1]), abs=1e-9)
+        assert lim["tilt"]["min_deg"] == pytest.approx(deg(flavour.limits["tilt"][0]), abs=1e-9)
+        assert lim["tilt"]["max_deg"] == pytest.approx(deg(flavour.limits["tilt"][1]), abs=1e-9)
+        assert lim["pan"]["speed_max"] == flavour.speed_bounds["pan"][1]
 
 
-def test_move_sends_pp583_and_tp_minus_194() -> None:
-    with bench() as (emu, ptu):
+def test_manual_and_field_bounds_are_those_of_the_reference() -> None:
+    """The figures the two flavours stand for (PTU-D46_reply_reference.md), pinned here so an
+    edit of the emulator's table cannot quietly make the field flavour the manual again."""
+    assert FLAVOURS["manual"].limits == {"pan": (-3090, 3090), "tilt": (-907, 604)}
+    assert FLAVOURS["field"].limits == {"pan": (-3090, 3091), "tilt": (-903, 601)}
+    assert FLAVOURS["field"].speed_bounds == {"pan": (31, 600), "tilt": (31, 4002)}
+    assert FLAVOURS["field"].speed_unit == "pos/sec" and FLAVOURS["manual"].speed_unit == "positions/sec"
+
+
+def test_a_configured_speed_above_the_units_ceiling_is_brought_inside_it(flavour: Flavour) -> None:
+    """drivers.ptu.speed 1000 is above the field unit's pan ceiling of 600: the open must not
+    fail on it; the client sets the ceiling and says so in the snapshot."""
+    with bench(flavour=flavour, client={"speed": 1000}) as (emu, ptu):
+        pan_hi, tilt_hi = flavour.speed_bounds["pan"][1], flavour.speed_bounds["tilt"][1]
+        assert ptu.get_speed() == (min(1000, pan_hi), min(1000, tilt_hi))
+        clamped = ptu.snapshot()["speed_clamped"]
+        if pan_hi < 1000:
+            assert clamped == f"pan 1000 -> {pan_hi} positions/s (unit bounds 31..{pan_hi})"
+        else:
+            assert clamped is None
+
+
+def test_move_sends_pp583_and_tp_minus_194(flavour: Flavour) -> None:
+    with bench(flavour=flavour) as (emu, ptu):
         start = len(emu.rx)
         pan, tilt = ptu.move(30, -10)
         sent = bytes(emu.rx[start:])
@@ -40,53 +92,100 @@ def test_move_sends_pp583_and_tp_minus_194() -> None:
         assert snap["pan_pos"] == 583 and snap["tilt_pos"] == -194 and snap["moving"] is False
 
 
-def test_limits_are_checked_before_anything_is_sent() -> None:
-    with bench() as (emu, ptu):
+def test_moves_reach_the_units_own_limits_exactly(flavour: Flavour) -> None:
+    """Up to the last count the unit allows (3091 on the field unit, one past the manual), and
+    not one count further."""
+    with bench(flavour=flavour) as (emu, ptu):
+        (plo, phi), (tlo, thi) = flavour.limits["pan"], flavour.limits["tilt"]
+        assert ptu.move(deg(phi), deg(tlo)) == pytest.approx((deg(phi), deg(tlo)))
+        assert emu.positions() == (phi, tlo)
+        assert ptu.move(deg(plo), deg(thi)) == pytest.approx((deg(plo), deg(thi)))
+        with pytest.raises(DeviceError) as err:
+            ptu.move(deg(phi + 1), 0)
+        assert f"positions {plo}..{phi}" in err.value.message
+
+
+def test_limits_are_checked_before_anything_is_sent(flavour: Flavour) -> None:
+    with bench(flavour=flavour) as (emu, ptu):
         before = list(emu.commands)
         with pytest.raises(DeviceError) as err:
             ptu.move(170, 0)
-        assert err.value.device == "ptu" and "maximum 158.91 deg" in err.value.message
+        assert err.value.device == "ptu" and f"maximum {deg(flavour.limits['pan'][1]):.2f} deg" in err.value.message
         with pytest.raises(DeviceError) as err:
             ptu.move(0, -50)
-        assert "tilt minimum -46.65 deg" in err.value.message
+        assert f"tilt minimum {deg(flavour.limits['tilt'][0]):.2f} deg" in err.value.message
         with pytest.raises(DeviceError):
             ptu.move(10, 40)  # pan fine, tilt beyond +31.06: neither axis moves
         assert emu.commands == before and emu.positions() == (0, 0)
 
 
-def test_device_error_replies_carry_the_units_text() -> None:
-    with bench() as (emu, ptu):
+def test_device_error_replies_carry_the_units_text(flavour: Flavour) -> None:
+    unit = flavour.speed_unit
+    pan_hi = flavour.speed_bounds["pan"][1]
+    with bench(flavour=flavour) as (emu, ptu):
         with pytest.raises(DeviceError) as err:
-            ptu.set_speed(5000, 1000)
-        assert err.value.message == "the PTU refused PS5000: Pan speed cannot exceed 2902 positions/sec"
+            ptu.set_speed(5000, 200)
+        assert err.value.message == f"the PTU refused PS5000: Pan speed cannot exceed {pan_hi} {unit}"
         with pytest.raises(DeviceError) as err:
-            ptu.set_speed(1000, 10)
-        assert "Tilt speed cannot be less than 31" in err.value.message
+            ptu.set_speed(200, 10)
+        floor = "Tilt speed" if flavour.name == "manual" else "Motor speed"
+        assert err.value.message == f"the PTU refused TS10: {floor} cannot be less than 31 {unit}"
         # the emulator enforces its own bounds too (raw bypasses the client's check)
-        assert ptu.raw("PP4000") == "! Maximum allowable Pan position is 3090"
-        assert ptu.raw("TP-1000") == "! Minimum allowable Tilt position is -907"
+        phi, tlo = flavour.limits["pan"][1], flavour.limits["tilt"][0]
+        assert ptu.raw("PP4000") == f"! Maximum allowable Pan position is {phi}"
+        assert ptu.raw("TP-1000") == f"! Minimum allowable Tilt position is {tlo}"
         assert ptu.raw("XYZ") == "! Illegal command"
-        ptu.set_speed(2000, 500)
+        ptu.set_speed(pan_hi, 500)
         ptu.set_acceleration(4000, 1500)
-        assert ptu.get_speed() == (2000, 500) and ptu.get_acceleration() == (4000, 1500)
+        assert ptu.get_speed() == (pan_hi, 500) and ptu.get_acceleration() == (4000, 1500)
 
 
-def test_power_and_firmware() -> None:
-    with bench(supply_v=24.5, temperature_f=95) as (emu, ptu):
-        power = ptu.power_status()
-        assert power["voltage_v"] == 24.5 and power["temperature_f"] == 95
+def test_a_refusal_that_states_a_bound_corrects_the_clients_belief(flavour: Flavour) -> None:
+    """A unit whose limit moved (re-measured by a reset, or a unit swapped on the same cable)
+    refuses a target the client thought allowed; the bound in the refusal is believed from
+    then on, so the next try is refused before anything is sent, with the unit's figure."""
+    with bench(flavour=flavour) as (emu, ptu):
+        phi = flavour.limits["pan"][1]
+        ptu.bounds["pan"] = (ptu.bounds["pan"][0], phi + 5)  # stale: five counts too generous
+        with pytest.raises(DeviceError) as err:
+            ptu.move(deg(phi + 3), None)
+        assert err.value.message == f"the PTU refused PP{phi + 3}: Maximum allowable Pan position is {phi}"
+        assert ptu.bounds["pan"][1] == phi
+        sent = len(emu.commands)
+        with pytest.raises(DeviceError) as err:
+            ptu.move(deg(phi + 3), None)
+        assert "beyond the pan maximum" in err.value.message and len(emu.commands) == sent
+        ptu.speed_bounds["tilt"] = (31, 99_999)
+        with pytest.raises(DeviceError):
+            ptu.set_speed(None, 90_000)
+        assert ptu.speed_bounds["tilt"] == flavour.speed_bounds["tilt"]
+
+
+def test_power_and_firmware(flavour: Flavour) -> None:
+    with bench(flavour=flavour, supply_v=24.0, temperature_f=95) as (emu, ptu):
+        power = ptu.power_status()  # "Input 24.0 VDC @ 95 degF" (manual) or "Input 24 VDC @ 95 degF"
+        assert power["voltage_v"] == 24.0 and power["temperature_f"] == 95
         assert power["temperature_c"] == pytest.approx(35.0)
-        assert "PTU-D46" in ptu.firmware()
+        assert ptu.firmware() == flavour.firmware
 
 
-def test_client_copes_with_a_unit_left_verbose_with_echo() -> None:
-    with bench() as (emu, ptu):
+def test_client_copes_with_a_unit_left_verbose_with_echo(flavour: Flavour) -> None:
+    """Verbose replies word the same figures differently per unit ("positions/sec" or
+    "pos/sec", "Pan" or "pan"): the client reads the number, not the sentence."""
+    with bench(flavour=flavour) as (emu, ptu):
         assert ptu.raw("FV") == "*" and ptu.raw("EE") == "*"
         assert emu.verbose and emu.echo
-        assert ptu.query_number("PR") == pytest.approx(185.1428)
-        assert ptu.query_number("PN") == -3090
-        assert ptu.move(-20, 15) == pytest.approx((-389 * 185.1428 / 3600, 292 * 185.1428 / 3600))
-        assert ptu.raw("PP") == "* Current Pan position is -389"
+        assert ptu.query_number("PR") == pytest.approx(RES)
+        assert ptu.query_number("PN") == flavour.limits["pan"][0]
+        assert ptu.query_number("TX") == flavour.limits["tilt"][1]
+        assert ptu.query_number("PU") == flavour.speed_bounds["pan"][1]
+        assert ptu.raw("PU") == f"* Maximum Pan speed is {flavour.speed_bounds['pan'][1]} {flavour.speed_unit}"
+        ptu.set_speed(500, 500)
+        assert ptu.get_speed() == (500, 500)
+        assert ptu.raw("PS") == f"* Desired Pan speed is 500 {flavour.speed_unit}"
+        assert ptu.move(-20, 15) == pytest.approx((deg(-389), deg(292)))
+        pan = "pan" if flavour.lower_case_position else "Pan"
+        assert ptu.raw("PP") == f"* Current {pan} position is -389"
 
 
 def test_open_against_a_unit_in_verbose_echo_mode_with_cr_delimited_input() -> None:
@@ -132,8 +231,8 @@ def test_stale_bytes_before_a_reply_are_discarded() -> None:
         assert ptu.query_number("TP") == -194
 
 
-def test_reset_runs_into_the_limits_and_home() -> None:
-    with bench() as (emu, ptu):
+def test_reset_runs_into_the_limits_and_home(flavour: Flavour) -> None:
+    with bench(flavour=flavour) as (emu, ptu):
         ptu.move(30, -10)
         assert ptu.reset() == (0.0, 0.0)
         assert b"!T!T!P!P*" in bytes(emu.tx)
@@ -141,7 +240,9 @@ def test_reset_runs_into_the_limits_and_home() -> None:
         r = len(emu.commands) - 1 - emu.commands[::-1].index("R")
         assert emu.commands[r + 1 :] == ["PN", "PX", "TN", "TX", "PP", "TP"]  # bounds measured anew
         reached = {(m["axis"], m["to"]) for m in emu.moves}
-        assert {("tilt", 604), ("tilt", -907), ("pan", 3090), ("pan", -3090)} <= reached
+        (plo, phi), (tlo, thi) = flavour.limits["pan"], flavour.limits["tilt"]
+        assert {("tilt", thi), ("tilt", tlo), ("pan", phi), ("pan", plo)} <= reached
+        assert ptu.bounds == flavour.limits
 
 
 def test_silent_unit_times_out_with_a_helpful_error() -> None:
@@ -173,8 +274,8 @@ def test_wrong_baud_rate_garbage_is_named() -> None:
         assert "9600" in msg
 
 
-def test_stalled_move_times_out_halts_and_recovers() -> None:
-    with bench(client={"move_timeout": 0.3}) as (emu, ptu):
+def test_stalled_move_times_out_halts_and_recovers(flavour: Flavour) -> None:
+    with bench(flavour=flavour, client={"move_timeout": 0.3}) as (emu, ptu):
         emu.inject_fault("stall")
         with pytest.raises(DeviceError) as err:
             ptu.move(30, -10)
@@ -198,13 +299,16 @@ def test_unit_dying_mid_move_is_a_line_fault_not_a_stall() -> None:
 
 
 @pytest.mark.parametrize("time_scale", [0.0, 0.02])
-def test_move_takes_the_trapezoid_time_in_simulated_time(time_scale: float) -> None:
-    with bench(time_scale=time_scale, speed=1000, acceleration=2000,
+def test_move_takes_the_trapezoid_time_in_simulated_time(time_scale: float, flavour: Flavour) -> None:
+    if time_scale > 0 and flavour.name != "manual" and not LONG:
+        pytest.skip("the field flavour's wall-clock run is in the long suite (RVS_LONG=1)")
+    v = min(1000, flavour.speed_bounds["pan"][1])  # the field unit's pan ceiling is 600
+    with bench(flavour=flavour, time_scale=time_scale, speed=1000, acceleration=2000,
                client={"speed": 1000, "acceleration": 2000}) as (emu, ptu):
         t0 = emu.sim_time
         ptu.move(30, 0)
         pan = [m for m in emu.moves if m["axis"] == "pan"][-1]
-        expected = 583 / 1000 + 1000 / 2000  # ramps of v/a each, cruise for the rest
+        expected = 583 / v + v / 2000  # ramps of v/a each, cruise for the rest
         assert pan["duration"] == pytest.approx(expected, abs=0.005)
         assert pan["t_start"] >= t0 and emu.sim_time >= pan["t_end"]
         ptu.set_speed(500, 500)
@@ -214,10 +318,10 @@ def test_move_takes_the_trapezoid_time_in_simulated_time(time_scale: float) -> N
         assert back["duration"] == pytest.approx(583 / 500 + 500 / 2000, abs=0.005)
 
 
-def test_halt_from_another_thread_interrupts_a_move() -> None:
+def test_halt_from_another_thread_interrupts_a_move(slow_flavour: Flavour) -> None:
     # A 150 deg pan takes about 4 s of wall time; the halt comes once it is past 5 deg (100
     # counts, after ~0.5 s), so the test thread may lag 3 s on a busy machine before the move ends.
-    with bench(time_scale=0.2) as (emu, ptu):
+    with bench(flavour=slow_flavour, time_scale=0.2) as (emu, ptu):
         result: dict[str, object] = {}
 
         def mover() -> None:
@@ -239,8 +343,8 @@ def test_halt_from_another_thread_interrupts_a_move() -> None:
         assert not ptu.snapshot()["moving"]
 
 
-def test_cancel_event_interrupts_the_await() -> None:
-    with bench(time_scale=0.2) as (emu, ptu):  # as above: the cancel comes ~3 s before the move would end
+def test_cancel_event_interrupts_the_await(slow_flavour: Flavour) -> None:
+    with bench(flavour=slow_flavour, time_scale=0.2) as (emu, ptu):  # as above: the cancel comes ~3 s before the move would end
         cancel = threading.Event()
         threading.Thread(
             target=lambda: emu.wait_for(lambda e: "A" in e.commands and e.positions()[0] < -100, 60)

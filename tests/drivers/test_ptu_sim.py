@@ -162,3 +162,23 @@ def test_close_stops_the_emulator(ptu: Ptu) -> None:
     ptu.close()
     assert not emu.running and ptu.status()["open"] is False
     assert ptu.position() == (0.0, 0.0)  # used again: a fresh unit powers up at home
+
+
+@pytest.mark.parametrize("flavour", ["manual", "field"])
+def test_the_sim_backend_answers_as_the_flavour_its_settings_name(flavour: str) -> None:
+    """drivers.ptu.sim_flavour is a typed setting: the server, a --set and the consoles reach
+    the field unit's replies without code; a misspelled flavour is refused with the choices."""
+    from drivers.ptu.emulator import FLAVOURS
+
+    dev = create({**FAST, "sim_flavour": flavour})
+    try:
+        lim = dev.limits()
+        assert (lim["pan"]["min"], lim["pan"]["max"]) == FLAVOURS[flavour].limits["pan"]
+        assert (lim["tilt"]["min"], lim["tilt"]["max"]) == FLAVOURS[flavour].limits["tilt"]
+        assert dev.speed()[0] == min(1000, FLAVOURS[flavour].speed_bounds["pan"][1])  # speed 1000 fits the unit
+        assert dev.status()["flavour"] == flavour
+        assert dev.reset() == (0.0, 0.0)
+    finally:
+        dev.close()
+    with pytest.raises(ValueError, match="manual"):
+        create({**FAST, "sim_flavour": "fieldd"})
