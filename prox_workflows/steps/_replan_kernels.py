@@ -11,7 +11,8 @@ never leaves the array):
 - ``g``, ``rhs``: int64 fixed-point cost to the goal and its one-step lookahead (``INF`` none);
 - the open list, an indexed binary heap: ``h1``, ``h2`` (the two-part key), ``hc`` (the cell)
   and ``pos`` (each cell's position in the heap, -1 when not in it); ``meta[0]`` is its size,
-  ``meta[1]`` D* Lite's ``km`` (the heuristic's drift as the start moves);
+  ``meta[1]`` D* Lite's ``km`` (the heuristic's drift as the start moves), ``meta[2:4]`` the
+  start's row and column;
 - ``nb``: (3, 8) int64, the neighbour offsets and, for a diagonal, the two orthogonal cells it
   passes between (zero for orthogonal steps), in an order where ``7 - d`` reverses ``d``;
 - ``ip``: int64 (width, corner rule, heuristic type, h per orthogonal cell, h per diagonal);
@@ -38,10 +39,18 @@ try:  # pragma: no branch - numba is a core dependency; the fallback is for brok
         except RuntimeError:  # no writable cache location: compile in each process instead
             return numba.njit(nogil=True)(f)
 
+    def _inline(f):  # type: ignore[no-untyped-def]
+        try:
+            return numba.njit(cache=True, nogil=True, inline="always")(f)
+        except RuntimeError:
+            return numba.njit(nogil=True, inline="always")(f)
+
     HAVE_NUMBA = True
 except ImportError:  # pragma: no cover
     def _jit(f):  # type: ignore[no-untyped-def]
         return f
+
+    _inline = _jit
 
     HAVE_NUMBA = False
 
@@ -64,7 +73,7 @@ def heuristic(a, b, ip, fp):
     return ip[3] * max(dr, dc)
 
 
-@_jit
+@_inline
 def step_cost(k, u, d, nb, fp, corner):
     """The fixed-point cost of the step from ``u`` in direction ``d``; INF when it is refused."""
     v = u + nb[0, d]
@@ -84,12 +93,12 @@ def step_cost(k, u, d, nb, fp, corner):
     return c
 
 
-@_jit
+@_inline
 def _less(a1, a2, ac, b1, b2, bc):
     return a1 < b1 or (a1 == b1 and (a2 < b2 or (a2 == b2 and ac < bc)))
 
 
-@_jit
+@_inline
 def _sift_up(i, h1, h2, hc, pos):
     x1 = h1[i]
     x2 = h2[i]
@@ -110,7 +119,7 @@ def _sift_up(i, h1, h2, hc, pos):
     pos[xc] = i
 
 
-@_jit
+@_inline
 def _sift_down(i, size, h1, h2, hc, pos):
     x1 = h1[i]
     x2 = h2[i]
@@ -136,7 +145,7 @@ def _sift_down(i, size, h1, h2, hc, pos):
     pos[xc] = i
 
 
-@_jit
+@_inline
 def _put(u, k1, k2, h1, h2, hc, pos, meta):
     i = pos[u]
     if i < 0:
@@ -156,7 +165,7 @@ def _put(u, k1, k2, h1, h2, hc, pos, meta):
         _sift_down(i, meta[0], h1, h2, hc, pos)
 
 
-@_jit
+@_inline
 def _remove(u, h1, h2, hc, pos, meta):
     i = pos[u]
     pos[u] = -1
@@ -174,15 +183,34 @@ def _remove(u, h1, h2, hc, pos, meta):
         _sift_down(i, size, h1, h2, hc, pos)
 
 
-@_jit
+@_inline
+def _h_from_start(u, meta, ip, fp):
+    """heuristic(start, u) with the start's row and column cached in meta[2], meta[3]."""
+    w = ip[0]
+    ur = u // w
+    dr = abs(ur - meta[2])
+    dc = abs(u - ur * w - meta[3])
+    ht = ip[2]
+    if ht == 2:
+        if dr < dc:
+            return ip[3] * (dc - dr) + ip[4] * dr
+        return ip[3] * (dr - dc) + ip[4] * dc
+    if ht == 0:
+        return np.int64(fp[4] * math.sqrt(dr * dr + dc * dc))
+    return ip[3] * max(dr, dc)
+
+
+@_inline
 def _key(u, g, rhs, start, meta, ip, fp):
     m = min(g[u], rhs[u])
     if m >= INF:
         return np.int64(INF), np.int64(INF)
-    return m + heuristic(start, u, ip, fp) + meta[1], m
+    if u == start:
+        return m + meta[1], m
+    return m + _h_from_start(u, meta, ip, fp) + meta[1], m
 
 
-@_jit
+@_inline
 def _update_vertex(u, g, rhs, start, h1, h2, hc, pos, meta, ip, fp):
     if g[u] != rhs[u]:
         k1, k2 = _key(u, g, rhs, start, meta, ip, fp)
@@ -191,7 +219,7 @@ def _update_vertex(u, g, rhs, start, h1, h2, hc, pos, meta, ip, fp):
         _remove(u, h1, h2, hc, pos, meta)
 
 
-@_jit
+@_inline
 def _lookahead(s, k, g, nb, fp, corner):
     """rhs(s) = min over successors s' of c(s, s') + g(s')."""
     if k[s] == np.inf:
@@ -208,12 +236,19 @@ def _lookahead(s, k, g, nb, fp, corner):
 
 
 @_jit
+def set_start(meta, ip, start):
+    meta[2] = start // ip[0]
+    meta[3] = start - meta[2] * ip[0]
+
+
+@_jit
 def initialise(g, rhs, h1, h2, hc, pos, meta, ip, fp, start, goal):
     g[:] = INF
     rhs[:] = INF
     pos[:] = -1
     meta[0] = 0
     meta[1] = 0
+    set_start(meta, ip, start)
     rhs[goal] = 0
     _put(goal, heuristic(start, goal, ip, fp), np.int64(0), h1, h2, hc, pos, meta)
 

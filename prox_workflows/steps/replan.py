@@ -108,7 +108,7 @@ class IncrementalPlanner:
         self._h2 = np.empty(n, np.int64)
         self._hc = np.empty(n, np.int64)
         self._pos = np.empty(n, np.int32)
-        self._meta = np.zeros(2, np.int64)
+        self._meta = np.zeros(4, np.int64)
         wd = self._width
         self._nb = np.array([(-wd - 1, -wd, -wd + 1, -1, 1, wd - 1, wd, wd + 1),
                              (-wd, 0, -wd, 0, 0, wd, 0, wd),
@@ -205,6 +205,7 @@ class IncrementalPlanner:
         kern = _kernels()
         self._meta[1] += kern.heuristic(self._start, s, self._ip, self._fp)
         self._start = s
+        kern.set_start(self._meta, self._ip, s)
         if self._meta[1] > 2**60:  # km could overflow the keys after a very long drive
             self._restarts += 1
             kf = self._k[np.isfinite(self._k)]
