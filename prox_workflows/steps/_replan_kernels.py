@@ -13,8 +13,8 @@ never leaves the array):
   and ``pos`` (each cell's position in the heap, -1 when not in it); ``meta[0]`` is its size,
   ``meta[1]`` D* Lite's ``km`` (the heuristic's drift as the start moves), ``meta[2:4]`` the
   start's row and column;
-- ``nb``: (3, 8) int64, the neighbour offsets and, for a diagonal, the two orthogonal cells it
-  passes between (zero for orthogonal steps), in an order where ``7 - d`` reverses ``d``;
+- ``nb``: (5, 8) int64, the neighbour offsets; for a diagonal, the two orthogonal cells it
+  passes between (zero for orthogonal steps); the row and column steps. ``7 - d`` reverses ``d``;
 - ``ip``: int64 (width, corner rule, heuristic type, h per orthogonal cell, h per diagonal);
 - ``fp``: float64 (orth step, diag step, share, 1 - share, h per euclidean cell).
 
@@ -184,12 +184,11 @@ def _remove(u, h1, h2, hc, pos, meta):
 
 
 @_inline
-def _h_from_start(u, meta, ip, fp):
-    """heuristic(start, u) with the start's row and column cached in meta[2], meta[3]."""
-    w = ip[0]
-    ur = u // w
+def _h_from_start(ur, uc, meta, ip, fp):
+    """heuristic(start, u) from u's row and column, the start's cached in meta[2], meta[3]:
+    no integer division in the inner loop."""
     dr = abs(ur - meta[2])
-    dc = abs(u - ur * w - meta[3])
+    dc = abs(uc - meta[3])
     ht = ip[2]
     if ht == 2:
         if dr < dc:
@@ -201,19 +200,19 @@ def _h_from_start(u, meta, ip, fp):
 
 
 @_inline
-def _key(u, g, rhs, start, meta, ip, fp):
+def _key(u, ur, uc, g, rhs, start, meta, ip, fp):
     m = min(g[u], rhs[u])
     if m >= INF:
         return np.int64(INF), np.int64(INF)
     if u == start:
         return m + meta[1], m
-    return m + _h_from_start(u, meta, ip, fp) + meta[1], m
+    return m + _h_from_start(ur, uc, meta, ip, fp) + meta[1], m
 
 
 @_inline
-def _update_vertex(u, g, rhs, start, h1, h2, hc, pos, meta, ip, fp):
+def _update_vertex(u, ur, uc, g, rhs, start, h1, h2, hc, pos, meta, ip, fp):
     if g[u] != rhs[u]:
-        k1, k2 = _key(u, g, rhs, start, meta, ip, fp)
+        k1, k2 = _key(u, ur, uc, g, rhs, start, meta, ip, fp)
         _put(u, k1, k2, h1, h2, hc, pos, meta)
     elif pos[u] >= 0:
         _remove(u, h1, h2, hc, pos, meta)
@@ -258,15 +257,18 @@ def compute_shortest_path(k, g, rhs, h1, h2, hc, pos, meta, nb, ip, fp, start, g
     """ComputeShortestPath: expand until the start is locally consistent and no open key is
     below its key. Returns the number of cells expanded."""
     corner = ip[1] != 0
+    w = ip[0]
     expanded = 0
     while meta[0] > 0:
         t1 = h1[0]
         t2 = h2[0]
         u = hc[0]
-        s1, s2 = _key(start, g, rhs, start, meta, ip, fp)
+        s1, s2 = _key(start, meta[2], meta[3], g, rhs, start, meta, ip, fp)
         if not (t1 < s1 or (t1 == s1 and t2 < s2)) and rhs[start] <= g[start]:
             break
-        n1, n2 = _key(u, g, rhs, start, meta, ip, fp)
+        ur = u // w
+        uc = u - ur * w
+        n1, n2 = _key(u, ur, uc, g, rhs, start, meta, ip, fp)
         if t1 < n1 or (t1 == n1 and t2 < n2):  # a key from before the start moved: re-queue
             _put(u, n1, n2, h1, h2, hc, pos, meta)
             continue
@@ -282,11 +284,11 @@ def compute_shortest_path(k, g, rhs, h1, h2, hc, pos, meta, nb, ip, fp, start, g
                 c = step_cost(k, s, 7 - d, nb, fp, corner)
                 if c < INF and c + gu < rhs[s]:
                     rhs[s] = c + gu
-                    _update_vertex(s, g, rhs, start, h1, h2, hc, pos, meta, ip, fp)
+                    _update_vertex(s, ur + nb[3, d], uc + nb[4, d], g, rhs, start, h1, h2, hc, pos, meta, ip, fp)
         else:  # underconsistent: forget it, and re-derive the predecessors that relied on it
             gold = g[u]
             g[u] = INF
-            _update_vertex(u, g, rhs, start, h1, h2, hc, pos, meta, ip, fp)
+            _update_vertex(u, ur, uc, g, rhs, start, h1, h2, hc, pos, meta, ip, fp)
             for d in range(8):
                 s = u + nb[0, d]
                 if s == goal or k[s] == np.inf:
@@ -294,7 +296,7 @@ def compute_shortest_path(k, g, rhs, h1, h2, hc, pos, meta, nb, ip, fp, start, g
                 c = step_cost(k, s, 7 - d, nb, fp, corner)
                 if c < INF and rhs[s] == c + gold:
                     rhs[s] = _lookahead(s, k, g, nb, fp, corner)
-                    _update_vertex(s, g, rhs, start, h1, h2, hc, pos, meta, ip, fp)
+                    _update_vertex(s, ur + nb[3, d], uc + nb[4, d], g, rhs, start, h1, h2, hc, pos, meta, ip, fp)
     return expanded
 
 
@@ -304,18 +306,24 @@ def update_cells(k, g, rhs, h1, h2, hc, pos, meta, nb, ip, fp, start, goal, cell
     changed: the changed cells and their 8 neighbours (steps into a changed cell, and diagonals
     passing its corner under the corner rule)."""
     corner = ip[1] != 0
+    w = ip[0]
     for i in range(cells.shape[0]):
         k[cells[i]] = values[i]
     for i in range(cells.shape[0]):
         x = cells[i]
+        xr = x // w
+        xc = x - xr * w
         for d in range(9):
-            u = x if d == 8 else x + nb[0, d]
+            if d == 8:
+                u, ur, uc = x, xr, xc
+            else:
+                u, ur, uc = x + nb[0, d], xr + nb[3, d], xc + nb[4, d]
             if u == goal:
                 continue
             r = _lookahead(u, k, g, nb, fp, corner)
             if r != rhs[u]:
                 rhs[u] = r
-                _update_vertex(u, g, rhs, start, h1, h2, hc, pos, meta, ip, fp)
+                _update_vertex(u, ur, uc, g, rhs, start, h1, h2, hc, pos, meta, ip, fp)
 
 
 @_jit

@@ -112,7 +112,9 @@ class IncrementalPlanner:
         wd = self._width
         self._nb = np.array([(-wd - 1, -wd, -wd + 1, -1, 1, wd - 1, wd, wd + 1),
                              (-wd, 0, -wd, 0, 0, wd, 0, wd),
-                             (-1, 0, 1, 0, 0, -1, 0, 1)], np.int64)
+                             (-1, 0, 1, 0, 0, -1, 0, 1),
+                             (-1, -1, -1, 0, 0, 1, 1, 1),
+                             (-1, 0, 1, -1, 1, -1, 0, 1)], np.int64)
         self._reset(float(finite.max()) if finite.size else 1.0)
 
     # ------------------------------------------------------------------------------ public API
