@@ -63,7 +63,8 @@ def warm_up() -> None:
     planner.update([(1, 1)], [np.inf])
     planner.move_start((0, 1))
     planner.plan()
-    planner.cost_to_go([(0, 0)])
+    planner.cost_to_go([(0, 0), (3, 2)])
+    planner.cost_to_go([(0, 0)], exact=False)
 
 
 class IncrementalPlanner:
@@ -201,28 +202,36 @@ class IncrementalPlanner:
     def move_start(self, cell: Sequence[int]) -> None:
         """The rover is now at ``cell``: the next plan starts there (the search tree rooted at the
         goal is kept; D* Lite's km absorbs the heuristic's change of origin)."""
-        s = self._index(cell, "start")
-        if s == self._start:
-            return
-        kern = _kernels()
-        self._meta[1] += kern.heuristic(self._start, s, self._ip, self._fp)
-        self._start = s
-        kern.set_start(self._meta, self._ip, s)
-        if self._meta[1] > 2**60:  # km could overflow the keys after a very long drive
-            self._restarts += 1
-            kf = self._k[np.isfinite(self._k)]
-            self._reset(float(kf.max()) if kf.size else 1.0)
+        self._move_to(self._index(cell, "start"))
 
-    def cost_to_go(self, cells: np.ndarray | Sequence[Sequence[int]]) -> np.ndarray:
-        """The cost from each of ``cells`` to the goal (inf where none is known), as the search
-        knows it: exact for the cells on or around the current optimal path after :meth:`plan`,
-        an upper bound elsewhere (for scoring local moves near the start)."""
+    def cost_to_go(self, cells: np.ndarray | Sequence[Sequence[int]], exact: bool = True) -> np.ndarray:
+        """The cost from each of ``cells`` to the goal (inf where there is no path), for scoring
+        local moves near the start (:mod:`.arcs`). ``exact`` settles each cell as if the rover
+        stood there (a small repair for cells near the searched region; a whole search for a
+        free cell cut off from the goal); otherwise the one-step lookahead over what the search
+        has settled: exact on and around the optimal path, an upper bound (or inf) elsewhere."""
         rc = np.asarray(cells, dtype=np.int64).reshape(-1, 2)
+        h, w = self.shape
+        if ((rc[:, 0] < 0) | (rc[:, 0] >= h) | (rc[:, 1] < 0) | (rc[:, 1] >= w)).any():
+            raise ValueError(f"cells must lie in the {h} x {w} grid")
         idx = (rc[:, 0] + 1) * self._width + rc[:, 1] + 1
         kern = _kernels()
         out = np.empty(len(idx), np.int64)
-        kern.cost_to_go(self._k, self._g, self._nb, self._fp, self._ip, idx, out)
-        out[idx == self._goal] = 0
+        if exact:
+            home = self._start
+            for i, s in enumerate(idx):
+                if s == self._goal or not np.isfinite(self._k[s]):
+                    out[i] = 0 if s == self._goal else kern.INF
+                    continue
+                self._move_to(int(s))
+                kern.compute_shortest_path(self._k, self._g, self._rhs, self._h1, self._h2, self._hc,
+                                           self._pos, self._meta, self._nb, self._ip, self._fp, self._start,
+                                           self._goal)
+                out[i] = self._rhs[s]
+            self._move_to(home)
+        else:
+            kern.cost_to_go(self._k, self._g, self._nb, self._fp, self._ip, idx, out)
+            out[idx == self._goal] = 0
         res = out.astype(np.float64) / self._scale
         res[out >= kern.INF] = np.inf
         return res
@@ -249,6 +258,18 @@ class IncrementalPlanner:
                             np.float64)
         _kernels().initialise(self._g, self._rhs, self._h1, self._h2, self._hc, self._pos, self._meta,
                               self._ip, self._fp, self._start, self._goal)
+
+    def _move_to(self, s: int) -> None:
+        if s == self._start:
+            return
+        kern = _kernels()
+        self._meta[1] += kern.heuristic(self._start, s, self._ip, self._fp)
+        self._start = s
+        kern.set_start(self._meta, self._ip, s)
+        if self._meta[1] > 2**60:  # km could overflow the keys after a very long drive
+            self._restarts += 1
+            kf = self._k[np.isfinite(self._k)]
+            self._reset(float(kf.max()) if kf.size else 1.0)
 
     def _index(self, cell: Sequence[int], name: str) -> int:
         r, c = int(cell[0]), int(cell[1])

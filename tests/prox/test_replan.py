@@ -202,8 +202,15 @@ def test_cost_to_go_is_the_remaining_path_cost() -> None:
         path = planner.plan()
     except PlanningError:
         pytest.skip("seed gives an enclosed map")
-    ctg = planner.cost_to_go(path.cells)
+    ctg = planner.cost_to_go(path.cells, exact=False)
     assert ctg == pytest.approx(path.cost - path.g, rel=1e-9, abs=1e-9)
+    cells = np.stack([rng.integers(0, 25, 30), rng.integers(0, 25, 30)], axis=1)
+    exact = planner.cost_to_go(cells)  # any cell, as if the rover stood there
+    for (r, c), got in zip(cells, exact, strict=True):
+        ref = outcome(astar_grid, k, (r, c), (24, 24))
+        assert got == (pytest.approx(ref[1].cost, rel=1e-9, abs=1e-9) if ref[0] == "ok" else np.inf)
+    assert planner.start == (0, 0)
+    assert planner.plan().cost == pytest.approx(path.cost, rel=1e-12)  # the planner is where it was
 
 
 def test_deterministic_and_errors() -> None:
