@@ -98,7 +98,7 @@ def _less(a1, a2, ac, b1, b2, bc):
     return a1 < b1 or (a1 == b1 and (a2 < b2 or (a2 == b2 and ac < bc)))
 
 
-@_inline
+@_jit
 def _sift_up(i, h1, h2, hc, pos):
     x1 = h1[i]
     x2 = h2[i]
@@ -119,7 +119,7 @@ def _sift_up(i, h1, h2, hc, pos):
     pos[xc] = i
 
 
-@_inline
+@_jit
 def _sift_down(i, size, h1, h2, hc, pos):
     x1 = h1[i]
     x2 = h2[i]
@@ -145,7 +145,7 @@ def _sift_down(i, size, h1, h2, hc, pos):
     pos[xc] = i
 
 
-@_inline
+@_jit
 def _put(u, k1, k2, h1, h2, hc, pos, meta):
     i = pos[u]
     if i < 0:
@@ -165,7 +165,7 @@ def _put(u, k1, k2, h1, h2, hc, pos, meta):
         _sift_down(i, meta[0], h1, h2, hc, pos)
 
 
-@_inline
+@_jit
 def _remove(u, h1, h2, hc, pos, meta):
     i = pos[u]
     pos[u] = -1
@@ -209,7 +209,7 @@ def _key(u, ur, uc, g, rhs, start, meta, ip, fp):
     return m + _h_from_start(ur, uc, meta, ip, fp) + meta[1], m
 
 
-@_inline
+@_jit
 def _update_vertex(u, ur, uc, g, rhs, start, h1, h2, hc, pos, meta, ip, fp):
     if g[u] != rhs[u]:
         k1, k2 = _key(u, ur, uc, g, rhs, start, meta, ip, fp)
