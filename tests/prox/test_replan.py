@@ -260,3 +260,14 @@ def test_plain_python_kernels_agree() -> None:
     res = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=120)
     assert res.returncode == 0, res.stderr
     assert res.stdout.strip() == "ok"
+
+
+def test_benchmark_runs_and_agrees_with_astar_on_400_cells() -> None:
+    """tools/bench/replan.py's cycle (drive, change ahead, repair) on its simulated 400 x 400 map:
+    it raises if a repaired cost ever differs from the fresh A*'s."""
+    from tools.bench.replan import run, sim_map
+
+    m = sim_map(1)
+    for what in (10, "rock", "move"):
+        r = run(m, what, trials=3, seed=1)
+        assert r["checked"] + r["enclosed"] == 3 and r["e_d"] < r["e_a"] / 5  # cells, not (loaded) seconds
