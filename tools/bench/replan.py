@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import argparse
 import math
+import os
 import time
 from pathlib import Path
 
@@ -224,6 +225,7 @@ def main(argv: list[str] | None = None) -> int:
                                                      ("start move", "move")]
     head = (f"{'map':<7} {'update':<15} {'D* p50':>8} {'D* p99':>8} {'D* max':>8} {'A* p50':>8} {'A* p99':>8} "
             f"{'A*/D*':>7} {'exp D*':>7} {'exp A*':>7} {'n':>4}")
+    print(f"load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores (a shared machine: compare the ratio)")
     print()
     print("times in ms per replan (D*: update + plan; A*: astar_grid on the changed map), expanded cells p50")
     print(head)
