@@ -56,7 +56,7 @@ except ImportError:  # pragma: no cover
 
 
 @_jit
-def heuristic(a, b, ip, fp):
+def heuristic(a: int, b: int, ip: np.ndarray, fp: np.ndarray) -> int:
     """The lower bound on the cost between cells ``a`` and ``b``; consistent by construction of
     its weights (replan clamps them below the cheapest step)."""
     w = ip[0]
@@ -74,7 +74,7 @@ def heuristic(a, b, ip, fp):
 
 
 @_inline
-def step_cost(k, u, d, nb, fp, corner):
+def step_cost(k: np.ndarray, u: int, d: int, nb: np.ndarray, fp: np.ndarray, corner: bool) -> int:
     """The fixed-point cost of the step from ``u`` in direction ``d``; INF when it is refused."""
     v = u + nb[0, d]
     ku = k[u]
@@ -235,13 +235,14 @@ def _lookahead(s, k, g, nb, fp, corner):
 
 
 @_jit
-def set_start(meta, ip, start):
+def set_start(meta: np.ndarray, ip: np.ndarray, start: int) -> None:
     meta[2] = start // ip[0]
     meta[3] = start - meta[2] * ip[0]
 
 
 @_jit
-def initialise(g, rhs, h1, h2, hc, pos, meta, ip, fp, start, goal):
+def initialise(g: np.ndarray, rhs: np.ndarray, h1: np.ndarray, h2: np.ndarray, hc: np.ndarray, pos: np.ndarray,
+               meta: np.ndarray, ip: np.ndarray, fp: np.ndarray, start: int, goal: int) -> None:
     g[:] = INF
     rhs[:] = INF
     pos[:] = -1
@@ -253,7 +254,9 @@ def initialise(g, rhs, h1, h2, hc, pos, meta, ip, fp, start, goal):
 
 
 @_jit
-def compute_shortest_path(k, g, rhs, h1, h2, hc, pos, meta, nb, ip, fp, start, goal):
+def compute_shortest_path(k: np.ndarray, g: np.ndarray, rhs: np.ndarray, h1: np.ndarray, h2: np.ndarray,
+                          hc: np.ndarray, pos: np.ndarray, meta: np.ndarray, nb: np.ndarray, ip: np.ndarray,
+                          fp: np.ndarray, start: int, goal: int) -> int:
     """ComputeShortestPath: expand until the start is locally consistent and no open key is
     below its key. Returns the number of cells expanded."""
     corner = ip[1] != 0
@@ -301,7 +304,9 @@ def compute_shortest_path(k, g, rhs, h1, h2, hc, pos, meta, nb, ip, fp, start, g
 
 
 @_jit
-def update_cells(k, g, rhs, h1, h2, hc, pos, meta, nb, ip, fp, start, goal, cells, values):
+def update_cells(k: np.ndarray, g: np.ndarray, rhs: np.ndarray, h1: np.ndarray, h2: np.ndarray, hc: np.ndarray,
+                 pos: np.ndarray, meta: np.ndarray, nb: np.ndarray, ip: np.ndarray, fp: np.ndarray, start: int,
+                 goal: int, cells: np.ndarray, values: np.ndarray) -> None:
     """Set ``k[cells] = values`` and re-derive rhs of every cell whose outgoing steps may have
     changed: the changed cells and their 8 neighbours (steps into a changed cell, and diagonals
     passing its corner under the corner rule)."""
@@ -327,7 +332,8 @@ def update_cells(k, g, rhs, h1, h2, hc, pos, meta, nb, ip, fp, start, goal, cell
 
 
 @_jit
-def read_path(k, g, nb, ip, fp, start, goal, out):
+def read_path(k: np.ndarray, g: np.ndarray, nb: np.ndarray, ip: np.ndarray, fp: np.ndarray, start: int, goal: int,
+              out: np.ndarray) -> int:
     """Follow argmin c(u, v) + g(v) from the start to the goal into ``out``; ties go to the
     neighbour nearest the goal, then the lower index. Returns the number of cells, -1 if the
     descent breaks off (which would be a bug: every step descends strictly)."""
@@ -366,7 +372,8 @@ def read_path(k, g, nb, ip, fp, start, goal, out):
 
 
 @_jit
-def cost_to_go(k, g, nb, fp, ip, cells, out):
+def cost_to_go(k: np.ndarray, g: np.ndarray, nb: np.ndarray, fp: np.ndarray, ip: np.ndarray, cells: np.ndarray,
+               out: np.ndarray) -> None:
     """The one-step lookahead of each cell: min over its successors of c + g, the cost to the
     goal as the current search knows it (INF where it has not reached)."""
     corner = ip[1] != 0
