@@ -31,6 +31,7 @@ from .table import ALWAYS, CONTROL, HARDWARE, Command, bind_options, check_posit
 
 if TYPE_CHECKING:
     from .server import Connection
+    from .web.console import WebConsole
 
 log = structlog.get_logger("rvs")
 
@@ -106,6 +107,7 @@ class App:
         # monitor yields the PTU and cameras to any job and resumes after it.
         self.monitors: dict[str, Any] = {}
         self.device_lock = threading.RLock()
+        self.console: WebConsole | None = None  # the operator web console, when server.web_port is set
         self.started = time.monotonic()
         self.stopping = asyncio.Event()
         self.quitting = False
@@ -137,6 +139,26 @@ class App:
         for conn in list(self.connections):
             if conn.events:
                 conn.send(reply)
+
+    def job_reply(self, conn: Connection, reply: Reply) -> None:
+        """A line of a job: to the connection that started it, and to every connection that
+        watches all jobs (the web console's pages; loop only)."""
+        conn.send(reply)
+        for other in list(self.connections):
+            if other.observes_jobs and other is not conn:
+                other.observe(reply)
+
+    async def start_console(self, sock: Any) -> None:
+        """Serve the operator web console on ``sock`` (bound by the caller, as the TCP port is)."""
+        from .web.console import WebConsole
+
+        self.console = WebConsole(self)
+        await self.console.start(sock)
+
+    def current_maps(self) -> dict[str, str]:
+        """The current map products (layer -> path relative to the data directory); thread-safe."""
+        with self.maps_lock:
+            return dict(self.maps)
 
     def broadcast_threadsafe(self, reply: Reply) -> None:
         self.loop.call_soon_threadsafe(self.broadcast, reply)
@@ -337,13 +359,13 @@ class App:
 
         def emit(status: str, fields: dict[str, Any]) -> None:
             reply = Reply(module, status, {"job": job_id, **fields}, tag)
-            self.loop.call_soon_threadsafe(conn.send, reply)
+            self.loop.call_soon_threadsafe(self.job_reply, conn, reply)
 
         params = cfg.as_dict() if cfg is not None else {}
         job = Job(job_id, cmd.name, module, params, tag, emit, uses_hardware=cmd.klass in (HARDWARE, CONTROL),
                   connection=conn.id)
         job.app = self  # type: ignore[attr-defined]
-        conn.send(Reply(module, "ACK", {"job": job_id}, tag))
+        self.job_reply(conn, Reply(module, "ACK", {"job": job_id}, tag))
         conn.jobs_running += 1
         conn.jobs_started += 1
         jlog = conn.log.bind(command=cmd.name, job=job_id, tag=tag)
@@ -357,7 +379,7 @@ class App:
             if cmd.klass != ALWAYS:
                 self.last_used_hardware = j.uses_hardware
             if error is None:
-                conn.send(Reply(module, "OK", {"job": j.id, **(result or {})}, tag))
+                self.job_reply(conn, Reply(module, "OK", {"job": j.id, **(result or {})}, tag))
                 jlog.info("job_ok", seconds=round(time.monotonic() - j.started, 3))
             else:
                 fields, device_failed = error_fields(error)
@@ -365,7 +387,7 @@ class App:
                     self.base_mode = "fault"
                     if isinstance(error, DeviceError):
                         self.devices.errors[error.device] = error.message
-                conn.send(Reply(module, "ERROR", {"job": j.id, **fields}, tag))
+                self.job_reply(conn, Reply(module, "ERROR", {"job": j.id, **fields}, tag))
                 jlog.warning("job_error", code=fields["code"], error=fields["message"])
             self.announce_mode()
             conn.jobs_running -= 1
