@@ -109,6 +109,12 @@ class LineClient:
                 return out
             out.append(r)
 
+    def __enter__(self) -> LineClient:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
     def close(self) -> None:
         self.sock.close()
 

@@ -38,6 +38,7 @@ TICK = 0.2  # seconds between state snapshots (pose, PTU, progress): 5 Hz is smo
 MAX_QUEUED = 2000  # messages a page may lag behind before it is dropped (it reloads and catches up)
 TRACK_POINTS = 5000  # rover positions kept for the driven track
 STATIC = {"index.html": "text/html", "console.js": "text/javascript", "console.css": "text/css"}
+SHOWN_FIRST = ("dem", "hazard")  # the layers a new page shows (console.js S.visible)
 LAYER_ORDER = ("ortho", "dem", "hazard", "traversability", "slope", "step", "roughness", "variance", "count",
                "global_hazard")
 
@@ -133,6 +134,8 @@ class WebConsole:
         self.runner: web.AppRunner | None = None
         self.port = 0
         self._ticker: asyncio.Task[None] | None = None
+        self._to_render: list[tuple[str, Path]] = []  # new layer versions, rendered before a page asks
+        self._renderer: asyncio.Task[None] | None = None
         self._static = {name: resources.files(__package__).joinpath("static", name).read_bytes() for name in STATIC}
         self.web = web.Application()
         self.web.add_routes([
@@ -141,7 +144,7 @@ class WebConsole:
             web.get("/layers/{name}.png", self.layer),
             web.get("/api/state", self.state_json),
             web.get("/ws", self.websocket),
-            web.get("/favicon.ico", lambda request: web.Response(status=204)),
+            web.get("/favicon.ico", self.favicon),
         ])
 
     # ------------------------------------------------------------ lifecycle
@@ -157,8 +160,9 @@ class WebConsole:
 
     async def close(self) -> None:
         """Close every page's WebSocket with 'going away' (1001), then the HTTP server."""
-        if self._ticker is not None:
-            self._ticker.cancel()
+        for task in (self._ticker, self._renderer):
+            if task is not None:
+                task.cancel()
         for page in list(self.pages):
             page.close()
             with contextlib.suppress(Exception):
@@ -214,6 +218,7 @@ class WebConsole:
             key = (str(path), version)
             if key not in self.bounds:
                 self.bounds[key] = list(read_geotiff_geometry(path).bounds)
+                self._to_render.append((name, path))  # the page asks for it in a moment
             maps[name] = {"url": f"/layers/{name}.png?v={version}", "bounds": self.bounds[key], "version": version}
         out["maps"] = {k: maps[k] for k in sorted(maps, key=lambda n: (LAYER_ORDER + (n,)).index(n))}
         monitors: dict[str, Any] = {}
@@ -226,11 +231,25 @@ class WebConsole:
         out["track"] = list(self.track)
         return out
 
+    async def _prerender(self) -> None:
+        """Render new layer versions one at a time, those a page shows at first first: in
+        parallel they would compete with each other, the running job and the page's request."""
+        loop = asyncio.get_running_loop()
+        while self._to_render:
+            self._to_render.sort(key=lambda item: item[0] not in SHOWN_FIRST)
+            name, path = self._to_render.pop(0)
+            try:
+                await loop.run_in_executor(None, self.layers.get, name, path)
+            except (OSError, ValueError) as exc:
+                log.warning("layer_render_failed", layer=name, error=str(exc))
+
     async def _tick(self) -> None:
         while True:
             try:
                 if self.pages:
                     message = json.dumps(self.state(), separators=(",", ":"))
+                    if self._to_render and (self._renderer is None or self._renderer.done()):
+                        self._renderer = asyncio.create_task(self._prerender())
                     if message != self.snapshot:
                         self.snapshot = message
                         for page in list(self.pages):
@@ -244,6 +263,9 @@ class WebConsole:
     async def index(self, request: web.Request) -> web.Response:
         return web.Response(body=self._static["index.html"], content_type="text/html",
                             headers={"Cache-Control": "no-cache"})
+
+    async def favicon(self, request: web.Request) -> web.Response:
+        return web.Response(status=204)
 
     async def static(self, request: web.Request) -> web.Response:
         name = request.match_info["name"]
@@ -278,7 +300,9 @@ class WebConsole:
         app = self.app
         if len(app.connections) >= app.server_cfg.max_clients:
             raise web.HTTPServiceUnavailable(text=f"too many clients ({app.server_cfg.max_clients}); try again later")
-        ws = web.WebSocketResponse(heartbeat=20.0, max_msg_size=app.server_cfg.max_line + 64)
+        # room for a line well over the limit, so that it gets E_TOOLONG as on TCP instead of
+        # closing the page's socket (aiohttp closes with 1009 past max_msg_size)
+        ws = web.WebSocketResponse(heartbeat=20.0, max_msg_size=4 * app.server_cfg.max_line + 1024)
         await ws.prepare(request)
         from ..server import next_connection_id
 

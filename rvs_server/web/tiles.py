@@ -9,7 +9,7 @@ transparent, never black, so the layers below (and the metric grid) show through
 from __future__ import annotations
 
 import threading
-from collections import OrderedDict
+from collections import Counter, OrderedDict
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -42,14 +42,30 @@ def version_of(path: Path) -> str:
 
 
 def _hillshade(dem: np.ndarray, cell: float) -> np.ndarray:
-    """Shaded relief, light from the north-west at 45 degrees (the cartographers' convention)."""
-    z = np.where(np.isfinite(dem), dem, np.nanmean(dem) if np.isfinite(dem).any() else 0.0)
-    gy, gx = np.gradient(z, cell)
-    slope = np.arctan(np.hypot(gx, gy))
-    aspect = np.arctan2(-gx, gy)
-    az, alt = np.radians(315.0), np.radians(45.0)
-    shade = np.sin(alt) * np.cos(slope) + np.cos(alt) * np.sin(slope) * np.cos(az - aspect)
+    """Shaded relief, light from the north-west at 45 degrees (the cartographers' convention).
+
+    The surface normal dotted with the light, in float32 without trigonometry per cell: the
+    arctan/cos form costs a second on a 2000 x 2000 layer, this a tenth of it."""
+    z = np.where(np.isfinite(dem), dem, np.nanmean(dem) if np.isfinite(dem).any() else 0.0).astype(np.float32)
+    gx = np.zeros_like(z)
+    gy = np.zeros_like(z)
+    gx[:, 1:-1] = (z[:, 2:] - z[:, :-2]) / (2 * cell)  # east
+    gy[1:-1, :] = (z[:-2, :] - z[2:, :]) / (2 * cell)  # north: row 0 is the northern edge
+    alt, az = np.radians(45.0), np.radians(315.0)  # azimuth clockwise from north
+    lx, ly, lz = np.cos(alt) * np.sin(az), np.cos(alt) * np.cos(az), np.sin(alt)
+    shade = (lz - gx * lx - gy * ly) / np.sqrt(1.0 + gx * gx + gy * gy)
     return np.clip(shade, 0.0, 1.0)
+
+
+def _range(values: np.ndarray) -> tuple[float | None, float | None]:
+    """1st..99th percentile from at most ~250,000 cells: the colour range of a map view does not
+    need every cell, and a full percentile is a third of a big layer's render."""
+    sample = values[:: max(1, values.shape[0] // 500), :: max(1, values.shape[1] // 500)]
+    finite = sample[np.isfinite(sample)]
+    if finite.size == 0:
+        return None, None
+    lo, hi = np.percentile(finite, [1, 99])
+    return float(lo), float(hi)
 
 
 def _reduce(values: np.ndarray) -> np.ndarray:
@@ -103,12 +119,13 @@ def render_layer(name: str, values: np.ndarray, geometry: GridGeometry) -> tuple
                       "unit": "score (0 blocked, 1 good)"}
     if name == "dem":
         cell = geometry.cell * (geometry.width / values.shape[1])
-        colour, lo, hi = colorize(values, colormap=cv2.COLORMAP_TURBO)
-        shade = _hillshade(values.astype(np.float64), cell)
+        colour, lo, hi = colorize(values, *_range(values), colormap=cv2.COLORMAP_TURBO)
+        shade = _hillshade(values, cell)
         rgba[..., :3] = (colour.astype(np.float32) * (0.35 + 0.65 * shade[..., None])).astype(np.uint8)
         rgba[..., 3] = np.where(defined, 255, 0)
         return rgba, _ramp(cv2.COLORMAP_TURBO, lo, hi, "m (height, hill-shaded)")
-    colour, lo, hi = colorize(values.astype(np.float32), colormap=cv2.COLORMAP_VIRIDIS)
+    values = values.astype(np.float32)
+    colour, lo, hi = colorize(values, *_range(values), colormap=cv2.COLORMAP_VIRIDIS)
     rgba[..., :3] = colour
     rgba[..., 3] = np.where(defined, 230, 0)
     return rgba, _ramp(cv2.COLORMAP_VIRIDIS, lo, hi, UNITS.get(name, ""))
@@ -128,7 +145,8 @@ class LayerCache:
         self.size = size
         self._items: OrderedDict[tuple[str, str], LayerImage] = OrderedDict()
         self._lock = threading.Lock()
-        self.renders = 0  # how many times a layer was rendered (the cache's misses)
+        self._inflight: dict[tuple[str, str], threading.Lock] = {}
+        self.renders: Counter[str] = Counter()  # renders by layer name (the cache's misses)
 
     def get(self, name: str, path: Path) -> LayerImage:
         version = version_of(path)
@@ -138,12 +156,19 @@ class LayerCache:
             if hit is not None:
                 self._items.move_to_end(key)
                 return hit
-        values, geometry = read_geotiff(path)
-        rgba, legend = render_layer(name, values, geometry)
-        image = LayerImage(encode_png(rgba), geometry.bounds, version, legend)
-        with self._lock:
-            self.renders += 1
-            self._items[key] = image
-            while len(self._items) > self.size:
-                self._items.popitem(last=False)
+            rendering = self._inflight.setdefault(key, threading.Lock())
+        with rendering:  # a second request for a layer being rendered waits for that render
+            with self._lock:
+                hit = self._items.get(key)
+            if hit is not None:
+                return hit
+            values, geometry = read_geotiff(path)
+            rgba, legend = render_layer(name, values, geometry)
+            image = LayerImage(encode_png(rgba), geometry.bounds, version, legend)
+            with self._lock:
+                self.renders[name] += 1
+                self._items[key] = image
+                self._inflight.pop(key, None)
+                while len(self._items) > self.size:
+                    self._items.popitem(last=False)
         return image
