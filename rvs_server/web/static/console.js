@@ -141,9 +141,10 @@ function onState(st) {
 function updateLayers(maps) {
   for (const [name, m] of Object.entries(maps)) {
     const have = S.layers[name];
-    if (have && have.url === m.url) continue;
+    if (have && (have.url === m.url || have.loading === m.url)) continue;
+    // the old image stays on the map until the new version has loaded: no blank map meanwhile
     const layer = { url: m.url, bounds: m.bounds, img: new Image(), legend: null, ready: false };
-    S.layers[name] = layer;
+    if (have) have.loading = m.url; else S.layers[name] = layer;
     fetch(m.url).then((resp) => {
       if (!resp.ok) throw new Error(resp.statusText);
       layer.legend = JSON.parse(resp.headers.get("X-Legend") || "null");
@@ -151,7 +152,9 @@ function updateLayers(maps) {
     }).then((blob) => {
       layer.img.onload = () => {
         layer.ready = true;
-        if (have && have.img.src.startsWith("blob:")) URL.revokeObjectURL(have.img.src);
+        const old = S.layers[name];
+        if (old && old !== layer && old.img.src.startsWith("blob:")) URL.revokeObjectURL(old.img.src);
+        S.layers[name] = layer;
         if (!S.fitted) fit();
         draw();
         drawLegend();
