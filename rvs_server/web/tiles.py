@@ -18,11 +18,10 @@ import cv2
 import numpy as np
 
 from prox_workflows.grid import GridGeometry, read_geotiff
-from prox_workflows.steps.colormaps import colorize
+from prox_workflows.mapview import Style, layer_rgba
+from prox_workflows.steps.colormaps import RED_YELLOW_GREEN
 
 MAX_SIDE = 2048  # larger layers are reduced: a browser draws 2048 px as fast as it needs to
-
-HAZARD_RGBA = {0: (60, 170, 80, 60), 255: (220, 40, 40, 230)}  # safe (light) / hazardous; undefined: clear
 
 
 @dataclass(frozen=True)
@@ -41,31 +40,18 @@ def version_of(path: Path) -> str:
     return f"{st.st_mtime_ns:x}-{st.st_size:x}-{st.st_ino:x}"
 
 
-def _hillshade(dem: np.ndarray, cell: float) -> np.ndarray:
-    """Shaded relief, light from the north-west at 45 degrees (the cartographers' convention).
-
-    The surface normal dotted with the light, in float32 without trigonometry per cell: the
-    arctan/cos form costs a second on a 2000 x 2000 layer, this a tenth of it."""
-    z = np.where(np.isfinite(dem), dem, np.nanmean(dem) if np.isfinite(dem).any() else 0.0).astype(np.float32)
-    gx = np.zeros_like(z)
-    gy = np.zeros_like(z)
-    gx[:, 1:-1] = (z[:, 2:] - z[:, :-2]) / (2 * cell)  # east
-    gy[1:-1, :] = (z[:-2, :] - z[2:, :]) / (2 * cell)  # north: row 0 is the northern edge
-    alt, az = np.radians(45.0), np.radians(315.0)  # azimuth clockwise from north
-    lx, ly, lz = np.cos(alt) * np.sin(az), np.cos(alt) * np.cos(az), np.sin(alt)
-    shade = (lz - gx * lx - gy * ly) / np.sqrt(1.0 + gx * gx + gy * gy)
-    return np.clip(shade, 0.0, 1.0)
-
-
-def _range(values: np.ndarray) -> tuple[float | None, float | None]:
-    """1st..99th percentile from at most ~250,000 cells: the colour range of a map view does not
-    need every cell, and a full percentile is a third of a big layer's render."""
-    sample = values[:: max(1, values.shape[0] // 500), :: max(1, values.shape[1] // 500)]
-    finite = sample[np.isfinite(sample)]
-    if finite.size == 0:
-        return None, None
-    lo, hi = np.percentile(finite, [1, 99])
-    return float(lo), float(hi)
+STYLES: dict[str, Style] = {
+    "dem": Style("shaded", cv2.COLORMAP_TURBO, unit="m (height, hill-shaded)"),
+    "hazard": Style("classes"),
+    "ortho": Style("grey"),
+    "traversability": Style("continuous", RED_YELLOW_GREEN, 0.0, 1.0, "score (0 blocked, 1 good)"),
+    "slope": Style("continuous", cv2.COLORMAP_INFERNO, unit="deg"),
+    "step": Style("continuous", cv2.COLORMAP_INFERNO, unit="m"),
+    "roughness": Style("continuous", cv2.COLORMAP_INFERNO, unit="m"),
+    "variance": Style("continuous", unit="m²"),
+    "count": Style("continuous", unit="points"),
+    "global_hazard": Style("classes"),
+}
 
 
 def _reduce(values: np.ndarray) -> np.ndarray:
@@ -74,61 +60,11 @@ def _reduce(values: np.ndarray) -> np.ndarray:
     return values[::step, ::step] if step > 1 else values
 
 
-def _css(rgb: Any) -> str:
-    return "#{:02x}{:02x}{:02x}".format(*(int(c) for c in rgb[:3]))
-
-
-def _ramp(colormap: int, lo: float, hi: float, unit: str) -> dict[str, Any]:
-    ramp = cv2.applyColorMap(np.linspace(0, 255, 6).astype(np.uint8).reshape(6, 1), colormap).reshape(6, 3)
-    return {"kind": "ramp", "colours": [_css(c[::-1]) for c in ramp], "lo": lo, "hi": hi, "unit": unit}
-
-
-UNITS = {"dem": "m", "slope": "deg", "step": "m", "roughness": "m", "variance": "m²", "count": "points"}
-
-
 def render_layer(name: str, values: np.ndarray, geometry: GridGeometry) -> tuple[np.ndarray, dict[str, Any]]:
     """RGBA uint8 of one layer and its legend, by what the layer means (its name is its kind)."""
-    values = _reduce(values)
-    if values.ndim == 3:  # an RGB ortho image
-        rgb = values[..., :3].astype(np.uint8)
-        alpha = np.where(rgb.any(axis=2), 255, 0).astype(np.uint8)
-        return np.dstack([rgb, alpha]), {"kind": "image"}
-    defined = np.isfinite(values) if values.dtype.kind == "f" else np.ones(values.shape, bool)
-    rgba = np.zeros(values.shape + (4,), np.uint8)
-    if name == "hazard":
-        for value, colour in HAZARD_RGBA.items():
-            rgba[values == value] = colour
-        return rgba, {"kind": "classes", "entries": [[_css(HAZARD_RGBA[0]), "safe"],
-                                                      [_css(HAZARD_RGBA[255]), "hazardous"],
-                                                      ["transparent", "undefined"]]}
-    if name == "ortho":
-        grey = np.nan_to_num(values.astype(np.float32))
-        if values.dtype != np.uint8:
-            hi = float(np.nanpercentile(grey[defined], 99.5)) if defined.any() else 1.0
-            grey = np.clip(grey / max(hi, 1e-9) * 255.0, 0, 255)
-        rgba[..., :3] = grey[..., None].astype(np.uint8)
-        rgba[..., 3] = np.where(defined & (grey > 0), 255, 0)
-        return rgba, {"kind": "image"}
-    if name == "traversability":  # green good, red bad
-        t = np.clip(np.nan_to_num(values.astype(np.float32)), 0.0, 1.0)
-        rgba[..., 0] = (255 * np.clip(2.0 * (1.0 - t), 0, 1)).astype(np.uint8)
-        rgba[..., 1] = (200 * np.clip(2.0 * t, 0, 1)).astype(np.uint8)
-        rgba[..., 2] = 40
-        rgba[..., 3] = np.where(defined, 200, 0)
-        return rgba, {"kind": "ramp", "colours": ["#ff0028", "#ffc828", "#00c828"], "lo": 0.0, "hi": 1.0,
-                      "unit": "score (0 blocked, 1 good)"}
-    if name == "dem":
-        cell = geometry.cell * (geometry.width / values.shape[1])
-        colour, lo, hi = colorize(values, *_range(values), colormap=cv2.COLORMAP_TURBO)
-        shade = _hillshade(values, cell)
-        rgba[..., :3] = (colour.astype(np.float32) * (0.35 + 0.65 * shade[..., None])).astype(np.uint8)
-        rgba[..., 3] = np.where(defined, 255, 0)
-        return rgba, _ramp(cv2.COLORMAP_TURBO, lo, hi, "m (height, hill-shaded)")
-    values = values.astype(np.float32)
-    colour, lo, hi = colorize(values, *_range(values), colormap=cv2.COLORMAP_VIRIDIS)
-    rgba[..., :3] = colour
-    rgba[..., 3] = np.where(defined, 230, 0)
-    return rgba, _ramp(cv2.COLORMAP_VIRIDIS, lo, hi, UNITS.get(name, ""))
+    reduced = _reduce(values)
+    cell = geometry.cell * geometry.width / reduced.shape[1]
+    return layer_rgba(reduced, STYLES.get(name, Style()), cell)
 
 
 def encode_png(rgba: np.ndarray) -> bytes:

@@ -195,16 +195,16 @@ function drawLegend() {
   if (lg.kind === "ramp") {
     const ramp = document.createElement("div");
     ramp.className = "ramp";
-    ramp.style.background = `linear-gradient(to right, ${lg.colours.join(",")})`;
+    ramp.style.background = `linear-gradient(to right, ${lg.colours.map((c) => `rgb(${c.join(",")})`).join(",")})`;
     const scale = document.createElement("div");
     scale.textContent = `${fmt(lg.lo)} … ${fmt(lg.hi)} ${lg.unit}`;
     el.append(ramp, scale);
   } else if (lg.kind === "classes") {
-    for (const [colour, label] of lg.entries) {
+    for (const [[r, g, b, a], label] of lg.entries) {  // the colours as drawn; alpha 0 shows hatched
       const row = document.createElement("div");
       const sw = document.createElement("span");
-      sw.className = "swatch" + (colour === "transparent" ? " transparent" : "");
-      if (colour !== "transparent") sw.style.background = colour;
+      sw.className = "swatch" + (a === 0 ? " transparent" : "");
+      if (a > 0) sw.style.background = `rgba(${r},${g},${b},${a / 255})`;
       row.append(sw, label);
       el.appendChild(row);
     }
