@@ -1,6 +1,9 @@
 """The server's state and the dispatcher: modes, pose, devices, the job slot, event fan-out.
 
-Everything here runs on the event loop except job handlers, which run in the job thread and
+Everything the server keeps between requests is a declared field of :class:`App`, so a reader
+sees it in one place; command modules read and change it only through the fields' own methods
+(each concern with its own lock), never by hanging new attributes on the app. Everything here
+runs on the event loop except job handlers and monitors, which run in their own threads and
 touch shared state only through the methods marked thread-safe.
 """
 
@@ -8,28 +11,32 @@ from __future__ import annotations
 
 import asyncio
 import difflib
-import shutil
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Awaitable, Callable
 from dataclasses import dataclass, field
 from datetime import UTC, datetime
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Generic, TypeVar
 
 import structlog
 
 from drivers.base import DeviceError
-from prox_workflows.products import write_yaml_atomic
 
 from . import __version__
-from .config import ConfigStore
+from .config import ConfigStore, ServerConfig
 from .devices import DeviceRegistry
 from .jobs import Job, JobRunner, error_fields
-from .protocol import ProtocolError, Reply, parse_request, tag_of
+from .maps import CurrentMaps, RecoverySets
+from .monitors import Monitors
+from .protocol import ProtocolError, Reply, Request, parse_request, tag_of
 from .table import ALWAYS, CONTROL, HARDWARE, Command, bind_options, check_positional, lookup
 
 if TYPE_CHECKING:
+    from drivers.sim.world import World
+    from prox_workflows.steps.odometry import DepthFrame
+    from prox_workflows.steps.tracking import Detection
+
     from .server import Connection
     from .web.console import WebConsole
 
@@ -49,16 +56,22 @@ class Context:
 
     app: App
     conn: Connection
-    request: Any
+    request: Request
     command: Command
     # Run once the OK line is out: what must follow the reply rather than precede it (the JSON
     # greeting that format json sends).
     after_ok: list[Callable[[], None]] = field(default_factory=list)
 
+    def log_context(self) -> dict[str, Any]:
+        """What a thread this request starts (a monitor) binds to its log lines, as a job does."""
+        return {"conn": self.conn.id, "peer": self.conn.peer, "command": self.command.name,
+                "tag": self.request.tag}
+
 
 @dataclass
 class Pose:
-    """The rover pose the server believes in (reported by the GNC with ``pose``).
+    """The rover pose the server believes in (reported by the GNC with ``pose``, or set by
+    orient, navigate and recover; ``source`` says which).
 
     Coerced to plain floats: a pose from the simulator or an estimator arrives as numpy scalars,
     and those must never reach a recovery manifest, a sidecar or a reply.
@@ -69,18 +82,84 @@ class Pose:
     heading: float = 0.0
     time: float = field(default_factory=time.time)
     stopped: bool = False  # the GNC said the rover stands still here (it gave up on a leg)
+    # Who said so: gnc (the pose command), orient (visual odometry), navigate (its -start),
+    # sim (the simulated rover's truth after an -auto leg), recovery, or start (nobody yet).
+    # Not on the wire: it tells a reader (and the pose estimator to come) what to trust.
+    source: str = "start"
 
     def __post_init__(self) -> None:
         self.x, self.y, self.heading = float(self.x), float(self.y), float(self.heading)
 
 
+T = TypeVar("T")
+
+
+class Shared(Generic[T]):
+    """One value that job threads write and the event loop reads, behind its own lock."""
+
+    def __init__(self, value: T) -> None:
+        self._lock = threading.Lock()
+        self._value = value
+
+    def get(self) -> T:
+        with self._lock:
+            return self._value
+
+    def set(self, value: T) -> None:
+        with self._lock:
+            self._value = value
+
+
+@dataclass(frozen=True)
+class OrientReference:
+    """The last orient acquisition: what the next orient tracks against, and the pose it had."""
+
+    sensor: str
+    frame: DepthFrame
+    pose: tuple[float, float, float]
+    time: float
+
+
 class App:
+    """Everything the server keeps, as declared fields; see the module docstring for the rules.
+
+    Fields a thread other than the event loop may touch say how (their lock, or thread-safe
+    methods); the rest belong to the event loop.
+    """
+
+    # -- configuration and surroundings (set once)
+    config: ConfigStore  # every module's effective configuration; config -set changes it in place
+    server_cfg: ServerConfig  # the live "server" module of ``config``
+    data_dir: Path  # every file the server writes lands under it
+    world: World | None  # the simulated world when any device is simulated, else None
+    loop: asyncio.AbstractEventLoop
+    name: str  # server/version, as the hello line and recovery sets say
+    started: float  # monotonic time of start (status: uptime)
+    # -- jobs, devices, connections (event loop, except where said)
+    jobs: JobRunner  # the single job slot
+    devices: DeviceRegistry  # open devices and their errors; its own lock
+    # Held by a job for its whole run and by a monitor for each of its cycles: so a monitor
+    # yields the PTU and cameras to any job and resumes after it.
+    device_lock: threading.RLock
+    connections: set[Connection]
+    last_used_hardware: bool  # whether the last job used hardware (continue checks, or re-inits)
+    last_ptu: tuple[float, float] | None  # the PTU's last known pan/tilt, for a recovery set
+    stopping: asyncio.Event  # set when the server is to shut down
+    # -- what the server knows of the rover and its surroundings (thread-safe, one lock each)
+    pose_changed: threading.Condition  # guards the pose; notified on every change
+    maps: CurrentMaps  # the current DEM's layers, their files and views kept for an update
+    odometry: Shared[OrientReference | None]  # orient's reference acquisition
+    track_target: Shared[Detection | None]  # what track3d-detect found, where track3d-start begins
+    monitors: Monitors  # hazard monitor, target tracker (event loop only)
+    recovery: RecoverySets  # break's recovery sets and the newest of them
+    console: WebConsole | None  # the operator web console, when server.web_port is set (event loop)
+
     def __init__(
         self,
         config: ConfigStore,
         *,
         data_dir: Path,
-        world: Any = None,
+        world: World | None = None,
         loop: asyncio.AbstractEventLoop,
     ) -> None:
         self.config = config
@@ -89,30 +168,27 @@ class App:
         self.data_dir.mkdir(parents=True, exist_ok=True)
         self.world = world
         self.loop = loop
+        self.name = f"{self.server_cfg.name}/{__version__}"
+        self.started = time.monotonic()
         self.jobs = JobRunner(loop)
         self.devices = DeviceRegistry(config.get("drivers"), world)  # live: config -set reaches it
-        self.connections: set[Connection] = set()
-        self.base_mode = "ready"
-        self._announced_mode = "ready"
-        self.pose = Pose()
-        self.pose_changed = threading.Condition()
-        self.pose_version = 0
-        self.last_used_hardware = False
-        self.last_ptu: tuple[float, float] | None = None
-        self.last_recovery: str | None = None
-        self.maps: dict[str, str] = {}  # current map products: layer -> path under the data dir
-        self.maps_lock = threading.RLock()
-        # Background monitors (hazard-start, track3d-start) by name; each has status_fields() and
-        # stop(). A job holds device_lock while it runs, a monitor for each of its cycles: so a
-        # monitor yields the PTU and cameras to any job and resumes after it.
-        self.monitors: dict[str, Any] = {}
         self.device_lock = threading.RLock()
-        self.console: WebConsole | None = None  # the operator web console, when server.web_port is set
-        self.started = time.monotonic()
+        self.connections = set()
+        self.last_used_hardware = False
+        self.last_ptu = None
+        self.console = None
         self.stopping = asyncio.Event()
-        self.quitting = False
-        self.name = f"{self.server_cfg.name}/{__version__}"
-        self._find_last_recovery()
+        self._quitting = False
+        self._base_mode = "ready"
+        self._announced_mode = "ready"
+        self.pose_changed = threading.Condition()
+        self._pose = Pose()
+        self._pose_version = 0
+        self.maps = CurrentMaps()
+        self.odometry = Shared(None)
+        self.track_target = Shared(None)
+        self.monitors = Monitors(loop)
+        self.recovery = RecoverySets(self.data_dir, self.rel)
 
     # ---------------------------------------------------------------- modes and events
 
@@ -121,11 +197,48 @@ class App:
         job = self.jobs.current
         if job is not None:
             return "sleep" if job.command == "sleep" else "busy"
-        return self.base_mode
+        return self._base_mode
+
+    @property
+    def base_mode(self) -> str:
+        """The mode when no job runs: ready, standby, break or fault."""
+        return self._base_mode
+
+    @property
+    def quitting(self) -> bool:
+        """quit was answered: requests still arriving are ignored."""
+        return self._quitting
+
+    def mode_blocks_devices(self) -> bool:
+        """Whether the mode keeps hardware untouched (a monitor pauses in it)."""
+        return self._base_mode in BLOCKING_MODES
 
     def set_mode(self, mode: str) -> None:
-        self.base_mode = mode
+        self._base_mode = mode
         self.announce_mode()
+
+    def device_failed(self, device: str, message: str) -> None:
+        """A device failed in a job or a monitor: fault mode, and status names it (loop only)."""
+        self._base_mode = "fault"
+        self.devices.errors[device] = message
+
+    def begin_break(self) -> Job | None:
+        """Tell the running job to stop, synchronously, and be in break mode from here on.
+
+        Called before anything else the event loop runs: a job started by the same batch of
+        lines is caught however short it is, and its end announces break, never a passing ready."""
+        job = self.jobs.current
+        if job is not None:
+            job.cancel.set()
+        self._base_mode = "break"
+        return job
+
+    async def quit(self) -> Job | None:
+        """Stop taking requests, interrupt the job and have the server shut down."""
+        self._quitting = True
+        job = await self.interrupt()
+        self.loop.call_soon(self.stopping.set)
+        return job
 
     def announce_mode(self) -> None:
         mode = self.mode
@@ -155,21 +268,26 @@ class App:
         self.console = WebConsole(self)
         await self.console.start(sock)
 
-    def current_maps(self) -> dict[str, str]:
-        """The current map products (layer -> path relative to the data directory); thread-safe."""
-        with self.maps_lock:
-            return dict(self.maps)
-
     def broadcast_threadsafe(self, reply: Reply) -> None:
         self.loop.call_soon_threadsafe(self.broadcast, reply)
 
     # ---------------------------------------------------------------- pose
 
-    def set_pose(self, x: float, y: float, heading: float, *, stopped: bool = False) -> None:
+    @property
+    def pose(self) -> Pose:
+        """The rover pose the server believes in (replaced whole, never changed in place)."""
+        return self._pose
+
+    @property
+    def pose_version(self) -> int:
+        """Counts pose changes: a waiter compares it to tell a new report from the one it saw."""
+        return self._pose_version
+
+    def set_pose(self, x: float, y: float, heading: float, *, stopped: bool = False, source: str = "gnc") -> None:
         """Thread-safe; wakes a navigation job waiting for the rover to move."""
         with self.pose_changed:
-            self.pose = Pose(x, y, heading, stopped=stopped)
-            self.pose_version += 1
+            self._pose = Pose(x, y, heading, stopped=stopped, source=source)
+            self._pose_version += 1
             self.pose_changed.notify_all()
 
     def ptu_position(self) -> tuple[float, float] | None:
@@ -204,60 +322,26 @@ class App:
     def log_file(self) -> Path:
         return self.data_dir / self.server_cfg.log_file
 
-    def _find_last_recovery(self) -> None:
-        """The newest complete recovery set; temp folders of a set a crash cut short are removed."""
-        root = self.data_dir / "recovery"
-        if not root.is_dir():
-            return
-        for stray in root.glob(".*.tmp"):
-            shutil.rmtree(stray, ignore_errors=True)
-            log.warning("recovery_tmp_removed", folder=stray.name)
-        sets = sorted(p for p in root.iterdir() if (p / "manifest.yaml").is_file())
-        if sets:
-            self.last_recovery = self.rel(sets[-1])
+    @property
+    def last_recovery(self) -> str | None:
+        """The newest complete recovery set (relative to the data directory), if any."""
+        return self.recovery.last
 
     def write_recovery(self, job: Job | None) -> str:
-        """Store the recovery data set of a break: job, parameters, pose, PTU, current maps.
-
-        Written into a temporary folder and renamed, so a set is either complete or absent;
-        a failure removes the temporary folder before it is raised.
-        """
-        stamp = datetime.now(UTC).strftime("%Y%m%dT%H%M%S_%fZ")
-        root = self.data_dir / "recovery"
-        root.mkdir(parents=True, exist_ok=True)
-        tmp = root / f".{stamp}.tmp"
-        tmp.mkdir()
-        try:
-            ptu = self.ptu_position() or self.last_ptu  # mid-reinit the PTU may not answer: its last position
-            copied: dict[str, str] = {}
-            with self.maps_lock:
-                maps = dict(self.maps)
-            for layer, rel in maps.items():
-                src = self.data_dir / rel
-                if src.is_file():
-                    (tmp / "maps").mkdir(exist_ok=True)
-                    shutil.copy2(src, tmp / "maps" / src.name)
-                    copied[layer] = f"maps/{src.name}"
-            pose = self.pose
-            manifest = {
-                "time": datetime.now(UTC).isoformat(),
-                "server": self.name,
-                "job": None if job is None else {
-                    "id": job.id, "command": job.command, "parameters": job.params,
-                    "progress": {"phase": job.phase, "done": job.done, "total": job.total},
-                },
-                "pose": {"x": pose.x, "y": pose.y, "heading": pose.heading},
-                "ptu": None if ptu is None else {"pan": ptu[0], "tilt": ptu[1]},
-                "maps": copied,
-            }
-            write_yaml_atomic(tmp / "manifest.yaml", manifest)
-            final = root / stamp
-            tmp.rename(final)
-        except BaseException:
-            shutil.rmtree(tmp, ignore_errors=True)
-            raise
-        self.last_recovery = self.rel(final)
-        return self.last_recovery
+        """Store the recovery data set of a break: job, parameters, pose, PTU, current maps."""
+        ptu = self.ptu_position() or self.last_ptu  # mid-reinit the PTU may not answer: its last position
+        pose = self.pose
+        manifest = {
+            "time": datetime.now(UTC).isoformat(),
+            "server": self.name,
+            "job": None if job is None else {
+                "id": job.id, "command": job.command, "parameters": job.params,
+                "progress": {"phase": job.phase, "done": job.done, "total": job.total},
+            },
+            "pose": {"x": pose.x, "y": pose.y, "heading": pose.heading},
+            "ptu": None if ptu is None else {"pan": ptu[0], "tilt": ptu[1]},
+        }
+        return self.recovery.write(manifest, self.maps.files())
 
     # ---------------------------------------------------------------- dispatch
 
@@ -334,7 +418,7 @@ class App:
         for then in ctx.after_ok:
             then()
 
-    async def _finish_async(self, ctx: Context, coro: Any) -> None:
+    async def _finish_async(self, ctx: Context, coro: Awaitable[dict[str, Any] | None]) -> None:
         conn, cmd, req = ctx.conn, ctx.command, ctx.request
         try:
             result = await coro
@@ -345,7 +429,7 @@ class App:
             log.exception("handler_failed", command=cmd.name)
             conn.send(Reply(cmd.module, "ERROR", error_fields(exc)[0], req.tag))
 
-    def _start_job(self, conn: Connection, cmd: Command, req: Any, cfg: Any) -> None:
+    def _start_job(self, conn: Connection, cmd: Command, req: Request, cfg: Any) -> None:
         running = self.jobs.current
         if running is not None:
             raise ProtocolError(
@@ -362,9 +446,9 @@ class App:
             self.loop.call_soon_threadsafe(self.job_reply, conn, reply)
 
         params = cfg.as_dict() if cfg is not None else {}
+        context = {"conn": conn.id, "peer": conn.peer, "command": cmd.name, "job": job_id, "tag": tag}
         job = Job(job_id, cmd.name, module, params, tag, emit, uses_hardware=cmd.klass in (HARDWARE, CONTROL),
-                  connection=conn.id)
-        job.app = self  # type: ignore[attr-defined]
+                  connection=conn.id, app=self, log_context=context)
         self.job_reply(conn, Reply(module, "ACK", {"job": job_id}, tag))
         conn.jobs_running += 1
         conn.jobs_started += 1
@@ -384,9 +468,10 @@ class App:
             else:
                 fields, device_failed = error_fields(error)
                 if device_failed:
-                    self.base_mode = "fault"
                     if isinstance(error, DeviceError):
-                        self.devices.errors[error.device] = error.message
+                        self.device_failed(error.device, error.message)
+                    else:
+                        self._base_mode = "fault"
                 self.job_reply(conn, Reply(module, "ERROR", {"job": j.id, **fields}, tag))
                 jlog.warning("job_error", code=fields["code"], error=fields["message"])
             self.announce_mode()
@@ -402,7 +487,5 @@ class App:
 
     def stop_monitors(self) -> None:
         """Stop every background monitor and wait for its thread (server shutdown; blocking)."""
-        for monitor in list(self.monitors.values()):
-            monitor.stop()
-        self.monitors.clear()
+        self.monitors.stop_all()
 

@@ -2,7 +2,9 @@
 
 A job's handler runs in a worker thread so that status queries stay fast while it computes;
 it reports through :meth:`Job.progress` and checks :meth:`Job.check` at view and step
-boundaries, which is how ``break`` stops it within a second.
+boundaries, which is how ``break`` stops it within a second. The worker thread binds the job's
+log context (connection, command, tag, job), so every line the handler logs, through whatever
+library, says which request it belongs to, as the event loop's lines do.
 """
 
 from __future__ import annotations
@@ -14,13 +16,16 @@ import traceback
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import structlog
 
 from drivers.base import DeviceError
 
 from .protocol import ProtocolError
+
+if TYPE_CHECKING:
+    from .app import App
 
 log = structlog.get_logger("rvs.jobs")
 
@@ -50,6 +55,9 @@ class Job:
     finished: threading.Event = field(default_factory=threading.Event)
     succeeded: bool | None = None  # set when it finished: True if its final line is OK
     _reported: bool = False
+    log_context: dict[str, Any] = field(default_factory=dict)  # bound in the worker thread's log lines
+    # The server state a handler works on (devices, config, pose, maps, data directory).
+    app: App = field(kw_only=True, repr=False)
 
     @property
     def cancelled(self) -> bool:
@@ -139,14 +147,15 @@ class JobRunner:
         def run() -> None:
             result: dict[str, Any] | None = None
             error: BaseException | None = None
-            try:
-                result = work(job)
-                if job.cancel.is_set():
-                    raise Interrupted(f"{job.command} job {job.id} was interrupted")
-            except BaseException as exc:  # noqa: BLE001 - every failure becomes an ERROR line
-                error = exc
-                if not isinstance(exc, ProtocolError | Interrupted | DeviceError | OSError | ValueError):
-                    log.error("job_failed", job=job.id, command=job.command, trace=traceback.format_exc())
+            with structlog.contextvars.bound_contextvars(**job.log_context):
+                try:
+                    result = work(job)
+                    if job.cancel.is_set():
+                        raise Interrupted(f"{job.command} job {job.id} was interrupted")
+                except BaseException as exc:  # noqa: BLE001 - every failure becomes an ERROR line
+                    error = exc
+                    if not isinstance(exc, ProtocolError | Interrupted | DeviceError | OSError | ValueError):
+                        log.error("job_failed", job=job.id, command=job.command, trace=traceback.format_exc())
             self.loop.call_soon_threadsafe(self._finish, job, result, error, on_done)
 
         self._pool.submit(run)

@@ -60,7 +60,7 @@ async def run(store: ConfigStore, *, ready: Callable[[int], None] | None = None,
     except (OSError, ValueError, KeyError) as exc:
         raise StartupError(f"cannot set up: {exc}") from exc
     if recover is not None:
-        from .commands.dem import load_recovery
+        from .maps import load_recovery
         from .protocol import ProtocolError
 
         try:

@@ -10,10 +10,13 @@ from __future__ import annotations
 import copy
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from .config import ModuleConfig
 from .protocol import ProtocolError, Request
+
+if TYPE_CHECKING:
+    from .app import App
 
 # What may run in which mode. "always": help, status and the like, answered even while a job
 # runs; "control": the change-of-mode commands; "hardware": hardware and map commands, refused
@@ -36,7 +39,7 @@ class Command:
     sim_only: bool = False
     # check(app, cfg) runs on the event loop before a job's ACK: every refusal that needs no
     # hardware I/O (the PTU's limits read at open, a sim-only option) is an ERROR, never an ACK
-    check: Callable[[Any, Any], None] | None = None
+    check: Callable[[App, Any], None] | None = None
 
     def usage(self) -> str:
         parts = [self.name] + [f"[{p}]" for p in self.positional]
@@ -64,7 +67,7 @@ def command(
     raw: bool = False,
     sim_only: bool = False,
     module: str | None = None,
-    check: Callable[[Any, Any], None] | None = None,
+    check: Callable[[App, Any], None] | None = None,
     aliases: tuple[str, ...] = (),
 ) -> Callable[[Callable[..., Any]], Callable[..., Any]]:
     """Register a handler; a job handler runs in a worker thread as ``handler(job, cfg)``."""

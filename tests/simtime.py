@@ -6,7 +6,8 @@ the machine is (on a loaded one a cycle takes longer, the target walks farther b
 frames, a one-second window holds fewer cycles). The tests of what the monitors report run
 them in simulated time instead, one ToF frame at a time:
 
-- the monitors' clock (``time`` as ``rvs_server.commands.awareness`` sees it) and the time stamp
+- the monitors' clock (``time`` as ``rvs_server.monitors`` and ``rvs_server.commands.awareness``
+  see it) and the time stamp
   of the poses the GNC reports (``rvs_server.app.Pose``) read a simulated clock;
 - each ToF frame first waits at a gate until the test lets simulated time run past it
   (:meth:`SimTime.run`), then ``on_frame(t)`` puts the world where it is at ``t`` (the test
@@ -27,6 +28,7 @@ from typing import Any
 import pytest
 
 import rvs_server.app as app_module
+import rvs_server.monitors as monitors_module
 from rvs_server.commands import awareness
 
 WAIT = 120.0  # s: a safety net for a monitor that never comes to the gate (a hang), not a speed bound
@@ -66,6 +68,7 @@ class SimTime:
         self._closed = False
         clock, real_pose = self.clock, app_module.Pose
         monkeypatch.setattr(awareness, "time", clock)
+        monkeypatch.setattr(monitors_module, "time", clock)
         monkeypatch.setattr(app_module, "Pose", lambda *a, **kw: real_pose(*a, **{"time": clock.time(), **kw}))
         tof = app.devices.get("tof")
         self._grab_xyz = tof.grab_xyz

@@ -16,9 +16,9 @@ from pathlib import Path
 
 import pytest
 
+from rvs_server.client import console as client
+from rvs_server.client.session import Line, ServerProcess, Session, SessionError, prepare, strip_tag
 from rvs_server.protocol import parse_reply
-from tools import client
-from tools.session import Line, ServerProcess, Session, SessionError, prepare, strip_tag
 
 ROOT = Path(__file__).resolve().parents[1]
 FAST = ["--set", "drivers.ptu.time_scale=0"]  # a simulated PTU that moves instantly
@@ -240,7 +240,7 @@ def test_interactive_prints_greeting_replies_and_events_at_the_prompt(server: Se
     history = tmp_path / "history"
     master, slave = pty.openpty()
     env = dict(os.environ, RVS_CLIENT_HISTORY=str(history), TERM="dumb")
-    proc = subprocess.Popen([sys.executable, "-m", "tools.client", "--port", str(server.port)],
+    proc = subprocess.Popen([sys.executable, "-m", "rvs_server.client.console", "--port", str(server.port)],
                             stdin=slave, stdout=slave, stderr=slave, env=env, cwd=ROOT)
     os.close(slave)
     buf = bytearray()

@@ -59,14 +59,14 @@ def test_break_after_every_job_that_sets_the_pose_writes_a_complete_recovery_set
 
 def test_a_recovery_set_that_cannot_be_written_leaves_no_temp_folder_and_still_breaks(
         server, client, monkeypatch) -> None:
-    import rvs_server.app as app_module
+    import rvs_server.maps as maps_module
 
     def full_disk(path: Path, data: object) -> Path:
         raise OSError(28, "No space left on device")
 
     client.send("@s sleep -seconds 30")
     job = client.reply().fields["job"]
-    monkeypatch.setattr(app_module, "write_yaml_atomic", full_disk)
+    monkeypatch.setattr(maps_module, "write_yaml_atomic", full_disk)
     other = server.client()
     r = other.request("break")
     assert r.status == "ERROR" and r.fields["code"] == "E_IO"
@@ -252,7 +252,7 @@ def test_navigate_progress_per_leg_and_phase(server_factory) -> None:
 
 
 def test_rvs_client_draws_a_progress_bar(server, capsys) -> None:
-    from tools.client import main
+    from rvs_server.client.console import main
 
     assert main(["--port", str(server.port), "--progress", "bar", "-c", "dem-full-tof -range -30,30,-50,-30"]) == 0
     out = capsys.readouterr().out

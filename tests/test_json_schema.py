@@ -13,9 +13,9 @@ import pytest
 from conftest import ServerThread
 from jsonschema import Draft202012Validator
 
-from tools import client as rvs_client
-from tools import replay
-from tools.session import Session
+from rvs_server.client import console as rvs_client
+from rvs_server.client import replay
+from rvs_server.client.session import Session
 
 ROOT = Path(__file__).resolve().parents[1]
 VALIDATOR = Draft202012Validator(json.loads((ROOT / "docs" / "replies.schema.json").read_text()))

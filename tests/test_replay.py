@@ -11,9 +11,9 @@ from pathlib import Path
 import pytest
 
 from rvs_server import __version__
-from tools import replay
-from tools.replay import ScriptError, Step, check, parse_script, pattern_for
-from tools.session import Line, ServerProcess
+from rvs_server.client import replay
+from rvs_server.client.replay import ScriptError, Step, check, parse_script, pattern_for
+from rvs_server.client.session import Line, ServerProcess
 
 REPLAYS = sorted((Path(__file__).parent / "replays").glob("*.rvs"))
 SUMMARY = re.compile(r"(\d+) passed, (\d+) failed")

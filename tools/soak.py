@@ -315,7 +315,7 @@ def main(argv: list[str] | None = None) -> int:
         p.error("--clients must be >= 1, --seconds > 0 and --warmup >= 0")
     server = None
     if args.port is None or args.server:
-        from tools.session import ServerProcess
+        from rvs_server.client.session import ServerProcess
 
         server = ServerProcess(args.data, extra_args=FAST)
         server.start()

@@ -1,48 +1,37 @@
 """Awareness commands: hazard-start / hazard-stop (dynamic hazard detection, seed 000 sect. 6.2)
 and track3d-detect / track3d-start / track3d-stop (target tracking, appendix C).
 
-The monitor and the tracker are background threads, not jobs: they run while the GNC drives and
-while other commands are answered. The rules they follow (documented in the protocol page):
-
-- **They yield to jobs.** A job holds ``app.device_lock`` for its whole run, a monitor only for
-  one cycle at a time; while a job runs (or the server is in standby, sleep, break or fault) the
-  monitor pauses without touching a device, then resumes and points the PTU back where it was.
-  A job asked for while a monitor runs is therefore accepted as usual (it waits at most one
-  monitor cycle for the devices). The hazard monitor says so with ``EVENT kind=hazard
-  level=paused``; after the pause its next level is always sent.
-- **One holder of the PTU.** The hazard monitor and the tracker both steer the PTU, so starting
-  one while the other runs is ``E_BUSY`` naming it.
-- **break stops jobs, not monitors**; the monitors pause in the break mode and resume after
-  continue/reset. hazard-stop / track3d-stop, quit and server shutdown stop them.
-- A device failure inside a monitor puts the server in fault mode as a job's would, and ends the
-  monitor with a last EVENT carrying ``code=E_DEVICE``.
+hazard-start and track3d-start run background monitors; the rules those follow (they yield to
+jobs, one holder of the PTU, break pauses them) are the monitor framework's, in
+``rvs_server/monitors.py``. This module holds the commands and the two concrete monitors.
 """
 
 from __future__ import annotations
 
 import math
-import threading
 import time
-from collections import deque
 from dataclasses import dataclass
-from typing import Any, ClassVar
+from typing import TYPE_CHECKING, Any, ClassVar
 
 import numpy as np
 import structlog
 
-from drivers.base import DeviceError
 from prox_workflows.steps import hazard_monitor as hm
 from prox_workflows.steps import tracking as tr
 from prox_workflows.steps.ptu_positions import get_ptu_positions
 from prox_workflows.steps.transforms import HeadCalibration, T_global_from_rover, invert
 
-from ..app import BLOCKING_MODES, Context
+from ..app import Context
 from ..config import ModuleConfig, param
 from ..jobs import Job
-from ..protocol import Fixed, ProtocolError, Reply
+from ..maps import current_pose
+from ..monitors import Monitor
+from ..protocol import Fixed, ProtocolError
 from ..table import HARDWARE, command
-from .dem import current_pose
 from .hardware import device_call
+
+if TYPE_CHECKING:
+    from ..app import App
 
 log = structlog.get_logger("rvs.awareness")
 
@@ -57,210 +46,6 @@ def _fov(K: np.ndarray, shape: tuple[int, int]) -> tuple[float, float]:
 def _limits(ptu: Any) -> tuple[float, float, float, float]:
     lim = ptu.limits()
     return (lim["pan"]["min_deg"], lim["pan"]["max_deg"], lim["tilt"]["min_deg"], lim["tilt"]["max_deg"])
-
-
-class Stopped(Exception):
-    """The monitor was asked to stop in the middle of a device call."""
-
-
-class Monitor:
-    """A background loop that uses the PTU and a camera between jobs (see the module docstring)."""
-
-    name: ClassVar[str] = "monitor"
-
-    def __init__(self, app: Any, period: float) -> None:
-        self.app = app
-        self.period = period
-        self.stop_event = threading.Event()
-        self.thread = threading.Thread(target=self._run, name=f"rvs-{self.name}", daemon=True)
-        self.state = "starting"
-        self.cycles = 0
-        self.cycle_ms: deque[float] = deque(maxlen=20)  # without PTU motion
-        self.cycle_max_ms = 0.0
-        self.io_ms: deque[float] = deque(maxlen=20)  # of which waiting for the camera
-        self.starts: deque[float] = deque(maxlen=10)
-        self.pointing: tuple[float, float] | None = None  # where the PTU should look (pan, tilt)
-        self.error: str | None = None
-        self._move_s = 0.0
-        self._io_s = 0.0
-
-    # -- life cycle ---------------------------------------------------------------------------
-    def start(self) -> None:
-        self.thread.start()
-
-    def stop(self, timeout: float = 5.0) -> None:
-        """Ask the loop to end and wait for it (blocking: call it off the event loop)."""
-        self.stop_event.set()
-        if self.thread.is_alive() and threading.current_thread() is not self.thread:
-            self.thread.join(timeout)
-        if self.state != "failed":
-            self.state = "stopped"
-
-    def _pause_reason(self) -> dict[str, Any] | None:
-        job = self.app.jobs.current
-        if job is not None:
-            return {"reason": "job", "job": job.id}
-        if self.app.base_mode in BLOCKING_MODES:
-            return {"reason": self.app.base_mode}
-        return None
-
-    def _run(self) -> None:
-        app = self.app
-        log.info("monitor_start", monitor=self.name, period=self.period)
-        try:
-            while not self.stop_event.is_set():
-                reason = self._pause_reason()
-                if reason is not None:
-                    if self.state != "paused":
-                        self.state = "paused"
-                        self.on_pause(reason)
-                    self.stop_event.wait(0.02)
-                    continue
-                if not app.device_lock.acquire(timeout=0.1):
-                    continue
-                try:
-                    if self._pause_reason() is not None or self.stop_event.is_set():
-                        continue
-                    resumed = self.state == "paused"
-                    self.state = "running"
-                    if resumed:
-                        self.on_resume()
-                    started = time.monotonic()
-                    self.starts.append(started)
-                    self._move_s = self._io_s = 0.0
-                    self.cycle()
-                    spent = time.monotonic() - started
-                    ms = 1000.0 * max(0.0, spent - self._move_s)
-                    self.cycle_ms.append(ms)
-                    self.io_ms.append(1000.0 * self._io_s)
-                    if self.cycles:  # the first cycle warms the camera's caches
-                        self.cycle_max_ms = max(self.cycle_max_ms, ms)
-                    self.cycles += 1
-                finally:
-                    app.device_lock.release()
-                self.stop_event.wait(max(0.0, self.period - (time.monotonic() - started)))
-        except Stopped:
-            pass
-        except DeviceError as exc:
-            if not self.stop_event.is_set():
-                self._fail(exc, device=exc.device)
-        except Exception as exc:  # noqa: BLE001 - a monitor bug must end the monitor, not the server
-            if not self.stop_event.is_set():
-                log.exception("monitor_failed", monitor=self.name)
-                self._fail(exc)
-        log.info("monitor_end", monitor=self.name, cycles=self.cycles, state=self.state)
-
-    def _fail(self, exc: Exception, device: str | None = None) -> None:
-        self.state = "failed"
-        self.error = str(exc)
-        app = self.app
-
-        def on_loop() -> None:
-            if app.monitors.get(self.name) is self:
-                del app.monitors[self.name]
-            fields: dict[str, Any]
-            if device is not None:
-                app.base_mode = "fault"
-                app.devices.errors[device] = exc.message  # type: ignore[attr-defined]
-                fields = {"code": "E_DEVICE", "device": device,
-                          "message": f"{exc}; the {self.name} monitor stopped, send reset to recover"}
-            else:
-                fields = {"code": "E_INTERNAL", "message": f"{type(exc).__name__}: {exc}; the {self.name} "
-                                                          "monitor stopped (logged)"}
-            app.broadcast(Reply("RVS", "EVENT", {**self.failure_fields(), **fields}))
-            app.announce_mode()
-
-        app.loop.call_soon_threadsafe(on_loop)
-
-    # -- device helpers -----------------------------------------------------------------------
-    def call(self, fn: Any, *args: Any, **kwargs: Any) -> Any:
-        """A driver call that a stop interrupts (the cancel event of a job, for a monitor)."""
-        t0 = time.monotonic()
-        try:
-            return fn(*args, cancel=self.stop_event, **kwargs)
-        except Exception:
-            if self.stop_event.is_set():
-                raise Stopped() from None
-            raise
-        finally:
-            self._io_s += time.monotonic() - t0
-
-    def point(self, pan: float, tilt: float, tolerance: float = 0.05) -> tuple[float, float]:
-        """Move the PTU unless it is there already; the motion's time is not cycle time."""
-        self.pointing = (pan, tilt)
-        here = self.app.ptu_position()
-        if here is not None and abs(here[0] - pan) <= tolerance and abs(here[1] - tilt) <= tolerance:
-            return here
-        t0 = time.monotonic()
-        reached = self.call(self.app.devices.get("ptu").move, pan, tilt, True)
-        dt = time.monotonic() - t0
-        self._move_s += dt
-        self._io_s -= dt
-        return float(reached[0]), float(reached[1])
-
-    def intervals(self) -> list[float]:
-        """Start-to-start times of the last few cycles."""
-        return list(np.diff(self.starts)) if len(self.starts) > 1 else []
-
-    def rate(self) -> float:
-        """Cycles per second over the last few cycles."""
-        if len(self.starts) < 2:
-            return 0.0
-        span = self.starts[-1] - self.starts[0]
-        return (len(self.starts) - 1) / span if span > 0 else 0.0
-
-    def head(self) -> HeadCalibration:
-        return HeadCalibration.from_dict(self.app.config.get("head").as_dict())
-
-    def emit(self, fields: dict[str, Any]) -> None:
-        self.app.broadcast_threadsafe(Reply("RVS", "EVENT", fields))
-
-    def timing_fields(self) -> dict[str, Any]:
-        ms, io = list(self.cycle_ms), list(self.io_ms)
-        return {"cycle_ms": Fixed(float(np.mean(ms)) if ms else 0.0, 1), "cycle_ms_max": Fixed(self.cycle_max_ms, 1),
-                "grab_ms": Fixed(float(np.mean(io)) if io else 0.0, 1)}
-
-    # -- what a concrete monitor fills in -----------------------------------------------------
-    def cycle(self) -> None:
-        raise NotImplementedError
-
-    def on_pause(self, reason: dict[str, Any]) -> None:
-        pass
-
-    def on_resume(self) -> None:
-        """After a pause the PTU is wherever the job left it: point it back."""
-        if self.pointing is not None:
-            self.point(*self.pointing)
-
-    def status_fields(self) -> dict[str, Any]:
-        raise NotImplementedError
-
-    def shown_state(self) -> str:
-        """The state as status shows it: paused as soon as a job or a mode calls for it, not
-        only once the monitor's thread has noticed at its next cycle."""
-        if self.state == "running" and self._pause_reason():
-            return "paused"
-        return self.state
-
-    def failure_fields(self) -> dict[str, Any]:
-        raise NotImplementedError
-
-
-def _holder(app: Any, wanted: str) -> None:
-    """E_BUSY if the other PTU-steering monitor runs."""
-    for name, monitor in app.monitors.items():
-        if name != wanted:
-            what = {"hazard": "the hazard monitor", "track": "the target tracker"}.get(name, name)
-            stop = {"hazard": "hazard-stop", "track": "track3d-stop"}.get(name, "stop it")
-            raise ProtocolError("E_BUSY", f"{what} is running and holds the PTU; send {stop} first "
-                                          f"({monitor.state}, {monitor.cycles} cycles)")
-
-
-async def _stop_monitor(app: Any, name: str) -> Any:
-    monitor = app.monitors.pop(name, None)
-    if monitor is not None:
-        await app.loop.run_in_executor(None, monitor.stop)
-    return monitor
 
 
 # ------------------------------------------------------------------ hazard-start / hazard-stop
@@ -296,8 +81,8 @@ class HazardMonitor(Monitor):
 
     name = "hazard"
 
-    def __init__(self, app: Any, cfg: HazardStartConfig) -> None:
-        super().__init__(app, cfg.period)
+    def __init__(self, app: App, cfg: HazardStartConfig, log_context: dict[str, Any] | None = None) -> None:
+        super().__init__(app, cfg.period, log_context)
         self.cfg = cfg
         head = app.config.get("head")
         width = cfg.width or head.rover_width + 2 * head.rover_margin
@@ -389,17 +174,16 @@ async def hazard_start(ctx: Context, cfg: HazardStartConfig) -> dict[str, Any]:
     if cfg.stop_distance > cfg.warn_distance:
         raise ProtocolError("E_ARG", f"-stop-distance {cfg.stop_distance:g} must not exceed -warn-distance "
                                      f"{cfg.warn_distance:g}")
-    _holder(app, "hazard")
+    app.monitors.refuse_other_holder("hazard")
     for dev in ("ptu", "tof"):
         app.devices.get(dev)  # E_DEVICE now rather than a failing thread
     lim = _limits(app.devices.get("ptu"))
     if not (lim[0] <= cfg.heading <= lim[1] and lim[2] <= cfg.tilt <= lim[3]):
         raise ProtocolError("E_ARG", f"-heading {cfg.heading:g} / -tilt {cfg.tilt:g} is outside the PTU's limits "
                                      f"pan [{lim[0]:.1f}, {lim[1]:.1f}], tilt [{lim[2]:.1f}, {lim[3]:.1f}] deg")
-    restarted = await _stop_monitor(app, "hazard") is not None
-    monitor = HazardMonitor(app, cfg)
-    app.monitors["hazard"] = monitor
-    monitor.start()
+    restarted = await app.monitors.stop("hazard") is not None
+    monitor = HazardMonitor(app, cfg, ctx.log_context())
+    app.monitors.start(monitor)
     p = monitor.params
     return {"period": Fixed(cfg.period, 3), "tilt": Fixed(cfg.tilt, 2), "heading": Fixed(cfg.heading, 2),
             "width": Fixed(p.width, 3), "lookahead": Fixed(p.lookahead, 3),
@@ -409,7 +193,7 @@ async def hazard_start(ctx: Context, cfg: HazardStartConfig) -> dict[str, Any]:
 
 @command("hazard-stop", help="stop dynamic hazard detection")
 async def hazard_stop(ctx: Context, cfg: None) -> dict[str, Any]:
-    monitor = await _stop_monitor(ctx.app, "hazard")
+    monitor = await ctx.app.monitors.stop("hazard")
     if monitor is None:
         return {"stopped": False, "cycles": 0}
     return {"stopped": True, "cycles": monitor.cycles, "level": monitor.level, **monitor.timing_fields()}
@@ -460,7 +244,7 @@ def _prior(cfg: TrackConfig) -> tr.SizePrior:
                         width_range=(0.4 * cfg.width, 1.8 * cfg.width))
 
 
-def _frame(app: Any) -> np.ndarray:
+def _frame(app: App) -> np.ndarray:
     """T_global_from_rover from the server's pose (the ground under the rover from the DEM)."""
     x, y, heading, z = current_pose(app)
     return T_global_from_rover(x, y, heading, z)
@@ -476,7 +260,7 @@ def look_at(head: HeadCalibration, target_rover: np.ndarray) -> tuple[float, flo
     return pan, tilt
 
 
-def _sense(app: Any, cfg: TrackConfig, pan: float, tilt: float, call: Any
+def _sense(app: App, cfg: TrackConfig, pan: float, tilt: float, call: Any
            ) -> tuple[list[tr.Detection], float, float]:
     """One view's detections in the global frame; returns them with the monotonic and wall-clock
     time of the exposure: the start of the acquisition call (the frame is exposed first, then
@@ -521,7 +305,7 @@ def _target_fields(d: tr.Detection) -> dict[str, Any]:
          help="search -range for the target (an astronaut in ToF points, or an ArUco marker with -sensor stereo); "
               "OK found=true x y z (global) or found=false")
 def track3d_detect(job: Job, cfg: TrackDetectConfig) -> dict[str, Any]:
-    app = job.app  # type: ignore[attr-defined]
+    app = job.app
     ptu = app.devices.get("ptu")
     if cfg.sensor == "tof":
         K, _ = app.devices.get("tof").intrinsics()
@@ -541,10 +325,10 @@ def track3d_detect(job: Job, cfg: TrackDetectConfig) -> dict[str, Any]:
     job.progress(len(positions), len(positions), f"{len(found)} sighting(s)")
     merged = tr.merge_detections(found)
     if not merged:
-        app.track_target = None
+        app.track_target.set(None)
         return {"found": False, "views": len(positions)}
     best = merged[0]
-    app.track_target = best
+    app.track_target.set(best)
     return {"found": True, **_target_fields(best), "views": len(positions), "candidates": len(merged)}
 
 
@@ -553,8 +337,9 @@ class TargetTracker(Monitor):
 
     name = "track"
 
-    def __init__(self, app: Any, cfg: TrackStartConfig, start: tr.Detection | None) -> None:
-        super().__init__(app, cfg.period)
+    def __init__(self, app: App, cfg: TrackStartConfig, start: tr.Detection | None,
+                 log_context: dict[str, Any] | None = None) -> None:
+        super().__init__(app, cfg.period, log_context)
         self.cfg = cfg
         self.filter = tr.Tracker(lost_after=cfg.lost_after)
         if start is not None:
@@ -618,21 +403,20 @@ class TargetTracker(Monitor):
               "follows it, EVENT kind=track x y z rate each cycle, lost=true when it is gone")
 async def track3d_start(ctx: Context, cfg: TrackStartConfig) -> dict[str, Any]:
     app = ctx.app
-    _holder(app, "track")
+    app.monitors.refuse_other_holder("track")
     for dev in ("ptu", cfg.sensor):
         app.devices.get(dev)
-    await _stop_monitor(app, "track")
-    start = getattr(app, "track_target", None)
-    tracker = TargetTracker(app, cfg, start)
-    app.monitors["track"] = tracker
-    tracker.start()
+    await app.monitors.stop("track")
+    start = app.track_target.get()
+    tracker = TargetTracker(app, cfg, start, ctx.log_context())
+    app.monitors.start(tracker)
     target = None if start is None else [Fixed(start.x, 3), Fixed(start.y, 3), Fixed(start.z, 3)]
     return {"sensor": cfg.sensor, "period": Fixed(cfg.period, 3), "target": target}
 
 
 @command("track3d-stop", help="stop tracking the target")
 async def track3d_stop(ctx: Context, cfg: None) -> dict[str, Any]:
-    tracker = await _stop_monitor(ctx.app, "track")
+    tracker = await ctx.app.monitors.stop("track")
     if tracker is None:
         return {"stopped": False, "cycles": 0}
     out: dict[str, Any] = {"stopped": True, "cycles": tracker.cycles, "fixes": tracker.fixes,

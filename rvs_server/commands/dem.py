@@ -8,18 +8,15 @@ DEM (what dem-update merges into, what check-move and navigate read).
 from __future__ import annotations
 
 import math
-import threading
 from dataclasses import dataclass
 from functools import partial
-from pathlib import Path
-from typing import Any, ClassVar
+from typing import TYPE_CHECKING, Any, ClassVar
 
 import cv2
 import numpy as np
-import yaml
 
 from prox_workflows.engine import Cancelled, run_workflow
-from prox_workflows.grid import Layers, read_geotiff
+from prox_workflows.grid import Layers
 from prox_workflows.steps.acquire import Frame, acquire_coord_images
 from prox_workflows.steps.dem_products import write_dem_products
 from prox_workflows.steps.noise import stereo_height_variance, tof_height_variance
@@ -29,9 +26,13 @@ from prox_workflows.steps.transforms import HeadCalibration
 
 from ..config import ModuleConfig, param, standalone
 from ..jobs import Interrupted, Job
-from ..protocol import Fixed, ProtocolError, valid_stem
+from ..maps import current_pose, load_recovery
+from ..protocol import Fixed, ProtocolError
 from ..table import CONTROL, HARDWARE, command
 from .hardware import default_stem, device_call
+
+if TYPE_CHECKING:
+    from ..app import App
 
 
 @standalone
@@ -97,24 +98,7 @@ class DemUpdateStereoConfig(DemStereoConfig):
     module: ClassVar[str] = "dem_update"
 
 
-class MapState:
-    """The current DEM and the views a stopped acquisition left behind (for the next update)."""
-
-    def __init__(self) -> None:
-        self.lock = threading.RLock()
-        self.current: Layers | None = None
-        self.name: str | None = None
-        self.pending_views: list[Any] = []
-
-
-def maps_of(app: Any) -> MapState:
-    state = getattr(app, "map_state", None)
-    if state is None:
-        state = app.map_state = MapState()
-    return state
-
-
-def rover_mask_polygon(app: Any, pose: tuple[float, float, float, float]) -> np.ndarray:
+def rover_mask_polygon(app: App, pose: tuple[float, float, float, float]) -> np.ndarray:
     """The rover body's footprint (with margin) in the global frame, to mask it out of scans."""
     head = app.config.get("head")
     half_l = head.rover_length / 2 + head.rover_margin
@@ -123,25 +107,6 @@ def rover_mask_polygon(app: Any, pose: tuple[float, float, float, float]) -> np.
     c, s = math.cos(math.radians(pose[2])), math.sin(math.radians(pose[2]))
     R = np.array([[c, -s], [s, c]])
     return corners @ R.T + np.array(pose[:2])
-
-
-def current_pose(app: Any) -> tuple[float, float, float, float]:
-    """x, y, heading and the ground height under the rover (from the current DEM if known)."""
-    p = app.pose
-    z = getattr(p, "z", None)
-    if z is None or not math.isfinite(z):
-        z = 0.0
-        state = maps_of(app)
-        with state.lock:
-            dem = state.current
-        if dem is not None:
-            row, col = dem.geometry.cell_of(np.array([p.x]), np.array([p.y]))
-            r, c = int(row[0]), int(col[0])
-            k = max(1, int(round(0.5 / dem.geometry.cell)))
-            window = dem["dem"][max(r - k, 0): r + k + 1, max(c - k, 0): c + k + 1]
-            if window.size and np.isfinite(window).any():
-                z = float(np.nanmedian(window))
-    return (p.x, p.y, p.heading, z)
 
 
 def _stereo_frame(left: np.ndarray, right: np.ndarray, calib: dict[str, Any], cfg: Any) -> Frame:
@@ -163,21 +128,16 @@ def _stereo_frame(left: np.ndarray, right: np.ndarray, calib: dict[str, Any], cf
     )
 
 
-def _check_update(app: Any, cfg: Any) -> None:
-    state = maps_of(app)
-    with state.lock:
-        if state.current is None and not state.pending_views:
-            raise ProtocolError("E_DATA", "there is no current DEM to update; run dem-full-tof or dem-full first")
+def _check_update(app: App, cfg: Any) -> None:
+    if not app.maps.updatable():
+        raise ProtocolError("E_DATA", "there is no current DEM to update; run dem-full-tof or dem-full first")
 
 
 def run_dem(job: Job, cfg: Any, *, update: bool, sensor: str = "tof",
             progress: Any = None, out_dir: str = "dem") -> dict[str, Any]:
     """One DEM job: views from ``sensor`` (tof, stereo or fused) through the dem workflow."""
-    app = job.app  # type: ignore[attr-defined]
-    state = maps_of(app)
-    with state.lock:
-        base = state.current if update else None
-        pending = list(state.pending_views) if update else []
+    app = job.app
+    base, pending = app.maps.for_update() if update else (None, [])
     if update:
         _check_update(app, cfg)
     ptu = app.devices.get("ptu")
@@ -235,8 +195,7 @@ def run_dem(job: Job, cfg: Any, *, update: bool, sensor: str = "tof",
                                steps={"acquire": acquire}, progress=report, cancelled=lambda: job.cancelled)
         job.check()
     except BaseException as exc:
-        with state.lock:  # the views acquired before a fault or a break are kept for the next update
-            state.pending_views = pending + acquired
+        app.maps.keep_views(pending + acquired)  # the views acquired before a fault or a break: for the next update
         if isinstance(exc, Cancelled | Interrupted):
             raise Interrupted(f"{job.command} job {job.id} was interrupted; {len(acquired)} views kept "
                               "for dem-update") from None
@@ -246,13 +205,8 @@ def run_dem(job: Job, cfg: Any, *, update: bool, sensor: str = "tof",
     inputs = [f"{name}_views/{v.files['image']}" for v in ws["views"] if v.files]
     files = write_dem_products(dem, app.data_dir / out_dir, name, made_by=job.command, parameters=job.params,
                                inputs=inputs, run_log=log.as_dict(), mesh=cfg.mesh)
-    with state.lock:
-        state.current = dem
-        state.name = name
-        state.pending_views = []
     rel = {layer: app.rel(path) for layer, path in files.items()}
-    with app.maps_lock:
-        app.maps = dict(rel)
+    app.maps.replace(dem, name, rel)
     defined = np.isfinite(dem["dem"])
     out: dict[str, Any] = {k: rel[k] for k in ("dem", "ortho", "hazard", "slope", "step", "roughness") if k in rel}
     out.update(cells=int(defined.sum()), coverage=Fixed(float(defined.mean()), 3), views=len(ws["views"]))
@@ -296,62 +250,9 @@ class RecoverConfig(ModuleConfig):
     set: str = param("last", "recovery set to load: last, or its folder under recovery/")
 
 
-def load_layers(paths: dict[str, Path]) -> Layers:
-    """Read a DEM's layer GeoTIFFs back into one Layers (they share the DEM's grid)."""
-    if "dem" not in paths:
-        raise ProtocolError("E_DATA", "the recovery set holds no DEM layer")
-    dem, geometry = read_geotiff(paths["dem"])
-    layers = Layers(geometry, {"dem": dem})
-    for layer, path in paths.items():
-        if layer in ("dem", "mesh") or path.suffix != ".tif":
-            continue
-        image, g = read_geotiff(path)
-        if g == geometry:
-            layers[layer] = image
-    return layers
-
-
-def recovery_folder(app: Any, which: str) -> Path:
-    """The folder of a recovery set (``last`` or a name under recovery/), checked to hold one."""
-    root = app.data_dir / "recovery"
-    if which == "last":
-        if not app.last_recovery:
-            raise ProtocolError("E_DATA", "there is no recovery set under the data directory")
-        folder = app.data_dir / app.last_recovery
-    else:
-        if not valid_stem(which):
-            raise ProtocolError("E_ARG", "-set is last or the name of a folder under recovery/")
-        folder = root / which
-    if not (folder / "manifest.yaml").is_file():
-        raise ProtocolError("E_DATA", f"no recovery set at {app.rel(folder)}; status shows the last one")
-    return folder
-
-
-def load_recovery(app: Any, which: str) -> dict[str, Any]:
-    """Restore pose and maps from a recovery set; returns what was restored."""
-    folder = recovery_folder(app, which)
-    manifest = yaml.safe_load((folder / "manifest.yaml").read_text()) or {}
-    pose = manifest.get("pose") or {}
-    app.set_pose(float(pose.get("x", 0.0)), float(pose.get("y", 0.0)), float(pose.get("heading", 0.0)))
-    maps = {layer: folder / rel for layer, rel in (manifest.get("maps") or {}).items()}
-    out: dict[str, Any] = {"recovery": app.rel(folder), "pose": [Fixed(app.pose.x, 3), Fixed(app.pose.y, 3),
-                                                                    Fixed(app.pose.heading, 2)]}
-    if maps:
-        layers = load_layers(maps)
-        state = maps_of(app)
-        with state.lock:
-            state.current = layers
-        with app.maps_lock:
-            app.maps = {layer: app.rel(path) for layer, path in maps.items()}
-        out["cells"] = int(np.isfinite(layers["dem"]).sum())
-    job = manifest.get("job") or {}
-    out["interrupted_job"] = job.get("command")
-    return out
-
-
 @command("recover", job=True, klass=CONTROL, config=RecoverConfig,
-         check=lambda app, cfg: recovery_folder(app, cfg.set) and None,
+         check=lambda app, cfg: app.recovery.folder(cfg.set) and None,
          help="load a recovery set written by break: the pose and the maps it held (-set last or a folder)")
 def recover(job: Job, cfg: RecoverConfig) -> dict[str, Any]:
     job.progress(0, 1, f"loading recovery set {cfg.set}")
-    return load_recovery(job.app, cfg.set)  # type: ignore[attr-defined]
+    return load_recovery(job.app, cfg.set)

@@ -6,7 +6,7 @@ import math
 from dataclasses import dataclass
 from datetime import UTC, datetime
 from pathlib import Path
-from typing import Any, ClassVar
+from typing import TYPE_CHECKING, Any, ClassVar
 
 import cv2
 import numpy as np
@@ -17,6 +17,9 @@ from ..config import ModuleConfig, param
 from ..jobs import Interrupted, Job
 from ..protocol import Fixed, ProtocolError
 from ..table import HARDWARE, command
+
+if TYPE_CHECKING:
+    from ..app import App
 
 
 def device_call(job: Job, fn: Any, *args: Any, **kwargs: Any) -> Any:
@@ -33,7 +36,7 @@ def default_stem(prefix: str) -> str:
     return f"{prefix}_{datetime.now(UTC).strftime('%Y%m%dT%H%M%S_%f')[:-3]}"
 
 
-def acquisition_context(app: Any) -> dict[str, Any]:
+def acquisition_context(app: App) -> dict[str, Any]:
     """Where the rover and the PTU were: goes into every image's sidecar."""
     pose = app.pose
     ptu = app.ptu_position()
@@ -43,7 +46,7 @@ def acquisition_context(app: Any) -> dict[str, Any]:
     return out
 
 
-def check_ptu_angles(app: Any, pan: float | None, tilt: float | None) -> None:
+def check_ptu_angles(app: App, pan: float | None, tilt: float | None) -> None:
     """Angles outside the PTU's limits (read from the unit when it opened) are E_ARG before any
     ACK. An unopened PTU is left to the job, which says E_DEVICE."""
     dev = app.devices.devices.get("ptu")
@@ -75,7 +78,7 @@ def _axes(cfg: MovePtuConfig) -> tuple[float | None, float | None]:
     return (None if math.isnan(cfg.pan) else cfg.pan, None if math.isnan(cfg.tilt) else cfg.tilt)
 
 
-def _check_move_ptu(app: Any, cfg: MovePtuConfig) -> None:
+def _check_move_ptu(app: App, cfg: MovePtuConfig) -> None:
     pan, tilt = _axes(cfg)
     if pan is None and tilt is None:
         raise ProtocolError("E_ARG", "move-ptu needs -pan and/or -tilt (degrees)")
@@ -85,7 +88,7 @@ def _check_move_ptu(app: Any, cfg: MovePtuConfig) -> None:
 @command("move-ptu", job=True, klass=HARDWARE, config=MovePtuConfig, check=_check_move_ptu,
          help="move the PTU to -pan, -tilt")
 def move_ptu(job: Job, cfg: MovePtuConfig) -> dict[str, Any]:
-    app = job.app  # type: ignore[attr-defined]
+    app = job.app
     ptu = app.devices.get("ptu")
     pan, tilt = _axes(cfg)
     job.progress(0, 1, f"moving to pan={_deg(pan)} tilt={_deg(tilt)}")
@@ -112,7 +115,7 @@ class GrabTofConfig(ModuleConfig):
 @command("grab-tof", job=True, klass=HARDWARE, config=GrabTofConfig,
          help="acquire a ToF image (-type) integrating -integrate frames above -confidence, store it as -output")
 def grab_tof(job: Job, cfg: GrabTofConfig) -> dict[str, Any]:
-    app = job.app  # type: ignore[attr-defined]
+    app = job.app
     tof = app.devices.get("tof")
     stem = cfg.output or default_stem("tof")
     job.progress(0, 2, f"grabbing {cfg.integrate} {cfg.type} frame(s)")
@@ -164,7 +167,7 @@ class GrabStereoConfig(ModuleConfig):
 @command("grab-stereo", job=True, klass=HARDWARE, config=GrabStereoConfig,
          help="grab a triggered stereo pair and store it as -output")
 def grab_stereo(job: Job, cfg: GrabStereoConfig) -> dict[str, Any]:
-    app = job.app  # type: ignore[attr-defined]
+    app = job.app
     cams = app.devices.get("stereo")
     stem = cfg.output or default_stem("stereo")
     job.progress(0, 2, f"grabbing a {cfg.resolution} {cfg.format} pair")

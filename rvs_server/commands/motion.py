@@ -3,18 +3,17 @@ ground-align (the sensor head's attitude from the ground plane, seed 003 sect. 4
 
 Both are thin: they point the PTU, grab through the drivers and hand arrays to
 ``prox_workflows.steps.odometry`` / ``ground_plane``; what they keep between requests (the
-orient reference) lives on the app, and what they correct (the mounts) in the ``head`` config
+orient reference) is the app's ``odometry`` field, and what they correct (the mounts) in the ``head`` config
 module that every transform reads.
 """
 
 from __future__ import annotations
 
 import math
-import threading
 import time
 from dataclasses import dataclass
 from datetime import UTC, datetime
-from typing import Any, ClassVar
+from typing import TYPE_CHECKING, Any, ClassVar
 
 import numpy as np
 
@@ -24,11 +23,15 @@ from prox_workflows.steps import odometry as od
 from prox_workflows.steps.stereo import disparity, load_calibration
 from prox_workflows.steps.transforms import HeadCalibration
 
+from ..app import OrientReference
 from ..config import ModuleConfig, param
 from ..jobs import Job
 from ..protocol import Fixed, ProtocolError
 from ..table import HARDWARE, command
 from .hardware import check_ptu_angles, device_call
+
+if TYPE_CHECKING:
+    from ..app import App
 
 DEFAULT_TILT = {"stereo": -20.0, "tof": -30.0}
 
@@ -36,13 +39,13 @@ DEFAULT_TILT = {"stereo": -20.0, "tof": -30.0}
 # ------------------------------------------------------------------ acquisition
 
 
-def _point_ptu(job: Job, app: Any, pan: float, tilt: float) -> tuple[float, float]:
+def _point_ptu(job: Job, app: App, pan: float, tilt: float) -> tuple[float, float]:
     ptu = app.devices.get("ptu")
     reached = device_call(job, ptu.move, pan, tilt, True)
     return float(reached[0]), float(reached[1])
 
 
-def _grab_frame(job: Job, app: Any, sensor: str, pan: float, tilt: float, head: HeadCalibration, *,
+def _grab_frame(job: Job, app: App, sensor: str, pan: float, tilt: float, head: HeadCalibration, *,
                 resolution: str, integrate: int, confidence: float) -> od.DepthFrame:
     """One acquisition as the odometry and the ground fit need it: an image, the 3D point of
     each of its pixels (sensor frame) and the sensor's pose on the rover."""
@@ -61,34 +64,11 @@ def _grab_frame(job: Job, app: Any, sensor: str, pan: float, tilt: float, head: 
     return od.DepthFrame(amplitude, points, K, dist, head.T_rover_from_sensor("tof", pan, tilt))
 
 
-def _head(app: Any) -> HeadCalibration:
+def _head(app: App) -> HeadCalibration:
     return HeadCalibration.from_dict(app.config.get("head").as_dict())
 
 
 # ------------------------------------------------------------------ orient
-
-
-@dataclass
-class OrientReference:
-    """The last orient acquisition: what the next orient tracks against, and the pose it had."""
-
-    sensor: str
-    frame: od.DepthFrame
-    pose: tuple[float, float, float]
-    time: float
-
-
-class OdometryState:
-    def __init__(self) -> None:
-        self.lock = threading.Lock()
-        self.reference: OrientReference | None = None
-
-
-def odometry_of(app: Any) -> OdometryState:
-    state = getattr(app, "odometry_state", None)
-    if state is None:
-        state = app.odometry_state = OdometryState()
-    return state
 
 
 @dataclass
@@ -133,11 +113,9 @@ def _orient_tilt(cfg: Any) -> float:
          help="acquire in the moving direction and estimate the rover's motion since the last orient "
               "(visual odometry); the first one (or -reset) sets the reference")
 def orient(job: Job, cfg: OrientConfig) -> dict[str, Any]:
-    app = job.app  # type: ignore[attr-defined]
-    state = odometry_of(app)
+    app = job.app
     tilt = _orient_tilt(cfg)
-    with state.lock:
-        ref = state.reference
+    ref = app.odometry.get()
     if ref is not None and ref.sensor != cfg.sensor and not cfg.reset:
         raise ProtocolError("E_ARG", f"the orient reference was taken with -sensor {ref.sensor}; use it again, "
                                      f"or send orient -reset -sensor {cfg.sensor} to start a new reference")
@@ -154,8 +132,7 @@ def orient(job: Job, cfg: OrientConfig) -> dict[str, Any]:
     job.check()
     pose = app.pose
     if ref is None or cfg.reset:
-        with state.lock:
-            state.reference = OrientReference(cfg.sensor, frame, (pose.x, pose.y, pose.heading), time.time())
+        app.odometry.set(OrientReference(cfg.sensor, frame, (pose.x, pose.y, pose.heading), time.time()))
         points = len(od.detect(frame, _orient_params(cfg)))
         return {"reference": True, "dx": Fixed(0.0, 4), "dy": Fixed(0.0, 4), "dyaw": Fixed(0.0, 3),
                 **_pose_fields(pose.x, pose.y, pose.heading), "matches": 0, "inliers": 0, "points": points,
@@ -170,9 +147,8 @@ def orient(job: Job, cfg: OrientConfig) -> dict[str, Any]:
         ) from None
     job.check()
     x, y, heading = od.compose_pose(*ref.pose, motion)
-    app.set_pose(x, y, heading)
-    with state.lock:
-        state.reference = OrientReference(cfg.sensor, frame, (x, y, heading), time.time())
+    app.set_pose(x, y, heading, source="orient")
+    app.odometry.set(OrientReference(cfg.sensor, frame, (x, y, heading), time.time()))
     return {"reference": False, "dx": Fixed(motion.dx, 4), "dy": Fixed(motion.dy, 4),
             "dyaw": Fixed(motion.dyaw, 3), **_pose_fields(x, y, heading),
             "matches": motion.matches, "inliers": motion.inliers, "points": motion.points,
@@ -204,7 +180,7 @@ class GroundAlignConfig(ModuleConfig):
                              option=False)
 
 
-def _store_mount(app: Any, sensor: str, mount: dict[str, list[float]]) -> None:
+def _store_mount(app: App, sensor: str, mount: dict[str, list[float]]) -> None:
     """Through ConfigStore.set, as ``config -module head -set mounts.tof.rpy=...`` would."""
     for key in ("xyz", "rpy"):
         app.config.set("head", f"mounts.{sensor}.{key}", ",".join(repr(float(v)) for v in mount[key]))
@@ -215,7 +191,7 @@ def _store_mount(app: Any, sensor: str, mount: dict[str, list[float]]) -> None:
          help="with the rover still on level ground, fit the ground plane over -frames frames and correct the "
               "sensor mount's tilt and roll in the head calibration")
 def ground_align(job: Job, cfg: GroundAlignConfig) -> dict[str, Any]:
-    app = job.app  # type: ignore[attr-defined]
+    app = job.app
     total = cfg.frames + 2
     job.progress(0, total, f"pointing the {cfg.sensor} sensor at pan={cfg.pan:.1f} tilt={cfg.tilt:.1f}")
     pan, tilt = _point_ptu(job, app, cfg.pan, cfg.tilt)

@@ -6,7 +6,7 @@ import copy
 import math
 import time
 from dataclasses import dataclass
-from typing import Any, ClassVar
+from typing import TYPE_CHECKING, Any, ClassVar
 
 import numpy as np
 
@@ -17,8 +17,10 @@ from ..config import ModuleConfig, param
 from ..jobs import Job
 from ..protocol import Fixed, ProtocolError, Reply, Rows
 from ..table import HARDWARE, command
-from .dem import maps_of
 from .hardware import default_stem
+
+if TYPE_CHECKING:
+    from ..app import App, Pose
 
 
 @dataclass
@@ -41,9 +43,7 @@ def check_move_cmd(ctx: Context, cfg: CheckMoveConfig) -> dict[str, Any]:
     given = {k for k, _ in ctx.request.options}
     if "to" in given and given & {"dx", "dy", "dyaw"}:
         raise ProtocolError("E_ARG", "give either -to x,y[,heading] or -dx/-dy/-dyaw, not both")
-    state = maps_of(app)
-    with state.lock:
-        maps = state.current
+    maps = app.maps.layers
     if maps is None or "traversability" not in maps:
         raise ProtocolError("E_DATA", "no traversability map yet; run dem-full-tof (or dem-full) first")
     p = app.pose
@@ -165,11 +165,11 @@ def navigate(job: Job, cfg: NavigateConfig) -> dict[str, Any]:
 
     from .dem import run_dem
 
-    app = job.app  # type: ignore[attr-defined]
+    app = job.app
     global_maps = _load_global(cfg.global_maps)
     if cfg.start:
         heading = cfg.start[2] if len(cfg.start) == 3 else app.pose.heading
-        app.set_pose(cfg.start[0], cfg.start[1], heading)
+        app.set_pose(cfg.start[0], cfg.start[1], heading, source="navigate")
         if cfg.auto:
             app.world.set_rover_pose(cfg.start[0], cfg.start[1], heading)
     name = cfg.name or default_stem("nav")
@@ -206,9 +206,7 @@ def navigate(job: Job, cfg: NavigateConfig) -> dict[str, Any]:
             job.progress(done, total, message, phase=phase, leg=leg)
 
         run_dem(job, dem_cfg, update=leg > 1, sensor=cfg.sensor, progress=leg_progress, out_dir="nav")
-        state = maps_of(app)
-        with state.lock:
-            maps = state.current
+        maps = app.maps.layers
         local = NavMaps(maps["hazard"], maps["slope"], maps.geometry)
         here = (pose.x, pose.y)
         distance = math.hypot(goal[0] - pose.x, goal[1] - pose.y)
@@ -252,7 +250,7 @@ def navigate(job: Job, cfg: NavigateConfig) -> dict[str, Any]:
             drive_simulated(app.world, plan.waypoints, track, reached=lambda k, n=segments: leg_progress(
                 k, n, f"segment {k}/{n} driven", "drive"))
             t = app.world.truth()
-            app.set_pose(t["x"], t["y"], t["heading"])
+            app.set_pose(t["x"], t["y"], t["heading"], source="sim")
         else:
             arrived = _wait_for_rover(app, job, version, end, cfg.tolerance, cfg.wait_timeout)
             track.append((arrived.x, arrived.y))
@@ -263,9 +261,7 @@ def navigate(job: Job, cfg: NavigateConfig) -> dict[str, Any]:
     if not reached:
         raise ProtocolError("E_DATA", f"goal not reached after {cfg.max_legs} legs; the rover is at "
                                       f"({pose.x:.2f}, {pose.y:.2f}), {math.hypot(goal[0] - pose.x, goal[1] - pose.y):.2f} m away")
-    state = maps_of(app)
-    with state.lock:
-        maps = state.current
+    maps = app.maps.layers
     path = np.concatenate(all_paths) if all_paths else np.zeros((0, 2))
     wps = np.concatenate(all_waypoints) if all_waypoints else np.zeros((0, 2))
     traverse = app.data_path("nav", f"{name}_traverse.png")
@@ -279,13 +275,13 @@ def navigate(job: Job, cfg: NavigateConfig) -> dict[str, Any]:
             "track": app.rel(tfile), "x": Fixed(pose.x, 3), "y": Fixed(pose.y, 3)}
 
 
-def _check(app: Any, cfg: NavigateConfig) -> None:
+def _check(app: App, cfg: NavigateConfig) -> None:
     if cfg.auto and app.world is None:
         raise ProtocolError("E_ARG", "-auto drives the simulated rover; with real hardware the GNC sends pose")
 
 
-def _wait_for_rover(app: Any, job: Job, version: int, end: tuple[float, float], tolerance: float,
-                    timeout: float) -> Any:
+def _wait_for_rover(app: App, job: Job, version: int, end: tuple[float, float], tolerance: float,
+                    timeout: float) -> Pose:
     """Until a pose report says the rover has stopped: within ``tolerance`` of the leg's last
     waypoint, or ``-stopped true``. A GNC streaming its pose while it drives must not end the
     wait (each pose report would start a new 360-degree scan from wherever the rover is)."""

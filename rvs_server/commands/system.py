@@ -9,7 +9,7 @@ import shutil
 import time
 from dataclasses import dataclass
 from datetime import UTC, datetime
-from typing import Any, ClassVar
+from typing import TYPE_CHECKING, Any, ClassVar
 
 import structlog
 
@@ -21,6 +21,9 @@ from ..config import ModuleConfig, param
 from ..jobs import Job
 from ..protocol import Fixed, Group, ProtocolError, render_value
 from ..table import ALWAYS, COMMANDS, CONTROL, command, lookup
+
+if TYPE_CHECKING:
+    from ..app import App
 
 log = structlog.get_logger("rvs.system")
 
@@ -74,9 +77,7 @@ def _devices(summary: dict[str, str]) -> list[str]:
          help="stop the server: interrupt every job, close all connections and exit (exit or bye closes only "
               "this connection)")
 async def quit_(ctx: Context, cfg: None) -> dict[str, Any]:
-    ctx.app.quitting = True
-    job = await ctx.app.interrupt()
-    ctx.app.loop.call_soon(ctx.app.stopping.set)
+    job = await ctx.app.quit()
     return {"interrupted": job.id if job else None}
 
 
@@ -93,18 +94,14 @@ def standby(ctx: Context, cfg: None) -> dict[str, Any]:
 
 @command("break", klass=ALWAYS, help="interrupt all jobs and store a recovery data set")
 def break_(ctx: Context, cfg: None) -> Any:
-    # The job is told to stop here, synchronously, before anything else the event loop runs:
-    # a job started by the same batch of lines is caught however short it is. The mode is
-    # break from here on, so the job's end announces break, never a passing ready.
+    # The job is told to stop here, synchronously, before anything else the event loop runs
+    # (see App.begin_break).
     app = ctx.app
-    job = app.jobs.current
-    if job is not None:
-        job.cancel.set()
-    app.base_mode = "break"
+    job = app.begin_break()
     return _finish_break(app, job)
 
 
-async def _finish_break(app: Any, job: Job | None) -> dict[str, Any]:
+async def _finish_break(app: App, job: Job | None) -> dict[str, Any]:
     # The recovery set is written while the job winds down: its parameters and the maps as
     # they were are what a later run needs, and the wait stays within the 1 s budget.
     try:
@@ -132,14 +129,14 @@ def exit_(ctx: Context, cfg: None) -> dict[str, Any]:
 
 
 def _control_done(job: Job, summary: dict[str, str]) -> dict[str, Any]:
-    app = job.app  # type: ignore[attr-defined]
+    app = job.app
     app.loop.call_soon_threadsafe(app.set_mode, "ready")
     return {"mode": "ready", "devices": _devices(summary)}
 
 
 @command("continue", job=True, klass=CONTROL, help="check (or re-initialise) the hardware and return to ready")
 def continue_(job: Job, cfg: None) -> dict[str, Any]:
-    app = job.app  # type: ignore[attr-defined]
+    app = job.app
     job.progress(0, 1, "checking hardware" if app.last_used_hardware else "re-initialising hardware")
     summary = app.devices.check() if app.last_used_hardware else app.devices.reinit()
     job.progress(1, 1, "hardware ready")
@@ -148,7 +145,7 @@ def continue_(job: Job, cfg: None) -> dict[str, Any]:
 
 @command("reset", job=True, klass=CONTROL, help="check the hardware status, then re-initialise all hardware")
 def reset(job: Job, cfg: None) -> dict[str, Any]:
-    app = job.app  # type: ignore[attr-defined]
+    app = job.app
     names = app.devices.names
     checked: dict[str, str] = {}
     for i, name in enumerate(names):
@@ -168,14 +165,14 @@ def reset(job: Job, cfg: None) -> dict[str, Any]:
     return out
 
 
-def _check_reinit(app: Any, cfg: ReinitConfig) -> None:
+def _check_reinit(app: App, cfg: ReinitConfig) -> None:
     if cfg.device != "all" and cfg.device not in app.devices.names:
         raise ProtocolError("E_ARG", f"-device {cfg.device} is not configured in this build")
 
 
 @command("reinit", job=True, klass=CONTROL, config=ReinitConfig, check=_check_reinit, help="re-initialise the hardware (-device for one)")
 def reinit(job: Job, cfg: ReinitConfig) -> dict[str, Any]:
-    app = job.app  # type: ignore[attr-defined]
+    app = job.app
     names = None if cfg.device == "all" else [cfg.device]
     job.progress(0, 1, f"re-initialising {cfg.device}")
     summary = app.devices.reinit(names)
@@ -266,8 +263,7 @@ def status(ctx: Context, cfg: None) -> dict[str, Any]:
     out["recovery"] = app.last_recovery
     if app.world is not None:
         out["scene"] = app.world.scene_name
-    for monitor in list(app.monitors.values()):
-        out.update(monitor.status_fields())
+    out.update(app.monitors.status_fields())
     return out
 
 

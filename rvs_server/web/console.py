@@ -177,7 +177,7 @@ class WebConsole:
         request can name a file (no path from a request reaches the file system)."""
         out: dict[str, Path] = {}
         root = self.app.data_dir.resolve()
-        for name, rel in self.app.current_maps().items():
+        for name, rel in self.app.maps.files().items():
             path = (root / rel).resolve()
             if path.suffix == ".tif" and path.is_relative_to(root) and path.is_file():
                 out[name] = path
@@ -221,9 +221,7 @@ class WebConsole:
                 self._to_render.append((name, path))  # the page asks for it in a moment
             maps[name] = {"url": f"/layers/{name}.png?v={version}", "bounds": self.bounds[key], "version": version}
         out["maps"] = {k: maps[k] for k in sorted(maps, key=lambda n: (LAYER_ORDER + (n,)).index(n))}
-        monitors: dict[str, Any] = {}
-        for monitor in list(app.monitors.values()):
-            monitors.update(json.loads(format_reply_json(Reply("RVS", "OK", monitor.status_fields()))))
+        monitors = json.loads(format_reply_json(Reply("RVS", "OK", app.monitors.status_fields())))
         out["monitors"] = {k: v for k, v in monitors.items() if k not in ("module", "status")}
         here = out.get("truth") or out["pose"]
         if not self.track or (abs(self.track[-1][0] - here["x"]) + abs(self.track[-1][1] - here["y"])) > 0.02:

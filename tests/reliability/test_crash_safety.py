@@ -28,7 +28,7 @@ from reliability_harness import FAST, LONG, record
 
 from prox_workflows.grid import read_geotiff
 from prox_workflows.pointcloud import read_ply
-from tools.session import ServerProcess
+from rvs_server.client.session import ServerProcess
 
 DEM_LINE = "dem-full-tof -range -60,60,-50,-20 -name site"
 STEREO_LINE = "grab-stereo -output pair -resolution {res}"

@@ -38,7 +38,7 @@ from reliability_harness import (
     wait_until,
 )
 
-from tools.session import ServerProcess
+from rvs_server.client.session import ServerProcess
 
 CONNECTIONS = 20
 WARM_UP = [  # every variant of the jobs the fuzz may run: their first renders allocate for good

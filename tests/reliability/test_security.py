@@ -33,10 +33,10 @@ from reliability_harness import (
     wait_until,
 )
 
+from rvs_server.client.session import ServerProcess
 from rvs_server.protocol import MAX_LINE, parse_reply
 from rvs_server.server import LINES_PER_TURN
 from rvs_server.table import COMMANDS
-from tools.session import ServerProcess
 
 MARK = "rvsZq9"  # in every hostile name, so that a file made from one can be found anywhere
 

@@ -59,13 +59,11 @@ def main() -> None:
         print(f"{name:<26}{fast * 1000:>14.2f}{slow * 1000:>16.1f}{slow / fast:>8.0f}  {verdict}")
 
     # through the server: a request round trip with a 1000 x 1000 map loaded as the current DEM
-    from rvs_server.commands.dem import maps_of
     from tools.bench.server import start_rvs
 
     with tempfile.TemporaryDirectory() as tmp:
         port, app = start_rvs(Path(tmp))
-        state = maps_of(app)
-        state.current = Layers(g, {"dem": np.zeros(g.shape, np.float32), "traversability": t})
+        app.maps.replace(Layers(g, {"dem": np.zeros(g.shape, np.float32), "traversability": t}), "bench", {})
         sock = socket.create_connection(("127.0.0.1", port))
         reader = sock.makefile("rb")
         reader.readline()
