@@ -1,10 +1,10 @@
 """What every device shares: the error the server turns into E_DEVICE, and the interface.
 
-Each device package (ptu, tof, stereo, trigger) exposes ``create(config, world)`` that picks a
-backend from ``config["backend"]`` (pyserial-style: one interface, the backend chosen by
-config) and returns an object that satisfies :class:`Device`. A real backend whose hardware or
-library is missing raises :class:`DeviceError` from ``open()``; it never falls back to the
-simulator.
+Each device package (one per kind in drivers.registry.DEVICE_KINDS) exposes
+``create(settings, world)``: a front end (satisfying :class:`Device`) over the backend its
+registry has under ``settings.backend`` (pyserial-style: one interface, the backend chosen by
+config). A real backend whose hardware or library is missing raises :class:`DeviceError` from
+``open()``; it never falls back to the simulator.
 """
 
 from __future__ import annotations
@@ -31,6 +31,7 @@ class Device(Protocol):
 
     name: str
     backend: str
+    capabilities: frozenset[str]  # drivers.registry.Capability members its backend has
 
     def open(self) -> None: ...
 
@@ -47,3 +48,11 @@ class Device(Protocol):
     def reinit(self) -> None: ...
 
     def reset(self) -> None: ...
+
+    def reconfigure(self, settings: Any) -> list[str]:
+        """Take the changed keys declared live while open; return them (the rest wait for reinit)."""
+        ...
+
+    def inject_fault(self, kind: str | None) -> None:
+        """Capability.FAULTS only: one of the simulator's ``faults``, or None to clear."""
+        ...

@@ -11,234 +11,63 @@ from __future__ import annotations
 
 import copy
 import dataclasses
-import math
-import typing
-from dataclasses import dataclass, field, fields
+import importlib
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, ClassVar
 
 import yaml
 
-from .protocol import ProtocolError, valid_stem
+from drivers.registry import DEVICE_KINDS, registry
+from drivers.settings import ParamSpec, SettingError, Settings, merge, param
+
+from .protocol import ProtocolError
+
+__all__ = ["ConfigStore", "ModuleConfig", "ParamSpec", "SettingError", "merge", "param", "standalone"]
 
 DEFAULT_CONFIG_DIR = Path(__file__).resolve().parent.parent / "config"
 
 
-def param(
-    default: Any,
-    help: str,
-    *,
-    unit: str = "",
-    min: float | None = None,
-    max: float | None = None,
-    choices: tuple[str, ...] = (),
-    length: int | tuple[int, int] | None = None,
-    stem: bool = False,
-    option: bool = True,
-    required: bool = False,
-    protected: bool = False,
-) -> Any:
-    """Declare a config field with what the command table needs to check and explain it.
-
-    ``option=False`` keeps a parameter out of the request line (set it with ``config -set``);
-    ``protected`` refuses run-time changes (host, port, token); ``stem`` marks output names.
-    """
-    meta = {
-        "help": help,
-        "unit": unit,
-        "min": min,
-        "max": max,
-        "choices": tuple(choices),
-        "length": length,
-        "stem": stem,
-        "option": option,
-        "required": required,
-        "protected": protected,
-    }
-    if isinstance(default, list | dict):
-        return field(default_factory=lambda d=default: copy.deepcopy(d), metadata=meta)
-    return field(default=default, metadata=meta)
-
-
-@dataclass(frozen=True)
-class ParamSpec:
-    """What one parameter accepts; built from a dataclass field."""
-
-    name: str
-    kind: str  # float, int, str, bool, floats, dict
-    help: str
-    unit: str
-    min: float | None
-    max: float | None
-    choices: tuple[str, ...]
-    length: tuple[int, int] | None
-    stem: bool
-    option: bool
-    required: bool
-    protected: bool
-    default: Any
-
-    @property
-    def flag(self) -> str:
-        return "-" + self.name.replace("_", "-")
-
-    def describe(self) -> str:
-        """One phrase for help and error messages: type, range, unit, default."""
-        if self.choices:
-            what = "|".join(self.choices)
-        elif self.kind == "floats":
-            lo, hi = self.length or (1, 99)
-            what = f"{lo} numbers a,b,..." if lo == hi else f"{lo}-{hi} numbers a,b,..."
-        elif self.stem:
-            what = "file stem"
-        else:
-            what = {"float": "number", "int": "integer", "bool": "true|false", "str": "text"}.get(self.kind, self.kind)
-        if self.min is not None or self.max is not None:
-            what += f" in [{_num(self.min)}, {_num(self.max)}]"
-        if self.unit:
-            what += f" {self.unit}"
-        return what
-
-    def parse(self, raw: str | bool) -> Any:
-        """Convert and validate one value from a request or a ``-set``; E_ARG names the option."""
-        name = self.flag
-        if self.kind == "bool":
-            if isinstance(raw, bool):
-                return raw
-            low = raw.lower()
-            if low in ("true", "1", "yes", "on"):
-                return True
-            if low in ("false", "0", "no", "off"):
-                return False
-            raise ProtocolError("E_ARG", f"{name} takes true or false, not '{raw}'")
-        if raw is True:
-            raise ProtocolError("E_ARG", f"{name} needs a value: {self.describe()}")
-        assert isinstance(raw, str)
-        if self.kind == "floats":
-            parts = [p for p in raw.split(",")] if raw else []
-            try:
-                values = [float(p) for p in parts]
-            except ValueError:
-                raise ProtocolError("E_ARG", f"{name} takes {self.describe()}, not '{raw[:40]}'") from None
-            lo, hi = self.length or (1, 99)
-            if not lo <= len(values) <= hi or not all(math.isfinite(v) for v in values):
-                raise ProtocolError("E_ARG", f"{name} takes {self.describe()}, not '{raw[:40]}'")
-            for v in values:
-                self._check_range(v)
-            return values
-        if self.kind == "float":
-            try:
-                value = float(raw)
-            except ValueError:
-                raise ProtocolError("E_ARG", f"{name} takes a {self.describe()}, not '{raw[:40]}'") from None
-            if not math.isfinite(value):
-                raise ProtocolError("E_ARG", f"{name} must be a finite {self.describe()}")
-            self._check_range(value)
-            return value
-        if self.kind == "int":
-            try:
-                value = int(raw, 10)
-            except ValueError:
-                raise ProtocolError("E_ARG", f"{name} takes an {self.describe()}, not '{raw[:40]}'") from None
-            self._check_range(value)
-            return value
-        if self.choices:
-            low = raw.lower()
-            if low not in self.choices:
-                raise ProtocolError("E_ARG", f"{name} takes {'|'.join(self.choices)}, not '{raw[:40]}'")
-            return low
-        if self.stem and not valid_stem(raw):
-            raise ProtocolError(
-                "E_ARG",
-                f"{name} must be a file stem of 1-64 letters, digits, '_', '.', '-' not starting with '.'",
-            )
-        return raw
-
-    def _check_range(self, value: float) -> None:
-        if (self.min is not None and value < self.min) or (self.max is not None and value > self.max):
-            raise ProtocolError(
-                "E_ARG", f"{self.flag} is {_num(value)}, out of range [{_num(self.min)}, {_num(self.max)}]"
-                + (f" {self.unit}" if self.unit else "")
-            )
-
-
-def _num(v: float | None) -> str:
-    if v is None:
-        return "..."
-    if isinstance(v, int):  # any size: "-integrate 999...9" must be E_ARG, not an OverflowError
-        text = str(v)
-        return text if len(text) <= 16 else f"{text[:4]}...({len(text)} digits)"
-    return str(int(v)) if v.is_integer() and abs(v) < 1e15 else format(v, "g")
-
-
-_KIND = {float: "float", int: "int", str: "str", bool: "bool"}
-
-
 @dataclass
-class ModuleConfig:
+class ModuleConfig(Settings):
     """Base of every module's config class; ``module`` names its YAML file and ``config -module``."""
 
     module: ClassVar[str] = ""
 
-    @classmethod
-    def specs(cls) -> dict[str, ParamSpec]:
-        cached = cls.__dict__.get("_specs")
-        if cached is not None:
-            return cached
-        hints = typing.get_type_hints(cls)
-        out: dict[str, ParamSpec] = {}
-        for f in fields(cls):
-            meta = f.metadata
-            hint = hints[f.name]
-            origin = typing.get_origin(hint)
-            if origin is list:
-                kind = "floats"
-            elif origin is dict or hint is dict:
-                kind = "dict"
-            else:
-                kind = _KIND.get(hint, "str")
-            default = f.default if f.default is not dataclasses.MISSING else f.default_factory()  # type: ignore[misc]
-            length = meta.get("length")
-            if isinstance(length, int):
-                length = (length, length)
-            out[f.name] = ParamSpec(
-                name=f.name,
-                kind=kind,
-                help=meta.get("help", ""),
-                unit=meta.get("unit", ""),
-                min=meta.get("min"),
-                max=meta.get("max"),
-                choices=meta.get("choices", ()),
-                length=length,
-                stem=meta.get("stem", False),
-                option=meta.get("option", True) and kind != "dict",
-                required=meta.get("required", False),
-                protected=meta.get("protected", False),
-                default=default,
-            )
-        cls._specs = out  # type: ignore[attr-defined]
-        return out
 
-    def as_dict(self) -> dict[str, Any]:
-        return {f.name: copy.deepcopy(getattr(self, f.name)) for f in fields(self)}
+def _set_in(cfg: Settings, path: list[str], raw: str, where: str, *, runtime: bool) -> None:
+    """Set ``path`` (``key`` or ``section.key``) in ``cfg`` with the wire's validation.
 
-
-def _coerce_yaml(spec: ParamSpec, value: Any, where: str) -> Any:
-    """YAML already gives typed values; check them with the same rules as the wire."""
+    A nested settings section is replaced by a changed copy, never edited in place, so whoever
+    holds the old object (a device built from it) keeps what it was built with.
+    """
+    specs = type(cfg).specs()
+    spec = specs.get(path[0])
+    if spec is None:
+        raise ProtocolError("E_ARG", f"{where} has no key '{path[0]}'; keys: {', '.join(specs)}")
+    if runtime and spec.protected:
+        raise ProtocolError("E_ARG", f"{where}.{spec.name} is protected; set it when starting the server")
+    if spec.kind == "section":
+        if len(path) < 2:
+            raise ProtocolError("E_ARG", f"{where}.{spec.name} is a section; set one of its keys "
+                                         f"({where}.{spec.name}.KEY for KEY in {', '.join(spec.section.specs())})")
+        section = copy.deepcopy(vars(cfg)[spec.name])
+        _set_in(section, path[1:], raw, f"{where}.{spec.name}", runtime=runtime)
+        setattr(cfg, spec.name, section)
+        return
     if spec.kind == "dict":
-        if not isinstance(value, dict):
-            raise ValueError(f"{where}: {spec.name} must be a mapping")
-        return value
-    if spec.kind == "floats" and isinstance(value, list):
-        value = ",".join(str(v) for v in value)
-    elif isinstance(value, bool) and spec.kind != "bool":
-        raise ValueError(f"{where}: {spec.name} must be {spec.describe()}")
-    elif not isinstance(value, str | bool):
-        value = str(value)
+        if len(path) < 2:
+            raise ProtocolError("E_ARG", f"{where}.{spec.name} is a section; set one of its keys ({where}.{spec.name}.KEY)")
+        nested = copy.deepcopy(vars(cfg)[spec.name])
+        _set_nested(nested, path[1:], raw, f"{where}.{'.'.join(path)}")
+        setattr(cfg, spec.name, nested)
+        return
+    if len(path) > 1:
+        raise ProtocolError("E_ARG", f"{where}.{spec.name} has no sub-keys")
     try:
-        return spec.parse(value)
-    except ProtocolError as exc:
-        raise ValueError(f"{where}: {exc.message}") from None
+        setattr(cfg, spec.name, spec.parse(raw))
+    except SettingError as exc:
+        raise ProtocolError("E_ARG", exc.message) from None
 
 
 def _set_nested(target: dict[str, Any], path: list[str], raw: str, where: str) -> None:
@@ -285,29 +114,20 @@ class ConfigStore:
         dirs = [DEFAULT_CONFIG_DIR] + ([Path(config_dir)] if config_dir else [])
         for name, cls in self.classes.items():
             data: dict[str, Any] = {}
+            sources = []
             for d in dirs:
                 path = d / f"{name}.yaml"
                 if path.is_file():
                     loaded = yaml.safe_load(path.read_text()) or {}
                     if not isinstance(loaded, dict):
                         raise ValueError(f"{path}: expected a mapping of key: value")
-                    _merge(data, loaded)
-            self.values[name] = self._build(cls, data, f"config/{name}.yaml")
+                    merge(data, loaded)
+                    sources.append(f"config/{name}.yaml" if d == DEFAULT_CONFIG_DIR else str(path))
+            self.values[name] = self._build(cls, data, " over ".join(reversed(sources)) or f"config/{name}.yaml")
 
     @staticmethod
     def _build(cls: type[ModuleConfig], data: dict[str, Any], where: str) -> ModuleConfig:
-        specs = cls.specs()
-        kwargs: dict[str, Any] = {}
-        for key, value in data.items():
-            if key not in specs:
-                raise ValueError(f"{where}: unknown key '{key}'; known: {', '.join(specs)}")
-            if specs[key].kind == "dict":
-                merged = copy.deepcopy(specs[key].default)
-                _merge(merged, value)
-                kwargs[key] = merged
-            else:
-                kwargs[key] = _coerce_yaml(specs[key], value, where)
-        return cls(**kwargs)
+        return cls.from_mapping(data, where=where)
 
     def module_names(self) -> list[str]:
         return sorted(self.classes)
@@ -330,24 +150,7 @@ class ConfigStore:
     def set(self, module: str, key: str, raw: str, *, runtime: bool = True) -> None:
         """Change one value (``key`` may be dotted for nested sections) with the wire's validation."""
         name = self.resolve(module)
-        cfg = self.values[name]
-        specs = type(cfg).specs()
-        path = key.replace("-", "_").split(".")
-        spec = specs.get(path[0])
-        if spec is None:
-            raise ProtocolError("E_ARG", f"{name} has no key '{key}'; keys: {', '.join(specs)}")
-        if runtime and spec.protected:
-            raise ProtocolError("E_ARG", f"{name}.{spec.name} is protected; set it when starting the server")
-        if spec.kind == "dict":
-            if len(path) < 2:
-                raise ProtocolError("E_ARG", f"{name}.{spec.name} is a section; set one of its keys ({name}.{spec.name}.KEY)")
-            section = copy.deepcopy(getattr(cfg, spec.name))
-            _set_nested(section, path[1:], raw, f"{name}.{key}")
-            setattr(cfg, spec.name, section)
-            return
-        if len(path) > 1:
-            raise ProtocolError("E_ARG", f"{name}.{spec.name} has no sub-keys")
-        setattr(cfg, spec.name, spec.parse(raw))
+        _set_in(self.values[name], key.replace("-", "_").split("."), raw, name, runtime=runtime)
 
     def apply_overrides(self, items: list[str]) -> None:
         """``--set module.key=value`` at server start; errors are fatal there, so raise ValueError."""
@@ -360,14 +163,6 @@ class ConfigStore:
                 self.set(module, key, raw, runtime=False)
             except ProtocolError as exc:
                 raise ValueError(f"--set {item!r}: {exc.message}") from None
-
-
-def _merge(base: dict[str, Any], over: dict[str, Any]) -> None:
-    for key, value in over.items():
-        if isinstance(value, dict) and isinstance(base.get(key), dict):
-            _merge(base[key], value)
-        else:
-            base[key] = copy.deepcopy(value)
 
 
 # ------------------------------------------------------------------------------------------
@@ -406,16 +201,22 @@ class ServerConfig(ModuleConfig):
                              "reaches the port can drive the rover)", protected=True)
 
 
-@standalone
-@dataclass
-class DriversConfig(ModuleConfig):
-    """config/drivers.yaml: one section per device; ``backend`` picks sim or the real driver."""
+def _drivers_config() -> type[ModuleConfig]:
+    """config/drivers.yaml: one section per device kind (drivers.registry.DEVICE_KINDS), each typed
+    by the settings its front end and its registered backends declare; ``backend`` picks one."""
+    sections = []
+    for kind in DEVICE_KINDS:
+        reg = registry(kind)
+        title = (importlib.import_module(f"drivers.{kind}").__doc__ or kind).strip().splitlines()[0]
+        sections.append((kind, reg.settings_class(), dataclasses.field(
+            default_factory=reg.settings_class(), metadata={"help": title})))
+    cls = dataclasses.make_dataclass("DriversConfig", sections, bases=(ModuleConfig,), namespace={"module": "drivers"})
+    cls.__doc__ = _drivers_config.__doc__
+    cls.__module__ = __name__
+    return cls
 
-    module: ClassVar[str] = "drivers"
-    ptu: dict = param({}, "pan-tilt unit (PTU-D46 over RS232)")
-    tof: dict = param({}, "SwissRanger SR4000 time-of-flight camera (USB)")
-    stereo: dict = param({}, "PIKE F-210B stereo pair (FireWire)")
-    trigger: dict = param({}, "LPT trigger box")
+
+DriversConfig = standalone(_drivers_config())
 
 
 @standalone

@@ -1,13 +1,14 @@
 """The device registry: builds the configured devices and answers for their health.
 
-Backends are chosen per device in ``config/drivers.yaml``; the registry only knows the
-``create(config, world)`` factory each driver package exposes, as pyusb's core only knows its
-backend protocol.
+Backends are chosen per device in ``config/drivers.yaml``; the registry only knows the device
+kinds (drivers.registry.DEVICE_KINDS) and the ``create(settings, world)`` factory each driver
+package exposes, as pyusb's core only knows its backend protocol.
 
 The registry reads the live ``drivers`` configuration (the config store's object, which
-``config -set`` changes) every time it builds a device, and remembers the section each device
-was built from: a device whose section changed since is built anew at its next reinit or reset,
-and one that can take some keys while open (``reconfigure``) gets them at once.
+``config -set`` changes) every time it builds a device, and remembers the settings each device
+was built from: a device whose settings changed since is built anew at its next reinit or reset,
+and one that takes some keys while open (its ``reconfigure``: the keys declared live) gets
+them at once.
 """
 
 from __future__ import annotations
@@ -16,46 +17,47 @@ import copy
 import functools
 import importlib
 import threading
+from collections.abc import Callable
 from typing import Any
 
 import structlog
 
 from drivers.base import Device, DeviceError
+from drivers.registry import DEVICE_KINDS, open_order, peers
+from drivers.settings import Settings
 
 log = structlog.get_logger("rvs.devices")
 
-DEVICE_NAMES = ("ptu", "tof", "trigger", "stereo")  # the trigger box first: the cameras fire it
-
 
 @functools.cache
-def _factory(name: str) -> Any:
-    module = importlib.import_module(f"drivers.{name}")
-    return getattr(module, "create", None)
+def _factory(name: str) -> Callable[..., Device]:
+    return importlib.import_module(f"drivers.{name}").create
 
 
 class DeviceRegistry:
     """Open devices by name, with the error of each one that failed to open or check."""
 
     def __init__(self, drivers: Any, world: Any = None) -> None:
-        """``drivers`` is the live DriversConfig (one dict attribute per device), never a copy."""
+        """``drivers`` is the live DriversConfig (one typed settings section per device kind), never
+        a copy: ``config -set`` replaces a section there, and the next build reads it."""
         self.drivers = drivers
         self.world = world
         self.devices: dict[str, Device] = {}
         self.errors: dict[str, str] = {}
-        self.built: dict[str, dict[str, Any]] = {}  # per device: the section it runs with
+        self.built: dict[str, Settings] = {}  # per device: the settings it runs with
         self.lock = threading.RLock()
 
-    def section(self, name: str) -> dict[str, Any]:
-        """A device's configuration as it is now (a copy: a device must not see later edits)."""
-        return copy.deepcopy(getattr(self.drivers, name, None) or {})
+    def section(self, name: str) -> Any:
+        """A device's settings as they are now (a copy: a device must not see later edits)."""
+        return copy.deepcopy(vars(self.drivers)[name])
 
     @property
     def names(self) -> list[str]:
-        """Devices that have a driver in this build, in a fixed order."""
-        return [n for n in DEVICE_NAMES if getattr(self.drivers, n, None) is not None and _factory(n) is not None]
+        """The device kinds, in the order they are opened (each after its peers)."""
+        return open_order()
 
     def uses_sim(self) -> bool:
-        return any(self.section(n).get("backend") == "sim" for n in DEVICE_NAMES)
+        return any(self.section(n).backend == "sim" for n in DEVICE_KINDS)
 
     def pending(self) -> list[str]:
         """``device.key`` of every drivers value that waits for its device's reinit or reset."""
@@ -63,8 +65,7 @@ class DeviceRegistry:
         for name in self.names:
             built = self.built.get(name)
             if built is not None:
-                live = self.section(name)
-                out += [f"{name}.{k}" for k in sorted(live.keys() | built.keys()) if live.get(k) != built.get(k)]
+                out += [f"{name}.{k}" for k in sorted(self.section(name).changed(built))]
         return out
 
     def reconfigure(self) -> None:
@@ -77,29 +78,28 @@ class DeviceRegistry:
         """
         with self.lock:
             for name, dev in self.devices.items():
-                take = getattr(dev, "reconfigure", None)
                 live = self.section(name)
-                if take is None or live == self.built.get(name):
+                if not live.changed(self.built.get(name)):
                     continue
                 try:
-                    taken = take(live)
+                    taken = dev.reconfigure(live)
                 except ValueError as exc:
                     raise ValueError(f"drivers.{name}: {exc}") from None
                 except DeviceError as exc:
                     log.warning("device_reconfigure_failed", device=name, error=exc.message)
                     continue
-                for key in taken:
-                    self.built[name][key] = copy.deepcopy(live.get(key))
+                if taken:
+                    now = live.as_dict()
+                    built = self.built[name]
+                    self.built[name] = type(built).from_mapping({**built.as_dict(), **{k: now[k] for k in taken}})
                 log.info("device_reconfigured", device=name, keys=",".join(taken) or "none")
 
     def _stale(self, name: str) -> bool:
-        return self.section(name) != self.built.get(name)
+        return bool(self.section(name).changed(self.built.get(name)))
 
     def _create(self, name: str) -> Device:
         create = _factory(name)
-        kwargs: dict[str, Any] = {}
-        if name == "stereo" and "trigger" in self.devices:
-            kwargs["trigger"] = self.devices["trigger"]
+        kwargs = {peer: self.devices[peer] for peer in peers(name) if peer in self.devices}
         section = self.section(name)
         self.built[name] = copy.deepcopy(section)
         return create(section, self.world, **kwargs)
@@ -124,9 +124,10 @@ class DeviceRegistry:
                 raise DeviceError(name, self.errors[name]) from exc
             self.devices[name] = dev
             self.errors.pop(name, None)
-            if name == "trigger" and "stereo" in self.devices:  # the cameras fire the new box
-                self.devices["stereo"].set_trigger(dev)  # type: ignore[attr-defined]
-            log.info("device_open", device=name, backend=getattr(dev, "backend", "?"))
+            for other, device in self.devices.items():  # e.g. the cameras fire the new trigger box
+                if name in peers(other):
+                    device.attach(name, dev)  # type: ignore[attr-defined]
+            log.info("device_open", device=name, backend=dev.backend)
 
     def open_all(self) -> dict[str, str]:
         """Open every configured device; failures are reported, not raised (server start)."""
@@ -179,7 +180,7 @@ class DeviceRegistry:
     def reset(self, name: str) -> None:
         """Reset one device (reopen it if its reset fails); rebuilt if its section changed."""
         dev = self.devices.get(name)
-        if dev is not None and not self._stale(name) and hasattr(dev, "reset"):
+        if dev is not None and not self._stale(name):
             try:
                 dev.reset()
                 self.errors.pop(name, None)

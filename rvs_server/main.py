@@ -35,7 +35,7 @@ def build_config(config_dir: str | None = None, overrides: list[str] | None = No
 def make_world(store: ConfigStore) -> Any:
     """The simulated world, when any device is simulated (sim commands exist only then)."""
     drivers = store.get("drivers")
-    if not any(section.get("backend") == "sim" for section in drivers.as_dict().values()):
+    if not any(section.backend == "sim" for section in vars(drivers).values()):
         return None
     try:
         from drivers.sim.world import World

@@ -14,12 +14,13 @@ from collections.abc import Iterator
 from dataclasses import dataclass, field
 from typing import Any
 
+from drivers.settings import STEM_RE, valid_stem  # noqa: F401 - the one file-stem rule, shared with settings
+
 MAX_LINE = 4096
 DASHES = ("--", "-", "\u2013")  # longest first; the en dash is how the thesis prints "-output"
 TAG_RE = re.compile(r"[A-Za-z0-9_.:\-]{1,32}")
 NAME_RE = re.compile(r"[A-Za-z][A-Za-z0-9_\-]*")
 KEY_RE = re.compile(r"[a-z][a-z0-9_]*")
-STEM_RE = re.compile(r"[A-Za-z0-9_\-][A-Za-z0-9_.\-]{0,63}")
 BARE_VALUE_RE = re.compile(r"[^\s\"=]+")
 STATUSES = ("ACK", "PROGRESS", "OK", "ERROR", "EVENT")
 
@@ -232,11 +233,6 @@ def tag_of(line: str) -> str | None:
     """Best-effort tag of a line that failed to parse, so its ERROR still carries it."""
     m = re.match(r"\s*@([A-Za-z0-9_.:\-]{1,32})(\s|$)", line)
     return m.group(1) if m else None
-
-
-def valid_stem(name: str) -> bool:
-    """Output names are file stems confined to the data directory (PROTOCOL.md)."""
-    return bool(STEM_RE.fullmatch(name)) and not name.startswith(".") and ".." not in name
 
 
 # --------------------------------------------------------------------------------------------

@@ -12,7 +12,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
-from .config import ModuleConfig
+from .config import ModuleConfig, SettingError
 from .protocol import ProtocolError, Request
 
 if TYPE_CHECKING:
@@ -117,7 +117,10 @@ def apply_options(name: str, base: ModuleConfig, options: list[tuple[str, str | 
         if opt in seen:
             raise ProtocolError("E_ARG", f"option {spec.flag} given twice")
         seen.add(opt)
-        setattr(cfg, opt, spec.parse(raw))
+        try:
+            setattr(cfg, opt, spec.parse(raw))
+        except SettingError as exc:
+            raise ProtocolError("E_ARG", exc.message) from None
     for spec in specs.values():
         if spec.required and spec.name not in seen:
             raise ProtocolError("E_ARG", f"{name} needs {spec.flag} ({spec.describe()})")

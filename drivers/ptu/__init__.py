@@ -1,36 +1,28 @@
 """The pan-tilt unit (a Directed Perception / FLIR PTU-D46 on RS232).
 
-``create(config, world)`` returns a :class:`Ptu`. Both backends run the same
-:class:`~drivers.ptu.client.PtuClient` over pyserial: ``serial`` opens ``config["port"]`` (any
-pyserial URL); ``sim`` starts a :class:`~drivers.ptu.emulator.PtuEmulator` on a pseudo-terminal
-and opens its slave side, so simulation exercises the real protocol byte for byte and the
-emulator moves the sensor head in the simulated world (``world.set_ptu``) as it turns.
+``create(settings, world)`` returns a :class:`Ptu`. Every backend only provides the serial
+line: the front end runs the same :class:`~drivers.ptu.client.PtuClient` over pyserial on
+it. ``serial`` (:mod:`drivers.ptu.line`) hands over ``settings.port`` (any pyserial URL);
+``sim`` starts a :class:`~drivers.ptu.emulator.PtuEmulator` on a pseudo-terminal and hands over
+its slave side, so simulation exercises the real protocol byte for byte and the emulator moves
+the sensor head in the simulated world (``world.set_ptu``) as it turns.
 """
 
 from __future__ import annotations
 
-import os
 import threading
+from collections.abc import Mapping
 from typing import Any
 
 from drivers.base import DeviceError
+from drivers.ptu import line as _line  # noqa: F401 - registers the sim and serial backends
+from drivers.ptu.backend import BACKENDS, PtuBackend, PtuSettings
 from drivers.ptu.client import DEVICE, Cancel, MoveInterrupted, PtuClient, ReplyTimeout
-from drivers.ptu.emulator import FAULTS, PtuEmulator, open_pty
+from drivers.ptu.emulator import PtuEmulator
+from drivers.registry import Capability
+from drivers.settings import Settings
 
-__all__ = ["BACKENDS", "DEFAULTS", "FAULTS", "MoveInterrupted", "Ptu", "ReplyTimeout", "create"]
-
-BACKENDS = ("sim", "serial")
-DEFAULTS: dict[str, Any] = {
-    "backend": "sim",
-    "port": "/dev/ttyUSB0",
-    "baudrate": 9600,
-    "timeout": 2.0,
-    "move_timeout": 30.0,
-    "reset_timeout": 60.0,
-    "speed": 1000,
-    "acceleration": 2000,
-    "time_scale": 1.0,
-}
+__all__ = ["BACKENDS", "PEERS", "MoveInterrupted", "Ptu", "PtuSettings", "ReplyTimeout", "create"]
 
 
 class Ptu:
@@ -43,19 +35,14 @@ class Ptu:
 
     name = DEVICE
 
-    def __init__(self, config: dict[str, Any] | None = None, world: Any = None) -> None:
-        self.config = {**DEFAULTS, **(config or {})}
-        backend = str(self.config["backend"])
-        if backend not in BACKENDS:
-            raise DeviceError(DEVICE, f"unknown backend {backend!r} for drivers.ptu.backend; use sim or serial")
-        self.backend = backend
-        self.world = world
+    def __init__(self, settings: Mapping[str, Any] | Settings | None = None, world: Any = None) -> None:
+        self.settings = BACKENDS.settings(settings)
+        self.line: PtuBackend = BACKENDS.create(self.settings, world)
+        self.backend = self.line.name
+        self.capabilities = self.line.capabilities
         self._lock = threading.RLock()  # open/close/reinit; exchanges are serialised by the client
         self._client: PtuClient | None = None
-        self._emulator: PtuEmulator | None = None
-        self._fds: tuple[int, int] | None = None
-        self._port = str(self.config["port"]) if backend == "serial" else None
-        self._fault: str | None = None
+        self._port: str | None = None
         self._last_error: str | None = None
 
     # -- the device protocol ---------------------------------------------------------------------
@@ -63,17 +50,16 @@ class Ptu:
         with self._lock:
             if self._client is not None and self._client.is_open:
                 return
-            if self.backend == "sim":
-                self._start_emulator()
-            assert self._port is not None
+            self._port = self.line.connect()
+            st = self.settings
             client = PtuClient(
                 self._port,
-                int(self.config["baudrate"]),
-                timeout=float(self.config["timeout"]),
-                move_timeout=float(self.config["move_timeout"]),
-                reset_timeout=float(self.config["reset_timeout"]),
-                speed=self.config.get("speed"),
-                acceleration=self.config.get("acceleration"),
+                st.baudrate,
+                timeout=st.timeout,
+                move_timeout=st.move_timeout,
+                reset_timeout=st.reset_timeout,
+                speed=st.speed,
+                acceleration=st.acceleration,
             )
             try:
                 client.open()
@@ -86,17 +72,8 @@ class Ptu:
     def close(self) -> None:
         with self._lock:
             self._close_client()
-            if self._emulator is not None:
-                self._emulator.stop()
-                self._emulator = None
-            if self._fds is not None:
-                for fd in self._fds:
-                    try:
-                        os.close(fd)
-                    except OSError:
-                        pass
-                self._fds = None
-                self._port = None
+            self.line.disconnect()
+            self._port = None
 
     def reinit(self) -> None:
         """Close and reopen the serial side; a simulated unit keeps its state and faults, as a
@@ -119,13 +96,10 @@ class Ptu:
         client = self._client
         state: dict[str, Any] = client.snapshot() if client is not None else {"open": False}
         state.update(
-            name=self.name, backend=self.backend, port=self._port or self.config["port"],
-            baudrate=int(self.config["baudrate"]), last_error=self._last_error,
+            name=self.name, backend=self.backend, port=self._port or self.settings.port,
+            baudrate=self.settings.baudrate, last_error=self._last_error,
         )
-        if self.backend == "sim":
-            emu = self._emulator
-            state.update(fault=self._fault, time_scale=float(self.config["time_scale"]),
-                         emulator_running=bool(emu and emu.running))
+        state.update(self.line.status())
         return state
 
     # -- pan-tilt operations -----------------------------------------------------------------------
@@ -192,32 +166,25 @@ class Ptu:
     # -- simulation ------------------------------------------------------------------------------
     @property
     def emulator(self) -> PtuEmulator | None:
-        return self._emulator
+        """The simulated unit behind the line (None for a real one)."""
+        return self.line.emulator
 
     def inject_fault(self, kind: str | None) -> None:
-        """sim only: None (healthy), "silent", "garbage" (wrong baud rate) or "stall"."""
-        if self.backend != "sim":
+        """A simulator's fault (``silent``, ``garbage`` as at a wrong baud rate, ``stall``) or None."""
+        if Capability.FAULTS not in self.capabilities:
             raise DeviceError(DEVICE, "faults can only be injected into the sim backend")
         if kind in ("", "none", "None"):
             kind = None
-        if kind not in FAULTS:
-            raise DeviceError(DEVICE, f"unknown fault {kind!r}; use silent, garbage, stall or none")
+        if kind is not None and kind not in self.line.faults:
+            raise DeviceError(DEVICE, f"unknown fault {kind!r}; use {', '.join(self.line.faults)} or none")
         with self._lock:
-            self._fault = kind
-            if self._emulator is not None:
-                self._emulator.inject_fault(kind)
+            self.line.inject_fault(kind)
+
+    def reconfigure(self, settings: Settings) -> list[str]:
+        """The unit takes no setting while open: every change waits for its reinit."""
+        return []
 
     # -- internals -------------------------------------------------------------------------------
-    def _start_emulator(self) -> None:
-        if self._emulator is not None and self._emulator.running:
-            return
-        master, slave, path = open_pty()
-        self._fds, self._port = (master, slave), path
-        on_position = getattr(self.world, "set_ptu", None) if self.world is not None else None
-        self._emulator = PtuEmulator(
-            master, time_scale=float(self.config["time_scale"]), on_position=on_position, fault=self._fault
-        ).start()
-
     def _close_client(self) -> None:
         client, self._client = self._client, None
         if client is not None:
@@ -243,6 +210,9 @@ def _public(power: dict[str, Any]) -> dict[str, Any]:
     return {k: v for k, v in power.items() if k != "raw"}
 
 
-def create(config: dict[str, Any], world: Any = None) -> Ptu:
-    """The PTU for ``config`` (the ``drivers.ptu`` section); not opened yet."""
-    return Ptu(config, world)
+PEERS: tuple[str, ...] = ()  # built after, and given to create() as, these device kinds
+
+
+def create(settings: Mapping[str, Any] | Settings | None, world: Any = None) -> Ptu:
+    """The PTU for the ``drivers.ptu`` settings; not opened yet."""
+    return Ptu(settings, world)

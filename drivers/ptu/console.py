@@ -17,7 +17,7 @@ import yaml
 
 from drivers.base import DeviceError
 from drivers.console import DEFAULT_CONFIG, DeviceConsole, load_section, run, split_words
-from drivers.ptu import DEFAULTS, FAULTS, Ptu, create
+from drivers.ptu import BACKENDS, Ptu, create
 
 
 def _floats(arg: str, n_min: int, n_max: int, usage: str) -> list[float]:
@@ -160,12 +160,12 @@ class PtuConsole(DeviceConsole):
         """fault KIND: sim only; silent, garbage, stall or none."""
         kind = arg.strip() or None
         self.ptu.inject_fault(kind)
-        self.say(f"fault {kind or 'none'} injected (kinds: {', '.join(str(f) for f in FAULTS)})")
+        self.say(f"fault {kind or 'none'} injected (kinds: {', '.join(('None',) + self.ptu.line.faults)})")
 
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="rvs-ptu", description="PTU-D46 console (sim or serial backend)")
-    parser.add_argument("--backend", choices=("sim", "serial"), help="default: drivers.yaml ptu.backend")
+    parser.add_argument("--backend", choices=BACKENDS.names(), help="default: drivers.yaml ptu.backend")
     parser.add_argument("--port", help="serial port or pyserial URL (serial backend)")
     parser.add_argument("--baudrate", type=int)
     parser.add_argument("--timeout", type=float, help="seconds to wait for a reply")
@@ -177,7 +177,7 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
 
     try:
-        config = load_section("ptu", DEFAULTS, args.config)
+        config = load_section("ptu", {}, args.config)
     except (OSError, yaml.YAMLError) as exc:
         print(f"error: cannot read the config: {exc}", file=sys.stderr)
         return 2

@@ -20,7 +20,7 @@ import numpy as np
 import yaml
 
 from drivers.console import DEFAULT_CONFIG, DeviceConsole, default_data_dir, read_config, run, split_words
-from drivers.stereo import create
+from drivers.stereo import BACKENDS, create
 from drivers.stereo.modes import PIXEL_FORMATS, RESOLUTIONS, SIDES
 
 
@@ -286,7 +286,7 @@ def load_config(path: str | Path | None) -> dict[str, Any]:
 def parse_args(argv: list[str] | None) -> argparse.Namespace:
     p = argparse.ArgumentParser(prog="rvs-cam", description=__doc__)
     p.add_argument("--config", help=f"drivers.yaml to read (default {DEFAULT_CONFIG})")
-    p.add_argument("--backend", choices=("sim", "dc1394"), help="camera backend (default: from the config)")
+    p.add_argument("--backend", choices=BACKENDS.names(), help="camera backend (default: from the config)")
     p.add_argument("--left-id", help="left camera GUID (hex) or bus index")
     p.add_argument("--right-id", help="right camera GUID (hex) or bus index")
     p.add_argument("--trigger-backend", choices=("sim", "ppdev", "none"), help="trigger box backend")
@@ -317,15 +317,15 @@ def main(argv: list[str] | None = None, *, world: Any = None, stdout: Any = None
     ):
         if value is not None:
             cam_cfg[key] = value
-    cam_cfg.setdefault("backend", "sim")
+    settings = BACKENDS.settings(cam_cfg)
     # Real cameras want the real box and simulated cameras the simulated one, unless told otherwise.
-    trg_cfg["backend"] = args.trigger_backend or ("sim" if cam_cfg["backend"] == "sim" else "ppdev")
+    trg_cfg["backend"] = args.trigger_backend or ("sim" if settings.backend == "sim" else "ppdev")
     if args.trigger_device:
         trg_cfg["device"] = args.trigger_device
-    if cam_cfg["backend"] == "sim" and world is None:
+    if settings.backend == "sim" and world is None:
         from drivers.sim.world import World
 
-        world = World.from_scene(args.scene, seed=int(cam_cfg.get("seed", 0)))
+        world = World.from_scene(args.scene, seed=settings.seed)
 
     trigger = None
     if trg_cfg["backend"] != "none":
@@ -337,7 +337,7 @@ def main(argv: list[str] | None = None, *, world: Any = None, stdout: Any = None
         except Exception as exc:
             print(f"warning: trigger box unavailable ({exc}); only direct grabs will work", file=out)
             trigger = None
-    camera = create(cam_cfg, world, trigger)
+    camera = create(settings, world, trigger)
     shell = CamShell(camera, trigger, args.data, stdout=out)
     shell.onecmd("init")
     try:

@@ -11,12 +11,15 @@ from __future__ import annotations
 import ctypes
 import threading
 import time
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
 from drivers.base import DeviceError
+from drivers.settings import Settings, param
 from drivers.stereo import dc1394_lib as dc
+from drivers.stereo.backend import BACKENDS
 from drivers.stereo.errors import CameraLost, GrabCancelled, MissedTrigger, is_cancelled
 from drivers.stereo.modes import channels
 from drivers.stereo.settings import CameraSettings
@@ -24,15 +27,31 @@ from drivers.stereo.settings import CameraSettings
 NAME = "stereo"
 
 
-class Dc1394Cameras:
-    kind = "dc1394"
+@dataclass
+class Dc1394Settings(Settings):
+    """drivers.stereo keys of the FireWire backend."""
 
-    def __init__(self, config: dict[str, Any], lib: Any = None) -> None:
-        self.config = config
-        self.library = config.get("library") or "libdc1394.so.25"
-        self.sensor_size = tuple(int(v) for v in config.get("sensor_size", (1920, 1080)))
-        self.dma_buffers = int(config.get("dma_buffers", 4))
-        self.poll_s = float(config.get("poll_interval", 0.002))
+    library: str = param("libdc1394.so.25", "dc1394: the libdc1394 shared library")
+    sensor_size: list[int] = param([1920, 1080], "dc1394: Format7 ROIs are centred on this sensor", unit="px",
+                                   min=1, max=100_000, length=2)
+    dma_buffers: int = param(4, "dc1394: capture ring size", min=1, max=64)
+    poll_interval: float = param(0.002, "dc1394: how often a capture is polled for a frame", unit="s", min=0.0,
+                                 max=1.0)
+    reset_settle_s: float = param(0.5, "dc1394: wait after a bus reset before configuring again", unit="s",
+                                  min=0.0, max=60.0)
+
+
+@BACKENDS.backend("dc1394")
+class Dc1394Cameras:
+    settings = Dc1394Settings
+
+    def __init__(self, config: Any, world: Any = None, *, lib: Any = None) -> None:
+        """``config``: the composed drivers.stereo settings (StereoSettings and Dc1394Settings keys)."""
+        self.library = config.library or "libdc1394.so.25"
+        self.sensor_size = tuple(config.sensor_size)
+        self.dma_buffers = config.dma_buffers
+        self.poll_s = config.poll_interval
+        self.reset_settle_s = config.reset_settle_s
         self._lib = lib  # injected by tests; loaded at open otherwise
         self._ctx: Any = None
         self._found: list[str] = []
@@ -44,7 +63,7 @@ class Dc1394Cameras:
     # -- bus ---------------------------------------------------------------------------------
     def open(self) -> list[str]:
         with self._lock:
-            if self._lib is None or not hasattr(self._lib, "dc1394_new"):
+            if self._lib is None:
                 self._lib = dc.load(self.library)
             if self._ctx is None:
                 ctx = self._lib.dc1394_new()
@@ -160,7 +179,7 @@ class Dc1394Cameras:
                 cam = self._cam(guid)
                 self._call(guid, "dc1394_camera_reset", cam)
                 self._release(guid)  # registers are back at power-up values: configure again
-            time.sleep(float(self.config.get("reset_settle_s", 0.5)))
+            time.sleep(self.reset_settle_s)
 
     def check(self, guids: list[str]) -> dict[str, Any]:
         out = {}

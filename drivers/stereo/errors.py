@@ -6,6 +6,8 @@ be swapped), so backends raise these and the front end turns them into DeviceErr
 
 from __future__ import annotations
 
+import threading
+
 
 class GrabCancelled(Exception):
     """A grab was interrupted through its ``cancel`` argument (the server's ``break``)."""
@@ -27,12 +29,11 @@ class CameraLost(Exception):
 
 
 def is_cancelled(cancel: object) -> bool:
-    """``cancel`` may be None, a threading.Event-like object or a callable returning a bool."""
+    """``cancel`` may be None, a threading.Event or a callable returning a bool."""
     if cancel is None:
         return False
-    is_set = getattr(cancel, "is_set", None)
-    if callable(is_set):
-        return bool(is_set())
+    if isinstance(cancel, threading.Event):
+        return cancel.is_set()
     if callable(cancel):
         return bool(cancel())
     return bool(cancel)

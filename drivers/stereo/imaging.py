@@ -154,22 +154,22 @@ def expose(
     return np.rint(electrons).astype(np.uint8)
 
 
-def sensor_from_config(config: dict[str, Any]) -> SensorModel:
-    base = SensorModel()
+def sensor_from_config(config: Any) -> SensorModel:
+    """The sensor model from the typed drivers.stereo settings (SimStereoSettings keys)."""
     return SensorModel(
-        full_well_e=float(config.get("sim_full_well_e", base.full_well_e)),
-        read_noise_e=float(config.get("sim_read_noise_e", base.read_noise_e)),
-        white_dn_at_ref=float(config.get("sim_white_dn", base.white_dn_at_ref)),
-        ref_shutter_us=base.ref_shutter_us,
-        noise=bool(config.get("sim_noise", True)),
+        full_well_e=config.sim_full_well_e,
+        read_noise_e=config.sim_read_noise_e,
+        white_dn_at_ref=config.sim_white_dn,
+        ref_shutter_us=SensorModel.ref_shutter_us,
+        noise=config.sim_noise,
     )
 
 
-def lighting_from_config(config: dict[str, Any]) -> Lighting:
-    base = Lighting()
+def lighting_from_config(config: Any) -> Lighting:
+    """The light from the typed drivers.stereo settings (SimStereoSettings keys)."""
     return Lighting(
-        sun_azimuth_deg=float(config.get("sim_sun_azimuth_deg", base.sun_azimuth_deg)),
-        sun_elevation_deg=float(config.get("sim_sun_elevation_deg", base.sun_elevation_deg)),
-        ambient=float(config.get("sim_ambient", base.ambient)),
-        sky=float(config.get("sim_sky", base.sky)),
+        sun_azimuth_deg=config.sim_sun_azimuth_deg,
+        sun_elevation_deg=config.sim_sun_elevation_deg,
+        ambient=config.sim_ambient,
+        sky=config.sim_sky,
     )

@@ -12,14 +12,17 @@ from __future__ import annotations
 import copy
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from pathlib import Path
-from typing import Any
+from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 
 from drivers.base import DeviceError
+from drivers.registry import Capability
+from drivers.settings import Settings
 from drivers.stereo import calibration as calib_file
+from drivers.stereo.backend import BACKENDS, CameraBackend, StereoSettings
 from drivers.stereo.errors import CameraLost, GrabCancelled, MissedTrigger
 from drivers.stereo.modes import SIDES, check_pixel_format, check_resolution, check_side, resolution_size
 from drivers.stereo.settings import (
@@ -32,21 +35,30 @@ from drivers.stereo.settings import (
 NAME = "stereo"
 
 
+@runtime_checkable
+class Pulser(Protocol):
+    """A trigger box: ``pulse()`` fires both cameras (drivers.trigger.Trigger is one)."""
+
+    def pulse(self) -> int: ...
+
+
 class StereoPair:
     """Thread-safe: grabs and settings changes are serialised; status() never waits for them."""
 
     name = NAME
 
-    def __init__(self, config: dict[str, Any], backend: Any, trigger: Any = None) -> None:
-        self.config = dict(config)
+    def __init__(self, config: Mapping[str, Any] | Settings, backend: CameraBackend, trigger: Any = None) -> None:
+        """``config``: the drivers.stereo settings (typed; a mapping is typed first)."""
+        self.config: StereoSettings = BACKENDS.settings(config)
         self._backend = backend
-        self.backend = str(backend.kind)
-        self._wanted = {"left": str(config.get("left_id", "0")), "right": str(config.get("right_id", "1"))}
-        self.resolution = check_resolution(config.get("resolution", "high"))
-        self.pixel_format = check_pixel_format(config.get("pixel_format", "mono8"))
-        self.trigger_timeout = float(config.get("trigger_timeout", 1.0))
-        self.direct_timeout = float(config.get("direct_timeout", 2.0))
-        self._defaults = defaults_from_config(config)
+        self.backend = backend.name
+        self.capabilities = backend.capabilities
+        self._wanted = {"left": self.config.left_id, "right": self.config.right_id}
+        self.resolution = check_resolution(self.config.resolution)
+        self.pixel_format = check_pixel_format(self.config.pixel_format)
+        self.trigger_timeout = self.config.trigger_timeout
+        self.direct_timeout = self.config.direct_timeout
+        self._defaults = defaults_from_config(self.config)
         self._settings: dict[str, CameraSettings] = dict.fromkeys(SIDES, self._defaults)
         self._ids: dict[str, str | None] = dict.fromkeys(SIDES)
         self._available: list[str] = []
@@ -77,7 +89,7 @@ class StereoPair:
                 self._close_quietly()
                 raise
             self._ids = dict(ids)
-            settings_file = self.config.get("settings_file")
+            settings_file = self.config.settings_file
             if settings_file and Path(settings_file).exists():
                 self._load_settings_locked(settings_file)
             with self._st:
@@ -123,11 +135,20 @@ class StereoPair:
                     raise self._lost_error(exc) from exc
             self.reinit()
 
+    def reconfigure(self, settings: Settings) -> list[str]:
+        """The pair takes no setting while open: every change waits for its reinit."""
+        return []
+
+    def attach(self, kind: str, device: Any) -> None:
+        """A peer (drivers.stereo.PEERS) was rebuilt: fire the new trigger box from now on."""
+        if kind == "trigger":
+            self.set_trigger(device)
+
     def set_trigger(self, trigger: Any) -> None:
         """Attach the trigger box: an object with ``pulse()`` or a plain callable."""
         if trigger is None:
             self._fire = None
-        elif hasattr(trigger, "pulse"):
+        elif isinstance(trigger, Pulser):
             self._fire = trigger.pulse
         elif callable(trigger):
             self._fire = trigger
@@ -371,9 +392,8 @@ class StereoPair:
                 "duration_s": time.time() - started,
                 "settings": {s: self._settings[s].to_dict() for s in sides},
             }
-            effective = getattr(self._backend, "last_shutter", None)
-            if callable(effective):
-                shutters = effective()
+            if Capability.TRUTH in self.capabilities:
+                shutters = self._backend.last_shutter()
                 info["effective_shutter_us"] = {s: shutters.get(g) for s, g in zip(sides, guids, strict=True)}
             with self._st:
                 self._status["grabs"] += 1
@@ -395,18 +415,17 @@ class StereoPair:
         """K1 D1 K2 D2 R T image_size: the world's truth (sim) or the configured YAML file (real)."""
         size = resolution_size(check_resolution(resolution or self.resolution))
         with self._op:
-            path = self.config.get("calibration")
+            path = self.config.calibration
             if path:
                 return calib_file.load_calibration(path, size)
-            truth = getattr(self._backend, "calibration", None)
-            if truth is None:
+            if Capability.TRUTH not in self.capabilities:
                 raise DeviceError(
                     NAME,
                     "no stereo calibration configured: set drivers.stereo.calibration to a YAML file with "
                     "K1 D1 K2 D2 R T image_size (OpenCV stereoCalibrate names)",
                 )
             self._require_open()
-            return truth(self._ids["left"], self._ids["right"], size)
+            return self._backend.calibration(self._ids["left"], self._ids["right"], size)
 
     # -- maintenance ------------------------------------------------------------------------------------
     def status(self) -> dict[str, Any]:
@@ -420,9 +439,9 @@ class StereoPair:
             trigger_timeout=self.trigger_timeout,
             trigger_attached=self._fire is not None,
         )
-        faults = getattr(self._backend, "faults", None)
-        if callable(faults):
-            snap["faults"] = {s: faults().get(snap[s]["id"]) for s in SIDES}
+        if Capability.FAULTS in self.capabilities:
+            faults = self._backend.active_faults()
+            snap["faults"] = {s: faults.get(snap[s]["id"]) for s in SIDES}
         return snap
 
     def check(self) -> dict[str, Any]:
@@ -440,9 +459,9 @@ class StereoPair:
 
     def inject_fault(self, kind: str | None, side: str | None = None) -> None:
         """Simulated backend only: ``no_trigger``, ``unplug`` or None, for one side or both."""
-        inject = getattr(self._backend, "inject_fault", None)
-        if inject is None:
+        if Capability.FAULTS not in self.capabilities:
             raise ValueError(f"fault injection needs the sim backend, this is {self.backend}")
+        inject = self._backend.inject_fault
         with self._st:
             ids = {s: self._status[s]["id"] for s in SIDES}
         if side is None:

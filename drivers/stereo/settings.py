@@ -93,10 +93,10 @@ def _coerce(key: str, raw: Any) -> Any:
     return int(value)
 
 
-def defaults_from_config(config: dict[str, Any]) -> CameraSettings:
-    """The power-up settings from the stereo section of drivers.yaml."""
-    keys = [f.name for f in dataclasses.fields(CameraSettings)]
-    return CameraSettings().replace(**{k: config[k] for k in keys if k in config})
+def defaults_from_config(config: Any) -> CameraSettings:
+    """The power-up settings from the typed drivers.stereo settings (their camera keys)."""
+    values = config.as_dict()
+    return CameraSettings().replace(**{f.name: values[f.name] for f in dataclasses.fields(CameraSettings)})
 
 
 def save_settings_file(path: str | os.PathLike[str], settings: dict[str, CameraSettings]) -> Path:

@@ -10,11 +10,15 @@ from __future__ import annotations
 import threading
 import time
 from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
+from drivers.registry import Capability
+from drivers.settings import Settings, param
 from drivers.stereo import imaging
+from drivers.stereo.backend import BACKENDS
 from drivers.stereo.errors import CameraLost, GrabCancelled, MissedTrigger, is_cancelled
 from drivers.stereo.modes import channels
 from drivers.stereo.settings import CameraSettings
@@ -26,24 +30,59 @@ FAULTS = ("no_trigger", "unplug")
 DEFAULT_DISTORTION = (-0.06, 0.012, 0.0, 0.0, 0.0)  # mild barrel of a ~60 deg lens
 
 
-class SimCameras:
-    kind = "sim"
+_S, _L = imaging.SensorModel(), imaging.Lighting()
 
-    def __init__(self, config: dict[str, Any], world: Any = None) -> None:
-        self.config = config
+
+@dataclass
+class SimStereoSettings(Settings):
+    """drivers.stereo keys of the simulated pair: its lenses, its sensor noise and the light."""
+
+    seed: int = param(0, "sim: sensor noise seed", min=0, max=2**63 - 1)
+    sim_guids: list = param(list(SIM_GUIDS), "sim: the two camera ids (left mount, right mount)")
+    sim_distortion: list[float] = param(list(DEFAULT_DISTORTION), "sim: OpenCV k1 k2 p1 p2 [k3 ...] of both lenses",
+                                        length=(4, 8))
+    sim_hfov_deg: float | None = param(None, "sim: horizontal field of view; null = the world's camera model",
+                                       unit="deg", min=1.0, max=179.0)
+    sim_noise: bool = param(_S.noise, "sim: shot + read noise")
+    sim_full_well_e: float = param(_S.full_well_e, "sim: full well", unit="e-", min=1.0)
+    sim_read_noise_e: float = param(_S.read_noise_e, "sim: read noise", unit="e-", min=0.0)
+    sim_white_dn: float = param(_S.white_dn_at_ref, "sim: grey level of a white lit surface at 8 ms, 0 dB",
+                                unit="DN", min=0.0)
+    sim_sun_azimuth_deg: float = param(_L.sun_azimuth_deg, "sim: direction the light comes from (global frame, "
+                                       "CCW from +x)", unit="deg", min=-360.0, max=360.0)
+    sim_sun_elevation_deg: float = param(_L.sun_elevation_deg, "sim: sun elevation", unit="deg", min=-90.0,
+                                         max=90.0)
+    sim_ambient: float = param(_L.ambient, "sim: share of light independent of surface orientation", min=0.0,
+                               max=1.0)
+    sim_sky: float = param(_L.sky, "sim: radiance of pixels that hit nothing, relative to a white lit surface",
+                           min=0.0)
+    sim_scene: str = param("office", "sim: the scene of a pair used with no shared world (consoles, scripts)")
+    sim_parallel: bool = param(True, "sim: render the two cameras in two threads")
+
+
+@BACKENDS.backend("sim")
+class SimCameras:
+    settings = SimStereoSettings
+    capabilities = frozenset({Capability.FAULTS, Capability.TRUTH})
+    faults = FAULTS
+
+    def __init__(self, config: Any, world: Any = None) -> None:
+        """``config``: the composed drivers.stereo settings (StereoSettings and SimStereoSettings keys)."""
         self.world = world
-        guids = [str(g).lower() for g in config.get("sim_guids", SIM_GUIDS)]
+        guids = [str(g).lower() for g in config.sim_guids]
         if len(guids) != 2:
             raise ValueError("sim_guids must list two camera ids (left mount, right mount)")
         self._mount = dict(zip(guids, MOUNTS, strict=True))
         self._guids = guids
-        self.distortion = np.asarray(config.get("sim_distortion", DEFAULT_DISTORTION), dtype=np.float64)
+        self.distortion = np.asarray(config.sim_distortion, dtype=np.float64)
         if self.distortion.size not in (4, 5, 8):
             raise ValueError("sim_distortion must hold 4, 5 or 8 OpenCV coefficients (k1 k2 p1 p2 [k3 ...])")
         self.sensor = imaging.sensor_from_config(config)
         self.lighting = imaging.lighting_from_config(config)
-        self.hfov_deg = config.get("sim_hfov_deg")
-        self.seed = int(config.get("seed", 0))
+        self.hfov_deg = config.sim_hfov_deg
+        self.seed = config.seed
+        self.scene = config.sim_scene
+        self.parallel = config.sim_parallel
         self._lock = threading.Lock()  # faults, lost set, settings
         self._faults: dict[str, str | None] = dict.fromkeys(guids)
         self._lost: set[str] = set()
@@ -58,11 +97,11 @@ class SimCameras:
         if self.world is None:
             from drivers.sim.world import World  # the default world only when nobody shared one
 
-            self.world = World.from_scene(str(self.config.get("sim_scene", "office")), seed=self.seed)
+            self.world = World.from_scene(self.scene, seed=self.seed)
         with self._lock:
             self._lost = {g for g in self._guids if self._faults[g] == "unplug"}
             self._rngs = {g: np.random.default_rng([self.seed, i]) for i, g in enumerate(self._guids)}
-        if self._pool is None and bool(self.config.get("sim_parallel", True)):
+        if self._pool is None and self.parallel:
             self._pool = ThreadPoolExecutor(max_workers=2, thread_name_prefix="sim-cam")
         self._open = True
         return self.available()
@@ -88,7 +127,7 @@ class SimCameras:
             for guid in guids or self._guids:
                 self._faults[guid] = kind
 
-    def faults(self) -> dict[str, str | None]:
+    def active_faults(self) -> dict[str, str | None]:
         with self._lock:
             return dict(self._faults)
 
@@ -139,7 +178,7 @@ class SimCameras:
         bus = self.world.trigger
         deadline = time.monotonic() + timeout
         pulse = None
-        deaf = [g for g in guids if self.faults()[g] == "no_trigger"]
+        deaf = [g for g in guids if self.active_faults()[g] == "no_trigger"]
         while pulse is None and len(deaf) < len(guids):
             if is_cancelled(cancel):
                 raise GrabCancelled("grab cancelled while waiting for the trigger")

@@ -23,6 +23,7 @@ from drivers.base import DeviceError
 from drivers.console import DEFAULT_CONFIG, DeviceConsole, load_section, run, split_words
 
 from . import constants as k
+from .backend import BACKENDS
 from .device import Cancelled, Tof, parse_serial
 from .query import find_cameras
 
@@ -274,7 +275,7 @@ class TofConsole(DeviceConsole):
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="rvs-tof", description="SR4000 time-of-flight camera console (sim or mesasr)")
-    parser.add_argument("--backend", choices=("sim", "mesasr"), help="default: drivers.yaml tof.backend")
+    parser.add_argument("--backend", choices=BACKENDS.names(), help="default: drivers.yaml tof.backend")
     parser.add_argument("--serial", help="camera serial (hex, as printed on the camera); 0 = first found")
     parser.add_argument("--library", help="mesasr: path of libmesasr.so")
     parser.add_argument("--settings", type=Path, help="default settings file (created when missing)")
@@ -296,14 +297,15 @@ def main(argv: list[str] | None = None) -> int:
             config["library"] = args.library
         if args.settings:
             config["settings_file"] = str(args.settings)
-        world = None
-        if config.get("backend", "sim") == "sim":
-            from drivers.sim.world import World
-
-            world = World.from_scene(args.scene, seed=int(config.get("seed", 0) or 0))
         from . import create
 
-        camera = create(config, world)
+        settings = BACKENDS.settings(config)
+        world = None
+        if settings.backend == "sim":
+            from drivers.sim.world import World
+
+            world = World.from_scene(args.scene, seed=settings.seed)
+        camera = create(settings, world)
     except (OSError, ValueError, DeviceError, yaml.YAMLError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2

@@ -20,6 +20,7 @@ c / (2 f) does not average to the middle of the range.
 from __future__ import annotations
 
 import contextlib
+import copy
 import math
 import threading
 import time
@@ -32,9 +33,10 @@ import cv2
 import numpy as np
 
 from drivers.base import DeviceError
+from drivers.registry import Capability
 
 from . import constants as k
-from .backend import Backend, DeviceInfo
+from .backend import Backend, DeviceInfo, SR4000Settings
 from .colour import fake_colour
 from .settings import (
     CAMERA_KEYS,
@@ -99,12 +101,14 @@ class Tof:
 
     name = "tof"
 
-    def __init__(self, config: dict[str, Any], camera: Backend) -> None:
-        self._config = dict(config)
+    def __init__(self, config: SR4000Settings, camera: Backend) -> None:
+        """``config``: the typed drivers.tof settings (see drivers.tof.create)."""
+        self._config = copy.deepcopy(config)
         self._cam = camera
         self.backend = camera.name
-        self._serial_wanted = parse_serial(config.get("serial", 0) or 0)
-        self.settings_file: Path | None = Path(config["settings_file"]).expanduser() if config.get("settings_file") else None
+        self.capabilities = camera.capabilities
+        self._serial_wanted = parse_serial(config.serial or 0)
+        self.settings_file: Path | None = Path(config.settings_file).expanduser() if config.settings_file else None
         self._defaults = TofSettings.from_config(config)
         self._settings = self._defaults.copy()
         self._lock = threading.RLock()
@@ -154,9 +158,8 @@ class Tof:
     def status(self) -> dict[str, Any]:
         with self._status_lock:
             snapshot = dict(self._status)
-        fault = getattr(self._cam, "fault", None)
-        if fault is not None:
-            snapshot["fault"] = fault
+        if Capability.FAULTS in self.capabilities and self._cam.fault is not None:
+            snapshot["fault"] = self._cam.fault
         return snapshot
 
     def check(self) -> dict[str, Any]:
@@ -184,7 +187,7 @@ class Tof:
             self._set_status(open=False)
             self.open()
 
-    def reconfigure(self, config: dict[str, Any]) -> list[str]:
+    def reconfigure(self, config: SR4000Settings) -> list[str]:
         """Take the camera settings (CAMERA_KEYS) of a changed config section while open, so a
         running server changes the modulation frequency without a reinit; returns the keys taken.
 
@@ -194,24 +197,24 @@ class Tof:
         them here would be lost at the next reinit, so it is a ValueError too. A closed camera
         takes nothing: it gets the values when the server rebuilds it.
         """
-        changed = [key for key in CAMERA_KEYS if config.get(key) != self._config.get(key)]
+        new, old = config.as_dict(), self._config.as_dict()
+        changed = [key for key in CAMERA_KEYS if new[key] != old[key]]
         if not changed:
             return []
-        if config.get("settings_file"):
+        if config.settings_file:
             raise ValueError(
-                f"drivers.tof.settings_file ({config['settings_file']}) holds the camera settings; "
+                f"drivers.tof.settings_file ({config.settings_file}) holds the camera settings; "
                 f"change {', '.join(changed)} there (rvs-tof save) or set settings_file to null first"
             )
         defaults = TofSettings.from_config(config)
         with self._lock:
             if not self._cam.is_open:
                 return []
-            settings = self._settings.copy()
-            for key in changed:
-                setattr(settings, key, getattr(defaults, key))
+            wanted = defaults.to_dict()
+            settings = TofSettings.from_dict({**self._settings.to_dict(), **{key: wanted[key] for key in changed}})
             self._apply_checked(settings)
             self._defaults = defaults
-            self._config.update({key: config.get(key) for key in changed})
+            self._config = type(self._config).from_mapping({**old, **{key: new[key] for key in changed}})
         return changed
 
     # -- identification --------------------------------------------------------------------
@@ -228,10 +231,9 @@ class Tof:
 
     def inject_fault(self, kind: str | None, after: int = 0) -> None:
         """Simulated backend only: "unplug", "timeout" or None; see drivers.tof.simulated."""
-        inject = getattr(self._cam, "inject_fault", None)
-        if inject is None:
+        if Capability.FAULTS not in self.capabilities:
             raise ValueError(f"faults can only be injected into the simulated ToF, not backend {self.backend!r}")
-        inject(kind, after)
+        self._cam.inject_fault(kind, after)
 
     # -- settings --------------------------------------------------------------------------
     def get_settings(self) -> TofSettings:
@@ -489,11 +491,11 @@ class Tof:
     # -- internals -------------------------------------------------------------------------
     def _calibration(self) -> tuple[np.ndarray, np.ndarray]:
         K, dist = self._cam.intrinsics()
-        if self._config.get("camera_matrix") is not None:
-            K = np.asarray(self._config["camera_matrix"], dtype=np.float64).reshape(3, 3)
-        if self._config.get("distortion") is not None:
+        if self._config.camera_matrix is not None:
+            K = np.asarray(self._config.camera_matrix, dtype=np.float64).reshape(3, 3)
+        if self._config.distortion is not None:
             d = np.zeros(5)
-            given = np.asarray(self._config["distortion"], dtype=np.float64).reshape(-1)[:5]
+            given = np.asarray(self._config.distortion, dtype=np.float64).reshape(-1)[:5]
             d[: given.size] = given
             dist = d
         return np.asarray(K, dtype=np.float64), np.asarray(dist, dtype=np.float64)
@@ -517,9 +519,8 @@ class Tof:
     def _require_open(self) -> None:
         if not self._cam.is_open:
             # Let a backend with a fault explain itself (e.g. "disconnected") before the generic text.
-            check = getattr(self._cam, "check_link", None)
-            if check is not None:
-                check()
+            if Capability.LINK_CHECK in self.capabilities:
+                self._cam.check_link()
             raise DeviceError("tof", "SR4000 not open; open it, or run reinit/reset after an error")
 
     def _apply_checked(self, settings: TofSettings) -> None:
@@ -535,8 +536,8 @@ class Tof:
         cam.set_modulation(settings.modulation_mhz)
         trigger_bits = cam.get_mode() & int(k.AcquireMode.AM_HW_TRIGGER | k.AcquireMode.AM_SW_TRIGGER)
         cam.set_mode(settings.mode(trigger_bits or int(k.AcquireMode.AM_SW_TRIGGER)))
+        p = settings.auto_exposure_params
         if settings.auto_exposure:
-            p = settings.auto_exposure_params
             cam.set_auto_exposure(p.min_integration, p.max_integration, p.percent_over, p.desired)
         else:
             cam.set_auto_exposure(0xFF, 0, 0, 0)
@@ -554,6 +555,11 @@ class Tof:
             correction_modes=[n for n, on in k.corrections_from_mode(mode).items() if on],
             enhanced_xyz=bool(mode & k.AcquireMode.AM_SHORT_RANGE),
             undistort=settings.undistort,
+            # the rest of the camera settings, so a grab's sidecar holds every one it was taken with
+            auto_exposure_params=[p.min_integration, p.max_integration, p.percent_over, p.desired],
+            auto_exposure_max_iterations=settings.auto_exposure_max_iterations,
+            colour_range=[f"{t}:{'auto' if r is None else ','.join(format(v, 'g') for v in r)}"
+                          for t, r in settings.colour_range.items()],
         )
 
     def _set_status(self, **values: Any) -> None:
@@ -665,7 +671,7 @@ def _canceller(cancel: Any) -> Callable[[], None]:
     into a check that raises :class:`Cancelled`."""
     if cancel is None:
         return lambda: None
-    if hasattr(cancel, "is_set"):
+    if isinstance(cancel, threading.Event):
 
         def check_event() -> None:
             if cancel.is_set():

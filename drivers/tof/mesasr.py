@@ -17,14 +17,16 @@ import ctypes
 import ctypes.util
 import re
 from ctypes import POINTER, c_char_p, c_float, c_int, c_ubyte, c_uint, c_ushort, c_void_p
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
 from drivers.base import DeviceError
+from drivers.settings import Settings, param
 
 from . import constants as k
-from .backend import DeviceInfo, RawFrame
+from .backend import BACKENDS, DeviceInfo, RawFrame
 from .simulated import nominal_camera_matrix
 
 
@@ -118,14 +120,21 @@ def parse_device_string(text: str) -> tuple[int, int, str, str]:
     return int(m["vid"], 16), int(m["pid"], 16), m["man"], m["prod"]
 
 
+@dataclass
+class MesaSettings(Settings):
+    library: str | None = param("libmesasr.so", "mesasr: tried first, then ctypes.util.find_library('mesasr')")
+
+
+@BACKENDS.backend("mesasr")
 class MesaSR:
     """libMesaSR over USB (register level)."""
 
-    name = "mesasr"
+    settings = MesaSettings
 
-    def __init__(self, config: dict[str, Any]) -> None:
-        self._library_name = config.get("library")
-        self._timeout_ms = int(float(config.get("timeout", 2.0)) * 1000)
+    def __init__(self, config: Any, world: Any = None) -> None:
+        """``config``: the composed drivers.tof settings (SR4000Settings and MesaSettings keys)."""
+        self._library_name = config.library
+        self._timeout_ms = int(config.timeout * 1000)
         self._lib: Any = None
         self._handle = c_void_p()
         self._serial = 0

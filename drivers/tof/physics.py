@@ -29,10 +29,11 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, fields
-from typing import Any
 
 import cv2
 import numpy as np
+
+from drivers.settings import Settings
 
 from .constants import SPEED_OF_LIGHT
 
@@ -53,14 +54,10 @@ class SignalModel:
     conv_gray_reference_m: float = 2.0  # AM_CONV_GRAY scales amplitude by (range / this)^2
 
     @classmethod
-    def from_config(cls, config: dict[str, Any]) -> SignalModel:
-        """Model parameters from the driver config (keys prefixed ``sim_``, e.g. sim_noise_k)."""
-        values = {}
-        for f in fields(cls):
-            key = f"sim_{f.name}"
-            if config.get(key) is not None:
-                values[f.name] = type(f.default)(config[key])
-        model = cls(**values)
+    def from_config(cls, config: Settings) -> SignalModel:
+        """Model parameters from the typed drivers.tof settings (keys prefixed ``sim_``, e.g. sim_noise_k)."""
+        given = config.as_dict()
+        model = cls(**{f.name: type(f.default)(given[f"sim_{f.name}"]) for f in fields(cls)})
         if model.supersample < 1 or model.multipath_block < 1 or model.multipath_step < 1:
             raise ValueError("sim_supersample, sim_multipath_block and sim_multipath_step must be at least 1")
         if model.amplitude_gain <= 0 or model.saturation <= 0 or model.confidence_amplitude <= 0:

@@ -2,7 +2,8 @@
 
 One dataclass holds everything SetSettings, SetColorRange, SetImgCorrectModes and
 SetEnhancedXyz change, so that SaveSettings/LoadSettings is a YAML dump and load of it. The
-defaults come from ``config/drivers.yaml``; a settings file, when configured, overrides them and
+defaults come from the typed drivers.tof settings (their ``live`` keys, declared in
+:class:`drivers.tof.backend.SR4000Settings`); a settings file, when configured, overrides them and
 is created from them when it does not exist (rvs-libtof's CreateDefaultSettingsFile).
 """
 
@@ -11,13 +12,17 @@ from __future__ import annotations
 import dataclasses
 import os
 import tempfile
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import yaml
 
+from drivers.settings import Settings
+
 from . import constants as k
+from .backend import BACKENDS, SR4000Settings
 
 # Per image type: the value range that maps onto the colour (or grey) scale; None = min..max.
 DEFAULT_COLOUR_RANGE: dict[str, list[float] | None] = {
@@ -28,20 +33,10 @@ DEFAULT_COLOUR_RANGE: dict[str, list[float] | None] = {
 }
 
 
-# The drivers.tof keys that are camera settings: a running server applies a change of them to the
-# open camera at once (Tof.reconfigure); the other keys only take effect in a new device.
-CAMERA_KEYS = (
-    "amplitude_threshold",
-    "modulation_mhz",
-    "integration",
-    "auto_exposure",
-    "auto_exposure_params",
-    "auto_exposure_max_iterations",
-    "corrections",
-    "enhanced_xyz",
-    "undistort",
-    "colour_range",
-)
+# The drivers.tof keys that are camera settings (declared live in SR4000Settings): a running
+# server applies a change of them to the open camera at once (Tof.reconfigure); the other keys
+# only take effect in a new device.
+CAMERA_KEYS = tuple(name for name, spec in SR4000Settings.specs().items() if spec.live)
 
 
 @dataclass
@@ -129,13 +124,14 @@ class TofSettings:
         return settings.validate()
 
     @classmethod
-    def from_config(cls, config: dict[str, Any]) -> TofSettings:
-        """Defaults from the driver config section (keys named as in config/drivers.yaml)."""
+    def from_config(cls, config: Settings | Mapping[str, Any]) -> TofSettings:
+        """Defaults from the drivers.tof settings (their live keys); a mapping is typed first."""
+        values = (config if isinstance(config, Settings) else BACKENDS.settings(config)).as_dict()
         data: dict[str, Any] = {}
         for key in CAMERA_KEYS:
-            if key != "corrections" and config.get(key) is not None:
-                data[key] = config[key]
-        corrections = config.get("corrections")
+            if key != "corrections" and values[key] is not None:
+                data[key] = values[key]
+        corrections = values["corrections"]
         if corrections is not None:
             if isinstance(corrections, dict):
                 data["corrections"] = dict(corrections)

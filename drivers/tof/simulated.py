@@ -32,13 +32,51 @@ import cv2
 import numpy as np
 
 from drivers.base import DeviceError
+from drivers.registry import Capability
+from drivers.settings import Settings, param
 
 from . import constants as k
-from .backend import DeviceInfo, RawFrame
+from .backend import BACKENDS, DeviceInfo, RawFrame, SR4000Settings
 from .physics import SignalModel, block_mean, direct_phasor, multipath_phasor, phasor_range, pixel_solid_angle
 
 FAULTS = ("unplug", "timeout")
 DEFAULT_SIM_SERIAL = 0x4000002F
+_M = SignalModel()
+
+
+@dataclass
+class SimTofSettings(Settings):
+    """drivers.tof keys of the simulated camera. Noise model (drivers/tof/physics.py): range sigma =
+    sqrt(floor^2 + (k * (30 MHz / f) / amplitude)^2), amplitude = gain * albedo * cos(incidence) /
+    range^2 * integration_ms: 1 cm on the office floor 1.5 m away."""
+
+    seed: int = param(0, "sim: noise generator seed", min=0, max=2**63 - 1)
+    sim_serial: int = param(DEFAULT_SIM_SERIAL, "sim: the serial number the simulated camera reports",
+                            min=0, max=0xFFFFFFFF)
+    time_scale: float = param(0.0, "sim: 1 = real frame time (4 x integration + 5 ms), 0 = instant", min=0.0,
+                              max=1000.0)
+    scene: str = param("office", "sim: the scene of a camera used with no shared world (consoles, scripts)")
+    sim_amplitude_gain: float = param(_M.amplitude_gain, "sim: counts per (albedo * cos / m^2 * ms)", min=1e-9)
+    sim_saturation: float = param(_M.saturation, "sim: brighter pixels saturate (confidence 0, range unusable)",
+                                  unit="counts", min=1e-9)
+    sim_noise_k: float = param(_M.noise_k, "sim: range noise at 30 MHz", unit="m*counts", min=0.0)
+    sim_noise_floor: float = param(_M.noise_floor, "sim: range sigma never falls below this", unit="m", min=0.0)
+    sim_amplitude_noise: float = param(_M.amplitude_noise, "sim: amplitude sigma = this * sqrt(amplitude)",
+                                       min=0.0)
+    sim_confidence_amplitude: float = param(_M.confidence_amplitude, "sim: confidence = 1 - exp(-amplitude / this)",
+                                            unit="counts", min=1e-9)
+    sim_fixed_pattern_sigma: float = param(_M.fixed_pattern_sigma, "sim: per-pixel offsets left when fix_pattern "
+                                           "correction is off", unit="m", min=0.0)
+    sim_multipath_gain: float = param(_M.multipath_gain, "sim: wall-floor inter-reflection (ranges too long "
+                                      "near walls); 0 = off", min=0.0)
+    sim_multipath_block: int = param(_M.multipath_block, "sim: native pixels per side of one inter-reflection "
+                                     "source patch", min=1, max=176)
+    sim_multipath_step: int = param(_M.multipath_step, "sim: multipath on every n-th pixel, interpolated between",
+                                    min=1, max=176)
+    sim_supersample: int = param(_M.supersample, "sim: sub-pixels per side: mixed (flying) pixels at depth "
+                                 "edges; 1 = off", min=1, max=16)
+    sim_conv_gray_reference_m: float = param(_M.conv_gray_reference_m, "sim: AM_CONV_GRAY scales amplitude by "
+                                             "(range / this)^2", unit="m", min=1e-6)
 
 
 @dataclass
@@ -59,13 +97,13 @@ def nominal_camera_matrix(width: int = k.WIDTH, height: int = k.HEIGHT) -> np.nd
     return np.array([[fx, 0.0, (width - 1) / 2.0], [0.0, fy, (height - 1) / 2.0], [0.0, 0.0, 1.0]])
 
 
-def config_intrinsics(config: dict[str, Any]) -> tuple[np.ndarray | None, np.ndarray]:
-    K = config.get("camera_matrix")
+def config_intrinsics(config: SR4000Settings) -> tuple[np.ndarray | None, np.ndarray]:
+    K = config.camera_matrix
     if K is not None:
         K = np.asarray(K, dtype=np.float64).reshape(3, 3)
     dist = np.zeros(5)
-    if config.get("distortion") is not None:
-        d = np.asarray(config["distortion"], dtype=np.float64).reshape(-1)
+    if config.distortion is not None:
+        d = np.asarray(config.distortion, dtype=np.float64).reshape(-1)
         dist[: min(5, d.size)] = d[:5]
     return K, dist
 
@@ -90,24 +128,28 @@ def world_state(world: Any) -> Any:
     return tuple(parts)
 
 
+@BACKENDS.backend("sim")
 class SimTof:
     """The simulated camera (register level)."""
 
-    name = "sim"
+    settings = SimTofSettings
+    capabilities = frozenset({Capability.FAULTS, Capability.LINK_CHECK})
+    faults = FAULTS
     rows = k.HEIGHT
     cols = k.WIDTH
 
-    def __init__(self, config: dict[str, Any], world: Any) -> None:
+    def __init__(self, config: Any, world: Any = None) -> None:
+        """``config``: the composed drivers.tof settings (SR4000Settings and SimTofSettings keys)."""
         if world is None:
-            raise DeviceError("tof", "simulated backend needs a world (drivers.sim World); none was given")
+            world = _default_world(config)
         self._world = world
         self.model = SignalModel.from_config(config)
-        seed = int(config.get("seed", 0) or 0)
+        seed = config.seed
         self._rng = np.random.default_rng(seed)
         self._fixed_pattern = np.random.default_rng([seed, 1]).normal(0.0, self.model.fixed_pattern_sigma, (self.rows, self.cols))
-        self._serial = int(config.get("sim_serial", DEFAULT_SIM_SERIAL))
-        self._timeout = float(config.get("timeout", 2.0))
-        self._time_scale = float(config.get("time_scale", 0.0) or 0.0)
+        self._serial = config.sim_serial
+        self._timeout = config.timeout
+        self._time_scale = config.time_scale
         K, self._dist = config_intrinsics(config)
         self._K = K if K is not None else np.asarray(world.camera_intrinsics("tof", self.cols, self.rows), dtype=np.float64)
         self._lock = threading.Lock()  # guards fault state, which tests flip from other threads
@@ -377,3 +419,12 @@ class SimTof:
         t_new = t_ms * (1.0 + 0.5 * (desired / position - 1.0))
         t_new = min(max(t_new, k.INTEGRATION_BASE_MS), k.INTEGRATION_BASE_MS + k.INTEGRATION_STEP_MS * 255)
         self._integration = int(min(max(k.integration_register(t_new), lo), hi))
+
+
+def _default_world(config: Any) -> Any:
+    """A world of its own for a simulated camera used outside the server (consoles, scripts)."""
+    try:
+        from drivers.sim.world import World
+    except ImportError as exc:
+        raise DeviceError("tof", f"simulated backend needs drivers.sim ({exc})") from None
+    return World.from_scene(config.scene, seed=config.seed)

@@ -1,29 +1,27 @@
 """The JR LPT trigger box (seed 000 sect. 4.1.5): one pulse on pin 2 fires both PIKE cameras.
 
-``create(config, world)`` picks the backend from ``config["backend"]``: ``ppdev`` drives a real
-parallel port through /dev/parportN, ``sim`` pulses the simulated world's trigger bus.
+``create(settings, world)`` builds a :class:`Trigger` over the backend ``settings.backend``
+names: ``ppdev`` drives a real parallel port through /dev/parportN, ``sim`` pulses the
+simulated world's trigger bus. Backends register themselves in :data:`BACKENDS`; importing
+their modules here is their registration.
 """
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from typing import Any
 
-from drivers.trigger.device import TriggerBase
+from drivers.settings import Settings
+from drivers.trigger import ppdev, sim  # noqa: F401 - registers the backends
+from drivers.trigger.backend import BACKENDS, TriggerBackend, TriggerSettings
+from drivers.trigger.device import Trigger
 
-BACKENDS = ("sim", "ppdev")
-
-
-def create(config: dict[str, Any], world: Any = None) -> TriggerBase:
-    backend = str(config.get("backend", "sim"))
-    if backend == "sim":
-        from drivers.trigger.sim import SimTrigger
-
-        return SimTrigger(config, world)
-    if backend == "ppdev":
-        from drivers.trigger.ppdev import PpdevTrigger
-
-        return PpdevTrigger(config)
-    raise ValueError(f"unknown trigger backend {backend!r}; accepted: {', '.join(BACKENDS)}")
+PEERS: tuple[str, ...] = ()  # built after, and given to create() as, these device kinds
 
 
-__all__ = ["BACKENDS", "TriggerBase", "create"]
+def create(settings: Mapping[str, Any] | Settings | None, world: Any = None) -> Trigger:
+    """The trigger box for the ``drivers.trigger`` settings; not opened yet."""
+    return Trigger(settings, world)
+
+
+__all__ = ["BACKENDS", "PEERS", "Trigger", "TriggerBackend", "TriggerSettings", "create"]

@@ -1,4 +1,4 @@
-"""What both trigger backends share: the pulse counter, the status snapshot and the lock.
+"""The trigger box front end: the pulse counter, the status snapshot and the lock, over a backend.
 
 A pulse is the whole job of the box (seed 000 sect. 4.1.5: setting pin 2 of the LPT connector
 fires both cameras), so the interface is small: ``pulse() -> count``. The count lets a caller
@@ -9,22 +9,28 @@ from __future__ import annotations
 
 import threading
 import time
+from collections.abc import Mapping
 from typing import Any
 
 from drivers.base import DeviceError
+from drivers.registry import Capability
+from drivers.settings import Settings
+from drivers.trigger.backend import BACKENDS, TriggerBackend
 
 
-class TriggerBase:
-    """Shared state; subclasses fill in ``_fire`` (one pulse) and the open/close details."""
+class Trigger:
+    """The box: one pulse at a time over whichever backend the settings name."""
 
     name = "trigger"
-    backend = "?"
 
-    def __init__(self, config: dict[str, Any]) -> None:
-        self.config = dict(config)
-        self.pulse_us = float(config.get("pulse_us", 100))
+    def __init__(self, settings: Mapping[str, Any] | Settings | None = None, world: Any = None) -> None:
+        self.settings = BACKENDS.settings(settings)
+        self.pulse_us = float(self.settings.pulse_us)
         if not 0 < self.pulse_us <= 1_000_000:
             raise ValueError(f"trigger pulse_us must be in (0, 1e6] microseconds, got {self.pulse_us}")
+        self.port: TriggerBackend = BACKENDS.create(self.settings, world)
+        self.backend = self.port.name
+        self.capabilities = self.port.capabilities
         self._lock = threading.Lock()  # one pulse at a time
         self._state_lock = threading.Lock()  # status() never waits for a pulse
         self._count = 0
@@ -36,7 +42,7 @@ class TriggerBase:
     # -- the device protocol ---------------------------------------------------------------
     def open(self) -> None:
         with self._lock:
-            self._open_impl()
+            self.port.open()
             with self._state_lock:
                 self._open = True
                 self._last_error = None
@@ -44,7 +50,7 @@ class TriggerBase:
     def close(self) -> None:
         with self._lock:
             try:
-                self._close_impl()
+                self.port.close()
             finally:
                 with self._state_lock:
                     self._open = False
@@ -68,13 +74,13 @@ class TriggerBase:
                 "pulse_us": self.pulse_us,
                 "last_pulse_time": self._last_pulse_time,
                 "last_error": self._last_error,
-                **self._status_extra(),
+                **self.port.status(),
             }
 
     def check(self) -> dict[str, Any]:
         with self._lock:
             self._require_open()
-            self._check_impl()
+            self.port.check()
         return self.status()
 
     def pulse(self) -> int:
@@ -84,7 +90,7 @@ class TriggerBase:
             with self._state_lock:
                 self._busy = True
             try:
-                self._fire()
+                self.port.fire(self.pulse_us)
             except DeviceError as exc:
                 with self._state_lock:
                     self._last_error = exc.message
@@ -105,27 +111,22 @@ class TriggerBase:
         with self._state_lock:
             return self._count
 
-    # -- for subclasses ----------------------------------------------------------------------
+    # -- internals ---------------------------------------------------------------------------
     def _require_open(self) -> None:
         if not self._open:
             raise DeviceError(self.name, "trigger box is not open (call open() or reinit)")
 
-    def _status_extra(self) -> dict[str, Any]:
-        return {}
+    def inject_fault(self, kind: str | None) -> None:
+        """A simulator's fault (its ``faults``), or None to clear it."""
+        if Capability.FAULTS not in self.capabilities:
+            raise DeviceError(self.name, f"faults can only be injected into the simulated trigger, not {self.backend!r}")
+        self.port.inject_fault(kind)
 
-    def _open_impl(self) -> None:
-        raise NotImplementedError
+    def reconfigure(self, settings: Settings) -> list[str]:
+        """The box takes no setting while open: every change waits for its reinit."""
+        return []
 
-    def _close_impl(self) -> None:
-        raise NotImplementedError
-
-    def _check_impl(self) -> None:
-        raise NotImplementedError
-
-    def _fire(self) -> None:
-        raise NotImplementedError
-
-    def __enter__(self) -> TriggerBase:
+    def __enter__(self) -> Trigger:
         self.open()
         return self
 

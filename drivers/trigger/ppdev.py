@@ -12,11 +12,13 @@ import fcntl
 import os
 import struct
 import time
+from dataclasses import dataclass
 from typing import Any
 
 from drivers.base import DeviceError
+from drivers.settings import Settings, param
 from drivers.trigger import ioctl
-from drivers.trigger.device import TriggerBase
+from drivers.trigger.backend import BACKENDS, TriggerSettings
 from drivers.trigger.errors import port_error
 
 PIN2 = 0x01  # D0 is pin 2 of the DB-25 connector
@@ -26,16 +28,21 @@ def _byte(value: int) -> bytes:
     return struct.pack("B", value)
 
 
-class PpdevTrigger(TriggerBase):
-    backend = "ppdev"
+@dataclass
+class PpdevSettings(Settings):
+    exclusive: bool = param(True, "PPEXCL before claiming, so a port held by lp fails loudly (EBUSY)")
 
-    def __init__(self, config: dict[str, Any]) -> None:
-        super().__init__(config)
-        self.path = str(config.get("device", "/dev/parport0"))
-        self.exclusive = bool(config.get("exclusive", True))
+
+@BACKENDS.backend("ppdev")
+class PpdevTrigger:
+    settings = PpdevSettings
+
+    def __init__(self, settings: TriggerSettings | PpdevSettings, world: Any = None) -> None:
+        self.path = settings.device  # type: ignore[union-attr]
+        self.exclusive = settings.exclusive  # type: ignore[union-attr]
         self._fd: int | None = None
 
-    def _open_impl(self) -> None:
+    def open(self) -> None:
         if self._fd is not None:
             return
         try:
@@ -59,12 +66,12 @@ class PpdevTrigger(TriggerBase):
             raise
         self._fd = fd
 
-    def _close_impl(self) -> None:
+    def close(self) -> None:
         fd, self._fd = self._fd, None
         if fd is not None:
             os.close(fd)
 
-    def _check_impl(self) -> None:
+    def check(self) -> None:
         assert self._fd is not None
         self._claim(self._fd)
         self._release(self._fd)
@@ -81,15 +88,15 @@ class PpdevTrigger(TriggerBase):
         except OSError as exc:
             raise port_error(exc, self.path, "releasing the trigger port") from exc
 
-    def _fire(self) -> None:
+    def fire(self, pulse_us: float) -> None:
         fd = self._fd
         if fd is None:
-            raise DeviceError(self.name, "trigger port is not open")
+            raise DeviceError("trigger", "trigger port is not open")
         self._claim(fd)
         try:
             try:
                 fcntl.ioctl(fd, ioctl.PPWDATA, _byte(PIN2))
-                time.sleep(self.pulse_us / 1e6)
+                time.sleep(pulse_us / 1e6)
             except OSError as exc:
                 raise port_error(exc, self.path, "raising pin 2") from exc
             finally:
@@ -100,5 +107,8 @@ class PpdevTrigger(TriggerBase):
         finally:
             self._release(fd)
 
-    def _status_extra(self) -> dict[str, Any]:
+    def status(self) -> dict[str, Any]:
         return {"device": self.path}
+
+    def inject_fault(self, kind: str | None) -> None:
+        raise DeviceError("trigger", "a real trigger port has no simulated faults")

@@ -8,22 +8,28 @@ ppdev backend so the server and its tests see identical errors.
 from __future__ import annotations
 
 import errno
+import threading
 import time
 from typing import Any
 
-from drivers.trigger.device import TriggerBase
+from drivers.registry import Capability
+from drivers.trigger.backend import BACKENDS, TriggerSettings
 from drivers.trigger.errors import port_error
 
 FAULTS = {"busy": errno.EBUSY, "missing": errno.ENOENT, "unplug": errno.ENOENT, "denied": errno.EACCES}
 
 
-class SimTrigger(TriggerBase):
-    backend = "sim"
+@BACKENDS.backend("sim")
+class SimTrigger:
+    """Pulses the world's trigger bus (when there is a world: a box alone just counts)."""
 
-    def __init__(self, config: dict[str, Any], world: Any = None) -> None:
-        super().__init__(config)
+    capabilities = frozenset({Capability.FAULTS})
+    faults = tuple(FAULTS)
+
+    def __init__(self, settings: TriggerSettings, world: Any = None) -> None:
         self.world = world
-        self.path = str(config.get("device", "/dev/parport0"))
+        self.path = settings.device
+        self._state_lock = threading.Lock()
         self._fault: str | None = None
 
     def inject_fault(self, kind: str | None) -> None:
@@ -40,25 +46,24 @@ class SimTrigger(TriggerBase):
             code = FAULTS[kind]
             raise port_error(OSError(code, errno.errorcode[code]), self.path, action)
 
-    def _open_impl(self) -> None:
+    def open(self) -> None:
         self._raise_fault("claiming the trigger port")
 
-    def _close_impl(self) -> None:
+    def close(self) -> None:
         pass
 
-    def _check_impl(self) -> None:
+    def check(self) -> None:
         self._raise_fault("claiming the trigger port")
 
-    def _fire(self) -> None:
+    def fire(self, pulse_us: float) -> None:
         self._raise_fault("claiming the trigger port")
-        if self.pulse_us >= 1000:  # short pulses are below the scheduler's resolution anyway
-            time.sleep(self.pulse_us / 1e6)
-        bus = getattr(self.world, "trigger", None)
-        if bus is not None:
-            bus.pulse()
+        if pulse_us >= 1000:  # short pulses are below the scheduler's resolution anyway
+            time.sleep(pulse_us / 1e6)
+        if self.world is not None:
+            self.world.trigger.pulse()
 
-    def _status_extra(self) -> dict[str, Any]:
-        bus = getattr(self.world, "trigger", None)
+    def status(self) -> dict[str, Any]:
+        bus = self.world.trigger if self.world is not None else None
         return {
             "device": self.path,
             "fault": self._fault,

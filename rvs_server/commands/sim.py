@@ -6,17 +6,14 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any, ClassVar
 
+from drivers.registry import Capability, fault_kinds
+
 from ..app import Context
 from ..config import ModuleConfig, param
 from ..protocol import Fixed, ProtocolError
 from ..table import ALWAYS, apply_options, command
 
-FAULT_KINDS = {
-    "ptu": ("silent", "garbage", "stall"),
-    "tof": ("unplug", "timeout"),
-    "stereo": ("no_trigger", "unplug"),
-    "trigger": ("busy",),
-}
+FAULT_KINDS = fault_kinds()  # declared once, by each device's simulator backend
 
 
 @dataclass
@@ -87,7 +84,7 @@ def sim(ctx: Context, cfg: None) -> dict[str, Any]:
     if kind is not None and kind not in FAULT_KINDS[opts.device]:
         raise ProtocolError("E_ARG", f"-kind for {opts.device} is one of none, {', '.join(FAULT_KINDS[opts.device])}")
     dev = app.devices.devices.get(opts.device)
-    if dev is None or getattr(dev, "backend", None) != "sim" or not hasattr(dev, "inject_fault"):
+    if dev is None or Capability.FAULTS not in dev.capabilities:
         raise ProtocolError("E_STATE", f"{opts.device} is not an open simulated device")
     dev.inject_fault(kind)
     return {"device": opts.device, "fault": kind or "none"}

@@ -13,7 +13,7 @@ from typing import TYPE_CHECKING, Any, ClassVar
 
 import structlog
 
-from drivers.tof.settings import CAMERA_KEYS
+from drivers.registry import DEVICE_KINDS, registry
 
 from .. import PROTOCOL_VERSION, __version__
 from ..app import Context
@@ -39,7 +39,7 @@ class SleepConfig(ModuleConfig):
 @dataclass
 class ReinitConfig(ModuleConfig):
     module: ClassVar[str] = "reinit"
-    device: str = param("all", "device to re-initialise", choices=("all", "ptu", "tof", "stereo", "trigger"))
+    device: str = param("all", "device to re-initialise", choices=("all", *DEVICE_KINDS))
 
 
 @dataclass
@@ -299,12 +299,26 @@ def format_(ctx: Context, cfg: None) -> dict[str, Any]:
     return {"format": "json" if ctx.conn.json else "text"}
 
 
+def _drivers_help() -> str:
+    """The drivers keys as their settings classes declare them: which apply at once, which wait."""
+    parts = []
+    for kind in DEVICE_KINDS:
+        specs = registry(kind).settings_class().specs()
+        live = [n for n, s in specs.items() if s.live]
+        waits = [n for n, s in specs.items() if not s.live]
+        text = f"{kind}.KEY for KEY in {'|'.join(waits)}"
+        if live:
+            text += f"; at once: {kind}.KEY for KEY in {'|'.join(live)}"
+        parts.append(text)
+    return "; ".join(parts)
+
+
 CONFIG_HELP = (
     "config -module X [-set key=value ...]: show or change a module's configuration. "
-    "drivers (refused while a job runs): the ToF camera settings tof.KEY for KEY in "
-    f"{'|'.join(CAMERA_KEYS)} go to the open camera at once (with tof.settings_file set they are refused); "
-    "any other drivers key takes effect when its device is next re-initialised (reinit, reset, "
-    "or a continue that re-initialises), and the reply's pending= lists those keys until then"
+    "drivers (refused while a job runs): keys marked 'at once' go to the open device at once (the ToF's "
+    "camera settings; with tof.settings_file set they are refused); any other drivers key takes effect when "
+    "its device is next re-initialised (reinit, reset, or a continue that re-initialises), and the reply's "
+    f"pending= lists those keys until then. Keys: {_drivers_help()}"
 )
 
 
@@ -329,7 +343,7 @@ def config(ctx: Context, cfg: None) -> dict[str, Any]:
         if ctx.app.jobs.current is not None and name == "drivers":
             raise ProtocolError("E_BUSY", "drivers cannot change while a job runs")
         current = store.values[name]
-        before = current.as_dict()
+        before = dict(vars(current))  # set replaces values (sections too), never edits them in place
         try:
             for item in sets:
                 key, sep, raw = item.partition("=")
@@ -339,8 +353,7 @@ def config(ctx: Context, cfg: None) -> dict[str, Any]:
             if name == "drivers":
                 ctx.app.devices.reconfigure()
         except (ProtocolError, ValueError) as exc:
-            for key, value in before.items():  # all or nothing: an E_ARG request changes nothing
-                setattr(current, key, value)
+            vars(current).update(before)  # all or nothing: an E_ARG request changes nothing
             if isinstance(exc, ValueError):
                 raise ProtocolError("E_ARG", f"{exc}; nothing was changed") from None
             raise

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from drivers.base import DeviceError
-from drivers.stereo import create
+from drivers.stereo import BACKENDS, create
 from drivers.stereo import dc1394_lib as dc
 from drivers.stereo.dc1394 import Dc1394Cameras
 from drivers.stereo.pair import StereoPair
@@ -158,7 +158,8 @@ class FakeLib:
 
 
 def make(lib: FakeLib, trigger: Any = "lib", **extra: Any) -> StereoPair:
-    config = {"backend": "dc1394", "trigger_timeout": 0.2, "direct_timeout": 0.2, "resolution": "high", **extra}
+    config = BACKENDS.settings(
+        {"backend": "dc1394", "trigger_timeout": 0.2, "direct_timeout": 0.2, "resolution": "high", **extra})
     pair = StereoPair(config, Dc1394Cameras(config, lib=lib), lib.pulse if trigger == "lib" else trigger)
     pair.open()
     return pair
@@ -316,8 +317,7 @@ def test_check_reset_and_close_release_everything() -> None:
     assert cam.check()["check"]["left"]["shutter_us"] == 8000
     assert cam.check()["check"]["left"]["model"] == "PIKE F-210B"
     cam.grab_stereo()
-    cam.config["reset_settle_s"] = 0
-    cam._backend.config["reset_settle_s"] = 0
+    cam._backend.reset_settle_s = 0
     cam.reset()
     assert lib.of(GUID_A, "dc1394_camera_reset") == [()] and lib.of(GUID_B, "dc1394_camera_reset") == [()]
     assert cam.grab_stereo()[0].shape == (960, 1280)  # reconfigured after the reset

@@ -7,7 +7,7 @@ import errno
 import pytest
 
 from drivers.base import DeviceError
-from drivers.trigger import create, ioctl, ppdev
+from drivers.trigger import Trigger, create, ioctl, ppdev
 
 FAKE_FD = 42
 
@@ -54,9 +54,9 @@ def port(monkeypatch: pytest.MonkeyPatch) -> FakePort:
     return fake
 
 
-def make(**extra: object) -> ppdev.PpdevTrigger:
+def make(**extra: object) -> Trigger:
     dev = create({"backend": "ppdev", "device": "/dev/parport3", "pulse_us": 250, **extra})
-    assert isinstance(dev, ppdev.PpdevTrigger)
+    assert isinstance(dev.port, ppdev.PpdevTrigger)
     return dev
 
 

@@ -8,7 +8,7 @@ import pytest
 
 from drivers.base import DeviceError
 from drivers.sim.trigger import TriggerBus
-from drivers.trigger import create
+from drivers.trigger import Trigger, create
 from drivers.trigger.sim import SimTrigger
 
 Bus = TriggerBus  # the world contract's bus, as the simulated world has it
@@ -19,9 +19,9 @@ class World:
         self.trigger = Bus()
 
 
-def make(world: object = None) -> SimTrigger:
+def make(world: object = None) -> Trigger:
     dev = create({"backend": "sim", "device": "/dev/parport0", "pulse_us": 100}, world)
-    assert isinstance(dev, SimTrigger)
+    assert isinstance(dev.port, SimTrigger)
     dev.open()
     return dev
 

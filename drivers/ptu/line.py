@@ -1,0 +1,94 @@
+"""The PTU's two lines: a real serial port, and the emulated unit on a pseudo-terminal."""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+from typing import Any
+
+from drivers.ptu.backend import BACKENDS, PtuSettings
+from drivers.ptu.emulator import FAULTS, PtuEmulator, open_pty
+from drivers.registry import Capability
+from drivers.settings import Settings, param
+
+
+@dataclass
+class SimPtuSettings(Settings):
+    time_scale: float = param(1.0, "sim: 0 moves instantly, 1 real time", min=0.0, max=1000.0)
+
+
+@BACKENDS.backend("sim")
+class EmulatedLine:
+    """The emulator on a pty; it keeps its state and faults across reinits, as a real unit
+    keeps its power."""
+
+    settings = SimPtuSettings
+    capabilities = frozenset({Capability.FAULTS})
+    faults = tuple(f for f in FAULTS if f is not None)
+
+    def __init__(self, settings: SimPtuSettings, world: Any = None) -> None:
+        self.time_scale = settings.time_scale
+        self.world = world
+        self._emulator: PtuEmulator | None = None
+        self._fds: tuple[int, int] | None = None
+        self._path: str | None = None
+        self._fault: str | None = None
+
+    @property
+    def emulator(self) -> PtuEmulator | None:
+        return self._emulator
+
+    def connect(self) -> str:
+        if self._emulator is not None and self._emulator.running and self._path is not None:
+            return self._path
+        master, slave, path = open_pty()
+        self._fds, self._path = (master, slave), path
+        on_position = self.world.set_ptu if self.world is not None else None
+        self._emulator = PtuEmulator(
+            master, time_scale=self.time_scale, on_position=on_position, fault=self._fault
+        ).start()
+        return path
+
+    def disconnect(self) -> None:
+        if self._emulator is not None:
+            self._emulator.stop()
+            self._emulator = None
+        if self._fds is not None:
+            for fd in self._fds:
+                try:
+                    os.close(fd)
+                except OSError:
+                    pass
+            self._fds = None
+            self._path = None
+
+    def status(self) -> dict[str, Any]:
+        emu = self._emulator
+        return {"fault": self._fault, "time_scale": self.time_scale, "emulator_running": bool(emu and emu.running)}
+
+    def inject_fault(self, kind: str | None) -> None:
+        self._fault = kind
+        if self._emulator is not None:
+            self._emulator.inject_fault(kind)
+
+
+@BACKENDS.backend("serial")
+class SerialLine:
+    """A real PTU-D46 on ``settings.port``."""
+
+    emulator = None
+
+    def __init__(self, settings: PtuSettings, world: Any = None) -> None:
+        self.port = settings.port
+
+    def connect(self) -> str:
+        return self.port
+
+    def disconnect(self) -> None:
+        pass
+
+    def status(self) -> dict[str, Any]:
+        return {}
+
+    def inject_fault(self, kind: str | None) -> None:
+        raise NotImplementedError("a real PTU has no simulated faults")

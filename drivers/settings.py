@@ -1,0 +1,352 @@
+"""Typed settings classes: one declaration gives the type, range, unit, help and default of a key.
+
+The server's command options and the drivers' settings are the same kind of thing (a value an
+operator types, that must be checked and explained), so they share this one mechanism: the
+server's per-module config classes and every device backend's settings class are dataclasses
+whose fields are declared with :func:`param`. It lives in ``drivers`` because imports go one
+way (the server uses the drivers, never the reverse).
+
+Errors are :class:`SettingError` (a ValueError): the server turns them into ``E_ARG`` replies
+and fatal start-up messages, a console into a usage error.
+"""
+
+from __future__ import annotations
+
+import copy
+import dataclasses
+import math
+import re
+import types
+import typing
+from collections.abc import Mapping
+from dataclasses import dataclass, field, fields
+from typing import Any, TypeVar
+
+STEM_RE = re.compile(r"[A-Za-z0-9_\-][A-Za-z0-9_.\-]{0,63}")
+
+
+def valid_stem(name: str) -> bool:
+    """Output names are file stems confined to the data directory (PROTOCOL.md)."""
+    return bool(STEM_RE.fullmatch(name)) and not name.startswith(".") and ".." not in name
+
+
+class SettingError(ValueError):
+    """A value or key a settings class refuses; ``message`` names the key and what it accepts."""
+
+    def __init__(self, message: str) -> None:
+        super().__init__(message)
+        self.message = message
+
+
+def param(
+    default: Any,
+    help: str,
+    *,
+    unit: str = "",
+    min: float | None = None,
+    max: float | None = None,
+    choices: tuple[str, ...] = (),
+    length: int | tuple[int, int] | None = None,
+    stem: bool = False,
+    option: bool = True,
+    required: bool = False,
+    protected: bool = False,
+    live: bool = False,
+) -> Any:
+    """Declare a settings field with what a checker and a help text need to know about it.
+
+    ``option=False`` keeps a parameter out of the request line (set it with ``config -set``);
+    ``protected`` refuses run-time changes (host, port, token); ``stem`` marks output names;
+    ``live`` marks a driver setting an open device takes at once (others wait for its reinit).
+    """
+    meta = {
+        "help": help,
+        "unit": unit,
+        "min": min,
+        "max": max,
+        "choices": tuple(choices),
+        "length": length,
+        "stem": stem,
+        "option": option,
+        "required": required,
+        "protected": protected,
+        "live": live,
+    }
+    if isinstance(default, list | dict):
+        return field(default_factory=lambda d=default: copy.deepcopy(d), metadata=meta)
+    return field(default=default, metadata=meta)
+
+
+@dataclass(frozen=True)
+class ParamSpec:
+    """What one parameter accepts; built from a dataclass field."""
+
+    name: str
+    kind: str  # float, int, str, bool, floats, dict, any, section
+    help: str
+    unit: str
+    min: float | None
+    max: float | None
+    choices: tuple[str, ...]
+    length: tuple[int, int] | None
+    stem: bool
+    option: bool
+    required: bool
+    protected: bool
+    default: Any
+    optional: bool = False  # None (YAML null) is a value: "not set, use the backend's own"
+    live: bool = False
+    section: type[Settings] | None = None  # kind "section": the nested settings class
+
+    @property
+    def flag(self) -> str:
+        return "-" + self.name.replace("_", "-")
+
+    def describe(self) -> str:
+        """One phrase for help and error messages: type, range, unit, default."""
+        if self.choices:
+            what = "|".join(self.choices)
+        elif self.kind in ("floats", "ints"):
+            lo, hi = self.length or (1, 99)
+            what = f"{lo} numbers a,b,..." if lo == hi else f"{lo}-{hi} numbers a,b,..."
+        elif self.stem:
+            what = "file stem"
+        else:
+            what = {"float": "number", "int": "integer", "bool": "true|false", "str": "text",
+                    "any": "YAML value"}.get(self.kind, self.kind)
+        if self.min is not None or self.max is not None:
+            what += f" in [{_num(self.min)}, {_num(self.max)}]"
+        if self.unit:
+            what += f" {self.unit}"
+        if self.optional:
+            what += " or null"
+        return what
+
+    def parse(self, raw: str | bool) -> Any:
+        """Convert and validate one value from a request or a ``-set``; the error names the option."""
+        name = self.flag
+        if self.optional and isinstance(raw, str) and raw.lower() in ("null", "none", "~"):
+            return None
+        if self.kind == "any":
+            if raw is True:
+                raise SettingError(f"{name} needs a value: {self.describe()}")
+            import yaml  # only for the few free-form keys (a camera matrix, a mapping)
+
+            text = str(raw)
+            if isinstance(self.default, list) and not text.lstrip().startswith("["):
+                text = f"[{text}]"  # a list typed as on the wire: a,b,c
+            try:
+                return yaml.safe_load(text)
+            except yaml.YAMLError:
+                raise SettingError(f"{name} takes {self.describe()}, not '{str(raw)[:40]}'") from None
+        if self.kind == "bool":
+            if isinstance(raw, bool):
+                return raw
+            low = raw.lower()
+            if low in ("true", "1", "yes", "on"):
+                return True
+            if low in ("false", "0", "no", "off"):
+                return False
+            raise SettingError(f"{name} takes true or false, not '{raw}'")
+        if raw is True:
+            raise SettingError(f"{name} needs a value: {self.describe()}")
+        assert isinstance(raw, str)
+        if self.kind in ("floats", "ints"):
+            parts = [p for p in raw.split(",")] if raw else []
+            try:
+                values = [float(p) for p in parts]
+            except ValueError:
+                raise SettingError(f"{name} takes {self.describe()}, not '{raw[:40]}'") from None
+            lo, hi = self.length or (1, 99)
+            if not lo <= len(values) <= hi or not all(math.isfinite(v) for v in values):
+                raise SettingError(f"{name} takes {self.describe()}, not '{raw[:40]}'")
+            for v in values:
+                self._check_range(v)
+            if self.kind == "ints":
+                if not all(v.is_integer() for v in values):
+                    raise SettingError(f"{name} takes {self.describe()}, not '{raw[:40]}'")
+                return [int(v) for v in values]
+            return values
+        if self.kind == "float":
+            try:
+                value = float(raw)
+            except ValueError:
+                raise SettingError(f"{name} takes a {self.describe()}, not '{raw[:40]}'") from None
+            if not math.isfinite(value):
+                raise SettingError(f"{name} must be a finite {self.describe()}")
+            self._check_range(value)
+            return value
+        if self.kind == "int":
+            try:
+                value = int(raw, 10)
+            except ValueError:
+                raise SettingError(f"{name} takes an {self.describe()}, not '{raw[:40]}'") from None
+            self._check_range(value)
+            return value
+        if self.choices:
+            low = raw.lower()
+            if low not in self.choices:
+                raise SettingError(f"{name} takes {'|'.join(self.choices)}, not '{raw[:40]}'")
+            return low
+        if self.stem and not valid_stem(raw):
+            raise SettingError(
+                f"{name} must be a file stem of 1-64 letters, digits, '_', '.', '-' not starting with '.'"
+            )
+        return raw
+
+    def coerce(self, value: Any, where: str) -> Any:
+        """A value that is already typed (YAML, a Python caller): checked with the wire's rules."""
+        if value is None and self.optional:
+            return None
+        if self.kind == "any":
+            return copy.deepcopy(value)
+        if self.kind == "section":
+            assert self.section is not None
+            return self.section.from_mapping(value, where=f"{where}, section {self.name}")
+        if self.kind == "dict":
+            if not isinstance(value, dict):
+                raise SettingError(f"{where}: {self.name} must be a mapping")
+            return value
+        if self.kind in ("floats", "ints") and isinstance(value, list | tuple):
+            value = ",".join(str(v) for v in value)
+        elif isinstance(value, bool) and self.kind != "bool":
+            raise SettingError(f"{where}: {self.name} must be {self.describe()}")
+        elif self.kind == "float" and isinstance(value, int | float):
+            value = repr(float(value))
+        elif not isinstance(value, str | bool):
+            value = str(value)
+        try:
+            return self.parse(value)
+        except SettingError as exc:
+            raise SettingError(f"{where}: {exc.message}") from None
+
+    def _check_range(self, value: float) -> None:
+        if (self.min is not None and value < self.min) or (self.max is not None and value > self.max):
+            raise SettingError(
+                f"{self.flag} is {_num(value)}, out of range [{_num(self.min)}, {_num(self.max)}]"
+                + (f" {self.unit}" if self.unit else "")
+            )
+
+
+def _num(v: float | None) -> str:
+    if v is None:
+        return "..."
+    if isinstance(v, int):  # any size: "-integrate 999...9" must be E_ARG, not an OverflowError
+        text = str(v)
+        return text if len(text) <= 16 else f"{text[:4]}...({len(text)} digits)"
+    return str(int(v)) if v.is_integer() and abs(v) < 1e15 else format(v, "g")
+
+
+_KIND = {float: "float", int: "int", str: "str", bool: "bool"}
+
+S = TypeVar("S", bound="Settings")
+
+
+def _kind_of(hint: Any) -> tuple[str, bool, type[Settings] | None]:
+    """The parser kind of a type hint, whether None is allowed, and a nested settings class."""
+    optional = False
+    args = typing.get_args(hint)
+    if typing.get_origin(hint) in (typing.Union, types.UnionType) and type(None) in args:
+        optional = True
+        rest = [a for a in args if a is not type(None)]
+        hint = rest[0] if len(rest) == 1 else Any
+    origin = typing.get_origin(hint)
+    if isinstance(hint, type) and issubclass(hint, Settings):
+        return "section", optional, hint
+    if origin is list:
+        inner = typing.get_args(hint)
+        if inner and inner[0] is int:
+            return "ints", optional, None
+        return ("floats" if inner and inner[0] is float else "any"), optional, None
+    if origin is dict or hint is dict:
+        return "dict", optional, None
+    if hint is Any or hint is list:
+        return "any", optional, None
+    return _KIND.get(hint, "str"), optional, None
+
+
+@dataclass
+class Settings:
+    """Base of every typed settings class (a command module's config, a device backend's settings)."""
+
+    @classmethod
+    def specs(cls) -> dict[str, ParamSpec]:
+        cached = cls.__dict__.get("_specs")
+        if cached is not None:
+            return cached
+        hints = typing.get_type_hints(cls)
+        out: dict[str, ParamSpec] = {}
+        for f in fields(cls):
+            meta = f.metadata
+            kind, optional, section = _kind_of(hints[f.name])
+            default = f.default if f.default is not dataclasses.MISSING else f.default_factory()  # type: ignore[misc]
+            length = meta.get("length")
+            if isinstance(length, int):
+                length = (length, length)
+            out[f.name] = ParamSpec(
+                name=f.name,
+                kind=kind,
+                help=meta.get("help", ""),
+                unit=meta.get("unit", ""),
+                min=meta.get("min"),
+                max=meta.get("max"),
+                choices=meta.get("choices", ()),
+                length=length,
+                stem=meta.get("stem", False),
+                option=meta.get("option", True) and kind not in ("dict", "section", "any"),
+                required=meta.get("required", False),
+                protected=meta.get("protected", False),
+                default=default,
+                optional=optional,
+                live=meta.get("live", False),
+                section=section,
+            )
+        cls._specs = out  # type: ignore[attr-defined]
+        return out
+
+    @classmethod
+    def from_mapping(cls: type[S], data: Mapping[str, Any] | Settings | None = None, *, where: str = "") -> S:
+        """An instance from a mapping (YAML, a test's dict), refusing unknown keys with the known ones."""
+        if isinstance(data, cls):
+            return copy.deepcopy(data)
+        if isinstance(data, Settings):
+            data = data.as_dict()
+        if data is not None and not isinstance(data, Mapping):
+            raise SettingError(f"{where or cls.__name__}: expected a mapping of key: value, got {data!r}")
+        specs = cls.specs()
+        where = where or cls.__name__
+        kwargs: dict[str, Any] = {}
+        for key, value in (data or {}).items():
+            spec = specs.get(str(key))
+            if spec is None:
+                raise SettingError(f"{where}: unknown key '{key}'; known: {', '.join(specs)}")
+            if spec.kind == "dict":
+                merged = copy.deepcopy(spec.default)
+                merge(merged, value if isinstance(value, dict) else spec.coerce(value, where))
+                kwargs[spec.name] = merged
+            else:
+                kwargs[spec.name] = spec.coerce(value, where)
+        return cls(**kwargs)
+
+    def as_dict(self) -> dict[str, Any]:
+        """Plain values (nested settings as mappings), for replies, sidecars and YAML."""
+        out: dict[str, Any] = {}
+        for f in fields(self):
+            value = vars(self)[f.name]
+            out[f.name] = value.as_dict() if isinstance(value, Settings) else copy.deepcopy(value)
+        return out
+
+    def changed(self, other: Settings | None) -> list[str]:
+        """Keys whose value differs from ``other`` (all of them when there is none)."""
+        mine = self.as_dict()
+        theirs = other.as_dict() if other is not None else {}
+        return [k for k in mine if k not in theirs or mine[k] != theirs[k]]
+
+
+def merge(base: dict[str, Any], over: Mapping[str, Any]) -> None:
+    """Deep-merge ``over`` into ``base`` (YAML overlays, dict-valued settings)."""
+    for key, value in over.items():
+        if isinstance(value, dict) and isinstance(base.get(key), dict):
+            merge(base[key], value)
+        else:
+            base[key] = copy.deepcopy(value)
