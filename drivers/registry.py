@@ -2,7 +2,7 @@
 
 Each device package keeps one :class:`BackendRegistry` and marks its backend classes with
 ``@BACKENDS.backend("sim")``. A backend class declares its settings (``settings``, a
-:class:`~drivers.settings.Settings` dataclass), its optional capabilities and, for a simulator,
+:class:`~rvs_params.Settings` dataclass), its optional capabilities and, for a simulator,
 the faults it can inject; the registry composes the device's settings class from the front
 end's and every registered backend's, so ``config/drivers.yaml``, ``--set`` and
 ``config -set`` accept exactly the keys some backend reads.
@@ -21,7 +21,7 @@ from collections.abc import Callable, Mapping
 from typing import Any, ClassVar, Generic, Protocol, TypeVar
 
 from drivers.base import DeviceError
-from drivers.settings import Settings, param
+from rvs_params import Settings, param
 
 DEVICE_KINDS: tuple[str, ...] = ("ptu", "tof", "stereo", "trigger")
 

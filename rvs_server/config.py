@@ -19,7 +19,7 @@ from typing import Any, ClassVar
 import yaml
 
 from drivers.registry import DEVICE_KINDS, registry
-from drivers.settings import ParamSpec, SettingError, Settings, merge, param
+from rvs_params import ParamSpec, SettingError, Settings, merge, param
 
 from .protocol import ProtocolError
 
@@ -30,7 +30,11 @@ DEFAULT_CONFIG_DIR = Path(__file__).resolve().parent.parent / "config"
 
 @dataclass
 class ModuleConfig(Settings):
-    """Base of every module's config class; ``module`` names its YAML file and ``config -module``."""
+    """Base of every module's config class; ``module`` names its YAML file and ``config -module``.
+
+    A command whose parameters a workflow script also receives derives from the script's
+    parameter class (``prox_workflows.parameters``) and this, so they are declared once.
+    """
 
     module: ClassVar[str] = ""
 

@@ -24,7 +24,7 @@ import structlog
 
 from drivers.base import Device, DeviceError
 from drivers.registry import DEVICE_KINDS, open_order, peers
-from drivers.settings import Settings
+from rvs_params import Settings
 
 log = structlog.get_logger("rvs.devices")
 

@@ -53,8 +53,23 @@ class StartupError(Exception):
     """The server cannot start (port taken, unknown scene...): said once, exit status 1."""
 
 
+def check_scripts() -> None:
+    """Every command's workflow script is validated before the server serves: a misspelled step
+    or input stops the start with the line and the fix, instead of an E_INTERNAL after a sweep."""
+    from prox_workflows.engine import WorkflowError
+
+    from .commands import dem, navigation
+
+    try:
+        dem.validate_scripts()
+        navigation.validate_scripts()
+    except WorkflowError as exc:
+        raise StartupError(f"a command's workflow script is broken, not serving: {exc}") from exc
+
+
 async def run(store: ConfigStore, *, ready: Callable[[int], None] | None = None, handle_signals: bool = True,
               on_app: Callable[[App], None] | None = None, recover: str | None = None) -> int:
+    check_scripts()
     try:
         app = make_app(store, asyncio.get_running_loop())
     except (OSError, ValueError, KeyError) as exc:

@@ -14,7 +14,7 @@ from collections.abc import Iterator
 from dataclasses import dataclass, field
 from typing import Any
 
-from drivers.settings import STEM_RE, valid_stem  # noqa: F401 - the one file-stem rule, shared with settings
+from rvs_params import STEM_RE, valid_stem  # noqa: F401 - the one file-stem rule, shared with settings
 
 MAX_LINE = 4096
 DASHES = ("--", "-", "\u2013")  # longest first; the en dash is how the thesis prints "-output"

@@ -11,7 +11,7 @@ import pytest
 import yaml
 
 from drivers.registry import DEVICE_KINDS, registry
-from drivers.settings import ParamSpec
+from rvs_params import ParamSpec
 from rvs_server.main import build_config, main
 
 

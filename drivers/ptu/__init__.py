@@ -20,7 +20,7 @@ from drivers.ptu.backend import BACKENDS, PtuBackend, PtuSettings
 from drivers.ptu.client import DEVICE, Cancel, MoveInterrupted, PtuClient, ReplyTimeout
 from drivers.ptu.emulator import PtuEmulator
 from drivers.registry import Capability
-from drivers.settings import Settings
+from rvs_params import Settings
 
 __all__ = ["BACKENDS", "PEERS", "MoveInterrupted", "Ptu", "PtuSettings", "ReplyTimeout", "create"]
 

@@ -11,7 +11,7 @@ from typing import Any, ClassVar, Protocol
 
 from drivers.ptu.emulator import PtuEmulator
 from drivers.registry import BackendRegistry, Capability
-from drivers.settings import Settings, param
+from rvs_params import Settings, param
 
 
 @dataclass

@@ -9,7 +9,7 @@ from typing import Any
 from drivers.ptu.backend import BACKENDS, PtuSettings
 from drivers.ptu.emulator import FAULTS, PtuEmulator, open_pty
 from drivers.registry import Capability
-from drivers.settings import Settings, param
+from rvs_params import Settings, param
 
 
 @dataclass

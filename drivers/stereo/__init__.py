@@ -12,12 +12,12 @@ from __future__ import annotations
 from collections.abc import Mapping
 from typing import Any
 
-from drivers.settings import Settings
 from drivers.stereo import dc1394, sim  # noqa: F401 - registers the backends
 from drivers.stereo.backend import BACKENDS, CameraBackend, StereoSettings
 from drivers.stereo.errors import GrabCancelled
 from drivers.stereo.modes import PIXEL_FORMATS, RESOLUTIONS
 from drivers.stereo.pair import StereoPair
+from rvs_params import Settings
 
 PEERS: tuple[str, ...] = ("trigger",)  # built after, and given to create() as, these device kinds
 

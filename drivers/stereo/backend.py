@@ -13,9 +13,9 @@ from typing import Any, ClassVar, Protocol
 import numpy as np
 
 from drivers.registry import BackendRegistry, Capability
-from drivers.settings import Settings, param
 from drivers.stereo.modes import PIXEL_FORMATS, RESOLUTIONS
 from drivers.stereo.settings import GAIN_DB, SHUTTER_US, TARGET_GREY, CameraSettings
+from rvs_params import Settings, param
 
 _C = CameraSettings()
 

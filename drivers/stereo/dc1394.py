@@ -17,12 +17,12 @@ from typing import Any
 import numpy as np
 
 from drivers.base import DeviceError
-from drivers.settings import Settings, param
 from drivers.stereo import dc1394_lib as dc
 from drivers.stereo.backend import BACKENDS
 from drivers.stereo.errors import CameraLost, GrabCancelled, MissedTrigger, is_cancelled
 from drivers.stereo.modes import channels
 from drivers.stereo.settings import CameraSettings
+from rvs_params import Settings, param
 
 NAME = "stereo"
 

@@ -20,7 +20,6 @@ import numpy as np
 
 from drivers.base import DeviceError
 from drivers.registry import Capability
-from drivers.settings import Settings
 from drivers.stereo import calibration as calib_file
 from drivers.stereo.backend import BACKENDS, CameraBackend, StereoSettings
 from drivers.stereo.errors import CameraLost, GrabCancelled, MissedTrigger
@@ -31,6 +30,7 @@ from drivers.stereo.settings import (
     load_settings_file,
     save_settings_file,
 )
+from rvs_params import Settings
 
 NAME = "stereo"
 

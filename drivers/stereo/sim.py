@@ -16,12 +16,12 @@ from typing import Any
 import numpy as np
 
 from drivers.registry import Capability
-from drivers.settings import Settings, param
 from drivers.stereo import imaging
 from drivers.stereo.backend import BACKENDS
 from drivers.stereo.errors import CameraLost, GrabCancelled, MissedTrigger, is_cancelled
 from drivers.stereo.modes import channels
 from drivers.stereo.settings import CameraSettings
+from rvs_params import Settings, param
 
 # GUID-like ids with AVT's IEEE OUI (00:0a:47); the first is mounted left, the second right.
 SIM_GUIDS = ("000a470112f20001", "000a470112f20002")

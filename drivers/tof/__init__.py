@@ -11,7 +11,7 @@ from __future__ import annotations
 from collections.abc import Mapping
 from typing import Any
 
-from drivers.settings import Settings
+from rvs_params import Settings
 
 from . import mesasr, simulated  # noqa: F401 - registers the backends
 from .backend import BACKENDS, Backend, SR4000Settings

@@ -13,7 +13,7 @@ from typing import Any, ClassVar, Protocol
 import numpy as np
 
 from drivers.registry import BackendRegistry, Capability
-from drivers.settings import Settings, param
+from rvs_params import Settings, param
 
 from . import constants as k
 

@@ -23,7 +23,7 @@ from typing import Any
 import numpy as np
 
 from drivers.base import DeviceError
-from drivers.settings import Settings, param
+from rvs_params import Settings, param
 
 from . import constants as k
 from .backend import BACKENDS, DeviceInfo, RawFrame

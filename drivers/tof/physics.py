@@ -33,7 +33,7 @@ from dataclasses import dataclass, fields
 import cv2
 import numpy as np
 
-from drivers.settings import Settings
+from rvs_params import Settings
 
 from .constants import SPEED_OF_LIGHT
 

@@ -19,7 +19,7 @@ from typing import Any
 
 import yaml
 
-from drivers.settings import Settings
+from rvs_params import Settings
 
 from . import constants as k
 from .backend import BACKENDS, SR4000Settings

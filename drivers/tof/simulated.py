@@ -33,7 +33,7 @@ import numpy as np
 
 from drivers.base import DeviceError
 from drivers.registry import Capability
-from drivers.settings import Settings, param
+from rvs_params import Settings, param
 
 from . import constants as k
 from .backend import BACKENDS, DeviceInfo, RawFrame, SR4000Settings

@@ -10,7 +10,7 @@ from dataclasses import dataclass
 from typing import Any, ClassVar, Protocol
 
 from drivers.registry import BackendRegistry, Capability
-from drivers.settings import Settings, param
+from rvs_params import Settings, param
 
 
 @dataclass

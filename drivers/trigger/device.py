@@ -14,8 +14,8 @@ from typing import Any
 
 from drivers.base import DeviceError
 from drivers.registry import Capability
-from drivers.settings import Settings
 from drivers.trigger.backend import BACKENDS, TriggerBackend
+from rvs_params import Settings
 
 
 class Trigger:

@@ -16,10 +16,10 @@ from dataclasses import dataclass
 from typing import Any
 
 from drivers.base import DeviceError
-from drivers.settings import Settings, param
 from drivers.trigger import ioctl
 from drivers.trigger.backend import BACKENDS, TriggerSettings
 from drivers.trigger.errors import port_error
+from rvs_params import Settings, param
 
 PIN2 = 0x01  # D0 is pin 2 of the DB-25 connector
 

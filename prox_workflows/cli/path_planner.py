@@ -20,11 +20,12 @@ import sys
 import time
 from pathlib import Path
 
-import numpy as np
-import tifffile
+from rvs_params import SettingError
 
-from ..grid import GDAL_NODATA, GridGeometry, read_geotiff
-from ..steps.planner import NavMaps, PlannerParams, PlanningError, plan_path, write_plan
+from ..engine import WorkflowError, run_workflow
+from ..parameters import PlanParams
+from ..steps.planner import NavMaps, PlannerParams, PlanningError
+from ..steps.readers import read_nav_maps
 from .parser import ToolParser
 
 MADE_BY = "rvs-path-planner (prox_workflows.steps.planner)"
@@ -40,41 +41,14 @@ def _point(text: str) -> tuple[float, float]:
     return x, y
 
 
-def _read_layer(path: Path) -> tuple[np.ndarray, GridGeometry]:
-    """A single-band GeoTIFF; float layers get NaN where the file's GDAL nodata value is."""
-    image, geometry = read_geotiff(path)
-    if image.ndim != 2:
-        raise ValueError(f"{path}: expected a single-band map, got shape {image.shape}")
-    if np.issubdtype(image.dtype, np.floating):
-        with tifffile.TiffFile(path) as tif:
-            tag = tif.pages[0].tags.get(GDAL_NODATA)
-        if tag is not None:
-            try:
-                nodata = float(str(tag.value).strip("\x00 "))
-            except ValueError:
-                nodata = math.nan
-            if not math.isnan(nodata):
-                image = np.where(image == nodata, np.nan, image)
-        image = image.astype(np.float32)
-    return image, geometry
-
-
 def read_maps(hazard: Path, slope: Path) -> NavMaps:
     """A hazard map (0 / 128 / 255) and its slope map (degrees) on the same grid."""
-    hz, hgeom = _read_layer(hazard)
-    sl, sgeom = _read_layer(slope)
-    if hgeom != sgeom:
-        raise ValueError(f"{hazard} and {slope} are on different grids ({hgeom} vs {sgeom})")
-    if np.issubdtype(hz.dtype, np.floating):
-        hz = np.where(np.isnan(hz), 128, hz)
-    values = set(np.unique(hz).tolist())
-    if not values <= {0, 128, 255}:
-        raise ValueError(f"{hazard}: a hazard map holds 0, 128 and 255 only, found {sorted(values)[:8]}")
-    return NavMaps(hz.astype(np.uint8), sl.astype(np.float32), hgeom)
+    return read_nav_maps(hazard, slope)
 
 
 def build_parser() -> argparse.ArgumentParser:
     d = PlannerParams()
+    specs = PlanParams.specs()
     ap = ToolParser(prog="rvs-path-planner", description=__doc__.split("\n\n")[0],
                                  formatter_class=argparse.ArgumentDefaultsHelpFormatter)
     ap.add_argument("--hazard", type=Path, required=True, help="local hazard map GeoTIFF (0/128/255)")
@@ -85,15 +59,10 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--start", type=_point, required=True, help="x,y in metres")
     ap.add_argument("--goal", type=_point, required=True, help="x,y in metres")
     ap.add_argument("--start-heading", type=float, help="the rover's heading at the start, degrees")
-    ap.add_argument("--weight", type=float, default=d.weight, help="w: 1 distance only, 0 slope cost only")
-    ap.add_argument("--heuristic", choices=("euclidean", "manhattan", "octile"), default=d.heuristic)
-    ap.add_argument("--grid", type=float, help="planning cell size, m (default: the local map's)")
+    for spec in specs.values():  # declared once, in PlanParams (navigate's options are the same)
+        ap.add_argument("--" + spec.name.replace("_", "-"), dest=spec.name, default=str(spec.default),
+                        help=f"{spec.help} ({spec.describe()})")
     ap.add_argument("--rover-radius", type=float, default=d.rover_radius, help="m")
-    ap.add_argument("--margin", type=float, default=d.margin, help="added to the rover radius, m")
-    ap.add_argument("--max-deviation", type=float, default=d.max_deviation,
-                    help="of the waypoint legs from the A* path, m")
-    ap.add_argument("--border", type=float, default=d.border,
-                    help="the rover stops this far inside the local map's border, m")
     ap.add_argument("--critical-slope", type=float, default=d.critical_slope,
                     help="slope (deg) whose cost equals unknown ground's at --unknown-cost 1")
     ap.add_argument("--unknown-cost", type=float, default=d.unknown_cost,
@@ -103,30 +72,34 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
+    ap = build_parser()
+    args = ap.parse_args(argv)
     if (args.global_hazard is None) != (args.global_slope is None):
         print("rvs-path-planner: --global-hazard and --global-slope go together", file=sys.stderr)
         return 2
+    specs = PlanParams.specs()
     try:
-        params = PlannerParams(grid=args.grid, weight=args.weight, heuristic=args.heuristic,
-                               rover_radius=args.rover_radius, margin=args.margin,
-                               critical_slope=args.critical_slope, unknown_cost=args.unknown_cost,
-                               max_deviation=args.max_deviation, border=args.border)
-        local = read_maps(args.hazard, args.slope)
-        global_ = read_maps(args.global_hazard, args.global_slope) if args.global_hazard else None
-        ortho = read_geotiff(args.ortho) if args.ortho else None
-    except (OSError, ValueError) as exc:
+        params = {name: spec.parse(str(getattr(args, name))) for name, spec in specs.items()}
+    except SettingError as exc:
         print(f"rvs-path-planner: {exc}", file=sys.stderr)
         return 2
     inputs = [str(p) for p in (args.hazard, args.slope, args.global_hazard, args.global_slope, args.ortho) if p]
     t0 = time.perf_counter()
     try:
-        result = plan_path(local, global_, args.start, args.goal, params, start_heading=args.start_heading)
+        ws, log = run_workflow("path_planner", params, {
+            "hazard": args.hazard, "slope": args.slope, "global_hazard": args.global_hazard,
+            "global_slope": args.global_slope, "ortho_path": args.ortho, "start": list(args.start),
+            "goal": list(args.goal), "start_heading": args.start_heading, "rover_radius": args.rover_radius,
+            "critical_slope": args.critical_slope, "unknown_cost": args.unknown_cost, "prefix": args.output,
+            "made_by": MADE_BY, "inputs": inputs})
     except PlanningError as exc:
         print(f"rvs-path-planner: no path ({exc.reason}): {exc.message}", file=sys.stderr)
         return 1
-    elapsed = time.perf_counter() - t0
-    written = write_plan(result, args.output, ortho=ortho, made_by=MADE_BY, inputs=inputs)
+    except (OSError, ValueError, WorkflowError) as exc:
+        print(f"rvs-path-planner: {exc}", file=sys.stderr)
+        return 2
+    result, written = ws["plan"], ws["files"]
+    elapsed = sum(e["seconds"] for e in log.entries if e["step"] == "plan_path") or time.perf_counter() - t0
     geom = result.image.geometry
     print(f"planning grid {geom.height} x {geom.width} cells of {geom.cell:g} m, {result.expanded} expanded, "
           f"{elapsed * 1000:.0f} ms")

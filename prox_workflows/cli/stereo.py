@@ -24,45 +24,18 @@ import time
 from pathlib import Path
 from typing import Any
 
-import cv2
 import numpy as np
-import tifffile
 import yaml
 
-from ..pointcloud import write_ply
-from ..products import preview, write_atomic, write_png, write_sidecar, write_tiff
+from ..engine import WorkflowError, run_workflow
 from ..steps.stereo import (
     DEFAULT_SIGMA_D,
     SgbmParams,
-    cloud,
-    disparity,
-    load_calibration,
-    sigma_d_for,
-    to_gray8,
 )
+from ..steps.stereo_products import read_image  # noqa: F401 - the reader tests and tools use
 from .parser import ToolParser
 
 MADE_BY = "rvs-stereo (prox_workflows.steps.stereo)"
-
-
-def read_image(path: Path) -> np.ndarray:
-    """TIFF (tifffile), .npy, or anything OpenCV reads (PNG, PGM, JPEG; colour returned as RGB)."""
-    path = Path(path)
-    if not path.exists():
-        raise FileNotFoundError(f"{path}: no such file")
-    suffix = path.suffix.lower()
-    if suffix in (".tif", ".tiff"):
-        return np.asarray(tifffile.imread(path))
-    if suffix == ".npy":
-        return np.load(path)
-    img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
-    if img is None:
-        raise ValueError(f"{path}: not an image OpenCV can read")
-    if img.ndim == 3 and img.shape[2] == 3:
-        img = cv2.cvtColor(img, cv2.COLOR_BGR2RGB)
-    elif img.ndim == 3 and img.shape[2] == 4:
-        img = cv2.cvtColor(img, cv2.COLOR_BGRA2RGB)
-    return img
 
 
 def _parse_set(items: list[str], ap: argparse.ArgumentParser) -> dict[str, Any]:
@@ -115,17 +88,17 @@ def main(argv: list[str] | None = None) -> int:
         values["lr_max_diff"] = 0.0
     try:
         params = SgbmParams.from_dict(values)
-        calib = load_calibration(args.calib)
-        left = read_image(args.left)
-        right = read_image(args.right)
         t0 = time.perf_counter()
-        disp = disparity(left, right, calib, params)
-        elapsed = time.perf_counter() - t0
-    except (OSError, ValueError) as exc:
+        ws, log = run_workflow("stereo", None, {
+            "left_path": args.left, "right_path": args.right, "calib_path": args.calib, "sgbm": params.to_dict(),
+            "disparity_path": args.disparity, "rectified_path": args.rectified, "cloud_path": args.output,
+            "sigma_d": args.sigma_d, "max_depth": args.max_depth, "made_by": MADE_BY,
+            "inputs": [str(args.left), str(args.right), str(args.calib)]})
+    except (OSError, ValueError, WorkflowError) as exc:
         print(f"rvs-stereo: {exc}", file=sys.stderr)
         return 2
-    inputs = [str(args.left), str(args.right), str(args.calib)]
-    common = {"parameters": params.to_dict(), "inputs": inputs}
+    elapsed = next((e["seconds"] for e in log.entries if e["step"] == "stereo_disparity"), time.perf_counter() - t0)
+    disp, left = ws["disparity"], ws["left"]
     valid = np.isfinite(disp.left)
     lines = [
         f"pair {left.shape[1]}x{left.shape[0]}, baseline {disp.rect.baseline:.4f} m, f {disp.rect.focal:.1f} px, "
@@ -134,46 +107,10 @@ def main(argv: list[str] | None = None) -> int:
     ]
     if valid.any():
         lines.append(f"disparity {np.nanmin(disp.left):.1f} .. {np.nanmax(disp.left):.1f} px")
-    if args.disparity:
-        write_tiff(args.disparity, disp.left.astype(np.float32))
-        write_png(args.disparity.with_suffix(".png"), preview(disp.left, cv2.COLORMAP_JET))
-        write_sidecar(args.disparity, MADE_BY, common["parameters"], inputs, units="px", nan="invalid",
-                      geometry="left original image", focal_px=disp.rect.focal, baseline_m=disp.rect.baseline,
-                      valid_share=float(valid.mean()))
-        lines.append(f"disparity -> {args.disparity}")
-    if args.rectified:
-        write_tiff(args.rectified, disp.rectified.astype(np.float32))
-        write_sidecar(args.rectified, MADE_BY, common["parameters"], inputs, units="px", nan="invalid",
-                      geometry="rectified left image (cv2.stereoRectify, alpha 0)", P1=np.asarray(disp.rect.P1),
-                      R1=np.asarray(disp.rect.R1), Q=np.asarray(disp.rect.Q))
-        lines.append(f"rectified disparity -> {args.rectified}")
-    if args.output:
-        sigma_d = sigma_d_for(params.scale) if args.sigma_d is None else args.sigma_d
-        pts, sig, pix = cloud(disp, sigma_d)
-        if args.max_depth is not None:
-            keep = pts[:, 2] <= args.max_depth
-            pts, sig, pix = pts[keep], sig[keep], pix[keep]
-        if args.output.suffix.lower() == ".npy":
-            write_atomic(args.output, lambda p: _save_npy(p, pts))
-        else:
-            grey = to_gray8(left)[pix[:, 0], pix[:, 1]]
-            write_ply(args.output, np.column_stack([pts, grey.astype(np.float32)]),
-                      np.repeat(grey[:, None], 3, axis=1), comment="rvs-stereo cloud, left camera frame (m)")
-        write_sidecar(args.output, MADE_BY, common["parameters"], inputs, frame="left camera (x right, y down, "
-                      "z forward)", units="m", points=len(pts), intensity="left image grey value",
-                      noise_model="sigma_z = z^2 * sigma_d / (b * f)", sigma_d_px=sigma_d,
-                      baseline_m=disp.rect.baseline, focal_px=disp.rect.focal,
-                      sigma_z_m={"median": float(np.median(sig)) if len(sig) else None,
-                                 "max": float(np.max(sig)) if len(sig) else None})
-        lines.append(f"{len(pts)} points -> {args.output}")
+    lines += ws["files"]["lines"]
     if not args.quiet:
         print("\n".join(lines))
     return 0
-
-
-def _save_npy(path: Path, pts: np.ndarray) -> None:
-    with open(path, "wb") as fh:
-        np.save(fh, pts.astype(np.float32), allow_pickle=False)
 
 
 if __name__ == "__main__":

@@ -19,8 +19,11 @@ from typing import Any
 
 import numpy as np
 
-from ..products import write_text_atomic, write_tiff
+from ..products import write_text_atomic, write_tiff, write_yaml_atomic
 from .transforms import HeadCalibration, T_global_from_rover, apply, camera_matrix, write_cal
+
+# beside each view's coordinate image: point variance, range, ortho intensity, ortho depth
+AUX_SUFFIX = ".aux.tiff"
 
 # variance(points N x 3 global, sensor position, amplitude N) -> height variance N (m^2)
 Variance = Callable[[np.ndarray, np.ndarray, np.ndarray], np.ndarray]
@@ -63,6 +66,7 @@ class View:
     depth: np.ndarray  # H x W camera z (NaN undefined), for the ortho-image's occlusion test
     T_global_camera: np.ndarray
     files: dict[str, str] = field(default_factory=dict)
+    pixels: np.ndarray | None = None  # flat indices of the points in the H x W image (for recording)
 
 
 def _stamp() -> str:
@@ -96,7 +100,40 @@ def view_from_frame(index: int, frame: Frame, pan: float, tilt: float, T_global_
     ortho = frame.ortho_intensity if frame.ortho_intensity is not None else intensity
     P = camera_matrix(frame.K, T_global_camera)
     return View(index, frame.sensor, pan, tilt, _stamp(), points, np.asarray(var, np.float32), r, P,
-                np.asarray(ortho, np.float32), np.asarray(depth, np.float32), T_global_camera)
+                np.asarray(ortho, np.float32), np.asarray(depth, np.float32), T_global_camera,
+                pixels=np.flatnonzero(defined))
+
+
+def view_images(view: View) -> tuple[np.ndarray, np.ndarray]:
+    """The two H x W images a recorded view is: the coordinate image (x, y, z global,
+    intensity; NaN where the view kept no point) and its companion (point variance, range,
+    ortho intensity, ortho depth). They hold exactly the float32 values processing uses, so a
+    DEM made from the recorded views is byte-identical to the one the server made live."""
+    h, w = view.intensity.shape[:2]
+    coords = np.full((h * w, 4), np.nan, np.float32)
+    aux = np.full((h * w, 4), np.nan, np.float32)
+    if view.pixels is not None:
+        coords[view.pixels] = view.points
+        aux[view.pixels, 0] = view.variance
+        aux[view.pixels, 1] = view.ranges
+    coords = coords.reshape(h, w, 4)
+    aux = aux.reshape(h, w, 4)
+    aux[..., 2] = view.intensity
+    aux[..., 3] = view.depth
+    return coords, aux
+
+
+def view_from_images(index: int, coords: np.ndarray, aux: np.ndarray, cal: dict[str, Any]) -> View:
+    """A recorded view back (the inverse of :func:`view_images`), its ``.cal`` giving K and T."""
+    flat = coords.reshape(-1, 4)
+    pixels = np.flatnonzero(np.isfinite(flat[:, 2]))
+    T = np.asarray(cal["T_global_camera"], float)
+    K = np.asarray(cal["K"], float)
+    a = aux.reshape(-1, 4)
+    return View(index, str(cal.get("sensor", "tof")), float(cal.get("pan", 0.0)), float(cal.get("tilt", 0.0)),
+                str(cal.get("time", "")), np.ascontiguousarray(flat[pixels]),
+                np.ascontiguousarray(a[pixels, 0]), np.ascontiguousarray(a[pixels, 1]), camera_matrix(K, T),
+                np.ascontiguousarray(aux[..., 2]), np.ascontiguousarray(aux[..., 3]), T, pixels=pixels)
 
 
 def acquire_coord_images(
@@ -109,15 +146,19 @@ def acquire_coord_images(
     progress: Callable[[int, int, str], None] | None = None,
     cancelled: Callable[[], bool] | None = None,
     on_view: Callable[[View], None] | None = None,
+    scan: dict[str, Any] | None = None,
 ) -> list[View]:
     """Acquire every pointing; ``pose`` = (x, y, heading, z) of the rover in the global frame.
 
     Each frame becomes a view: a 4-channel image (x, y, z global, intensity; NaN undefined)
     with a time-tagged name, its ``.cal`` and a row of the image list. Views acquired before a
     cancellation or a device fault are kept on disk and passed to ``on_view`` as they come, so a
-    following dem-update can use them.
+    following dem-update can use them. ``scan`` (the rover pose and mask the processing uses)
+    goes to ``<stem>_scan.yaml``, so the folder alone is enough to process the views again.
     """
     T_gr = T_global_from_rover(pose[0], pose[1], pose[2], pose[3])
+    if out_dir is not None:
+        write_yaml_atomic(Path(out_dir) / f"{stem}_scan.yaml", {"pose": list(pose), **(scan or {})})
     views: list[View] = []
     rows: list[dict[str, Any]] = []
     for i, (pan, tilt) in enumerate(positions):
@@ -132,10 +173,9 @@ def acquire_coord_images(
             if out_dir is not None:
                 name = f"{stem}_{view.time}_v{i:02d}_{frame.sensor}"
                 xyz = np.asarray(frame.xyz, np.float32)
-                ok = np.isfinite(xyz[..., 2:3]) & (xyz[..., 2:3] > 0)
-                image = np.concatenate([apply(T_gc, np.where(ok, xyz, np.nan)),
-                                        np.asarray(frame.intensity, np.float32)[..., None]], axis=2)
-                tif = write_tiff(Path(out_dir) / f"{name}.tif", image.astype(np.float32))
+                coords, aux = view_images(view)
+                tif = write_tiff(Path(out_dir) / f"{name}.tif", coords)
+                write_tiff(Path(out_dir) / f"{name}{AUX_SUFFIX}", aux)
                 cal = write_cal(Path(out_dir) / f"{name}.cal", frame.K, T_gc, (xyz.shape[1], xyz.shape[0]),
                                 sensor=frame.sensor, pan=pan_r, tilt=tilt_r, time=view.time)
                 view.files = {"image": tif.name, "cal": cal.name}

@@ -36,7 +36,6 @@ window, which keeps the float64 temporaries in cache and the memory bounded.
 
 from __future__ import annotations
 
-import dataclasses
 import math
 import os
 from concurrent.futures import ThreadPoolExecutor
@@ -47,6 +46,8 @@ from typing import Any
 import cv2
 import numpy as np
 import yaml
+
+from rvs_params import Settings, param
 
 from ..grid import Layers
 
@@ -64,25 +65,26 @@ _STRIP_ROWS = 128  # rows per strip (plus halo): a strip's float64 temporaries s
 _WORKERS = min(4, os.cpu_count() or 1)
 
 
-@dataclass(frozen=True)
-class HazardParams:
-    """Thresholds and window of Dem2Hazard (config/dem2hazard.yaml)."""
+@dataclass
+class HazardParams(Settings):
+    """Thresholds and window of Dem2Hazard: declared once here, with units and ranges; the
+    server's ``dem2hazard`` config class derives from this, ``config/dem2hazard.yaml`` sets them."""
 
-    window: float = 0.3  # m, side of the square window
-    step_max: float = 0.15  # m
-    slope_max: float = 20.0  # degrees
-    roughness_max: float = 0.05  # m
-    min_fraction: float = 0.5  # of the window's cells that must be defined
-    weight_slope: float = 1.0
-    weight_step: float = 1.0
-    weight_roughness: float = 1.0
+    window: float = param(0.3, "side of the square window the plane is fitted over", unit="m", min=0.02, max=5.0)
+    step_max: float = param(0.15, "greatest step a wheel may climb", unit="m", min=0.001, max=2.0)
+    slope_max: float = param(20.0, "steepest slope the rover may stand on", unit="deg", min=0.1, max=89.0)
+    roughness_max: float = param(0.05, "largest spread about the fitted plane", unit="m", min=0.001, max=2.0)
+    min_fraction: float = param(0.5, "share of a window's cells that must be defined", min=0.01, max=1.0)
+    weight_slope: float = param(1.0, "weight of slope in traversability", min=0.0, max=100.0)
+    weight_step: float = param(1.0, "weight of step in traversability", min=0.0, max=100.0)
+    weight_roughness: float = param(1.0, "weight of roughness in traversability", min=0.0, max=100.0)
 
     def __post_init__(self) -> None:
         for f in fields(self):
             value = getattr(self, f.name)
             if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
                 raise ValueError(f"dem2hazard: {f.name} must be a finite number, not {value!r}")
-            object.__setattr__(self, f.name, float(value))
+            setattr(self, f.name, float(value))
         for name in ("window", "step_max", "slope_max", "roughness_max"):
             if getattr(self, name) <= 0:
                 raise ValueError(f"dem2hazard: {name} must be > 0, not {getattr(self, name)}")
@@ -107,7 +109,7 @@ class HazardParams:
         return max(4, math.ceil(self.min_fraction * n * n - 1e-9))
 
     def as_dict(self) -> dict[str, float]:
-        return dataclasses.asdict(self)
+        return {f.name: getattr(self, f.name) for f in fields(self)}
 
 
 def load_params(path: str | Path | None = None, **overrides: Any) -> HazardParams:
@@ -129,6 +131,7 @@ def load_params(path: str | Path | None = None, **overrides: Any) -> HazardParam
     if unknown:
         raise ValueError(f"dem2hazard: unknown parameter(s) {', '.join(unknown)}; known: {', '.join(sorted(known))}")
     return HazardParams(**data)
+
 
 
 def _as_params(params: HazardParams | dict[str, Any] | None) -> HazardParams:

@@ -7,38 +7,80 @@ from typing import Any
 
 import numpy as np
 
+from ..engine import step
 from ..grid import GridGeometry, Layers
 from .acquire import View
 from .dem2hazard import dem2hazard_layers
 from .dem_import import dem_import
 from .dem_mosaik import dem_mosaik
-from .holes import fill_holes
+from .holes import fill_layers
 from .ortho import OrthoView, ortho_image
 
 
+@step("acquire", inputs={"positions": "list"}, outputs={"views": "list[View]"})
+def acquire(positions: list[tuple[float, float]], progress: Any = None, cancelled: Any = None) -> list[View]:
+    """The declaration of the acquisition step; its implementation is the caller's.
+
+    The server supplies it (its PTU and sensors: ``run_workflow(..., steps={"acquire": fn})``),
+    so this package never imports a driver; offline a script reads recorded views instead
+    (``read_views``).
+    """
+    raise NotImplementedError("acquire is supplied by the server; offline, read recorded views with read_views")
+
+
+@step("scan_rule", inputs={"views": "list[View]"}, outputs={"within_scan": "str"})
+def scan_rule(views: list[View]) -> str:
+    """How views of one scan settle a conflict, from the sensors that took them: views of one
+    sensor, the higher wins (a rock's top over its foot); ToF and stereo together, the gate
+    rejects what the other sensor contradicts. Derived from the views, so the server and a
+    reprocessing of its recorded views choose alike."""
+    return "inflate" if len({v.sensor for v in views}) > 1 else "higher"
+
+
+@step("join_views", inputs={"earlier": "list[View]?", "new": "list[View]"}, outputs={"views": "list[View]"})
 def join_views(earlier: list[View] | None, new: list[View]) -> list[View]:
     """Views a stopped acquisition left behind, then the new ones (newest last)."""
     return list(earlier or []) + list(new)
 
 
+@step("view_dem", inputs={"view": "View", "cell": "float", "rover_mask": "array?", "height": "str"},
+      outputs={"dem": "Layers?"})
 def view_dem(view: View, cell: float, rover_mask: np.ndarray | None = None, height: str = "mean") -> Layers | None:
     """DemImport of one view's points, each with its noise-model variance.
 
-    ``height="mean"`` makes the view's height the information-weighted mean of its cell's
-    points: the greatest of several noisy ToF heights sits about a sigma above the ground, which
-    is a bias the fusion cannot average away; ``"max"`` keeps the thesis's direct rule.
-    A view that saw nothing (sky, all beyond range) gives None.
+    ``height`` is DemImport's rule for the ``dem`` layer (the mean for measured data, see
+    :func:`dem_import`). With the mean, the cell's spread is in ``measurement_variance``, so
+    ``variance`` is cleared for the fusion. A view that saw nothing (sky, all beyond range)
+    gives None.
     """
     if len(view.points) == 0:
         return None
-    layers = dem_import(view.points, cell=cell, point_variance=view.variance, rover_mask=rover_mask)
-    if height == "mean" and "wmean" in layers:
-        layers["dem"] = layers["wmean"]
+    layers = dem_import(view.points, cell=cell, point_variance=view.variance, rover_mask=rover_mask, height=height)
+    if height == "mean":
+        layers.layers.pop("max", None)
         layers["variance"] = np.zeros_like(layers["variance"])  # the mean's spread is in measurement_variance
     layers.meta["view"] = view.index
     return layers
 
 
+@step("dem_mosaik", inputs={"dems": "list[Layers]", "rule": "str", "bounds": "floats?", "cell": "float",
+                            "sigma": "float", "gate": "float", "inflation": "float", "on_conflict": "str"},
+      outputs={"mosaic": "Layers"})
+def mosaik_layers(dems: list[Layers], rule: str = "max", bounds: list[float] | None = None, cell: float = 0.0,
+                  sigma: float = 0.01, gate: float = 3.0, inflation: float = 0.0025,
+                  on_conflict: str = "inflate") -> Layers:
+    """DemMosaik of DEM products (``rvs-dem-mosaik``): on ``bounds`` if given, else the union of
+    the inputs; ``cell`` 0 takes the finest input's."""
+    geometry = None
+    size = cell if cell > 0 else None
+    if bounds is not None:
+        geometry = GridGeometry.covering(*bounds, size or min(d.geometry.cell for d in dems))
+    return dem_mosaik(dems, rule=rule, geometry=geometry, cell=size, sigma=sigma, gate=gate, inflation=inflation,
+                      on_conflict=on_conflict)
+
+
+@step("mosaic", inputs={"dems": "list[Layers?]", "base": "Layers?", "rule": "str", "cell": "float",
+                        "within_scan": "str"}, outputs={"mosaic": "Layers"})
 def mosaic(dems: list[Layers | None], base: Layers | None, rule: str, cell: float,
            within_scan: str = "higher") -> Layers:
     """DemMosaik of the views, then onto the current DEM (if any), on the union of extents.
@@ -63,18 +105,20 @@ def mosaic(dems: list[Layers | None], base: Layers | None, rule: str, cell: floa
     return dem_mosaik([base, scan], rule="fuse", cell=cell, on_conflict="inflate")
 
 
+@step("fill_holes_layers", inputs={"layers": "Layers", "radius": "float"}, outputs={"layers": "Layers"})
 def fill_holes_layers(layers: Layers, radius: float) -> Layers:
-    filled, mask = fill_holes(layers["dem"], layers.geometry.cell, radius)
-    out = Layers(layers.geometry, dict(layers.layers), dict(layers.meta))
-    out["dem"] = filled
-    out["filled"] = mask.astype(np.uint8)
-    return out
+    """Holes up to ``radius`` filled from their neighbours; a ``filled`` layer marks them."""
+    return fill_layers(layers, radius)
 
 
+@step("hazard_layers", inputs={"layers": "Layers", "params": "dict?"}, outputs={"layers": "Layers"})
 def hazard_layers(layers: Layers, params: dict[str, Any] | None = None) -> Layers:
+    """Dem2Hazard on the ``dem`` layer: slope, step, roughness, hazard, traversability."""
     return dem2hazard_layers(layers, params)
 
 
+@step("ortho_layer", inputs={"layers": "Layers", "views": "list[View]", "base": "Layers?"},
+      outputs={"layers": "Layers"})
 def ortho_layer(layers: Layers, views: list[View], base: Layers | None = None) -> Layers:
     """The ortho-image from the views; where none sees a cell, the current DEM's ortho is kept."""
     g: GridGeometry = layers.geometry
@@ -95,3 +139,10 @@ def resample_nearest(image: np.ndarray, src: GridGeometry, dst: GridGeometry, fi
     out = np.full(dst.shape, fill, dtype=image.dtype)
     out[inside] = image[row[inside], col[inside]]
     return out
+
+
+@step("view_files", inputs={"views": "list[View]", "folder": "str?"}, outputs={"inputs": "list[str]"})
+def view_files(views: list[View], folder: str | None = None) -> list[str]:
+    """The recorded images the views came from, as the products' sidecars cite them."""
+    prefix = f"{folder}/" if folder else ""
+    return [f"{prefix}{v.files['image']}" for v in views if v.files]

@@ -52,6 +52,7 @@ from typing import Any
 
 import numpy as np
 
+from ..engine import step
 from ..grid import GridGeometry, Layers
 
 CHUNK = 1 << 16  # points per chunk (numpy): index, heights and weights of one chunk stay in L2 cache
@@ -137,6 +138,10 @@ def _rover_polygon(rover_mask: np.ndarray | Sequence[float]) -> np.ndarray:
     return poly
 
 
+@step("dem_import", inputs={"points": "array", "geometry": "any", "cell": "float", "bounds": "floats?",
+                          "point_variance": "array?", "rover_mask": "any", "rover_ground_z": "float?",
+                          "stats": "list", "chunk": "int", "height": "str"},
+      outputs={"dem": "Layers"})
 def dem_import(
     points: np.ndarray,
     geometry: GridGeometry | None = None,
@@ -147,6 +152,7 @@ def dem_import(
     rover_ground_z: float | None = None,
     stats: Sequence[str] = LAYERS,
     chunk: int = CHUNK,
+    height: str = "max",
 ) -> Layers:
     """Direct reconstruction of ``points`` (N x 3 x, y, z or N x 4 with intensity, global frame).
 
@@ -165,7 +171,30 @@ def dem_import(
     column ``intensity``, its mean. ``stats`` names the layers wanted of the first five (fewer
     cost less; ``("dem",)`` is the bare direct reconstruction). ``chunk`` is the points per chunk
     of the numpy implementation (the compiled one takes blocks of at most 2048).
+
+    ``height`` says what the ``dem`` layer is: ``"max"`` the greatest height (the thesis's
+    direct rule), ``"mean"`` the information-weighted mean ``wmean`` (the plain ``mean`` without
+    point variances) with the greatest height kept as ``max``. Every entry point (the server's
+    per-view DEMs, ``rvs-dem-import``, scripts) picks the rule here, so "dem" means one thing
+    for a given rule: the greatest of several noisy ToF heights sits about a sigma above the
+    ground, a bias fusion cannot average away, hence the mean for measured data.
     """
+    if height not in ("max", "mean"):
+        raise ValueError(f"height must be max or mean, not {height!r}")
+    layers = _dem_import(points, geometry, cell, bounds, point_variance, rover_mask, rover_ground_z, stats, chunk)
+    if height == "mean":
+        mean = layers.layers.get("wmean", layers.layers.get("mean"))
+        if mean is None:
+            raise ValueError("height='mean' needs the mean layer: include 'mean' in stats")
+        layers["max"] = layers["dem"]
+        layers["dem"] = mean
+        layers.meta["method"] = "direct reconstruction (information-weighted mean height per cell)"
+    return layers
+
+
+def _dem_import(points: np.ndarray, geometry: GridGeometry | None, cell: float, bounds: Sequence[float] | None,
+                point_variance: np.ndarray | None, rover_mask: np.ndarray | Sequence[float] | None,
+                rover_ground_z: float | None, stats: Sequence[str], chunk: int) -> Layers:
     pts = np.asarray(points)
     if pts.ndim != 2 or pts.shape[1] not in (3, 4):
         raise ValueError(f"points must be N x 3 or N x 4, got shape {pts.shape}")

@@ -71,6 +71,7 @@ import cv2
 import numpy as np
 from scipy import ndimage
 
+from ..engine import step
 from ..grid import GridGeometry
 
 SAFE = 0
@@ -958,3 +959,31 @@ def write_plan(result: PlanResult, prefix: str, ortho: tuple[np.ndarray, GridGeo
         written.append(str(p))
         write_sidecar(p, made_by, params, list(inputs))
     return written
+
+
+# ------------------------------------------------------------------------------ workflow steps
+
+
+@step("plan_path", inputs={"local": "NavMaps", "global_maps": "NavMaps?", "start": "floats", "goal": "floats",
+                           "start_heading": "float?", "weight": "float", "heuristic": "str", "grid": "float",
+                           "margin": "float", "max_deviation": "float", "border": "float",
+                           "rover_radius": "float", "critical_slope": "float", "unknown_cost": "float?"},
+      outputs={"plan": "PlanResult"})
+def plan_step(local: NavMaps, global_maps: NavMaps | None, start: Sequence[float], goal: Sequence[float],
+              start_heading: float | None = None, weight: float = 0.5, heuristic: str = "octile",
+              grid: float | None = None, margin: float = 0.1, max_deviation: float = 0.1, border: float = 0.3,
+              rover_radius: float = 0.3, critical_slope: float = 20.0,
+              unknown_cost: float | None = None) -> PlanResult:
+    """:func:`plan_path` with the planner's parameters as the script passes them one by one."""
+    params = PlannerParams(grid=grid, weight=weight, heuristic=heuristic, rover_radius=rover_radius, margin=margin,
+                           critical_slope=critical_slope, max_deviation=max_deviation, border=border,
+                           **({} if unknown_cost is None else {"unknown_cost": unknown_cost}))
+    return plan_path(local, global_maps, start, goal, params, start_heading=start_heading)
+
+
+@step("write_plan", inputs={"plan": "PlanResult", "prefix": "path", "ortho": "any", "made_by": "str?",
+                            "inputs": "list?"}, outputs={"files": "list[str]"})
+def write_plan_step(plan: PlanResult, prefix: str, ortho: tuple[np.ndarray, GridGeometry] | None = None,
+                    made_by: str | None = None, inputs: Sequence[str] | None = None) -> list[str]:
+    """The plan's products (:func:`write_plan`): path, waypoints, summary and drawings."""
+    return write_plan(plan, str(prefix), ortho=ortho, made_by=made_by or "rvs-prox", inputs=inputs or ())

@@ -12,6 +12,8 @@ import math
 
 import numpy as np
 
+from ..engine import step
+
 
 def _axis(lo: float, hi: float, fov: float, overlap: float) -> list[float]:
     span = hi - lo
@@ -22,6 +24,8 @@ def _axis(lo: float, hi: float, fov: float, overlap: float) -> list[float]:
     return list(np.linspace(lo + fov / 2.0, hi - fov / 2.0, n))
 
 
+@step("get_ptu_positions", inputs={"view_range": "floats", "fov": "floats", "overlap": "float", "limits": "floats?"},
+      outputs={"positions": "list"})
 def get_ptu_positions(
     view_range: list[float] | tuple[float, float, float, float],
     fov: tuple[float, float],

@@ -125,10 +125,10 @@ def project(P: np.ndarray, points: np.ndarray) -> tuple[np.ndarray, np.ndarray, 
 def write_cal(path: Path, K: np.ndarray, T_global_cam: np.ndarray, size: tuple[int, int], **extra: Any) -> Path:
     """A view's ``.cal`` file: the camera calibration matrix (global -> image) and its parts."""
     P = camera_matrix(K, T_global_cam)
-    data = {
-        "P": P.round(9).tolist(),
-        "K": np.asarray(K).round(9).tolist(),
-        "T_global_camera": np.asarray(T_global_cam).round(9).tolist(),
+    data = {  # full precision: reprocessing the recorded views must give the same products
+        "P": P.tolist(),
+        "K": np.asarray(K, float).tolist(),
+        "T_global_camera": np.asarray(T_global_cam, float).tolist(),
         "image_size": list(size),
         **extra,
     }

@@ -15,10 +15,11 @@ from typing import TYPE_CHECKING, Any, ClassVar
 import cv2
 import numpy as np
 
-from prox_workflows.engine import Cancelled, run_workflow
+from prox_workflows.engine import Cancelled, run_workflow, validate
 from prox_workflows.grid import Layers
+from prox_workflows.parameters import DemParams, DemStereoParams
 from prox_workflows.steps.acquire import Frame, acquire_coord_images
-from prox_workflows.steps.dem_products import write_dem_products
+from prox_workflows.steps.dem2hazard import HazardParams
 from prox_workflows.steps.noise import stereo_height_variance, tof_height_variance
 from prox_workflows.steps.stereo import disparity as stereo_disparity
 from prox_workflows.steps.stereo import sigma_d_for
@@ -34,43 +35,22 @@ from .hardware import default_stem, device_call
 if TYPE_CHECKING:
     from ..app import App
 
+# The parameters are declared once, in the workflow's parameter classes (prox_workflows.parameters:
+# the dem script and rvs-prox read the same declarations); these add the module name the server's
+# configuration (config/<module>.yaml, config -module, help) knows them by.
+
 
 @standalone
 @dataclass
-class Dem2HazardConfig(ModuleConfig):
+class Dem2HazardConfig(HazardParams, ModuleConfig):
     """config/dem2hazard.yaml: the rover's limits that turn a DEM into hazard maps."""
 
     module: ClassVar[str] = "dem2hazard"
-    window: float = param(0.3, "side of the square window the plane is fitted over", unit="m", min=0.02, max=5.0)
-    step_max: float = param(0.15, "greatest step a wheel may climb", unit="m", min=0.001, max=2.0)
-    slope_max: float = param(20.0, "steepest slope the rover may stand on", unit="deg", min=0.1, max=89.0)
-    roughness_max: float = param(0.05, "largest spread about the fitted plane", unit="m", min=0.001, max=2.0)
-    min_fraction: float = param(0.5, "share of a window's cells that must be defined", min=0.01, max=1.0)
-    weight_slope: float = param(1.0, "weight of slope in traversability", min=0.0, max=100.0)
-    weight_step: float = param(1.0, "weight of step in traversability", min=0.0, max=100.0)
-    weight_roughness: float = param(1.0, "weight of roughness in traversability", min=0.0, max=100.0)
 
 
 @dataclass
-class DemTofConfig(ModuleConfig):
+class DemTofConfig(DemParams, ModuleConfig):
     module: ClassVar[str] = "dem_full_tof"
-    range: list[float] = param([-150.0, 150.0, -50.0, -15.0], "view range pan_min,pan_max,tilt_min,tilt_max",
-                               unit="deg", length=4, min=-360.0, max=360.0)
-    name: str = param("", "stem of the products (default dem_<UTC time>)", stem=True)
-    cell: float = param(0.02, "DEM cell size", unit="m", min=0.005, max=1.0)
-    overlap: float = param(0.2, "share of the field of view that neighbouring views overlap", min=0.0, max=0.9)
-    integrate: int = param(4, "ToF frames integrated per view", min=1, max=100)
-    confidence: float = param(0.3, "discard ToF pixels below this confidence", min=0.0, max=1.0)
-    max_range: float = param(4.5, "ignore points farther than this from the sensor", unit="m", min=0.3, max=30.0)
-    min_reflectivity: float = param(0.1, "drop ToF returns weaker than this share of the view's median "
-                                    "amplitude x range^2 (phase-wrapped far surfaces)", min=0.0, max=1.0,
-                                    option=False)
-    wrap_check: bool = param(True, "one more ToF frame per view at half the modulation frequency: drop returns "
-                             "from beyond the unambiguous range (a far wall read as a phantom close by)",
-                             option=False)
-    rule: str = param("fuse", "how views and the current DEM merge", choices=("fuse", "max", "newest"))
-    fill_radius: float = param(0.06, "fill holes up to this radius", unit="m", min=0.0, max=2.0)
-    mesh: bool = param(True, "also write a textured mesh (PLY)")
 
 
 @dataclass
@@ -82,20 +62,29 @@ TOF_MAX_RANGE = 4.5  # m: the SR4000 wraps at 5 m (30 MHz); farther returns are 
 
 
 @dataclass
-class DemStereoConfig(DemTofConfig):
+class DemStereoConfig(DemStereoParams, ModuleConfig):
     """dem-full / dem-update: the same options as the ToF commands, plus the stereo ones."""
 
     module: ClassVar[str] = "dem_full"
-    sensor: str = param("stereo", "sensor: the stereo pair, or stereo and ToF fused", choices=("stereo", "fused"))
-    max_range: float = param(6.0, "ignore points farther than this from the sensor", unit="m", min=0.3, max=30.0)
-    resolution: str = param("low", "stereo resolution mode", choices=("low", "medium", "high", "highest"))
-    stereo_scale: float = param(1.0, "matching scale (0.5: half resolution, faster)", min=0.25, max=1.0,
-                                option=False)
 
 
 @dataclass
 class DemUpdateStereoConfig(DemStereoConfig):
     module: ClassVar[str] = "dem_update"
+
+
+# What the server puts in the dem script's workspace (checked against the script's inputs: at
+# start, so a broken script stops the server before it serves, see validate_scripts).
+DEM_SCRIPT = "dem"
+DEM_INPUTS = ("fov", "ptu_limits", "pending_views", "rover_mask", "base", "hazard", "out_dir", "views_dir",
+              "made_by", "parameters")
+
+
+def validate_scripts() -> None:
+    """Validate every command's workflow script against the command's config class and the
+    server's inputs and steps; raises ScriptError (line and fix of each mistake)."""
+    for cls in (DemTofConfig, DemStereoConfig):
+        validate(DEM_SCRIPT, workspace=DEM_INPUTS, param_cls=cls)
 
 
 def rover_mask_polygon(app: App, pose: tuple[float, float, float, float]) -> np.ndarray:
@@ -176,23 +165,24 @@ def run_dem(job: Job, cfg: Any, *, update: bool, sensor: str = "tof",
         return frames, reached[0], reached[1]
 
     acquired: list[Any] = []
+    rover_mask = rover_mask_polygon(app, pose)
 
     def acquire(positions: list[tuple[float, float]], progress: Any = None, cancelled: Any = None) -> list[Any]:
         return acquire_coord_images(positions, grab, head, pose, views_dir, name, progress, cancelled,
-                                    on_view=acquired.append)
+                                    on_view=acquired.append, scan={"rover_mask": rover_mask})
 
-    params = {
-        "range": cfg.range, "fov": fov, "overlap": cfg.overlap, "ptu_limits": limits, "cell": cfg.cell,
-        "rule": cfg.rule, "fill_radius": cfg.fill_radius, "hazard": app.config.get("dem2hazard").as_dict(),
-        "rover_mask": rover_mask_polygon(app, pose),
-        # views of one sensor: the higher wins a conflict (a rock's top over its foot); ToF and
-        # stereo together: the gate rejects what the other sensor contradicts
-        "within_scan": "inflate" if sensor == "fused" else "higher",
+    # the parameters are the command's config values, as they are; the rest is what only the
+    # server knows (its devices, the rover, the current DEM)
+    params = {**cfg.as_dict(), "name": name}
+    workspace = {
+        "fov": list(fov), "ptu_limits": list(limits), "pending_views": pending, "rover_mask": rover_mask,
+        "base": base, "hazard": app.config.get("dem2hazard").as_dict(), "out_dir": app.data_dir / out_dir,
+        "views_dir": views_dir.name, "made_by": job.command, "parameters": job.params,
     }
     report = progress or job.progress
     try:
-        ws, log = run_workflow("dem", params, {"base": base, "pending_views": pending},
-                               steps={"acquire": acquire}, progress=report, cancelled=lambda: job.cancelled)
+        ws, _ = run_workflow(DEM_SCRIPT, params, workspace, steps={"acquire": acquire}, progress=report,
+                             cancelled=lambda: job.cancelled, param_cls=type(cfg))
         job.check()
     except BaseException as exc:
         app.maps.keep_views(pending + acquired)  # the views acquired before a fault or a break: for the next update
@@ -201,10 +191,7 @@ def run_dem(job: Job, cfg: Any, *, update: bool, sensor: str = "tof",
                               "for dem-update") from None
         raise
     dem: Layers = ws["dem"]
-    report(0, 1, f"writing the products of {len(ws['views'])} views", phase="write")
-    inputs = [f"{name}_views/{v.files['image']}" for v in ws["views"] if v.files]
-    files = write_dem_products(dem, app.data_dir / out_dir, name, made_by=job.command, parameters=job.params,
-                               inputs=inputs, run_log=log.as_dict(), mesh=cfg.mesh)
+    files = ws["files"]
     rel = {layer: app.rel(path) for layer, path in files.items()}
     app.maps.replace(dem, name, rel)
     defined = np.isfinite(dem["dem"])

@@ -10,6 +10,9 @@ from typing import TYPE_CHECKING, Any, ClassVar
 
 import numpy as np
 
+from prox_workflows.engine import run_workflow
+from prox_workflows.parameters import PlanParams
+from prox_workflows.params import reuse
 from prox_workflows.steps.safety import check_move
 
 from ..app import Context
@@ -83,15 +86,14 @@ class NavigateConfig(ModuleConfig):
     tolerance: float = param(0.3, "the goal is reached within this distance", unit="m", min=0.05, max=10.0)
     max_legs: int = param(12, "give up after this many legs", min=1, max=200)
     name: str = param("", "stem of the products (default nav_<UTC time>)", stem=True)
-    weight: float = param(0.5, "A* weight w: 1 distance only, 0 environmental cost only", min=0.0, max=1.0)
-    heuristic: str = param("octile", "A* heuristic", choices=("euclidean", "manhattan", "octile"))
-    grid: float = param(0.05, "planning cell size", unit="m", min=0.01, max=1.0)
-    margin: float = param(0.1, "added to the rover radius around hazards", unit="m", min=0.0, max=2.0)
-    max_deviation: float = param(0.1, "waypoint polyline's largest deviation from the A* path", unit="m",
-                                 min=0.0, max=5.0)
-    border: float = param(1.0, "stop this far inside the locally seen ground: at least the radius the next "
-                          "scan cannot see around the rover, so the legs join; halved (down to 0) where the "
-                          "seen ground is too narrow for the rover to move at all", unit="m", min=0.0, max=5.0)
+    # the planner's parameters are declared once, in prox_workflows.parameters.PlanParams (the
+    # plan_leg script and rvs-path-planner read the same declarations)
+    weight: float = reuse(PlanParams, "weight")
+    heuristic: str = reuse(PlanParams, "heuristic")
+    grid: float = reuse(PlanParams, "grid")
+    margin: float = reuse(PlanParams, "margin")
+    max_deviation: float = reuse(PlanParams, "max_deviation")
+    border: float = reuse(PlanParams, "border")
     range: list[float] = param([-180.0, 180.0, -50.0, -10.0], "view range of each leg's DEM", unit="deg",
                                length=4, min=-360.0, max=360.0, option=False)
     overlap: float = param(0.3, "view overlap of each leg's DEM", min=0.0, max=0.9, option=False)
@@ -106,6 +108,18 @@ class NavigateConfig(ModuleConfig):
                                 option=False)
     global_maps: str = param("", "folder with global hazard.tif and slope.tif (empty: blank maps)",
                              option=False)
+
+
+# What a navigate leg puts in the plan_leg script's workspace (checked at server start).
+PLAN_INPUTS = ("local", "global_maps", "ortho", "start", "goal", "start_heading", "rover_radius", "critical_slope",
+               "prefix", "made_by")
+
+
+def validate_scripts() -> None:
+    """Validate the per-leg plan script against navigate's parameters and inputs."""
+    from prox_workflows.engine import validate
+
+    validate("plan_leg", workspace=PLAN_INPUTS, param_cls=NavigateConfig)
 
 
 def _load_global(folder: str) -> Any:
@@ -159,8 +173,6 @@ def navigate(job: Job, cfg: NavigateConfig) -> dict[str, Any]:
         draw_plan,
         nearest_reachable,
         ortho_rgb,
-        plan_path,
-        write_plan,
     )
 
     from .dem import run_dem
@@ -179,6 +191,7 @@ def navigate(job: Job, cfg: NavigateConfig) -> dict[str, Any]:
                            rover_radius=math.hypot(head.rover_length, head.rover_width) / 2, margin=cfg.margin,
                            critical_slope=app.config.get("dem2hazard").slope_max,
                            max_deviation=cfg.max_deviation, border=cfg.border)
+    plan_params = {n: getattr(cfg, n) for n in PlanParams.specs()}
     dem_cfg = copy.deepcopy(app.config.get("dem_full_tof" if cfg.sensor == "tof" else "dem_full"))
     dem_cfg.range, dem_cfg.overlap = list(cfg.range), cfg.overlap
     all_paths: list[Any] = []
@@ -211,22 +224,31 @@ def navigate(job: Job, cfg: NavigateConfig) -> dict[str, Any]:
         here = (pose.x, pose.y)
         distance = math.hypot(goal[0] - pose.x, goal[1] - pose.y)
         judged: PlanningError | None = None  # the goal's verdict from too far to be final
+        prefix = app.data_path("nav", f"{name}_leg{leg}")
+        plan_inputs = {"local": local, "global_maps": global_maps, "ortho": (maps["ortho"], maps.geometry),
+                       "start": list(here),
+                       "start_heading": pose.heading, "rover_radius": params.rover_radius,
+                       "critical_slope": params.critical_slope, "prefix": prefix, "made_by": "navigate"}
+
+        def plan_leg(to: tuple[float, float], inputs: dict[str, Any] = plan_inputs) -> Any:
+            """The leg's plan and its products: the plan_leg script, as rvs-path-planner runs it."""
+            ws, _ = run_workflow("plan_leg", plan_params, {**inputs, "goal": list(to)})
+            return ws["plan"]
+
         try:
-            plan = plan_path(local, global_maps, here, goal, params, start_heading=pose.heading)
+            plan = plan_leg(goal)
         except PlanningError as exc:
             if exc.reason not in ("goal_in_hazard", "enclosed") or distance <= cfg.judge_range:
                 raise ProtocolError("E_DATA", f"goal unreachable ({exc.reason}): {exc.message}") from None
             judged = exc
             try:  # drive toward the goal, as close as the maps allow, and judge it again from there
                 toward = nearest_reachable(local, global_maps, here, goal, params)
-                plan = plan_path(local, global_maps, here, toward, params, start_heading=pose.heading)
+                plan = plan_leg(toward)
             except PlanningError:
                 raise ProtocolError("E_DATA", f"goal unreachable ({exc.reason}): {exc.message}") from None
             leg_progress(0, 1, f"goal judged unreachable ({exc.reason}) from {distance:.2f} m, farther than "
                                f"{cfg.judge_range:g} m: driving toward it to ({toward[0]:.2f}, {toward[1]:.2f}) "
                                "to judge it again from closer", "plan")
-        prefix = app.data_path("nav", f"{name}_leg{leg}")
-        write_plan(plan, str(prefix), ortho=(maps["ortho"], maps.geometry), made_by="navigate")
         driven = plan.path[: plan.cut]
         if len(plan.waypoints) < 2 or math.hypot(*(driven[-1] - driven[0])) < MIN_LEG:
             if judged is not None:  # it cannot get closer: the verdict from here stands

@@ -220,7 +220,8 @@ def test_cli_end_to_end_geotiff_opens_in_rasterio(tmp_path, capsys) -> None:
     write_cal(tmp_path / "v.cal", np.eye(3), T, (100, 10))
     out = tmp_path / "out" / "site_dem.tif"
     rc = main([str(tmp_path / "a.ply"), str(tmp_path / "b.npy"), str(tmp_path / "v.tif"), "--cell", "0.05",
-               "--bounds", "1,-1,3,1", "-o", str(out), "--noise", "tof", "--sensor", "0,0,1.2", "--preview"])
+               "--bounds", "1,-1,3,1", "-o", str(out), "--noise", "tof", "--sensor", "0,0,1.2", "--preview",
+               "--height", "max"])  # the thesis's rule; the default is the mean, as the server's
     assert rc == 0
     assert "4000 points" in capsys.readouterr().out
     with rasterio.open(out) as ds:

@@ -8,7 +8,7 @@ from prox_workflows.engine import Cancelled, WorkflowError, main, run_workflow
 
 SCRIPT = {
     "name": "demo",
-    "params": {"scale": 2, "double": True},
+    "outputs": ["scaled", "count", "doubled"],
     "steps": [
         {"step": "make", "in": {"n": 4}, "out": "items"},
         {"step": "times", "foreach": "@items", "in": {"x": "@item", "k": "$scale"}, "out": "scaled"},
@@ -24,7 +24,7 @@ STEPS = {
 
 
 def test_wiring_loops_and_conditions() -> None:
-    ws, log = run_workflow(SCRIPT, steps=STEPS)
+    ws, log = run_workflow(SCRIPT, {"scale": 2, "double": True}, steps=STEPS)
     assert ws["scaled"] == [0, 2, 4, 6] and ws["sum"] == 12 and ws["count"] == 4 and ws["doubled"] == 24
     assert [e["step"] for e in log.entries] == ["make", "times", "total", "times"]
     ws, log = run_workflow(SCRIPT, {"double": False, "scale": 10}, steps=STEPS)
@@ -40,7 +40,7 @@ def test_progress_is_per_phase_with_a_fixed_total_and_a_growing_done() -> None:
             progress(i + 1, n, f"sub {i}")
         return n
 
-    script = {"steps": [{"step": "make", "in": {"n": 3}, "out": "items"},
+    script = {"outputs": ["z", "count", "d"], "steps": [{"step": "make", "in": {"n": 3}, "out": "items"},
                         {"step": "times", "foreach": "@items", "in": {"x": "@item", "k": 1}, "out": "y"},
                         {"step": "sub", "in": {"n": 5}, "out": "z", "phase": "acquire"},
                         {"step": "total", "in": {"values": "@y"}, "out": ["sum", "count"], "phase": "sum"},
@@ -59,7 +59,7 @@ def test_progress_is_per_phase_with_a_fixed_total_and_a_growing_done() -> None:
 
 def test_a_split_phase_is_refused_before_anything_runs() -> None:
     ran: list[int] = []
-    script = {"steps": [{"step": "make", "in": {"n": 1}, "out": "a", "phase": "one"},
+    script = {"outputs": ["a", "b", "c"], "steps": [{"step": "make", "in": {"n": 1}, "out": "a", "phase": "one"},
                         {"step": "make", "in": {"n": 2}, "out": "b", "phase": "two"},
                         {"step": "make", "in": {"n": 3}, "out": "c", "phase": "one"}]}
     with pytest.raises(WorkflowError, match="phase 'one' is split"):
@@ -85,23 +85,23 @@ def test_cancellation_between_items() -> None:
 def test_errors_name_what_is_wrong() -> None:
     with pytest.raises(WorkflowError, match="unknown step 'nope'"):
         run_workflow({"steps": [{"step": "nope"}]})
-    with pytest.raises(WorkflowError, match="no parameter 'missing'"):
+    with pytest.raises(WorkflowError, match=r"parameter \$missing, which no one supplies"):
         run_workflow({"steps": [{"step": "make", "in": {"n": "$missing"}}]}, steps=STEPS)
-    with pytest.raises(WorkflowError, match="no workspace value 'ghost'"):
+    with pytest.raises(WorkflowError, match="reads @ghost, which no step makes"):
         run_workflow({"steps": [{"step": "make", "in": {"n": "@ghost"}}]}, steps=STEPS)
-    with pytest.raises(WorkflowError, match="names 3 outputs"):
+    with pytest.raises(WorkflowError, match="names 3 outputs"):  # a caller's own step declares no outputs
         run_workflow({"steps": [{"step": "make", "in": {"n": 1}, "out": ["a", "b", "c"]}]}, steps=STEPS)
 
 
 def test_rvs_prox_runs_a_script_file(tmp_path, capsys) -> None:
     script = tmp_path / "ptu.yaml"
     script.write_text(
-        "name: positions\nparams: {overlap: 0.2}\nsteps:\n"
+        "name: positions\nparams: dem\nsteps:\n"
         "  - step: get_ptu_positions\n"
         "    in: {view_range: $range, fov: [43.6, 34.6], overlap: $overlap}\n"
         "    out: positions\n"
     )
-    assert main([str(script), "--set", "range=[-60,60,-40,-10]", "--log", str(tmp_path / "run.yaml")]) == 0
+    assert main([str(script), "--set", "range=-60,60,-40,-10", "--log", str(tmp_path / "run.yaml")]) == 0
     out = capsys.readouterr().out
     assert "get_ptu_positions" in out and (tmp_path / "run.yaml").is_file()
     assert main([str(tmp_path / "missing.yaml")]) == 1

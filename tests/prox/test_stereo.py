@@ -316,6 +316,15 @@ def test_cli_end_to_end(tmp_path: Path, quarry: dict[str, Any], capsys: pytest.C
                         "--max-depth", "5", "-q"]) == 0
     npy = np.load(tmp_path / "cloud.npy")
     assert npy.shape[1] == 3 and npy[:, 2].max() <= 5.0
+    # the engine running the stereo script (rvs-stereo is its front-end) makes the same products
+    from prox_workflows.engine import run_workflow
+
+    run_workflow("stereo", None, {"left_path": tmp_path / "pair_left.png", "right_path": tmp_path / "pair_right.tif",
+                                  "calib_path": tmp_path / "calib.yaml", "max_depth": 5.0,
+                                  "sgbm": st.SgbmParams.from_dict({"scale": 0.5}).to_dict(),
+                                  "cloud_path": tmp_path / "eng.npy", "disparity_path": tmp_path / "eng.tif"})
+    assert (tmp_path / "eng.npy").read_bytes() == (tmp_path / "cloud.npy").read_bytes()
+    assert tifffile.imread(tmp_path / "eng.tif").shape == disp.shape
     assert stereo_main([str(tmp_path / "pair_left.png"), str(tmp_path / "pair_right.tif"), "--calib",
                         str(tmp_path / "missing.yaml")]) == 2
     assert "missing.yaml" in capsys.readouterr().err

@@ -1,10 +1,11 @@
 """Typed settings classes: one declaration gives the type, range, unit, help and default of a key.
 
-The server's command options and the drivers' settings are the same kind of thing (a value an
-operator types, that must be checked and explained), so they share this one mechanism: the
-server's per-module config classes and every device backend's settings class are dataclasses
-whose fields are declared with :func:`param`. It lives in ``drivers`` because imports go one
-way (the server uses the drivers, never the reverse).
+The server's command options, the drivers' settings and the workflow scripts' parameters are
+the same kind of thing (a value an operator types, that must be checked and explained), so they
+share this one mechanism: the server's per-module config classes, every device backend's
+settings class and every script's parameter class are dataclasses whose fields are declared
+with :func:`param`. It is a package of its own because ``drivers`` and ``prox_workflows`` must
+not import each other (nor the server), and both declare settings.
 
 Errors are :class:`SettingError` (a ValueError): the server turns them into ``E_ARG`` replies
 and fatal start-up messages, a console into a usage error.

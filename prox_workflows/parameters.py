@@ -1,0 +1,105 @@
+"""The parameter classes of the workflow scripts: each parameter declared once, with its default.
+
+A script names its class (``params: dem``) and reads the values as ``$cell``; the server's
+command config classes derive from these (``DemTofConfig(DemParams, ModuleConfig)``), so a
+parameter's default, range, unit and help are written here and nowhere else: ``help
+dem-full-tof`` and ``rvs-prox dem --help`` print the same list. Fields with ``option=False`` are
+settings (``config -module dem_full_tof -set spike_jump=0.04``, ``rvs-prox --set``), not request
+options.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from rvs_params import Settings, param
+
+from .params import parameters
+from .steps.dem2hazard import HazardParams
+
+parameters("hazard")(HazardParams)
+
+
+@parameters("dem")
+@dataclass
+class DemParams(Settings):
+    """A DEM from views (ToF by default): acquisition, DemImport, DemMosaik, holes, spikes."""
+
+    range: list[float] = param([-150.0, 150.0, -50.0, -15.0], "view range pan_min,pan_max,tilt_min,tilt_max",
+                               unit="deg", length=4, min=-360.0, max=360.0)
+    name: str = param("", "stem of the products (default dem_<UTC time>)", stem=True)
+    cell: float = param(0.02, "DEM cell size", unit="m", min=0.005, max=1.0)
+    overlap: float = param(0.2, "share of the field of view that neighbouring views overlap", min=0.0, max=0.9)
+    integrate: int = param(4, "ToF frames integrated per view", min=1, max=100)
+    confidence: float = param(0.3, "discard ToF pixels below this confidence", min=0.0, max=1.0)
+    max_range: float = param(4.5, "ignore points farther than this from the sensor", unit="m", min=0.3, max=30.0)
+    min_reflectivity: float = param(0.1, "drop ToF returns weaker than this share of the view's median "
+                                    "amplitude x range^2 (phase-wrapped far surfaces)", min=0.0, max=1.0,
+                                    option=False)
+    wrap_check: bool = param(True, "one more ToF frame per view at half the modulation frequency: drop returns "
+                             "from beyond the unambiguous range (a far wall read as a phantom close by)",
+                             option=False)
+    rule: str = param("fuse", "how views and the current DEM merge", choices=("fuse", "max", "newest"))
+    fill_radius: float = param(0.06, "fill holes up to this radius", unit="m", min=0.0, max=2.0)
+    mesh: bool = param(True, "also write a textured mesh (PLY)")
+    spike_jump: float = param(0.05, "a cell above (below) all its neighbours by more than this ...", unit="m",
+                              min=0.0, max=2.0, option=False)
+    spike_sigma: float = param(4.0, "... and by more than this many of its height's standard deviations ...",
+                               min=0.0, max=100.0, option=False)
+    spike_points: int = param(3, "... with at most this many points is a spike: made undefined, then filled",
+                              min=0, max=1000, option=False)
+
+
+@parameters("dem_stereo")
+@dataclass
+class DemStereoParams(DemParams):
+    """dem-full / dem-update: the DEM parameters, plus the stereo ones."""
+
+    sensor: str = param("stereo", "sensor: the stereo pair, or stereo and ToF fused", choices=("stereo", "fused"))
+    max_range: float = param(6.0, "ignore points farther than this from the sensor", unit="m", min=0.3, max=30.0)
+    resolution: str = param("low", "stereo resolution mode", choices=("low", "medium", "high", "highest"))
+    stereo_scale: float = param(1.0, "matching scale (0.5: half resolution, faster)", min=0.25, max=1.0,
+                                option=False)
+
+
+@parameters("dem_import")
+@dataclass
+class DemImportParams(Settings):
+    """DemImport of point clouds into one DEM (``rvs-dem-import``)."""
+
+    cell: float = param(0.02, "DEM cell size", unit="m", min=0.0001, max=100.0)
+    height: str = param("mean", "what the dem layer holds: the (information-weighted) mean height of the "
+                        "cell's points, or the greatest (the thesis's direct rule)", choices=("mean", "max"))
+
+
+@parameters("dem_mosaik")
+@dataclass
+class DemMosaikParams(Settings):
+    """DemMosaik of DEM products into one (``rvs-dem-mosaik``)."""
+
+    rule: str = param("max", "merge rule", choices=("max", "newest", "fuse"))
+    cell: float = param(0.0, "output cell size (0: the finest input's)", unit="m", min=0.0, max=100.0)
+    sigma: float = param(0.01, "fuse: height sigma of inputs without a measurement variance layer", unit="m",
+                         min=1e-6, max=10.0)
+    gate: float = param(3.0, "fuse: Mahalanobis gate", min=0.0, max=1000.0)
+    inflation: float = param(0.0025, "fuse: variance added to the prior when a measurement is rejected",
+                             unit="m^2", min=0.0, max=100.0)
+    on_conflict: str = param("inflate", "fuse: reject and inflate (separate scans) or let the higher win "
+                             "(views of one scan)", choices=("inflate", "higher"))
+    fill: float = param(0.0, "fill holes narrower than a disk of this radius", unit="m", min=0.0, max=100.0)
+
+
+@parameters("plan")
+@dataclass
+class PlanParams(Settings):
+    """Path planning on hazard and slope maps (a navigate leg, ``rvs-path-planner``)."""
+
+    weight: float = param(0.5, "A* weight w: 1 distance only, 0 environmental cost only", min=0.0, max=1.0)
+    heuristic: str = param("octile", "A* heuristic", choices=("euclidean", "manhattan", "octile"))
+    grid: float = param(0.05, "planning cell size", unit="m", min=0.01, max=1.0)
+    margin: float = param(0.1, "added to the rover radius around hazards", unit="m", min=0.0, max=2.0)
+    max_deviation: float = param(0.1, "waypoint polyline's largest deviation from the A* path", unit="m",
+                                 min=0.0, max=5.0)
+    border: float = param(1.0, "stop this far inside the locally seen ground: at least the radius the next "
+                          "scan cannot see around the rover, so the legs join; halved (down to 0) where the "
+                          "seen ground is too narrow for the rover to move at all", unit="m", min=0.0, max=5.0)

@@ -1,0 +1,56 @@
+"""Parameters declared once: a workflow script's parameter class, registered by name.
+
+A parameter class (a :class:`rvs_params.Settings` dataclass of :func:`rvs_params.param`
+fields) is the one declaration of a workflow's parameters and their defaults: a script names its
+class (``params: dem``) and receives the values as ``$cell`` etc.; ``rvs-prox SCRIPT --help``
+lists the class; the server's per-command config classes (``rvs_server/commands/*.py``) derive
+from it, so ``help dem-full-tof`` lists the same parameters with the same defaults, and its E_ARG
+checks are the same ``ParamSpec.parse``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Callable
+from dataclasses import field, fields
+from typing import Any
+
+from rvs_params import Settings
+
+
+def show_value(value: Any) -> str:
+    """A default as it is typed on the wire (true, 0.3, -150,150,-50,-15); "" for none, whose
+    meaning the option's help gives (default tof_<UTC time>, keep the axis)."""
+    if isinstance(value, float) and value != value:
+        return ""
+    if isinstance(value, list | tuple):
+        return ",".join(show_value(v) for v in value)
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, float):
+        return format(value, "g")
+    return str(value) if value != "" else ""
+
+
+def reuse(cls: type[Settings], name: str) -> Any:
+    """A field declared as ``cls.<name>`` is, for a class that cannot derive from ``cls`` (its
+    own fields come first, and their order is its help's): the same default and metadata, so
+    the declaration still lives in one place."""
+    f = next(f for f in fields(cls) if f.name == name)
+    if f.default_factory is not dataclasses.MISSING:  # type: ignore[misc]
+        return field(default_factory=f.default_factory, metadata=f.metadata)  # type: ignore[misc]
+    return field(default=f.default, metadata=f.metadata)
+
+
+# Parameter classes of the workflow scripts, by the name a script's ``params:`` gives.
+PARAMETER_SETS: dict[str, type[Settings]] = {}
+
+
+def parameters(name: str) -> Callable[[type[Settings]], type[Settings]]:
+    """Register a parameter class under the name scripts use (``params: dem``)."""
+
+    def register(cls: type[Settings]) -> type[Settings]:
+        PARAMETER_SETS[name] = cls
+        return cls
+
+    return register

@@ -1,0 +1,175 @@
+"""Readers: the steps that say where a script's data comes from (as PDAL's readers are stages).
+
+``read_views`` turns a recorded views folder (what a DEM job's acquisition wrote: coordinate
+images, their companions, ``.cal`` files, the image list and the scan's pose) back into the
+views the server processed live, value for value; ``read_layers`` reads a DEM product and its
+companion layers; ``read_points`` stacks point clouds for DemImport.
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import tifffile
+import yaml
+
+from ..engine import step
+from ..grid import GDAL_NODATA, Layers, read_geotiff
+from ..layers import read_layers as _read_layers
+from ..pointcloud import read_points as _read_points
+from .acquire import AUX_SUFFIX, View, view_from_images
+from .noise import tof_sigma
+from .transforms import read_cal
+
+
+@step("read_views", inputs={"folder": "path"}, outputs={"views": "list[View]", "rover_mask": "array?"})
+def read_views(folder: str | Path) -> dict[str, Any]:
+    """The views of a recorded folder in the order they were taken, and the rover mask the
+    scan used (from ``*_scan.yaml``)."""
+    folder = Path(folder)
+    lists = sorted(folder.glob("*_images.csv"))
+    if not lists:
+        raise FileNotFoundError(f"{folder}: no *_images.csv (is this a DEM job's views folder?)")
+    views: list[View] = []
+    for listing in lists:
+        with open(listing, newline="") as fh:
+            for row in csv.DictReader(fh):
+                image = folder / row["file"]
+                coords = tifffile.imread(image)
+                aux_path = image.with_name(image.stem + AUX_SUFFIX)
+                if not aux_path.is_file():
+                    raise FileNotFoundError(f"{aux_path}: the view's companion image is missing")
+                view = view_from_images(len(views), coords, tifffile.imread(aux_path), read_cal(folder / row["cal"]))
+                view.files = {"image": row["file"], "cal": row["cal"]}
+                views.append(view)
+    mask = None
+    scans = sorted(folder.glob("*_scan.yaml"))
+    if scans:
+        info = yaml.safe_load(scans[0].read_text()) or {}
+        if info.get("rover_mask") is not None:
+            mask = np.asarray(info["rover_mask"], dtype=float)
+    return {"views": views, "rover_mask": mask}
+
+
+@step("read_layers", inputs={"path": "path"}, outputs={"layers": "Layers"})
+def read_layers(path: str | Path) -> Layers:
+    """A DEM GeoTIFF and its companion layers (the layer registry's names beside it)."""
+    return _read_layers(Path(path))
+
+
+@step("read_dem", inputs={"path": "path", "nodata": "float?"}, outputs={"layers": "Layers"})
+def read_dem(path: str | Path, nodata: float | None = None) -> Layers:
+    """A single-band DEM GeoTIFF (ours or GDAL's) as a lone ``dem`` layer, float32 with NaN
+    where undefined (the file's GDAL nodata value, or ``nodata``)."""
+    image, geometry = read_geotiff(Path(path))
+    if image.ndim != 2:
+        raise ValueError(f"{path}: expected a single-band DEM, got shape {image.shape}")
+    if nodata is None:
+        with tifffile.TiffFile(path) as tif:
+            tag = tif.pages[0].tags.get(GDAL_NODATA)
+            if tag is not None:
+                try:
+                    nodata = float(str(tag.value).strip("\x00 "))
+                except ValueError:
+                    nodata = None
+    dem = image.astype(np.float32)
+    if nodata is not None and not math.isnan(nodata):
+        dem[image == nodata] = np.nan
+    return Layers(geometry, {"dem": dem})
+
+
+@step("read_points", inputs={"paths": "list", "noise": "str", "sensor": "floats?", "frequency": "float"},
+      outputs={"points": "array", "variance": "array?"})
+def read_points(paths: list[str | Path], noise: str = "recorded", sensor: list[float] | None = None,
+                frequency: float = 30.0) -> dict[str, Any]:
+    """All inputs' points stacked (N x 3, or N x 4 if every input has intensity) and each
+    point's height variance: ``recorded`` takes the variances a DEM job recorded beside its
+    views (the server's own noise model; none if absent), ``tof`` computes them with the ToF
+    noise model (sensor position from the ``.cal`` beside an input, or ``sensor``), ``none``
+    gives no variances."""
+    if noise not in ("recorded", "tof", "none"):
+        raise ValueError(f"noise must be recorded, tof or none, not {noise!r}")
+    clouds: list[np.ndarray] = []
+    variances: list[np.ndarray] = []
+    for raw in paths:
+        path = Path(raw)
+        aux = path.with_name(path.stem + AUX_SUFFIX)
+        if path.suffix in (".tif", ".tiff") and aux.is_file() and noise == "recorded":
+            coords = tifffile.imread(path).reshape(-1, 4)
+            keep = np.isfinite(coords[:, 2])
+            clouds.append(np.ascontiguousarray(coords[keep]))
+            variances.append(tifffile.imread(aux).reshape(-1, 4)[keep, 0].astype(np.float64))
+            continue
+        pts = _read_points(path)
+        clouds.append(pts)
+        if noise == "tof":
+            origin = np.asarray(sensor, float) if sensor is not None else None
+            cal = path.with_suffix(".cal")
+            if cal.is_file():
+                origin = read_cal(cal)["T_global_camera"][:3, 3]
+            if origin is None:
+                raise ValueError(f"{path}: --noise tof needs the sensor position (a .cal file beside it or --sensor)")
+            rng = np.linalg.norm(pts[:, :3].astype(np.float64) - origin[None, :], axis=1)
+            amp = pts[:, 3] if pts.shape[1] == 4 else None
+            variances.append(tof_sigma(rng, amp, frequency_mhz=frequency).astype(np.float64) ** 2)
+    width = 4 if clouds and all(c.shape[1] == 4 for c in clouds) else 3
+    points = np.concatenate([c[:, :width] for c in clouds]) if clouds else np.zeros((0, 3), np.float32)
+    variance = np.concatenate(variances) if variances and len(variances) == len(clouds) else None
+    return {"points": points, "variance": variance}
+
+
+def _read_map_layer(path: Path) -> tuple[np.ndarray, Any]:
+    """A single-band GeoTIFF; float layers get NaN where the file's GDAL nodata value is."""
+    image, geometry = read_geotiff(path)
+    if image.ndim != 2:
+        raise ValueError(f"{path}: expected a single-band map, got shape {image.shape}")
+    if np.issubdtype(image.dtype, np.floating):
+        with tifffile.TiffFile(path) as tif:
+            tag = tif.pages[0].tags.get(GDAL_NODATA)
+        if tag is not None:
+            try:
+                nodata = float(str(tag.value).strip("\x00 "))
+            except ValueError:
+                nodata = math.nan
+            if not math.isnan(nodata):
+                image = np.where(image == nodata, np.nan, image)
+        image = image.astype(np.float32)
+    return image, geometry
+
+
+@step("read_global_maps", inputs={"hazard": "path?", "slope": "path?"}, outputs={"maps": "NavMaps?"})
+def read_global_maps(hazard: str | Path | None, slope: str | Path | None) -> Any:
+    """Global maps (as :func:`read_nav_maps`) if given; None means blank ones."""
+    if hazard is None and slope is None:
+        return None
+    if hazard is None or slope is None:
+        raise ValueError("a hazard map and its slope map go together")
+    return read_nav_maps(hazard, slope)
+
+
+@step("read_nav_maps", inputs={"hazard": "path", "slope": "path"}, outputs={"maps": "NavMaps"})
+def read_nav_maps(hazard: str | Path, slope: str | Path) -> Any:
+    """A hazard map (0 / 128 / 255) and its slope map (degrees) on the same grid, as the planner
+    takes them."""
+    from .planner import NavMaps
+
+    hz, hgeom = _read_map_layer(Path(hazard))
+    sl, sgeom = _read_map_layer(Path(slope))
+    if hgeom != sgeom:
+        raise ValueError(f"{hazard} and {slope} are on different grids ({hgeom} vs {sgeom})")
+    if np.issubdtype(hz.dtype, np.floating):
+        hz = np.where(np.isnan(hz), 128, hz)
+    values = set(np.unique(hz).tolist())
+    if not values <= {0, 128, 255}:
+        raise ValueError(f"{hazard}: a hazard map holds 0, 128 and 255 only, found {sorted(values)[:8]}")
+    return NavMaps(hz.astype(np.uint8), sl.astype(np.float32), hgeom)
+
+
+@step("read_image", inputs={"path": "path?"}, outputs={"image": "any"})
+def read_image(path: str | Path | None) -> Any:
+    """A GeoTIFF image and its grid (an ortho-image to draw on), or None without a path."""
+    return None if path is None else read_geotiff(Path(path))
