@@ -18,8 +18,8 @@ import cv2
 import numpy as np
 
 from prox_workflows.grid import GridGeometry, read_geotiff
+from prox_workflows.layers import style_of
 from prox_workflows.mapview import Style, layer_rgba
-from prox_workflows.steps.colormaps import RED_YELLOW_GREEN
 
 MAX_SIDE = 2048  # larger layers are reduced: a browser draws 2048 px as fast as it needs to
 
@@ -40,31 +40,22 @@ def version_of(path: Path) -> str:
     return f"{st.st_mtime_ns:x}-{st.st_size:x}-{st.st_ino:x}"
 
 
-STYLES: dict[str, Style] = {
-    "dem": Style("shaded", cv2.COLORMAP_TURBO, unit="m (height, hill-shaded)"),
-    "hazard": Style("classes"),
-    "ortho": Style("grey"),
-    "traversability": Style("continuous", RED_YELLOW_GREEN, 0.0, 1.0, "score (0 blocked, 1 good)"),
-    "slope": Style("continuous", cv2.COLORMAP_INFERNO, unit="deg"),
-    "step": Style("continuous", cv2.COLORMAP_INFERNO, unit="m"),
-    "roughness": Style("continuous", cv2.COLORMAP_INFERNO, unit="m"),
-    "variance": Style("continuous", unit="m²"),
-    "count": Style("continuous", unit="points"),
-    "global_hazard": Style("classes"),
-}
-
-
 def _reduce(values: np.ndarray) -> np.ndarray:
     h, w = values.shape[:2]
     step = max(1, int(np.ceil(max(h, w) / MAX_SIDE)))
     return values[::step, ::step] if step > 1 else values
 
 
-def render_layer(name: str, values: np.ndarray, geometry: GridGeometry) -> tuple[np.ndarray, dict[str, Any]]:
-    """RGBA uint8 of one layer and its legend, by what the layer means (its name is its kind)."""
+def render_layer(name: str, values: np.ndarray, geometry: GridGeometry,
+                 meta: dict[str, Any] | None = None) -> tuple[np.ndarray, dict[str, Any]]:
+    """RGBA uint8 of one layer and its legend, styled by the layer registry (as the previews)."""
     reduced = _reduce(values)
     cell = geometry.cell * geometry.width / reduced.shape[1]
-    return layer_rgba(reduced, STYLES.get(name, Style()), cell)
+    try:
+        style = style_of("hazard" if name == "global_hazard" else name, meta)
+    except KeyError:  # a layer the registry does not know: a plain colour ramp
+        style = Style()
+    return layer_rgba(reduced, style, cell)
 
 
 def encode_png(rgba: np.ndarray) -> bytes:

@@ -93,10 +93,12 @@ def bench_render(tmp: Path) -> None:
 
 
 class Server:
-    def __init__(self, data: Path, web_port: int, cell: float) -> None:
+    """rvs-server on its own loop thread, with its console on ``web_port``."""
+
+    def __init__(self, data: Path, web_port: int, cell: float, sets: list[str] | None = None) -> None:
         self.store = build_config(None, [f"server.data={data}", "server.port=0", f"server.web_port={web_port}",
                                          "server.warm_up=false", "drivers.ptu.time_scale=0", "server.scene=office",
-                                         f"dem_full_tof.cell={cell}"])
+                                         f"dem_full_tof.cell={cell}", *(sets or [])])
         self.port = 0
         self.app: Any = None
         self.ready = threading.Event()
