@@ -148,19 +148,27 @@ def write_geotiff(path: Path, image: np.ndarray, geometry: GridGeometry, nodata:
     return write_atomic(Path(path), write)
 
 
+def _geometry_of(page: Any, path: Path) -> GridGeometry:
+    scale = page.tags.get(MODEL_PIXEL_SCALE)
+    tie = page.tags.get(MODEL_TIEPOINT)
+    if scale is None or tie is None:
+        raise ValueError(f"{path} has no GeoTIFF georeferencing (ModelPixelScale/ModelTiepoint)")
+    sx, sy = scale.value[0], scale.value[1]
+    i, j, _, x, y, _ = tie.value[:6]
+    if not math.isclose(sx, sy, rel_tol=1e-9):
+        raise ValueError(f"{path}: non-square cells ({sx} x {sy}) are not supported")
+    return GridGeometry(float(sx), float(x - i * sx), float(y + j * sy), int(page.shape[1]), int(page.shape[0]))
+
+
 def read_geotiff(path: Path) -> tuple[np.ndarray, GridGeometry]:
     """Read a GeoTIFF written here or by GDAL (north-up, no rotation)."""
     with tifffile.TiffFile(path) as tif:
         page = tif.pages[0]
-        image = page.asarray()
-        scale = page.tags.get(MODEL_PIXEL_SCALE)
-        tie = page.tags.get(MODEL_TIEPOINT)
-        if scale is None or tie is None:
-            raise ValueError(f"{path} has no GeoTIFF georeferencing (ModelPixelScale/ModelTiepoint)")
-        sx, sy = scale.value[0], scale.value[1]
-        i, j, _, x, y, _ = tie.value[:6]
-        if not math.isclose(sx, sy, rel_tol=1e-9):
-            raise ValueError(f"{path}: non-square cells ({sx} x {sy}) are not supported")
-    xmin = x - i * sx
-    ymax = y + j * sy
-    return image, GridGeometry(float(sx), float(xmin), float(ymax), image.shape[1], image.shape[0])
+        geometry = _geometry_of(page, path)
+        return page.asarray(), geometry
+
+
+def read_geotiff_geometry(path: Path) -> GridGeometry:
+    """The grid of a GeoTIFF from its header alone (a map view places a layer without its data)."""
+    with tifffile.TiffFile(path) as tif:
+        return _geometry_of(tif.pages[0], path)

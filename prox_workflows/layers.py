@@ -20,6 +20,7 @@ import numpy as np
 import yaml
 
 from .grid import GridGeometry, Layers, read_geotiff, write_geotiff
+from .mapview import Marks, Style, figure, layer_rgba
 from .products import write_png, write_sidecar
 from .steps import colormaps
 
@@ -97,40 +98,73 @@ def stored(name: str, image: np.ndarray) -> np.ndarray:
     return data if data.dtype == dtype else data.astype(dtype)
 
 
-def preview(name: str, image: np.ndarray, meta: dict[str, Any] | None = None) -> np.ndarray | None:
-    """The layer's RGB preview by its registry rule, with colour bar or legend (None: no preview)."""
+def style_of(name: str, meta: dict[str, Any] | None = None) -> Style:
+    """How a layer is drawn for people (console and preview PNGs), from its registry entry: a
+    layer with a Dem2Hazard threshold spans 0..2x the threshold with the threshold marked."""
     spec = spec_of(name)
-    data = np.asarray(image)
-    if spec.preview == "none":
-        return None
     if spec.preview == "classes":
-        total = max(data.size, 1)
-        shares = {"safe": float((data == 0).sum()) / total, "hazardous": float((data == 255).sum()) / total,
-                  "undefined": float((data == 128).sum()) / total}
-        return colormaps.classes_preview(data, title=name, shares=shares)
+        return Style("classes")
     if spec.preview == "grey":
-        grey = colormaps.fit_size(cv2.cvtColor(data.astype(np.uint8), cv2.COLOR_GRAY2RGB))
-        return colormaps.with_legend(grey, [((0, 0, 0), "unseen")], "ortho-image")
-    lo, hi, marks = spec.lo, spec.hi, None
+        return Style("grey", unit=spec.unit)
+    lo, hi, marks = spec.lo, spec.hi, ()
     thresholds = (meta or {}).get("dem2hazard") or {}
     if spec.threshold and spec.threshold in thresholds:
         crit = float(thresholds[spec.threshold])
-        lo, hi, marks = 0.0, 2 * crit, {crit: "max"}
-    return colormaps.layer_preview(data.astype(np.float32), lo, hi,
-                                   spec.colormap if spec.colormap is not None else cv2.COLORMAP_BONE,
-                                   title=name, units=spec.unit, marks=marks, clipped=spec.clipped)
+        lo, hi, marks = 0.0, 2 * crit, ((crit, "max"),)
+    colormap = spec.colormap if spec.colormap is not None else cv2.COLORMAP_BONE
+    return Style("shaded" if name == "dem" else "continuous", colormap, lo, hi, spec.unit, marks)
+
+
+def rover_meta(mask: Any) -> dict[str, float] | None:
+    """The rover as a DEM's meta records it, from the footprint polygon its scan masked out
+    (front-left, rear-left, rear-right, front-right corners, as the server builds it): in the
+    meta, every product made from the DEM later (rvs-dem2hazard, a reprocessing) draws it too."""
+    if mask is None:
+        return None
+    poly = np.asarray(mask, dtype=np.float64)
+    if poly.shape != (4, 2):
+        return None
+    centre = poly.mean(axis=0)
+    front = (poly[0] + poly[3]) / 2
+    return {"x": round(float(centre[0]), 4), "y": round(float(centre[1]), 4),
+            "heading": round(float(np.degrees(np.arctan2(front[1] - centre[1], front[0] - centre[0]))), 3),
+            "length": round(float(np.linalg.norm(poly[0] - poly[1])), 4),
+            "width": round(float(np.linalg.norm(poly[0] - poly[3])), 4)}
+
+
+def marks_of(meta: dict[str, Any] | None) -> Marks | None:
+    """What a DEM's previews draw over the map, from its meta (the rover, if a scan recorded it)."""
+    rover = (meta or {}).get("rover")
+    if not isinstance(rover, dict):
+        return None
+    return Marks(rover=(rover["x"], rover["y"], rover["heading"]), rover_size=(rover["length"], rover["width"]))
+
+
+def preview(name: str, image: np.ndarray, geometry: GridGeometry, meta: dict[str, Any] | None = None,
+            marks: Marks | None = None) -> np.ndarray | None:
+    """The layer's operator-ready RGB picture (None: the registry says no preview): the same
+    colours as the console, unseen cells hatched, axes in metres, scale bar, north arrow, the
+    rover, and a legend that matches (:func:`prox_workflows.mapview.figure`)."""
+    spec = spec_of(name)
+    if spec.preview == "none":
+        return None
+    rgba, legend = layer_rgba(np.asarray(image), style_of(name, meta), geometry.cell)
+    title = f"{name} ({spec.unit})" if spec.unit and spec.preview != "classes" else name
+    return figure(rgba, geometry, legend, title, marks)
 
 
 def write_layer(path: Path, name: str, image: np.ndarray, geometry: GridGeometry, *, made_by: str,
                 parameters: dict[str, Any] | None = None, inputs: list[str] | None = None,
-                context: dict[str, Any] | None = None, png: bool = True, **extra: Any) -> Path:
+                context: dict[str, Any] | None = None, png: bool = True, marks: Marks | None = None,
+                **extra: Any) -> Path:
     """One layer as a GeoTIFF (registry dtype and nodata), its sidecar and its PNG preview;
-    ``context`` is the layers' meta (the Dem2Hazard thresholds a preview marks)."""
+    ``context`` is the layers' meta (the Dem2Hazard thresholds a preview marks), ``marks`` what
+    the preview draws over the map (the rover)."""
     spec = spec_of(name)
     data = stored(name, image)
     path = write_geotiff(Path(path), data, geometry, nodata=spec.nodata)
     if png:
-        rgb = preview(name, data, context)
+        rgb = preview(name, data, geometry, context, marks)
         if rgb is not None:
             write_png(path.with_suffix(".png"), rgb)
     write_sidecar(path, made_by, parameters, inputs, layer=name, unit=spec.unit, meaning=spec.meaning,
@@ -179,7 +213,7 @@ def write_layers(dem_path: Path, layers: Layers, made_by: str, parameters: dict[
         if name == "hazard" and summary:
             extra["shares"] = {k: round(float(v), 6) for k, v in summary.items()}
         write_layer(files[name], name, layers[name], g, made_by=made_by, parameters=parameters, inputs=inputs,
-                    context=layers.meta, png=png, **extra)
+                    context=layers.meta, png=png, marks=marks_of(layers.meta), **extra)
     return files
 
 

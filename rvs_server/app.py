@@ -38,6 +38,7 @@ if TYPE_CHECKING:
     from prox_workflows.steps.tracking import Detection
 
     from .server import Connection
+    from .web.console import WebConsole
 
 log = structlog.get_logger("rvs")
 
@@ -151,6 +152,7 @@ class App:
     track_target: Shared[Detection | None]  # what track3d-detect found, where track3d-start begins
     monitors: Monitors  # hazard monitor, target tracker (event loop only)
     recovery: RecoverySets  # break's recovery sets and the newest of them
+    console: WebConsole | None  # the operator web console, when server.web_port is set (event loop)
 
     def __init__(
         self,
@@ -174,6 +176,7 @@ class App:
         self.connections = set()
         self.last_used_hardware = False
         self.last_ptu = None
+        self.console = None
         self.stopping = asyncio.Event()
         self._quitting = False
         self._base_mode = "ready"
@@ -249,6 +252,21 @@ class App:
         for conn in list(self.connections):
             if conn.events:
                 conn.send(reply)
+
+    def job_reply(self, conn: Connection, reply: Reply) -> None:
+        """A line of a job: to the connection that started it, and to every connection that
+        watches all jobs (the web console's pages; loop only)."""
+        conn.send(reply)
+        for other in list(self.connections):
+            if other.observes_jobs and other is not conn:
+                other.observe(reply)
+
+    async def start_console(self, sock: Any) -> None:
+        """Serve the operator web console on ``sock`` (bound by the caller, as the TCP port is)."""
+        from .web.console import WebConsole
+
+        self.console = WebConsole(self)
+        await self.console.start(sock)
 
     def broadcast_threadsafe(self, reply: Reply) -> None:
         self.loop.call_soon_threadsafe(self.broadcast, reply)
@@ -425,13 +443,13 @@ class App:
 
         def emit(status: str, fields: dict[str, Any]) -> None:
             reply = Reply(module, status, {"job": job_id, **fields}, tag)
-            self.loop.call_soon_threadsafe(conn.send, reply)
+            self.loop.call_soon_threadsafe(self.job_reply, conn, reply)
 
         params = cfg.as_dict() if cfg is not None else {}
         context = {"conn": conn.id, "peer": conn.peer, "command": cmd.name, "job": job_id, "tag": tag}
         job = Job(job_id, cmd.name, module, params, tag, emit, uses_hardware=cmd.klass in (HARDWARE, CONTROL),
                   connection=conn.id, app=self, log_context=context)
-        conn.send(Reply(module, "ACK", {"job": job_id}, tag))
+        self.job_reply(conn, Reply(module, "ACK", {"job": job_id}, tag))
         conn.jobs_running += 1
         conn.jobs_started += 1
         jlog = conn.log.bind(command=cmd.name, job=job_id, tag=tag)
@@ -445,7 +463,7 @@ class App:
             if cmd.klass != ALWAYS:
                 self.last_used_hardware = j.uses_hardware
             if error is None:
-                conn.send(Reply(module, "OK", {"job": j.id, **(result or {})}, tag))
+                self.job_reply(conn, Reply(module, "OK", {"job": j.id, **(result or {})}, tag))
                 jlog.info("job_ok", seconds=round(time.monotonic() - j.started, 3))
             else:
                 fields, device_failed = error_fields(error)
@@ -454,7 +472,7 @@ class App:
                         self.device_failed(error.device, error.message)
                     else:
                         self._base_mode = "fault"
-                conn.send(Reply(module, "ERROR", {"job": j.id, **fields}, tag))
+                self.job_reply(conn, Reply(module, "ERROR", {"job": j.id, **fields}, tag))
                 jlog.warning("job_error", code=fields["code"], error=fields["message"])
             self.announce_mode()
             conn.jobs_running -= 1

@@ -199,6 +199,10 @@ class ServerConfig(ModuleConfig):
     log_file: str = param("rvs.log", "log file, relative to the data directory", protected=True)
     shared_dir: str = param("shared", "where logbook copies go, relative to the data directory", protected=True)
     warm_up: bool = param(True, "compile or load the numba kernels (DemImport, A*) in the background at start")
+    web_port: int = param(7071, "operator web console port, on the same host (0: no console)", min=0, max=65535,
+                          protected=True)
+    web_public: bool = param(False, "serve the console on a non-loopback host even without a token (anyone who "
+                             "reaches the port can drive the rover)", protected=True)
 
 
 def _drivers_config() -> type[ModuleConfig]:

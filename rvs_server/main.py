@@ -15,6 +15,7 @@ from .config import STANDALONE, ConfigStore, ModuleConfig
 from .logs import setup as setup_logging
 from .server import listen, serve
 from .table import COMMANDS
+from .web.console import console_host
 
 
 def config_classes() -> list[type[ModuleConfig]]:
@@ -88,7 +89,16 @@ async def run(store: ConfigStore, *, ready: Callable[[int], None] | None = None,
         sock = listen(server.host, server.port)
     except OSError as exc:
         raise StartupError(f"cannot listen on {server.host}:{server.port}: {exc}") from exc
-    return await serve(app, sock, ready=ready, handle_signals=handle_signals)
+    web_sock = None
+    if server.web_port:
+        host = console_host(server.host, server.token, server.web_public)
+        try:
+            web_sock = listen(host, server.web_port)
+        except OSError as exc:
+            sock.close()
+            raise StartupError(f"cannot serve the web console on {host}:{server.web_port}: {exc}; "
+                               "set server.web_port to a free port, or 0 to turn the console off") from exc
+    return await serve(app, sock, ready=ready, handle_signals=handle_signals, web_sock=web_sock)
 
 
 def parse_args(argv: list[str] | None) -> argparse.Namespace:

@@ -38,10 +38,17 @@ MAX_OUTPUT_BYTES = 8 * 1024 * 1024  # a client that reads nothing is dropped pas
 _conn_ids = itertools.count(1)
 
 
+def next_connection_id() -> int:
+    """Connection numbers are shared by TCP clients and web pages: logs name each one once."""
+    return next(_conn_ids)
+
+
 class Connection(asyncio.Protocol):
+    observes_jobs = False  # a TCP client gets the lines of its own jobs only
+
     def __init__(self, app: App) -> None:
         self.app = app
-        self.id = next(_conn_ids)
+        self.id = next_connection_id()
         self.transport: asyncio.Transport | None = None
         self.splitter = LineSplitter(app.server_cfg.max_line)
         self.pending: deque[bytes | None | Telnet] = deque()
@@ -221,7 +228,8 @@ def listen(host: str, port: int) -> socket.socket:
     return socket.create_server((host, port), family=family, backlog=512)
 
 
-async def serve(app: App, sock: socket.socket, *, ready: Any = None, handle_signals: bool = True) -> int:
+async def serve(app: App, sock: socket.socket, *, ready: Any = None, handle_signals: bool = True,
+                web_sock: socket.socket | None = None) -> int:
     """Open the devices, serve until quit or a signal; returns the exit status."""
     loop = asyncio.get_running_loop()
     bound = sock.getsockname()
@@ -236,6 +244,8 @@ async def serve(app: App, sock: socket.socket, *, ready: Any = None, handle_sign
     if not app.devices.healthy():
         app.set_mode("fault")
     server = await loop.create_server(lambda: Connection(app), sock=sock, backlog=512)
+    if web_sock is not None:
+        await app.start_console(web_sock)
     if app.server_cfg.warm_up:
         loop.run_in_executor(None, warm_up_kernels)  # the first DEM or plan then skips the JIT
     if ready is not None:
@@ -245,6 +255,8 @@ async def serve(app: App, sock: socket.socket, *, ready: Any = None, handle_sign
     finally:
         log.info("shutting_down")
         await app.interrupt()
+        if app.console is not None:
+            await app.console.close()
         server.close()
         for conn in list(app.connections):
             conn.close()

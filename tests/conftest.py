@@ -109,6 +109,12 @@ class LineClient:
                 return out
             out.append(r)
 
+    def __enter__(self) -> LineClient:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
     def close(self) -> None:
         self.sock.close()
 
@@ -119,7 +125,7 @@ class ServerThread:
     def __init__(self, data: Path, overrides: list[str] | None = None, config_dir: str | None = None) -> None:
         # warm_up off: a hundred short-lived test servers would each load the numba kernels
         sets = [f"server.data={data}", "server.port=0", "drivers.ptu.time_scale=0", "server.warm_up=false",
-                *(overrides or [])]
+                "server.web_port=0", *(overrides or [])]
         self.store = build_config(config_dir, sets)
         self.data = data
         self.port = 0

@@ -8,22 +8,14 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
 from ..engine import step
 from ..grid import Layers
-from ..layers import preview as _preview
-from ..layers import write_layers
+from ..layers import rover_meta, write_layers
 from .mesh import dem_mesh, write_mesh_ply
 
 # what a DEM job publishes (the server's products); the other registered layers are a script's choice
 DEM_PRODUCTS = ("dem", "variance", "count", "filled", "ortho", "slope", "step", "roughness", "hazard",
                 "traversability")
-
-
-def layer_preview(name: str, image: np.ndarray, meta: dict[str, Any] | None = None) -> np.ndarray | None:
-    """An RGB preview with its colour bar or legend, naming the layer and its unit."""
-    return _preview(name, image, meta)
 
 
 def write_dem_products(
@@ -39,13 +31,18 @@ def write_dem_products(
     select: list[str] | tuple[str, ...] | None = DEM_PRODUCTS,
     preview: bool = True,
     dem_file: str | None = None,
+    rover_mask: Any = None,
 ) -> dict[str, Path]:
     """Write the selected layers (all registered ones present if ``select`` is None) as
     ``<out_dir>/<name>_<layer>.tif`` (the DEM as ``dem_file`` if given); returns layer name ->
-    GeoTIFF path (and "mesh" -> PLY)."""
+    GeoTIFF path (and "mesh" -> PLY). ``rover_mask``, the footprint a scan masked out, is
+    recorded in the DEM's meta as the rover, which the previews draw."""
     out_dir = Path(out_dir)
     g = layers.geometry
     dem_path = out_dir / (dem_file or f"{name}_dem.tif")
+    rover = rover_meta(rover_mask)
+    if rover is not None:
+        layers = Layers(layers.geometry, dict(layers.layers), {**layers.meta, "rover": rover})
     written: dict[str, Path] = write_layers(dem_path, layers, made_by=made_by, parameters=parameters,
                                             inputs=inputs, select=select, png=preview, run_log=run_log)
     if mesh and "dem" in layers:
@@ -58,18 +55,19 @@ def write_dem_products(
 
 @step("write_products", inputs={"layers": "Layers", "out_dir": "path", "name": "str", "made_by": "str?",
                                 "parameters": "dict?", "inputs": "list?", "mesh": "bool", "select": "list?",
-                                "preview": "bool", "dem_file": "str?"},
+                                "preview": "bool", "dem_file": "str?", "rover_mask": "array?"},
       outputs={"files": "dict"})
 def write_products(layers: Layers, out_dir: str | Path, name: str, made_by: str | None = None,
                    parameters: dict[str, Any] | None = None, inputs: list[str] | None = None,
                    mesh: bool = False, select: list[str] | None = None, preview: bool = True,
-                   dem_file: str | None = None, progress: Any = None, run_log: dict[str, Any] | None = None) -> dict[str, Path]:
+                   dem_file: str | None = None, rover_mask: Any = None, progress: Any = None,
+                   run_log: dict[str, Any] | None = None) -> dict[str, Path]:
     """The writer step: the layers as products under ``out_dir`` (see :func:`write_dem_products`)."""
     if progress is not None:
         progress(0, 1, f"writing {name}")
     files = write_dem_products(layers, Path(out_dir), name, made_by=made_by or "rvs-prox", parameters=parameters, inputs=inputs,
                                run_log=run_log, mesh=mesh, select=select, preview=preview,
-                               dem_file=dem_file)
+                               dem_file=dem_file, rover_mask=rover_mask)
     if progress is not None:
         progress(1, 1, f"wrote {len(files)} files")
     return files

@@ -73,6 +73,7 @@ from scipy import ndimage
 
 from ..engine import step
 from ..grid import GridGeometry
+from ..mapview import Marks
 
 SAFE = 0
 UNDEFINED = 128
@@ -900,18 +901,13 @@ def _with_legend(img: np.ndarray) -> np.ndarray:
     return np.concatenate([img, panel], axis=0)
 
 
-def ortho_rgb(ortho: np.ndarray) -> np.ndarray:
-    """An ortho-image (grey or RGB, any dtype) as RGB uint8 (0 = unseen stays black)."""
-    from ..products import preview
+def ortho_figure(ortho: np.ndarray, geometry: GridGeometry, title: str, marks: Marks) -> np.ndarray:
+    """The ortho-image with a plan or a traverse drawn over it, as an operator-ready figure whose
+    legend names exactly what is drawn (the ortho's own colours mean only brightness)."""
+    from ..mapview import Style, figure, layer_rgba
 
-    img = np.asarray(ortho)
-    if img.ndim == 3 and img.shape[2] == 4:
-        img = img[:, :, :3]
-    if img.dtype != np.uint8:
-        img = preview(img)
-    if img.ndim == 2:
-        img = np.repeat(img[:, :, None], 3, axis=2)
-    return np.ascontiguousarray(img)
+    rgba, legend = layer_rgba(np.asarray(ortho), Style("grey"), geometry.cell)
+    return figure(rgba, geometry, legend, title, marks)
 
 
 def write_plan(result: PlanResult, prefix: str, ortho: tuple[np.ndarray, GridGeometry] | None = None,
@@ -954,7 +950,8 @@ def write_plan(result: PlanResult, prefix: str, ortho: tuple[np.ndarray, GridGeo
     write_sidecar(p, made_by, params, list(inputs), legend=list(_LEGEND))
     if ortho is not None:
         o_img, o_geom = ortho
-        rgb = draw_plan(ortho_rgb(o_img), o_geom, result.path, wp.xy, result.cut, None)
+        rgb = ortho_figure(o_img, o_geom, "plan over the ortho-image", Marks(
+            path=result.path, driven=result.cut, waypoints=wp.xy, goal=(float(result.goal[0]), float(result.goal[1]))))
         p = write_png(base.with_name(base.name + "_plan_ortho.png"), rgb)
         written.append(str(p))
         write_sidecar(p, made_by, params, list(inputs))

@@ -64,7 +64,8 @@ def read_layers(path: str | Path) -> Layers:
 @step("read_dem", inputs={"path": "path", "nodata": "float?"}, outputs={"layers": "Layers"})
 def read_dem(path: str | Path, nodata: float | None = None) -> Layers:
     """A single-band DEM GeoTIFF (ours or GDAL's) as a lone ``dem`` layer, float32 with NaN
-    where undefined (the file's GDAL nodata value, or ``nodata``)."""
+    where undefined (the file's GDAL nodata value, or ``nodata``). The rover one of our DEMs
+    recorded comes along in the meta, so products made from it draw the rover as the DEM's do."""
     image, geometry = read_geotiff(Path(path))
     if image.ndim != 2:
         raise ValueError(f"{path}: expected a single-band DEM, got shape {image.shape}")
@@ -79,7 +80,16 @@ def read_dem(path: str | Path, nodata: float | None = None) -> Layers:
     dem = image.astype(np.float32)
     if nodata is not None and not math.isnan(nodata):
         dem[image == nodata] = np.nan
-    return Layers(geometry, {"dem": dem})
+    meta: dict[str, Any] = {}
+    sidecar = Path(path).with_suffix(".yaml")
+    if sidecar.is_file():
+        try:
+            rover = ((yaml.safe_load(sidecar.read_text()) or {}).get("meta") or {}).get("rover")
+        except (yaml.YAMLError, AttributeError):
+            rover = None
+        if isinstance(rover, dict):
+            meta["rover"] = rover
+    return Layers(geometry, {"dem": dem}, meta)
 
 
 @step("read_points", inputs={"paths": "list", "noise": "str", "sensor": "floats?", "frequency": "float"},

@@ -164,15 +164,15 @@ def drive_simulated(world: Any, waypoints: Any, track: list[tuple[float, float]]
 @command("navigate", job=True, klass=HARDWARE, config=NavigateConfig, check=lambda app, cfg: _check(app, cfg),
          help="navigate to -goal: 360-degree DEM, A* plan, waypoints, wait for the rover (pose), repeat")
 def navigate(job: Job, cfg: NavigateConfig) -> dict[str, Any]:
+    from prox_workflows.mapview import Marks
     from prox_workflows.products import write_png, write_text_atomic
     from prox_workflows.steps.planner import (
         MIN_LEG,
         NavMaps,
         PlannerParams,
         PlanningError,
-        draw_plan,
         nearest_reachable,
-        ortho_rgb,
+        ortho_figure,
     )
 
     from .dem import run_dem
@@ -287,7 +287,11 @@ def navigate(job: Job, cfg: NavigateConfig) -> dict[str, Any]:
     path = np.concatenate(all_paths) if all_paths else np.zeros((0, 2))
     wps = np.concatenate(all_waypoints) if all_waypoints else np.zeros((0, 2))
     traverse = app.data_path("nav", f"{name}_traverse.png")
-    write_png(traverse, draw_plan(ortho_rgb(maps["ortho"]), maps.geometry, path, wps))
+    head = app.config.get("head")
+    write_png(traverse, ortho_figure(maps["ortho"], maps.geometry, f"traverse to ({goal[0]:g}, {goal[1]:g})",
+                                     Marks(rover=(pose.x, pose.y, pose.heading),
+                                           rover_size=(head.rover_length, head.rover_width), path=path,
+                                           waypoints=wps, track=np.asarray(track), goal=goal)))
     wfile = app.data_path("nav", f"{name}_waypoints.csv")
     write_text_atomic(wfile, "x,y,leg\n" + "".join(
         f"{x:.4f},{y:.4f},{i + 1}\n" for i, leg_wps in enumerate(all_waypoints) for x, y in leg_wps))

@@ -1,0 +1,343 @@
+"""The operator web console: an HTTP page and a WebSocket on the server's own event loop.
+
+Seed 000 sect. 4.4.4 asks for "a simple GUI, showing the global map and allowing the user to
+click the destination point". The page is a client like telnet: every button and click becomes
+a command line that goes through the same dispatcher (so the same checks, modes, token and
+errors apply), and it sees the same EVENT lines, plus the lines of every job (so an operator
+watches a job the GNC started). What a map view needs beyond the lines (pose, PTU, layers and
+their versions) comes as a state snapshot, computed once per tick for all pages and sent only
+when it changed.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import ipaddress
+import json
+import socket
+from collections import deque
+from importlib import resources
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import structlog
+from aiohttp import WSMsgType, web
+
+from prox_workflows.grid import read_geotiff_geometry
+
+from ..protocol import Reply, format_reply, format_reply_json
+from .tiles import LayerCache, version_of
+
+if TYPE_CHECKING:
+    from ..app import App
+
+log = structlog.get_logger("rvs.web")
+
+TICK = 0.2  # seconds between state snapshots (pose, PTU, progress): 5 Hz is smooth enough to watch
+MAX_QUEUED = 2000  # messages a page may lag behind before it is dropped (it reloads and catches up)
+TRACK_POINTS = 5000  # rover positions kept for the driven track
+STATIC = {"index.html": "text/html", "console.js": "text/javascript", "console.css": "text/css"}
+SHOWN_FIRST = ("dem", "hazard")  # the layers a new page shows (console.js S.visible)
+LAYER_ORDER = ("ortho", "dem", "hazard", "traversability", "slope", "step", "roughness", "variance", "count",
+               "global_hazard")
+
+
+def is_loopback(host: str) -> bool:
+    try:
+        return ipaddress.ip_address(host).is_loopback
+    except ValueError:
+        return host == "localhost"
+
+
+class WebPeer:
+    """One open page, as the dispatcher sees a connection: it sends lines and receives replies.
+
+    Replies are queued and written by one task, in order; a page that stops reading is dropped
+    rather than letting its queue grow, as a TCP client that reads nothing is.
+    """
+
+    observes_jobs = True  # also gets the lines of jobs other connections started
+
+    def __init__(self, app: App, ws: web.WebSocketResponse, peer: str, conn_id: int) -> None:
+        self.app = app
+        self.ws = ws
+        self.id = conn_id
+        self.peer = peer
+        self.log = log.bind(conn=conn_id, peer=peer, web=True)
+        self.events = True
+        self.json = True
+        self.authenticated = False
+        self.jobs_running = 0
+        self.jobs_started = 0
+        self.exiting = False
+        self.closed = False
+        self.queue: asyncio.Queue[str | None] = asyncio.Queue()
+
+    def send(self, reply: Reply, *, own: bool = True) -> None:
+        """Queue a reply line for the page (event loop only)."""
+        if self.closed:
+            return
+        if self.queue.qsize() > MAX_QUEUED:
+            self.log.warning("client_dropped", reason="page not reading its messages")
+            self.close()
+            return
+        obj = json.loads(format_reply_json(reply))
+        self.queue.put_nowait(json.dumps({"type": "reply", "own": own, "reply": obj, "text": format_reply(reply)},
+                                         separators=(",", ":")))
+
+    def observe(self, reply: Reply) -> None:
+        """A line of a job another connection started."""
+        self.send(reply, own=False)
+
+    def send_raw(self, message: str) -> None:
+        if not self.closed:
+            self.queue.put_nowait(message)
+
+    def greet(self) -> None:
+        from .. import PROTOCOL_VERSION
+
+        self.send(Reply("RVS", "EVENT", {"kind": "hello", "protocol": PROTOCOL_VERSION, "server": self.app.name,
+                                         "mode": self.app.mode}))
+
+    def close_if_done(self) -> None:
+        """A page closes when its socket does; nothing waits for its jobs' final lines."""
+
+    def close(self) -> None:
+        if not self.closed:
+            self.closed = True
+            self.queue.put_nowait(None)
+        self.app.connections.discard(self)  # type: ignore[arg-type]
+
+    async def writer(self) -> None:
+        while True:
+            message = await self.queue.get()
+            if message is None or self.ws.closed:
+                break
+            try:
+                await self.ws.send_str(message)
+            except (ConnectionError, RuntimeError):
+                break
+        self.closed = True
+
+
+class WebConsole:
+    """The console's HTTP routes, its open pages and what only the console keeps (the track)."""
+
+    def __init__(self, app: App) -> None:
+        self.app = app
+        self.pages: set[WebPeer] = set()
+        self.layers = LayerCache()
+        self.track: deque[tuple[float, float]] = deque(maxlen=TRACK_POINTS)
+        self.snapshot = ""  # the last state message sent to the pages
+        self.bounds: dict[tuple[str, str], list[float]] = {}  # (path, version) -> layer bounds
+        self.runner: web.AppRunner | None = None
+        self.port = 0
+        self._ticker: asyncio.Task[None] | None = None
+        self._to_render: list[tuple[str, Path]] = []  # new layer versions, rendered before a page asks
+        self._renderer: asyncio.Task[None] | None = None
+        self._static = {name: resources.files(__package__).joinpath("static", name).read_bytes() for name in STATIC}
+        self.web = web.Application()
+        self.web.add_routes([
+            web.get("/", self.index),
+            web.get("/static/{name}", self.static),
+            web.get("/layers/{name}.png", self.layer),
+            web.get("/api/state", self.state_json),
+            web.get("/ws", self.websocket),
+            web.get("/favicon.ico", self.favicon),
+        ])
+
+    # ------------------------------------------------------------ lifecycle
+
+    async def start(self, sock: socket.socket) -> None:
+        self.runner = web.AppRunner(self.web, access_log=None, handle_signals=False)
+        await self.runner.setup()
+        site = web.SockSite(self.runner, sock)
+        await site.start()
+        self.port = sock.getsockname()[1]
+        self._ticker = asyncio.create_task(self._tick())
+        log.info("web_console", url=f"http://{sock.getsockname()[0]}:{self.port}/")
+
+    async def close(self) -> None:
+        """Close every page's WebSocket with 'going away' (1001), then the HTTP server."""
+        for task in (self._ticker, self._renderer):
+            if task is not None:
+                task.cancel()
+        for page in list(self.pages):
+            page.close()
+            with contextlib.suppress(Exception):
+                await page.ws.close(code=1001, message=b"server stopping")
+        if self.runner is not None:
+            await self.runner.cleanup()
+
+    # ------------------------------------------------------------ state
+
+    def layer_paths(self) -> dict[str, Path]:
+        """The current map products by layer: only names the server itself recorded, so no
+        request can name a file (no path from a request reaches the file system)."""
+        out: dict[str, Path] = {}
+        root = self.app.data_dir.resolve()
+        for name, rel in self.app.maps.files().items():
+            path = (root / rel).resolve()
+            if path.suffix == ".tif" and path.is_relative_to(root) and path.is_file():
+                out[name] = path
+        glob_dir = self.app.config.get("navigate").global_maps
+        if glob_dir and (Path(glob_dir) / "hazard.tif").is_file():
+            out["global_hazard"] = Path(glob_dir) / "hazard.tif"
+        return out
+
+    def state(self) -> dict[str, Any]:
+        app = self.app
+        job = app.jobs.current
+        pose = app.pose
+        out: dict[str, Any] = {
+            "type": "state",
+            "server": app.name,
+            "mode": app.mode,
+            "job": None if job is None else {"id": job.id, "command": job.command, "phase": job.phase,
+                                             "done": job.done, "total": job.total, "tag": job.tag},
+            "pose": {"x": pose.x, "y": pose.y, "heading": pose.heading, "stopped": pose.stopped},
+            "ptu": app.ptu_position(),
+            "devices": app.devices.summary(),
+            "token": bool(app.server_cfg.token),
+        }
+        if app.world is not None:
+            t = app.world.truth()
+            out["truth"] = {"x": float(t["x"]), "y": float(t["y"]), "heading": float(t["heading"])}
+            out["ptu"] = out["ptu"] or (float(t["pan"]), float(t["tilt"]))
+            out["scene"] = app.world.scene_name
+        head = app.config.get("head")
+        out["rover"] = {"length": head.rover_length, "width": head.rover_width}
+        out["tof_hfov"] = 43.6  # SR4000 field of view (drivers.tof), drawn as the ToF's wedge
+        maps: dict[str, Any] = {}
+        for name, path in self.layer_paths().items():
+            try:
+                version = version_of(path)
+            except OSError:
+                continue
+            key = (str(path), version)
+            if key not in self.bounds:
+                self.bounds[key] = list(read_geotiff_geometry(path).bounds)
+                self._to_render.append((name, path))  # the page asks for it in a moment
+            maps[name] = {"url": f"/layers/{name}.png?v={version}", "bounds": self.bounds[key], "version": version}
+        out["maps"] = {k: maps[k] for k in sorted(maps, key=lambda n: (LAYER_ORDER + (n,)).index(n))}
+        monitors = json.loads(format_reply_json(Reply("RVS", "OK", app.monitors.status_fields())))
+        out["monitors"] = {k: v for k, v in monitors.items() if k not in ("module", "status")}
+        here = out.get("truth") or out["pose"]
+        if not self.track or (abs(self.track[-1][0] - here["x"]) + abs(self.track[-1][1] - here["y"])) > 0.02:
+            self.track.append((round(here["x"], 3), round(here["y"], 3)))
+        out["track"] = list(self.track)
+        return out
+
+    async def _prerender(self) -> None:
+        """Render new layer versions one at a time, those a page shows at first first: in
+        parallel they would compete with each other, the running job and the page's request."""
+        loop = asyncio.get_running_loop()
+        while self._to_render:
+            self._to_render.sort(key=lambda item: item[0] not in SHOWN_FIRST)
+            name, path = self._to_render.pop(0)
+            try:
+                await loop.run_in_executor(None, self.layers.get, name, path)
+            except (OSError, ValueError) as exc:
+                log.warning("layer_render_failed", layer=name, error=str(exc))
+
+    async def _tick(self) -> None:
+        while True:
+            try:
+                if self.pages:
+                    message = json.dumps(self.state(), separators=(",", ":"))
+                    if self._to_render and (self._renderer is None or self._renderer.done()):
+                        self._renderer = asyncio.create_task(self._prerender())
+                    if message != self.snapshot:
+                        self.snapshot = message
+                        for page in list(self.pages):
+                            page.send_raw(message)
+            except Exception:  # noqa: BLE001 - a snapshot bug must not stop the console
+                log.exception("web_state_failed")
+            await asyncio.sleep(TICK)
+
+    # ------------------------------------------------------------ routes
+
+    async def index(self, request: web.Request) -> web.Response:
+        return web.Response(body=self._static["index.html"], content_type="text/html",
+                            headers={"Cache-Control": "no-cache"})
+
+    async def favicon(self, request: web.Request) -> web.Response:
+        return web.Response(status=204)
+
+    async def static(self, request: web.Request) -> web.Response:
+        name = request.match_info["name"]
+        if name not in STATIC:
+            raise web.HTTPNotFound(text=f"no such file: {name[:40]}")
+        return web.Response(body=self._static[name], content_type=STATIC[name], headers={"Cache-Control": "no-cache"})
+
+    async def layer(self, request: web.Request) -> web.Response:
+        name = request.match_info["name"]
+        path = self.layer_paths().get(name)
+        if path is None:
+            raise web.HTTPNotFound(text=f"no current layer '{name[:40]}'; run dem-full-tof (or dem-full) first")
+        loop = asyncio.get_running_loop()
+        try:
+            image = await loop.run_in_executor(None, self.layers.get, name, path)
+        except (OSError, ValueError) as exc:
+            raise web.HTTPNotFound(text=f"layer '{name}' unreadable: {exc}") from None
+        return web.Response(body=image.png, content_type="image/png", headers={
+            "Cache-Control": "max-age=3600" if request.query.get("v") == image.version else "no-cache",
+            "X-Bounds": ",".join(f"{b:.6f}" for b in image.bounds),
+            "X-Legend": json.dumps(image.legend, ensure_ascii=True),
+        })
+
+    async def state_json(self, request: web.Request) -> web.Response:
+        return web.json_response(self.state())
+
+    async def websocket(self, request: web.Request) -> web.StreamResponse:
+        origin = request.headers.get("Origin")
+        if origin is not None and origin.split("://", 1)[-1] != request.host:
+            # another site's page in the operator's browser must not drive the rover
+            raise web.HTTPForbidden(text="cross-origin WebSocket refused; open the console from this server")
+        app = self.app
+        if len(app.connections) >= app.server_cfg.max_clients:
+            raise web.HTTPServiceUnavailable(text=f"too many clients ({app.server_cfg.max_clients}); try again later")
+        # room for a line well over the limit, so that it gets E_TOOLONG as on TCP instead of
+        # closing the page's socket (aiohttp closes with 1009 past max_msg_size)
+        ws = web.WebSocketResponse(heartbeat=20.0, max_msg_size=4 * app.server_cfg.max_line + 1024)
+        await ws.prepare(request)
+        from ..server import next_connection_id
+
+        page = WebPeer(app, ws, request.remote or "?", next_connection_id())
+        app.connections.add(page)  # type: ignore[arg-type]
+        self.pages.add(page)
+        writer = asyncio.create_task(page.writer())
+        page.log.info("client_connected", clients=len(app.connections))
+        page.greet()
+        page.send_raw(json.dumps(self.state(), separators=(",", ":")))
+        try:
+            async for msg in ws:
+                if msg.type != WSMsgType.TEXT:
+                    break
+                try:
+                    line = str(json.loads(msg.data)["line"])
+                except (ValueError, KeyError, TypeError):
+                    page.send(Reply("RVS", "ERROR", {"code": "E_SYNTAX",
+                                                     "message": 'send {"line": "<command line>"}'}))
+                    continue
+                raw = line.encode("utf-8")
+                result = app.dispatch(page, raw if len(raw) <= app.server_cfg.max_line else None)
+                if result is not None:
+                    await result
+        finally:
+            page.close()
+            self.pages.discard(page)
+            await writer
+            with contextlib.suppress(Exception):
+                await ws.close()
+            page.log.info("client_disconnected", clients=len(app.connections))
+        return ws
+
+
+def console_host(host: str, token: str, public: bool) -> str:
+    """Where the console listens: the server's host, but loopback without a token unless the
+    operator asked for a public console (the page can drive the rover)."""
+    if token or public or is_loopback(host):
+        return host
+    return "127.0.0.1"

@@ -1,0 +1,253 @@
+"""The operator web console through real sockets: HTTP routes, the WebSocket's lines and state,
+layer images, the token, hostile paths and a clean close at quit."""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import socket
+from pathlib import Path
+from typing import Any
+
+import aiohttp
+import cv2
+import numpy as np
+import pytest
+
+from prox_workflows.grid import read_geotiff
+from rvs_server.main import StartupError, run
+from rvs_server.web.console import console_host
+
+DEM = "dem-full-tof -range -20,20,-50,-35 -cell 0.05 -name web"
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+@pytest.fixture
+def web(server_factory: Any) -> Any:
+    """A test server with its console on a free port; yields (server, base URL)."""
+
+    def make(*overrides: str) -> tuple[Any, str]:
+        port = free_port()
+        srv = server_factory([f"server.web_port={port}", *overrides])
+        return srv, f"http://127.0.0.1:{port}"
+
+    return make
+
+
+class Page:
+    """What the console page does, in Python: one WebSocket, lines out, messages in."""
+
+    def __init__(self, ws: aiohttp.ClientWebSocketResponse) -> None:
+        self.ws = ws
+        self.states: list[dict[str, Any]] = []
+        self.replies: list[dict[str, Any]] = []
+
+    async def next(self, timeout: float = 60.0) -> dict[str, Any]:
+        msg = await asyncio.wait_for(self.ws.receive(), timeout)
+        assert msg.type == aiohttp.WSMsgType.TEXT, msg
+        data = json.loads(msg.data)
+        (self.states if data["type"] == "state" else self.replies).append(data)
+        return data
+
+    async def send(self, line: str) -> None:
+        await self.ws.send_str(json.dumps({"line": line}))
+
+    async def until(self, pred: Any, timeout: float = 120.0) -> dict[str, Any]:
+        loop = asyncio.get_running_loop()
+        end = loop.time() + timeout
+        while True:
+            msg = await self.next(max(0.1, end - loop.time()))
+            if pred(msg):
+                return msg
+
+    async def final(self, tag: str, timeout: float = 120.0) -> dict[str, Any]:
+        msg = await self.until(lambda m: m["type"] == "reply" and m["reply"].get("tag") == tag
+                               and m["reply"]["status"] in ("OK", "ERROR"), timeout)
+        return msg["reply"]
+
+
+def run_page(base: str, body: Any, *, origin: str | None = None) -> Any:
+    async def go() -> Any:
+        async with aiohttp.ClientSession() as http:
+            headers = {"Origin": origin} if origin else {}
+            async with http.ws_connect(base.replace("http", "ws") + "/ws", headers=headers) as ws:
+                return await body(Page(ws), http)
+
+    return asyncio.run(go())
+
+
+def test_page_gets_hello_and_state_then_runs_lines_through_the_dispatcher(web: Any) -> None:
+    srv, base = web()
+
+    async def body(page: Page, http: aiohttp.ClientSession) -> None:
+        hello = await page.next()
+        assert hello["reply"]["kind"] == "hello" and hello["text"].startswith("RVS EVENT kind=hello")
+        state = await page.next()
+        assert state["type"] == "state" and state["mode"] == "ready" and state["scene"] == "office"
+        assert state["devices"] == {"ptu": "ok", "tof": "ok", "trigger": "ok", "stereo": "ok"}
+        assert state["rover"] == {"length": 0.51, "width": 0.4} and state["maps"] == {}
+        await page.send("@s1 status")
+        ok = await page.final("s1")
+        assert ok["status"] == "OK" and ok["mode"] == "ready" and ok["pose"] == [0.0, 0.0, 0.0]
+        await page.send("@s2 navigte -goal 1,1")
+        err = await page.final("s2")
+        assert err["code"] == "E_UNKNOWN" and "did you mean navigate" in err["message"]
+        await page.send("@s3 status " + "x" * 5000)
+        err = await page.until(lambda m: m["type"] == "reply" and m["reply"]["status"] == "ERROR")
+        assert err["reply"]["code"] == "E_TOOLONG"
+        await page.ws.send_str("not json")
+        err = await page.until(lambda m: m["type"] == "reply" and m["reply"]["status"] == "ERROR")
+        assert err["reply"]["code"] == "E_SYNTAX" and '{"line"' in err["reply"]["message"]
+        async with http.get(base + "/api/state") as resp:
+            assert resp.status == 200 and (await resp.json())["mode"] == "ready"
+
+    run_page(base, body)
+    with srv.client() as c:  # the TCP side still serves, and counts no page left behind
+        assert c.request("status").fields["clients"] == "1"
+
+
+def test_a_job_from_tcp_shows_on_the_page_with_progress_and_its_layers(web: Any, tmp_path: Path) -> None:
+    srv, base = web()
+
+    async def body(page: Page, http: aiohttp.ClientSession) -> None:
+        await page.next()
+        await page.next()
+
+        def tcp_dem() -> Any:
+            with srv.client() as c:
+                return c.request(DEM, timeout=300)
+
+        dem = asyncio.get_running_loop().run_in_executor(None, tcp_dem)
+        ack = await page.until(lambda m: m["type"] == "reply" and m["reply"]["status"] == "ACK")
+        assert ack["own"] is False and ack["reply"]["module"] == "EGP-RVS-DEM-FULL-TOF"
+        busy = await page.until(lambda m: m["type"] == "state" and m["job"] is not None)
+        assert busy["mode"] == "busy" and busy["job"]["command"] == "dem-full-tof"
+        progress = await page.until(lambda m: m["type"] == "reply" and m["reply"]["status"] == "PROGRESS")
+        assert progress["reply"]["phase"] in ("pointing", "acquire")
+        ok = await page.until(lambda m: m["type"] == "reply" and m["reply"]["status"] in ("OK", "ERROR"), 300)
+        assert ok["reply"]["status"] == "OK", ok["text"]
+        assert (await dem).status == "OK"
+        state = await page.until(lambda m: m["type"] == "state" and m["maps"])
+        maps = state["maps"]
+        assert {"dem", "ortho", "hazard", "traversability", "slope"} <= maps.keys()
+        values, geometry = read_geotiff(srv.data / ok["reply"]["dem"])
+        assert maps["dem"]["bounds"] == pytest.approx(list(geometry.bounds))
+        async with http.get(base + maps["dem"]["url"]) as resp:
+            assert resp.status == 200 and resp.content_type == "image/png"
+            legend = json.loads(resp.headers["X-Legend"])
+            png = await resp.read()
+        rgba = cv2.imdecode(np.frombuffer(png, np.uint8), cv2.IMREAD_UNCHANGED)
+        assert rgba.shape == (geometry.height, geometry.width, 4)
+        undefined = ~np.isfinite(values)
+        assert undefined.any() and (rgba[..., 3][undefined] == 0).all()  # unseen: transparent, not black
+        assert (rgba[..., 3][~undefined] == 255).all()
+        assert legend["kind"] == "ramp" and legend["lo"] < legend["hi"] and legend["unit"].startswith("m")
+        async with http.get(base + maps["dem"]["url"]) as resp:
+            assert await resp.read() == png
+        assert srv.app.console.layers.renders["dem"] == 1  # rendered once: later loads are cache hits
+        async with http.get(base + maps["traversability"]["url"]) as resp:
+            trav = cv2.imdecode(np.frombuffer(await resp.read(), np.uint8), cv2.IMREAD_UNCHANGED)
+        score, _ = read_geotiff(srv.data / ok["reply"]["traversability"])
+        good, bad = np.isfinite(score) & (score > 0.9), np.isfinite(score) & (score < 0.1)
+        assert good.any() and bad.any()
+        # BGRA: good ground green (G > R), blocked ground red (R > G)
+        assert (trav[..., 1][good] > trav[..., 2][good]).all() and (trav[..., 2][bad] > trav[..., 1][bad]).all()
+
+    run_page(base, body)
+
+
+def test_the_token_makes_the_page_read_only_until_auth(web: Any) -> None:
+    srv, base = web("server.token=s3cret")
+
+    async def body(page: Page, http: aiohttp.ClientSession) -> None:
+        await page.next()
+        state = await page.next()
+        assert state["token"] is True and state["mode"] == "ready"  # the page can watch
+        await page.send("@n1 navigate -goal 1,0 -auto true")
+        err = await page.final("n1")
+        assert err["code"] == "E_AUTH"
+        await page.send("@a1 auth -token wrong")
+        assert (await page.final("a1"))["code"] == "E_AUTH"
+        await page.send("@a2 auth -token s3cret")
+        assert (await page.final("a2"))["status"] == "OK"
+        await page.send("@p1 pose -x 0.5 -y 0 -heading 0")
+        assert (await page.final("p1"))["status"] == "OK"
+
+    run_page(base, body)
+    assert srv.app.pose.x == 0.5
+
+
+def test_no_request_reaches_outside_the_data_directory(web: Any, tmp_path: Path) -> None:
+    srv, base = web()
+    secret = srv.data.parent / "secret.tif"
+    secret.write_bytes(b"not for you")
+
+    async def probe() -> list[int]:
+        codes = []
+        async with aiohttp.ClientSession() as http:
+            for path in ("/static/../../secret.tif", "/static/%2e%2e%2fsecret.tif", "/static/console.py",
+                         "/layers/..%2F..%2Fsecret.png", "/layers/%2e%2e.png", "/layers/dem.png",
+                         "/layers/../secret.tif", "/../secret.tif", "/static/", "/layers/.png"):
+                async with http.get(base + path) as resp:
+                    body = await resp.read()
+                    assert b"not for you" not in body
+                    codes.append(resp.status)
+            async with http.get(base + "/static/console.js") as resp:
+                assert resp.status == 200 and b"WebSocket" in await resp.read()
+        return codes
+
+    codes = asyncio.run(probe())
+    assert all(code in (403, 404) for code in codes), codes
+
+
+def test_a_page_from_another_site_cannot_open_the_websocket(web: Any) -> None:
+    _, base = web()
+
+    async def body(page: Page, http: aiohttp.ClientSession) -> None:
+        raise AssertionError("connected")
+
+    with pytest.raises(aiohttp.WSServerHandshakeError) as err:
+        run_page(base, body, origin="http://evil.example")
+    assert err.value.status == 403
+
+
+def test_the_websocket_closes_cleanly_when_the_server_quits(web: Any) -> None:
+    srv, base = web()
+
+    async def body(page: Page, http: aiohttp.ClientSession) -> Any:
+        await page.next()
+        await page.send("@q quit")
+        while True:
+            msg = await asyncio.wait_for(page.ws.receive(), 30)
+            if msg.type in (aiohttp.WSMsgType.CLOSE, aiohttp.WSMsgType.CLOSED, aiohttp.WSMsgType.CLOSING):
+                return page.ws.close_code
+
+    assert run_page(base, body) == 1001  # going away
+    srv.thread.join(30)
+    assert srv.exit_code == 0
+
+
+def test_the_console_binds_to_loopback_without_a_token() -> None:
+    assert console_host("0.0.0.0", "", False) == "127.0.0.1"
+    assert console_host("0.0.0.0", "tok", False) == "0.0.0.0"
+    assert console_host("0.0.0.0", "", True) == "0.0.0.0"
+    assert console_host("127.0.0.1", "", False) == "127.0.0.1"
+    assert console_host("::1", "", False) == "::1"
+
+
+def test_a_taken_web_port_stops_the_start_with_what_to_do(tmp_path: Path) -> None:
+    from rvs_server.main import build_config
+
+    with socket.socket() as taken:
+        taken.bind(("127.0.0.1", 0))
+        taken.listen()
+        port = taken.getsockname()[1]
+        store = build_config(None, [f"server.data={tmp_path}", "server.port=0", f"server.web_port={port}",
+                                    "server.warm_up=false"])
+        with pytest.raises(StartupError, match=r"web console .*server.web_port"):
+            asyncio.run(run(store, handle_signals=False))

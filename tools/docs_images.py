@@ -1,0 +1,63 @@
+"""Make the pictures in docs/img: every preview kind of a DEM and a navigation, and the web
+console, from one simulated session (office scene). Look at them after running this.
+
+    python -m tools.docs_images [--out docs/img]
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import shutil
+import tempfile
+from pathlib import Path
+
+from tools.bench.web import Server, free_port, tcp_request
+
+PREVIEWS = ("dem", "ortho", "hazard", "traversability", "slope", "step", "roughness", "variance", "count",
+            "filled")
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--out", default="docs/img")
+    out = Path(ap.parse_args().out)
+    out.mkdir(parents=True, exist_ok=True)
+    with tempfile.TemporaryDirectory() as tmp:
+        web_port = free_port()
+        srv = Server(Path(tmp) / "data", web_port, 0.02, ["navigate.range=-110,30,-55,-20", "navigate.overlap=0.05",
+                                                         "navigate.border=0.3"])
+        try:
+            from playwright.sync_api import sync_playwright
+
+            asyncio.run(tcp_request(srv.port, "dem-full-tof -range -150,150,-50,-15 -name site"))
+            for layer in PREVIEWS:
+                shutil.copy(Path(tmp) / "data" / "dem" / f"site_{layer}.png", out / f"preview_{layer}.png")
+            with sync_playwright() as p:
+                browser = p.chromium.launch(executable_path="/usr/bin/chromium", args=[
+                    "--no-sandbox", "--disable-gpu", "--disable-background-networking", "--no-first-run"])
+                page = browser.new_page(viewport={"width": 1400, "height": 850})
+                page.goto(f"http://127.0.0.1:{web_port}/")
+                page.wait_for_function("S.layers.dem && S.layers.dem.ready && S.layers.hazard && S.layers.hazard.ready")
+                page.screenshot(path=str(out / "console_dem.png"))
+                box = page.eval_on_selector("#map", "c => c.getBoundingClientRect().toJSON()")
+                gx, gy = page.evaluate("toScreen(1.5, -1.2)")
+                page.mouse.click(box["x"] + gx, box["y"] + gy)
+                page.click("#go-nav")
+                page.wait_for_function("S.plan.length >= 2", timeout=300_000)
+                page.wait_for_function("S.state.job === null", timeout=600_000)
+                page.wait_for_timeout(800)
+                page.screenshot(path=str(out / "console_navigate.png"))
+                browser.close()
+            nav = Path(tmp) / "data" / "nav"
+            for src, name in ((next(nav.glob("*_traverse.png")), "traverse.png"),
+                              (next(nav.glob("*_leg1_plan_ortho.png")), "plan_ortho.png"),
+                              (next(nav.glob("*_leg1_plan_map.png")), "plan_map.png")):
+                shutil.copy(src, out / name)
+        finally:
+            srv.stop()
+    print(f"wrote {len(list(out.glob('*.png')))} pictures to {out}")
+
+
+if __name__ == "__main__":
+    main()
