@@ -37,6 +37,7 @@ log = structlog.get_logger("rvs.web")
 TICK = 0.2  # seconds between state snapshots (pose, PTU, progress): 5 Hz is smooth enough to watch
 MAX_QUEUED = 2000  # messages a page may lag behind before it is dropped (it reloads and catches up)
 TRACK_POINTS = 5000  # rover positions kept for the driven track
+SNAPSHOT_TRACK = 1000  # of which each state snapshot carries the newest (5 per second to every page)
 STATIC = {"index.html": "text/html", "console.js": "text/javascript", "console.css": "text/css"}
 SHOWN_FIRST = ("dem", "hazard")  # the layers a new page shows (console.js S.visible)
 LAYER_ORDER = ("ortho", "dem", "hazard", "traversability", "slope", "step", "roughness", "variance", "count",
@@ -48,6 +49,20 @@ def is_loopback(host: str) -> bool:
         return ipaddress.ip_address(host).is_loopback
     except ValueError:
         return host == "localhost"
+
+
+_last: list[tuple[Reply, bool, str]] = []  # the last reply encoded: a mirrored job line goes to every page
+
+
+def _encode(reply: Reply, own: bool) -> str:
+    """The page's message for a reply line, encoded once however many pages get it."""
+    if _last and _last[0][0] is reply and _last[0][1] == own:
+        return _last[0][2]
+    obj = json.loads(format_reply_json(reply))
+    message = json.dumps({"type": "reply", "own": own, "reply": obj, "text": format_reply(reply)},
+                         separators=(",", ":"))
+    _last[:] = [(reply, own, message)]
+    return message
 
 
 class WebPeer:
@@ -82,9 +97,7 @@ class WebPeer:
             self.log.warning("client_dropped", reason="page not reading its messages")
             self.close()
             return
-        obj = json.loads(format_reply_json(reply))
-        self.queue.put_nowait(json.dumps({"type": "reply", "own": own, "reply": obj, "text": format_reply(reply)},
-                                         separators=(",", ":")))
+        self.queue.put_nowait(_encode(reply, own))
 
     def observe(self, reply: Reply) -> None:
         """A line of a job another connection started."""
@@ -226,7 +239,7 @@ class WebConsole:
         here = out.get("truth") or out["pose"]
         if not self.track or (abs(self.track[-1][0] - here["x"]) + abs(self.track[-1][1] - here["y"])) > 0.02:
             self.track.append((round(here["x"], 3), round(here["y"], 3)))
-        out["track"] = list(self.track)
+        out["track"] = list(self.track)[-SNAPSHOT_TRACK:]
         return out
 
     async def _prerender(self) -> None:
