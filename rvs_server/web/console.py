@@ -87,7 +87,9 @@ class WebPeer:
         self.jobs_started = 0
         self.exiting = False
         self.closed = False
+        self.close_code = 1000
         self.queue: asyncio.Queue[str | None] = asyncio.Queue()
+        self.writing: asyncio.Task[None] | None = None  # the task that writes the queue out
 
     def send(self, reply: Reply, *, own: bool = True) -> None:
         """Queue a reply line for the page (event loop only)."""
@@ -116,9 +118,12 @@ class WebPeer:
     def close_if_done(self) -> None:
         """A page closes when its socket does; nothing waits for its jobs' final lines."""
 
-    def close(self) -> None:
+    def close(self, code: int = 1000) -> None:
+        """Close the page's socket after what is queued for it (its writer sends the close
+        frame: 1001 'going away' when the server stops)."""
         if not self.closed:
             self.closed = True
+            self.close_code = code
             self.queue.put_nowait(None)
         self.app.connections.discard(self)  # type: ignore[arg-type]
 
@@ -132,6 +137,8 @@ class WebPeer:
             except (ConnectionError, RuntimeError):
                 break
         self.closed = True
+        with contextlib.suppress(ConnectionError, RuntimeError):
+            await self.ws.close(code=self.close_code, message=b"server stopping" if self.close_code == 1001 else b"")
 
 
 class WebConsole:
@@ -176,10 +183,13 @@ class WebConsole:
         for task in (self._ticker, self._renderer):
             if task is not None:
                 task.cancel()
+        writers = []
         for page in list(self.pages):
-            page.close()
-            with contextlib.suppress(Exception):
-                await page.ws.close(code=1001, message=b"server stopping")
+            page.close(1001)
+            if page.writing is not None:
+                writers.append(page.writing)
+        if writers:
+            await asyncio.wait(writers, timeout=5.0)
         if self.runner is not None:
             await self.runner.cleanup()
 
@@ -320,7 +330,7 @@ class WebConsole:
         page = WebPeer(app, ws, request.remote or "?", next_connection_id())
         app.connections.add(page)  # type: ignore[arg-type]
         self.pages.add(page)
-        writer = asyncio.create_task(page.writer())
+        page.writing = asyncio.create_task(page.writer())
         page.log.info("client_connected", clients=len(app.connections))
         page.greet()
         page.send_raw(json.dumps(self.state(), separators=(",", ":")))
@@ -341,9 +351,7 @@ class WebConsole:
         finally:
             page.close()
             self.pages.discard(page)
-            await writer
-            with contextlib.suppress(Exception):
-                await ws.close()
+            await page.writing
             page.log.info("client_disconnected", clients=len(app.connections))
         return ws
 
