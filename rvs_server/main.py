@@ -40,7 +40,8 @@ def make_world(store: ConfigStore) -> Any:
         from drivers.sim.world import World
     except ImportError:
         return None
-    return World.from_scene(store.get("server").scene)
+    # The clock reads sim.time_scale each time, so config -module sim -set time_scale=... applies live.
+    return World.from_scene(store.get("server").scene, clock_scale=lambda: store.get("sim").time_scale)
 
 
 def make_app(store: ConfigStore, loop: asyncio.AbstractEventLoop) -> App:
