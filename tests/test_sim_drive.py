@@ -211,9 +211,8 @@ def test_the_hirise_scene_is_the_dtm_with_rocks_at_15_percent_cover(tmp_path: Pa
     relief = float(np.ptp(w.terrain.heights))
     assert relief > 2.0  # the DTM's metres of relief, not a flat yard
 
-    from tools.global_maps import write_global_maps
-
     from prox_workflows.grid import read_geotiff
+    from tools.global_maps import write_global_maps
 
     paths = write_global_maps(str(copy), tmp_path / "global")
     hazard, g = read_geotiff(paths["hazard"])
@@ -229,9 +228,8 @@ def test_the_hirise_scene_is_the_dtm_with_rocks_at_15_percent_cover(tmp_path: Pa
 
 
 def test_a_dem_full_tof_runs_on_the_hirise_scene(server_factory, tmp_path: Path) -> None:
-    from tools.global_maps import write_global_maps
-
     from rvs_server.commands.navigation import _load_global
+    from tools.global_maps import write_global_maps
 
     maps = _load_global(str(write_global_maps("hirise", tmp_path / "global").get("hazard").parent))
     assert maps is not None and maps.geometry.cell == pytest.approx(1.01)  # usable as navigate.global_maps
@@ -240,4 +238,31 @@ def test_a_dem_full_tof_runs_on_the_hirise_scene(server_factory, tmp_path: Path)
     r = c.request("dem-full-tof -range -40,40,-50,-20 -name hirise", timeout=300)
     assert r.status == "OK", r
     assert int(r.fields["cells"]) > 1000 and float(r.fields["coverage"]) > 0.05
+    c.close()
+
+
+# ------------------------------------------------------------------ navigate -auto on odometry
+
+
+def test_navigate_auto_believes_the_odometry_not_the_truth(server_factory) -> None:
+    """With slip, navigate -auto's pose after each leg is the rover's dead reckoning (what a GNC
+    would report), so the server's pose and the truth part; the drive takes simulated time
+    (turns at 15 deg/s, 0.1 m/s) and its PROGRESS counts segments in one phase per leg."""
+    srv = server_factory(["server.scene=office"])
+    c = srv.client()
+    assert c.request("sim slip -distance 0.05 -heading 2 -seed 3").status == "OK"
+    t0 = num(c.request("sim truth"), "sim_time")
+    c.send("navigate -goal 1.5,-1.2 -auto -name slip")
+    lines = c.until_final(timeout=600)
+    final = lines[-1]
+    assert final.status == "OK" and final.fields["reached"] == "true", final.fields
+    drive = [r for r in lines if r.status == "PROGRESS" and r.fields.get("phase") == "drive"]
+    assert drive and all(r.fields["total"] == drive[0].fields["total"] for r in drive
+                         if r.fields["leg"] == drive[0].fields["leg"])
+    truth = c.request("sim truth")
+    pose = [float(v) for v in c.request("status").fields["pose"].split(",")]
+    assert pose[:2] == pytest.approx([num(truth, "odom_x"), num(truth, "odom_y")], abs=2e-3)
+    assert math.hypot(pose[0] - num(truth, "x"), pose[1] - num(truth, "y")) > 0.01  # slip showed
+    dist = math.hypot(num(truth, "odom_x"), num(truth, "odom_y"))
+    assert num(truth, "sim_time") - t0 >= dist / 0.1  # it drove at 0.1 m/s in simulated time
     c.close()
