@@ -16,10 +16,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 import tifffile
+from conftest import long_suite
 from jsonschema import Draft202012Validator
 
 from drivers.sim.clock import SimClock
 from drivers.sim.world import World
+from rvs_server.commands.navigation import drive_simulated
 
 ROOT = Path(__file__).resolve().parents[1]
 SCHEMA = Draft202012Validator(json.loads((ROOT / "docs" / "replies.schema.json").read_text()))
@@ -235,7 +237,7 @@ def test_a_dem_full_tof_runs_on_the_hirise_scene(server_factory, tmp_path: Path)
     assert maps is not None and maps.geometry.cell == pytest.approx(1.01)  # usable as navigate.global_maps
     srv = server_factory(["server.scene=hirise"])
     c = srv.client()
-    r = c.request("dem-full-tof -range -40,40,-50,-20 -name hirise", timeout=300)
+    r = c.request("dem-full-tof -range -20,20,-50,-30 -name hirise", timeout=300)
     assert r.status == "OK", r
     assert int(r.fields["cells"]) > 1000 and float(r.fields["coverage"]) > 0.05
     c.close()
@@ -244,6 +246,28 @@ def test_a_dem_full_tof_runs_on_the_hirise_scene(server_factory, tmp_path: Path)
 # ------------------------------------------------------------------ navigate -auto on odometry
 
 
+class _Waypoints:
+    def __init__(self, xy: list[tuple[float, float]]) -> None:
+        self.xy = np.asarray(xy, float)
+
+
+def test_the_auto_drive_steers_by_odometry_so_slip_leaves_the_truth_off_the_waypoints() -> None:
+    w = World.from_scene("office", clock_scale=0.0)
+    w.set_slip(0.05, 2.0, 5)
+    track = [(0.0, 0.0)]
+    reached: list[int] = []
+    drive_simulated(w, _Waypoints([(0.0, 0.0), (1.0, 1.0), (2.0, 0.0)]), track, reached=reached.append)
+    assert reached == [1, 2]
+    ox, oy, _ = w.odometry()
+    assert (ox, oy) == pytest.approx((2.0, 0.0), abs=1e-6)  # where it believes it is: the last waypoint
+    t = w.truth()
+    assert 0.05 < math.hypot(t["x"] - 2.0, t["y"]) < 0.5  # where it is: short and beside
+    assert track[-1] == (t["x"], t["y"]) and len(track) > 20  # the true track, every 5 cm
+    # 2 * sqrt(2) m at 0.1 m/s plus turns of 45 and 90 degrees at 15 deg/s, in simulated time
+    assert t["sim_time"] == pytest.approx(2 * math.sqrt(2) / 0.1 + 135.0 / 15.0, abs=0.2)
+
+
+@long_suite
 def test_navigate_auto_believes_the_odometry_not_the_truth(server_factory) -> None:
     """With slip, navigate -auto's pose after each leg is the rover's dead reckoning (what a GNC
     would report), so the server's pose and the truth part; the drive takes simulated time
