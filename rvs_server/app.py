@@ -83,7 +83,8 @@ class Pose:
     time: float = field(default_factory=time.time)
     stopped: bool = False  # the GNC said the rover stands still here (it gave up on a leg)
     # Who said so: gnc (the pose command), orient (visual odometry), navigate (its -start),
-    # sim (the simulated rover's truth after an -auto leg), recovery, or start (nobody yet).
+    # odometry (the simulated rover's dead reckoning after an -auto leg: the truth differs from it
+    # once sim slip is set), recovery, or start (nobody yet).
     # Not on the wire: it tells a reader (and the pose estimator to come) what to trust.
     source: str = "start"
 

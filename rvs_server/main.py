@@ -41,7 +41,8 @@ def make_world(store: ConfigStore) -> Any:
         from drivers.sim.world import World
     except ImportError:
         return None
-    return World.from_scene(store.get("server").scene)
+    # The clock reads sim.time_scale each time, so config -module sim -set time_scale=... applies live.
+    return World.from_scene(store.get("server").scene, clock_scale=lambda: store.get("sim").time_scale)
 
 
 def make_app(store: ConfigStore, loop: asyncio.AbstractEventLoop) -> App:
@@ -109,7 +110,7 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     p.add_argument("--host", help="listen address (default 127.0.0.1)")
     p.add_argument("--port", type=int, help="listen port (default 7070; 0 picks a free one)")
     p.add_argument("--data", help="data directory (default ./data)")
-    p.add_argument("--scene", help="simulated scene: office, quarry, marsyard (default office)")
+    p.add_argument("--scene", help="simulated scene: office, quarry, marsyard, hirise, or a scene .yaml path (default office)")
     p.add_argument("--config", help="folder of YAML files overriding config/")
     p.add_argument("--set", action="append", default=[], metavar="MODULE.KEY=VALUE",
                    help="override one configuration value (repeatable)")

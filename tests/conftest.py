@@ -124,8 +124,9 @@ class ServerThread:
 
     def __init__(self, data: Path, overrides: list[str] | None = None, config_dir: str | None = None) -> None:
         # warm_up off: a hundred short-lived test servers would each load the numba kernels
-        sets = [f"server.data={data}", "server.port=0", "drivers.ptu.time_scale=0", "server.warm_up=false",
-                "server.web_port=0", *(overrides or [])]
+        # sim.time_scale=0: the rover drives, and frames take, their simulated time in no wall time
+        sets = [f"server.data={data}", "server.port=0", "drivers.ptu.time_scale=0", "sim.time_scale=0",
+                "server.warm_up=false", "server.web_port=0", *(overrides or [])]
         self.store = build_config(config_dir, sets)
         self.data = data
         self.port = 0

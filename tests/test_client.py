@@ -21,7 +21,7 @@ from rvs_server.client.session import Line, ServerProcess, Session, SessionError
 from rvs_server.protocol import parse_reply
 
 ROOT = Path(__file__).resolve().parents[1]
-FAST = ["--set", "drivers.ptu.time_scale=0"]  # a simulated PTU that moves instantly
+FAST = ["--set", "drivers.ptu.time_scale=0", "--set", "sim.time_scale=0"]  # a simulated world that takes no wall time
 
 
 @pytest.fixture(scope="module")

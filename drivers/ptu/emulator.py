@@ -5,7 +5,8 @@ emulator, so every byte the server would send to the hardware is exercised in si
 emulator behaves like a freshly powered D46: verbose feedback, echo on and a banner; the
 factory resolution (185.1428 arc-seconds per position) and axis bounds; trapezoidal moves at
 its speed and acceleration in simulated time (``time_scale`` simulated-to-wall ratio: 1 real
-time, 0.1 ten times faster, 0 instantly); ``!`` errors for out-of-range positions and speeds;
+time, 0.1 ten times faster, 0 instantly; or, given a ``clock``, on the simulated world's clock,
+so PTU moves take their time on the same clock as the rover's drive and the ToF's frames); ``!`` errors for out-of-range positions and speeds;
 ``A`` answered when motion ends; a reset that runs each axis into its limits ("!T!T!P!P*").
 
 Faults reproduce what goes wrong on a bench: ``silent`` (unpowered or wrong cable: reads,
@@ -31,6 +32,7 @@ import time
 import tty
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from typing import Any
 
 from drivers.ptu.motion import Profile
 from drivers.ptu.protocol import (
@@ -185,6 +187,7 @@ class PtuEmulator:
         supply_v: float = 30.0,
         temperature_f: float = 86.0,
         flavour: str | Flavour = "manual",
+        clock: Any = None,
     ) -> None:
         if time_scale < 0:
             raise ValueError("time_scale must be >= 0 (0 = instant moves)")
@@ -222,7 +225,10 @@ class PtuEmulator:
         self._reset_phases: list[tuple[str, int, bytes]] | None = None
         self._prefix = bytearray()
         self._scale = float(time_scale)
-        self._sim_t = 0.0
+        # A drivers.sim.clock.SimClock: when given, simulated time is the clock's (time_scale
+        # is then ignored until set explicitly), and an instant move still moves the clock on.
+        self._clock = clock
+        self._sim_t = clock.now() if clock is not None else 0.0
         self._sim_ref = 0.0
         self._wall_ref = time.monotonic()
         self._last_reported: tuple[float, float] | None = None
@@ -270,7 +276,8 @@ class PtuEmulator:
 
     @property
     def time_scale(self) -> float:
-        return self._scale
+        """Wall seconds per simulated second (0: instant), the clock's when following one."""
+        return self._wall_per_sim()
 
     @time_scale.setter
     def time_scale(self, value: float) -> None:
@@ -278,7 +285,14 @@ class PtuEmulator:
             raise ValueError("time_scale must be >= 0")
         with self._lock:
             self._advance()
+            self._clock = None  # an explicit scale: the emulator keeps its own time from here
             self._sim_ref, self._wall_ref, self._scale = self._sim_t, time.monotonic(), float(value)
+
+    def _wall_per_sim(self) -> float:
+        if self._clock is not None:
+            scale = self._clock.scale
+            return 1.0 / scale if scale > 0 else 0.0
+        return self._scale
 
     @property
     def sim_time(self) -> float:
@@ -318,7 +332,7 @@ class PtuEmulator:
     def _run(self) -> None:
         while not self._stop.is_set():
             with self._lock:
-                busy = self._busy() and self._scale > 0
+                busy = self._busy() and self._wall_per_sim() > 0
             try:
                 ready, _, _ = select.select([self.fd], [], [], self.tick if busy else 0.05)
                 data = os.read(self.fd, 4096) if ready else b""
@@ -363,11 +377,17 @@ class PtuEmulator:
 
     # -- simulated time and motion -------------------------------------------------------------
     def _horizon(self) -> float:
+        if self._clock is not None:
+            return self._clock.now() if self._clock.scale > 0 else math.inf
         if self._scale > 0:
             return self._sim_ref + (time.monotonic() - self._wall_ref) / self._scale
         return math.inf
 
     def _advance(self) -> None:
+        if self._clock is not None and not self._busy():
+            # Idle: the world's time went on without the PTU (the rover drove); a move
+            # starts from the clock's now, not from where the last one ended.
+            self._sim_t = max(self._sim_t, self._clock.now())
         horizon = self._horizon()
         while True:
             ends = [ax.profile.end for ax in self.axes.values() if ax.profile is not None]
@@ -384,6 +404,8 @@ class PtuEmulator:
             for ax in self.axes.values():
                 if ax.profile is not None:
                     ax.pos, ax.vel = ax.profile.at(self._sim_t)
+        elif self._clock is not None:
+            self._clock.advance_to(self._sim_t)  # an instant move still took its simulated time
 
     def _finish(self, ax: _Axis, t: float) -> None:
         ax.pos, ax.vel, ax.profile = float(ax.target), 0.0, None

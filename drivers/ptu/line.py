@@ -14,7 +14,10 @@ from rvs_params import Settings, param
 
 @dataclass
 class SimPtuSettings(Settings):
-    time_scale: float = param(1.0, "sim: 0 moves instantly, 1 real time", min=0.0, max=1000.0)
+    time_scale: float | None = param(None, "sim: wall seconds per simulated second of a move (0 instant, 1 real "
+                                     "time, 0.1 ten times faster); null: follow the simulated world's clock "
+                                     "(sim.time_scale), so moves take their time on the clock the rover drives on",
+                                     min=0.0, max=1000.0)
     sim_flavour: str = param(
         "manual",
         "sim: whose replies the emulated unit gives: manual (the PTU-D46 manual's wording and bounds) or "
@@ -51,8 +54,11 @@ class EmulatedLine:
         master, slave, path = open_pty()
         self._fds, self._path = (master, slave), path
         on_position = self.world.set_ptu if self.world is not None else None
+        clock = self.world.clock if self.time_scale is None and self.world is not None else None
+        scale = 1.0 if self.time_scale is None else self.time_scale
         self._emulator = PtuEmulator(
-            master, time_scale=self.time_scale, on_position=on_position, fault=self._fault, flavour=self.flavour
+            master, time_scale=scale, on_position=on_position, fault=self._fault, clock=clock,
+            flavour=self.flavour
         ).start()
         return path
 
@@ -71,7 +77,8 @@ class EmulatedLine:
 
     def status(self) -> dict[str, Any]:
         emu = self._emulator
-        return {"fault": self._fault, "time_scale": self.time_scale, "flavour": self.flavour,
+        scale = emu.time_scale if emu is not None else self.time_scale
+        return {"fault": self._fault, "time_scale": scale, "flavour": self.flavour,
                 "emulator_running": bool(emu and emu.running)}
 
     def inject_fault(self, kind: str | None) -> None:

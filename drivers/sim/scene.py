@@ -43,9 +43,15 @@ def scene_path(name_or_path: str | Path) -> Path:
 
 
 def load_scene_spec(name_or_path: str | Path) -> dict:
-    with open(scene_path(name_or_path)) as f:
+    """The scene's YAML as a dict, with ``_dir`` (its folder, where relative data files are
+    looked up) added."""
+    path = scene_path(name_or_path)
+    with open(path) as f:
         spec = yaml.safe_load(f) or {}
-    spec.setdefault("name", scene_path(name_or_path).stem)
+    if not isinstance(spec, dict) or "terrain" not in spec:
+        raise ValueError(f"{path} is not a scene (a mapping with a terrain section)")
+    spec.setdefault("name", path.stem)
+    spec["_dir"] = str(path.resolve().parent)
     return spec
 
 

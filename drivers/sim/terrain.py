@@ -27,8 +27,10 @@ Random placement draws from the scene's seeded generator, so a seed fixes the wo
 from __future__ import annotations
 
 from collections.abc import Callable
+from pathlib import Path
 from typing import Any
 
+import cv2
 import numpy as np
 
 from drivers.sim.heightfield import Heightfield
@@ -54,6 +56,7 @@ class _Grid:
         self.speckle = fractal((self.ny, self.nx), self.cell, [0.5, 0.15, 0.04, 0.015], rng, falloff=0.8)
         self.albedo = (albedo * (1.0 + contrast * self.speckle)).astype(np.float64)
         self.rocks: list[dict[str, float]] = []  # ground truth for hazard tests: every rock placed
+        self.base_dir: Path | None = None  # the scene file's folder: where relative data files are
 
     def window(self, xmin: float, ymin: float, xmax: float, ymax: float):
         """Index slices and node coordinates of the part of the grid inside a box, or None."""
@@ -340,17 +343,88 @@ def sand(g: _Grid, p: dict) -> None:
     g.albedo[sl] = (1 - wgt) * g.albedo[sl] + wgt * alb * (1.0 + 0.2 * g.speckle[sl])
 
 
+DATA_DIR = Path(__file__).resolve().parent / "data"
+
+
+def data_file(name: str, base_dir: Path | None = None) -> Path:
+    """A scene's data file: absolute, next to the scene file, or shipped in drivers/sim/data."""
+    p = Path(name)
+    if p.is_absolute():
+        return p
+    for root in ([base_dir] if base_dir is not None else []) + [DATA_DIR]:
+        if (root / p).is_file():
+            return root / p
+    raise FileNotFoundError(f"no data file {name!r} next to the scene or in {DATA_DIR}")
+
+
+def dtm_crop(p: dict, base_dir: Path | None = None) -> tuple[np.ndarray, float, float, float]:
+    """The cropped DTM of a ``dtm`` primitive as a north-up grid of node heights (float64, mean
+    removed) and the world x, y of its north-west node and its cell: what the orbiter saw, placed
+    in the scene's frame. Shared by the terrain builder and the global-map tool so the two agree."""
+    z = np.load(data_file(str(p["file"]), base_dir)).astype(np.float64)
+    r0, r1, c0, c1 = (int(v) for v in p.get("crop", [0, z.shape[0], 0, z.shape[1]]))
+    z = z[r0:r1, c0:c1]
+    if z.size == 0 or not np.isfinite(z).all():
+        raise ValueError(f"dtm {p['file']}: crop {[r0, r1, c0, c1]} is empty or has undefined heights")
+    cell = float(p.get("cell", 1.0))
+    cx, cy = (float(v) for v in p.get("center", [0.0, 0.0]))
+    rows, cols = z.shape
+    x_nw = cx - (cols - 1) / 2.0 * cell
+    y_nw = cy + (rows - 1) / 2.0 * cell
+    return z - z.mean(), x_nw, y_nw, cell
+
+
+def dtm(g: _Grid, p: dict) -> None:
+    """Heights from a real DTM (a .npy of node heights, row 0 north), bicubically upsampled to
+    the grid; ``crop`` [r0, r1, c0, c1] of the file, ``cell`` its spacing, ``center`` where the
+    crop's centre lands, ``scale`` a vertical exaggeration (1). Nodes beyond the crop take the
+    edge's height. Finer relief (roughness, rocks) comes from the primitives that follow."""
+    z, x_nw, y_nw, cell = dtm_crop(p, g.base_dir)
+    fx = ((g.xs - x_nw) / cell).astype(np.float32)
+    fy = ((y_nw - g.ys) / cell).astype(np.float32)
+    mx, my = np.meshgrid(fx, fy)
+    up = cv2.remap(z.astype(np.float32), mx, my, cv2.INTER_CUBIC, borderMode=cv2.BORDER_REPLICATE)
+    g.z += float(p.get("scale", 1.0)) * up.astype(np.float64)
+
+
 PRIMITIVES: dict[str, Callable[[_Grid, dict], None]] = {
     "plane": plane, "hill": hill, "roughness": roughness, "rock": rock, "rocks": rocks,
     "rock_field": rock_field, "crater": crater, "crater_field": crater_field, "box": box,
-    "steps": steps, "sandbox": sandbox, "sand": sand,
+    "steps": steps, "sandbox": sandbox, "sand": sand, "dtm": dtm,
 }
 
 
-def build_terrain(spec: dict, rng: np.random.Generator) -> Heightfield:
-    """The heightfield a scene's ``terrain`` section describes."""
+def add_rock(hf: Heightfield, x: float, y: float, radius: float, height: float,
+             rng: np.random.Generator) -> Heightfield:
+    """A copy of ``hf`` with one more rock (a dome of ``radius`` and ``height`` on the ground
+    there), built by the same ``rock`` primitive as a scene's, on a small grid around it so a
+    large terrain is not rebuilt. Its record joins ``rocks`` (ground truth for hazard checks)."""
+    r = float(radius) + 2 * hf.cell
+    ny, nx = hf.shape
+    j0 = max(int(np.floor((x - r - hf.x0) / hf.cell)), 0)
+    j1 = min(int(np.ceil((x + r - hf.x0) / hf.cell)), nx - 1)
+    i0 = max(int(np.floor((y - r - hf.y0) / hf.cell)), 0)
+    i1 = min(int(np.ceil((y + r - hf.y0) / hf.cell)), ny - 1)
+    if j0 >= j1 or i0 >= i1:
+        raise ValueError(f"a rock at ({x:.2f}, {y:.2f}) is off the terrain {hf.bounds}")
+    bounds = [hf.x0 + j0 * hf.cell, hf.y0 + i0 * hf.cell, hf.x0 + j1 * hf.cell, hf.y0 + i1 * hf.cell]
+    g = _Grid(bounds, hf.cell, 0.0, 0.5, 0.25, rng)
+    sl = (slice(i0, i0 + g.ny), slice(j0, j0 + g.nx))
+    g.z = hf.heights[sl].astype(np.float64)
+    g.albedo = hf.albedo[sl].astype(np.float64)
+    rock(g, {"x": x, "y": y, "a": radius, "b": radius, "h": height, "roughness": 0.12})
+    heights, albedo = hf.heights.copy(), hf.albedo.copy()
+    heights[sl] = g.z
+    albedo[sl] = np.clip(g.albedo, 0.02, 0.98)
+    return Heightfield(hf.x0, hf.y0, hf.cell, heights, albedo, rocks=[*hf.rocks, *g.rocks])
+
+
+def build_terrain(spec: dict, rng: np.random.Generator, base_dir: str | Path | None = None) -> Heightfield:
+    """The heightfield a scene's ``terrain`` section describes (``base_dir``: the scene file's
+    folder, where its relative data files are looked up first)."""
     g = _Grid(spec["bounds"], spec.get("cell", 0.01), spec.get("base_height", 0.0),
               spec.get("albedo", 0.5), spec.get("albedo_contrast", 0.25), rng)
+    g.base_dir = Path(base_dir) if base_dir is not None else None
     for p in spec.get("primitives", []):
         kind = p.get("type")
         if kind not in PRIMITIVES:

@@ -9,18 +9,22 @@ copies a consistent snapshot under the lock and ray casts outside it.
 from __future__ import annotations
 
 import copy
+import math
 import threading
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
+from drivers.sim.clock import ScaleSource, SimClock
 from drivers.sim.head import HeadGeometry
 from drivers.sim.heightfield import Heightfield
 from drivers.sim.noise import periodic_tile
 from drivers.sim.objects import Rect, SceneObject, checker_albedo
 from drivers.sim.render import Detail, Render, render
+from drivers.sim.rover import RoverDrive, Slip, step_pose
 from drivers.sim.scene import (
     CHECKERBOARD_ID,
     FIRST_OBJECT_ID,
@@ -29,7 +33,7 @@ from drivers.sim.scene import (
     build_target,
     load_scene_spec,
 )
-from drivers.sim.terrain import build_terrain
+from drivers.sim.terrain import add_rock, build_terrain
 from drivers.sim.trajectory import Trajectory
 from drivers.sim.transforms import invert, make_T, rot_z, transform
 from drivers.sim.trigger import TriggerBus
@@ -54,18 +58,26 @@ class CameraTruth:
 
 
 class World:
-    def __init__(self, spec: dict, seed: int | None = None) -> None:
+    """``clock_scale``: the simulated clock's speed-up (simulated seconds per wall second, 0
+    instant; a callable is read each time, so the server's ``sim.time_scale`` applies live)."""
+
+    def __init__(self, spec: dict, seed: int | None = None, clock_scale: ScaleSource = 1.0) -> None:
         self._lock = threading.RLock()
         self.trigger = TriggerBus()
+        # One clock for everything that takes time in the simulated world (drive, PTU, ToF
+        # frames); it outlives scene changes, as time does.
+        self.clock = SimClock(clock_scale)
+        self._drive_lock = threading.Lock()  # one drive at a time (navigate -auto or sim drive)
         self._pan = 0.0
         self._tilt = 0.0
         self._load(spec, seed)
 
     # -- construction ---------------------------------------------------------------------
     @classmethod
-    def from_scene(cls, name_or_path: str | Path, seed: int | None = None) -> World:
+    def from_scene(cls, name_or_path: str | Path, seed: int | None = None,
+                   clock_scale: ScaleSource = 1.0) -> World:
         """Build from ``config/scenes/<name>.yaml`` (or a path); ``seed`` overrides the file's."""
-        return cls(load_scene_spec(name_or_path), seed)
+        return cls(load_scene_spec(name_or_path), seed, clock_scale)
 
     def load_scene(self, name_or_path: str | Path, seed: int | None = None) -> None:
         """Swap in another scene in place (devices keep their reference to this world); the
@@ -77,12 +89,14 @@ class World:
     def _load(self, spec: dict, seed: int | None) -> None:
         seed = int(spec.get("seed", 0) if seed is None else seed)
         rng = np.random.default_rng(seed)
-        terrain = build_terrain(spec["terrain"], rng)
+        terrain = build_terrain(spec["terrain"], rng, base_dir=spec.get("_dir"))
         # The global frame's origin is the ground under the rover's start (x forward at the start
         # pose, z up from there), as the server assumes; scenes are shifted to it.
         start_spec = spec.get("rover", {}).get("start", {})
         z0 = float(terrain.sample(float(start_spec.get("x", 0.0)), float(start_spec.get("y", 0.0))))
-        if np.isfinite(z0) and z0 != 0.0:
+        if not np.isfinite(z0):
+            z0 = 0.0
+        if z0 != 0.0:
             terrain = Heightfield(terrain.x0, terrain.y0, terrain.cell, terrain.heights - np.float32(z0),
                                   terrain.albedo, rocks=terrain.rocks)
         detail = Detail(periodic_tile(512, rng), **spec.get("detail", {}))
@@ -90,6 +104,10 @@ class World:
         objects = [build_object(o, FIRST_OBJECT_ID + i) for i, o in enumerate(spec.get("objects", []))]
         rover_spec = spec.get("rover", {})
         rover = build_rover(rover_spec, head)
+        drive = RoverDrive.from_spec(rover_spec)
+        slip_spec = rover_spec.get("slip") or {}
+        slip = Slip(float(slip_spec.get("distance", 0.0)), float(slip_spec.get("heading", 0.0)),
+                    int(slip_spec.get("seed", seed)))
         target = build_target(spec["target"]) if spec.get("target") else None
         traj = None
         if target is not None:
@@ -100,6 +118,7 @@ class World:
             self.scene_name = str(spec.get("name"))
             self.seed = seed
             self.terrain: Heightfield = terrain
+            self.z_shift = float(z0)  # subtracted from the scene's heights (ground under the start at 0)
             self.detail = detail
             self.head = head
             self._objects = objects
@@ -113,6 +132,12 @@ class World:
             start = rover_spec.get("start", {})
             self._rover = (float(start.get("x", 0.0)), float(start.get("y", 0.0)),
                            float(start.get("heading", 0.0)))
+            # The rover's dead-reckoned pose (wheel odometry): equal to the truth until slip
+            # or drift pulls them apart while driving.
+            self._odom = self._rover
+            self.drive_model = drive
+            self.slip = slip
+            self._rock_rng = np.random.default_rng([seed, 7])  # rocks added at run time
             cb = spec.get("checkerboard")
             if cb:
                 from drivers.sim.transforms import pose_from_spec
@@ -159,22 +184,85 @@ class World:
         return z if np.isfinite(z) else 0.0
 
     def set_rover_pose(self, x: float, y: float, heading_deg: float) -> None:
+        """Put the rover there, and its odometry with it (a placement, not a drive)."""
         with self._lock:
             self._rover = (float(x), float(y), _wrap180(float(heading_deg)))
+            self._odom = self._rover
 
     def move_rover(self, dx: float, dy: float, dyaw_deg: float) -> None:
-        """Move by (dx forward, dy left) in the rover's current frame, then turn by dyaw."""
+        """Move by (dx forward, dy left) in the rover's current frame, then turn by dyaw.
+
+        A teleport (no time passes, no slip): the odometry moves by the same commanded amount."""
         with self._lock:
-            x, y, h = self._rover
-            c, s = np.cos(np.radians(h)), np.sin(np.radians(h))
-            self._rover = (x + c * dx - s * dy, y + s * dx + c * dy, _wrap180(h + dyaw_deg))
+            self._rover = _move(self._rover, dx, dy, dyaw_deg)
+            self._odom = _move(self._odom, dx, dy, dyaw_deg)
+
+    def odometry(self) -> tuple[float, float, float]:
+        """x, y, heading_deg the rover believes it is at (dead reckoning from its wheels)."""
+        with self._lock:
+            return self._odom
+
+    def set_odometry(self, x: float, y: float, heading_deg: float) -> None:
+        """Reset the dead-reckoned pose (a GNC that accepts a fix from VO or map matching)."""
+        with self._lock:
+            self._odom = (float(x), float(y), _wrap180(float(heading_deg)))
+
+    def set_slip(self, distance: float, heading: float, seed: int) -> None:
+        """Wheel slip (share of distance lost) and heading drift (deg per metre), seeded."""
+        with self._lock:
+            self.slip = Slip(float(distance), float(heading), int(seed))
+
+    def drive(self, v: float, w_deg: float, seconds: float, stop: Callable[[], bool] | None = None,
+              on_step: Callable[[], None] | None = None) -> dict[str, float]:
+        """Drive at forward speed ``v`` (m/s) and turn rate ``w_deg`` (deg/s) for ``seconds`` of
+        simulated time, in steps of ``drive_model.step`` on the world's clock.
+
+        The odometry integrates the command exactly; the truth integrates it through the slip
+        model. ``stop()`` true ends the drive at the next step (a break); ``on_step`` runs after
+        each step (a track recorder). Only one drive runs at a time: a second waits for the first.
+        Returns the simulated seconds driven, the commanded distance and turn.
+        """
+        if seconds < 0 or not math.isfinite(seconds):
+            raise ValueError("seconds must be a finite number >= 0")
+        step = self.drive_model.step
+        driven = 0.0
+        with self._drive_lock:
+            n = max(1, math.ceil(seconds / step - 1e-9)) if seconds > 0 else 0
+            for k in range(n):
+                dt = min(step, seconds - k * step)
+                if not self.clock.sleep(dt, stop):
+                    break
+                ds, dyaw = v * dt, w_deg * dt
+                with self._lock:
+                    self._odom = step_pose(self._odom, ds, dyaw)
+                    true_ds, true_dyaw = self.slip.apply(ds, dyaw)
+                    self._rover = step_pose(self._rover, true_ds, true_dyaw)
+                driven += dt
+                if on_step is not None:
+                    on_step()
+        return {"seconds": driven, "distance": v * driven, "turned": w_deg * driven}
+
+    @property
+    def driving(self) -> bool:
+        """Whether a drive is under way."""
+        return self._drive_lock.locked()
+
+    def add_rock(self, x: float, y: float, radius: float, height: float) -> dict[str, float]:
+        """Place a rock at run time (a hazard the last scan did not see): the heightfield, and so
+        every renderer and ``true_dem``, has it from the next frame on. Returns its record."""
+        with self._lock:
+            self.terrain = add_rock(self.terrain, x, y, radius, height, self._rock_rng)
+            return dict(self.terrain.rocks[-1])
 
     def truth(self) -> dict[str, float]:
         """The true state for ``sim truth``: x, y, z, heading (deg) of the rover in the global
-        frame and the PTU's pan and tilt (deg), read together under the lock."""
+        frame and the PTU's pan and tilt (deg), read together under the lock; also the
+        dead-reckoned pose (odom_x, odom_y, odom_heading) and the simulated time."""
         with self._lock:
             x, y, h = self._rover
-            return {"x": x, "y": y, "z": self.rover_z(), "heading": h, "pan": self._pan, "tilt": self._tilt}
+            ox, oy, oh = self._odom
+            return {"x": x, "y": y, "z": self.rover_z(), "heading": h, "pan": self._pan, "tilt": self._tilt,
+                    "odom_x": ox, "odom_y": oy, "odom_heading": oh, "sim_time": self.clock.now()}
 
     def T_world_rover(self) -> np.ndarray:
         x, y, h = self.rover_pose()
@@ -349,3 +437,9 @@ class World:
 
 def _wrap180(a: float) -> float:
     return (a + 180.0) % 360.0 - 180.0
+
+
+def _move(pose: tuple[float, float, float], dx: float, dy: float, dyaw: float) -> tuple[float, float, float]:
+    x, y, h = pose
+    c, s = np.cos(np.radians(h)), np.sin(np.radians(h))
+    return (float(x + c * dx - s * dy), float(y + s * dx + c * dy), _wrap180(h + dyaw))

@@ -53,8 +53,9 @@ class SimTofSettings(Settings):
     seed: int = param(0, "sim: noise generator seed", min=0, max=2**63 - 1)
     sim_serial: int = param(DEFAULT_SIM_SERIAL, "sim: the serial number the simulated camera reports",
                             min=0, max=0xFFFFFFFF)
-    time_scale: float = param(0.0, "sim: 1 = real frame time (4 x integration + 5 ms), 0 = instant", min=0.0,
-                              max=1000.0)
+    time_scale: float | None = param(None, "sim: wall seconds per simulated second of a frame (4 x integration "
+                                     "+ 5 ms; 1 real time, 0 instant); null: frames take their time on the "
+                                     "simulated world's clock (sim.time_scale)", min=0.0, max=1000.0)
     scene: str = param("office", "sim: the scene of a camera used with no shared world (consoles, scripts)")
     sim_amplitude_gain: float = param(_M.amplitude_gain, "sim: counts per (albedo * cos / m^2 * ms)", min=1e-9)
     sim_saturation: float = param(_M.saturation, "sim: brighter pixels saturate (confidence 0, range unusable)",
@@ -293,8 +294,11 @@ class SimTof:
             )
         integration = self._integration
         t_ms = k.integration_ms(integration)
-        if self._time_scale > 0:  # four phase samples per frame plus read-out
-            time.sleep(self._time_scale * (4 * t_ms + 5.0) / 1000.0)
+        frame_s = (4 * t_ms + 5.0) / 1000.0  # four phase samples per frame plus read-out
+        if self._time_scale is None:
+            self._world.clock.sleep(frame_s)
+        elif self._time_scale > 0:
+            time.sleep(self._time_scale * frame_s)
         frame = self._measure(self._expected(t_ms), integration)
         self.frames += 1
         return frame

@@ -142,21 +142,36 @@ def _load_global(folder: str) -> Any:
 
 
 def drive_simulated(world: Any, waypoints: Any, track: list[tuple[float, float]],
-                    reached: Any = None, step: float = 0.05) -> None:
-    """The simulated rover drives the waypoints: turn on the spot, then straight (sect. 5.4);
-    ``reached(k)`` is called as it arrives at waypoint k."""
-    x, y, heading = world.rover_pose()
+                    reached: Any = None, stop: Any = None) -> None:
+    """The simulated rover drives the waypoints as its GNC would, in simulated time: from where
+    its odometry says it is, turn on the spot toward the next waypoint at the rover's turn rate,
+    then straight at its speed (sect. 5.4; ``world.drive_model``, a scene's ``rover:`` block),
+    each on the world's clock. Steering by the dead-reckoned pose is what makes wheel slip and
+    heading drift (``sim slip``) leave the true rover short of and beside the waypoints.
+
+    ``track`` gets the true position every 5 cm (the simulator's ground truth, to score the
+    traverse against the true hazards); ``reached(k)`` is called as the rover's odometry arrives
+    at waypoint k; ``stop()`` true (a break) stops the rover at its next step."""
+    model = world.drive_model
+
+    def record() -> None:
+        t = world.truth()
+        if math.hypot(t["x"] - track[-1][0], t["y"] - track[-1][1]) >= 0.05:
+            track.append((float(t["x"]), float(t["y"])))
+
     for k, (wx, wy) in enumerate(waypoints.xy[1:], start=1):
+        x, y, heading = world.odometry()
         dist = math.hypot(wx - x, wy - y)
         if dist >= 1e-6:
-            want = math.degrees(math.atan2(wy - y, wx - x))
-            world.move_rover(0.0, 0.0, (want - heading + 180.0) % 360.0 - 180.0)
-            n = max(1, math.ceil(dist / step))
-            for _ in range(n):
-                world.move_rover(dist / n, 0.0, 0.0)
-                tx, ty, _ = world.rover_pose()
-                track.append((float(tx), float(ty)))
-            x, y, heading = world.rover_pose()
+            turn = (math.degrees(math.atan2(wy - y, wx - x)) - heading + 180.0) % 360.0 - 180.0
+            if abs(turn) > 1e-9:
+                world.drive(0.0, math.copysign(model.turn_rate, turn), abs(turn) / model.turn_rate, stop)
+            world.drive(model.speed, 0.0, dist / model.speed, stop, on_step=record)
+            t = world.truth()
+            if (t["x"], t["y"]) != track[-1]:
+                track.append((float(t["x"]), float(t["y"])))
+        if stop is not None and stop():
+            return
         if reached is not None:
             reached(k)
 
@@ -270,9 +285,11 @@ def navigate(job: Job, cfg: NavigateConfig) -> dict[str, Any]:
                                   f"({end[0]:.2f}, {end[1]:.2f})", "drive")
         if cfg.auto:
             drive_simulated(app.world, plan.waypoints, track, reached=lambda k, n=segments: leg_progress(
-                k, n, f"segment {k}/{n} driven", "drive"))
-            t = app.world.truth()
-            app.set_pose(t["x"], t["y"], t["heading"], source="sim")
+                k, n, f"segment {k}/{n} driven", "drive"), stop=job.cancel.is_set)
+            job.check()
+            # The rover's belief, not the simulator's truth: with slip they differ, as on Mars.
+            odo = app.world.odometry()
+            app.set_pose(odo[0], odo[1], odo[2], source="odometry")
         else:
             arrived = _wait_for_rover(app, job, version, end, cfg.tolerance, cfg.wait_timeout)
             track.append((arrived.x, arrived.y))

@@ -263,6 +263,10 @@ def status(ctx: Context, cfg: None) -> dict[str, Any]:
     out["recovery"] = app.last_recovery
     if app.world is not None:
         out["scene"] = app.world.scene_name
+        # Beside the believed pose: the simulated rover's true one (they part with sim slip).
+        t = app.world.truth()
+        out["truth"] = [Fixed(t["x"], 3), Fixed(t["y"], 3), Fixed(t["heading"], 2)]
+        out["sim_time"] = Fixed(t["sim_time"], 3)
     out.update(app.monitors.status_fields())
     return out
 

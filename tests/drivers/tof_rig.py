@@ -15,6 +15,7 @@ from typing import Any
 import numpy as np
 
 import drivers.tof as tof
+from drivers.sim.clock import SimClock
 from drivers.tof.simulated import nominal_camera_matrix
 
 
@@ -49,6 +50,7 @@ class PlaneWorld:
     """Planes seen by a camera at a fixed pose (``sensor_pose`` ignores the sensor name)."""
 
     def __init__(self, planes: list[Plane], T_world_cam: np.ndarray) -> None:
+        self.clock = SimClock(0.0)  # frames take no wall time here
         self.planes = planes
         self.T = np.asarray(T_world_cam, dtype=np.float64)
         self.renders = 0

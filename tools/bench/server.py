@@ -121,7 +121,7 @@ def start_rvs(data: Path, overrides: list[str] | None = None) -> tuple[int, obje
 
     setup("warning", None, console=False)
     store = build_config(None, [f"server.data={data}", "server.port=0", "server.max_clients=256",
-                                "drivers.ptu.time_scale=0", *(overrides or [])])
+                                "drivers.ptu.time_scale=0", "sim.time_scale=0", *(overrides or [])])
     ready = threading.Event()
     box: dict = {}
 
