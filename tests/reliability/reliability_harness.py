@@ -33,7 +33,8 @@ from rvs_server.protocol import MAX_LINE, WILL_TIMING_MARK, ProtocolError, parse
 from rvs_server.table import COMMANDS, Command, bind_options, check_positional, lookup
 
 ROOT = Path(__file__).resolve().parents[2]
-FAST = ("--set", "drivers.ptu.time_scale=0", "--set", "sim.time_scale=0")  # a simulated world that takes no wall time
+FAST = ("--set", "drivers.ptu.time_scale=0", "--set", "sim.time_scale=0",
+        "--set", "server.web_port=0")  # a simulated world that takes no wall time; no console
 FINAL = ("OK", "ERROR")
 TAIL_KEEP = 40
 

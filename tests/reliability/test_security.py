@@ -87,6 +87,20 @@ def test_loopback_by_default(tmp_path: Path) -> None:
         srv.stop()
 
 
+def test_the_web_console_listens_on_loopback_without_a_token(tmp_path: Path) -> None:
+    """A public TCP host without a token still keeps the console (which can drive the rover)
+    on loopback."""
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        web = s.getsockname()[1]
+    srv = ServerProcess(tmp_path / "d", extra_args=["--host", "0.0.0.0", "--set", f"server.web_port={web}"])
+    srv.start()
+    try:
+        assert sorted(listening_addresses(srv.proc.pid)) == sorted([("0.0.0.0", srv.port), ("127.0.0.1", web)])
+    finally:
+        srv.stop()
+
+
 # ------------------------------------------------------------------------------------ token
 
 
