@@ -85,7 +85,10 @@ def test_fill_takes_the_background_at_an_occlusion_and_clouds_use_measured_pixel
     right[y0:y1, x0 - d_near:x1 - d_near] = patch[y0:y1, x0:x1]
     k = np.array([[f, 0, (w - 1) / 2], [0, f, (h - 1) / 2], [0, 0, 1.0]])
     calib = st.StereoCalibration(k, np.zeros(5), k.copy(), np.zeros(5), np.eye(3), np.array([-b, 0.0, 0.0]), (w, h))
-    to8 = (lambda a: np.clip(a, 0, 255).astype(np.uint8))
+
+    def to8(a: np.ndarray) -> np.ndarray:
+        return np.clip(a, 0, 255).astype(np.uint8)
+
     params = {"num_disparities": 48, "fill": True}
     disp = st.disparity(to8(left), to8(right), calib, params)
     plain = st.disparity(to8(left), to8(right), calib, {"num_disparities": 48})
