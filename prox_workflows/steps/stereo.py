@@ -291,7 +291,9 @@ class SgbmParams:
     median of radius ``fill_radius`` guided by the left image, grey-level scale ``fill_sigma``).
     On real scenes the filters reject a quarter of the pixels (occlusions, low texture): on
     Middlebury Motorcycle the share of ground-truth pixels that are invalid or > 2 px off falls
-    from 28 % to 7.4 % with filling. The filled values stay guesses: :class:`Disparity` keeps the
+    from 28 % to 7.4 % with filling (OpenCV's default SGBM: 20.5 %, the best of a small search
+    of its settings: 17.4 %); on the simulated quarry from 7.5 % to 0.46 %, while the measured
+    pixels keep their 0.08 % (tools/bench/stereo.py). The filled values stay guesses: :class:`Disparity` keeps the
     measured-only disparity beside them and the point cloud (:func:`cloud`, hence every DEM) is
     made of measured pixels only; the filled disparity is for images and dense consumers.
     """
