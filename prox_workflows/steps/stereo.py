@@ -285,6 +285,17 @@ class SgbmParams:
     for 3-way / sgbm. Block size 3 and 7 changed neither accuracy nor speed much; 5 is kept.
     The 3-way mode ignores ``disp12MaxDiff``, hence the explicit left-right check: without any
     filter 0.8 % of the pixels are more than 2 px off, with them 0.08 %.
+
+    ``fill`` (off by default) completes the disparity where the filters rejected it
+    (:func:`fill_disparity`: background-preferring scanline fill, then an edge-aware weighted
+    median of radius ``fill_radius`` guided by the left image, grey-level scale ``fill_sigma``).
+    On real scenes the filters reject a quarter of the pixels (occlusions, low texture): on
+    Middlebury Motorcycle the share of ground-truth pixels that are invalid or > 2 px off falls
+    from 28 % to 7.4 % with filling (OpenCV's default SGBM: 20.5 %, the best of a small search
+    of its settings: 17.4 %); on the simulated quarry from 7.5 % to 0.46 %, while the measured
+    pixels keep their 0.08 % (tools/bench/stereo.py). The filled values stay guesses: :class:`Disparity` keeps the
+    measured-only disparity beside them and the point cloud (:func:`cloud`, hence every DEM) is
+    made of measured pixels only; the filled disparity is for images and dense consumers.
     """
 
     num_disparities: int | None = None
@@ -303,6 +314,9 @@ class SgbmParams:
     texture_threshold: float = 2.5
     scale: float = 1.0
     pad: bool = True  # pad the left border so the first num_disparities columns are matched too
+    fill: bool = False
+    fill_radius: int = 3
+    fill_sigma: float = 10.0
 
     @classmethod
     def from_dict(cls, values: Mapping[str, Any] | None) -> SgbmParams:
@@ -322,6 +336,8 @@ class SgbmParams:
             raise ValueError("block_size must be odd and >= 1")
         if not 0.1 <= self.scale <= 1.0:
             raise ValueError("scale must be in [0.1, 1]")
+        if self.fill_radius < 0 or self.fill_sigma <= 0:
+            raise ValueError("fill_radius must be >= 0 and fill_sigma > 0")
 
     def disparities_for(self, rect: Rectification) -> int:
         """numDisparities at the matching scale (a multiple of 16)."""
@@ -337,17 +353,36 @@ class SgbmParams:
 
 @dataclass
 class Disparity:
-    """Disparity of one pair in both geometries (float32 px, NaN invalid), with its rectification."""
+    """Disparity of one pair in both geometries (float32 px, NaN invalid), with its rectification.
+
+    With ``params.fill`` the ``left`` and ``rectified`` arrays are the filled ones and
+    ``left_measured`` / ``rectified_measured`` hold the matcher's own (left-right checked,
+    filtered) disparity; without it those are None and nothing is filled.
+    """
 
     left: np.ndarray
     rectified: np.ndarray
     rect: Rectification
     params: SgbmParams
     timings: dict[str, float] = field(default_factory=dict)
+    left_measured: np.ndarray | None = None
+    rectified_measured: np.ndarray | None = None
 
-    def points(self) -> np.ndarray:
-        """H x W x 3 float32 in the left camera frame, per left original pixel (NaN invalid)."""
-        return reproject_left(self.left, self.rect)
+    @property
+    def measured(self) -> np.ndarray:
+        """Left-geometry disparity of the matched pixels only (filled ones NaN)."""
+        return self.left if self.left_measured is None else self.left_measured
+
+    @property
+    def filled_mask(self) -> np.ndarray:
+        """True on left pixels whose disparity is a fill, not a measurement."""
+        return np.isfinite(self.left) & ~np.isfinite(self.measured)
+
+    def points(self, measured_only: bool = True) -> np.ndarray:
+        """H x W x 3 float32 in the left camera frame, per left original pixel (NaN invalid).
+        Filled disparities make no points unless ``measured_only`` is False: a DEM wants only
+        points the matcher vouches for."""
+        return reproject_left(self.measured if measured_only else self.left, self.rect)
 
     def sigma_z(self, sigma_d: float | None = None) -> np.ndarray:
         """Depth standard deviation per left pixel (m), from the noise model (``sigma_d`` None:
@@ -432,6 +467,77 @@ def disparity_rectified(rl: np.ndarray, rr: np.ndarray, params: SgbmParams, nd: 
     return out
 
 
+def _scanline_fill(disp: np.ndarray, smooth_jump: float = 1.0) -> np.ndarray:
+    """Each invalid pixel from the nearest valid ones left and right on its row: interpolated
+    linearly where the two agree within ``smooth_jump`` px (a hole in one surface), else the
+    smaller (background) one, since a gap between two depths is mostly the background that the
+    nearer object hides from the other camera (occlusion). Rows without a valid pixel stay NaN."""
+    h, w = disp.shape
+    valid = np.isfinite(disp)
+    cols = np.arange(w, dtype=np.int64)[None, :]
+    li = np.maximum.accumulate(np.where(valid, cols, -1), axis=1)
+    ri = np.minimum.accumulate(np.where(valid, cols, w)[:, ::-1], axis=1)[:, ::-1]
+    rows = np.arange(h)[:, None]
+    dl = np.where(li >= 0, disp[rows, np.clip(li, 0, w - 1)], np.nan)
+    dr = np.where(ri < w, disp[rows, np.clip(ri, 0, w - 1)], np.nan)
+    with np.errstate(invalid="ignore"):
+        t = (cols - li) / np.maximum(ri - li, 1)
+        lin = dl + (dr - dl) * t
+        smooth = np.isfinite(dl) & np.isfinite(dr) & (np.abs(dl - dr) <= smooth_jump)
+    out = np.where(smooth, lin, np.fmin(dl, dr))
+    return np.where(valid, disp, out).astype(np.float32)
+
+
+def _weighted_median(disp: np.ndarray, targets: np.ndarray, guide: np.ndarray, radius: int,
+                     sigma: float, chunk: int = 65536) -> np.ndarray:
+    """Edge-aware weighted median at the ``targets`` pixels: over the (2r+1)^2 window, each
+    neighbour weighs exp(-|I - I_centre| / sigma) with I the guide image, so a filled value is
+    voted on by the pixels that look like the same surface (what a WLS filter does with its
+    edge-aware smoothness term, without cv2.ximgproc, absent from opencv-python-headless).
+    The scanline fill's horizontal streaks are replaced by the 2-D neighbourhood's verdict."""
+    out = disp.copy()
+    h, w = disp.shape
+    ys_all, xs_all = np.nonzero(targets & np.isfinite(disp))
+    if radius <= 0 or ys_all.size == 0:
+        return out
+    g = guide.astype(np.float32)
+    offs = [(dy, dx) for dy in range(-radius, radius + 1) for dx in range(-radius, radius + 1)]
+    k = len(offs)
+    for start in range(0, ys_all.size, chunk):
+        ys, xs = ys_all[start:start + chunk], xs_all[start:start + chunk]
+        gc = g[ys, xs]
+        vals = np.empty((ys.size, k), np.float32)
+        wts = np.empty((ys.size, k), np.float32)
+        for j, (dy, dx) in enumerate(offs):
+            yy = np.clip(ys + dy, 0, h - 1)
+            xx = np.clip(xs + dx, 0, w - 1)
+            v = disp[yy, xx]
+            ok = np.isfinite(v)
+            vals[:, j] = np.where(ok, v, np.inf)
+            wts[:, j] = np.where(ok, np.exp(-np.abs(g[yy, xx] - gc) / sigma), 0.0)
+        order = np.argsort(vals, axis=1)
+        sv = np.take_along_axis(vals, order, 1)
+        cw = np.cumsum(np.take_along_axis(wts, order, 1), axis=1)
+        pos = np.minimum((cw < cw[:, -1:] * 0.5).sum(axis=1), k - 1)
+        out[ys, xs] = sv[np.arange(ys.size), pos]
+    return out
+
+
+def fill_disparity(disp: np.ndarray, guide: np.ndarray, radius: int = 3, sigma: float = 10.0) -> np.ndarray:
+    """A dense disparity from a filtered one (rectified geometry, NaN invalid), guided by the
+    rectified left image ``guide`` (mono8): :func:`_scanline_fill` (background at occlusions),
+    then :func:`_weighted_median` over the filled pixels only; measured pixels keep their value.
+
+    Why not a second matching pass: the pixels the left-right check rejects are mostly
+    half-occluded, seen by one camera only, and no matcher finds their match; the surface behind
+    them (the background) is the best guess, which the scanline fill gives. On Middlebury
+    Motorcycle (quarter size) 16 % of the filled pixels end > 2 px off, against 4.9 % of the
+    measured ones; the weighted median takes the bad-2 of the whole image from 7.7 % to 7.4 %.
+    """
+    filled = _scanline_fill(disp)
+    return _weighted_median(filled, ~np.isfinite(disp), guide, radius, sigma)
+
+
 def sample_disparity(disp: np.ndarray, map_xy: np.ndarray, jump: float = 1.0) -> np.ndarray:
     """``disp`` at sub-pixel positions ``map_xy`` (H x W x 2): bilinear where the four neighbours are
     valid and agree (within ``jump`` px of the nearest), else the nearest valid value, so a
@@ -472,20 +578,35 @@ def disparity(left: np.ndarray, right: np.ndarray,
         sr = cv2.resize(rr, (sw, sh), interpolation=cv2.INTER_AREA)
         timings["downsample"] = time.perf_counter() - t2
         small = disparity_rectified(sl, sr, p, nd, timings)
+        small_filled = _fill_timed(small, sl, p, timings)
         t3 = time.perf_counter()
         fx, fy = sw / w, sh / h
         xs = ((np.arange(w, dtype=np.float32) + 0.5) * fx - 0.5)
         ys = ((np.arange(h, dtype=np.float32) + 0.5) * fy - 0.5)
         grid = np.stack(np.meshgrid(xs, ys), axis=-1)
         rectified = sample_disparity(small, grid, jump=1.0) / np.float32(fx)
+        filled = None if small_filled is None else sample_disparity(small_filled, grid, jump=1.0) / np.float32(fx)
         timings["upsample"] = time.perf_counter() - t3
     else:
         rectified = disparity_rectified(rl, rr, p, nd, timings)
+        filled = _fill_timed(rectified, rl, p, timings)
     t4 = time.perf_counter()
     left_disp = sample_disparity(rectified, rect.left_to_rect, jump=1.0)
+    left_filled = None if filled is None else sample_disparity(filled, rect.left_to_rect, jump=1.0)
     timings["unrectify"] = time.perf_counter() - t4
     timings["total"] = time.perf_counter() - t0
-    return Disparity(left_disp, rectified, rect, p, timings)
+    if filled is None or left_filled is None:
+        return Disparity(left_disp, rectified, rect, p, timings)
+    return Disparity(left_filled, filled, rect, p, timings, left_measured=left_disp, rectified_measured=rectified)
+
+
+def _fill_timed(disp: np.ndarray, guide: np.ndarray, p: SgbmParams, timings: dict[str, float]) -> np.ndarray | None:
+    if not p.fill:
+        return None
+    t = time.perf_counter()
+    out = fill_disparity(disp, guide, p.fill_radius, p.fill_sigma)
+    timings["fill"] = time.perf_counter() - t
+    return out
 
 
 # -- 3D -------------------------------------------------------------------------------------------
@@ -523,8 +644,9 @@ def depth_sigma(z: np.ndarray | float, baseline: float, focal: float,
 
 
 def cloud(disp: Disparity, sigma_d: float | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(N x 3 points in the left camera frame, N depth sigmas, N x 2 int left pixel (row, col))."""
-    pts = disp.points()
+    """(N x 3 points in the left camera frame, N depth sigmas, N x 2 int left pixel (row, col)):
+    measured pixels only, filled ones never (see :attr:`SgbmParams.fill`)."""
+    pts = disp.points(measured_only=True)
     ok = np.isfinite(pts[..., 2])
     rows, cols = np.nonzero(ok)
     p = pts[ok]
