@@ -1,8 +1,12 @@
 """Point clouds on disk: PLY (what Open3D, CloudCompare and MeshLab read), ``.npy``, plain text,
 and the 4-channel coordinate images AcquireTofCoordImages writes (x, y, z, intensity per pixel).
 
-``read_points`` always returns N x 3 (x, y, z) or N x 4 (with intensity) float32 rows of defined
-points, so DemImport does not care where a cloud came from. PLY is read in ascii and
+``read_points`` always returns N x 3 (x, y, z) or N x 4 (with intensity) rows of defined points,
+so DemImport does not care where a cloud came from. The rows keep the precision of the file:
+float32 for float32 sources (the cameras' coordinate images, float PLYs), float64 when the source
+holds doubles (double PLY properties, float64 ``.npy``, text). Why: a georeferenced cloud has
+eastings near 5e5 m and northings near 5e6 m, where float32 steps are 0.03-0.5 m, so narrowing it
+would move points to the wrong cell before DemImport ever sees them. PLY is read in ascii and
 binary_little/big_endian with any vertex properties (x, y, z required; intensity, scalar_intensity,
 amplitude or a grey value taken as the fourth column) and any other elements skipped.
 """
@@ -113,11 +117,14 @@ def _from_columns(cols: dict[str, np.ndarray], source: str) -> np.ndarray:
         if name in cols:
             out.append(cols[name])
             break
-    return np.column_stack(out).astype(np.float32)
+    wide = any(np.asarray(c).dtype.itemsize > 4 or not np.issubdtype(np.asarray(c).dtype, np.floating)
+               for c in out[:3])
+    return np.column_stack(out).astype(np.float64 if wide else np.float32)
 
 
 def read_points(path: Path | str) -> np.ndarray:
-    """N x 3 or N x 4 float32 points from PLY, .npy, a coordinate-image TIFF or x y z [i] text.
+    """N x 3 or N x 4 points from PLY, .npy, a coordinate-image TIFF or x y z [i] text, in the
+    source's precision (float64 for doubles and text, else float32: see the module docstring).
 
     Coordinate images (H x W x 3 or 4) keep only defined pixels: z finite, and not the -1
     marker the camera libraries use for 'no measurement' (all of x, y, z equal to -1)."""
@@ -131,7 +138,7 @@ def read_points(path: Path | str) -> np.ndarray:
             return _from_image(arr, str(path))
         if arr.ndim != 2 or arr.shape[1] not in (3, 4):
             raise ValueError(f"{path}: expected N x 3 or N x 4 points, got shape {arr.shape}")
-        return np.asarray(arr, dtype=np.float32)
+        return np.asarray(arr, dtype=np.float64 if arr.dtype == np.float64 else np.float32)
     if suffix in (".tif", ".tiff"):
         return _from_image(tifffile.imread(path), str(path))
     if suffix in (".txt", ".xyz", ".csv", ".asc", ".pts"):
@@ -139,7 +146,7 @@ def read_points(path: Path | str) -> np.ndarray:
         arr = np.loadtxt(text.splitlines(), dtype=np.float64, ndmin=2, comments="#")
         if arr.shape[1] < 3:
             raise ValueError(f"{path}: need at least x y z per line")
-        return arr[:, :4].astype(np.float32)
+        return arr[:, :4].astype(np.float64)
     raise ValueError(f"{path}: unknown point cloud type (PLY, .npy, coordinate TIFF or x y z text)")
 
 
