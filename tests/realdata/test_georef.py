@@ -18,8 +18,10 @@ import pytest
 
 from prox_workflows.cli import dem2hazard as cli_hazard
 from prox_workflows.cli import dem_import as cli_import
+from prox_workflows.cli import dem_mosaik as cli_mosaik
 from prox_workflows.cli import path_planner as cli_planner
 from prox_workflows.grid import read_geotiff
+from prox_workflows.steps.safety import check_move
 
 SHIFT = np.array([556440.0, 5394932.0])  # the Kootenai DEM's UTM origin (zone 11N), metres
 SIZE = 24.0  # metres of terrain on a side
@@ -48,19 +50,25 @@ def terrain_cloud(n: int = 40_000, seed: int = 3) -> np.ndarray:
 def _chain(tmp: Path, pts: np.ndarray, offset: np.ndarray, tag: str) -> dict[str, object]:
     cloud = pts.copy()
     cloud[:, :2] += offset
-    src = tmp / f"{tag}.npy"
-    np.save(src, cloud)
+    # two overlapping halves, imported on their own grids and mosaicked (DemMosaik's resampling)
+    halves = []
+    for k, (lo, hi) in enumerate(((0.0, 14.0), (10.0, SIZE))):
+        part = cloud[(pts[:, 0] >= lo) & (pts[:, 0] < hi)]
+        src = tmp / f"{tag}_{k}.npy"
+        np.save(src, part)
+        bounds = ",".join(repr(float(v)) for v in (offset[0] + lo, offset[1], offset[0] + hi, offset[1] + SIZE))
+        assert cli_import.main([str(src), "--cell", str(CELL), "--bounds", bounds, "--noise", "none",
+                                "-o", str(tmp / f"{tag}{k}_dem.tif")]) == 0
+        halves.append(str(tmp / f"{tag}{k}_dem.tif"))
     dem = tmp / f"{tag}_dem.tif"
-    bounds = ",".join(str(v) for v in (offset[0], offset[1], offset[0] + SIZE, offset[1] + SIZE))
-    assert cli_import.main([str(src), "--cell", str(CELL), "--bounds", bounds, "--noise", "none",
-                            "-o", str(dem)]) == 0
+    assert cli_mosaik.main([*halves, "-o", str(dem)]) == 0
     assert cli_hazard.main([str(dem), "-o", str(tmp / tag), "--no-preview"]) == 0
     start, goal = offset + (2.0, 2.0), offset + (22.0, 22.0)
     assert cli_planner.main(["--hazard", str(tmp / f"{tag}_hazard.tif"), "--slope", str(tmp / f"{tag}_slope.tif"),
                              "--start", f"{float(start[0])!r},{float(start[1])!r}", "--goal", f"{float(goal[0])!r},{float(goal[1])!r}",
                              "-o", str(tmp / f"{tag}_plan")]) == 0
     out: dict[str, object] = {}
-    for layer in ("dem", "slope", "step", "roughness", "hazard"):
+    for layer in ("dem", "slope", "step", "roughness", "hazard", "traversability"):
         image, geom = read_geotiff(tmp / f"{tag}_{layer}.tif")
         out[layer], out[layer + "_geom"] = image, geom
     path = np.loadtxt(tmp / f"{tag}_plan_path.csv", delimiter=",", skiprows=1, ndmin=2)
@@ -111,3 +119,18 @@ def test_path_is_the_same_path_shifted(products) -> None:
     assert pa.shape == pb.shape
     shifted = pb[:, :2] - SHIFT
     assert np.max(np.abs(shifted - pa[:, :2])) <= 1e-3
+
+
+def test_check_move_is_the_same_shifted(products) -> None:
+    a, b = products
+    moves = [((3.0, 3.0, 0.0), (20.0, 3.0, 0.0)), ((12.0, 2.0, 90.0), (12.0, 20.0, 90.0)),
+             ((6.0, 14.0, 30.0), (10.0, 18.0, 45.0))]
+    verdicts = set()
+    for (x0, y0, h0), (x1, y1, h1) in moves:
+        ra = check_move(a["traversability"], a["traversability_geom"], (x0, y0, h0), (x1, y1, h1), 1.0, 0.8)
+        rb = check_move(b["traversability"], b["traversability_geom"], (x0 + SHIFT[0], y0 + SHIFT[1], h0),
+                        (x1 + SHIFT[0], y1 + SHIFT[1], h1), 1.0, 0.8)
+        verdicts.add(ra.verdict)
+        assert (ra.verdict, ra.cells, ra.unknown_cells, ra.blocked_cells) == (
+            rb.verdict, rb.cells, rb.unknown_cells, rb.blocked_cells)
+    assert "not_traversable" in verdicts
