@@ -30,6 +30,7 @@ import numpy as np
 from rvs_params import SettingError
 
 from ..engine import WorkflowError, run_workflow
+from ..grid import parse_crs
 from ..layers import layer_path as _layer_path
 from ..layers import prefix_of, read_layers, write_layers  # noqa: F401 - the readers and writers of DEM files
 from ..parameters import DemImportParams
@@ -88,6 +89,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--frequency", type=float, default=30.0, help="ToF modulation frequency (MHz) for --noise tof")
     ap.add_argument("--rover-mask", help="the rover's footprint: xmin,ymin,xmax,ymax or a polygon x1,y1,x2,y2,...")
     ap.add_argument("--rover-ground-z", type=float, help="keep points in the footprint below this height")
+    ap.add_argument("--crs", help="the CRS of the inputs' x and y, as an EPSG code (e.g. EPSG:32611 for UTM 11N), written into every GeoTIFF and sidecar; default: the inputs' own CRS, else the rover's local frame")
     ap.add_argument("--preview", action="store_true", help="also write the PNG previews")
     args = ap.parse_args(argv)
     try:
@@ -102,6 +104,7 @@ def main(argv: list[str] | None = None) -> int:
             "paths": [str(p) for p in args.inputs], "noise": args.noise, "sensor": sensor,
             "frequency": args.frequency, "bounds": bounds, "rover_mask": mask, "rover_ground_z": args.rover_ground_z,
             "out_dir": out.parent, "name": prefix.name, "dem_file": out.name, "preview": args.preview,
+            "crs": parse_crs(args.crs),
             "made_by": MADE_BY, "parameters": {**params, "bounds": bounds, "noise": args.noise, "rover_mask": mask,
                                                "rover_ground_z": args.rover_ground_z}})
     except (OSError, ValueError, SettingError, WorkflowError) as exc:

@@ -16,6 +16,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+import yaml
+
 from prox_workflows.cli import dem2hazard as cli_hazard
 from prox_workflows.cli import dem_import as cli_import
 from prox_workflows.cli import dem_mosaik as cli_mosaik
@@ -24,6 +26,7 @@ from prox_workflows.grid import read_geotiff
 from prox_workflows.steps.safety import check_move
 
 SHIFT = np.array([556440.0, 5394932.0])  # the Kootenai DEM's UTM origin (zone 11N), metres
+EPSG = "EPSG:32611"  # WGS 84 / UTM zone 11N, the Kootenai reach's zone
 SIZE = 24.0  # metres of terrain on a side
 CELL = 0.25
 
@@ -47,7 +50,9 @@ def terrain_cloud(n: int = 40_000, seed: int = 3) -> np.ndarray:
     return np.column_stack([x, y, z])
 
 
-def _chain(tmp: Path, pts: np.ndarray, offset: np.ndarray, tag: str) -> dict[str, object]:
+def _chain(tmp: Path, pts: np.ndarray, offset: np.ndarray, tag: str, crs: str | None = None) -> dict[str, object]:
+    """The toolbox chain on ``pts`` shifted by ``offset``; ``crs`` is given to rvs-dem-import only,
+    so the mosaic, the hazard maps and the planner must carry it on from their input GeoTIFFs."""
     cloud = pts.copy()
     cloud[:, :2] += offset
     # two overlapping halves, imported on their own grids and mosaicked (DemMosaik's resampling)
@@ -58,7 +63,7 @@ def _chain(tmp: Path, pts: np.ndarray, offset: np.ndarray, tag: str) -> dict[str
         np.save(src, part)
         bounds = ",".join(repr(float(v)) for v in (offset[0] + lo, offset[1], offset[0] + hi, offset[1] + SIZE))
         assert cli_import.main([str(src), "--cell", str(CELL), "--bounds", bounds, "--noise", "none",
-                                "-o", str(tmp / f"{tag}{k}_dem.tif")]) == 0
+                                *(["--crs", crs] if crs else []), "-o", str(tmp / f"{tag}{k}_dem.tif")]) == 0
         halves.append(str(tmp / f"{tag}{k}_dem.tif"))
     dem = tmp / f"{tag}_dem.tif"
     assert cli_mosaik.main([*halves, "-o", str(dem)]) == 0
@@ -73,6 +78,7 @@ def _chain(tmp: Path, pts: np.ndarray, offset: np.ndarray, tag: str) -> dict[str
         out[layer], out[layer + "_geom"] = image, geom
     path = np.loadtxt(tmp / f"{tag}_plan_path.csv", delimiter=",", skiprows=1, ndmin=2)
     out["path"] = path
+    out["dir"] = tmp
     return out
 
 
@@ -80,7 +86,7 @@ def _chain(tmp: Path, pts: np.ndarray, offset: np.ndarray, tag: str) -> dict[str
 def products(tmp_path_factory: pytest.TempPathFactory) -> tuple[dict[str, object], dict[str, object]]:
     tmp = tmp_path_factory.mktemp("georef")
     pts = terrain_cloud()
-    return _chain(tmp, pts, np.zeros(2), "origin"), _chain(tmp, pts, SHIFT, "utm")
+    return _chain(tmp, pts, np.zeros(2), "origin"), _chain(tmp, pts, SHIFT, "utm", EPSG)
 
 
 def test_the_grid_is_the_same_grid_shifted(products) -> None:
@@ -134,3 +140,36 @@ def test_check_move_is_the_same_shifted(products) -> None:
         assert (ra.verdict, ra.cells, ra.unknown_cells, ra.blocked_cells) == (
             rb.verdict, rb.cells, rb.unknown_cells, rb.blocked_cells)
     assert "not_traversable" in verdicts
+
+
+PRODUCTS = ("0_dem", "1_dem", "_dem", "_mean", "_count", "_filled", "_slope", "_step", "_roughness", "_hazard",
+            "_traversability")
+
+
+def test_every_product_carries_the_crs(products) -> None:
+    """rasterio (GDAL, as QGIS reads them) finds the EPSG code and the UTM origin in every
+    GeoTIFF of the UTM chain, though only rvs-dem-import was told the CRS; the sidecars say it."""
+    rasterio = pytest.importorskip("rasterio")
+    _, b = products
+    tmp: Path = b["dir"]
+    files = [tmp / f"utm{suffix}.tif" for suffix in PRODUCTS if (tmp / f"utm{suffix}.tif").is_file()]
+    assert len(files) >= 8, files
+    for f in files:
+        with rasterio.open(f) as ds:
+            assert ds.crs == rasterio.crs.CRS.from_string(EPSG), f.name
+            assert ds.crs.to_epsg() == 32611
+            x0 = SHIFT[0] + (10.0 if f.name.startswith("utm1_") else 0.0)  # the eastern half starts at 10 m
+            assert ds.transform.c == pytest.approx(x0, abs=1e-6), f.name
+            assert ds.transform.f == pytest.approx(SHIFT[1] + SIZE, abs=1e-6), f.name
+            assert ds.transform.a == CELL and ds.transform.e == -CELL
+        assert yaml.safe_load(f.with_suffix(".yaml").read_text())["crs"] == EPSG, f.name
+
+
+def test_the_local_frame_stays_the_default(products) -> None:
+    """Without --crs the products keep the rover's local engineering frame (no EPSG code)."""
+    rasterio = pytest.importorskip("rasterio")
+    a, _ = products
+    with rasterio.open(a["dir"] / "origin_hazard.tif") as ds:
+        assert ds.crs is None or ds.crs.to_epsg() is None
+        assert (ds.transform.c, ds.transform.f) == (0.0, SIZE)
+    assert a["dem_geom"].crs is None
