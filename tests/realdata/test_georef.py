@@ -15,7 +15,6 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-
 import yaml
 
 from prox_workflows.cli import dem2hazard as cli_hazard
