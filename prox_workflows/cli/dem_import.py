@@ -91,6 +91,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--classes", help="LAS/LAZ classes to keep, e.g. 2 (ground) or 2,9; default all")
     ap.add_argument("--range", help="min,max distance (m) from the sensor (--sensor or a .cal beside an input) "
                                     "of the points kept")
+    ap.add_argument("--min-reflectivity", type=float, default=0.0,
+                    help="drop returns whose intensity x range^2 is below this share of the input's median "
+                         "(the server's phase-wrap filter; needs intensity and the sensor position; 0: off)")
     ap.add_argument("--rover-mask", help="the rover's footprint: xmin,ymin,xmax,ymax or a polygon x1,y1,x2,y2,...")
     ap.add_argument("--rover-ground-z", type=float, help="keep points in the footprint below this height")
     ap.add_argument("--crs", help="the CRS of the inputs' x and y, as an EPSG code (e.g. EPSG:32611 for UTM 11N), written into every GeoTIFF and sidecar; default: the inputs' own CRS, else the rover's local frame")
@@ -111,6 +114,7 @@ def main(argv: list[str] | None = None) -> int:
             "frequency": args.frequency, "bounds": bounds, "rover_mask": mask, "rover_ground_z": args.rover_ground_z,
             "out_dir": out.parent, "name": prefix.name, "dem_file": out.name, "preview": args.preview,
             "crs": parse_crs(args.crs), "classes": classes, "range": rng,
+            "min_reflectivity": args.min_reflectivity,
             "made_by": MADE_BY, "parameters": {**params, "bounds": bounds, "noise": args.noise, "rover_mask": mask,
                                                "rover_ground_z": args.rover_ground_z, "classes": classes,
                                                "range": rng, "crs": args.crs}})

@@ -94,11 +94,11 @@ def read_dem(path: str | Path, nodata: float | None = None) -> Layers:
 
 
 @step("read_points", inputs={"paths": "list", "noise": "str", "sensor": "floats?", "frequency": "float",
-                             "classes": "list?", "range": "floats?", "crs": "str?"},
+                             "classes": "list?", "range": "floats?", "min_reflectivity": "float?", "crs": "str?"},
       outputs={"points": "array", "variance": "array?", "points_crs": "str?"})
 def read_points(paths: list[str | Path], noise: str = "recorded", sensor: list[float] | None = None,
                 frequency: float = 30.0, classes: list[int] | None = None, range: list[float] | None = None,
-                crs: str | None = None) -> dict[str, Any]:
+                min_reflectivity: float | None = None, crs: str | None = None) -> dict[str, Any]:
     """All inputs' points stacked (N x 3, or N x 4 if every input has intensity) and each
     point's height variance: ``recorded`` takes the variances a DEM job recorded beside its
     views (the server's own noise model; none if absent), ``tof`` computes them with the ToF
@@ -108,10 +108,13 @@ def read_points(paths: list[str | Path], noise: str = "recorded", sensor: list[f
     Real scans need two filters the camera's views do not: ``classes`` keeps the LAS/LAZ points
     of those ASPRS classes (2 = ground: a DEM of the terrain, not of its trees and roofs), and
     ``range`` = (min, max) keeps the points whose distance from the sensor (``sensor`` or the
-    ``.cal`` beside an input) lies within it. ``points_crs`` is ``crs`` if given, else the EPSG
+    ``.cal`` beside an input) lies within it. ``min_reflectivity`` > 0 is the server's
+    phase-wrap filter on a raw cloud with intensity (amplitude x range^2 below that share of the
+    input's median, after the range filter, as ``view_from_frame`` does). ``points_crs`` is ``crs`` if given, else the EPSG
     code a LAS/LAZ header names (when its unit is the metre: see CloudInfo), else None (local)."""
     if noise not in ("recorded", "tof", "none"):
         raise ValueError(f"noise must be recorded, tof or none, not {noise!r}")
+    min_reflectivity = min_reflectivity or 0.0
     if range is not None and (len(range) != 2 or not 0 <= range[0] < range[1]):
         raise ValueError(f"range {range}: need min,max with 0 <= min < max (m from the sensor)")
     clouds: list[np.ndarray] = []
@@ -133,16 +136,22 @@ def read_points(paths: list[str | Path], noise: str = "recorded", sensor: list[f
             variances.append(tifffile.imread(aux).reshape(-1, 4)[keep, 0].astype(np.float64))
         else:
             pts = _read_points(path)
-        if noise == "tof" or range is not None:
+        if noise == "tof" or range is not None or min_reflectivity > 0:
             cal = path.with_suffix(".cal")
             origin = read_cal(cal)["T_global_camera"][:3, 3] if cal.is_file() else (
                 np.asarray(sensor, float) if sensor is not None else None)
             if origin is None:
-                raise ValueError(f"{path}: --noise tof and a range filter need the sensor position "
+                raise ValueError(f"{path}: --noise tof and the range and reflectivity filters need the sensor position "
                                  "(a .cal file beside it or --sensor)")
             rng = np.linalg.norm(pts[:, :3].astype(np.float64) - origin[None, :], axis=1)
             if range is not None:
                 keep = (rng >= range[0]) & (rng <= range[1])
+                pts, rng = pts[keep], rng[keep]
+                if len(variances) == len(clouds) + 1:
+                    variances[-1] = variances[-1][keep]
+            if min_reflectivity > 0 and pts.shape[1] == 4 and len(pts):
+                refl = pts[:, 3].astype(np.float64) * rng.astype(np.float32).astype(np.float64) ** 2
+                keep = refl >= min_reflectivity * float(np.median(refl))
                 pts, rng = pts[keep], rng[keep]
                 if len(variances) == len(clouds) + 1:
                     variances[-1] = variances[-1][keep]
