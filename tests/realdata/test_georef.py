@@ -172,3 +172,26 @@ def test_the_local_frame_stays_the_default(products) -> None:
         assert ds.crs is None or ds.crs.to_epsg() is None
         assert (ds.transform.c, ds.transform.f) == (0.0, SIZE)
     assert a["dem_geom"].crs is None
+
+
+def test_a_gdal_geotiffs_crs_is_carried_to_the_hazard_maps(tmp_path: Path) -> None:
+    """A DEM GeoTIFF GDAL wrote with an EPSG code (NAD83 / UTM 11N, as a survey's DEM comes)
+    gives hazard maps in that CRS, with no --crs: the input's own GeoKeys are read."""
+    rasterio = pytest.importorskip("rasterio")
+    z = (543.0 + 0.02 * np.add.outer(np.arange(40.0), np.arange(30.0))).astype(np.float32)
+    z[10:13, 10:13] += 1.0  # a block: hazardous
+    src = tmp_path / "survey.tif"
+    with rasterio.open(src, "w", driver="GTiff", width=30, height=40, count=1, dtype="float32",
+                       crs="EPSG:26911", transform=rasterio.Affine(1.0, 0.0, SHIFT[0], 0.0, -1.0, SHIFT[1] + 40.0),
+                       nodata=float("nan")) as ds:
+        ds.write(z, 1)
+    assert cli_hazard.main([str(src), "-o", str(tmp_path / "h"), "--no-preview"]) == 0
+    for layer in ("slope", "hazard", "traversability"):
+        with rasterio.open(tmp_path / f"h_{layer}.tif") as ds:
+            assert ds.crs.to_epsg() == 26911, layer
+            assert (ds.transform.c, ds.transform.f) == (SHIFT[0], SHIFT[1] + 40.0)
+    assert (read_geotiff(tmp_path / "h_hazard.tif")[0] == 255).any()
+    # an explicit --crs wins over the file's
+    assert cli_hazard.main([str(src), "-o", str(tmp_path / "k"), "--no-preview", "--crs", "EPSG:32611"]) == 0
+    with rasterio.open(tmp_path / "k_hazard.tif") as ds:
+        assert ds.crs.to_epsg() == 32611
