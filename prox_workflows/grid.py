@@ -5,14 +5,21 @@ traversability) is a layer on one :class:`GridGeometry`. Rasters are north-up as
 them: row 0 is the northern edge (largest y), column 0 the western edge (smallest x); cell
 (row, col) covers x in [xmin + col*cell, xmin + (col+1)*cell) and y in (ymax - (row+1)*cell,
 ymax - row*cell]. The global frame is local (x forward at the start pose, y left, z up, metres),
-so GeoTIFFs carry a local engineering CRS: GDAL, QGIS and rasterio open them in place with the
-right cell size and origin.
+so GeoTIFFs carry a local engineering CRS by default: GDAL, QGIS and rasterio open them in place
+with the right cell size and origin. A grid whose ``crs`` is an EPSG code (``--crs EPSG:32611`` on
+the CLIs, or the CRS of a georeferenced input) writes it into the GeoKeyDirectory
+(ProjectedCSTypeGeoKey, or GeographicTypeGeoKey for a geographic code), so QGIS overlays the
+products on the source data; reading such a GeoTIFF gives the code back.
+
+Coordinates stay float64 everywhere here (the GeoTIFF tie point and scale are doubles): at
+eastings ~5e5 m and northings ~5e6 m float32 steps are 0.03-0.5 m, coarser than a DEM cell.
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+import re
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -30,24 +37,69 @@ GDAL_NODATA = 42113
 GDAL_METADATA = 42112
 
 
+# GeoKeys (GeoTIFF 1.1): model type, raster type, citation, geographic and projected CRS codes
+GT_MODEL_TYPE, GT_RASTER_TYPE, GT_CITATION = 1024, 1025, 1026
+GEOGRAPHIC_TYPE, PROJECTED_CS_TYPE, PROJ_LINEAR_UNITS = 2048, 3072, 3076
+USER_DEFINED = 32767
+_EPSG = re.compile(r"^\s*(?:epsg\s*:\s*)?(\d{4,6})\s*$", re.IGNORECASE)
+
+
+def parse_crs(text: str | int | None) -> str | None:
+    """``EPSG:32611``, ``epsg:32611`` or ``32611`` -> ``"EPSG:32611"``; None or ``local`` -> None
+    (the rover's local frame). Only EPSG codes: they are what a GeoTIFF's GeoKeys can name
+    without a WKT, and what QGIS and GDAL resolve on their own."""
+    if text is None:
+        return None
+    if isinstance(text, int):
+        return f"EPSG:{text}"
+    if text.strip().lower() in ("", "local", "none"):
+        return None
+    m = _EPSG.match(text)
+    if not m:
+        raise ValueError(f"crs {text!r}: give an EPSG code, e.g. EPSG:32611 (UTM 11N), or 'local'")
+    return f"EPSG:{int(m.group(1))}"
+
+
+def epsg_code(crs: str | None) -> int | None:
+    """The integer EPSG code of a CRS string made by :func:`parse_crs` (None for the local frame)."""
+    return None if crs is None else int(crs.split(":")[1])
+
+
+def _is_geographic(code: int) -> bool:
+    # EPSG's 2-D geographic CRSs are numbered 4001-4999 (WGS 84 = 4326, NAD83 = 4269, ETRS89 =
+    # 4258); 4978 and its neighbours there are geocentric, which a raster never uses. Everything
+    # else a DEM would be in (UTM 326xx/327xx, state planes, national grids) is projected.
+    return 4000 < code < 5000
+
+
 @dataclass(frozen=True)
 class GridGeometry:
-    """A north-up grid: cell size in metres, the north-west corner, and the size in cells."""
+    """A north-up grid: cell size in metres, the north-west corner, and the size in cells.
+
+    ``crs`` is the coordinate reference system of x and y: None for the rover's local frame,
+    else ``"EPSG:<code>"``. It is not part of equality (the same cells are the same grid), but it
+    travels with the geometry into every product written on it."""
 
     cell: float
     xmin: float
     ymax: float
     width: int
     height: int
+    crs: str | None = field(default=None, compare=False)
 
     @classmethod
-    def covering(cls, xmin: float, ymin: float, xmax: float, ymax: float, cell: float) -> GridGeometry:
+    def covering(cls, xmin: float, ymin: float, xmax: float, ymax: float, cell: float,
+                 crs: str | None = None) -> GridGeometry:
         """The grid aligned to multiples of ``cell`` that covers the bounds."""
         x0 = math.floor(xmin / cell + 1e-9) * cell
         y1 = math.ceil(ymax / cell - 1e-9) * cell
         width = max(1, math.ceil((xmax - x0) / cell - 1e-9))
         height = max(1, math.ceil((y1 - ymin) / cell - 1e-9))
-        return cls(cell, x0, y1, width, height)
+        return cls(cell, x0, y1, width, height, crs)
+
+    def with_crs(self, crs: str | None) -> GridGeometry:
+        """The same grid in ``crs`` (parsed with :func:`parse_crs`)."""
+        return replace(self, crs=parse_crs(crs))
 
     @property
     def shape(self) -> tuple[int, int]:
@@ -109,17 +161,28 @@ class Layers:
 
 
 def _geo_tags(geometry: GridGeometry, nodata: float | None) -> list[tuple[int, str, int, Any, bool]]:
-    # GeoKeyDirectory: version 1.1.0, then (key, location, count, value) entries.
-    #   GTModelTypeGeoKey (1024) = 32767 user-defined (a local engineering frame)
+    # GeoKeyDirectory: version 1.1.0, then (key, location, count, value) entries, sorted by key.
+    #   GTModelTypeGeoKey (1024) = 32767 user-defined (the rover's local engineering frame),
+    #     1 projected (ProjectedCSTypeGeoKey 3072 = the EPSG code) or 2 geographic (2048)
     #   GTRasterTypeGeoKey (1025) = 1 RasterPixelIsArea
     #   GTCitationGeoKey (1026) -> ASCII params
-    #   ProjLinearUnitsGeoKey (3076) = 9001 metre
-    citation = "RVS local frame: x forward at the start pose, y left, z up (m)|"
-    keys = [1, 1, 0, 4,
-            1024, 0, 1, 32767,
-            1025, 0, 1, 1,
-            1026, GEO_ASCII_PARAMS, len(citation), 0,
-            3076, 0, 1, 9001]
+    #   ProjLinearUnitsGeoKey (3076) = 9001 metre (local frame only: an EPSG code brings its unit)
+    code = epsg_code(geometry.crs)
+    if code is None:
+        citation = "RVS local frame: x forward at the start pose, y left, z up (m)|"
+        keys = [1, 1, 0, 4,
+                GT_MODEL_TYPE, 0, 1, USER_DEFINED,
+                GT_RASTER_TYPE, 0, 1, 1,
+                GT_CITATION, GEO_ASCII_PARAMS, len(citation), 0,
+                PROJ_LINEAR_UNITS, 0, 1, 9001]
+    else:
+        citation = f"RVS product, EPSG:{code}|"
+        crs_key = GEOGRAPHIC_TYPE if _is_geographic(code) else PROJECTED_CS_TYPE
+        keys = [1, 1, 0, 4,
+                GT_MODEL_TYPE, 0, 1, 2 if crs_key == GEOGRAPHIC_TYPE else 1,
+                GT_RASTER_TYPE, 0, 1, 1,
+                GT_CITATION, GEO_ASCII_PARAMS, len(citation), 0,
+                crs_key, 0, 1, code]
     tags: list[tuple[int, str, int, Any, bool]] = [
         (MODEL_PIXEL_SCALE, "d", 3, (geometry.cell, geometry.cell, 0.0), False),
         (MODEL_TIEPOINT, "d", 6, (0.0, 0.0, 0.0, geometry.xmin, geometry.ymax, 0.0), False),
@@ -157,7 +220,23 @@ def _geometry_of(page: Any, path: Path) -> GridGeometry:
     i, j, _, x, y, _ = tie.value[:6]
     if not math.isclose(sx, sy, rel_tol=1e-9):
         raise ValueError(f"{path}: non-square cells ({sx} x {sy}) are not supported")
-    return GridGeometry(float(sx), float(x - i * sx), float(y + j * sy), int(page.shape[1]), int(page.shape[0]))
+    return GridGeometry(float(sx), float(x - i * sx), float(y + j * sy), int(page.shape[1]), int(page.shape[0]),
+                        _crs_of(page))
+
+
+def _crs_of(page: Any) -> str | None:
+    """``EPSG:<code>`` from the GeoKeyDirectory (projected or geographic), None for a local or
+    user-defined frame or a file without GeoKeys."""
+    tag = page.tags.get(GEO_KEY_DIRECTORY)
+    if tag is None:
+        return None
+    keys = [int(v) for v in tag.value]
+    entries = {keys[k]: (keys[k + 1], keys[k + 3]) for k in range(4, 4 + 4 * keys[3], 4) if k + 3 < len(keys)}
+    for key in (PROJECTED_CS_TYPE, GEOGRAPHIC_TYPE):
+        loc, value = entries.get(key, (1, 0))
+        if loc == 0 and 0 < value < USER_DEFINED:
+            return f"EPSG:{value}"
+    return None
 
 
 def read_geotiff(path: Path) -> tuple[np.ndarray, GridGeometry]:

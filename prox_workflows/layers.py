@@ -169,7 +169,7 @@ def write_layer(path: Path, name: str, image: np.ndarray, geometry: GridGeometry
             write_png(path.with_suffix(".png"), rgb)
     write_sidecar(path, made_by, parameters, inputs, layer=name, unit=spec.unit, meaning=spec.meaning,
                   cell=geometry.cell, bounds=list(geometry.bounds), size=[geometry.width, geometry.height],
-                  crs=CRS, **extra)
+                  crs=geometry.crs or CRS, **extra)
     return path
 
 

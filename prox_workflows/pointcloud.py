@@ -1,15 +1,22 @@
 """Point clouds on disk: PLY (what Open3D, CloudCompare and MeshLab read), ``.npy``, plain text,
 and the 4-channel coordinate images AcquireTofCoordImages writes (x, y, z, intensity per pixel).
 
-``read_points`` always returns N x 3 (x, y, z) or N x 4 (with intensity) float32 rows of defined
-points, so DemImport does not care where a cloud came from. PLY is read in ascii and
+``read_points`` always returns N x 3 (x, y, z) or N x 4 (with intensity) rows of defined points,
+so DemImport does not care where a cloud came from. The rows keep the precision of the file:
+float32 for float32 sources (the cameras' coordinate images, float PLYs), float64 when the source
+holds doubles (double PLY properties, float64 ``.npy``, text). Why: a georeferenced cloud has
+eastings near 5e5 m and northings near 5e6 m, where float32 steps are 0.03-0.5 m, so narrowing it
+would move points to the wrong cell before DemImport ever sees them. PLY is read in ascii and
 binary_little/big_endian with any vertex properties (x, y, z required; intensity, scalar_intensity,
 amplitude or a grey value taken as the fourth column) and any other elements skipped.
 """
 
 from __future__ import annotations
 
+import re
+from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import tifffile
@@ -79,7 +86,8 @@ def read_ply(path: Path) -> dict[str, np.ndarray]:
                     data = np.loadtxt(rows, dtype=np.float64, ndmin=2) if rows else np.zeros((0, len(el["props"])))
                     if data.shape[1] < len(el["props"]):
                         raise PlyError("PLY vertex rows have fewer values than properties")
-                    return {name: data[:, i] for i, (name, *_) in enumerate(el["props"])}
+                    # the declared types, as binary files give them (a float PLY stays float32)
+                    return {name: data[:, i].astype(typ) for i, (name, typ) in enumerate(el["props"])}
                 pos += el["count"]
             raise PlyError("PLY has no vertex element")
         endian = "<" if fmt == "binary_little_endian" else ">"
@@ -113,11 +121,14 @@ def _from_columns(cols: dict[str, np.ndarray], source: str) -> np.ndarray:
         if name in cols:
             out.append(cols[name])
             break
-    return np.column_stack(out).astype(np.float32)
+    wide = any(np.asarray(c).dtype.itemsize > 4 or not np.issubdtype(np.asarray(c).dtype, np.floating)
+               for c in out[:3])
+    return np.column_stack(out).astype(np.float64 if wide else np.float32)
 
 
 def read_points(path: Path | str) -> np.ndarray:
-    """N x 3 or N x 4 float32 points from PLY, .npy, a coordinate-image TIFF or x y z [i] text.
+    """N x 3 or N x 4 points from PLY, .npy, a coordinate-image TIFF or x y z [i] text, in the
+    source's precision (float64 for doubles and text, else float32: see the module docstring).
 
     Coordinate images (H x W x 3 or 4) keep only defined pixels: z finite, and not the -1
     marker the camera libraries use for 'no measurement' (all of x, y, z equal to -1)."""
@@ -131,16 +142,20 @@ def read_points(path: Path | str) -> np.ndarray:
             return _from_image(arr, str(path))
         if arr.ndim != 2 or arr.shape[1] not in (3, 4):
             raise ValueError(f"{path}: expected N x 3 or N x 4 points, got shape {arr.shape}")
-        return np.asarray(arr, dtype=np.float32)
+        return np.asarray(arr, dtype=np.float64 if arr.dtype == np.float64 else np.float32)
     if suffix in (".tif", ".tiff"):
         return _from_image(tifffile.imread(path), str(path))
+    if suffix in (".las", ".laz"):
+        return read_las(path)[0]
+    if suffix == ".pcd":
+        return read_pcd(path)
     if suffix in (".txt", ".xyz", ".csv", ".asc", ".pts"):
         text = path.read_text().replace(",", " ")
         arr = np.loadtxt(text.splitlines(), dtype=np.float64, ndmin=2, comments="#")
         if arr.shape[1] < 3:
             raise ValueError(f"{path}: need at least x y z per line")
-        return arr[:, :4].astype(np.float32)
-    raise ValueError(f"{path}: unknown point cloud type (PLY, .npy, coordinate TIFF or x y z text)")
+        return arr[:, :4].astype(np.float64)
+    raise ValueError(f"{path}: unknown point cloud type (PLY, PCD, LAS/LAZ, .npy, coordinate TIFF or x y z text)")
 
 
 def _from_image(img: np.ndarray, source: str) -> np.ndarray:
@@ -192,3 +207,113 @@ def write_ply(path: Path | str, points: np.ndarray, colors: np.ndarray | None = 
                 np.savetxt(fh, np.column_stack([c.astype(np.float64) for c in cols]), fmt=fmts)
 
     return write_atomic(Path(path), write)
+
+
+# ------------------------------------------------------------------ LAS/LAZ and PCD
+
+# metres per unit of the GeoTIFF/EPSG linear unit codes a LAS header names (ProjLinearUnitsGeoKey)
+_UNIT_M = {9001: 1.0, 9002: 0.3048, 9003: 1200.0 / 3937.0, 9030: 1852.0, 9036: 1000.0}
+_WKT_UNIT = re.compile(r'UNIT\["[^"]*",\s*([0-9.eE+-]+)(?:,\s*AUTHORITY\["EPSG",\s*"\d+"\])?\]\]\s*$')
+
+
+@dataclass
+class CloudInfo:
+    """What a georeferenced file says about its coordinates.
+
+    Points are always returned in metres (the toolbox's cells, thresholds and slopes are metric):
+    a file in feet is scaled by ``unit_m``. ``crs`` is the EPSG code the returned x, y are in,
+    which is the file's own only when its unit is the metre; a file in feet keeps its CRS in
+    ``source_crs`` (for the sidecar) and gets ``crs`` None, since metre coordinates written
+    with a feet CRS would put QGIS's overlay 3.3 times too far out."""
+
+    crs: str | None = None
+    source_crs: str | None = None
+    unit_m: float = 1.0
+    classes: dict[int, int] = field(default_factory=dict)  # class -> points in the file
+
+
+def _las_geokeys(header: Any) -> tuple[dict[int, int], str | None]:
+    keys: dict[int, int] = {}
+    wkt = None
+    for vlr in header.vlrs:
+        kind = type(vlr).__name__
+        if kind == "GeoKeyDirectoryVlr":
+            keys = {int(k.id): int(k.value_offset) for k in vlr.geo_keys if int(k.tiff_tag_location) == 0}
+        elif kind == "WktCoordinateSystemVlr":
+            wkt = str(vlr.string).strip("\x00 ")
+    return keys, wkt
+
+
+def read_las(path: Path | str, classes: list[int] | None = None) -> tuple[np.ndarray, CloudInfo]:
+    """N x 4 float64 (x, y, z in metres, intensity) of a LAS or LAZ file (laspy; LAZ through
+    lazrs), optionally only the points of ``classes`` (ASPRS: 2 ground), and what its header
+    says of its CRS and unit (GeoKeys first, else the WKT record)."""
+    try:
+        import laspy
+    except ImportError as exc:  # a dependency; a broken install should say which
+        raise ValueError(f"{path}: reading LAS/LAZ needs laspy (pip install 'laspy[lazrs]')") from exc
+    try:
+        las = laspy.read(str(path))
+    except laspy.errors.LaspyException as exc:
+        raise ValueError(f"{path}: {exc}") from exc
+    cls = np.asarray(las.classification, np.int64)
+    found = dict(zip(*(v.tolist() for v in np.unique(cls, return_counts=True)), strict=True))
+    keep = np.isin(cls, classes) if classes else np.ones(len(cls), bool)
+    pts = np.column_stack([np.asarray(las.x, np.float64)[keep], np.asarray(las.y, np.float64)[keep],
+                           np.asarray(las.z, np.float64)[keep], np.asarray(las.intensity, np.float64)[keep]])
+    keys, wkt = _las_geokeys(las.header)
+    code = keys.get(3072) if keys.get(1024) == 1 else keys.get(2048) if keys.get(1024) == 2 else None
+    code = code if code and 0 < code < 32767 else None
+    unit = _UNIT_M.get(keys.get(3076, 9001), 1.0)
+    if 3076 not in keys and wkt and (m := _WKT_UNIT.search(wkt)):
+        unit = float(m.group(1))
+    vunit = _UNIT_M.get(keys[4099], unit) if 4099 in keys else unit
+    source = f"EPSG:{code}" if code else wkt
+    if unit != 1.0 or vunit != 1.0:
+        pts[:, 0:2] *= unit
+        pts[:, 2] *= vunit
+    return pts, CloudInfo(f"EPSG:{code}" if code and unit == 1.0 else None, source, unit, found)
+
+
+_PCD_TYPES = {("F", 4): "f4", ("F", 8): "f8", ("I", 1): "i1", ("I", 2): "i2", ("I", 4): "i4", ("I", 8): "i8",
+              ("U", 1): "u1", ("U", 2): "u2", ("U", 4): "u4", ("U", 8): "u8"}
+
+
+def read_pcd(path: Path | str) -> np.ndarray:
+    """The x, y, z (and intensity) of a PCD file (PCL's format, ascii or binary; not
+    binary_compressed), in the file's precision, NaN points dropped."""
+    head: dict[str, list[str]] = {}
+    with open(path, "rb") as fh:
+        while True:
+            line = fh.readline()
+            if not line:
+                raise ValueError(f"{path}: PCD header has no DATA line")
+            words = line.decode("ascii", "replace").split()
+            if not words or words[0].startswith("#"):
+                continue
+            head[words[0].upper()] = words[1:]
+            if words[0].upper() == "DATA":
+                break
+        body = fh.read()
+    names, sizes, types = head.get("FIELDS", []), head.get("SIZE", []), head.get("TYPE", [])
+    counts = [int(c) for c in head.get("COUNT", ["1"] * len(names))]
+    n = int(head.get("POINTS", ["0"])[0])
+    if not {"x", "y", "z"} <= set(names):
+        raise ValueError(f"{path}: PCD fields {names} have no x, y, z")
+    dtype = np.dtype([(nm, _PCD_TYPES[(t.upper(), int(s))], (c,)) if c > 1 else (nm, _PCD_TYPES[(t.upper(), int(s))])
+                      for nm, s, t, c in zip(names, sizes, types, counts, strict=True)])
+    mode = head["DATA"][0].lower()
+    if mode == "ascii":
+        flat = np.loadtxt(body.decode("ascii").splitlines(), dtype=np.float64, ndmin=2)
+        cols: dict[str, np.ndarray] = {}
+        pos = 0
+        for nm, c in zip(names, counts, strict=True):
+            cols[nm] = flat[:, pos].astype(dtype[nm].base if dtype[nm].shape == () else np.float64)
+            pos += c
+    elif mode == "binary":
+        rec = np.frombuffer(body, dtype=dtype, count=n)
+        cols = {nm: rec[nm] for nm in names}
+    else:
+        raise ValueError(f"{path}: PCD DATA {mode} is not supported (save it as ascii or binary)")
+    pts = _from_columns(cols, str(path))
+    return pts[np.isfinite(pts[:, :3]).all(axis=1)]

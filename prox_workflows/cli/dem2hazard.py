@@ -18,7 +18,7 @@ from typing import Any
 import yaml
 
 from ..engine import WorkflowError, run_workflow
-from ..grid import GridGeometry
+from ..grid import GridGeometry, parse_crs
 from ..steps.dem2hazard import HazardParams, load_params
 from ..steps.readers import read_dem as _read_dem
 from .parser import ToolParser
@@ -55,6 +55,7 @@ def main(argv: list[str] | None = None) -> int:
         ap.add_argument("--" + f.name.replace("_", "-"), type=float, dest=f.name, default=None,
                         help=f"{specs[f.name].help} ({specs[f.name].describe()})")
     ap.add_argument("--nodata", type=float, help="DEM value meaning undefined (default: the file's nodata tag)")
+    ap.add_argument("--crs", help="the CRS of the inputs' x and y, as an EPSG code (e.g. EPSG:32611 for UTM 11N), written into every GeoTIFF and sidecar; default: the inputs' own CRS, else the rover's local frame")
     ap.add_argument("--no-preview", action="store_true", help="skip the PNG previews")
     args = ap.parse_args(argv)
 
@@ -66,6 +67,7 @@ def main(argv: list[str] | None = None) -> int:
         t0 = time.perf_counter()
         ws, _ = run_workflow("dem2hazard", params.as_dict(), {
             "path": str(args.dem), "nodata": args.nodata, "out_dir": prefix.parent, "name": prefix.name,
+            "crs": parse_crs(args.crs),
             "preview": not args.no_preview, "made_by": MADE_BY, "parameters": params.as_dict()})
         seconds = time.perf_counter() - t0
     except (OSError, ValueError, TypeError, yaml.YAMLError, WorkflowError) as exc:

@@ -1,7 +1,8 @@
 """``rvs-dem-import INPUT... --cell M [--bounds xmin,ymin,xmax,ymax] -o DEM.tif``: DemImport of point
 clouds into a GeoTIFF DEM; a front-end to the ``dem_import`` workflow script.
 
-Inputs: PLY (ascii or binary), ``.npy`` (N x 3 or N x 4), x y z [i] text, and the 4-channel
+Inputs: PLY (ascii or binary), PCD (ascii or binary), LAS/LAZ (``--classes 2`` keeps the ground; a
+file in feet is converted to metres), ``.npy`` (N x 3 or N x 4), x y z [i] text, and the 4-channel
 coordinate images AcquireTofCoordImages writes (x, y, z, intensity; NaN pixels undefined). All
 inputs go into one DEM. Per-point variances (``--noise``): ``recorded`` (the default) takes the
 ones a DEM job recorded beside its views (the server's own noise model), ``tof`` computes them
@@ -30,6 +31,7 @@ import numpy as np
 from rvs_params import SettingError
 
 from ..engine import WorkflowError, run_workflow
+from ..grid import parse_crs
 from ..layers import layer_path as _layer_path
 from ..layers import prefix_of, read_layers, write_layers  # noqa: F401 - the readers and writers of DEM files
 from ..parameters import DemImportParams
@@ -86,8 +88,15 @@ def main(argv: list[str] | None = None) -> int:
                     help="per-point variances: recorded beside a DEM job's views (default), the ToF noise model, none")
     ap.add_argument("--sensor", help="x,y,z of the sensor for --noise tof when no .cal file is beside an input")
     ap.add_argument("--frequency", type=float, default=30.0, help="ToF modulation frequency (MHz) for --noise tof")
+    ap.add_argument("--classes", help="LAS/LAZ classes to keep, e.g. 2 (ground) or 2,9; default all")
+    ap.add_argument("--range", help="min,max distance (m) from the sensor (--sensor or a .cal beside an input) "
+                                    "of the points kept")
+    ap.add_argument("--min-reflectivity", type=float, default=0.0,
+                    help="drop returns whose intensity x range^2 is below this share of the input's median "
+                         "(the server's phase-wrap filter; needs intensity and the sensor position; 0: off)")
     ap.add_argument("--rover-mask", help="the rover's footprint: xmin,ymin,xmax,ymax or a polygon x1,y1,x2,y2,...")
     ap.add_argument("--rover-ground-z", type=float, help="keep points in the footprint below this height")
+    ap.add_argument("--crs", help="the CRS of the inputs' x and y, as an EPSG code (e.g. EPSG:32611 for UTM 11N), written into every GeoTIFF and sidecar; default: the inputs' own CRS, else the rover's local frame")
     ap.add_argument("--preview", action="store_true", help="also write the PNG previews")
     args = ap.parse_args(argv)
     try:
@@ -95,6 +104,8 @@ def main(argv: list[str] | None = None) -> int:
         bounds = list(cells_from_bounds(args.bounds)) if args.bounds else None
         sensor = [float(v) for v in _parse_triplet(args.sensor, "--sensor")] if args.sensor else None
         mask = _rover_mask(args.rover_mask)
+        classes = [int(c) for c in args.classes.split(",")] if args.classes else None
+        rng = [float(v) for v in args.range.split(",")] if args.range else None
         out = Path(args.output)
         prefix = prefix_of(out)
         t0 = time.perf_counter()
@@ -102,8 +113,11 @@ def main(argv: list[str] | None = None) -> int:
             "paths": [str(p) for p in args.inputs], "noise": args.noise, "sensor": sensor,
             "frequency": args.frequency, "bounds": bounds, "rover_mask": mask, "rover_ground_z": args.rover_ground_z,
             "out_dir": out.parent, "name": prefix.name, "dem_file": out.name, "preview": args.preview,
+            "crs": parse_crs(args.crs), "classes": classes, "range": rng,
+            "min_reflectivity": args.min_reflectivity,
             "made_by": MADE_BY, "parameters": {**params, "bounds": bounds, "noise": args.noise, "rover_mask": mask,
-                                               "rover_ground_z": args.rover_ground_z}})
+                                               "rover_ground_z": args.rover_ground_z, "classes": classes,
+                                               "range": rng, "crs": args.crs}})
     except (OSError, ValueError, SettingError, WorkflowError) as exc:
         sys.stderr.write(f"rvs-dem-import: {exc}\n")
         return 1

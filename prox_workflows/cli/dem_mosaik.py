@@ -26,6 +26,7 @@ import numpy as np
 from rvs_params import SettingError
 
 from ..engine import WorkflowError, run_workflow
+from ..grid import parse_crs
 from ..layers import prefix_of
 from ..parameters import DemMosaikParams
 from ..steps.dem_import import cells_from_bounds
@@ -44,6 +45,7 @@ def main(argv: list[str] | None = None) -> int:
     for spec in specs.values():  # the script's parameters, declared once in DemMosaikParams
         ap.add_argument("--" + spec.name.replace("_", "-"), dest=spec.name, default=None,
                         help=f"{spec.help} ({spec.describe()}; default {spec.default})")
+    ap.add_argument("--crs", help="the CRS of the inputs' x and y, as an EPSG code (e.g. EPSG:32611 for UTM 11N), written into every GeoTIFF and sidecar; default: the inputs' own CRS, else the rover's local frame")
     ap.add_argument("--preview", action="store_true", help="also write the PNG previews")
     args = ap.parse_args(argv)
     try:
@@ -53,6 +55,7 @@ def main(argv: list[str] | None = None) -> int:
         t0 = time.perf_counter()
         ws, _ = run_workflow("dem_mosaik", params, {
             "paths": [str(p) for p in args.inputs], "bounds": bounds, "out_dir": out.parent,
+            "crs": parse_crs(args.crs),
             "name": prefix_of(out).name, "dem_file": out.name, "preview": args.preview, "made_by": MADE_BY,
             "parameters": {**{n: s.default for n, s in specs.items()}, **params, "bounds": args.bounds}})
     except (OSError, ValueError, SettingError, WorkflowError) as exc:

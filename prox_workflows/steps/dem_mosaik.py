@@ -57,7 +57,16 @@ def union_geometry(geometries: Sequence[GridGeometry], cell: float | None = None
     ymin = min(g.ymin for g in geometries)
     xmax = max(g.xmax for g in geometries)
     ymax = max(g.ymax for g in geometries)
-    return GridGeometry.covering(xmin, ymin, xmax, ymax, cell)
+    return GridGeometry.covering(xmin, ymin, xmax, ymax, cell, common_crs(geometries))
+
+
+def common_crs(geometries: Sequence[GridGeometry]) -> str | None:
+    """The CRS the inputs share (None: the local frame); DEMs in different CRSs are refused,
+    since merging them cell by cell would put one's eastings on the other's."""
+    named = {g.crs for g in geometries if g.crs is not None}
+    if len(named) > 1:
+        raise ValueError(f"the DEMs are in different CRSs ({', '.join(sorted(named))}): reproject them first")
+    return named.pop() if named else None
 
 
 def input_variance(layers: Layers, sigma: float = 0.01) -> np.ndarray:
@@ -201,7 +210,8 @@ def dem_mosaik(
         h[take] = hp[take]
         v[take] = vp[take]
         src[take] = k
-    out = Layers(g, meta={"rule": rule, "variance": "estimate", "inputs": len(dems)})
+    out = Layers(g.with_crs(common_crs([d.geometry for d in dems])),
+                 meta={"rule": rule, "variance": "estimate", "inputs": len(dems)})
     out["dem"] = h.astype(np.float32)
     out["variance"] = v.astype(np.float32)
     out["count"] = np.minimum(n, np.iinfo(np.int32).max).astype(np.int32)

@@ -55,14 +55,20 @@ def write_dem_products(
 
 @step("write_products", inputs={"layers": "Layers", "out_dir": "path", "name": "str", "made_by": "str?",
                                 "parameters": "dict?", "inputs": "list?", "mesh": "bool", "select": "list?",
-                                "preview": "bool", "dem_file": "str?", "rover_mask": "array?"},
+                                "preview": "bool", "dem_file": "str?", "rover_mask": "array?", "crs": "str?"},
       outputs={"files": "dict"})
 def write_products(layers: Layers, out_dir: str | Path, name: str, made_by: str | None = None,
                    parameters: dict[str, Any] | None = None, inputs: list[str] | None = None,
                    mesh: bool = False, select: list[str] | None = None, preview: bool = True,
-                   dem_file: str | None = None, rover_mask: Any = None, progress: Any = None,
-                   run_log: dict[str, Any] | None = None) -> dict[str, Path]:
-    """The writer step: the layers as products under ``out_dir`` (see :func:`write_dem_products`)."""
+                   dem_file: str | None = None, rover_mask: Any = None, crs: str | None = None,
+                   progress: Any = None, run_log: dict[str, Any] | None = None) -> dict[str, Path]:
+    """The writer step: the layers as products under ``out_dir`` (see :func:`write_dem_products`).
+
+    ``crs`` (``EPSG:<code>``) names the CRS of the layers' x and y when the inputs did not carry
+    it (a point cloud, a GeoTIFF without GeoKeys): every GeoTIFF and sidecar then says it, so
+    QGIS overlays the products on the source. None keeps the layers' own (the local frame)."""
+    if crs is not None:
+        layers = Layers(layers.geometry.with_crs(crs), layers.layers, layers.meta)
     if progress is not None:
         progress(0, 1, f"writing {name}")
     files = write_dem_products(layers, Path(out_dir), name, made_by=made_by or "rvs-prox", parameters=parameters, inputs=inputs,

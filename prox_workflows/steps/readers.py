@@ -18,8 +18,9 @@ import tifffile
 import yaml
 
 from ..engine import step
-from ..grid import GDAL_NODATA, Layers, read_geotiff
+from ..grid import GDAL_NODATA, Layers, parse_crs, read_geotiff
 from ..layers import read_layers as _read_layers
+from ..pointcloud import read_las
 from ..pointcloud import read_points as _read_points
 from .acquire import AUX_SUFFIX, View, view_from_images
 from .noise import tof_sigma
@@ -92,44 +93,78 @@ def read_dem(path: str | Path, nodata: float | None = None) -> Layers:
     return Layers(geometry, {"dem": dem}, meta)
 
 
-@step("read_points", inputs={"paths": "list", "noise": "str", "sensor": "floats?", "frequency": "float"},
-      outputs={"points": "array", "variance": "array?"})
+@step("read_points", inputs={"paths": "list", "noise": "str", "sensor": "floats?", "frequency": "float",
+                             "classes": "list?", "range": "floats?", "min_reflectivity": "float?", "crs": "str?"},
+      outputs={"points": "array", "variance": "array?", "points_crs": "str?"})
 def read_points(paths: list[str | Path], noise: str = "recorded", sensor: list[float] | None = None,
-                frequency: float = 30.0) -> dict[str, Any]:
+                frequency: float = 30.0, classes: list[int] | None = None, range: list[float] | None = None,
+                min_reflectivity: float | None = None, crs: str | None = None) -> dict[str, Any]:
     """All inputs' points stacked (N x 3, or N x 4 if every input has intensity) and each
     point's height variance: ``recorded`` takes the variances a DEM job recorded beside its
     views (the server's own noise model; none if absent), ``tof`` computes them with the ToF
     noise model (sensor position from the ``.cal`` beside an input, or ``sensor``), ``none``
-    gives no variances."""
+    gives no variances.
+
+    Real scans need two filters the camera's views do not: ``classes`` keeps the LAS/LAZ points
+    of those ASPRS classes (2 = ground: a DEM of the terrain, not of its trees and roofs), and
+    ``range`` = (min, max) keeps the points whose distance from the sensor (``sensor`` or the
+    ``.cal`` beside an input) lies within it. ``min_reflectivity`` > 0 is the server's
+    phase-wrap filter on a raw cloud with intensity (amplitude x range^2 below that share of the
+    input's median, after the range filter, as ``view_from_frame`` does). ``points_crs`` is ``crs`` if given, else the EPSG
+    code a LAS/LAZ header names (when its unit is the metre: see CloudInfo), else None (local)."""
     if noise not in ("recorded", "tof", "none"):
         raise ValueError(f"noise must be recorded, tof or none, not {noise!r}")
+    min_reflectivity = min_reflectivity or 0.0
+    if range is not None and (len(range) != 2 or not 0 <= range[0] < range[1]):
+        raise ValueError(f"range {range}: need min,max with 0 <= min < max (m from the sensor)")
     clouds: list[np.ndarray] = []
     variances: list[np.ndarray] = []
+    file_crs: set[str] = set()
     for raw in paths:
         path = Path(raw)
         aux = path.with_name(path.stem + AUX_SUFFIX)
-        if path.suffix in (".tif", ".tiff") and aux.is_file() and noise == "recorded":
+        if path.suffix.lower() in (".las", ".laz"):
+            pts, info = read_las(path, [int(c) for c in classes] if classes else None)
+            if info.crs:
+                file_crs.add(info.crs)
+        elif classes:
+            raise ValueError(f"{path}: classes filter only LAS/LAZ points ({path.suffix} has no classification)")
+        elif path.suffix in (".tif", ".tiff") and aux.is_file() and noise == "recorded":
             coords = tifffile.imread(path).reshape(-1, 4)
             keep = np.isfinite(coords[:, 2])
-            clouds.append(np.ascontiguousarray(coords[keep]))
+            pts = np.ascontiguousarray(coords[keep])
             variances.append(tifffile.imread(aux).reshape(-1, 4)[keep, 0].astype(np.float64))
-            continue
-        pts = _read_points(path)
-        clouds.append(pts)
-        if noise == "tof":
-            origin = np.asarray(sensor, float) if sensor is not None else None
+        else:
+            pts = _read_points(path)
+        if noise == "tof" or range is not None or min_reflectivity > 0:
             cal = path.with_suffix(".cal")
-            if cal.is_file():
-                origin = read_cal(cal)["T_global_camera"][:3, 3]
+            origin = read_cal(cal)["T_global_camera"][:3, 3] if cal.is_file() else (
+                np.asarray(sensor, float) if sensor is not None else None)
             if origin is None:
-                raise ValueError(f"{path}: --noise tof needs the sensor position (a .cal file beside it or --sensor)")
+                raise ValueError(f"{path}: --noise tof and the range and reflectivity filters need the sensor position "
+                                 "(a .cal file beside it or --sensor)")
             rng = np.linalg.norm(pts[:, :3].astype(np.float64) - origin[None, :], axis=1)
-            amp = pts[:, 3] if pts.shape[1] == 4 else None
-            variances.append(tof_sigma(rng, amp, frequency_mhz=frequency).astype(np.float64) ** 2)
+            if range is not None:
+                keep = (rng >= range[0]) & (rng <= range[1])
+                pts, rng = pts[keep], rng[keep]
+                if len(variances) == len(clouds) + 1:
+                    variances[-1] = variances[-1][keep]
+            if min_reflectivity > 0 and pts.shape[1] == 4 and len(pts):
+                refl = pts[:, 3].astype(np.float64) * rng.astype(np.float32).astype(np.float64) ** 2
+                keep = refl >= min_reflectivity * float(np.median(refl))
+                pts, rng = pts[keep], rng[keep]
+                if len(variances) == len(clouds) + 1:
+                    variances[-1] = variances[-1][keep]
+            if noise == "tof":
+                amp = pts[:, 3] if pts.shape[1] == 4 else None
+                variances.append(tof_sigma(rng, amp, frequency_mhz=frequency).astype(np.float64) ** 2)
+        clouds.append(pts)
     width = 4 if clouds and all(c.shape[1] == 4 for c in clouds) else 3
     points = np.concatenate([c[:, :width] for c in clouds]) if clouds else np.zeros((0, 3), np.float32)
     variance = np.concatenate(variances) if variances and len(variances) == len(clouds) else None
-    return {"points": points, "variance": variance}
+    if len(file_crs) > 1:
+        raise ValueError(f"the inputs are in different CRSs ({', '.join(sorted(file_crs))})")
+    return {"points": points, "variance": variance, "points_crs": parse_crs(crs) or (file_crs.pop() if file_crs else None)}
 
 
 def _read_map_layer(path: Path) -> tuple[np.ndarray, Any]:

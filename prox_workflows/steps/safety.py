@@ -62,21 +62,24 @@ def check_move(
     r1 = math.floor((g.ymax - ymin) / g.cell)
     rows = np.arange(r0, r1 + 1)
     cols = np.arange(c0, c1 + 1)
-    cx = g.xmin + (cols + 0.5) * g.cell
-    cy = g.ymax - (rows + 0.5) * g.cell
+    # Cell centres and poses relative to the grid's corner: on a georeferenced map (eastings
+    # ~5e5 m, northings ~5e6 m) the footprint test then compares metres, not the last bits of
+    # two large coordinates, and gives the same cells as the same map at the origin.
+    cx = (cols + 0.5) * g.cell
+    cy = -(rows + 0.5) * g.cell
     X, Y = np.meshgrid(cx, cy)
     covered = np.zeros(X.shape, bool)
     half_l, half_w = length / 2 + g.cell / 2, width / 2 + g.cell / 2  # a cell touched counts
     for x, y, heading in poses:
         c, s = math.cos(math.radians(heading)), math.sin(math.radians(heading))
-        dx, dy = X - x, Y - y
+        dx, dy = X - (x - g.xmin), Y - (y - g.ymax)
         covered |= (np.abs(dx * c + dy * s) <= half_l) & (np.abs(-dx * s + dy * c) <= half_w)
     R, C = np.meshgrid(rows, cols, indexing="ij")
     inside = (R >= 0) & (R < g.height) & (C >= 0) & (C < g.width)
     values = np.full(X.shape, np.nan, np.float32)
     values[inside] = traversability[R[inside], C[inside]]
     under = values[covered]
-    xs, ys = X[covered], Y[covered]
+    xs, ys = X[covered] + g.xmin, Y[covered] + g.ymax
     unknown = ~np.isfinite(under)
     blocked = np.isfinite(under) & (under <= min_score)
     if np.isfinite(under).any():

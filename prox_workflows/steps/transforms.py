@@ -58,11 +58,19 @@ def invert(T: np.ndarray) -> np.ndarray:
 
 
 def apply(T: np.ndarray, points: np.ndarray) -> np.ndarray:
-    """Transform N x 3 (or H x W x 3) points; float32 in, float32 out."""
+    """Transform N x 3 (or H x W x 3) points; float32 in, float32 out in the rover's local frame.
+
+    float64 out when the points are float64 or the transform moves them more than 10 km (a global
+    frame in a projected CRS): float32 steps are 0.5 m at 5e6 m, coarser than any DEM cell."""
     pts = np.asarray(points)
     flat = pts.reshape(-1, 3).astype(np.float64)
     out = flat @ T[:3, :3].T + T[:3, 3]
-    return out.reshape(pts.shape).astype(np.float32)
+    wide = pts.dtype == np.float64 or float(np.abs(T[:3, 3]).max()) > GEOREFERENCED_M
+    return out.reshape(pts.shape).astype(np.float64 if wide else np.float32)
+
+
+# Beyond this offset (m) a frame is taken as georeferenced and coordinates stay float64.
+GEOREFERENCED_M = 1.0e4
 
 
 @dataclass

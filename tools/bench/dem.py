@@ -22,8 +22,13 @@
    it would be slower per point at 10 M: the extrapolation flatters the peer). The peer's max and
    DemImport's dem differ only in cells with a point within 1e-4 cell of an edge, which
    np.digitize's float64 edges and GridGeometry.cell_of's arithmetic round differently.
-2. Dem2Hazard of a 1000 x 1000 DEM: the section tools/bench/dem2hazard.py provides.
-3. A 24-view dem-full-tof in simulation: the lead's section.
+2. Real data (``--realdata``, default on when ../shared/realdata is present): the Autzen airborne
+   lidar's ground class (LAS, feet converted to metres) through DemImport against the peer on
+   the same cells, at 1, 2 and 5 m; and a georeferenced copy of it (shifted to UTM-sized
+   coordinates, 556440 E, 5394932 N) against the same points at the origin: the largest height
+   difference, in float64 (this toolbox) and as it was with float32 coordinates.
+3. Dem2Hazard of a 1000 x 1000 DEM: the section tools/bench/dem2hazard.py provides.
+4. A 24-view dem-full-tof in simulation: the lead's section.
 
 Times are the minimum over interleaved repetitions (the machine may be shared); the spread
 (median / minimum) of the main rows is printed beside them.
@@ -299,15 +304,57 @@ def _dem_full_tof_runs(runs: int, label: str, overrides: list[str]) -> None:
         sock.close()
 
 
+REALDATA = Path(__file__).resolve().parents[2].parent / "shared" / "realdata"
+UTM_SHIFT = np.array([556440.0, 5394932.0])
+
+
+def section_realdata() -> None:
+    """The Autzen ground class against binned_statistic_2d, and origin vs UTM coordinates."""
+    from prox_workflows.pointcloud import read_las
+
+    las = REALDATA / "points" / "autzen_trim.las"
+    if not las.is_file():
+        print(f"\nreal data: {las} absent, section skipped")
+        return
+    t0 = time.perf_counter()
+    ground, info = read_las(las, [2])
+    t_read = time.perf_counter() - t0
+    print(f"\nreal data: {las.name}, ground class {len(ground)} of {sum(info.classes.values())} points "
+          f"(read {t_read * 1e3:.0f} ms, unit {info.unit_m} m)")
+    print(f"  {'cell':>6} {'cells':>9} {'defined':>8} {'DemImport max':>14} {'peer':>10} {'max |diff|':>11}")
+    for cell in (1.0, 2.0, 5.0):
+        g = GridGeometry.covering(*ground[:, :2].min(axis=0), *ground[:, :2].max(axis=0), cell)
+        times, _ = best_of({"ours": lambda g=g: dem_import(ground, g, stats=("dem",)),
+                            "peer": lambda g=g: peer(ground, g)}, 3)
+        ours, ref = dem_import(ground, g, stats=("dem",))["dem"], peer(ground, g)
+        both = np.isfinite(ours) & np.isfinite(ref)
+        print(f"  {cell:>5g}m {ours.size:>9} {int(np.isfinite(ours).sum()):>8} {times['ours'] * 1e3:>11.2f} ms "
+              f"{times['peer'] * 1e3:>7.1f} ms {float(np.max(np.abs(ours[both] - ref[both]))):>11.2e}")
+    local = ground[:, :3] - np.r_[ground[:, :2].min(axis=0), 0.0]
+    utm = local.copy()
+    utm[:, :2] += UTM_SHIFT
+    for label, dtype in (("float64", np.float64), ("float32 (before)", np.float32)):
+        ga = GridGeometry(1.0, 0.0, 180.0, 360, 180)
+        gb = GridGeometry(1.0, UTM_SHIFT[0], UTM_SHIFT[1] + 180.0, 360, 180)
+        a = dem_import(local.astype(dtype), ga, stats=("dem",))["dem"]
+        b = dem_import(utm.astype(dtype), gb, stats=("dem",))["dem"]
+        both = np.isfinite(a) & np.isfinite(b)
+        print(f"  origin vs UTM, {label:<17} defined {int(np.isfinite(a).sum())} vs {int(np.isfinite(b).sum())}, "
+              f"max |diff| {float(np.max(np.abs(a[both] - b[both]))):.3g} m")
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--sizes", default="1000000,10000000", help="point counts (default 1000000,10000000)")
     ap.add_argument("--runs", type=int, default=5, help="interleaved timed runs, the minimum counts (default 5)")
     ap.add_argument("--skip-hazard", action="store_true", help="leave out the Dem2Hazard section")
+    ap.add_argument("--skip-realdata", action="store_true", help="leave out the real-data section")
     ap.add_argument("--skip-dem-full-tof", action="store_true", help="leave out the dem-full-tof section (it starts a server)")
     args = ap.parse_args(argv)
     sizes = [int(float(s)) for s in args.sizes.split(",") if s]
     ok = section_dem_import(sizes, args.runs)
+    if not args.skip_realdata:
+        section_realdata()
     if not args.skip_hazard:
         section_dem2hazard()
     if not args.skip_dem_full_tof:
