@@ -83,16 +83,19 @@ class RecordedJob:
 
 def find_job(path: str | Path) -> RecordedJob:
     """The recorded job at ``path``: its views folder (``site_views``), its stem (``dem/site``),
-    its DEM (``dem/site_dem.tif``) or a folder holding exactly one views folder."""
+    one of its products (``dem/site_dem.tif``) or a folder holding exactly one views folder."""
     path = Path(path)
     views: Path | None = None
     if path.is_dir() and any(path.glob("*_images.csv")):
         views = path
     elif path.with_name(f"{path.name}_views").is_dir():
         views = path.with_name(f"{path.name}_views")
-    elif path.is_file() and path.name.endswith("_dem.tif"):
-        candidate = path.with_name(path.name[: -len("_dem.tif")] + "_views")
-        views = candidate if candidate.is_dir() else None
+    elif path.is_file():  # one of the job's products (site_dem.tif, site_hazard.png, site_dem.yaml ...)
+        stem = path.name.split(".")[0]
+        while "_" in stem and views is None:
+            stem = stem.rsplit("_", 1)[0]
+            if path.with_name(f"{stem}_views").is_dir():
+                views = path.with_name(f"{stem}_views")
     elif path.is_dir():
         found = [p for p in path.glob("*_views") if p.is_dir()]
         if len(found) == 1:
