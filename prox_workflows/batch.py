@@ -38,7 +38,15 @@ import tifffile
 
 from .grid import GridGeometry, Layers, _geo_tags, read_geotiff, read_geotiff_geometry
 from .products import atomic_path, write_yaml_atomic
-from .reprocess import OUT_FOLDER, ReprocessError, find_job, is_current, parse_overrides, reprocess
+from .reprocess import (
+    OFFLINE_SCRIPTS,
+    OUT_FOLDER,
+    ReprocessError,
+    find_job,
+    is_current,
+    parse_overrides,
+    reprocess,
+)
 from .steps.dem_mosaik import dem_mosaik, union_geometry
 
 # ------------------------------------------------------------------------------ inputs
@@ -349,6 +357,8 @@ def main(argv: list[str]) -> int:
     ap.add_argument("-o", "--out", help="one folder for every job's products (default <job dir>/reprocessed)")
     ap.add_argument("--force", action="store_true", help="re-run jobs whose products are up to date")
     args = ap.parse_args(argv[1:])
+    if args.script not in OFFLINE_SCRIPTS:
+        ap.error(f"script {args.script!r} does not run on recorded DEM jobs; use one of {', '.join(OFFLINE_SCRIPTS)}")
     try:
         overrides = parse_overrides(args.set)
     except ReprocessError as exc:

@@ -25,6 +25,9 @@ from prox_workflows.batch import (
     mosaic_in_memory,
     run_batch,
 )
+from prox_workflows.batch import (
+    main as batch_main,
+)
 from prox_workflows.engine import main as rvs_prox
 from tools.bench.batch import shifted_copy
 
@@ -134,7 +137,8 @@ def campaign(site: ServerThread, tmp_path_factory: pytest.TempPathFactory) -> Pa
     return root
 
 
-def test_batch_reports_a_failing_input_runs_the_others_and_skips_them_on_a_rerun(campaign: Path) -> None:
+def test_batch_reports_a_failing_input_runs_the_others_and_skips_them_on_a_rerun(
+        campaign: Path, capsys: pytest.CaptureFixture[str]) -> None:
     inputs, ignored = find_inputs([str(campaign / "*" / "dem" / "*")])  # views folders and sidecars: each job once
     assert [p.name for p in inputs] == ["a_views", "b_views", "c_views"] and ignored == []
     client = make_client(workers=1, processes=False, threads_per_worker=2)
@@ -150,13 +154,16 @@ def test_batch_reports_a_failing_input_runs_the_others_and_skips_them_on_a_rerun
         again = run_batch("dem", inputs, client=client)
         assert [r.status for r in again] == ["skipped", "skipped", "failed"]
         # an input newer than its products is done again
-        scan = next(inputs[0].glob("*_scan.yaml"))
-        later = Path(first[0].files["dem"]).stat().st_mtime + 5
-        os.utime(scan, (later, later))
+        dem = Path(first[0].files["dem"])
+        older = next(inputs[0].glob("*_scan.yaml")).stat().st_mtime - 10
+        os.utime(dem, (older, older))
         third = run_batch("dem", inputs[:2], client=client)
         assert [r.status for r in third] == ["done", "skipped"]
     finally:
         close_client(client)
+    # the command line: everything up to date, so no cluster is even started
+    assert batch_main(["batch", "dem", "--inputs", str(campaign / "[ab]" / "dem" / "*")]) == 0
+    assert "2 jobs: 0 done, 2 skipped, 0 failed" in capsys.readouterr().out
 
 
 def test_the_tiled_campaign_mosaic_equals_the_mosaic_in_memory(campaign: Path, tmp_path: Path) -> None:
@@ -178,3 +185,13 @@ def test_the_tiled_campaign_mosaic_equals_the_mosaic_in_memory(campaign: Path, t
 
     back = read_layers(files["dem"])  # GDAL-style georeferencing: the reader places it
     assert back.geometry == whole.geometry
+    import rasterio
+
+    with rasterio.open(files["dem"]) as ds:  # GDAL reads the tiled GeoTIFF in place
+        assert ds.block_shapes[0] == (16, 16)
+        assert tuple(ds.bounds) == pytest.approx(whole.geometry.bounds)
+        assert np.array_equal(ds.read(1), whole["dem"], equal_nan=True)
+    # the command line makes the same mosaic
+    assert rvs_prox(["mosaic-campaign", "--inputs", str(tmp_path / "[ab]" / "*_dem.tif"), "-o",
+                     str(tmp_path / "cli" / "campaign"), "--tile", "32"]) == 0
+    assert np.array_equal(tifffile.imread(tmp_path / "cli" / "campaign_dem.tif"), whole["dem"], equal_nan=True)

@@ -18,6 +18,8 @@
 from __future__ import annotations
 
 import argparse
+import logging
+import os
 import shutil
 import socket
 import tempfile
@@ -44,14 +46,17 @@ def record_scans(data: Path, count: int) -> list[Path]:
     reader = sock.makefile("rb")
     reader.readline()
     out = []
-    for i in range(count):
-        sock.sendall(f"pose -x {1.5 * i} -y 0 -heading 0\n".encode())
-        reader.readline()
-        sock.sendall((SCAN.format(name=f"real{i}") + "\n").encode())
+    def final(module: str) -> str:  # the request's final line (events and progress lines skipped)
         while True:
             line = reader.readline().decode()
-            if " OK " in line or " ERROR " in line:
-                break
+            if line.startswith((f"{module} OK", f"{module} ERROR")):
+                return line
+
+    for i in range(count):
+        sock.sendall(f"pose -x {1.5 * i} -y 0 -heading 0\n".encode())
+        final("EGP-RVS-POSE")
+        sock.sendall((SCAN.format(name=f"real{i}") + "\n").encode())
+        line = final("EGP-RVS-DEM-FULL-TOF")
         if " ERROR " in line:
             raise RuntimeError(line)
         out.append(data / "dem" / f"real{i}_views")
@@ -121,6 +126,9 @@ def main(argv: list[str] | None = None) -> int:
                     help="the mosaic's cell (finer than the sites' 0.05 m: a mosaic with some size)")
     ap.add_argument("--keep", help="build the campaign here and keep it")
     args = ap.parse_args(argv)
+    logging.getLogger("distributed").setLevel(logging.CRITICAL)  # a closing cluster's heartbeat noise
+    print(f"machine: {os.cpu_count()} cores, load average {os.getloadavg()[0]:.1f} at the start "
+          "(other processes share the cores: the speedup is bounded by what is free)")
     tmp = None if args.keep else tempfile.TemporaryDirectory()
     root = Path(args.keep or tmp.name)  # type: ignore[union-attr]
     try:
@@ -173,6 +181,7 @@ def main(argv: list[str] | None = None) -> int:
         finally:
             close_client(client)
 
+        print(f"   load average after: {os.getloadavg()[0]:.1f}")
         print(f"3. campaign mosaic (fuse over the sites at {args.mosaic_cell} m, tiles of 256 x 256 cells)")
         dems = [p.parent / "reprocessed" / f"{p.name[:-len('_views')]}_dem.tif" for p in inputs]
         tracemalloc.start()
