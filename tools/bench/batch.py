@@ -166,6 +166,9 @@ def main(argv: list[str] | None = None) -> int:
             overhead = t_cluster * args.workers / n - t_serial / n
             print(f"   per-task overhead vs the loop: {overhead * 1e3:+.1f} ms "
                   f"(cluster wall x workers / N - serial / N)")
+            task_c = np.median([r.seconds for r in res_c])
+            print(f"   one task's own time: median {task_c * 1e3:.1f} ms in a worker vs {task_s * 1e3:.1f} ms in the "
+                  f"loop ({task_c / task_s:.2f}x: above 1, the workers waited for a core)")
             print(f"   re-run, all up to date:       {t_skip:7.2f} s ({n} skipped, no task made)")
 
             print(f"2. task graph of {args.graph:,} scans, steps not run (dry_run)")
