@@ -61,6 +61,20 @@ class ProxConfig(ModuleConfig):
             cls._renamed = cached  # type: ignore[attr-defined]
         return cached
 
+    def as_dict(self) -> dict[str, Any]:
+        """As the wire names the keys (``from``), for ``config -module prox`` and the logs."""
+        return {("from" if k == "from_" else k): v for k, v in super().as_dict().items()}
+
+    @classmethod
+    def from_mapping(cls, data: Any = None, *, where: str = "") -> ProxConfig:
+        """config/prox.yaml and :meth:`as_dict` say ``from``; the field is ``from_``."""
+        if isinstance(data, dict) and "from" in data:
+            data = {("from_" if k == "from" else k): v for k, v in data.items()}
+            cfg = super().from_mapping({k: v for k, v in data.items() if k != "from_"}, where=where)
+            cfg.from_ = str(data["from_"])
+            return cfg
+        return super().from_mapping(data, where=where)
+
 
 ProxConfig.__annotations__.pop("_renamed", None)
 setattr(ProxConfig, "from", property(lambda self: self.from_, lambda self, value: setattr(self, "from_", value)))
