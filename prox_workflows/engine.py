@@ -749,9 +749,41 @@ def params_help(cls: type[Settings] | None) -> str:
     return "\n".join(lines)
 
 
+def show_progress(done: int, total: int, message: str, phase: str = "") -> None:
+    """The console tools' progress bar on stderr: phase, bar, count, message, one line redrawn."""
+    width = 30
+    filled = int(width * done / max(total, 1))
+    sys.stderr.write(f"\r{phase[:10]:<10} [{'#' * filled}{'.' * (width - filled)}] {done}/{total} "
+                     f"{message[:40]:<40}")
+    sys.stderr.flush()
+
+
+def _main_from(script: str, source: str, sets: list[str], out: str | None) -> int:
+    """``rvs-prox dem --from JOB``: a recorded DEM job run again (prox_workflows.reprocess)."""
+    from .reprocess import ReprocessError, parse_overrides, reprocess
+
+    try:
+        result = reprocess(source, parse_overrides(sets), out, script=script, progress=show_progress)
+    except (ReprocessError, WorkflowError, FileNotFoundError) as exc:
+        sys.stderr.write(f"\nrvs-prox: {exc}\n")
+        return 1
+    except KeyboardInterrupt:
+        sys.stderr.write("\nrvs-prox: interrupted\n")
+        return 130
+    sys.stderr.write("\n")
+    print(f"views: {result['views']}")
+    for layer, path in result["files"].items():
+        print(f"{layer}: {path}")
+    return 0
+
+
 def main(argv: list[str] | None = None) -> int:
     """``rvs-prox SCRIPT [--validate] [--set key=value] [--help]``: validate or run a script."""
     argv = list(sys.argv[1:] if argv is None else argv)
+    if argv and argv[0] in ("batch", "mosaic-campaign"):  # the campaign tools (prox_workflows.batch)
+        from . import batch
+
+        return batch.main(argv)
     ap = argparse.ArgumentParser(prog="rvs-prox", description="Validate or run a PROX-like workflow script.",
                                  formatter_class=argparse.RawDescriptionHelpFormatter, add_help=False)
     ap.add_argument("script", nargs="?", help="script name (in prox_workflows/scripts) or path")
@@ -761,6 +793,10 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--input", action="append", default=[], metavar="NAME=VALUE",
                     help="supply one of the script's inputs (a folder, a file: --input views=data/dem/site_views)")
     ap.add_argument("--log", help="write the run log (YAML) here")
+    ap.add_argument("--from", dest="from_", metavar="JOB",
+                    help="re-run a recorded DEM job (data/dem/site, or its site_views folder) with the "
+                         "parameters it recorded, --set overriding them")
+    ap.add_argument("-o", "--out", help="with --from: where the products go (default <job dir>/reprocessed)")
     args = ap.parse_args(argv)
     if args.help or not args.script:
         text = ap.format_help()
@@ -776,6 +812,8 @@ def main(argv: list[str] | None = None) -> int:
                 text += f"\n{exc}\n"
         print(text, end="")
         return 0 if args.help else 2
+    if args.from_:
+        return _main_from(args.script, args.from_, args.set, args.out)
     params: dict[str, Any] = {}
     for item in args.set:
         key, sep, raw = item.partition("=")
@@ -803,15 +841,8 @@ def main(argv: list[str] | None = None) -> int:
         sys.stderr.write(f"rvs-prox: {exc}\n")
         return 1
 
-    def show(done: int, total: int, message: str, phase: str = "") -> None:
-        width = 30
-        filled = int(width * done / max(total, 1))
-        sys.stderr.write(f"\r{phase[:10]:<10} [{'#' * filled}{'.' * (width - filled)}] {done}/{total} "
-                         f"{message[:40]:<40}")
-        sys.stderr.flush()
-
     try:
-        ws, log = run_workflow(script, typed, inputs, progress=show)
+        ws, log = run_workflow(script, typed, inputs, progress=show_progress)
     except (WorkflowError, FileNotFoundError, ValueError) as exc:
         sys.stderr.write(f"\nrvs-prox: {exc}\n")
         return 1

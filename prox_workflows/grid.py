@@ -160,7 +160,7 @@ class Layers:
 # ------------------------------------------------------------------------------ GeoTIFF
 
 
-def _geo_tags(geometry: GridGeometry, nodata: float | None) -> list[tuple[int, str, int, Any, bool]]:
+def geo_tags(geometry: GridGeometry, nodata: float | None) -> list[tuple[int, str, int, Any, bool]]:
     # GeoKeyDirectory: version 1.1.0, then (key, location, count, value) entries, sorted by key.
     #   GTModelTypeGeoKey (1024) = 32767 user-defined (the rover's local engineering frame),
     #     1 projected (ProjectedCSTypeGeoKey 3072 = the EPSG code) or 2 geographic (2048)
@@ -202,7 +202,7 @@ def write_geotiff(path: Path, image: np.ndarray, geometry: GridGeometry, nodata:
     if nodata is None and np.issubdtype(image.dtype, np.floating):
         nodata = float("nan")
     rgb = image.ndim == 3 and image.shape[2] in (3, 4) and image.dtype == np.uint8
-    tags = _geo_tags(geometry, nodata)
+    tags = geo_tags(geometry, nodata)
 
     def write(p: Path) -> None:
         tifffile.imwrite(p, image, photometric="rgb" if rgb else "minisblack", extratags=tags,

@@ -85,6 +85,9 @@ RECIPES: dict[str, Recipe] = {
     "continue": Recipe("continue", setup=["move-ptu -pan 1"], again="continue"),
     "reset": Recipe("reset", again="reset"),
     "reinit": Recipe("reinit", params={"device": "all"}, again="reinit -device tof"),  # all: long enough to be caught
+    # a one-view job recorded first, then re-run offline: quick, so job and break go in one segment
+    "prox": Recipe("prox -from dem/src -set cell=0.02", setup=["dem-full-tof -range -20,20,-50,-30 -cell 0.05 -name src"],
+                   params={"script": "dem"}),
     "recover": Recipe("recover -set last", setup=["break", "continue"], params={"set": "last"}, again="recover"),
 }
 
