@@ -95,8 +95,15 @@ def test_navigate_errors(server_factory) -> None:
     assert c.request("navigate").fields["code"] == "E_ARG"  # -goal is required
     r = c.request("navigate -goal 2.3,-0.45 -auto", timeout=300)  # on the tall rock
     assert r.fields["code"] == "E_DATA" and "goal_in_hazard" in r.fields["message"]
-    r = c.request("navigate -goal 40,0 -auto", timeout=300)  # far outside any map: blank maps, then no progress
-    assert r.status == "ERROR" and r.fields["code"] == "E_DATA"
+
+
+@pytest.mark.parametrize("x", [pytest.param(40.0, marks=long_only())])
+def test_navigate_far_outside_any_map_ends_e_data(server_factory, x: float) -> None:
+    """Blank maps beyond the scans: legs until no progress or max_legs, then E_DATA (a minute of
+    360-degree scans: the long suite)."""
+    srv = server_factory(["server.scene=office"])
+    r = srv.client().request(f"navigate -goal {x:g},0 -auto", timeout=600)
+    assert r.status == "ERROR" and r.fields["code"] == "E_DATA", r.fields
 
 
 def test_navigate_with_the_fused_sensor(server_factory) -> None:
