@@ -209,7 +209,7 @@ class Monitor:
 
     # -- what a concrete monitor fills in -----------------------------------------------------
     def cycle(self) -> None:
-        raise NotImplementedError
+        raise NotImplementedError(f"{type(self).__name__} must say what one cycle does")
 
     def on_pause(self, reason: dict[str, Any]) -> None:
         pass
@@ -220,7 +220,7 @@ class Monitor:
             self.point(*self.pointing)
 
     def status_fields(self) -> dict[str, Any]:
-        raise NotImplementedError
+        raise NotImplementedError(f"{type(self).__name__} must say what status shows of it")
 
     def shown_state(self) -> str:
         """The state as status shows it: paused as soon as a job or a mode calls for it, not
@@ -230,7 +230,7 @@ class Monitor:
         return self.state
 
     def failure_fields(self) -> dict[str, Any]:
-        raise NotImplementedError
+        raise NotImplementedError(f"{type(self).__name__} must say what its failure EVENT carries")
 
 
 # What the PTU-holder refusal calls each monitor and how it is stopped.

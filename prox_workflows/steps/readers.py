@@ -62,6 +62,18 @@ def read_layers(path: str | Path) -> Layers:
     return _read_layers(Path(path))
 
 
+def gdal_nodata(path: str | Path) -> float | None:
+    """The GDAL nodata value a GeoTIFF declares (None: none, or one that is not a number)."""
+    with tifffile.TiffFile(path) as tif:
+        tag = tif.pages[0].tags.get(GDAL_NODATA)
+    if tag is None:
+        return None
+    try:
+        return float(str(tag.value).strip("\x00 "))
+    except ValueError:
+        return None
+
+
 @step("read_dem", inputs={"path": "path", "nodata": "float?"}, outputs={"layers": "Layers"})
 def read_dem(path: str | Path, nodata: float | None = None) -> Layers:
     """A single-band DEM GeoTIFF (ours or GDAL's) as a lone ``dem`` layer, float32 with NaN
@@ -71,13 +83,7 @@ def read_dem(path: str | Path, nodata: float | None = None) -> Layers:
     if image.ndim != 2:
         raise ValueError(f"{path}: expected a single-band DEM, got shape {image.shape}")
     if nodata is None:
-        with tifffile.TiffFile(path) as tif:
-            tag = tif.pages[0].tags.get(GDAL_NODATA)
-            if tag is not None:
-                try:
-                    nodata = float(str(tag.value).strip("\x00 "))
-                except ValueError:
-                    nodata = None
+        nodata = gdal_nodata(path)
     dem = image.astype(np.float32)
     if nodata is not None and not math.isnan(nodata):
         dem[image == nodata] = np.nan
@@ -173,15 +179,9 @@ def _read_map_layer(path: Path) -> tuple[np.ndarray, Any]:
     if image.ndim != 2:
         raise ValueError(f"{path}: expected a single-band map, got shape {image.shape}")
     if np.issubdtype(image.dtype, np.floating):
-        with tifffile.TiffFile(path) as tif:
-            tag = tif.pages[0].tags.get(GDAL_NODATA)
-        if tag is not None:
-            try:
-                nodata = float(str(tag.value).strip("\x00 "))
-            except ValueError:
-                nodata = math.nan
-            if not math.isnan(nodata):
-                image = np.where(image == nodata, np.nan, image)
+        nodata = gdal_nodata(path)
+        if nodata is not None and not math.isnan(nodata):
+            image = np.where(image == nodata, np.nan, image)
         image = image.astype(np.float32)
     return image, geometry
 
