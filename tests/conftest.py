@@ -31,6 +31,13 @@ def long_suite(obj: Any) -> Any:
     return long(skip(obj))
 
 
+def long_test(fn: Any) -> Any:
+    """A whole test that runs only with RVS_LONG=1 (the long suite CI runs after the default one)."""
+    for mark in long_only():
+        fn = mark(fn)
+    return fn
+
+
 def long_only() -> list[Any]:
     """The marks of a ``pytest.param`` that runs only with RVS_LONG=1."""
     return [long, pytest.mark.skipif(not LONG, reason="long variant: run with RVS_LONG=1")]

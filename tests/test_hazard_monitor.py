@@ -15,7 +15,7 @@ from typing import Any
 
 import numpy as np
 import pytest
-from conftest import wait_for
+from conftest import long_test, wait_for
 
 STOP, WARN, WIDTH, ROVER_LENGTH = 0.5, 1.0, 0.6, 0.51
 SPEED = 0.7  # m/s, the Pioneer 3-AT's top speed
@@ -87,6 +87,7 @@ class Gnc:
         self.app.set_pose(pose["x"], pose["y"], pose["heading"])
 
 
+@long_test
 def test_stop_arrives_before_the_stopping_distance_in_10_seeded_runs(server_factory: Any, sim_time: Any) -> None:
     """A frame every PERIOD s of simulated time (the monitor's -period): the stop must come
     while the rover, still driving on until the verdict is out (one frame later), is short of

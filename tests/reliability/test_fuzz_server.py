@@ -16,7 +16,7 @@ import time
 from collections.abc import Iterator
 
 import pytest
-from conftest import LineClient
+from conftest import LineClient, long_test
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from reliability_harness import (
@@ -132,6 +132,7 @@ def fuzz(srv: ServerProcess, lines_per_connection: int, rounds: int, seed: int, 
     return figures
 
 
+@long_test
 def test_fuzz_20_connections(server: ServerProcess) -> None:
     figures = fuzz(server, lines_per_connection=500, rounds=1, seed=1, job_warmups=1)
     assert figures["lines"] >= 10_000

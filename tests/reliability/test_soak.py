@@ -13,6 +13,7 @@ import json
 from pathlib import Path
 
 import pytest
+from conftest import long_test
 from reliability_harness import long_suite, record
 
 from tools import soak
@@ -32,6 +33,7 @@ def run(tmp_path: Path, seconds: float, warmup: float, max_growth: float) -> dic
     return result
 
 
+@long_test
 def test_soak_short(tmp_path: Path) -> None:
     # Seconds after start the simulated sensors' renders still settle their memory and single
     # renders swing it by ~5 %: the short run only catches a gross leak; 10 % is the long run's.
