@@ -178,33 +178,40 @@ class RecoverySets:
         return folder
 
 
-def load_layers(paths: dict[str, Path]) -> Layers:
-    """Read a DEM's layer GeoTIFFs back into one Layers (they share the DEM's grid)."""
+def load_layers(paths: dict[str, Path], check: Callable[[], None] = lambda: None) -> Layers:
+    """Read a DEM's layer GeoTIFFs back into one Layers (they share the DEM's grid); ``check`` runs
+    before each file, so a break stops a long read between layers."""
     if "dem" not in paths:
         raise ProtocolError("E_DATA", "the recovery set holds no DEM layer")
+    check()
     dem, geometry = read_geotiff(paths["dem"])
     layers = Layers(geometry, {"dem": dem})
     for layer, path in paths.items():
         if layer in ("dem", "mesh") or path.suffix != ".tif":
             continue
+        check()
         image, g = read_geotiff(path)
         if g == geometry:
             layers[layer] = image
     return layers
 
 
-def load_recovery(app: App, which: str) -> dict[str, Any]:
-    """Restore pose and maps from a recovery set; returns what was restored (recover's OK)."""
+def load_recovery(app: App, which: str, check: Callable[[], None] = lambda: None) -> dict[str, Any]:
+    """Restore pose and maps from a recovery set; returns what was restored (recover's OK).
+
+    Everything is read before anything is applied, and ``check`` (the job's break check) runs
+    between the reads: an interrupted recover leaves the pose and the maps as they were."""
     folder = app.recovery.folder(which)
     manifest = yaml.safe_load((folder / "manifest.yaml").read_text()) or {}
     pose = manifest.get("pose") or {}
+    maps = {layer: folder / rel for layer, rel in (manifest.get("maps") or {}).items()}
+    layers = load_layers(maps, check) if maps else None
+    check()
     app.set_pose(float(pose.get("x", 0.0)), float(pose.get("y", 0.0)), float(pose.get("heading", 0.0)),
                  source="recovery")
-    maps = {layer: folder / rel for layer, rel in (manifest.get("maps") or {}).items()}
     out: dict[str, Any] = {"recovery": app.rel(folder), "pose": [Fixed(app.pose.x, 3), Fixed(app.pose.y, 3),
                                                                     Fixed(app.pose.heading, 2)]}
-    if maps:
-        layers = load_layers(maps)
+    if layers is not None:
         app.maps.restore(layers, {layer: app.rel(path) for layer, path in maps.items()})
         out["cells"] = int(np.isfinite(layers["dem"]).sum())
     job = manifest.get("job") or {}

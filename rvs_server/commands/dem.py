@@ -242,4 +242,4 @@ class RecoverConfig(ModuleConfig):
          help="load a recovery set written by break: the pose and the maps it held (-set last or a folder)")
 def recover(job: Job, cfg: RecoverConfig) -> dict[str, Any]:
     job.progress(0, 1, f"loading recovery set {cfg.set}")
-    return load_recovery(job.app, cfg.set)
+    return load_recovery(job.app, cfg.set, job.check)

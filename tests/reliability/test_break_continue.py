@@ -88,7 +88,10 @@ RECIPES: dict[str, Recipe] = {
     # a one-view job recorded first, then re-run offline: quick, so job and break go in one segment
     "prox": Recipe("prox -from dem/src -set cell=0.02", setup=["dem-full-tof -range -20,20,-50,-30 -cell 0.05 -name src"],
                    params={"script": "dem"}),
-    "recover": Recipe("recover -set last", setup=["break", "continue"], params={"set": "last"}, again="recover"),
+    # a set that holds a map, so that recover reads its layers (a bare pose set is applied in
+    # microseconds, before any break can reach it)
+    "recover": Recipe("recover -set last", setup=["dem-full-tof -range -20,20,-50,-30 -cell 0.05 -name src", "break",
+                                                  "continue"], params={"set": "last"}, again="recover"),
 }
 
 JOB_KINDS = sorted(name for name, cmd in COMMANDS.items() if cmd.job)
