@@ -9,7 +9,12 @@ config). A real backend whose hardware or library is missing raises :class:`Devi
 
 from __future__ import annotations
 
+import threading
+from collections.abc import Callable
 from typing import Any, Protocol, runtime_checkable
+
+# What a long device operation looks at to stop early: a job's threading.Event or a callable.
+Cancel = Callable[[], bool] | threading.Event | None
 
 
 class DeviceError(Exception):
@@ -23,6 +28,11 @@ class DeviceError(Exception):
         super().__init__(f"{device}: {message}")
         self.device = device
         self.message = message
+
+
+class DeviceInterrupted(DeviceError):
+    """A device operation stopped early by its ``cancel`` (a break), not a device failure: the
+    server ends the job as interrupted and leaves the device open."""
 
 
 @runtime_checkable
@@ -47,7 +57,9 @@ class Device(Protocol):
 
     def reinit(self) -> None: ...
 
-    def reset(self) -> None: ...
+    def reset(self, cancel: Cancel = None) -> None:
+        """Back to the power-on state; one that takes long (the PTU's R) stops waiting on ``cancel``."""
+        ...
 
     def reconfigure(self, settings: Any) -> list[str]:
         """Take the changed keys declared live while open; return them (the rest wait for reinit)."""

@@ -22,7 +22,7 @@ from typing import Any
 
 import structlog
 
-from drivers.base import Device, DeviceError
+from drivers.base import Cancel, Device, DeviceError, DeviceInterrupted
 from drivers.registry import DEVICE_KINDS, open_order, peers
 from rvs_params import Settings
 
@@ -177,14 +177,17 @@ class DeviceRegistry:
             raise first
         return self.summary()
 
-    def reset(self, name: str) -> None:
-        """Reset one device (reopen it if its reset fails); rebuilt if its section changed."""
+    def reset(self, name: str, cancel: Cancel = None) -> None:
+        """Reset one device (reopen it if its reset fails); rebuilt if its section changed. A
+        reset that ``cancel`` stopped is not reopened: the break it belongs to ends the job."""
         dev = self.devices.get(name)
         if dev is not None and not self._stale(name):
             try:
-                dev.reset()
+                dev.reset(cancel)
                 self.errors.pop(name, None)
                 return
+            except DeviceInterrupted:
+                raise
             except Exception:  # noqa: BLE001 - fall back to reopening the device
                 pass
         self.open(name)

@@ -174,9 +174,10 @@ class JobRunner:
         job.finished.set()
         on_done(job, result, error)
 
-    async def interrupt(self, timeout: float = 1.5) -> Job | None:
-        """Ask the running job to stop and wait (without blocking the loop) until it has."""
-        job = self.current
+    async def interrupt(self, job: Job | None = None, timeout: float = 1.5) -> Job | None:
+        """Ask ``job`` (default: the running one) to stop and wait, without blocking the loop,
+        until it has. A break names the job it caught: one started after it is not its to stop."""
+        job = job or self.current
         if job is None:
             return None
         job.cancel.set()

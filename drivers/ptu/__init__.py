@@ -14,10 +14,10 @@ import threading
 from collections.abc import Mapping
 from typing import Any
 
-from drivers.base import DeviceError
+from drivers.base import Cancel, DeviceError
 from drivers.ptu import line as _line  # noqa: F401 - registers the sim and serial backends
 from drivers.ptu.backend import BACKENDS, PtuBackend, PtuSettings
-from drivers.ptu.client import DEVICE, Cancel, MoveInterrupted, PtuClient, ReplyTimeout
+from drivers.ptu.client import DEVICE, MoveInterrupted, PtuClient, ReplyTimeout
 from drivers.ptu.emulator import PtuEmulator
 from drivers.registry import Capability
 from rvs_params import Settings
@@ -82,8 +82,8 @@ class Ptu:
             self._close_client()
             self.open()
 
-    def reset(self) -> tuple[float, float]:
-        return self._call(lambda c: c.reset())
+    def reset(self, cancel: Cancel = None) -> tuple[float, float]:
+        return self._call(lambda c: c.reset(cancel=cancel))
 
     def check(self) -> dict[str, Any]:
         def probe(c: PtuClient) -> dict[str, Any]:

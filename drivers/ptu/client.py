@@ -26,7 +26,7 @@ from typing import Any
 
 import serial
 
-from drivers.base import DeviceError
+from drivers.base import Cancel, DeviceError, DeviceInterrupted
 from drivers.ptu.protocol import (
     Reply,
     ReplyParser,
@@ -41,7 +41,6 @@ DEVICE = "ptu"
 _READ_SLICE = 0.02  # seconds per serial read: how often a wait looks at cancel and deadlines
 AXES = ("pan", "tilt")
 
-Cancel = Callable[[], bool] | threading.Event | None
 
 
 class ReplyTimeout(DeviceError):
@@ -51,7 +50,7 @@ class ReplyTimeout(DeviceError):
         super().__init__(DEVICE, message)
 
 
-class MoveInterrupted(DeviceError):
+class MoveInterrupted(DeviceInterrupted):
     """A move stopped early by ``halt()`` or its ``cancel``; ``position`` is where it stopped."""
 
     def __init__(self, message: str, position: tuple[float, float] | None) -> None:
@@ -94,6 +93,9 @@ class PtuClient:
         self._replies: collections.deque[Reply] = collections.deque()
         self._resync = False
         self._halt = threading.Event()
+        # monotonic deadline of an R whose wait was interrupted: the unit goes on resetting and
+        # answers nothing else until it ends, so the next command first waits for its reply
+        self._reset_until: float | None = None
         self.resolution: dict[str, float] = {}
         self.bounds: dict[str, tuple[int, int]] = {}
         # (PL, PU) per axis; an axis whose unit does not answer PL/PU (older firmware) has none
@@ -250,6 +252,8 @@ class PtuClient:
     def _send(self, cmd: str, flush: bool = True) -> None:
         data = encode_command(cmd)
         ser = self._require()
+        if self._reset_until is not None:
+            self._finish_reset()
         if flush:
             if self._resync:  # a reply may still be on its way from a timed-out exchange
                 self._drain(0.05)
@@ -465,18 +469,41 @@ class PtuClient:
         finally:
             self._halt.clear()
 
-    def reset(self, timeout: float | None = None) -> tuple[float, float]:
+    def reset(self, timeout: float | None = None, *, cancel: Cancel = None) -> tuple[float, float]:
         """``R``: the unit runs both axes into their limits and back home; wait for the end.
 
-        The D46 measures its axis bounds during a reset, so they are read again afterwards.
+        The D46 measures its axis bounds during a reset, so they are read again afterwards. A
+        ``cancel`` stops the wait, not the unit (it takes no command until its reset ends): the
+        client remembers the outstanding R and its next command waits for it first.
         """
+        user_stop = _stop_fn(cancel)
+        timeout = self.reset_timeout if timeout is None else float(timeout)
         with self.lock:
             self._set_state(moving=True, target_pan_deg=0.0, target_tilt_deg=0.0)
-            self.command("R", self.reset_timeout if timeout is None else timeout)
-            self._set_state(moving=False)
-            for axis, letter in (("pan", "P"), ("tilt", "T")):
-                self.bounds[axis] = (int(self.query_number(f"{letter}N")), int(self.query_number(f"{letter}X")))
-            return self.position()
+            self._send("R")
+            reply = self._read_reply("R", timeout, stop=lambda: user_stop() or self._halt.is_set())
+            if reply is None:
+                self._reset_until = time.monotonic() + timeout
+                raise MoveInterrupted(
+                    f"reset interrupted: the unit finishes it on its own (up to {timeout:g}s, "
+                    "drivers.ptu.reset_timeout) and its next command waits for that", self._last_position())
+            if not reply.ok:
+                raise DeviceError(DEVICE, f"the PTU refused R: {reply.text}")
+            return self._after_reset()
+
+    def _finish_reset(self) -> None:
+        """Wait out an interrupted R (its reply is the next one on the line), then re-read what a
+        reset changes."""
+        until, self._reset_until = self._reset_until, None
+        assert until is not None
+        self._read_reply("R", max(until - time.monotonic(), self.timeout))
+        self._after_reset()
+
+    def _after_reset(self) -> tuple[float, float]:
+        self._set_state(moving=False)
+        for axis, letter in (("pan", "P"), ("tilt", "T")):
+            self.bounds[axis] = (int(self.query_number(f"{letter}N")), int(self.query_number(f"{letter}X")))
+        return self.position()
 
     # -- speeds, accelerations, health -----------------------------------------------------------
     def set_speed(self, pan: float | None, tilt: float | None = None) -> None:

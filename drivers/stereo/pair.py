@@ -18,7 +18,7 @@ from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 
-from drivers.base import DeviceError
+from drivers.base import Cancel, DeviceError
 from drivers.registry import Capability
 from drivers.stereo import calibration as calib_file
 from drivers.stereo.backend import BACKENDS, CameraBackend, StereoSettings
@@ -124,7 +124,7 @@ class StereoPair:
             self._close_quietly()
             self.open()
 
-    def reset(self) -> None:
+    def reset(self, cancel: Cancel = None) -> None:
         """Full hardware reset of both cameras, then defaults (RvsCam_Reset)."""
         with self._op:
             if self._status["open"]:

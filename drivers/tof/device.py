@@ -32,7 +32,7 @@ from typing import Any
 import cv2
 import numpy as np
 
-from drivers.base import DeviceError
+from drivers.base import Cancel, DeviceError
 from drivers.registry import Capability
 
 from . import constants as k
@@ -179,7 +179,7 @@ class Tof:
             with self._op(None):
                 self._apply(self._default_settings())
 
-    def reset(self) -> None:
+    def reset(self, cancel: Cancel = None) -> None:
         """Re-activate the camera (close and reopen) and set the default settings."""
         with self._lock:
             with contextlib.suppress(DeviceError):

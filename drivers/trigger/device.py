@@ -12,7 +12,7 @@ import time
 from collections.abc import Mapping
 from typing import Any
 
-from drivers.base import DeviceError
+from drivers.base import Cancel, DeviceError
 from drivers.registry import Capability
 from drivers.trigger.backend import BACKENDS, TriggerBackend
 from rvs_params import Settings
@@ -60,7 +60,7 @@ class Trigger:
         self.close()
         self.open()
 
-    def reset(self) -> None:
+    def reset(self, cancel: Cancel = None) -> None:
         """Drive the line low and reopen; the box has no other state to reset."""
         self.reinit()
 

@@ -13,6 +13,7 @@ from typing import TYPE_CHECKING, Any, ClassVar
 
 import structlog
 
+from drivers.base import DeviceInterrupted
 from drivers.registry import DEVICE_KINDS, registry
 
 from .. import PROTOCOL_VERSION, __version__
@@ -110,8 +111,9 @@ async def _finish_break(app: App, job: Job | None) -> dict[str, Any]:
     except Exception as exc:  # noqa: BLE001 - the break itself must still happen
         recovery, failure = None, exc
         log.exception("recovery_failed")
-    await app.interrupt()
-    app.set_mode("break")
+    if job is not None:
+        await app.jobs.interrupt(job)
+    app.announce_mode()  # break since begin_break, unless a continue came meanwhile
     # A job whose last step was done when the break came ends OK: then nothing was interrupted.
     interrupted = job.id if job is not None and not job.succeeded else None
     if failure is not None:
@@ -130,7 +132,12 @@ def exit_(ctx: Context, cfg: None) -> dict[str, Any]:
 
 def _control_done(job: Job, summary: dict[str, str]) -> dict[str, Any]:
     app = job.app
-    app.loop.call_soon_threadsafe(app.set_mode, "ready")
+
+    def ready() -> None:  # on the loop, so a break either came before (and stays) or comes after
+        if not job.cancelled:
+            app.set_mode("ready")
+
+    app.loop.call_soon_threadsafe(ready)
     return {"mode": "ready", "devices": _devices(summary)}
 
 
@@ -159,7 +166,11 @@ def reset(job: Job, cfg: None) -> dict[str, Any]:
     for i, name in enumerate(names):
         job.check()
         job.progress(len(names) + i, 2 * len(names), f"re-initialising {name}")
-        app.devices.reset(name)
+        try:
+            app.devices.reset(name, job.cancel)
+        except DeviceInterrupted:
+            job.check()  # the break that stopped the wait ends the job as interrupted
+            raise
     out = _control_done(job, app.devices.summary())
     out["checked"] = [f"{n}:{'ok' if s == 'ok' else 'failed'}" for n, s in checked.items()]
     return out
