@@ -23,6 +23,8 @@ class Heightfield:
     albedo: np.ndarray  # (ny, nx) float32, 0..1
     pyramid: list[np.ndarray] = field(default_factory=list, repr=False)
     rocks: list[dict[str, float]] = field(default_factory=list, repr=False)  # as placed, for ground truth
+    # (ny, nx) float32 0..1, share of each node the sun reaches (cast shadows); None: all lit
+    sunlit: np.ndarray | None = field(default=None, repr=False)
 
     def __post_init__(self) -> None:
         self.heights = np.ascontiguousarray(self.heights, np.float32)
@@ -142,6 +144,21 @@ class Heightfield:
         alb = cv2.remap(self.albedo, mx.reshape(rows, 1024), my.reshape(rows, 1024), cv2.INTER_LINEAR,
                         borderMode=cv2.BORDER_REPLICATE).ravel()[:m]
         return gx, gy, alb
+
+    def sample_sunlit(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+        """Share of sunlight reaching surface points (float32; 1 everywhere without a shadow map),
+        through cv2.remap as the albedo: a shadow edge needs no more precision than a reflectance."""
+        if self.sunlit is None:
+            return np.ones(np.shape(x), np.float32)
+        fx, fy = self._frac(x, y)
+        m = fx.size
+        rows = -(-m // 1024)
+        mx = np.zeros(rows * 1024, np.float32)
+        my = np.zeros(rows * 1024, np.float32)
+        mx[:m] = fx
+        my[:m] = fy
+        return cv2.remap(self.sunlit, mx.reshape(rows, 1024), my.reshape(rows, 1024), cv2.INTER_LINEAR,
+                         borderMode=cv2.BORDER_REPLICATE).ravel()[:m]
 
     def resample(self, xs: np.ndarray, ys: np.ndarray) -> np.ndarray:
         """Heights on the grid xs (columns) x ys (rows), exact bilinear, NaN outside; float32.

@@ -43,6 +43,9 @@ class Render:
     points: np.ndarray  # H x W x 3 float32, world frame
     cos_incidence: np.ndarray  # float32, cosine between the normal and the ray back to the camera
     object_id: np.ndarray  # int16, 0 terrain, -1 nothing, else SceneObject.oid
+    # float32 0..1, share of sunlight reaching the point (terrain cast shadows); None when the
+    # scene casts none. Only passive cameras use it: the ToF lights the scene itself.
+    sunlit: np.ndarray | None = None
 
 
 @dataclass
@@ -162,7 +165,8 @@ def render(hf: Heightfield, objects: list[SceneObject], detail: Detail, K: np.nd
         Kp[0, 2] -= c0  # the strip's own principal point: same rays as in the full image
         futures.append(_pool().submit(_render, hf, objects, detail, Kp, int(c1 - c0), height, T_world_cam))
     strips = [f.result() for f in futures]
-    return Render(**{name: np.concatenate([getattr(r, name) for r in strips], axis=1)
+    return Render(**{name: (None if getattr(strips[0], name) is None
+                             else np.concatenate([getattr(r, name) for r in strips], axis=1))
                      for name in Render.__dataclass_fields__})
 
 
@@ -231,11 +235,14 @@ def _render(hf: Heightfield, objects: list[SceneObject], detail: Detail, K: np.n
         albedo[k] = alb[own]
         tex[k] = amp
     ti = np.flatnonzero(oid[hi] == 0)
+    sunlit = None if hf.sunlit is None else np.ones(m, np.float32)
     if ti.size:
         gx, gy, alb = hf.shade(px[ti], py[ti])
         nx[ti], ny[ti], nz[ti] = -gx, -gy, 1.0
         albedo[ti] = alb
         tex[ti] = 1.0
+        if sunlit is not None:
+            sunlit[ti] = hf.sample_sunlit(px[ti], py[ti])
     inv_len = 1.0 / np.sqrt(nx * nx + ny * ny + nz * nz)
     dn = np.sqrt(dx * dx + dy * dy + dz * dz)
     cosi = (-(nx * dx + ny * dy + nz * dz) / dn).astype(np.float32) * inv_len
@@ -277,4 +284,5 @@ def _render(hf: Heightfield, objects: list[SceneObject], detail: Detail, K: np.n
         points=img3(px, py, pz, np.nan),
         cos_incidence=img(cosi, 0.0),
         object_id=oid.reshape(H, W),
+        sunlit=None if sunlit is None else img(sunlit, 1.0),
     )

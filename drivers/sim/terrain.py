@@ -33,8 +33,10 @@ from typing import Any
 import cv2
 import numpy as np
 
+from drivers.sim.albedo import load_texture, sample_periodic
 from drivers.sim.heightfield import Heightfield
 from drivers.sim.noise import fractal
+from drivers.sim.settings import AlbedoSettings
 
 
 class _Grid:
@@ -419,12 +421,23 @@ def add_rock(hf: Heightfield, x: float, y: float, radius: float, height: float,
     return Heightfield(hf.x0, hf.y0, hf.cell, heights, albedo, rocks=[*hf.rocks, *g.rocks])
 
 
-def build_terrain(spec: dict, rng: np.random.Generator, base_dir: str | Path | None = None) -> Heightfield:
+def build_terrain(spec: dict, rng: np.random.Generator, base_dir: str | Path | None = None,
+                  albedo: AlbedoSettings | None = None) -> Heightfield:
     """The heightfield a scene's ``terrain`` section describes (``base_dir``: the scene file's
-    folder, where its relative data files are looked up first)."""
+    folder, where its relative data files are looked up first; ``albedo``: the scene's albedo
+    block, whose ``mars`` source replaces the ground's procedural speckle by real Mars texture)."""
     g = _Grid(spec["bounds"], spec.get("cell", 0.01), spec.get("base_height", 0.0),
               spec.get("albedo", 0.5), spec.get("albedo_contrast", 0.25), rng)
     g.base_dir = Path(base_dir) if base_dir is not None else None
+    if albedo is not None and albedo.source == "mars":
+        # The ground (before any primitive paints rocks, sand or steps over it) takes its
+        # reflectance from the real frames; the speckle field is still drawn (same random
+        # sequence, so the geometry is the same world as the procedural flavour) and still makes
+        # rocks knobbly.
+        tex = load_texture(data_file(albedo.texture, g.base_dir))
+        X, Y = np.meshgrid(g.xs, g.ys)
+        rel = sample_periodic(tex, X, Y, albedo.texel_m)
+        g.albedo = float(spec.get("albedo", 0.5)) * (1.0 + albedo.contrast * (rel.astype(np.float64) - 1.0))
     for p in spec.get("primitives", []):
         kind = p.get("type")
         if kind not in PRIMITIVES:

@@ -18,6 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
+from drivers.sim.albedo import load_texture
 from drivers.sim.clock import ScaleSource, SimClock
 from drivers.sim.head import HeadGeometry
 from drivers.sim.heightfield import Heightfield
@@ -33,7 +34,9 @@ from drivers.sim.scene import (
     build_target,
     load_scene_spec,
 )
-from drivers.sim.terrain import add_rock, build_terrain
+from drivers.sim.settings import AlbedoSettings, OpticsSettings, SceneLook, SunSettings
+from drivers.sim.shadows import sunlit_map
+from drivers.sim.terrain import add_rock, build_terrain, data_file
 from drivers.sim.trajectory import Trajectory
 from drivers.sim.transforms import invert, make_T, rot_z, transform
 from drivers.sim.trigger import TriggerBus
@@ -89,7 +92,8 @@ class World:
     def _load(self, spec: dict, seed: int | None) -> None:
         seed = int(spec.get("seed", 0) if seed is None else seed)
         rng = np.random.default_rng(seed)
-        terrain = build_terrain(spec["terrain"], rng, base_dir=spec.get("_dir"))
+        look = SceneLook.from_spec(spec)
+        terrain = build_terrain(spec["terrain"], rng, base_dir=spec.get("_dir"), albedo=look.albedo)
         # The global frame's origin is the ground under the rover's start (x forward at the start
         # pose, z up from there), as the server assumes; scenes are shifted to it.
         start_spec = spec.get("rover", {}).get("start", {})
@@ -99,7 +103,12 @@ class World:
         if z0 != 0.0:
             terrain = Heightfield(terrain.x0, terrain.y0, terrain.cell, terrain.heights - np.float32(z0),
                                   terrain.albedo, rocks=terrain.rocks)
-        detail = Detail(periodic_tile(512, rng), **spec.get("detail", {}))
+        terrain = _with_shadows(terrain, look.sun)
+        tile = periodic_tile(512, rng)  # drawn either way: one seed, one world
+        if look.albedo.source == "mars" and look.albedo.detail:
+            rel = load_texture(data_file(look.albedo.texture, Path(spec["_dir"]) if "_dir" in spec else None))
+            tile = np.clip(0.5 + 0.5 * (rel - 1.0), 0.0, 1.0).astype(np.float32)
+        detail = Detail(tile, **spec.get("detail", {}))
         head = HeadGeometry.from_spec(spec.get("head"))
         objects = [build_object(o, FIRST_OBJECT_ID + i) for i, o in enumerate(spec.get("objects", []))]
         rover_spec = spec.get("rover", {})
@@ -115,6 +124,10 @@ class World:
                                         bool(spec["target"].get("loop", False)))
         with self._lock:
             self.spec = spec
+            # the scene's sun (shading and shadows), albedo source and camera optics, typed
+            self.sun: SunSettings = look.sun
+            self.albedo_source: AlbedoSettings = look.albedo
+            self.optics: OpticsSettings = look.optics
             self.scene_name = str(spec.get("name"))
             self.seed = seed
             self.terrain: Heightfield = terrain
@@ -251,7 +264,7 @@ class World:
         """Place a rock at run time (a hazard the last scan did not see): the heightfield, and so
         every renderer and ``true_dem``, has it from the next frame on. Returns its record."""
         with self._lock:
-            self.terrain = add_rock(self.terrain, x, y, radius, height, self._rock_rng)
+            self.terrain = _with_shadows(add_rock(self.terrain, x, y, radius, height, self._rock_rng), self.sun)
             return dict(self.terrain.rocks[-1])
 
     def truth(self) -> dict[str, float]:
@@ -433,6 +446,14 @@ class World:
             higher = np.isfinite(z) & (np.isnan(sub) | (z > sub))
             sub[higher] = z[higher]
         return dem.astype(np.float32)
+
+
+def _with_shadows(terrain: Heightfield, sun: SunSettings) -> Heightfield:
+    """The terrain with its sun-visibility map when the scene casts shadows (computed once per
+    terrain: the sun does not move during a scene)."""
+    if sun.shadows:
+        terrain.sunlit = sunlit_map(terrain.heights, terrain.cell, sun.azimuth_deg, sun.elevation_deg)
+    return terrain
 
 
 def _wrap180(a: float) -> float:

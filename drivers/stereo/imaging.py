@@ -46,9 +46,15 @@ class Lighting:
         return np.array([math.cos(el) * math.cos(az), math.cos(el) * math.sin(az), math.sin(el)])
 
 
-def radiance(albedo: np.ndarray, normal: np.ndarray, hit: np.ndarray, lighting: Lighting) -> np.ndarray:
-    """Albedo times a Lambert term with ambient light; sky where nothing was hit (float32, HxW)."""
+def radiance(albedo: np.ndarray, normal: np.ndarray, hit: np.ndarray, lighting: Lighting,
+             sunlit: np.ndarray | None = None) -> np.ndarray:
+    """Albedo times a Lambert term with ambient light; sky where nothing was hit (float32, HxW).
+
+    ``sunlit`` (0..1, the render's cast-shadow share) scales the direct sun only: a shadow keeps
+    the ambient (sky) light, as on real ground, so shadowed texture stays visible but dim."""
     lambert = np.clip(normal @ lighting.sun_direction.astype(np.float32), 0.0, 1.0)
+    if sunlit is not None:
+        lambert = lambert * sunlit
     shade = lighting.ambient + (1.0 - lighting.ambient) * lambert
     out = np.where(hit, np.nan_to_num(albedo) * shade, lighting.sky)
     return out.astype(np.float32)
@@ -165,11 +171,49 @@ def sensor_from_config(config: Any) -> SensorModel:
     )
 
 
-def lighting_from_config(config: Any) -> Lighting:
-    """The light from the typed drivers.stereo settings (SimStereoSettings keys)."""
+def vignette(rad: np.ndarray, K: np.ndarray, strength: float) -> np.ndarray:
+    """Radiance darkened toward the image corners: the natural cos^4 falloff of the off-axis
+    angle, scaled so the far corner loses ``strength`` of its light (0: none), as real lenses
+    show (mechanical vignetting makes it steeper than cos^4 alone)."""
+    if strength <= 0.0:
+        return rad
+    h, w = rad.shape[:2]
+    u = (np.arange(w, dtype=np.float32) - np.float32(K[0, 2])) / np.float32(K[0, 0])
+    v = (np.arange(h, dtype=np.float32) - np.float32(K[1, 2])) / np.float32(K[1, 1])
+    r2 = v[:, None] ** 2 + u[None, :] ** 2
+    cos4 = 1.0 / (1.0 + r2) ** 2
+    corner = float(cos4.min())
+    gain = 1.0 - strength * (1.0 - cos4) / max(1.0 - corner, 1e-6)
+    return (rad * (gain[..., None] if rad.ndim == 3 else gain)).astype(np.float32)
+
+
+def lens_blur(rad: np.ndarray, sigma_px: float) -> np.ndarray:
+    """The lens's point spread (defocus, diffraction) as a Gaussian of ``sigma_px``."""
+    if sigma_px <= 0.0:
+        return rad
+    return cv2.GaussianBlur(rad, (0, 0), sigma_px, borderType=cv2.BORDER_REPLICATE)
+
+
+def jpeg(image: np.ndarray, quality: int) -> np.ndarray:
+    """The frame through a real JPEG encoder and decoder at ``quality`` (0: untouched): the 8 x 8
+    block artefacts and lost fine texture of a compressed downlink or a webcam-grade camera."""
+    if quality <= 0:
+        return image
+    ok, buf = cv2.imencode(".jpg", image, [cv2.IMWRITE_JPEG_QUALITY, int(quality)])
+    if not ok:
+        raise RuntimeError("JPEG encoding failed")
+    flag = cv2.IMREAD_GRAYSCALE if image.ndim == 2 else cv2.IMREAD_COLOR
+    return cv2.imdecode(buf, flag)
+
+
+def lighting_from_config(config: Any, sun: Any) -> Lighting:
+    """The light from the typed drivers.stereo settings (SimStereoSettings keys); a sun direction
+    left null there is the scene's ``sun`` block (``sun``: its SunSettings), so shading and cast
+    shadows agree."""
     return Lighting(
-        sun_azimuth_deg=config.sim_sun_azimuth_deg,
-        sun_elevation_deg=config.sim_sun_elevation_deg,
+        sun_azimuth_deg=sun.azimuth_deg if config.sim_sun_azimuth_deg is None else config.sim_sun_azimuth_deg,
+        sun_elevation_deg=(sun.elevation_deg if config.sim_sun_elevation_deg is None
+                           else config.sim_sun_elevation_deg),
         ambient=config.sim_ambient,
         sky=config.sim_sky,
     )

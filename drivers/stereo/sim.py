@@ -30,7 +30,7 @@ FAULTS = ("no_trigger", "unplug")
 DEFAULT_DISTORTION = (-0.06, 0.012, 0.0, 0.0, 0.0)  # mild barrel of a ~60 deg lens
 
 
-_S, _L = imaging.SensorModel(), imaging.Lighting()
+_S, _L = imaging.SensorModel(), imaging.Lighting()  # defaults of the keys below
 
 
 @dataclass
@@ -48,10 +48,11 @@ class SimStereoSettings(Settings):
     sim_read_noise_e: float = param(_S.read_noise_e, "sim: read noise", unit="e-", min=0.0)
     sim_white_dn: float = param(_S.white_dn_at_ref, "sim: grey level of a white lit surface at 8 ms, 0 dB",
                                 unit="DN", min=0.0)
-    sim_sun_azimuth_deg: float = param(_L.sun_azimuth_deg, "sim: direction the light comes from (global frame, "
-                                       "CCW from +x)", unit="deg", min=-360.0, max=360.0)
-    sim_sun_elevation_deg: float = param(_L.sun_elevation_deg, "sim: sun elevation", unit="deg", min=-90.0,
-                                         max=90.0)
+    sim_sun_azimuth_deg: float | None = param(None, "sim: direction the light comes from (global frame, CCW "
+                                              "from +x); null = the scene's sun block (200 unless it says)",
+                                              unit="deg", min=-360.0, max=360.0)
+    sim_sun_elevation_deg: float | None = param(None, "sim: sun elevation; null = the scene's sun block (45 "
+                                                "unless it says)", unit="deg", min=-90.0, max=90.0)
     sim_ambient: float = param(_L.ambient, "sim: share of light independent of surface orientation", min=0.0,
                                max=1.0)
     sim_sky: float = param(_L.sky, "sim: radiance of pixels that hit nothing, relative to a white lit surface",
@@ -78,7 +79,7 @@ class SimCameras:
         if self.distortion.size not in (4, 5, 8):
             raise ValueError("sim_distortion must hold 4, 5 or 8 OpenCV coefficients (k1 k2 p1 p2 [k3 ...])")
         self.sensor = imaging.sensor_from_config(config)
-        self.lighting = imaging.lighting_from_config(config)
+        self._config = config  # the light is read per frame: it follows the scene's sun
         self.hfov_deg = config.sim_hfov_deg
         self.seed = config.seed
         self.scene = config.sim_scene
@@ -244,17 +245,21 @@ class SimCameras:
         dmap = imaging.distortion_map(K, self.distortion, size)
         r = self.world.render(dmap.K_render, dmap.render_size[0], dmap.render_size[1], pose)
         hit = np.isfinite(r.depth)
-        rad = imaging.radiance(r.albedo, r.normal, hit, self.lighting)
+        optics = self.world.optics
+        rad = imaging.radiance(r.albedo, r.normal, hit, imaging.lighting_from_config(self._config, self.world.sun),
+                               r.sunlit)
         if channels(pixel_format) == 3:
             rad = rad[..., None] * imaging.white_balance_gains(settings.white_balance)
+        rad = imaging.lens_blur(rad, optics.blur_sigma_px)
         rad = imaging.apply_distortion(rad, dmap)
+        rad = imaging.vignette(rad, K, optics.vignetting)
         shutter = float(settings.shutter_us)
         if settings.auto_exposure:
             shutter = imaging.auto_shutter(rad, settings.target_grey, settings.gain_db, self.sensor)
         with self._lock:
             self._effective_shutter[guid] = shutter
             rng = self._rngs.get(guid)
-        return imaging.expose(rad, shutter, settings.gain_db, self.sensor, rng)
+        return imaging.jpeg(imaging.expose(rad, shutter, settings.gain_db, self.sensor, rng), optics.jpeg_quality)
 
     def calibration(self, left: str, right: str, size: tuple[int, int]) -> dict[str, Any]:
         """Ground truth: the world's intrinsics, the configured distortion, the mounts' relative pose."""

@@ -13,6 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from drivers.sim.settings import OpticsSettings, SunSettings
 from drivers.sim.trigger import TriggerBus
 
 Bus = TriggerBus  # the real bus: the fake world only replaces the geometry
@@ -27,6 +28,7 @@ class Render:
     points: np.ndarray
     cos_incidence: np.ndarray
     object_id: np.ndarray
+    sunlit: np.ndarray | None = None  # no cast shadows in the fake world
 
 
 @dataclass
@@ -49,6 +51,8 @@ class FakeWorld:
         self._cell = 0.01
         self._tex = rng.uniform(0.15, 0.85, size=(600, 600)).astype(np.float32)  # 6 m x 6 m of wall
         self.renders = 0
+        self.sun = SunSettings()  # the scene blocks a World carries: default sun, ideal optics
+        self.optics = OpticsSettings()
 
     def rover_pose(self) -> tuple[float, float, float]:
         with self._lock:

@@ -9,6 +9,13 @@ coverage (valid pixels with a true disparity / pixels with one). The target is a
 per pair on this 2-core machine; the pipeline runs at full resolution and at half scale
 (matching a 960 x 540 pair, disparity scaled back up).
 
+Side by side (``--compare``, default quarry, marsyard and marsyard_harsh): the same statistics
+for the kind simulator (procedural albedo, no shadows, ideal lens), the harsh flavour (real Mars
+albedo, low sun with cast shadows, vignetting, lens blur, JPEG at quality 80, shot and read
+noise; config/scenes/marsyard_harsh.yaml, the same geometry as marsyard) and the real Middlebury
+pairs: bad-2 with invalid pixels counted, density, bad-2 on valid pixels, and for the simulated
+pairs the depth RMSE on valid pixels in 1 m bands of true depth (the truth is the simulator's).
+
 Real rows beside them: Middlebury 2014 Motorcycle at quarter size (741 x 500, shipped with its
 ground truth in scikit-image) and the full-size Bicycle1 pair in ../shared/realdata/stereo/
 (1426 x 976, no ground truth: time and density only). Both pairs come rectified, so the matcher
@@ -20,7 +27,7 @@ measured pixels: what clouds and DEMs get), against OpenCV's default ``StereoSGB
 invalid pixels as bad over the pixels with ground truth; "valid" is over answered pixels.
 
     python -m tools.bench.stereo [--scene quarry] [--tilt -20] [--repeat 3] [--cache /tmp/pair.npz]
-                                 [--no-sim] [--search]
+                                 [--compare quarry,marsyard,marsyard_harsh] [--breakdown] [--no-sim] [--search]
 """
 
 from __future__ import annotations
@@ -37,10 +44,19 @@ import numpy as np
 
 from prox_workflows.steps import stereo as st
 
+_PAIRS: dict[tuple[str, float], dict[str, Any]] = {}
+
 
 def simulated_pair(scene: str, tilt: float, cache: Path | None) -> dict[str, Any]:
     """Left, right (mono8, as the sim driver takes them), the true calibration and the true
-    rectified disparity; rendered once, optionally cached in an .npz."""
+    rectified disparity; rendered once per run (and optionally cached in an .npz)."""
+    key = (scene, tilt)
+    if key not in _PAIRS:
+        _PAIRS[key] = _render_pair(scene, tilt, cache)
+    return _PAIRS[key]
+
+
+def _render_pair(scene: str, tilt: float, cache: Path | None) -> dict[str, Any]:
     if cache is not None and cache.exists():
         data = dict(np.load(cache))
         calib = {k: data[k] for k in ("image_size", "K1", "D1", "K2", "D2", "R", "T")}
@@ -80,6 +96,26 @@ def score(disp: np.ndarray, true: np.ndarray) -> dict[str, float]:
         # invalid pixels counted as bad, over the pixels with a true disparity (Middlebury's way)
         "bad2_all": float(((err > 2.0).sum() + has.sum() - ok.sum()) / max(has.sum(), 1)),
     }
+
+
+BANDS = tuple(float(b) for b in range(0, 11))  # 1 m bands of true depth, 0-10 m
+
+
+def depth_rmse_by_band(disp: np.ndarray, true: np.ndarray, fb: float,
+                       edges: tuple[float, ...] = BANDS) -> list[tuple[float, float, int, float]]:
+    """(band start, band end, valid pixels, depth RMSE in m) per band of true depth, over the pixels
+    the matcher answered (depth = f b / d on both sides, so a disparity error far away weighs as
+    much as the depth it costs)."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        z_true = fb / true
+        z = fb / disp
+    ok = np.isfinite(z_true) & np.isfinite(z) & (disp > 0)
+    out = []
+    for lo, hi in zip(edges[:-1], edges[1:], strict=True):
+        sel = ok & (z_true >= lo) & (z_true < hi)
+        n = int(sel.sum())
+        out.append((lo, hi, n, float(np.sqrt(np.mean((z[sel] - z_true[sel]) ** 2))) if n else float("nan")))
+    return out
 
 
 # The best OpenCV SGBM of a small search on Motorcycle (``--search``): block size {1, 3, 5, 7, 9},
@@ -196,6 +232,11 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--cache", type=Path, help="save/load the rendered pair here (.npz)")
     ap.add_argument("--no-sim", action="store_true", help="real pairs only (skips the ~15 s render)")
     ap.add_argument("--search", action="store_true", help="rerun the OpenCV SGBM search on Motorcycle")
+    ap.add_argument("--compare", default="quarry,marsyard,marsyard_harsh",
+                    help="scenes of the side-by-side table (comma-separated; empty: none)")
+    ap.add_argument("--breakdown", action="store_true",
+                    help="where the harsh pair loses density: one effect at a time, shadow vs sun, and the "
+                         "texture filter's share (diagnostic; ~1 min more)")
     args = ap.parse_args(argv)
     if not args.no_sim:
         simulated(args)
@@ -210,7 +251,132 @@ def main(argv: list[str] | None = None) -> int:
     if bike is not None:
         print_rows("Middlebury 2014 Bicycle1, full size 1426x976 (no ground truth: time and density)",
                    real_rows(bike, args.repeat, tuned))
+    scenes = [] if args.no_sim else [s for s in args.compare.split(",") if s]
+    side_by_side(scenes, args.tilt, moto, bike)
+    if args.breakdown and not args.no_sim:
+        breakdown("marsyard_harsh", args.tilt, moto)
     return 0
+
+
+def breakdown(scene: str, tilt: float, moto: dict[str, Any] | None) -> None:
+    """The harsh scene with its optics switched on one at a time (albedo and sun kept), density in
+    cast shadow and in the sun, at the image edge; then the matcher with its texture filter off on
+    the shipped harsh pair and on Motorcycle: what the filter costs where the ground is dim."""
+    import dataclasses
+
+    from drivers.sim.settings import OpticsSettings
+    from drivers.sim.transforms import make_T
+    from drivers.sim.world import World
+    from drivers.stereo import create
+
+    world = World.from_scene(scene)
+    world.set_ptu(0.0, tilt)
+    shipped = world.optics
+    print(f"\nwhere {scene} loses density (rvs-stereo measured; shadow: sunlit < 0.5 in the rectified left view; "
+          "edge: beyond the inscribed ellipse)")
+    print(f"{'variant':<44} {'density':>7} {'bad2 val':>8} {'shadow px':>9} {'shadow':>7} {'sun':>7} {'edge':>7}")
+    plain = OpticsSettings()
+    variants = [("as shipped", shipped, st.SgbmParams()), ("no optics (Mars albedo + sun and shadows)", plain,
+                                                           st.SgbmParams())]
+    for key in ("jpeg_quality", "vignetting", "blur_sigma_px"):
+        variants.append((f"only {key} = {getattr(shipped, key)}", dataclasses.replace(plain, **{key: getattr(shipped, key)}),
+                         st.SgbmParams()))
+    variants.append(("as shipped, texture filter off (diagnostic)", shipped, st.SgbmParams(texture_threshold=0.0)))
+    truth = None
+    for label, optics, params in variants:
+        world.optics = optics
+        cam = create({"backend": "sim", "resolution": "highest", "pixel_format": "mono8", "seed": 1}, world, None)
+        cam.open()
+        try:
+            left, right = cam.grab_stereo_direct()
+            cal = cam.calibration()
+        finally:
+            cam.close()
+        calib = {k: np.asarray(cal[k]) for k in ("image_size", "K1", "D1", "K2", "D2", "R", "T")}
+        rect = st.rectification(calib)
+        w, h = rect.size
+        if truth is None:
+            truth = world.render(np.asarray(rect.P1)[:, :3], w, h,
+                                 world.sensor_pose("left") @ make_T(np.asarray(rect.R1).T))
+        with np.errstate(divide="ignore", invalid="ignore"):
+            true = rect.focal * rect.baseline / truth.depth
+        d = st.disparity(left, right, calib, params).rectified
+        has = np.isfinite(true)
+        ok = has & np.isfinite(d)
+        err = np.abs(d - true)
+        lit = truth.sunlit if truth.sunlit is not None else np.ones_like(true)
+        yy, xx = np.mgrid[0:h, 0:w]
+        edge = np.hypot((xx - w / 2) / (w / 2), (yy - h / 2) / (h / 2)) > 1.0
+
+        def dens(m: np.ndarray, ok: np.ndarray = ok, has: np.ndarray = has) -> float:
+            return float((ok & m).sum() / max((has & m).sum(), 1))
+
+        print(f"{label:<44} {ok.sum() / has.sum():7.1%} {(err[ok] > 2).mean():8.2%} "
+              f"{(has & (lit < 0.5)).sum() / has.sum():9.1%} {dens(lit < 0.5):7.1%} {dens(lit >= 0.5):7.1%} "
+              f"{dens(edge):7.1%}")
+    world.optics = shipped
+    if moto is not None:
+        for label, params in (("Motorcycle, texture filter as shipped", st.SgbmParams()),
+                              ("Motorcycle, texture filter off (diagnostic)", st.SgbmParams(texture_threshold=0.0))):
+            sc = score(st.disparity_rectified(moto["left"], moto["right"], params, moto["nd"]), moto["true"])
+            print(f"{label:<44} {sc['coverage']:7.1%} {sc['bad2']:8.2%}   bad-2 invalid counted {sc['bad2_all']:.2%}")
+
+
+def side_by_side(scenes: list[str], tilt: float, moto: dict[str, Any] | None, bike: dict[str, Any] | None) -> None:
+    """One table: simulated pairs (kind and harsh) and the real Middlebury pairs, rvs-stereo
+    measured and filled and OpenCV's default SGBM, with depth RMSE by band where the truth is the
+    simulator's."""
+    rows: list[tuple[str, str, dict[str, float], list[tuple[float, float, int, float]] | None]] = []
+    for scene in scenes:
+        pair = simulated_pair(scene, tilt, None)
+        left, right, calib, true = pair["left"], pair["right"], pair["calib"], pair["true"]
+        rect = st.rectification(calib)
+        fb = rect.focal * rect.baseline
+        nd = st.SgbmParams().disparities_for(rect)
+        measured = st.disparity(left, right, calib, st.SgbmParams()).rectified
+        filled = st.disparity(left, right, calib, st.SgbmParams(fill=True)).rectified
+        rl, rr = st.rectify_pair(left, right, rect)
+        # OpenCV's default SGBM (block 5, P1/P2 0) with the disparity range the pair needs: its
+        # 64 would not reach the near ground at 1920 px.
+        ocv = opencv_sgbm(rl, rr, minDisparity=0, numDisparities=nd, blockSize=5)
+        for name, d in (("rvs-stereo measured", measured), ("rvs-stereo filled", filled),
+                        (f"OpenCV SGBM default ({nd} disp)", ocv)):
+            rows.append((f"sim {scene}", name, score(d, true), depth_rmse_by_band(d, true, fb)))
+    for title, pair in (("Middlebury Motorcycle", moto), ("Middlebury Bicycle1", bike)):
+        if pair is None:
+            continue
+        left, right, true, nd = pair["left"], pair["right"], pair["true"], pair["nd"]
+        params = st.SgbmParams(fill=True)
+        measured = st.disparity_rectified(left, right, params, nd)
+        filled = st.fill_disparity(measured, left, params.fill_radius, params.fill_sigma)
+        ocv = opencv_sgbm(left, right, minDisparity=0, numDisparities=64, blockSize=5)
+        for name, d in (("rvs-stereo measured", measured), ("rvs-stereo filled", filled),
+                        ("OpenCV SGBM default (0, 64, 5)", ocv)):
+            if true is None:
+                s = {"coverage": float(np.isfinite(d).mean()), "bad2": float("nan"), "bad2_all": float("nan")}
+            else:
+                s = score(d, true)
+            rows.append((title, name, s, None))
+    if not rows:
+        return
+    bands = [(lo, hi) for lo, hi in zip(BANDS[:-1], BANDS[1:], strict=True)]
+    shown = [i for i, _ in enumerate(bands) if any(r[3] is not None and r[3][i][2] >= 2000 for r in rows)]
+    print("\nsimulated (kind, harsh) and real pairs side by side: bad-2 with invalid counted, density, bad-2 on "
+          "valid pixels; depth RMSE (m) on valid pixels by band of true depth (simulator truth; bands with "
+          ">= 2000 pixels)")
+    head = f"{'pair':<22} {'method':<30} {'bad2 all':>8} {'density':>7} {'bad2 val':>8}"
+    head += "".join(f" {f'{bands[i][0]:g}-{bands[i][1]:g} m':>8}" for i in shown)
+    print(head)
+
+    def pct(v: float) -> str:
+        return f"{'-':>8}" if np.isnan(v) else f"{v:8.2%}"
+
+    for pair_name, method, sc, rmse in rows:
+        line = f"{pair_name:<22} {method:<30} {pct(sc['bad2_all'])} {sc['coverage']:7.1%} {pct(sc['bad2'])}"
+        for i in shown:
+            v = float("nan") if rmse is None or rmse[i][2] < 50 else rmse[i][3]
+            line += f" {'-':>8}" if np.isnan(v) else f" {v:8.3f}"
+        print(line)
 
 
 def simulated(args: argparse.Namespace) -> None:
