@@ -19,6 +19,13 @@ shot term then grows with r^2 as well.
 The range sigma bounds the height sigma (a range error moves the point along its ray, whose
 vertical component is at most the whole error); :func:`tof_height_variance` projects it onto
 the vertical when the ray direction is known.
+
+The DEM jobs weigh points by the calibrated per-point models further down
+(:func:`tof_point_variance`, :func:`stereo_point_variance`): a sum of squared errors, one per
+cause, read from the point's own image (:func:`pixel_features`), each with one coefficient
+fitted to the simulator's truth by ``python -m tools.bench.fusion --calibrate`` and declared as
+a parameter. The a-priori model above over-predicted the ToF's error near and under-predicted it
+far (the fused DEM leaned on the wrong sensor), which is why the weights are now measured.
 """
 
 from __future__ import annotations
