@@ -20,13 +20,16 @@ from typing import Any
 import numpy as np
 
 from ..products import write_text_atomic, write_tiff, write_yaml_atomic
+from .noise import coord_image, pixel_features
 from .transforms import HeadCalibration, T_global_from_rover, apply, camera_matrix, write_cal
 
 # beside each view's coordinate image: point variance, range, ortho intensity, ortho depth
 AUX_SUFFIX = ".aux.tiff"
 
-# variance(points N x 3 global, sensor position, amplitude N) -> height variance N (m^2)
-Variance = Callable[[np.ndarray, np.ndarray, np.ndarray], np.ndarray]
+# variance(points N x 3 global, sensor position, amplitude N, features) -> height variance N (m^2);
+# features: per point, what its image neighbours say (noise.pixel_features: jump, cos_incidence,
+# wall, texture)
+Variance = Callable[[np.ndarray, np.ndarray, np.ndarray, dict[str, np.ndarray]], np.ndarray]
 
 
 @dataclass
@@ -93,11 +96,17 @@ def view_from_frame(index: int, frame: Frame, pan: float, tilt: float, T_global_
     glob = apply(T_global_camera, xyz[defined])
     amp = intensity[defined]
     r = rng[defined].astype(np.float32)
-    var = (frame.variance(glob, T_global_camera[:3, 3], amp) if frame.variance is not None
-           else np.full(len(r), 1e-4, np.float32))
     points = np.concatenate([glob, amp[:, None]], axis=1).astype(np.float32)
     depth = frame.ortho_depth if frame.ortho_depth is not None else np.where(defined, z, np.nan)
     ortho = frame.ortho_intensity if frame.ortho_intensity is not None else intensity
+    if frame.variance is not None:
+        # the features from the float32 points and the ortho image a recorded view keeps, so a
+        # calibration on recorded views sees exactly what the live model saw
+        pixels = np.flatnonzero(defined)
+        feats = pixel_features(coord_image(points, pixels, z.shape), T_global_camera[:3, 3], ortho)
+        var = frame.variance(points[:, :3], T_global_camera[:3, 3], amp, {k: f.reshape(-1)[pixels] for k, f in feats.items()})
+    else:
+        var = np.full(len(r), 1e-4, np.float32)
     P = camera_matrix(frame.K, T_global_camera)
     return View(index, frame.sensor, pan, tilt, _stamp(), points, np.asarray(var, np.float32), r, P,
                 np.asarray(ortho, np.float32), np.asarray(depth, np.float32), T_global_camera,

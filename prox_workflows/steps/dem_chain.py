@@ -12,7 +12,7 @@ from ..grid import GridGeometry, Layers
 from .acquire import View
 from .dem2hazard import dem2hazard_layers
 from .dem_import import dem_import
-from .dem_mosaik import dem_mosaik
+from .dem_mosaik import dem_mosaik, fuse_sensors, union_geometry
 from .holes import fill_layers
 from .ortho import OrthoView, ortho_image
 
@@ -43,23 +43,33 @@ def join_views(earlier: list[View] | None, new: list[View]) -> list[View]:
     return list(earlier or []) + list(new)
 
 
-@step("view_dem", inputs={"view": "View", "cell": "float", "rover_mask": "array?", "height": "str"},
+@step("view_dem", inputs={"view": "View", "cell": "float", "rover_mask": "array?", "height": "str",
+                          "tof_correlation": "float", "stereo_correlation": "float"},
       outputs={"dem": "Layers?"})
-def view_dem(view: View, cell: float, rover_mask: np.ndarray | None = None, height: str = "mean") -> Layers | None:
+def view_dem(view: View, cell: float, rover_mask: np.ndarray | None = None, height: str = "mean",
+             tof_correlation: float = 0.0, stereo_correlation: float = 0.0) -> Layers | None:
     """DemImport of one view's points, each with its noise-model variance.
 
     ``height`` is DemImport's rule for the ``dem`` layer (the mean for measured data, see
     :func:`dem_import`). With the mean, the cell's spread is in ``measurement_variance``, so
-    ``variance`` is cleared for the fusion. A view that saw nothing (sky, all beyond range)
-    gives None.
+    ``variance`` is cleared for the fusion. The N points of a cell share part of their error
+    (a stereo match is smoothed over its neighbours, a ToF pixel's multipath over a patch), so
+    their mean is not N times better: with correlation rho its variance is the independent
+    one times 1 + rho (N - 1), rho the sensor's (``tof_correlation`` / ``stereo_correlation``,
+    calibrated with the noise models). A view that saw nothing (sky, all beyond range) gives None.
     """
     if len(view.points) == 0:
         return None
     layers = dem_import(view.points, cell=cell, point_variance=view.variance, rover_mask=rover_mask, height=height)
+    rho = tof_correlation if view.sensor == "tof" else stereo_correlation
+    if rho > 0 and "measurement_variance" in layers:
+        n = np.maximum(np.asarray(layers["count"], np.float32), 1.0)
+        layers["measurement_variance"] = (layers["measurement_variance"] * (1.0 + rho * (n - 1.0))).astype(np.float32)
     if height == "mean":
         layers.layers.pop("max", None)
         layers["variance"] = np.zeros_like(layers["variance"])  # the mean's spread is in measurement_variance
     layers.meta["view"] = view.index
+    layers.meta["sensor"] = view.sensor
     return layers
 
 
@@ -80,23 +90,36 @@ def mosaik_layers(dems: list[Layers], rule: str = "max", bounds: list[float] | N
 
 
 @step("mosaic", inputs={"dems": "list[Layers?]", "base": "Layers?", "rule": "str", "cell": "float",
-                        "within_scan": "str"}, outputs={"mosaic": "Layers"})
+                        "within_scan": "str", "gate": "float"}, outputs={"mosaic": "Layers"})
 def mosaic(dems: list[Layers | None], base: Layers | None, rule: str, cell: float,
-           within_scan: str = "higher") -> Layers:
+           within_scan: str = "higher", gate: float = 3.0) -> Layers:
     """DemMosaik of the views, then onto the current DEM (if any), on the union of extents.
 
     Views of one sensor in one scan disagree mostly where one sees a rock's top and another its
-    foot, so there the higher wins (``within_scan="higher"``); between scans, and between two
-    sensors (``"inflate"``), a disagreement is a change or an outlier (multipath, a stereo
-    mismatch), so the gate rejects it and inflates the prior's variance (elevation_mapping's
-    two rules).
+    foot, so there the higher wins (``within_scan="higher"``). Two sensors (``"inflate"``, from
+    :func:`scan_rule`) are mosaicked each on its own first, as each alone would be, and the two
+    DEMs are then fused cell by cell (:func:`fuse_sensors`): the information-weighted mean where
+    they agree within ``gate`` standard deviations of their difference, else the one the
+    neighbourhood supports - order-free, where fusing the views in acquisition order let
+    whichever sensor came first keep a cell it had wrong. Between scans a disagreement is a
+    change or an outlier, so the gate rejects it and inflates the prior's variance
+    (elevation_mapping's rule).
     """
     views = [d for d in dems if d is not None and np.isfinite(d["dem"]).any()]
     if not views and base is None:
         raise ValueError("no view produced any point: nothing to map (check the view range and the sensor)")
     if rule != "fuse":
         return dem_mosaik(([base] if base is not None else []) + views, rule=rule, cell=cell)
-    scan = dem_mosaik(views, rule="fuse", cell=cell, on_conflict=within_scan) if views else None
+    scan = None
+    if views:
+        sensors = list(dict.fromkeys(str(v.meta.get("sensor", "")) for v in views))
+        if within_scan == "higher" or len(sensors) < 2:
+            scan = dem_mosaik(views, rule="fuse", cell=cell, on_conflict=within_scan)
+        else:
+            g = union_geometry([v.geometry for v in views], cell)
+            each = [dem_mosaik([v for v in views if v.meta.get("sensor", "") == s], rule="fuse", geometry=g,
+                               on_conflict="higher") for s in sensors]
+            scan = fuse_sensors(each, geometry=g, gate=gate)
     if base is None:
         assert scan is not None
         return scan

@@ -16,7 +16,10 @@
     the measurement is rejected and the prior's variance grows by ``inflation``, so that a
     change that persists over several scans is accepted once the prior has become uncertain
     enough; with ``on_conflict="higher"`` (views of one scan; elevation_mapping's rule inside
-    one point cloud, and direct reconstruction's) the higher of the two wins outright.
+    one point cloud, and direct reconstruction's) the higher of the two wins outright; with
+    ``on_conflict="precise"`` (two sensors' DEMs of one scan, each weighed by its own
+    calibrated noise model) the one whose variance is smaller wins: the gate has found one of
+    them an outlier, and the noise model says which is the likelier one.
     elevation_mapping measures the distance by the prior's variance alone; the innovation's
     variance used here is the textbook Mahalanobis distance and does not reject a noisy but
     consistent measurement just because the prior is already precise.
@@ -46,6 +49,7 @@ import numpy as np
 from ..grid import GridGeometry, Layers
 
 RULES = ("max", "newest", "fuse")
+CONFLICTS = ("inflate", "higher", "precise")
 
 
 def union_geometry(geometries: Sequence[GridGeometry], cell: float | None = None) -> GridGeometry:
@@ -166,8 +170,8 @@ def dem_mosaik(
     the index of the input that last set the height; -1 undefined)."""
     if rule not in RULES:
         raise ValueError(f"rule must be one of {', '.join(RULES)}, got {rule!r}")
-    if on_conflict not in ("inflate", "higher"):
-        raise ValueError(f"on_conflict must be 'inflate' or 'higher', got {on_conflict!r}")
+    if on_conflict not in CONFLICTS:
+        raise ValueError(f"on_conflict must be one of {', '.join(CONFLICTS)}, got {on_conflict!r}")
     if gate <= 0 or inflation < 0 or sigma <= 0:
         raise ValueError("gate and sigma must be positive, inflation not negative")
     dems = list(dems)
@@ -205,6 +209,8 @@ def dem_mosaik(
             if on_conflict == "inflate":
                 v[conflict] += inflation
                 rejected[conflict] += 1
+            elif on_conflict == "precise":
+                take = take | (conflict & (vp < v))
             else:
                 take = take | (conflict & (hp > h))
         h[take] = hp[take]
@@ -218,4 +224,70 @@ def dem_mosaik(
     out["source"] = src
     if rule == "fuse" and on_conflict == "inflate":
         out.meta["rejected_cells"] = int((rejected > 0).sum())
+    return out
+
+
+def fuse_sensors(dems: Sequence[Layers], geometry: GridGeometry | None = None, gate: float = 3.0,
+                 window: int = 5, sigma: float = 0.01) -> Layers:
+    """Fuse the DEMs of two sensors of one scan (a ToF DEM and a stereo DEM) cell by cell.
+
+    Where both see a cell and agree - the Mahalanobis distance |h1 - h2| / sqrt(s1^2 + s2^2)
+    within ``gate`` - the height is their information-weighted mean, with the smaller variance
+    s1^2 s2^2 / (s1^2 + s2^2): each sensor weighed by its own calibrated noise model, so the
+    mean is better than either. Where they disagree one of them is an outlier (a ToF mixed
+    pixel or multipath return, a stereo mismatch), and averaging would spread its error over
+    both; the one kept is the one the neighbourhood supports: the smaller deviation, in its own
+    standard deviations, from the median of the agreed heights in the ``window`` x ``window``
+    cells around (errors of one sensor are isolated; the ground is continuous). With no agreed
+    neighbour the smaller variance wins. Order-free: swapping the inputs gives the same DEM.
+    A cell one sensor alone sees keeps that sensor's height and variance. Layers as
+    :func:`dem_mosaik`, with ``meta["conflicts"]`` the number of cells the gate settled."""
+    if len(dems) != 2:
+        raise ValueError(f"fuse_sensors takes two DEMs (one per sensor), got {len(dems)}")
+    if gate <= 0 or window < 1:
+        raise ValueError("gate must be positive and window at least 1")
+    g = geometry if geometry is not None else union_geometry([d.geometry for d in dems])
+    hs, vs, ns = [], [], []
+    for layers in dems:
+        height = np.asarray(layers["dem"])
+        count = np.asarray(layers["count"]) if "count" in layers else np.isfinite(height).astype(np.int64)
+        h, v, n = resample(height, input_variance(layers, sigma), count, layers.geometry, g)
+        hs.append(h)
+        vs.append(v)
+        ns.append(n)
+    (h0, h1), (v0, v1) = hs, vs
+    d0, d1 = np.isfinite(h0), np.isfinite(h1)
+    both = d0 & d1
+    with np.errstate(invalid="ignore", divide="ignore"):
+        md = np.abs(h0 - h1) / np.sqrt(v0 + v1)
+        mean = (v1 * h0 + v0 * h1) / (v0 + v1)
+        vmean = v0 * v1 / (v0 + v1)
+    agree = both & (md <= gate)
+    conflict = both & ~agree
+    h = np.where(agree, mean, np.where(d0 & ~d1, h0, np.where(d1 & ~d0, h1, np.nan)))
+    v = np.where(agree, vmean, np.where(d0 & ~d1, v0, np.where(d1 & ~d0, v1, np.nan)))
+    src = np.where(agree, 1, np.where(d0 & ~d1, 0, np.where(d1 & ~d0, 1, -1))).astype(np.int16)
+    rows, cols = np.nonzero(conflict)
+    if rows.size:
+        r = window // 2
+        pad = np.pad(h, r, constant_values=np.nan)
+        win = np.lib.stride_tricks.sliding_window_view(pad, (window, window))[rows, cols].reshape(rows.size, -1)
+        with np.errstate(all="ignore"):
+            import warnings
+
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", RuntimeWarning)
+                ref = np.nanmedian(win, axis=1)
+        c0 = np.abs(h0[rows, cols] - ref) / np.sqrt(v0[rows, cols])
+        c1 = np.abs(h1[rows, cols] - ref) / np.sqrt(v1[rows, cols])
+        first = np.where(np.isfinite(ref), c0 <= c1, v0[rows, cols] <= v1[rows, cols])
+        h[rows, cols] = np.where(first, h0[rows, cols], h1[rows, cols])
+        v[rows, cols] = np.where(first, v0[rows, cols], v1[rows, cols])
+        src[rows, cols] = np.where(first, 0, 1)
+    out = Layers(g.with_crs(common_crs([d.geometry for d in dems])),
+                 meta={"rule": "fuse_sensors", "variance": "estimate", "inputs": 2, "conflicts": int(rows.size)})
+    out["dem"] = h.astype(np.float32)
+    out["variance"] = v.astype(np.float32)
+    out["count"] = np.minimum(ns[0] + ns[1], np.iinfo(np.int32).max).astype(np.int32)
+    out["source"] = src
     return out

@@ -19,6 +19,13 @@ shot term then grows with r^2 as well.
 The range sigma bounds the height sigma (a range error moves the point along its ray, whose
 vertical component is at most the whole error); :func:`tof_height_variance` projects it onto
 the vertical when the ray direction is known.
+
+The DEM jobs weigh points by the calibrated per-point models further down
+(:func:`tof_point_variance`, :func:`stereo_point_variance`): a sum of squared errors, one per
+cause, read from the point's own image (:func:`pixel_features`), each with one coefficient
+fitted to the simulator's truth by ``python -m tools.bench.fusion --calibrate`` and declared as
+a parameter. The a-priori model above over-predicted the ToF's error near and under-predicted it
+far (the fused DEM leaned on the wrong sensor), which is why the weights are now measured.
 """
 
 from __future__ import annotations
@@ -102,3 +109,168 @@ def stereo_height_variance(
     s_l = lateral_sigma_per_m * r
     var = (s_r * cz) ** 2 + (s_l**2) * (1.0 - cz * cz)
     return np.maximum(var, NOISE_FLOOR**2).astype(np.float32)
+
+
+# -- per-pixel features of a view: what a point's neighbours in its own image say about it ------------
+SLOPE_CAP = 5.0  # rise over run: steeper is a depth edge, which ``jump`` measures
+
+
+def coord_image(points: np.ndarray, pixels: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
+    """The H x W x 3 image of a view's global points (NaN where the view kept none), so that
+    the features below see each point's image neighbours - online from the frame, offline from
+    a recorded view alike."""
+    img = np.full((shape[0] * shape[1], 3), np.nan, np.float64)
+    img[np.asarray(pixels)] = np.asarray(points, np.float64)[:, :3]
+    return img.reshape(shape[0], shape[1], 3)
+
+
+def pixel_features(coords: np.ndarray, sensor: np.ndarray, image: np.ndarray | None = None,
+                   wall_window: int = 15, texture_window: int = 5) -> dict[str, np.ndarray]:
+    """Per pixel of an H x W x 3 global coordinate image seen from ``sensor``:
+
+    ``slope``  the height difference to a defined 4-neighbour over their horizontal distance
+              (largest of the four, at most :data:`SLOPE_CAP`): the height a cell's sampling
+              misses on steep ground, free of the sensor's pixel spacing (a coarse ToF pixel
+              jumps more on the same slope than a fine stereo pixel);
+    ``jump``  the largest height difference (m) to a defined 4-neighbour: on a depth edge
+              (a rock's rim, a flying pixel between fore- and background) a point's height
+              depends on where the edge falls, and a ToF pixel there mixes both; on smooth
+              ground it is the sensor's own noise showing (a far ToF pixel differs from its
+              neighbours by about its error);
+    ``cos_incidence``  |cos| of the angle between the ray and the surface normal (from the
+              neighbours): grazing rays spread a pixel's footprint along the surface;
+    ``wall``  the share of vertical-surface pixels (|n_z| < 0.5) within ``wall_window`` pixels:
+              ToF light bouncing off a wall onto the ground near it arrives late (multipath);
+    ``texture``  the grey-level standard deviation in ``texture_window`` pixels of ``image``
+              (the stereo matcher's evidence; flat grey matches badly).
+    """
+    from scipy import ndimage
+
+    c = np.asarray(coords, np.float64)
+    z = c[..., 2]
+    defined = np.isfinite(z)
+    jump = np.zeros(z.shape)
+    slope = np.zeros(z.shape)
+    for dr, dc in ((0, 1), (0, -1), (1, 0), (-1, 0)):
+        nb = np.full(c.shape, np.nan)
+        rs = slice(max(dr, 0), z.shape[0] + min(dr, 0))
+        rd = slice(max(-dr, 0), z.shape[0] + min(-dr, 0))
+        cs = slice(max(dc, 0), z.shape[1] + min(dc, 0))
+        cd = slice(max(-dc, 0), z.shape[1] + min(-dc, 0))
+        nb[rd, cd] = c[rs, cs]
+        d = np.abs(z - nb[..., 2])
+        with np.errstate(invalid="ignore", divide="ignore"):
+            s = d / np.maximum(np.hypot(c[..., 0] - nb[..., 0], c[..., 1] - nb[..., 1]), 1e-3)
+        slope = np.fmax(slope, np.where(np.isfinite(s), np.minimum(s, SLOPE_CAP), 0.0))
+        jump = np.fmax(jump, np.where(np.isfinite(d), d, 0.0))
+    gu = np.gradient(c, axis=1)
+    gv = np.gradient(c, axis=0)
+    n = np.cross(gu, gv)
+    norm = np.linalg.norm(n, axis=2)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        n = n / norm[..., None]
+        ray = c - np.asarray(sensor, np.float64)[:3]
+        ray = ray / np.linalg.norm(ray, axis=2)[..., None]
+        cos_inc = np.abs(np.sum(n * ray, axis=2))
+    ok = np.isfinite(cos_inc)
+    cos_inc = np.where(ok, cos_inc, 1.0)
+    vertical = (ok & (np.abs(np.where(ok, n[..., 2], 1.0)) < 0.5)).astype(np.float64)
+    wall = ndimage.uniform_filter(vertical, wall_window, mode="constant")
+    out = {"jump": jump, "slope": slope, "cos_incidence": cos_inc, "wall": wall}
+    if image is not None:
+        g = np.asarray(image, np.float64)
+        m = ndimage.uniform_filter(g, texture_window)
+        m2 = ndimage.uniform_filter(g * g, texture_window)
+        out["texture"] = np.sqrt(np.maximum(m2 - m * m, 0.0))
+    for k in out:
+        out[k] = np.where(defined, out[k], np.nan)
+    return out
+
+
+# -- the per-point noise models the ToF-stereo fusion weighs by (issue 13 item 6) -----------------------
+# Each is a sum of independent height variances, one per cause, each with one coefficient that
+# tools/bench/fusion.py --calibrate fits against the simulator's truth (a robust least-squares fit of
+# the squared height errors of the points, per sensor); the fitted values are the defaults of the
+# ``tof_noise_*`` / ``stereo_noise_*`` parameters (prox_workflows/parameters.py), and nothing here
+# has a default of its own, so a model is only ever evaluated with declared values.
+TOF_TERMS = ("floor", "shot", "range", "incidence", "edge", "slope", "multipath")
+STEREO_TERMS = ("floor", "disparity", "texture", "incidence", "edge", "slope", "multipath")
+
+
+def _ray(points: np.ndarray, sensor: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    d = np.asarray(points, np.float64)[:, :3] - np.asarray(sensor, np.float64)[None, :3]
+    r = np.linalg.norm(d, axis=1)
+    return r, np.abs(d[:, 2]) / np.maximum(r, 1e-9)
+
+
+def _tan_incidence(features: dict[str, np.ndarray], n: int) -> np.ndarray:
+    c = np.clip(np.asarray(features.get("cos_incidence", np.ones(n)), np.float64), 0.1, 1.0)
+    return np.sqrt(1.0 - c * c) / c
+
+
+def tof_basis(points: np.ndarray, sensor: np.ndarray, amplitude: np.ndarray,
+              features: dict[str, np.ndarray]) -> np.ndarray:
+    """N x 7 squared-error shapes of the ToF model, one column per :data:`TOF_TERMS` entry:
+
+    floor 1; shot (cz / A)^2 - the phase noise falls with the amplitude A (seed 004 sect. 2.3.3)
+    and reaches the height by the ray's vertical share cz; range (cz r)^2 - calibration and
+    scattering grow with the range r; incidence (r tan i)^2 - a grazing ray's footprint smears
+    along the surface; edge jump^2 - mixed (flying) pixels between fore- and background on a
+    depth edge; slope slope^2 - the cell's sampling of steep ground (the coefficient is a
+    length: the height missed per unit of slope); multipath (wall r)^2 - light from a nearby wall arrives late on the ground near it."""
+    r, cz = _ray(points, sensor)
+    a = np.maximum(np.asarray(amplitude, np.float64), 1.0)
+    jump = np.asarray(features.get("jump", np.zeros(len(r))), np.float64)
+    slope = np.asarray(features.get("slope", np.zeros(len(r))), np.float64)
+    wall = np.asarray(features.get("wall", np.zeros(len(r))), np.float64)
+    return np.stack([np.ones_like(r), (cz / a) ** 2, (cz * r) ** 2, (r * _tan_incidence(features, len(r))) ** 2,
+                     jump**2, slope**2, (wall * r) ** 2], axis=1)
+
+
+def stereo_basis(points: np.ndarray, sensor: np.ndarray, features: dict[str, np.ndarray], *,
+                 baseline: float, focal: float) -> np.ndarray:
+    """N x 7 squared-error shapes of the stereo model, one column per :data:`STEREO_TERMS` entry:
+
+    floor 1; disparity (cz z^2 / (b f))^2 - a disparity error of one pixel moves the depth by
+    z^2 / (b f), so the error grows with the depth squared; texture (cz z^2 / (b f t))^2 - the
+    matcher's disparity error grows where the grey-level spread t is small; incidence, edge,
+    slope and multipath as :func:`tof_basis` (a stereo edge is an occlusion boundary; near walls the
+    matcher is fooled by the wall's repeated texture)."""
+    r, cz = _ray(points, sensor)
+    sz = cz * r * r / (baseline * focal)
+    tex = np.maximum(np.asarray(features.get("texture", np.full(len(r), 1e3)), np.float64), 0.5)
+    jump = np.asarray(features.get("jump", np.zeros(len(r))), np.float64)
+    slope = np.asarray(features.get("slope", np.zeros(len(r))), np.float64)
+    wall = np.asarray(features.get("wall", np.zeros(len(r))), np.float64)
+    return np.stack([np.ones_like(r), sz**2, (sz / tex) ** 2, (r * _tan_incidence(features, len(r))) ** 2,
+                     jump**2, slope**2, (wall * r) ** 2], axis=1)
+
+
+def model_variance(basis: np.ndarray, sigmas: dict[str, float], terms: tuple[str, ...]) -> np.ndarray:
+    """The height variance (m^2, float32) of each point: the basis weighted by each term's
+    coefficient squared (the coefficients are standard deviations per unit of their shape)."""
+    coef = np.array([float(sigmas[t]) ** 2 for t in terms])
+    return np.maximum(basis @ coef, NOISE_FLOOR**2).astype(np.float32)
+
+
+def tof_point_variance(points: np.ndarray, sensor: np.ndarray, amplitude: np.ndarray,
+                       features: dict[str, np.ndarray], **sigmas: float) -> np.ndarray:
+    """Height variance (m^2, float32) of ToF points by the calibrated model (see :func:`tof_basis`);
+    ``sigmas`` names one coefficient per :data:`TOF_TERMS` entry."""
+    return model_variance(tof_basis(points, sensor, amplitude, features), sigmas, TOF_TERMS)
+
+
+def stereo_point_variance(points: np.ndarray, sensor: np.ndarray, amplitude: np.ndarray,
+                          features: dict[str, np.ndarray], *, baseline: float, focal: float,
+                          **sigmas: float) -> np.ndarray:
+    """Height variance (m^2, float32) of stereo points by the calibrated model (see
+    :func:`stereo_basis`); ``sigmas`` names one coefficient per :data:`STEREO_TERMS` entry."""
+    return model_variance(stereo_basis(points, sensor, features, baseline=baseline, focal=focal), sigmas,
+                          STEREO_TERMS)
+
+
+def model_sigmas(params: object, sensor: str) -> dict[str, float]:
+    """The coefficients of one sensor's model from a parameter object (``tof_noise_<term>`` /
+    ``stereo_noise_<term>`` fields, declared in prox_workflows/parameters.py)."""
+    prefix, terms = ("tof_noise_", TOF_TERMS) if sensor == "tof" else ("stereo_noise_", STEREO_TERMS)
+    return {t: float(getattr(params, prefix + t)) for t in terms}

@@ -20,7 +20,7 @@ from prox_workflows.grid import Layers
 from prox_workflows.parameters import DemParams, DemStereoParams
 from prox_workflows.steps.acquire import Frame, acquire_coord_images
 from prox_workflows.steps.dem2hazard import HazardParams
-from prox_workflows.steps.noise import stereo_height_variance, tof_height_variance
+from prox_workflows.steps.noise import model_sigmas, stereo_point_variance, tof_point_variance
 from prox_workflows.steps.stereo import disparity as stereo_disparity
 from prox_workflows.steps.stereo import sigma_d_for
 from prox_workflows.steps.transforms import HeadCalibration
@@ -98,6 +98,26 @@ def rover_mask_polygon(app: App, pose: tuple[float, float, float, float]) -> np.
     return corners @ R.T + np.array(pose[:2])
 
 
+def tof_sigmas(cfg: Any) -> dict[str, float]:
+    """The ToF noise model's coefficients from the command's config (declared in DemParams).
+
+    Calibrated on views integrated over the default number of frames; the phase-noise term
+    scales as 1 / sqrt(frames), so other -integrate values keep it right."""
+    sigmas = model_sigmas(cfg, "tof")
+    sigmas["shot"] *= math.sqrt(DemParams().integrate / max(int(cfg.integrate), 1))
+    return sigmas
+
+
+def stereo_sigmas(cfg: Any) -> dict[str, float]:
+    """The stereo noise model's coefficients from the command's config; the disparity terms
+    were calibrated matching at full scale and grow as 1 / sqrt(scale) (:func:`sigma_d_for`)."""
+    sigmas = model_sigmas(cfg, "stereo")
+    grow = sigma_d_for(cfg.stereo_scale) / sigma_d_for(1.0)
+    sigmas["disparity"] *= grow
+    sigmas["texture"] *= grow
+    return sigmas
+
+
 def _stereo_frame(left: np.ndarray, right: np.ndarray, calib: dict[str, Any], cfg: Any) -> Frame:
     """The points a stereo pair triangulates per left pixel, with undistorted ortho images."""
     disp = stereo_disparity(left, right, calib, {"scale": cfg.stereo_scale})
@@ -109,8 +129,8 @@ def _stereo_frame(left: np.ndarray, right: np.ndarray, calib: dict[str, Any], cf
     depth = np.where(np.isfinite(pts[..., 2]), pts[..., 2], 0).astype(np.float32)
     return Frame(
         "left", pts, grey.astype(np.float32), K1,
-        variance=partial(stereo_height_variance, baseline=disp.rect.baseline, focal=disp.rect.focal,
-                         sigma_d=sigma_d_for(cfg.stereo_scale)),
+        variance=partial(stereo_point_variance, baseline=disp.rect.baseline, focal=disp.rect.focal,
+                         **stereo_sigmas(cfg)),
         max_range=cfg.max_range,
         ortho_intensity=cv2.remap(grey, mx, my, cv2.INTER_LINEAR).astype(np.float32),
         ortho_depth=cv2.remap(depth, mx, my, cv2.INTER_NEAREST),
@@ -155,7 +175,7 @@ def run_dem(job: Job, cfg: Any, *, update: bool, sensor: str = "tof",
             xyz, amplitude = device_call(job, tof.grab_xyz, cfg.integrate, cfg.confidence,
                                         wrap_check=cfg.wrap_check)
             frames.append(Frame("tof", xyz, amplitude, K,
-                                variance=partial(tof_height_variance, frames=cfg.integrate),
+                                variance=partial(tof_point_variance, **tof_sigmas(cfg)),
                                 max_range=min(cfg.max_range, TOF_MAX_RANGE),
                                 min_reflectivity=cfg.min_reflectivity))
         if cams is not None:
