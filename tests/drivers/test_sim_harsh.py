@@ -227,7 +227,8 @@ def test_the_harsh_terrain_albedo_follows_the_mars_texture(harsh: World) -> None
 # -- stereo on a harsh pair ----------------------------------------------------------------------------------
 def test_stereo_on_a_harsh_pair_stays_within_its_bound_of_the_truth(harsh: World) -> None:
     """Bound: at most 1 % of the answered pixels more than 2 px off the simulator's disparity, and
-    at least 70 % of the pixels answered (measured: 0.17 % and 89 % at 640 x 480; the full-size
+    at least 90 % of the pixels answered (measured: 0.17 % and 92.3 % at 640 x 480; 88.6 % with
+    the old absolute 2.5 DN texture mask, which threw the cast shadows away; the full-size
     figures are the README's, from python -m tools.bench.stereo)."""
     left, right, cal = grab(harsh)
     calib = {k: np.asarray(cal[k]) for k in ("image_size", "K1", "D1", "K2", "D2", "R", "T")}
@@ -239,5 +240,5 @@ def test_stereo_on_a_harsh_pair_stays_within_its_bound_of_the_truth(harsh: World
     has = np.isfinite(true)
     ok = has & np.isfinite(disp)
     err = np.abs(disp[ok] - true[ok])
-    assert ok.sum() / has.sum() >= 0.7, ok.sum() / has.sum()
+    assert ok.sum() / has.sum() >= 0.9, ok.sum() / has.sum()
     assert (err > 2.0).mean() <= 0.01, (err > 2.0).mean()

@@ -26,8 +26,13 @@ measured pixels: what clouds and DEMs get), against OpenCV's default ``StereoSGB
 5)`` and the best OpenCV SGBM a small search found (``--search`` reruns it). Bad-2 counts
 invalid pixels as bad over the pixels with ground truth; "valid" is over answered pixels.
 
+``--texture`` sweeps the texture mask's threshold on every pair (the four simulated scenes and
+both Middlebury pairs): the old absolute 2.5 DN, off, and multiples of the sensor noise expected
+at the local brightness (the shipped rule, :func:`prox_workflows.steps.stereo.texture_mask`).
+
     python -m tools.bench.stereo [--scene quarry] [--tilt -20] [--repeat 3] [--cache /tmp/pair.npz]
-                                 [--compare quarry,marsyard,marsyard_harsh] [--breakdown] [--no-sim] [--search]
+                                 [--compare quarry,marsyard,marsyard_harsh] [--breakdown] [--texture]
+                                 [--no-sim] [--search]
 """
 
 from __future__ import annotations
@@ -234,6 +239,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--search", action="store_true", help="rerun the OpenCV SGBM search on Motorcycle")
     ap.add_argument("--compare", default="quarry,marsyard,marsyard_harsh",
                     help="scenes of the side-by-side table (comma-separated; empty: none)")
+    ap.add_argument("--texture", action="store_true",
+                    help="the texture mask's threshold swept on every pair (simulated and real): the old absolute "
+                         "2.5 DN, off, and multiples of the expected noise; with the office DEM figures in the README")
     ap.add_argument("--breakdown", action="store_true",
                     help="where the harsh pair loses density: one effect at a time, shadow vs sun, and the "
                          "texture filter's share (diagnostic; ~1 min more)")
@@ -255,7 +263,53 @@ def main(argv: list[str] | None = None) -> int:
     side_by_side(scenes, args.tilt, moto, bike)
     if args.breakdown and not args.no_sim:
         breakdown("marsyard_harsh", args.tilt, moto)
+    if args.texture:
+        texture_sweep([] if args.no_sim else ["quarry", "marsyard", "marsyard_harsh", "office"], args.tilt, moto, bike)
     return 0
+
+
+TEXTURE_KS = (2.0, 1.75, 1.5, 1.25, 1.0)
+
+
+def texture_sweep(scenes: list[str], tilt: float, moto: dict[str, Any] | None, bike: dict[str, Any] | None) -> None:
+    """rvs-stereo measured with the texture mask at each threshold, on every pair: the mask is the
+    last filter (after LR and speckle), so one matcher run per pair with it off, masked afterwards,
+    is exactly what each setting returns. Bicycle1 has no truth: its accuracy column is the share
+    of answered pixels more than 2 px from the mean of the answered pixels in their 9 x 9
+    neighbourhood (a local-consistency proxy; 3.4 % at the old setting)."""
+    pairs: list[tuple[str, np.ndarray, np.ndarray, int, np.ndarray | None]] = []
+    for scene in scenes:
+        pair = simulated_pair(scene, tilt, None)
+        rect = st.rectification(pair["calib"])
+        rl, rr = st.rectify_pair(pair["left"], pair["right"], rect)
+        pairs.append((f"sim {scene}", rl, rr, st.SgbmParams().disparities_for(rect), pair["true"]))
+    for name, pair in (("Motorcycle", moto), ("Bicycle1", bike)):
+        if pair is not None:
+            pairs.append((name, pair["left"], pair["right"], pair["nd"], pair["true"]))
+    default = st.SgbmParams().texture_threshold
+    print(f"\ntexture mask threshold (shipped: {default:g} x the expected noise): density / bad-2 on valid pixels "
+          "(Bicycle1: local-consistency proxy)")
+    labels = ["abs 2.5 DN (old)", "off"] + [f"noise x{k:g}" for k in TEXTURE_KS]
+    print(f"{'pair':<20}" + "".join(f" {lab:>17}" for lab in labels))
+    for name, rl, rr, nd, true in pairs:
+        d0 = st.disparity_rectified(rl, rr, st.SgbmParams(texture_threshold=0.0), nd)
+        img = rl.astype(np.float32)
+        mean = cv2.boxFilter(img, -1, (7, 7), borderType=cv2.BORDER_REFLECT)
+        std = np.sqrt(np.maximum(cv2.boxFilter(img * img, -1, (7, 7), borderType=cv2.BORDER_REFLECT) - mean * mean, 0))
+        masks = [std >= 2.5, np.ones(rl.shape, bool)] + [st.texture_mask(rl, 7, k) for k in TEXTURE_KS]
+        line = f"{name:<20}"
+        for mk in masks:
+            d = np.where(mk, d0, np.nan)
+            if true is not None:
+                sc = score(d, true)
+                line += f" {sc['coverage']:8.1%} {sc['bad2']:7.2%}"
+            else:
+                ok = np.isfinite(d)
+                dm, w = np.where(ok, d, 0).astype(np.float32), ok.astype(np.float32)
+                local = cv2.boxFilter(dm, -1, (9, 9), normalize=False) / np.maximum(
+                    cv2.boxFilter(w, -1, (9, 9), normalize=False), 1)
+                line += f" {ok.mean():8.1%} {(np.abs(d[ok] - local[ok]) > 2).mean():7.2%}"
+        print(line, flush=True)
 
 
 def breakdown(scene: str, tilt: float, moto: dict[str, Any] | None) -> None:
