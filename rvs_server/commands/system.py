@@ -252,6 +252,9 @@ def status(ctx: Context, cfg: None) -> dict[str, Any]:
         out["progress"] = f"{job.done}/{job.total}"
     pose = app.pose
     out["pose"] = [Fixed(pose.x, 3), Fixed(pose.y, 3), Fixed(pose.heading, 2)]
+    out["pose_source"] = pose.source
+    out["pose_sigma"] = Fixed(pose.sigma, 3)
+    out["pose_sigma_heading"] = Fixed(pose.sigma_heading, 2)
     ptu = app.ptu_position()
     if ptu is not None:
         out["ptu"] = [Fixed(ptu[0], 3), Fixed(ptu[1], 3)]
