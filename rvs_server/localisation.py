@@ -36,7 +36,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from prox_workflows.grid import Layers
-from prox_workflows.steps.map_match import MatchResult, match_dem, transform_layers
+from prox_workflows.steps.map_match import MatchResult, match_dem, overlay_layers, transform_layers
 
 from .protocol import Fixed, Reply
 
@@ -58,15 +58,16 @@ class Localiser:
     drift: float = 0.05  # share of the distance driven the position may be off by (1 sigma)
     heading_drift: float = 2.0  # deg per metre driven (1 sigma)
     auto: bool = False  # the simulated rover drives: a fix resets its odometry too
-    previous: Layers | None = None  # the last leg's DEM, on the corrected placement
+    previous: Layers | None = None  # the maps of the legs so far, on their corrected placements
     grown: float = 0.0  # position sigma added by dead reckoning since the last fix (m)
     grown_heading: float = 0.0  # deg
     fixes: list[dict[str, Any]] = field(default_factory=list)
 
     @property
     def active(self) -> bool:
-        """Whether each leg's DEM is matched (the legs then keep their own DEMs, unfused: a DEM
-        fused with one placed by a drifted pose would blur the very shift the match measures)."""
+        """Whether each leg's DEM is matched. The leg's DEM is then made alone (a DEM fused with
+        the earlier legs' while placed by a drifted pose would blur the very shift the match
+        measures), matched, moved, and laid over the earlier legs' maps here."""
         return self.mode != "none"
 
     @property
@@ -108,7 +109,7 @@ class Localiser:
         window_xy = min(max(3.0 * self.grown + 0.2, 0.3), 2.5)
         window_yaw = min(max(3.0 * self.grown_heading + 2.0, 3.0), 15.0)
         changed = False
-        if self.mode in ("vo", "both") and self.previous is not None:
+        if self.mode in ("vo", "both") and self.previous is not None and "dem" in self.previous:
             prev = self.previous
             m = match_dem(moved["dem"], moved.geometry, prev["dem"], prev.geometry, (x, y),
                           search_xy=window_xy, search_yaw=window_yaw, sample=0.15, step_xy=0.1,
@@ -144,9 +145,10 @@ class Localiser:
             app.set_pose(x, y, h, source=source, sigma=sigma, sigma_heading=sigma_h)
             if self.auto and app.world is not None:
                 app.world.set_odometry(x, y, h)  # the rover's GNC takes the fix
-            app.maps.replace(moved, app.maps.name or "", app.maps.files())
             self.grown = self.grown_heading = 0.0
-        self.previous = Layers(moved.geometry, {"dem": moved["dem"]})
+        merged = overlay_layers(self.previous, moved)
+        app.maps.replace(merged, app.maps.name or "", app.maps.files())
+        self.previous = merged
 
     def _report(self, job: Job, leg: int, method: str, m: MatchResult) -> None:
         """One EVENT per match, taken or not: a GNC may apply the fix to its own estimate."""

@@ -249,3 +249,45 @@ def transform_layers(layers: Layers, pivot: tuple[float, float], dx: float, dy: 
             moved = np.where(inside, moved, np.asarray(fill, dtype=arr.dtype)).astype(arr.dtype)
         out.layers[name] = moved
     return out
+
+
+def _undefined(arr: np.ndarray) -> np.ndarray:
+    """The fill of an undefined cell of a layer: NaN, 128 for a uint8 map (hazard's grey), 0 else."""
+    if np.issubdtype(arr.dtype, np.floating):
+        return np.asarray(np.nan, arr.dtype)
+    return np.asarray(128 if arr.dtype == np.uint8 and arr.ndim == 2 else 0, arr.dtype)
+
+
+def overlay_layers(base: Layers | None, top: Layers) -> Layers:
+    """``top`` over ``base`` on a grid covering both (same cell size, grids aligned to multiples
+    of it): where the top's DEM is defined its layers win, elsewhere the base's stay. A leg's DEM,
+    made alone so its placement could be matched and corrected, joins the maps of the legs before
+    it this way (the newest view of a cell wins, as the rover's own drive changes nothing else)."""
+    if base is None:
+        return top
+    gb, gt = base.geometry, top.geometry
+    if abs(gb.cell - gt.cell) > 1e-9:
+        return top
+    g = GridGeometry.covering(min(gb.xmin, gt.xmin), min(gb.ymin, gt.ymin), max(gb.xmax, gt.xmax),
+                              max(gb.ymax, gt.ymax), gt.cell, gt.crs)
+
+    def offset(src: GridGeometry) -> tuple[int, int]:
+        return int(round((g.ymax - src.ymax) / g.cell)), int(round((src.xmin - g.xmin) / g.cell))
+
+    rb, cb = offset(gb)
+    rt, ct = offset(gt)
+    defined = np.isfinite(top["dem"]) if "dem" in top else np.ones(gt.shape, bool)
+    out = Layers(g, meta=dict(top.meta))
+    for name in dict.fromkeys([*base.layers, *top.layers]):
+        ref = top.layers.get(name, base.layers.get(name))
+        assert ref is not None
+        arr = np.full((g.height, g.width, *ref.shape[2:]), _undefined(ref), dtype=ref.dtype)
+        if name in base.layers:
+            b = base.layers[name]
+            arr[rb: rb + gb.height, cb: cb + gb.width] = b.astype(ref.dtype, copy=False)
+        if name in top.layers:
+            t = top.layers[name]
+            view = arr[rt: rt + gt.height, ct: ct + gt.width]
+            view[defined] = t[defined]
+        out.layers[name] = arr
+    return out
