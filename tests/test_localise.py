@@ -170,16 +170,22 @@ def test_status_reports_the_pose_source_and_sigma_and_navigate_takes_global(serv
     c.close()
 
 
-def _mission(server_factory, tmp_path: Path, mode: str, seed: int, goal: tuple[float, float]) -> dict[str, float]:
-    from tools.global_maps import write_global_maps
+def _mission(server_factory, tmp_path: Path, mode: str, seed: int) -> dict[str, float]:
+    """A seeded quarry mission with slip, the orbital DEM given as a UTM GeoTIFF with its origin."""
+    from test_navigate import pick_start_goal
 
-    folder = tmp_path / "global"
-    if not (folder / "dem.tif").is_file():
-        write_global_maps("hirise", folder)
-    srv = server_factory(["server.scene=hirise", f"navigate.global_maps={folder}"])
+    from tools.bench.localise import ORIGIN, orbital_geotiff
+
+    srv = server_factory(["server.scene=quarry"])
+    world = srv.app.world
+    world.set_target_visible(False)
+    start, goal = pick_start_goal(world, "quarry", seed)
+    orbit = orbital_geotiff(world, tmp_path / f"orbit_{mode}.tif")
     c = srv.client(timeout=1800)
     assert c.request(f"sim slip -distance 0.05 -heading 2 -seed {seed}").status == "OK"
-    c.send(f"navigate -goal {goal[0]},{goal[1]} -auto -localise {mode} -name {mode}{seed}")
+    heading = math.degrees(math.atan2(goal[1] - start[1], goal[0] - start[0]))
+    c.send(f"navigate -start {start[0]:.3f},{start[1]:.3f},{heading:.1f} -goal {goal[0]:.3f},{goal[1]:.3f} "
+           f"-auto -localise {mode} -global {orbit} -global-origin {ORIGIN[0]},{ORIGIN[1]} -name {mode}{seed}")
     lines = c.until_final(timeout=1800)
     final = lines[-1]
     assert final.status == "OK", final.fields
@@ -188,7 +194,6 @@ def _mission(server_factory, tmp_path: Path, mode: str, seed: int, goal: tuple[f
     t = c.request("sim truth").fields
     st = c.request("status").fields
     c.close()
-    srv.stop()
     px, py, _ = (float(v) for v in st["pose"].split(","))
     tx, ty = float(t["x"]), float(t["y"])
     return {"pose_error": math.hypot(px - tx, py - ty), "goal": math.hypot(goal[0] - tx, goal[1] - ty),
@@ -196,17 +201,38 @@ def _mission(server_factory, tmp_path: Path, mode: str, seed: int, goal: tuple[f
 
 
 @long_test
-@pytest.mark.parametrize("seed", [1, 2])
+@pytest.mark.parametrize("seed", [1])
 def test_map_matching_brings_a_slipping_rover_to_the_goal_where_dead_reckoning_does_not(
         server_factory, tmp_path: Path, seed: int) -> None:
-    """Slip 5 % and 2 deg/m, no GNC pose, 6.3 m to the goal on the HiRISE scene: on dead
-    reckoning alone the rover believes it arrived and is truly more than the tolerance away; with
-    map matching on the orbital DTM it truly is within the tolerance, its pose error at least 3x
-    smaller, and the pose says map with a sigma that covers the error."""
-    goal = (6.0, 2.0)
-    dr = _mission(server_factory, tmp_path, "none", seed, goal)
-    mm = _mission(server_factory, tmp_path, "map", seed, goal)
+    """Slip 5 % and 2 deg/m, no GNC pose, a quarry mission of 3.5-5 m: on dead reckoning alone
+    the rover believes it arrived and is truly farther than the 0.3 m tolerance; with map
+    matching on the orbital DEM (-global, a UTM GeoTIFF with its origin) it truly is within the
+    tolerance, its pose error at least 5x smaller, and the pose says map with a sigma that
+    covers the error. (tools.bench.localise runs more seeds and the vo and both modes.)"""
+    dr = _mission(server_factory, tmp_path, "none", seed)
+    mm = _mission(server_factory, tmp_path, "map", seed)
     assert dr["source"] == "odometry" and dr["goal"] > 0.3, dr
     assert mm["goal"] <= 0.3, mm
-    assert mm["pose_error"] * 3.0 < dr["pose_error"], (mm, dr)
+    assert mm["pose_error"] * 5.0 < dr["pose_error"], (mm, dr)
     assert mm["source"] == "map" and mm["pose_error"] < 3.0 * mm["sigma"] + 0.05, mm
+
+
+def test_overlay_layers_lays_a_leg_over_the_earlier_legs_maps() -> None:
+    from prox_workflows.steps.map_match import overlay_layers
+
+    gb = GridGeometry(0.1, 0.0, 1.0, 10, 10)
+    gt = GridGeometry(0.1, 0.5, 1.5, 10, 10)  # overlaps the base's east half, extends east and north
+    base = Layers(gb, {"dem": np.ones(gb.shape, np.float32), "hazard": np.zeros(gb.shape, np.uint8)})
+    top_dem = np.full(gt.shape, 2.0, np.float32)
+    top_dem[:, :2] = np.nan  # the leg did not see its west edge: the base shows through
+    top = Layers(gt, {"dem": top_dem, "hazard": np.full(gt.shape, 255, np.uint8)})
+    out = overlay_layers(base, top)
+    g = out.geometry
+    assert g.bounds == pytest.approx((0.0, 0.0, 1.5, 1.5))
+    def at(name: str, x: float, y: float) -> float:
+        r, c = g.cell_of(np.array([x]), np.array([y]))
+        return float(out[name][r, c][0])
+    assert at("dem", 0.25, 0.25) == 1.0 and at("hazard", 0.25, 0.25) == 0  # base only
+    assert at("dem", 0.55, 0.75) == 1.0  # the top's undefined edge: base
+    assert at("dem", 0.85, 0.75) == 2.0 and at("hazard", 0.85, 0.75) == 255  # the leg wins
+    assert math.isnan(at("dem", 0.25, 1.25)) and at("hazard", 0.25, 1.25) == 128  # neither
