@@ -144,6 +144,20 @@ def match_dem(local: np.ndarray, local_geom: GridGeometry, reference: np.ndarray
 
     if len(pts) < min_points:
         return fail(f"{len(pts)} sample points, fewer than {min_points}")
+    # Only points the reference shows under every candidate motion: where the overlap itself
+    # changes with the motion (a scan on the previous scan's edge), a variance over whichever
+    # points fall on defined ground would prefer motions that put them on its smoothest part.
+    # The extremes of the window (corners, edges, the turn both ways) stand for the whole.
+    common = np.ones(len(pts), bool)
+    for yaw in (-search_yaw, 0.0, search_yaw):
+        for ox in (-search_xy, 0.0, search_xy):
+            for oy in (-search_xy, 0.0, search_xy):
+                x, y = _moved(pts, pivot, ox, oy, yaw)
+                common &= np.isfinite(ref(x, y))
+    if common.sum() < min_points:
+        return fail(f"{int(common.sum())} points on ground the reference shows under every motion searched, "
+                    f"fewer than {min_points}")
+    pts = pts[common]
     before = _cost(pts, ref, pivot, 0.0, 0.0, 0.0, 0.5)
     # grid search: every yaw, every offset, vectorised over the points of one yaw at a time
     offs = np.arange(-search_xy, search_xy + 1e-9, step_xy)
@@ -212,6 +226,10 @@ def match_dem(local: np.ndarray, local_geom: GridGeometry, reference: np.ndarray
     cov *= per_cell
     sigma_xy = float(math.sqrt(max(np.linalg.eigvalsh(cov[:2, :2]).max(), 0.0)))
     sigma_yaw = float(math.sqrt(max(cov[2, 2], 0.0))) / scale
+    # a floor: no match places a DEM of block means better than a fifth of a block (the formal
+    # covariance of thousands of points says millimetres, which no neighbour's fusion should trust)
+    sigma_xy = max(sigma_xy, 0.2 * sample)
+    sigma_yaw = max(sigma_yaw, math.degrees(0.2 * sample / max(radius, 1.0)))
     out = MatchResult(float(p[0]), float(p[1]), float(p[2]), float(p[3]), rms,
                       math.sqrt(before) if math.isfinite(before) else math.nan, sigma_xy, sigma_yaw, m,
                       ok=True, seconds=time.perf_counter() - t0)
