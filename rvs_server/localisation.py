@@ -106,8 +106,11 @@ class Localiser:
         p = app.pose
         x, y, h, sigma, sigma_h, source = p.x, p.y, p.heading, p.sigma, p.sigma_heading, p.source
         moved = layers
-        window_xy = min(max(3.0 * self.grown + 0.2, 0.3), 2.5)
-        window_yaw = min(max(3.0 * self.grown_heading + 2.0, 3.0), 15.0)
+        # 2 sigma of what dead reckoning added: the matcher uses only ground both DEMs show under
+        # every motion searched, so a wider window costs overlap (and a 3-sigma miss leaves the
+        # dead-reckoned pose, no worse than without VO)
+        window_xy = min(max(2.0 * self.grown + 0.15, 0.3), 2.0)
+        window_yaw = min(max(2.0 * self.grown_heading + 1.5, 3.0), 12.0)
         changed = False
         if self.mode in ("vo", "both") and self.previous is not None and "dem" in self.previous:
             prev = self.previous
