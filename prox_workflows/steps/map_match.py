@@ -82,9 +82,17 @@ def sample_points(dem: np.ndarray, geom: GridGeometry, pivot: tuple[float, float
 class _Reference:
     """Bilinear heights of the reference DEM at any x, y (NaN outside or next to its holes)."""
 
-    def __init__(self, dem: np.ndarray, geom: GridGeometry) -> None:
+    def __init__(self, dem: np.ndarray, geom: GridGeometry, fill: float = 0.1) -> None:
         self.geom = geom
-        d = np.asarray(dem, dtype=np.float64)
+        d = np.array(dem, dtype=np.float64)
+        # A rover's DEM has cell-sized holes wherever its points thin out; bilinear heights need
+        # four defined neighbours, so each hole would cost the cells around it too. Holes within
+        # ``fill`` metres of a height take the nearest one.
+        inv = ~np.isfinite(d)
+        if inv.any() and not inv.all():
+            dist, (ri, ci) = ndimage.distance_transform_edt(inv, return_indices=True)
+            near = inv & (dist <= max(1.0, fill / geom.cell))
+            d[near] = d[ri[near], ci[near]]
         self.valid = np.isfinite(d).astype(np.float64)
         self.filled = np.where(np.isfinite(d), d, np.nanmean(d) if self.valid.any() else 0.0)
 
