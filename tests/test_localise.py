@@ -165,6 +165,8 @@ def test_status_reports_the_pose_source_and_sigma_and_navigate_takes_global(serv
                         GridGeometry(0.001, 10.0, 45.0, 10, 10, crs="EPSG:4326"))
     r = c.request(f"navigate -goal 2,2 -auto -global {geo} -localise map")
     assert r.status == "ERROR" and "degrees" in r.fields["message"], r
+    h = c.request("help navigate").fields
+    assert "[-global text]" in h["usage"] and "opt_global" in h and "-localise none|vo|map|both" in h["usage"]
     r = c.request("navigate -goal 2,2 -auto -localise sideways")
     assert r.status == "ERROR" and r.fields["code"] == "E_ARG"
     c.close()
