@@ -59,6 +59,8 @@ class Localiser:
     heading_drift: float = 2.0  # deg per metre driven (1 sigma)
     auto: bool = False  # the simulated rover drives: a fix resets its odometry too
     previous: Layers | None = None  # the maps of the legs so far, on their corrected placements
+    sigma: float = 0.0  # the estimate's position sigma (m): the pose set from odometry does not carry it
+    sigma_heading: float = 0.0  # deg
     grown: float = 0.0  # position sigma added by dead reckoning since the last fix (m)
     grown_heading: float = 0.0  # deg
     fixes: list[dict[str, Any]] = field(default_factory=list)
@@ -89,11 +91,12 @@ class Localiser:
         dist = float(np.hypot(*np.diff(xy, axis=0).T).sum()) if len(xy) > 1 else 0.0
         dh = self.heading_drift * dist
         # lateral error of a heading error that grew linearly along the leg: half of it at the end
-        dxy = self.drift * dist + math.radians(p.sigma_heading + dh / 2.0) * dist
-        self.grown = math.hypot(self.grown, 0.0) + dxy
+        dxy = self.drift * dist + math.radians(self.sigma_heading + dh / 2.0) * dist
+        self.grown += dxy
         self.grown_heading += dh
-        app.set_pose(p.x, p.y, p.heading, source="odometry", sigma=p.sigma + dxy,
-                     sigma_heading=p.sigma_heading + dh)
+        self.sigma += dxy
+        self.sigma_heading += dh
+        app.set_pose(p.x, p.y, p.heading, source="odometry", sigma=self.sigma, sigma_heading=self.sigma_heading)
 
     def after_scan(self, job: Job, leg: int) -> None:
         """Match the leg's fresh DEM (the current maps) and correct the pose and the maps."""
@@ -104,7 +107,7 @@ class Localiser:
         if layers is None or "dem" not in layers:
             return
         p = app.pose
-        x, y, h, sigma, sigma_h, source = p.x, p.y, p.heading, p.sigma, p.sigma_heading, p.source
+        x, y, h, sigma, sigma_h, source = p.x, p.y, p.heading, self.sigma, self.sigma_heading, p.source
         moved = layers
         # 2 sigma of what dead reckoning added: the matcher uses only ground both DEMs show under
         # every motion searched, so a wider window costs overlap (and a 3-sigma miss leaves the
@@ -133,15 +136,17 @@ class Localiser:
                           search_xy=min(max(3.0 * sigma + 0.3, 0.6), 3.0),
                           search_yaw=min(max(3.0 * sigma_h + 2.0, 3.0), 15.0), radius=4.5)
             self._report(job, leg, "map", m)
-            if m.ok and sigma > 0:
+            # a GNC's pose says nothing of its accuracy: the map decides; a pose given with sigma 0
+            # otherwise (the start) is exact, the frame is defined by it
+            prior, prior_h = (math.inf, math.inf) if source == "gnc" else (sigma, sigma_h)
+            if m.ok and prior > 0:
                 # inverse-variance fusion with what we had (dead reckoning or VO)
-                # (a pose given with sigma 0, the start, is exact: the frame is defined by it)
-                w = sigma ** 2 / (sigma ** 2 + m.sigma_xy ** 2)
-                wh = sigma_h ** 2 / (sigma_h ** 2 + m.sigma_yaw ** 2)
+                w = 1.0 if math.isinf(prior) else prior ** 2 / (prior ** 2 + m.sigma_xy ** 2)
+                wh = 1.0 if math.isinf(prior_h) else prior_h ** 2 / (prior_h ** 2 + m.sigma_yaw ** 2)
                 moved = transform_layers(moved, (x, y), w * m.dx, w * m.dy, wh * m.dyaw)
                 x, y, h = x + w * m.dx, y + w * m.dy, h + wh * m.dyaw
-                sigma = math.sqrt(1.0 / (1.0 / max(sigma, 1e-6) ** 2 + 1.0 / max(m.sigma_xy, 1e-6) ** 2))
-                sigma_h = math.sqrt(1.0 / (1.0 / max(sigma_h, 1e-6) ** 2 + 1.0 / max(m.sigma_yaw, 1e-6) ** 2))
+                sigma = math.sqrt(1.0 / (1.0 / prior ** 2 + 1.0 / max(m.sigma_xy, 1e-6) ** 2))
+                sigma_h = math.sqrt(1.0 / (1.0 / max(prior_h, 1e-6) ** 2 + 1.0 / max(m.sigma_yaw, 1e-6) ** 2))
                 source, changed = "map", True
         if changed:
             h = (h + 180.0) % 360.0 - 180.0
@@ -149,6 +154,7 @@ class Localiser:
             if self.auto and app.world is not None:
                 app.world.set_odometry(x, y, h)  # the rover's GNC takes the fix
             self.grown = self.grown_heading = 0.0
+            self.sigma, self.sigma_heading = sigma, sigma_h
         merged = overlay_layers(self.previous, moved)
         app.maps.replace(merged, app.maps.name or "", app.maps.files())
         self.previous = merged
