@@ -101,7 +101,8 @@ class ParamSpec:
 
     @property
     def flag(self) -> str:
-        return "-" + self.name.replace("_", "-")
+        # a trailing underscore is Python's escape of a keyword (global_ is the option -global)
+        return "-" + self.name.rstrip("_").replace("_", "-")
 
     def describe(self) -> str:
         """One phrase for help and error messages: type, range, unit, default."""

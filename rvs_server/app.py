@@ -84,12 +84,19 @@ class Pose:
     stopped: bool = False  # the GNC said the rover stands still here (it gave up on a leg)
     # Who said so: gnc (the pose command), orient (visual odometry), navigate (its -start),
     # odometry (the simulated rover's dead reckoning after an -auto leg: the truth differs from it
-    # once sim slip is set), recovery, or start (nobody yet).
-    # Not on the wire: it tells a reader (and the pose estimator to come) what to trust.
+    # once sim slip is set), vo (navigate's registration of each leg's DEM on the previous one),
+    # map (navigate's match of its DEM on the global DEM), recovery, or start (nobody yet).
+    # On the wire as status's and navigate's pose_source.
     source: str = "start"
+    # The estimate's 1-sigma: position along its worst direction (m) and heading (deg). 0 for a
+    # pose given from outside (gnc, -start) that says nothing of its own accuracy; grows with
+    # the distance driven on dead reckoning, shrinks with a VO or map fix (rvs_server.localisation).
+    sigma: float = 0.0
+    sigma_heading: float = 0.0
 
     def __post_init__(self) -> None:
         self.x, self.y, self.heading = float(self.x), float(self.y), float(self.heading)
+        self.sigma, self.sigma_heading = float(self.sigma), float(self.sigma_heading)
 
 
 T = TypeVar("T")
@@ -284,10 +291,12 @@ class App:
         """Counts pose changes: a waiter compares it to tell a new report from the one it saw."""
         return self._pose_version
 
-    def set_pose(self, x: float, y: float, heading: float, *, stopped: bool = False, source: str = "gnc") -> None:
+    def set_pose(self, x: float, y: float, heading: float, *, stopped: bool = False, source: str = "gnc",
+                 sigma: float = 0.0, sigma_heading: float = 0.0) -> None:
         """Thread-safe; wakes a navigation job waiting for the rover to move."""
         with self.pose_changed:
-            self._pose = Pose(x, y, heading, stopped=stopped, source=source)
+            self._pose = Pose(x, y, heading, stopped=stopped, source=source, sigma=sigma,
+                              sigma_heading=sigma_heading)
             self._pose_version += 1
             self.pose_changed.notify_all()
 

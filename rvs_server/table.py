@@ -8,6 +8,7 @@ never re-check their own arguments.
 from __future__ import annotations
 
 import copy
+import keyword
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
@@ -108,17 +109,17 @@ def apply_options(name: str, base: ModuleConfig, options: list[tuple[str, str | 
     specs = cfg.specs()
     seen: set[str] = set()
     for opt, raw in options:
-        spec = specs.get(opt)
+        spec = specs.get(opt) or (specs.get(opt + "_") if keyword.iskeyword(opt) else None)  # -global: global_
         if spec is None or not spec.option:
             accepted = " ".join(s.flag for s in specs.values() if s.option) or "none"
             raise ProtocolError(
                 "E_ARG", f"unknown option -{opt.replace('_', '-')} for {name}; options: {accepted}"
             )
-        if opt in seen:
+        if spec.name in seen:
             raise ProtocolError("E_ARG", f"option {spec.flag} given twice")
-        seen.add(opt)
+        seen.add(spec.name)
         try:
-            setattr(cfg, opt, spec.parse(raw))
+            setattr(cfg, spec.name, spec.parse(raw))
         except SettingError as exc:
             raise ProtocolError("E_ARG", exc.message) from None
     for spec in specs.values():

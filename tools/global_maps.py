@@ -30,7 +30,8 @@ from drivers.sim.terrain import dtm_crop
 from drivers.sim.world import World
 from prox_workflows.grid import GridGeometry, write_geotiff
 from prox_workflows.products import write_text_atomic
-from prox_workflows.steps.dem2hazard import dem2hazard, load_params
+from prox_workflows.steps.dem2hazard import load_params
+from prox_workflows.steps.global_map import orbital_hazard
 
 
 def orbital_dem(scene: str) -> tuple[np.ndarray, GridGeometry, dict[str, Any]]:
@@ -56,7 +57,7 @@ def write_global_maps(scene: str, out: Path, slope_max: float | None = None) -> 
     dem, geom, source = orbital_dem(scene)
     params = load_params(window=3 * geom.cell, step_max=1e6, roughness_max=1e6,
                          **({"slope_max": slope_max} if slope_max is not None else {}))
-    layers = dem2hazard(dem, geom.cell, params)
+    layers = orbital_hazard(dem, geom.cell, slope_max)  # as navigate -global derives them
     out.mkdir(parents=True, exist_ok=True)
     paths = {
         "dem": write_geotiff(out / "dem.tif", dem, geom),

@@ -1,12 +1,17 @@
 """``rvs-path-planner``: the path planning application (seed 000 sect. 4.4.1) on GeoTIFF maps.
 
     rvs-path-planner --hazard H.tif --slope S.tif [--global-hazard G.tif --global-slope GS.tif]
+                     [--global DEM.tif [--global-origin E,N]]
                      [--ortho O.tif] --start x,y --goal x,y [--weight 0.5]
                      [--heuristic euclidean|manhattan|octile] [--grid M] [--margin M]
                      [--rover-radius M] [--max-deviation M] [--border M] -o PREFIX
 
 Start, goal and every output are in the maps' world coordinates (their GeoTIFF transform).
-Without global maps, blank ones are made to cover the local map, the start and the goal. Writes
+Without global maps, blank ones are made to cover the local map, the start and the goal.
+``--global`` takes a global DEM (or 0/128/255 hazard map) from orbit in any CRS in metres, moved
+to the maps' frame by ``--global-origin`` (the frame's origin in the file's CRS); its hazard and
+slope come from Dem2Hazard (prox_workflows.steps.global_map, as navigate -global) and are written
+as PREFIX_global_hazard.tif and PREFIX_global_slope.tif, which the plan then reads. Writes
 PREFIX_path.csv, PREFIX_waypoints.csv, PREFIX_plan.yaml and PREFIX_plan_map.png (plus
 PREFIX_plan_ortho.png with ``--ortho``); prints the path cost and the waypoints. Exit status 1
 with the reason when there is no path, 2 for bad arguments or unreadable maps.
@@ -46,6 +51,20 @@ def read_maps(hazard: Path, slope: Path) -> NavMaps:
     return read_nav_maps(hazard, slope)
 
 
+def _global_maps(path: Path, origin: tuple[float, float], prefix: str) -> tuple[Path, Path]:
+    """Hazard and slope of a global DEM in the maps' frame, written beside the outputs (the plan
+    reads maps from files, and the products say what they were planned on)."""
+    from ..grid import write_geotiff
+    from ..steps.global_map import load_global
+
+    g = load_global(path, origin)
+    out = Path(prefix)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    hz = write_geotiff(out.with_name(out.name + "_global_hazard.tif"), g.hazard, g.geometry, nodata=128)
+    sl = write_geotiff(out.with_name(out.name + "_global_slope.tif"), g.slope, g.geometry)
+    return Path(hz), Path(sl)
+
+
 def build_parser() -> argparse.ArgumentParser:
     d = PlannerParams()
     specs = PlanParams.specs()
@@ -55,6 +74,10 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--slope", type=Path, required=True, help="local slope map GeoTIFF (degrees)")
     ap.add_argument("--global-hazard", type=Path, help="global hazard map GeoTIFF")
     ap.add_argument("--global-slope", type=Path, help="global slope map GeoTIFF")
+    ap.add_argument("--global", dest="global_dem", type=Path,
+                    help="global DEM (or hazard map) GeoTIFF in any CRS in metres, instead of --global-hazard/slope")
+    ap.add_argument("--global-origin", type=_point, default=(0.0, 0.0),
+                    help="E,N: the maps' frame origin in the --global file's CRS")
     ap.add_argument("--ortho", type=Path, help="ortho-image GeoTIFF to draw the plan on")
     ap.add_argument("--start", type=_point, required=True, help="x,y in metres")
     ap.add_argument("--goal", type=_point, required=True, help="x,y in metres")
@@ -77,6 +100,15 @@ def main(argv: list[str] | None = None) -> int:
     if (args.global_hazard is None) != (args.global_slope is None):
         print("rvs-path-planner: --global-hazard and --global-slope go together", file=sys.stderr)
         return 2
+    if args.global_dem is not None:
+        if args.global_hazard is not None:
+            print("rvs-path-planner: give --global or --global-hazard/--global-slope, not both", file=sys.stderr)
+            return 2
+        try:
+            args.global_hazard, args.global_slope = _global_maps(args.global_dem, args.global_origin, args.output)
+        except (OSError, ValueError) as exc:
+            print(f"rvs-path-planner: --global {args.global_dem}: {exc}", file=sys.stderr)
+            return 2
     specs = PlanParams.specs()
     try:
         params = {name: spec.parse(str(getattr(args, name))) for name, spec in specs.items()}

@@ -18,6 +18,7 @@ from prox_workflows.steps.safety import check_move
 from ..app import Context
 from ..config import ModuleConfig, param
 from ..jobs import Job
+from ..localisation import Localiser, pose_fields
 from ..protocol import Fixed, ProtocolError, Reply, Rows
 from ..table import HARDWARE, command
 from .hardware import default_stem
@@ -106,8 +107,20 @@ class NavigateConfig(ModuleConfig):
     min_progress: float = param(0.1, "a leg that starts closer than this to the previous leg's start made no "
                                 "progress; the second such leg in a row ends the job", unit="m", min=0.0, max=5.0,
                                 option=False)
-    global_maps: str = param("", "folder with global hazard.tif and slope.tif (empty: blank maps)",
-                             option=False)
+    global_maps: str = param("", "folder with global hazard.tif and slope.tif, and dem.tif for map matching "
+                             "(empty: blank maps, or -global)", option=False)
+    # Localisation and global maps (issue 12 items 4-5): rvs_server.localisation, steps.map_match
+    global_: str = param("", "global DEM (or 0/128/255 hazard map) GeoTIFF from orbit, in any CRS in metres; "
+                         "its hazard and slope come from Dem2Hazard, its heights serve map matching (instead of "
+                         "navigate.global_maps)")
+    global_origin: list[float] = param([0.0, 0.0], "the rover frame's origin (the start) in the global map's CRS",
+                                       unit="m", length=2, min=-1e8, max=1e8)
+    localise: str = param("none", "correct the dead-reckoned pose after each leg: vo (the leg's DEM on the last "
+                          "one), map (on the global DEM), both, or none", choices=("none", "vo", "map", "both"))
+    drift: float = param(0.05, "dead reckoning's position error per metre driven (1 sigma, share of distance)",
+                         min=0.0, max=1.0, option=False)
+    heading_drift: float = param(2.0, "dead reckoning's heading error per metre driven (1 sigma)", unit="deg/m",
+                                 min=0.0, max=90.0, option=False)
 
 
 # What a navigate leg puts in the plan_leg script's workspace (checked at server start).
@@ -139,6 +152,34 @@ def _load_global(folder: str) -> Any:
     if g2 != g:
         raise ProtocolError("E_DATA", f"global hazard and slope maps in {folder} are on different grids")
     return NavMaps(hazard, slope, g)
+
+
+def _load_global_maps(cfg: NavigateConfig) -> tuple[Any, Any]:
+    """The planner's global maps and the global map with its DEM (for map matching), from
+    -global FILE or navigate.global_maps; (None, None) without either (blank maps)."""
+    from pathlib import Path
+
+    from prox_workflows.steps.global_map import GlobalMap, load_global
+    from prox_workflows.steps.planner import NavMaps
+
+    origin = (cfg.global_origin[0], cfg.global_origin[1])
+    if cfg.global_:
+        try:
+            g = load_global(cfg.global_, origin)
+        except (OSError, ValueError) as exc:
+            raise ProtocolError("E_DATA", f"global map {cfg.global_} unusable ({exc})") from None
+        return NavMaps(g.hazard, g.slope, g.geometry), g
+    maps = _load_global(cfg.global_maps)
+    if maps is None:
+        return None, None
+    dem_path = Path(cfg.global_maps) / "dem.tif"
+    dem = None
+    if dem_path.is_file():
+        try:
+            dem = load_global(dem_path, origin)
+        except (OSError, ValueError) as exc:
+            raise ProtocolError("E_DATA", f"global DEM {dem_path} unusable ({exc})") from None
+    return maps, GlobalMap(maps.hazard, maps.slope, maps.geometry, dem.dem if dem else None, str(dem_path))
 
 
 def drive_simulated(world: Any, waypoints: Any, track: list[tuple[float, float]],
@@ -193,7 +234,8 @@ def navigate(job: Job, cfg: NavigateConfig) -> dict[str, Any]:
     from .dem import run_dem
 
     app = job.app
-    global_maps = _load_global(cfg.global_maps)
+    global_maps, global_map = _load_global_maps(cfg)
+    loc = Localiser(cfg.localise, global_map, cfg.drift, cfg.heading_drift, auto=cfg.auto)
     if cfg.start:
         heading = cfg.start[2] if len(cfg.start) == 3 else app.pose.heading
         app.set_pose(cfg.start[0], cfg.start[1], heading, source="navigate")
@@ -217,7 +259,7 @@ def navigate(job: Job, cfg: NavigateConfig) -> dict[str, Any]:
     for leg in range(1, cfg.max_legs + 1):
         job.check()
         pose = app.pose
-        if math.hypot(goal[0] - pose.x, goal[1] - pose.y) <= cfg.tolerance:
+        if math.hypot(goal[0] - pose.x, goal[1] - pose.y) <= cfg.tolerance and not loc.wants_fix(pose):
             break
         if leg_starts and math.hypot(pose.x - leg_starts[-1][0], pose.y - leg_starts[-1][1]) < cfg.min_progress:
             stalled += 1
@@ -233,7 +275,12 @@ def navigate(job: Job, cfg: NavigateConfig) -> dict[str, Any]:
         def leg_progress(done: int, total: int, message: str, phase: str = "", leg: int = leg) -> None:
             job.progress(done, total, message, phase=phase, leg=leg)
 
-        run_dem(job, dem_cfg, update=leg > 1, sensor=cfg.sensor, progress=leg_progress, out_dir="nav")
+        run_dem(job, dem_cfg, update=leg > 1 and not loc.active, sensor=cfg.sensor, progress=leg_progress,
+                out_dir="nav")
+        loc.after_scan(job, leg)  # VO / map matching: corrects the pose and the leg's maps
+        pose = app.pose
+        if math.hypot(goal[0] - pose.x, goal[1] - pose.y) <= cfg.tolerance:
+            break  # (a scan to check a dead-reckoned arrival, and it holds)
         maps = app.maps.layers
         local = NavMaps(maps["hazard"], maps["slope"], maps.geometry)
         here = (pose.x, pose.y)
@@ -280,7 +327,7 @@ def navigate(job: Job, cfg: NavigateConfig) -> dict[str, Any]:
         version = app.pose_version  # before the event: a GNC may answer it at once
         app.broadcast_threadsafe(Reply("RVS", "EVENT", {
             "kind": "waiting", "job": job.id, "leg": leg, "waypoints": rows,
-            "file": app.rel(prefix.with_name(prefix.name + "_waypoints.csv"))}))
+            "file": app.rel(prefix.with_name(prefix.name + "_waypoints.csv")), **pose_fields(job)}))
         leg_progress(0, segments, f"waiting for the rover to drive {segments} segments to "
                                   f"({end[0]:.2f}, {end[1]:.2f})", "drive")
         if cfg.auto:
@@ -290,6 +337,7 @@ def navigate(job: Job, cfg: NavigateConfig) -> dict[str, Any]:
             # The rover's belief, not the simulator's truth: with slip they differ, as on Mars.
             odo = app.world.odometry()
             app.set_pose(odo[0], odo[1], odo[2], source="odometry")
+            loc.after_drive(job, plan.waypoints.xy)
         else:
             arrived = _wait_for_rover(app, job, version, end, cfg.tolerance, cfg.wait_timeout)
             track.append((arrived.x, arrived.y))
@@ -315,7 +363,7 @@ def navigate(job: Job, cfg: NavigateConfig) -> dict[str, Any]:
     tfile = app.data_path("nav", f"{name}_track.csv")
     write_text_atomic(tfile, "x,y\n" + "".join(f"{x:.4f},{y:.4f}\n" for x, y in track))
     return {"reached": True, "legs": len(all_paths), "path": app.rel(traverse), "waypoints": app.rel(wfile),
-            "track": app.rel(tfile), "x": Fixed(pose.x, 3), "y": Fixed(pose.y, 3)}
+            "track": app.rel(tfile), "x": Fixed(pose.x, 3), "y": Fixed(pose.y, 3), **pose_fields(job)}
 
 
 def _check(app: App, cfg: NavigateConfig) -> None:

@@ -235,7 +235,7 @@ def help_(ctx: Context, cfg: None) -> dict[str, Any]:
             if spec.option:
                 default = getattr(current, spec.name, spec.default)
                 shown = _show(default)
-                out["opt_" + spec.name] = f"{spec.describe()}{f'; default {shown}' if shown else ''}: {spec.help}"
+                out["opt_" + spec.flag[1:].replace("-", "_")] = f"{spec.describe()}{f'; default {shown}' if shown else ''}: {spec.help}"
     return out
 
 
@@ -263,6 +263,9 @@ def status(ctx: Context, cfg: None) -> dict[str, Any]:
         out["progress"] = f"{job.done}/{job.total}"
     pose = app.pose
     out["pose"] = [Fixed(pose.x, 3), Fixed(pose.y, 3), Fixed(pose.heading, 2)]
+    out["pose_source"] = pose.source
+    out["pose_sigma"] = Fixed(pose.sigma, 3)
+    out["pose_sigma_heading"] = Fixed(pose.sigma_heading, 2)
     ptu = app.ptu_position()
     if ptu is not None:
         out["ptu"] = [Fixed(ptu[0], 3), Fixed(ptu[1], 3)]

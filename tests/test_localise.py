@@ -1,0 +1,322 @@
+"""Knowing where the rover is (issue 12 items 4 and 5): the map matcher, global maps from orbit
+in a projected CRS with an origin, the pose estimate's source and sigma on the wire, and (long
+suite) seeded slipping missions where map matching keeps the rover's belief near its truth."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+from conftest import long_test
+
+from drivers.sim.world import World
+from prox_workflows.grid import GridGeometry, Layers, read_geotiff, write_geotiff
+from prox_workflows.steps.global_map import load_global
+from prox_workflows.steps.map_match import match_dem, transform_layers
+
+
+@pytest.fixture(scope="module")
+def hirise() -> tuple[World, np.ndarray, GridGeometry]:
+    """The scene (one build: it is the costly part) and its orbital DTM, as tools.global_maps
+    writes it (DTM nodes as cell centres, the world's height shift applied)."""
+    from drivers.sim.scene import load_scene_spec
+    from drivers.sim.terrain import dtm_crop
+
+    world = World.from_scene("hirise", clock_scale=0.0)
+    spec = load_scene_spec("hirise")
+    prim = next(p for p in spec["terrain"]["primitives"] if p["type"] == "dtm")
+    z, x_nw, y_nw, cell = dtm_crop(prim, Path(spec["_dir"]))
+    dem = (float(prim.get("scale", 1.0)) * z - world.z_shift).astype(np.float32)
+    return world, dem, GridGeometry(cell, x_nw - cell / 2.0, y_nw + cell / 2.0, z.shape[1], z.shape[0])
+
+
+def _patch(world: World, true_pose: tuple[float, float, float], error: tuple[float, float, float],
+           rng: np.random.Generator) -> tuple[np.ndarray, GridGeometry, tuple[float, float]]:
+    """The rover's 360-degree DEM (rocks and roughness included, the ToF's ring from 1 to 4.5 m,
+    30 % holes, its own height datum) placed with a believed pose = truth + ``error``."""
+    tx, ty, _ = true_pose
+    ex, ey, eyaw = error
+    bx, by = tx + ex, ty + ey
+    geom = GridGeometry.covering(bx - 4.6, by - 4.6, bx + 4.6, by + 4.6, 0.05)
+    xs, ys = geom.centers()
+    X, Y = np.meshgrid(xs, ys)
+    c, s = math.cos(math.radians(-eyaw)), math.sin(math.radians(-eyaw))
+    ux, uy = X - bx, Y - by
+    z = world.terrain.sample(c * ux - s * uy + tx, s * ux + c * uy + ty).astype(np.float32) + 0.4
+    r = np.hypot(ux, uy)
+    z[(r > 4.5) | (r < 1.0) | (rng.uniform(size=z.shape) < 0.3)] = np.nan
+    return z, geom, (bx, by)
+
+
+@pytest.mark.parametrize("case", [(2.0, 1.0, 0.4, -0.3, 3.0), (-5.0, 4.0, -0.5, -0.2, -4.0),
+                                  (6.0, -3.0, 0.2, 0.5, 2.0)])
+def test_the_map_matcher_recovers_a_known_offset_on_the_hirise_dtm(hirise, case) -> None:
+    """A HiRISE-based DEM patch placed 0.3-0.6 m and 2-4 deg off is put back on the orbital DTM
+    (1.01 m cells) to about a tenth of a cell and a degree, and the sigma it claims covers that."""
+    world, dem, geom = hirise
+    tx, ty, ex, ey, eyaw = case
+    z, lg, pivot = _patch(world, (tx, ty, 0.0), (ex, ey, eyaw), np.random.default_rng(1))
+    m = match_dem(z, lg, dem, geom, pivot)
+    assert m.ok, m.reason
+    err = math.hypot(m.dx + ex, m.dy + ey)
+    assert err < 0.15, m
+    assert abs(m.dyaw + eyaw) < 1.5, m
+    assert err < 3.0 * m.sigma_xy + 0.05
+    assert m.rms < m.rms_before
+    assert m.seconds < 5.0
+
+
+def test_the_map_matcher_declines_flat_ground() -> None:
+    """On a plane the heights cannot say where the patch lies: ok is false, the caller keeps its pose."""
+    g = GridGeometry(1.0, -15.0, 15.0, 30, 30)
+    flat = np.zeros(g.shape, np.float32)
+    lg = GridGeometry.covering(-4.6, -4.6, 4.6, 4.6, 0.05)
+    local = np.full(lg.shape, 0.2, np.float32)
+    m = match_dem(local, lg, flat, g, (0.0, 0.0))
+    assert not m.ok and m.reason
+
+
+def test_transform_layers_moves_a_dem_by_the_match() -> None:
+    g = GridGeometry(0.1, -2.0, 2.0, 40, 40)
+    dem = np.full(g.shape, np.nan, np.float32)
+    hz = np.zeros(g.shape, np.uint8)
+    row, col = g.cell_of(np.array([0.55]), np.array([0.25]))
+    dem[row, col], hz[row, col] = 1.0, 255
+    out = transform_layers(Layers(g, {"dem": dem, "hazard": hz}), (0.0, 0.0), 0.2, -0.1, 90.0)
+    r2, c2 = g.cell_of(np.array([-0.25 + 0.2]), np.array([0.55 - 0.1]))  # (0.55, 0.25) turned 90 deg, moved
+    assert out["dem"][r2, c2] == pytest.approx(1.0) and out["hazard"][r2, c2] == 255
+    assert np.isfinite(out["dem"]).sum() == 1
+    assert (out["hazard"] == 128).any()  # moved in from outside: undefined
+
+
+# ------------------------------------------------------------------ global maps in a projected CRS
+
+
+def _utm_dem(tmp_path: Path, origin: tuple[float, float]) -> tuple[Path, np.ndarray, GridGeometry]:
+    """A DEM in UTM zone 33N coordinates: a 1 m grid whose local (0, 0) is ``origin``, with a
+    ridge east of the origin steep enough to be a hazard."""
+    local = GridGeometry(1.0, -20.0, 20.0, 40, 40)
+    xs, ys = local.centers()
+    X, _ = np.meshgrid(xs, ys)
+    dem = np.where(X > 8.0, (X - 8.0) * 1.0, 0.0).astype(np.float32)  # 45 deg beyond x = 8 m
+    utm = GridGeometry(1.0, origin[0] - 20.0, origin[1] + 20.0, 40, 40, crs="EPSG:32633")
+    return write_geotiff(tmp_path / "utm_dem.tif", dem, utm), dem, local
+
+
+def test_a_global_dem_in_utm_is_moved_to_the_rover_frame_by_its_origin(tmp_path: Path) -> None:
+    origin = (412345.0, 4567890.0)
+    path, dem, local = _utm_dem(tmp_path, origin)
+    g = load_global(path, origin)
+    assert g.geometry == local and g.geometry.crs is None
+    assert g.dem is not None and np.allclose(g.dem, dem)
+    xs, _ = local.centers()
+    assert (g.hazard[5:-5, xs < 6.0][:, 2:] == 0).all()  # flat: safe
+    assert (g.hazard[5:-5, xs > 10.0][:, :-2] == 255).all()  # 45 deg: too steep, through Dem2Hazard
+    assert np.nanmax(g.slope) == pytest.approx(45.0, abs=2.0)
+    # a geographic CRS cannot be offset by metres
+    geo = write_geotiff(tmp_path / "geo.tif", dem, GridGeometry(0.001, 10.0, 45.0, 40, 40, crs="EPSG:4326"))
+    with pytest.raises(ValueError, match="degrees"):
+        load_global(geo, origin)
+    # a hazard map is taken as it is
+    hz = write_geotiff(tmp_path / "hz.tif", g.hazard, GridGeometry(1.0, origin[0] - 20.0, origin[1] + 20.0, 40, 40,
+                                                                  crs="EPSG:32633"), nodata=128)
+    h = load_global(hz, origin)
+    assert h.dem is None and np.array_equal(h.hazard, g.hazard)
+
+
+def test_rvs_path_planner_plans_around_the_hazard_of_a_global_utm_dem(tmp_path: Path) -> None:
+    from prox_workflows.cli.path_planner import main
+
+    origin = (412345.0, 4567890.0)
+    path, _, _ = _utm_dem(tmp_path, origin)
+    g = GridGeometry(0.1, -1.0, 1.0, 20, 20)  # a small local map around the start
+    write_geotiff(tmp_path / "h.tif", np.zeros(g.shape, np.uint8), g, nodata=128)
+    write_geotiff(tmp_path / "s.tif", np.zeros(g.shape, np.float32), g)
+    out = tmp_path / "out" / "p"
+    rc = main(["--hazard", str(tmp_path / "h.tif"), "--slope", str(tmp_path / "s.tif"), "--start", "0,0",
+               "--goal", "6,0", "--global", str(path), "--global-origin", f"{origin[0]},{origin[1]}",
+               "-o", str(out)])
+    assert rc == 0
+    hz, geom = read_geotiff(out.with_name("p_global_hazard.tif"))
+    assert geom.crs is None and geom.xmin == pytest.approx(-20.0) and (hz == 255).any()
+    # the goal beyond the ridge's foot is in the hazard: no path
+    assert main(["--hazard", str(tmp_path / "h.tif"), "--slope", str(tmp_path / "s.tif"), "--start", "0,0",
+                 "--goal", "14,0", "--global", str(path), "--global-origin", f"{origin[0]},{origin[1]}",
+                 "-o", str(out)]) == 1
+    assert main(["--hazard", str(tmp_path / "h.tif"), "--slope", str(tmp_path / "s.tif"), "--start", "0,0",
+                 "--goal", "6,0", "--global", str(tmp_path / "missing.tif"), "-o", str(out)]) == 2
+
+
+# ------------------------------------------------------------------ through the socket
+
+
+def test_status_reports_the_pose_source_and_sigma_and_navigate_takes_global(server_factory, tmp_path: Path) -> None:
+    srv = server_factory(["server.scene=office"])
+    c = srv.client()
+    st = c.request("status")
+    assert st.fields["pose_source"] == "start" and float(st.fields["pose_sigma"]) == 0.0
+    c.request("pose -x 1 -y 2 -heading 30")
+    st = c.request("status")
+    assert st.fields["pose_source"] == "gnc"
+    # -global FILE is read before anything moves: a file in degrees is E_DATA at once
+    geo = write_geotiff(tmp_path / "geo.tif", np.zeros((10, 10), np.float32),
+                        GridGeometry(0.001, 10.0, 45.0, 10, 10, crs="EPSG:4326"))
+    r = c.request(f"navigate -goal 2,2 -auto -global {geo} -localise map")
+    assert r.status == "ERROR" and "degrees" in r.fields["message"], r
+    h = c.request("help navigate").fields
+    assert "[-global text]" in h["usage"] and "opt_global" in h and "-localise none|vo|map|both" in h["usage"]
+    r = c.request("navigate -goal 2,2 -auto -localise sideways")
+    assert r.status == "ERROR" and r.fields["code"] == "E_ARG"
+    c.close()
+
+
+def _mission(server_factory, tmp_path: Path, mode: str, seed: int) -> dict[str, float]:
+    """A seeded quarry mission with slip, the orbital DEM given as a UTM GeoTIFF with its origin."""
+    from test_navigate import pick_start_goal
+
+    from tools.bench.localise import ORIGIN, orbital_geotiff
+
+    srv = server_factory(["server.scene=quarry"])
+    world = srv.app.world
+    world.set_target_visible(False)
+    start, goal = pick_start_goal(world, "quarry", seed)
+    orbit = orbital_geotiff(world, tmp_path / f"orbit_{mode}.tif")
+    c = srv.client(timeout=1800)
+    assert c.request(f"sim slip -distance 0.05 -heading 2 -seed {seed}").status == "OK"
+    heading = math.degrees(math.atan2(goal[1] - start[1], goal[0] - start[0]))
+    c.send(f"navigate -start {start[0]:.3f},{start[1]:.3f},{heading:.1f} -goal {goal[0]:.3f},{goal[1]:.3f} "
+           f"-auto -localise {mode} -global {orbit} -global-origin {ORIGIN[0]},{ORIGIN[1]} -name {mode}{seed}")
+    lines = c.until_final(timeout=1800)
+    final = lines[-1]
+    assert final.status == "OK", final.fields
+    waiting = [r for r in lines if r.status == "EVENT" and r.fields.get("kind") == "waiting"]
+    assert waiting and all("pose_source" in r.fields and "pose_sigma" in r.fields for r in waiting)
+    t = c.request("sim truth").fields
+    st = c.request("status").fields
+    c.close()
+    px, py, _ = (float(v) for v in st["pose"].split(","))
+    tx, ty = float(t["x"]), float(t["y"])
+    return {"pose_error": math.hypot(px - tx, py - ty), "goal": math.hypot(goal[0] - tx, goal[1] - ty),
+            "source": st["pose_source"], "sigma": float(st["pose_sigma"])}
+
+
+@long_test
+@pytest.mark.parametrize("seed", [1])
+def test_map_matching_brings_a_slipping_rover_to_the_goal_where_dead_reckoning_does_not(
+        server_factory, tmp_path: Path, seed: int) -> None:
+    """Slip 5 % and 2 deg/m, no GNC pose, a quarry mission of 3.5-5 m: on dead reckoning alone
+    the rover believes it arrived and is truly farther than the 0.3 m tolerance; with map
+    matching on the orbital DEM (-global, a UTM GeoTIFF with its origin) it truly is within the
+    tolerance, its pose error at least 5x smaller, and the pose says map with a sigma that
+    covers the error. (tools.bench.localise runs more seeds and the vo and both modes.)"""
+    dr = _mission(server_factory, tmp_path, "none", seed)
+    mm = _mission(server_factory, tmp_path, "map", seed)
+    assert dr["source"] == "odometry" and dr["goal"] > 0.3, dr
+    assert mm["goal"] <= 0.3, mm
+    assert mm["pose_error"] * 5.0 < dr["pose_error"], (mm, dr)
+    assert mm["source"] == "map" and mm["pose_error"] < 3.0 * mm["sigma"] + 0.05, mm
+
+
+def test_overlay_layers_lays_a_leg_over_the_earlier_legs_maps() -> None:
+    from prox_workflows.steps.map_match import overlay_layers
+
+    gb = GridGeometry(0.1, 0.0, 1.0, 10, 10)
+    gt = GridGeometry(0.1, 0.5, 1.5, 10, 10)  # overlaps the base's east half, extends east and north
+    base = Layers(gb, {"dem": np.ones(gb.shape, np.float32), "hazard": np.zeros(gb.shape, np.uint8)})
+    top_dem = np.full(gt.shape, 2.0, np.float32)
+    top_dem[:, :2] = np.nan  # the leg did not see its west edge: the base shows through
+    top = Layers(gt, {"dem": top_dem, "hazard": np.full(gt.shape, 255, np.uint8)})
+    out = overlay_layers(base, top)
+    g = out.geometry
+    assert g.bounds == pytest.approx((0.0, 0.0, 1.5, 1.5))
+    def at(name: str, x: float, y: float) -> float:
+        r, c = g.cell_of(np.array([x]), np.array([y]))
+        return float(out[name][r, c][0])
+    assert at("dem", 0.25, 0.25) == 1.0 and at("hazard", 0.25, 0.25) == 0  # base only
+    assert at("dem", 0.55, 0.75) == 1.0  # the top's undefined edge: base
+    assert at("dem", 0.85, 0.75) == 2.0 and at("hazard", 0.85, 0.75) == 255  # the leg wins
+    assert math.isnan(at("dem", 0.25, 1.25)) and at("hazard", 0.25, 1.25) == 128  # neither
+
+
+# ------------------------------------------------------------------ the localiser, without a scan
+
+
+class _App:
+    """What Localiser touches of the App: the maps, the pose, the world, the event fan-out."""
+
+    def __init__(self, pose) -> None:
+        from rvs_server.maps import CurrentMaps
+
+        self.maps = CurrentMaps()
+        self.pose = pose
+        self.world = None
+        self.events: list = []
+
+    def set_pose(self, x, y, heading, *, stopped=False, source="gnc", sigma=0.0, sigma_heading=0.0) -> None:
+        from rvs_server.app import Pose
+
+        self.pose = Pose(x, y, heading, source=source, sigma=sigma, sigma_heading=sigma_heading)
+
+    def broadcast_threadsafe(self, reply) -> None:
+        self.events.append(reply)
+
+
+class _Job:
+    id = 7
+
+    def __init__(self, app: _App) -> None:
+        self.app = app
+
+    def progress(self, *a, **kw) -> None:
+        pass
+
+
+@pytest.mark.parametrize("mode", ["vo", "map", "both"])
+def test_the_localiser_corrects_a_drifted_pose_and_moves_the_legs_maps(hirise, mode: str) -> None:
+    """A leg's DEM made at a pose 0.35 m and 3 deg off the truth after a drive: the localiser
+    (vo on the earlier leg's DEM, map on the orbital DTM) moves the pose back to within 0.12 m
+    and 1.5 deg, says who and how sure, moves the maps with it and tells every connection."""
+    import json
+
+    from jsonschema import Draft202012Validator
+
+    from prox_workflows.steps.global_map import GlobalMap
+    from rvs_server.app import Pose
+    from rvs_server.localisation import Localiser
+    from rvs_server.protocol import format_reply_json
+
+    world, dem, geom = hirise
+    rng = np.random.default_rng(3)
+    root = Path(__file__).resolve().parents[1]
+    schema = Draft202012Validator(json.loads((root / "docs" / "replies.schema.json").read_text()))
+    ref = GlobalMap(np.zeros(geom.shape, np.uint8), np.zeros(geom.shape, np.float32), geom, dem)
+    app = _App(Pose(0.0, 0.0, 0.0, source="navigate"))
+    loc = Localiser(mode, ref)
+    job = _Job(app)
+    # leg 1 at the start (exact): the earlier maps
+    z0, g0, _ = _patch(world, (4.0, 2.0, 0.0), (0.0, 0.0, 0.0), rng)
+    app.set_pose(4.0, 2.0, 0.0, source="navigate")
+    app.maps.replace(Layers(g0, {"dem": z0, "hazard": np.zeros(g0.shape, np.uint8)}), "leg1", {})
+    loc.after_scan(job, 1)
+    assert (app.pose.x, app.pose.y) == (4.0, 2.0)  # sigma 0: a given pose is not moved
+    # a 1.5 m drive with slip: the believed pose is off; the new DEM is placed with it
+    true = (5.2, 2.9, 0.0)
+    err = (0.25, -0.25, 3.0)
+    app.set_pose(true[0] + err[0], true[1] + err[1], true[2] + err[2], source="odometry")
+    loc.after_drive(job, np.array([[4.0, 2.0], [true[0] + err[0], true[1] + err[1]]]))
+    assert app.pose.sigma > 0.1 and app.pose.source == "odometry"
+    z1, g1, _ = _patch(world, true, err, rng)
+    app.maps.replace(Layers(g1, {"dem": z1, "hazard": np.zeros(g1.shape, np.uint8)}), "leg2", {})
+    loc.after_scan(job, 2)
+    p = app.pose
+    assert p.source == ("vo" if mode == "vo" else "map")
+    assert math.hypot(p.x - true[0], p.y - true[1]) < 0.12, (p, loc.fixes)
+    assert abs(p.heading - true[2]) < 1.5
+    assert 0.0 < p.sigma < 0.2 and loc.grown == 0.0
+    merged = app.maps.layers
+    assert merged.geometry.xmin <= g0.xmin and merged.geometry.xmax >= g1.xmax  # both legs' ground
+    events = [e for e in app.events if e.fields["kind"] == "localised"]
+    assert events and all(schema.is_valid(json.loads(format_reply_json(e))) for e in events)
+    assert any(e.fields["found"] for e in events)

@@ -1,0 +1,160 @@
+"""Pose error at the end of seeded slipping missions: dead reckoning, VO, map matching, both.
+
+Each mission is a real server (the tests' in-process ServerThread, simulated time at scale 0)
+with wheel slip 5 % and heading drift 2 deg/m (``sim slip``) and no GNC pose (``navigate
+-auto``), from a start to a goal 3.5-5 m away, both clear of true hazards (the seeded pick of
+tests/test_navigate.py). The global map is the scene's true DEM sampled at 0.5 m (what an
+orbiter's DTM would show), written as a GeoTIFF in UTM zone 33N coordinates and given to
+navigate with ``-global FILE -global-origin E,N``. For every mission and ``-localise`` mode it
+prints the end pose error (believed vs true) and the true distance to the goal; then a table,
+with the matcher's median time per match.
+
+    python -m tools.bench.localise [--scene quarry] [--seeds 1 2 3] [--modes none vo map both]
+    python -m tools.bench.localise --matcher 20   (only the matcher on HiRISE: error and time per match)
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import statistics
+import sys
+import tempfile
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[2]
+ORIGIN = (500000.0, 4000000.0)  # the rover frame's origin in the map's UTM coordinates
+
+
+def orbital_geotiff(world: Any, path: Path, origin: tuple[float, float] = ORIGIN, cell: float = 0.5) -> Path:
+    """The world's true DEM at ``cell`` metres as a UTM GeoTIFF whose (E, N) = ``origin`` is the
+    rover frame's (0, 0)."""
+    from prox_workflows.grid import GridGeometry, write_geotiff
+
+    g = GridGeometry.covering(*world.terrain.bounds, cell)
+    dem = world.true_dem(cell, g.bounds, include_target=False).astype(np.float32)
+    utm = GridGeometry(cell, g.xmin + origin[0], g.ymax + origin[1], g.width, g.height, crs="EPSG:32633")
+    return Path(write_geotiff(path, dem, utm))
+
+
+def run_mission(srv: Any, start: tuple[float, float], goal: tuple[float, float], mode: str, seed: int,
+                global_file: Path, tolerance: float = 0.3) -> dict[str, Any]:
+    """One navigate -auto mission with slip; the end pose, the truth and the fixes."""
+    c = srv.client(timeout=1800)
+    try:
+        r = c.request(f"sim slip -distance 0.05 -heading 2 -seed {seed}")
+        assert r.status == "OK", r
+        heading = math.degrees(math.atan2(goal[1] - start[1], goal[0] - start[0]))
+        t0 = time.perf_counter()
+        c.send(f"navigate -start {start[0]:.3f},{start[1]:.3f},{heading:.1f} -goal {goal[0]:.3f},{goal[1]:.3f} "
+               f"-auto -localise {mode} -tolerance {tolerance} -global {global_file} "
+               f"-global-origin {ORIGIN[0]},{ORIGIN[1]} -name m{seed}_{mode}")
+        lines = c.until_final(timeout=1800)
+        wall = time.perf_counter() - t0
+        final = lines[-1]
+        fixes = [r for r in lines if r.status == "EVENT" and r.fields.get("kind") == "localised"]
+        truth = c.request("sim truth").fields
+        status = c.request("status").fields
+    finally:
+        c.close()
+    px, py, ph = (float(v) for v in status["pose"].split(","))
+    tx, ty, th = float(truth["x"]), float(truth["y"]), float(truth["heading"])
+    return {"mode": mode, "seed": seed, "ok": final.status == "OK", "message": final.fields.get("message", ""),
+            "legs": final.fields.get("legs", "-"), "pose_error": math.hypot(px - tx, py - ty),
+            "heading_error": (ph - th + 180.0) % 360.0 - 180.0, "goal_true": math.hypot(goal[0] - tx, goal[1] - ty),
+            "source": status.get("pose_source"), "sigma": float(status.get("pose_sigma", "nan")), "wall": wall,
+            "match_ms": {m: [float(r.fields["match_ms"]) for r in fixes if r.fields.get("method") == m]
+                         for m in ("vo", "map")},
+            "fixes": len(fixes), "taken": sum(r.fields.get("found") == "true" for r in fixes)}
+
+
+def matcher_timing(trials: int, seed: int = 0) -> None:
+    """The map matcher alone: ``trials`` 360-degree DEM patches of the hirise scene (2 cm
+    heights with rocks and roughness, the ToF's 1-4.5 m ring, 30 % holes) placed up to 0.6 m and
+    5 deg off, matched on the orbital HiRISE DTM (1.01 m cells): error and time per match."""
+    sys.path.insert(0, str(ROOT / "tests"))
+    from test_localise import _patch
+
+    from drivers.sim.scene import load_scene_spec
+    from drivers.sim.terrain import dtm_crop
+    from drivers.sim.world import World
+    from prox_workflows.grid import GridGeometry
+    from prox_workflows.steps.map_match import match_dem
+
+    world = World.from_scene("hirise", clock_scale=0.0)
+    spec = load_scene_spec("hirise")
+    prim = next(p for p in spec["terrain"]["primitives"] if p["type"] == "dtm")
+    z, x_nw, y_nw, cell = dtm_crop(prim, Path(spec["_dir"]))
+    dem = (float(prim.get("scale", 1.0)) * z - world.z_shift).astype(np.float32)
+    geom = GridGeometry(cell, x_nw - cell / 2.0, y_nw + cell / 2.0, z.shape[1], z.shape[0])
+    rng = np.random.default_rng(seed)
+    errs, yaws, times, ok = [], [], [], 0
+    for _ in range(trials):
+        tx, ty = rng.uniform(-8.0, 8.0, 2)
+        e = (float(rng.uniform(-0.6, 0.6)), float(rng.uniform(-0.6, 0.6)), float(rng.uniform(-5.0, 5.0)))
+        local, lg, pivot = _patch(world, (float(tx), float(ty), 0.0), e, rng)
+        m = match_dem(local, lg, dem, geom, pivot)
+        ok += m.ok
+        errs.append(math.hypot(m.dx + e[0], m.dy + e[1]))
+        yaws.append(abs(m.dyaw + e[2]))
+        times.append(m.seconds * 1000.0)
+    q = np.percentile
+    print(f"matcher on HiRISE (1.01 m cells), {trials} patches 0-0.85 m / 0-5 deg off: ok {ok}/{trials}; position "
+          f"error median {q(errs, 50):.3f} m, p90 {q(errs, 90):.3f} m; yaw error median {q(yaws, 50):.2f} deg, "
+          f"p90 {q(yaws, 90):.2f} deg; time per match median {q(times, 50):.0f} ms, p90 {q(times, 90):.0f} ms")
+
+
+def main(argv: list[str] | None = None) -> int:
+    sys.path.insert(0, str(ROOT / "tests"))
+    from conftest import ServerThread  # the tests' real server in a thread
+    from test_navigate import pick_start_goal
+
+    ap = argparse.ArgumentParser(prog="python -m tools.bench.localise", description=__doc__.splitlines()[0])
+    ap.add_argument("--scene", default="quarry", choices=("quarry", "marsyard"))
+    ap.add_argument("--seeds", type=int, nargs="+", default=[1, 2, 3])
+    ap.add_argument("--modes", nargs="+", default=["none", "vo", "map", "both"])
+    ap.add_argument("--tolerance", type=float, default=0.3)
+    ap.add_argument("--matcher", type=int, default=0, metavar="N", help="only time the matcher on N HiRISE patches")
+    args = ap.parse_args(argv)
+    if args.matcher:
+        matcher_timing(args.matcher)
+        return 0
+    rows = []
+    with tempfile.TemporaryDirectory() as tmp:
+        for seed in args.seeds:
+            for mode in args.modes:
+                srv = ServerThread(Path(tmp) / f"d{seed}{mode}", [f"server.scene={args.scene}"]).start()
+                try:
+                    world = srv.app.world
+                    world.set_target_visible(False)
+                    start, goal = pick_start_goal(world, args.scene, seed)
+                    orbit = orbital_geotiff(world, Path(tmp) / f"orbit{seed}{mode}.tif")
+                    row = run_mission(srv, start, goal, mode, seed, orbit, args.tolerance)
+                finally:
+                    srv.stop()
+                rows.append(row)
+                print(f"seed {seed} {mode:>4}: {'OK ' if row['ok'] else 'ERR'} legs {row['legs']} pose error "
+                      f"{row['pose_error']:.3f} m ({row['heading_error']:+.2f} deg), true distance to goal "
+                      f"{row['goal_true']:.3f} m, source {row['source']} sigma {row['sigma']:.3f}, fixes "
+                      f"{row['taken']}/{row['fixes']}, {row['wall']:.0f} s wall {row['message']}", flush=True)
+    print()
+    print(f"{args.scene}, slip 5 % / 2 deg per m, no GNC pose, tolerance {args.tolerance} m, seeds {args.seeds}")
+    print(f"{'localise':>9} {'pose err mean':>14} {'max':>7} {'goal dist mean':>15} {'max':>7} "
+          f"{'within tol':>10} {'vo ms':>7} {'map ms':>7}")
+    for mode in args.modes:
+        rs = [r for r in rows if r["mode"] == mode]
+        within = sum(r["ok"] and r["goal_true"] <= args.tolerance for r in rs)
+        med = {m: [x for r in rs for x in r["match_ms"][m]] for m in ("vo", "map")}
+        print(f"{mode:>9} {statistics.mean(r['pose_error'] for r in rs):>14.3f} "
+              f"{max(r['pose_error'] for r in rs):>7.3f} {statistics.mean(r['goal_true'] for r in rs):>15.3f} "
+              f"{max(r['goal_true'] for r in rs):>7.3f} {within:>7}/{len(rs):<2} "
+              + " ".join(f"{statistics.median(v):>7.0f}" if v else f"{'-':>7}" for v in med.values()))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
