@@ -53,37 +53,37 @@ class DemParams(Settings):
     # ``python -m tools.bench.fusion --calibrate``, which prints these values and predicted vs
     # measured error per range band; a real head would be calibrated the same way on a surveyed site
     tof_noise_floor: float = param(0.0, "ToF height noise: floor", unit="m", min=0.0, max=1.0, option=False)
-    tof_noise_shot: float = param(3.587, "ToF height noise: phase noise x amplitude (falls with the amplitude)",
+    tof_noise_shot: float = param(3.491, "ToF height noise: phase noise x amplitude (falls with the amplitude)",
                                   unit="m*counts", min=0.0, max=1000.0, option=False)
     tof_noise_range: float = param(0.0, "ToF height noise: per metre of range", unit="m/m", min=0.0, max=1.0,
                                    option=False)
-    tof_noise_incidence: float = param(0.0002814, "ToF height noise: per metre of range x tan(incidence)",
+    tof_noise_incidence: float = param(0.0002658, "ToF height noise: per metre of range x tan(incidence)",
                                        unit="m/m", min=0.0, max=1.0, option=False)
-    tof_noise_edge: float = param(0.5349, "ToF height noise: share of the height jump to the pixel's neighbours "
+    tof_noise_edge: float = param(0.5697, "ToF height noise: share of the height jump to the pixel's neighbours "
                                   "(mixed pixels on depth edges)", min=0.0, max=10.0, option=False)
-    tof_noise_slope: float = param(0.0008899, "ToF height noise: per unit of the ground's slope at the pixel "
+    tof_noise_slope: float = param(0.0005963, "ToF height noise: per unit of the ground's slope at the pixel "
                                    "(the cell's sampling of steep ground)", unit="m", min=0.0, max=1.0, option=False)
-    tof_noise_multipath: float = param(0.01079, "ToF height noise: per metre of range x share of wall pixels nearby "
+    tof_noise_multipath: float = param(0.01068, "ToF height noise: per metre of range x share of wall pixels nearby "
                                        "(multipath)", unit="m/m", min=0.0, max=1.0, option=False)
-    tof_cell_correlation: float = param(0.2, "correlation of the ToF points' errors within a cell (the cell's "
+    tof_cell_correlation: float = param(0.7, "correlation of the ToF points' errors within a cell (the cell's "
                                         "variance is the points' / N x (1 + rho (N - 1)))", min=0.0, max=1.0,
                                         option=False)
     stereo_noise_floor: float = param(0.0, "stereo height noise: floor", unit="m", min=0.0, max=1.0, option=False)
-    stereo_noise_disparity: float = param(0.1328, "stereo height noise: disparity sigma (depth error z^2 "
+    stereo_noise_disparity: float = param(0.1325, "stereo height noise: disparity sigma (depth error z^2 "
                                           "sigma / (b f))", unit="px", min=0.0, max=100.0, option=False)
-    stereo_noise_texture: float = param(0.1458, "stereo height noise: disparity sigma x grey-level spread (grows "
+    stereo_noise_texture: float = param(0.1459, "stereo height noise: disparity sigma x grey-level spread (grows "
                                         "where texture is weak)", unit="px*grey", min=0.0, max=1000.0, option=False)
-    stereo_noise_incidence: float = param(5.506e-05, "stereo height noise: per metre of range x tan(incidence)",
+    stereo_noise_incidence: float = param(6.44e-05, "stereo height noise: per metre of range x tan(incidence)",
                                           unit="m/m", min=0.0, max=1.0, option=False)
-    stereo_noise_edge: float = param(0.3711, "stereo height noise: share of the height jump to the pixel's "
+    stereo_noise_edge: float = param(0.3701, "stereo height noise: share of the height jump to the pixel's "
                                      "neighbours (occlusion edges)", min=0.0, max=10.0, option=False)
-    stereo_noise_slope: float = param(0.002324, "stereo height noise: per unit of the ground's slope at the pixel",
+    stereo_noise_slope: float = param(0.002339, "stereo height noise: per unit of the ground's slope at the pixel",
                                       unit="m", min=0.0, max=1.0, option=False)
-    stereo_noise_multipath: float = param(0.02817, "stereo height noise: per metre of range x share of wall "
+    stereo_noise_multipath: float = param(0.02819, "stereo height noise: per metre of range x share of wall "
                                           "pixels nearby", unit="m/m", min=0.0, max=1.0, option=False)
     stereo_cell_correlation: float = param(1.0, "correlation of the stereo points' errors within a cell (see "
                                            "tof_cell_correlation)", min=0.0, max=1.0, option=False)
-    fuse_gate: float = param(2.5, "ToF-stereo fusion: Mahalanobis gate between the two sensors' cell heights; "
+    fuse_gate: float = param(2.0, "ToF-stereo fusion: Mahalanobis gate between the two sensors' cell heights; "
                              "past it the one the neighbouring cells support wins (chosen by the same "
                              "calibration)", min=0.0, max=1000.0, option=False)
 

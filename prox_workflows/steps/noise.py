@@ -25,7 +25,10 @@ The DEM jobs weigh points by the calibrated per-point models further down
 cause, read from the point's own image (:func:`pixel_features`), each with one coefficient
 fitted to the simulator's truth by ``python -m tools.bench.fusion --calibrate`` and declared as
 a parameter. The a-priori model above over-predicted the ToF's error near and under-predicted it
-far (the fused DEM leaned on the wrong sensor), which is why the weights are now measured.
+far (the fused DEM leaned on the wrong sensor), which is why the weights are now measured. The
+edge term reads the height jump to the neighbours only up to :data:`JUMP_CAP` (a taller jump is the
+edge's height, not the point's error), and the within-cell correlation that turns the points'
+variances into the cell's is fitted on cells grouped by their number of points.
 """
 
 from __future__ import annotations
@@ -113,6 +116,12 @@ def stereo_height_variance(
 
 # -- per-pixel features of a view: what a point's neighbours in its own image say about it ------------
 SLOPE_CAP = 5.0  # rise over run: steeper is a depth edge, which ``jump`` measures
+# a larger height jump to a neighbour is the depth edge's height, not the point's error: a pixel on the
+# floor beside a rock sees the rock's top as its neighbour, and a mixed pixel's error stays of the order
+# of a centimetre however tall the edge (tools/bench/fusion.py --calibrate prints the points' measured
+# error per band of jump against the model's: uncapped, the edge term predicted a ToF point beside a
+# 10 cm step 4x worse than it is, and the fusion leaned on the stereo pair there)
+JUMP_CAP = 0.02  # m
 
 
 def coord_image(points: np.ndarray, pixels: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
@@ -132,7 +141,8 @@ def pixel_features(coords: np.ndarray, sensor: np.ndarray, image: np.ndarray | N
               (largest of the four, at most :data:`SLOPE_CAP`): the height a cell's sampling
               misses on steep ground, free of the sensor's pixel spacing (a coarse ToF pixel
               jumps more on the same slope than a fine stereo pixel);
-    ``jump``  the largest height difference (m) to a defined 4-neighbour: on a depth edge
+    ``jump``  the largest height difference (m) to a defined 4-neighbour, at most
+              :data:`JUMP_CAP`: on a depth edge
               (a rock's rim, a flying pixel between fore- and background) a point's height
               depends on where the edge falls, and a ToF pixel there mixes both; on smooth
               ground it is the sensor's own noise showing (a far ToF pixel differs from its
@@ -162,7 +172,7 @@ def pixel_features(coords: np.ndarray, sensor: np.ndarray, image: np.ndarray | N
         with np.errstate(invalid="ignore", divide="ignore"):
             s = d / np.maximum(np.hypot(c[..., 0] - nb[..., 0], c[..., 1] - nb[..., 1]), 1e-3)
         slope = np.fmax(slope, np.where(np.isfinite(s), np.minimum(s, SLOPE_CAP), 0.0))
-        jump = np.fmax(jump, np.where(np.isfinite(d), d, 0.0))
+        jump = np.fmax(jump, np.where(np.isfinite(d), np.minimum(d, JUMP_CAP), 0.0))
     gu = np.gradient(c, axis=1)
     gv = np.gradient(c, axis=0)
     n = np.cross(gu, gv)

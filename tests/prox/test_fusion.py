@@ -15,6 +15,7 @@ from prox_workflows.steps.acquire import View
 from prox_workflows.steps.dem_chain import mosaic, view_dem
 from prox_workflows.steps.dem_mosaik import fuse_sensors
 from prox_workflows.steps.noise import (
+    JUMP_CAP,
     STEREO_TERMS,
     TOF_TERMS,
     model_sigmas,
@@ -76,7 +77,7 @@ def test_pixel_features_see_edges_walls_and_texture() -> None:
     image = np.zeros((h, w))
     image[:, :10] = np.random.default_rng(0).uniform(0, 255, (h, 10))
     f = pixel_features(coords, np.array([0.0, 0.0, 1.0]), image, wall_window=5)
-    assert f["jump"][5, 19] == pytest.approx(0.3) and f["jump"][5, 5] == pytest.approx(0.0)
+    assert f["jump"][5, 19] == pytest.approx(JUMP_CAP) and f["jump"][5, 5] == pytest.approx(0.0)  # capped
     assert f["slope"][5, 19] == pytest.approx(5.0)  # capped
     assert f["wall"][10, 27] > 0.5 and f["wall"][10, 3] == 0.0
     assert f["texture"][10, 3] > 30 and f["texture"][10, 15] == pytest.approx(0.0, abs=1e-3)

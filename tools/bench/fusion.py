@@ -30,6 +30,7 @@ RANGE = "-60,60,-50,-20"
 CELL = 0.02
 BANDS = (0.0, 1.0, 2.0, 3.0, 4.0, 5.0, 6.0)
 GATES = (2.0, 2.5, 3.0, 4.0)  # Mahalanobis gates the calibration compares
+COUNT_CLASSES = ((1, 2), (2, 3), (3, 5), (5, 10), (10, 1 << 30))  # points per cell, for the cell correlation
 
 
 def scan_scene(scene: str, folder: Path, view_range: str = RANGE) -> Path:
@@ -277,7 +278,7 @@ def calibrate(scans: dict[str, dict[str, Any]]) -> dict[str, float]:
     from dataclasses import replace
 
     from prox_workflows.parameters import DemParams
-    from prox_workflows.steps.noise import STEREO_TERMS, TOF_TERMS
+    from prox_workflows.steps.noise import JUMP_CAP, STEREO_TERMS, TOF_TERMS
 
     fitted: dict[str, float] = {}
     cellsets = {scene: evaluation_cells(scan) for scene, scan in scans.items()}
@@ -293,6 +294,12 @@ def calibrate(scans: dict[str, dict[str, Any]]) -> dict[str, float]:
         pred = np.sqrt(basis @ coef)
         print(f"   {kind}: {len(err)} points, {100 * (1 - keep.mean()):.1f} % beyond 3 sigma; "
               + ", ".join(f"{t} {fitted[f'{kind}_noise_{t}']:g}" for t in terms))
+        jump = np.sqrt(basis[:, terms.index("edge")])
+        print(f"     per band of the jump to the neighbours (capped at {JUMP_CAP * 1e3:g} mm): rms error vs predicted")
+        print("     " + ", ".join(
+            f"{lo * 1e3:g}-{hi * 1e3:g} mm {1e3 * np.sqrt(np.mean(err[s] ** 2)):.2f}/{1e3 * np.sqrt(np.mean(pred[s] ** 2)):.2f}"
+            for lo, hi in ((0.0, 0.002), (0.002, 0.005), (0.005, 0.01), (0.01, JUMP_CAP), (JUMP_CAP, 1.0))
+            if (s := (jump >= lo) & (jump < hi + (1e-9 if hi == JUMP_CAP else 0.0))).sum() >= 20))
         print(f"     {'range':>7} {'points':>8} {'rms':>7} {'rms in':>7} {'robust':>7} {'pred':>7}")
         for lo in range(0, 7):
             sel = (rng >= lo) & (rng < lo + 1)
@@ -309,34 +316,42 @@ def calibrate(scans: dict[str, dict[str, Any]]) -> dict[str, float]:
     for kind, keep_s in (("tof", {"tof"}), ("stereo", {"left"})):
         def cells_of(rho: float, kind: str = kind, keep_s: set[str] = keep_s) -> tuple[np.ndarray, ...]:
             p = replace(params, **{f"{kind}_cell_correlation": rho})
-            es, vs, ds = [], [], []
+            es, vs, ds, ns = [], [], [], []
             for scene, scan in scans.items():
                 cells, dist = cellsets[scene]
                 d = sensor_dems([v for v in modelled[scene] if v.sensor in keep_s], scan["rover_mask"], scan["ref"],
-                                p, layers=("dem", "variance"), names=(kind,))[kind]
+                                p, layers=("dem", "variance", "count"), names=(kind,))[kind]
                 sel = cells & np.isfinite(d["dem"])
                 es.append((d["dem"][sel] - scan["truth"][sel]).astype(np.float64))
                 vs.append(d["variance"][sel].astype(np.float64))
                 ds.append(dist[sel])
-            return np.concatenate(es), np.concatenate(vs), np.concatenate(ds)
+                ns.append(d["count"][sel])
+            return np.concatenate(es), np.concatenate(vs), np.concatenate(ds), np.concatenate(ns)
 
         def mismatch(rho: float) -> float:
-            """Sum over bands of log(predicted / measured inlier rms)^2."""
-            e, var, dist = cells_of(rho)
-            total = 0.0
+            """Mean over cells of log(predicted / measured inlier rms)^2 of their band and count
+            class: rho says how a cell's variance falls with its number of points, so it is fitted
+            on cells grouped by that number (over bands alone, over-predicted sparse cells hid
+            under-predicted dense ones, and the fusion trusted a dense ToF cell's mean more than it
+            deserved), and each cell counts once, as in the RMSE the goal is about."""
+            e, var, dist, count = cells_of(rho)
+            total, cells = 0.0, 0
             for lo in range(0, 7):
-                sel = (dist >= lo) & (dist < lo + 1)
-                inl = sel & (e * e <= 9 * var)
-                if inl.sum() < 20:
-                    continue
-                total += float(np.log(np.sqrt(np.mean(var[inl])) / np.sqrt(np.mean(e[inl] ** 2)))) ** 2
-            return total
+                for nlo, nhi in COUNT_CLASSES:
+                    sel = (dist >= lo) & (dist < lo + 1) & (count >= nlo) & (count < nhi)
+                    inl = sel & (e * e <= 9 * var)
+                    if inl.sum() < 20:
+                        continue
+                    ratio = np.sqrt(np.mean(var[inl])) / np.sqrt(np.mean(e[inl] ** 2))
+                    total += float(inl.sum()) * float(np.log(ratio)) ** 2
+                    cells += int(inl.sum())
+            return total / max(cells, 1)
 
         grid = np.round(np.linspace(0.0, 1.0, 11), 2)
         scores = [mismatch(float(r)) for r in grid]
         best = float(grid[int(np.argmin(scores))])
         fitted[f"{kind}_cell_correlation"] = best
-        e, var, dist = cells_of(best)
+        e, var, dist, _ = cells_of(best)
         print(f"   {kind}: cell correlation {best:g}")
         print(f"     {'band':>7} {'cells':>8} {'rms':>7} {'rms in':>7} {'robust':>7} {'pred':>7}")
         for lo in range(0, 7):
