@@ -63,7 +63,7 @@ class LoopStats:
         return {"scans": self.scans, "replans": self.replans, "stops": self.stops, "cycles": self.cycles,
                 "cycle_ms": Fixed(mean(self.cycle_ms), 1),
                 "cycle_ms_max": Fixed(max(self.cycle_ms, default=0.0), 1),
-                "replan_ms": Fixed(mean(self.replan_ms), 1)}
+                "frame_ms": Fixed(mean(self.frame_ms), 1), "replan_ms": Fixed(mean(self.replan_ms), 1)}
 
 
 @dataclass

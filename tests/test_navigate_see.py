@@ -17,8 +17,8 @@ from test_navigate import true_hazard
 
 from prox_workflows.grid import GridGeometry
 from prox_workflows.steps.dem2hazard import HazardParams, dem2hazard
-from prox_workflows.steps.rolling_map import RollingMap, RollingParams, merge_nav_maps, path_poses
 from prox_workflows.steps.planner import NavMaps
+from prox_workflows.steps.rolling_map import RollingMap, RollingParams, merge_nav_maps, path_poses
 
 STOP_DISTANCE = 0.5  # m: the hazard monitor's default stop distance
 

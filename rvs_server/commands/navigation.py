@@ -112,7 +112,8 @@ class NavigateConfig(ModuleConfig):
     loop: str = param("see", "with -auto: see drives while the forward ToF checks the next metres and replans "
                       "from what it sees (a 360-degree scan first and when that shows no way); scan stops for a "
                       "360-degree scan at every leg's end", choices=("see", "scan"))
-    see_period: float = param(0.5, "see loop: simulated time driven between two forward ToF frames", unit="s",
+    see_period: float = param(1.0, "see loop: simulated time driven between two forward ToF frames (1 s: 10 cm "
+                              "at 0.1 m/s; each simulated frame is rendered, which costs CPU)", unit="s",
                               min=0.05, max=10.0, option=False)
     see_lookahead: float = param(1.5, "see loop: the footprint is checked this far along the path ahead", unit="m",
                                  min=0.2, max=5.0, option=False)
