@@ -244,12 +244,23 @@ class SeeLoop:
     def replan(self, leg: int, global_maps: Any, goal: tuple[float, float], params: Any) -> Any:
         """A* from the rover's believed pose on the merged maps (timed: the benchmark compares it
         with D* Lite's repair); None when that shows no way to drive (then navigate scans)."""
-        from prox_workflows.steps.planner import MIN_LEG, PlanningError, plan_path
+        from prox_workflows.steps.planner import MIN_LEG, PlanningError, nearest_reachable, plan_path
 
         pose = self.app.pose
+        here = (pose.x, pose.y)
         t0 = time.monotonic()
+        merged = self.merged()
         try:
-            plan = plan_path(self.merged(), global_maps, (pose.x, pose.y), goal, params, start_heading=pose.heading)
+            try:
+                plan = plan_path(merged, global_maps, here, goal, params, start_heading=pose.heading)
+            except PlanningError as exc:
+                # as navigate's scan legs do: a goal judged unreachable from farther than
+                # judge_range is driven toward, and judged again from closer
+                far = math.hypot(goal[0] - here[0], goal[1] - here[1]) > self.cfg.judge_range
+                if exc.reason not in ("goal_in_hazard", "enclosed") or not far:
+                    raise
+                toward = nearest_reachable(merged, global_maps, here, goal, params)
+                plan = plan_path(merged, global_maps, here, toward, params, start_heading=pose.heading)
         except PlanningError as exc:
             self.job.progress(0, 1, f"replan from the rolling map: {exc.reason}; scanning 360 degrees", phase="plan",
                               leg=leg)

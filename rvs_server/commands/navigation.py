@@ -123,8 +123,9 @@ class NavigateConfig(ModuleConfig):
                                option=False)
     see_margin: float = param(0.05, "see loop: added around the rover body in the check", unit="m", min=0.0,
                               max=1.0, option=False)
-    see_max_range: float = param(4.5, "see loop: ignore ToF points farther than this", unit="m", min=0.5,
-                                 max=30.0, option=False)
+    see_max_range: float = param(3.0, "see loop: ignore ToF points farther than this (a single frame's returns "
+                                 "beyond 3 m are sparse and noisy enough to make phantom steps near the goal)",
+                                 unit="m", min=0.5, max=30.0, option=False)
     replan_ahead: float = param(1.0, "see loop: extend the path from the rolling map once the leg's end is this "
                                 "close, without stopping", unit="m", min=0.0, max=5.0, option=False)
     max_replans: int = param(100, "see loop: give up after this many plans in all", min=1, max=10000,
