@@ -28,9 +28,17 @@ def _track(srv, reply) -> np.ndarray:
         return np.array([[float(r["x"]), float(r["y"])] for r in csv.DictReader(fh)])
 
 
+# seed 0 by default; the ten seeded trials of the issue with RVS_LONG=1 (each is a scan and a 5 m drive
+# of rendered ToF frames: ~1 min of CPU). The first scan covers the forward half only: the rock
+# test needs no more, and it halves the test's views.
 @pytest.mark.parametrize("seed", [pytest.param(0), *(pytest.param(s, marks=long_only()) for s in range(1, 10))])
 def test_a_rock_added_ahead_stops_the_rover_and_it_replans_around_it(server_factory, seed: int) -> None:
-    srv = server_factory(["server.scene=marsyard"])
+    """replan_ahead 0: the leg from the scan is driven to its end unless the check stops it, so
+    the rock 3 m ahead is met by the per-cycle check (with replan_ahead the rover may already
+    route around it from the rolling map before it enters the corridor: the long variant)."""
+    ahead = 0.0 if seed % 2 == 0 else 1.0
+    srv = server_factory(["server.scene=marsyard", f"navigate.replan_ahead={ahead}",
+                          "navigate.range=-100,100,-50,-10"])
     world = srv.app.world
     world.set_target_visible(False)
     rng = np.random.default_rng(seed)
@@ -57,10 +65,11 @@ def test_a_rock_added_ahead_stops_the_rover_and_it_replans_around_it(server_fact
             break
     final = c.until_final(job=job, timeout=600)[-1]
     assert final.status == "OK" and final.fields["reached"] == "true", final.fields
-    assert stops, "no stop event for the rock in the corridor"
-    first = stops[0].fields
-    assert first["job"] == job and first["seen"] == "true"
-    assert float(first["distance"]) >= STOP_DISTANCE, first  # stopped before it was within the stop distance
+    if ahead == 0:
+        assert stops, "no stop event for the rock in the corridor"
+    for stop in stops:
+        assert stop.fields["job"] == job and stop.fields["seen"] == "true"
+        assert float(stop.fields["distance"]) >= STOP_DISTANCE, stop.fields  # before it was within the stop distance
     assert int(final.fields["replans"]) >= 1
     assert int(final.fields["scans"]) < int(final.fields["legs"]), final.fields
     truth = world.truth()
