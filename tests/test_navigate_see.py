@@ -12,7 +12,7 @@ import math
 
 import numpy as np
 import pytest
-from conftest import long_only
+from conftest import long_only, wait_for
 from test_navigate import true_hazard
 
 from prox_workflows.grid import GridGeometry
@@ -106,3 +106,25 @@ def test_rolling_map_hazard_is_incremental() -> None:
                    GridGeometry(0.05, 1.0, 0.25, 10, 10))
     merged = merge_nav_maps(base, m.nav_maps())
     assert (merged.hazard == 255).sum() >= (m.hazard == 255).sum()
+
+
+def test_break_stops_the_see_loop_within_one_cycle(server_factory) -> None:
+    """break while the rover drives and sees: the job ends E_INTERRUPTED, the rover stops, and
+    the simulated clock has moved on by at most one cycle (see_period and a frame) since."""
+    srv = server_factory(["server.scene=marsyard", "navigate.range=-100,100,-50,-10"])
+    world = srv.app.world
+    world.set_target_visible(False)
+    c, ctl = srv.client(), srv.client()
+    job = c.start_job("navigate -start -3.25,0.5,0 -goal 1.5,0.5 -auto -name brk")
+    while True:
+        r = c.reply(timeout=300)
+        if r.status == "PROGRESS" and r.fields.get("phase") == "drive":
+            break
+    assert wait_for(lambda: world.odometry()[0] > -2.9, timeout=300)  # driving
+    t_break = world.clock.now()
+    assert ctl.request("break").status == "OK"
+    final = c.until_final(job=job, timeout=120)[-1]
+    assert final.status == "ERROR" and final.fields["code"] == "E_INTERRUPTED", final.fields
+    period = srv.app.config.get("navigate").see_period
+    assert world.clock.now() - t_break <= period + 0.2
+    assert not world.driving  # the rover stands
