@@ -21,6 +21,9 @@ Why these choices
       so a changed cell changes the hazard of cells within half a window; the frame's window
       grown by that half window is recomputed from the DEM grown by another half window, which
       gives the same values as Dem2Hazard over the whole map (tested).
+    - Each frame's heights are aligned to the map's where they overlap (the median difference):
+      the frame's z comes from the rover's believed height, which jumps by centimetres from
+      stop to stop; fused unaligned, frames would meet in phantom steps at each view's edge.
     - The check sweeps the rover's footprint along the next metres of the path (poses), as
       check-move does along one motion: blocked anywhere is ``not_traversable``.
 """
@@ -53,6 +56,7 @@ class RollingParams:
     gate: float = 3.0  # DemMosaik fuse: Mahalanobis gate
     inflation: float = 0.0025  # DemMosaik fuse: prior variance added on a rejected measurement (m^2)
     min_points: int = 2  # a frame's cell with fewer points is no measurement
+    align_min_cells: int = 30  # overlap (cells) needed to align a frame's heights to the map's (0: never)
 
     def __post_init__(self) -> None:
         if not (self.size > 0 and self.cell > 0 and self.size >= 4 * self.cell):
@@ -85,6 +89,7 @@ class RollingMap:
         self.slope = np.full(shape, np.nan, np.float32)
         self.traversability = np.full(shape, np.nan, np.float32)
         self.frames = 0
+        self.last_offset = 0.0  # the last frame's height offset to the map (m)
         self._half = hazard.window_cells(params.cell) // 2 + 1  # cells a change reaches in the hazard layers
 
     def _geometry_at(self, centre: tuple[float, float]) -> GridGeometry:
@@ -139,6 +144,15 @@ class RollingMap:
         meas["dem"] = np.where(few, np.nan, meas["dem"]).astype(np.float32)
         meas["count"] = np.where(few, 0, meas["count"]).astype(np.int32)
         sl = (slice(r0, r1), slice(c0, c1))
+        self.last_offset = 0.0
+        if p.align_min_cells > 0:
+            # the frame's height datum against the map's: the rover's z comes from the scan DEM
+            # under it (a filled blind patch), a few centimetres off and different at every
+            # stop; unaligned, frames would meet in steps at the edge of each new view
+            both = np.isfinite(meas["dem"]) & np.isfinite(self.height[sl])
+            if int(both.sum()) >= p.align_min_cells:
+                self.last_offset = float(np.median(meas["dem"][both] - self.height[sl][both]))
+                meas["dem"] = (meas["dem"] - self.last_offset).astype(np.float32)
         prior = Layers(win, meta={"variance": "estimate"})
         prior["dem"] = self.height[sl].astype(np.float32)
         prior["variance"] = self.variance[sl].astype(np.float32)
