@@ -71,6 +71,7 @@ def test_a_rock_added_ahead_stops_the_rover_and_it_replans_around_it(server_fact
         assert stop.fields["job"] == job and stop.fields["seen"] == "true"
         assert float(stop.fields["distance"]) >= STOP_DISTANCE, stop.fields  # before it was within the stop distance
     assert int(final.fields["replans"]) >= 1
+    assert srv.app.jobs.last.progress_dropped == 0  # PROGRESS per leg and phase kept its contract
     assert int(final.fields["scans"]) < int(final.fields["legs"]), final.fields
     truth = world.truth()
     assert math.hypot(truth["x"] - goal[0], truth["y"] - goal[1]) <= 0.3
