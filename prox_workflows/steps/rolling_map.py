@@ -55,7 +55,7 @@ class RollingParams:
     sigma_per_m: float = 0.004  # ... growing by this much per metre of range
     gate: float = 3.0  # DemMosaik fuse: Mahalanobis gate
     inflation: float = 0.0025  # DemMosaik fuse: prior variance added on a rejected measurement (m^2)
-    min_points: int = 1  # a frame's cell with fewer points is no measurement (fusion over frames averages)
+    min_points: int = 2  # a frame's cell with fewer points is no measurement
     align_min_cells: int = 30  # overlap (cells) needed to align a frame's heights to the map's (0: never)
 
     def __post_init__(self) -> None:

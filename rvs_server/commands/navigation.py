@@ -119,8 +119,7 @@ class NavigateConfig(ModuleConfig):
                                  min=0.2, max=5.0, option=False)
     see_tilt: float = param(-35.0, "see loop: PTU tilt of the forward ToF", unit="deg", min=-90.0, max=0.0,
                             option=False)
-    see_subsample: int = param(1, "see loop: use every n-th ToF pixel in both directions (1: every pixel; beyond "
-                               "2 m every second pixel leaves 5 cm cells empty)", min=1, max=8,
+    see_subsample: int = param(2, "see loop: use every n-th ToF pixel in both directions", min=1, max=8,
                                option=False)
     see_margin: float = param(0.05, "see loop: added around the rover body in the check", unit="m", min=0.0,
                               max=1.0, option=False)
