@@ -116,7 +116,7 @@ def test_break_stops_the_see_loop_within_one_cycle(server_factory) -> None:
     world = srv.app.world
     world.set_target_visible(False)
     c, ctl = srv.client(), srv.client()
-    job = c.start_job("navigate -start -3.25,0.5,0 -goal 1.5,0.5 -auto -name brk")
+    job = c.start_job("navigate -start -3.25,0.5,0 -goal 1.5,0.5 -auto -loop see -name brk")
     while True:
         r = c.reply(timeout=300)
         if r.status == "PROGRESS" and r.fields.get("phase") == "drive":
