@@ -121,6 +121,30 @@ class NavigateConfig(ModuleConfig):
                          min=0.0, max=1.0, option=False)
     heading_drift: float = param(2.0, "dead reckoning's heading error per metre driven (1 sigma)", unit="deg/m",
                                  min=0.0, max=90.0, option=False)
+    # drive while seeing (issue 12 item 2; rvs_server/autonomy.py)
+    # scan stays the default: in the benchmark's dense hirise scene the see loop's rover body crossed
+    # true hazards the rolling map had left unseen (tools.bench.navigate; docs/PROTOCOL.md)
+    loop: str = param("scan", "with -auto: scan stops for a 360-degree scan at every leg's end; see drives while "
+                      "the forward ToF checks the next metres and replans from what it sees (a 360-degree scan "
+                      "first and when that shows no way)", choices=("see", "scan"))
+    see_period: float = param(1.0, "see loop: simulated time driven between two forward ToF frames (1 s: 10 cm "
+                              "at 0.1 m/s; each simulated frame is rendered, which costs CPU)", unit="s",
+                              min=0.05, max=10.0, option=False)
+    see_lookahead: float = param(1.5, "see loop: the footprint is checked this far along the path ahead", unit="m",
+                                 min=0.2, max=5.0, option=False)
+    see_tilt: float = param(-35.0, "see loop: PTU tilt of the forward ToF", unit="deg", min=-90.0, max=0.0,
+                            option=False)
+    see_subsample: int = param(2, "see loop: use every n-th ToF pixel in both directions", min=1, max=8,
+                               option=False)
+    see_margin: float = param(0.05, "see loop: added around the rover body in the check", unit="m", min=0.0,
+                              max=1.0, option=False)
+    see_max_range: float = param(3.0, "see loop: ignore ToF points farther than this (a single frame's returns "
+                                 "beyond 3 m are sparse and noisy enough to make phantom steps near the goal)",
+                                 unit="m", min=0.5, max=30.0, option=False)
+    replan_ahead: float = param(1.0, "see loop: extend the path from the rolling map once the leg's end is this "
+                                "close, without stopping", unit="m", min=0.0, max=5.0, option=False)
+    max_replans: int = param(100, "see loop: give up after this many plans in all", min=1, max=10000,
+                             option=False)
 
 
 # What a navigate leg puts in the plan_leg script's workspace (checked at server start).
@@ -231,6 +255,7 @@ def navigate(job: Job, cfg: NavigateConfig) -> dict[str, Any]:
         ortho_figure,
     )
 
+    from .. import autonomy
     from .dem import run_dem
 
     app = job.app
@@ -256,11 +281,26 @@ def navigate(job: Job, cfg: NavigateConfig) -> dict[str, Any]:
     track: list[tuple[float, float]] = [(app.pose.x, app.pose.y)]
     leg_starts: list[tuple[float, float]] = []
     stalled = 0  # legs in a row that started where the previous one did
-    for leg in range(1, cfg.max_legs + 1):
+    seeing = cfg.auto and cfg.loop == "see"
+    see = autonomy.start(job, cfg) if seeing else None
+    need_scan = True  # the see loop scans first, then only when the rolling map shows no way
+    scans = 0
+    for leg in range(1, (cfg.max_replans if seeing else cfg.max_legs) + 1):
         job.check()
         pose = app.pose
         if math.hypot(goal[0] - pose.x, goal[1] - pose.y) <= cfg.tolerance and not loc.wants_fix(pose):
             break
+        if see is not None and not need_scan:
+            plan = see.replan(leg, global_maps, goal, params)
+            if plan is not None:
+                all_paths.append(plan.path[: plan.cut])
+                all_waypoints.append(plan.waypoints.xy)
+                see.drive_leg(leg, plan, track, name)
+                continue
+            need_scan = True  # the rolling map shows no way: scan 360 degrees from here
+        if scans >= cfg.max_legs:
+            break
+        scans += 1
         if leg_starts and math.hypot(pose.x - leg_starts[-1][0], pose.y - leg_starts[-1][1]) < cfg.min_progress:
             stalled += 1
             if stalled >= 2:
@@ -283,6 +323,9 @@ def navigate(job: Job, cfg: NavigateConfig) -> dict[str, Any]:
             break  # (a scan to check a dead-reckoned arrival, and it holds)
         maps = app.maps.layers
         local = NavMaps(maps["hazard"], maps["slope"], maps.geometry)
+        if see is not None:
+            see.scanned(local)
+            need_scan = False
         here = (pose.x, pose.y)
         distance = math.hypot(goal[0] - pose.x, goal[1] - pose.y)
         judged: PlanningError | None = None  # the goal's verdict from too far to be final
@@ -330,7 +373,9 @@ def navigate(job: Job, cfg: NavigateConfig) -> dict[str, Any]:
             "file": app.rel(prefix.with_name(prefix.name + "_waypoints.csv")), **pose_fields(job)}))
         leg_progress(0, segments, f"waiting for the rover to drive {segments} segments to "
                                   f"({end[0]:.2f}, {end[1]:.2f})", "drive")
-        if cfg.auto:
+        if see is not None:
+            see.drive_leg(leg, plan, track, name, announced=True)
+        elif cfg.auto:
             drive_simulated(app.world, plan.waypoints, track, reached=lambda k, n=segments: leg_progress(
                 k, n, f"segment {k}/{n} driven", "drive"), stop=job.cancel.is_set)
             job.check()
@@ -346,7 +391,7 @@ def navigate(job: Job, cfg: NavigateConfig) -> dict[str, Any]:
     pose = app.pose
     reached = math.hypot(goal[0] - pose.x, goal[1] - pose.y) <= cfg.tolerance
     if not reached:
-        raise ProtocolError("E_DATA", f"goal not reached after {cfg.max_legs} legs; the rover is at "
+        raise ProtocolError("E_DATA", f"goal not reached after {scans} scans and {len(all_paths)} legs; the rover is at "
                                       f"({pose.x:.2f}, {pose.y:.2f}), {math.hypot(goal[0] - pose.x, goal[1] - pose.y):.2f} m away")
     maps = app.maps.layers
     path = np.concatenate(all_paths) if all_paths else np.zeros((0, 2))
@@ -363,7 +408,8 @@ def navigate(job: Job, cfg: NavigateConfig) -> dict[str, Any]:
     tfile = app.data_path("nav", f"{name}_track.csv")
     write_text_atomic(tfile, "x,y\n" + "".join(f"{x:.4f},{y:.4f}\n" for x, y in track))
     return {"reached": True, "legs": len(all_paths), "path": app.rel(traverse), "waypoints": app.rel(wfile),
-            "track": app.rel(tfile), "x": Fixed(pose.x, 3), "y": Fixed(pose.y, 3), **pose_fields(job)}
+            "track": app.rel(tfile), "x": Fixed(pose.x, 3), "y": Fixed(pose.y, 3), **pose_fields(job),
+            "loop": cfg.loop if cfg.auto else "scan", **({"scans": scans} if see is None else see.stats_fields(scans))}
 
 
 def _check(app: App, cfg: NavigateConfig) -> None:

@@ -1,0 +1,318 @@
+"""Benchmark: traverse efficiency of navigate -auto, today's stop-and-go loop (``-loop scan``: a
+360-degree scan at every leg's end) against driving while seeing (``-loop see``), side by side on
+the same seeded missions (issue 12, "Show").
+
+Traverse efficiency = goal distance / (simulated time x top speed): 1.0 is a rover that drives
+straight at full speed and never stops; Perseverance's ENav averages ~0.73, Curiosity's AutoNav
+~0.12. Simulated time is the world's clock: the PTU moves at the D46's speed, each ToF frame
+takes its exposure, the rover turns and drives at its scene speed (0.1 m/s, 15 deg/s); the
+server's CPU time is not on it (``sim.time_scale=0``), so the figures do not depend on this
+machine's load. What does depend on it is reported apart, in wall milliseconds: the see loop's
+per-cycle latency (rolling map + Dem2Hazard + footprint check; target < 100 ms) and the
+replanning time (A* on the merged maps as navigate runs it; and, on the same maps, D* Lite's
+repair after the cells the drive changed against a fresh A*).
+
+Missions: start and goal 15-20 m apart, both at least 1 m from every true hazard, seeded, in
+``marsyard`` and in ``hirise`` (15 % rock cover). Per mission and mode: reached, efficiency,
+legs, scans, stops, and whether the rover crossed a true hazard: its true track (5 cm steps, the
+simulator's ground truth), the rover body swept along it, over the true hazard map (Dem2Hazard of
+the simulator's true DEM at 5 cm). A whole run of 10 missions per scene takes hours of CPU here
+(each ToF frame and scan is rendered): ``--missions N``.
+
+    python -m tools.bench.navigate [--missions 2] [--scenes marsyard hirise] [--modes scan see]
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import csv
+import json
+import math
+import socket
+import tempfile
+import threading
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from scipy import ndimage
+
+from drivers.sim.world import World
+from prox_workflows.grid import GridGeometry
+from prox_workflows.steps.dem2hazard import HazardParams, dem2hazard
+from prox_workflows.steps.safety import check_move
+from rvs_server.logs import setup as setup_logging
+from rvs_server.main import build_config, run
+from rvs_server.protocol import Reply, parse_reply
+
+TOP_SPEED = 0.1  # m/s: the scenes' rover speed
+AREA = {"marsyard": (-5.5, -9.5, 13.5, 9.5), "hirise": (-14.0, -14.0, 14.0, 14.0)}
+ROVER = (0.51, 0.40)  # config/head.yaml rover_length, rover_width
+
+
+class _Server:
+    """The real server in a thread (as the tests run it), simulated time instant, PTU on the clock."""
+
+    def __init__(self, data: Path, scene: str) -> None:
+        sets = [f"server.data={data}", "server.port=0", "sim.time_scale=0", "server.web_port=0",
+                f"server.scene={scene}"]
+        self.store = build_config(None, sets)
+        self.app: Any = None
+        self.port = 0
+        self._ready = threading.Event()
+        self.loop: asyncio.AbstractEventLoop | None = None
+        setup_logging("warning", data / "rvs.log", console=False)
+        self.thread = threading.Thread(target=self._main, daemon=True)
+        self.thread.start()
+        if not self._ready.wait(120) or not self.port:
+            raise RuntimeError("server did not start")
+
+    def _main(self) -> None:
+        async def go() -> int:
+            self.loop = asyncio.get_running_loop()
+
+            def ready(port: int) -> None:
+                self.port = port
+                self._ready.set()
+
+            def on_app(app: Any) -> None:
+                self.app = app
+
+            return await run(self.store, ready=ready, handle_signals=False, on_app=on_app)
+
+        try:
+            asyncio.run(go())
+        finally:
+            self._ready.set()
+
+    def request(self, line: str, timeout: float = 7200.0) -> Reply:
+        with socket.create_connection(("127.0.0.1", self.port), timeout=timeout) as sock:
+            f = sock.makefile("rb")
+            f.readline()  # greeting
+            sock.sendall(line.encode() + b"\n")
+            job = None
+            while True:
+                r = parse_reply(f.readline().decode().rstrip("\r\n"))
+                if r.status == "ACK":
+                    job = r.fields["job"]
+                elif r.status in ("OK", "ERROR") and (job is None or r.fields.get("job") == job):
+                    return r
+
+    def stop(self) -> None:
+        if self.loop is not None and self.thread.is_alive():
+            self.loop.call_soon_threadsafe(self.app.stopping.set)
+        self.thread.join(30)
+
+
+def true_hazard(world: World, bounds: tuple[float, float, float, float]) -> tuple[np.ndarray, np.ndarray,
+                                                                                  GridGeometry]:
+    """The simulator's true DEM through Dem2Hazard at 5 cm: hazard and traversability."""
+    g = GridGeometry.covering(*bounds, 0.05)
+    dem = world.true_dem(g.cell, g.bounds, include_target=False)
+    out = dem2hazard(dem, g.cell, HazardParams())
+    return out["hazard"], out["traversability"], g
+
+
+def missions(scene: str, count: int, seed: int = 0) -> list[tuple[tuple[float, float], tuple[float, float]]]:
+    """``count`` seeded (start, goal) pairs 15-20 m apart, both >= 1 m from every true hazard."""
+    world = World.from_scene(scene)
+    hazard, _, g = true_hazard(world, AREA[scene])
+    clear = (ndimage.distance_transform_edt(hazard != 255) * g.cell >= 1.0) & (hazard == 0)
+    rows, cols = np.nonzero(clear)
+    xs, ys = g.centers()
+    rng = np.random.default_rng(seed)
+    out = []
+    while len(out) < count:
+        i, j = rng.integers(len(rows), size=2)
+        s = (round(float(xs[cols[i]]), 2), round(float(ys[rows[i]]), 2))
+        e = (round(float(xs[cols[j]]), 2), round(float(ys[rows[j]]), 2))
+        if 15.0 <= math.hypot(e[0] - s[0], e[1] - s[1]) <= 20.0:
+            out.append((s, e))
+    return out
+
+
+def crossed(track: np.ndarray, trav: np.ndarray, g: GridGeometry) -> int:
+    """Hazardous true cells under the rover body swept along its true track (0: clean)."""
+    blocked = 0
+    for a, b in zip(track[:-1], track[1:], strict=True):
+        h = math.degrees(math.atan2(b[1] - a[1], b[0] - a[0]))
+        m = check_move(trav, g, (a[0], a[1], h), (b[0], b[1], h), ROVER[0], ROVER[1])
+        blocked += m.blocked_cells
+    return blocked
+
+
+def run_mission(scene: str, mode: str, start: tuple[float, float], goal: tuple[float, float],
+                extra: list[str]) -> dict[str, Any]:
+    """One navigate -auto in a fresh server; the figures of the issue's table."""
+    with tempfile.TemporaryDirectory() as tmp:
+        srv = _Server(Path(tmp), scene)
+        try:
+            world = srv.app.world
+            world.set_target_visible(False)
+            for line in extra:
+                srv.request(line)
+            heading = math.degrees(math.atan2(goal[1] - start[1], goal[0] - start[0]))
+            t_sim0, t_wall0 = world.clock.now(), time.monotonic()
+            r = srv.request(f"navigate -start {start[0]},{start[1]},{heading:.1f} -goal {goal[0]},{goal[1]} "
+                            f"-auto -loop {mode} -name bench -max-legs 30")
+            sim_s = world.clock.now() - t_sim0
+            wall_s = time.monotonic() - t_wall0
+            truth = world.truth()
+            dist = math.hypot(goal[0] - start[0], goal[1] - start[1])
+            out: dict[str, Any] = {"scene": scene, "mode": mode, "start": start, "goal": goal,
+                                   "distance": round(dist, 2), "status": r.status, "sim_s": round(sim_s, 1),
+                                   "wall_s": round(wall_s, 1),
+                                   "true_miss": round(math.hypot(truth["x"] - goal[0], truth["y"] - goal[1]), 3)}
+            out["reached"] = r.status == "OK" and r.fields.get("reached") == "true"
+            out["efficiency"] = round(dist / (sim_s * TOP_SPEED), 3) if out["reached"] else 0.0
+            for key in ("legs", "scans", "replans", "stops", "cycles", "cycle_ms", "cycle_ms_max", "frame_ms",
+                        "replan_ms"):
+                if key in r.fields:
+                    out[key] = float(r.fields[key])
+            if r.status != "OK":
+                out["message"] = r.fields.get("message", "")
+            track_file = Path(tmp) / "nav" / "bench_track.csv"
+            if track_file.exists():
+                with open(track_file) as fh:
+                    track = np.array([[float(row["x"]), float(row["y"])] for row in csv.DictReader(fh)])
+            else:
+                tr = world.truth()
+                track = np.array([start, (tr["x"], tr["y"])])
+            _, trav, g = true_hazard(world, AREA[scene])
+            out["crossed_cells"] = crossed(track, trav, g)
+            return out
+        finally:
+            srv.stop()
+
+
+def summarise(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """Per scene and mode: missions reached, efficiency (mean over all, reached count as 0 when
+    not), crossings, scans per mission, latency."""
+    out = []
+    for scene in dict.fromkeys(r["scene"] for r in rows):
+        for mode in dict.fromkeys(r["mode"] for r in rows):
+            sel = [r for r in rows if r["scene"] == scene and r["mode"] == mode]
+            if not sel:
+                continue
+            reached = [r for r in sel if r["reached"]]
+            s = {"scene": scene, "mode": mode, "missions": len(sel), "reached": len(reached),
+                 "efficiency_mean": round(float(np.mean([r["efficiency"] for r in sel])), 3),
+                 "efficiency_reached": round(float(np.mean([r["efficiency"] for r in reached])), 3) if reached
+                 else None,
+                 "crossing_missions": sum(1 for r in sel if r["crossed_cells"] > 0),
+                 "scans_per_mission": round(float(np.mean([r.get("scans", r.get("legs", 0)) for r in sel])), 2),
+                 "sim_s_mean": round(float(np.mean([r["sim_s"] for r in sel])), 1),
+                 "wall_s_mean": round(float(np.mean([r["wall_s"] for r in sel])), 1)}
+            if mode == "see":
+                cyc = [r["cycle_ms"] for r in sel if r.get("cycles")]
+                s["cycle_ms_mean"] = round(float(np.mean(cyc)), 1) if cyc else None
+                s["cycle_ms_max"] = max((r.get("cycle_ms_max", 0.0) for r in sel), default=None)
+                s["frame_ms_mean"] = round(float(np.mean([r.get("frame_ms", 0.0) for r in sel])), 1)
+                s["replan_ms_mean"] = round(float(np.mean([r.get("replan_ms", 0.0) for r in sel])), 1)
+                s["stops"] = sum(int(r.get("stops", 0)) for r in sel)
+            out.append(s)
+    return out
+
+
+def replan_vs_astar(trials: int = 20, seed: int = 0) -> dict[str, Any]:
+    """D* Lite's repair after a rock appears 3 m ahead on the path, against a fresh A*, on a
+    planning image of 400 x 400 cells (20 m at 5 cm) built as navigate builds it from marsyard's
+    true hazard map; the path costs must agree."""
+    from prox_workflows.steps.planner import NavMaps, PlannerParams, astar_grid, planning_image
+    from prox_workflows.steps.planner import warm_up as astar_warm_up
+    from prox_workflows.steps.replan import IncrementalPlanner
+    from prox_workflows.steps.replan import warm_up as replan_warm_up
+
+    astar_warm_up()
+    replan_warm_up()
+    world = World.from_scene("marsyard")
+    g = GridGeometry.covering(-6.0, -10.0, 14.0, 10.0, 0.05)
+    dem = world.true_dem(g.cell, g.bounds, include_target=False)
+    maps = dem2hazard(dem, g.cell, HazardParams())
+    params = PlannerParams(grid=0.05, rover_radius=math.hypot(*ROVER) / 2)
+    image = planning_image(NavMaps(maps["hazard"], maps["slope"], g), None, params)
+    k = image.cost_per_metre(params.weight)
+    rng = np.random.default_rng(seed)
+    free = np.argwhere(np.isfinite(k))
+    d_ms, a_ms, first_ms = [], [], []
+    done = 0
+    while done < trials:
+        s, e = free[rng.integers(len(free))], free[rng.integers(len(free))]
+        if np.hypot(*(s - e)) * g.cell < 10:
+            continue
+        try:
+            t0 = time.perf_counter()
+            dp = IncrementalPlanner(k, tuple(s), tuple(e), orth=g.cell, diag=g.cell * math.sqrt(2), h_scale=params.weight)
+            path = dp.plan()
+            first_ms.append((time.perf_counter() - t0) * 1000)
+        except Exception:
+            continue
+        if len(path.cells) < 80:
+            continue
+        rock = path.cells[60]  # 3 m ahead at 5 cm
+        rr, cc = np.mgrid[-12:13, -12:13]
+        disc = (rr**2 + cc**2) * g.cell**2 <= (0.2 + params.rover_radius + params.margin) ** 2
+        cells = np.stack([rr[disc] + rock[0], cc[disc] + rock[1]], axis=1)
+        cells = cells[(cells[:, 0] >= 0) & (cells[:, 0] < k.shape[0]) & (cells[:, 1] >= 0) & (cells[:, 1] < k.shape[1])]
+        if any(tuple(c) in {tuple(s), tuple(e)} for c in cells):
+            continue
+        t0 = time.perf_counter()
+        dp.update(cells, np.inf)
+        try:
+            repaired = dp.plan()
+        except Exception:
+            continue
+        d_ms.append((time.perf_counter() - t0) * 1000)
+        k2 = k.copy()
+        k2[cells[:, 0], cells[:, 1]] = np.inf
+        t0 = time.perf_counter()
+        fresh = astar_grid(k2, tuple(s), tuple(e), heuristic="octile", orth=g.cell, diag=g.cell * math.sqrt(2),
+                           share=0.5, corner_rule=True)
+        a_ms.append((time.perf_counter() - t0) * 1000)
+        assert abs(fresh.cost - repaired.cost) <= 1e-6 * max(1.0, fresh.cost), (fresh.cost, repaired.cost)
+        done += 1
+    return {"grid": list(k.shape), "trials": trials, "dstar_repair_ms_p50": round(float(np.median(d_ms)), 2),
+            "astar_fresh_ms_p50": round(float(np.median(a_ms)), 2),
+            "ratio": round(float(np.median(a_ms) / np.median(d_ms)), 1),
+            "dstar_first_plan_ms_p50": round(float(np.median(first_ms)), 2)}
+
+
+def main(argv: list[str] | None = None) -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--missions", type=int, default=10, help="missions per scene (10 in the issue)")
+    ap.add_argument("--scenes", nargs="+", default=["marsyard", "hirise"])
+    ap.add_argument("--modes", nargs="+", default=["scan", "see"], choices=["scan", "see"])
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--replan-trials", type=int, default=20)
+    ap.add_argument("--out", default="", help="also write the rows and the summary as JSON here")
+    args = ap.parse_args(argv)
+    rows: list[dict[str, Any]] = []
+    for scene in args.scenes:
+        for i, (start, goal) in enumerate(missions(scene, args.missions, args.seed)):
+            for mode in args.modes:
+                row = run_mission(scene, mode, start, goal, [])
+                row["mission"] = i
+                rows.append(row)
+                print(json.dumps(row), flush=True)
+    summary = summarise(rows)
+    print("\nscene     mode  missions reached efficiency(all/reached) crossing scans/mission sim_s  wall_s  "
+          "cycle_ms(mean/max) frame_ms replan_ms")
+    for s in summary:
+        print(f"{s['scene']:9} {s['mode']:5} {s['missions']:8} {s['reached']:7} {s['efficiency_mean']:11.3f}/"
+              f"{s['efficiency_reached'] if s['efficiency_reached'] is not None else float('nan'):.3f}"
+              f" {s['crossing_missions']:8} {s['scans_per_mission']:13.2f} {s['sim_s_mean']:6.1f} {s['wall_s_mean']:7.1f}"
+              + (f"  {s['cycle_ms_mean']}/{s['cycle_ms_max']} {s['frame_ms_mean']} {s['replan_ms_mean']}"
+                 if s["mode"] == "see" else ""), flush=True)
+    rep = replan_vs_astar(args.replan_trials, args.seed) if args.replan_trials > 0 else {}
+    if rep:
+        print(f"\nreplanning on {rep['grid'][0]} x {rep['grid'][1]} cells (a rock 3 m ahead on the path): D* Lite "
+              f"repair p50 {rep['dstar_repair_ms_p50']} ms, fresh A* p50 {rep['astar_fresh_ms_p50']} ms, ratio "
+              f"{rep['ratio']}x (D* Lite's first plan {rep['dstar_first_plan_ms_p50']} ms)")
+    if args.out:
+        Path(args.out).write_text(json.dumps({"rows": rows, "summary": summary, "replan": rep}, indent=1))
+
+
+if __name__ == "__main__":
+    main()
