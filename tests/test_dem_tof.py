@@ -155,9 +155,11 @@ def test_dem_arguments(server) -> None:
 
 
 def test_break_keeps_views_for_the_next_update(server_factory) -> None:
-    srv = server_factory(["drivers.ptu.time_scale=0.5"])
+    srv = server_factory()
     c, other = srv.client(), srv.client()
     assert c.request(f"dem-full-tof -range {RANGE} -name first", timeout=300).status == "OK"
+    # the simulated clock (PTU moves) at half the real speed from here (applies live): the break finds the scan running
+    assert c.request("config -module sim -set time_scale=0.5").status == "OK"
     job = c.start_job(f"dem-full-tof -range {RANGE} -name second")
     while True:  # wait until a view or two are in
         line = c.reply(timeout=60)
