@@ -22,6 +22,7 @@ from typing import TYPE_CHECKING, Any, Generic, TypeVar
 import structlog
 
 from drivers.base import DeviceError
+from prox_workflows.products import finish_product_sets
 
 from . import __version__
 from .config import ConfigStore, ServerConfig
@@ -174,6 +175,9 @@ class App:
         self.server_cfg = config.get("server")
         self.data_dir = Path(data_dir)
         self.data_dir.mkdir(parents=True, exist_ok=True)
+        finished = finish_product_sets(self.data_dir)  # a crash mid-write: whole sets only
+        if any(finished.values()):
+            log.warning("product_sets_finished", **finished)
         self.world = world
         self.loop = loop
         self.name = f"{self.server_cfg.name}/{__version__}"

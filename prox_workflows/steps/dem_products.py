@@ -11,6 +11,7 @@ from typing import Any
 from ..engine import step
 from ..grid import Layers
 from ..layers import rover_meta, write_layers
+from ..products import product_set
 from .mesh import dem_mesh, write_mesh_ply
 
 # what a DEM job publishes (the server's products); the other registered layers are a script's choice
@@ -43,13 +44,14 @@ def write_dem_products(
     rover = rover_meta(rover_mask)
     if rover is not None:
         layers = Layers(layers.geometry, dict(layers.layers), {**layers.meta, "rover": rover})
-    written: dict[str, Path] = write_layers(dem_path, layers, made_by=made_by, parameters=parameters,
-                                            inputs=inputs, select=select, png=preview, run_log=run_log)
-    if mesh and "dem" in layers:
-        xs, ys = g.centers()
-        colours = layers.layers.get("ortho")
-        v, f, c = dem_mesh(layers["dem"], xs, ys, colours)
-        written["mesh"] = write_mesh_ply(out_dir / f"{name}_mesh.ply", v, f, c)
+    with product_set(out_dir):  # all files or none: never a DEM whose layers come from two runs
+        written: dict[str, Path] = write_layers(dem_path, layers, made_by=made_by, parameters=parameters,
+                                                inputs=inputs, select=select, png=preview, run_log=run_log)
+        if mesh and "dem" in layers:
+            xs, ys = g.centers()
+            colours = layers.layers.get("ortho")
+            v, f, c = dem_mesh(layers["dem"], xs, ys, colours)
+            written["mesh"] = write_mesh_ply(out_dir / f"{name}_mesh.ply", v, f, c)
     return written
 
 

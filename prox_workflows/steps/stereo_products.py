@@ -13,7 +13,7 @@ import tifffile
 
 from ..engine import step
 from ..pointcloud import write_ply
-from ..products import preview, write_atomic, write_png, write_sidecar, write_tiff
+from ..products import preview, product_set, write_atomic, write_png, write_sidecar, write_tiff
 from .stereo import Disparity, SgbmParams, cloud, disparity, load_calibration, sigma_d_for, to_gray8
 
 
@@ -69,44 +69,46 @@ def write_stereo(disparity: Disparity, left: np.ndarray, params: dict[str, Any] 
     valid = np.isfinite(disp.left)
     files: dict[str, Any] = {"lines": []}
     lines: list[str] = files["lines"]
-    if disparity_path is not None:
-        path = Path(disparity_path)
-        write_tiff(path, disp.left.astype(np.float32))
-        write_png(path.with_suffix(".png"), preview(disp.left, cv2.COLORMAP_JET))
-        write_sidecar(path, made_by, p.to_dict(), inputs, units="px", nan="invalid",
-                      geometry="left original image", focal_px=disp.rect.focal, baseline_m=disp.rect.baseline,
-                      valid_share=float(valid.mean()))
-        files["disparity"] = path
-        lines.append(f"disparity -> {path}")
-    if rectified_path is not None:
-        path = Path(rectified_path)
-        write_tiff(path, disp.rectified.astype(np.float32))
-        write_sidecar(path, made_by, p.to_dict(), inputs, units="px", nan="invalid",
-                      geometry="rectified left image (cv2.stereoRectify, alpha 0)", P1=np.asarray(disp.rect.P1),
-                      R1=np.asarray(disp.rect.R1), Q=np.asarray(disp.rect.Q))
-        files["rectified"] = path
-        lines.append(f"rectified disparity -> {path}")
-    if cloud_path is not None:
-        path = Path(cloud_path)
-        sd = sigma_d_for(p.scale) if sigma_d is None else sigma_d
-        pts, sig, pix = cloud(disp, sd)
-        if max_depth is not None:
-            keep = pts[:, 2] <= max_depth
-            pts, sig, pix = pts[keep], sig[keep], pix[keep]
-        if path.suffix.lower() == ".npy":
-            write_atomic(path, lambda t: _save_npy(t, pts))
-        else:
-            grey = to_gray8(left)[pix[:, 0], pix[:, 1]]
-            write_ply(path, np.column_stack([pts, grey.astype(np.float32)]),
-                      np.repeat(grey[:, None], 3, axis=1), comment="rvs-stereo cloud, left camera frame (m)")
-        write_sidecar(path, made_by, p.to_dict(), inputs, frame="left camera (x right, y down, "
-                      "z forward)", units="m", points=len(pts), intensity="left image grey value",
-                      noise_model="sigma_z = z^2 * sigma_d / (b * f)", sigma_d_px=sd,
-                      baseline_m=disp.rect.baseline, focal_px=disp.rect.focal,
-                      sigma_z_m={"median": float(np.median(sig)) if len(sig) else None,
-                                 "max": float(np.max(sig)) if len(sig) else None})
-        files["cloud"] = path
-        lines.append(f"{len(pts)} points -> {path}")
+    named = [Path(q) for q in (disparity_path, rectified_path, cloud_path) if q is not None]
+    with product_set(named[0].parent if named else Path(".")):  # the disparity, cloud and sidecars land together
+        if disparity_path is not None:
+            path = Path(disparity_path)
+            write_tiff(path, disp.left.astype(np.float32))
+            write_png(path.with_suffix(".png"), preview(disp.left, cv2.COLORMAP_JET))
+            write_sidecar(path, made_by, p.to_dict(), inputs, units="px", nan="invalid",
+                          geometry="left original image", focal_px=disp.rect.focal, baseline_m=disp.rect.baseline,
+                          valid_share=float(valid.mean()))
+            files["disparity"] = path
+            lines.append(f"disparity -> {path}")
+        if rectified_path is not None:
+            path = Path(rectified_path)
+            write_tiff(path, disp.rectified.astype(np.float32))
+            write_sidecar(path, made_by, p.to_dict(), inputs, units="px", nan="invalid",
+                          geometry="rectified left image (cv2.stereoRectify, alpha 0)", P1=np.asarray(disp.rect.P1),
+                          R1=np.asarray(disp.rect.R1), Q=np.asarray(disp.rect.Q))
+            files["rectified"] = path
+            lines.append(f"rectified disparity -> {path}")
+        if cloud_path is not None:
+            path = Path(cloud_path)
+            sd = sigma_d_for(p.scale) if sigma_d is None else sigma_d
+            pts, sig, pix = cloud(disp, sd)
+            if max_depth is not None:
+                keep = pts[:, 2] <= max_depth
+                pts, sig, pix = pts[keep], sig[keep], pix[keep]
+            if path.suffix.lower() == ".npy":
+                write_atomic(path, lambda t: _save_npy(t, pts))
+            else:
+                grey = to_gray8(left)[pix[:, 0], pix[:, 1]]
+                write_ply(path, np.column_stack([pts, grey.astype(np.float32)]),
+                          np.repeat(grey[:, None], 3, axis=1), comment="rvs-stereo cloud, left camera frame (m)")
+            write_sidecar(path, made_by, p.to_dict(), inputs, frame="left camera (x right, y down, "
+                          "z forward)", units="m", points=len(pts), intensity="left image grey value",
+                          noise_model="sigma_z = z^2 * sigma_d / (b * f)", sigma_d_px=sd,
+                          baseline_m=disp.rect.baseline, focal_px=disp.rect.focal,
+                          sigma_z_m={"median": float(np.median(sig)) if len(sig) else None,
+                                     "max": float(np.max(sig)) if len(sig) else None})
+            files["cloud"] = path
+            lines.append(f"{len(pts)} points -> {path}")
     return files
 
 

@@ -11,7 +11,7 @@ from typing import TYPE_CHECKING, Any, ClassVar
 import cv2
 import numpy as np
 
-from prox_workflows.products import preview, write_png, write_sidecar, write_tiff
+from prox_workflows.products import preview, product_set, write_png, write_sidecar, write_tiff
 
 from ..config import ModuleConfig, param
 from ..jobs import Interrupted, Job
@@ -175,11 +175,12 @@ def grab_stereo(job: Job, cfg: GrabStereoConfig) -> dict[str, Any]:
     job.check()
     job.progress(1, 2, "writing")
     out: dict[str, Any] = {}
-    for side, image in (("left", left), ("right", right)):
-        path: Path = app.data_path("stereo", f"{stem}_{side}.tif")
-        write_tiff(path, image)
-        write_png(path.with_suffix(".png"), image)
-        write_sidecar(path, "grab-stereo", cfg.as_dict(), side=side, device=_device_info(cams),
-                      **acquisition_context(app))
-        out[side] = app.rel(path)
+    with product_set(app.data_path("stereo")):  # a pair is never one new image beside an old one
+        for side, image in (("left", left), ("right", right)):
+            path: Path = app.data_path("stereo", f"{stem}_{side}.tif")
+            write_tiff(path, image)
+            write_png(path.with_suffix(".png"), image)
+            write_sidecar(path, "grab-stereo", cfg.as_dict(), side=side, device=_device_info(cams),
+                          **acquisition_context(app))
+            out[side] = app.rel(path)
     return out
