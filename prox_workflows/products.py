@@ -132,7 +132,8 @@ def finish_product_sets(root: Path) -> dict[str, int]:
     root = Path(root)
     if not root.is_dir():
         return {"rolled_forward": 0, "removed": 0}
-    rolled = sum(_roll_forward(j) for j in sorted(root.rglob(JOURNAL_GLOB)))
+    # a journal's own temporary (.products-*.commit.<random>.tmp.commit) was never committed
+    rolled = sum(_roll_forward(j) for j in sorted(root.rglob(JOURNAL_GLOB)) if ".tmp" not in j.name)
     removed = 0
     for stray in root.rglob(TEMP_GLOB):
         if stray.is_file():

@@ -68,7 +68,8 @@ def test_a_set_cut_short_before_its_commit_keeps_the_old_files_and_its_temporari
     (tmp_path / "sub").mkdir()
     (tmp_path / ".a.txt.k2j3.tmp.txt").write_text("half")  # a kill before the journal: no commit
     (tmp_path / "sub" / ".x.tif.abcd.tmp.tif").write_text("half")
-    assert finish_product_sets(tmp_path) == {"rolled_forward": 0, "removed": 2}
+    (tmp_path / ".products-0123.commit.x1y2.tmp.commit").write_text("- [.a.txt.k2j3")  # a journal half written
+    assert finish_product_sets(tmp_path) == {"rolled_forward": 0, "removed": 3}
     assert {p.name: p.read_text() for p in tmp_path.glob("*.txt")} == {f"{n}.txt": "old" for n in "abcd"}
     assert sorted(p.name for p in tmp_path.iterdir()) == ["a.txt", "b.txt", "c.txt", "d.txt", "sub"]
     assert not list((tmp_path / "sub").iterdir())
