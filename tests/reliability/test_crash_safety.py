@@ -136,7 +136,8 @@ def test_sigkill_while_writing_a_dem_keeps_the_previous_products(data: Path, k: 
     assert seen >= k, f"the job ended before its temporary file {k}"
 
 
-@pytest.mark.parametrize("when", ["writing", "renaming"])
+@pytest.mark.long
+@pytest.mark.parametrize("when", ["writing", "renaming"] if LONG else ["renaming"])
 def test_sigkill_mid_rewrite_leaves_one_whole_dem(data: Path, when: str) -> None:
     """A DEM rewritten under the same name on another grid, killed while its files are written
     (the previous set stays) or while they are renamed into place (the next start finishes the
