@@ -10,6 +10,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import ctypes
+import gc
 import itertools
 import signal
 import socket
@@ -201,6 +202,7 @@ class Connection(asyncio.Protocol):
             self.log.warning("client_dropped", reason="not reading its replies")
             self.transport.abort()
             self.closed = True
+            self.pending.clear()  # its unread requests go with it
             self.app.connections.discard(self)
             self.app.loop.call_soon(give_back_memory)  # once the aborted transport's buffer is freed
 
@@ -214,7 +216,10 @@ class Connection(asyncio.Protocol):
 def give_back_memory() -> None:
     """Return freed heap to the system after dropping a client with megabytes queued: glibc keeps
     freed memory in its arenas, so without a trim a rover's server would carry every flood it
-    survived. A no-op where the C library has no malloc_trim."""
+    survived. The collection first: a dropped connection's objects may sit in reference cycles,
+    and their memory is only free (and trimmable) once they are collected. A no-op where the C
+    library has no malloc_trim."""
+    gc.collect()
     try:
         ctypes.CDLL(None).malloc_trim(0)
     except (OSError, AttributeError):
