@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 import rasterio
 import yaml
+from conftest import long_test
 from scipy import ndimage
 
 from prox_workflows.grid import GridGeometry, read_geotiff
@@ -115,6 +116,7 @@ def test_update_fuses_lowers_noise_and_extends(scan) -> None:
     assert (srv.data / r1.fields["dem"]).is_file()  # earlier products intact
 
 
+@long_test  # three scans; the default run's test_update_fuses_lowers_noise_and_extends fuses two
 def test_fusing_two_scans_beats_either(server_factory) -> None:
     srv = server_factory(["server.scene=office"])
     c = srv.client()

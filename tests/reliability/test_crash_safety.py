@@ -23,7 +23,7 @@ import cv2
 import pytest
 import tifffile
 import yaml
-from conftest import LineClient
+from conftest import LineClient, long_test
 from reliability_harness import FAST, LONG, record
 
 from prox_workflows.grid import read_geotiff
@@ -120,7 +120,7 @@ def kill_points(n_long: int, n_short: int, hi: int) -> list[int]:
     return sorted({1, hi, *(rng.randint(2, hi - 1) for _ in range(n_long - 2))})
 
 
-@pytest.mark.long
+@long_test  # the default run kills a rewrite of one DEM in test_sigkill_mid_rewrite_leaves_one_whole_dem
 @pytest.mark.parametrize("k", kill_points(10, 1, 30))
 def test_sigkill_while_writing_a_dem_keeps_the_previous_products(data: Path, k: int) -> None:
     srv, c = start(data)
@@ -142,16 +142,17 @@ def test_sigkill_mid_rewrite_leaves_one_whole_dem(data: Path, when: str) -> None
     """A DEM rewritten under the same name on another grid, killed while its files are written
     (the previous set stays) or while they are renamed into place (the next start finishes the
     set): after a restart every layer of the DEM is on one grid, with no temporary left."""
+    first, second = (f"dem-full-tof -range {r},-50,-30 -name site" for r in ("-20,20", "-40,40"))
     srv, c = start(data)
     try:
-        assert c.request(DEM_LINE, timeout=300).status == "OK"
+        assert c.request(first, timeout=300).status == "OK"
         dem = data / "dem" / "site_dem.tif"
         before = {p.name: read_geotiff(p)[1] for p in (data / "dem").glob("site_*.tif")}
         inode = dem.stat().st_ino
         if when == "writing":
-            kill_at_temp(srv, c, DEM_LINE.replace("-60,60", "-120,120"), data / "dem", 5)
+            kill_at_temp(srv, c, second, data / "dem", 5)
         else:
-            c.send(DEM_LINE.replace("-60,60", "-120,120"))  # same name, another extent: another grid
+            c.send(second)  # same name, another extent: another grid
             deadline = time.monotonic() + 120
             while dem.stat().st_ino == inode and time.monotonic() < deadline:
                 time.sleep(0.0002)
