@@ -153,13 +153,8 @@ class SeeingDriver:
 
         for k in range(1, segments + 1):
             wx, wy = float(waypoints[k][0]), float(waypoints[k][1])
-            x, y, heading = world.odometry()
-            dist = math.hypot(wx - x, wy - y)
-            if dist >= 1e-6:
-                turn = (math.degrees(math.atan2(wy - y, wx - x)) - heading + 180.0) % 360.0 - 180.0
-                if abs(turn) > 1e-9:
-                    world.drive(0.0, math.copysign(model.turn_rate, turn), abs(turn) / model.turn_rate, stop)
-                    job.check()
+            world.turn_toward(wx, wy, stop)
+            job.check()
             while True:
                 check, pose = self.cycle(pan_tilt, waypoints[k:])
                 job.check()

@@ -2,10 +2,8 @@
 
 from __future__ import annotations
 
-import asyncio
 import os
 import socket
-import threading
 import time
 from collections.abc import Iterator
 from pathlib import Path
@@ -15,8 +13,7 @@ import pytest
 from hypothesis import HealthCheck, settings
 from simtime import SimTime
 
-from rvs_server.logs import setup as setup_logging
-from rvs_server.main import build_config, run
+from rvs_server.client import session
 from rvs_server.protocol import Reply, parse_reply
 
 FINAL = ("OK", "ERROR")
@@ -126,56 +123,22 @@ class LineClient:
         self.sock.close()
 
 
-class ServerThread:
-    """The real server (same code path as rvs-server) on an ephemeral port in a thread."""
+class ServerThread(session.ServerThread):
+    """The real server in a thread, with the tests' settings and a ``data`` folder."""
 
     def __init__(self, data: Path, overrides: list[str] | None = None, config_dir: str | None = None) -> None:
         # warm_up off: a hundred short-lived test servers would each load the numba kernels
         # sim.time_scale=0: the rover drives, and frames take, their simulated time in no wall time
         sets = [f"server.data={data}", "server.port=0", "drivers.ptu.time_scale=0", "sim.time_scale=0",
                 "server.warm_up=false", "server.web_port=0", *(overrides or [])]
-        self.store = build_config(config_dir, sets)
+        super().__init__(sets, config_dir)
         self.data = data
-        self.port = 0
-        self.app: Any = None
-        self.loop: asyncio.AbstractEventLoop | None = None
-        self._ready = threading.Event()
-        self.exit_code: int | None = None
-        self.thread = threading.Thread(target=self._main, daemon=True)
-
-    def _main(self) -> None:
-        async def go() -> int:
-            self.loop = asyncio.get_running_loop()
-
-            def ready(port: int) -> None:
-                self.port = port
-                self._ready.set()
-
-            def on_app(app: Any) -> None:
-                self.app = app
-
-            return await run(self.store, ready=ready, handle_signals=False, on_app=on_app)
-
-        try:
-            self.exit_code = asyncio.run(go())
-        finally:
-            self._ready.set()
-
-    def start(self) -> ServerThread:
-        srv = self.store.get("server")
-        setup_logging("info", self.data / srv.log_file, console=False)
-        self.thread.start()
-        if not self._ready.wait(60) or not self.port:
-            raise RuntimeError("server did not start")
-        return self
 
     def client(self, **kw: Any) -> LineClient:
         return LineClient(self.port, **kw)
 
-    def stop(self) -> None:
-        if self.loop is not None and self.thread.is_alive():
-            self.loop.call_soon_threadsafe(self.app.stopping.set)
-        self.thread.join(20)
+    def stop(self, timeout: float = 20.0) -> None:
+        super().stop(timeout)
 
 
 @pytest.fixture

@@ -225,6 +225,19 @@ class World:
         with self._lock:
             self.slip = Slip(float(distance), float(heading), int(seed))
 
+    def turn_toward(self, x: float, y: float, stop: Callable[[], bool] | None = None) -> float:
+        """Turn on the spot, at the drive model's turn rate, until the rover believes (by its
+        odometry) it faces (x, y); returns the distance it believes is left to drive. The one
+        way a waypoint is approached, whichever loop drives the rover."""
+        ox, oy, heading = self.odometry()
+        dist = math.hypot(x - ox, y - oy)
+        if dist >= 1e-6:
+            turn = (math.degrees(math.atan2(y - oy, x - ox)) - heading + 180.0) % 360.0 - 180.0
+            if abs(turn) > 1e-9:
+                rate = self.drive_model.turn_rate
+                self.drive(0.0, math.copysign(rate, turn), abs(turn) / rate, stop)
+        return dist
+
     def drive(self, v: float, w_deg: float, seconds: float, stop: Callable[[], bool] | None = None,
               on_step: Callable[[], None] | None = None) -> dict[str, float]:
         """Drive at forward speed ``v`` (m/s) and turn rate ``w_deg`` (deg/s) for ``seconds`` of

@@ -10,6 +10,7 @@ reader thread routes each incoming line either to the request being waited for o
 
 from __future__ import annotations
 
+import asyncio
 import contextlib
 import os
 import re
@@ -24,6 +25,7 @@ from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from types import TracebackType
+from typing import Any
 
 from rvs_server.protocol import MAX_LINE, TAG_RE, ProtocolError, Reply, parse_reply
 
@@ -343,6 +345,60 @@ class Session:
 
 
 # ---------------------------------------------------------------------- a server of one's own
+
+
+class ServerThread:
+    """The real server (the same code path as rvs-server) on an ephemeral port in a thread of
+    this process, for tests and benchmarks that want its ``app`` at hand: ``sets`` are the
+    ``--set`` overrides (``server.data=...`` among them); the log goes to the server's own log
+    file in its data folder."""
+
+    def __init__(self, sets: Sequence[str], config_dir: str | None = None, log_level: str = "info") -> None:
+        from rvs_server.main import build_config
+
+        self.store = build_config(config_dir, list(sets))
+        server = self.store.get("server")
+        self.port = 0
+        self.app: Any = None
+        self.loop: asyncio.AbstractEventLoop | None = None
+        self.exit_code: int | None = None
+        self._log = (Path(server.data) / server.log_file, log_level)
+        self._ready = threading.Event()
+        self.thread = threading.Thread(target=self._main, daemon=True)
+
+    def _main(self) -> None:
+        from rvs_server.main import run
+
+        async def go() -> int:
+            self.loop = asyncio.get_running_loop()
+
+            def ready(port: int) -> None:
+                self.port = port
+                self._ready.set()
+
+            def on_app(app: Any) -> None:
+                self.app = app
+
+            return await run(self.store, ready=ready, handle_signals=False, on_app=on_app)
+
+        try:
+            self.exit_code = asyncio.run(go())
+        finally:
+            self._ready.set()
+
+    def start(self, timeout: float = 60.0) -> ServerThread:
+        from rvs_server.logs import setup as setup_logging
+
+        setup_logging(self._log[1], self._log[0], console=False)
+        self.thread.start()
+        if not self._ready.wait(timeout) or not self.port:
+            raise RuntimeError("server did not start")
+        return self
+
+    def stop(self, timeout: float = 30.0) -> None:
+        if self.loop is not None and self.thread.is_alive():
+            self.loop.call_soon_threadsafe(self.app.stopping.set)
+        self.thread.join(timeout)
 
 
 class ServerProcess:

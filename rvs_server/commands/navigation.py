@@ -225,12 +225,8 @@ def drive_simulated(world: Any, waypoints: Any, track: list[tuple[float, float]]
             track.append((float(t["x"]), float(t["y"])))
 
     for k, (wx, wy) in enumerate(waypoints.xy[1:], start=1):
-        x, y, heading = world.odometry()
-        dist = math.hypot(wx - x, wy - y)
+        dist = world.turn_toward(wx, wy, stop)
         if dist >= 1e-6:
-            turn = (math.degrees(math.atan2(wy - y, wx - x)) - heading + 180.0) % 360.0 - 180.0
-            if abs(turn) > 1e-9:
-                world.drive(0.0, math.copysign(model.turn_rate, turn), abs(turn) / model.turn_rate, stop)
             world.drive(model.speed, 0.0, dist / model.speed, stop, on_step=record)
             t = world.truth()
             if (t["x"], t["y"]) != track[-1]:

@@ -25,13 +25,11 @@ the simulator's true DEM at 5 cm). A whole run of 10 missions per scene takes ho
 from __future__ import annotations
 
 import argparse
-import asyncio
 import csv
 import json
 import math
 import socket
 import tempfile
-import threading
 import time
 from pathlib import Path
 from typing import Any
@@ -43,8 +41,7 @@ from drivers.sim.world import World
 from prox_workflows.grid import GridGeometry
 from prox_workflows.steps.dem2hazard import HazardParams, dem2hazard
 from prox_workflows.steps.safety import check_move
-from rvs_server.logs import setup as setup_logging
-from rvs_server.main import build_config, run
+from rvs_server.client.session import ServerThread
 from rvs_server.protocol import Reply, parse_reply
 
 TOP_SPEED = 0.1  # m/s: the scenes' rover speed
@@ -52,40 +49,13 @@ AREA = {"marsyard": (-5.5, -9.5, 13.5, 9.5), "hirise": (-14.0, -14.0, 14.0, 14.0
 ROVER = (0.51, 0.40)  # config/head.yaml rover_length, rover_width
 
 
-class _Server:
+class _Server(ServerThread):
     """The real server in a thread (as the tests run it), simulated time instant, PTU on the clock."""
 
     def __init__(self, data: Path, scene: str) -> None:
-        sets = [f"server.data={data}", "server.port=0", "sim.time_scale=0", "server.web_port=0",
-                f"server.scene={scene}"]
-        self.store = build_config(None, sets)
-        self.app: Any = None
-        self.port = 0
-        self._ready = threading.Event()
-        self.loop: asyncio.AbstractEventLoop | None = None
-        setup_logging("warning", data / "rvs.log", console=False)
-        self.thread = threading.Thread(target=self._main, daemon=True)
-        self.thread.start()
-        if not self._ready.wait(120) or not self.port:
-            raise RuntimeError("server did not start")
-
-    def _main(self) -> None:
-        async def go() -> int:
-            self.loop = asyncio.get_running_loop()
-
-            def ready(port: int) -> None:
-                self.port = port
-                self._ready.set()
-
-            def on_app(app: Any) -> None:
-                self.app = app
-
-            return await run(self.store, ready=ready, handle_signals=False, on_app=on_app)
-
-        try:
-            asyncio.run(go())
-        finally:
-            self._ready.set()
+        super().__init__([f"server.data={data}", "server.port=0", "sim.time_scale=0", "server.web_port=0",
+                          f"server.scene={scene}"], log_level="warning")
+        self.start(120)
 
     def request(self, line: str, timeout: float = 7200.0) -> Reply:
         with socket.create_connection(("127.0.0.1", self.port), timeout=timeout) as sock:
@@ -99,11 +69,6 @@ class _Server:
                     job = r.fields["job"]
                 elif r.status in ("OK", "ERROR") and (job is None or r.fields.get("job") == job):
                     return r
-
-    def stop(self) -> None:
-        if self.loop is not None and self.thread.is_alive():
-            self.loop.call_soon_threadsafe(self.app.stopping.set)
-        self.thread.join(30)
 
 
 def true_hazard(world: World, bounds: tuple[float, float, float, float]) -> tuple[np.ndarray, np.ndarray,
