@@ -141,3 +141,7 @@ class PlanParams(Settings):
     border: float = param(1.0, "stop this far inside the locally seen ground: at least the radius the next "
                           "scan cannot see around the rover, so the legs join; halved (down to 0) where the "
                           "seen ground is too narrow for the rover to move at all", unit="m", min=0.0, max=5.0)
+    footprint: str = param("circle", "what must clear the hazards: circle, the rover's circumscribed circle (radius + "
+                           "margin) along the whole path; body, its half width + margin along straight stretches "
+                           "and the circle only where it stops and turns on the spot (waypoints and the goal), "
+                           "which opens the gaps of a rock field that the circle closes", choices=("circle", "body"))

@@ -23,6 +23,7 @@ compared side by side (``python -m tools.bench.navigate``).
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import time
 from dataclasses import dataclass, field
@@ -36,7 +37,7 @@ from prox_workflows.steps.transforms import HeadCalibration, T_global_from_rover
 
 from .commands.hardware import device_call
 from .maps import ground_height
-from .protocol import Fixed, Reply
+from .protocol import Fixed, Reply, Rows
 
 if TYPE_CHECKING:
     from .app import App
@@ -78,6 +79,8 @@ class SeeParams:
     max_range: float
     margin: float
     replan_ahead: float
+    pursuit: float  # m: the point of the path the rover steers at lies this far ahead
+    arc_turn: float  # deg: a larger heading error is turned on the spot, a smaller one driven as an arc
 
 
 @dataclass
@@ -111,8 +114,9 @@ class SeeingDriver:
         reached = device_call(self.job, ptu.move, 0.0, self.p.tilt, True)
         return float(reached[0]), float(reached[1])
 
-    def cycle(self, pan_tilt: tuple[float, float], remaining: np.ndarray) -> Any:
-        """One frame into the rolling map and the check of the next metres; returns the check."""
+    def see(self, pan_tilt: tuple[float, float]) -> tuple[tuple[float, float, float], float]:
+        """One ToF frame into the rolling map; returns the rover's pose (odometry) and the wall
+        time (monotonic) the fusion started."""
         job, app = self.job, self.app
         t0 = time.monotonic()
         xyz, amplitude = device_call(job, app.devices.get("tof").grab_xyz, 1, 0.0)
@@ -125,63 +129,83 @@ class SeeingDriver:
         world_pts = pts.astype(np.float64) @ T[:3, :3].T + T[:3, 3]
         self.map.follow(x, y)
         self.map.fuse(world_pts, ranges)
-        poses = path_poses((x, y, heading), remaining, self.p.lookahead)
-        check = self.map.check(poses, self.length, self.width)
-        t2 = time.monotonic()
-        self.stats.cycles += 1
         self.stats.frame_ms.append((t1 - t0) * 1000)
-        self.stats.cycle_ms.append((t2 - t1) * 1000)
-        return check, (x, y, heading)
+        return (x, y, heading), t1
+
+    def cycle(self, pan_tilt: tuple[float, float], remaining: np.ndarray) -> Any:
+        """One frame into the rolling map and the check of the next metres; returns the check."""
+        pose, t1 = self.see(pan_tilt)
+        poses = path_poses(pose, remaining, self.p.lookahead)
+        check = self.map.check(poses, self.length, self.width)
+        self.stats.cycles += 1
+        self.stats.cycle_ms.append((time.monotonic() - t1) * 1000)
+        return check, pose
+
+    def look(self, bearing: float, spread: float = 40.0) -> None:
+        """Frames panned to ``bearing`` (deg from the rover's heading) and ``spread`` either side,
+        the rover standing: the rolling map's view round the forward one."""
+        ptu = self.app.devices.get("ptu")
+        for pan in (bearing - spread, bearing, bearing + spread):
+            pan = max(-150.0, min(150.0, pan))
+            reached = device_call(self.job, ptu.move, pan, self.p.tilt, True)
+            self.see((float(reached[0]), float(reached[1])))
+            self.job.check()
 
     def drive(self, waypoints: np.ndarray, track: list[tuple[float, float]], progress: Any,
               allow_ahead: bool) -> DriveOutcome:
-        """Drive ``waypoints`` (k x 2, the first is where the rover is) as drive_simulated does
-        (turn on the spot, then straight, steering by odometry), checking every cycle. With
-        ``allow_ahead`` the drive hands back ``ahead`` once the leg's end is ``replan_ahead``
-        away, so navigate extends the path from what the rolling map has seen, on the move."""
+        """Drive ``waypoints`` (k x 2, the first is where the rover is) steering by odometry,
+        checking every cycle. The rover steers at the point ``pursuit`` metres ahead on the path
+        (pure pursuit): a heading error up to ``arc_turn`` is driven out as an arc at full speed
+        (the turn rate caps the curvature), a larger one is turned on the spot, so a replanned
+        path or a waypoint's corner costs no stop (MER's and Perseverance's drive arcs; the
+        stop-and-go loop turns on the spot at every waypoint). With ``allow_ahead`` the drive
+        hands back ``ahead`` once the leg's end is ``replan_ahead`` away, so navigate extends the
+        path from what the rolling map has seen, on the move."""
         app, job = self.app, self.job
         world = app.world
         model = world.drive_model
         stop = job.cancel.is_set
         pan_tilt = self.point_forward()
-        segments = len(waypoints) - 1
+        wps = np.asarray(waypoints, dtype=np.float64)[:, :2]
+        segments = len(wps) - 1
+        k = 1  # the waypoint the rover is heading for
 
         def record() -> None:
             t = world.truth()
             if math.hypot(t["x"] - track[-1][0], t["y"] - track[-1][1]) >= 0.05:
                 track.append((float(t["x"]), float(t["y"])))
 
-        for k in range(1, segments + 1):
-            wx, wy = float(waypoints[k][0]), float(waypoints[k][1])
-            world.turn_toward(wx, wy, stop)
-            job.check()
+        with world.under_way():
             while True:
-                check, pose = self.cycle(pan_tilt, waypoints[k:])
+                check, pose = self.cycle(pan_tilt, wps[k:])
                 job.check()
                 if check.verdict == "not_traversable":
                     return DriveOutcome("hazard", k - 1, self._stop_event(check, pose))
                 self._clear()
-                left = math.hypot(wx - pose[0], wy - pose[1])
-                to_end = left + float(np.sum(np.hypot(*np.diff(waypoints[k:], axis=0).T))) if k < segments else left
+                while k <= segments and _passed(pose, wps[k - 1], wps[k]):
+                    progress(k, segments, f"segment {k}/{segments} driven", "drive")
+                    k += 1
+                if k > segments:
+                    return DriveOutcome("done", segments)
+                left = math.hypot(wps[k][0] - pose[0], wps[k][1] - pose[1])
+                to_end = left + float(np.sum(np.hypot(*np.diff(wps[k:], axis=0).T)))
                 if allow_ahead and to_end <= self.p.replan_ahead:
                     return DriveOutcome("ahead", k - 1)
-                if left < 1e-3:
-                    break
-                # along the segment, measured on the odometry (what the GNC steers by)
-                along = (wx - pose[0]) * math.cos(math.radians(pose[2])) + (wy - pose[1]) * math.sin(
-                    math.radians(pose[2]))
-                if along <= 1e-3:
-                    break
-                dt = min(self.p.period, along / model.speed)
-                world.drive(model.speed, 0.0, dt, stop, on_step=record)
+                tx, ty = _pursuit_point(pose, wps, k, self.p.pursuit)
+                error = (math.degrees(math.atan2(ty - pose[1], tx - pose[0])) - pose[2] + 180.0) % 360.0 - 180.0
+                if abs(error) > self.p.arc_turn:
+                    world.turn_toward(tx, ty, stop)
+                else:
+                    # pure pursuit: the arc through the target point, its curvature capped by the turn rate
+                    reach = max(math.hypot(tx - pose[0], ty - pose[1]), 1e-6)
+                    w = math.degrees(model.speed * 2.0 * math.sin(math.radians(error)) / reach)
+                    w = max(-model.turn_rate, min(model.turn_rate, w))
+                    dt = min(self.p.period, to_end / model.speed)
+                    world.drive(model.speed, w, dt, stop, on_step=record)
                 job.check()
-                if along / model.speed <= self.p.period:
-                    break
-            t = world.truth()
-            if (t["x"], t["y"]) != track[-1]:
-                track.append((float(t["x"]), float(t["y"])))
-            progress(k, segments, f"segment {k}/{segments} driven", "drive")
-        return DriveOutcome("done", segments)
+                t = world.truth()
+                if (t["x"], t["y"]) != track[-1]:
+                    track.append((float(t["x"]), float(t["y"])))
 
     def _stop_event(self, check: Any, pose: tuple[float, float, float]) -> dict[str, Any]:
         """The stop EVENT, shaped as the hazard monitor's (distance from the rover's front to the
@@ -219,14 +243,18 @@ class SeeLoop:
         self.driver = SeeingDriver(job, SeeParams(
             period=cfg.see_period, lookahead=cfg.see_lookahead, stop_distance=0.0, tilt=cfg.see_tilt,
             subsample=cfg.see_subsample, max_range=cfg.see_max_range, margin=cfg.see_margin,
-            replan_ahead=cfg.replan_ahead), self.stats)
+            replan_ahead=cfg.replan_ahead, pursuit=cfg.see_pursuit, arc_turn=cfg.see_arc_turn), self.stats)
         self.scan: Any = None  # NavMaps of the scans so far
+        self.looked: tuple[float, float] | None = None  # where the rover last looked round for a way
+        self.fresh_scan = False  # no plan has been made since the last 360-degree scan
+        self.why = ""  # why the last replan found no way
         self.last_end: tuple[float, float] | None = None
 
     def scanned(self, local: Any) -> None:
         """A 360-degree scan made the maps ``local`` (the scans so far, merged)."""
         self.scan = local
         self.stats.scans += 1
+        self.fresh_scan = True
 
     def merged(self) -> Any:
         """The scan maps with what the rolling map has seen since laid over them."""
@@ -238,11 +266,35 @@ class SeeLoop:
 
     def replan(self, leg: int, global_maps: Any, goal: tuple[float, float], params: Any) -> Any:
         """A* from the rover's believed pose on the merged maps (timed: the benchmark compares it
-        with D* Lite's repair); None when that shows no way to drive (then navigate scans)."""
+        with D* Lite's repair); None when that shows no way to drive (then navigate scans).
+
+        Before giving up, the rover looks: three forward ToF frames panned toward the goal (a
+        few seconds of PTU motion) often show the way a 360-degree scan (half a minute) would,
+        when the way on lies outside the forward view (round an obstacle, the goal behind)."""
+        pose = self.app.pose
+        plan, why = self._plan(global_maps, goal, params)
+        if plan is None and self.looked != (round(pose.x, 1), round(pose.y, 1)):
+            self.looked = (round(pose.x, 1), round(pose.y, 1))
+            bearing = math.degrees(math.atan2(goal[1] - pose.y, goal[0] - pose.x)) - pose.heading
+            self.job.progress(0, 1, f"{why}; looking toward the goal", phase="plan", leg=leg)
+            self.driver.look((bearing + 180.0) % 360.0 - 180.0)
+            plan, why = self._plan(global_maps, goal, params)
+        scanned, self.fresh_scan, self.why = self.fresh_scan, False, why
+        if plan is None:
+            if not scanned:
+                self.job.progress(0, 1, f"{why}; scanning 360 degrees", phase="plan", leg=leg)
+            return None
+        self.stats.replans += 1
+        return plan
+
+    def _plan(self, global_maps: Any, goal: tuple[float, float], params: Any) -> tuple[Any, str]:
+        """(plan, "") or (None, why there is none) on the merged maps."""
         from prox_workflows.steps.planner import MIN_LEG, PlanningError, nearest_reachable, plan_path
 
         pose = self.app.pose
         here = (pose.x, pose.y)
+        params = dataclasses.replace(params, border=min(params.border, self.cfg.see_border), seen_only=True,
+                                     unknown_cost=self.cfg.see_unknown_cost)
         t0 = time.monotonic()
         merged = self.merged()
         try:
@@ -257,20 +309,15 @@ class SeeLoop:
                 toward = nearest_reachable(merged, global_maps, here, goal, params)
                 plan = plan_path(merged, global_maps, here, toward, params, start_heading=pose.heading)
         except PlanningError as exc:
-            self.job.progress(0, 1, f"replan from the rolling map: {exc.reason}; scanning 360 degrees", phase="plan",
-                              leg=leg)
-            return None
+            return None, f"replan from the rolling map: {exc.reason}"
         finally:
             self.stats.replan_ms.append((time.monotonic() - t0) * 1000)
         driven = plan.path[: plan.cut]
         if len(plan.waypoints) < 2 or math.hypot(*(driven[-1] - driven[0])) < max(MIN_LEG, 0.1):
-            self.job.progress(0, 1, "the rolling map shows no way on; scanning 360 degrees", phase="plan", leg=leg)
-            return None
-        self.stats.replans += 1
-        return plan
+            return None, "the rolling map shows no way on"
+        return plan, ""
 
-    def drive_leg(self, leg: int, plan: Any, track: list[tuple[float, float]], name: str,
-                  announced: bool = False) -> None:
+    def drive_leg(self, leg: int, plan: Any, track: list[tuple[float, float]]) -> None:
         """Drive one leg's waypoints while seeing; the pose is the odometry afterwards."""
         job, app = self.job, self.app
         segments = len(plan.waypoints) - 1
@@ -279,16 +326,12 @@ class SeeLoop:
         def progress(done: int, total: int, message: str, phase: str = "") -> None:
             job.progress(done, total, message, phase=phase, leg=leg)
 
-        if not announced:
-            progress(1, 1, f"replanned from the rolling map: {segments} segments to ({end[0]:.2f}, {end[1]:.2f})",
-                     "plan")
-            rows = [(Fixed(x, 3), Fixed(y, 3), Fixed(h, 2)) for x, y, h in plan.waypoints.table()[:, :3]]
-            from .protocol import Rows
-
-            app.broadcast_threadsafe(Reply("RVS", "EVENT", {
-                "kind": "waiting", "job": job.id, "leg": leg, "waypoints": Rows(rows), "file": "none"}))
-            progress(0, segments, f"driving {segments} segments to ({end[0]:.2f}, {end[1]:.2f}) while seeing",
-                     "drive")
+        progress(1, 1, f"planned from the scan and the rolling map: {segments} segments to ({end[0]:.2f}, "
+                       f"{end[1]:.2f})", "plan")
+        rows = [(Fixed(x, 3), Fixed(y, 3), Fixed(h, 2)) for x, y, h in plan.waypoints.table()[:, :3]]
+        app.broadcast_threadsafe(Reply("RVS", "EVENT", {
+            "kind": "waiting", "job": job.id, "leg": leg, "waypoints": Rows(rows), "file": "none"}))
+        progress(0, segments, f"driving {segments} segments to ({end[0]:.2f}, {end[1]:.2f}) while seeing", "drive")
         extends = self.last_end is None or math.hypot(end[0] - self.last_end[0], end[1] - self.last_end[1]) > 0.25
         self.last_end = end
         outcome = self.driver.drive(plan.waypoints.xy, track, progress,
@@ -306,3 +349,33 @@ class SeeLoop:
 def start(job: Job, cfg: Any) -> SeeLoop:
     """The see loop of one navigate -auto -loop see."""
     return SeeLoop(job, cfg)
+
+
+def _passed(pose: tuple[float, float, float], a: np.ndarray, b: np.ndarray, reach: float = 0.02) -> bool:
+    """Whether the rover (by odometry) has reached waypoint ``b`` of the stretch a-b: within
+    ``reach`` of it, or past the line through it square to the stretch."""
+    dx, dy = float(b[0] - a[0]), float(b[1] - a[1])
+    px, py = pose[0] - float(b[0]), pose[1] - float(b[1])
+    if math.hypot(px, py) <= reach:
+        return True
+    return dx * px + dy * py >= 0.0 and (dx or dy) != 0
+
+
+def _pursuit_point(pose: tuple[float, float, float], wps: np.ndarray, k: int, ahead: float) -> tuple[float, float]:
+    """The point ``ahead`` metres along the path from the rover's foot on stretch k-1..k (the
+    last waypoint when the path is shorter)."""
+    a, b = wps[k - 1], wps[k]
+    ab = b - a
+    n = float(ab @ ab)
+    t = 0.0 if n == 0.0 else min(1.0, max(0.0, float((np.array(pose[:2]) - a) @ ab) / n))
+    here = a + t * ab
+    left = ahead
+    for j in range(k, len(wps)):
+        seg = wps[j] - here
+        d = float(np.hypot(*seg))
+        if d >= left:
+            p = here + seg * (left / d)
+            return float(p[0]), float(p[1])
+        left -= d
+        here = wps[j]
+    return float(wps[-1][0]), float(wps[-1][1])

@@ -290,3 +290,23 @@ def test_navigate_auto_believes_the_odometry_not_the_truth(server_factory) -> No
     dist = math.hypot(num(truth, "odom_x"), num(truth, "odom_y"))
     assert num(truth, "sim_time") - t0 >= dist / 0.1  # it drove at 0.1 m/s in simulated time
     c.close()
+
+
+def test_a_frame_taken_while_the_rover_is_under_way_costs_no_standing_time(server_factory) -> None:
+    """The see loop's frames are exposed while the rover rolls (World.under_way): the clock
+    moves only with the drive; standing, a frame takes its own time."""
+    srv = server_factory(["drivers.ptu.time_scale=null"])
+    world = srv.app.world
+    tof = srv.app.devices.get("tof")
+    t0 = world.clock.now()
+    tof.grab_xyz(1, 0.0)
+    standing = world.clock.now() - t0
+    assert standing > 0.005
+    with world.under_way():
+        assert world.rolling
+        t1 = world.clock.now()
+        tof.grab_xyz(1, 0.0)
+        assert world.clock.now() - t1 == 0.0
+        world.drive(0.1, 0.0, 0.5)
+        assert world.clock.now() - t1 == pytest.approx(0.5)
+    assert not world.rolling

@@ -8,11 +8,12 @@ copies a consistent snapshot under the lock and ray casts outside it.
 
 from __future__ import annotations
 
+import contextlib
 import copy
 import math
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -71,6 +72,7 @@ class World:
         # frames); it outlives scene changes, as time does.
         self.clock = SimClock(clock_scale)
         self._drive_lock = threading.Lock()  # one drive at a time (navigate -auto or sim drive)
+        self._under_way = 0  # a drive loop keeps the rover rolling between its drive calls
         self._pan = 0.0
         self._tilt = 0.0
         self._load(spec, seed)
@@ -267,6 +269,24 @@ class World:
                 if on_step is not None:
                     on_step()
         return {"seconds": driven, "distance": v * driven, "turned": w_deg * driven}
+
+    @contextlib.contextmanager
+    def under_way(self) -> Iterator[None]:
+        """A drive loop that checks its sensors between short drive calls: on a real rover those
+        frames are exposed while it rolls, so a frame costs no time of its own (the ToF's exposure
+        overlaps the drive) instead of the rover standing still for each."""
+        with self._lock:
+            self._under_way += 1
+        try:
+            yield
+        finally:
+            with self._lock:
+                self._under_way -= 1
+
+    @property
+    def rolling(self) -> bool:
+        """Whether a drive is under way (see :meth:`under_way`) or a drive call runs."""
+        return self._under_way > 0 or self.driving
 
     @property
     def driving(self) -> bool:

@@ -296,7 +296,8 @@ class SimTof:
         t_ms = k.integration_ms(integration)
         frame_s = (4 * t_ms + 5.0) / 1000.0  # four phase samples per frame plus read-out
         if self._time_scale is None:
-            self._world.clock.sleep(frame_s)
+            if not self._world.rolling:  # exposed while the rover rolls, the frame overlaps the drive
+                self._world.clock.sleep(frame_s)
         elif self._time_scale > 0:
             time.sleep(self._time_scale * frame_s)
         frame = self._measure(self._expected(t_ms), integration)

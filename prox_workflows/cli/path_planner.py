@@ -86,6 +86,8 @@ def build_parser() -> argparse.ArgumentParser:
         ap.add_argument("--" + spec.name.replace("_", "-"), dest=spec.name, default=str(spec.default),
                         help=f"{spec.help} ({spec.describe()})")
     ap.add_argument("--rover-radius", type=float, default=d.rover_radius, help="m")
+    ap.add_argument("--rover-half-width", type=float, default=0.2,
+                    help="m: half the rover's width, for --footprint body")
     ap.add_argument("--critical-slope", type=float, default=d.critical_slope,
                     help="slope (deg) whose cost equals unknown ground's at --unknown-cost 1")
     ap.add_argument("--unknown-cost", type=float, default=d.unknown_cost,
@@ -122,6 +124,7 @@ def main(argv: list[str] | None = None) -> int:
             "hazard": args.hazard, "slope": args.slope, "global_hazard": args.global_hazard,
             "global_slope": args.global_slope, "ortho_path": args.ortho, "start": list(args.start),
             "goal": list(args.goal), "start_heading": args.start_heading, "rover_radius": args.rover_radius,
+            "rover_half_width": args.rover_half_width,
             "critical_slope": args.critical_slope, "unknown_cost": args.unknown_cost, "prefix": args.output,
             "made_by": MADE_BY, "inputs": inputs})
     except PlanningError as exc:

@@ -493,11 +493,18 @@ class PlanningImage:
     env_cost: np.ndarray  # float32 c: slope / critical slope, unknown_cost where unknown, inf hazardous
     border_distance: np.ndarray  # float32 m to the outer border of the locally defined region
     clearance: float  # m: blocked where hazard_distance <= clearance
+    turn_clearance: float  # m: the rover may stop and turn on the spot where hazard_distance > this
+
+    @property
+    def turnable(self) -> np.ndarray:
+        """Where the rover's body fits at any heading: it may stop and turn on the spot there."""
+        return self.hazard_distance > self.turn_clearance
 
     def cost_per_metre(self, weight: float) -> np.ndarray:
         """k = w + (1 - w) * c, inf where blocked (or c is inf)."""
         c = self.env_cost.astype(np.float64)
-        return np.where(self.blocked | ~np.isfinite(c), np.inf, weight + (1.0 - weight) * c)
+        with np.errstate(invalid="ignore"):  # w = 1 times an inf cost: that cell is inf anyway
+            return np.where(self.blocked | ~np.isfinite(c), np.inf, weight + (1.0 - weight) * c)
 
 
 def _distance_cells(zero_at: np.ndarray) -> np.ndarray:
@@ -521,10 +528,14 @@ def expand_hazards(hazardous: np.ndarray, radius: float, cell: float) -> tuple[n
     return hazardous | (dist <= clearance), dist, clearance
 
 
-def border_distance(local: np.ndarray, cell: float) -> np.ndarray:
+def border_distance(local: np.ndarray, cell: float, holes: bool = False) -> np.ndarray:
     """Metres from each cell centre to the nearest cell outside the local map's outer border.
     Holes inside the local map (occlusion shadows, the blind spot under the rover) are not
-    border: seed 000 sect. 4.4.2 measures to "just the outer border of the local DEM region"."""
+    border: seed 000 sect. 4.4.2 measures to "just the outer border of the local DEM region".
+    With ``holes`` they are: a rover that sees as it drives (the see loop) goes only where it has
+    seen, and an occlusion shadow behind a rock may hide the next rock."""
+    if holes:
+        return (_distance_cells(~np.asarray(local, bool)) * cell).astype(np.float32)
     outside = np.pad(~np.asarray(local, bool), 1, constant_values=True).astype(np.uint8)
     mask = np.zeros((outside.shape[0] + 2, outside.shape[1] + 2), np.uint8)
     cv2.floodFill(outside, mask, (0, 0), 2)  # the background reached from the edge (4-connected)
@@ -540,6 +551,7 @@ class PlannerParams:
     weight: float = 0.5  # w: 1 distance only, 0 environmental cost only
     heuristic: str = "octile"
     rover_radius: float = 0.3
+    half_width: float | None = None  # footprint "body": straight stretches keep this + margin from hazards
     margin: float = 0.1
     critical_slope: float = 20.0  # degrees: c = 1 here
     unknown_cost: float = 1.0  # c of unknown ground (inf: not traversable)
@@ -547,6 +559,7 @@ class PlannerParams:
     border: float = 0.3  # stop this far inside the local map's outer border
     blank_pad: float = 2.0  # blank global maps reach this far beyond start, goal and local map
     window: float | None = None  # plan only within this margin around start, goal and local map
+    seen_only: bool = False  # cut the path before any cell the local map has not seen, holes included
 
     def __post_init__(self) -> None:
         if not 0.0 <= self.weight <= 1.0:
@@ -604,14 +617,23 @@ def planning_image(local: NavMaps, global_: NavMaps | None, params: PlannerParam
     known = local_def | global_def
     slope = np.where(local_def, l_slope, np.where(global_def, g_slope, np.nan)).astype(np.float32)
     hazard = np.where(hazardous, HAZARDOUS, np.where(known, SAFE, UNDEFINED)).astype(np.uint8)
-    blocked, hdist, clearance = expand_hazards(hazardous, params.rover_radius + params.margin, cell)
+    # The circle of rover radius + margin is where the body fits at every heading: where the rover
+    # stops and turns on the spot. Along a straight stretch only its half width sweeps sideways, so
+    # with a half width (footprint "body") the cells between are blocked at half width + margin:
+    # a rock field that closes every gap to the circle leaves gaps the body drives through (ACE's
+    # lesson against GESTALT's disc), and the waypoints are put where turning is safe.
+    reach = params.rover_radius if params.half_width is None else min(params.half_width, params.rover_radius)
+    blocked, hdist, clearance = expand_hazards(hazardous, reach + params.margin, cell)
+    turn_clearance = params.rover_radius + params.margin + cell * SQRT2 / 2
     with np.errstate(invalid="ignore"):
         c = np.where(np.isfinite(slope), slope / params.critical_slope, params.unknown_cost)
     c = np.where(known & np.isfinite(slope), c, params.unknown_cost)
     c = np.where(hazardous, np.inf, c).astype(np.float32)
     return PlanningImage(geometry=geom, hazard=hazard, slope=slope, local=local_def, blocked=blocked,
                          hazard_distance=hdist.astype(np.float32), env_cost=c,
-                         border_distance=border_distance(local_def, cell), clearance=clearance)
+                         border_distance=border_distance(local_def, cell, holes=params.seen_only),
+                         clearance=clearance,
+                         turn_clearance=turn_clearance)
 
 
 # ------------------------------------------------------------------------------------ planning
@@ -667,7 +689,7 @@ def plan_path(local: NavMaps, global_: NavMaps | None, start: Sequence[float], g
               goal_heading: float | None = None) -> PlanResult:
     """Plan from ``start`` to ``goal`` (world x, y): merge, expand, A*, cut at the local map's
     border, simplify into waypoints. Raises :class:`PlanningError` when there is no path."""
-    from .waypoints import make_waypoints, simplify
+    from .waypoints import make_waypoints, shortcut, simplify
 
     params = params or PlannerParams()
     start = (float(start[0]), float(start[1]))
@@ -686,7 +708,7 @@ def plan_path(local: NavMaps, global_: NavMaps | None, start: Sequence[float], g
     gr, gc = cells["goal"]
     if image.hazard[gr, gc] == HAZARDOUS:
         raise PlanningError("goal_in_hazard", f"goal ({goal[0]:.3f}, {goal[1]:.3f}) is on a hazardous cell")
-    if image.blocked[gr, gc]:
+    if image.blocked[gr, gc] or not image.turnable[gr, gc]:  # the rover stops there: its body must fit
         raise PlanningError("goal_in_hazard", f"goal ({goal[0]:.3f}, {goal[1]:.3f}) is "
                                               f"{float(image.hazard_distance[gr, gc]):.2f} m from a hazardous "
                                               f"cell, closer than rover radius + margin ({radius:.2f} m) "
@@ -724,10 +746,17 @@ def plan_path(local: NavMaps, global_: NavMaps | None, start: Sequence[float], g
                      "to stop that far inside it")
     if cut < len(path):
         notes.append(f"path cut at the local map's border: the rover drives {cut} of {len(path)} points")
+    turnable = image.turnable[gp.cells[:, 0], gp.cells[:, 1]]
+    if cut < len(path):  # the rover stops at the cut and turns there next leg: where its body fits
+        back = np.flatnonzero(turnable[1:cut])
+        if back.size:
+            cut = int(back[-1]) + 2
     if cut <= 1 and len(path) > 1:
         notes.append("the path does not enter locally seen ground: no move")
     driven = path[:max(cut, 1)]
-    keep = simplify(driven, params.max_deviation, blocked=~np.isfinite(k), geometry=geom)
+    keep = simplify(driven, params.max_deviation, blocked=~np.isfinite(k), geometry=geom,
+                    turnable=turnable[:max(cut, 1)])
+    keep = shortcut(driven, keep, k, gp.g, geom)
     wps = make_waypoints(driven[keep], start_heading=start_heading,
                          goal_heading=goal_heading if cut == len(path) else None)
     return PlanResult(image=image, params=params, start=start, goal=goal, path=path, path_cells=gp.cells,
@@ -760,7 +789,9 @@ def nearest_reachable(local: NavMaps, global_: NavMaps | None, start: Sequence[f
         raise PlanningError("start_in_hazard", f"start ({start[0]:.3f}, {start[1]:.3f}) is on unknown ground, "
                                                "which is not traversable (unknown_cost = inf)")
     labels, _ = ndimage.label(free, structure=np.ones((3, 3), bool))
-    rows, cols = np.nonzero(labels == labels[cell])
+    region = labels == labels[cell]
+    stop = region & image.turnable  # where the rover's body fits when it stops
+    rows, cols = np.nonzero(stop if stop.any() else region)
     xs, ys = geom.centers()
     d = np.hypot(xs[cols] - goal[0], ys[rows] - goal[1])
     i = int(np.argmin(d))
@@ -964,15 +995,20 @@ def write_plan(result: PlanResult, prefix: str, ortho: tuple[np.ndarray, GridGeo
 @step("plan_path", inputs={"local": "NavMaps", "global_maps": "NavMaps?", "start": "floats", "goal": "floats",
                            "start_heading": "float?", "weight": "float", "heuristic": "str", "grid": "float",
                            "margin": "float", "max_deviation": "float", "border": "float",
-                           "rover_radius": "float", "critical_slope": "float", "unknown_cost": "float?"},
+                           "rover_radius": "float", "critical_slope": "float", "unknown_cost": "float?",
+                           "footprint": "str?", "rover_half_width": "float?"},
       outputs={"plan": "PlanResult"})
 def plan_step(local: NavMaps, global_maps: NavMaps | None, start: Sequence[float], goal: Sequence[float],
               start_heading: float | None = None, weight: float = 0.5, heuristic: str = "octile",
               grid: float | None = None, margin: float = 0.1, max_deviation: float = 0.1, border: float = 0.3,
               rover_radius: float = 0.3, critical_slope: float = 20.0,
-              unknown_cost: float | None = None) -> PlanResult:
+              unknown_cost: float | None = None, footprint: str | None = None,
+              rover_half_width: float | None = None) -> PlanResult:
     """:func:`plan_path` with the planner's parameters as the script passes them one by one."""
+    if footprint == "body" and rover_half_width is None:
+        raise ValueError("footprint body needs the rover's half width (rover_half_width)")
     params = PlannerParams(grid=grid, weight=weight, heuristic=heuristic, rover_radius=rover_radius, margin=margin,
+                           half_width=rover_half_width if footprint == "body" else None,
                            critical_slope=critical_slope, max_deviation=max_deviation, border=border,
                            **({} if unknown_cost is None else {"unknown_cost": unknown_cost}))
     return plan_path(local, global_maps, start, goal, params, start_heading=start_heading)

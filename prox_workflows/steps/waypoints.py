@@ -86,8 +86,15 @@ def _segment_distance(points: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.nd
 
 
 def simplify(path: np.ndarray, max_deviation: float, blocked: np.ndarray | None = None,
-             geometry: GridGeometry | None = None) -> np.ndarray:
-    """Indices of the path points kept as waypoints (first and last always)."""
+             geometry: GridGeometry | None = None, turnable: np.ndarray | None = None) -> np.ndarray:
+    """Indices of the path points kept as waypoints (first and last always).
+
+    ``turnable`` (one bool per path point) says where the rover may stop and turn on the spot
+    (its whole body fits there at any heading): a waypoint is then put at the last such point
+    before the line fails, or, if there is none, at the first one farther on that a clear line
+    still reaches (it may leave the A* path by more than ``max_deviation``: the A* path kept
+    only half the body's width from the hazards, which a line through blocked-free cells keeps
+    too). Only where neither exists is a waypoint put where the body may not fit."""
     pts = np.asarray(path, dtype=np.float64)
     n = len(pts)
     if n <= 2:
@@ -103,11 +110,58 @@ def simplify(path: np.ndarray, max_deviation: float, blocked: np.ndarray | None 
         if ok:
             e += 1
             continue
-        a = e - 1
+        a = _turn_point(pts, a, e, turnable, blocked if check else None, geometry)
         keep.append(a)
         e = a + 2
-    keep.append(n - 1)
+    if keep[-1] != n - 1:
+        keep.append(n - 1)
     return np.array(keep, dtype=np.int64)
+
+
+def shortcut(path: np.ndarray, keep: np.ndarray, cost: np.ndarray, cost_so_far: np.ndarray,
+             geometry: GridGeometry) -> np.ndarray:
+    """Drop the waypoints that a straight line between their neighbours makes unneeded: from
+    each kept waypoint, the farthest later one whose line costs no more than the A* path
+    between them (``cost`` per metre, the planner's, over the cells the line crosses; inf
+    anywhere: blocked). An 8-connected grid path is up to 8 % longer than the straight line it
+    approximates and :func:`simplify` keeps to it within ``max_deviation``; this takes the
+    any-angle line wherever it is at least as good by the planner's own measure."""
+    keep = np.asarray(keep, dtype=np.int64)
+    out = [int(keep[0])]
+    i = 0
+    while i < len(keep) - 1:
+        a = int(keep[i])
+        nxt = i + 1
+        for j in range(len(keep) - 1, i + 1, -1):
+            b = int(keep[j])
+            rows, cols = segment_cells(path[a], path[b], geometry)
+            if not geometry.inside(rows, cols).all():
+                continue
+            k = cost[rows, cols]
+            if not np.isfinite(k).all():
+                continue
+            line = float(np.mean(k)) * float(np.hypot(*(path[b] - path[a])))
+            if line <= float(cost_so_far[b] - cost_so_far[a]) + 1e-9:
+                nxt = j
+                break
+        out.append(int(keep[nxt]))
+        i = nxt
+    return np.array(out, dtype=np.int64)
+
+
+def _turn_point(pts: np.ndarray, a: int, e: int, turnable: np.ndarray | None, blocked: np.ndarray | None,
+                geometry: GridGeometry | None) -> int:
+    """The next waypoint after ``a`` once the line a-e failed (see :func:`simplify`)."""
+    if turnable is None or turnable[e - 1]:
+        return e - 1
+    back = np.flatnonzero(turnable[a + 1:e - 1])
+    if back.size:
+        return a + 1 + int(back[-1])
+    for j in range(e, len(pts)):
+        if turnable[j] or j == len(pts) - 1:
+            if blocked is None or geometry is None or segment_clear(pts[a], pts[j], blocked, geometry):
+                return j
+    return e - 1
 
 
 def _wrap(deg: np.ndarray | float) -> np.ndarray:

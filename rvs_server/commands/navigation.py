@@ -95,6 +95,7 @@ class NavigateConfig(ModuleConfig):
     margin: float = reuse(PlanParams, "margin")
     max_deviation: float = reuse(PlanParams, "max_deviation")
     border: float = reuse(PlanParams, "border")
+    footprint: str = reuse(PlanParams, "footprint")
     range: list[float] = param([-180.0, 180.0, -50.0, -10.0], "view range of each leg's DEM", unit="deg",
                                length=4, min=-360.0, max=360.0, option=False)
     overlap: float = param(0.3, "view overlap of each leg's DEM", min=0.0, max=0.9, option=False)
@@ -143,13 +144,25 @@ class NavigateConfig(ModuleConfig):
                                  unit="m", min=0.5, max=30.0, option=False)
     replan_ahead: float = param(1.0, "see loop: extend the path from the rolling map once the leg's end is this "
                                 "close, without stopping", unit="m", min=0.0, max=5.0, option=False)
+    see_pursuit: float = param(0.3, "see loop: the rover steers at the point of its path this far ahead (pure "
+                               "pursuit; shorter follows the waypoints' corners closer)", unit="m", min=0.05, max=3.0,
+                               option=False)
+    see_arc_turn: float = param(45.0, "see loop: a heading error up to this is driven out as an arc at full speed, "
+                                "a larger one is turned on the spot", unit="deg", min=0.0, max=180.0, option=False)
+    see_border: float = param(0.3, "see loop: plans stop this far inside the seen ground (the forward ToF sees "
+                              "the ground ahead before the rover gets there; a scan leg keeps navigate.border)",
+                              unit="m", min=0.0, max=5.0, option=False)
+    see_unknown_cost: float = param(4.0, "see loop: environmental cost of unseen ground (1 = a slope at "
+                                    "dem2hazard's limit): paths keep to seen ground, and are cut before any unseen "
+                                    "cell, an occlusion shadow behind a rock included", min=0.0, max=1000.0,
+                                    option=False)
     max_replans: int = param(100, "see loop: give up after this many plans in all", min=1, max=10000,
                              option=False)
 
 
 # What a navigate leg puts in the plan_leg script's workspace (checked at server start).
-PLAN_INPUTS = ("local", "global_maps", "ortho", "start", "goal", "start_heading", "rover_radius", "critical_slope",
-               "prefix", "made_by")
+PLAN_INPUTS = ("local", "global_maps", "ortho", "start", "goal", "start_heading", "rover_radius", "rover_half_width",
+               "critical_slope", "prefix", "made_by")
 
 
 def validate_scripts() -> None:
@@ -267,9 +280,13 @@ def navigate(job: Job, cfg: NavigateConfig) -> dict[str, Any]:
     head = app.config.get("head")
     params = PlannerParams(grid=cfg.grid, weight=cfg.weight, heuristic=cfg.heuristic,
                            rover_radius=math.hypot(head.rover_length, head.rover_width) / 2, margin=cfg.margin,
+                           half_width=head.rover_width / 2 if cfg.footprint == "body" else None,
                            critical_slope=app.config.get("dem2hazard").slope_max,
                            max_deviation=cfg.max_deviation, border=cfg.border)
+    seeing = cfg.auto and cfg.loop == "see"
     plan_params = {n: getattr(cfg, n) for n in PlanParams.specs()}
+    if seeing:  # the forward ToF sees the ground ahead before the rover gets there
+        plan_params["border"] = min(cfg.border, cfg.see_border)
     dem_cfg = copy.deepcopy(app.config.get("dem_full_tof" if cfg.sensor == "tof" else "dem_full"))
     dem_cfg.range, dem_cfg.overlap = list(cfg.range), cfg.overlap
     all_paths: list[Any] = []
@@ -277,7 +294,6 @@ def navigate(job: Job, cfg: NavigateConfig) -> dict[str, Any]:
     track: list[tuple[float, float]] = [(app.pose.x, app.pose.y)]
     leg_starts: list[tuple[float, float]] = []
     stalled = 0  # legs in a row that started where the previous one did
-    seeing = cfg.auto and cfg.loop == "see"
     see = autonomy.start(job, cfg) if seeing else None
     need_scan = True  # the see loop scans first, then only when the rolling map shows no way
     scans = 0
@@ -291,8 +307,11 @@ def navigate(job: Job, cfg: NavigateConfig) -> dict[str, Any]:
             if plan is not None:
                 all_paths.append(plan.path[: plan.cut])
                 all_waypoints.append(plan.waypoints.xy)
-                see.drive_leg(leg, plan, track, name)
+                see.drive_leg(leg, plan, track)
                 continue
+            if see.fresh_scan:  # the 360-degree scan just made shows no way either
+                raise ProtocolError("E_DATA", f"no way on from ({pose.x:.2f}, {pose.y:.2f}) after a 360-degree "
+                                              f"scan: {see.why}")
             need_scan = True  # the rolling map shows no way: scan 360 degrees from here
         if scans >= cfg.max_legs:
             break
@@ -319,9 +338,10 @@ def navigate(job: Job, cfg: NavigateConfig) -> dict[str, Any]:
             break  # (a scan to check a dead-reckoned arrival, and it holds)
         maps = app.maps.layers
         local = NavMaps(maps["hazard"], maps["slope"], maps.geometry)
-        if see is not None:
+        if see is not None:  # the see loop plans from the scan and what it sees next (SeeLoop.replan)
             see.scanned(local)
             need_scan = False
+            continue
         here = (pose.x, pose.y)
         distance = math.hypot(goal[0] - pose.x, goal[1] - pose.y)
         judged: PlanningError | None = None  # the goal's verdict from too far to be final
@@ -329,6 +349,7 @@ def navigate(job: Job, cfg: NavigateConfig) -> dict[str, Any]:
         plan_inputs = {"local": local, "global_maps": global_maps, "ortho": (maps["ortho"], maps.geometry),
                        "start": list(here),
                        "start_heading": pose.heading, "rover_radius": params.rover_radius,
+                       "rover_half_width": head.rover_width / 2,
                        "critical_slope": params.critical_slope, "prefix": prefix, "made_by": "navigate"}
 
         def plan_leg(to: tuple[float, float], inputs: dict[str, Any] = plan_inputs) -> Any:
@@ -369,9 +390,7 @@ def navigate(job: Job, cfg: NavigateConfig) -> dict[str, Any]:
             "file": app.rel(prefix.with_name(prefix.name + "_waypoints.csv")), **pose_fields(job)}))
         leg_progress(0, segments, f"waiting for the rover to drive {segments} segments to "
                                   f"({end[0]:.2f}, {end[1]:.2f})", "drive")
-        if see is not None:
-            see.drive_leg(leg, plan, track, name, announced=True)
-        elif cfg.auto:
+        if cfg.auto:
             drive_simulated(app.world, plan.waypoints, track, reached=lambda k, n=segments: leg_progress(
                 k, n, f"segment {k}/{n} driven", "drive"), stop=job.cancel.is_set)
             job.check()
