@@ -69,20 +69,25 @@ class DemParams(Settings):
                                         "variance is the points' / N x (1 + rho (N - 1)))", min=0.0, max=1.0,
                                         option=False)
     stereo_noise_floor: float = param(0.0, "stereo height noise: floor", unit="m", min=0.0, max=1.0, option=False)
-    stereo_noise_disparity: float = param(0.1325, "stereo height noise: disparity sigma (depth error z^2 "
+    stereo_noise_disparity: float = param(0.1324, "stereo height noise: disparity sigma (depth error z^2 "
                                           "sigma / (b f))", unit="px", min=0.0, max=100.0, option=False)
-    stereo_noise_texture: float = param(0.1459, "stereo height noise: disparity sigma x grey-level spread (grows "
+    stereo_noise_texture: float = param(0.1535, "stereo height noise: disparity sigma x grey-level spread (grows "
                                         "where texture is weak)", unit="px*grey", min=0.0, max=1000.0, option=False)
-    stereo_noise_incidence: float = param(6.44e-05, "stereo height noise: per metre of range x tan(incidence)",
+    stereo_noise_incidence: float = param(6.644e-05, "stereo height noise: per metre of range x tan(incidence)",
                                           unit="m/m", min=0.0, max=1.0, option=False)
-    stereo_noise_edge: float = param(0.3701, "stereo height noise: share of the height jump to the pixel's "
+    stereo_noise_edge: float = param(0.3692, "stereo height noise: share of the height jump to the pixel's "
                                      "neighbours (occlusion edges)", min=0.0, max=10.0, option=False)
-    stereo_noise_slope: float = param(0.002339, "stereo height noise: per unit of the ground's slope at the pixel",
+    stereo_noise_slope: float = param(0.002353, "stereo height noise: per unit of the ground's slope at the pixel",
                                       unit="m", min=0.0, max=1.0, option=False)
-    stereo_noise_multipath: float = param(0.02819, "stereo height noise: per metre of range x share of wall "
+    stereo_noise_multipath: float = param(0.02663, "stereo height noise: per metre of range x share of wall "
                                           "pixels nearby", unit="m/m", min=0.0, max=1.0, option=False)
     stereo_cell_correlation: float = param(1.0, "correlation of the stereo points' errors within a cell (see "
                                            "tof_cell_correlation)", min=0.0, max=1.0, option=False)
+    tof_fuse_scatter: float = param(1.23, "ToF-stereo fusion: share of the squared deviation of a ToF cell from "
+                                    "the median of its neighbours added to its variance (the ToF map's own "
+                                    "evidence against the cell)", min=0.0, max=100.0, option=False)
+    stereo_fuse_scatter: float = param(1.66, "ToF-stereo fusion: the same for a stereo cell", min=0.0, max=100.0,
+                                       option=False)
     fuse_gate: float = param(2.0, "ToF-stereo fusion: Mahalanobis gate between the two sensors' cell heights; "
                              "past it the one the neighbouring cells support wins (chosen by the same "
                              "calibration)", min=0.0, max=1000.0, option=False)

@@ -14,14 +14,7 @@ from tools.bench.fusion import band_rmse, evaluation_cells, load_scan, scan_scen
 
 
 @long_test
-@pytest.mark.parametrize("scene", [
-    pytest.param("office", marks=pytest.mark.xfail(strict=True, reason=(
-        "open (issue 13 item 6): since the stereo texture mask became relative to the sensor noise "
-        "(denser stereo), office 1-2 m fuses to 1.86 mm vs the ToF's 1.84 and 3-4 m to 12.42 vs the "
-        "stereo's 12.10: the ToF's errors at 3-4 m are heavy-tailed (7 % of points, 60 % of the squared "
-        "error, not explained by the edge, wall or incidence terms), so the calibrated model under-weights "
-        "them; recalibrating, other gates, Student-t weights and larger ToF terms did not fix both bands"))),
-    "quarry", "marsyard"])
+@pytest.mark.parametrize("scene", ["office", "quarry", "marsyard"])
 def test_fused_rmse_below_each_sensor_per_range_band(scene: str, tmp_path: Path) -> None:
     scan = load_scan(scan_scene(scene, tmp_path / scene))
     dems = sensor_dems(scan["views"], scan["rover_mask"], scan["ref"])

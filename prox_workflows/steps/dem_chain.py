@@ -90,9 +90,11 @@ def mosaik_layers(dems: list[Layers], rule: str = "max", bounds: list[float] | N
 
 
 @step("mosaic", inputs={"dems": "list[Layers?]", "base": "Layers?", "rule": "str", "cell": "float",
-                        "within_scan": "str", "gate": "float"}, outputs={"mosaic": "Layers"})
+                        "within_scan": "str", "gate": "float", "tof_scatter": "float", "stereo_scatter": "float"},
+      outputs={"mosaic": "Layers"})
 def mosaic(dems: list[Layers | None], base: Layers | None, rule: str, cell: float,
-           within_scan: str = "higher", gate: float = 3.0) -> Layers:
+           within_scan: str = "higher", gate: float = 3.0, tof_scatter: float = 0.0,
+           stereo_scatter: float = 0.0) -> Layers:
     """DemMosaik of the views, then onto the current DEM (if any), on the union of extents.
 
     Views of one sensor in one scan disagree mostly where one sees a rock's top and another its
@@ -101,7 +103,9 @@ def mosaic(dems: list[Layers | None], base: Layers | None, rule: str, cell: floa
     DEMs are then fused cell by cell (:func:`fuse_sensors`): the information-weighted mean where
     they agree within ``gate`` standard deviations of their difference, else the one the
     neighbourhood supports - order-free, where fusing the views in acquisition order let
-    whichever sensor came first keep a cell it had wrong. Between scans a disagreement is a
+    whichever sensor came first keep a cell it had wrong; each sensor's cells count as less
+    certain the farther they stand from their neighbours (``tof_scatter`` / ``stereo_scatter``,
+    fuse_sensors's ``scatter``). Between scans a disagreement is a
     change or an outlier, so the gate rejects it and inflates the prior's variance
     (elevation_mapping's rule).
     """
@@ -119,7 +123,8 @@ def mosaic(dems: list[Layers | None], base: Layers | None, rule: str, cell: floa
             g = union_geometry([v.geometry for v in views], cell)
             each = [dem_mosaik([v for v in views if v.meta.get("sensor", "") == s], rule="fuse", geometry=g,
                                on_conflict="higher") for s in sensors]
-            scan = fuse_sensors(each, geometry=g, gate=gate)
+            scan = fuse_sensors(each, geometry=g, gate=gate,
+                                scatter=[tof_scatter if s == "tof" else stereo_scatter for s in sensors])
     if base is None:
         assert scan is not None
         return scan

@@ -49,6 +49,7 @@ import numpy as np
 from ..grid import GridGeometry, Layers
 
 RULES = ("max", "newest", "fuse")
+WINDOW = 5  # cells per side of the neighbourhood fuse_sensors reads (the median a conflict is settled by)
 CONFLICTS = ("inflate", "higher", "precise")
 
 
@@ -227,8 +228,25 @@ def dem_mosaik(
     return out
 
 
+def local_scatter(height: np.ndarray, window: int = WINDOW) -> np.ndarray:
+    """The squared deviation (m^2) of each cell's height from the median of the defined heights in
+    the ``window`` x ``window`` cells around it (itself included); 0 where it or all of them are
+    undefined. Ground is continuous, so a cell far from its neighbours' median is either on an
+    edge the cell's sampling cannot place, or wrong."""
+    h = np.asarray(height, np.float64)
+    r = window // 2
+    pad = np.pad(h, r, constant_values=np.nan)
+    win = np.lib.stride_tricks.sliding_window_view(pad, (window, window)).reshape(h.shape + (-1,))
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        dev = h - np.nanmedian(win, axis=-1)
+    return np.where(np.isfinite(dev), dev * dev, 0.0)
+
+
 def fuse_sensors(dems: Sequence[Layers], geometry: GridGeometry | None = None, gate: float = 3.0,
-                 window: int = 5, sigma: float = 0.01) -> Layers:
+                 window: int = WINDOW, sigma: float = 0.01, scatter: Sequence[float] = (0.0, 0.0)) -> Layers:
     """Fuse the DEMs of two sensors of one scan (a ToF DEM and a stereo DEM) cell by cell.
 
     Where both see a cell and agree - the Mahalanobis distance |h1 - h2| / sqrt(s1^2 + s2^2)
@@ -241,17 +259,30 @@ def fuse_sensors(dems: Sequence[Layers], geometry: GridGeometry | None = None, g
     cells around (errors of one sensor are isolated; the ground is continuous). With no agreed
     neighbour the smaller variance wins. Order-free: swapping the inputs gives the same DEM.
     A cell one sensor alone sees keeps that sensor's height and variance. Layers as
-    :func:`dem_mosaik`, with ``meta["conflicts"]`` the number of cells the gate settled."""
+    :func:`dem_mosaik`, with ``meta["conflicts"]`` the number of cells the gate settled.
+
+    ``scatter`` (one coefficient per input) adds each input's own evidence against a cell to
+    the variance its noise model gives it before the two are weighed: the coefficient times the
+    squared deviation of the cell from the median of that input's cells in the ``window``
+    around (:func:`local_scatter`). The per-point models see a point's image, not the cells the
+    sensor made of it and its neighbours; a sensor's errors are heavy-tailed (a ToF cell on a
+    step the coarse far pixels straddle, a stereo mismatch), and its own map shows them as cells
+    off their neighbours, where the model, fitted to the inliers, would still trust them. The
+    coefficients are fitted with the models (tools/bench/fusion.py --calibrate)."""
     if len(dems) != 2:
         raise ValueError(f"fuse_sensors takes two DEMs (one per sensor), got {len(dems)}")
     if gate <= 0 or window < 1:
         raise ValueError("gate must be positive and window at least 1")
+    if len(scatter) != 2 or min(scatter) < 0:
+        raise ValueError(f"scatter takes one coefficient (not negative) per DEM, got {list(scatter)}")
     g = geometry if geometry is not None else union_geometry([d.geometry for d in dems])
     hs, vs, ns = [], [], []
     for layers in dems:
         height = np.asarray(layers["dem"])
         count = np.asarray(layers["count"]) if "count" in layers else np.isfinite(height).astype(np.int64)
         h, v, n = resample(height, input_variance(layers, sigma), count, layers.geometry, g)
+        if scatter[len(hs)] > 0:
+            v = v + float(scatter[len(hs)]) * local_scatter(h, window)
         hs.append(h)
         vs.append(v)
         ns.append(n)

@@ -28,7 +28,11 @@ a parameter. The a-priori model above over-predicted the ToF's error near and un
 far (the fused DEM leaned on the wrong sensor), which is why the weights are now measured. The
 edge term reads the height jump to the neighbours only up to :data:`JUMP_CAP` (a taller jump is the
 edge's height, not the point's error), and the within-cell correlation that turns the points'
-variances into the cell's is fitted on cells grouped by their number of points.
+variances into the cell's is fitted on cells grouped by their number of points. What a point's
+image cannot show - the heavy tail of the errors, a far ToF pixel on a step, a stereo mismatch -
+the fusion of the two sensors' maps takes from the maps themselves: a cell off the median of its
+neighbours counts as less certain (``scatter`` of dem_mosaik.fuse_sensors, fitted by the same
+calibration).
 """
 
 from __future__ import annotations

@@ -13,7 +13,7 @@ from prox_workflows.grid import GridGeometry, Layers
 from prox_workflows.parameters import DemParams
 from prox_workflows.steps.acquire import View
 from prox_workflows.steps.dem_chain import mosaic, view_dem
-from prox_workflows.steps.dem_mosaik import fuse_sensors
+from prox_workflows.steps.dem_mosaik import fuse_sensors, local_scatter
 from prox_workflows.steps.noise import (
     JUMP_CAP,
     STEREO_TERMS,
@@ -42,7 +42,8 @@ def test_every_model_term_is_a_declared_parameter_with_its_calibrated_default() 
     p = DemParams()
     assert model_sigmas(p, "tof")["edge"] == p.tof_noise_edge
     assert model_sigmas(p, "stereo")["disparity"] == p.stereo_noise_disparity
-    assert {"tof_cell_correlation", "stereo_cell_correlation", "fuse_gate"} <= names
+    assert {"tof_cell_correlation", "stereo_cell_correlation", "tof_fuse_scatter", "stereo_fuse_scatter",
+            "fuse_gate"} <= names
 
 
 def test_models_grow_with_range_and_stereo_with_depth_squared() -> None:
@@ -128,6 +129,27 @@ def test_a_conflict_goes_to_the_sensor_the_neighbours_support_not_the_first_or_t
     assert fuse_sensors([lone, far])["dem"][5, 5] == pytest.approx(0.3)  # no neighbours: the smaller variance
     with pytest.raises(ValueError, match="two DEMs"):
         fuse_sensors([tof])
+
+
+def test_a_cell_off_its_own_neighbours_loses_weight_by_the_scatter_term() -> None:
+    truth = np.zeros(G.shape)
+    tof = layers_of(truth.copy(), 0.01**2)
+    st = layers_of(truth.copy(), 0.01**2)
+    tof["dem"][20, 20] = 0.03  # a heavy-tail ToF cell the gate passes (2.1 sigma of the difference)
+    tof["dem"][0, 0] = np.nan
+    s = local_scatter(np.asarray(tof["dem"]))
+    assert s[20, 20] == pytest.approx(0.03**2, rel=1e-5) and s[21, 21] == 0.0 and s[0, 0] == 0.0
+    plain = fuse_sensors([tof, st], gate=3.0)
+    assert plain["dem"][20, 20] == pytest.approx(0.015, abs=1e-6)  # the model alone: halfway
+    fused = fuse_sensors([tof, st], gate=3.0, scatter=(1.0, 1.0))
+    expected = 0.03 * 0.01**2 / (2 * 0.01**2 + 0.03**2)  # the ToF cell's variance gained 0.03^2
+    assert fused["dem"][20, 20] == pytest.approx(expected, rel=1e-4)
+    assert fused["variance"][20, 20] > plain["variance"][20, 20]
+    swapped = fuse_sensors([st, tof], gate=3.0, scatter=(1.0, 1.0))  # order-free with its coefficients
+    assert np.allclose(swapped["dem"], fused["dem"], atol=1e-7, equal_nan=True)
+    assert fused["dem"][21, 21] == pytest.approx(0.0, abs=1e-7)  # neighbours of it keep their weights
+    with pytest.raises(ValueError, match="scatter"):
+        fuse_sensors([tof, st], scatter=(1.0, -1.0))
 
 
 def _view(sensor: str, z: np.ndarray, var: float, index: int) -> View:

@@ -4,13 +4,13 @@ fused, on the cells both sensors see, in the office, quarry and marsyard scenes.
 One ``dem-full -sensor fused`` scan per scene through a real server (simulated hardware) records
 the ToF and the stereo views of the same pointings; the ToF-only, stereo-only and fused DEMs are
 made from those very views by the server's DEM chain (DemImport per view with the noise model's
-per-point variance, DemMosaik ``fuse``, spike removal), so the three differ only in which views
-they take. The truth is the simulated world's DEM (``World.true_dem``) on the same cells; cells
+per-point variance, DemMosaik ``fuse`` and, for the two sensors, ``fuse_sensors`` with each map's
+scatter term, spike removal), so the three differ only in which views they take. The truth is the simulated world's DEM (``World.true_dem``) on the same cells; cells
 within 3 cells of an object's edge are left out (a cell's height there is a matter of where in
 the cell the edge falls, not of a sensor's noise), as are cells hole filling interpolated.
 
     python -m tools.bench.fusion [--scenes office,quarry,marsyard] [--range -60,60,-50,-20] [--keep DIR]
-    python -m tools.bench.fusion --calibrate      # the noise models' predicted sigma vs measured error
+    python -m tools.bench.fusion --calibrate      # fit the noise models, scatter and gate: the DemParams defaults
 """
 
 from __future__ import annotations
@@ -162,7 +162,7 @@ def sensor_dems(views: list[Any], rover_mask: Any, ref: Any, params: Any = None,
             continue
         vs = [v for v in views if v.sensor in keep]
         dems = [view_dem(v, CELL, rover_mask, "mean", p.tof_cell_correlation, p.stereo_cell_correlation) for v in vs]
-        m = mosaic(dems, None, "fuse", CELL, scan_rule(vs), p.fuse_gate)
+        m = mosaic(dems, None, "fuse", CELL, scan_rule(vs), p.fuse_gate, p.tof_fuse_scatter, p.stereo_fuse_scatter)
         m = remove_spikes_layers(m, p.spike_jump, p.spike_sigma, p.spike_points)
         out[name] = {k: resample_nearest(m[k], m.geometry, ref) for k in layers}
     return out
@@ -265,6 +265,23 @@ def robust_fit(basis: np.ndarray, sq_err: np.ndarray, clip: float = 3.0, rounds:
     return coef, keep
 
 
+def scatter_fit(err: np.ndarray, variance: np.ndarray, scatter: np.ndarray) -> float:
+    """The coefficient a (3 significant digits) that maximises the Gaussian likelihood of the cell
+    errors ``err`` with variances ``variance`` + a ``scatter``: a likelihood, not a least-squares
+    fit of e^2, because the cells it is for are the heavy tail, where squared errors scatter
+    most, and because it weighs a cell by how surprising its error is for the variance it claims
+    (the fusion's weights), not by its size."""
+    from scipy.optimize import minimize_scalar
+
+    def nll(log_a: float) -> float:
+        v = variance + np.exp(log_a) * scatter
+        return float(np.mean(np.log(v) + err * err / v))
+
+    best = minimize_scalar(nll, bounds=(np.log(1e-3), np.log(1e3)), method="bounded")
+    a = float(np.exp(best.x))
+    return float(f"{a:.3g}") if nll(best.x) < float(np.mean(np.log(variance) + err * err / variance)) else 0.0
+
+
 def calibrate(scans: dict[str, dict[str, Any]]) -> dict[str, float]:
     """Fit both noise models to the truth and print predicted vs measured error per range band.
 
@@ -274,10 +291,18 @@ def calibrate(scans: dict[str, dict[str, Any]]) -> dict[str, float]:
        sensor-only DEM's predicted sigma match its cells' robust error (median |e| / 0.674)
        over all cells (the ToF's cells hold a few points, the stereo pair's dozens: without it,
        the mean of correlated matches claims to be far better than it is).
+    3. Scatter: per sensor, the share of a cell's squared deviation from the median of its
+       neighbours that the fusion adds to its variance (fuse_sensors's ``scatter``), by the
+       maximum likelihood of the sensor-only DEM's cell errors (:func:`scatter_fit`). The point
+       fit of step 1 leaves the heavy tail to the gate, but where both sensors are off together
+       (a step of the ground the far ToF pixels straddle) the gate passes a ToF cell 5 sigma
+       wrong and the mean leans on it; its own map shows it, as a cell off its neighbours.
+    4. The gate: the one of :data:`GATES` with the fewest scenes where fusion misses a band.
     Returns the parameter values (DemParams field names), to be declared as their defaults."""
     from dataclasses import replace
 
     from prox_workflows.parameters import DemParams
+    from prox_workflows.steps.dem_mosaik import local_scatter
     from prox_workflows.steps.noise import JUMP_CAP, STEREO_TERMS, TOF_TERMS
 
     fitted: dict[str, float] = {}
@@ -309,7 +334,8 @@ def calibrate(scans: dict[str, dict[str, Any]]) -> dict[str, float]:
             print(f"     {lo}-{lo + 1} m {sel.sum():>8} {1e3 * np.sqrt(np.mean(e**2)):7.2f} "
                   f"{1e3 * np.sqrt(np.mean(e[keep[sel]] ** 2)):7.2f} {1e3 * np.median(np.abs(e)) / 0.6745:7.2f} "
                   f"{1e3 * np.sqrt(np.mean(pred[sel] ** 2)):7.2f}")
-    params = replace(DemParams(), **fitted, tof_cell_correlation=0.0, stereo_cell_correlation=0.0)
+    params = replace(DemParams(), **fitted, tof_cell_correlation=0.0, stereo_cell_correlation=0.0,
+                     tof_fuse_scatter=0.0, stereo_fuse_scatter=0.0)
     print("2. cells: sensor-only DEM error vs its predicted sigma (mm), per 1 m band from the rover; 'rms in':")
     print("   the cells within 3 predicted sigma (the rest is the gate's business)")
     modelled = {scene: with_model(scan["views"], scan["stereo"], params) for scene, scan in scans.items()}
@@ -364,7 +390,28 @@ def calibrate(scans: dict[str, dict[str, Any]]) -> dict[str, float]:
                   f"{1e3 * np.median(np.abs(e[sel])) / 0.6745:7.2f} {1e3 * np.sqrt(np.mean(var[sel])):7.2f}")
     params = replace(params, **fitted)
     modelled = {scene: with_model(scan["views"], scan["stereo"], params) for scene, scan in scans.items()}
-    print("3. the gate between the two sensors: per scene, the worst band's fused RMSE over the better sensor's")
+    print("3. scatter: the share of a cell's squared deviation from its neighbours' median that its variance")
+    print("   gains in the fusion, per sensor: the maximum likelihood of the sensor-only DEM's cell errors")
+    for kind, keep_s in (("tof", {"tof"}), ("stereo", {"left"})):
+        es, vs, ss, ds = [], [], [], []
+        for scene, scan in scans.items():
+            cells, dist = cellsets[scene]
+            d = sensor_dems([v for v in modelled[scene] if v.sensor in keep_s], scan["rover_mask"], scan["ref"],
+                            params, layers=("dem", "variance"), names=(kind,))[kind]
+            sel = cells & np.isfinite(d["dem"])
+            es.append((d["dem"][sel] - scan["truth"][sel]).astype(np.float64))
+            vs.append(d["variance"][sel].astype(np.float64))
+            ss.append(local_scatter(d["dem"])[sel])
+            ds.append(dist[sel])
+        e, var, sc, dist = (np.concatenate(x) for x in (es, vs, ss, ds))
+        a = scatter_fit(e, var, sc)
+        fitted[f"{kind}_fuse_scatter"] = a
+        z0, z1 = e * e / var, e * e / (var + a * sc)
+        print(f"   {kind}: {a:g}; rms z-score per 1 m band without / with it: " + ", ".join(
+            f"{lo}-{lo + 1} m {np.sqrt(np.mean(z0[s])):.2f}/{np.sqrt(np.mean(z1[s])):.2f}"
+            for lo in range(0, 7) if (s := (dist >= lo) & (dist < lo + 1)).sum() >= 100))
+    params = replace(params, **fitted)
+    print("4. the gate between the two sensors: per scene, the worst band's fused RMSE over the better sensor's")
     print("   (bands of 100 cells or more; below 1 everywhere is the goal)")
     worst_of: dict[float, tuple[int, float]] = {}
     for gate in GATES:
