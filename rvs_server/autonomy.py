@@ -293,8 +293,7 @@ class SeeLoop:
 
         pose = self.app.pose
         here = (pose.x, pose.y)
-        params = dataclasses.replace(params, border=min(params.border, self.cfg.see_border), seen_only=True,
-                                     unknown_cost=self.cfg.see_unknown_cost)
+        params = dataclasses.replace(params, border=min(params.border, self.cfg.see_border))
         t0 = time.monotonic()
         merged = self.merged()
         try:

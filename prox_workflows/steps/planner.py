@@ -528,14 +528,10 @@ def expand_hazards(hazardous: np.ndarray, radius: float, cell: float) -> tuple[n
     return hazardous | (dist <= clearance), dist, clearance
 
 
-def border_distance(local: np.ndarray, cell: float, holes: bool = False) -> np.ndarray:
+def border_distance(local: np.ndarray, cell: float) -> np.ndarray:
     """Metres from each cell centre to the nearest cell outside the local map's outer border.
     Holes inside the local map (occlusion shadows, the blind spot under the rover) are not
-    border: seed 000 sect. 4.4.2 measures to "just the outer border of the local DEM region".
-    With ``holes`` they are: a rover that sees as it drives (the see loop) goes only where it has
-    seen, and an occlusion shadow behind a rock may hide the next rock."""
-    if holes:
-        return (_distance_cells(~np.asarray(local, bool)) * cell).astype(np.float32)
+    border: seed 000 sect. 4.4.2 measures to "just the outer border of the local DEM region"."""
     outside = np.pad(~np.asarray(local, bool), 1, constant_values=True).astype(np.uint8)
     mask = np.zeros((outside.shape[0] + 2, outside.shape[1] + 2), np.uint8)
     cv2.floodFill(outside, mask, (0, 0), 2)  # the background reached from the edge (4-connected)
@@ -559,7 +555,6 @@ class PlannerParams:
     border: float = 0.3  # stop this far inside the local map's outer border
     blank_pad: float = 2.0  # blank global maps reach this far beyond start, goal and local map
     window: float | None = None  # plan only within this margin around start, goal and local map
-    seen_only: bool = False  # cut the path before any cell the local map has not seen, holes included
 
     def __post_init__(self) -> None:
         if not 0.0 <= self.weight <= 1.0:
@@ -631,8 +626,7 @@ def planning_image(local: NavMaps, global_: NavMaps | None, params: PlannerParam
     c = np.where(hazardous, np.inf, c).astype(np.float32)
     return PlanningImage(geometry=geom, hazard=hazard, slope=slope, local=local_def, blocked=blocked,
                          hazard_distance=hdist.astype(np.float32), env_cost=c,
-                         border_distance=border_distance(local_def, cell, holes=params.seen_only),
-                         clearance=clearance,
+                         border_distance=border_distance(local_def, cell), clearance=clearance,
                          turn_clearance=turn_clearance)
 
 

@@ -152,10 +152,6 @@ class NavigateConfig(ModuleConfig):
     see_border: float = param(0.3, "see loop: plans stop this far inside the seen ground (the forward ToF sees "
                               "the ground ahead before the rover gets there; a scan leg keeps navigate.border)",
                               unit="m", min=0.0, max=5.0, option=False)
-    see_unknown_cost: float = param(4.0, "see loop: environmental cost of unseen ground (1 = a slope at "
-                                    "dem2hazard's limit): paths keep to seen ground, and are cut before any unseen "
-                                    "cell, an occlusion shadow behind a rock included", min=0.0, max=1000.0,
-                                    option=False)
     max_replans: int = param(100, "see loop: give up after this many plans in all", min=1, max=10000,
                              option=False)
 
