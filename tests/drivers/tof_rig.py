@@ -51,6 +51,7 @@ class PlaneWorld:
 
     def __init__(self, planes: list[Plane], T_world_cam: np.ndarray) -> None:
         self.clock = SimClock(0.0)  # frames take no wall time here
+        self.rolling = False  # the rover stands: each frame takes its time on the clock
         self.planes = planes
         self.T = np.asarray(T_world_cam, dtype=np.float64)
         self.renders = 0
