@@ -290,6 +290,7 @@ def navigate(job: Job, cfg: NavigateConfig) -> dict[str, Any]:
     track: list[tuple[float, float]] = [(app.pose.x, app.pose.y)]
     leg_starts: list[tuple[float, float]] = []
     stalled = 0  # legs in a row that started where the previous one did
+    see_stalled = 0  # see loop: replans in a row after which the rover had not moved
     see = autonomy.start(job, cfg) if seeing else None
     need_scan = True  # the see loop scans first, then only when the rolling map shows no way
     scans = 0
@@ -303,7 +304,13 @@ def navigate(job: Job, cfg: NavigateConfig) -> dict[str, Any]:
             if plan is not None:
                 all_paths.append(plan.path[: plan.cut])
                 all_waypoints.append(plan.waypoints.xy)
+                before = (pose.x, pose.y)
                 see.drive_leg(leg, plan, track)
+                moved = math.hypot(app.pose.x - before[0], app.pose.y - before[1]) >= cfg.min_progress
+                see_stalled = 0 if moved else see_stalled + 1
+                if see_stalled >= 3:  # replans that drive nowhere (stopped at once, or no way the body fits)
+                    see_stalled = 0
+                    need_scan = True
                 continue
             if see.fresh_scan:  # the 360-degree scan just made shows no way either
                 raise ProtocolError("E_DATA", f"no way on from ({pose.x:.2f}, {pose.y:.2f}) after a 360-degree "
