@@ -47,9 +47,10 @@ from rvs_server.protocol import Reply, parse_reply
 TOP_SPEED = 0.1  # m/s: the scenes' rover speed
 AREA = {"marsyard": (-5.5, -9.5, 13.5, 9.5), "hirise": (-14.0, -14.0, 14.0, 14.0)}
 ROVER = (0.51, 0.40)  # config/head.yaml rover_length, rover_width
-# today's loop plans with the rover's circle everywhere; the new one with its body (the circle
-# only where it stops and turns), which opens the gaps of the dense scene's rock field
-FOOTPRINT = {"scan": "circle", "see": "body"}
+# both loops plan with the rover's circle: with -footprint body (half width along straight
+# stretches) the see loop stopped in front of gaps it had planned through, and once crossed true
+# hazards in marsyard (its per-cycle check and pure-pursuit corners do not honour it yet)
+FOOTPRINT = {"scan": "circle", "see": "circle"}
 
 
 class _Server(ServerThread):
