@@ -270,6 +270,15 @@ class World:
                     on_step()
         return {"seconds": driven, "distance": v * driven, "turned": w_deg * driven}
 
+    def record_track(self, track: list[tuple[float, float]], step: float = 0.05) -> None:
+        """Append the true position to ``track`` once it is ``step`` from the last entry (0: on
+        any move): the ground truth a traverse is scored by, whichever loop drives."""
+        t = self.truth()
+        x, y = float(t["x"]), float(t["y"])
+        moved = math.hypot(x - track[-1][0], y - track[-1][1])
+        if moved > 0.0 and moved >= step:
+            track.append((x, y))
+
     @contextlib.contextmanager
     def under_way(self) -> Iterator[None]:
         """A drive loop that checks its sensors between short drive calls: on a real rover those

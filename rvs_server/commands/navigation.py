@@ -228,18 +228,11 @@ def drive_simulated(world: Any, waypoints: Any, track: list[tuple[float, float]]
     at waypoint k; ``stop()`` true (a break) stops the rover at its next step."""
     model = world.drive_model
 
-    def record() -> None:
-        t = world.truth()
-        if math.hypot(t["x"] - track[-1][0], t["y"] - track[-1][1]) >= 0.05:
-            track.append((float(t["x"]), float(t["y"])))
-
     for k, (wx, wy) in enumerate(waypoints.xy[1:], start=1):
         dist = world.turn_toward(wx, wy, stop)
         if dist >= 1e-6:
-            world.drive(model.speed, 0.0, dist / model.speed, stop, on_step=record)
-            t = world.truth()
-            if (t["x"], t["y"]) != track[-1]:
-                track.append((float(t["x"]), float(t["y"])))
+            world.drive(model.speed, 0.0, dist / model.speed, stop, on_step=lambda: world.record_track(track))
+            world.record_track(track, 0.0)
         if stop is not None and stop():
             return
         if reached is not None:
@@ -281,8 +274,6 @@ def navigate(job: Job, cfg: NavigateConfig) -> dict[str, Any]:
                            max_deviation=cfg.max_deviation, border=cfg.border)
     seeing = cfg.auto and cfg.loop == "see"
     plan_params = {n: getattr(cfg, n) for n in PlanParams.specs()}
-    if seeing:  # the forward ToF sees the ground ahead before the rover gets there
-        plan_params["border"] = min(cfg.border, cfg.see_border)
     dem_cfg = copy.deepcopy(app.config.get("dem_full_tof" if cfg.sensor == "tof" else "dem_full"))
     dem_cfg.range, dem_cfg.overlap = list(cfg.range), cfg.overlap
     all_paths: list[Any] = []
