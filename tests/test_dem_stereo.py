@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from conftest import long_only
 from scipy import ndimage
 
 from prox_workflows.grid import GridGeometry, read_geotiff
@@ -27,7 +28,9 @@ def rmse(dem: np.ndarray, truth: np.ndarray, cells: np.ndarray) -> float:
     return float(np.sqrt(np.mean((dem[sel] - truth[sel]) ** 2)))
 
 
-@pytest.fixture(scope="module", params=["office", "quarry"])
+# office in the long suite only (the default run's time: tests/test_fusion_bands.py checks the
+# fused office DEM band by band there too)
+@pytest.fixture(scope="module", params=[pytest.param("office", marks=long_only()), "quarry"])
 def three_dems(request, tmp_path_factory):
     """One scan each with stereo, ToF and both fused, from the same pose."""
     import sys

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 import rasterio
 import yaml
-from conftest import long_test
+from conftest import long_only, long_test
 from scipy import ndimage
 
 from prox_workflows.grid import GridGeometry, read_geotiff
@@ -55,7 +55,7 @@ def scan(server_factory):
     return run
 
 
-@pytest.mark.parametrize("scene", ["office", "quarry"])
+@pytest.mark.parametrize("scene", [pytest.param("office", marks=long_only()), "quarry"])
 def test_dem_matches_ground_truth(scan, scene: str) -> None:
     srv, c, r = scan(scene)
     dem, g = read_geotiff(srv.data / r.fields["dem"])

@@ -190,6 +190,7 @@ def test_sigkill_while_writing_a_stereo_pair_keeps_the_previous_pair(data: Path,
     assert left.shape[:2] == tifffile.imread(data / "stereo/pair_right.tif").shape[:2]
 
 
+@long_test  # the default run kills a DEM job (the whole-DEM test) and loads a recovery set back (test_dem_tof)
 def test_after_a_kill_the_last_complete_recovery_set_is_reported_and_loads_back(data: Path) -> None:
     """A server made a DEM, broke (a recovery set with the maps), continued, moved on, and was
     killed during a second break while it copied the maps. After a restart, status reports the
