@@ -10,7 +10,7 @@ from __future__ import annotations
 import math
 
 import pytest
-from conftest import long_only
+from conftest import long_only, long_test
 
 STEPS = [(1.0, 0.0, 0.0), (1.0, 0.0, 6.0), (1.0, 0.0, -8.0), (1.0, 0.0, 3.0)]
 
@@ -67,6 +67,7 @@ def test_orient_follows_the_rover(server_factory, scene: str) -> None:
     assert abs(pose.heading - heading) < 0.5 * len(STEPS)
 
 
+@long_test  # the default run's time; orient on quarry runs there
 def test_orient_without_overlap_is_e_data_and_keeps_pose(server_factory) -> None:
     srv = server_factory(["server.scene=quarry"])
     srv.app.world.set_target_visible(False)

@@ -173,8 +173,8 @@ def test_sigkill_mid_rewrite_leaves_one_whole_dem(data: Path, when: str) -> None
     assert not temporaries(data / "dem") and not list((data / "dem").glob(".products-*"))
 
 
-@pytest.mark.long
-@pytest.mark.parametrize("res", ["highest", "high"] if LONG else ["high"])
+@long_test  # the default run kills while a DEM's products are written (the same product_set commit)
+@pytest.mark.parametrize("res", ["highest", "high"])
 def test_sigkill_while_writing_a_stereo_pair_keeps_the_previous_pair(data: Path, res: str) -> None:
     srv, c = start(data)
     line = STEREO_LINE.format(res=res)
