@@ -156,6 +156,7 @@ def test_dem_arguments(server) -> None:
     assert "-range" in r.fields["usage"] and "opt_range" in r.fields
 
 
+@long_test  # the default run's time; break and continue during dem-update-tof run there (test_break_continue)
 def test_break_keeps_views_for_the_next_update(server_factory) -> None:
     srv = server_factory()
     c, other = srv.client(), srv.client()
@@ -199,6 +200,7 @@ def test_recovery_set_holds_the_maps_and_loads_back(server_factory, tmp_path) ->
     assert c2.request("recover -set nosuch").fields["code"] == "E_DATA"
 
 
+@long_test  # the default run's time; check-move's sweep is tested on maps in tests/prox/test_safety.py
 def test_check_move_on_a_real_scan(scan) -> None:
     srv, c, _ = scan("office", name="gate")
     blind = c.request("check-move -dx 0.5")  # the ground under and right around the rover: unseen

@@ -9,6 +9,7 @@ from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
+from conftest import long_test
 
 from rvs_server import __version__
 from rvs_server.client import replay
@@ -236,6 +237,7 @@ def test_record_escapes_everything_else() -> None:
     assert not re.fullmatch(pattern, line.replace("a.b", "axb"))
 
 
+@long_test  # the default run's time; the shipped replay scripts pass against a fresh server there
 def test_record_then_replay_round_trip(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     requests = tmp_path / "requests.txt"
     requests.write_text("# a plain file of requests\nstatus\n\nsleep -seconds 0\nfrobnicate\nbreak\ncontinue\n")
