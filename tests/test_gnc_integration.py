@@ -138,6 +138,10 @@ def test_stopped_ends_the_wait_and_two_rescans_from_one_spot_are_e_data(server_f
     assert legs == ["1", "2"]
     assert final.status == "ERROR" and final.fields["code"] == "E_DATA"
     assert "no progress" in final.fields["message"] and "(0.00, 0.00)" in final.fields["message"]
+    # the failed navigate still leaves the track the rover drove (here: stopped where it started)
+    assert "the track so far: nav/stuck_track.csv" in final.fields["message"]
+    rows = (srv.data / "nav" / "stuck_track.csv").read_text().splitlines()
+    assert rows[0] == "x,y" and len(rows) >= 3 and set(rows[1:]) == {"0.0000,0.0000"}
 
 
 # ------------------------------------------------------------------ 3. telnet's Ctrl-C, exit

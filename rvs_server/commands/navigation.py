@@ -24,6 +24,8 @@ from ..table import HARDWARE, command
 from .hardware import default_stem
 
 if TYPE_CHECKING:
+    from pathlib import Path
+
     from ..app import App, Pose
 
 
@@ -242,6 +244,28 @@ def drive_simulated(world: Any, waypoints: Any, track: list[tuple[float, float]]
 @command("navigate", job=True, klass=HARDWARE, config=NavigateConfig, check=lambda app, cfg: _check(app, cfg),
          help="navigate to -goal: 360-degree DEM, A* plan, waypoints, wait for the rover (pose), repeat")
 def navigate(job: Job, cfg: NavigateConfig) -> dict[str, Any]:
+    """The legs (:func:`_navigate`); a navigate that fails part way still leaves the track the rover
+    drove (the operator's first question: where did it go, and what did it cross)."""
+    name = cfg.name or default_stem("nav")
+    track: list[tuple[float, float]] = []
+    try:
+        return _navigate(job, cfg, name, track)
+    except ProtocolError as exc:
+        if len(track) < 2:
+            raise
+        tfile = _write_track(job.app, name, track)
+        raise ProtocolError(exc.code, f"{exc.message} (the track so far: {job.app.rel(tfile)})") from None
+
+
+def _write_track(app: App, name: str, track: list[tuple[float, float]]) -> Path:
+    from prox_workflows.products import write_text_atomic
+
+    tfile = app.data_path("nav", f"{name}_track.csv")
+    write_text_atomic(tfile, "x,y\n" + "".join(f"{x:.4f},{y:.4f}\n" for x, y in track))
+    return tfile
+
+
+def _navigate(job: Job, cfg: NavigateConfig, name: str, track: list[tuple[float, float]]) -> dict[str, Any]:
     from prox_workflows.mapview import Marks
     from prox_workflows.products import write_png, write_text_atomic
     from prox_workflows.steps.planner import (
@@ -264,7 +288,6 @@ def navigate(job: Job, cfg: NavigateConfig) -> dict[str, Any]:
         app.set_pose(cfg.start[0], cfg.start[1], heading, source="navigate")
         if cfg.auto:
             app.world.set_rover_pose(cfg.start[0], cfg.start[1], heading)
-    name = cfg.name or default_stem("nav")
     goal = (cfg.goal[0], cfg.goal[1])
     head = app.config.get("head")
     params = PlannerParams(grid=cfg.grid, weight=cfg.weight, heuristic=cfg.heuristic,
@@ -278,7 +301,7 @@ def navigate(job: Job, cfg: NavigateConfig) -> dict[str, Any]:
     dem_cfg.range, dem_cfg.overlap = list(cfg.range), cfg.overlap
     all_paths: list[Any] = []
     all_waypoints: list[Any] = []
-    track: list[tuple[float, float]] = [(app.pose.x, app.pose.y)]
+    track.append((app.pose.x, app.pose.y))
     leg_starts: list[tuple[float, float]] = []
     stalled = 0  # legs in a row that started where the previous one did
     see_stalled = 0  # see loop: replans in a row after which the rover had not moved
@@ -414,8 +437,7 @@ def navigate(job: Job, cfg: NavigateConfig) -> dict[str, Any]:
     wfile = app.data_path("nav", f"{name}_waypoints.csv")
     write_text_atomic(wfile, "x,y,leg\n" + "".join(
         f"{x:.4f},{y:.4f},{i + 1}\n" for i, leg_wps in enumerate(all_waypoints) for x, y in leg_wps))
-    tfile = app.data_path("nav", f"{name}_track.csv")
-    write_text_atomic(tfile, "x,y\n" + "".join(f"{x:.4f},{y:.4f}\n" for x, y in track))
+    tfile = _write_track(app, name, track)
     return {"reached": True, "legs": len(all_paths), "path": app.rel(traverse), "waypoints": app.rel(wfile),
             "track": app.rel(tfile), "x": Fixed(pose.x, 3), "y": Fixed(pose.y, 3), **pose_fields(job),
             "loop": cfg.loop if cfg.auto else "scan", **({"scans": scans} if see is None else see.stats_fields(scans))}

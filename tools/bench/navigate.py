@@ -75,12 +75,18 @@ class _Server(ServerThread):
                     return r
 
 
-def true_hazard(world: World, bounds: tuple[float, float, float, float]) -> tuple[np.ndarray, np.ndarray,
-                                                                                  GridGeometry]:
-    """The simulator's true DEM through Dem2Hazard at 5 cm: hazard and traversability."""
+def true_maps(world: World, bounds: tuple[float, float, float, float]) -> tuple[dict[str, np.ndarray],
+                                                                               GridGeometry]:
+    """The simulator's true DEM through Dem2Hazard at 5 cm: all its layers."""
     g = GridGeometry.covering(*bounds, 0.05)
     dem = world.true_dem(g.cell, g.bounds, include_target=False)
-    out = dem2hazard(dem, g.cell, HazardParams())
+    return dem2hazard(dem, g.cell, HazardParams()), g
+
+
+def true_hazard(world: World, bounds: tuple[float, float, float, float]) -> tuple[np.ndarray, np.ndarray,
+                                                                                  GridGeometry]:
+    """The simulator's true hazard and traversability at 5 cm."""
+    out, g = true_maps(world, bounds)
     return out["hazard"], out["traversability"], g
 
 
@@ -102,14 +108,19 @@ def missions(scene: str, count: int, seed: int = 0) -> list[tuple[tuple[float, f
     return out
 
 
-def crossed(track: np.ndarray, trav: np.ndarray, g: GridGeometry) -> int:
-    """Hazardous true cells under the rover body swept along its true track (0: clean)."""
-    blocked = 0
+def crossed(track: np.ndarray, maps: dict[str, np.ndarray], g: GridGeometry) -> tuple[int, float, float]:
+    """Hazardous true cells under the rover body swept along its true track (0: clean), and the
+    true step and slope of the worst of them (how far past the limits: 15.4 cm against 15 cm is
+    not a 40 cm rock)."""
+    blocked, step, slope = 0, 0.0, 0.0
     for a, b in zip(track[:-1], track[1:], strict=True):
         h = math.degrees(math.atan2(b[1] - a[1], b[0] - a[0]))
-        m = check_move(trav, g, (a[0], a[1], h), (b[0], b[1], h), ROVER[0], ROVER[1])
-        blocked += m.blocked_cells
-    return blocked
+        m = check_move(maps["traversability"], g, (a[0], a[1], h), (b[0], b[1], h), ROVER[0], ROVER[1])
+        if m.blocked_cells:
+            blocked += m.blocked_cells
+            r, c = g.cell_of(np.array(m.worst_x), np.array(m.worst_y))
+            step, slope = max(step, float(maps["step"][r, c])), max(slope, float(maps["slope"][r, c]))
+    return blocked, step, slope
 
 
 def run_mission(scene: str, mode: str, start: tuple[float, float], goal: tuple[float, float],
@@ -146,11 +157,12 @@ def run_mission(scene: str, mode: str, start: tuple[float, float], goal: tuple[f
             if track_file.exists():
                 with open(track_file) as fh:
                     track = np.array([[float(row["x"]), float(row["y"])] for row in csv.DictReader(fh)])
-            else:
-                tr = world.truth()
-                track = np.array([start, (tr["x"], tr["y"])])
-            _, trav, g = true_hazard(world, AREA[scene])
-            out["crossed_cells"] = crossed(track, trav, g)
+            else:  # navigate leaves its track whenever the rover moved
+                track = np.array([start])
+            maps, g = true_maps(world, AREA[scene])
+            out["crossed_cells"], worst_step, worst_slope = crossed(track, maps, g)
+            if out["crossed_cells"]:
+                out["crossed_step_m"], out["crossed_slope_deg"] = round(worst_step, 3), round(worst_slope, 1)
             return out
         finally:
             srv.stop()
@@ -171,6 +183,7 @@ def summarise(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
                  "efficiency_reached": round(float(np.mean([r["efficiency"] for r in reached])), 3) if reached
                  else None,
                  "crossing_missions": sum(1 for r in sel if r["crossed_cells"] > 0),
+                 "crossed_step_max": max((r.get("crossed_step_m", 0.0) for r in sel), default=0.0),
                  "scans_per_mission": round(float(np.mean([r.get("scans", r.get("legs", 0)) for r in sel])), 2),
                  "sim_s_mean": round(float(np.mean([r["sim_s"] for r in sel])), 1),
                  "wall_s_mean": round(float(np.mean([r["wall_s"] for r in sel])), 1)}
@@ -266,12 +279,12 @@ def main(argv: list[str] | None = None) -> None:
                 rows.append(row)
                 print(json.dumps(row), flush=True)
     summary = summarise(rows)
-    print("\nscene     mode  missions reached efficiency(all/reached) crossing scans/mission sim_s  wall_s  "
+    print("\nscene     mode  missions reached efficiency(all/reached) crossing(worst step) scans/mission sim_s  wall_s  "
           "cycle_ms(mean/max) frame_ms replan_ms")
     for s in summary:
         print(f"{s['scene']:9} {s['mode']:5} {s['missions']:8} {s['reached']:7} {s['efficiency_mean']:11.3f}/"
               f"{s['efficiency_reached'] if s['efficiency_reached'] is not None else float('nan'):.3f}"
-              f" {s['crossing_missions']:8} {s['scans_per_mission']:13.2f} {s['sim_s_mean']:6.1f} {s['wall_s_mean']:7.1f}"
+              f" {s['crossing_missions']:8}({s['crossed_step_max']:.3f} m) {s['scans_per_mission']:13.2f} {s['sim_s_mean']:6.1f} {s['wall_s_mean']:7.1f}"
               + (f"  {s['cycle_ms_mean']}/{s['cycle_ms_max']} {s['frame_ms_mean']} {s['replan_ms_mean']}"
                  if s["mode"] == "see" else ""), flush=True)
     rep = replan_vs_astar(args.replan_trials, args.seed) if args.replan_trials > 0 else {}
