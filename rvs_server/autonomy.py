@@ -39,6 +39,7 @@ from prox_workflows.steps.rolling_map import RollingMap, RollingParams, path_pos
 from prox_workflows.steps.transforms import HeadCalibration, T_global_from_rover
 
 from .commands.hardware import device_call
+from .commands.navigation import wait_for_rover
 from .maps import ground_height
 from .protocol import Fixed, Reply, Rows
 
@@ -84,6 +85,7 @@ class SeeParams:
     replan_ahead: float
     pursuit: float  # m: the point of the path the rover steers at lies this far ahead
     arc_turn: float  # deg: a larger heading error is turned on the spot, a smaller one driven as an arc
+    auto: bool = True  # the simulated rover drives (odometry is the pose); False: the GNC drives and reports pose
 
 
 @dataclass
@@ -107,8 +109,8 @@ class SeeingDriver:
         self.length = head.rover_length + 2 * params.margin
         self.width = head.rover_width + 2 * params.margin
         self.head = HeadCalibration.from_dict(head.as_dict())
-        odo = self.app.world.odometry()
-        self.map = RollingMap(RollingParams(), self.app.config.get("dem2hazard"), (odo[0], odo[1]))
+        here = self.pose()
+        self.map = RollingMap(RollingParams(), self.app.config.get("dem2hazard"), (here[0], here[1]))
         self.level = "clear"
 
     def point_forward(self) -> tuple[float, float]:
@@ -117,14 +119,22 @@ class SeeingDriver:
         reached = device_call(self.job, ptu.move, 0.0, self.p.tilt, True)
         return float(reached[0]), float(reached[1])
 
+    def pose(self) -> tuple[float, float, float]:
+        """The rover's belief: the simulated rover's odometry while it drives itself, else the
+        GNC's last pose report."""
+        if self.p.auto:
+            return self.app.world.odometry()
+        p = self.app.pose
+        return p.x, p.y, p.heading
+
     def see(self, pan_tilt: tuple[float, float]) -> tuple[tuple[float, float, float], float]:
-        """One ToF frame into the rolling map; returns the rover's pose (odometry) and the wall
-        time (monotonic) the fusion started."""
+        """One ToF frame into the rolling map; returns the rover's pose and the wall time
+        (monotonic) the fusion started."""
         job, app = self.job, self.app
         t0 = time.monotonic()
         xyz, amplitude = device_call(job, app.devices.get("tof").grab_xyz, 1, 0.0)
         t1 = time.monotonic()
-        x, y, heading = app.world.odometry()  # the rover's belief, as the GNC would have it
+        x, y, heading = self.pose()
         T_rc = self.head.T_rover_from_sensor("tof", *pan_tilt)
         pts = rover_points(xyz, T_rc, self.p.subsample, self.p.max_range, amplitude, 0.1)
         ranges = np.linalg.norm(pts - T_rc[:3, 3].astype(np.float32), axis=1)
@@ -203,6 +213,40 @@ class SeeingDriver:
                 job.check()
                 world.record_track(track, 0.0)
 
+    def watch(self, waypoints: np.ndarray, track: list[tuple[float, float]], progress: Any, version: int,
+              tolerance: float, timeout: float) -> DriveOutcome:
+        """The GNC drives ``waypoints`` and streams its pose: each report is a cycle (a forward
+        frame fused at the reported pose, the footprint checked along the rest of the leg). A
+        hazard in the corridor is an ``EVENT kind=hazard level=stop`` for the GNC to stop on;
+        the leg ends with the GNC's stopped pose (or its arrival), and navigate replans from
+        there. Frames are taken at pose reports because a frame is only placed in the map at a
+        known pose."""
+        pan_tilt = self.point_forward()
+        wps = np.asarray(waypoints, dtype=np.float64)[:, :2]
+        segments = len(wps) - 1
+        end = (float(wps[-1][0]), float(wps[-1][1]))
+        state: dict[str, Any] = {"k": 1, "hazard": None}
+
+        def on_pose(p: Any) -> None:
+            track.append((p.x, p.y))
+            k = state["k"]
+            while k <= segments and _passed((p.x, p.y, p.heading), wps[k - 1], wps[k]):
+                progress(k, segments, f"segment {k}/{segments} driven", "drive")
+                k += 1
+            state["k"] = min(k, segments)
+            check, pose = self.cycle(pan_tilt, wps[state["k"]:])
+            if check.verdict == "not_traversable":
+                if state["hazard"] is None:  # once per leg: the GNC is stopping
+                    state["hazard"] = self._stop_event(check, pose)
+            elif state["hazard"] is None:
+                self._clear()
+
+        arrived = wait_for_rover(self.app, self.job, version, end, tolerance, timeout, on_pose)
+        track.append((arrived.x, arrived.y))
+        if state["hazard"] is not None:
+            return DriveOutcome("hazard", state["k"] - 1, state["hazard"])
+        return DriveOutcome("done", segments)
+
     def _stop_event(self, check: Any, pose: tuple[float, float, float]) -> dict[str, Any]:
         """The stop EVENT, shaped as the hazard monitor's (distance from the rover's front to the
         hazard, bearing CCW from the heading, x and y in the rover frame)."""
@@ -239,7 +283,8 @@ class SeeLoop:
         self.driver = SeeingDriver(job, SeeParams(
             period=cfg.see_period, lookahead=cfg.see_lookahead, stop_distance=0.0, tilt=cfg.see_tilt,
             subsample=cfg.see_subsample, max_range=cfg.see_max_range, margin=cfg.see_margin,
-            replan_ahead=cfg.replan_ahead, pursuit=cfg.see_pursuit, arc_turn=cfg.see_arc_turn), self.stats)
+            replan_ahead=cfg.replan_ahead, pursuit=cfg.see_pursuit, arc_turn=cfg.see_arc_turn, auto=cfg.auto),
+            self.stats)
         self.scan: Any = None  # NavMaps of the scans so far
         self.looked: tuple[float, float] | None = None  # where the rover last looked round for a way
         self.fresh_scan = False  # no plan has been made since the last 360-degree scan
@@ -313,8 +358,10 @@ class SeeLoop:
         return plan, ""
 
     def drive_leg(self, leg: int, plan: Any, track: list[tuple[float, float]]) -> None:
-        """Drive one leg's waypoints while seeing; the pose is the odometry afterwards."""
+        """Drive one leg's waypoints while seeing (the simulated rover with -auto: the pose is its
+        odometry afterwards; else the GNC, whose pose reports are the cycles)."""
         job, app = self.job, self.app
+        version = app.pose_version  # before the event: a GNC may answer it at once
         segments = len(plan.waypoints) - 1
         end = (float(plan.waypoints.xy[-1][0]), float(plan.waypoints.xy[-1][1]))
 
@@ -329,10 +376,14 @@ class SeeLoop:
         progress(0, segments, f"driving {segments} segments to ({end[0]:.2f}, {end[1]:.2f}) while seeing", "drive")
         extends = self.last_end is None or math.hypot(end[0] - self.last_end[0], end[1] - self.last_end[1]) > 0.25
         self.last_end = end
-        outcome = self.driver.drive(plan.waypoints.xy, track, progress,
-                                    allow_ahead=extends and not plan.reaches_goal)
-        odo = app.world.odometry()
-        app.set_pose(odo[0], odo[1], odo[2], source="odometry")
+        if not self.cfg.auto:
+            outcome = self.driver.watch(plan.waypoints.xy, track, progress, version, self.cfg.tolerance,
+                                        self.cfg.wait_timeout)
+        else:
+            outcome = self.driver.drive(plan.waypoints.xy, track, progress,
+                                        allow_ahead=extends and not plan.reaches_goal)
+            odo = app.world.odometry()
+            app.set_pose(odo[0], odo[1], odo[2], source="odometry")
         if outcome.kind == "hazard":  # the stop EVENT said so; the next leg replans from here
             self.last_end = None
 

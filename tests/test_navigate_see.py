@@ -129,3 +129,78 @@ def test_break_stops_the_see_loop_within_one_cycle(server_factory) -> None:
     period = srv.app.config.get("navigate").see_period
     assert world.clock.now() - t_break <= period + 0.2
     assert not world.driving  # the rover stands
+
+
+def test_the_gnc_drives_and_each_pose_report_is_a_cycle(server_factory, monkeypatch) -> None:
+    """navigate -loop see without -auto: the GNC drives the waypoints and streams its pose; each
+    report is a cycle. A rock added 3 m ahead after the scan gets a stop EVENT (source navigate,
+    once per leg) while the rover is still beyond the stopping distance; the GNC stops where it
+    is (pose -stopped true) and the next waiting EVENT carries waypoints round the rock from the
+    rolling map, without a new scan."""
+    from rvs_server import autonomy
+
+    cycles = [0]
+    cycle = autonomy.SeeingDriver.cycle
+
+    def counted(self, *a, **k):
+        out = cycle(self, *a, **k)
+        cycles[0] += 1
+        return out
+
+    monkeypatch.setattr(autonomy.SeeingDriver, "cycle", counted)
+    srv = server_factory(["server.scene=marsyard", "navigate.range=-60,60,-50,-10"])
+    world = srv.app.world
+    world.set_target_visible(False)
+    start, goal = (-3.25, 0.45), (1.5, 0.45)
+    c, gnc = srv.client(), srv.client()
+    job = c.start_job(f"navigate -start {start[0]},{start[1]},0 -goal {goal[0]},{goal[1]} -loop see -name gnc")
+    rock = np.array([start[0] + 3.0, start[1]])
+    stops, legs, x, y, h = [], [], *start, 0.0
+    tolerance = srv.app.config.get("navigate").tolerance
+    track = [(x, y)]
+    while True:
+        r = c.reply(timeout=300)  # the navigate's own connection: its events and its final line
+        if r.status == "EVENT" and r.fields.get("kind") == "waiting":
+            if not legs:  # after the 360-degree scan: the rock it never saw
+                assert gnc.request(f"sim add-rock -x {rock[0]} -y {rock[1]} -radius 0.2 -height 0.25").status == "OK"
+            legs.append(r)
+            wps = np.array([float(v) for v in r.fields["waypoints"].split(",")]).reshape(-1, 3)[:, :2]
+            stopped = False
+            for a, b in zip(wps[:-1], wps[1:], strict=True):
+                h = math.degrees(math.atan2(b[1] - a[1], b[0] - a[0]))
+                n = max(1, math.ceil(math.hypot(*(b - a)) / 0.1))
+                for i in range(1, n + 1):
+                    x, y = a + (b - a) * i / n
+                    world.set_rover_pose(x, y, h)
+                    track.append((x, y))
+                    before = cycles[0]
+                    last = math.hypot(x - wps[-1][0], y - wps[-1][1]) <= tolerance  # the leg's end: no cycle
+                    assert gnc.request(f"pose -x {x:.3f} -y {y:.3f} -heading {h:.2f}").status == "OK"
+                    if last:
+                        stopped = True
+                        break
+                    assert wait_for(lambda before=before: cycles[0] > before, timeout=120)
+                    seen = [e for e in gnc.lines_before_status()
+                            if e.status == "EVENT" and e.fields.get("kind") == "hazard"
+                            and e.fields.get("level") == "stop"]
+                    if seen:
+                        stops += seen
+                        stopped = True
+                        assert gnc.request(f"pose -x {x:.3f} -y {y:.3f} -heading {h:.2f} -stopped true").status \
+                            == "OK"
+                        break
+                if stopped:
+                    break
+        elif r.status in ("OK", "ERROR") and r.fields.get("job") == job:
+            final = r
+            break
+    assert final.status == "OK" and final.fields["reached"] == "true", final.fields
+    assert final.fields["loop"] == "see" and final.fields["scans"] == "1", final.fields
+    assert len(stops) == 1 and stops[0].fields["source"] == "navigate" and stops[0].fields["job"] == job
+    assert float(stops[0].fields["distance"]) >= STOP_DISTANCE, stops[0].fields
+    assert len(legs) >= 2 and int(final.fields["cycles"]) == cycles[0] >= 10
+    track = np.array(track)
+    assert np.hypot(*(track - rock).T).min() > 0.2 + 0.2, "the GNC's rover drove into the rock"
+    hazard, g = true_hazard(world, (-4.0, -2.0, 3.0, 3.0))
+    rr, cc = g.cell_of(track[:, 0], track[:, 1])
+    assert not (hazard[rr, cc] == 255).any(), "the rover's track crossed a true hazard"

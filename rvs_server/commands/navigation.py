@@ -5,6 +5,7 @@ from __future__ import annotations
 import copy
 import math
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any, ClassVar
 
@@ -127,9 +128,10 @@ class NavigateConfig(ModuleConfig):
     # drive while seeing (issue 12 item 2; rvs_server/autonomy.py)
     # scan stays the default: in the benchmark's dense hirise scene the see loop's rover body crossed
     # true hazards the rolling map had left unseen (tools.bench.navigate; docs/PROTOCOL.md)
-    loop: str = param("scan", "with -auto: scan stops for a 360-degree scan at every leg's end; see drives while "
-                      "the forward ToF checks the next metres and replans from what it sees (a 360-degree scan "
-                      "first and when that shows no way)", choices=("see", "scan"))
+    loop: str = param("scan", "scan stops for a 360-degree scan at every leg's end; see checks the next metres "
+                      "with the forward ToF while the rover drives (-auto: every cycle; the GNC: at every pose "
+                      "report) and replans from what it sees (a 360-degree scan first and when that shows no "
+                      "way)", choices=("see", "scan"))
     see_period: float = param(1.0, "see loop: simulated time driven between two forward ToF frames (1 s: 10 cm "
                               "at 0.1 m/s; each simulated frame is rendered, which costs CPU)", unit="s",
                               min=0.05, max=10.0, option=False)
@@ -295,7 +297,7 @@ def _navigate(job: Job, cfg: NavigateConfig, name: str, track: list[tuple[float,
                            half_width=head.rover_width / 2 if cfg.footprint == "body" else None,
                            critical_slope=app.config.get("dem2hazard").slope_max,
                            max_deviation=cfg.max_deviation, border=cfg.border)
-    seeing = cfg.auto and cfg.loop == "see"
+    seeing = cfg.loop == "see"
     plan_params = {n: getattr(cfg, n) for n in PlanParams.specs()}
     dem_cfg = copy.deepcopy(app.config.get("dem_full_tof" if cfg.sensor == "tof" else "dem_full"))
     dem_cfg.range, dem_cfg.overlap = list(cfg.range), cfg.overlap
@@ -416,7 +418,7 @@ def _navigate(job: Job, cfg: NavigateConfig, name: str, track: list[tuple[float,
             app.set_pose(odo[0], odo[1], odo[2], source="odometry")
             loc.after_drive(job, plan.waypoints.xy)
         else:
-            arrived = _wait_for_rover(app, job, version, end, cfg.tolerance, cfg.wait_timeout)
+            arrived = wait_for_rover(app, job, version, end, cfg.tolerance, cfg.wait_timeout)
             track.append((arrived.x, arrived.y))
             leg_progress(segments, segments, f"rover {'stopped' if arrived.stopped else 'arrived'} at "
                                              f"({arrived.x:.2f}, {arrived.y:.2f})", "drive")
@@ -440,7 +442,7 @@ def _navigate(job: Job, cfg: NavigateConfig, name: str, track: list[tuple[float,
     tfile = _write_track(app, name, track)
     return {"reached": True, "legs": len(all_paths), "path": app.rel(traverse), "waypoints": app.rel(wfile),
             "track": app.rel(tfile), "x": Fixed(pose.x, 3), "y": Fixed(pose.y, 3), **pose_fields(job),
-            "loop": cfg.loop if cfg.auto else "scan", **({"scans": scans} if see is None else see.stats_fields(scans))}
+            "loop": cfg.loop, **({"scans": scans} if see is None else see.stats_fields(scans))}
 
 
 def _check(app: App, cfg: NavigateConfig) -> None:
@@ -448,22 +450,27 @@ def _check(app: App, cfg: NavigateConfig) -> None:
         raise ProtocolError("E_ARG", "-auto drives the simulated rover; with real hardware the GNC sends pose")
 
 
-def _wait_for_rover(app: App, job: Job, version: int, end: tuple[float, float], tolerance: float,
-                    timeout: float) -> Pose:
+def wait_for_rover(app: App, job: Job, version: int, end: tuple[float, float], tolerance: float,
+                   timeout: float, on_pose: Callable[[Pose], None] | None = None) -> Pose:
     """Until a pose report says the rover has stopped: within ``tolerance`` of the leg's last
     waypoint, or ``-stopped true``. A GNC streaming its pose while it drives must not end the
-    wait (each pose report would start a new 360-degree scan from wherever the rover is)."""
+    wait (each pose report would start a new 360-degree scan from wherever the rover is); each
+    such report goes to ``on_pose`` (the see loop's check), outside the pose lock, so the pose
+    command is never kept waiting by it."""
     deadline = time.monotonic() + timeout if timeout > 0 else math.inf
-    with app.pose_changed:
-        while True:
+    while True:
+        with app.pose_changed:
             job.check()
-            if app.pose_version != version:
-                version = app.pose_version
-                p = app.pose
-                if p.stopped or math.hypot(p.x - end[0], p.y - end[1]) <= tolerance:
-                    return p
-            if time.monotonic() >= deadline:
-                raise ProtocolError("E_DATA", f"no pose at the leg's end ({end[0]:.2f}, {end[1]:.2f}) within "
-                                              f"{timeout:g} s; send pose -x -y -heading (with -stopped true if the "
-                                              "rover stopped short)")
-            app.pose_changed.wait(0.1)
+            if app.pose_version == version:
+                if time.monotonic() >= deadline:
+                    raise ProtocolError("E_DATA", f"no pose at the leg's end ({end[0]:.2f}, {end[1]:.2f}) within "
+                                                  f"{timeout:g} s; send pose -x -y -heading (with -stopped true if "
+                                                  "the rover stopped short)")
+                app.pose_changed.wait(0.1)
+                continue
+            version = app.pose_version
+            p = app.pose
+        if p.stopped or math.hypot(p.x - end[0], p.y - end[1]) <= tolerance:
+            return p
+        if on_pose is not None:
+            on_pose(p)
