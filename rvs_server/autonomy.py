@@ -35,6 +35,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from prox_workflows.steps.hazard_monitor import rover_points
+from prox_workflows.steps.replan import Replanner
 from prox_workflows.steps.rolling_map import RollingMap, RollingParams, path_poses
 from prox_workflows.steps.transforms import HeadCalibration, T_global_from_rover
 
@@ -290,6 +291,10 @@ class SeeLoop:
         self.fresh_scan = False  # no plan has been made since the last 360-degree scan
         self.why = ""  # why the last replan found no way
         self.last_end: tuple[float, float] | None = None
+        # the mission's start and goal: the planning grid keeps them (and the blank ground between,
+        # as a plan from the start would have it) so that it changes only where the maps grow
+        self.cover = [(self.app.pose.x, self.app.pose.y), (cfg.goal[0], cfg.goal[1])]
+        self.search: Replanner | None = None  # D* Lite across replans (see_search dstar)
 
     def scanned(self, local: Any) -> None:
         """A 360-degree scan made the maps ``local`` (the scans so far, merged)."""
@@ -335,11 +340,14 @@ class SeeLoop:
         pose = self.app.pose
         here = (pose.x, pose.y)
         params = dataclasses.replace(params, border=min(params.border, self.cfg.see_border))
+        if self.search is None and self.cfg.see_search == "dstar":
+            self.search = Replanner(params.heuristic, params.weight)
         t0 = time.monotonic()
         merged = self.merged()
         try:
             try:
-                plan = plan_path(merged, global_maps, here, goal, params, start_heading=pose.heading)
+                plan = plan_path(merged, global_maps, here, goal, params, start_heading=pose.heading,
+                                 search=self.search, cover=self.cover)
             except PlanningError as exc:
                 # as navigate's scan legs do: a goal judged unreachable from farther than
                 # judge_range is driven toward, and judged again from closer
@@ -347,7 +355,8 @@ class SeeLoop:
                 if exc.reason not in ("goal_in_hazard", "enclosed") or not far:
                     raise
                 toward = nearest_reachable(merged, global_maps, here, goal, params)
-                plan = plan_path(merged, global_maps, here, toward, params, start_heading=pose.heading)
+                plan = plan_path(merged, global_maps, here, toward, params, start_heading=pose.heading,
+                                 search=self.search, cover=self.cover)
         except PlanningError as exc:
             return None, f"replan from the rolling map: {exc.reason}"
         finally:
@@ -389,7 +398,8 @@ class SeeLoop:
 
     def stats_fields(self, scans: int) -> dict[str, Any]:
         """The OK line's keys of the see loop."""
-        return {**self.stats.fields(), "scans": scans}
+        searched = {"searches": self.search.searches, "repairs": self.search.repairs} if self.search else {}
+        return {**self.stats.fields(), "scans": scans, "search": self.cfg.see_search, **searched}
 
 
 def start(job: Job, cfg: Any) -> SeeLoop:

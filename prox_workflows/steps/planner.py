@@ -63,7 +63,7 @@ from __future__ import annotations
 
 import importlib.util
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass, field
 from typing import Any
 
@@ -292,6 +292,9 @@ class GridPath:
     @property
     def cost(self) -> float:
         return float(self.g[-1])
+
+
+Search = Callable[[np.ndarray, tuple[int, int], tuple[int, int], GridGeometry], GridPath]
 
 
 def astar_grid(cost: np.ndarray, start: Sequence[int], goal: Sequence[int], *, heuristic: str = "octile",
@@ -680,15 +683,22 @@ def _relax_start(image: PlanningImage, cell: tuple[int, int]) -> float | None:
 
 def plan_path(local: NavMaps, global_: NavMaps | None, start: Sequence[float], goal: Sequence[float],
               params: PlannerParams | None = None, start_heading: float | None = None,
-              goal_heading: float | None = None) -> PlanResult:
+              goal_heading: float | None = None, search: Search | None = None,
+              cover: Sequence[Sequence[float]] = ()) -> PlanResult:
     """Plan from ``start`` to ``goal`` (world x, y): merge, expand, A*, cut at the local map's
-    border, simplify into waypoints. Raises :class:`PlanningError` when there is no path."""
+    border, simplify into waypoints. Raises :class:`PlanningError` when there is no path.
+
+    ``search`` replaces the A* on the cost grid (the see loop's D* Lite, which repairs the last
+    search instead of starting again: the same graph and costs, so the same path cost); it gets
+    the grid, the start and goal cells and the grid's geometry. ``cover``: points the planning
+    grid must reach besides start and goal (a mission's box, so that the grid keeps its
+    geometry from one replan to the next and the repair has something to repair)."""
     from .waypoints import make_waypoints, shortcut, simplify
 
     params = params or PlannerParams()
     start = (float(start[0]), float(start[1]))
     goal = (float(goal[0]), float(goal[1]))
-    image = planning_image(local, global_, params, points=[start, goal])
+    image = planning_image(local, global_, params, points=[start, goal, *cover])
     geom = image.geometry
     cells = {}
     for name, (x, y) in (("start", start), ("goal", goal)):
@@ -722,8 +732,11 @@ def plan_path(local: NavMaps, global_: NavMaps | None, start: Sequence[float], g
         raise PlanningError("start_in_hazard", f"start ({start[0]:.3f}, {start[1]:.3f}) is on unknown ground, "
                                                "which is not traversable (unknown_cost = inf)")
     try:
-        gp = astar_grid(k, cells["start"], cells["goal"], heuristic=params.heuristic, orth=geom.cell,
-                        diag=geom.cell * SQRT2, share=0.5, corner_rule=True)
+        if search is not None:
+            gp = search(k, cells["start"], cells["goal"], geom)
+        else:
+            gp = astar_grid(k, cells["start"], cells["goal"], heuristic=params.heuristic, orth=geom.cell,
+                            diag=geom.cell * SQRT2, share=0.5, corner_rule=True)
     except PlanningError as exc:
         if exc.reason != "enclosed":
             raise

@@ -301,3 +301,33 @@ class IncrementalPlanner:
 def _check_values(values: np.ndarray) -> None:
     if np.isnan(values).any() or (values < 0).any():
         raise ValueError("cost must be >= 0 (inf for blocked cells), without NaN")
+
+
+class Replanner:
+    """A :data:`.planner.Search` for :func:`.planner.plan_path` that keeps one D* Lite search
+    for as long as the planning grid's geometry and the goal cell stay the same, and repairs it
+    with the cells that changed since the last call (``update_map``) and the rover's new cell.
+    A new grid (the maps grew past it) or a new goal starts a new search: the see loop passes
+    the mission's box as ``cover`` so that happens seldom."""
+
+    def __init__(self, heuristic: str = "octile", h_scale: float | None = None) -> None:
+        self.heuristic = "octile" if heuristic == "manhattan" else heuristic  # D* Lite needs a consistent one
+        self.h_scale = h_scale
+        self.planner: IncrementalPlanner | None = None
+        self.key: tuple[Any, ...] | None = None
+        self.searches = 0  # new searches (first plan, new grid or goal)
+        self.repairs = 0  # searches repaired
+        self.changed = 0  # cells changed over all repairs
+
+    def __call__(self, cost: np.ndarray, start: tuple[int, int], goal: tuple[int, int], geometry: Any) -> GridPath:
+        key = (cost.shape, geometry.xmin, geometry.ymax, geometry.cell, tuple(goal))
+        if self.planner is None or key != self.key:
+            self.planner = IncrementalPlanner(cost, start, goal, heuristic=self.heuristic, orth=geometry.cell,
+                                              diag=geometry.cell * SQRT2, h_scale=self.h_scale)
+            self.key = key
+            self.searches += 1
+        else:
+            self.changed += self.planner.update_map(cost)
+            self.planner.move_start(start)
+            self.repairs += 1
+        return self.planner.plan()

@@ -156,6 +156,9 @@ class NavigateConfig(ModuleConfig):
     see_border: float = param(0.3, "see loop: plans stop this far inside the seen ground (the forward ToF sees "
                               "the ground ahead before the rover gets there; a scan leg keeps navigate.border)",
                               unit="m", min=0.0, max=5.0, option=False)
+    see_search: str = param("dstar", "see loop: the search of a replan: dstar repairs the mission's last search "
+                            "with the cells that changed (D* Lite, the same path cost as astar), astar searches "
+                            "again", choices=("dstar", "astar"), option=False)
     max_replans: int = param(100, "see loop: give up after this many plans in all", min=1, max=10000,
                              option=False)
 

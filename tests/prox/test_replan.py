@@ -271,3 +271,34 @@ def test_benchmark_runs_and_agrees_with_astar_on_400_cells() -> None:
     for what in (10, "rock", "move"):
         r = run(m, what, trials=3, seed=1)
         assert r["checked"] + r["enclosed"] == 3 and r["e_d"] < r["e_a"] / 5  # cells, not (loaded) seconds
+
+
+def test_plan_path_with_the_replanner_equals_astar_and_repairs() -> None:
+    """plan_path with a Replanner (the see loop's D* Lite) gives A*'s path cost on the same maps
+    while rocks appear on the way and the rover moves on; with the mission's box as ``cover``
+    the planning grid keeps its geometry, so only the first plan is a whole search."""
+    from prox_workflows.grid import GridGeometry
+    from prox_workflows.steps.planner import HAZARDOUS, NavMaps, PlannerParams, plan_path
+    from prox_workflows.steps.replan import Replanner
+
+    geom = GridGeometry(0.05, 0.0, 6.0, 200, 120)  # x 0..10, y 0..6
+    hz = np.zeros(geom.shape, np.uint8)
+    slope = np.full(geom.shape, 3.0, np.float32)
+    xs, ys = geom.centers()
+    params = PlannerParams(rover_radius=0.3, margin=0.1, border=0.0, unknown_cost=math.inf)
+    replanner = Replanner(params.heuristic, params.weight)
+    start, goal = (1.0, 3.0), (9.0, 3.0)
+    cover = [(-1.0, -1.0), (11.0, 7.0)]
+    rng = np.random.default_rng(4)
+    for _ in range(5):
+        maps = NavMaps(hz.copy(), slope, geom)
+        fresh = plan_path(maps, None, start, goal, params, cover=cover)
+        repaired = plan_path(maps, None, start, goal, params, search=replanner, cover=cover)
+        assert repaired.cost_so_far[-1] == pytest.approx(fresh.cost_so_far[-1], rel=1e-9)
+        assert repaired.image.geometry == fresh.image.geometry
+        # a rock appears on the way, 1.5-2.5 m ahead, and the rover drives 0.5 m on
+        ahead = fresh.path[min(len(fresh.path) - 1, int(rng.integers(30, 50)))]
+        rock = (np.hypot(xs[None, :] - ahead[0], ys[:, None] - ahead[1] - rng.uniform(-0.2, 0.2)) <= 0.25)
+        hz[rock] = HAZARDOUS
+        start = tuple(fresh.path[10])
+    assert replanner.searches == 1 and replanner.repairs == 4 and replanner.changed > 0
