@@ -325,11 +325,12 @@ class SeeLoop:
             self.job.progress(0, 1, f"{why}; looking toward the goal", phase="plan", leg=leg)
             self.driver.look((bearing + 180.0) % 360.0 - 180.0)
             plan, why = self._plan(global_maps, goal, params)
-        scanned, self.fresh_scan, self.why = self.fresh_scan, False, why
-        if plan is None:
-            if not scanned:
+        self.why = why
+        if plan is None:  # fresh_scan stays: navigate ends the job when the scan just made shows no way either
+            if not self.fresh_scan:
                 self.job.progress(0, 1, f"{why}; scanning 360 degrees", phase="plan", leg=leg)
             return None
+        self.fresh_scan = False
         self.stats.replans += 1
         return plan
 

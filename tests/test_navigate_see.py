@@ -204,3 +204,18 @@ def test_the_gnc_drives_and_each_pose_report_is_a_cycle(server_factory, monkeypa
     hazard, g = true_hazard(world, (-4.0, -2.0, 3.0, 3.0))
     rr, cc = g.cell_of(track[:, 0], track[:, 1])
     assert not (hazard[rr, cc] == 255).any(), "the rover's track crossed a true hazard"
+
+
+def test_a_goal_the_scan_shows_in_a_hazard_ends_after_one_scan(server_factory) -> None:
+    """The see loop's first scan shows the goal on the tall rock (within judge_range): one look
+    toward it, then E_DATA naming the reason, without a second scan from the same spot."""
+    srv = server_factory(["server.scene=office", "navigate.range=-90,30,-50,-10"])
+    c = srv.client()
+    job = c.start_job("navigate -goal 2.3,-0.45 -auto -loop see")
+    replies = c.until_final(job=job, timeout=300)
+    final = replies[-1]
+    assert final.status == "ERROR" and final.fields["code"] == "E_DATA", final.fields
+    assert "after a 360-degree scan" in final.fields["message"] and "goal_in_hazard" in final.fields["message"]
+    scans = {r.fields.get("leg") for r in replies if r.status == "PROGRESS" and r.fields.get("phase") == "process"}
+    looks = [r for r in replies if r.status == "PROGRESS" and "looking toward the goal" in r.fields.get("message", "")]
+    assert scans == {"1"} and len(looks) == 1, (scans, looks)
