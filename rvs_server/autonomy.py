@@ -40,7 +40,7 @@ from prox_workflows.steps.rolling_map import RollingMap, RollingParams, path_pos
 from prox_workflows.steps.transforms import HeadCalibration, T_global_from_rover
 
 from .commands.hardware import device_call
-from .commands.navigation import wait_for_rover
+from .commands.navigation import goal_stand_in, wait_for_rover
 from .maps import ground_height
 from .protocol import Fixed, Reply, Rows
 
@@ -336,7 +336,7 @@ class SeeLoop:
 
     def _plan(self, global_maps: Any, goal: tuple[float, float], params: Any) -> tuple[Any, str]:
         """(plan, "") or (None, why there is none) on the merged maps."""
-        from prox_workflows.steps.planner import MIN_LEG, PlanningError, nearest_reachable, plan_path
+        from prox_workflows.steps.planner import MIN_LEG, PlanningError, plan_path
 
         pose = self.app.pose
         here = (pose.x, pose.y)
@@ -350,12 +350,12 @@ class SeeLoop:
                 plan = plan_path(merged, global_maps, here, goal, params, start_heading=pose.heading,
                                  search=self.search, cover=self.cover)
             except PlanningError as exc:
-                # as navigate's scan legs do: a goal judged unreachable from farther than
-                # judge_range is driven toward, and judged again from closer
-                far = math.hypot(goal[0] - here[0], goal[1] - here[1]) > self.cfg.judge_range
-                if exc.reason not in ("goal_in_hazard", "enclosed") or not far:
+                # as navigate's scan legs do: a stand-in within the tolerance, or from farther
+                # than judge_range a point toward the goal, to judge it again from closer
+                toward = goal_stand_in(merged, global_maps, here, goal, params, exc,
+                                       math.hypot(goal[0] - here[0], goal[1] - here[1]), self.cfg)
+                if toward is None:
                     raise
-                toward = nearest_reachable(merged, global_maps, here, goal, params)
                 plan = plan_path(merged, global_maps, here, toward, params, start_heading=pose.heading,
                                  search=self.search, cover=self.cover)
         except PlanningError as exc:

@@ -203,3 +203,35 @@ def test_a_goal_judged_in_a_hazard_from_far_is_judged_again_from_closer(server_f
     hazard, g = true_hazard(world, AREA["office"])
     rr, cc = g.cell_of(pts[:, 0], pts[:, 1])
     assert not (hazard[rr, cc] == 255).any(), "the rover's true track crossed a true hazard"
+
+
+def test_a_goal_short_of_the_clearance_is_planned_to_within_the_tolerance() -> None:
+    """A goal a few centimetres closer to a hazard than the rover's clearance (radius + margin)
+    gets a stand-in within the goal's tolerance, reached from there; a goal on a rock gets none
+    from close by (unreachable), and from farther than judge_range a point to drive toward."""
+    from prox_workflows.steps.planner import HAZARDOUS, NavMaps, PlannerParams, PlanningError, plan_path
+    from rvs_server.commands.navigation import NavigateConfig, goal_stand_in
+
+    geom = GridGeometry(0.05, 0.0, 4.0, 200, 80)  # x 0..10, y 0..4
+    xs, ys = geom.centers()
+    hz = np.zeros(geom.shape, np.uint8)
+    rock = np.hypot(xs[None, :] - 8.0, ys[:, None] - 2.0) <= 0.3
+    hz[rock] = HAZARDOUS
+    maps = NavMaps(hz, np.full(geom.shape, 3.0, np.float32), geom)
+    params = PlannerParams(rover_radius=0.32, margin=0.1, border=0.0)
+    cfg = NavigateConfig(goal=[8.0, 2.0])
+    near = (8.0 - 0.3 - 0.38, 2.0)  # 0.38 m from the rock's edge: 0.04 m short of the 0.42 m clearance
+    here = (6.5, 2.0)
+    with pytest.raises(PlanningError) as exc:
+        plan_path(maps, None, here, near, params)
+    assert exc.value.reason == "goal_in_hazard"
+    stand_in = goal_stand_in(maps, None, here, near, params, exc.value, 1.2, cfg)
+    assert stand_in is not None and math.hypot(stand_in[0] - near[0], stand_in[1] - near[1]) <= cfg.tolerance
+    plan = plan_path(maps, None, here, stand_in, params)  # and the rover can drive there
+    assert np.allclose(plan.waypoints.xy[-1], stand_in)
+    on_rock = (8.0, 2.0)
+    with pytest.raises(PlanningError) as exc:
+        plan_path(maps, None, here, on_rock, params)
+    assert goal_stand_in(maps, None, here, on_rock, params, exc.value, 1.5, cfg) is None  # within judge_range
+    far = goal_stand_in(maps, None, (1.0, 2.0), on_rock, params, exc.value, 7.0, cfg)  # beyond it: go closer
+    assert far is not None and math.hypot(far[0] - 8.0, far[1] - 2.0) > cfg.tolerance

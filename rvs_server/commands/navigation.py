@@ -278,7 +278,6 @@ def _navigate(job: Job, cfg: NavigateConfig, name: str, track: list[tuple[float,
         NavMaps,
         PlannerParams,
         PlanningError,
-        nearest_reachable,
         ortho_figure,
     )
 
@@ -382,17 +381,21 @@ def _navigate(job: Job, cfg: NavigateConfig, name: str, track: list[tuple[float,
         try:
             plan = plan_leg(goal)
         except PlanningError as exc:
-            if exc.reason not in ("goal_in_hazard", "enclosed") or distance <= cfg.judge_range:
+            toward = goal_stand_in(local, global_maps, here, goal, params, exc, distance, cfg)
+            if toward is None:
                 raise ProtocolError("E_DATA", f"goal unreachable ({exc.reason}): {exc.message}") from None
-            judged = exc
-            try:  # drive toward the goal, as close as the maps allow, and judge it again from there
-                toward = nearest_reachable(local, global_maps, here, goal, params)
+            try:
                 plan = plan_leg(toward)
             except PlanningError:
                 raise ProtocolError("E_DATA", f"goal unreachable ({exc.reason}): {exc.message}") from None
-            leg_progress(0, 1, f"goal judged unreachable ({exc.reason}) from {distance:.2f} m, farther than "
-                               f"{cfg.judge_range:g} m: driving toward it to ({toward[0]:.2f}, {toward[1]:.2f}) "
-                               "to judge it again from closer", "plan")
+            if math.hypot(toward[0] - goal[0], toward[1] - goal[1]) <= cfg.tolerance:
+                leg_progress(0, 1, f"goal {exc.reason}: planning to ({toward[0]:.2f}, {toward[1]:.2f}) instead, "
+                                   f"within the {cfg.tolerance:g} m tolerance", "plan")
+            else:  # drive toward the goal, as close as the maps allow, and judge it again from there
+                judged = exc
+                leg_progress(0, 1, f"goal judged unreachable ({exc.reason}) from {distance:.2f} m, farther than "
+                                   f"{cfg.judge_range:g} m: driving toward it to ({toward[0]:.2f}, "
+                                   f"{toward[1]:.2f}) to judge it again from closer", "plan")
         driven = plan.path[: plan.cut]
         if len(plan.waypoints) < 2 or math.hypot(*(driven[-1] - driven[0])) < MIN_LEG:
             if judged is not None:  # it cannot get closer: the verdict from here stands
@@ -446,6 +449,26 @@ def _navigate(job: Job, cfg: NavigateConfig, name: str, track: list[tuple[float,
     return {"reached": True, "legs": len(all_paths), "path": app.rel(traverse), "waypoints": app.rel(wfile),
             "track": app.rel(tfile), "x": Fixed(pose.x, 3), "y": Fixed(pose.y, 3), **pose_fields(job),
             "loop": cfg.loop, **({"scans": scans} if see is None else see.stats_fields(scans))}
+
+
+def goal_stand_in(local: Any, global_maps: Any, here: tuple[float, float], goal: tuple[float, float], params: Any,
+                  exc: Any, distance: float, cfg: NavigateConfig) -> tuple[float, float] | None:
+    """Where to plan to when the goal itself cannot be planned to (``exc``: goal_in_hazard or
+    enclosed): the nearest point the rover can reach and stop on, if it lies within the goal's
+    tolerance (a goal a few centimetres short of the rover's clearance from a hazard is reached
+    from there, as the tolerance says), or, from farther than judge_range, to drive toward and
+    judge the goal again from closer. None: the goal is unreachable."""
+    from prox_workflows.steps.planner import PlanningError, nearest_reachable
+
+    if exc.reason not in ("goal_in_hazard", "enclosed"):
+        return None
+    try:
+        toward = nearest_reachable(local, global_maps, here, goal, params)
+    except PlanningError:
+        return None
+    if math.hypot(toward[0] - goal[0], toward[1] - goal[1]) <= cfg.tolerance or distance > cfg.judge_range:
+        return toward
+    return None
 
 
 def _check(app: App, cfg: NavigateConfig) -> None:
