@@ -1,4 +1,5 @@
-"""Drive while seeing (issue 12, item 2): the simulated rover drives a leg in cycles; each cycle
+"""Drive while seeing (issue 12, item 2): the rover drives a leg in cycles (the simulated rover
+with -auto; the GNC otherwise, each pose it reports while driving being a cycle); each cycle
 one forward ToF frame feeds the rolling local elevation map, Dem2Hazard updates the window the
 frame touched, and the rover's footprint is swept over the next metres of its path. A hazard
 there stops the rover (an ``EVENT kind=hazard level=stop`` shaped as the hazard monitor's) and
@@ -226,26 +227,26 @@ class SeeingDriver:
         wps = np.asarray(waypoints, dtype=np.float64)[:, :2]
         segments = len(wps) - 1
         end = (float(wps[-1][0]), float(wps[-1][1]))
-        state: dict[str, Any] = {"k": 1, "hazard": None}
+        k = 1  # the waypoint the rover is heading for
+        hazard: dict[str, Any] | None = None
 
         def on_pose(p: Any) -> None:
+            nonlocal k, hazard
             track.append((p.x, p.y))
-            k = state["k"]
-            while k <= segments and _passed((p.x, p.y, p.heading), wps[k - 1], wps[k]):
+            while k < segments and _passed((p.x, p.y, p.heading), wps[k - 1], wps[k]):
                 progress(k, segments, f"segment {k}/{segments} driven", "drive")
                 k += 1
-            state["k"] = min(k, segments)
-            check, pose = self.cycle(pan_tilt, wps[state["k"]:])
+            check, pose = self.cycle(pan_tilt, wps[k:])
             if check.verdict == "not_traversable":
-                if state["hazard"] is None:  # once per leg: the GNC is stopping
-                    state["hazard"] = self._stop_event(check, pose)
-            elif state["hazard"] is None:
+                if hazard is None:  # once per leg: the GNC is stopping
+                    hazard = self._stop_event(check, pose)
+            elif hazard is None:
                 self._clear()
 
         arrived = wait_for_rover(self.app, self.job, version, end, tolerance, timeout, on_pose)
         track.append((arrived.x, arrived.y))
-        if state["hazard"] is not None:
-            return DriveOutcome("hazard", state["k"] - 1, state["hazard"])
+        if hazard is not None:
+            return DriveOutcome("hazard", k - 1, hazard)
         return DriveOutcome("done", segments)
 
     def _stop_event(self, check: Any, pose: tuple[float, float, float]) -> dict[str, Any]:
@@ -311,8 +312,9 @@ class SeeLoop:
         return merge_nav_maps(self.scan, self.driver.map.nav_maps())
 
     def replan(self, leg: int, global_maps: Any, goal: tuple[float, float], params: Any) -> Any:
-        """A* from the rover's believed pose on the merged maps (timed: the benchmark compares it
-        with D* Lite's repair); None when that shows no way to drive (then navigate scans).
+        """A plan from the rover's believed pose on the merged maps (D* Lite repairing the
+        mission's last search, or A*; timed); None when that shows no way to drive (then
+        navigate scans).
 
         Before giving up, the rover looks: three forward ToF frames panned toward the goal (a
         few seconds of PTU motion) often show the way a 360-degree scan (half a minute) would,
