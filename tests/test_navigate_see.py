@@ -168,7 +168,7 @@ def test_the_gnc_drives_and_each_pose_report_is_a_cycle(server_factory, monkeypa
             stopped = False
             for a, b in zip(wps[:-1], wps[1:], strict=True):
                 h = math.degrees(math.atan2(b[1] - a[1], b[0] - a[0]))
-                n = max(1, math.ceil(math.hypot(*(b - a)) / 0.1))
+                n = max(1, math.ceil(math.hypot(*(b - a)) / 0.2))  # a pose every 0.2 m
                 for i in range(1, n + 1):
                     x, y = a + (b - a) * i / n
                     world.set_rover_pose(x, y, h)
