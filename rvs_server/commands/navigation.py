@@ -27,6 +27,8 @@ from .hardware import default_stem
 if TYPE_CHECKING:
     from pathlib import Path
 
+    from prox_workflows.steps.planner import NavMaps, PlannerParams, PlanningError
+
     from ..app import App, Pose
 
 
@@ -451,8 +453,9 @@ def _navigate(job: Job, cfg: NavigateConfig, name: str, track: list[tuple[float,
             "loop": cfg.loop, **({"scans": scans} if see is None else see.stats_fields(scans))}
 
 
-def goal_stand_in(local: Any, global_maps: Any, here: tuple[float, float], goal: tuple[float, float], params: Any,
-                  exc: Any, distance: float, cfg: NavigateConfig) -> tuple[float, float] | None:
+def goal_stand_in(local: NavMaps, global_maps: NavMaps | None, here: tuple[float, float], goal: tuple[float, float],
+                  params: PlannerParams, exc: PlanningError, distance: float,
+                  cfg: NavigateConfig) -> tuple[float, float] | None:
     """Where to plan to when the goal itself cannot be planned to (``exc``: goal_in_hazard or
     enclosed): the nearest point the rover can reach and stop on, if it lies within the goal's
     tolerance (a goal a few centimetres short of the rover's clearance from a hazard is reached
