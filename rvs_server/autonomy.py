@@ -140,7 +140,8 @@ class SeeingDriver:
         T_rc = self.head.T_rover_from_sensor("tof", *pan_tilt)
         pts = rover_points(xyz, T_rc, self.p.subsample, self.p.max_range, amplitude, 0.1)
         ranges = np.linalg.norm(pts - T_rc[:3, 3].astype(np.float32), axis=1)
-        T = T_global_from_rover(x, y, heading, ground_height(app.maps.layers, x, y))
+        z = self.map.ground_height(x, y)
+        T = T_global_from_rover(x, y, heading, ground_height(app.maps.layers, x, y) if z is None else z)
         world_pts = pts.astype(np.float64) @ T[:3, :3].T + T[:3, 3]
         self.map.follow(x, y)
         self.map.fuse(world_pts, ranges)

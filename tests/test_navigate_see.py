@@ -109,6 +109,41 @@ def test_rolling_map_hazard_is_incremental() -> None:
     assert (merged.hazard == 255).sum() >= (m.hazard == 255).sum()
 
 
+def test_a_frame_off_the_scan_takes_its_datum_from_the_rolling_map() -> None:
+    """Up a 10 % ramp beyond the scanned ground, the rover's z for a frame is the rolling map's
+    ground under it: a frame panned to the side, which overlaps the map too little to be
+    aligned, then lands level with the rest. With the scan DEM's fallback (0 off it) the same
+    frame lands 0.3 m low and Dem2Hazard sees a phantom step at its seam (marsyard mission 5
+    turned back before one)."""
+    rng = np.random.default_rng(5)
+    params = HazardParams()
+
+    def ground(x: np.ndarray) -> np.ndarray:
+        return 0.1 * x
+
+    def frame(x0: float, dx: tuple[float, float], dy: tuple[float, float], z_rover: float) -> np.ndarray:
+        n = 4000
+        x, y = rng.uniform(x0 + dx[0], x0 + dx[1], n), rng.uniform(*dy, n)
+        z_sensor = ground(x) - ground(np.array(x0)) + 0.005 * rng.standard_normal(n)  # relative to the true rover
+        return np.column_stack([x, y, z_sensor + z_rover])
+
+    for use_map in (True, False):
+        m = RollingMap(RollingParams(size=6.0), params, (1.0, 0.0))
+        assert m.ground_height(1.0, 0.0) is None  # nothing seen yet
+        m.fuse(frame(0.0, (-0.6, 2.5), (-0.6, 0.6), 0.0))  # the first frame: the rover at 0 on the datum
+        for x0 in (0.5, 1.0, 1.5, 2.0, 2.5, 3.0):  # driving forward, frames aligned by overlap
+            z = m.ground_height(x0, 0.0) if use_map else 0.0
+            m.follow(x0, 0.0)
+            m.fuse(frame(x0, (0.3, 2.0), (-0.6, 0.6), z))
+        z = m.ground_height(3.0, 0.0)
+        assert z is not None and abs(z - 0.3) < 0.03  # the ground under the rover, in the map's datum
+        side = frame(3.0, (-0.5, 0.5), (0.62, 1.6), z if use_map else 0.0)  # the look to the left: no overlap
+        m.fuse(side)
+        assert m.last_offset == 0.0  # too little overlap to align
+        blocked = int((m.hazard == 255).sum())
+        assert (blocked == 0) if use_map else (blocked > 20), (use_map, blocked)
+
+
 def test_break_stops_the_see_loop_within_one_cycle(server_factory) -> None:
     """break while the rover drives and sees: the job ends E_INTERRUPTED, the rover stops, and
     the simulated clock has moved on by at most one cycle (see_period and a frame) since."""

@@ -178,6 +178,20 @@ class RollingMap:
         self.slope[a0:a1, b0:b1] = out["slope"][inner]
         self.traversability[a0:a1, b0:b1] = out["traversability"][inner]
 
+    def ground_height(self, x: float, y: float, radius: float = 0.5, min_cells: int = 20) -> float | None:
+        """The map's height under (x, y): the median within ``radius`` (None when fewer than
+        ``min_cells`` are known). The rover's z for a frame: the ground it stands on was seen
+        as it came, in this map's datum; the scan DEM (or 0 off it) can be decimetres from that
+        once the rover has left the scanned ground, and a frame that overlaps the map too little
+        to be aligned would then land as a phantom step."""
+        g = self.geometry
+        r, c = g.cell_of(np.array([x]), np.array([y]))
+        k = max(1, int(round(radius / g.cell)))
+        r0, c0 = int(r[0]), int(c[0])
+        window = self.height[max(r0 - k, 0): max(r0 + k + 1, 0), max(c0 - k, 0): max(c0 + k + 1, 0)]
+        known = window[np.isfinite(window)]
+        return float(np.median(known)) if known.size >= min_cells else None
+
     def nav_maps(self) -> NavMaps:
         """The hazard and slope layers as the planner takes them."""
         return NavMaps(self.hazard.copy(), self.slope.copy(), self.geometry)
