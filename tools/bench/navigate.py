@@ -44,9 +44,11 @@ from prox_workflows.steps.dem2hazard import HazardParams, dem2hazard
 from prox_workflows.steps.safety import check_move
 from rvs_server.client.session import ServerThread
 from rvs_server.protocol import Reply, parse_reply
+from tools.global_maps import write_global_maps
 
 TOP_SPEED = 0.1  # m/s: the scenes' rover speed
 AREA = {"marsyard": (-5.5, -9.5, 13.5, 9.5), "hirise": (-14.0, -14.0, 14.0, 14.0)}
+ORBITAL = {"hirise"}  # scenes built on an orbital DTM (tools.global_maps writes it)
 ROVER = (0.51, 0.40)  # config/head.yaml rover_length, rover_width
 # both loops plan with the rover's circle: with -footprint body (half width along straight
 # stretches) the see loop stopped in front of gaps it had planned through, and once crossed true
@@ -57,9 +59,9 @@ FOOTPRINT = {"scan": "circle", "see": "circle"}
 class _Server(ServerThread):
     """The real server in a thread (as the tests run it), simulated time instant, PTU on the clock."""
 
-    def __init__(self, data: Path, scene: str) -> None:
+    def __init__(self, data: Path, scene: str, sets: list[str] | None = None) -> None:
         super().__init__([f"server.data={data}", "server.port=0", "sim.time_scale=0", "server.web_port=0",
-                          f"server.scene={scene}"], log_level="warning")
+                          f"server.scene={scene}", *(sets or [])], log_level="warning")
         self.start(120)
 
     def request(self, line: str, timeout: float = 7200.0) -> Reply:
@@ -126,9 +128,15 @@ def crossed(track: np.ndarray, maps: dict[str, np.ndarray], g: GridGeometry) -> 
 
 def run_mission(scene: str, mode: str, start: tuple[float, float], goal: tuple[float, float],
                 extra: list[str]) -> dict[str, Any]:
-    """One navigate -auto in a fresh server; the figures of the issue's table."""
+    """One navigate -auto in a fresh server; the figures of the issue's table. A scene built on an
+    orbital DTM gets it as navigate's global maps (issue 12 item 5), as a rover team would load
+    its orbital map: the planner then knows the terrain's extent and its slopes beyond the scans."""
     with tempfile.TemporaryDirectory() as tmp:
-        srv = _Server(Path(tmp), scene)
+        sets = []
+        if scene in ORBITAL:
+            write_global_maps(scene, Path(tmp) / "global")
+            sets.append(f"navigate.global_maps={Path(tmp) / 'global'}")
+        srv = _Server(Path(tmp), scene, sets)
         try:
             world = srv.app.world
             world.set_target_visible(False)
