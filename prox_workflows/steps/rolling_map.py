@@ -24,6 +24,9 @@ Why these choices
     - Each frame's heights are aligned to the map's where they overlap (the median difference):
       the frame's z comes from the rover's believed height, which jumps by centimetres from
       stop to stop; fused unaligned, frames would meet in phantom steps at each view's edge.
+      That height is the map's own ground under the rover (:meth:`RollingMap.ground_height`),
+      so a frame that overlaps too little to be aligned (a look to the side) still lands in the
+      map's datum; off the scanned ground the scan DEM gave 0, decimetres off on a slope.
     - The check sweeps the rover's footprint along the next metres of the path (poses), as
       check-move does along one motion: blocked anywhere is ``not_traversable``.
 """
@@ -146,9 +149,9 @@ class RollingMap:
         sl = (slice(r0, r1), slice(c0, c1))
         self.last_offset = 0.0
         if p.align_min_cells > 0:
-            # the frame's height datum against the map's: the rover's z comes from the scan DEM
-            # under it (a filled blind patch), a few centimetres off and different at every
-            # stop; unaligned, frames would meet in steps at the edge of each new view
+            # the frame's height datum against the map's: the rover's z (the ground under it,
+            # seen earlier) is a few centimetres off and different at every stop; unaligned,
+            # frames would meet in steps at the edge of each new view
             both = np.isfinite(meas["dem"]) & np.isfinite(self.height[sl])
             if int(both.sum()) >= p.align_min_cells:
                 self.last_offset = float(np.median(meas["dem"][both] - self.height[sl][both]))
