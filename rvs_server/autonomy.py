@@ -42,12 +42,14 @@ from prox_workflows.steps.transforms import HeadCalibration, T_global_from_rover
 
 from .commands.hardware import device_call
 from .commands.navigation import goal_stand_in, wait_for_rover
+from .localisation import pose_fields
 from .maps import ground_height
 from .protocol import Fixed, Reply, Rows
 
 if TYPE_CHECKING:
     from .app import App
     from .jobs import Job
+    from .localisation import Localiser
 
 
 @dataclass
@@ -278,10 +280,12 @@ class SeeLoop:
     """navigate's side of the see loop: keeps the last scan's maps, replans on them with the
     rolling map laid over them, and drives each leg with :class:`SeeingDriver`."""
 
-    def __init__(self, job: Job, cfg: Any) -> None:
+    def __init__(self, job: Job, cfg: Any, localiser: Localiser) -> None:
         self.job = job
         self.app: App = job.app
         self.cfg = cfg
+        self.localiser = localiser
+        self.since_fix = 0.0  # metres driven since the rolling map was last matched on the global DEM
         self.stats = LoopStats()
         self.driver = SeeingDriver(job, SeeParams(
             period=cfg.see_period, lookahead=cfg.see_lookahead, stop_distance=0.0, tilt=cfg.see_tilt,
@@ -385,8 +389,9 @@ class SeeLoop:
                        f"{end[1]:.2f})", "plan")
         rows = [(Fixed(x, 3), Fixed(y, 3), Fixed(h, 2)) for x, y, h in plan.waypoints.table()[:, :3]]
         app.broadcast_threadsafe(Reply("RVS", "EVENT", {
-            "kind": "waiting", "job": job.id, "leg": leg, "waypoints": Rows(rows), "file": "none"}))
+            "kind": "waiting", "job": job.id, "leg": leg, "waypoints": Rows(rows), "file": "none", **pose_fields(job)}))
         progress(0, segments, f"driving {segments} segments to ({end[0]:.2f}, {end[1]:.2f}) while seeing", "drive")
+        start_of_leg = len(track)
         extends = self.last_end is None or math.hypot(end[0] - self.last_end[0], end[1] - self.last_end[1]) > 0.25
         self.last_end = end
         if not self.cfg.auto:
@@ -399,6 +404,28 @@ class SeeLoop:
             app.set_pose(odo[0], odo[1], odo[2], source="odometry")
         if outcome.kind == "hazard":  # the stop EVENT said so; the next leg replans from here
             self.last_end = None
+        self.localise(leg, track[start_of_leg:])
+
+    def localise(self, leg: int, driven: list[tuple[float, float]]) -> None:
+        """Dead reckoning's sigma grows with the leg; every ``see_localise_every`` metres, and on
+        arriving, the rolling map is matched on the global DEM (``-localise map``/``both``) and
+        a fix moves the pose and the rolling map with it (its frames were placed with the pose
+        that drifted). The see loop's scans are matched as the scan loop's legs are."""
+        loc = self.localiser
+        if not loc.uses_map:
+            return
+        dist = float(np.hypot(*np.diff(np.asarray(driven, dtype=np.float64).reshape(-1, 2), axis=0).T).sum())
+        loc.grow(self.job, dist)
+        self.since_fix += dist
+        p = self.app.pose
+        arrived = math.hypot(self.cfg.goal[0] - p.x, self.cfg.goal[1] - p.y) <= self.cfg.tolerance
+        if self.since_fix < self.cfg.see_localise_every and not (arrived and loc.grown > 0):
+            return
+        m = self.driver.map
+        fix = loc.while_seeing(self.job, leg, m.height, m.geometry)
+        if fix is not None:
+            self.since_fix = 0.0
+            m.move((p.x, p.y), *fix)
 
     def stats_fields(self, scans: int) -> dict[str, Any]:
         """The OK line's keys of the see loop."""
@@ -406,9 +433,9 @@ class SeeLoop:
         return {**self.stats.fields(), "scans": scans, "search": self.cfg.see_search, **searched}
 
 
-def start(job: Job, cfg: Any) -> SeeLoop:
-    """The see loop of one navigate -auto -loop see."""
-    return SeeLoop(job, cfg)
+def start(job: Job, cfg: Any, localiser: Localiser) -> SeeLoop:
+    """The see loop of one navigate -loop see."""
+    return SeeLoop(job, cfg, localiser)
 
 
 def _passed(pose: tuple[float, float, float], a: np.ndarray, b: np.ndarray, reach: float = 0.02) -> bool:

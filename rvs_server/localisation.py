@@ -83,12 +83,15 @@ class Localiser:
 
     def after_drive(self, job: Job, waypoints: np.ndarray) -> None:
         """The pose just set from dead reckoning: its sigma grows with the distance driven."""
+        xy = np.asarray(waypoints, dtype=float).reshape(-1, 2)
+        self.grow(job, float(np.hypot(*np.diff(xy, axis=0).T).sum()) if len(xy) > 1 else 0.0)
+
+    def grow(self, job: Job, dist: float) -> None:
+        """``dist`` metres of dead reckoning since the pose was last set: its sigma grows."""
         app = job.app
         p = app.pose
         if p.source != "odometry":
             return  # a GNC's pose carries its own accuracy
-        xy = np.asarray(waypoints, dtype=float).reshape(-1, 2)
-        dist = float(np.hypot(*np.diff(xy, axis=0).T).sum()) if len(xy) > 1 else 0.0
         dh = self.heading_drift * dist
         # lateral error of a heading error that grew linearly along the leg: half of it at the end
         dxy = self.drift * dist + math.radians(self.sigma_heading + dh / 2.0) * dist
@@ -130,34 +133,69 @@ class Localiser:
                 sigma_h = math.hypot(max(base_h, 0.0), m.sigma_yaw)
                 source, changed = "vo", True
         if self.uses_map:
-            assert self.reference is not None and self.reference.dem is not None
-            ref = self.reference
-            m = match_dem(moved["dem"], moved.geometry, ref.dem, ref.geometry, (x, y),
-                          search_xy=min(max(3.0 * sigma + 0.3, 0.6), 3.0),
-                          search_yaw=min(max(3.0 * sigma_h + 2.0, 3.0), 15.0), radius=4.5)
-            self._report(job, leg, "map", m)
-            # a GNC's pose says nothing of its accuracy: the map decides; a pose given with sigma 0
-            # otherwise (the start) is exact, the frame is defined by it
-            prior, prior_h = (math.inf, math.inf) if source == "gnc" else (sigma, sigma_h)
-            if m.ok and prior > 0:
-                # inverse-variance fusion with what we had (dead reckoning or VO)
-                w = 1.0 if math.isinf(prior) else prior ** 2 / (prior ** 2 + m.sigma_xy ** 2)
-                wh = 1.0 if math.isinf(prior_h) else prior_h ** 2 / (prior_h ** 2 + m.sigma_yaw ** 2)
-                moved = transform_layers(moved, (x, y), w * m.dx, w * m.dy, wh * m.dyaw)
-                x, y, h = x + w * m.dx, y + w * m.dy, h + wh * m.dyaw
-                sigma = math.sqrt(1.0 / (1.0 / prior ** 2 + 1.0 / max(m.sigma_xy, 1e-6) ** 2))
-                sigma_h = math.sqrt(1.0 / (1.0 / max(prior_h, 1e-6) ** 2 + 1.0 / max(m.sigma_yaw, 1e-6) ** 2))
+            fix = self._map_fix(job, leg, moved["dem"], moved.geometry, (x, y), sigma, sigma_h, source)
+            if fix is not None:
+                dx, dy, dyaw, sigma, sigma_h = fix
+                moved = transform_layers(moved, (x, y), dx, dy, dyaw)
+                x, y, h = x + dx, y + dy, h + dyaw
                 source, changed = "map", True
         if changed:
-            h = (h + 180.0) % 360.0 - 180.0
-            app.set_pose(x, y, h, source=source, sigma=sigma, sigma_heading=sigma_h)
-            if self.auto and app.world is not None:
-                app.world.set_odometry(x, y, h)  # the rover's GNC takes the fix
-            self.grown = self.grown_heading = 0.0
-            self.sigma, self.sigma_heading = sigma, sigma_h
+            self._take(app, x, y, h, source, sigma, sigma_h)
         merged = overlay_layers(self.previous, moved)
         app.maps.replace(merged, app.maps.name or "", app.maps.files())
         self.previous = merged
+
+    def while_seeing(self, job: Job, leg: int, dem: np.ndarray, geometry: Any) -> tuple[float, float, float] | None:
+        """The see loop's fix between its replans (its 360-degree scans are matched by
+        :meth:`after_scan`): the rolling map's DEM, placed frame by frame with the dead-reckoned
+        pose, matched on the global DEM. Returns the correction (dx, dy, dyaw about the believed
+        position) for the caller to move its rolling map by, or None when the match cannot tell."""
+        if not self.uses_map:
+            return None
+        p = job.app.pose
+        # the map's frames were placed with errors from the last fix's (about 0) to today's: the
+        # match lands between, so half of what dead reckoning added stays in the fix's sigma
+        fix = self._map_fix(job, leg, dem, geometry, (p.x, p.y), self.sigma, self.sigma_heading, p.source,
+                            blur=(self.grown / 2.0, self.grown_heading / 2.0))
+        if fix is None:
+            return None
+        dx, dy, dyaw, sigma, sigma_h = fix
+        self._take(job.app, p.x + dx, p.y + dy, p.heading + dyaw, "map", sigma, sigma_h)
+        return dx, dy, dyaw
+
+    def _map_fix(self, job: Job, leg: int, dem: np.ndarray, geometry: Any, at: tuple[float, float], sigma: float,
+                 sigma_h: float, source: str, blur: tuple[float, float] = (0.0, 0.0)
+                 ) -> tuple[float, float, float, float, float] | None:
+        """``dem`` (placed with the pose at ``at``, of these sigmas) matched on the global DEM and
+        fused with that estimate: (dx, dy, dyaw, sigma, sigma_heading), or None. ``blur`` (m,
+        deg) is added to the match's sigmas: what the DEM's own placement is off by, beyond what
+        the heights show (a rolling map's frames were placed along a drifting pose)."""
+        assert self.reference is not None and self.reference.dem is not None
+        ref = self.reference
+        m = match_dem(dem, geometry, ref.dem, ref.geometry, at, search_xy=min(max(3.0 * sigma + 0.3, 0.6), 3.0),
+                      search_yaw=min(max(3.0 * sigma_h + 2.0, 3.0), 15.0), radius=4.5)
+        self._report(job, leg, "map", m)
+        # a GNC's pose says nothing of its accuracy: the map decides; a pose given with sigma 0
+        # otherwise (the start) is exact, the frame is defined by it
+        prior, prior_h = (math.inf, math.inf) if source == "gnc" else (sigma, sigma_h)
+        if not (m.ok and prior > 0):
+            return None
+        s_xy, s_yaw = math.hypot(m.sigma_xy, blur[0]), math.hypot(m.sigma_yaw, blur[1])
+        # inverse-variance fusion with what we had (dead reckoning or VO)
+        w = 1.0 if math.isinf(prior) else prior ** 2 / (prior ** 2 + s_xy ** 2)
+        wh = 1.0 if math.isinf(prior_h) else prior_h ** 2 / (prior_h ** 2 + s_yaw ** 2)
+        sigma = math.sqrt(1.0 / (1.0 / prior ** 2 + 1.0 / max(s_xy, 1e-6) ** 2))
+        sigma_h = math.sqrt(1.0 / (1.0 / max(prior_h, 1e-6) ** 2 + 1.0 / max(s_yaw, 1e-6) ** 2))
+        return w * m.dx, w * m.dy, wh * m.dyaw, sigma, sigma_h
+
+    def _take(self, app: Any, x: float, y: float, h: float, source: str, sigma: float, sigma_h: float) -> None:
+        """A fix becomes the pose (and the simulated rover's odometry: its GNC takes it)."""
+        h = (h + 180.0) % 360.0 - 180.0
+        app.set_pose(x, y, h, source=source, sigma=sigma, sigma_heading=sigma_h)
+        if self.auto and app.world is not None:
+            app.world.set_odometry(x, y, h)
+        self.grown = self.grown_heading = 0.0
+        self.sigma, self.sigma_heading = sigma, sigma_h
 
     def _report(self, job: Job, leg: int, method: str, m: MatchResult) -> None:
         """One EVENT per match, taken or not: a GNC may apply the fix to its own estimate."""

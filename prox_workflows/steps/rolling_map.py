@@ -181,6 +181,18 @@ class RollingMap:
         self.slope[a0:a1, b0:b1] = out["slope"][inner]
         self.traversability[a0:a1, b0:b1] = out["traversability"][inner]
 
+    def move(self, pivot: tuple[float, float], dx: float, dy: float, dyaw: float) -> None:
+        """Move what the map holds by a pose fix (rotation ``dyaw`` degrees about ``pivot``, then
+        ``dx, dy``): its frames were placed with the pose the fix corrects, so they move with
+        it (nearest cell; the hazard layers are recomputed)."""
+        from .map_match import transform_layers
+
+        layers = Layers(self.geometry)
+        layers["height"], layers["variance"], layers["count"] = self.height, self.variance, self.count
+        moved = transform_layers(layers, pivot, dx, dy, dyaw)
+        self.height, self.variance, self.count = moved["height"], moved["variance"], moved["count"]
+        self._rehazard((slice(0, self.n), slice(0, self.n)))
+
     def ground_height(self, x: float, y: float, radius: float = 0.5, min_cells: int = 20) -> float | None:
         """The map's height under (x, y): the median within ``radius`` (None when fewer than
         ``min_cells`` are known). The rover's z for a frame: the ground it stands on was seen

@@ -161,6 +161,9 @@ class NavigateConfig(ModuleConfig):
     see_search: str = param("dstar", "see loop: the search of a replan: dstar repairs the mission's last search "
                             "with the cells that changed (D* Lite, the same path cost as astar), astar searches "
                             "again", choices=("dstar", "astar"), option=False)
+    see_localise_every: float = param(2.0, "see loop with -localise map or both: match the rolling map on the global "
+                                      "DEM after every this many metres driven, and on arriving", unit="m", min=0.1,
+                                      max=1000.0, option=False)
     max_replans: int = param(100, "see loop: give up after this many plans in all", min=1, max=10000,
                              option=False)
 
@@ -311,7 +314,7 @@ def _navigate(job: Job, cfg: NavigateConfig, name: str, track: list[tuple[float,
     leg_starts: list[tuple[float, float]] = []
     stalled = 0  # legs in a row that started where the previous one did
     see_stalled = 0  # see loop: replans in a row after which the rover had not moved
-    see = autonomy.start(job, cfg) if seeing else None
+    see = autonomy.start(job, cfg, loc) if seeing else None
     need_scan = True  # the see loop scans first, then only when the rolling map shows no way
     scans = 0
     for leg in range(1, (cfg.max_replans if seeing else cfg.max_legs) + 1):

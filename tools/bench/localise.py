@@ -42,7 +42,7 @@ def orbital_geotiff(world: Any, path: Path, origin: tuple[float, float] = ORIGIN
 
 
 def run_mission(srv: Any, start: tuple[float, float], goal: tuple[float, float], mode: str, seed: int,
-                global_file: Path, tolerance: float = 0.3) -> dict[str, Any]:
+                global_file: Path, tolerance: float = 0.3, loop: str = "scan") -> dict[str, Any]:
     """One navigate -auto mission with slip; the end pose, the truth and the fixes."""
     c = srv.client(timeout=1800)
     try:
@@ -51,7 +51,7 @@ def run_mission(srv: Any, start: tuple[float, float], goal: tuple[float, float],
         heading = math.degrees(math.atan2(goal[1] - start[1], goal[0] - start[0]))
         t0 = time.perf_counter()
         c.send(f"navigate -start {start[0]:.3f},{start[1]:.3f},{heading:.1f} -goal {goal[0]:.3f},{goal[1]:.3f} "
-               f"-auto -localise {mode} -tolerance {tolerance} -global {global_file} "
+               f"-auto -loop {loop} -localise {mode} -tolerance {tolerance} -global {global_file} "
                f"-global-origin {ORIGIN[0]},{ORIGIN[1]} -name m{seed}_{mode}")
         lines = c.until_final(timeout=1800)
         wall = time.perf_counter() - t0
@@ -113,17 +113,24 @@ def main(argv: list[str] | None = None) -> int:
     from conftest import ServerThread  # the tests' real server in a thread
     from test_navigate import pick_start_goal
 
+    from tools.bench.navigate import missions
+
     ap = argparse.ArgumentParser(prog="python -m tools.bench.localise", description=__doc__.splitlines()[0])
     ap.add_argument("--scene", default="quarry", choices=("quarry", "marsyard"))
     ap.add_argument("--seeds", type=int, nargs="+", default=[1, 2, 3])
     ap.add_argument("--modes", nargs="+", default=["none", "vo", "map", "both"])
     ap.add_argument("--tolerance", type=float, default=0.3)
+    ap.add_argument("--loop", default="scan", choices=("scan", "see"), help="navigate's loop (-loop)")
+    ap.add_argument("--far", action="store_true",
+                    help="the traverse benchmark's seeded 15-20 m missions (tools.bench.navigate; seed n is its "
+                         "mission n) instead of 3.5-5 m ones")
     ap.add_argument("--matcher", type=int, default=0, metavar="N", help="only time the matcher on N HiRISE patches")
     args = ap.parse_args(argv)
     if args.matcher:
         matcher_timing(args.matcher)
         return 0
     rows = []
+    far = missions(args.scene, max(args.seeds) + 1) if args.far else []
     with tempfile.TemporaryDirectory() as tmp:
         for seed in args.seeds:
             for mode in args.modes:
@@ -131,9 +138,9 @@ def main(argv: list[str] | None = None) -> int:
                 try:
                     world = srv.app.world
                     world.set_target_visible(False)
-                    start, goal = pick_start_goal(world, args.scene, seed)
+                    start, goal = far[seed] if far else pick_start_goal(world, args.scene, seed)
                     orbit = orbital_geotiff(world, Path(tmp) / f"orbit{seed}{mode}.tif")
-                    row = run_mission(srv, start, goal, mode, seed, orbit, args.tolerance)
+                    row = run_mission(srv, start, goal, mode, seed, orbit, args.tolerance, args.loop)
                 finally:
                     srv.stop()
                 rows.append(row)
@@ -142,7 +149,8 @@ def main(argv: list[str] | None = None) -> int:
                       f"{row['goal_true']:.3f} m, source {row['source']} sigma {row['sigma']:.3f}, fixes "
                       f"{row['taken']}/{row['fixes']}, {row['wall']:.0f} s wall {row['message']}", flush=True)
     print()
-    print(f"{args.scene}, slip 5 % / 2 deg per m, no GNC pose, tolerance {args.tolerance} m, seeds {args.seeds}")
+    print(f"{args.scene}, -loop {args.loop}, {'15-20' if far else '3.5-5'} m missions, slip 5 % / 2 deg per m, no "
+          f"GNC pose, tolerance {args.tolerance} m, seeds {args.seeds}")
     print(f"{'localise':>9} {'pose err mean':>14} {'max':>7} {'goal dist mean':>15} {'max':>7} "
           f"{'within tol':>10} {'vo ms':>7} {'map ms':>7}")
     for mode in args.modes:
