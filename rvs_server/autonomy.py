@@ -407,15 +407,16 @@ class SeeLoop:
         self.localise(leg, track[start_of_leg:])
 
     def localise(self, leg: int, driven: list[tuple[float, float]]) -> None:
-        """Dead reckoning's sigma grows with the leg; every ``see_localise_every`` metres, and on
-        arriving, the rolling map is matched on the global DEM (``-localise map``/``both``) and
-        a fix moves the pose and the rolling map with it (its frames were placed with the pose
-        that drifted). The see loop's scans are matched as the scan loop's legs are."""
+        """Dead reckoning's sigma grows with the leg, whatever -localise says. With ``map`` or
+        ``both``, every ``see_localise_every`` metres and on arriving, the rolling map is matched
+        on the global DEM and a fix moves the pose and the rolling map with it (its frames were
+        placed with the pose that drifted). The see loop's scans are matched as the scan loop's
+        legs are."""
         loc = self.localiser
-        if not loc.uses_map:
-            return
         dist = float(np.hypot(*np.diff(np.asarray(driven, dtype=np.float64).reshape(-1, 2), axis=0).T).sum())
         loc.grow(self.job, dist)
+        if not loc.uses_map:
+            return
         self.since_fix += dist
         p = self.app.pose
         arrived = math.hypot(self.cfg.goal[0] - p.x, self.cfg.goal[1] - p.y) <= self.cfg.tolerance

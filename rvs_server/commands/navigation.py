@@ -320,7 +320,9 @@ def _navigate(job: Job, cfg: NavigateConfig, name: str, track: list[tuple[float,
     for leg in range(1, (cfg.max_replans if seeing else cfg.max_legs) + 1):
         job.check()
         pose = app.pose
-        if math.hypot(goal[0] - pose.x, goal[1] - pose.y) <= cfg.tolerance and not loc.wants_fix(pose):
+        # an arrival on dead reckoning is checked by a match first: the see loop's own (map) or a scan's
+        checked = loc.wants_fix(pose) and (see is None or loc.uses_map)
+        if math.hypot(goal[0] - pose.x, goal[1] - pose.y) <= cfg.tolerance and not checked:
             break
         if see is not None and not need_scan:
             plan = see.replan(leg, global_maps, goal, params)
