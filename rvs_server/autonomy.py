@@ -286,6 +286,7 @@ class SeeLoop:
         self.cfg = cfg
         self.localiser = localiser
         self.since_fix = 0.0  # metres driven since the rolling map was last matched on the global DEM
+        self.fixed_at = 0  # the rolling map's frame count then: a fix matches and moves what came after
         self.stats = LoopStats()
         self.driver = SeeingDriver(job, SeeParams(
             period=cfg.see_period, lookahead=cfg.see_lookahead, stop_distance=0.0, tilt=cfg.see_tilt,
@@ -423,10 +424,10 @@ class SeeLoop:
         if self.since_fix < self.cfg.see_localise_every and not (arrived and loc.grown > 0):
             return
         m = self.driver.map
-        fix = loc.while_seeing(self.job, leg, m.height, m.geometry)
+        fix = loc.while_seeing(self.job, leg, m.since(self.fixed_at), m.geometry)
         if fix is not None:
-            self.since_fix = 0.0
-            m.move((p.x, p.y), *fix)
+            m.move((p.x, p.y), *fix, since=self.fixed_at)
+            self.since_fix, self.fixed_at = 0.0, m.frames
 
     def stats_fields(self, scans: int) -> dict[str, Any]:
         """The OK line's keys of the see loop."""

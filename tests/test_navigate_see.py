@@ -144,6 +144,39 @@ def test_a_frame_off_the_scan_takes_its_datum_from_the_rolling_map() -> None:
         assert (blocked == 0) if use_map else (blocked > 20), (use_map, blocked)
 
 
+def test_a_pose_fix_moves_only_what_the_rolling_map_saw_since_the_last_fix() -> None:
+    """Frames fused before a fix stay where they are; the ones since (placed with the pose the
+    fix corrects) move by it, and the hazard layers follow: a rock seen 0.3 m off lands on its
+    true place, a rock seen before stays on its own."""
+    params = HazardParams()
+    m = RollingMap(RollingParams(size=6.0), params, (0.0, 0.0))
+    rng = np.random.default_rng(7)
+
+    def frame(x0: float, rock: tuple[float, float]) -> np.ndarray:
+        n = 6000
+        x, y = rng.uniform(x0, x0 + 1.5, n), rng.uniform(-1.0, 1.0, n)
+        z = np.where(np.hypot(x - rock[0], y - rock[1]) < 0.15, 0.3, 0.0) + 0.003 * rng.standard_normal(n)
+        return np.column_stack([x, y, z])
+
+    m.fuse(frame(-1.5, (-0.8, 0.0)))  # before the fix: a rock at its true place
+    fixed_at = m.frames
+    m.fuse(frame(0.5, (1.2, 0.3)))  # since: a rock truly at (1.2, 0.0), placed 0.3 m left
+    assert np.isnan(m.since(fixed_at)[m.stamp <= fixed_at]).all() and np.isfinite(m.since(fixed_at)).any()
+    m.move((0.0, 0.0), 0.0, -0.3, 0.0, since=fixed_at)
+    xs, ys = m.geometry.centers()
+
+    def peak(x0: float, x1: float) -> tuple[float, float]:
+        """The centre of the rock's top between x0 and x1."""
+        with np.errstate(invalid="ignore"):
+            r, c = np.nonzero((m.height > 0.15) & ((xs >= x0) & (xs <= x1))[None, :])
+        return float(xs[c].mean()), float(ys[r].mean())
+
+    assert np.hypot(*(np.array(peak(0.5, 2.0)) - (1.2, 0.0))) < 0.1  # moved onto its true place
+    assert np.hypot(*(np.array(peak(-1.5, 0.0)) - (-0.8, 0.0))) < 0.1  # the earlier one stayed
+    full = dem2hazard(m.height.astype(np.float32), m.geometry.cell, params)
+    assert np.array_equal(full["hazard"], m.hazard)
+
+
 def test_break_stops_the_see_loop_within_one_cycle(server_factory) -> None:
     """break while the rover drives and sees: the job ends E_INTERRUPTED, the rover stops, and
     the simulated clock has moved on by at most one cycle (see_period and a frame) since."""

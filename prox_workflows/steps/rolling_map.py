@@ -88,6 +88,7 @@ class RollingMap:
         self.height = np.full(shape, np.nan)
         self.variance = np.full(shape, np.nan)
         self.count = np.zeros(shape, np.int32)
+        self.stamp = np.zeros(shape, np.int32)  # the frame (1, 2, ...) that last measured the cell; 0 never
         self.hazard = np.full(shape, UNDEFINED, np.uint8)
         self.slope = np.full(shape, np.nan, np.float32)
         self.traversability = np.full(shape, np.nan, np.float32)
@@ -116,7 +117,7 @@ class RollingMap:
         new = self._geometry_at((x, y))
         dc = int(round((new.xmin - self.geometry.xmin) / new.cell))
         dr = int(round((self.geometry.ymax - new.ymax) / new.cell))
-        for name, fill in (("height", np.nan), ("variance", np.nan), ("count", 0), ("hazard", UNDEFINED),
+        for name, fill in (("height", np.nan), ("variance", np.nan), ("count", 0), ("stamp", 0), ("hazard", UNDEFINED),
                            ("slope", np.nan), ("traversability", np.nan)):
             setattr(self, name, _shift(getattr(self, name), dr, dc, fill))
         self.geometry = new
@@ -164,6 +165,7 @@ class RollingMap:
         self.height[sl] = fused["dem"]
         self.variance[sl] = fused["variance"]
         self.count[sl] = fused["count"]
+        self.stamp[sl][np.isfinite(meas["dem"])] = self.frames
         self._rehazard(sl)
         return FuseResult(sl, int(len(pts)), int(fused.meta.get("rejected_cells", 0)))
 
@@ -181,16 +183,29 @@ class RollingMap:
         self.slope[a0:a1, b0:b1] = out["slope"][inner]
         self.traversability[a0:a1, b0:b1] = out["traversability"][inner]
 
-    def move(self, pivot: tuple[float, float], dx: float, dy: float, dyaw: float) -> None:
-        """Move what the map holds by a pose fix (rotation ``dyaw`` degrees about ``pivot``, then
-        ``dx, dy``): its frames were placed with the pose the fix corrects, so they move with
-        it (nearest cell; the hazard layers are recomputed)."""
+    def since(self, frame: int) -> np.ndarray:
+        """The heights measured after ``frame`` (NaN elsewhere): what frames placed with the
+        pose since then show, for a pose fix to match."""
+        return np.where(self.stamp > frame, self.height, np.nan)
+
+    def move(self, pivot: tuple[float, float], dx: float, dy: float, dyaw: float, since: int = 0) -> None:
+        """Move what frames after ``since`` measured by a pose fix (rotation ``dyaw`` degrees
+        about ``pivot``, then ``dx, dy``): they were placed with the pose the fix corrects, so
+        they move with it (nearest cell), over what earlier frames left; the hazard layers are
+        recomputed."""
         from .map_match import transform_layers
 
+        recent = self.stamp > since
         layers = Layers(self.geometry)
-        layers["height"], layers["variance"], layers["count"] = self.height, self.variance, self.count
+        for name in ("height", "variance", "count", "stamp"):
+            layers[name] = np.where(recent, getattr(self, name), np.nan if name in ("height", "variance") else 0)
         moved = transform_layers(layers, pivot, dx, dy, dyaw)
-        self.height, self.variance, self.count = moved["height"], moved["variance"], moved["count"]
+        keep = ~np.isfinite(moved["height"])  # where nothing recent lands, the earlier frames' cells stay
+        keep_old = keep & ~recent
+        self.height = np.where(keep_old, self.height, moved["height"])
+        self.variance = np.where(keep_old, self.variance, moved["variance"])
+        self.count = np.where(keep_old, self.count, moved["count"]).astype(np.int32)
+        self.stamp = np.where(keep_old, self.stamp, moved["stamp"]).astype(np.int32)
         self._rehazard((slice(0, self.n), slice(0, self.n)))
 
     def ground_height(self, x: float, y: float, radius: float = 0.5, min_cells: int = 20) -> float | None:
