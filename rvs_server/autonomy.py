@@ -409,10 +409,11 @@ class SeeLoop:
 
     def localise(self, leg: int, driven: list[tuple[float, float]]) -> None:
         """Dead reckoning's sigma grows with the leg, whatever -localise says. With ``map`` or
-        ``both``, every ``see_localise_every`` metres and on arriving, the rolling map is matched
-        on the global DEM and a fix moves the pose and the rolling map with it (its frames were
-        placed with the pose that drifted). The see loop's scans are matched as the scan loop's
-        legs are."""
+        ``both``, every ``see_localise_every`` metres and on arriving, what the rolling map saw
+        since the last fix is matched on the global DEM, and a fix moves the pose and that part
+        of the map with it (those frames were placed with the pose that drifted; earlier ones
+        with a pose the last fix already corrected). The see loop's scans are matched as the
+        scan loop's legs are."""
         loc = self.localiser
         dist = float(np.hypot(*np.diff(np.asarray(driven, dtype=np.float64).reshape(-1, 2), axis=0).T).sum())
         loc.grow(self.job, dist)

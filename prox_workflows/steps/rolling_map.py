@@ -117,8 +117,8 @@ class RollingMap:
         new = self._geometry_at((x, y))
         dc = int(round((new.xmin - self.geometry.xmin) / new.cell))
         dr = int(round((self.geometry.ymax - new.ymax) / new.cell))
-        for name, fill in (("height", np.nan), ("variance", np.nan), ("count", 0), ("stamp", 0), ("hazard", UNDEFINED),
-                           ("slope", np.nan), ("traversability", np.nan)):
+        for name, fill in (("height", np.nan), ("variance", np.nan), ("count", 0), ("stamp", 0),
+                           ("hazard", UNDEFINED), ("slope", np.nan), ("traversability", np.nan)):
             setattr(self, name, _shift(getattr(self, name), dr, dc, fill))
         self.geometry = new
         # cells that were at the old border had hazard verdicts from a partial window: redo them
@@ -196,16 +196,15 @@ class RollingMap:
         from .map_match import transform_layers
 
         recent = self.stamp > since
+        names = ("height", "variance", "count", "stamp")
         layers = Layers(self.geometry)
-        for name in ("height", "variance", "count", "stamp"):
-            layers[name] = np.where(recent, getattr(self, name), np.nan if name in ("height", "variance") else 0)
+        for name in names:
+            a = getattr(self, name)
+            layers[name] = np.where(recent, a, np.nan if a.dtype.kind == "f" else 0).astype(a.dtype)
         moved = transform_layers(layers, pivot, dx, dy, dyaw)
-        keep = ~np.isfinite(moved["height"])  # where nothing recent lands, the earlier frames' cells stay
-        keep_old = keep & ~recent
-        self.height = np.where(keep_old, self.height, moved["height"])
-        self.variance = np.where(keep_old, self.variance, moved["variance"])
-        self.count = np.where(keep_old, self.count, moved["count"]).astype(np.int32)
-        self.stamp = np.where(keep_old, self.stamp, moved["stamp"]).astype(np.int32)
+        earlier = ~recent & ~np.isfinite(moved["height"])  # earlier frames' cells nothing moved lands on
+        for name in names:
+            setattr(self, name, np.where(earlier, getattr(self, name), moved[name]))
         self._rehazard((slice(0, self.n), slice(0, self.n)))
 
     def ground_height(self, x: float, y: float, radius: float = 0.5, min_cells: int = 20) -> float | None:
