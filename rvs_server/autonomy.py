@@ -409,11 +409,11 @@ class SeeLoop:
 
     def localise(self, leg: int, driven: list[tuple[float, float]]) -> None:
         """Dead reckoning's sigma grows with the leg, whatever -localise says. With ``map`` or
-        ``both``, every ``see_localise_every`` metres and on arriving, what the rolling map saw
-        since the last fix is matched on the global DEM, and a fix moves the pose and that part
-        of the map with it (those frames were placed with the pose that drifted; earlier ones
-        with a pose the last fix already corrected). The see loop's scans are matched as the
-        scan loop's legs are."""
+        ``both``, every ``see_localise_every`` metres and after every leg closer than that to the
+        goal, what the rolling map saw since the last fix is matched on the global DEM, and a
+        fix moves the pose and that part of the map with it (those frames were placed with the
+        pose that drifted; earlier ones with a pose the last fix already corrected). The see
+        loop's scans are matched as the scan loop's legs are."""
         loc = self.localiser
         dist = float(np.hypot(*np.diff(np.asarray(driven, dtype=np.float64).reshape(-1, 2), axis=0).T).sum())
         loc.grow(self.job, dist)
@@ -421,8 +421,10 @@ class SeeLoop:
             return
         self.since_fix += dist
         p = self.app.pose
-        arrived = math.hypot(self.cfg.goal[0] - p.x, self.cfg.goal[1] - p.y) <= self.cfg.tolerance
-        if self.since_fix < self.cfg.see_localise_every and not (arrived and loc.grown > 0):
+        # near the goal every leg ends with a fix: the last approach and the arrival are judged
+        # on a fresh one, not on the drift of the last few metres
+        near = math.hypot(self.cfg.goal[0] - p.x, self.cfg.goal[1] - p.y) <= self.cfg.see_localise_every
+        if self.since_fix < self.cfg.see_localise_every and not (near and loc.grown > 0):
             return
         m = self.driver.map
         fix = loc.while_seeing(self.job, leg, m.since(self.fixed_at), m.geometry)
