@@ -287,6 +287,7 @@ class SeeLoop:
         self.localiser = localiser
         self.since_fix = 0.0  # metres driven since the rolling map was last matched on the global DEM
         self.fixed_at = 0  # the rolling map's frame count then: a fix matches and moves what came after
+        self.reapproached = False  # drove on once after a fix near the goal (closer)
         self.stats = LoopStats()
         self.driver = SeeingDriver(job, SeeParams(
             period=cfg.see_period, lookahead=cfg.see_lookahead, stop_distance=0.0, tilt=cfg.see_tilt,
@@ -431,6 +432,16 @@ class SeeLoop:
         if fix is not None:
             m.move((p.x, p.y), *fix, since=self.fixed_at)
             self.since_fix, self.fixed_at = 0.0, m.frames
+
+    def closer(self, left: float) -> bool:
+        """Whether to drive on although the goal is ``left`` metres away, within the tolerance:
+        once, when a map fix has just moved the believed pose more than half the tolerance from
+        the goal (the rover stopped on the goal by its drifted pose; the fix says where it is,
+        and the tolerance would otherwise absorb the matcher's error on top of that)."""
+        if self.reapproached or not self.localiser.uses_map or self.app.pose.source != "map":
+            return False
+        self.reapproached = left > self.cfg.tolerance / 2
+        return self.reapproached
 
     def stats_fields(self, scans: int) -> dict[str, Any]:
         """The OK line's keys of the see loop."""

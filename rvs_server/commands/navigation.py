@@ -322,7 +322,8 @@ def _navigate(job: Job, cfg: NavigateConfig, name: str, track: list[tuple[float,
         pose = app.pose
         # an arrival on dead reckoning is checked by a match first: the see loop's own (map) or a scan's
         checked = loc.wants_fix(pose) and (see is None or loc.uses_map)
-        if math.hypot(goal[0] - pose.x, goal[1] - pose.y) <= cfg.tolerance and not checked:
+        left = math.hypot(goal[0] - pose.x, goal[1] - pose.y)
+        if left <= cfg.tolerance and not checked and not (see is not None and see.closer(left)):
             break
         if see is not None and not need_scan:
             plan = see.replan(leg, global_maps, goal, params)
