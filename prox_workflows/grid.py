@@ -160,6 +160,19 @@ class Layers:
 # ------------------------------------------------------------------------------ GeoTIFF
 
 
+def median_near(values: np.ndarray, geometry: GridGeometry, x: float, y: float, radius: float = 0.5,
+                min_cells: int = 1) -> float | None:
+    """The median of ``values`` (a layer on ``geometry``) over the square of half side
+    ``radius`` round (x, y); None when fewer than ``min_cells`` of it are defined. The ground
+    under the rover, which a frame's or a scan's points are placed on."""
+    r, c = geometry.cell_of(np.array([x]), np.array([y]))
+    k = max(1, int(round(radius / geometry.cell)))
+    r0, c0 = int(r[0]), int(c[0])
+    window = values[max(r0 - k, 0): max(r0 + k + 1, 0), max(c0 - k, 0): max(c0 + k + 1, 0)]
+    known = window[np.isfinite(window)]
+    return float(np.median(known)) if known.size >= max(min_cells, 1) else None
+
+
 def geo_tags(geometry: GridGeometry, nodata: float | None) -> list[tuple[int, str, int, Any, bool]]:
     # GeoKeyDirectory: version 1.1.0, then (key, location, count, value) entries, sorted by key.
     #   GTModelTypeGeoKey (1024) = 32767 user-defined (the rover's local engineering frame),

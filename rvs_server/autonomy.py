@@ -416,8 +416,7 @@ class SeeLoop:
         pose that drifted; earlier ones with a pose the last fix already corrected). The see
         loop's scans are matched as the scan loop's legs are."""
         loc = self.localiser
-        dist = float(np.hypot(*np.diff(np.asarray(driven, dtype=np.float64).reshape(-1, 2), axis=0).T).sum())
-        loc.grow(self.job, dist)
+        dist = loc.after_drive(self.job, np.asarray(driven))
         if not loc.uses_map:
             return
         self.since_fix += dist

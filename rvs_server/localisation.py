@@ -81,17 +81,15 @@ class Localiser:
         navigate believes it (the last leg's drift is as large as any other's)."""
         return self.active and pose.source == "odometry" and self.grown > 0.0
 
-    def after_drive(self, job: Job, waypoints: np.ndarray) -> None:
-        """The pose just set from dead reckoning: its sigma grows with the distance driven."""
+    def after_drive(self, job: Job, waypoints: np.ndarray) -> float:
+        """The pose just set from dead reckoning along ``waypoints`` (or the track driven): its
+        sigma grows with the distance, which is returned."""
         xy = np.asarray(waypoints, dtype=float).reshape(-1, 2)
-        self.grow(job, float(np.hypot(*np.diff(xy, axis=0).T).sum()) if len(xy) > 1 else 0.0)
-
-    def grow(self, job: Job, dist: float) -> None:
-        """``dist`` metres of dead reckoning since the pose was last set: its sigma grows."""
+        dist = float(np.hypot(*np.diff(xy, axis=0).T).sum()) if len(xy) > 1 else 0.0
         app = job.app
         p = app.pose
         if p.source != "odometry":
-            return  # a GNC's pose carries its own accuracy
+            return dist  # a GNC's pose carries its own accuracy
         dh = self.heading_drift * dist
         # lateral error of a heading error that grew linearly along the leg: half of it at the end
         dxy = self.drift * dist + math.radians(self.sigma_heading + dh / 2.0) * dist
@@ -100,6 +98,7 @@ class Localiser:
         self.sigma += dxy
         self.sigma_heading += dh
         app.set_pose(p.x, p.y, p.heading, source="odometry", sigma=self.sigma, sigma_heading=self.sigma_heading)
+        return dist
 
     def after_scan(self, job: Job, leg: int) -> None:
         """Match the leg's fresh DEM (the current maps) and correct the pose and the maps."""

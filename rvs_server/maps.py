@@ -21,7 +21,7 @@ import numpy as np
 import structlog
 import yaml
 
-from prox_workflows.grid import Layers, read_geotiff
+from prox_workflows.grid import Layers, median_near, read_geotiff
 from prox_workflows.products import write_yaml_atomic
 
 from .protocol import Fixed, ProtocolError, valid_stem
@@ -90,13 +90,8 @@ def ground_height(layers: Layers | None, x: float, y: float) -> float:
     """The DEM's height under (x, y): the median over about a metre, 0 where nothing is known."""
     if layers is None:
         return 0.0
-    row, col = layers.geometry.cell_of(np.array([x]), np.array([y]))
-    r, c = int(row[0]), int(col[0])
-    k = max(1, int(round(0.5 / layers.geometry.cell)))
-    window = layers["dem"][max(r - k, 0): r + k + 1, max(c - k, 0): c + k + 1]
-    if window.size and np.isfinite(window).any():
-        return float(np.nanmedian(window))
-    return 0.0
+    z = median_near(layers["dem"], layers.geometry, x, y)
+    return 0.0 if z is None else z
 
 
 def current_pose(app: App) -> tuple[float, float, float, float]:

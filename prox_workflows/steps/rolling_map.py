@@ -39,7 +39,7 @@ from typing import Any
 
 import numpy as np
 
-from ..grid import GridGeometry, Layers
+from ..grid import GridGeometry, Layers, median_near
 from .dem2hazard import HAZARDOUS, SAFE, UNDEFINED, HazardParams, dem2hazard
 from .dem_import import dem_import
 from .dem_mosaik import dem_mosaik
@@ -213,13 +213,7 @@ class RollingMap:
         as it came, in this map's datum; the scan DEM (or 0 off it) can be decimetres from that
         once the rover has left the scanned ground, and a frame that overlaps the map too little
         to be aligned would then land as a phantom step."""
-        g = self.geometry
-        r, c = g.cell_of(np.array([x]), np.array([y]))
-        k = max(1, int(round(radius / g.cell)))
-        r0, c0 = int(r[0]), int(c[0])
-        window = self.height[max(r0 - k, 0): max(r0 + k + 1, 0), max(c0 - k, 0): max(c0 + k + 1, 0)]
-        known = window[np.isfinite(window)]
-        return float(np.median(known)) if known.size >= min_cells else None
+        return median_near(self.height, self.geometry, x, y, radius, min_cells)
 
     def nav_maps(self) -> NavMaps:
         """The hazard and slope layers as the planner takes them."""

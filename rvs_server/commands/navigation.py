@@ -162,8 +162,8 @@ class NavigateConfig(ModuleConfig):
                             "with the cells that changed (D* Lite, the same path cost as astar), astar searches "
                             "again", choices=("dstar", "astar"), option=False)
     see_localise_every: float = param(2.0, "see loop with -localise map or both: match the rolling map on the global "
-                                      "DEM after every this many metres driven, and after every leg closer than this to the goal", unit="m", min=0.1,
-                                      max=1000.0, option=False)
+                                      "DEM after every this many metres driven, and after every leg closer than "
+                                      "this to the goal", unit="m", min=0.1, max=1000.0, option=False)
     max_replans: int = param(100, "see loop: give up after this many plans in all", min=1, max=10000,
                              option=False)
 
