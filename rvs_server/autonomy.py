@@ -89,6 +89,7 @@ class SeeParams:
     replan_ahead: float
     pursuit: float  # m: the point of the path the rover steers at lies this far ahead
     arc_turn: float  # deg: a larger heading error is turned on the spot, a smaller one driven as an arc
+    limits: float = 1.0  # share of dem2hazard's step and slope limits the rolling map judges against
     auto: bool = True  # the simulated rover drives (odometry is the pose); False: the GNC drives and reports pose
 
 
@@ -114,7 +115,10 @@ class SeeingDriver:
         self.width = head.rover_width + 2 * params.margin
         self.head = HeadCalibration.from_dict(head.as_dict())
         here = self.pose()
-        self.map = RollingMap(RollingParams(), self.app.config.get("dem2hazard"), (here[0], here[1]))
+        limits = self.app.config.get("dem2hazard")
+        limits = dataclasses.replace(limits, step_max=limits.step_max * params.limits,
+                                     slope_max=limits.slope_max * params.limits)
+        self.map = RollingMap(RollingParams(), limits, (here[0], here[1]))
         self.level = "clear"
 
     def point_forward(self) -> tuple[float, float]:
@@ -292,9 +296,11 @@ class SeeLoop:
         self.driver = SeeingDriver(job, SeeParams(
             period=cfg.see_period, lookahead=cfg.see_lookahead, stop_distance=0.0, tilt=cfg.see_tilt,
             subsample=cfg.see_subsample, max_range=cfg.see_max_range, margin=cfg.see_margin,
-            replan_ahead=cfg.replan_ahead, pursuit=cfg.see_pursuit, arc_turn=cfg.see_arc_turn, auto=cfg.auto),
+            replan_ahead=cfg.replan_ahead, pursuit=cfg.see_pursuit, arc_turn=cfg.see_arc_turn, limits=cfg.see_limits,
+            auto=cfg.auto),
             self.stats)
         self.scan: Any = None  # NavMaps of the scans so far
+        self.scan_frame = 0  # the rolling map's frame count at the last scan: older cells yield to the scan's
         self.looked: tuple[float, float] | None = None  # where the rover last looked round for a way
         self.fresh_scan = False  # no plan has been made since the last 360-degree scan
         self.why = ""  # why the last replan found no way
@@ -307,6 +313,7 @@ class SeeLoop:
     def scanned(self, local: Any) -> None:
         """A 360-degree scan made the maps ``local`` (the scans so far, merged)."""
         self.scan = local
+        self.scan_frame = self.driver.map.frames
         self.stats.scans += 1
         self.fresh_scan = True
 
@@ -316,7 +323,8 @@ class SeeLoop:
 
         if self.driver.map.frames == 0:
             return self.scan
-        return merge_nav_maps(self.scan, self.driver.map.nav_maps())
+        m = self.driver.map
+        return merge_nav_maps(self.scan, m.nav_maps(), m.stamp <= self.scan_frame)
 
     def replan(self, leg: int, global_maps: Any, goal: tuple[float, float], params: Any) -> Any:
         """A plan from the rover's believed pose on the merged maps (D* Lite repairing the
@@ -414,20 +422,32 @@ class SeeLoop:
         goal, what the rolling map saw since the last fix is matched on the global DEM, and a
         fix moves the pose and that part of the map with it (those frames were placed with the
         pose that drifted; earlier ones with a pose the last fix already corrected). The see
-        loop's scans are matched as the scan loop's legs are."""
+        loop's scans are matched as the scan loop's legs are.
+
+        On arriving (the goal within the tolerance by the believed pose) the rover first looks
+        round standing and only what that look saw is matched: frames taken while driving were
+        placed along a pose that drifted frame by frame, and their match says where the strip
+        lies on average, a decimetre or more from where the rover stands after two metres of
+        slip; frames taken at one pose share one error, which the match measures whole."""
         loc = self.localiser
         dist = loc.after_drive(self.job, np.asarray(driven))
         if not loc.uses_map:
             return
         self.since_fix += dist
         p = self.app.pose
+        left = math.hypot(self.cfg.goal[0] - p.x, self.cfg.goal[1] - p.y)
         # near the goal every leg ends with a fix: the last approach and the arrival are judged
         # on a fresh one, not on the drift of the last few metres
-        near = math.hypot(self.cfg.goal[0] - p.x, self.cfg.goal[1] - p.y) <= self.cfg.see_localise_every
+        near = left <= self.cfg.see_localise_every
         if self.since_fix < self.cfg.see_localise_every and not (near and loc.grown > 0):
             return
         m = self.driver.map
-        fix = loc.while_seeing(self.job, leg, m.since(self.fixed_at), m.geometry)
+        arrived = left <= self.cfg.tolerance
+        first = m.frames
+        if arrived:
+            self.driver.look(0.0, spread=self.cfg.see_arrival_spread)
+        fix = loc.while_seeing(self.job, leg, m.since(first if arrived else self.fixed_at), m.geometry,
+                               standing=arrived)
         if fix is not None:
             m.move((p.x, p.y), *fix, since=self.fixed_at)
             self.since_fix, self.fixed_at = 0.0, m.frames

@@ -144,18 +144,22 @@ class Localiser:
         app.maps.replace(merged, app.maps.name or "", app.maps.files())
         self.previous = merged
 
-    def while_seeing(self, job: Job, leg: int, dem: np.ndarray, geometry: Any) -> tuple[float, float, float] | None:
+    def while_seeing(self, job: Job, leg: int, dem: np.ndarray, geometry: Any,
+                     standing: bool = False) -> tuple[float, float, float] | None:
         """The see loop's fix between its replans (its 360-degree scans are matched by
         :meth:`after_scan`): the rolling map's DEM, placed frame by frame with the dead-reckoned
         pose, matched on the global DEM. Returns the correction (dx, dy, dyaw about the believed
-        position) for the caller to move its rolling map by, or None when the match cannot tell."""
+        position) for the caller to move its rolling map by, or None when the match cannot tell.
+        ``standing``: the frames were all taken at the present pose (a look round on arrival)."""
         if not self.uses_map:
             return None
         p = job.app.pose
-        # the map's frames were placed with errors from the last fix's (about 0) to today's: the
-        # match lands between, so half of what dead reckoning added stays in the fix's sigma
+        # frames placed while driving carry errors from the last fix's (about 0) to today's: the
+        # match lands between, so half of what dead reckoning added stays in the fix's sigma;
+        # frames taken standing share one pose error, which the match measures whole
+        blur = (0.0, 0.0) if standing else (self.grown / 2.0, self.grown_heading / 2.0)
         fix = self._map_fix(job, leg, dem, geometry, (p.x, p.y), self.sigma, self.sigma_heading, p.source,
-                            blur=(self.grown / 2.0, self.grown_heading / 2.0))
+                            blur=blur)
         if fix is None:
             return None
         dx, dy, dyaw, sigma, sigma_h = fix

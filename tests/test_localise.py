@@ -342,3 +342,29 @@ def test_the_localiser_corrects_a_drifted_pose_and_moves_the_legs_maps(hirise, m
     events = [e for e in app.events if e.fields["kind"] == "localised"]
     assert events and all(schema.is_valid(json.loads(format_reply_json(e))) for e in events)
     assert any(e.fields["found"] for e in events)
+
+
+def test_a_look_round_on_arrival_is_matched_whole(hirise) -> None:
+    """After 4 m of slip the rover stands 0.3 m and 3 deg off its belief. Frames taken while it
+    drove were placed along a pose that drifted frame by frame, so their fix keeps half of that
+    drift in its sigma and moves the pose only part of the way; frames taken standing (the see
+    loop's look round on arriving) share one error, and their fix moves the pose all of it."""
+    from prox_workflows.steps.global_map import GlobalMap
+    from rvs_server.app import Pose
+    from rvs_server.localisation import Localiser
+
+    world, dem, geom = hirise
+    ref = GlobalMap(np.zeros(geom.shape, np.uint8), np.zeros(geom.shape, np.float32), geom, dem)
+    true, err = (6.0, 3.0, 0.0), (0.2, -0.22, 3.0)
+    left = {}
+    for standing in (False, True):
+        app = _App(Pose(2.0, 3.0, 0.0, source="navigate"))
+        job = _Job(app)
+        loc = Localiser("map", ref)
+        app.set_pose(true[0] + err[0], true[1] + err[1], err[2], source="odometry")
+        loc.after_drive(job, np.array([[2.0, 3.0], [true[0] + err[0], true[1] + err[1]]]))
+        z, g, _ = _patch(world, true, err, np.random.default_rng(11))
+        fix = loc.while_seeing(job, 1, z, g, standing=standing)
+        assert fix is not None and app.pose.source == "map"
+        left[standing] = math.hypot(app.pose.x - true[0], app.pose.y - true[1])
+    assert left[True] < 0.06 and left[True] < left[False] / 2, left

@@ -109,6 +109,25 @@ def test_rolling_map_hazard_is_incremental() -> None:
     assert (merged.hazard == 255).sum() >= (m.hazard == 255).sum()
 
 
+def test_a_scan_outranks_what_the_rolling_map_saw_before_it() -> None:
+    """A phantom step the rolling map holds from a frame placed with a drifted pose closed the
+    way to the goal for good (slip mission 8: goal_in_hazard 2.9 m short, though the 360-degree
+    scan made there saw the ground safe). Cells last measured before the scan yield to its
+    verdict where it has one; cells seen after it, or that it did not see, still count."""
+    g = GridGeometry(0.05, 0.0, 1.0, 20, 20)
+    fresh = NavMaps(np.full(g.shape, 255, np.uint8), np.zeros(g.shape, np.float32), g)
+    scan_hazard = np.zeros(g.shape, np.uint8)
+    scan_hazard[:, 10:] = 128  # the scan did not see the east half
+    base = NavMaps(scan_hazard, np.zeros(g.shape, np.float32), g)
+    older = np.zeros(g.shape, bool)
+    older[:10] = True  # the north half was last measured before the scan
+    merged = merge_nav_maps(base, fresh, older).hazard
+    assert (merged[:10, :10] == 0).all()  # older, and the scan saw it safe: the scan's
+    assert (merged[:10, 10:] == 255).all()  # older, but the scan did not see it: the rolling map's
+    assert (merged[10:] == 255).all()  # seen after the scan: hazardous wins
+    assert (merge_nav_maps(base, fresh).hazard == 255).all()
+
+
 def test_a_frame_off_the_scan_takes_its_datum_from_the_rolling_map() -> None:
     """Up a 10 % ramp beyond the scanned ground, the rover's z for a frame is the rolling map's
     ground under it: a frame panned to the side, which overlaps the map too little to be

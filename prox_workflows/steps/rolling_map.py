@@ -276,29 +276,35 @@ def path_poses(pose: tuple[float, float, float], waypoints: np.ndarray, distance
     return np.array(out)
 
 
-def merge_nav_maps(base: NavMaps, fresh: NavMaps) -> NavMaps:
+def merge_nav_maps(base: NavMaps, fresh: NavMaps, older: np.ndarray | None = None) -> NavMaps:
     """The scan maps with the rolling map laid over them, on their union grid at ``base``'s cell:
     hazardous where either is (conservative: a rock the scan saw and the rolling map has not
     is still there), safe where either saw the ground safe, undefined elsewhere; the slope is
-    the fresh map's where it has one."""
+    the fresh map's where it has one. ``older`` (on ``fresh``'s grid) marks the cells the
+    rolling map last measured before the scan was made: there the scan's verdict stands where it
+    has one, since a 360-degree scan fuses many views taken standing at a fixed pose, while
+    those cells may hold a frame placed with a pose that has drifted since (a phantom step that
+    would otherwise close the way for good)."""
     from .dem_mosaik import resample, union_geometry
 
     g = union_geometry([base.geometry, fresh.geometry], cell=base.geometry.cell)
 
-    def on_union(m: NavMaps) -> tuple[np.ndarray, np.ndarray]:
-        hz = np.where(m.hazard == UNDEFINED, np.nan, m.hazard.astype(np.float64))
-        h, _, _ = resample(hz, np.zeros(m.geometry.shape), np.zeros(m.geometry.shape, np.int64), m.geometry, g)
-        s, _, _ = resample(m.slope.astype(np.float64), np.zeros(m.geometry.shape),
-                           np.zeros(m.geometry.shape, np.int64), m.geometry, g)
-        return h, s
+    def on_union(a: np.ndarray, m: NavMaps) -> np.ndarray:
+        return resample(a.astype(np.float64), np.zeros(m.geometry.shape), np.zeros(m.geometry.shape, np.int64),
+                        m.geometry, g)[0]
 
-    bh, bs = on_union(base)
-    fh, fs = on_union(fresh)
+    def hazard(m: NavMaps) -> np.ndarray:
+        return on_union(np.where(m.hazard == UNDEFINED, np.nan, m.hazard), m)
+
+    bh, fh = hazard(base), hazard(fresh)
+    if older is not None:
+        fh = np.where((on_union(older, fresh) > 0.5) & np.isfinite(bh), np.nan, fh)
     hazardous = (bh == HAZARDOUS) | (fh == HAZARDOUS)
     safe = (bh == SAFE) | (fh == SAFE)
-    hazard = np.where(hazardous, HAZARDOUS, np.where(safe, SAFE, UNDEFINED)).astype(np.uint8)
-    slope = np.where(np.isfinite(fs), fs, bs).astype(np.float32)
-    return NavMaps(hazard, slope, g)
+    merged = np.where(hazardous, HAZARDOUS, np.where(safe, SAFE, UNDEFINED)).astype(np.uint8)
+    fs = on_union(fresh.slope, fresh)
+    slope = np.where(np.isfinite(fs), fs, on_union(base.slope, base)).astype(np.float32)
+    return NavMaps(merged, slope, g)
 
 
 def _shift(a: np.ndarray, dr: int, dc: int, fill: Any) -> np.ndarray:
