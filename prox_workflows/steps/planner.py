@@ -17,6 +17,9 @@ Cell classes and environmental cost ``c`` (dimensionless)
       default 1.0, as dear as ground at the critical slope: the planner may plan into unexplored
       ground, at a price, and the path is later cut where the locally seen ground ends
       (:mod:`.waypoints`); ``unknown_cost = inf`` forbids unknown ground;
+    - ground beyond a global map that the local maps do not show either: not traversable. An
+      orbital map bounds where the rover may go; past its edge not even the orbiter saw the
+      ground (a scene's edge, where the ToF gets no returns, looked like open unknown ground);
     - hazardous (255), and every cell whose centre is within ``rover_radius + margin`` plus half
       a cell diagonal of a hazardous cell's centre: blocked. The half diagonal makes it
       conservative: the rover's disc, centred on a free cell, never touches a hazardous cell's
@@ -582,6 +585,7 @@ def planning_image(local: NavMaps, global_: NavMaps | None, params: PlannerParam
                    points: Sequence[Sequence[float]] = ()) -> PlanningImage:
     """Merge the maps onto the planning grid (local over global) and expand the hazards."""
     cell = params.grid or local.geometry.cell
+    orbital = global_ is not None
     if global_ is None:
         global_ = blank_maps(list(points) or [(local.geometry.xmin, local.geometry.ymin)], cell,
                              params.blank_pad, local.geometry.bounds)
@@ -626,6 +630,9 @@ def planning_image(local: NavMaps, global_: NavMaps | None, params: PlannerParam
     with np.errstate(invalid="ignore"):
         c = np.where(np.isfinite(slope), slope / params.critical_slope, params.unknown_cost)
     c = np.where(known & np.isfinite(slope), c, params.unknown_cost)
+    if orbital:
+        on_global = np.isfinite(_pool(np.zeros(global_.geometry.shape, np.float32), global_.geometry, geom, "mean"))
+        c = np.where(on_global | local_def, c, np.inf)
     c = np.where(hazardous, np.inf, c).astype(np.float32)
     return PlanningImage(geometry=geom, hazard=hazard, slope=slope, local=local_def, blocked=blocked,
                          hazard_distance=hdist.astype(np.float32), env_cost=c,

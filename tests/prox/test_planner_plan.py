@@ -287,3 +287,27 @@ def test_unknown_ground_is_dear_but_allowed() -> None:
     assert not known[through.path_cells[:, 0], through.path_cells[:, 1]].all()  # straight across
     assert known[detour.path_cells[:, 0], detour.path_cells[:, 1]].all()  # through the gap
     assert known[never.path_cells[:, 0], never.path_cells[:, 1]].all()
+
+
+def test_a_global_map_bounds_where_the_rover_may_go() -> None:
+    """Past an orbital map's edge, where the local maps show nothing either, the planner does
+    not go (a scene's edge, beyond which the ToF gets no returns, looked like open unknown
+    ground, and hirise missions drove off it); ground the rover itself saw there is allowed, and
+    without a global map the blank one bounds nothing."""
+    g_geom = GridGeometry(0.5, 0.0, 4.0, 8, 8)  # x 0..4, y 0..4
+    g_hz = np.zeros(g_geom.shape, np.uint8)
+    g_hz[:, 4] = HAZARDOUS  # a wall at x 2..2.5 from y 0 to 4: the way round leaves the map
+    orbit = NavMaps(g_hz, np.zeros(g_geom.shape, np.float32), g_geom)
+    l_geom = GridGeometry(0.05, -1.0, 5.0, 120, 120)  # x -1..5, y -1..5: unseen but for one strip
+    l_hz = np.full(l_geom.shape, UNDEFINED, np.uint8)
+    local = NavMaps(l_hz, np.zeros(l_geom.shape, np.float32), l_geom)
+    params = PlannerParams(grid=0.1, rover_radius=0.2, margin=0.0, border=0.0)
+    with pytest.raises(PlanningError) as exc:
+        plan_path(local, orbit, (1.0, 2.0), (3.5, 2.0), params)
+    assert exc.value.reason == "enclosed"
+    l_hz[:24, :] = SAFE  # the rover saw the ground across the map's north edge (y 3.8..5)
+    plan = plan_path(local, orbit, (1.0, 2.0), (3.5, 2.0), params)
+    assert plan.reaches_goal and plan.path[:, 1].max() > 3.8  # round the wall over the ground it saw
+    blank = plan_path(NavMaps(np.full(l_geom.shape, UNDEFINED, np.uint8), local.slope, l_geom), None,
+                      (1.0, 2.0), (3.5, 2.0), PlannerParams(grid=0.1, rover_radius=0.2, margin=0.0, border=0.0))
+    assert blank.reaches_goal
