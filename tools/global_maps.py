@@ -45,9 +45,17 @@ def orbital_dem(scene: str) -> tuple[np.ndarray, GridGeometry, dict[str, Any]]:
     # The world shifts the scene so the ground under the rover's start is z = 0; so does the map.
     shift = World.from_scene(scene, clock_scale=0.0).z_shift
     heights = (float(p.get("scale", 1.0)) * z + float(spec["terrain"].get("base_height", 0.0)) - shift)
-    rows, cols = heights.shape
-    # DTM nodes become cell centres (pixel-is-area, as every map the server writes).
-    geom = GridGeometry(cell, x_nw - cell / 2.0, y_nw + cell / 2.0, cols, rows)
+    # DTM nodes become cell centres (pixel-is-area, as every map the server writes); cells that
+    # reach past the scene's terrain are dropped: the simulator has no ground there, where a real
+    # orbital map would, and the planner takes the map's edge for where the rover may go
+    x0, y1 = x_nw - cell / 2.0, y_nw + cell / 2.0
+    bx0, by0, bx1, by1 = (float(v) for v in spec["terrain"]["bounds"])
+    cols = np.nonzero((x0 + np.arange(heights.shape[1]) * cell >= bx0 - 1e-9)
+                      & (x0 + np.arange(1, heights.shape[1] + 1) * cell <= bx1 + 1e-9))[0]
+    rows = np.nonzero((y1 - np.arange(1, heights.shape[0] + 1) * cell >= by0 - 1e-9)
+                      & (y1 - np.arange(heights.shape[0]) * cell <= by1 + 1e-9))[0]
+    heights = heights[rows[0]:rows[-1] + 1, cols[0]:cols[-1] + 1]
+    geom = GridGeometry(cell, x0 + cols[0] * cell, y1 - rows[0] * cell, len(cols), len(rows))
     return heights.astype(np.float32), geom, {"scene": spec["name"], "file": str(p["file"]),
                                                "crop": list(p.get("crop", [])), "cell": cell}
 
