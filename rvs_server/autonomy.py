@@ -178,7 +178,7 @@ class SeeingDriver:
         """Drive ``waypoints`` (k x 2, the first is where the rover is) steering by odometry,
         checking every cycle. The rover steers at the point ``pursuit`` metres ahead on the path
         (pure pursuit): a heading error up to ``arc_turn`` is driven out as an arc at full speed
-        (the turn rate caps the curvature), a larger one is turned on the spot, so a replanned
+        when the turn rate allows that arc, a larger one is turned on the spot, so a replanned
         path or a waypoint's corner costs no stop (MER's and Perseverance's drive arcs; the
         stop-and-go loop turns on the spot at every waypoint). With ``allow_ahead`` the drive
         hands back ``ahead`` once the leg's end is ``replan_ahead`` away, so navigate extends the
@@ -209,14 +209,10 @@ class SeeingDriver:
                 if allow_ahead and to_end <= self.p.replan_ahead:
                     return DriveOutcome("ahead", k - 1)
                 tx, ty = _pursuit_point(pose, wps, k, self.p.pursuit)
-                error = (math.degrees(math.atan2(ty - pose[1], tx - pose[0])) - pose[2] + 180.0) % 360.0 - 180.0
-                if abs(error) > self.p.arc_turn:
+                w = arc_rate(pose, (tx, ty), model.speed, model.turn_rate, self.p.arc_turn)
+                if w is None:
                     world.turn_toward(tx, ty, stop)
                 else:
-                    # pure pursuit: the arc through the target point, its curvature capped by the turn rate
-                    reach = max(math.hypot(tx - pose[0], ty - pose[1]), 1e-6)
-                    w = math.degrees(model.speed * 2.0 * math.sin(math.radians(error)) / reach)
-                    w = max(-model.turn_rate, min(model.turn_rate, w))
                     dt = min(self.p.period, to_end / model.speed)
                     world.drive(model.speed, w, dt, stop, on_step=lambda: world.record_track(track))
                 job.check()
@@ -471,6 +467,19 @@ class SeeLoop:
 def start(job: Job, cfg: Any, localiser: Localiser) -> SeeLoop:
     """The see loop of one navigate -loop see."""
     return SeeLoop(job, cfg, localiser)
+
+
+def arc_rate(pose: tuple[float, float, float], target: tuple[float, float], speed: float, turn_rate: float,
+             arc_turn: float) -> float | None:
+    """Pure pursuit: the turn rate (deg/s) of the arc at ``speed`` from ``pose`` through
+    ``target``, or None when the heading error is turned on the spot instead: above
+    ``arc_turn``, or when that arc is tighter than ``turn_rate`` allows. A capped arc would
+    swing wide of the path, over ground neither the plan nor the check looked at (with the
+    body footprint hugging rocks in hirise, onto them)."""
+    dx, dy = target[0] - pose[0], target[1] - pose[1]
+    error = (math.degrees(math.atan2(dy, dx)) - pose[2] + 180.0) % 360.0 - 180.0
+    w = math.degrees(speed * 2.0 * math.sin(math.radians(error)) / max(math.hypot(dx, dy), 1e-6))
+    return None if abs(error) > arc_turn or abs(w) > turn_rate else w
 
 
 def _passed(pose: tuple[float, float, float], a: np.ndarray, b: np.ndarray, reach: float = 0.02) -> bool:

@@ -82,6 +82,36 @@ def test_a_rock_added_ahead_stops_the_rover_and_it_replans_around_it(server_fact
     assert np.hypot(*(track - rock).T).min() > 0.2 + 0.2  # kept the rover's half width off the rock
 
 
+def test_an_arc_the_turn_rate_cannot_drive_is_turned_on_the_spot() -> None:
+    """Pure pursuit toward a point 0.3 m ahead: at 15 deg off the arc through it needs 9.9 deg/s
+    and is driven; at 30 deg it needs 19 deg/s, more than the 15 deg/s turn rate: the capped arc
+    would pass the point 3 cm wide (toward the rocks the body footprint hugs), so the rover turns
+    on the spot instead. Beyond arc_turn it always turns on the spot."""
+    from rvs_server.autonomy import arc_rate
+
+    def target(error: float) -> tuple[float, float]:
+        return 0.3 * math.cos(math.radians(error)), 0.3 * math.sin(math.radians(error))
+
+    def closest(w: float, to: tuple[float, float]) -> float:
+        """How near the arc at 0.1 m/s and w deg/s from (0, 0, 0) comes to ``to``."""
+        x = y = h = 0.0
+        best = math.inf
+        for _ in range(400):
+            x += 0.001 * math.cos(h)
+            y += 0.001 * math.sin(h)
+            h += math.radians(w) * 0.01
+            best = min(best, math.hypot(to[0] - x, to[1] - y))
+        return best
+
+    w = arc_rate((0.0, 0.0, 0.0), target(15.0), 0.1, 15.0, 45.0)
+    assert w is not None and w == pytest.approx(9.88, abs=0.01)
+    assert closest(w, target(15.0)) < 0.005  # the arc goes through the point
+    assert arc_rate((0.0, 0.0, 0.0), target(30.0), 0.1, 15.0, 45.0) is None
+    assert closest(15.0, target(30.0)) > 0.03  # the capped arc would have swung wide
+    assert arc_rate((0.0, 0.0, 0.0), target(-15.0), 0.1, 15.0, 45.0) == pytest.approx(-w)
+    assert arc_rate((0.0, 0.0, 0.0), (3.0, 1.2), 0.1, 15.0, 20.0) is None  # 21.8 deg > arc_turn
+
+
 def test_rolling_map_hazard_is_incremental() -> None:
     """The hazard layers after frames fused one at a time equal Dem2Hazard over the whole map
     (the window recompute is exact), also after the map moved with the rover."""
