@@ -89,7 +89,6 @@ class SeeParams:
     replan_ahead: float
     pursuit: float  # m: the point of the path the rover steers at lies this far ahead
     arc_turn: float  # deg: a larger heading error is turned on the spot, a smaller one driven as an arc
-    limits: float = 1.0  # share of dem2hazard's step and slope limits the rolling map judges against
     auto: bool = True  # the simulated rover drives (odometry is the pose); False: the GNC drives and reports pose
 
 
@@ -115,17 +114,17 @@ class SeeingDriver:
         self.width = head.rover_width + 2 * params.margin
         self.head = HeadCalibration.from_dict(head.as_dict())
         here = self.pose()
-        limits = self.app.config.get("dem2hazard")
-        limits = dataclasses.replace(limits, step_max=limits.step_max * params.limits,
-                                     slope_max=limits.slope_max * params.limits)
-        self.map = RollingMap(RollingParams(), limits, (here[0], here[1]))
+        self.map = RollingMap(RollingParams(), self.app.config.get("dem2hazard"), (here[0], here[1]))
         self.level = "clear"
+        self.pan_tilt = (0.0, params.tilt)  # where the ToF points (what the PTU reached)
 
-    def point_forward(self) -> tuple[float, float]:
+    def point_forward(self) -> None:
         """The PTU to pan 0 (the rover's forward), tilted down: the ToF looks where the rover goes."""
-        ptu = self.app.devices.get("ptu")
-        reached = device_call(self.job, ptu.move, 0.0, self.p.tilt, True)
-        return float(reached[0]), float(reached[1])
+        self._point(0.0)
+
+    def _point(self, pan: float) -> None:
+        reached = device_call(self.job, self.app.devices.get("ptu").move, pan, self.p.tilt, True)
+        self.pan_tilt = (float(reached[0]), float(reached[1]))
 
     def pose(self) -> tuple[float, float, float]:
         """The rover's belief: the simulated rover's odometry while it drives itself, else the
@@ -154,9 +153,9 @@ class SeeingDriver:
         self.stats.frame_ms.append((t1 - t0) * 1000)
         return (x, y, heading), t1
 
-    def cycle(self, pan_tilt: tuple[float, float], remaining: np.ndarray) -> Any:
+    def cycle(self, remaining: np.ndarray) -> Any:
         """One frame into the rolling map and the check of the next metres; returns the check."""
-        pose, t1 = self.see(pan_tilt)
+        pose, t1 = self.see(self.pan_tilt)
         poses = path_poses(pose, remaining, self.p.lookahead)
         check = self.map.check(poses, self.length, self.width)
         self.stats.cycles += 1
@@ -166,11 +165,9 @@ class SeeingDriver:
     def look(self, bearing: float, spread: float = 40.0) -> None:
         """Frames panned to ``bearing`` (deg from the rover's heading) and ``spread`` either side,
         the rover standing: the rolling map's view round the forward one."""
-        ptu = self.app.devices.get("ptu")
         for pan in (bearing - spread, bearing, bearing + spread):
-            pan = max(-150.0, min(150.0, pan))
-            reached = device_call(self.job, ptu.move, pan, self.p.tilt, True)
-            self.see((float(reached[0]), float(reached[1])))
+            self._point(max(-150.0, min(150.0, pan)))
+            self.see(self.pan_tilt)
             self.job.check()
 
     def drive(self, waypoints: np.ndarray, track: list[tuple[float, float]], progress: Any,
@@ -187,14 +184,14 @@ class SeeingDriver:
         world = app.world
         model = world.drive_model
         stop = job.cancel.is_set
-        pan_tilt = self.point_forward()
+        self.point_forward()
         wps = np.asarray(waypoints, dtype=np.float64)[:, :2]
         segments = len(wps) - 1
         k = 1  # the waypoint the rover is heading for
 
         with world.under_way():
             while True:
-                check, pose = self.cycle(pan_tilt, wps[k:])
+                check, pose = self.cycle(wps[k:])
                 job.check()
                 if check.verdict == "not_traversable":
                     return DriveOutcome("hazard", k - 1, self._stop_event(check, pose))
@@ -226,7 +223,7 @@ class SeeingDriver:
         the leg ends with the GNC's stopped pose (or its arrival), and navigate replans from
         there. Frames are taken at pose reports because a frame is only placed in the map at a
         known pose."""
-        pan_tilt = self.point_forward()
+        self.point_forward()
         wps = np.asarray(waypoints, dtype=np.float64)[:, :2]
         segments = len(wps) - 1
         end = (float(wps[-1][0]), float(wps[-1][1]))
@@ -239,7 +236,7 @@ class SeeingDriver:
             while k < segments and _passed((p.x, p.y, p.heading), wps[k - 1], wps[k]):
                 progress(k, segments, f"segment {k}/{segments} driven", "drive")
                 k += 1
-            check, pose = self.cycle(pan_tilt, wps[k:])
+            check, pose = self.cycle(wps[k:])
             if check.verdict == "not_traversable":
                 if hazard is None:  # once per leg: the GNC is stopping
                     hazard = self._stop_event(check, pose)
@@ -292,7 +289,7 @@ class SeeLoop:
         self.driver = SeeingDriver(job, SeeParams(
             period=cfg.see_period, lookahead=cfg.see_lookahead, stop_distance=0.0, tilt=cfg.see_tilt,
             subsample=cfg.see_subsample, max_range=cfg.see_max_range, margin=cfg.see_margin,
-            replan_ahead=cfg.replan_ahead, pursuit=cfg.see_pursuit, arc_turn=cfg.see_arc_turn, limits=cfg.see_limits,
+            replan_ahead=cfg.replan_ahead, pursuit=cfg.see_pursuit, arc_turn=cfg.see_arc_turn,
             auto=cfg.auto),
             self.stats)
         self.scan: Any = None  # NavMaps of the scans so far
@@ -424,7 +421,8 @@ class SeeLoop:
         round standing and only what that look saw is matched: frames taken while driving were
         placed along a pose that drifted frame by frame, and their match says where the strip
         lies on average, a decimetre or more from where the rover stands after two metres of
-        slip; frames taken at one pose share one error, which the match measures whole."""
+        slip; frames taken at one pose share one error, which the match measures whole. Where the
+        look shows too little relief to match, the strip is matched as on the way."""
         loc = self.localiser
         dist = loc.after_drive(self.job, np.asarray(driven))
         if not loc.uses_map:
@@ -438,12 +436,13 @@ class SeeLoop:
         if self.since_fix < self.cfg.see_localise_every and not (near and loc.grown > 0):
             return
         m = self.driver.map
-        arrived = left <= self.cfg.tolerance
-        first = m.frames
-        if arrived:
+        fix = None
+        if left <= self.cfg.tolerance:
+            first = m.frames
             self.driver.look(0.0, spread=self.cfg.see_arrival_spread)
-        fix = loc.while_seeing(self.job, leg, m.since(first if arrived else self.fixed_at), m.geometry,
-                               standing=arrived)
+            fix = loc.while_seeing(self.job, leg, m.since(first), m.geometry, standing=True)
+        if fix is None:  # on the way, or the look alone shows too little relief to match
+            fix = loc.while_seeing(self.job, leg, m.since(self.fixed_at), m.geometry)
         if fix is not None:
             m.move((p.x, p.y), *fix, since=self.fixed_at)
             self.since_fix, self.fixed_at = 0.0, m.frames

@@ -164,10 +164,6 @@ class NavigateConfig(ModuleConfig):
     see_localise_every: float = param(2.0, "see loop with -localise map or both: match the rolling map on the global "
                                       "DEM after every this many metres driven, and after every leg closer than "
                                       "this to the goal", unit="m", min=0.1, max=1000.0, option=False)
-    see_limits: float = param(1.0, "see loop: the rolling map judges steps and slopes against this share of "
-                              "dem2hazard's limits (a step measured from a few frames is a centimetre off either "
-                              "way; the rover must not learn which by driving over it)", min=0.5, max=1.0,
-                              option=False)
     see_arrival_spread: float = param(60.0, "see loop with -localise map or both: on arriving, the rover looks round "
                                       "standing (three ToF frames, this far either side of ahead) and matches "
                                       "what they saw on the global DEM", unit="deg", min=0.0, max=150.0,
