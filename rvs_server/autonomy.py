@@ -289,8 +289,7 @@ class SeeLoop:
         self.driver = SeeingDriver(job, SeeParams(
             period=cfg.see_period, lookahead=cfg.see_lookahead, stop_distance=0.0, tilt=cfg.see_tilt,
             subsample=cfg.see_subsample, max_range=cfg.see_max_range, margin=cfg.see_margin,
-            replan_ahead=cfg.replan_ahead, pursuit=cfg.see_pursuit, arc_turn=cfg.see_arc_turn,
-            auto=cfg.auto),
+            replan_ahead=cfg.replan_ahead, pursuit=cfg.see_pursuit, arc_turn=cfg.see_arc_turn, auto=cfg.auto),
             self.stats)
         self.scan: Any = None  # NavMaps of the scans so far
         self.scan_frame = 0  # the rolling map's frame count at the last scan: older cells yield to the scan's

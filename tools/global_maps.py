@@ -54,6 +54,8 @@ def orbital_dem(scene: str) -> tuple[np.ndarray, GridGeometry, dict[str, Any]]:
                       & (x0 + np.arange(1, heights.shape[1] + 1) * cell <= bx1 + 1e-9))[0]
     rows = np.nonzero((y1 - np.arange(1, heights.shape[0] + 1) * cell >= by0 - 1e-9)
                       & (y1 - np.arange(heights.shape[0]) * cell <= by1 + 1e-9))[0]
+    if len(rows) == 0 or len(cols) == 0:
+        raise ValueError(f"scene {spec['name']!r}: no cell of its dtm lies within the terrain's bounds")
     heights = heights[rows[0]:rows[-1] + 1, cols[0]:cols[-1] + 1]
     geom = GridGeometry(cell, x0 + cols[0] * cell, y1 - rows[0] * cell, len(cols), len(rows))
     return heights.astype(np.float32), geom, {"scene": spec["name"], "file": str(p["file"]),
