@@ -68,6 +68,18 @@ def test_the_map_matcher_recovers_a_known_offset_on_the_hirise_dtm(hirise, case)
     assert m.seconds < 5.0
 
 
+def test_the_map_matcher_narrows_its_window_near_the_reference_edge(hirise) -> None:
+    """A patch 1.7 m inside the orbital DTM's edge, 0.4 m and 2 deg off, searched 3 m wide (a
+    pose sigma near a metre): only 36 of its points stay on the DTM under every motion of that
+    window, fewer than the 50 a match needs (slip mission 4 ended 0.89 m off so, its goal 1.3 m
+    from the map's edge). The window halves until enough stay, and the match is found."""
+    world, dem, geom = hirise
+    z, lg, pivot = _patch(world, (14.0, 13.5, 0.0), (0.3, -0.25, 2.0), np.random.default_rng(1))
+    m = match_dem(z, lg, dem, geom, pivot, search_xy=3.0, search_yaw=8.0)
+    assert m.ok, m.reason
+    assert math.hypot(m.dx + 0.3, m.dy - 0.25) < 0.15 and abs(m.dyaw + 2.0) < 1.5, m
+
+
 def test_the_map_matcher_declines_flat_ground() -> None:
     """On a plane the heights cannot say where the patch lies: ok is false, the caller keeps its pose."""
     g = GridGeometry(1.0, -15.0, 15.0, 30, 30)

@@ -136,7 +136,8 @@ def match_dem(local: np.ndarray, local_geom: GridGeometry, reference: np.ndarray
     size the local DEM is reduced to; ``step_xy`` (default: half a reference cell, at most
     0.25 m) the grid search's step. A match whose refinement leaves the window, or whose sigma
     exceeds ``max_sigma_xy`` (flat or featureless ground: the heights do not say where), is
-    returned with ``ok`` false, for the caller to keep its own estimate."""
+    returned with ``ok`` false, for the caller to keep its own estimate. Near the reference's
+    edge the window narrows (halving ``search_xy``) until enough points stay on it."""
     t0 = time.perf_counter()
     sample = sample or max(local_geom.cell, min(ref_geom.cell / 4.0, 0.25))
     step_xy = step_xy or min(ref_geom.cell / 2.0, 0.25)
@@ -156,12 +157,22 @@ def match_dem(local: np.ndarray, local_geom: GridGeometry, reference: np.ndarray
     # changes with the motion (a scan on the previous scan's edge), a variance over whichever
     # points fall on defined ground would prefer motions that put them on its smoothest part.
     # The extremes of the window (corners, edges, the turn both ways) stand for the whole.
-    common = np.ones(len(pts), bool)
-    for yaw in (-search_yaw, 0.0, search_yaw):
-        for ox in (-search_xy, 0.0, search_xy):
-            for oy in (-search_xy, 0.0, search_xy):
-                x, y = _moved(pts, pivot, ox, oy, yaw)
-                common &= np.isfinite(ref(x, y))
+    def usable(search: float) -> np.ndarray:
+        common = np.ones(len(pts), bool)
+        for yaw in (-search_yaw, 0.0, search_yaw):
+            for ox in (-search, 0.0, search):
+                for oy in (-search, 0.0, search):
+                    x, y = _moved(pts, pivot, ox, oy, yaw)
+                    common &= np.isfinite(ref(x, y))
+        return common
+
+    common = usable(search_xy)
+    # Near the reference's edge a wide window leaves too few such points: a narrower one still
+    # matches when the offset lies inside it, and fails safely (the refinement leaves the
+    # window) when it does not.
+    while common.sum() < min_points and search_xy / 2.0 >= 2.0 * step_xy:
+        search_xy /= 2.0
+        common = usable(search_xy)
     if common.sum() < min_points:
         return fail(f"{int(common.sum())} points on ground the reference shows under every motion searched, "
                     f"fewer than {min_points}")

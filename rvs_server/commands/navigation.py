@@ -164,8 +164,9 @@ class NavigateConfig(ModuleConfig):
     see_localise_every: float = param(2.0, "see loop with -localise map or both: match the rolling map on the global "
                                       "DEM after every this many metres driven, and after every leg closer than "
                                       "this to the goal", unit="m", min=0.1, max=1000.0, option=False)
-    see_arrival_spread: float = param(60.0, "see loop with -localise map or both: on arriving, the rover looks round "
-                                      "standing (three ToF frames, this far either side of ahead) and matches "
+    see_arrival_spread: float = param(120.0, "see loop with -localise map or both: on arriving, the rover looks "
+                                      "round standing (three ToF frames, this far either side of ahead: the "
+                                      "ground behind too, which a goal near the map's edge needs) and matches "
                                       "what they saw on the global DEM", unit="deg", min=0.0, max=150.0,
                                       option=False)
     max_replans: int = param(100, "see loop: give up after this many plans in all", min=1, max=10000,
