@@ -35,11 +35,15 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from drivers.tof.constants import FOV_V_DEG
+from prox_workflows.steps.dem2hazard import HAZARDOUS, SAFE
 from prox_workflows.steps.hazard_monitor import rover_points
+from prox_workflows.steps.planner import NavMaps
 from prox_workflows.steps.replan import Replanner
-from prox_workflows.steps.rolling_map import RollingMap, RollingParams, path_poses
+from prox_workflows.steps.rolling_map import RollingMap, RollingParams, mark_unseen, path_poses, sweep_check
 from prox_workflows.steps.transforms import HeadCalibration, T_global_from_rover
 
+from .commands.awareness import look_at
 from .commands.hardware import device_call
 from .commands.navigation import goal_stand_in, wait_for_rover
 from .localisation import pose_fields
@@ -59,6 +63,7 @@ class LoopStats:
     scans: int = 0
     replans: int = 0
     stops: int = 0
+    looks: int = 0  # frames taken standing at unseen ground ahead (see_unseen)
     cycles: int = 0
     cycle_ms: list[float] = field(default_factory=list)  # rolling map + hazard + check, wall ms
     frame_ms: list[float] = field(default_factory=list)  # the ToF frame (the simulator's render), wall ms
@@ -69,7 +74,8 @@ class LoopStats:
         def mean(v: list[float]) -> float:
             return float(np.mean(v)) if v else 0.0
 
-        return {"scans": self.scans, "replans": self.replans, "stops": self.stops, "cycles": self.cycles,
+        return {"scans": self.scans, "replans": self.replans, "stops": self.stops, "looks": self.looks,
+                "cycles": self.cycles,
                 "cycle_ms": Fixed(mean(self.cycle_ms), 1),
                 "cycle_ms_max": Fixed(max(self.cycle_ms, default=0.0), 1),
                 "frame_ms": Fixed(mean(self.frame_ms), 1), "replan_ms": Fixed(mean(self.replan_ms), 1)}
@@ -89,6 +95,8 @@ class SeeParams:
     replan_ahead: float
     pursuit: float  # m: the point of the path the rover steers at lies this far ahead
     arc_turn: float  # deg: a larger heading error is turned on the spot, a smaller one driven as an arc
+    blind: float = 0.0  # m of path ahead whose sweep is to lie on seen ground
+    unseen: str = "off"  # what the rover does about unseen ground there: off | look | keep (navigate.see_unseen)
     auto: bool = True  # the simulated rover drives (odometry is the pose); False: the GNC drives and reports pose
 
 
@@ -96,7 +104,8 @@ class SeeParams:
 class DriveOutcome:
     """How a leg driven while seeing ended."""
 
-    kind: str  # done (last waypoint reached) | hazard (stopped) | ahead (close to the leg's end: replan on the move)
+    kind: str  # done (last waypoint reached) | hazard (stopped) | unseen (stopped: ground no map has seen
+    # ahead, a look did not show it) | ahead (close to the leg's end: replan on the move)
     segments_done: int
     hazard: dict[str, Any] | None = None
 
@@ -115,15 +124,24 @@ class SeeingDriver:
         self.head = HeadCalibration.from_dict(head.as_dict())
         here = self.pose()
         self.map = RollingMap(RollingParams(), self.app.config.get("dem2hazard"), (here[0], here[1]))
+        # the body turning on the spot, with the cells its corners touch
+        self.radius = math.hypot(head.rover_length, head.rover_width) / 2 + self.map.params.cell
         self.level = "clear"
         self.pan_tilt = (0.0, params.tilt)  # where the ToF points (what the PTU reached)
+        # the maps the leg was planned on (the scans and the rolling map then) on the rolling map's
+        # grid, as traversability: the check counts the ground they saw as seen
+        self.known: NavMaps | None = None
+        self.scan_frame = 0  # the rolling map's frame count at the last scan: older cells yield to the scan's
+        self.seen: tuple[Any, Any, np.ndarray] | None = None  # (known, geometry, layer) of the last resampling
+        self.looked_from: tuple[float, float, float] | None = None  # the pose of the last look at unseen ground
 
     def point_forward(self) -> None:
         """The PTU to pan 0 (the rover's forward), tilted down: the ToF looks where the rover goes."""
         self._point(0.0)
 
-    def _point(self, pan: float) -> None:
-        reached = device_call(self.job, self.app.devices.get("ptu").move, pan, self.p.tilt, True)
+    def _point(self, pan: float, tilt: float | None = None) -> None:
+        reached = device_call(self.job, self.app.devices.get("ptu").move, pan,
+                              self.p.tilt if tilt is None else tilt, True)
         self.pan_tilt = (float(reached[0]), float(reached[1]))
 
     def pose(self) -> tuple[float, float, float]:
@@ -153,14 +171,80 @@ class SeeingDriver:
         self.stats.frame_ms.append((t1 - t0) * 1000)
         return (x, y, heading), t1
 
-    def cycle(self, remaining: np.ndarray) -> Any:
-        """One frame into the rolling map and the check of the next metres; returns the check."""
+    def cycle(self, remaining: np.ndarray) -> tuple[Any, Any, tuple[float, float, float]]:
+        """One frame into the rolling map and the check of the next metres; returns the check,
+        the unseen check (:meth:`judge`) and the pose."""
         pose, t1 = self.see(self.pan_tilt)
-        poses = path_poses(pose, remaining, self.p.lookahead)
-        check = self.map.check(poses, self.length, self.width)
+        check, unseen = self.judge(pose, remaining)
         self.stats.cycles += 1
         self.stats.cycle_ms.append((time.monotonic() - t1) * 1000)
-        return check, pose
+        return check, unseen, pose
+
+    def judge(self, pose: tuple[float, float, float], remaining: np.ndarray) -> tuple[Any, Any]:
+        """The footprint swept along the next ``lookahead`` metres (blocked anywhere stops the
+        rover), and along the next ``blind`` metres: the check of that stretch when it covers
+        ground no map has seen, else None. The forward view starts about a metre ahead of the
+        rover (1.1 m from its centre at tilt -35 deg), so ground that close and still unseen
+        will not be seen before the body is on it: a rock the rover turned to face, or one
+        round the corner of its path."""
+        trav, g = self._check_layer(pose), self.map.geometry
+        check = sweep_check(trav, g, path_poses(pose, remaining, self.p.lookahead), self.length, self.width)
+        if self.p.unseen == "off" or self.p.blind <= 0.0:
+            return check, None
+        near = sweep_check(trav, g, path_poses(pose, remaining, self.p.blind), self.length, self.width)
+        return check, near if near.verdict == "unknown" else None
+
+    def _check_layer(self, pose: tuple[float, float, float]) -> np.ndarray:
+        """The traversability the check sweeps, by the rule the plan's maps were merged by
+        (:func:`merge_nav_maps`): the rolling map's cells measured since the last scan; else
+        the leg's maps where they saw the ground (resampled when either changes); else the
+        rolling map. The ground under the rover counts as seen: it stands there."""
+        g, trav = self.map.geometry, self.map.traversability
+        if self.known is None:
+            layer = trav.copy()
+        else:
+            if self.seen is None or self.seen[0] is not self.known or self.seen[1] != g:
+                self.seen = (self.known, g, self.map.seen_by(self.known))
+            known = self.seen[2]
+            newer = (self.map.stamp > self.scan_frame) & np.isfinite(trav)
+            layer = np.where(newer, trav, np.where(np.isfinite(known), known, trav))
+        xs, ys = g.centers()
+        under = np.hypot(xs[None, :] - pose[0], ys[:, None] - pose[1]) <= self.radius
+        layer[under & np.isnan(layer)] = 1.0
+        return layer
+
+    def blind_disc(self) -> tuple[float, float, float]:
+        """The ground round the mast's foot that no frame shows, even at the PTU's lowest tilt:
+        (x, y) of the pan axis's foot and the radius, by the head's calibration."""
+        x, y, heading = self.pose()
+        bx, by, bz = self.head.ptu_base
+        lowest = self.app.devices.get("ptu").limits()["tilt"]["min_deg"]
+        radius = (bz + self.head.tilt_offset) / math.tan(math.radians(FOV_V_DEG / 2 - lowest))
+        c, s = math.cos(math.radians(heading)), math.sin(math.radians(heading))
+        return x + bx * c - by * s, y + bx * s + by * c, radius
+
+    def look_at(self, x: float, y: float, pose: tuple[float, float, float]) -> bool:
+        """One frame, standing, toward ground point (x, y), tilted to it but no lower than the PTU
+        goes: the frame then shows the ground along that bearing from the mast's blind disc out
+        (:meth:`blind_disc`), which holds the point unless it lies inside that disc. False (no
+        frame) when the rover looked from about here already: what that look did not show,
+        another from the same place will not."""
+        last = self.looked_from
+        if last is not None and math.hypot(pose[0] - last[0], pose[1] - last[1]) < 0.3 and \
+                abs((pose[2] - last[2] + 180.0) % 360.0 - 180.0) < 20.0:
+            return False
+        self.looked_from = pose
+        self.stats.looks += 1
+        self.job.progress(0, 1, f"looking at unseen ground ({x:.2f}, {y:.2f}) before driving onto it", phase="drive")
+        h = math.radians(pose[2])
+        dx, dy = x - pose[0], y - pose[1]
+        pan, tilt = look_at(self.head, np.array([dx * math.cos(h) + dy * math.sin(h),
+                                                 -dx * math.sin(h) + dy * math.cos(h), 0.0]))
+        lowest = self.app.devices.get("ptu").limits()["tilt"]["min_deg"]
+        self._point(max(-150.0, min(150.0, pan)), max(lowest, min(self.p.tilt, tilt)))
+        self.see(self.pan_tilt)
+        self.job.check()
+        return True
 
     def look(self, bearing: float, spread: float = 40.0) -> None:
         """Frames panned to ``bearing`` (deg from the rover's heading) and ``spread`` either side,
@@ -171,7 +255,7 @@ class SeeingDriver:
             self.job.check()
 
     def drive(self, waypoints: np.ndarray, track: list[tuple[float, float]], progress: Any,
-              allow_ahead: bool) -> DriveOutcome:
+              allow_ahead: bool, strict: bool = True) -> DriveOutcome:
         """Drive ``waypoints`` (k x 2, the first is where the rover is) steering by odometry,
         checking every cycle. The rover steers at the point ``pursuit`` metres ahead on the path
         (pure pursuit): a heading error up to ``arc_turn`` is driven out as an arc at full speed
@@ -179,7 +263,10 @@ class SeeingDriver:
         path or a waypoint's corner costs no stop (MER's and Perseverance's drive arcs; the
         stop-and-go loop turns on the spot at every waypoint). With ``allow_ahead`` the drive
         hands back ``ahead`` once the leg's end is ``replan_ahead`` away, so navigate extends the
-        path from what the rolling map has seen, on the move."""
+        path from what the rolling map has seen, on the move. Ground no map has seen under the
+        next ``blind`` metres (:meth:`judge`): the rover stops and looks at it; with ``strict``
+        (the plan kept the body to seen ground) it ends the leg (``unseen``) when the look does
+        not show it, else it drives on."""
         app, job = self.app, self.job
         world = app.world
         model = world.drive_model
@@ -191,7 +278,7 @@ class SeeingDriver:
 
         with world.under_way():
             while True:
-                check, pose = self.cycle(wps[k:])
+                check, unseen, pose = self.cycle(wps[k:])
                 job.check()
                 if check.verdict == "not_traversable":
                     return DriveOutcome("hazard", k - 1, self._stop_event(check, pose))
@@ -207,6 +294,17 @@ class SeeingDriver:
                     return DriveOutcome("ahead", k - 1)
                 tx, ty = _pursuit_point(pose, wps, k, self.p.pursuit)
                 w = arc_rate(pose, (tx, ty), model.speed, model.turn_rate, self.p.arc_turn)
+                # unseen ground ahead: the rover stops and looks (a turn on the spot comes first,
+                # after which that ground lies ahead and the look is a tilt, not a pan)
+                if unseen is not None and w is not None and self.look_at(unseen.worst_x, unseen.worst_y, pose):
+                    check, unseen = self.judge(pose, wps[k:])
+                    self.point_forward()
+                    if check.verdict == "not_traversable":
+                        return DriveOutcome("hazard", k - 1, self._stop_event(check, pose))
+                if unseen is not None and w is not None and strict:
+                    progress(k - 1, segments, f"stopped: ground {unseen.unknown_cells} cells under the next "
+                                              f"{self.p.blind:g} m unseen", "drive")
+                    return DriveOutcome("unseen", k - 1)
                 if w is None:
                     world.turn_toward(tx, ty, stop)
                 else:
@@ -236,7 +334,7 @@ class SeeingDriver:
             while k < segments and _passed((p.x, p.y, p.heading), wps[k - 1], wps[k]):
                 progress(k, segments, f"segment {k}/{segments} driven", "drive")
                 k += 1
-            check, pose = self.cycle(wps[k:])
+            check, _, pose = self.cycle(wps[k:])
             if check.verdict == "not_traversable":
                 if hazard is None:  # once per leg: the GNC is stopping
                     hazard = self._stop_event(check, pose)
@@ -289,10 +387,15 @@ class SeeLoop:
         self.driver = SeeingDriver(job, SeeParams(
             period=cfg.see_period, lookahead=cfg.see_lookahead, stop_distance=0.0, tilt=cfg.see_tilt,
             subsample=cfg.see_subsample, max_range=cfg.see_max_range, margin=cfg.see_margin,
-            replan_ahead=cfg.replan_ahead, pursuit=cfg.see_pursuit, arc_turn=cfg.see_arc_turn, auto=cfg.auto),
-            self.stats)
+            replan_ahead=cfg.replan_ahead, pursuit=cfg.see_pursuit, arc_turn=cfg.see_arc_turn, blind=cfg.see_blind,
+            unseen=cfg.see_unseen, auto=cfg.auto), self.stats)
+        head = self.app.config.get("head")
+        # how far round the rover unseen ground cannot be seen before the body is on it: the
+        # checked stretch plus the half body ahead of the rover's centre
+        self.reach = cfg.see_blind + head.rover_length / 2
+        self.strict = False  # the last plan kept the body to seen ground
+        self.mast_foot: tuple[float, float, float] | None = None  # x, y, radius: the last scan's blind disc
         self.scan: Any = None  # NavMaps of the scans so far
-        self.scan_frame = 0  # the rolling map's frame count at the last scan: older cells yield to the scan's
         self.looked: tuple[float, float] | None = None  # where the rover last looked round for a way
         self.fresh_scan = False  # no plan has been made since the last 360-degree scan
         self.why = ""  # why the last replan found no way
@@ -305,7 +408,8 @@ class SeeLoop:
     def scanned(self, local: Any) -> None:
         """A 360-degree scan made the maps ``local`` (the scans so far, merged)."""
         self.scan = local
-        self.scan_frame = self.driver.map.frames
+        self.mast_foot = self.driver.blind_disc()
+        self.driver.scan_frame = self.driver.map.frames
         self.stats.scans += 1
         self.fresh_scan = True
 
@@ -316,7 +420,7 @@ class SeeLoop:
         if self.driver.map.frames == 0:
             return self.scan
         m = self.driver.map
-        return merge_nav_maps(self.scan, m.nav_maps(), m.stamp <= self.scan_frame)
+        return merge_nav_maps(self.scan, m.nav_maps(), m.stamp <= self.driver.scan_frame)
 
     def replan(self, leg: int, global_maps: Any, goal: tuple[float, float], params: Any) -> Any:
         """A plan from the rover's believed pose on the merged maps (D* Lite repairing the
@@ -353,27 +457,51 @@ class SeeLoop:
         if self.search is None and self.cfg.see_search == "dstar":
             self.search = Replanner(params.heuristic, params.weight)
         t0 = time.monotonic()
+        # the ground round the mast's foot that no tilt shows is taken as seen after a scan there
+        # (the rover stands where it drove, or was set down); the check counts it too
         merged = self.merged()
-        try:
+        if self.mast_foot is not None:
+            merged = mark_unseen(merged, self.mast_foot[:2], 0.0, self.mast_foot[2], SAFE)
+        self.driver.known = merged
+
+        def attempt(maps: NavMaps) -> Any:
             try:
-                plan = plan_path(merged, global_maps, here, goal, params, start_heading=pose.heading,
+                return plan_path(maps, global_maps, here, goal, params, start_heading=pose.heading,
                                  search=self.search, cover=self.cover)
             except PlanningError as exc:
                 # as navigate's scan legs do: a stand-in within the tolerance, or from farther
                 # than judge_range a point toward the goal, to judge it again from closer
-                toward = goal_stand_in(merged, global_maps, here, goal, params, exc,
+                toward = goal_stand_in(maps, global_maps, here, goal, params, exc,
                                        math.hypot(goal[0] - here[0], goal[1] - here[1]), self.cfg)
                 if toward is None:
                     raise
-                plan = plan_path(merged, global_maps, here, toward, params, start_heading=pose.heading,
+                return plan_path(maps, global_maps, here, toward, params, start_heading=pose.heading,
                                  search=self.search, cover=self.cover)
-        except PlanningError as exc:
-            return None, f"replan from the rolling map: {exc.reason}"
+
+        # Ground no map has seen within reach of the rover is kept out of the plan as a rock is,
+        # but for the body's own disc (it stands there). A 360-degree scan just made has shown all
+        # that can be seen from here: what it left unseen so close is the blind ground round the
+        # mast, and then the plan may cross it, as it must to leave.
+        keep = self.cfg.see_unseen == "keep" and self.cfg.see_blind > 0
+        tries = ([True] if keep else []) + ([False] if self.fresh_scan or not keep else [])
+        why = ""
+        try:
+            for strict in tries:
+                maps = mark_unseen(merged, here, self.driver.radius, self.reach, HAZARDOUS) if strict else merged
+                try:
+                    plan = attempt(maps)
+                except PlanningError as exc:
+                    why = f"replan from the rolling map: {exc.reason}"
+                    continue
+                driven = plan.path[: plan.cut]
+                if len(plan.waypoints) < 2 or math.hypot(*(driven[-1] - driven[0])) < max(MIN_LEG, 0.1):
+                    why = "the rolling map shows no way on"
+                    continue
+                self.strict = strict
+                return plan, ""
+            return None, why
         finally:
             self.stats.replan_ms.append((time.monotonic() - t0) * 1000)
-        driven = plan.path[: plan.cut]
-        if len(plan.waypoints) < 2 or math.hypot(*(driven[-1] - driven[0])) < max(MIN_LEG, 0.1):
-            return None, "the rolling map shows no way on"
         return plan, ""
 
     def drive_leg(self, leg: int, plan: Any, track: list[tuple[float, float]]) -> None:
@@ -401,10 +529,10 @@ class SeeLoop:
                                         self.cfg.wait_timeout)
         else:
             outcome = self.driver.drive(plan.waypoints.xy, track, progress,
-                                        allow_ahead=extends and not plan.reaches_goal)
+                                        allow_ahead=extends and not plan.reaches_goal, strict=self.strict)
             odo = app.world.odometry()
             app.set_pose(odo[0], odo[1], odo[2], source="odometry")
-        if outcome.kind == "hazard":  # the stop EVENT said so; the next leg replans from here
+        if outcome.kind in ("hazard", "unseen"):  # the next leg replans from here
             self.last_end = None
         self.localise(leg, track[start_of_leg:])
 

@@ -82,6 +82,31 @@ def test_a_rock_added_ahead_stops_the_rover_and_it_replans_around_it(server_fact
     assert np.hypot(*(track - rock).T).min() > 0.2 + 0.2  # kept the rover's half width off the rock
 
 
+@pytest.mark.parametrize("unseen", [pytest.param(u, marks=long_only()) for u in ("look", "off")])
+def test_the_rover_looks_at_unseen_ground_before_driving_onto_it(server_factory, unseen: str) -> None:
+    """The first scan covers the forward half only and the goal lies behind: the rover turns on
+    the spot and faces ground no map has seen, closer than the forward view reaches. With
+    see_unseen=look it stops and looks there (a frame at the PTU's lowest tilt) before the body
+    goes on it; with off it drives on blind."""
+    srv = server_factory(["server.scene=marsyard", "navigate.range=-60,60,-50,-10",
+                          f"navigate.see_unseen={unseen}"])
+    srv.app.world.set_target_visible(False)
+    c = srv.client()
+    job = c.start_job("navigate -start -1.0,0.5,0 -goal -3.5,0.5 -auto -loop see -name behind")
+    lines = c.until_final(job=job, timeout=600)
+    final = lines[-1]
+    assert final.status == "OK" and final.fields["reached"] == "true", final.fields
+    looked = [r for r in lines if r.status == "PROGRESS" and "looking at unseen ground" in r.fields.get("message", "")]
+    if unseen == "off":
+        assert int(final.fields["looks"]) == 0 and not looked
+        return
+    assert int(final.fields["looks"]) >= 1 and looked
+    # the first look is at ground behind the rover's rear at the start (which the scan did not
+    # see), where it then drives
+    x, y = (float(v) for v in looked[0].fields["message"].split("(")[1].split(")")[0].split(","))
+    assert -1.0 - 0.51 / 2 - 0.8 < x < -1.0 - 0.51 / 2 and abs(y - 0.5) < 0.4
+
+
 def test_an_arc_the_turn_rate_cannot_drive_is_turned_on_the_spot() -> None:
     """Pure pursuit toward a point 0.3 m ahead: at 15 deg off the arc through it needs 9.9 deg/s
     and is driven; at 30 deg it needs 19 deg/s, more than the 15 deg/s turn rate: the capped arc
@@ -156,6 +181,55 @@ def test_a_scan_outranks_what_the_rolling_map_saw_before_it() -> None:
     assert (merged[:10, 10:] == 255).all()  # older, but the scan did not see it: the rolling map's
     assert (merged[10:] == 255).all()  # seen after the scan: hazardous wins
     assert (merge_nav_maps(base, fresh).hazard == 255).all()
+
+
+def test_the_body_is_kept_off_ground_no_map_has_seen() -> None:
+    """hirise mission 4 drove its body over 271 true hazard cells, all on a strip 0.25-1.1 m ahead
+    of the rover that no frame had seen: the forward view starts about 1.1 m from the rover's
+    centre, and after a turn on the spot the ground now ahead was beside the rover before. Such
+    ground within reach of the rover is kept out of plans as a rock is, and the sweep of the next
+    blind metres stops on it (the rover then looks there); ground farther off stays plannable,
+    since the forward view shows it before the body gets there."""
+    from prox_workflows.steps.dem2hazard import HAZARDOUS, SAFE, UNDEFINED
+    from prox_workflows.steps.planner import PlannerParams, plan_path
+    from prox_workflows.steps.rolling_map import mark_unseen, sweep_check
+
+    g = GridGeometry(0.05, -1.0, 2.0, 100, 80)  # x -1..4, y -2..2
+    hazard = np.full(g.shape, SAFE, np.uint8)
+    xs, ys = g.centers()
+    X, Y = np.meshgrid(xs, ys)
+    strip = (X > 0.3) & (X < 0.8) & (np.abs(Y) < 0.5)  # unseen, right ahead of the rover at the origin
+    hazard[strip] = UNDEFINED
+    far = (X > 2.0) & (X < 2.6) & (np.abs(Y) < 0.6)  # unseen, but 2 m off: the forward view will show it
+    hazard[far] = UNDEFINED
+    maps = NavMaps(hazard, np.zeros(g.shape, np.float32), g)
+    params = PlannerParams(grid=0.05, rover_radius=math.hypot(0.51, 0.40) / 2, margin=0.05, half_width=0.2,
+                           border=0.0)
+    reach = 0.8 + 0.51 / 2
+    kept = mark_unseen(maps, (0.0, 0.0), params.rover_radius, reach, HAZARDOUS)
+    assert (kept.hazard[strip & (np.hypot(X, Y) <= reach)] == HAZARDOUS).all()
+    assert (kept.hazard[far] == UNDEFINED).all() and (kept.hazard[np.hypot(X, Y) <= params.rover_radius]
+                                                      != HAZARDOUS).all()
+
+    def unseen_under(path: np.ndarray) -> int:
+        trav = np.where(hazard == UNDEFINED, np.nan, 1.0).astype(np.float32)
+        poses = [(a[0], a[1], math.degrees(math.atan2(b[1] - a[1], b[0] - a[0])))
+                 for a, b in zip(path[:-1], path[1:], strict=True)]
+        near = [p for p in poses if math.hypot(p[0], p[1]) <= 1.6]
+        return sweep_check(trav, g, np.array(near), 0.51, 0.40).unknown_cells
+
+    straight = plan_path(maps, None, (0.0, 0.0), (3.5, 0.0), params)
+    assert unseen_under(straight.path) > 0  # the plain plan drives the body over the unseen strip
+    around = plan_path(kept, None, (0.0, 0.0), (3.5, 0.0), params)
+    assert unseen_under(around.path) == 0  # kept: it goes round the strip on seen ground
+    assert np.abs(around.path[:, 1]).max() > 0.5 + 0.2  # (round it, the body clear of it)
+    assert around.reaches_goal  # through the far patch, which is not kept out
+    # the check: the next 0.8 m of the straight path sweep the strip; the swerving path's do not
+    trav = np.where(hazard == UNDEFINED, np.nan, 1.0).astype(np.float32)
+    ahead = sweep_check(trav, g, path_poses((0.0, 0.0, 0.0), straight.waypoints.xy[1:], 0.8), 0.51, 0.40)
+    assert ahead.verdict == "unknown" and 0.3 <= ahead.worst_x <= 0.8 and abs(ahead.worst_y) < 0.5
+    poses = path_poses((0.0, 0.0, 0.0), around.waypoints.xy[1:], 0.8)
+    assert sweep_check(trav, g, poses, 0.51, 0.40).verdict == "ok"
 
 
 def test_a_frame_off_the_scan_takes_its_datum_from_the_rolling_map() -> None:

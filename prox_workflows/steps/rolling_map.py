@@ -223,28 +223,40 @@ class RollingMap:
         """The footprint swept along ``poses`` (x, y, heading deg), as check-move sweeps one motion."""
         return sweep_check(self.traversability, self.geometry, poses, length, width, min_score)
 
+    def seen_by(self, maps: NavMaps) -> np.ndarray:
+        """``maps``' verdicts on this map's grid (nearest cell) as traversability: 0 hazardous,
+        1 safe, NaN where they saw nothing. The scans the leg was planned on saw ground this map
+        never held (round the rover, behind it); the check counts that ground as seen."""
+        xs, ys = self.geometry.centers()
+        r, c = maps.geometry.cell_of(xs[None, :], ys[:, None])
+        r, c = np.broadcast_arrays(r, c)
+        inside = maps.geometry.inside(r, c)
+        hz = np.full(self.geometry.shape, UNDEFINED, np.uint8)
+        hz[inside] = maps.hazard[r[inside], c[inside]]
+        return np.where(hz == HAZARDOUS, np.float32(0), np.where(hz == SAFE, np.float32(1), np.float32(np.nan)))
+
 
 def sweep_check(trav: np.ndarray, geometry: GridGeometry, poses: np.ndarray, length: float, width: float,
                 min_score: float = 0.0) -> MoveCheck:
     """check_move over each chord of a pose sequence, merged: blocked anywhere wins; the worst
-    reported is the first blocked cell along the way (what the rover would meet first)."""
+    reported is the first blocked cell along the way (what the rover would meet first), else the
+    first unseen one."""
     poses = np.asarray(poses, dtype=np.float64).reshape(-1, 3)
     if len(poses) == 1:
         poses = np.vstack([poses, poses])
     cells = unknown = blocked = 0
-    first_blocked: MoveCheck | None = None
+    first: dict[str, MoveCheck] = {}
     worst: MoveCheck | None = None
     for a, b in zip(poses[:-1], poses[1:], strict=True):
         m = check_move(trav, geometry, tuple(a), tuple(b), length, width, min_score)
         cells += m.cells
         unknown += m.unknown_cells
         blocked += m.blocked_cells
-        if m.verdict == "not_traversable" and first_blocked is None:
-            first_blocked = m
+        first.setdefault(m.verdict, m)
         if worst is None or (math.isfinite(m.worst_score) and not m.worst_score >= worst.worst_score):
             worst = m
     assert worst is not None
-    pick = first_blocked or worst
+    pick = first.get("not_traversable") or first.get("unknown") or worst
     verdict = "not_traversable" if blocked else "unknown" if unknown else "ok"
     return MoveCheck(verdict, pick.worst_score, pick.worst_x, pick.worst_y, cells, unknown, blocked)
 
@@ -305,6 +317,16 @@ def merge_nav_maps(base: NavMaps, fresh: NavMaps, older: np.ndarray | None = Non
     fs = on_union(fresh.slope, fresh)
     slope = np.where(np.isfinite(fs), fs, on_union(base.slope, base)).astype(np.float32)
     return NavMaps(merged, slope, g)
+
+
+def mark_unseen(maps: NavMaps, centre: tuple[float, float], inner: float, outer: float, value: int) -> NavMaps:
+    """``maps`` with the cells no map has seen (undefined) farther than ``inner`` and at most
+    ``outer`` from ``centre`` set to ``value`` (SAFE: ground taken as seen; HAZARDOUS: ground
+    the body must not be driven onto, expanded by the planner as a rock is)."""
+    xs, ys = maps.geometry.centers()
+    d = np.hypot(xs[None, :] - centre[0], ys[:, None] - centre[1])
+    hazard = np.where((maps.hazard == UNDEFINED) & (d > inner) & (d <= outer), np.uint8(value), maps.hazard)
+    return NavMaps(hazard.astype(np.uint8), maps.slope, maps.geometry)
 
 
 def _shift(a: np.ndarray, dr: int, dc: int, fill: Any) -> np.ndarray:
