@@ -131,7 +131,6 @@ class SeeingDriver:
         # the maps the leg was planned on (the scans and the rolling map then) on the rolling map's
         # grid, as traversability: the check counts the ground they saw as seen
         self.known: NavMaps | None = None
-        self.scan_frame = 0  # the rolling map's frame count at the last scan: older cells yield to the scan's
         self.seen: tuple[Any, Any, np.ndarray] | None = None  # (known, geometry, layer) of the last resampling
         self.looked_from: tuple[float, float, float] | None = None  # the pose of the last look at unseen ground
 
@@ -195,19 +194,19 @@ class SeeingDriver:
         return check, near if near.verdict == "unknown" else None
 
     def _check_layer(self, pose: tuple[float, float, float]) -> np.ndarray:
-        """The traversability the check sweeps, by the rule the plan's maps were merged by
-        (:func:`merge_nav_maps`): the rolling map's cells measured since the last scan; else
-        the leg's maps where they saw the ground (resampled when either changes); else the
-        rolling map. The ground under the rover counts as seen: it stands there."""
-        g, trav = self.map.geometry, self.map.traversability
+        """The traversability the check sweeps: the rolling map's, lowered to 0 where the maps the
+        leg was planned on say hazardous, and theirs where the rolling map has none (resampled
+        when either changes); the ground under the rover counts as seen: it stands there. Never
+        less cautious than the rolling map alone (a scan's verdict does not clear what the
+        rolling map saw, as it does in the plan: a marsyard mission then drove over a 20.0 deg
+        cell the scan had judged safe)."""
+        g = self.map.geometry
         if self.known is None:
-            layer = trav.copy()
+            layer = self.map.traversability.copy()
         else:
             if self.seen is None or self.seen[0] is not self.known or self.seen[1] != g:
                 self.seen = (self.known, g, self.map.seen_by(self.known))
-            known = self.seen[2]
-            newer = (self.map.stamp > self.scan_frame) & np.isfinite(trav)
-            layer = np.where(newer, trav, np.where(np.isfinite(known), known, trav))
+            layer = np.fmin(self.map.traversability, self.seen[2])
         xs, ys = g.centers()
         under = np.hypot(xs[None, :] - pose[0], ys[:, None] - pose[1]) <= self.radius
         layer[under & np.isnan(layer)] = 1.0
@@ -396,6 +395,7 @@ class SeeLoop:
         self.strict = False  # the last plan kept the body to seen ground
         self.mast_foot: tuple[float, float, float] | None = None  # x, y, radius: the last scan's blind disc
         self.scan: Any = None  # NavMaps of the scans so far
+        self.scan_frame = 0  # the rolling map's frame count at the last scan: older cells yield to the scan's
         self.looked: tuple[float, float] | None = None  # where the rover last looked round for a way
         self.fresh_scan = False  # no plan has been made since the last 360-degree scan
         self.why = ""  # why the last replan found no way
@@ -409,7 +409,7 @@ class SeeLoop:
         """A 360-degree scan made the maps ``local`` (the scans so far, merged)."""
         self.scan = local
         self.mast_foot = self.driver.blind_disc()
-        self.driver.scan_frame = self.driver.map.frames
+        self.scan_frame = self.driver.map.frames
         self.stats.scans += 1
         self.fresh_scan = True
 
@@ -420,7 +420,7 @@ class SeeLoop:
         if self.driver.map.frames == 0:
             return self.scan
         m = self.driver.map
-        return merge_nav_maps(self.scan, m.nav_maps(), m.stamp <= self.driver.scan_frame)
+        return merge_nav_maps(self.scan, m.nav_maps(), m.stamp <= self.scan_frame)
 
     def replan(self, leg: int, global_maps: Any, goal: tuple[float, float], params: Any) -> Any:
         """A plan from the rover's believed pose on the merged maps (D* Lite repairing the
@@ -460,7 +460,7 @@ class SeeLoop:
         # the ground round the mast's foot that no tilt shows is taken as seen after a scan there
         # (the rover stands where it drove, or was set down); the check counts it too
         merged = self.merged()
-        if self.mast_foot is not None:
+        if self.mast_foot is not None and self.cfg.see_unseen != "off":
             merged = mark_unseen(merged, self.mast_foot[:2], 0.0, self.mast_foot[2], SAFE)
         self.driver.known = merged
 

@@ -230,6 +230,15 @@ def test_the_body_is_kept_off_ground_no_map_has_seen() -> None:
     assert ahead.verdict == "unknown" and 0.3 <= ahead.worst_x <= 0.8 and abs(ahead.worst_y) < 0.5
     poses = path_poses((0.0, 0.0, 0.0), around.waypoints.xy[1:], 0.8)
     assert sweep_check(trav, g, poses, 0.51, 0.40).verdict == "ok"
+    # the check counts what the maps the leg was planned on saw: their verdicts on the rolling grid
+    hazard[10:12, 10:12] = HAZARDOUS
+    m = RollingMap(RollingParams(size=4.0), HazardParams(), (1.0, 0.0))
+    seen = m.seen_by(NavMaps(hazard, np.zeros(g.shape, np.float32), g))
+    rx, ry = m.geometry.centers()
+    for x, y, want in ((0.5, 0.0, np.nan), (2.3, 0.0, np.nan), (1.5, 1.0, 1.0), (-0.5, 1.45, 0.0)):
+        r, c = m.geometry.cell_of(np.array(x), np.array(y))
+        got = seen[int(r), int(c)]
+        assert (np.isnan(got) and np.isnan(want)) or got == want, (x, y, got)
 
 
 def test_a_frame_off_the_scan_takes_its_datum_from_the_rolling_map() -> None:
