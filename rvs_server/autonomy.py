@@ -19,7 +19,8 @@ Why the cycle looks as it does
       is met while still farther than ``stop_distance`` plus one cycle's travel: the stop comes
       before the rover is within its stopping distance.
     - Only ``not_traversable`` stops the rover: the plan was made on the scan maps, which the
-      rolling map only refines; unseen cells (the blind patch under the view) are the plan's.
+      rolling map only refines; unseen cells (the blind patch under the view) are the plan's,
+      unless ``see_unseen`` says to look at them first (and with ``keep``, to plan round them).
 
 Kept out of navigation.py so that the scan-only loop there stays as it was, and the two can be
 compared side by side (``python -m tools.bench.navigate``).
@@ -212,13 +213,15 @@ class SeeingDriver:
         layer[under & np.isnan(layer)] = 1.0
         return layer
 
+    def _lowest_tilt(self) -> float:
+        return float(self.app.devices.get("ptu").limits()["tilt"]["min_deg"])
+
     def blind_disc(self) -> tuple[float, float, float]:
         """The ground round the mast's foot that no frame shows, even at the PTU's lowest tilt:
         (x, y) of the pan axis's foot and the radius, by the head's calibration."""
         x, y, heading = self.pose()
         bx, by, bz = self.head.ptu_base
-        lowest = self.app.devices.get("ptu").limits()["tilt"]["min_deg"]
-        radius = (bz + self.head.tilt_offset) / math.tan(math.radians(FOV_V_DEG / 2 - lowest))
+        radius = (bz + self.head.tilt_offset) / math.tan(math.radians(FOV_V_DEG / 2 - self._lowest_tilt()))
         c, s = math.cos(math.radians(heading)), math.sin(math.radians(heading))
         return x + bx * c - by * s, y + bx * s + by * c, radius
 
@@ -239,8 +242,7 @@ class SeeingDriver:
         dx, dy = x - pose[0], y - pose[1]
         pan, tilt = look_at(self.head, np.array([dx * math.cos(h) + dy * math.sin(h),
                                                  -dx * math.sin(h) + dy * math.cos(h), 0.0]))
-        lowest = self.app.devices.get("ptu").limits()["tilt"]["min_deg"]
-        self._point(max(-150.0, min(150.0, pan)), max(lowest, min(self.p.tilt, tilt)))
+        self._point(max(-150.0, min(150.0, pan)), max(self._lowest_tilt(), min(self.p.tilt, tilt)))
         self.see(self.pan_tilt)
         self.job.check()
         return True
@@ -502,7 +504,6 @@ class SeeLoop:
             return None, why
         finally:
             self.stats.replan_ms.append((time.monotonic() - t0) * 1000)
-        return plan, ""
 
     def drive_leg(self, leg: int, plan: Any, track: list[tuple[float, float]]) -> None:
         """Drive one leg's waypoints while seeing (the simulated rover with -auto: the pose is its
