@@ -157,10 +157,11 @@ class NavigateConfig(ModuleConfig):
                                 "a larger one is turned on the spot", unit="deg", min=0.0, max=180.0, option=False)
     see_unseen: str = param("off", "see loop: ground no map has seen under the rover's sweep over the next "
                             "see_blind metres (the forward ToF sees from about a metre ahead of the rover, so it "
-                            "will not see that ground before the body is on it): look stops and looks at it, "
-                            "then drives on; keep also ends the leg when the look does not show it, and plans "
-                            "keep out of such ground that close (plus half the body) as out of a rock; off drives "
-                            "on", choices=("look", "keep", "off"), option=False)
+                            "will not see that ground before the body is on it): look stops and looks at it, then "
+                            "drives on; keep also ends the leg when the look does not show it and keeps plans off "
+                            "such ground that close (plus half the body) as off a rock (experimental: it can stall "
+                            "where a scan leaves the way on unseen); off drives on (docs/PROTOCOL.md)",
+                            choices=("look", "keep", "off"), option=False)
     see_blind: float = param(0.8, "see loop: the stretch of path ahead that see_unseen judges", unit="m", min=0.0,
                              max=3.0, option=False)
     see_border: float = param(0.3, "see loop: plans stop this far inside the seen ground (the forward ToF sees "
