@@ -238,10 +238,7 @@ class SeeingDriver:
         self.looked_from = pose
         self.stats.looks += 1
         self.job.progress(0, 1, f"looking at unseen ground ({x:.2f}, {y:.2f}) before driving onto it", phase="drive")
-        h = math.radians(pose[2])
-        dx, dy = x - pose[0], y - pose[1]
-        pan, tilt = look_at(self.head, np.array([dx * math.cos(h) + dy * math.sin(h),
-                                                 -dx * math.sin(h) + dy * math.cos(h), 0.0]))
+        pan, tilt = look_at(self.head, np.array([*_in_rover_frame(pose, x, y), 0.0]))
         self._point(max(-150.0, min(150.0, pan)), max(self._lowest_tilt(), min(self.p.tilt, tilt)))
         self.see(self.pan_tilt)
         self.job.check()
@@ -351,10 +348,7 @@ class SeeingDriver:
     def _stop_event(self, check: Any, pose: tuple[float, float, float]) -> dict[str, Any]:
         """The stop EVENT, shaped as the hazard monitor's (distance from the rover's front to the
         hazard, bearing CCW from the heading, x and y in the rover frame)."""
-        x, y, h = pose
-        c, s = math.cos(math.radians(h)), math.sin(math.radians(h))
-        dx, dy = check.worst_x - x, check.worst_y - y
-        rx, ry = dx * c + dy * s, -dx * s + dy * c
+        rx, ry = _in_rover_frame(pose, check.worst_x, check.worst_y)
         distance = max(0.0, rx - self.app.config.get("head").rover_length / 2 - self.map.params.cell / 2)
         self.stats.stops += 1
         fields = {"kind": "hazard", "level": "stop", "distance": Fixed(distance, 2),
@@ -607,6 +601,13 @@ def arc_rate(pose: tuple[float, float, float], target: tuple[float, float], spee
     error = (math.degrees(math.atan2(dy, dx)) - pose[2] + 180.0) % 360.0 - 180.0
     w = math.degrees(speed * 2.0 * math.sin(math.radians(error)) / max(math.hypot(dx, dy), 1e-6))
     return None if abs(error) > arc_turn or abs(w) > turn_rate else w
+
+
+def _in_rover_frame(pose: tuple[float, float, float], x: float, y: float) -> tuple[float, float]:
+    """Global (x, y) in the frame of the rover at ``pose`` (x forward, y left)."""
+    c, s = math.cos(math.radians(pose[2])), math.sin(math.radians(pose[2]))
+    dx, dy = x - pose[0], y - pose[1]
+    return dx * c + dy * s, -dx * s + dy * c
 
 
 def _passed(pose: tuple[float, float, float], a: np.ndarray, b: np.ndarray, reach: float = 0.02) -> bool:
