@@ -41,7 +41,14 @@ from prox_workflows.steps.dem2hazard import HAZARDOUS, SAFE
 from prox_workflows.steps.hazard_monitor import rover_points
 from prox_workflows.steps.planner import NavMaps
 from prox_workflows.steps.replan import Replanner
-from prox_workflows.steps.rolling_map import RollingMap, RollingParams, mark_unseen, path_poses, sweep_check
+from prox_workflows.steps.rolling_map import (
+    MapMemory,
+    RollingMap,
+    RollingParams,
+    mark_unseen,
+    path_poses,
+    sweep_check,
+)
 from prox_workflows.steps.transforms import HeadCalibration, T_global_from_rover
 
 from .commands.awareness import look_at
@@ -114,7 +121,7 @@ class DriveOutcome:
 class SeeingDriver:
     """One navigate's see loop: the rolling map lives for the whole mission."""
 
-    def __init__(self, job: Job, params: SeeParams, stats: LoopStats) -> None:
+    def __init__(self, job: Job, params: SeeParams, stats: LoopStats, memory: MapMemory | None = None) -> None:
         self.job = job
         self.app: App = job.app
         self.p = params
@@ -124,7 +131,7 @@ class SeeingDriver:
         self.width = head.rover_width + 2 * params.margin
         self.head = HeadCalibration.from_dict(head.as_dict())
         here = self.pose()
-        self.map = RollingMap(RollingParams(), self.app.config.get("dem2hazard"), (here[0], here[1]))
+        self.map = RollingMap(RollingParams(), self.app.config.get("dem2hazard"), (here[0], here[1]), memory)
         # the body turning on the spot, with the cells its corners touch
         self.radius = math.hypot(head.rover_length, head.rover_width) / 2 + self.map.params.cell
         self.level = "clear"
@@ -379,11 +386,15 @@ class SeeLoop:
         self.fixed_at = 0  # the rolling map's frame count then: a fix matches and moves what came after
         self.reapproached = False  # drove on once after a fix near the goal (closer)
         self.stats = LoopStats()
+        # the mission's start and goal: the planning grid keeps them (and the blank ground between,
+        # as a plan from the start would have it) so that it changes only where the maps grow
+        self.cover = [(self.app.pose.x, self.app.pose.y), (cfg.goal[0], cfg.goal[1])]
+        memory = MapMemory.covering(self.cover, cfg.see_memory, RollingParams().cell) if cfg.see_memory > 0 else None
         self.driver = SeeingDriver(job, SeeParams(
             period=cfg.see_period, lookahead=cfg.see_lookahead, stop_distance=0.0, tilt=cfg.see_tilt,
             subsample=cfg.see_subsample, max_range=cfg.see_max_range, margin=cfg.see_margin,
             replan_ahead=cfg.replan_ahead, pursuit=cfg.see_pursuit, arc_turn=cfg.see_arc_turn, blind=cfg.see_blind,
-            unseen=cfg.see_unseen, auto=cfg.auto), self.stats)
+            unseen=cfg.see_unseen, auto=cfg.auto), self.stats, memory)
         head = self.app.config.get("head")
         # how far round the rover unseen ground cannot be seen before the body is on it: the
         # checked stretch plus the half body ahead of the rover's centre
@@ -396,9 +407,6 @@ class SeeLoop:
         self.fresh_scan = False  # no plan has been made since the last 360-degree scan
         self.why = ""  # why the last replan found no way
         self.last_end: tuple[float, float] | None = None
-        # the mission's start and goal: the planning grid keeps them (and the blank ground between,
-        # as a plan from the start would have it) so that it changes only where the maps grow
-        self.cover = [(self.app.pose.x, self.app.pose.y), (cfg.goal[0], cfg.goal[1])]
         self.search: Replanner | None = None  # D* Lite across replans (see_search dstar)
 
     def scanned(self, local: Any) -> None:
@@ -410,13 +418,17 @@ class SeeLoop:
         self.fresh_scan = True
 
     def merged(self) -> Any:
-        """The scan maps with what the rolling map has seen since laid over them."""
+        """The scan maps with what the rolling map has seen since laid over them (all it saw in
+        the mission, with its memory)."""
         from prox_workflows.steps.rolling_map import merge_nav_maps
 
-        if self.driver.map.frames == 0:
-            return self.scan
         m = self.driver.map
-        return merge_nav_maps(self.scan, m.nav_maps(), m.stamp <= self.scan_frame)
+        if m.frames == 0:
+            return self.scan
+        if m.memory is None:
+            return merge_nav_maps(self.scan, m.nav_maps(), m.stamp <= self.scan_frame)
+        m.remember()
+        return merge_nav_maps(self.scan, m.memory.nav_maps(), m.memory.stamp <= self.scan_frame)
 
     def replan(self, leg: int, global_maps: Any, goal: tuple[float, float], params: Any) -> Any:
         """A plan from the rover's believed pose on the merged maps (D* Lite repairing the

@@ -279,10 +279,19 @@ def test_a_frame_off_the_scan_takes_its_datum_from_the_rolling_map() -> None:
 def test_a_pose_fix_moves_only_what_the_rolling_map_saw_since_the_last_fix() -> None:
     """Frames fused before a fix stay where they are; the ones since (placed with the pose the
     fix corrects) move by it, and the hazard layers follow: a rock seen 0.3 m off lands on its
-    true place, a rock seen before stays on its own."""
+    true place, a rock seen before stays on its own; the mission's memory of the verdicts moves
+    with them."""
+    from prox_workflows.steps.dem2hazard import HAZARDOUS, SAFE
+    from prox_workflows.steps.rolling_map import MapMemory
+
     params = HazardParams()
-    m = RollingMap(RollingParams(size=6.0), params, (0.0, 0.0))
+    memory = MapMemory.covering([(-3.0, -3.0), (3.0, 3.0)], 1.0, 0.05)
+    m = RollingMap(RollingParams(size=6.0), params, (0.0, 0.0), memory)
     rng = np.random.default_rng(7)
+
+    def kept(x: float, y: float) -> int:
+        r, c = memory.geometry.cell_of(np.array(x), np.array(y))
+        return int(memory.hazard[int(r), int(c)])
 
     def frame(x0: float, rock: tuple[float, float]) -> np.ndarray:
         n = 6000
@@ -294,7 +303,10 @@ def test_a_pose_fix_moves_only_what_the_rolling_map_saw_since_the_last_fix() -> 
     fixed_at = m.frames
     m.fuse(frame(0.5, (1.2, 0.3)))  # since: a rock truly at (1.2, 0.0), placed 0.3 m left
     assert np.isnan(m.since(fixed_at)[m.stamp <= fixed_at]).all() and np.isfinite(m.since(fixed_at)).any()
+    m.remember()
+    assert kept(1.2, 0.45) == HAZARDOUS and kept(-0.8, 0.0) == HAZARDOUS  # the misplaced rock's edge
     m.move((0.0, 0.0), 0.0, -0.3, 0.0, since=fixed_at)
+    assert kept(1.2, 0.45) == SAFE and kept(1.2, 0.0) == HAZARDOUS and kept(-0.8, 0.0) == HAZARDOUS
     xs, ys = m.geometry.centers()
 
     def peak(x0: float, x1: float) -> tuple[float, float]:
@@ -419,3 +431,45 @@ def test_a_goal_the_scan_shows_in_a_hazard_ends_after_one_scan(server_factory) -
     scans = {r.fields.get("leg") for r in replies if r.status == "PROGRESS" and r.fields.get("phase") == "process"}
     looks = [r for r in replies if r.status == "PROGRESS" and "looking toward the goal" in r.fields.get("message", "")]
     assert scans == {"1"} and len(looks) == 1, (scans, looks)
+
+
+def test_the_memory_keeps_a_dead_end_after_it_scrolls_off_the_rolling_map() -> None:
+    """A rock wall seen at the start of a drive is still in the maps the see loop plans on when
+    the rover is 6 m on and the 4 m rolling map has long shifted past it (without the memory the
+    wall is gone and D* Lite sends the rover back into the dead end); a later verdict of a cell
+    replaces the kept one, and cells off the memory's box are simply not kept."""
+    from prox_workflows.steps.dem2hazard import HAZARDOUS, SAFE, UNDEFINED
+    from prox_workflows.steps.rolling_map import MapMemory
+
+    rng = np.random.default_rng(5)
+    memory = MapMemory.covering([(0.0, 0.0), (6.0, 0.0)], 2.0, 0.05)
+    m = RollingMap(RollingParams(size=4.0), HazardParams(), (0.0, 0.0), memory)
+
+    def frame(x0: float, wall: bool) -> np.ndarray:
+        n = 6000
+        x, y = rng.uniform(x0 + 0.5, x0 + 1.8, n), rng.uniform(-0.8, 0.8, n)
+        z = 0.005 * rng.standard_normal(n) + np.where(wall & (np.abs(x - 1.5) < 0.15), 0.3, 0.0)
+        return np.column_stack([x, y, z])
+
+    m.fuse(frame(0.0, True))
+    wall = np.argwhere(m.hazard == HAZARDOUS)
+    assert len(wall) > 20
+    for x0 in np.arange(0.5, 6.01, 0.5):
+        m.follow(x0, 0.0)
+        m.fuse(frame(x0, False))
+    assert not (m.hazard == HAZARDOUS).any() and m.geometry.xmin > 2.0  # the wall has scrolled off
+    m.remember()
+    kept = memory.nav_maps()
+    xs, ys = kept.geometry.centers()
+    r, c = kept.geometry.cell_of(np.array(1.5), np.array(0.0))
+    assert kept.hazard[int(r), int(c)] == HAZARDOUS  # the wall, 4.5 m behind the rover
+    r, c = kept.geometry.cell_of(np.array(5.0), np.array(0.0))
+    rr, rc = m.geometry.cell_of(np.array(5.0), np.array(0.0))
+    assert kept.hazard[int(r), int(c)] == SAFE and memory.stamp[int(r), int(c)] == m.stamp[int(rr), int(rc)] == 10
+    assert kept.hazard[0, 0] == UNDEFINED  # never seen
+    # the wall seen again, flat this time (the rock was a phantom): the later verdict wins
+    m.follow(0.0, 0.0)
+    m.fuse(frame(0.0, False))
+    m.remember()
+    r, c = kept.geometry.cell_of(np.array(1.5), np.array(0.0))
+    assert memory.hazard[int(r), int(c)] == SAFE

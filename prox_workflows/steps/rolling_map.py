@@ -29,6 +29,11 @@ Why these choices
       map's datum; off the scanned ground the scan DEM gave 0, decimetres off on a slope.
     - The check sweeps the rover's footprint along the next metres of the path (poses), as
       check-move does along one motion: blocked anywhere is ``not_traversable``.
+    - What scrolls off is not lost to the planner: with a :class:`MapMemory` the verdicts
+      (hazard class, slope, frame stamp) of the cells the map shifts away are kept on a grid over
+      the mission's area. Without it, a dead end the rover drove into and out of was forgotten
+      4 m later and D* Lite sent the rover back into it (hirise mission 2 drove north, south
+      and north again along the same rock wall until it gave up).
 """
 
 from __future__ import annotations
@@ -75,11 +80,69 @@ class FuseResult:
     rejected: int = 0
 
 
-class RollingMap:
-    """The rover-centred elevation map: height, variance, count, and Dem2Hazard's layers."""
+class MapMemory:
+    """The rolling map's verdicts for a whole mission: hazard class, slope and the frame that
+    measured each cell, on a fixed grid on the rolling map's lattice (cells off it are not
+    kept). The latest verdict of a cell wins, as in the rolling map itself."""
 
-    def __init__(self, params: RollingParams, hazard: HazardParams, centre: tuple[float, float]) -> None:
+    def __init__(self, geometry: GridGeometry) -> None:
+        self.geometry = geometry
+        self.hazard = np.full(geometry.shape, UNDEFINED, np.uint8)
+        self.slope = np.full(geometry.shape, np.nan, np.float32)
+        self.stamp = np.zeros(geometry.shape, np.int32)
+
+    @classmethod
+    def covering(cls, points: Any, pad: float, cell: float) -> MapMemory:
+        """A memory over the box of ``points`` (x, y) grown by ``pad`` metres."""
+        xy = np.asarray(points, dtype=np.float64).reshape(-1, 2)
+        return cls(GridGeometry.covering(xy[:, 0].min() - pad, xy[:, 1].min() - pad, xy[:, 0].max() + pad,
+                                         xy[:, 1].max() + pad, cell))
+
+    def remember(self, m: RollingMap) -> None:
+        """Keep what ``m`` has verdicts for (its cells and the memory's share one lattice)."""
+        g, mg = self.geometry, m.geometry
+        dc = int(round((mg.xmin - g.xmin) / g.cell))
+        dr = int(round((g.ymax - mg.ymax) / g.cell))
+        r0, r1 = max(0, dr), min(g.height, dr + mg.height)
+        c0, c1 = max(0, dc), min(g.width, dc + mg.width)
+        if r1 <= r0 or c1 <= c0:
+            return
+        src = (slice(r0 - dr, r1 - dr), slice(c0 - dc, c1 - dc))
+        dst = (slice(r0, r1), slice(c0, c1))
+        seen = (m.hazard[src] != UNDEFINED) & (m.stamp[src] > 0)
+        self.hazard[dst][seen] = m.hazard[src][seen]
+        self.slope[dst][seen] = m.slope[src][seen]
+        self.stamp[dst][seen] = m.stamp[src][seen]
+
+    def move(self, pivot: tuple[float, float], dx: float, dy: float, dyaw: float, since: int) -> None:
+        """Move the verdicts of frames after ``since`` by a pose fix, as :meth:`RollingMap.move`
+        moves the heights: they were placed with the pose the fix corrects."""
+        from .map_match import transform_layers
+
+        recent = self.stamp > since
+        layers = Layers(self.geometry)
+        layers["hazard"] = np.where(recent, self.hazard, np.uint8(UNDEFINED)).astype(np.uint8)
+        layers["slope"] = np.where(recent, self.slope, np.float32(np.nan)).astype(np.float32)
+        layers["stamp"] = np.where(recent, self.stamp, 0).astype(np.int32)
+        moved = transform_layers(layers, pivot, dx, dy, dyaw)
+        earlier = ~recent & (moved["hazard"] == UNDEFINED)  # earlier cells nothing moved lands on
+        self.hazard = np.where(earlier, self.hazard, moved["hazard"]).astype(np.uint8)
+        self.slope = np.where(earlier, self.slope, moved["slope"]).astype(np.float32)
+        self.stamp = np.where(earlier, self.stamp, moved["stamp"]).astype(np.int32)
+
+    def nav_maps(self) -> NavMaps:
+        """The kept verdicts as the planner takes them."""
+        return NavMaps(self.hazard.copy(), self.slope.copy(), self.geometry)
+
+
+class RollingMap:
+    """The rover-centred elevation map: height, variance, count, and Dem2Hazard's layers;
+    ``memory`` keeps the verdicts of what scrolls off (and, on :meth:`remember`, of the rest)."""
+
+    def __init__(self, params: RollingParams, hazard: HazardParams, centre: tuple[float, float],
+                 memory: MapMemory | None = None) -> None:
         self.params = params
+        self.memory = memory
         self.hazard_params = hazard
         n = int(math.ceil(params.size / params.cell))
         self.n = n
@@ -115,6 +178,7 @@ class RollingMap:
         if max(abs(x - cx), abs(y - cy)) < self.params.recentre:
             return False
         new = self._geometry_at((x, y))
+        self.remember()
         dc = int(round((new.xmin - self.geometry.xmin) / new.cell))
         dr = int(round((self.geometry.ymax - new.ymax) / new.cell))
         for name, fill in (("height", np.nan), ("variance", np.nan), ("count", 0), ("stamp", 0),
@@ -183,6 +247,12 @@ class RollingMap:
         self.slope[a0:a1, b0:b1] = out["slope"][inner]
         self.traversability[a0:a1, b0:b1] = out["traversability"][inner]
 
+    def remember(self) -> None:
+        """Put the current verdicts into the memory (if any): before a shift, and before the
+        planner reads the memory."""
+        if self.memory is not None:
+            self.memory.remember(self)
+
     def since(self, frame: int) -> np.ndarray:
         """The heights measured after ``frame`` (NaN elsewhere): what frames placed with the
         pose since then show, for a pose fix to match."""
@@ -206,6 +276,9 @@ class RollingMap:
         for name in names:
             setattr(self, name, np.where(earlier, getattr(self, name), moved[name]))
         self._rehazard((slice(0, self.n), slice(0, self.n)))
+        if self.memory is not None:
+            self.memory.move(pivot, dx, dy, dyaw, since)
+            self.remember()
 
     def ground_height(self, x: float, y: float, radius: float = 0.5, min_cells: int = 20) -> float | None:
         """The map's height under (x, y): the median within ``radius`` (None when fewer than
