@@ -64,6 +64,10 @@ if TYPE_CHECKING:
     from .localisation import Localiser
 
 
+STALL_CYCLES = 20  # a leg driven this many cycles without getting STALL_PROGRESS closer to its end is stalled
+STALL_PROGRESS = 0.05  # m
+
+
 @dataclass
 class LoopStats:
     """What the see loop did in one navigate: reported in its OK line and read by the benchmark."""
@@ -113,7 +117,8 @@ class DriveOutcome:
     """How a leg driven while seeing ended."""
 
     kind: str  # done (last waypoint reached) | hazard (stopped) | unseen (stopped: ground no map has seen
-    # ahead, a look did not show it) | ahead (close to the leg's end: replan on the move)
+    # ahead, a look did not show it) | ahead (close to the leg's end: replan on the move) | stalled (the
+    # rover got no closer to the leg's end for STALL_CYCLES cycles)
     segments_done: int
     hazard: dict[str, Any] | None = None
 
@@ -280,6 +285,7 @@ class SeeingDriver:
         wps = np.asarray(waypoints, dtype=np.float64)[:, :2]
         segments = len(wps) - 1
         k = 1  # the waypoint the rover is heading for
+        best, since_best = math.inf, 0  # the least path left to the leg's end, and cycles since
 
         with world.under_way():
             while True:
@@ -297,6 +303,14 @@ class SeeingDriver:
                 to_end = left + float(np.sum(np.hypot(*np.diff(wps[k:], axis=0).T)))
                 if allow_ahead and to_end <= self.p.replan_ahead:
                     return DriveOutcome("ahead", k - 1)
+                # a watchdog: steering that swings about a point it cannot settle on (10 cm forward,
+                # a turn on the spot, 10 cm back: a marsyard mission did so for 5 simulated hours)
+                # ends the leg, and navigate replans from where the rover is
+                best, since_best = (to_end, 0) if to_end < best - STALL_PROGRESS else (best, since_best + 1)
+                if since_best >= STALL_CYCLES:
+                    progress(1, 1, f"stopped: {to_end:.2f} m from the leg's end, no closer in {STALL_CYCLES} "
+                                   "cycles", "stop")
+                    return DriveOutcome("stalled", k - 1)
                 tx, ty = _pursuit_point(pose, wps, k, self.p.pursuit)
                 w = arc_rate(pose, (tx, ty), model.speed, model.turn_rate, self.p.arc_turn)
                 # unseen ground ahead: the rover stops and looks (a turn on the spot comes first,
@@ -307,8 +321,8 @@ class SeeingDriver:
                     if check.verdict == "not_traversable":
                         return DriveOutcome("hazard", k - 1, self._stop_event(check, pose))
                 if unseen is not None and w is not None and strict:
-                    progress(k - 1, segments, f"stopped: ground {unseen.unknown_cells} cells under the next "
-                                              f"{self.p.blind:g} m unseen", "drive")
+                    progress(1, 1, f"stopped: ground {unseen.unknown_cells} cells under the next "
+                                   f"{self.p.blind:g} m unseen", "stop")
                     return DriveOutcome("unseen", k - 1)
                 if w is None:
                     world.turn_toward(tx, ty, stop)
@@ -539,7 +553,7 @@ class SeeLoop:
                                         allow_ahead=extends and not plan.reaches_goal, strict=self.strict)
             odo = app.world.odometry()
             app.set_pose(odo[0], odo[1], odo[2], source="odometry")
-        if outcome.kind in ("hazard", "unseen"):  # the next leg replans from here
+        if outcome.kind in ("hazard", "unseen", "stalled"):  # the next leg replans from here
             self.last_end = None
         self.localise(leg, track[start_of_leg:])
 

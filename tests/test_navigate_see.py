@@ -343,6 +343,36 @@ def test_break_stops_the_see_loop_within_one_cycle(server_factory) -> None:
     assert not world.driving  # the rover stands
 
 
+def test_a_leg_the_rover_gets_no_closer_on_is_ended_and_replanned(server_factory, monkeypatch) -> None:
+    """Steering that swings about a point it cannot settle on (10 cm forward, a turn on the spot,
+    10 cm back: a marsyard mission did so for 5 simulated hours) ends the leg after 20 cycles
+    without getting 5 cm closer to its end, and navigate replans; three replans that drive
+    nowhere call for a scan, which -max-legs 1 does not allow: the job ends, it never hangs."""
+    from rvs_server import autonomy
+
+    calls = [0]
+
+    def swinging(pose: tuple[float, float, float], wps: np.ndarray, k: int, ahead: float) -> tuple[float, float]:
+        calls[0] += 1
+        sign = 1.0 if calls[0] % 2 else -1.0  # alternately 5 cm ahead of and behind the rover
+        h = math.radians(pose[2])
+        return pose[0] + sign * 0.05 * math.cos(h), pose[1] + sign * 0.05 * math.sin(h)
+
+    monkeypatch.setattr(autonomy, "_pursuit_point", swinging)
+    srv = server_factory(["server.scene=marsyard", "navigate.range=-30,30,-50,-10"])  # a few views: cheap
+    srv.app.world.set_target_visible(False)
+    c = srv.client()
+    t0 = srv.app.world.clock.now()
+    job = c.start_job("navigate -start -3.25,0.5,0 -goal 1.5,0.5 -auto -loop see -max-legs 1 -name swing")
+    replies = c.until_final(job=job, timeout=600)
+    final = replies[-1]
+    assert final.status == "ERROR" and final.fields["code"] == "E_DATA", final.fields
+    assert "goal not reached after 1 scans" in final.fields["message"]
+    stalls = [r for r in replies if r.status == "PROGRESS" and "no closer in 20 cycles" in r.fields.get("message", "")]
+    assert len(stalls) == 3  # three replans that drove nowhere, then the scan it may not make
+    assert srv.app.world.clock.now() - t0 < 3600  # simulated: bounded, not hours
+
+
 def test_the_gnc_drives_and_each_pose_report_is_a_cycle(server_factory, monkeypatch) -> None:
     """navigate -loop see without -auto: the GNC drives the waypoints and streams its pose; each
     report is a cycle. A rock added 3 m ahead after the scan gets a stop EVENT (source navigate,

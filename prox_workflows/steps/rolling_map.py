@@ -29,11 +29,13 @@ Why these choices
       map's datum; off the scanned ground the scan DEM gave 0, decimetres off on a slope.
     - The check sweeps the rover's footprint along the next metres of the path (poses), as
       check-move does along one motion: blocked anywhere is ``not_traversable``.
-    - What scrolls off is not lost to the planner: with a :class:`MapMemory` the verdicts
+    - What scrolls off may be kept for the planner: with a :class:`MapMemory` the verdicts
       (hazard class, slope, frame stamp) of the cells the map shifts away are kept on a grid over
-      the mission's area. Without it, a dead end the rover drove into and out of was forgotten
-      4 m later and D* Lite sent the rover back into it (hirise mission 2 drove north, south
-      and north again along the same rock wall until it gave up).
+      the mission's area. Without it a dead end the rover drove into and out of is forgotten
+      4 m later and D* Lite may send the rover back into it (hirise mission 2 drove north, south
+      and north again along one rock wall); with it, a false hazard or a drifted frame's phantom
+      step is kept as long, and closes ways the forgetting map reopens (navigate.see_memory,
+      off by default: docs/PROTOCOL.md has the measured trade-off).
 """
 
 from __future__ import annotations

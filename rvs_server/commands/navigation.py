@@ -164,10 +164,11 @@ class NavigateConfig(ModuleConfig):
                             choices=("look", "keep", "off"), option=False)
     see_blind: float = param(0.8, "see loop: the stretch of path ahead that see_unseen judges", unit="m", min=0.0,
                              max=3.0, option=False)
-    see_memory: float = param(8.0, "see loop: what the rolling map saw is kept for the whole mission over the box "
-                              "of start and goal grown by this, so a dead end driven out of is not planned into "
-                              "again once it scrolls off the 8 m rolling map (0: not kept)", unit="m", min=0.0,
-                              max=100.0, option=False)
+    see_memory: float = param(0.0, "see loop: keep what the rolling map saw for the whole mission, over the box of "
+                              "start and goal grown by this (8 is a fair box), so a dead end driven out of is not "
+                              "planned into again once it scrolls off the 8 m rolling map; experimental, its false "
+                              "hazards are kept too (docs/PROTOCOL.md); 0: not kept", unit="m", min=0.0, max=100.0,
+                              option=False)
     see_border: float = param(0.3, "see loop: plans stop this far inside the seen ground (the forward ToF sees "
                               "the ground ahead before the rover gets there; a scan leg keeps navigate.border)",
                               unit="m", min=0.0, max=5.0, option=False)
