@@ -183,6 +183,25 @@ def test_a_scan_outranks_what_the_rolling_map_saw_before_it() -> None:
     assert (merge_nav_maps(base, fresh).hazard == 255).all()
 
 
+def test_what_the_rolling_map_saw_after_the_scan_outranks_the_scan() -> None:
+    """The scan judges cells up to 4.5 m off, where a false hazard is common; the rolling map
+    sees them again from within 3 m as the rover comes. Its later verdict stands, both ways: a
+    cell the scan called hazardous and the rolling map then saw safe is safe (hirise mission 6
+    ended goal_in_hazard on such cells); a rock it saw where the scan saw flat ground is a rock;
+    where it has seen nothing the scan's verdict stands."""
+    g = GridGeometry(0.05, 0.0, 1.0, 20, 20)
+    scan = np.zeros(g.shape, np.uint8)
+    scan[:, :10] = 255  # the scan: a hazard over the west half
+    rolling = np.full(g.shape, 128, np.uint8)
+    rolling[:10, :] = 0  # the rolling map since: the north half safe ...
+    rolling[:10, 15:] = 255  # ... but for a rock in its north-east corner
+    merged = merge_nav_maps(NavMaps(scan, np.zeros(g.shape, np.float32), g),
+                            NavMaps(rolling, np.zeros(g.shape, np.float32), g)).hazard
+    assert (merged[:10, :10] == 0).all()  # the scan's false hazard, seen safe from closer
+    assert (merged[:10, 15:] == 255).all() and (merged[:10, 10:15] == 0).all()
+    assert (merged[10:, :10] == 255).all() and (merged[10:, 10:] == 0).all()  # unseen since: the scan's
+
+
 def test_the_body_is_kept_off_ground_no_map_has_seen() -> None:
     """hirise mission 4 drove its body over 271 true hazard cells, all on a strip 0.25-1.1 m ahead
     of the rover that no frame had seen: the forward view starts about 1.1 m from the rover's
