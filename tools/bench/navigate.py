@@ -132,7 +132,8 @@ def crossed(track: np.ndarray, maps: dict[str, np.ndarray], g: GridGeometry) -> 
 def ideal_efficiency(maps: dict[str, np.ndarray], g: GridGeometry, start: tuple[float, float],
                      goal: tuple[float, float], footprint: str) -> float:
     """The efficiency of a rover that knows the true maps and never stops: goal distance over
-    the length of the plan on them (navigate's planner and footprint): what a mission can reach
+    the length of the plan's waypoints on them (navigate's planner and footprint; turns on the
+    spot not counted): about what a mission can reach
     at best (hirise's rock field makes some missions detour to three times the straight line).
     0 when the true maps show no way."""
     from prox_workflows.steps.planner import NavMaps, PlannerParams, PlanningError, plan_path
@@ -143,7 +144,7 @@ def ideal_efficiency(maps: dict[str, np.ndarray], g: GridGeometry, start: tuple[
         plan = plan_path(NavMaps(maps["hazard"], maps["slope"], g), None, start, goal, params)
     except PlanningError:
         return 0.0
-    length = float(np.sum(np.hypot(*np.diff(plan.path, axis=0).T)))
+    length = float(np.sum(np.hypot(*np.diff(plan.waypoints.xy, axis=0).T)))  # the simplified path, as driven
     return round(math.hypot(goal[0] - start[0], goal[1] - start[1]) / length, 3)
 
 
