@@ -367,8 +367,8 @@ def merge_nav_maps(base: NavMaps, fresh: NavMaps, older: np.ndarray | None = Non
     """The scan maps with the rolling map laid over them, on their union grid at ``base``'s cell:
     the latest measurement of a cell gives its verdict. Where the rolling map measured a cell
     after the scan, its verdict stands: it saw the cell from within 3 m (see_max_range) while
-    the scan's cells reach 4.5 m, where it misses 11-12 % of the true hazards and 5 % of what it
-    calls hazardous is not (hirise, against the truth); kept, such a false hazard closed the way
+    the scan's cells reach 4.5 m, where it misses 11-12 % of the true hazards and calls 5 % of
+    the cells hazardous that are not (hirise, against the truth); kept, a false hazard closed the way
     to the goal or the goal itself for good (hirise mission 6: goal_in_hazard 1.8 m from a goal
     1 m clear of every true hazard). Elsewhere the scan's verdict stands (a rock the scan saw
     and the rolling map has not is still there); the slope is the fresh map's where it has one.
