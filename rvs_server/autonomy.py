@@ -439,10 +439,9 @@ class SeeLoop:
         m = self.driver.map
         if m.frames == 0:
             return self.scan
-        if m.memory is None:
-            return merge_nav_maps(self.scan, m.nav_maps(), m.stamp <= self.scan_frame)
         m.remember()
-        return merge_nav_maps(self.scan, m.memory.nav_maps(), m.memory.stamp <= self.scan_frame)
+        seen = m if m.memory is None else m.memory
+        return merge_nav_maps(self.scan, seen.nav_maps(), seen.stamp <= self.scan_frame)
 
     def replan(self, leg: int, global_maps: Any, goal: tuple[float, float], params: Any) -> Any:
         """A plan from the rover's believed pose on the merged maps (D* Lite repairing the

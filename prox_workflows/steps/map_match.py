@@ -288,7 +288,7 @@ def transform_layers(layers: Layers, pivot: tuple[float, float], dx: float, dy: 
     return out
 
 
-def _undefined(arr: np.ndarray) -> np.ndarray:
+def undefined_fill(arr: np.ndarray) -> np.ndarray:
     """The fill of an undefined cell of a layer: NaN, 128 for a uint8 map (hazard's grey), 0 else."""
     if np.issubdtype(arr.dtype, np.floating):
         return np.asarray(np.nan, arr.dtype)
@@ -318,7 +318,7 @@ def overlay_layers(base: Layers | None, top: Layers) -> Layers:
     for name in dict.fromkeys([*base.layers, *top.layers]):
         ref = top.layers.get(name, base.layers.get(name))
         assert ref is not None
-        arr = np.full((g.height, g.width, *ref.shape[2:]), _undefined(ref), dtype=ref.dtype)
+        arr = np.full((g.height, g.width, *ref.shape[2:]), undefined_fill(ref), dtype=ref.dtype)
         if name in base.layers:
             b = base.layers[name]
             arr[rb: rb + gb.height, cb: cb + gb.width] = b.astype(ref.dtype, copy=False)

@@ -119,18 +119,7 @@ class MapMemory:
     def move(self, pivot: tuple[float, float], dx: float, dy: float, dyaw: float, since: int) -> None:
         """Move the verdicts of frames after ``since`` by a pose fix, as :meth:`RollingMap.move`
         moves the heights: they were placed with the pose the fix corrects."""
-        from .map_match import transform_layers
-
-        recent = self.stamp > since
-        layers = Layers(self.geometry)
-        layers["hazard"] = np.where(recent, self.hazard, np.uint8(UNDEFINED)).astype(np.uint8)
-        layers["slope"] = np.where(recent, self.slope, np.float32(np.nan)).astype(np.float32)
-        layers["stamp"] = np.where(recent, self.stamp, 0).astype(np.int32)
-        moved = transform_layers(layers, pivot, dx, dy, dyaw)
-        earlier = ~recent & (moved["hazard"] == UNDEFINED)  # earlier cells nothing moved lands on
-        self.hazard = np.where(earlier, self.hazard, moved["hazard"]).astype(np.uint8)
-        self.slope = np.where(earlier, self.slope, moved["slope"]).astype(np.float32)
-        self.stamp = np.where(earlier, self.stamp, moved["stamp"]).astype(np.int32)
+        move_since(self, ("hazard", "slope", "stamp"), since, pivot, dx, dy, dyaw)
 
     def nav_maps(self) -> NavMaps:
         """The kept verdicts as the planner takes them."""
@@ -265,18 +254,7 @@ class RollingMap:
         about ``pivot``, then ``dx, dy``): they were placed with the pose the fix corrects, so
         they move with it (nearest cell), over what earlier frames left; the hazard layers are
         recomputed."""
-        from .map_match import transform_layers
-
-        recent = self.stamp > since
-        names = ("height", "variance", "count", "stamp")
-        layers = Layers(self.geometry)
-        for name in names:
-            a = getattr(self, name)
-            layers[name] = np.where(recent, a, np.nan if a.dtype.kind == "f" else 0).astype(a.dtype)
-        moved = transform_layers(layers, pivot, dx, dy, dyaw)
-        earlier = ~recent & ~np.isfinite(moved["height"])  # earlier frames' cells nothing moved lands on
-        for name in names:
-            setattr(self, name, np.where(earlier, getattr(self, name), moved[name]))
+        move_since(self, ("height", "variance", "count", "stamp"), since, pivot, dx, dy, dyaw)
         self._rehazard((slice(0, self.n), slice(0, self.n)))
         if self.memory is not None:
             self.memory.move(pivot, dx, dy, dyaw, since)
@@ -309,6 +287,25 @@ class RollingMap:
         hz = np.full(self.geometry.shape, UNDEFINED, np.uint8)
         hz[inside] = maps.hazard[r[inside], c[inside]]
         return np.where(hz == HAZARDOUS, np.float32(0), np.where(hz == SAFE, np.float32(1), np.float32(np.nan)))
+
+
+def move_since(grid: MapMemory | RollingMap, names: tuple[str, ...], since: int, pivot: tuple[float, float],
+               dx: float, dy: float, dyaw: float) -> None:
+    """Move the cells of ``grid``'s layers ``names`` (``stamp`` among them) that frames after
+    ``since`` measured by a pose fix (rotation ``dyaw`` degrees about ``pivot``, then ``dx,
+    dy``; nearest cell), over what earlier frames left where nothing moved lands."""
+    from .map_match import transform_layers, undefined_fill
+
+    recent = grid.stamp > since
+    layers = Layers(grid.geometry)
+    for name in names:
+        a = getattr(grid, name)
+        layers[name] = np.where(recent, a, undefined_fill(a)).astype(a.dtype)
+    moved = transform_layers(layers, pivot, dx, dy, dyaw)
+    earlier = ~recent & (moved["stamp"] == 0)  # a moved cell has a stamp > since >= 0
+    for name in names:
+        a = getattr(grid, name)
+        setattr(grid, name, np.where(earlier, a, moved[name]).astype(a.dtype))
 
 
 def sweep_check(trav: np.ndarray, geometry: GridGeometry, poses: np.ndarray, length: float, width: float,

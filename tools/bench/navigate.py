@@ -133,9 +133,8 @@ def ideal_efficiency(maps: dict[str, np.ndarray], g: GridGeometry, start: tuple[
                      goal: tuple[float, float], footprint: str) -> float:
     """The efficiency of a rover that knows the true maps and never stops: goal distance over
     the length of the plan's waypoints on them (navigate's planner and footprint; turns on the
-    spot not counted): about what a mission can reach
-    at best (hirise's rock field makes some missions detour to three times the straight line).
-    0 when the true maps show no way."""
+    spot not counted): about what a mission can reach at best (hirise's rock field makes some
+    missions detour to three times the straight line). 0 when the true maps show no way."""
     from prox_workflows.steps.planner import NavMaps, PlannerParams, PlanningError, plan_path
 
     params = PlannerParams(grid=g.cell, rover_radius=math.hypot(*ROVER) / 2, border=0.0,
