@@ -23,6 +23,7 @@ frame and scan is rendered: 10 marsyard missions in both modes took 35 min here 
 
     python -m tools.bench.navigate [--missions 2] [--scenes marsyard hirise] [--modes scan see]
     python -m tools.bench.navigate --scenes hirise --modes see --footprint body --set navigate.see_margin=0
+    python -m tools.bench.navigate --ceiling --footprint body   # what a perfect 5 cm map would do, in 30 s
 """
 
 from __future__ import annotations
@@ -145,6 +146,51 @@ def ideal_efficiency(maps: dict[str, np.ndarray], g: GridGeometry, start: tuple[
         return 0.0
     length = float(np.sum(np.hypot(*np.diff(plan.waypoints.xy, axis=0).T)))  # the simplified path, as driven
     return round(math.hypot(goal[0] - start[0], goal[1] - start[1]) / length, 3)
+
+
+def area_truth_maps(world: World, bounds: tuple[float, float, float, float], step_max: float
+                    ) -> tuple[dict[str, np.ndarray], GridGeometry]:
+    """Dem2Hazard (step limit ``step_max``) of the true surface averaged over each 5 cm cell (1 cm
+    samples): the DEM a perfect sensor would map at navigate's cell, as the rolling map's cells
+    are means of the points in them; the true maps sample each cell's centre."""
+    g = GridGeometry.covering(*bounds, 0.05)
+    fine = world.true_dem(0.01, g.bounds, include_target=False)
+    mean = fine.reshape(g.height, 5, g.width, 5).mean(axis=(1, 3)).astype(np.float32)
+    return dem2hazard(mean, g.cell, HazardParams(step_max=step_max)), g
+
+
+def perception_ceiling(scene: str, count: int, seed: int = 0, limits: tuple[float, ...] = (0.15, 0.14, 0.135, 0.125),
+                       footprint: str = "body") -> list[dict[str, Any]]:
+    """Per step limit, what a rover that mapped the terrain perfectly at 5 cm would do: the
+    plan (navigate's planner and ``footprint``) on :func:`area_truth_maps` (reached: a plan exists; the straight line over its length)
+    and the true hazard cells the body swept along it crosses. Where a mission's only passages
+    step within a centimetre of the limit, a cell mean reads them 0.3-1.2 cm low (hirise), so at
+    the limit a perfect map still drives over true hazards, and with too wide a margin it finds
+    no way: the window between is what any perception must hit."""
+    from prox_workflows.steps.planner import NavMaps, PlannerParams, PlanningError, plan_path
+
+    world = World.from_scene(scene)
+    truth, g = true_maps(world, AREA[scene])
+    params = PlannerParams(grid=g.cell, rover_radius=math.hypot(*ROVER) / 2, border=0.0,
+                           half_width=ROVER[1] / 2 if footprint == "body" else None)
+    rows = []
+    for limit in limits:
+        maps, _ = area_truth_maps(world, AREA[scene], limit)
+        for i, (start, goal) in enumerate(missions(scene, count, seed)):
+            row: dict[str, Any] = {"scene": scene, "step_max": limit, "mission": i}
+            try:
+                plan = plan_path(NavMaps(maps["hazard"], maps["slope"], g), None, start, goal, params)
+            except PlanningError:
+                rows.append({**row, "reached": False, "efficiency": 0.0, "crossed_cells": 0})
+                continue
+            xy = plan.waypoints.xy
+            length = float(np.sum(np.hypot(*np.diff(xy, axis=0).T)))
+            track = np.concatenate([np.linspace(a, b, max(2, int(math.ceil(np.hypot(*(b - a)) / g.cell)) + 1))[:-1]
+                                    for a, b in zip(xy[:-1], xy[1:], strict=True)] + [xy[-1:]])
+            rows.append({**row, "reached": True, "efficiency": round(math.hypot(goal[0] - start[0], goal[1] - start[1])
+                                                                      / length, 3),
+                         "crossed_cells": crossed(track, truth, g)[0]})
+    return rows
 
 
 def run_mission(scene: str, mode: str, start: tuple[float, float], goal: tuple[float, float],
@@ -303,10 +349,24 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--out", default="", help="also write the rows and the summary as JSON here")
     ap.add_argument("--footprint", choices=["circle", "body"], default=FOOTPRINT["see"],
                     help="the see loop's planning footprint")
+    ap.add_argument("--ceiling", action="store_true",
+                    help="only the perception ceiling: plans on the 5 cm cell-mean true DEM at step limits 15 to 12.5 cm")
     ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                     help="a server setting for every mission (e.g. navigate.see_margin=0)")
     args = ap.parse_args(argv)
     FOOTPRINT["see"] = args.footprint
+    if args.ceiling:
+        for scene in args.scenes:
+            rows = perception_ceiling(scene, args.missions, args.seed, footprint=args.footprint)
+            print(f"\n{scene}: a perfect 5 cm map (cell means of the true surface), the {args.footprint} plan on it, "
+                  "over the true hazard map")
+            print("step_max  reached  crossing  per mission (crossed cells, or x: no plan)")
+            for limit in dict.fromkeys(r["step_max"] for r in rows):
+                sel = [r for r in rows if r["step_max"] == limit]
+                per = " ".join("x" if not r["reached"] else str(r["crossed_cells"]) for r in sel)
+                print(f"{limit:8.3f} {sum(r['reached'] for r in sel):8} {sum(r['crossed_cells'] > 0 for r in sel):9}  "
+                      f"{per}", flush=True)
+        return
     rows: list[dict[str, Any]] = []
     for scene in args.scenes:
         for i, (start, goal) in enumerate(missions(scene, args.missions, args.seed)):
