@@ -534,15 +534,22 @@ def expand_hazards(hazardous: np.ndarray, radius: float, cell: float) -> tuple[n
     return hazardous | (dist <= clearance), dist, clearance
 
 
-def border_distance(local: np.ndarray, cell: float) -> np.ndarray:
+def border_distance(local: np.ndarray, cell: float, passable: np.ndarray | None = None) -> np.ndarray:
     """Metres from each cell centre to the nearest cell outside the local map's outer border.
     Holes inside the local map (occlusion shadows, the blind spot under the rover) are not
-    border: seed 000 sect. 4.4.2 measures to "just the outer border of the local DEM region"."""
+    border: seed 000 sect. 4.4.2 measures to "just the outer border of the local DEM region".
+    With ``passable`` (the cells on an orbital map), only outer cells the rover could drive
+    onto are border: past the orbital map's edge unseen ground is no way on, and where the
+    seen ground reaches beyond that edge (the rover sees past it) the edge is where ground ends,
+    not where unseen ground begins. Measured to it, a rover beside hirise's edge was kept from
+    the seen passage along it: every leg cut after 2 points, then "no way on" (missions 2, 7, 9)."""
     outside = np.pad(~np.asarray(local, bool), 1, constant_values=True).astype(np.uint8)
     mask = np.zeros((outside.shape[0] + 2, outside.shape[1] + 2), np.uint8)
     cv2.floodFill(outside, mask, (0, 0), 2)  # the background reached from the edge (4-connected)
-    region = outside != 2  # the local map with its holes filled
-    return (_distance_cells(~region)[1:-1, 1:-1] * cell).astype(np.float32)
+    border = outside == 2  # outside the local map with its holes filled
+    if passable is not None:
+        border &= np.pad(np.asarray(passable, bool), 1, constant_values=False)
+    return (_distance_cells(border)[1:-1, 1:-1] * cell).astype(np.float32)
 
 
 @dataclass(frozen=True)
@@ -630,13 +637,14 @@ def planning_image(local: NavMaps, global_: NavMaps | None, params: PlannerParam
     with np.errstate(invalid="ignore"):
         c = np.where(np.isfinite(slope), slope / params.critical_slope, params.unknown_cost)
     c = np.where(known & np.isfinite(slope), c, params.unknown_cost)
+    on_global = None
     if orbital:
         on_global = np.isfinite(_pool(np.zeros(global_.geometry.shape, np.float32), global_.geometry, geom, "mean"))
         c = np.where(on_global | local_def, c, np.inf)
     c = np.where(hazardous, np.inf, c).astype(np.float32)
     return PlanningImage(geometry=geom, hazard=hazard, slope=slope, local=local_def, blocked=blocked,
                          hazard_distance=hdist.astype(np.float32), env_cost=c,
-                         border_distance=border_distance(local_def, cell), clearance=clearance,
+                         border_distance=border_distance(local_def, cell, on_global), clearance=clearance,
                          turn_clearance=turn_clearance)
 
 

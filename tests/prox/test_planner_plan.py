@@ -311,3 +311,26 @@ def test_a_global_map_bounds_where_the_rover_may_go() -> None:
     blank = plan_path(NavMaps(np.full(l_geom.shape, UNDEFINED, np.uint8), local.slope, l_geom), None,
                       (1.0, 2.0), (3.5, 2.0), PlannerParams(grid=0.1, rover_radius=0.2, margin=0.0, border=0.0))
     assert blank.reaches_goal
+
+
+def test_the_orbital_maps_edge_is_no_border_to_stop_short_of() -> None:
+    """Seen ground that reaches past the orbital map's edge ends where the ground ends: the
+    rover may drive along it without stopping the border inside it (hirise's east edge cut every
+    leg after 2 points); the edge toward unseen ground on the orbital map stays a border."""
+    g_geom = GridGeometry(0.5, 0.0, 4.0, 8, 8)  # x 0..4, y 0..4
+    g_hz = np.zeros(g_geom.shape, np.uint8)
+    g_hz[:, 4] = HAZARDOUS  # a wall at x 2..2.5 from y 0 to 4
+    orbit = NavMaps(g_hz, np.zeros(g_geom.shape, np.float32), g_geom)
+    l_geom = GridGeometry(0.05, -1.0, 5.0, 120, 120)  # x -1..5, y -1..5
+    l_hz = np.full(l_geom.shape, UNDEFINED, np.uint8)
+    l_hz[4:40, 20:120] = SAFE  # seen: x 0..5, y 3..4.8, past the map's north and east edges
+    l_hz[20:40, 60:70] = HAZARDOUS  # the wall, seen, up to the map's edge
+    local = NavMaps(l_hz, np.zeros(l_geom.shape, np.float32), l_geom)
+    params = PlannerParams(grid=0.05, rover_radius=0.2, margin=0.0, border=0.5)
+    plan = plan_path(local, orbit, (1.0, 3.5), (3.5, 3.5), params)
+    assert plan.reaches_goal and not any("cut" in w for w in plan.warnings)
+    assert plan.path[:, 1].max() > 4.0  # round the wall, along the seen strip past the edge
+    bd = plan.image.border_distance
+    r, c = plan.image.geometry.cell_of(np.array([1.0, 1.0]), np.array([3.05, 4.75]))
+    assert bd[r[0], c[0]] < 0.1  # unseen ground on the map south of the strip: a border
+    assert bd[r[1], c[1]] > 1.0  # past the map's edge: none, the nearest is the strip's south side
