@@ -542,7 +542,7 @@ def border_distance(local: np.ndarray, cell: float, passable: np.ndarray | None 
     onto are border: past the orbital map's edge unseen ground is no way on, and where the
     seen ground reaches beyond that edge (the rover sees past it) the edge is where ground ends,
     not where unseen ground begins. Measured to it, a rover beside hirise's edge was kept from
-    the seen passage along it: every leg cut after 2 points, then "no way on" (missions 2, 7, 9)."""
+    the seen strip along it: every leg cut after 2 points, then "no way on" (mission 9)."""
     outside = np.pad(~np.asarray(local, bool), 1, constant_values=True).astype(np.uint8)
     mask = np.zeros((outside.shape[0] + 2, outside.shape[1] + 2), np.uint8)
     cv2.floodFill(outside, mask, (0, 0), 2)  # the background reached from the edge (4-connected)

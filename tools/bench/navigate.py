@@ -148,22 +148,21 @@ def ideal_efficiency(maps: dict[str, np.ndarray], g: GridGeometry, start: tuple[
     return round(math.hypot(goal[0] - start[0], goal[1] - start[1]) / length, 3)
 
 
-def area_truth_maps(world: World, bounds: tuple[float, float, float, float], step_max: float
-                    ) -> tuple[dict[str, np.ndarray], GridGeometry]:
-    """Dem2Hazard (step limit ``step_max``) of the true surface averaged over each 5 cm cell (1 cm
-    samples): the DEM a perfect sensor would map at navigate's cell, as the rolling map's cells
-    are means of the points in them; the true maps sample each cell's centre."""
+def cell_mean_dem(world: World, bounds: tuple[float, float, float, float]) -> tuple[np.ndarray, GridGeometry]:
+    """The true surface averaged over each 5 cm cell (1 cm samples): the DEM a perfect sensor
+    would map at navigate's cell, as the rolling map's cells are means of the points in them;
+    the true maps sample each cell's centre."""
     g = GridGeometry.covering(*bounds, 0.05)
     fine = world.true_dem(0.01, g.bounds, include_target=False)
-    mean = fine.reshape(g.height, 5, g.width, 5).mean(axis=(1, 3)).astype(np.float32)
-    return dem2hazard(mean, g.cell, HazardParams(step_max=step_max)), g
+    return fine.reshape(g.height, 5, g.width, 5).mean(axis=(1, 3)).astype(np.float32), g
 
 
 def perception_ceiling(scene: str, count: int, seed: int = 0, limits: tuple[float, ...] = (0.15, 0.14, 0.135, 0.125),
                        footprint: str = "body") -> list[dict[str, Any]]:
-    """Per step limit, what a rover that mapped the terrain perfectly at 5 cm would do: the
-    plan (navigate's planner and ``footprint``) on :func:`area_truth_maps` (reached: a plan exists; the straight line over its length)
-    and the true hazard cells the body swept along it crosses. Where a mission's only passages
+    """Per step limit, what a rover that mapped the terrain perfectly at 5 cm would do: the plan
+    (navigate's planner and ``footprint``) on Dem2Hazard of :func:`cell_mean_dem` with that limit
+    (reached: a plan exists; efficiency: the straight line over its length) and the true hazard
+    cells the body swept along it crosses. Where a mission's only passages
     step within a centimetre of the limit, a cell mean reads them 0.3-1.2 cm low (hirise), so at
     the limit a perfect map still drives over true hazards, and with too wide a margin it finds
     no way: the window between is what any perception must hit."""
@@ -173,9 +172,10 @@ def perception_ceiling(scene: str, count: int, seed: int = 0, limits: tuple[floa
     truth, g = true_maps(world, AREA[scene])
     params = PlannerParams(grid=g.cell, rover_radius=math.hypot(*ROVER) / 2, border=0.0,
                            half_width=ROVER[1] / 2 if footprint == "body" else None)
+    mean, _ = cell_mean_dem(world, AREA[scene])
     rows = []
     for limit in limits:
-        maps, _ = area_truth_maps(world, AREA[scene], limit)
+        maps = dem2hazard(mean, g.cell, HazardParams(step_max=limit))
         for i, (start, goal) in enumerate(missions(scene, count, seed)):
             row: dict[str, Any] = {"scene": scene, "step_max": limit, "mission": i}
             try:
