@@ -130,16 +130,24 @@ def crossed(track: np.ndarray, maps: dict[str, np.ndarray], g: GridGeometry) -> 
     return blocked, step, slope
 
 
+def plan_params(cell: float, footprint: str) -> Any:
+    """navigate's planner as the bench's ideal and ceiling plans run it: the rover's circle or,
+    with ``footprint`` body, its half width along straight stretches; no border (all is known)."""
+    from prox_workflows.steps.planner import PlannerParams
+
+    return PlannerParams(grid=cell, rover_radius=math.hypot(*ROVER) / 2, border=0.0,
+                         half_width=ROVER[1] / 2 if footprint == "body" else None)
+
+
 def ideal_efficiency(maps: dict[str, np.ndarray], g: GridGeometry, start: tuple[float, float],
                      goal: tuple[float, float], footprint: str) -> float:
     """The efficiency of a rover that knows the true maps and never stops: goal distance over
     the length of the plan's waypoints on them (navigate's planner and footprint; turns on the
     spot not counted): about what a mission can reach at best (hirise's rock field makes some
     missions detour to three times the straight line). 0 when the true maps show no way."""
-    from prox_workflows.steps.planner import NavMaps, PlannerParams, PlanningError, plan_path
+    from prox_workflows.steps.planner import NavMaps, PlanningError, plan_path
 
-    params = PlannerParams(grid=g.cell, rover_radius=math.hypot(*ROVER) / 2, border=0.0,
-                           half_width=ROVER[1] / 2 if footprint == "body" else None)
+    params = plan_params(g.cell, footprint)
     try:
         plan = plan_path(NavMaps(maps["hazard"], maps["slope"], g), None, start, goal, params)
     except PlanningError:
@@ -166,12 +174,11 @@ def perception_ceiling(scene: str, count: int, seed: int = 0, limits: tuple[floa
     step within a centimetre of the limit, a cell mean reads them 0.3-1.2 cm low (hirise), so at
     the limit a perfect map still drives over true hazards, and with too wide a margin it finds
     no way: the window between is what any perception must hit."""
-    from prox_workflows.steps.planner import NavMaps, PlannerParams, PlanningError, plan_path
+    from prox_workflows.steps.planner import NavMaps, PlanningError, plan_path
 
     world = World.from_scene(scene)
     truth, g = true_maps(world, AREA[scene])
-    params = PlannerParams(grid=g.cell, rover_radius=math.hypot(*ROVER) / 2, border=0.0,
-                           half_width=ROVER[1] / 2 if footprint == "body" else None)
+    params = plan_params(g.cell, footprint)
     mean, _ = cell_mean_dem(world, AREA[scene])
     rows = []
     for limit in limits:
