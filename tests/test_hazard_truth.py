@@ -53,13 +53,17 @@ def test_hirise_passages_leave_a_perfect_5cm_map_a_window_of_a_centimetre() -> N
     """The dense scene is at the edge of closing: mission 1's way leads over a cell whose true
     step (the cell centre's samples) is 15.1 cm and whose cell-mean step is 13.9 cm. A perfect
     cell-mean map at the 15 cm limit drives the body over it; with a 1.5 cm margin it finds the
-    long way round, clear of every true hazard; with 2.5 cm it finds none (tools.bench.navigate
-    --ceiling has all ten missions)."""
+    long way round, clear of every true hazard; with 2.5 cm it finds none. A perfect map of the
+    surface's 3 cm means, its step taken every centimetre, finds that way round at the limit
+    itself (tools.bench.navigate --ceiling has all ten missions and the 1 cm surface)."""
     from tools.bench.navigate import perception_ceiling
 
-    rows = perception_ceiling("hirise", 2, limits=(0.15, 0.135, 0.125))
-    got = {r["step_max"]: r for r in rows if r["mission"] == 1}
-    assert got[0.15]["reached"] and got[0.15]["crossed_cells"] > 0
-    assert got[0.135]["reached"] and got[0.135]["crossed_cells"] == 0
-    assert 0.35 < got[0.135]["efficiency"] < 0.5  # the detour the true maps also take (ideal 0.443)
-    assert not got[0.125]["reached"]
+    rows = perception_ceiling("hirise", 2, limits=(0.15, 0.135, 0.125), maps=("cell_mean", "mean_3cm"))
+    got = {(r["map"], r["step_max"]): r for r in rows if r["mission"] == 1}
+    assert got["cell_mean", 0.15]["reached"] and got["cell_mean", 0.15]["crossed_cells"] > 0
+    assert got["cell_mean", 0.135]["reached"] and got["cell_mean", 0.135]["crossed_cells"] == 0
+    assert 0.35 < got["cell_mean", 0.135]["efficiency"] < 0.5  # the detour the true maps also take (ideal 0.443)
+    assert not got["cell_mean", 0.125]["reached"]
+    assert got["mean_3cm", 0.15]["reached"] and got["mean_3cm", 0.15]["crossed_cells"] == 0
+    assert 0.35 < got["mean_3cm", 0.15]["efficiency"] < 0.5
+    assert not got["mean_3cm", 0.135]["reached"]

@@ -23,7 +23,7 @@ frame and scan is rendered: 10 marsyard missions in both modes took 35 min here 
 
     python -m tools.bench.navigate [--missions 2] [--scenes marsyard hirise] [--modes scan see]
     python -m tools.bench.navigate --scenes hirise --modes see --footprint body --set navigate.see_margin=0
-    python -m tools.bench.navigate --ceiling --footprint body   # what a perfect 5 cm map would do, in 30 s
+    python -m tools.bench.navigate --ceiling --footprint body   # what perfect maps would do, in 2 min
 """
 
 from __future__ import annotations
@@ -156,47 +156,75 @@ def ideal_efficiency(maps: dict[str, np.ndarray], g: GridGeometry, start: tuple[
     return round(math.hypot(goal[0] - start[0], goal[1] - start[1]) / length, 3)
 
 
-def cell_mean_dem(world: World, bounds: tuple[float, float, float, float]) -> tuple[np.ndarray, GridGeometry]:
-    """The true surface averaged over each 5 cm cell (1 cm samples): the DEM a perfect sensor
-    would map at navigate's cell, as the rolling map's cells are means of the points in them;
-    the true maps sample each cell's centre."""
+# The maps a perfect sensor could make of the true surface, for the ceiling: the step each reads
+# over Dem2Hazard's window, from the 1 cm surface averaged over this many centimetres (0: 5 cm cell
+# means, what the rolling map's cells are: means of the points in them).
+CEILING_MAPS = {"cell_mean": 0, "mean_3cm": 3, "surface_1cm": 1}
+
+
+def fine_surface(world: World, bounds: tuple[float, float, float, float]) -> tuple[np.ndarray, GridGeometry]:
+    """The true surface sampled every centimetre over the 5 cm grid of ``bounds`` (each 5 cm
+    cell's centre is its sample (2, 2)), and that grid."""
     g = GridGeometry.covering(*bounds, 0.05)
-    fine = world.true_dem(0.01, g.bounds, include_target=False)
-    return fine.reshape(g.height, 5, g.width, 5).mean(axis=(1, 3)).astype(np.float32), g
+    return world.true_dem(0.01, g.bounds, include_target=False).astype(np.float32), g
 
 
-def perception_ceiling(scene: str, count: int, seed: int = 0, limits: tuple[float, ...] = (0.15, 0.14, 0.135, 0.125),
-                       footprint: str = "body") -> list[dict[str, Any]]:
-    """Per step limit, what a rover that mapped the terrain perfectly at 5 cm would do: the plan
-    (navigate's planner and ``footprint``) on Dem2Hazard of :func:`cell_mean_dem` with that limit
-    (reached: a plan exists; efficiency: the straight line over its length) and the true hazard
-    cells the body swept along it crosses. Where a mission's only passages
-    step within a centimetre of the limit, a cell mean reads them 0.3-1.2 cm low (hirise), so at
-    the limit a perfect map still drives over true hazards, and with too wide a margin it finds
-    no way: the window between is what any perception must hit."""
+def ceiling_hazard(fine: np.ndarray, g: GridGeometry, params: HazardParams, box: int) -> tuple[np.ndarray, np.ndarray]:
+    """Hazard and slope at 5 cm as a perfect sensor would map them (:data:`CEILING_MAPS`):
+    Dem2Hazard of the 5 cm cell means, whose step is, with ``box`` > 0, replaced by the greatest
+    minus the least height within the same window (each cell's centre +- 15 cm) of the 1 cm
+    surface averaged over ``box`` centimetres. That step is never below the true map's (which
+    takes the same window's 5 cm centre samples) when ``box`` is 1."""
+    import cv2
+
+    mean = fine.reshape(g.height, 5, g.width, 5).mean(axis=(1, 3)).astype(np.float32)
+    out = dem2hazard(mean, g.cell, params)
+    if box == 0:
+        return out["hazard"], out["slope"]
+    half = params.window_cells(g.cell) // 2 * 5
+    kernel = np.ones((2 * half + 1, 2 * half + 1), np.uint8)
+    surface = cv2.blur(fine, (box, box), borderType=cv2.BORDER_REPLICATE) if box > 1 else fine
+    step = (cv2.dilate(surface, kernel, borderType=cv2.BORDER_REPLICATE)
+            - cv2.erode(surface, kernel, borderType=cv2.BORDER_REPLICATE))[2::5, 2::5]
+    over = (out["slope"] > params.slope_max) | (out["roughness"] > params.roughness_max) | (step > params.step_max)
+    hazard = np.where(out["hazard"] == 128, np.uint8(128), np.where(over, np.uint8(255), np.uint8(0)))
+    return hazard, out["slope"]
+
+
+def perception_ceiling(scene: str, count: int, seed: int = 0, limits: tuple[float, ...] = (0.16, 0.15, 0.14, 0.135, 0.125),
+                       footprint: str = "body", maps: tuple[str, ...] = ("cell_mean",)) -> list[dict[str, Any]]:
+    """Per map kind (:data:`CEILING_MAPS`) and step limit, what a rover that mapped the terrain
+    perfectly would do: the plan (navigate's planner and ``footprint``) on that map (reached: a
+    plan exists; efficiency: the straight line over its length) and the true hazard cells the
+    body swept along it crosses. Where a mission's only passages step within a centimetre of
+    the limit, a 5 cm cell mean reads them 0.3-1.2 cm low (hirise), so at the limit a perfect
+    cell-mean map still drives over true hazards, and with too wide a margin it finds no way:
+    the window between is what any perception must hit. The finer maps show what a finer
+    representation buys: the 1 cm surface's own step is clear and open at the limit itself."""
     from prox_workflows.steps.planner import NavMaps, PlanningError, plan_path
 
     world = World.from_scene(scene)
     truth, g = true_maps(world, AREA[scene])
     params = plan_params(g.cell, footprint)
-    mean, _ = cell_mean_dem(world, AREA[scene])
+    fine, _ = fine_surface(world, AREA[scene])
     rows = []
-    for limit in limits:
-        maps = dem2hazard(mean, g.cell, HazardParams(step_max=limit))
-        for i, (start, goal) in enumerate(missions(scene, count, seed)):
-            row: dict[str, Any] = {"scene": scene, "step_max": limit, "mission": i}
-            try:
-                plan = plan_path(NavMaps(maps["hazard"], maps["slope"], g), None, start, goal, params)
-            except PlanningError:
-                rows.append({**row, "reached": False, "efficiency": 0.0, "crossed_cells": 0})
-                continue
-            xy = plan.waypoints.xy
-            length = float(np.sum(np.hypot(*np.diff(xy, axis=0).T)))
-            track = np.concatenate([np.linspace(a, b, max(2, int(math.ceil(np.hypot(*(b - a)) / g.cell)) + 1))[:-1]
-                                    for a, b in zip(xy[:-1], xy[1:], strict=True)] + [xy[-1:]])
-            rows.append({**row, "reached": True, "efficiency": round(math.hypot(goal[0] - start[0], goal[1] - start[1])
-                                                                      / length, 3),
-                         "crossed_cells": crossed(track, truth, g)[0]})
+    for kind in maps:
+        for limit in limits:
+            hazard, slope = ceiling_hazard(fine, g, HazardParams(step_max=limit), CEILING_MAPS[kind])
+            for i, (start, goal) in enumerate(missions(scene, count, seed)):
+                row: dict[str, Any] = {"scene": scene, "map": kind, "step_max": limit, "mission": i}
+                try:
+                    plan = plan_path(NavMaps(hazard, slope, g), None, start, goal, params)
+                except PlanningError:
+                    rows.append({**row, "reached": False, "efficiency": 0.0, "crossed_cells": 0})
+                    continue
+                xy = plan.waypoints.xy
+                length = float(np.sum(np.hypot(*np.diff(xy, axis=0).T)))
+                track = np.concatenate([np.linspace(a, b, max(2, int(math.ceil(np.hypot(*(b - a)) / g.cell)) + 1))[:-1]
+                                        for a, b in zip(xy[:-1], xy[1:], strict=True)] + [xy[-1:]])
+                rows.append({**row, "reached": True,
+                             "efficiency": round(math.hypot(goal[0] - start[0], goal[1] - start[1]) / length, 3),
+                             "crossed_cells": crossed(track, truth, g)[0]})
     return rows
 
 
@@ -357,22 +385,24 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--footprint", choices=["circle", "body"], default=FOOTPRINT["see"],
                     help="the see loop's planning footprint")
     ap.add_argument("--ceiling", action="store_true",
-                    help="only the perception ceiling: plans on the 5 cm cell-mean true DEM at step limits 15 to 12.5 cm")
+                    help="only the perception ceiling: plans on perfect maps of the true surface (5 cm cell means, "
+                         "3 cm means, the 1 cm surface) at step limits 16 to 12.5 cm")
     ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                     help="a server setting for every mission (e.g. navigate.see_margin=0)")
     args = ap.parse_args(argv)
     FOOTPRINT["see"] = args.footprint
     if args.ceiling:
         for scene in args.scenes:
-            rows = perception_ceiling(scene, args.missions, args.seed, footprint=args.footprint)
-            print(f"\n{scene}: a perfect 5 cm map (cell means of the true surface), the {args.footprint} plan on it, "
-                  "over the true hazard map")
-            print("step_max  reached  crossing  per mission (crossed cells, or x: no plan)")
-            for limit in dict.fromkeys(r["step_max"] for r in rows):
-                sel = [r for r in rows if r["step_max"] == limit]
+            rows = perception_ceiling(scene, args.missions, args.seed, footprint=args.footprint,
+                                      maps=tuple(CEILING_MAPS))
+            print(f"\n{scene}: perfect maps of the true surface, the {args.footprint} plan on each, over the true "
+                  "hazard map")
+            print("map          step_max  reached  crossing  per mission (crossed cells, or x: no plan)")
+            for kind, limit in dict.fromkeys((r["map"], r["step_max"]) for r in rows):
+                sel = [r for r in rows if r["map"] == kind and r["step_max"] == limit]
                 per = " ".join("x" if not r["reached"] else str(r["crossed_cells"]) for r in sel)
-                print(f"{limit:8.3f} {sum(r['reached'] for r in sel):8} {sum(r['crossed_cells'] > 0 for r in sel):9}  "
-                      f"{per}", flush=True)
+                print(f"{kind:12} {limit:8.3f} {sum(r['reached'] for r in sel):8} "
+                      f"{sum(r['crossed_cells'] > 0 for r in sel):9}  {per}", flush=True)
         return
     rows: list[dict[str, Any]] = []
     for scene in args.scenes:
