@@ -519,8 +519,9 @@ def _distance_cells(zero_at: np.ndarray) -> np.ndarray:
     run to run; a distance is the root of an integer, so rounding its square restores the exact,
     repeatable value (below 1000 cells, far beyond any threshold used here)."""
     d = cv2.distanceTransform(np.where(zero_at, np.uint8(0), np.uint8(255)), cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
-    exact = np.sqrt(np.rint(d * d))
-    return np.where(d < 1000.0, exact, d)
+    near = d < 1000.0  # with no zero cell at all, every distance is 2^64, whose square overflows float32
+    exact = np.sqrt(np.rint(np.square(np.where(near, d, 0.0))))
+    return np.where(near, exact, d)
 
 
 def expand_hazards(hazardous: np.ndarray, radius: float, cell: float) -> tuple[np.ndarray, np.ndarray, float]:

@@ -4,6 +4,7 @@ path's safety, the cut at the local map's border, the reasons for no path, deter
 from __future__ import annotations
 
 import math
+import warnings
 
 import cv2
 import numpy as np
@@ -188,6 +189,21 @@ def test_cut_at_the_local_border() -> None:
     # the goal inside the local map is reached, and the goal heading applies only then
     res = plan_path(maps, None, start, (3.0, 2.5), PlannerParams(border=0.3), goal_heading=90.0)
     assert res.reaches_goal and res.waypoints.turn_deg[-1] != 0.0
+
+
+def test_a_map_without_hazards_is_far_from_any_and_says_so_quietly() -> None:
+    """OpenCV gives 2^64 as the distance when no cell is a hazard; squaring it to restore
+    the exact value overflowed (a RuntimeWarning in every plan on a hazard-free map)."""
+    from prox_workflows.steps.planner import _distance_cells
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        far = _distance_cells(np.zeros((4, 5), bool))
+        one = np.zeros((4, 5), bool)
+        one[0, 0] = True
+        near = _distance_cells(one)
+    assert (far > 1e18).all()
+    assert near[0, 0] == 0.0 and near[0, 3] == 3.0 and near[3, 4] == 5.0
 
 
 def test_unreachable_reasons() -> None:
