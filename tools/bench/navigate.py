@@ -23,7 +23,7 @@ frame and scan is rendered: 10 marsyard missions in both modes took 35 min here 
 
     python -m tools.bench.navigate [--missions 2] [--scenes marsyard hirise] [--modes scan see]
     python -m tools.bench.navigate --scenes hirise --modes see --footprint body --set navigate.see_margin=0
-    python -m tools.bench.navigate --ceiling --footprint body   # what perfect maps would do, in 2 min
+    python -m tools.bench.navigate --ceiling --footprint body   # what perfect maps would do, in a minute
 """
 
 from __future__ import annotations
@@ -200,18 +200,19 @@ def perception_ceiling(scene: str, count: int, seed: int = 0, limits: tuple[floa
     the limit, a 5 cm cell mean reads them 0.3-1.2 cm low (hirise), so at the limit a perfect
     cell-mean map still drives over true hazards, and with too wide a margin it finds no way:
     the window between is what any perception must hit. The finer maps show what a finer
-    representation buys: the 1 cm surface's own step is clear and open at the limit itself."""
+    representation buys: with 3 cm means both scenes are clear and open at the limit itself."""
     from prox_workflows.steps.planner import NavMaps, PlanningError, plan_path
 
     world = World.from_scene(scene)
     truth, g = true_maps(world, AREA[scene])
     params = plan_params(g.cell, footprint)
     fine, _ = fine_surface(world, AREA[scene])
+    todo = missions(scene, count, seed)
     rows = []
     for kind in maps:
         for limit in limits:
             hazard, slope = ceiling_hazard(fine, g, HazardParams(step_max=limit), CEILING_MAPS[kind])
-            for i, (start, goal) in enumerate(missions(scene, count, seed)):
+            for i, (start, goal) in enumerate(todo):
                 row: dict[str, Any] = {"scene": scene, "map": kind, "step_max": limit, "mission": i}
                 try:
                     plan = plan_path(NavMaps(hazard, slope, g), None, start, goal, params)
