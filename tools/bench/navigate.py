@@ -169,26 +169,33 @@ def fine_surface(world: World, bounds: tuple[float, float, float, float]) -> tup
     return world.true_dem(0.01, g.bounds, include_target=False).astype(np.float32), g
 
 
-def ceiling_hazard(fine: np.ndarray, g: GridGeometry, params: HazardParams, box: int) -> tuple[np.ndarray, np.ndarray]:
-    """Hazard and slope at 5 cm as a perfect sensor would map them (:data:`CEILING_MAPS`):
-    Dem2Hazard of the 5 cm cell means, whose step is, with ``box`` > 0, replaced by the greatest
+def ceiling_layers(fine: np.ndarray, g: GridGeometry, box: int) -> dict[str, np.ndarray]:
+    """Slope, roughness and step at 5 cm as a perfect sensor would map them (:data:`CEILING_MAPS`):
+    Dem2Hazard's of the 5 cm cell means, whose step is, with ``box`` > 0, replaced by the greatest
     minus the least height within the same window (each cell's centre +- 15 cm) of the 1 cm
     surface averaged over ``box`` centimetres. That step is never below the true map's (which
-    takes the same window's 5 cm centre samples) when ``box`` is 1."""
+    takes the same window's 5 cm centre samples) when ``box`` is 1. None depends on the limits."""
     import cv2
 
+    params = HazardParams()
     mean = fine.reshape(g.height, 5, g.width, 5).mean(axis=(1, 3)).astype(np.float32)
     out = dem2hazard(mean, g.cell, params)
-    if box == 0:
-        return out["hazard"], out["slope"]
-    half = params.window_cells(g.cell) // 2 * 5
-    kernel = np.ones((2 * half + 1, 2 * half + 1), np.uint8)
-    surface = cv2.blur(fine, (box, box), borderType=cv2.BORDER_REPLICATE) if box > 1 else fine
-    step = (cv2.dilate(surface, kernel, borderType=cv2.BORDER_REPLICATE)
-            - cv2.erode(surface, kernel, borderType=cv2.BORDER_REPLICATE))[2::5, 2::5]
-    over = (out["slope"] > params.slope_max) | (out["roughness"] > params.roughness_max) | (step > params.step_max)
-    hazard = np.where(out["hazard"] == 128, np.uint8(128), np.where(over, np.uint8(255), np.uint8(0)))
-    return hazard, out["slope"]
+    layers = {"slope": out["slope"], "roughness": out["roughness"], "step": out["step"], "valid": out["hazard"] != 128}
+    if box > 0:
+        half = params.window_cells(g.cell) // 2 * 5
+        kernel = np.ones((2 * half + 1, 2 * half + 1), np.uint8)
+        surface = cv2.blur(fine, (box, box), borderType=cv2.BORDER_REPLICATE) if box > 1 else fine
+        layers["step"] = (cv2.dilate(surface, kernel, borderType=cv2.BORDER_REPLICATE)
+                          - cv2.erode(surface, kernel, borderType=cv2.BORDER_REPLICATE))[2::5, 2::5]
+    return layers
+
+
+def ceiling_hazard(layers: dict[str, np.ndarray], params: HazardParams) -> np.ndarray:
+    """Dem2Hazard's classes of :func:`ceiling_layers` under ``params``' limits."""
+    with np.errstate(invalid="ignore"):
+        over = (layers["slope"] > params.slope_max) | (layers["roughness"] > params.roughness_max) \
+            | (layers["step"] > params.step_max)
+    return np.where(layers["valid"], np.where(over, np.uint8(255), np.uint8(0)), np.uint8(128))
 
 
 def perception_ceiling(scene: str, count: int, seed: int = 0, limits: tuple[float, ...] = (0.16, 0.15, 0.14, 0.135, 0.125),
@@ -210,8 +217,10 @@ def perception_ceiling(scene: str, count: int, seed: int = 0, limits: tuple[floa
     todo = missions(scene, count, seed)
     rows = []
     for kind in maps:
+        layers = ceiling_layers(fine, g, CEILING_MAPS[kind])
+        slope = layers["slope"]
         for limit in limits:
-            hazard, slope = ceiling_hazard(fine, g, HazardParams(step_max=limit), CEILING_MAPS[kind])
+            hazard = ceiling_hazard(layers, HazardParams(step_max=limit))
             for i, (start, goal) in enumerate(todo):
                 row: dict[str, Any] = {"scene": scene, "map": kind, "step_max": limit, "mission": i}
                 try:
