@@ -49,6 +49,7 @@ from prox_workflows.steps.rolling_map import (
     path_poses,
     sweep_check,
 )
+from prox_workflows.steps.safety import in_footprint
 from prox_workflows.steps.transforms import HeadCalibration, T_global_from_rover
 
 from .commands.awareness import look_at
@@ -209,10 +210,13 @@ class SeeingDriver:
     def _check_layer(self, pose: tuple[float, float, float]) -> np.ndarray:
         """The traversability the check sweeps: the rolling map's, lowered to 0 where the maps the
         leg was planned on say hazardous, and theirs where the rolling map has none (resampled
-        when either changes); the ground under the rover counts as seen: it stands there. Never
+        when either changes); the ground under the body counts as seen: it stands there. Never
         less cautious than the rolling map alone (a scan's verdict does not clear what the
         rolling map saw, as it does in the plan: a marsyard mission then drove over a 20.0 deg
-        cell the scan had judged safe)."""
+        cell the scan had judged safe). Only the body's own rectangle, not the disc it sweeps
+        turning on the spot: that disc holds ground beside the body the forward ToF never
+        showed, a rock's flank the rover turned beside (hirise mission 4 drove over 364 such
+        cells); unseen, see_unseen looks at it before the body goes there."""
         g = self.map.geometry
         if self.known is None:
             layer = self.map.traversability.copy()
@@ -221,7 +225,7 @@ class SeeingDriver:
                 self.seen = (self.known, g, self.map.seen_by(self.known))
             layer = np.fmin(self.map.traversability, self.seen[2])
         xs, ys = g.centers()
-        under = np.hypot(xs[None, :] - pose[0], ys[:, None] - pose[1]) <= self.radius
+        under = in_footprint(xs[None, :] - pose[0], ys[:, None] - pose[1], pose[2], self.length, self.width, g.cell)
         layer[under & np.isnan(layer)] = 1.0
         return layer
 

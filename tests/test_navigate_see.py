@@ -522,3 +522,42 @@ def test_the_memory_keeps_a_dead_end_after_it_scrolls_off_the_rolling_map() -> N
     m.remember()
     r, c = kept.geometry.cell_of(np.array(1.5), np.array(0.0))
     assert memory.hazard[int(r), int(c)] == SAFE
+
+
+def test_the_check_takes_only_the_ground_under_the_body_as_seen_not_its_turning_disc() -> None:
+    """The ground the rover stands on counts as seen, whatever the maps hold. It used to be the
+    disc the body sweeps turning on the spot: that disc also holds ground beside the body that
+    the forward ToF never showed. In hirise mission 4 the rover turned beside a rock's flank and
+    drove over 364 true hazard cells no frame had seen, and the unseen check never looked at
+    them. Now only the body's own rectangle counts (the cells the check's footprint touches)."""
+    from types import SimpleNamespace
+
+    from rvs_server import autonomy
+    from rvs_server.commands.dem import Dem2HazardConfig
+    from rvs_server.config import HeadConfig
+
+    configs = {"head": HeadConfig(), "dem2hazard": Dem2HazardConfig()}  # body 0.51 x 0.40 m
+    app = SimpleNamespace(config=SimpleNamespace(get=configs.__getitem__),
+                          pose=SimpleNamespace(x=0.0, y=0.0, heading=0.0))
+    params = autonomy.SeeParams(period=1.0, lookahead=1.5, stop_distance=0.0, tilt=-35.0, subsample=2,
+                                max_range=3.0, margin=0.0, replan_ahead=0.0, pursuit=0.3, arc_turn=45.0,
+                                blind=0.8, unseen="look", auto=False)
+    driver = autonomy.SeeingDriver(SimpleNamespace(app=app), params, autonomy.LoopStats())
+    g = driver.map.geometry
+
+    def seen(layer: np.ndarray, x: float, y: float) -> bool:
+        r, c = g.cell_of(np.array(x), np.array(y))
+        return bool(np.isfinite(layer[int(r), int(c)]))
+
+    east = driver._check_layer((0.0, 0.0, 0.0))
+    assert seen(east, 0.0, 0.0) and seen(east, 0.225, 0.175)  # under the body: it stands there
+    # beside it, within the disc a turn on the spot sweeps (0.37 m): unseen, to be looked at
+    assert not seen(east, 0.025, 0.275) and not seen(east, 0.325, 0.025)
+    xs, ys = g.centers()
+    rows, cols = np.nonzero(np.isfinite(east))
+    # the cells the body touches and no more (the turning disc held about 175)
+    assert np.abs(xs[cols]).max() < 0.3 and np.abs(ys[rows]).max() < 0.25 and 100 <= len(rows) <= 120
+    north = driver._check_layer((0.0, 0.0, 90.0))
+    assert seen(north, 0.025, 0.275) and not seen(north, 0.325, 0.025)
+    # the check's own footprint agrees: the body where it stands meets no unseen cell
+    assert driver.map.check(np.array([[0.0, 0.0, 0.0]]), driver.length, driver.width).verdict == "unknown"

@@ -37,6 +37,15 @@ def sweep_poses(start: tuple[float, float, float], end: tuple[float, float, floa
                      start[2] + t * dyaw], axis=1)
 
 
+def in_footprint(dx: np.ndarray, dy: np.ndarray, heading: float, length: float, width: float,
+                 cell: float) -> np.ndarray:
+    """Which cells, at offsets (dx, dy) m from the rover's centre, its ``length`` x ``width``
+    rectangle at ``heading`` (deg) touches: a cell counts when its centre is within half a cell
+    of the rectangle, so no cell the body rests on is left out."""
+    c, s = math.cos(math.radians(heading)), math.sin(math.radians(heading))
+    return (np.abs(dx * c + dy * s) <= length / 2 + cell / 2) & (np.abs(dy * c - dx * s) <= width / 2 + cell / 2)
+
+
 def check_move(
     traversability: np.ndarray,
     geometry: GridGeometry,
@@ -69,11 +78,8 @@ def check_move(
     cy = -(rows + 0.5) * g.cell
     X, Y = np.meshgrid(cx, cy)
     covered = np.zeros(X.shape, bool)
-    half_l, half_w = length / 2 + g.cell / 2, width / 2 + g.cell / 2  # a cell touched counts
     for x, y, heading in poses:
-        c, s = math.cos(math.radians(heading)), math.sin(math.radians(heading))
-        dx, dy = X - (x - g.xmin), Y - (y - g.ymax)
-        covered |= (np.abs(dx * c + dy * s) <= half_l) & (np.abs(-dx * s + dy * c) <= half_w)
+        covered |= in_footprint(X - (x - g.xmin), Y - (y - g.ymax), heading, length, width, g.cell)
     R, C = np.meshgrid(rows, cols, indexing="ij")
     inside = (R >= 0) & (R < g.height) & (C >= 0) & (C < g.width)
     values = np.full(X.shape, np.nan, np.float32)
