@@ -262,12 +262,13 @@ def dem2hazard(dem: np.ndarray, cell: float, params: HazardParams | dict[str, An
     else:
         for r0 in starts:
             run(r0)
-    return _classify(slope, roughness, step, valid, p)
+    return classify(slope, roughness, step, valid, p)
 
 
-def _classify(slope: np.ndarray, roughness: np.ndarray, step: np.ndarray, valid: np.ndarray,
-              p: HazardParams) -> dict[str, np.ndarray]:
-    """Hazard map and traversability from the three criteria (NaN where undefined)."""
+def classify(slope: np.ndarray, roughness: np.ndarray, step: np.ndarray, valid: np.ndarray,
+             p: HazardParams) -> dict[str, np.ndarray]:
+    """Hazard map and traversability from the three criteria (NaN where undefined); public so
+    that criteria computed another way (the benchmark's perfect maps) are judged by the same rule."""
     with np.errstate(invalid="ignore"):
         over = (slope > p.slope_max) | (roughness > p.roughness_max) | (step > p.step_max)
     hazard = np.full(slope.shape, UNDEFINED, np.uint8)

@@ -43,7 +43,7 @@ from scipy import ndimage
 
 from drivers.sim.world import World
 from prox_workflows.grid import GridGeometry
-from prox_workflows.steps.dem2hazard import HazardParams, dem2hazard
+from prox_workflows.steps.dem2hazard import HazardParams, classify, dem2hazard
 from prox_workflows.steps.safety import check_move
 from rvs_server.client.session import ServerThread
 from rvs_server.protocol import Reply, parse_reply
@@ -190,14 +190,6 @@ def ceiling_layers(fine: np.ndarray, g: GridGeometry, box: int) -> dict[str, np.
     return layers
 
 
-def ceiling_hazard(layers: dict[str, np.ndarray], params: HazardParams) -> np.ndarray:
-    """Dem2Hazard's classes of :func:`ceiling_layers` under ``params``' limits."""
-    with np.errstate(invalid="ignore"):
-        over = (layers["slope"] > params.slope_max) | (layers["roughness"] > params.roughness_max) \
-            | (layers["step"] > params.step_max)
-    return np.where(layers["valid"], np.where(over, np.uint8(255), np.uint8(0)), np.uint8(128))
-
-
 def perception_ceiling(scene: str, count: int, seed: int = 0, limits: tuple[float, ...] = (0.16, 0.15, 0.14, 0.135, 0.125),
                        footprint: str = "body", maps: tuple[str, ...] = ("cell_mean",)) -> list[dict[str, Any]]:
     """Per map kind (:data:`CEILING_MAPS`) and step limit, what a rover that mapped the terrain
@@ -220,7 +212,8 @@ def perception_ceiling(scene: str, count: int, seed: int = 0, limits: tuple[floa
         layers = ceiling_layers(fine, g, CEILING_MAPS[kind])
         slope = layers["slope"]
         for limit in limits:
-            hazard = ceiling_hazard(layers, HazardParams(step_max=limit))
+            hazard = classify(layers["slope"], layers["roughness"], layers["step"], layers["valid"],
+                              HazardParams(step_max=limit))["hazard"]
             for i, (start, goal) in enumerate(todo):
                 row: dict[str, Any] = {"scene": scene, "map": kind, "step_max": limit, "mission": i}
                 try:
