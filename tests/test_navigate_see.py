@@ -559,5 +559,10 @@ def test_the_check_takes_only_the_ground_under_the_body_as_seen_not_its_turning_
     assert np.abs(xs[cols]).max() < 0.3 and np.abs(ys[rows]).max() < 0.25 and 100 <= len(rows) <= 120
     north = driver._check_layer((0.0, 0.0, 90.0))
     assert seen(north, 0.025, 0.275) and not seen(north, 0.325, 0.025)
-    # the check's own footprint agrees: the body where it stands meets no unseen cell
+    # the check's own footprint agrees: the body where it stands meets no unseen cell in the layer
+    # (the rolling map alone, empty, has none seen), and a quarter turn meets unseen ones
+    from prox_workflows.steps.rolling_map import sweep_check
+
     assert driver.map.check(np.array([[0.0, 0.0, 0.0]]), driver.length, driver.width).verdict == "unknown"
+    assert sweep_check(east, g, np.array([[0.0, 0.0, 0.0]]), driver.length, driver.width).verdict == "ok"
+    assert sweep_check(east, g, np.array([[0.0, 0.0, 90.0]]), driver.length, driver.width).verdict == "unknown"
