@@ -50,6 +50,7 @@ class Monitor:
     """A background loop that uses the PTU and a camera between jobs (see the module docstring)."""
 
     name: ClassVar[str] = "monitor"
+    TIMED: ClassVar[int] = 20  # cycles the timing figures cover
 
     def __init__(self, app: App, period: float, log_context: dict[str, Any] | None = None) -> None:
         self.app = app
@@ -60,9 +61,9 @@ class Monitor:
         self.thread = threading.Thread(target=self._run, name=f"rvs-{self.name}", daemon=True)
         self.state = "starting"
         self.cycles = 0
-        self.cycle_ms: deque[float] = deque(maxlen=20)  # without PTU motion
-        self.cycle_max_ms = 0.0
-        self.io_ms: deque[float] = deque(maxlen=20)  # of which waiting for the camera
+        # (cycle ms without PTU motion, of which ms waiting for the camera) of the timed cycles:
+        # the last TIMED of them, never the monitor's first (see timing_fields)
+        self.timed: deque[tuple[float, float]] = deque(maxlen=self.TIMED)
         self.starts: deque[float] = deque(maxlen=10)
         self.pointing: tuple[float, float] | None = None  # where the PTU should look (pan, tilt)
         self.error: str | None = None
@@ -119,11 +120,8 @@ class Monitor:
                     self._move_s = self._io_s = 0.0
                     self.cycle()
                     spent = time.monotonic() - started
-                    ms = 1000.0 * max(0.0, spent - self._move_s)
-                    self.cycle_ms.append(ms)
-                    self.io_ms.append(1000.0 * self._io_s)
-                    if self.cycles:  # the first cycle warms the camera's caches
-                        self.cycle_max_ms = max(self.cycle_max_ms, ms)
+                    if self.cycles:  # the first cycle warms the camera's and the kernels' caches
+                        self.timed.append((1000.0 * max(0.0, spent - self._move_s), 1000.0 * self._io_s))
                     self.cycles += 1
                 finally:
                     app.device_lock.release()
@@ -203,9 +201,16 @@ class Monitor:
         self.app.broadcast_threadsafe(Reply("RVS", "EVENT", fields))
 
     def timing_fields(self) -> dict[str, Any]:
-        ms, io = list(self.cycle_ms), list(self.io_ms)
-        return {"cycle_ms": Fixed(float(np.mean(ms)) if ms else 0.0, 1), "cycle_ms_max": Fixed(self.cycle_max_ms, 1),
-                "grab_ms": Fixed(float(np.mean(io)) if io else 0.0, 1)}
+        """Mean and longest cycle, and mean camera wait, all over one set of cycles: the last
+        TIMED, leaving out the first, which warms caches and would make a mean above the
+        maximum; ``timed_cycles`` says how many there are (0: only the first has run)."""
+        timed = list(self.timed)
+        ms = [cycle for cycle, _ in timed]
+        io = [wait for _, wait in timed]
+        return {"cycle_ms": Fixed(float(np.mean(ms)) if ms else 0.0, 1),
+                "cycle_ms_max": Fixed(max(ms, default=0.0), 1),
+                "grab_ms": Fixed(float(np.mean(io)) if io else 0.0, 1),
+                "timed_cycles": len(timed)}
 
     # -- what a concrete monitor fills in -----------------------------------------------------
     def cycle(self) -> None:
