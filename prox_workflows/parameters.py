@@ -26,7 +26,7 @@ class DemParams(Settings):
     """A DEM from views (ToF by default): acquisition, DemImport, DemMosaik, holes, spikes."""
 
     range: list[float] = param([-150.0, 150.0, -50.0, -15.0], "view range pan_min,pan_max,tilt_min,tilt_max",
-                               unit="deg", length=4, min=-360.0, max=360.0)
+                               unit="deg", length=4, min=-360.0, max=360.0, ordered=True)
     name: str = param("", "stem of the products (default dem_<UTC time>)", stem=True)
     cell: float = param(0.02, "DEM cell size", unit="m", min=0.005, max=1.0)
     overlap: float = param(0.2, "share of the field of view that neighbouring views overlap", min=0.0, max=0.9)

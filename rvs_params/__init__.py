@@ -53,12 +53,14 @@ def param(
     required: bool = False,
     protected: bool = False,
     live: bool = False,
+    ordered: bool = False,
 ) -> Any:
     """Declare a settings field with what a checker and a help text need to know about it.
 
     ``option=False`` keeps a parameter out of the request line (set it with ``config -set``);
     ``protected`` refuses run-time changes (host, port, token); ``stem`` marks output names;
-    ``live`` marks a driver setting an open device takes at once (others wait for its reinit).
+    ``live`` marks a driver setting an open device takes at once (others wait for its reinit);
+    ``ordered`` marks a list of min,max pairs (a view range), refused when a pair is inverted.
     """
     meta = {
         "help": help,
@@ -72,6 +74,7 @@ def param(
         "required": required,
         "protected": protected,
         "live": live,
+        "ordered": ordered,
     }
     if isinstance(default, list | dict):
         return field(default_factory=lambda d=default: copy.deepcopy(d), metadata=meta)
@@ -98,6 +101,7 @@ class ParamSpec:
     optional: bool = False  # None (YAML null) is a value: "not set, use the backend's own"
     live: bool = False
     section: type[Settings] | None = None  # kind "section": the nested settings class
+    ordered: bool = False  # floats: min,max pairs, each min <= max
 
     @property
     def flag(self) -> str:
@@ -164,6 +168,10 @@ class ParamSpec:
                 raise SettingError(f"{name} takes {self.describe()}, not '{raw[:40]}'")
             for v in values:
                 self._check_range(v)
+            for i in range(0, len(values) - 1, 2) if self.ordered else ():
+                if values[i] > values[i + 1]:
+                    raise SettingError(f"{name} takes min,max pairs, and {_num(values[i])},{_num(values[i + 1])} "
+                                       f"is inverted: give {_num(values[i + 1])},{_num(values[i])}")
             if self.kind == "ints":
                 if not all(v.is_integer() for v in values):
                     raise SettingError(f"{name} takes {self.describe()}, not '{raw[:40]}'")
@@ -302,6 +310,7 @@ class Settings:
                 optional=optional,
                 live=meta.get("live", False),
                 section=section,
+                ordered=meta.get("ordered", False),
             )
         cls._specs = out  # type: ignore[attr-defined]
         return out

@@ -417,17 +417,40 @@ class NavMaps:
                              f"the grid {self.geometry.shape}")
 
 
-def blank_maps(points: Sequence[Sequence[float]], cell: float, pad: float,
-               bounds: Sequence[float] | None = None) -> NavMaps:
-    """Blank global maps (all undefined) covering ``points`` and ``bounds`` with ``pad`` metres
-    around: what the planner uses when there is no global map (seed 000 sect. 4.4.4)."""
+# The most cells a planning grid may hold. Its arrays (cost, distances, the search's own) take
+# about 70 bytes a cell: 64 million cells (a 400 m square of 5 cm cells) is some 4.5 GB and a
+# minute of search; a larger request is refused before anything is allocated.
+MAX_PLAN_CELLS = 64_000_000
+
+
+def blank_geometry(points: Sequence[Sequence[float]], cell: float, pad: float,
+                   bounds: Sequence[float] | None = None) -> GridGeometry:
+    """The grid of :func:`blank_maps`, known before anything is allocated (navigate checks a
+    goal's distance against :data:`MAX_PLAN_CELLS` with it before it starts)."""
     pts = np.asarray(points, dtype=np.float64).reshape(-1, 2)
     xmin, ymin = pts.min(axis=0) - pad
     xmax, ymax = pts.max(axis=0) + pad
     if bounds is not None:
         xmin, ymin = min(xmin, bounds[0]), min(ymin, bounds[1])
         xmax, ymax = max(xmax, bounds[2]), max(ymax, bounds[3])
-    geom = GridGeometry.covering(float(xmin), float(ymin), float(xmax), float(ymax), cell)
+    return GridGeometry.covering(float(xmin), float(ymin), float(xmax), float(ymax), cell)
+
+
+def check_plan_size(geom: GridGeometry, what: str = "planning grid") -> None:
+    """ValueError (E_ARG on the wire) for a grid over :data:`MAX_PLAN_CELLS`, naming the limit."""
+    if geom.width * geom.height > MAX_PLAN_CELLS:
+        side = math.sqrt(MAX_PLAN_CELLS) * geom.cell
+        raise ValueError(f"the {what} of {geom.height} x {geom.width} cells of {geom.cell:g} m is over the "
+                         f"{MAX_PLAN_CELLS:,} cells a plan may span (a square of about {side:.0f} m): give a nearer "
+                         "goal, a coarser grid or a window")
+
+
+def blank_maps(points: Sequence[Sequence[float]], cell: float, pad: float,
+               bounds: Sequence[float] | None = None) -> NavMaps:
+    """Blank global maps (all undefined) covering ``points`` and ``bounds`` with ``pad`` metres
+    around: what the planner uses when there is no global map (seed 000 sect. 4.4.4)."""
+    geom = blank_geometry(points, cell, pad, bounds)
+    check_plan_size(geom, "blank global map")
     return NavMaps(np.full(geom.shape, UNDEFINED, np.uint8), np.full(geom.shape, np.nan, np.float32), geom)
 
 
@@ -606,9 +629,7 @@ def planning_image(local: NavMaps, global_: NavMaps | None, params: PlannerParam
         win = [min(wx) - params.window, min(wy) - params.window, max(wx) + params.window, max(wy) + params.window]
         bounds = [max(bounds[0], win[0]), max(bounds[1], win[1]), min(bounds[2], win[2]), min(bounds[3], win[3])]
     geom = GridGeometry.covering(*bounds, cell)
-    if geom.width * geom.height > 64_000_000:
-        raise ValueError(f"planning grid of {geom.height} x {geom.width} cells at {cell} m is too large: "
-                         "choose a coarser grid or a window")
+    check_plan_size(geom)
 
     def layers(maps: NavMaps) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(share of the cell's pixels that are defined, any pixel hazardous, max safe slope)."""

@@ -46,6 +46,22 @@ def in_footprint(dx: np.ndarray, dy: np.ndarray, heading: float, length: float, 
     return (np.abs(dx * c + dy * s) <= length / 2 + cell / 2) & (np.abs(dy * c - dx * s) <= width / 2 + cell / 2)
 
 
+# The most cells check_move's sweep may span (its box, seen or not): one byte each, and the
+# poses' footprints are laid into it one by one. 16 million cells is a 200 m square of 5 cm
+# cells, far beyond any move a rover makes between two checks, and about 0.2 s of work.
+MAX_SWEEP_CELLS = 16_000_000
+
+
+def sweep_cells(start: tuple[float, float, float], end: tuple[float, float, float], length: float, width: float,
+                cell: float) -> int:
+    """How many cells the box around a sweep spans: what :func:`check_move` allocates, known
+    before it does (the server refuses a move over :data:`MAX_SWEEP_CELLS` before any work)."""
+    radius = math.hypot(length, width) / 2
+    nx = (abs(end[0] - start[0]) + 2 * radius) / cell + 2
+    ny = (abs(end[1] - start[1]) + 2 * radius) / cell + 2
+    return int(min(nx * ny, 2**62))
+
+
 def check_move(
     traversability: np.ndarray,
     geometry: GridGeometry,
@@ -57,9 +73,15 @@ def check_move(
 ) -> MoveCheck:
     """Sweep a ``length`` x ``width`` rectangle (centred on the rover) from ``start`` to ``end``.
 
-    A cell with traversability <= ``min_score`` blocks the move.
+    A cell with traversability <= ``min_score`` blocks the move. Each pose's footprint is laid
+    only into the cells around it, so the work grows with the sweep's length, not with its box's
+    area; the box itself (one byte a cell) is bounded by :data:`MAX_SWEEP_CELLS`.
     """
     g = geometry
+    need = sweep_cells(start, end, length, width, g.cell)
+    if need > MAX_SWEEP_CELLS:
+        raise ValueError(f"the move sweeps a box of {need:.3g} cells of {g.cell:g} m, over the {MAX_SWEEP_CELLS:,} "
+                         "cells a check may span; check a shorter move")
     poses = sweep_poses(start, end, step=max(g.cell, min(length, width) / 4))
     radius = math.hypot(length, width) / 2
     xmin, xmax = poses[:, 0].min() - radius, poses[:, 0].max() + radius
@@ -69,23 +91,27 @@ def check_move(
     c1 = math.floor((xmax - g.xmin) / g.cell)
     r0 = math.floor((g.ymax - ymax) / g.cell)
     r1 = math.floor((g.ymax - ymin) / g.cell)
-    rows = np.arange(r0, r1 + 1)
-    cols = np.arange(c0, c1 + 1)
     # Cell centres and poses relative to the grid's corner: on a georeferenced map (eastings
     # ~5e5 m, northings ~5e6 m) the footprint test then compares metres, not the last bits of
     # two large coordinates, and gives the same cells as the same map at the origin.
-    cx = (cols + 0.5) * g.cell
-    cy = -(rows + 0.5) * g.cell
-    X, Y = np.meshgrid(cx, cy)
-    covered = np.zeros(X.shape, bool)
+    cx = (np.arange(c0, c1 + 1) + 0.5) * g.cell
+    cy = -(np.arange(r0, r1 + 1) + 0.5) * g.cell
+    covered = np.zeros((r1 - r0 + 1, c1 - c0 + 1), bool)
+    reach = radius + g.cell  # a footprint's cells lie within this of its pose (centres within half a cell)
     for x, y, heading in poses:
-        covered |= in_footprint(X - (x - g.xmin), Y - (y - g.ymax), heading, length, width, g.cell)
-    R, C = np.meshgrid(rows, cols, indexing="ij")
+        px, py = x - g.xmin, y - g.ymax
+        ca = max(math.floor((px - reach) / g.cell) - c0, 0)
+        cb = min(math.floor((px + reach) / g.cell) - c0 + 1, covered.shape[1])
+        ra = max(math.floor(-(py + reach) / g.cell) - r0, 0)
+        rb = min(math.floor(-(py - reach) / g.cell) - r0 + 1, covered.shape[0])
+        covered[ra:rb, ca:cb] |= in_footprint(cx[None, ca:cb] - px, cy[ra:rb, None] - py, heading, length, width,
+                                              g.cell)
+    ri, ci = np.nonzero(covered)
+    R, C = ri + r0, ci + c0
     inside = (R >= 0) & (R < g.height) & (C >= 0) & (C < g.width)
-    values = np.full(X.shape, np.nan, np.float32)
-    values[inside] = traversability[R[inside], C[inside]]
-    under = values[covered]
-    xs, ys = X[covered] + g.xmin, Y[covered] + g.ymax
+    under = np.full(R.shape, np.nan, np.float32)
+    under[inside] = traversability[R[inside], C[inside]]
+    xs, ys = cx[ci] + g.xmin, cy[ri] + g.ymax
     unknown = ~np.isfinite(under)
     blocked = np.isfinite(under) & (under <= min_score)
     if np.isfinite(under).any():
@@ -102,5 +128,4 @@ def check_move(
         worst = (float("nan"), float(xs[k]), float(ys[k]))
     else:
         verdict = "ok"
-    return MoveCheck(verdict, worst[0], worst[1], worst[2], int(covered.sum()), int(unknown.sum()),
-                     int(blocked.sum()))
+    return MoveCheck(verdict, worst[0], worst[1], worst[2], len(under), int(unknown.sum()), int(blocked.sum()))

@@ -223,7 +223,7 @@ class TrackConfig(ModuleConfig):
 class TrackDetectConfig(TrackConfig):
     module: ClassVar[str] = "track3d_detect"
     range: list[float] = param([-90.0, 90.0, -20.0, 0.0], "view range pan_min,pan_max,tilt_min,tilt_max",
-                               unit="deg", length=4, min=-360.0, max=360.0)
+                               unit="deg", length=4, min=-360.0, max=360.0, ordered=True)
     overlap: float = param(0.2, "share of the field of view that neighbouring views overlap", min=0.0, max=0.9)
 
 

@@ -166,7 +166,7 @@ def run_dem(job: Job, cfg: Any, *, update: bool, sensor: str = "tof",
     fov = (math.degrees(2 * math.atan(size[0] / 2 / K[0, 0])), math.degrees(2 * math.atan(size[1] / 2 / K[1, 1])))
     calib = cams.calibration(cfg.resolution) if cams is not None else None
     name = cfg.name or default_stem("dem")
-    views_dir = app.data_path(out_dir, f"{name}_views", "x").parent
+    views_dir = app.data_dir / out_dir / f"{name}_views"  # made by its first file: a job refused earlier leaves none
 
     def grab(pan: float, tilt: float) -> tuple[list[Frame], float, float]:
         reached = device_call(job, ptu.move, pan, tilt, True)

@@ -5,7 +5,7 @@ from __future__ import annotations
 import copy
 import math
 import time
-from collections.abc import Callable
+from collections.abc import Awaitable, Callable
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any, ClassVar
 
@@ -14,7 +14,7 @@ import numpy as np
 from prox_workflows.engine import run_workflow
 from prox_workflows.parameters import PlanParams
 from prox_workflows.params import reuse
-from prox_workflows.steps.safety import check_move
+from prox_workflows.steps.safety import MAX_SWEEP_CELLS, check_move, sweep_cells
 
 from ..app import Context
 from ..config import ModuleConfig, param
@@ -46,8 +46,9 @@ class CheckMoveConfig(ModuleConfig):
 
 
 @command("check-move", config=CheckMoveConfig,
-         help="safety gate: is the rover's footprint swept along -dx -dy -dyaw (or -to x,y[,h]) traversable?")
-def check_move_cmd(ctx: Context, cfg: CheckMoveConfig) -> dict[str, Any]:
+         help="safety gate: is the rover's footprint swept along -dx -dy -dyaw (or -to x,y[,h]) traversable? "
+              f"(the box around the sweep spans at most {MAX_SWEEP_CELLS:,} map cells)")
+def check_move_cmd(ctx: Context, cfg: CheckMoveConfig) -> Awaitable[dict[str, Any]]:
     app = ctx.app
     given = {k for k, _ in ctx.request.options}
     if "to" in given and given & {"dx", "dy", "dyaw"}:
@@ -63,8 +64,22 @@ def check_move_cmd(ctx: Context, cfg: CheckMoveConfig) -> dict[str, Any]:
         c, s = math.cos(math.radians(p.heading)), math.sin(math.radians(p.heading))
         end = (p.x + cfg.dx * c - cfg.dy * s, p.y + cfg.dx * s + cfg.dy * c, p.heading + cfg.dyaw)
     head = app.config.get("head")
-    result = check_move(maps["traversability"], maps.geometry, start, end,
-                        head.rover_length + 2 * cfg.margin, head.rover_width + 2 * cfg.margin, cfg.min_score)
+    length, width = head.rover_length + 2 * cfg.margin, head.rover_width + 2 * cfg.margin
+    cells = sweep_cells(start, end, length, width, maps.geometry.cell)
+    if cells > MAX_SWEEP_CELLS:
+        raise ProtocolError("E_ARG", f"the move from ({start[0]:.2f}, {start[1]:.2f}) to ({end[0]:.3g}, {end[1]:.3g}) "
+                                     f"sweeps a box of {cells:.3g} cells of {maps.geometry.cell:g} m; a check spans at "
+                                     f"most {MAX_SWEEP_CELLS:,} cells, so check a shorter move")
+    return _check_move_off_loop(ctx, maps, start, end, length, width, cfg.min_score)
+
+
+async def _check_move_off_loop(ctx: Context, maps: Any, start: tuple[float, float, float],
+                               end: tuple[float, float, float], length: float, width: float,
+                               min_score: float) -> dict[str, Any]:
+    """The sweep runs in a worker thread: a long move is tens of milliseconds of geometry, and
+    status, break and the other connections must not wait for it."""
+    result = await ctx.app.loop.run_in_executor(
+        None, check_move, maps["traversability"], maps.geometry, start, end, length, width, min_score)
     return {
         "verdict": result.verdict,
         "worst": Fixed(result.worst_score, 3) if math.isfinite(result.worst_score) else "unknown",
@@ -102,7 +117,7 @@ class NavigateConfig(ModuleConfig):
     border: float = reuse(PlanParams, "border")
     footprint: str = reuse(PlanParams, "footprint")
     range: list[float] = param([-180.0, 180.0, -50.0, -10.0], "view range of each leg's DEM", unit="deg",
-                               length=4, min=-360.0, max=360.0, option=False)
+                               length=4, min=-360.0, max=360.0, option=False, ordered=True)
     overlap: float = param(0.3, "view overlap of each leg's DEM", min=0.0, max=0.9, option=False)
     wait_timeout: float = param(0.0, "seconds to wait for the GNC's pose after a leg (0: forever)", unit="s",
                                 min=0.0, max=86400.0, option=False)
@@ -500,8 +515,18 @@ def goal_stand_in(local: NavMaps, global_maps: NavMaps | None, here: tuple[float
 
 
 def _check(app: App, cfg: NavigateConfig) -> None:
+    """Refusals before the ACK: a goal so far that its plans could not be held in memory is
+    refused here, not after the first 360-degree scan."""
+    from prox_workflows.steps.planner import PlannerParams, blank_geometry, check_plan_size
+
     if cfg.auto and app.world is None:
         raise ProtocolError("E_ARG", "-auto drives the simulated rover; with real hardware the GNC sends pose")
+    start = cfg.start[:2] if cfg.start else [app.pose.x, app.pose.y]
+    try:
+        check_plan_size(blank_geometry([start, cfg.goal], cfg.grid, PlannerParams.blank_pad),
+                        f"grid from ({start[0]:g}, {start[1]:g}) to -goal {cfg.goal[0]:g},{cfg.goal[1]:g}")
+    except ValueError as exc:
+        raise ProtocolError("E_ARG", str(exc)) from None
 
 
 def wait_for_rover(app: App, job: Job, version: int, end: tuple[float, float], tolerance: float,
