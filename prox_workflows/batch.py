@@ -11,6 +11,7 @@ A failing job is reported with its error and the others go on; a job whose produ
 than all its inputs is skipped, so a re-run after a failure redoes only what is missing.
 
 ``rvs-prox mosaic-campaign --inputs 'campaign/*/dem/reprocessed/*_dem.tif' -o campaign/mosaic``
+(a folder, as ``rvs-prox dem --from -o`` takes: ``mosaic_dem.tif``, ``_variance``, ``_count`` in it)
 fuses the site DEMs (DemMosaik's variance-weighted ``fuse``, sites in the order given) into one
 grid written tile by tile into tiled GeoTIFFs: a tile reads only the sites that overlap its band
 of rows, so memory is bounded by a band and its sites, not by the mosaic, which may be larger
@@ -113,15 +114,48 @@ def serial(inputs: Sequence[Path], script: str = "dem", overrides: dict[str, str
 Progress = Callable[[int, int, str], None]
 
 
+class SchedulerError(Exception):
+    """The Dask scheduler named on the command line cannot be used: a malformed address or one
+    nobody answers at. Its own type so the command line reports it in one line, not a traceback."""
+
+
+def scheduler_address(text: str) -> str:
+    """``text`` checked as a Dask scheduler address (``tcp://host:8786``, ``host:8786``,
+    ``tls://...``), so a typo such as ``--scheduler local`` is refused before any job is looked
+    at, in words, rather than deep inside Dask's connect as ``missing port number``."""
+    from distributed.comm.addressing import parse_address, parse_host_port
+    from distributed.comm.registry import backends
+
+    try:
+        scheme, location = parse_address(text, strict=False)
+        if scheme not in backends:
+            raise ValueError(f"unknown scheme {scheme}://, known: {', '.join(sorted(backends))}")
+        if scheme in ("tcp", "tls", "ws", "wss"):
+            host, port = parse_host_port(location)
+            if not host:
+                raise ValueError("no host")
+            if not 0 < int(port) < 65536:
+                raise ValueError(f"port {port} is out of range 1-65535")
+    except (ValueError, TypeError) as exc:
+        raise SchedulerError(f"{text!r} is no Dask scheduler address ({exc}); write tcp://HOST:PORT, "
+                             "e.g. tcp://127.0.0.1:8786, or leave --scheduler out for a LocalCluster here") from None
+    return text
+
+
 def make_client(scheduler: str | None = None, workers: int = 2, processes: bool = True,
                 threads_per_worker: int = 1) -> Any:
     """A Dask client: to the cluster at ``scheduler``, else to a new LocalCluster here (one
     thread per worker process: the steps hold the GIL between numpy calls, so processes are
-    what makes them parallel; ``processes=False`` for quick tests)."""
+    what makes them parallel; ``processes=False`` for quick tests). A scheduler that is
+    malformed or does not answer raises :class:`SchedulerError`."""
     from distributed import Client, LocalCluster
 
     if scheduler:
-        return Client(scheduler)
+        scheduler_address(scheduler)
+        try:
+            return Client(scheduler)
+        except (OSError, ValueError) as exc:
+            raise SchedulerError(f"cannot reach the Dask scheduler at {scheduler}: {exc}") from None
     cluster = LocalCluster(n_workers=workers, threads_per_worker=threads_per_worker, processes=processes,
                            dashboard_address=None)
     return Client(cluster)
@@ -343,6 +377,56 @@ def _bar(done: int, total: int, message: str) -> None:
     show_progress(done, total, message, phase="batch")
 
 
+def _argtype(check: Callable[[str], Any]) -> Callable[[str], Any]:
+    """An argparse ``type`` from a checker that raises ValueError or SchedulerError, so a bad
+    value ends as argparse's one ``error:`` line (exit 2) with the checker's words."""
+    def parse(text: str) -> Any:
+        try:
+            return check(text)
+        except (ValueError, SchedulerError) as exc:
+            raise argparse.ArgumentTypeError(str(exc)) from None
+
+    parse.__name__ = check.__name__
+    return parse
+
+
+def _whole(text: str) -> int:
+    try:
+        return int(text)
+    except ValueError:
+        raise ValueError(f"{text!r} is not a whole number") from None
+
+
+def _positive_int(text: str) -> int:
+    value = _whole(text)
+    if value < 1:
+        raise ValueError(f"{text} is not a positive whole number")
+    return value
+
+
+def _positive_float(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise ValueError(f"{text!r} is not a number") from None
+    if not math.isfinite(value) or value <= 0:
+        raise ValueError(f"{text} is not a positive number")
+    return value
+
+
+def _tile_size(text: str) -> int:
+    value = _whole(text)
+    if value < 16 or value % 16:
+        raise ValueError(f"{text} is not a multiple of 16 (TIFF tiles are): try {max(16, round(value / 16) * 16)}")
+    return value
+
+
+def _file_stem(text: str) -> str:
+    if not text or text in (".", "..") or "/" in text or "\\" in text:
+        raise ValueError(f"{text!r} is not a file name (no folders: those go in -o)")
+    return text
+
+
 def main(argv: list[str]) -> int:
     """``rvs-prox batch ...`` and ``rvs-prox mosaic-campaign ...`` (``argv[0]`` names which)."""
     if argv[0] == "mosaic-campaign":
@@ -351,8 +435,10 @@ def main(argv: list[str]) -> int:
     ap.add_argument("script", help="the script to run on each job (dem: its offline form dem_views)")
     ap.add_argument("--inputs", action="append", required=True, metavar="GLOB",
                     help="recorded jobs: 'campaign/*/dem/*' (views folders, stems or DEMs; each job once)")
-    ap.add_argument("--scheduler", help="a Dask scheduler's address (tcp://host:8786); default a LocalCluster here")
-    ap.add_argument("--workers", type=int, default=os.cpu_count() or 2, help="LocalCluster worker processes")
+    ap.add_argument("--scheduler", type=_argtype(scheduler_address),
+                    help="a Dask scheduler's address (tcp://host:8786); default a LocalCluster here")
+    ap.add_argument("--workers", type=_argtype(_positive_int), default=os.cpu_count() or 2,
+                    help="LocalCluster worker processes")
     ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="override a recorded parameter")
     ap.add_argument("-o", "--out", help="one folder for every job's products (default <job dir>/reprocessed)")
     ap.add_argument("--force", action="store_true", help="re-run jobs whose products are up to date")
@@ -369,10 +455,14 @@ def main(argv: list[str]) -> int:
                          f"(first: {ignored[0]})\n")
     if not inputs:
         sys.stderr.write("rvs-prox batch: no recorded DEM job matches\n")
-        return 1
+        return 2
     t0 = time.perf_counter()
-    results = run_batch(args.script, inputs, overrides, scheduler=args.scheduler, workers=args.workers,
-                        out_dir=args.out, force=args.force, progress=_bar)
+    try:
+        results = run_batch(args.script, inputs, overrides, scheduler=args.scheduler, workers=args.workers,
+                            out_dir=args.out, force=args.force, progress=_bar)
+    except SchedulerError as exc:
+        sys.stderr.write(f"\nrvs-prox batch: {exc}\n")
+        return 2
     sys.stderr.write("\n")
     counts = {s: sum(r.status == s for r in results) for s in ("done", "skipped", "failed")}
     for r in results:
@@ -388,21 +478,36 @@ def main(argv: list[str]) -> int:
 
 
 def _main_mosaic(argv: list[str]) -> int:
-    ap = argparse.ArgumentParser(prog="rvs-prox mosaic-campaign",
-                                 description="Fuse site DEMs into one campaign mosaic, tile by tile.")
+    ap = argparse.ArgumentParser(
+        prog="rvs-prox mosaic-campaign",
+        description="Fuse site DEMs into one campaign mosaic, tile by tile. -o is a folder, as for "
+                    "'rvs-prox dem --from': the mosaic is OUT/NAME_dem.tif (its YAML sidecar beside it), "
+                    "OUT/NAME_variance.tif and OUT/NAME_count.tif.")
     ap.add_argument("--inputs", action="append", required=True, metavar="GLOB",
                     help="site DEMs: 'campaign/*/dem/reprocessed/*_dem.tif' (fused in this order)")
-    ap.add_argument("-o", "--out", required=True, help="output prefix: writes PREFIX_dem.tif, _variance, _count")
-    ap.add_argument("--cell", type=float, help="cell size (default: the finest site's)")
-    ap.add_argument("--tile", type=int, default=TILE, help="tile size in cells (a multiple of 16)")
+    ap.add_argument("-o", "--out", required=True, metavar="DIR",
+                    help="the folder the mosaic's files go in (made if missing)")
+    ap.add_argument("--name", default="mosaic", type=_argtype(_file_stem),
+                    help="the files' name: NAME_dem.tif, NAME_variance.tif, NAME_count.tif (default %(default)s)")
+    ap.add_argument("--cell", type=_argtype(_positive_float), help="cell size in m (default: the finest site's)")
+    ap.add_argument("--tile", type=_argtype(_tile_size), default=TILE,
+                    help="tile size in cells, a multiple of 16 (default %(default)s)")
     args = ap.parse_args(argv)
+    out = Path(args.out)
+    if out.exists() and not out.is_dir():
+        ap.error(f"-o {out}: not a folder (the mosaic's files go in a folder)")
     paths = [Path(p) for pattern in args.inputs for p in sorted(glob.glob(pattern, recursive=True))
              if p.endswith("_dem.tif")]
     if not paths:
         sys.stderr.write("rvs-prox mosaic-campaign: no *_dem.tif matches\n")
-        return 1
-    files = mosaic_campaign(paths, args.out, cell=args.cell, tile=args.tile, progress=_bar)
+        return 2
+    try:
+        files = mosaic_campaign(paths, out / args.name, cell=args.cell, tile=args.tile, progress=_bar)
+    except (OSError, ValueError) as exc:  # an unreadable site, an unwritable folder
+        sys.stderr.write(f"\nrvs-prox mosaic-campaign: {exc}\n")
+        return 2
     sys.stderr.write("\n")
     for name, p in files.items():
         print(f"{name}: {p}")
     return 0
+

@@ -764,7 +764,10 @@ def _main_from(script: str, source: str, sets: list[str], out: str | None) -> in
 
     try:
         result = reprocess(source, parse_overrides(sets), out, script=script, progress=show_progress)
-    except (ReprocessError, WorkflowError, FileNotFoundError) as exc:
+    except ReprocessError as exc:  # the command line's fault: no such job, a parameter it refuses
+        sys.stderr.write(f"\nrvs-prox: {exc}\n")
+        return 2
+    except (WorkflowError, FileNotFoundError) as exc:
         sys.stderr.write(f"\nrvs-prox: {exc}\n")
         return 1
     except KeyboardInterrupt:
@@ -777,16 +780,32 @@ def _main_from(script: str, source: str, sets: list[str], out: str | None) -> in
     return 0
 
 
+# The campaign tools are dispatched before the script parser sees argv, so argparse would never
+# mention them: the help names them here.
+CAMPAIGN_HELP = """\
+campaign commands (each has its own --help):
+  rvs-prox batch SCRIPT --inputs GLOB [--scheduler tcp://HOST:PORT] [--workers N] [-o DIR]
+                        re-run every recorded DEM job the GLOB finds on Dask (a LocalCluster
+                        here by default), one task per job; up-to-date jobs are skipped
+  rvs-prox mosaic-campaign --inputs GLOB -o DIR [--name NAME] [--cell M] [--tile N]
+                        fuse site DEMs (*_dem.tif) into one mosaic written tile by tile:
+                        DIR/NAME_dem.tif, NAME_variance.tif, NAME_count.tif (NAME: mosaic)
+"""
+
+
 def main(argv: list[str] | None = None) -> int:
-    """``rvs-prox SCRIPT [--validate] [--set key=value] [--help]``: validate or run a script."""
+    """``rvs-prox SCRIPT [--validate] [--set key=value] [--help]``: validate or run a script;
+    ``rvs-prox batch|mosaic-campaign ...``: the campaign tools (prox_workflows.batch)."""
     argv = list(sys.argv[1:] if argv is None else argv)
     if argv and argv[0] in ("batch", "mosaic-campaign"):  # the campaign tools (prox_workflows.batch)
         from . import batch
 
         return batch.main(argv)
     ap = argparse.ArgumentParser(prog="rvs-prox", description="Validate or run a PROX-like workflow script.",
-                                 formatter_class=argparse.RawDescriptionHelpFormatter, add_help=False)
-    ap.add_argument("script", nargs="?", help="script name (in prox_workflows/scripts) or path")
+                                 formatter_class=argparse.RawDescriptionHelpFormatter, add_help=False,
+                                 epilog=CAMPAIGN_HELP)
+    ap.add_argument("script", nargs="?", help="script name (in prox_workflows/scripts) or path; or one of the "
+                                              "campaign commands below")
     ap.add_argument("-h", "--help", action="store_true", help="show this help (and the script's parameters)")
     ap.add_argument("--validate", action="store_true", help="check the script and stop; nothing runs")
     ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="set a parameter")
@@ -796,7 +815,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--from", dest="from_", metavar="JOB",
                     help="re-run a recorded DEM job (data/dem/site, or its site_views folder) with the "
                          "parameters it recorded, --set overriding them")
-    ap.add_argument("-o", "--out", help="with --from: where the products go (default <job dir>/reprocessed)")
+    ap.add_argument("-o", "--out", metavar="DIR",
+                    help="with --from: the folder the products go in (default <job dir>/reprocessed)")
     args = ap.parse_args(argv)
     if args.help or not args.script:
         text = ap.format_help()
@@ -837,9 +857,12 @@ def main(argv: list[str] | None = None) -> int:
             validate(script, typed, list(inputs) + list(script.get("inputs") or {}))
             print(f"{script['name']}: valid ({len(script['steps'])} steps)")
             return 0
-    except (WorkflowError, SettingError) as exc:
+    except ScriptError as exc:  # the script's own mistakes, each with its line: the validator's verdict
         sys.stderr.write(f"rvs-prox: {exc}\n")
         return 1
+    except (WorkflowError, SettingError) as exc:  # no such script, a --set value its parameter refuses
+        sys.stderr.write(f"rvs-prox: {exc}\n")
+        return 2
 
     try:
         ws, log = run_workflow(script, typed, inputs, progress=show_progress)

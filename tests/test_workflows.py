@@ -67,8 +67,8 @@ def test_from_reproduces_the_jobs_products_and_set_cell_changes_them(site: Serve
     assert info["parameters"]["cell"] == 0.1 and info["parameters"]["range"] == [-20.0, 20.0, -50.0, -30.0]
     assert info["cell"] == 0.1
     # refused: an unknown parameter, a folder that is no job
-    assert rvs_prox(["dem", "--from", str(dem / "site"), "--set", "cel=0.1", "-o", str(tmp_path / "x")]) == 1
-    assert rvs_prox(["dem", "--from", str(tmp_path), "-o", str(tmp_path / "x")]) == 1
+    assert rvs_prox(["dem", "--from", str(dem / "site"), "--set", "cel=0.1", "-o", str(tmp_path / "x")]) == 2
+    assert rvs_prox(["dem", "--from", str(tmp_path), "-o", str(tmp_path / "x")]) == 2
     assert "known: range" in capsys.readouterr().err
 
 
@@ -191,7 +191,7 @@ def test_the_tiled_campaign_mosaic_equals_the_mosaic_in_memory(campaign: Path, t
         assert ds.block_shapes[0] == (16, 16)
         assert tuple(ds.bounds) == pytest.approx(whole.geometry.bounds)
         assert np.array_equal(ds.read(1), whole["dem"], equal_nan=True)
-    # the command line makes the same mosaic
+    # the command line makes the same mosaic, in the folder -o names
     assert rvs_prox(["mosaic-campaign", "--inputs", str(tmp_path / "[ab]" / "*_dem.tif"), "-o",
-                     str(tmp_path / "cli" / "campaign"), "--tile", "32"]) == 0
+                     str(tmp_path / "cli"), "--name", "campaign", "--tile", "32"]) == 0
     assert np.array_equal(tifffile.imread(tmp_path / "cli" / "campaign_dem.tif"), whole["dem"], equal_nan=True)

@@ -104,4 +104,4 @@ def test_rvs_prox_runs_a_script_file(tmp_path, capsys) -> None:
     assert main([str(script), "--set", "range=-60,60,-40,-10", "--log", str(tmp_path / "run.yaml")]) == 0
     out = capsys.readouterr().out
     assert "get_ptu_positions" in out and (tmp_path / "run.yaml").is_file()
-    assert main([str(tmp_path / "missing.yaml")]) == 1
+    assert main([str(tmp_path / "missing.yaml")]) == 2  # no such file: the command line's fault
