@@ -337,11 +337,11 @@ class SeeingDriver:
                 world.record_track(track, 0.0)
 
     def watch(self, waypoints: np.ndarray, track: list[tuple[float, float]], progress: Any, version: int,
-              tolerance: float, timeout: float) -> DriveOutcome:
+              cfg: Any) -> DriveOutcome:
         """The GNC drives ``waypoints`` and streams its pose: each report is a cycle (a forward
         frame fused at the reported pose, the footprint checked along the rest of the leg). A
         hazard in the corridor is an ``EVENT kind=hazard level=stop`` for the GNC to stop on;
-        the leg ends with the GNC's stopped pose (or its arrival), and navigate replans from
+        the leg ends once the GNC's pose stands still (wherever it is), and navigate replans from
         there. Frames are taken at pose reports because a frame is only placed in the map at a
         known pose."""
         self.point_forward()
@@ -364,7 +364,7 @@ class SeeingDriver:
             elif hazard is None:
                 self._clear()
 
-        arrived = wait_for_rover(self.app, self.job, version, end, tolerance, timeout, on_pose)
+        arrived = wait_for_rover(self.app, self.job, version, end, cfg, on_pose)
         track.append((arrived.x, arrived.y))
         if hazard is not None:
             return DriveOutcome("hazard", k - 1, hazard)
@@ -549,8 +549,7 @@ class SeeLoop:
         extends = self.last_end is None or math.hypot(end[0] - self.last_end[0], end[1] - self.last_end[1]) > 0.25
         self.last_end = end
         if not self.cfg.auto:
-            outcome = self.driver.watch(plan.waypoints.xy, track, progress, version, self.cfg.tolerance,
-                                        self.cfg.wait_timeout)
+            outcome = self.driver.watch(plan.waypoints.xy, track, progress, version, self.cfg)
         else:
             outcome = self.driver.drive(plan.waypoints.xy, track, progress,
                                         allow_ahead=extends and not plan.reaches_goal, strict=self.strict)

@@ -102,26 +102,35 @@ def _waiting_event(c: LineClient, timeout: float = 120) -> Reply:
             raise AssertionError(f"navigate ended before waiting: {r}")
 
 
-def test_a_streamed_pose_does_not_end_the_wait_the_leg_end_does(server_factory) -> None:
-    srv = server_factory(["server.scene=office", NARROW])
+def test_a_streamed_pose_ends_the_wait_only_once_it_holds_still(server_factory) -> None:
+    """A GNC streams its pose while it drives: passing the leg's end, or coming within the goal's
+    tolerance of it, while moving does not end the wait; the pose holding still does."""
+    srv = server_factory(["server.scene=office", NARROW, "navigate.pose_settle=0.5"])
     c, gnc = srv.client(), srv.client()
     job = c.start_job("navigate -goal 1.5,-1.2 -name stream")
     event = _waiting_event(gnc)
     assert event.fields["job"] == job and event.fields["leg"] == "1"
     wps = [float(v) for v in event.fields["waypoints"].split(",")]
-    # the GNC streams its (unchanged, then creeping) pose at 20 Hz while it drives
+    end = wps[-3:-1]  # x,y,heading triples
+    # the GNC streams its creeping pose at 20 Hz while it drives
     for i in range(30):
         assert gnc.request(f"pose -x {0.01 * i:.3f} -y 0 -heading 0").status == "OK"
+        time.sleep(0.05)
+    # ... then drives through the leg's end and on, each report 2 cm from the last
+    for k in range(-10, 11):
+        x, y = end[0] + 0.02 * k, end[1]
+        assert gnc.request(f"pose -x {x:.3f} -y {y:.3f} -heading 0").status == "OK"
         time.sleep(0.05)
     st = gnc.request("status")
     assert st.fields["job"] == job and st.fields["phase"] == "drive", st.fields
     assert srv.app.jobs.current is not None and srv.app.jobs.current.context == {"leg": 1}
-    # arrival at the leg's last waypoint ends the wait
-    end = wps[-3:-1]  # x,y,heading triples
+    # it comes back to the leg's end and stands there: the same pose, reported twice, holds
     srv.app.world.set_rover_pose(end[0], end[1], 0.0)
-    assert gnc.request(f"pose -x {end[0]} -y {end[1]} -heading 0").status == "OK"
+    for _ in range(2):
+        assert gnc.request(f"pose -x {end[0]} -y {end[1]} -heading 0").status == "OK"
     final = c.until_final(job=job, timeout=300)[-1]
     assert final.status == "OK" and final.fields["reached"] == "true", final.fields
+    assert abs(float(final.fields["x"]) - end[0]) < 1e-3
 
 
 def test_stopped_ends_the_wait_and_two_rescans_from_one_spot_are_e_data(server_factory) -> None:

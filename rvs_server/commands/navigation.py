@@ -121,6 +121,11 @@ class NavigateConfig(ModuleConfig):
     overlap: float = param(0.3, "view overlap of each leg's DEM", min=0.0, max=0.9, option=False)
     wait_timeout: float = param(0.0, "seconds to wait for the GNC's pose after a leg (0: forever)", unit="s",
                                 min=0.0, max=86400.0, option=False)
+    pose_settle: float = param(2.0, "a leg's wait for the GNC ends when its pose holds still this long (reported "
+                               "again or not), or at pose -stopped true; a pose near the leg's end while moving "
+                               "does not end it", unit="s", min=0.05, max=600.0, option=False)
+    pose_still: list[float] = param([0.01, 1.0], "pose reports within this distance and heading of the first of "
+                                    "them hold still", unit="m,deg", length=2, min=0.0, max=10.0, option=False)
     judge_range: float = param(3.0, "a goal judged unreachable (goal_in_hazard, enclosed) from farther than this "
                                "is driven toward and judged again from closer, where the ToF sees it densely and "
                                "reliably (its returns thin out and get noisier toward the 4.5 m it keeps)", unit="m",
@@ -466,9 +471,10 @@ def _navigate(job: Job, cfg: NavigateConfig, name: str, track: list[tuple[float,
             app.set_pose(odo[0], odo[1], odo[2], source="odometry")
             loc.after_drive(job, plan.waypoints.xy)
         else:
-            arrived = wait_for_rover(app, job, version, end, cfg.tolerance, cfg.wait_timeout)
+            arrived = wait_for_rover(app, job, version, end, cfg)
             track.append((arrived.x, arrived.y))
-            leg_progress(segments, segments, f"rover {'stopped' if arrived.stopped else 'arrived'} at "
+            there = math.hypot(arrived.x - end[0], arrived.y - end[1]) <= cfg.tolerance
+            leg_progress(segments, segments, f"rover {'arrived' if there else 'stopped'} at "
                                              f"({arrived.x:.2f}, {arrived.y:.2f})", "drive")
     pose = app.pose
     reached = math.hypot(goal[0] - pose.x, goal[1] - pose.y) <= cfg.tolerance
@@ -529,27 +535,40 @@ def _check(app: App, cfg: NavigateConfig) -> None:
         raise ProtocolError("E_ARG", str(exc)) from None
 
 
-def wait_for_rover(app: App, job: Job, version: int, end: tuple[float, float], tolerance: float,
-                   timeout: float, on_pose: Callable[[Pose], None] | None = None) -> Pose:
-    """Until a pose report says the rover has stopped: within ``tolerance`` of the leg's last
-    waypoint, or ``-stopped true``. A GNC streaming its pose while it drives must not end the
-    wait (each pose report would start a new 360-degree scan from wherever the rover is); each
-    such report goes to ``on_pose`` (the see loop's check), outside the pose lock, so the pose
-    command is never kept waiting by it."""
-    deadline = time.monotonic() + timeout if timeout > 0 else math.inf
+def wait_for_rover(app: App, job: Job, version: int, end: tuple[float, float], cfg: NavigateConfig,
+                   on_pose: Callable[[Pose], None] | None = None) -> Pose:
+    """Until the pose reports say the rover has stopped: ``-stopped true``, or a pose that holds
+    (within ``cfg.pose_still``) for ``cfg.pose_settle`` seconds, reported again or not. Where it
+    stopped does not matter: a GNC streaming its pose as it drives passes the leg's end, or comes
+    within the tolerance of it, while still moving, and a scan started then would start on a
+    moving rover. Each report goes to ``on_pose`` (the see loop's check), outside the pose lock,
+    so the pose command is never kept waiting by it."""
+    deadline = time.monotonic() + cfg.wait_timeout if cfg.wait_timeout > 0 else math.inf
+    still_m, still_deg = cfg.pose_still
+    anchor: Pose | None = None  # the first report of the run of reports that hold still
+    anchor_at = 0.0
+    latest: Pose | None = None
     while True:
         with app.pose_changed:
             job.check()
             if app.pose_version == version:
-                if time.monotonic() >= deadline:
+                now = time.monotonic()
+                if latest is not None and now - anchor_at >= cfg.pose_settle:
+                    return latest
+                if now >= deadline:
                     raise ProtocolError("E_DATA", f"no pose at the leg's end ({end[0]:.2f}, {end[1]:.2f}) within "
-                                                  f"{timeout:g} s; send pose -x -y -heading (with -stopped true if "
-                                                  "the rover stopped short)")
-                app.pose_changed.wait(0.1)
+                                                  f"{cfg.wait_timeout:g} s; send pose -x -y -heading (with -stopped "
+                                                  "true once the rover stands)")
+                wake = anchor_at + cfg.pose_settle - now if latest is not None else 0.1
+                app.pose_changed.wait(min(0.1, max(wake, 0.001)))
                 continue
             version = app.pose_version
             p = app.pose
-        if p.stopped or math.hypot(p.x - end[0], p.y - end[1]) <= tolerance:
+        if p.stopped:
             return p
+        turned = abs((p.heading - anchor.heading + 180.0) % 360.0 - 180.0) if anchor is not None else 0.0
+        if anchor is None or math.hypot(p.x - anchor.x, p.y - anchor.y) > still_m or turned > still_deg:
+            anchor, anchor_at = p, time.monotonic()
+        latest = p
         if on_pose is not None:
             on_pose(p)
