@@ -162,6 +162,7 @@ class App:
     monitors: Monitors  # hazard monitor, target tracker (event loop only)
     recovery: RecoverySets  # break's recovery sets and the newest of them
     console: WebConsole | None  # the operator web console, when server.web_port is set (event loop)
+    console_off: str | None  # why there is no console (web_port 0, its port taken): status says it
 
     def __init__(
         self,
@@ -189,6 +190,7 @@ class App:
         self.last_used_hardware = False
         self.last_ptu = None
         self.console = None
+        self.console_off = None
         self.stopping = asyncio.Event()
         self._quitting = False
         self._base_mode = "ready"

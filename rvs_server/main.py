@@ -90,25 +90,33 @@ async def run(store: ConfigStore, *, ready: Callable[[int], None] | None = None,
         sock = listen(server.host, server.port)
     except OSError as exc:
         raise StartupError(f"cannot listen on {server.host}:{server.port}: {exc}") from exc
-    web_sock = None
+    web_sock, console_off = None, "server.web_port is 0"
     if server.web_port:
         host = console_host(server.host, server.token, server.web_public)
         try:
             web_sock = listen(host, server.web_port)
+            console_off = None
         except OSError as exc:
-            sock.close()
-            raise StartupError(f"cannot serve the web console on {host}:{server.web_port}: {exc}; "
-                               "set server.web_port to a free port, or 0 to turn the console off") from exc
-    return await serve(app, sock, ready=ready, handle_signals=handle_signals, web_sock=web_sock)
+            # The console is the operator's window, the TCP port the GNC's: a console port taken
+            # (by another server on this machine) costs the console, never the server.
+            console_off = (f"cannot serve it on {host}:{server.web_port}: {exc.strerror or exc}; "
+                           "start with --web-port N (a free port) for a console")
+    return await serve(app, sock, ready=ready, handle_signals=handle_signals, web_sock=web_sock,
+                       console_off=console_off)
 
 
 def parse_args(argv: list[str] | None) -> argparse.Namespace:
     p = argparse.ArgumentParser(
         prog="rvs-server",
-        description="Rover vision system server (simulated hardware unless config/drivers.yaml says otherwise).",
+        description="Rover vision system server (simulated hardware unless config/drivers.yaml says otherwise): "
+                    "the RVS protocol on a TCP port, and an operator web console (map, jobs, commands) at "
+                    "http://HOST:7071/ (--web-port). A console port already taken (another server on this "
+                    "machine) only turns the console off; the log, status and the hello line say so.",
     )
     p.add_argument("--host", help="listen address (default 127.0.0.1)")
     p.add_argument("--port", type=int, help="listen port (default 7070; 0 picks a free one)")
+    p.add_argument("--web-port", type=int, metavar="N",
+                   help="operator web console port, on the same host (default 7071; 0: no console)")
     p.add_argument("--data", help="data directory (default ./data)")
     p.add_argument("--scene", help="simulated scene: office, quarry, marsyard, hirise, or a scene .yaml path (default office)")
     p.add_argument("--config", help="folder of YAML files overriding config/")
@@ -122,7 +130,7 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
 def main(argv: list[str] | None = None) -> int:
     args = parse_args(argv)
     overrides = list(args.set)
-    for key in ("host", "port", "data", "scene"):
+    for key in ("host", "port", "data", "scene", "web_port"):
         value = getattr(args, key)
         if value is not None:
             overrides.append(f"server.{key}={value}")

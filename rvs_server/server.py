@@ -100,9 +100,7 @@ class Connection(asyncio.Protocol):
     def greet(self) -> None:
         """The hello EVENT: at connect, and again in JSON when format json comes at connect time
         (a JSON-only client then has a greeting it can parse)."""
-        self.send(Reply("RVS", "EVENT", {
-            "kind": "hello", "protocol": PROTOCOL_VERSION, "server": self.app.name, "mode": self.app.mode,
-        }))
+        self.send(hello(self.app))
 
     def data_received(self, data: bytes) -> None:
         if self.closed or self.exiting:
@@ -213,6 +211,13 @@ class Connection(asyncio.Protocol):
         self.app.connections.discard(self)
 
 
+def hello(app: App) -> Reply:
+    """The greeting: the contract's keys first, then ``console`` (on/off), so an operator whose
+    server started without its console (its port taken) learns it at connect."""
+    return Reply("RVS", "EVENT", {"kind": "hello", "protocol": PROTOCOL_VERSION, "server": app.name,
+                                  "mode": app.mode, "console": "off" if app.console is None else "on"})
+
+
 def give_back_memory() -> None:
     """Return freed heap to the system after dropping a client with megabytes queued: glibc keeps
     freed memory in its arenas, so without a trim a rover's server would carry every flood it
@@ -246,11 +251,15 @@ def listen(host: str, port: int) -> socket.socket:
 
 
 async def serve(app: App, sock: socket.socket, *, ready: Any = None, handle_signals: bool = True,
-                web_sock: socket.socket | None = None) -> int:
-    """Open the devices, serve until quit or a signal; returns the exit status."""
+                web_sock: socket.socket | None = None, console_off: str | None = None) -> int:
+    """Open the devices, serve until quit or a signal; returns the exit status. ``console_off``
+    says why there is no ``web_sock`` (status and the log repeat it)."""
     loop = asyncio.get_running_loop()
     bound = sock.getsockname()
     log.info("listening", host=bound[0], port=bound[1], server=app.name, data=str(app.data_dir))
+    app.console_off = console_off if web_sock is None else None
+    if web_sock is None and app.server_cfg.web_port:  # wanted, but not to be had: say so at once
+        log.warning("web_console_off", reason=app.console_off)
     if handle_signals:
         for sig in (signal.SIGINT, signal.SIGTERM):
             try:
@@ -260,9 +269,13 @@ async def serve(app: App, sock: socket.socket, *, ready: Any = None, handle_sign
     await loop.run_in_executor(None, app.devices.open_all)
     if not app.devices.healthy():
         app.set_mode("fault")
+    if web_sock is not None:  # before the TCP server, so that every greeting says console=on
+        try:
+            await app.start_console(web_sock)
+        except OSError as exc:
+            app.console, app.console_off = None, f"the console did not start: {exc}"
+            log.warning("web_console_off", reason=app.console_off)
     server = await loop.create_server(lambda: Connection(app), sock=sock, backlog=512)
-    if web_sock is not None:
-        await app.start_console(web_sock)
     if app.server_cfg.warm_up:
         loop.run_in_executor(None, warm_up_kernels)  # the first DEM or plan then skips the JIT
     if ready is not None:

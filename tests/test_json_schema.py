@@ -343,7 +343,7 @@ def test_format_json_at_connect_time_sends_the_greeting_again_in_json(server: Se
     got = [valid(c.line()) for _ in range(3)]
     assert got[0] == {"module": "EGP-RVS-FORMAT", "status": "OK", "format": "json"}
     assert got[1] == {"module": "RVS", "status": "EVENT", "kind": "hello", "protocol": 1,
-                      "server": "rvs/0.1.0", "mode": "ready"}
+                      "server": "rvs/0.1.0", "mode": "ready", "console": "off"}
     assert (got[2]["module"], got[2]["job"]) == ("EGP-RVS-STATUS", None)
     # once the connection has started a job, format json only switches
     c.send("format text")

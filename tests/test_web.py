@@ -15,7 +15,6 @@ import numpy as np
 import pytest
 
 from prox_workflows.grid import read_geotiff
-from rvs_server.main import StartupError, run
 from rvs_server.web.console import console_host
 
 DEM = "dem-full-tof -range -20,20,-50,-35 -cell 0.05 -name web"
@@ -239,16 +238,3 @@ def test_the_console_binds_to_loopback_without_a_token() -> None:
     assert console_host("0.0.0.0", "", True) == "0.0.0.0"
     assert console_host("127.0.0.1", "", False) == "127.0.0.1"
     assert console_host("::1", "", False) == "::1"
-
-
-def test_a_taken_web_port_stops_the_start_with_what_to_do(tmp_path: Path) -> None:
-    from rvs_server.main import build_config
-
-    with socket.socket() as taken:
-        taken.bind(("127.0.0.1", 0))
-        taken.listen()
-        port = taken.getsockname()[1]
-        store = build_config(None, [f"server.data={tmp_path}", "server.port=0", f"server.web_port={port}",
-                                    "server.warm_up=false"])
-        with pytest.raises(StartupError, match=r"web console .*server.web_port"):
-            asyncio.run(run(store, handle_signals=False))

@@ -275,6 +275,9 @@ def status(ctx: Context, cfg: None) -> dict[str, Any]:
     out["clients"] = len(app.connections)
     out["uptime"] = Fixed(time.monotonic() - app.started, 1)
     out["recovery"] = app.last_recovery
+    from ..web.console import console_fields  # console=on console_url, or off console_reason
+
+    out.update(console_fields(app))
     if app.world is not None:
         out["scene"] = app.world.scene_name
         # Beside the believed pose: the simulated rover's true one (they part with sim slip).

@@ -110,10 +110,9 @@ class WebPeer:
             self.queue.put_nowait(message)
 
     def greet(self) -> None:
-        from .. import PROTOCOL_VERSION
+        from ..server import hello
 
-        self.send(Reply("RVS", "EVENT", {"kind": "hello", "protocol": PROTOCOL_VERSION, "server": self.app.name,
-                                         "mode": self.app.mode}))
+        self.send(hello(self.app))
 
     def close_if_done(self) -> None:
         """A page closes when its socket does; nothing waits for its jobs' final lines."""
@@ -153,6 +152,7 @@ class WebConsole:
         self.bounds: dict[tuple[str, str], list[float]] = {}  # (path, version) -> layer bounds
         self.runner: web.AppRunner | None = None
         self.port = 0
+        self.url = ""  # where the page is, once started (status shows it)
         self._ticker: asyncio.Task[None] | None = None
         self._to_render: list[tuple[str, Path]] = []  # new layer versions, rendered before a page asks
         self._renderer: asyncio.Task[None] | None = None
@@ -174,9 +174,10 @@ class WebConsole:
         await self.runner.setup()
         site = web.SockSite(self.runner, sock)
         await site.start()
-        self.port = sock.getsockname()[1]
+        host, self.port = sock.getsockname()[:2]
+        self.url = f"http://{f'[{host}]' if ':' in host else host}:{self.port}/"
         self._ticker = asyncio.create_task(self._tick())
-        log.info("web_console", url=f"http://{sock.getsockname()[0]}:{self.port}/")
+        log.info("web_console", url=self.url)
 
     async def close(self) -> None:
         """Close every page's WebSocket with 'going away' (1001), then the HTTP server."""
@@ -354,6 +355,13 @@ class WebConsole:
             await page.writing
             page.log.info("client_disconnected", clients=len(app.connections))
         return ws
+
+
+def console_fields(app: App) -> dict[str, Any]:
+    """What status says of the console: where it is, or why there is none."""
+    if app.console is not None:
+        return {"console": "on", "console_url": app.console.url}
+    return {"console": "off", "console_reason": app.console_off or "not started"}
 
 
 def console_host(host: str, token: str, public: bool) -> str:
