@@ -5,15 +5,21 @@ printed, and a one-shot run (``-c``) reports through its exit status whether any
 The consoles differ in which errors are worth a bare message, what Ctrl-C means and how a ``-c``
 line is echoed; those are class attributes or small overrides here, so each tool keeps its exact
 output while the scaffolding lives once.
+
+A one-shot run's stdout holds the commands' results and nothing else (``rvs-cam -c calibration >
+calib.yaml`` must be YAML a program reads): the echo of a ``-c`` line, what the start-up command
+(``open``, ``init``) prints, warnings and errors are *notes*, which go to stderr there. At the
+prompt a person reads both in one place, so notes go to the console's stdout.
 """
 
 from __future__ import annotations
 
 import cmd
+import contextlib
 import json
 import shlex
 import sys
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
 from typing import Any, TextIO
 
@@ -49,7 +55,32 @@ def read_config(path: str | Path | None = None) -> dict[str, Any] | None:
     source = Path(path) if path else (DEFAULT_CONFIG if DEFAULT_CONFIG.exists() else None)
     if source is None:
         return None
-    return yaml.safe_load(source.read_text()) or {}
+    try:
+        data = yaml.safe_load(source.read_text()) or {}
+    except yaml.MarkedYAMLError as exc:
+        if exc.problem_mark is not None:
+            exc.problem_mark.name = str(source)  # so the message names the file, not "<unicode string>"
+        raise
+    if not isinstance(data, dict):
+        raise ValueError(f"{source}: not a drivers config (want a mapping of device sections such as 'tof:')")
+    return data
+
+
+#: What a console's start-up (config file, option values, scene, backend) may raise on bad input:
+#: each is reported as one line and exit status 2, never as a traceback.
+SETUP_ERRORS: tuple[type[Exception], ...] = (OSError, ValueError, TypeError, DeviceError, yaml.YAMLError)
+
+
+def one_line(exc: BaseException) -> str:
+    """An exception as one line for ``tool: message``: YAML's errors span several lines (the
+    quoted source and a caret), so they become their position and problem."""
+    if isinstance(exc, yaml.MarkedYAMLError) and exc.problem_mark is not None:
+        mark = exc.problem_mark
+        where = f"{mark.name}: " if mark.name and not mark.name.startswith("<") else ""
+        return f"{where}not valid YAML: {exc.problem} (line {mark.line + 1}, column {mark.column + 1})"
+    if isinstance(exc, FileNotFoundError) and exc.filename:
+        return f"{exc.filename}: no such file"
+    return " ".join(str(exc).split()) or type(exc).__name__
 
 
 def load_section(section: str, defaults: dict[str, Any], path: str | Path | None = None) -> dict[str, Any]:
@@ -71,14 +102,39 @@ class DeviceConsole(cmd.Cmd):
     #: Tail of the unknown-command message. Not named help_*: cmd.Cmd would list that as a help topic.
     unknown_hint = "'help' lists the commands"
 
-    def __init__(self, stdout: TextIO | None = None) -> None:
+    def __init__(self, stdout: TextIO | None = None, notes: TextIO | None = None) -> None:
         super().__init__(stdout=stdout or sys.stdout)
         self.failed: bool | int = False
+        self._notes = notes
+
+    @property
+    def notes(self) -> TextIO:
+        """Where notes go (see the module's docstring): stdout unless :func:`run` says otherwise."""
+        return self._notes if self._notes is not None else self.stdout
+
+    @notes.setter
+    def notes(self, stream: TextIO | None) -> None:
+        self._notes = stream
 
     def say(self, text: str) -> None:
-        """Flushed at once, so a long command's progress shows while it runs."""
+        """A result, flushed at once, so a long command's progress shows while it runs."""
         self.stdout.write(text + "\n")
         self.stdout.flush()
+
+    def note(self, text: str) -> None:
+        """Anything that is not a command's result: kept apart so a one-shot stdout stays parseable."""
+        self.notes.write(text + "\n")
+        self.notes.flush()
+
+    @contextlib.contextmanager
+    def results_as_notes(self) -> Iterator[None]:
+        """A command run for its side effect (the start-up ``open``): what it prints is a note."""
+        stdout = self.stdout
+        self.stdout = self.notes
+        try:
+            yield
+        finally:
+            self.stdout = stdout
 
     def dump(self, data: Any) -> None:
         """Device structures as indented JSON, readable and still parseable by scripts."""
@@ -87,11 +143,11 @@ class DeviceConsole(cmd.Cmd):
     def fail(self, message: str) -> None:
         """Every failure passes here so a one-shot run can report it in its exit status."""
         self.failed = True
-        self.say(message)
+        self.note(message)
 
     def interrupted(self) -> None:
         """Ctrl-C stops only the running command; a console whose device keeps moving overrides this."""
-        self.say("interrupted")
+        self.note("interrupted")
 
     def onecmd(self, line: str) -> bool:
         try:
@@ -142,16 +198,24 @@ def run(
     start: str | None = None,
     close: Callable[[], object] | None = None,
     prompt_status: bool = False,
+    notes: TextIO | None = None,
 ) -> int:
     """The console's session: ``lines`` one-shot if any, else the interactive prompt.
 
     ``start`` (e.g. ``open``) runs first so the device is ready; ``close`` runs however the session
     ends and its errors are swallowed, since leaving must never trace back. One-shot runs exit 1
     if any command failed; the prompt exits 0 unless ``prompt_status``, as a person saw the errors.
+    One-shot, notes (``start``'s output among them) go to ``notes``, by default stderr.
     """
+    if lines:
+        console.notes = notes or sys.stderr
     try:
         if start is not None:
-            console.onecmd(start)
+            if lines:
+                with console.results_as_notes():
+                    console.onecmd(start)
+            else:
+                console.onecmd(start)
         if lines:
             for line in lines:
                 if console.run_line(line):

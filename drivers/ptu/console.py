@@ -2,7 +2,9 @@
 
 Every public driver operation has a prompt command; every error is caught and printed, so a
 bench session survives a pulled cable. ``-c "move 30 -10" -c position`` runs lines one-shot
-(also ``;``-separated) for scripts and tests; the exit status is 1 if any of them failed.
+(also ``;``-separated) for scripts and tests; the exit status is 1 if any of them failed, 2 if the
+console could not start (a bad option or config). One-shot, stdout holds only the commands'
+results; errors go to stderr.
 """
 
 from __future__ import annotations
@@ -13,10 +15,15 @@ import sys
 from pathlib import Path
 from typing import Any, TextIO
 
-import yaml
-
-from drivers.base import DeviceError
-from drivers.console import DEFAULT_CONFIG, DeviceConsole, load_section, run, split_words
+from drivers.console import (
+    DEFAULT_CONFIG,
+    SETUP_ERRORS,
+    DeviceConsole,
+    load_section,
+    one_line,
+    run,
+    split_words,
+)
 from drivers.ptu import BACKENDS, Ptu, create
 
 
@@ -43,14 +50,14 @@ class PtuConsole(DeviceConsole):
     # -- plumbing ------------------------------------------------------------------------------
     def interrupted(self) -> None:
         """Ctrl-C during a move must stop the axes too, not only the wait for them."""
-        self.say("interrupted; halting the PTU")
+        self.note("interrupted; halting the PTU")
         self._quietly(self.ptu.halt)
 
     def _quietly(self, fn: Any) -> None:
         try:
             fn()
         except Exception as exc:  # noqa: BLE001
-            self.say(f"error: {exc}")
+            self.note(f"error: {exc}")
 
     # -- motion --------------------------------------------------------------------------------
     def do_move(self, arg: str) -> None:
@@ -178,17 +185,13 @@ def main(argv: list[str] | None = None) -> int:
 
     try:
         config = load_section("ptu", {}, args.config)
-    except (OSError, yaml.YAMLError) as exc:
-        print(f"error: cannot read the config: {exc}", file=sys.stderr)
-        return 2
-    for key in ("backend", "port", "baudrate", "timeout", "move_timeout", "time_scale"):
-        value = getattr(args, key)
-        if value is not None:
-            config[key] = value
-    try:
+        for key in ("backend", "port", "baudrate", "timeout", "move_timeout", "time_scale"):
+            value = getattr(args, key)
+            if value is not None:
+                config[key] = value
         ptu = create(config)
-    except DeviceError as exc:
-        print(f"error: {exc}", file=sys.stderr)
+    except SETUP_ERRORS as exc:  # a config that cannot be read, a value out of range, an unknown backend
+        print(f"rvs-ptu: {one_line(exc)}", file=sys.stderr)
         return 2
     # One-shot lines open the port on first use; opening up front would add a line to their output.
     return run(PtuConsole(ptu), args.command, start=None if args.command else "open", close=ptu.close)

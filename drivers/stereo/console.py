@@ -2,7 +2,10 @@
 
 Every public function of the pair is a command; every error is caught and printed, so a failing
 camera never ends the session. ``-c "command"`` runs lines non-interactively (repeatable); the
-exit status is 1 if any of them failed. Images go under ``--data DIR/stereo/`` (the server's data
+exit status is 1 if any of them failed, 2 if the console could not start (a bad option or config).
+One-shot, stdout holds only the commands' results (``rvs-cam -c calibration > calib.yaml`` is the
+calibration YAML rvs-stereo and rvs-odometry read); the echoed command lines, the cameras' ids
+from start-up, warnings and errors go to stderr. Images go under ``--data DIR/stereo/`` (the server's data
 directory by default): a relative FILE is taken there, an absolute one as it is; each grab prints
 the absolute path it wrote.
 """
@@ -19,7 +22,16 @@ from typing import Any
 import numpy as np
 import yaml
 
-from drivers.console import DEFAULT_CONFIG, DeviceConsole, default_data_dir, read_config, run, split_words
+from drivers.console import (
+    DEFAULT_CONFIG,
+    SETUP_ERRORS,
+    DeviceConsole,
+    default_data_dir,
+    one_line,
+    read_config,
+    run,
+    split_words,
+)
 from drivers.stereo import BACKENDS, create
 from drivers.stereo.modes import PIXEL_FORMATS, RESOLUTIONS, SIDES
 
@@ -71,15 +83,16 @@ class CamShell(DeviceConsole):
     def fail(self, message: str) -> None:
         """rvs-cam's ``failed`` has always been a count of failed commands, not a flag."""
         self.failed += 1
-        self.say(message)
+        self.note(message)
 
     def precmd(self, line: str) -> str:
         head, _, rest = line.strip().partition(" ")
         return f"{head.replace('-', '_')} {rest}".strip()
 
     def run_line(self, line: str) -> bool:
-        """Each ``-c`` is one command, echoed after the prompt so the output reads as a transcript."""
-        self.say(f"{self.prompt}{line}")
+        """Each ``-c`` is one command, echoed after the prompt (a note) so the two streams read as a
+        transcript on a terminal."""
+        self.note(f"{self.prompt}{line}")
         return self.onecmd(self.precmd(line))
 
     def show(self, data: Any) -> None:
@@ -279,7 +292,7 @@ def _plain(data: Any) -> Any:
 def load_config(path: str | Path | None) -> dict[str, Any]:
     """The whole file, as rvs-cam reads both its stereo and its trigger section."""
     if path and not Path(path).exists():
-        raise SystemExit(f"rvs-cam: config file {Path(path)} not found")
+        raise FileNotFoundError(f"config file {Path(path)} not found")
     return read_config(path) or {}
 
 
@@ -301,9 +314,42 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     return p.parse_args(argv)
 
 
-def main(argv: list[str] | None = None, *, world: Any = None, stdout: Any = None) -> int:
+def main(argv: list[str] | None = None, *, world: Any = None, stdout: Any = None, stderr: Any = None) -> int:
     args = parse_args(argv)
     out = stdout or sys.stdout
+    err = stderr or sys.stderr
+    try:
+        settings, trg_cfg, world = _setup(args, world)
+    except SETUP_ERRORS as exc:
+        print(f"rvs-cam: {one_line(exc)}", file=err)
+        return 2
+
+    trigger = None
+    if trg_cfg["backend"] != "none":
+        from drivers import trigger as trigger_pkg
+
+        try:
+            trigger = trigger_pkg.create(trg_cfg, world)
+            trigger.open()
+        except Exception as exc:
+            print(f"warning: trigger box unavailable ({one_line(exc)}); only direct grabs will work", file=err)
+            trigger = None
+    camera = create(settings, world, trigger)
+    shell = CamShell(camera, trigger, args.data, stdout=out)
+    try:
+        return run(shell, args.commands, start="init", prompt_status=True, notes=err)
+    finally:
+        # Not run(close=...): a camera or trigger that fails to close is worth a traceback here.
+        try:
+            camera.close()
+        finally:
+            if trigger is not None:
+                trigger.close()
+
+
+def _setup(args: argparse.Namespace, world: Any) -> tuple[Any, dict[str, Any], Any]:
+    """The camera settings, the trigger's config and the simulated world from the options and the
+    config file; raises one of SETUP_ERRORS on bad input."""
     config = load_config(args.config)
     cam_cfg = dict(config.get("stereo") or {})
     trg_cfg = dict(config.get("trigger") or {})
@@ -326,29 +372,7 @@ def main(argv: list[str] | None = None, *, world: Any = None, stdout: Any = None
         from drivers.sim.world import World
 
         world = World.from_scene(args.scene, seed=settings.seed)
-
-    trigger = None
-    if trg_cfg["backend"] != "none":
-        from drivers import trigger as trigger_pkg
-
-        try:
-            trigger = trigger_pkg.create(trg_cfg, world)
-            trigger.open()
-        except Exception as exc:
-            print(f"warning: trigger box unavailable ({exc}); only direct grabs will work", file=out)
-            trigger = None
-    camera = create(settings, world, trigger)
-    shell = CamShell(camera, trigger, args.data, stdout=out)
-    shell.onecmd("init")
-    try:
-        return run(shell, args.commands, prompt_status=True)
-    finally:
-        # Not run(close=...): a camera or trigger that fails to close is worth a traceback here.
-        try:
-            camera.close()
-        finally:
-            if trigger is not None:
-                trigger.close()
+    return settings, trg_cfg, world
 
 
 if __name__ == "__main__":

@@ -3,7 +3,13 @@
 Every public function of the ToF interface has a prompt command; every error is caught and
 printed, so a session survives an unplugged camera. The console opens one camera at start-up
 (``--serial``, 0 = the first found) unless ``--no-open``. ``-c "grab z floor.tif -n 10"`` runs
-lines one-shot (``;`` separates several); the exit status is 1 if any of them failed.
+lines one-shot (``;`` separates several); the exit status is 1 if any of them failed, 2 if the
+console could not start (a bad option or config). One-shot, stdout holds only the commands'
+results; what ``open`` says at start-up, warnings and errors go to stderr.
+
+Images go under ``--data DIR/tof/`` (the server's data directory by default, as ``rvs-cam``'s go
+under ``stereo/``): a relative FILE is taken there, an absolute one as it is, and a FILE without
+the ``.tif`` extension gets it; each grab prints the absolute path it wrote.
 """
 
 from __future__ import annotations
@@ -19,8 +25,16 @@ import numpy as np
 import tifffile
 import yaml
 
-from drivers.base import DeviceError
-from drivers.console import DEFAULT_CONFIG, DeviceConsole, load_section, run, split_words
+from drivers.console import (
+    DEFAULT_CONFIG,
+    SETUP_ERRORS,
+    DeviceConsole,
+    default_data_dir,
+    load_section,
+    one_line,
+    run,
+    split_words,
+)
 
 from . import constants as k
 from .backend import BACKENDS
@@ -66,10 +80,23 @@ class TofConsole(DeviceConsole):
     # As before: file errors and cancelled grabs print their message alone, like device errors.
     plain_errors = (*DeviceConsole.plain_errors, OSError, Cancelled)
 
-    def __init__(self, camera: Tof, world: Any = None, stdout: TextIO | None = None) -> None:
+    def __init__(self, camera: Tof, world: Any = None, stdout: TextIO | None = None,
+                 data_dir: str | Path | None = None) -> None:
         super().__init__(stdout)
         self.cam = camera
         self.world = world
+        self.out_dir = Path(data_dir if data_dir is not None else default_data_dir()) / "tof"
+
+    def _image_path(self, name: Path, suffixes: tuple[str, ...] = (".tif", ".tiff")) -> Path:
+        """Where an image named on the command line goes: under DATA/tof unless absolute, with
+        the format's extension, so a bare name never lands extension-less in the working directory."""
+        path = name if name.is_absolute() else self.out_dir / name
+        if path.suffix.lower() not in suffixes:
+            if path.suffix.lower() in (".png", ".jpg", ".jpeg", ".bmp") and suffixes[0] != ".png":
+                raise ValueError(f"{name}: grabs are float32 TIFFs, name it .tif (--preview FILE.png draws a picture)")
+            path = path.with_name(path.name + suffixes[0])
+        path.parent.mkdir(parents=True, exist_ok=True)
+        return path.absolute()
 
     # -- camera maintenance --------------------------------------------------------------------
     def do_open(self, arg: str) -> None:
@@ -209,7 +236,8 @@ class TofConsole(DeviceConsole):
     # -- images --------------------------------------------------------------------------------
     def do_grab(self, arg: str) -> None:
         """grab TYPE FILE.tif [-n N] [-c CONF] [--raw] [--preview FILE.png] [--grey]
-        TYPE: distance amplitude confidence z xyz. Saves a float32 TIFF; --raw skips undistortion."""
+        TYPE: distance amplitude confidence z xyz. Saves a float32 TIFF (FILE relative to DATA/tof,
+        .tif added if missing); --raw skips undistortion."""
         p = _ArgParser(prog="grab", add_help=False)
         p.add_argument("type", choices=k.IMAGE_TYPES)
         p.add_argument("file", type=Path)
@@ -219,37 +247,38 @@ class TofConsole(DeviceConsole):
         p.add_argument("--preview", type=Path)
         p.add_argument("--grey", action="store_true")
         a = p.parse_args(shlex.split(arg))
+        if a.preview is not None and a.type == "xyz":
+            raise ValueError("previews are for 2-D images, not xyz")
+        file = self._image_path(a.file)
+        preview = self._image_path(a.preview, (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff")) if a.preview else None
         image = self.cam.grab(a.type, a.integrate, a.confidence, undistort=False if a.raw else None)
-        a.file.parent.mkdir(parents=True, exist_ok=True)
-        tifffile.imwrite(a.file, image, photometric="rgb" if image.ndim == 3 else "minisblack",
+        tifffile.imwrite(file, image, photometric="rgb" if image.ndim == 3 else "minisblack",
                          metadata={"type": a.type, "integrate": a.integrate, "confidence": a.confidence})
-        self.say(f"{a.type} -> {a.file}: {_stats(image)}")
-        if a.preview is not None:
-            if image.ndim == 3:
-                raise ValueError("previews are for 2-D images, not xyz")
+        self.say(f"{a.type} -> {file}: {_stats(image)}")
+        if preview is not None:
             import cv2
 
             colour = self.cam.fake_colour(image, a.type, mode="grey" if a.grey else "jet")
-            a.preview.parent.mkdir(parents=True, exist_ok=True)
-            if not cv2.imwrite(str(a.preview), colour):
-                raise OSError(f"could not write {a.preview}")
-            self.say(f"preview -> {a.preview}")
+            if not cv2.imwrite(str(preview), colour):
+                raise OSError(f"could not write {preview}")
+            self.say(f"preview -> {preview}")
 
     def do_xyz(self, arg: str) -> None:
-        """xyz FILE.tif [-n N] [-c CONF] [--amplitude FILE.tif]: XYZ image (m, -1 undefined)."""
+        """xyz FILE.tif [-n N] [-c CONF] [--amplitude FILE.tif]: XYZ image (m, -1 undefined), under DATA/tof."""
         p = _ArgParser(prog="xyz", add_help=False)
         p.add_argument("file", type=Path)
         p.add_argument("-n", "--integrate", type=int, default=1)
         p.add_argument("-c", "--confidence", type=float, default=0.0)
         p.add_argument("--amplitude", type=Path)
         a = p.parse_args(shlex.split(arg))
+        file = self._image_path(a.file)
+        amplitude_file = self._image_path(a.amplitude) if a.amplitude is not None else None
         xyz, amplitude = self.cam.grab_xyz(a.integrate, a.confidence)
-        a.file.parent.mkdir(parents=True, exist_ok=True)
-        tifffile.imwrite(a.file, xyz, photometric="rgb")
-        self.say(f"xyz -> {a.file}: {_stats(xyz)}")
-        if a.amplitude is not None:
-            tifffile.imwrite(a.amplitude, amplitude)
-            self.say(f"amplitude -> {a.amplitude}: {_stats(amplitude)}")
+        tifffile.imwrite(file, xyz, photometric="rgb")
+        self.say(f"xyz -> {file}: {_stats(xyz)}")
+        if amplitude_file is not None:
+            tifffile.imwrite(amplitude_file, amplitude)
+            self.say(f"amplitude -> {amplitude_file}: {_stats(amplitude)}")
 
     def do_intrinsics(self, arg: str) -> None:
         """intrinsics: camera matrix and distortion used for undistortion."""
@@ -282,6 +311,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--scene", default="office", help="sim: scene of the simulated world")
     parser.add_argument("--config", type=Path, help=f"drivers YAML (default {DEFAULT_CONFIG})")
     parser.add_argument("--no-open", action="store_true", help="do not open the camera at start")
+    parser.add_argument("--data", type=Path, default=default_data_dir(),
+                        help="data directory: images go under DATA/tof/ (default: the server's, %(default)s)")
     parser.add_argument("-c", "--command", action="append", default=[],
                         help="run this line (';' separates several) and exit; repeatable")
     args = parser.parse_args(argv)
@@ -306,10 +337,11 @@ def main(argv: list[str] | None = None) -> int:
 
             world = World.from_scene(args.scene, seed=settings.seed)
         camera = create(settings, world)
-    except (OSError, ValueError, DeviceError, yaml.YAMLError) as exc:
-        print(f"error: {exc}", file=sys.stderr)
+    except SETUP_ERRORS as exc:
+        print(f"rvs-tof: {one_line(exc)}", file=sys.stderr)
         return 2
-    return run(TofConsole(camera, world), args.command, start=None if args.no_open else "open", close=camera.close)
+    return run(TofConsole(camera, world, data_dir=args.data), args.command, start=None if args.no_open else "open",
+               close=camera.close)
 
 
 if __name__ == "__main__":

@@ -19,18 +19,34 @@ def test_one_shot_move_prints_the_position(capsys: pytest.CaptureFixture[str]) -
 
 def test_errors_are_printed_and_the_console_carries_on(capsys: pytest.CaptureFixture[str]) -> None:
     rc = main(["--backend", "sim", "--time-scale", "0", "-c", "move 200 0; pan 10; speed 9000; frobnicate"])
-    out = capsys.readouterr().out.splitlines()
+    captured = capsys.readouterr()
+    out, err = captured.out.splitlines(), captured.err.splitlines()
     assert rc == 1
-    assert out[0].startswith("error: ptu: pan 200 deg is beyond the pan maximum 158.91 deg")
-    assert out[1] == "pan 9.977 deg, tilt 0.000 deg"  # 194 positions
-    assert out[2] == "error: ptu: the PTU refused PS9000: Pan speed cannot exceed 2902 positions/sec"
-    assert out[3].startswith("error: unknown command 'frobnicate'")
+    assert out == ["pan 9.977 deg, tilt 0.000 deg"]  # 194 positions; one-shot stdout holds only results
+    assert err[0].startswith("error: ptu: pan 200 deg is beyond the pan maximum 158.91 deg")
+    assert err[1] == "error: ptu: the PTU refused PS9000: Pan speed cannot exceed 2902 positions/sec"
+    assert err[2].startswith("error: unknown command 'frobnicate'")
 
 
 def test_serial_backend_missing_port(capsys: pytest.CaptureFixture[str]) -> None:
     rc = main(["--backend", "serial", "--port", "/dev/does-not-exist-ptu", "-c", "position"])
     assert rc == 1
-    assert "cannot open serial port /dev/does-not-exist-ptu" in capsys.readouterr().out
+    assert "cannot open serial port /dev/does-not-exist-ptu" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize(("argv", "message"), [
+    (["--time-scale", "-1"], "rvs-ptu: drivers.ptu: -time-scale is -1, out of range"),
+    (["--config", "{bad}"], "rvs-ptu: {bad}: not valid YAML: "),
+    (["--config", "{missing}"], "rvs-ptu: {missing}: no such file"),
+])
+def test_bad_setup_is_one_error_line_and_exit_2(tmp_path, capsys: pytest.CaptureFixture[str], argv: list[str],
+                                                message: str) -> None:
+    paths = {"bad": tmp_path / "bad.yaml", "missing": tmp_path / "missing.yaml"}
+    paths["bad"].write_text("ptu: [1\n")
+    assert main(["--backend", "sim", *(a.format(**paths) for a in argv), "-c", "position"]) == 2
+    out, err = capsys.readouterr()
+    assert out == "" and "Traceback" not in err
+    assert err.count("\n") == 1 and err.startswith(message.format(**paths)), err
 
 
 @pytest.fixture

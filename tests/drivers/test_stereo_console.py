@@ -12,6 +12,7 @@ import cv2
 import numpy as np
 import pytest
 import tifffile
+import yaml
 
 from drivers.stereo import console
 from drivers.stereo import dc1394_lib as dc
@@ -31,13 +32,14 @@ def _load_fakeworld() -> Any:
 FakeWorld = _load_fakeworld().FakeWorld
 
 
-def run(*lines: str, extra: tuple[str, ...] = (), world: Any = None) -> tuple[int, str]:
-    out = io.StringIO()
+def run(*lines: str, extra: tuple[str, ...] = (), world: Any = None) -> tuple[int, str, str]:
+    """rc, stdout (the results) and stderr (echoed lines, start-up output, warnings, errors)."""
+    out, err = io.StringIO(), io.StringIO()
     argv = ["--backend", "sim", "--resolution", "low", *extra]
     for line in lines:
         argv += ["-c", line]
-    rc = console.main(argv, world=world if world is not None else FakeWorld(), stdout=out)
-    return rc, out.getvalue()
+    rc = console.main(argv, world=world if world is not None else FakeWorld(), stdout=out, stderr=err)
+    return rc, out.getvalue(), err.getvalue()
 
 
 def test_every_library_function_has_a_command() -> None:
@@ -52,13 +54,13 @@ def test_every_library_function_has_a_command() -> None:
 
 
 def test_grabs_write_tiff_and_png(tmp_path: Path) -> None:
-    rc, out = run(
+    rc, out, err = run(
         f"grab-stereo {tmp_path}/pair.tif",
         f"grab-stereo {tmp_path}/colour.png fmt=rgb8",
         f"grab-left {tmp_path}/left.tif res=medium",
         f"grab-mono-direct right {tmp_path}/r.png",
     )
-    assert rc == 0, out
+    assert rc == 0, err
     left = tifffile.imread(tmp_path / "pair_left.tif")
     right = tifffile.imread(tmp_path / "pair_right.tif")
     assert left.shape == right.shape == (480, 640) and left.dtype == np.uint8
@@ -73,8 +75,8 @@ def test_images_go_under_the_data_directory_not_the_working_directory(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     monkeypatch.chdir(tmp_path)
-    rc, out = run("grab-stereo", "grab-left rel.tif")  # default: the server's data directory, ./data
-    assert rc == 0, out
+    rc, out, err = run("grab-stereo", "grab-left rel.tif")  # default: the server's data directory, ./data
+    assert rc == 0, err
     stereo = tmp_path / "data" / "stereo"
     pair = sorted(stereo.glob("stereo-*_left.tif"))
     assert len(pair) == 1 and pair[0].with_name(pair[0].name.replace("_left", "_right")).is_file()
@@ -82,7 +84,7 @@ def test_images_go_under_the_data_directory_not_the_working_directory(
     assert f"left: {pair[0]} (480x640" in out and f"left: {stereo / 'rel.tif'} (480x640" in out
     assert not list(tmp_path.glob("*.tif"))
 
-    rc, out = run("grab-right sub/r.png", extra=("--data", "elsewhere"))
+    rc, out, err = run("grab-right sub/r.png", extra=("--data", "elsewhere"))
     assert rc == 0 and (tmp_path / "elsewhere/stereo/sub/r.png").is_file()
     assert f"right: {tmp_path}/elsewhere/stereo/sub/r.png (480x640" in out
 
@@ -98,7 +100,7 @@ def test_rgb_png_keeps_the_channel_order(tmp_path: Path) -> None:
 
 
 def test_errors_are_printed_and_the_session_goes_on(tmp_path: Path) -> None:
-    rc, out = run(
+    rc, out, err = run(
         "mode yuv422",
         "set left bogus=1",
         "set left shutter_us=100000000",
@@ -111,16 +113,17 @@ def test_errors_are_printed_and_the_session_goes_on(tmp_path: Path) -> None:
         extra=("--data", str(tmp_path)),
     )
     assert rc == 1
-    assert "error: ValueError: invalid pixel format 'yuv422'; accepted: mono8, rgb8" in out
-    assert "unknown camera setting(s) bogus" in out
-    assert "shutter_us must be in" in out
-    assert "unknown command 'frobnicate'" in out
-    assert "error: DeviceError: stereo: camera" in out and "missed its trigger" in out
+    assert "error: ValueError: invalid pixel format 'yuv422'; accepted: mono8, rgb8" in err
+    assert "unknown camera setting(s) bogus" in err
+    assert "shutter_us must be in" in err
+    assert "unknown command 'frobnicate'" in err
+    assert "error: DeviceError: stereo: camera" in err and "missed its trigger" in err
+    assert "error:" not in out  # one-shot: errors are not results
     assert (tmp_path / "ok_left.tif").exists()  # the session survived every error
 
 
 def test_ids_settings_and_files(tmp_path: Path) -> None:
-    rc, out = run(
+    rc, out, err = run(
         "ids",
         "swap-ids",
         "set right gain_db=6 white_balance=500,520",
@@ -136,7 +139,7 @@ def test_ids_settings_and_files(tmp_path: Path) -> None:
         "reset",
         extra=("--left-id", "1", "--right-id", "0"),
     )
-    assert rc == 0, out
+    assert rc == 0, err
     assert "left: 000a470112f20002" in out  # --left-id 1 took the second camera
     assert "left: 000a470112f20001" in out  # ...and swap-ids swapped it back
     assert "gain_db: 6.0" in out.split("settings right")[-1]
@@ -160,13 +163,49 @@ def test_interactive_prompt_reads_commands() -> None:
 
 def test_real_backend_without_libdc1394_reports_and_exits_nonzero(monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.setattr(dc.ctypes.util, "find_library", lambda name: None)
-    out = io.StringIO()
+    out, err = io.StringIO(), io.StringIO()
     rc = console.main(
         ["--backend", "dc1394", "--library", "libdc1394-rvs-absent.so", "--trigger-device", "/dev/parport-rvs-absent", "-c", "status"],
-        stdout=out,
+        stdout=out, stderr=err,
     )
-    text = out.getvalue()
+    notes = err.getvalue()
     assert rc == 1
-    assert "libdc1394 not found" in text and "apt install libdc1394-25" in text
-    assert "warning: trigger box unavailable" in text and "no parallel port device /dev/parport-rvs-absent" in text
-    assert "open: false" in text  # status still answers
+    assert "libdc1394 not found" in notes and "apt install libdc1394-25" in notes
+    assert "warning: trigger box unavailable" in notes and "no parallel port device /dev/parport-rvs-absent" in notes
+    assert "open: false" in out.getvalue()  # status still answers
+
+
+def test_one_shot_calibration_is_the_yaml_rvs_odometry_reads(tmp_path: Path) -> None:
+    """``rvs-cam -c calibration > calib.yaml``: stdout is the calibration alone (no ids from
+    start-up, no echoed command line), so rvs-odometry reads the file as it is."""
+    from prox_workflows.cli import odometry
+    from prox_workflows.steps.stereo import load_calibration
+
+    world = FakeWorld()
+    rc, out, err = run("calibration", world=world)
+    assert rc == 0, err
+    assert "rvs-cam> calibration" in err and "left: 000a470112f20001" in err  # the transcript is on stderr
+    calib_file = tmp_path / "calib.yaml"
+    calib_file.write_text(out)
+    calib = load_calibration(yaml.safe_load(calib_file.read_text()))
+    assert calib.image_size == (640, 480)
+    rc, out, err = run(f"grab-stereo {tmp_path}/a.tif", world=world)
+    assert rc == 0, err
+    a_left, a_right = tmp_path / "a_left.tif", tmp_path / "a_right.tif"
+    assert odometry.main([str(a_left), str(a_right), str(a_left), "--calib", str(calib_file), "-q"]) == 0
+
+
+@pytest.mark.parametrize(("extra", "message"), [
+    (("--scene", "nosuch"), "rvs-cam: no scene 'nosuch'; known scenes: "),
+    (("--config", "{bad}"), "rvs-cam: {bad}: not valid YAML: "),
+    (("--config", "{missing}"), "rvs-cam: config file {missing} not found"),
+])
+def test_bad_setup_is_one_error_line_and_exit_2(tmp_path: Path, capsys: pytest.CaptureFixture[str],
+                                                extra: tuple[str, str], message: str) -> None:
+    paths = {"bad": tmp_path / "bad.yaml", "missing": tmp_path / "missing.yaml"}
+    paths["bad"].write_text("stereo: [1\n")
+    argv = [e.format(**paths) for e in extra]
+    assert console.main([*argv, "-c", "ids"]) == 2  # the real world: no test double
+    captured = capsys.readouterr()
+    assert captured.out == "" and "Traceback" not in captured.err
+    assert captured.err.count("\n") == 1 and captured.err.startswith(message.format(**paths)), captured.err

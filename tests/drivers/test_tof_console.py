@@ -98,12 +98,13 @@ def test_xyz_and_settings_commands(tmp_path, capsys):
 def test_errors_are_printed_and_the_console_carries_on(capsys, tmp_path):
     tif = tmp_path / "d.tif"
     rc = main(["-c", "modulation 20; integration 999; grab colour x.tif; fault unplug; status", "-c", f"fault none; reinit; grab distance {tif}"])
-    out = capsys.readouterr().out
+    out, err = capsys.readouterr()
     assert rc == 1
-    assert "error: modulation frequency 20" in out
-    assert "error: integration register 999" in out
-    assert "error: argument type: invalid choice" in out
+    assert "error: modulation frequency 20" in err  # one-shot: errors on stderr, results on stdout
+    assert "error: integration register 999" in err
+    assert "error: argument type: invalid choice" in err
     assert '"fault": "unplug"' in out  # status still answers while unplugged
+    assert "error:" not in out and "open:" not in out
     assert tif.exists()  # reinit recovered and the last grab worked
 
 
@@ -120,9 +121,9 @@ def test_real_backend_without_libmesasr_still_offers_the_usb_query(monkeypatch, 
     monkeypatch.setattr(mesasr.ctypes.util, "find_library", lambda name: None)
     monkeypatch.setattr(usb.core, "find", lambda **kw: iter(()))
     rc = main(["--backend", "mesasr", "--library", "/nonexistent/libmesasr.so", "-c", "usb"])
-    out = capsys.readouterr().out
+    out, err = capsys.readouterr()
     assert rc == 1
-    assert "error: tof: libmesasr not found" in out and "libmesasr-dev" in out
+    assert "error: tof: libmesasr not found" in err and "libmesasr-dev" in err
     assert "no SR4000 (1ad2:0074/0075) on the USB bus" in out
 
 
@@ -144,3 +145,37 @@ def test_interactive_session_from_stdin(tmp_path):
     text = out.getvalue()
     assert "modulation 15 MHz" in text and "integration 47 = 5.0 ms" in text
     assert (tmp_path / "d.png").exists() and not console.failed
+
+
+def test_a_grab_named_without_extension_goes_under_the_data_directory_as_tif(tmp_path, monkeypatch, capsys):
+    """``rvs-tof -c "grab distance t1"`` writes DATA/tof/t1.tif (not an extension-less t1 in the
+    working directory) and says where, as rvs-cam does under DATA/stereo."""
+    monkeypatch.chdir(tmp_path)
+    assert main(["-c", "grab distance t1 --preview t1"]) == 0  # default: the server's data directory, ./data
+    out, err = capsys.readouterr()
+    written = tmp_path / "data" / "tof" / "t1.tif"
+    assert tifffile.imread(written).shape == (k.HEIGHT, k.WIDTH)
+    assert (tmp_path / "data" / "tof" / "t1.png").is_file()
+    assert out.splitlines()[0].startswith(f"distance -> {written}: ")
+    assert not (tmp_path / "t1").exists() and "open:" in err  # start-up's open is a note, not a result
+    assert main(["--data", "elsewhere", "-c", "xyz sub/v --amplitude sub/a", "-c", "grab z z.png"]) == 1
+    out, err = capsys.readouterr()
+    assert (tmp_path / "elsewhere" / "tof" / "sub" / "v.tif").is_file()
+    assert (tmp_path / "elsewhere" / "tof" / "sub" / "a.tif").is_file()
+    assert "z.png: grabs are float32 TIFFs, name it .tif" in err
+
+
+@pytest.mark.parametrize(("argv", "message"), [
+    (["--scene", "nosuch"], "rvs-tof: no scene 'nosuch'"),
+    (["--config", "{bad}"], "rvs-tof: {bad}: not valid YAML: "),
+    (["--config", "{wrong}"], "rvs-tof: "),
+    (["--config", "{missing}"], "rvs-tof: {missing}: no such file"),
+])
+def test_bad_setup_is_one_error_line_and_exit_2(tmp_path, capsys, argv, message):
+    paths = {"bad": tmp_path / "bad.yaml", "wrong": tmp_path / "wrong.yaml", "missing": tmp_path / "missing.yaml"}
+    paths["bad"].write_text(": : :\n")
+    paths["wrong"].write_text("tof: {backend: [1]}\n")
+    assert main([*(a.format(**paths) for a in argv), "-c", "status"]) == 2
+    out, err = capsys.readouterr()
+    assert out == "" and "Traceback" not in err
+    assert err.count("\n") == 1 and err.startswith(message.format(**paths)), err
