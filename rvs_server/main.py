@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import logging
+import os
 import sys
 from collections.abc import Callable
 from pathlib import Path
@@ -13,7 +15,7 @@ from . import commands as _commands  # noqa: F401 - fills the command table
 from .app import App
 from .config import STANDALONE, ConfigStore, ModuleConfig
 from .logs import setup as setup_logging
-from .server import listen, serve
+from .server import kernels_warming, listen, serve
 from .table import COMMANDS
 from .web.console import console_host
 
@@ -143,7 +145,18 @@ def main(argv: list[str] | None = None) -> int:
     data = Path(server.data)
     setup_logging(server.log_level, data / server.log_file)
     try:
-        return asyncio.run(run(store, recover=args.recover))
+        status = asyncio.run(run(store, recover=args.recover))
     except StartupError as exc:
         print(f"rvs-server: {exc}", file=sys.stderr)
         return 1
+    except KeyboardInterrupt:  # Ctrl-C before the signal handlers are in place
+        print("rvs-server: interrupted while starting", file=sys.stderr)
+        return 130
+    if kernels_warming():
+        # A compile cannot be stopped, and finalising the interpreter under a thread inside LLVM
+        # may crash it: the server has shut down cleanly, so end the process without that.
+        logging.shutdown()
+        sys.stdout.flush()
+        sys.stderr.flush()
+        os._exit(status)
+    return status

@@ -12,8 +12,11 @@ import contextlib
 import ctypes
 import gc
 import itertools
+import logging
+import os
 import signal
 import socket
+import threading
 from collections import deque
 from typing import Any
 
@@ -243,6 +246,33 @@ def warm_up_kernels() -> None:
         log.warning("kernels_not_compiled", error=str(exc))
 
 
+WARM_UP_THREAD = "rvs-warm-up"
+
+
+def start_warm_up() -> None:
+    """Warm the kernels up in a daemon thread of its own, not in the loop's executor: a compile
+    cannot be cancelled, and asyncio.run joins the executor's threads at exit, so a Ctrl-C in
+    the first seconds would wait (10-20 s, silently) for a compile nobody needs any more."""
+    threading.Thread(target=warm_up_kernels, name=WARM_UP_THREAD, daemon=True).start()
+
+
+def kernels_warming() -> bool:
+    """Whether the warm-up still compiles: the process then exits without finalising the
+    interpreter under it (``rvs_server.main``)."""
+    return any(t.name == WARM_UP_THREAD and t.is_alive() for t in threading.enumerate())
+
+
+def _on_signal(app: App, sig: signal.Signals) -> None:
+    """SIGINT/SIGTERM: say so, then shut down as quit does; a second one ends the process at
+    once (a device that does not answer its close may hold the first one up)."""
+    if app.stopping.is_set():
+        log.warning("stopping_now", signal=sig.name, message="second signal: exiting without cleaning up")
+        logging.shutdown()
+        os._exit(128 + sig.value)
+    log.info("stopping", signal=sig.name, message="stopping the server (send it again to exit at once)")
+    app.stopping.set()
+
+
 def listen(host: str, port: int) -> socket.socket:
     """Bind and listen before the devices open, so the port in the first log line already
     accepts; early clients wait in the backlog until the devices are up."""
@@ -263,7 +293,7 @@ async def serve(app: App, sock: socket.socket, *, ready: Any = None, handle_sign
     if handle_signals:
         for sig in (signal.SIGINT, signal.SIGTERM):
             try:
-                loop.add_signal_handler(sig, app.stopping.set)
+                loop.add_signal_handler(sig, _on_signal, app, sig)
             except (NotImplementedError, RuntimeError):
                 pass
     await loop.run_in_executor(None, app.devices.open_all)
@@ -276,8 +306,8 @@ async def serve(app: App, sock: socket.socket, *, ready: Any = None, handle_sign
             app.console, app.console_off = None, f"the console did not start: {exc}"
             log.warning("web_console_off", reason=app.console_off)
     server = await loop.create_server(lambda: Connection(app), sock=sock, backlog=512)
-    if app.server_cfg.warm_up:
-        loop.run_in_executor(None, warm_up_kernels)  # the first DEM or plan then skips the JIT
+    if app.server_cfg.warm_up and not app.stopping.is_set():
+        start_warm_up()  # the first DEM or plan then skips the JIT
     if ready is not None:
         ready(bound[1])
     try:

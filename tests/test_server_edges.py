@@ -5,10 +5,12 @@ comments, control characters, ranges the device gives)."""
 from __future__ import annotations
 
 import json
+import os
 import signal
 import socket
 import subprocess
 import sys
+import time
 from pathlib import Path
 from typing import Any
 
@@ -128,3 +130,37 @@ def test_hello_and_status_say_whether_the_console_runs(server_factory: Any) -> N
         assert parse_reply(c.greeting).fields["console"] == "on"
         st = c.request("status").fields
         assert st["console"] == "on" and st["console_url"] == f"http://127.0.0.1:{web_port}/", st
+
+
+# ---------------------------------------------------------------------- stopping on a signal
+
+
+def test_ctrl_c_stops_the_server_at_once_while_the_kernels_compile(tmp_path: Path) -> None:
+    """An empty numba cache: the warm-up compiles for many seconds (10-20 s on the development
+    machine), a compile that cannot be cancelled. Ctrl-C right after the greeting must not wait
+    for it. The bound is generous for a loaded machine, and far below a compile."""
+    env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path / "numba"))  # nothing cached: it compiles
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "rvs_server", "--port", "0", "--data", str(tmp_path / "d"), "--web-port", "0"],
+        stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, cwd=ROOT, env=env,
+    )
+    try:
+        assert proc.stderr is not None
+        first = proc.stderr.readline()
+        assert "listening" in first, first
+        with LineClient(int(first.split("port=")[1].split()[0])) as c:
+            assert parse_reply(c.greeting).fields["console"] == "off"
+            st = c.request("status").fields  # --web-port 0 is server.web_port=0
+            assert st["console"] == "off" and "web_port is 0" in st["console_reason"], st
+            t0 = time.monotonic()
+            proc.send_signal(signal.SIGINT)
+            status = proc.wait(60)  # a safety net; the bound is below
+            took = time.monotonic() - t0
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    err = proc.stderr.read()
+    assert status == 0, err
+    assert took < 5.0, f"SIGINT took {took:.1f} s"
+    assert "stopping" in err and "SIGINT" in err, err  # the operator is told
