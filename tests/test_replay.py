@@ -156,6 +156,34 @@ def test_failures_show_expected_and_actual_lines(
     assert "tag=r" not in out
 
 
+def test_shipped_scripts_pass_against_a_running_server_with_a_recovery_set(
+    server: ServerProcess, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """``rvs-replay --port`` against a server that was used before: modes.rvs leaves a recovery
+    set (its break) and system.rvs a pose, and the scripts run again over both."""
+    scripts = [str(p) for p in REPLAYS if p.name in ("modes.rvs", "system.rvs")]
+    rc = replay.main(["--port", str(server.port), *scripts, *scripts])
+    out, err = capsys.readouterr()
+    steps = sum(isinstance(i, Step) for p in scripts for i in replay.load(Path(p)))
+    assert (rc, summary(out)) == (0, (2 * steps, 0)), out
+    assert "not ready" not in err
+
+
+def test_a_server_not_in_ready_mode_is_named_and_record_needs_its_folder(
+    server: ServerProcess, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    script = tmp_path / "s.rvs"
+    script.write_text("> version\n")
+    assert replay.main(["--port", str(server.port), "--record", str(tmp_path / "no" / "r.rvs"), str(script)]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("rvs-replay: --record ") and "no folder" in err and "Traceback" not in err
+    script.write_text("> standby\n> version\n")
+    assert replay.main(["--port", str(server.port), str(script)]) == 0
+    script.write_text("> continue\n")
+    assert replay.main(["--port", str(server.port), str(script)]) == 0
+    assert "the server is in standby mode, not ready" in capsys.readouterr().err
+
+
 def test_without_a_named_server_nothing_is_contacted(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     script = tmp_path / "s.rvs"
     script.write_text("> version\n")

@@ -343,6 +343,13 @@ def _session(args: argparse.Namespace, host: str, port: int, retry_for: float, w
     session = Session(host, port, tag_prefix="r")
     session.connect(retry_for=retry_for)
     print(f"rvs-replay: replaying against {what} {host}:{port} ({_server_name(session.greeting)})", file=sys.stderr)
+    hello = try_parse(session.greeting or "")
+    mode = hello.fields.get("mode") if hello is not None else None
+    if mode not in (None, "ready"):
+        # the scripts start from ready (their jobs are refused in break, standby and fault mode):
+        # say so once, rather than leave the operator to read it out of every failure
+        print(f"rvs-replay: the server is in {mode} mode, not ready; scripts that run jobs will fail "
+              "(send continue or reset first)", file=sys.stderr)
     if args.token is not None:
         result = session.request("auth -token=" + render_value(args.token), timeout=args.timeout)
         if not result.ok:
@@ -386,6 +393,10 @@ def main(argv: list[str] | None = None) -> int:
     if args.record is not None and len(args.scripts) != 1:
         print("rvs-replay: --record takes exactly one input file", file=sys.stderr)
         return 2
+    if args.record is not None and not args.record.absolute().parent.is_dir():
+        # found out before the replay runs (and changes the server), not after
+        print(f"rvs-replay: --record {args.record}: no folder {args.record.absolute().parent}", file=sys.stderr)
+        return 2
     try:
         loaded = [(path, load(path)) for path in args.scripts]
     except ScriptError as exc:
@@ -401,7 +412,11 @@ def main(argv: list[str] | None = None) -> int:
         outcomes.extend(file_outcomes)
         if args.record is not None:
             results = {id(o.step): o.result for o in file_outcomes}
-            args.record.write_text(render_script(items, results), "utf-8")
+            try:
+                args.record.write_text(render_script(items, results), "utf-8")
+            except OSError as exc:
+                print(f"rvs-replay: cannot write {args.record}: {exc.strerror or exc}", file=sys.stderr)
+                return 2
     passed = failed = 0
     for outcome in outcomes:
         # When recording there is nothing to expect yet: a request passes once it is answered.
