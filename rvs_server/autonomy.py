@@ -54,7 +54,7 @@ from prox_workflows.steps.transforms import HeadCalibration, T_global_from_rover
 
 from .commands.awareness import look_at
 from .commands.hardware import device_call
-from .commands.navigation import goal_stand_in, wait_for_rover
+from .commands.navigation import follow_rover, goal_stand_in, wait_for_rover
 from .localisation import pose_fields
 from .maps import ground_height
 from .protocol import Fixed, Reply, Rows
@@ -285,6 +285,7 @@ class SeeingDriver:
         world = app.world
         model = world.drive_model
         stop = job.cancel.is_set
+        follow = follow_rover(app, track)
         self.point_forward()
         wps = np.asarray(waypoints, dtype=np.float64)[:, :2]
         segments = len(wps) - 1
@@ -332,7 +333,7 @@ class SeeingDriver:
                     world.turn_toward(tx, ty, stop)
                 else:
                     dt = min(self.p.period, to_end / model.speed)
-                    world.drive(model.speed, w, dt, stop, on_step=lambda: world.record_track(track))
+                    world.drive(model.speed, w, dt, stop, on_step=follow)
                 job.check()
                 world.record_track(track, 0.0)
 
@@ -551,10 +552,12 @@ class SeeLoop:
         if not self.cfg.auto:
             outcome = self.driver.watch(plan.waypoints.xy, track, progress, version, self.cfg)
         else:
-            outcome = self.driver.drive(plan.waypoints.xy, track, progress,
-                                        allow_ahead=extends and not plan.reaches_goal, strict=self.strict)
-            odo = app.world.odometry()
-            app.set_pose(odo[0], odo[1], odo[2], source="odometry")
+            try:
+                outcome = self.driver.drive(plan.waypoints.xy, track, progress,
+                                            allow_ahead=extends and not plan.reaches_goal, strict=self.strict)
+            finally:  # a break too leaves the pose where the rover's odometry says it stopped
+                odo = app.world.odometry()
+                app.set_pose(odo[0], odo[1], odo[2], source="odometry")
         if outcome.kind in ("hazard", "unseen", "stalled"):  # the next leg replans from here
             self.last_end = None
         self.localise(leg, track[start_of_leg:])

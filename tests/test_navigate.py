@@ -11,6 +11,7 @@ import time
 
 import numpy as np
 import pytest
+import yaml
 from conftest import long_only, long_test
 from scipy import ndimage
 
@@ -235,3 +236,37 @@ def test_a_goal_short_of_the_clearance_is_planned_to_within_the_tolerance() -> N
     assert goal_stand_in(maps, None, here, on_rock, params, exc.value, 1.5, cfg) is None  # within judge_range
     far = goal_stand_in(maps, None, (1.0, 2.0), on_rock, params, exc.value, 7.0, cfg)  # beyond it: go closer
     assert far is not None and math.hypot(far[0] - 8.0, far[1] - 2.0) > cfg.tolerance
+
+
+def test_a_break_mid_drive_leaves_the_rovers_pose_and_its_track(server_factory) -> None:
+    """navigate -auto broken while the rover drives: the pose the server believes in is where the
+    rover's odometry stopped (status, check-move and the recovery set agree), and the track it
+    drove is written, as after any ERROR once the rover moved."""
+    srv = server_factory(["server.scene=office", "navigate.range=-90,30,-50,-10", "sim.time_scale=1"])
+    c, ops = srv.client(), srv.client()
+    job = c.start_job("navigate -goal 1.5,-1.2 -auto -name brk")
+    while True:  # the first leg's drive, in real time at the rover's 0.1 m/s
+        r = c.reply(timeout=120)
+        if r.status == "PROGRESS" and r.fields.get("phase") == "drive":
+            break
+        assert r.status not in ("OK", "ERROR"), r
+    truth = ops.request("sim truth")
+    while float(truth.fields["odom_x"]) ** 2 + float(truth.fields["odom_y"]) ** 2 < 0.1**2:
+        time.sleep(0.1)
+        truth = ops.request("sim truth")
+    brk = ops.request("break")
+    final = c.until_final(job=job, timeout=60)[-1]
+    assert final.fields["code"] == "E_INTERRUPTED" and "the track so far: nav/brk_track.csv" in final.fields["message"]
+    truth = ops.request("sim truth")
+    odom = (float(truth.fields["odom_x"]), float(truth.fields["odom_y"]), float(truth.fields["odom_heading"]))
+    status = ops.request("status").fields
+    x, y, heading = (float(v) for v in status["pose"].split(","))
+    assert (x, y) == pytest.approx(odom[:2], abs=2e-3) and heading == pytest.approx(odom[2], abs=0.02)
+    assert math.hypot(x, y) >= 0.09
+    # the recovery set holds where the rover was when the break came: on the way, not the start
+    manifest = yaml.safe_load((srv.data / brk.fields["recovery"] / "manifest.yaml").read_text())
+    assert math.hypot(manifest["pose"]["x"], manifest["pose"]["y"]) >= 0.09
+    rows = (srv.data / "nav" / "brk_track.csv").read_text().splitlines()
+    assert rows[0] == "x,y" and len(rows) >= 3
+    last = [float(v) for v in rows[-1].split(",")]
+    assert math.hypot(last[0], last[1]) >= 0.09

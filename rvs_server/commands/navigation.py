@@ -18,7 +18,7 @@ from prox_workflows.steps.safety import MAX_SWEEP_CELLS, check_move, sweep_cells
 
 from ..app import Context
 from ..config import ModuleConfig, param
-from ..jobs import Job
+from ..jobs import Interrupted, Job
 from ..localisation import Localiser, pose_fields
 from ..protocol import Fixed, ProtocolError, Reply, Rows
 from ..table import HARDWARE, command
@@ -266,8 +266,23 @@ def _load_global_maps(cfg: NavigateConfig) -> tuple[Any, Any]:
     return maps, GlobalMap(maps.hazard, maps.slope, maps.geometry, dem.dem if dem else None, str(dem_path))
 
 
+def follow_rover(app: App, track: list[tuple[float, float]]) -> Callable[[], None]:
+    """What the simulated rover does at each step of a drive: its true position goes to
+    ``track`` (what the traverse is scored by) and its odometry becomes the pose the server
+    believes in, as a GNC streaming its pose would make it, so status, check-move and a break's
+    recovery set see where the rover is mid-drive, not where the leg began."""
+    world = app.world
+
+    def step() -> None:
+        world.record_track(track)
+        x, y, heading = world.odometry()
+        app.set_pose(x, y, heading, source="odometry")
+
+    return step
+
+
 def drive_simulated(world: Any, waypoints: Any, track: list[tuple[float, float]],
-                    reached: Any = None, stop: Any = None) -> None:
+                    reached: Any = None, stop: Any = None, on_step: Callable[[], None] | None = None) -> None:
     """The simulated rover drives the waypoints as its GNC would, in simulated time: from where
     its odometry says it is, turn on the spot toward the next waypoint at the rover's turn rate,
     then straight at its speed (sect. 5.4; ``world.drive_model``, a scene's ``rover:`` block),
@@ -276,13 +291,15 @@ def drive_simulated(world: Any, waypoints: Any, track: list[tuple[float, float]]
 
     ``track`` gets the true position every 5 cm (the simulator's ground truth, to score the
     traverse against the true hazards); ``reached(k)`` is called as the rover's odometry arrives
-    at waypoint k; ``stop()`` true (a break) stops the rover at its next step."""
+    at waypoint k; ``stop()`` true (a break) stops the rover at its next step; ``on_step`` runs
+    at every step (default: the track only; navigate's :func:`follow_rover`)."""
     model = world.drive_model
+    step = on_step or (lambda: world.record_track(track))
 
     for k, (wx, wy) in enumerate(waypoints.xy[1:], start=1):
         dist = world.turn_toward(wx, wy, stop)
         if dist >= 1e-6:
-            world.drive(model.speed, 0.0, dist / model.speed, stop, on_step=lambda: world.record_track(track))
+            world.drive(model.speed, 0.0, dist / model.speed, stop, on_step=step)
             world.record_track(track, 0.0)
         if stop is not None and stop():
             return
@@ -299,11 +316,17 @@ def navigate(job: Job, cfg: NavigateConfig) -> dict[str, Any]:
     track: list[tuple[float, float]] = []
     try:
         return _navigate(job, cfg, name, track)
-    except ProtocolError as exc:
+    except (ProtocolError, Interrupted) as exc:
         if len(track) < 2:
             raise
-        tfile = _write_track(job.app, name, track)
-        raise ProtocolError(exc.code, f"{exc.message} (the track so far: {job.app.rel(tfile)})") from None
+        note = f" (the track so far: {job.app.rel(_write_track(job.app, name, track))})"
+        if isinstance(exc, Interrupted):
+            raise Interrupted(f"{exc}{note}") from None
+        raise ProtocolError(exc.code, exc.message + note) from None
+    except Exception:
+        if len(track) >= 2:
+            _write_track(job.app, name, track)
+        raise
 
 
 def _write_track(app: App, name: str, track: list[tuple[float, float]]) -> Path:
@@ -464,11 +487,11 @@ def _navigate(job: Job, cfg: NavigateConfig, name: str, track: list[tuple[float,
                                   f"({end[0]:.2f}, {end[1]:.2f})", "drive")
         if cfg.auto:
             drive_simulated(app.world, plan.waypoints, track, reached=lambda k, n=segments: leg_progress(
-                k, n, f"segment {k}/{n} driven", "drive"), stop=job.cancel.is_set)
-            job.check()
+                k, n, f"segment {k}/{n} driven", "drive"), stop=job.cancel.is_set, on_step=follow_rover(app, track))
             # The rover's belief, not the simulator's truth: with slip they differ, as on Mars.
             odo = app.world.odometry()
             app.set_pose(odo[0], odo[1], odo[2], source="odometry")
+            job.check()
             loc.after_drive(job, plan.waypoints.xy)
         else:
             arrived = wait_for_rover(app, job, version, end, cfg)
