@@ -7,6 +7,7 @@ import json
 import os
 import pty
 import select
+import signal
 import socket
 import subprocess
 import sys
@@ -264,3 +265,30 @@ def test_interactive_prints_greeting_replies_and_events_at_the_prompt(server: Se
             proc.wait()
         os.close(master)
     assert "version" in history.read_text().splitlines()
+
+
+def test_after_ctrl_c_the_late_lines_carry_no_tag_the_user_never_typed(server: ServerProcess, tmp_path: Path) -> None:
+    """Ctrl-C stops the wait for a job, not the job: its OK prints when it comes, as its ACK
+    did, without the automatic ``tag=c<n>`` the client added."""
+    master, slave = pty.openpty()
+    env = dict(os.environ, RVS_CLIENT_HISTORY=str(tmp_path / "history"), TERM="dumb")
+    proc = subprocess.Popen([sys.executable, "-m", "rvs_server.client.console", "--port", str(server.port),
+                             "--progress", "lines"], stdin=slave, stdout=slave, stderr=slave, env=env, cwd=ROOT)
+    os.close(slave)
+    buf = bytearray()
+    try:
+        assert _read_until(master, buf, b"rvs> ")
+        os.write(master, b"sleep -seconds 0.6\n")
+        assert _read_until(master, buf, b"EGP-RVS-SLEEP ACK job="), buf.decode()
+        proc.send_signal(signal.SIGINT)
+        assert _read_until(master, buf, b"stopped waiting"), buf.decode()
+        assert _read_until(master, buf, b"EGP-RVS-SLEEP OK job="), buf.decode()
+        os.write(master, b"@mine version\n")  # a tag the user typed stays
+        assert _read_until(master, buf, b"EGP-RVS-VERSION OK tag=mine"), buf.decode()
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+        os.close(master)
+    text = buf.decode()
+    assert "tag=c" not in text, text

@@ -114,6 +114,15 @@ def test_unrelated_lines_are_skipped_even_if_final_looking() -> None:
 # ---------------------------------------------------------------------- script syntax
 
 
+def test_a_late_line_of_a_timed_out_step_is_matched_with_its_tag() -> None:
+    """The session shows a given-up request's late lines without their automatic tag; the
+    replay still matches them as they came, so one never passes for the next step's reply."""
+    late = Line("EGP-RVS-SLEEP OK tag=r1 job=1 slept=60.0", False, "EGP-RVS-SLEEP OK job=1 slept=60.0")
+    got = [late, *lines("EGP-RVS-SLEEP ACK job=2")]
+    failure = check(patterns(r"EGP-RVS-SLEEP OK job=\d+ slept=[0-9.]+"), got)
+    assert failure is not None and "does not match: EGP-RVS-SLEEP ACK job=2" in failure
+
+
 def test_parse_script_keeps_order_and_drops_requests_without_reply() -> None:
     items = parse_script("# head\n> status\n< A\n<B\n\n> # nothing\n< ignored\n>  version  \n", "s.rvs")
     steps = [i for i in items if isinstance(i, Step)]

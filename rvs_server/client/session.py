@@ -176,6 +176,9 @@ class Session:
         self._reader: threading.Thread | None = None
         self._closed = threading.Event()
         self._n = 0
+        # Automatic tags of requests given up on (Ctrl-C, timeout) before their final line: their
+        # late lines still carry the tag, which the user never typed, so it is taken off them too.
+        self._abandoned: set[str] = set()
 
     # ------------------------------------------------------------------ connection
 
@@ -255,7 +258,8 @@ class Session:
         ``on_line`` sees each of the request's own lines as it arrives (in the reader thread).
         Other lines arriving meanwhile go to ``on_async`` and are also kept in the result, in
         arrival order, so a replay can match an expected EVENT. A KeyboardInterrupt while
-        waiting stops the wait; later lines of the request then go to ``on_async``.
+        waiting stops the wait; later lines of the request then go to ``on_async``, shown
+        without the automatic tag as its own lines were.
         """
         if "\n" in line or "\r" in line:
             raise ValueError("one request per line: the text must not contain a line break")
@@ -284,7 +288,20 @@ class Session:
             with self._lock:
                 if self._pending is pending:
                     self._pending = None
+                if result.final is None and result.auto_tag and result.tag is not None:
+                    self._abandoned.add(result.tag)  # under the lock: no late line slips between
         return result
+
+    def _late_shown(self, text: str, reply: Reply | None) -> str:
+        """A line about no pending request as people should read it: a late line of a request
+        given up on loses the automatic tag (and the tag is forgotten at its final line).
+        Called with the lock held."""
+        tag = reply.tag if reply is not None else None
+        if tag is None or tag not in self._abandoned:
+            return text
+        if reply is not None and reply.status in FINAL:
+            self._abandoned.discard(tag)
+        return strip_tag(text, tag)
 
     # ------------------------------------------------------------------ reading
 
@@ -331,7 +348,7 @@ class Session:
             pending = self._pending
             line = pending.claim(text, reply) if pending is not None else None
             if line is None:
-                line = Line(text, False, text, reply)
+                line = Line(text, False, self._late_shown(text, reply), reply)
             if pending is not None:
                 pending.result.lines.append(line)
         callback = (pending.on_line if pending is not None else None) if line.mine else self.on_async
