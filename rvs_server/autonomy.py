@@ -369,6 +369,7 @@ class SeeingDriver:
         track.append((arrived.x, arrived.y))
         if hazard is not None:
             return DriveOutcome("hazard", k - 1, hazard)
+        progress(segments, segments, f"rover stopped at ({arrived.x:.2f}, {arrived.y:.2f})", "drive")
         return DriveOutcome("done", segments)
 
     def _stop_event(self, check: Any, pose: tuple[float, float, float]) -> dict[str, Any]:

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import csv
 import math
+from typing import Any
 
 import numpy as np
 import pytest
@@ -409,7 +410,7 @@ def test_the_gnc_drives_and_each_pose_report_is_a_cycle(server_factory, monkeypa
         return out
 
     monkeypatch.setattr(autonomy.SeeingDriver, "cycle", counted)
-    srv = server_factory(["server.scene=marsyard", "navigate.range=-60,60,-50,-10"])
+    srv = server_factory(["server.scene=marsyard", "navigate.range=-60,60,-50,-10", "navigate.pose_settle=0.3"])
     world = srv.app.world
     world.set_target_visible(False)
     start, goal = (-3.25, 0.45), (1.5, 0.45)
@@ -417,10 +418,13 @@ def test_the_gnc_drives_and_each_pose_report_is_a_cycle(server_factory, monkeypa
     job = c.start_job(f"navigate -start {start[0]},{start[1]},0 -goal {goal[0]},{goal[1]} -loop see -name gnc")
     rock = np.array([start[0] + 3.0, start[1]])
     stops, legs, x, y, h = [], [], *start, 0.0
+    drives: dict[str, Any] = {}  # each leg's last drive PROGRESS line
     tolerance = srv.app.config.get("navigate").tolerance
     track = [(x, y)]
     while True:
         r = c.reply(timeout=300)  # the navigate's own connection: its events and its final line
+        if r.status == "PROGRESS" and r.fields.get("phase") == "drive":
+            drives[r.fields["leg"]] = r
         if r.status == "EVENT" and r.fields.get("kind") == "waiting":
             if not legs:  # after the 360-degree scan: the rock it never saw
                 assert gnc.request(f"sim add-rock -x {rock[0]} -y {rock[1]} -radius 0.2 -height 0.25").status == "OK"
@@ -457,6 +461,11 @@ def test_the_gnc_drives_and_each_pose_report_is_a_cycle(server_factory, monkeypa
             break
     assert final.status == "OK" and final.fields["reached"] == "true", final.fields
     assert final.fields["loop"] == "see" and final.fields["scans"] == "1", final.fields
+    # legs are numbered as driven, from 1, and the OK counts them; the last one was driven to its end
+    assert [e.fields["leg"] for e in legs] == [str(n) for n in range(1, len(legs) + 1)]
+    assert final.fields["legs"] == str(len(legs)) and set(drives) == {e.fields["leg"] for e in legs}
+    last = drives[legs[-1].fields["leg"]]
+    assert last.fields["done"] == last.fields["total"] != "0", last.fields
     assert len(stops) == 1 and stops[0].fields["source"] == "navigate" and stops[0].fields["job"] == job
     assert float(stops[0].fields["distance"]) >= STOP_DISTANCE, stops[0].fields
     assert len(legs) >= 2 and int(final.fields["cycles"]) == cycles[0] >= 10

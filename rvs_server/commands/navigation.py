@@ -379,8 +379,9 @@ def _navigate(job: Job, cfg: NavigateConfig, name: str, track: list[tuple[float,
     see = autonomy.start(job, cfg, loc) if seeing else None
     need_scan = True  # the see loop scans first, then only when the rolling map shows no way
     scans = 0
-    for leg in range(1, (cfg.max_replans if seeing else cfg.max_legs) + 1):
+    for _ in range(cfg.max_replans if seeing else cfg.max_legs):
         job.check()
+        leg = len(all_paths) + 1  # the leg being prepared: its scan, plan and drive carry its number
         pose = app.pose
         # an arrival on dead reckoning is checked by a match first: the see loop's own (map) or a scan's
         checked = loc.wants_fix(pose) and (see is None or loc.uses_map)
