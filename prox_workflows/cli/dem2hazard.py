@@ -72,7 +72,7 @@ def main(argv: list[str] | None = None) -> int:
         seconds = time.perf_counter() - t0
     except (OSError, ValueError, TypeError, yaml.YAMLError, WorkflowError) as exc:
         sys.stderr.write(f"rvs-dem2hazard: {exc}\n")
-        return 1
+        return 2
     maps = ws["maps"]
     geometry = maps.geometry
     info = maps.meta["dem2hazard"]

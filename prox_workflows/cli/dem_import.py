@@ -39,6 +39,10 @@ from ..steps.dem_import import cells_from_bounds
 from .parser import ToolParser
 
 MADE_BY = "rvs-dem-import (prox_workflows.steps.dem_import)"
+# What prox_workflows.pointcloud.read_points reads, by extension: the --help names every one.
+INPUT_FORMATS = ("PLY (.ply, ascii or binary), PCD (.pcd, ascii or binary), LAS/LAZ (.las, .laz), .npy "
+                 "(N x 3 or N x 4), x y z [i] text (.txt .xyz .csv .asc .pts) or a 4-channel coordinate TIFF "
+                 "(.tif, .tiff)")
 
 
 def layer_prefix(dem_path: Path) -> Path:
@@ -74,11 +78,20 @@ def _rover_mask(text: str | None) -> np.ndarray | None:
     raise ValueError("--rover-mask: xmin,ymin,xmax,ymax or x1,y1,x2,y2,x3,y3,... or a file")
 
 
+def _classes(text: str | None) -> list[int] | None:
+    if not text:
+        return None
+    try:
+        return [int(c) for c in text.split(",")]
+    except ValueError:
+        raise ValueError(f"--classes {text!r}: LAS class numbers, e.g. 2 (ground) or 2,9") from None
+
+
 def main(argv: list[str] | None = None) -> int:
     specs = DemImportParams.specs()
     ap = ToolParser(prog="rvs-dem-import", description=__doc__.split("\n\n")[0],
                     formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("inputs", nargs="+", type=Path, help="PLY, .npy, x y z text or 4-channel coordinate TIFF")
+    ap.add_argument("inputs", nargs="+", type=Path, metavar="INPUT", help=f"point clouds: {INPUT_FORMATS}")
     ap.add_argument("--cell", required=True, help=f"cell size: {specs['cell'].describe()}")
     ap.add_argument("--height", default=specs["height"].default,
                     help=f"{specs['height'].help} ({specs['height'].describe()}; default {specs['height'].default})")
@@ -104,7 +117,7 @@ def main(argv: list[str] | None = None) -> int:
         bounds = list(cells_from_bounds(args.bounds)) if args.bounds else None
         sensor = [float(v) for v in _parse_triplet(args.sensor, "--sensor")] if args.sensor else None
         mask = _rover_mask(args.rover_mask)
-        classes = [int(c) for c in args.classes.split(",")] if args.classes else None
+        classes = _classes(args.classes)
         rng = [float(v) for v in args.range.split(",")] if args.range else None
         out = Path(args.output)
         prefix = prefix_of(out)
@@ -120,7 +133,7 @@ def main(argv: list[str] | None = None) -> int:
                                                "range": rng, "crs": args.crs}})
     except (OSError, ValueError, SettingError, WorkflowError) as exc:
         sys.stderr.write(f"rvs-dem-import: {exc}\n")
-        return 1
+        return 2
     layers, files, points = ws["dem"], ws["files"], ws["points"]
     g = layers.geometry
     defined = int(np.isfinite(layers["dem"]).sum())

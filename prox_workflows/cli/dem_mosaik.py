@@ -60,7 +60,7 @@ def main(argv: list[str] | None = None) -> int:
             "parameters": {**{n: s.default for n, s in specs.items()}, **params, "bounds": args.bounds}})
     except (OSError, ValueError, SettingError, WorkflowError) as exc:
         sys.stderr.write(f"rvs-dem-mosaik: {exc}\n")
-        return 1
+        return 2
     mosaic, files = ws["dem"], ws["files"]
     g = mosaic.geometry
     defined = int(np.isfinite(mosaic["dem"]).sum())

@@ -309,5 +309,5 @@ def test_cli_end_to_end(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> N
     shares = yaml.safe_load(Path(f"{prefix}_hazard.yaml").read_text())["shares"]
     assert abs(sum(shares.values()) - 1.0) < 1e-5 and shares["hazardous"] > 0
 
-    assert cli.main([str(src), "-o", str(prefix), "--set", "nonsense=1"]) == 1
-    assert cli.main([str(tmp_path / "missing.tif"), "-o", str(prefix)]) == 1
+    assert cli.main([str(src), "-o", str(prefix), "--set", "nonsense=1"]) == 2
+    assert cli.main([str(tmp_path / "missing.tif"), "-o", str(prefix)]) == 2

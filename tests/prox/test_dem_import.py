@@ -238,7 +238,7 @@ def test_cli_end_to_end_geotiff_opens_in_rasterio(tmp_path, capsys) -> None:
     assert np.array_equal(back["count"], expect["count"])
     assert np.all(back["measurement_variance"][back["count"] > 0] > 0)
     # a bad input is reported, not raised
-    assert main([str(tmp_path / "nope.ply"), "--cell", "0.05", "-o", str(tmp_path / "x.tif")]) == 1
+    assert main([str(tmp_path / "nope.ply"), "--cell", "0.05", "-o", str(tmp_path / "x.tif")]) == 2
     # a plain name keeps itself and prefixes its companions with its stem
     assert main([str(tmp_path / "b.npy"), "--cell", "0.1", "-o", str(tmp_path / "DEM.tif")]) == 0
     assert (tmp_path / "DEM.tif").is_file() and (tmp_path / "DEM_count.tif").is_file()

@@ -246,4 +246,4 @@ def test_cli_fuse_end_to_end(tmp_path, capsys) -> None:
     assert q.geometry == A
     assert np.allclose(q["variance"][np.isfinite(plain["dem"])], 0.0009)
     assert q["filled"][4, 4] == 1 and q["dem"][4, 4] == pytest.approx(2.0)
-    assert main([str(tmp_path / "missing.tif"), "-o", str(tmp_path / "z.tif")]) == 1
+    assert main([str(tmp_path / "missing.tif"), "-o", str(tmp_path / "z.tif")]) == 2
