@@ -818,7 +818,11 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("-o", "--out", metavar="DIR",
                     help="with --from: the folder the products go in (default <job dir>/reprocessed)")
     args = ap.parse_args(argv)
-    if args.help or not args.script:
+    if not args.help and not args.script:
+        ap.error("name a script to run (or batch, mosaic-campaign); --help lists the options")
+    if args.log and not Path(args.log).absolute().parent.is_dir():  # found out before the run, not after it
+        ap.error(f"--log {args.log}: no folder {Path(args.log).absolute().parent}")
+    if args.help:
         text = ap.format_help()
         if args.script:
             try:
@@ -831,7 +835,7 @@ def main(argv: list[str] | None = None) -> int:
             except WorkflowError as exc:
                 text += f"\n{exc}\n"
         print(text, end="")
-        return 0 if args.help else 2
+        return 0
     if args.from_:
         return _main_from(args.script, args.from_, args.set, args.out)
     params: dict[str, Any] = {}
@@ -875,7 +879,11 @@ def main(argv: list[str] | None = None) -> int:
     sys.stderr.write("\n")
     text = yaml.safe_dump(log.as_dict(), sort_keys=False)
     if args.log:
-        Path(args.log).write_text(text)
+        try:
+            Path(args.log).write_text(text)
+        except OSError as exc:
+            sys.stderr.write(f"rvs-prox: cannot write the log {args.log}: {exc.strerror or exc}\n")
+            return 2
     print(text, end="")
     for key, value in ws.items():
         if isinstance(value, str | int | float | Path):

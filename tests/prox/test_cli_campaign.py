@@ -116,3 +116,12 @@ def test_a_missing_script_or_bad_value_exits_2(tmp_path: Path) -> None:
     assert r.returncode == 2 and one_error_line(r.stderr, "rvs-prox: no workflow script nosuch")
     r = run_prox(tmp_path, "dem", "--validate", "--set", "cell=abc")
     assert r.returncode == 2 and one_error_line(r.stderr, "rvs-prox: -cell takes a number")
+
+
+def test_no_script_or_a_log_in_no_folder_is_one_error_line(tmp_path: Path) -> None:
+    r = run_prox(tmp_path)
+    assert r.returncode == 2 and r.stdout == ""
+    one_error_line(r.stderr, "rvs-prox: error: name a script to run (or batch, mosaic-campaign)")
+    r = run_prox(tmp_path, "dem", "--validate", "--log", str(tmp_path / "no" / "run.yaml"))
+    assert r.returncode == 2
+    one_error_line(r.stderr, f"rvs-prox: error: --log {tmp_path / 'no' / 'run.yaml'}: no folder")
