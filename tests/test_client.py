@@ -292,3 +292,15 @@ def test_after_ctrl_c_the_late_lines_carry_no_tag_the_user_never_typed(server: S
         os.close(master)
     text = buf.decode()
     assert "tag=c" not in text, text
+
+
+@pytest.mark.parametrize("port", ["99999", "0", "http"])
+def test_a_port_out_of_range_is_one_error_line_not_another_port(port: str, capsys: pytest.CaptureFixture[str]) -> None:
+    """The resolver wraps 99999 to 34463: the client would talk to whatever listens there."""
+    from rvs_server.client import replay
+
+    for tool in (client.main, replay.main):
+        with pytest.raises(SystemExit) as exc:
+            tool(["--port", port, "-c", "status"] if tool is client.main else ["--port", port, "x.rvs"])
+        err = capsys.readouterr().err
+        assert exc.value.code == 2 and "error: argument --port: " in err and "Traceback" not in err

@@ -18,7 +18,7 @@ from typing import Any, TextIO
 
 from rvs_server.protocol import render_value
 
-from .session import DEFAULT_HOST, DEFAULT_PORT, Line, Result, Session, SessionError, is_request
+from .session import DEFAULT_HOST, DEFAULT_PORT, Line, Result, Session, SessionError, is_request, port_number
 
 DEFAULT_TIMEOUT = 600.0
 PROMPT = "rvs> "
@@ -33,7 +33,7 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
         "note that 'quit' stops the server itself).",
     )
     p.add_argument("--host", default=DEFAULT_HOST, help=f"server address (default {DEFAULT_HOST})")
-    p.add_argument("--port", type=int, default=DEFAULT_PORT, help=f"server port (default {DEFAULT_PORT})")
+    p.add_argument("--port", type=port_number, default=DEFAULT_PORT, help=f"server port (default {DEFAULT_PORT})")
     p.add_argument("--token", help="send 'auth -token TOKEN' before anything else")
     p.add_argument("--format", choices=("text", "json"), default="text",
                    help="reply format: json sends 'format json' at connect and prints the greeting and every "
@@ -231,9 +231,12 @@ def main(argv: list[str] | None = None) -> int:
     session = Session(args.host, args.port, on_async=printer.reply, on_close=closed)
     try:
         session.connect()
-    except (OSError, SessionError) as exc:
+    except (OSError, OverflowError, SessionError) as exc:
         print(f"rvs-client: cannot talk to {args.host}:{args.port}: {exc}", file=sys.stderr)
         return 2
+    except KeyboardInterrupt:  # Ctrl-C while a slow host is looked up or answers
+        session.close()
+        return 130
     try:
         if not _setup(session, args, printer, args.verbose, timeout):
             return 1

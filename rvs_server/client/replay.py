@@ -40,6 +40,7 @@ from .session import (
     Session,
     SessionError,
     is_request,
+    port_number,
     try_parse,
 )
 
@@ -315,7 +316,7 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
                    "one script or plain file of requests")
     p.add_argument("--host", help=f"address of a running server to replay against (default {DEFAULT_HOST} "
                    "when --port is given); replays change its state")
-    p.add_argument("--port", type=int, help=f"port of a running server (default {DEFAULT_PORT} when --host is given)")
+    p.add_argument("--port", type=port_number, help=f"port of a running server (default {DEFAULT_PORT} when --host is given)")
     p.add_argument("--token", help="send 'auth -token TOKEN' before each script")
     p.add_argument("--timeout", type=float, default=DEFAULT_TIMEOUT,
                    help=f"seconds to wait for each request's final line (default {DEFAULT_TIMEOUT:g})")
@@ -411,6 +412,9 @@ def main(argv: list[str] | None = None) -> int:
         except SessionError as exc:
             print(f"rvs-replay: {exc}", file=sys.stderr)
             return 2
+        except KeyboardInterrupt:
+            print(f"\nrvs-replay: interrupted in {_path}", file=sys.stderr)
+            return 130
         outcomes.extend(file_outcomes)
         if args.record is not None:
             results = {id(o.step): o.result for o in file_outcomes}

@@ -39,6 +39,19 @@ class SessionError(Exception):
     """The connection could not be made or was refused by the server."""
 
 
+def port_number(text: str) -> int:
+    """An argparse ``type`` for --port: the resolver would quietly wrap 99999 to another port."""
+    import argparse
+
+    try:
+        port = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a port number") from None
+    if not 1 <= port <= 65535:
+        raise argparse.ArgumentTypeError(f"{port} is out of range 1-65535")
+    return port
+
+
 @dataclass
 class Line:
     """One line received while a request was waited for.
