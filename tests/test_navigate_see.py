@@ -410,7 +410,7 @@ def test_the_gnc_drives_and_each_pose_report_is_a_cycle(server_factory, monkeypa
         return out
 
     monkeypatch.setattr(autonomy.SeeingDriver, "cycle", counted)
-    srv = server_factory(["server.scene=marsyard", "navigate.range=-60,60,-50,-10", "navigate.pose_settle=0.3"])
+    srv = server_factory(["server.scene=marsyard", "navigate.range=-60,60,-50,-10", "navigate.pose_settle=1"])
     world = srv.app.world
     world.set_target_visible(False)
     start, goal = (-3.25, 0.45), (1.5, 0.45)

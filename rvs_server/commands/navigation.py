@@ -565,8 +565,9 @@ def wait_for_rover(app: App, job: Job, version: int, end: tuple[float, float], c
     (within ``cfg.pose_still``) for ``cfg.pose_settle`` seconds, reported again or not. Where it
     stopped does not matter: a GNC streaming its pose as it drives passes the leg's end, or comes
     within the tolerance of it, while still moving, and a scan started then would start on a
-    moving rover. Each report goes to ``on_pose`` (the see loop's check), outside the pose lock,
-    so the pose command is never kept waiting by it."""
+    moving rover. Each report that moved goes to ``on_pose`` (the see loop's check), outside the
+    pose lock, so the pose command is never kept waiting by it; the hold is timed from the end of
+    that check, so a check slower than the GNC's reports does not pass for a standing rover."""
     deadline = time.monotonic() + cfg.wait_timeout if cfg.wait_timeout > 0 else math.inf
     still_m, still_deg = cfg.pose_still
     anchor: Pose | None = None  # the first report of the run of reports that hold still
@@ -590,9 +591,10 @@ def wait_for_rover(app: App, job: Job, version: int, end: tuple[float, float], c
             p = app.pose
         if p.stopped:
             return p
+        latest = p
         turned = abs((p.heading - anchor.heading + 180.0) % 360.0 - 180.0) if anchor is not None else 0.0
         if anchor is None or math.hypot(p.x - anchor.x, p.y - anchor.y) > still_m or turned > still_deg:
-            anchor, anchor_at = p, time.monotonic()
-        latest = p
-        if on_pose is not None:
-            on_pose(p)
+            anchor = p
+            if on_pose is not None:  # a report that holds still shows nothing new: no cycle for it
+                on_pose(p)
+            anchor_at = time.monotonic()  # the hold counts from when the server took the report in
