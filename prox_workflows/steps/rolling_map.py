@@ -50,7 +50,7 @@ from ..grid import GridGeometry, Layers, median_near
 from .dem2hazard import HAZARDOUS, SAFE, UNDEFINED, HazardParams, dem2hazard
 from .dem_import import dem_import
 from .dem_mosaik import dem_mosaik
-from .planner import NavMaps
+from .planner import NavMaps, check_plan_size
 from .safety import MoveCheck, check_move
 
 
@@ -97,8 +97,10 @@ class MapMemory:
     def covering(cls, points: Any, pad: float, cell: float) -> MapMemory:
         """A memory over the box of ``points`` (x, y) grown by ``pad`` metres."""
         xy = np.asarray(points, dtype=np.float64).reshape(-1, 2)
-        return cls(GridGeometry.covering(xy[:, 0].min() - pad, xy[:, 1].min() - pad, xy[:, 0].max() + pad,
-                                         xy[:, 1].max() + pad, cell))
+        geometry = GridGeometry.covering(xy[:, 0].min() - pad, xy[:, 1].min() - pad, xy[:, 0].max() + pad,
+                                         xy[:, 1].max() + pad, cell)
+        check_plan_size(geometry, "see loop's memory")  # it spans the mission, as a plan does
+        return cls(geometry)
 
     def remember(self, m: RollingMap) -> None:
         """Keep what ``m`` has verdicts for (its cells and the memory's share one lattice)."""
