@@ -30,7 +30,7 @@ from .devices import DeviceRegistry
 from .jobs import Job, JobRunner, error_fields
 from .maps import CurrentMaps, RecoverySets
 from .monitors import Monitors
-from .protocol import ProtocolError, Reply, Request, parse_request, tag_of
+from .protocol import ProtocolError, Reply, Request, TooLong, is_silent, parse_request, tag_of
 from .table import ALWAYS, CONTROL, HARDWARE, Command, bind_options, check_positional, lookup
 
 if TYPE_CHECKING:
@@ -361,15 +361,17 @@ class App:
 
     # ---------------------------------------------------------------- dispatch
 
-    def dispatch(self, conn: Connection, raw: bytes | None) -> Any:
+    def dispatch(self, conn: Connection, raw: bytes | TooLong) -> Any:
         """Handle one request line; returns an awaitable when the handler is asynchronous."""
         if self.quitting:
             return None  # quit was answered; every connection is about to close
-        if raw is None:
+        if isinstance(raw, TooLong):
             conn.send(Reply("RVS", "ERROR", {
                 "code": "E_TOOLONG",
                 "message": f"request line over {self.server_cfg.max_line} bytes was discarded; send shorter lines",
-            }))
+            }, raw.tag))
+            return None
+        if is_silent(raw):
             return None
         try:
             text = raw.decode("utf-8")

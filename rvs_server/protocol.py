@@ -12,7 +12,7 @@ import numbers
 import re
 from collections.abc import Iterator
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, ClassVar
 
 from rvs_params import STEM_RE, valid_stem  # noqa: F401 - the one file-stem rule, shared with settings
 
@@ -166,12 +166,22 @@ def _option_name(text: str, quoted: bool) -> str | None:
     return None
 
 
+BLANKS = " \t\r"  # around a request; telnet clients may send CR CR LF
+
+
+def is_silent(line: bytes) -> bool:
+    """Blank and comment lines get no reply, whatever bytes follow the ``#``: decided on the
+    bytes, before any UTF-8 check, so a comment in another encoding is still a comment."""
+    stripped = line.strip(BLANKS.encode())
+    return not stripped or stripped.startswith(b"#")
+
+
 def parse_request(line: str) -> Request | None:
     """Parse one request line (already stripped of CR/LF and telnet bytes).
 
     Returns None for blank and comment lines, which get no reply.
     """
-    stripped = line.strip(" \t\r")  # telnet clients may send CR CR LF
+    stripped = line.strip(BLANKS)
     if not stripped or stripped.startswith("#"):
         return None
     tokens = _tokenize(stripped)
@@ -246,6 +256,26 @@ def _scalar(value: Any) -> Any:
     return item() if callable(item) and getattr(value, "shape", None) == () else value
 
 
+# Characters a terminal acts on rather than shows (BEL, Ctrl-L, ESC sequences, a CR that
+# rewrites the line, NUL...): C0 but tab and LF (which quoting writes as \n), DEL and C1.
+CONTROLS = re.compile("[\x00-\x08\x0b-\x1f\x7f-\x9f]")
+
+
+def _caret(char: str) -> str:
+    code = ord(char)
+    if code >= 0x80:
+        return "M-" + _caret(chr(code - 0x80))
+    return "^" + chr(code ^ 0x40)  # ^@ NUL, ^G BEL, ^L form feed, ^[ ESC, ^? DEL
+
+
+def show_controls(text: str) -> str:
+    """Control characters in caret notation, as ``cat -v`` shows them (Ctrl-L is ``^L``, C1
+    ``M-^[``): a value that quotes what a client sent (an unknown command's name, a bad value)
+    then cannot ring, clear or drive an operator's terminal. The reply grammar's quoted strings
+    have no escape for them, so text shows them (lossily); JSON escapes them exactly."""
+    return CONTROLS.sub(lambda m: _caret(m.group()), text)
+
+
 def render_value(value: Any) -> str:
     """A value as it appears on a text line: bare when it can be, quoted otherwise."""
     value = _scalar(value)
@@ -261,7 +291,7 @@ def render_value(value: Any) -> str:
         return "none"
     if isinstance(value, list | tuple):
         value = ",".join(render_value(v) for v in value)
-    text = str(value)
+    text = show_controls(str(value))
     if text and BARE_VALUE_RE.fullmatch(text):
         return text
     return '"' + text.replace("\\", "\\\\").replace('"', '\\"').replace("\n", "\\n") + '"'
@@ -276,12 +306,16 @@ def format_reply(reply: Reply) -> str:
     return " ".join(parts)
 
 
-def _text_pairs(fields: dict[str, Any], prefix: str = "") -> Iterator[str]:
+def _text_pairs(fields: dict[str, Any], prefix: str = "", settings: bool = False) -> Iterator[str]:
     for key, value in fields.items():
         if isinstance(value, Group):
-            yield from _text_pairs(value, prefix)
+            yield from _text_pairs(value, prefix, True)
         elif isinstance(value, dict):
-            yield from _text_pairs(value, f"{prefix}{key}_")
+            yield from _text_pairs(value, f"{prefix}{key}_", settings)
+        elif settings and isinstance(value, float) and math.isnan(value):
+            # A setting holds NaN only as its declared "not set" default (a value given is
+            # always finite): none, as PROTOCOL says absent values read, and as JSON's null.
+            yield f"{prefix}{key}=none"
         else:
             yield f"{prefix}{key}={render_value(value)}"
 
@@ -313,7 +347,12 @@ def format_reply_json(reply: Reply) -> str:
         name = key + "_" if key in ("module", "status", "tag") else key
         text_valued = key in TEXT_VALUED_KEYS and not isinstance(value, str)
         obj[name] = render_value(value) if text_valued else _json_value(value)
-    return json.dumps(obj, separators=(",", ":"), ensure_ascii=False)
+    # json escapes C0 itself; DEL and C1 too, so the line is as safe to show as a text one
+    return _JSON_RAW_CONTROLS.sub(lambda m: f"\\u{ord(m.group()):04x}",
+                                  json.dumps(obj, separators=(",", ":"), ensure_ascii=False))
+
+
+_JSON_RAW_CONTROLS = re.compile("[\x7f-\x9f]")
 
 
 def parse_reply(line: str) -> Reply:
@@ -392,6 +431,23 @@ class Telnet:
         return f"Telnet({self.name})"
 
 
+@dataclass(frozen=True)
+class TooLong:
+    """A request line over the limit, discarded but for its tag: a line that starts with ``@tag ``
+    gets its E_TOOLONG with ``tag=``, so a GNC matching replies by tag is not left waiting."""
+
+    tag: str | None = None
+
+    HEAD: ClassVar[int] = 34  # bytes kept to find it in: "@", 32 of the tag, a blank
+    _TAG: ClassVar[re.Pattern[bytes]] = re.compile(rb"@([A-Za-z0-9_.:\-]{1,32})[ \t\r]")
+
+    @classmethod
+    def of(cls, head: bytes) -> TooLong:
+        """From the first bytes of the discarded line."""
+        m = cls._TAG.match(head[: cls.HEAD])
+        return cls(m.group(1).decode("ascii") if m else None)
+
+
 INTERRUPT = Telnet("interrupt")  # IAC IP
 TIMING_MARK = Telnet("timing-mark")  # IAC DO TIMING-MARK
 WILL_TIMING_MARK = bytes([255, 251, 6])  # the answer to DO TIMING-MARK (RFC 860)
@@ -401,8 +457,9 @@ class LineSplitter:
     """Turns the byte stream of one connection into request lines.
 
     Strips telnet IAC sequences (answering only the timing mark, see :class:`Telnet`), drops
-    the CR of CRLF, and enforces the line limit: an over-long line yields ``None`` once and the
-    rest up to the next LF is discarded, so one runaway client line costs nothing but itself.
+    the CR of CRLF, and enforces the line limit: an over-long line yields a :class:`TooLong`
+    (with its tag) once and the rest up to the next LF is discarded, so one runaway client line
+    costs nothing but itself.
     """
 
     IAC, IP, DO, TM = 0xFF, 244, 253, 6
@@ -445,10 +502,10 @@ class LineSplitter:
         pieces.append(bytes(out))
         return pieces
 
-    def feed(self, data: bytes) -> list[bytes | None | Telnet]:
-        """Feed received bytes; returns complete lines (bytes), ``None`` for each too-long line
-        and the telnet commands the server acts on, in the order they came."""
-        out: list[bytes | None | Telnet] = []
+    def feed(self, data: bytes) -> list[bytes | TooLong | Telnet]:
+        """Feed received bytes; returns complete lines (bytes), a :class:`TooLong` for each
+        too-long line and the telnet commands the server acts on, in the order they came."""
+        out: list[bytes | TooLong | Telnet] = []
         for piece in self._strip_iac(data):
             if isinstance(piece, Telnet):
                 out.append(piece)
@@ -456,7 +513,7 @@ class LineSplitter:
                 self._lines(piece, out)
         return out
 
-    def _lines(self, data: bytes, out: list[bytes | None | Telnet]) -> None:
+    def _lines(self, data: bytes, out: list[bytes | TooLong | Telnet]) -> None:
         if self._cr_pending and data[:1] == b"\x00":
             data = data[1:]
             self._cr_pending = False  # that NUL was the CR's; a second one is a byte of the line
@@ -478,13 +535,13 @@ class LineSplitter:
                     if line.endswith(b"\r"):
                         line = line[:-1]
                     if len(line) > self.max_line:
-                        out.append(None)
+                        out.append(TooLong.of(line))
                     else:
                         out.append(line)
                 elif len(self._buf) > self.max_line + 1:  # +1: a CR may still precede the LF
+                    out.append(TooLong.of(bytes(self._buf[: TooLong.HEAD])))
                     self._buf.clear()
                     self._discarding = True
-                    out.append(None)
             if nl < 0:
                 break
             start = nl + 1

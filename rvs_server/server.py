@@ -31,6 +31,7 @@ from .protocol import (
     LineSplitter,
     Reply,
     Telnet,
+    TooLong,
     format_reply,
     format_reply_json,
 )
@@ -56,7 +57,7 @@ class Connection(asyncio.Protocol):
         self.id = next_connection_id()
         self.transport: asyncio.Transport | None = None
         self.splitter = LineSplitter(app.server_cfg.max_line)
-        self.pending: deque[bytes | None | Telnet] = deque()
+        self.pending: deque[bytes | TooLong | Telnet] = deque()
         self.waiting: asyncio.Future[Any] | None = None
         self.events = True
         self.json = False

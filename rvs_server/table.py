@@ -8,12 +8,13 @@ never re-check their own arguments.
 from __future__ import annotations
 
 import copy
+import dataclasses
 import keyword
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
-from .config import ModuleConfig, SettingError
+from .config import ModuleConfig, ParamSpec, SettingError
 from .protocol import ProtocolError, Request
 
 if TYPE_CHECKING:
@@ -41,6 +42,17 @@ class Command:
     # check(app, cfg) runs on the event loop before a job's ACK: every refusal that needs no
     # hardware I/O (the PTU's limits read at open, a sim-only option) is an ERROR, never an ACK
     check: Callable[[App, Any], None] | None = None
+    # ranges(app) -> {option: (min, max)}: ranges only the device knows (the PTU's limits, read
+    # when it opens), which help shows instead of the declared ones; the check refuses beyond them
+    ranges: Callable[[App], dict[str, tuple[float, float]]] | None = None
+
+    def describe(self, spec: ParamSpec, app: App | None = None) -> str:
+        """An option's phrase for help: as declared, but with the range the device reports where
+        there is one, so help states the limits the E_ARG check applies, not a guess."""
+        span = self.ranges(app).get(spec.name) if self.ranges is not None and app is not None else None
+        if span is not None:
+            spec = dataclasses.replace(spec, min=span[0], max=span[1])
+        return spec.describe()
 
     def usage(self) -> str:
         parts = [self.name] + [f"[{p}]" for p in self.positional]
@@ -70,12 +82,13 @@ def command(
     module: str | None = None,
     check: Callable[[App, Any], None] | None = None,
     aliases: tuple[str, ...] = (),
+    ranges: Callable[[App], dict[str, tuple[float, float]]] | None = None,
 ) -> Callable[[Callable[..., Any]], Callable[..., Any]]:
     """Register a handler; a job handler runs in a worker thread as ``handler(job, cfg)``."""
 
     def register(fn: Callable[..., Any]) -> Callable[..., Any]:
         mod = module or "EGP-RVS-" + name.upper()
-        cmd = Command(name, mod, fn, config, job, klass, help, positional, open, raw, sim_only, check)
+        cmd = Command(name, mod, fn, config, job, klass, help, positional, open, raw, sim_only, check, ranges)
         COMMANDS[name] = cmd
         ALIASES.update(dict.fromkeys(aliases, name))
         return fn

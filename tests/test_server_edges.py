@@ -164,3 +164,87 @@ def test_ctrl_c_stops_the_server_at_once_while_the_kernels_compile(tmp_path: Pat
     assert status == 0, err
     assert took < 5.0, f"SIGINT took {took:.1f} s"
     assert "stopping" in err and "SIGINT" in err, err  # the operator is told
+
+
+# ---------------------------------------------------------------------- protocol corners
+
+
+def raw_line(c: LineClient) -> bytes:
+    """The next line as sent, bytes and all (LineClient.line decodes and strips it)."""
+    while b"\n" not in c.buf:
+        chunk = c.sock.recv(65536)
+        if not chunk:
+            raise ConnectionError("server closed the connection")
+        c.buf += chunk
+    line, c.buf = c.buf.split(b"\n", 1)
+    return line + b"\n"
+
+
+def test_a_too_long_line_keeps_its_tag(client: LineClient) -> None:
+    client.send(b"@t77 grab-tof -output " + b"x" * 5000 + b"\n")
+    r = client.reply()
+    assert (r.module, r.tag, r.fields["code"]) == ("RVS", "t77", "E_TOOLONG"), r
+    # cut before its LF arrives (the server discards as it reads): the tag is still known
+    client.sock.sendall(b"@g.8:x-y version -" + b"y" * 4200)
+    client.sock.sendall(b"zzz\n@t9 version\n")
+    r = client.reply()
+    assert (r.tag, r.fields["code"]) == ("g.8:x-y", "E_TOOLONG"), r
+    assert client.reply().tag == "t9"
+    client.send(b"version " + b"z" * 5000)  # no tag, none made up
+    r = client.reply()
+    assert (r.tag, r.fields["code"]) == (None, "E_TOOLONG"), r
+
+
+def test_comment_and_blank_lines_get_no_reply_even_when_not_utf8(client: LineClient) -> None:
+    client.send(b"# caf\xe9 (latin-1)\n   #\xc3\x28\xff\xfe\n \t \n@t1 version\n")
+    r = client.reply()
+    assert (r.module, r.tag) == ("EGP-RVS-VERSION", "t1"), r
+    client.send(b"status \xc3\x28\n")  # a request that is not UTF-8 is still E_SYNTAX
+    assert client.reply().fields["code"] == "E_SYNTAX"
+
+
+def test_control_characters_from_the_client_are_shown_not_sent(client: LineClient) -> None:
+    """Ctrl-L, BEL, NUL and an ESC sequence echoed raw would clear, ring and drive the
+    operator's terminal: every reply shows them in caret notation, JSON escapes them."""
+    client.send(b"\x0c\x07\x00\x1b[2J\n")
+    line = raw_line(client)
+    assert not any(b < 0x20 for b in line.rstrip(b"\r\n")), line
+    r = parse_reply(line.decode())
+    assert r.fields["code"] == "E_UNKNOWN" and "'^L^G^@^[[2j'" in r.fields["message"], r
+    client.send(b"sleep -seconds 1\x07\x7f")  # a bad option value, quoted back
+    r = parse_reply(raw_line(client).decode())
+    assert r.fields["code"] == "E_ARG" and "1^G^?" in r.fields["message"], r
+    client.send("format json")
+    assert client.reply().fields["format"] == "json"
+    assert client.reply().fields["kind"] == "hello"  # again, in JSON (no job started yet)
+    client.send(b"\x0c\xc2\x9b\x7f\n")  # C0, C1 (CSI) and DEL
+    line = raw_line(client)
+    assert not any(b < 0x20 or b == 0x7f for b in line.rstrip(b"\n")) and b"\xc2\x9b" not in line, line
+    assert "'\x0c\x9b\x7f'" in json.loads(line)["message"]  # JSON carries them exactly
+
+
+def test_move_ptu_ranges_in_help_are_the_units_limits(server: Any, client: LineClient) -> None:
+    limits = server.app.devices.devices["ptu"].status()["limits"]
+    pan = f"[{limits['pan']['min_deg']:.2f}, {limits['pan']['max_deg']:.2f}]"
+    tilt = f"[{limits['tilt']['min_deg']:.2f}, {limits['tilt']['max_deg']:.2f}]"
+    assert (pan, tilt) == ("[-158.91, 158.91]", "[-46.65, 31.06]")  # the simulated D46's
+    h = client.request("help move-ptu").fields
+    assert pan in h["opt_pan"] and tilt in h["opt_tilt"], h
+    for option in ("-pan 200", "-pan 400", "-tilt -60", "-tilt 100"):  # beyond, and far beyond
+        r = client.request(f"move-ptu {option}")
+        assert r.fields["code"] == "E_ARG", r
+        assert (pan if "pan" in option else tilt) in r.fields["message"], r
+    r = client.request("move-ptu -pan 158.9 -tilt -46.6")
+    assert r.status == "OK", r
+
+
+def test_config_shows_an_unset_float_as_none(client: LineClient) -> None:
+    client.send("config -module move-ptu")
+    line = client.line()
+    assert "pan=none" in line.split() and "tilt=none" in line.split(), line
+    client.send("format json")
+    assert client.reply().fields["format"] == "json"
+    assert client.reply().fields["kind"] == "hello"  # again, in JSON (no job started yet)
+    client.send("config -module move-ptu")
+    settings = json.loads(client.line())["settings"]
+    assert settings == {"pan": None, "tilt": None}, settings

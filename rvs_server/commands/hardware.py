@@ -69,9 +69,28 @@ def check_ptu_angles(app: App, pan: float | None, tilt: float | None) -> None:
 
 @dataclass
 class MovePtuConfig(ModuleConfig):
+    """No declared range: the unit reports its own limits when it opens, and those are what help
+    shows (``ptu_ranges``) and the check refuses beyond (``check_ptu_angles``); a fixed range
+    here would be a second, different answer."""
+
     module: ClassVar[str] = "move_ptu"
-    pan: float = param(float("nan"), "pan angle (default: keep)", unit="deg", min=-360.0, max=360.0)
-    tilt: float = param(float("nan"), "tilt angle (default: keep)", unit="deg", min=-90.0, max=90.0)
+    pan: float = param(float("nan"), "pan angle (default: keep), within the PTU's limits", unit="deg")
+    tilt: float = param(float("nan"), "tilt angle (default: keep), within the PTU's limits", unit="deg")
+
+
+def ptu_ranges(app: App) -> dict[str, tuple[float, float]]:
+    """-pan and -tilt ranges as the open PTU reported them (none while it is not open), to the
+    hundredth of a degree, as the check's E_ARG states them. From its status, which never waits
+    for the serial line: help is answered at once, even while a job moves the PTU."""
+    dev = app.devices.devices.get("ptu")
+    if dev is None:
+        return {}
+    try:
+        limits = dev.status().get("limits") or {}
+    except Exception:  # noqa: BLE001 - status never fails because a device does
+        return {}
+    return {axis: (round(lim["min_deg"], 2), round(lim["max_deg"], 2))
+            for axis, lim in limits.items() if axis in ("pan", "tilt") and lim}
 
 
 def _axes(cfg: MovePtuConfig) -> tuple[float | None, float | None]:
@@ -85,7 +104,7 @@ def _check_move_ptu(app: App, cfg: MovePtuConfig) -> None:
     check_ptu_angles(app, pan, tilt)
 
 
-@command("move-ptu", job=True, klass=HARDWARE, config=MovePtuConfig, check=_check_move_ptu,
+@command("move-ptu", job=True, klass=HARDWARE, config=MovePtuConfig, check=_check_move_ptu, ranges=ptu_ranges,
          help="move the PTU to -pan, -tilt")
 def move_ptu(job: Job, cfg: MovePtuConfig) -> dict[str, Any]:
     app = job.app

@@ -235,7 +235,7 @@ def help_(ctx: Context, cfg: None) -> dict[str, Any]:
             if spec.option:
                 default = getattr(current, spec.name, spec.default)
                 shown = _show(default)
-                out["opt_" + spec.flag[1:].replace("-", "_")] = f"{spec.describe()}{f'; default {shown}' if shown else ''}: {spec.help}"
+                out["opt_" + spec.flag[1:].replace("-", "_")] = f"{cmd.describe(spec, ctx.app)}{f'; default {shown}' if shown else ''}: {spec.help}"
     return out
 
 

@@ -26,7 +26,7 @@ from aiohttp import WSMsgType, web
 
 from prox_workflows.grid import read_geotiff_geometry
 
-from ..protocol import Reply, format_reply, format_reply_json
+from ..protocol import Reply, TooLong, format_reply, format_reply_json
 from .tiles import LayerCache, version_of
 
 if TYPE_CHECKING:
@@ -346,7 +346,7 @@ class WebConsole:
                                                      "message": 'send {"line": "<command line>"}'}))
                     continue
                 raw = line.encode("utf-8")
-                result = app.dispatch(page, raw if len(raw) <= app.server_cfg.max_line else None)
+                result = app.dispatch(page, raw if len(raw) <= app.server_cfg.max_line else TooLong.of(raw))
                 if result is not None:
                     await result
         finally:

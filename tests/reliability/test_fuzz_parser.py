@@ -11,6 +11,7 @@ the line splitter agrees with an independent model of the byte stream, however T
 from __future__ import annotations
 
 import math
+import re
 
 import pytest
 from hypothesis import HealthCheck, given, settings
@@ -33,6 +34,7 @@ from rvs_server.protocol import (
     ProtocolError,
     Reply,
     Telnet,
+    TooLong,
     format_reply,
     format_reply_json,
     parse_reply,
@@ -151,10 +153,17 @@ def test_junk_lines_parse_or_fail_cleanly(lines) -> None:
 # ------------------------------------------------------------------------------------ bytes to lines
 
 
-def model_lines(stream: bytes, max_line: int) -> list[bytes | None | Telnet]:
+def too_long(line: bytes) -> TooLong:
+    """An over-long line as the model sees it: its tag when it starts with ``@tag ``, so the
+    E_TOOLONG can carry it."""
+    m = re.match(rb"@([A-Za-z0-9_.:\-]{1,32})[ \t\r]", line)
+    return TooLong(m.group(1).decode() if m else None)
+
+
+def model_lines(stream: bytes, max_line: int) -> list[bytes | TooLong | Telnet]:
     """PROTOCOL.md, Transport, written out independently of LineSplitter: IAC sequences out (IAC
     IP and IAC DO TIMING-MARK reported where they stood), CR NUL as CR (telnet), split at LF, one
-    CR before the LF dropped, a line over the limit is one None.
+    CR before the LF dropped, a line over the limit is one TooLong (with its tag).
 
     Order: a line is reported when its LF is read, an over-long one as soon as it cannot fit
     (one byte kept for a CR), a telnet command when it is read; so a command that stands before
@@ -180,16 +189,16 @@ def model_lines(stream: bytes, max_line: int) -> list[bytes | None | Telnet]:
             i += 1
         i += 1
     at[len(raw)] = len(text)
-    events: list[tuple[int, int, bytes | None | Telnet]] = [(at[p], 0, kind) for p, kind in marks]
+    events: list[tuple[int, int, bytes | TooLong | Telnet]] = [(at[p], 0, kind) for p, kind in marks]
     start = 0
     while True:
         nl = text.find(b"\n", start)
         end = len(text) if nl < 0 else nl
         if end - start > max_line + 1:
-            events.append((start + max_line + 1, 1, None))
+            events.append((start + max_line + 1, 1, too_long(bytes(text[start:end]))))
         elif nl >= 0:
             line = bytes(text[start:nl].removesuffix(b"\r"))
-            events.append((nl, 1, None if len(line) > max_line else line))
+            events.append((nl, 1, too_long(line) if len(line) > max_line else line))
         if nl < 0:
             break
         start = nl + 1
@@ -200,7 +209,7 @@ stream_parts = st.one_of(
     st.binary(max_size=40),
     st.sampled_from([b"\n", b"\r\n", b"\r", b"\xff", b"\xff\xfb", b"\xff\xfd\x03", b"\xff\xff", b"\xff\n",
                      b"\xff\xf4", b"\xff\xfd\x06",
-                     b"\x00", b"\r\x00", b"#", b" ", b"\xe2\x80\x93"]),
+                     b"\x00", b"\r\x00", b"#", b" ", b"\xe2\x80\x93", b"@t1 ", b"@t.2\t", b"@"]),
     st.integers(10, 80).map(lambda n: b"y" * n),
 )
 
@@ -211,7 +220,7 @@ stream_parts = st.one_of(
 def test_splitter_agrees_with_the_model_however_tcp_cuts_the_stream(parts, cuts, max_line) -> None:
     stream = b"".join(parts)
     splitter = LineSplitter(max_line=max_line)
-    got: list[bytes | None] = []
+    got: list[bytes | TooLong | Telnet] = []
     i = k = 0
     while i < len(stream):
         n = cuts[k % len(cuts)]
