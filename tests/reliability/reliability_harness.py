@@ -170,16 +170,13 @@ def logical_line(piece: bytes) -> bytes:
 
 def expects_reply(piece: bytes, max_line: int = MAX_LINE, logical: bytes | None = None) -> bool:
     """PROTOCOL.md: every request that is not blank or a comment gets exactly one final line; an
-    over-long line is one E_TOOLONG; bytes that are not UTF-8 are one E_SYNTAX."""
+    over-long line is one E_TOOLONG; bytes that are not UTF-8 are one E_SYNTAX, unless they are
+    a comment (docs/PROTOCOL.md: blank and comment lines get no reply whatever their bytes)."""
     line = logical_line(piece) if logical is None else logical
     if len(line) > max_line:
         return True
-    try:
-        text = line.decode("utf-8")
-    except UnicodeDecodeError:
-        return True
-    stripped = text.strip(" \t\r")  # telnet clients may send CR CR LF
-    return bool(stripped) and not stripped.startswith("#")
+    stripped = line.strip(b" \t\r")  # telnet clients may send CR CR LF
+    return bool(stripped) and not stripped.startswith(b"#")
 
 
 def reply_facts(raw: str) -> tuple[str, str, str | None, str | None, str | None]:
