@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import errno
 import logging
 import os
 import sys
@@ -101,8 +102,9 @@ async def run(store: ConfigStore, *, ready: Callable[[int], None] | None = None,
         except OSError as exc:
             # The console is the operator's window, the TCP port the GNC's: a console port taken
             # (by another server on this machine) costs the console, never the server.
-            console_off = (f"cannot serve it on {host}:{server.web_port}: {exc.strerror or exc}; "
-                           "start with --web-port N (a free port) for a console")
+            why = ("is in use (another server on this machine?)" if exc.errno == errno.EADDRINUSE
+                   else f"cannot be bound ({exc.strerror or exc})")
+            console_off = f"web console port {host}:{server.web_port} {why}; start with --web-port N for a console"
     return await serve(app, sock, ready=ready, handle_signals=handle_signals, web_sock=web_sock,
                        console_off=console_off)
 
