@@ -42,6 +42,8 @@ from rvs_server.client.session import ServerProcess
 
 CONNECTIONS = 20
 WARM_UP = [  # every variant of the jobs the fuzz may run: their first renders allocate for good
+    # a current map: check-move's generated values (up to the help's extremes) then sweep it
+    "dem-full-tof -range -20,20,-40,-25 -name fzmap",
     *(f"grab-stereo -output fz2 -resolution low -format {f}" for f in ("mono8", "rgb8", "mono8")),
     *(f"grab-tof -output fz{i % 2} -type {t} -integrate {i}" for i, t in
       enumerate(("amplitude", "distance", "confidence", "z", "xyz"), 1) if i <= 4),
