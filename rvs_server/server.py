@@ -304,7 +304,8 @@ async def serve(app: App, sock: socket.socket, *, ready: Any = None, handle_sign
         try:
             await app.start_console(web_sock)
         except OSError as exc:
-            app.console, app.console_off = None, f"the console did not start: {exc}"
+            web_sock.close()
+            app.console, app.console_off = None, f"the web console did not start: {exc}"
             log.warning("web_console_off", reason=app.console_off)
     server = await loop.create_server(lambda: Connection(app), sock=sock, backlog=512)
     if app.server_cfg.warm_up and not app.stopping.is_set():
