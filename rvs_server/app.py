@@ -236,23 +236,28 @@ class App:
         self._base_mode = "fault"
         self.devices.errors[device] = message
 
-    def begin_break(self) -> Job | None:
+    def begin_break(self) -> tuple[Job | None, bool]:
         """Tell the running job to stop, synchronously, and be in break mode from here on.
 
         Called before anything else the event loop runs: a job started by the same batch of
-        lines is caught however short it is, and its end announces break, never a passing ready."""
+        lines is caught however short it is, and its end announces break, never a passing ready.
+        Returns the job and whether it ends interrupted (False: its outcome was settled before the
+        break came), known at once, so that break answers without waiting for the job to stop."""
         job = self.jobs.current
-        if job is not None:
-            job.cancel.set()
+        stopped = job.stop() if job is not None else False
         self._base_mode = "break"
-        return job
+        return job, stopped
 
-    async def quit(self) -> Job | None:
-        """Stop taking requests, interrupt the job and have the server shut down."""
+    def quit(self) -> Job | None:
+        """Stop taking requests, tell the job to stop and have the server shut down; the job it
+        stopped (None if none, or one whose outcome was settled). Never waits: the shutdown
+        waits for the job, so its ERROR still goes out after quit's OK, before the connections
+        close."""
         self._quitting = True
-        job = await self.interrupt()
+        job = self.jobs.current
+        stopped = job.stop() if job is not None else False
         self.loop.call_soon(self.stopping.set)
-        return job
+        return job if stopped else None
 
     def announce_mode(self) -> None:
         mode = self.mode
@@ -343,11 +348,12 @@ class App:
         """The newest complete recovery set (relative to the data directory), if any."""
         return self.recovery.last
 
-    def write_recovery(self, job: Job | None) -> str:
-        """Store the recovery data set of a break: job, parameters, pose, PTU, current maps."""
+    def recovery_manifest(self, job: Job | None) -> dict[str, Any]:
+        """What a break's recovery set says, as known at the break: the job's parameters and
+        progress, the pose, and the PTU where it last reported (never asked: it may be moving)."""
         ptu = self.ptu_position() or self.last_ptu  # mid-reinit the PTU may not answer: its last position
         pose = self.pose
-        manifest = {
+        return {
             "time": datetime.now(UTC).isoformat(),
             "server": self.name,
             "job": None if job is None else {
@@ -357,7 +363,11 @@ class App:
             "pose": {"x": pose.x, "y": pose.y, "heading": pose.heading},
             "ptu": None if ptu is None else {"pan": ptu[0], "tilt": ptu[1]},
         }
-        return self.recovery.write(manifest, self.maps.files())
+
+    def write_recovery(self, job: Job | None, manifest: dict[str, Any] | None = None) -> str:
+        """Store the recovery data set of a break (``manifest``, default: as of now) with copies
+        of the current maps; blocking file I/O, run off the event loop."""
+        return self.recovery.write(manifest or self.recovery_manifest(job), self.maps.files())
 
     # ---------------------------------------------------------------- dispatch
 
@@ -500,7 +510,8 @@ class App:
         self.announce_mode()
 
     async def interrupt(self) -> Job | None:
-        """Stop the running job (break and quit)."""
+        """Stop the running job and wait until it has (shutdown: its ERROR goes out before the
+        connections close)."""
         return await self.jobs.interrupt()
 
     def stop_monitors(self) -> None:

@@ -2,9 +2,15 @@
 
 A job's handler runs in a worker thread so that status queries stay fast while it computes;
 it reports through :meth:`Job.progress` and checks :meth:`Job.check` at view and step
-boundaries, which is how ``break`` stops it within a second. The worker thread binds the job's
+boundaries; device waits watch ``Job.cancel`` themselves, which is how ``break`` stops it within
+a fraction of a second. ``break`` does not wait for that: :meth:`Job.stop` tells it, under the
+lock the worker thread decides the job's outcome with, whether the job will end interrupted, so
+the break can answer at once and the job's own ERROR follows. The worker thread binds the job's
 log context (connection, command, tag, job), so every line the handler logs, through whatever
 library, says which request it belongs to, as the event loop's lines do.
+
+The final lines of the last :data:`HISTORY` jobs are kept (:class:`JobRecord`): a client that lost
+its connection while its job ran asks ``status -job N`` how it ended.
 """
 
 from __future__ import annotations
@@ -13,6 +19,7 @@ import asyncio
 import threading
 import time
 import traceback
+from collections import OrderedDict
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
@@ -20,7 +27,7 @@ from typing import TYPE_CHECKING, Any
 
 import structlog
 
-from drivers.base import DeviceError
+from drivers.base import DeviceError, DeviceInterrupted
 
 from .protocol import ProtocolError
 
@@ -28,6 +35,8 @@ if TYPE_CHECKING:
     from .app import App
 
 log = structlog.get_logger("rvs.jobs")
+
+HISTORY = 32  # finished jobs whose final line status -job can still tell
 
 
 class Interrupted(Exception):
@@ -55,6 +64,12 @@ class Job:
     finished: threading.Event = field(default_factory=threading.Event)
     succeeded: bool | None = None  # set when it finished: True if its final line is OK
     _reported: bool = False
+    # Guards the moment the outcome is settled: stop() and the worker thread's decision take it,
+    # so a stop either comes first (the job ends interrupted) or finds the outcome settled.
+    _decide: threading.Lock = field(default_factory=threading.Lock, repr=False)
+    _decided: bool = False
+    _holds: int = 0  # breaks still answering: the final line waits for their replies (loop only)
+    _held: Callable[[], None] | None = field(default=None, repr=False)  # the finish they hold back
     log_context: dict[str, Any] = field(default_factory=dict)  # bound in the worker thread's log lines
     # The server state a handler works on (devices, config, pose, maps, data directory).
     app: App = field(kw_only=True, repr=False)
@@ -62,6 +77,13 @@ class Job:
     @property
     def cancelled(self) -> bool:
         return self.cancel.is_set()
+
+    def stop(self) -> bool:
+        """Ask the job to stop; True if it will end interrupted, False if its outcome (OK, or an
+        error of its own) was settled before: then nothing was interrupted. Never waits."""
+        with self._decide:
+            self.cancel.set()
+            return not self._decided
 
     def check(self) -> None:
         """Stop here if break or quit asked for it (call at every view and step boundary)."""
@@ -95,6 +117,24 @@ class Job:
         self.emit("PROGRESS", fields)
 
 
+@dataclass(frozen=True)
+class JobRecord:
+    """How a finished job ended: its final line's status and fields (without ``job``)."""
+
+    id: int
+    command: str
+    tag: str | None
+    connection: int
+    status: str  # OK or ERROR
+    fields: dict[str, Any]
+    seconds: float  # from its ACK to its final line
+
+
+def _failed_device(exc: BaseException | None) -> bool:
+    """A device failure stays E_DEVICE (fault mode) even when a break came at the same moment."""
+    return isinstance(exc, TimeoutError) or (isinstance(exc, DeviceError) and not isinstance(exc, DeviceInterrupted))
+
+
 def error_fields(exc: BaseException) -> tuple[dict[str, Any], bool]:
     """Map an exception from a handler to ERROR fields; the flag says whether a device failed."""
     if isinstance(exc, ProtocolError):
@@ -126,8 +166,14 @@ class JobRunner:
         self.loop = loop
         self.current: Job | None = None
         self.last: Job | None = None
+        self.history: OrderedDict[int, JobRecord] = OrderedDict()  # the last HISTORY finished, oldest first
         self._next_id = 1
         self._pool = ThreadPoolExecutor(max_workers=2, thread_name_prefix="rvs-job")
+
+    @property
+    def issued(self) -> int:
+        """The newest job id given out (0 before the first)."""
+        return self._next_id - 1
 
     def new_id(self) -> int:
         n = self._next_id
@@ -150,12 +196,18 @@ class JobRunner:
             with structlog.contextvars.bound_contextvars(**job.log_context):
                 try:
                     result = work(job)
-                    if job.cancel.is_set():
-                        raise Interrupted(f"{job.command} job {job.id} was interrupted")
                 except BaseException as exc:  # noqa: BLE001 - every failure becomes an ERROR line
                     error = exc
                     if not isinstance(exc, ProtocolError | Interrupted | DeviceError | OSError | ValueError):
                         log.error("job_failed", job=job.id, command=job.command, trace=traceback.format_exc())
+                with job._decide:
+                    job._decided = True
+                    # A stop that came before this point was told the job ends interrupted: so it
+                    # does, whatever the handler made of the stop (a result, a driver's own error).
+                    if job.cancel.is_set() and not isinstance(error, Interrupted) and not _failed_device(error):
+                        if error is not None:
+                            log.info("job_error_after_stop", job=job.id, error=repr(error))
+                        result, error = None, Interrupted(f"{job.command} job {job.id} was interrupted")
             self.loop.call_soon_threadsafe(self._finish, job, result, error, on_done)
 
         self._pool.submit(run)
@@ -167,20 +219,43 @@ class JobRunner:
         error: BaseException | None,
         on_done: Callable[[Job, dict[str, Any] | None, BaseException | None], None],
     ) -> None:
+        if job._holds:  # a break that caught it has not answered yet: its OK goes first
+            job._held = lambda: self._finish(job, result, error, on_done)
+            return
         if self.current is job:
             self.current = None
         self.last = job
         job.succeeded = error is None
+        status, fields = ("OK", dict(result or {})) if error is None else ("ERROR", error_fields(error)[0])
+        self.history[job.id] = JobRecord(job.id, job.command, job.tag, job.connection, status, fields,
+                                         time.monotonic() - job.started)
+        while len(self.history) > HISTORY:
+            self.history.popitem(last=False)
         job.finished.set()
         on_done(job, result, error)
 
+    def hold_final(self, job: Job) -> None:
+        """Keep ``job``'s final line back until :meth:`release_final` (loop only): a break answers
+        before the ERROR of the job it stopped, however fast the job stops."""
+        job._holds += 1
+
+    def release_final(self, job: Job) -> None:
+        job._holds -= 1
+        if job._holds == 0 and job._held is not None:
+            held, job._held = job._held, None
+            held()
+
+    def record(self, job_id: int) -> JobRecord | None:
+        """How job ``job_id`` ended, if it is among the last HISTORY finished."""
+        return self.history.get(job_id)
+
     async def interrupt(self, job: Job | None = None, timeout: float = 1.5) -> Job | None:
         """Ask ``job`` (default: the running one) to stop and wait, without blocking the loop,
-        until it has. A break names the job it caught: one started after it is not its to stop."""
+        until it has (server shutdown: the job's ERROR goes out before the connections close)."""
         job = job or self.current
         if job is None:
             return None
-        job.cancel.set()
+        job.stop()
         deadline = time.monotonic() + timeout
         while not job.finished.is_set() and time.monotonic() < deadline:
             await asyncio.sleep(0.01)
@@ -188,5 +263,5 @@ class JobRunner:
 
     def shutdown(self) -> None:
         if self.current is not None:
-            self.current.cancel.set()
+            self.current.stop()
         self._pool.shutdown(wait=False, cancel_futures=True)

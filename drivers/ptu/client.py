@@ -13,7 +13,10 @@ updates the bound the client believes (see shared/realdata/ptu/PTU-D46_reply_ref
 Every exchange holds ``lock`` (re-entrant, so a move holds it across its PP/TP/A/PP/TP
 sequence). A move's await can be cut short by a ``cancel`` callable/Event or by ``halt()``
 from another thread: the waiting thread sends ``H`` itself, so a halt never waits for the
-move it stops.
+move it stops. Nor does it wait for the axes to decelerate (half a second at the default speed
+and acceleration): once the ``H`` is acknowledged the wait ends, and the ``A``'s own reply,
+which comes when the axes stand, is read by the next command before it is sent (as an
+interrupted reset's is), which also reads back where they stopped.
 """
 
 from __future__ import annotations
@@ -51,7 +54,10 @@ class ReplyTimeout(DeviceError):
 
 
 class MoveInterrupted(DeviceInterrupted):
-    """A move stopped early by ``halt()`` or its ``cancel``; ``position`` is where it stopped."""
+    """A move stopped early by ``halt()`` or its ``cancel``; ``position`` is where it stopped
+    (``halt()``), or where the axes were when a ``cancel``'s halt was acknowledged: they
+    decelerate a little further, and the client's next command waits for that and reads the
+    position again."""
 
     def __init__(self, message: str, position: tuple[float, float] | None) -> None:
         super().__init__(DEVICE, message)
@@ -96,6 +102,9 @@ class PtuClient:
         # monotonic deadline of an R whose wait was interrupted: the unit goes on resetting and
         # answers nothing else until it ends, so the next command first waits for its reply
         self._reset_until: float | None = None
+        # monotonic deadline of an A whose wait a halt cut short: its reply comes when the axes
+        # stand, so the next command first reads it (and where they stopped)
+        self._await_until: float | None = None
         self.resolution: dict[str, float] = {}
         self.bounds: dict[str, tuple[int, int]] = {}
         # (PL, PU) per axis; an axis whose unit does not answer PL/PU (older firmware) has none
@@ -136,6 +145,11 @@ class PtuClient:
 
     def close(self) -> None:
         with self.lock:
+            if self._ser is not None and self._await_until is not None:
+                try:  # a reopened line must not take the halted move's late reply for its own
+                    self._finish_halt()
+                except DeviceError:
+                    pass
             ser, self._ser = self._ser, None
             if ser is not None:
                 try:
@@ -254,6 +268,8 @@ class PtuClient:
         ser = self._require()
         if self._reset_until is not None:
             self._finish_reset()
+        if self._await_until is not None:
+            self._finish_halt()
         if flush:
             if self._resync:  # a reply may still be on its way from a timed-out exchange
                 self._drain(0.05)
@@ -424,11 +440,51 @@ class PtuClient:
                     "overloaded; check the load and power, then reset the PTU",
                 ) from exc
             if reply is None:
-                _, where = self._halt_after_await()
-                raise MoveInterrupted(f"move interrupted by halt at {where}", self._last_position())
+                if self._halt.is_set():  # halt(): its caller waits for the axes to stand
+                    _, where = self._halt_after_await()
+                    raise MoveInterrupted(f"move interrupted by halt at {where}", self._last_position())
+                where = self._halt_during_await(timeout)
+                raise MoveInterrupted(f"move interrupted at {where}; the axes decelerate to a stop from there",
+                                      where)
             if not reply.ok:
                 raise DeviceError(DEVICE, f"the PTU refused A: {reply.text}")
             self._set_state(moving=False)
+
+    def _halt_during_await(self, timeout: float) -> tuple[float, float]:
+        """Send H while an A is outstanding, read the first of the two bare replies (the H's, or
+        the A's if the axes had just stopped), then where the axes are: the unit answers PP/TP
+        while it decelerates, and the other bare reply, whenever it comes, is told apart from
+        their numbers. If it has not come by then it is left to :meth:`_finish_halt`."""
+        self._send("H", flush=False)
+        self._read_reply("H", self.timeout)
+        self._await_until = time.monotonic() + timeout
+        counts: list[int] = []
+        for cmd in ("PP", "TP"):
+            self._write(encode_command(cmd))  # not _send: that would wait for the outstanding reply first
+            while True:
+                reply = self._read_reply(cmd, self.timeout)
+                assert reply is not None
+                if reply.ok and reply.number() is None and self._await_until is not None:
+                    self._await_until = None  # the A's reply: the axes stand
+                    self._set_state(moving=False)
+                    continue
+                break
+            value = reply.number() if reply.ok else None
+            if value is None:
+                raise DeviceError(DEVICE, f"the PTU answered {cmd} after a halt with {reply.text!r}")
+            counts.append(int(value))
+        pan_deg, tilt_deg = self.to_degrees("pan", counts[0]), self.to_degrees("tilt", counts[1])
+        self._set_state(pan_pos=counts[0], tilt_pos=counts[1], pan_deg=pan_deg, tilt_deg=tilt_deg)
+        return pan_deg, tilt_deg
+
+    def _finish_halt(self) -> None:
+        """Read the reply a halted move still owes (the A's once the axes stand, or the H's),
+        then where the axes stopped, so the next command starts from a known position."""
+        until, self._await_until = self._await_until, None
+        assert until is not None
+        self._read_reply("A", max(until - time.monotonic(), self.timeout))
+        self._set_state(moving=False)
+        self.position()
 
     def _halt_after_await(self) -> tuple[bool, str]:
         """Send H while an A is outstanding and collect both replies (the H's and the A's, in

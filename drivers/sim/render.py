@@ -3,13 +3,18 @@
 Rays of all pixels are cast at once: first against the analytic objects (each only over the
 image rectangle its bounding box projects to), then against the terrain, which stops early
 at the nearest object already hit. Large images are split into vertical strips rendered in
-parallel threads (numpy releases the GIL inside its array operations).
+parallel threads (numpy releases the GIL inside its array operations). A render given a
+``cancel`` check (a camera's grab that a break may stop) is cut into strips of about
+:data:`CANCEL_STRIP_PIXELS` and looks at it before each: a render nobody waits for any more stops
+within one strip's time instead of running to the end.
 """
 
 from __future__ import annotations
 
 import os
-from concurrent.futures import ThreadPoolExecutor
+from collections.abc import Callable
+from concurrent.futures import Future, ThreadPoolExecutor
+from concurrent.futures import TimeoutError as FutureTimeout
 from dataclasses import dataclass
 
 import cv2
@@ -23,6 +28,13 @@ from drivers.sim.transforms import rotate
 _POOL: ThreadPoolExecutor | None = None
 # RVS_SIM_THREADS overrides the number of threads a large render is split across.
 _THREADS = max(1, int(os.environ.get("RVS_SIM_THREADS", 0)) or min(4, os.cpu_count() or 1))
+# Pixels per strip of a cancellable render: a strip takes tens of milliseconds, the most a
+# cancelled render goes on for, at a few percent more work than the fewest strips.
+CANCEL_STRIP_PIXELS = 120_000
+
+
+class RenderCancelled(Exception):
+    """A render stopped by its ``cancel`` check before it was done."""
 
 
 def _pool() -> ThreadPoolExecutor:
@@ -150,24 +162,56 @@ def _filtered_plane_albedo(obj: SceneObject, K: np.ndarray, T_world_cam: np.ndar
 
 
 def render(hf: Heightfield, objects: list[SceneObject], detail: Detail, K: np.ndarray, width: int, height: int,
-           T_world_cam: np.ndarray) -> Render:
+           T_world_cam: np.ndarray, cancel: Callable[[], bool] | None = None) -> Render:
     """Render a view; large images are cut into vertical strips rendered in parallel threads
-    (strips, not row bands, so each holds a share of the costly rays near the horizon)."""
+    (strips, not row bands, so each holds a share of the costly rays near the horizon).
+
+    With ``cancel``, strips are smaller and each starts only if ``cancel()`` is false; the call
+    raises :class:`RenderCancelled` as soon as it turns true (strips already running end on
+    their own, their result unused)."""
     K = np.asarray(K, np.float64)
     T_world_cam = np.asarray(T_world_cam, np.float64)
     parts = _THREADS if width * height > 300_000 else 1
+    if cancel is not None:
+        parts = min(width, max(parts, -(-width * height // CANCEL_STRIP_PIXELS)))
+        if cancel():
+            raise RenderCancelled("render cancelled")
     if parts == 1:
         return _render(hf, objects, detail, K, width, height, T_world_cam)
     cuts = np.linspace(0, width, parts + 1).astype(int)
+
+    def strip(Kp: np.ndarray, w: int) -> Render | None:
+        if cancel is not None and cancel():
+            return None
+        return _render(hf, objects, detail, Kp, w, height, T_world_cam)
+
     futures = []
     for c0, c1 in zip(cuts[:-1], cuts[1:], strict=True):
         Kp = K.copy()
         Kp[0, 2] -= c0  # the strip's own principal point: same rays as in the full image
-        futures.append(_pool().submit(_render, hf, objects, detail, Kp, int(c1 - c0), height, T_world_cam))
-    strips = [f.result() for f in futures]
+        futures.append(_pool().submit(strip, Kp, int(c1 - c0)))
+    strips = [_wait(f, futures, cancel) for f in futures]
     return Render(**{name: (None if getattr(strips[0], name) is None
                              else np.concatenate([getattr(r, name) for r in strips], axis=1))
                      for name in Render.__dataclass_fields__})
+
+
+def _wait(future: Future[Render | None], futures: list[Future[Render | None]],
+          cancel: Callable[[], bool] | None) -> Render:
+    """A strip's result; with ``cancel``, looked at every 20 ms while waiting, and once true the
+    strips not started are dropped and RenderCancelled raised."""
+    while True:
+        try:
+            result = future.result(timeout=None if cancel is None else 0.02)
+        except FutureTimeout:
+            if cancel is None or not cancel():
+                continue
+            result = None
+        if result is not None:
+            return result
+        for f in futures:  # cancelled: while waiting, or the strip saw it and was skipped
+            f.cancel()
+        raise RenderCancelled("render cancelled")
 
 
 def _render(hf: Heightfield, objects: list[SceneObject], detail: Detail, K: np.ndarray, width: int, height: int,

@@ -429,9 +429,11 @@ class World:
                 objs.append(self._board)
             return self.terrain, objs, self.detail
 
-    def render(self, K: np.ndarray, width: int, height: int, T_world_cam: np.ndarray) -> Render:
+    def render(self, K: np.ndarray, width: int, height: int, T_world_cam: np.ndarray,
+               cancel: Callable[[], bool] | None = None) -> Render:
+        """``cancel``: see drivers.sim.render.render (a grab a break may stop)."""
         hf, objs, detail = self._snapshot()
-        return render(hf, objs, detail, K, int(width), int(height), T_world_cam)
+        return render(hf, objs, detail, K, int(width), int(height), T_world_cam, cancel)
 
     def render_sensor(self, sensor: str, width: int, height: int) -> Render:
         """Render what a sensor sees now with its true intrinsics (PTU and rover read once)."""

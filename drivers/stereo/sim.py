@@ -2,7 +2,10 @@
 
 In external trigger mode a simulated camera captures only when the world's trigger bus pulses
 (fired by the simulated trigger box); both cameras take their poses from one snapshot read at
-the pulse, so a pair always shows one instant even while the rover or the PTU moves.
+the pulse, so a pair always shows one instant even while the rover or the PTU moves. Rendering
+a frame is where a simulated grab spends its time (seconds at the highest resolution): a grab's
+``cancel`` is passed into the render and looked at between its stages, as a real camera's is
+between polls for the frame.
 """
 
 from __future__ import annotations
@@ -16,6 +19,7 @@ from typing import Any
 import numpy as np
 
 from drivers.registry import Capability
+from drivers.sim.render import RenderCancelled
 from drivers.stereo import imaging
 from drivers.stereo.backend import BACKENDS
 from drivers.stereo.errors import CameraLost, GrabCancelled, MissedTrigger, is_cancelled
@@ -197,7 +201,7 @@ class SimCameras:
             raise MissedTrigger(deaf, timeout, after)
         for guid in guids:  # unplugged between arming and the pulse
             self._require(guid)
-        return self._render_all(guids, poses, token["size"], token["format"])
+        return self._render_all(guids, poses, token["size"], token["format"], cancel)
 
     def capture_direct(
         self, guids: list[str], size: tuple[int, int], pixel_format: str, timeout: float, cancel: Any = None
@@ -207,7 +211,7 @@ class SimCameras:
         if is_cancelled(cancel):
             raise GrabCancelled("grab cancelled")
         poses = self._snapshot([self._mount[g] for g in guids])
-        return self._render_all(guids, poses, size, pixel_format)
+        return self._render_all(guids, poses, size, pixel_format, cancel)
 
     def last_shutter(self) -> dict[str, float]:
         with self._lock:
@@ -231,19 +235,34 @@ class SimCameras:
         return np.asarray(self.world.camera_intrinsics(mount, w, h), dtype=np.float64)
 
     def _render_all(
-        self, guids: list[str], poses: dict[str, np.ndarray], size: tuple[int, int], pixel_format: str
+        self, guids: list[str], poses: dict[str, np.ndarray], size: tuple[int, int], pixel_format: str,
+        cancel: Any = None,
     ) -> dict[str, np.ndarray]:
         jobs = [(g, poses[self._mount[g]]) for g in guids]
         if self._pool is not None and len(jobs) > 1:
-            futures = [self._pool.submit(self._render_one, g, pose, size, pixel_format) for g, pose in jobs]
+            futures = [self._pool.submit(self._render_one, g, pose, size, pixel_format, cancel) for g, pose in jobs]
             return {g: f.result() for (g, _), f in zip(jobs, futures, strict=True)}
-        return {g: self._render_one(g, pose, size, pixel_format) for g, pose in jobs}
+        return {g: self._render_one(g, pose, size, pixel_format, cancel) for g, pose in jobs}
 
-    def _render_one(self, guid: str, pose: np.ndarray, size: tuple[int, int], pixel_format: str) -> np.ndarray:
+    def _render_one(self, guid: str, pose: np.ndarray, size: tuple[int, int], pixel_format: str,
+                    cancel: Any = None) -> np.ndarray:
+        def stop() -> bool:
+            return is_cancelled(cancel)
+
+        def check() -> None:
+            if stop():
+                raise GrabCancelled("grab cancelled while the frame was read out")
+
         settings = self._settings_of(guid)
         K = self.intrinsics(self._mount[guid], size)
         dmap = imaging.distortion_map(K, self.distortion, size)
-        r = self.world.render(dmap.K_render, dmap.render_size[0], dmap.render_size[1], pose)
+        w, h = dmap.render_size
+        try:  # (no cancel, no keyword: a stand-in world of the tests need not take one)
+            r = (self.world.render(dmap.K_render, w, h, pose) if cancel is None
+                 else self.world.render(dmap.K_render, w, h, pose, cancel=stop))
+        except RenderCancelled:
+            raise GrabCancelled("grab cancelled while the frame was read out") from None
+        check()
         hit = np.isfinite(r.depth)
         optics = self.world.optics
         rad = imaging.radiance(r.albedo, r.normal, hit, imaging.lighting_from_config(self._config, self.world.sun),
@@ -251,8 +270,10 @@ class SimCameras:
         if channels(pixel_format) == 3:
             rad = rad[..., None] * imaging.white_balance_gains(settings.white_balance)
         rad = imaging.lens_blur(rad, optics.blur_sigma_px)
+        check()
         rad = imaging.apply_distortion(rad, dmap)
         rad = imaging.vignette(rad, K, optics.vignetting)
+        check()
         shutter = float(settings.shutter_us)
         if settings.auto_exposure:
             shutter = imaging.auto_shutter(rad, settings.target_grey, settings.gain_db, self.sensor)

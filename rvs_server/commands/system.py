@@ -77,8 +77,10 @@ def _devices(summary: dict[str, str]) -> list[str]:
 @command("quit", klass=ALWAYS,
          help="stop the server: interrupt every job, close all connections and exit (exit or bye closes only "
               "this connection)")
-async def quit_(ctx: Context, cfg: None) -> dict[str, Any]:
-    job = await ctx.app.quit()
+def quit_(ctx: Context, cfg: None) -> dict[str, Any]:
+    # Answered at once, before the job it stopped ends: the shutdown waits for that job, so its
+    # ERROR follows this OK on its connection before the connections close.
+    job = ctx.app.quit()
     return {"interrupted": job.id if job else None}
 
 
@@ -96,26 +98,31 @@ def standby(ctx: Context, cfg: None) -> dict[str, Any]:
 @command("break", klass=ALWAYS, help="interrupt all jobs and store a recovery data set")
 def break_(ctx: Context, cfg: None) -> Any:
     # The job is told to stop here, synchronously, before anything else the event loop runs
-    # (see App.begin_break).
+    # (see App.begin_break); what the recovery set says is taken now, as the break found it.
     app = ctx.app
-    job = app.begin_break()
-    return _finish_break(app, job)
-
-
-async def _finish_break(app: App, job: Job | None) -> dict[str, Any]:
-    # The recovery set is written while the job winds down: its parameters and the maps as
-    # they were are what a later run needs, and the wait stays within the 1 s budget.
-    try:
-        recovery = await app.loop.run_in_executor(None, app.write_recovery, job)
-        failure = None
-    except Exception as exc:  # noqa: BLE001 - the break itself must still happen
-        recovery, failure = None, exc
-        log.exception("recovery_failed")
+    job, stopped = app.begin_break()
+    manifest = app.recovery_manifest(job)
     if job is not None:
-        await app.jobs.interrupt(job)
+        app.jobs.hold_final(job)  # its ERROR after this break's OK, however fast it stops
+    return _finish_break(app, job, stopped, manifest)
+
+
+async def _finish_break(app: App, job: Job | None, stopped: bool, manifest: dict[str, Any]) -> dict[str, Any]:
+    # The reply waits for the recovery set, not for the job: the set is written off the loop
+    # (the maps are copied; docs/PROTOCOL.md says why before the OK) while the job winds down.
+    try:
+        try:
+            recovery = await app.loop.run_in_executor(None, app.write_recovery, job, manifest)
+            failure = None
+        except Exception as exc:  # noqa: BLE001 - the break itself must still happen
+            recovery, failure = None, exc
+            log.exception("recovery_failed")
+    finally:
+        if job is not None:  # call_soon: after this reply is written, also when it is an ERROR
+            app.loop.call_soon(app.jobs.release_final, job)
     app.announce_mode()  # break since begin_break, unless a continue came meanwhile
     # A job whose last step was done when the break came ends OK: then nothing was interrupted.
-    interrupted = job.id if job is not None and not job.succeeded else None
+    interrupted = job.id if job is not None and stopped else None
     if failure is not None:
         raise ProtocolError("E_IO", f"job {interrupted or 'none'} was interrupted and the server is in break mode, "
                                     f"but no recovery set was written ({type(failure).__name__}: {failure}); check "

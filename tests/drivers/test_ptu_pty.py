@@ -356,6 +356,24 @@ def test_cancel_event_interrupts_the_await(slow_flavour: Flavour) -> None:
         assert ptu.move(0, 0) == (0.0, 0.0)
 
 
+def test_a_cancelled_await_ends_at_the_halts_ack_and_the_next_command_waits_for_the_stop() -> None:
+    # a slow acceleration (250 pos/s^2) makes the deceleration after the halt last about a second
+    with bench(time_scale=1.0, acceleration=250, client={"acceleration": 250, "move_timeout": 60}) as (emu, ptu):
+        cancel = threading.Event()
+        threading.Thread(target=lambda: emu.wait_for(lambda e: "A" in e.commands and e.positions()[0] > 200, 60)
+                         and cancel.set(), daemon=True).start()
+        with pytest.raises(MoveInterrupted) as err:
+            ptu.move(150, 0, cancel=cancel)
+        assert emu.axes["P"].moving()  # the wait ended while the pan axis was still slowing down
+        assert ptu.snapshot()["moving"] is True
+        halted_at = err.value.position[0]
+        assert 200 * 185.1428 / 3600 < halted_at < 150
+        pan, _ = ptu.position()  # first the move's last reply, then where the axes stopped
+        assert not emu.axes["P"].moving() and not ptu.snapshot()["moving"]
+        assert pan > halted_at and emu.positions()[0] == pytest.approx(pan * 3600 / 185.1428, abs=1)
+        assert ptu.command("PP").number() == emu.positions()[0]  # the line is in step
+
+
 def test_any_pyserial_url_works_and_a_dead_loop_times_out() -> None:
     ptu = PtuClient("loop://", 9600, timeout=0.2)
     with pytest.raises(DeviceError) as err:

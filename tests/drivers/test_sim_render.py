@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import time
+
 import cv2
 import numpy as np
 import pytest
@@ -208,3 +210,33 @@ def test_parallel_strips_give_the_same_image_as_one_pass() -> None:
     assert np.nanmax(np.abs(whole.depth - split.depth)) < 1e-4
     assert (np.abs(whole.normal - split.normal).max(-1) > 1e-3).sum() <= 5
     assert (np.abs(whole.albedo - split.albedo) > 1e-3).sum() <= 5
+
+
+def test_a_cancellable_render_gives_the_same_image_and_stops_when_cancelled(monkeypatch) -> None:
+    from drivers.sim import render as R
+
+    w = World.from_scene("office")
+    w.set_ptu(-15.0, -20.0)
+    K = w.camera_intrinsics("left", 800, 450)
+    T = w.sensor_pose("left")
+    plain = w.render(K, 800, 450, T)
+    strips = w.render(K, 800, 450, T, cancel=lambda: False)  # more, narrower strips
+    assert np.array_equal(plain.object_id, strips.object_id)
+    assert np.nanmax(np.abs(plain.depth - strips.depth)) < 1e-4
+    with pytest.raises(R.RenderCancelled):
+        w.render(K, 800, 450, T, cancel=lambda: True)
+
+    rendered: list[int] = []
+    real = R._render
+
+    def counted(*args):  # the cancel turns true once the first strip is done
+        out = real(*args)
+        rendered.append(1)
+        return out
+
+    monkeypatch.setattr(R, "_render", counted)
+    K = w.camera_intrinsics("left", 1600, 900)
+    with pytest.raises(R.RenderCancelled):
+        w.render(K, 1600, 900, T, cancel=lambda: bool(rendered))
+    time.sleep(0.5)  # strips already running end on their own; no new one starts
+    assert len(rendered) <= R._THREADS + 1 < -(-1600 * 900 // R.CANCEL_STRIP_PIXELS)
