@@ -26,18 +26,22 @@ Traversability follows ETH traversability_estimation: each criterion scores
 clip(1 - value / threshold, 0, 1), the scores are combined as a normalised weighted sum, and a
 cell past any threshold scores 0; so every hazardous cell has traversability 0.
 
-All of it is a fixed number of whole-array passes: the plane fit needs only ten windowed sums
-(1, x, y, z, xx, xy, yy, xz, yz, zz over the defined cells, running box filters in float64),
-from which slope and the residual variance follow in closed form; the step is a dilation minus
-an erosion. A 1000 x 1000 DEM with a 15 x 15 window takes some tens of milliseconds
-(``tools/bench/dem2hazard.py``). Large grids are processed in row strips with a halo of half a
-window, which keeps the float64 temporaries in cache and the memory bounded.
+The plane fit needs only ten windowed sums (1, x, y, z, xx, xy, yy, xz, yz, zz over the defined
+cells, in float64), from which slope and the residual variance follow in closed form; the step is
+a dilation minus an erosion. The sums, the solve and the slope are one compiled pass per row
+(:mod:`._dem2hazard_kernel`, numba): as whole-array box filters and numpy expressions the same
+formulas are some sixty passes over grid-sized temporaries, which is what the benchmark's peer
+(``tools/bench/dem2hazard.py``) does, and which remains the fallback without numba. Rows are
+processed in strips, in parallel threads (the kernel and OpenCV release the GIL); the step's
+morphology runs per strip with a halo of half a window, so its temporaries stay small.
 """
 
 from __future__ import annotations
 
 import math
 import os
+import threading
+from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, fields
 from pathlib import Path
@@ -63,6 +67,9 @@ UNITS = {"slope": "deg", "roughness": "m", "step": "m", "hazard": "0 safe, 128 u
 
 _STRIP_ROWS = 128  # rows per strip (plus halo): a strip's float64 temporaries stay in cache
 _WORKERS = min(4, os.cpu_count() or 1)
+IMPL = "numba"  # or "numpy": the whole-array filters (what runs when numba is missing)
+_kernel_made: list[Callable[..., None]] = []
+_kernel_lock = threading.Lock()
 
 
 @dataclass
@@ -154,10 +161,10 @@ def _box(a: np.ndarray, n: int) -> np.ndarray:
 
 def _strip(zin: np.ndarray, defined: np.ndarray, zref: float, n: int, need: int, cell: float
            ) -> tuple[np.ndarray, ...]:
-    """Slope (deg), roughness (m), step (m) and the valid mask for one block of rows."""
+    """Slope (deg), roughness (m), step (m) and the valid mask for one block of rows, as
+    whole-array filters: the implementation without numba, and the kernel's check."""
     z = zin.astype(np.float64) - zref
     h, w = z.shape
-    kernel = np.ones((n, n), np.uint8)
     m = defined.astype(np.float64)
     z0 = np.where(defined, z, 0.0)
     # Coordinates in cells, centred on the block so the sums stay small; the fit's covariances
@@ -206,14 +213,45 @@ def _strip(zin: np.ndarray, defined: np.ndarray, zref: float, n: int, need: int,
     np.maximum(rss, 0.0, out=rss)
     rss /= np.maximum(count * (count - 3.0), 1.0)  # variance about the plane, N - 3 degrees of freedom
     roughness = np.sqrt(rss, out=rss)
-    # Step: dilation minus erosion on the DEM's own values (the selection is exact), undefined
-    # cells neutral (-inf for max, +inf for min); the morphology border is neutral by default.
     zs = zin if zin.dtype in (np.float32, np.float64) else zin.astype(np.float64)
-    zmax = cv2.dilate(np.where(defined, zs, -np.inf), kernel)
-    zmin = cv2.erode(np.where(defined, zs, np.inf), kernel)
+    return slope, roughness, _step_rows(zs, defined, n), valid
+
+
+def _plane_kernel() -> Callable[..., None] | None:
+    """The compiled plane fit (imported, and compiled or loaded from numba's cache, on first use:
+    importing numba costs ~0.3 s), or None without numba or with ``IMPL = "numpy"``."""
+    if IMPL != "numba":
+        return None
+    with _kernel_lock:
+        if not _kernel_made:
+            try:
+                from . import _dem2hazard_kernel as kern
+            except ImportError:  # pragma: no cover - numba is a core dependency
+                return None
+            if not kern.HAVE_NUMBA:  # pragma: no cover
+                return None
+            _kernel_made.append(kern.plane_rows)
+    return _kernel_made[0]
+
+
+def warm_up() -> None:
+    """Compile (first run after installing) or load the kernel now, for float32 and float64 DEMs,
+    rather than in the first request."""
+    for dtype in (np.float32, np.float64):
+        dem2hazard(np.zeros((8, 8), dtype), 0.1, load_params(window=0.3))
+
+
+def _step_rows(z: np.ndarray, defined: np.ndarray, n: int) -> np.ndarray:
+    """max - min over each window's defined cells (float64; -inf, NaN where none is defined).
+
+    Dilation minus erosion on the DEM's own values (the selection is exact), undefined cells
+    neutral (-inf for max, +inf for min); the morphology border is neutral by default.
+    """
+    kernel = np.ones((n, n), np.uint8)
+    zmax = cv2.dilate(np.where(defined, z, -np.inf), kernel)
+    zmin = cv2.erode(np.where(defined, z, np.inf), kernel)
     with np.errstate(over="ignore", invalid="ignore"):  # windows with nothing defined
-        step = zmax.astype(np.float64) - zmin
-    return slope, roughness, step, valid
+        return zmax.astype(np.float64) - zmin
 
 
 def dem2hazard(dem: np.ndarray, cell: float, params: HazardParams | dict[str, Any] | None = None
@@ -237,45 +275,71 @@ def dem2hazard(dem: np.ndarray, cell: float, params: HazardParams | dict[str, An
     # Heights relative to one reference: the sums of z and z^2 then keep their precision on
     # DEMs with large absolute heights.
     zref = float(z[defined_all].mean()) if defined_all.any() else 0.0
-    slope = np.full((h, w), np.nan, np.float32)
-    roughness = np.full((h, w), np.nan, np.float32)
-    step = np.full((h, w), np.nan, np.float32)
-    valid = np.zeros((h, w), bool)
     halo = n // 2
+    kernel = _plane_kernel()
+    if kernel is not None:
+        # one compiled specialisation per dtype and layout: native float32/float64, C order
+        if z.dtype not in (np.dtype(np.float32), np.dtype(np.float64)):
+            z = z.astype(np.float64)
+        z = np.ascontiguousarray(z)
+    out = {name: np.empty((h, w), np.uint8 if name == "hazard" else np.float32) for name in LAYERS}
+    slope, roughness, step = out["slope"], out["roughness"], out["step"]
+    valid = np.empty((h, w), bool)
+    # strips of about 128 K cells: a strip's float64 temporaries stay in the core's L2 cache
+    rows = max(32, min(_STRIP_ROWS, (1 << 17) // max(w, 1)))
 
     def run(r0: int) -> None:
-        r1 = min(h, r0 + _STRIP_ROWS)
+        r1 = min(h, r0 + rows)
         a0, a1 = max(0, r0 - halo), min(h, r1 + halo)
-        s, r, t, v = _strip(z[a0:a1], defined_all[a0:a1], zref, n, need, cell)
         inner = slice(r0 - a0, r0 - a0 + (r1 - r0))
-        v = v[inner]
-        valid[r0:r1] = v
-        np.copyto(slope[r0:r1], s[inner], where=v, casting="unsafe")
-        np.copyto(roughness[r0:r1], r[inner], where=v, casting="unsafe")
-        np.copyto(step[r0:r1], t[inner], where=v, casting="unsafe")
+        v = valid[r0:r1]
+        if kernel is not None:
+            kernel(z, zref, r0, r1, n, need, 1.0 / cell, slope, roughness, valid)
+            t = _step_rows(z[a0:a1], defined_all[a0:a1], n)[inner]
+        else:
+            s, r, t, vv = _strip(z[a0:a1], defined_all[a0:a1], zref, n, need, cell)
+            v[...] = vv[inner]
+            t = t[inner]
+            for dst, src in ((slope, s), (roughness, r)):
+                np.copyto(dst[r0:r1], src[inner], where=v, casting="unsafe")
+                dst[r0:r1][~v] = np.nan
+        np.copyto(step[r0:r1], t, where=v, casting="unsafe")
+        step[r0:r1][~v] = np.nan
+        _classify_into(slope[r0:r1], roughness[r0:r1], step[r0:r1], v, p, out["hazard"][r0:r1],
+                       out["traversability"][r0:r1])
 
-    starts = range(0, h, _STRIP_ROWS)
+    starts = range(0, h, rows)
     if len(starts) > 1 and _WORKERS > 1:
-        # numpy's ufuncs and OpenCV release the GIL on whole arrays: strips run in parallel.
+        # the kernel, numpy's ufuncs and OpenCV release the GIL: strips run in parallel
         with ThreadPoolExecutor(min(_WORKERS, len(starts))) as pool:
             list(pool.map(run, starts))
     else:
         for r0 in starts:
             run(r0)
-    return classify(slope, roughness, step, valid, p)
+    return out
 
 
 def classify(slope: np.ndarray, roughness: np.ndarray, step: np.ndarray, valid: np.ndarray,
              p: HazardParams) -> dict[str, np.ndarray]:
     """Hazard map and traversability from the three criteria (NaN where undefined); public so
     that criteria computed another way (the benchmark's perfect maps) are judged by the same rule."""
+    hazard = np.empty(slope.shape, np.uint8)
+    trav = np.empty(slope.shape, np.float32)
+    _classify_into(slope, roughness, step, valid, p, hazard, trav)
+    return {"slope": slope, "roughness": roughness, "step": step, "hazard": hazard, "traversability": trav}
+
+
+def _classify_into(slope: np.ndarray, roughness: np.ndarray, step: np.ndarray, valid: np.ndarray,
+                   p: HazardParams, hazard: np.ndarray, trav: np.ndarray) -> None:
+    """:func:`classify` into given arrays, so that :func:`dem2hazard` classifies each strip while
+    it is still in cache."""
     with np.errstate(invalid="ignore"):
         over = (slope > p.slope_max) | (roughness > p.roughness_max) | (step > p.step_max)
-    hazard = np.full(slope.shape, UNDEFINED, np.uint8)
+    hazard[...] = UNDEFINED
     hazard[valid] = SAFE
     hazard[over & valid] = HAZARDOUS
     total = p.weight_slope + p.weight_step + p.weight_roughness
-    trav = np.zeros(slope.shape, np.float32)
+    trav[...] = 0.0
     for value, crit, weight in ((slope, p.slope_max, p.weight_slope), (step, p.step_max, p.weight_step),
                                 (roughness, p.roughness_max, p.weight_roughness)):
         if weight:
@@ -283,7 +347,6 @@ def classify(slope: np.ndarray, roughness: np.ndarray, step: np.ndarray, valid: 
     trav[over] = 0.0
     trav[~valid] = np.nan
     np.clip(trav, 0.0, 1.0, out=trav)  # float rounding of the weighted sum
-    return {"slope": slope, "roughness": roughness, "step": step, "hazard": hazard, "traversability": trav}
 
 
 def hazard_summary(hazard: np.ndarray) -> dict[str, float]:

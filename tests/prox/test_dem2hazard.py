@@ -10,10 +10,13 @@ import cv2
 import numpy as np
 import pytest
 import yaml
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from prox_workflows.cli import dem2hazard as cli
 from prox_workflows.grid import GridGeometry, Layers, write_geotiff
 from prox_workflows.steps import colormaps
+from prox_workflows.steps import dem2hazard as d2h
 from prox_workflows.steps.dem2hazard import (
     HAZARDOUS,
     SAFE,
@@ -25,6 +28,7 @@ from prox_workflows.steps.dem2hazard import (
     hazard_summary,
     load_params,
 )
+from tools.bench.dem2hazard import vectorised
 
 CELL = 0.02
 P = HazardParams()  # window 0.3 m -> 15 x 15 cells at 0.02 m, step 0.15 m, slope 20 deg, roughness 0.05 m
@@ -217,6 +221,72 @@ def test_equals_the_generic_filter_reference_on_random_crops(seed: int) -> None:
     np.testing.assert_allclose(ours["slope"], ref["slope"], atol=1e-3, equal_nan=True)
     np.testing.assert_allclose(ours["roughness"], ref["roughness"], rtol=1e-3, atol=2e-6, equal_nan=True)
     np.testing.assert_allclose(ours["step"], ref["step"], atol=1e-6, equal_nan=True)
+
+
+# ------------------------------------------------------------------------------ the vectorised peer
+
+
+def assert_same_layers(ours: dict[str, np.ndarray], other: dict[str, np.ndarray]) -> None:
+    """Equal as the oracle test means it: the same undefined cells, values within float rounding."""
+    for name in ("slope", "roughness", "step", "traversability"):
+        assert ours[name].dtype == np.float32 and ours[name].shape == other[name].shape, name
+        assert np.array_equal(np.isnan(ours[name]), np.isnan(other[name])), name
+    np.testing.assert_array_equal(ours["hazard"], other["hazard"])
+    np.testing.assert_allclose(ours["slope"], other["slope"], atol=1e-3, equal_nan=True)
+    np.testing.assert_allclose(ours["roughness"], other["roughness"], rtol=1e-3, atol=2e-6, equal_nan=True)
+    np.testing.assert_allclose(ours["step"], other["step"], atol=1e-6, equal_nan=True)
+    np.testing.assert_allclose(ours["traversability"], other["traversability"], atol=1e-5, equal_nan=True)
+
+
+def holey_dem(rng: np.random.Generator, h: int, w: int, holes: float, offset: float) -> np.ndarray:
+    """Rough rolling ground with single-cell and blob holes (NaN, some +-inf), at ``offset`` m."""
+    dem = np.cumsum(np.cumsum(rng.normal(0, 0.01, (h, w)), 0), 1) + rng.normal(0, 0.005, (h, w)) + offset
+    dem[rng.random((h, w)) < holes] = np.nan
+    for _ in range(int(rng.integers(0, 4))):
+        r, c = rng.integers(0, h), rng.integers(0, w)
+        dem[r:r + rng.integers(1, 12), c:c + rng.integers(1, 12)] = rng.choice([np.nan, np.inf, -np.inf])
+    return dem
+
+
+@settings(max_examples=40, deadline=None)
+@given(seed=st.integers(0, 2**32 - 1), h=st.integers(1, 300), w=st.integers(1, 60),
+       cell=st.sampled_from([0.02, 0.03, 0.05]), window=st.floats(0.05, 0.4),
+       min_fraction=st.floats(0.05, 1.0), holes=st.sampled_from([0.0, 0.05, 0.3, 0.7]),
+       offset=st.sampled_from([0.0, -50.0, 2000.0]), dtype=st.sampled_from([np.float32, np.float64]),
+       order=st.sampled_from(["C", "F"]))
+def test_equals_the_vectorised_peer_on_random_dems_with_holes(
+        seed: int, h: int, w: int, cell: float, window: float, min_fraction: float, holes: float,
+        offset: float, dtype: type, order: str) -> None:
+    # up to 300 rows: several strips (and their halos) and both the threaded and the serial path
+    rng = np.random.default_rng(seed)
+    dem = np.asarray(holey_dem(rng, h, w, holes, offset), dtype=dtype, order=order)
+    params = load_params(window=window, min_fraction=min_fraction)
+    assert_same_layers(dem2hazard(dem, cell, params), vectorised(dem, cell, params))
+
+
+@pytest.mark.parametrize("shape", [(700, 23), (40, 5000)])
+def test_strips_of_tall_and_wide_grids_equal_the_vectorised_peer(shape: tuple[int, int]) -> None:
+    rng = np.random.default_rng(11)
+    dem = holey_dem(rng, *shape, holes=0.1, offset=3.0).astype(np.float32)
+    assert_same_layers(dem2hazard(dem, CELL, P), vectorised(dem, CELL, P))
+
+
+def test_the_kernels_arctangent_is_within_an_ulp_or_two_of_numpys() -> None:
+    kern = pytest.importorskip("prox_workflows.steps._dem2hazard_kernel")
+    # both sides of the reductions at 0.66 and tan(3 pi / 8), tiny and huge slopes
+    x = np.concatenate([np.linspace(0, 3, 301), [0.66, np.nextafter(0.66, 1), 2.414213562373095, 1e-300,
+                                                 1e-8, 1e3, 1e12, 1e300]])
+    ours = np.array([kern._atan(v) for v in x])
+    np.testing.assert_allclose(ours, np.arctan(x), rtol=5e-16, atol=0)
+    assert kern._atan(np.inf) == math.pi / 2 and math.isnan(kern._atan(np.nan))
+
+
+def test_the_compiled_kernel_equals_the_whole_array_fallback(monkeypatch: pytest.MonkeyPatch) -> None:
+    rng = np.random.default_rng(12)
+    dem = holey_dem(rng, 300, 90, holes=0.05, offset=-20.0)
+    compiled = dem2hazard(dem, CELL, P)
+    monkeypatch.setattr(d2h, "IMPL", "numpy")
+    assert_same_layers(compiled, dem2hazard(dem, CELL, P))
 
 
 # ------------------------------------------------------------------------------ traversability
