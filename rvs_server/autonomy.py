@@ -304,6 +304,10 @@ class SeeingDriver:
                     k += 1
                 if k > segments:
                     return DriveOutcome("done", segments)
+                nearest = _nearest_stretch(pose, wps, k)
+                while k < nearest:
+                    progress(k, segments, f"segment {k}/{segments} driven", "drive")
+                    k += 1
                 left = math.hypot(wps[k][0] - pose[0], wps[k][1] - pose[1])
                 to_end = left + float(np.sum(np.hypot(*np.diff(wps[k:], axis=0).T)))
                 if allow_ahead and to_end <= self.p.replan_ahead:
@@ -650,6 +654,24 @@ def _passed(pose: tuple[float, float, float], a: np.ndarray, b: np.ndarray, reac
     if math.hypot(px, py) <= reach:
         return True
     return (dx != 0.0 or dy != 0.0) and dx * px + dy * py >= 0.0
+
+
+def _nearest_stretch(pose: tuple[float, float, float], wps: np.ndarray, k: int, window: int = 3) -> int:
+    """The waypoint ending the stretch nearest the rover among k-1..k and the next ones (the
+    earliest of equals). :func:`_passed` alone leaves the rover on a short side stretch it drove
+    beside without crossing the line square to its end; pursuit from the foot on that stretch
+    aims behind the rover, which then turns about and drives where no check has looked."""
+    here = np.asarray(pose[:2], dtype=np.float64)
+    best, best_j = math.inf, k
+    for j in range(k, min(k + window, len(wps))):
+        a, b = wps[j - 1], wps[j]
+        ab = b - a
+        n = float(ab @ ab)
+        t = 0.0 if n == 0.0 else min(1.0, max(0.0, float((here - a) @ ab) / n))
+        d = float(np.hypot(*(a + t * ab - here)))
+        if d < best - 1e-9:
+            best, best_j = d, j
+    return best_j
 
 
 def _pursuit_point(pose: tuple[float, float, float], wps: np.ndarray, k: int, ahead: float) -> tuple[float, float]:

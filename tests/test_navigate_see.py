@@ -575,3 +575,24 @@ def test_the_check_takes_only_the_ground_under_the_body_as_seen_not_its_turning_
     assert driver.map.check(np.array([[0.0, 0.0, 0.0]]), driver.length, driver.width).verdict == "unknown"
     assert sweep_check(east, g, np.array([[0.0, 0.0, 0.0]]), driver.length, driver.width).verdict == "ok"
     assert sweep_check(east, g, np.array([[0.0, 0.0, 90.0]]), driver.length, driver.width).verdict == "unknown"
+
+
+def test_the_pursuit_point_never_falls_behind_the_rover_beside_a_short_side_stretch() -> None:
+    """The rover drove past a 30 cm side step of its path without crossing the line square to
+    its end: steering from the foot on that stretch aimed behind it (a 135-degree turn on the
+    spot, then a drive the check never swept); from the nearest stretch it aims ahead."""
+    from rvs_server.autonomy import _in_rover_frame, _nearest_stretch, _passed, _pursuit_point
+
+    wps = np.array([(0.0, 0.0), (1.0, 0.0), (1.0, 0.3), (3.0, 0.3)])
+    pose = (1.3, 0.1, 0.0)  # past the side step's x, beside it, heading along the path
+    k = 2  # waypoint 1 is passed, the side step's end is not (by _passed)
+    assert _passed(pose, wps[0], wps[1]) and not _passed(pose, wps[1], wps[2])
+    stale = _pursuit_point(pose, wps, k, 0.3)
+    assert _in_rover_frame(pose, *stale)[0] < 0  # the old aim: behind the rover
+    k = _nearest_stretch(pose, wps, k)
+    assert k == 3
+    tx, ty = _pursuit_point(pose, wps, k, 0.3)
+    assert (tx, ty) == pytest.approx((1.6, 0.3))
+    assert _in_rover_frame(pose, tx, ty)[0] > 0.25
+    # on an ordinary stretch the nearest is the current one: the aim is unchanged
+    assert _nearest_stretch((0.5, 0.02, 0.0), wps, 1) == 1
