@@ -1,7 +1,8 @@
 """``rvs-stereo LEFT RIGHT --calib CALIB.yaml [--disparity OUT.tif] [-o CLOUD.ply]``.
 
 The stereo step on one pair as taken (unrectified, distorted): semi-global matching with a
-left-right check, speckle filter and texture mask (prox_workflows.steps.stereo).
+left-right check, speckle filter and texture mask (prox_workflows.steps.stereo). The texture mask
+measures the left image's noise (``--texture-noise`` fixes it) and says what it found.
 
 * ``--disparity OUT.tif``: float32 disparity in pixels, NaN where invalid, in the LEFT image's
   geometry (it overlays the left image); a PNG preview and a YAML sidecar beside it.
@@ -69,6 +70,9 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--block-size", type=int, help="SGBM block size (odd)")
     ap.add_argument("--mode", choices=("sgbm_3way", "sgbm", "hh", "hh4"), help="SGBM variant")
     ap.add_argument("--no-lr-check", action="store_true", help="skip the left-right consistency check")
+    ap.add_argument("--texture-noise", type=float, default=None, metavar="SCALE",
+                    help="the texture mask's image noise as a fraction of the PIKE model's (default: measured "
+                         "on the left image; 1 restores the model)")
     ap.add_argument("--sigma-d", type=float, default=None,
                     help=f"disparity noise (px) for the depth sigma (default {DEFAULT_SIGMA_D} / sqrt(scale))")
     ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
@@ -81,7 +85,7 @@ def main(argv: list[str] | None = None) -> int:
     ap = build_parser()
     args = ap.parse_args(argv)
     values = _parse_set(args.set, ap)
-    for key in ("scale", "min_depth", "num_disparities", "block_size", "mode"):
+    for key in ("scale", "min_depth", "num_disparities", "block_size", "mode", "texture_noise"):
         if getattr(args, key) is not None:
             values[key] = getattr(args, key)
     if args.no_lr_check:
@@ -107,6 +111,9 @@ def main(argv: list[str] | None = None) -> int:
     ]
     if valid.any():
         lines.append(f"disparity {np.nanmin(disp.left):.1f} .. {np.nanmax(disp.left):.1f} px")
+    if disp.noise_scale is not None:
+        how = "set" if params.texture_noise is not None else "measured on the left image"
+        lines.append(f"texture mask: image noise {disp.noise_scale:.2f} x the PIKE model's ({how})")
     lines += ws["files"]["lines"]
     if not args.quiet:
         print("\n".join(lines))

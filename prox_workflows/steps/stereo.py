@@ -4,7 +4,10 @@ The thesis's RVS matched with JR's HFVM; this step uses OpenCV's semi-global mat
 wrapped so that what leaves it can be trusted point by point: a left-right consistency check
 (each left match must be found again when matching from the right), speckle filtering (small
 islands of disparity are mismatches more often than small objects) and a texture mask (a
-patch without intensity variation has no match to find, whatever the cost function says).
+patch without intensity variation has no match to find, whatever the cost function says). The
+mask measures texture against the noise of the image at hand (:func:`noise_scale`), not against
+one camera's noise model, and leaves small blank gaps in textured ground to the matcher, which
+carries the disparity across them; what it takes out are wide blank surfaces in a noisy image.
 
 Two geometries, both float32 disparity in pixels with NaN where invalid:
 
@@ -58,6 +61,16 @@ DEFAULT_SIGMA_D = 0.25
 # 1.6 DN at 200, 0.6 DN at 30.
 NOISE_E_PER_DN = 20000.0 / 255.0
 NOISE_READ_E = 12.0
+# The 1st percentile of :func:`_local_noise_ratio` over an image of pure model noise (any level
+# from 20 to 230 DN, 7 x 7 windows: 0.617-0.625): what :func:`noise_scale` divides by, so that an
+# image whose flattest windows hold exactly the model's noise measures 1.0.
+NOISE_RATIO_P1 = 0.62
+# What :func:`noise_scale` measures on a noiseless 8-bit image (its quantisation: 0.21): the least
+# noise the texture mask's reach assumes (:func:`texture_reach_for`).
+NOISE_SCALE_FLOOR = 0.25
+# The discrete Laplacian whose response to white noise of sigma has a standard deviation of 6 sigma
+# and to a linear intensity ramp none: the noise estimator's high-pass (Immerkaer 1996).
+_NOISE_KERNEL = np.array([[1, -2, 1], [-2, 4, -2], [1, -2, 1]], np.float32)
 
 
 def sigma_d_for(scale: float) -> float:
@@ -260,17 +273,30 @@ def _white(image: np.ndarray) -> float:
     return float(np.percentile(data[ok], 99.9)) if ok.any() else 1.0
 
 
+def gray_pair(left: np.ndarray, right: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Both images as mono8 on one scale (a deeper pair keeps its equal brightness), unrectified."""
+    white = None
+    if np.asarray(left).dtype != np.uint8:
+        white = max(_white(left), _white(right))
+    return to_gray8(left, white), to_gray8(right, white)
+
+
 def rectify_pair(left: np.ndarray, right: np.ndarray, rect: Rectification) -> tuple[np.ndarray, np.ndarray]:
+    return _remap_pair(*_checked_gray_pair(left, right, rect), rect)
+
+
+def _checked_gray_pair(left: np.ndarray, right: np.ndarray, rect: Rectification) -> tuple[np.ndarray, np.ndarray]:
     w, h = rect.size
     for name, img in (("left", left), ("right", right)):
         if img.shape[1] != w or img.shape[0] != h:
             raise ValueError(f"{name} image is {img.shape[1]}x{img.shape[0]}, the calibration is for {w}x{h}: "
                              "calibrate this resolution mode")
-    white = None
-    if np.asarray(left).dtype != np.uint8:  # one scale for both, so the pair keeps equal brightness
-        white = max(_white(left), _white(right))
-    rl = cv2.remap(to_gray8(left, white), *rect.map_left, cv2.INTER_LINEAR)
-    rr = cv2.remap(to_gray8(right, white), *rect.map_right, cv2.INTER_LINEAR)
+    return gray_pair(left, right)
+
+
+def _remap_pair(gl: np.ndarray, gr: np.ndarray, rect: Rectification) -> tuple[np.ndarray, np.ndarray]:
+    rl = cv2.remap(gl, *rect.map_left, cv2.INTER_LINEAR)
+    rr = cv2.remap(gr, *rect.map_right, cv2.INTER_LINEAR)
     return rl, rr
 
 
@@ -283,19 +309,39 @@ class SgbmParams:
     ``scale`` < 1 matches a downsampled pair (0.5: half resolution) and scales the disparity back
     up: ~4x faster, coarser detail. ``lr_max_diff`` <= 0 switches the left-right check off.
 
-    ``texture_threshold``: a pixel is declared unmatchable where the local grey-level standard
-    deviation (over ``texture_window``) is below this many times the sensor noise expected at
-    the local mean level (:func:`noise_dn`: shot noise, read noise, quantisation; 0 switches the
-    mask off). Relative, not absolute: an absolute 2.5 DN threshold threw away most shadowed
+    ``texture_threshold``: a pixel is declared blank where the local grey-level standard deviation
+    (over ``texture_window``) is below this many times the noise the image carries at the local
+    mean level (:func:`noise_dn`: shot noise, read noise, quantisation; 0 switches the mask off).
+    Relative to the noise, not absolute: an absolute 2.5 DN threshold threw away most shadowed
     ground (dim, so its texture is a few DN, yet well above its own noise) while a bright blank
-    wall's spread is its shot noise. Chosen on the simulated and the real pairs together
-    (tools/bench/stereo.py ``--texture``; bad-2 on valid pixels, density): 1.5 against the
-    absolute 2.5 DN takes marsyard_harsh from 79.2 to 92.3 % (0.24 -> 0.28 %), Motorcycle from
-    75.5 to 80.4 % (4.96 -> 4.84 %), Bicycle1 from 56.4 to 61.5 %, quarry / marsyard / office from
-    92.6 / 90.8 / 60.3 to 94.2 / 93.8 / 63.8 % at unchanged bad-2, and keeps the office DEM
-    within 0.03 cm of its RMSE. Lower thresholds answer more of the real pairs but let the office
-    walls' and boxes' blank faces in: x1.0 costs the office DEM 0.4 cm (1.5 -> 1.9 cm RMSE), the
-    mask off 1.0 cm.
+    wall's spread is its shot noise.
+
+    ``texture_noise``: that noise as a fraction of the PIKE model's. None (default) measures it on
+    each image as taken (:func:`noise_scale`, never above the model): the simulated PIKE pairs
+    measure 1.0 (their mask is the model's, as before), Middlebury's pairs 0.3-0.6 (its quarter-size
+    images are 4 x 4 averages). Judged against the PIKE's noise, those clean images' low-contrast
+    ground looked blank although it matched well: on Motorcycle the fixed model masked 8 % of the
+    pixels, of which 1 % were > 2 px off. Noise is what makes a blank surface dangerous: the same
+    Motorcycle pair with the PIKE's noise added matches its low-texture pixels to 0.5 px 85 % of
+    the time instead of 97 %, like the office's blank walls (~70 %). 1.0 restores the fixed model.
+
+    ``texture_reach`` (px at full resolution, at the PIKE's noise): a blank patch is only masked
+    if it reaches farther than this from texture; narrower gaps are left to the matcher, whose
+    smoothness term carries the surrounding disparity across them. The reach grows as 1 / noise^2
+    (:func:`texture_reach_for`): 12 px at the model's noise, ~100 px at Motorcycle's. The office's
+    blank walls and box faces reach 15-120 px from texture at 640 x 480 and stay masked (16 px
+    already lets one in and costs the office DEM 0.3 cm); Motorcycle's blank gaps reach 4-10 px.
+
+    ``uniqueness`` 5 (was 10): the left-right check already rejects what an ambiguous match gets
+    wrong on the simulated pairs (their DEMs: office +0.03 cm, quarry -0.06 cm, marsyard_harsh,
+    marsyard and hirise within 0.005 cm); on real pairs 5 answers 0.2-0.9 % more pixels, about
+    half of them right, which keeps bad-2 on valid pixels at half OpenCV's default's or less.
+
+    Together (tools/bench/stereo.py ``--table``, docs/STEREO_BENCH.md): on Motorcycle 89.0 % density
+    at 4.66 % bad-2 on valid pixels (OpenCV's default SGBM: 86.8 % at 8.48 %; before: 80.4 % at
+    4.84 %); the simulated pairs within 0.3 points of their density and 0.01 of their bad-2,
+    except marsyard_harsh, whose JPEG smooths the noise away (measured 0.09: 92.3 -> 93.8 %,
+    0.28 -> 0.32 %; its DEM unchanged).
 
     ``mode``: ``sgbm_3way`` (default) because it is both the fastest and the most accurate here:
     on the 1920 x 1080 quarry pair with 192 disparities one matcher run took 0.25 s (3-way),
@@ -307,11 +353,11 @@ class SgbmParams:
     ``fill`` (off by default) completes the disparity where the filters rejected it
     (:func:`fill_disparity`: background-preferring scanline fill, then an edge-aware weighted
     median of radius ``fill_radius`` guided by the left image, grey-level scale ``fill_sigma``).
-    On real scenes the filters reject a fifth of the pixels (occlusions, low texture): on
+    On real scenes the filters reject a tenth of the pixels (occlusions, thin structures): on
     Middlebury Motorcycle the share of ground-truth pixels that are invalid or > 2 px off falls
-    from 23.5 % to 7.3 % with filling (OpenCV's default SGBM: 20.5 %, the best of a small search
-    of its settings: 17.4 %); on the simulated quarry from 5.9 % to 0.44 %, while the measured
-    pixels keep their 0.08 % (tools/bench/stereo.py). The filled values stay guesses: :class:`Disparity` keeps the
+    from 15.1 % to 7.3 % with filling (OpenCV's default SGBM: 20.5 %, the best of a small search
+    of its settings: 17.4 %); on the simulated quarry from 5.6 % to 0.45 %, while the measured
+    pixels keep their 0.09 % (tools/bench/stereo.py). The filled values stay guesses: :class:`Disparity` keeps the
     measured-only disparity beside them and the point cloud (:func:`cloud`, hence every DEM) is
     made of measured pixels only; the filled disparity is for images and dense consumers.
     """
@@ -321,7 +367,7 @@ class SgbmParams:
     min_disparity: int = 0
     block_size: int = 5
     mode: str = "sgbm_3way"
-    uniqueness: int = 10
+    uniqueness: int = 5
     pre_filter_cap: int = 31
     p1_factor: int = 8
     p2_factor: int = 32
@@ -329,7 +375,9 @@ class SgbmParams:
     speckle_window: int = 200
     speckle_range: float = 1.0
     texture_window: int = 7
-    texture_threshold: float = 1.5  # x the expected noise (noise_dn), not DN
+    texture_threshold: float = 1.5  # x the image's noise (noise_dn), not DN
+    texture_noise: float | None = None  # x the PIKE model's noise; None: measured per image
+    texture_reach: float = 12.0  # px (full resolution, PIKE noise): narrower blank gaps are left to the matcher
     scale: float = 1.0
     pad: bool = True  # pad the left border so the first num_disparities columns are matched too
     fill: bool = False
@@ -356,6 +404,10 @@ class SgbmParams:
             raise ValueError("scale must be in [0.1, 1]")
         if self.fill_radius < 0 or self.fill_sigma <= 0:
             raise ValueError("fill_radius must be >= 0 and fill_sigma > 0")
+        if self.texture_noise is not None and not 0.0 <= self.texture_noise <= 10.0:
+            raise ValueError("texture_noise must be None (measured) or in [0, 10]")
+        if self.texture_reach < 0 or self.texture_window < 1:
+            raise ValueError("texture_reach must be >= 0 and texture_window >= 1")
 
     def disparities_for(self, rect: Rectification) -> int:
         """numDisparities at the matching scale (a multiple of 16)."""
@@ -385,6 +437,8 @@ class Disparity:
     timings: dict[str, float] = field(default_factory=dict)
     left_measured: np.ndarray | None = None
     rectified_measured: np.ndarray | None = None
+    # the image noise the texture mask used, as a fraction of the PIKE model (None: mask off)
+    noise_scale: float | None = None
 
     @property
     def measured(self) -> np.ndarray:
@@ -438,33 +492,95 @@ def _compute(matcher: Any, a: np.ndarray, b: np.ndarray, pad: int) -> np.ndarray
     return d[:, pad:] if pad else d
 
 
-def noise_dn(mean: np.ndarray) -> np.ndarray:
+def noise_dn(mean: np.ndarray, scale: float = 1.0) -> np.ndarray:
     """The grey-level noise (DN rms) a pixel of mean level ``mean`` carries: shot noise of
-    ``mean * NOISE_E_PER_DN`` electrons, read noise and 8-bit quantisation. The same at every
-    matching scale: area averaging lowers the noise of a downsampled pair, but thresholding it at
-    full-resolution noise keeps the blank walls out at half scale as well (office at scale 0.5:
-    65 % density as with the old absolute mask, 72 % with the noise scaled down, the extra pixels
-    on the walls; marsyard_harsh 94.0 % either way)."""
-    return np.sqrt(np.maximum(mean, 0.0) / NOISE_E_PER_DN + (NOISE_READ_E / NOISE_E_PER_DN) ** 2 + 1.0 / 12.0)
+    ``mean * NOISE_E_PER_DN`` electrons and read noise, both times ``scale`` (the image's noise
+    against the PIKE model, :func:`noise_scale`), and 8-bit quantisation, which no camera escapes.
+    The same at every matching scale: area averaging lowers the noise of a downsampled pair, but
+    thresholding it at full-resolution noise keeps the blank walls out at half scale as well
+    (office at scale 0.5: 65 % density as with the old absolute mask, 72 % with the noise scaled
+    down, the extra pixels on the walls; marsyard_harsh 94.0 % either way)."""
+    sensor = np.maximum(mean, 0.0) / NOISE_E_PER_DN + (NOISE_READ_E / NOISE_E_PER_DN) ** 2
+    return np.sqrt(scale * scale * sensor + 1.0 / 12.0)
 
 
-def texture_mask(image: np.ndarray, window: int, threshold: float) -> np.ndarray:
+def _local_noise_ratio(image: np.ndarray, window: int = 7) -> tuple[np.ndarray, np.ndarray]:
+    """Per pixel, the rms of the Laplacian over ``window`` (an estimate of the noise there, raised
+    by any texture) over the PIKE model's sensor noise at the local mean; and where that estimate
+    is usable: no clipped pixel (0 or 255, which carry no noise) in the window, not at the border."""
+    img = np.asarray(image)
+    g = img.astype(np.float32)
+    mean = cv2.boxFilter(g, -1, (window, window), borderType=cv2.BORDER_REFLECT)
+    lap = cv2.filter2D(g, -1, _NOISE_KERNEL, borderType=cv2.BORDER_REFLECT)
+    local = np.sqrt(cv2.boxFilter(lap * lap, -1, (window, window), borderType=cv2.BORDER_REFLECT)) / 6.0
+    kernel = np.ones((window, window), np.uint8)
+    usable = (cv2.erode(img, kernel) > 0) & (cv2.dilate(img, kernel) < 255)
+    edge = window // 2 + 1
+    usable[:edge] = usable[-edge:] = False
+    usable[:, :edge] = usable[:, -edge:] = False
+    model = np.sqrt(np.maximum(mean, 0.0) / NOISE_E_PER_DN + (NOISE_READ_E / NOISE_E_PER_DN) ** 2)
+    return local / model, usable
+
+
+def noise_scale(image: np.ndarray, window: int = 7) -> float:
+    """The noise of a mono8 image as taken (before any resampling), as a fraction of the PIKE
+    model's at the same brightness, capped at 1.0.
+
+    The flattest windows of an image hold nothing but its noise, so the 1st percentile of the local
+    Laplacian rms over the model noise, divided by what pure model noise gives (NOISE_RATIO_P1),
+    is the image's noise against the model. Texture only raises the estimate (an image without a
+    flat window measures its texture), hence the cap: above the model the mask stays the model's.
+    Measure the image as the camera gave it: rectifying interpolates and smooths the noise (the
+    simulated office measures 1.2-1.35 before remapping, 0.53-0.59 after). Too few usable windows
+    (a saturated or tiny image) give 1.0, the model."""
+    img = np.asarray(image)
+    if img.dtype != np.uint8 or img.ndim != 2:
+        img = to_gray8(img)
+    ratio, usable = _local_noise_ratio(img, window)
+    values = ratio[usable]
+    if values.size < 1000:
+        return 1.0
+    k = max(int(values.size * 0.01), 1)
+    p1 = float(np.partition(values, k)[k])
+    return min(1.0, p1 / NOISE_RATIO_P1)
+
+
+def texture_mask(image: np.ndarray, window: int, threshold: float, noise: float = 1.0,
+                 reach: float = 0.0) -> np.ndarray:
     """True where the local grey-level standard deviation (over ``window``) reaches ``threshold``
-    times the noise expected at the local mean level (:func:`noise_dn`): matchable texture is
-    texture that stands out of the sensor's noise, so a dim but textured shadow passes and a
-    bright blank wall, whose spread is the noise itself, does not."""
+    times the noise expected at the local mean level (:func:`noise_dn` at scale ``noise``):
+    matchable texture is texture that stands out of the noise, so a dim but textured shadow passes
+    and a bright blank wall, whose spread is the noise itself, does not.
+
+    With ``reach`` > 0 a blank patch is only masked if some pixel of it lies farther than ``reach``
+    px from texture: a narrow gap in textured ground is bridged by the matcher's smoothness term
+    from both sides, a wide blank surface is not (there the noise, not the surroundings, decides
+    the disparity)."""
     img = image.astype(np.float32)
     mean = cv2.boxFilter(img, -1, (window, window), borderType=cv2.BORDER_REFLECT)
     mean2 = cv2.boxFilter(img * img, -1, (window, window), borderType=cv2.BORDER_REFLECT)
     var = np.maximum(mean2 - mean * mean, 0.0)
-    limit = threshold * noise_dn(mean)
-    return var >= limit * limit
+    limit = threshold * noise_dn(mean, noise)
+    textured = var >= limit * limit
+    if reach <= 0 or textured.all():
+        return textured
+    blank = (~textured).astype(np.uint8)
+    depth = cv2.distanceTransform(blank, cv2.DIST_L2, 5)  # px to the nearest textured pixel
+    count, labels = cv2.connectedComponents(blank, connectivity=8)
+    wide = np.zeros(count, bool)
+    wide[labels[depth > reach]] = True
+    wide[0] = False  # label 0 is the textured ground
+    return ~wide[labels]
 
 
 def disparity_rectified(rl: np.ndarray, rr: np.ndarray, params: SgbmParams, nd: int,
-                        timings: dict[str, float] | None = None) -> np.ndarray:
+                        timings: dict[str, float] | None = None, noise: float | None = None) -> np.ndarray:
     """SGBM with left-right check, speckle filter and texture mask on a rectified pair at its own
-    resolution; float32 px, NaN invalid."""
+    resolution; float32 px, NaN invalid.
+
+    The texture mask's noise: ``params.texture_noise`` if set, else ``noise`` (what
+    :func:`disparity` measured on the left image as taken), else measured on ``rl`` itself, which
+    is right for pairs that come rectified (Middlebury's) and too low for pairs remapped here."""
     timings = {} if timings is None else timings
     t0 = time.perf_counter()
     matcher = _matcher(params, nd)
@@ -492,11 +608,35 @@ def disparity_rectified(rl: np.ndarray, rr: np.ndarray, params: SgbmParams, nd: 
         cv2.filterSpeckles(d16, invalid16, params.speckle_window, int(round(params.speckle_range * 16)))
         valid &= d16 > invalid16
     if params.texture_threshold > 0:
-        valid &= texture_mask(rl, params.texture_window, params.texture_threshold)
+        scale = texture_noise_for(params, rl, noise)
+        valid &= texture_mask(rl, params.texture_window, params.texture_threshold, scale,
+                              texture_reach_for(params, scale))
     out = dl16.astype(np.float32) / 16.0
     out[~valid] = np.nan
     timings["filters"] = time.perf_counter() - t2
     return out
+
+
+def texture_noise_for(params: SgbmParams, image: np.ndarray, measured: float | None = None) -> float:
+    """The noise scale the texture mask uses: the settings' fixed one, else ``measured``, else
+    :func:`noise_scale` of ``image``."""
+    if params.texture_noise is not None:
+        return float(params.texture_noise)
+    return noise_scale(image) if measured is None else float(measured)
+
+
+def texture_reach_for(params: SgbmParams, noise: float) -> float:
+    """How far (px at the matching scale) the matcher carries a disparity into a blank patch at
+    image noise ``noise`` (x the PIKE model): ``texture_reach`` at the model's noise, growing as
+    1 / noise^2. Along a path through a blank patch the cost of the disparity brought in from the
+    texture against its neighbours' drifts by noise alone, as a random walk: after n pixels by
+    ~noise * sqrt(n), so it outweighs the penalty of a disparity step (P1) after n ~ (P1 / noise)^2
+    pixels. The noise is floored at NOISE_SCALE_FLOOR, what a noiseless 8-bit image measures.
+    Matching a downsampled pair, the reach shrinks with it, so the same walls stay out at every
+    scale (as the noise is kept at its full-resolution level, :func:`noise_dn`)."""
+    if params.texture_reach <= 0:
+        return 0.0
+    return float(params.texture_reach * params.scale / max(noise, NOISE_SCALE_FLOOR) ** 2)
 
 
 def _scanline_fill(disp: np.ndarray, smooth_jump: float = 1.0) -> np.ndarray:
@@ -599,8 +739,14 @@ def disparity(left: np.ndarray, right: np.ndarray,
     rect = rectification(calib)
     timings["rectification_maps"] = time.perf_counter() - t0
     t1 = time.perf_counter()
-    rl, rr = rectify_pair(left, right, rect)
+    gl, gr = _checked_gray_pair(left, right, rect)
+    rl, rr = _remap_pair(gl, gr, rect)
     timings["rectify"] = time.perf_counter() - t1
+    noise = None
+    if p.texture_threshold > 0:  # measured before the remap smooths it
+        t_noise = time.perf_counter()
+        noise = texture_noise_for(p, gl)
+        timings["noise"] = time.perf_counter() - t_noise
     nd = p.disparities_for(rect)
     if p.scale < 1.0:
         t2 = time.perf_counter()
@@ -609,7 +755,7 @@ def disparity(left: np.ndarray, right: np.ndarray,
         sl = cv2.resize(rl, (sw, sh), interpolation=cv2.INTER_AREA)
         sr = cv2.resize(rr, (sw, sh), interpolation=cv2.INTER_AREA)
         timings["downsample"] = time.perf_counter() - t2
-        small = disparity_rectified(sl, sr, p, nd, timings)
+        small = disparity_rectified(sl, sr, p, nd, timings, noise)
         small_filled = _fill_timed(small, sl, p, timings)
         t3 = time.perf_counter()
         fx, fy = sw / w, sh / h
@@ -620,7 +766,7 @@ def disparity(left: np.ndarray, right: np.ndarray,
         filled = None if small_filled is None else sample_disparity(small_filled, grid, jump=1.0) / np.float32(fx)
         timings["upsample"] = time.perf_counter() - t3
     else:
-        rectified = disparity_rectified(rl, rr, p, nd, timings)
+        rectified = disparity_rectified(rl, rr, p, nd, timings, noise)
         filled = _fill_timed(rectified, rl, p, timings)
     t4 = time.perf_counter()
     left_disp = sample_disparity(rectified, rect.left_to_rect, jump=1.0)
@@ -628,8 +774,9 @@ def disparity(left: np.ndarray, right: np.ndarray,
     timings["unrectify"] = time.perf_counter() - t4
     timings["total"] = time.perf_counter() - t0
     if filled is None or left_filled is None:
-        return Disparity(left_disp, rectified, rect, p, timings)
-    return Disparity(left_filled, filled, rect, p, timings, left_measured=left_disp, rectified_measured=rectified)
+        return Disparity(left_disp, rectified, rect, p, timings, noise_scale=noise)
+    return Disparity(left_filled, filled, rect, p, timings, left_measured=left_disp, rectified_measured=rectified,
+                     noise_scale=noise)
 
 
 def _fill_timed(disp: np.ndarray, guide: np.ndarray, p: SgbmParams, timings: dict[str, float]) -> np.ndarray | None:

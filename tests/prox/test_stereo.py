@@ -69,6 +69,14 @@ def shifted_pair(layers: list[tuple[np.ndarray, float]], w: int = W, h: int = H)
     return left.astype(np.uint8), right.astype(np.uint8)
 
 
+def model_noise(image: np.ndarray, scale: float, seed: int) -> np.ndarray:
+    """``image`` (float DN) with ``scale`` times the PIKE model's shot and read noise, as mono8."""
+    rng = np.random.default_rng(seed)
+    shot = rng.poisson(np.maximum(image, 0) * st.NOISE_E_PER_DN) / st.NOISE_E_PER_DN - image
+    read = rng.normal(0, st.NOISE_READ_E / st.NOISE_E_PER_DN, image.shape)
+    return np.clip(np.rint(image + scale * (shot + read)), 0, 255).astype(np.uint8)
+
+
 def test_disparity_of_a_plane_is_exact_and_reprojects_to_f_b_over_d() -> None:
     d_true = 20.0
     left, right = shifted_pair([(np.ones((H, W), bool), d_true)])
@@ -112,13 +120,23 @@ def test_left_right_check_and_speckle_filter_reject_unmatchable_pixels() -> None
 
 
 def test_texture_mask_invalidates_a_blank_patch() -> None:
+    """An 80 x 100 blank patch (40 px from texture) under the PIKE's noise: masked. The same pair
+    without noise: the matcher carries the surrounding disparity across it unperturbed (the
+    patch's disparity is the surroundings' here), and the mask, measuring no noise, lets it."""
     left, right = shifted_pair([(np.ones((H, W), bool), 16.0)])
     left[80:160, 120:220] = 128
     right[80:160, 120 - 16:220 - 16] = 128
     cal = ideal_calibration()
-    res = st.disparity(left, right, cal, {"num_disparities": 32, "texture_threshold": 2.0})
-    assert np.isfinite(res.rectified[90:150, 135:205]).mean() == 0.0
-    assert np.isfinite(res.rectified[20:60, 60:260]).mean() > 0.9
+    noisy = st.disparity(model_noise(left.astype(np.float64), 1.0, 1), model_noise(right.astype(np.float64), 1.0, 2),
+                         cal, {"num_disparities": 32, "texture_threshold": 2.0})
+    assert noisy.noise_scale == 1.0
+    assert np.isfinite(noisy.rectified[90:150, 135:205]).mean() == 0.0
+    assert np.isfinite(noisy.rectified[20:60, 60:260]).mean() > 0.9
+    clean = st.disparity(left, right, cal, {"num_disparities": 32, "texture_threshold": 2.0})
+    assert clean.noise_scale is not None and clean.noise_scale < 0.3
+    np.testing.assert_allclose(clean.rectified[90:150, 135:205], 16.0, atol=0.5)
+    fixed = st.disparity(left, right, cal, {"num_disparities": 32, "texture_threshold": 2.0, "texture_noise": 1.0})
+    assert np.isfinite(fixed.rectified[90:150, 135:205]).mean() == 0.0
 
 
 def test_texture_mask_is_relative_to_the_noise_at_the_local_brightness() -> None:
@@ -132,6 +150,67 @@ def test_texture_mask_is_relative_to_the_noise_at_the_local_brightness() -> None
     assert st.texture_mask(dim, 7, default).mean() > 0.99
     assert st.texture_mask(bright, 7, default).mean() < 0.01
     assert not st.texture_mask(np.full((32, 32), 5, np.uint8), 7, default).any()  # blank stays out, even dark
+
+
+def test_noise_scale_measures_the_image_noise_against_the_model() -> None:
+    """Smooth shading with the model's noise at a known fraction: the estimate follows it (measured:
+    1.0 / 0.73 / 0.54 / 0.38 for 1 / 0.7 / 0.5 / 0.3), never exceeds the model and stops at the
+    8-bit quantisation (0.21) for a noiseless image; remapping smooths the noise away, which is why
+    st.disparity measures the image as taken."""
+    rng = np.random.default_rng(0)
+    shading = cv2.normalize(cv2.GaussianBlur(rng.uniform(0, 1, (240, 320)).astype(np.float32), (0, 0), 6),
+                            None, 40, 220, cv2.NORM_MINMAX)
+    assert st.noise_scale(model_noise(shading, 1.0, 1)) == 1.0
+    for scale in (0.7, 0.5, 0.3):
+        assert st.noise_scale(model_noise(shading, scale, 1)) == pytest.approx(scale, abs=0.1)
+    assert st.noise_scale(model_noise(shading, 0.0, 1)) < 0.3
+    assert st.noise_scale(model_noise(np.full((240, 320), 150.0), 2.0, 1)) == 1.0  # capped at the model
+    # half a pixel of bilinear resampling halves the measured noise
+    half = cv2.warpAffine(model_noise(shading, 1.0, 1), np.float32([[1, 0, 0.5], [0, 1, 0.5]]), (320, 240))
+    assert st.noise_scale(half) < 0.7
+
+
+def test_low_contrast_texture_is_matched_in_a_clean_pair_and_masked_in_a_noisy_one() -> None:
+    """A bright surface with 1.5 DN of texture: below 1.5 x the PIKE noise (1.6 DN at 200 DN), so the
+    fixed model masked it even where the camera was clean and it matched exactly; with the noise
+    measured, a clean pair is answered and the same texture under the PIKE's noise is not."""
+    rng = np.random.default_rng(5)
+    tex = cv2.GaussianBlur(rng.uniform(-1, 1, (H, W + 64)).astype(np.float32), (0, 0), 1.2)
+    tex = 200 + tex * 1.5 / tex.std()
+    left, right = tex[:, 32:32 + W], tex[:, 48:48 + W]  # disparity 16
+    inner = (slice(20, -20), slice(40, -20))
+    cal = ideal_calibration()
+    clean = st.disparity(model_noise(left, 0.0, 1), model_noise(right, 0.0, 2), cal, {"num_disparities": 32})
+    assert clean.noise_scale is not None and clean.noise_scale < 0.3
+    assert np.isfinite(clean.rectified[inner]).mean() > 0.99
+    assert np.nanmax(np.abs(clean.rectified[inner] - 16.0)) < 0.5
+    fixed = st.disparity(model_noise(left, 0.0, 1), model_noise(right, 0.0, 2), cal,
+                         {"num_disparities": 32, "texture_noise": 1.0})
+    assert np.isfinite(fixed.rectified[inner]).mean() < 0.05
+    noisy = st.disparity(model_noise(left, 1.0, 1), model_noise(right, 1.0, 2), cal, {"num_disparities": 32})
+    assert noisy.noise_scale == 1.0
+    assert np.isfinite(noisy.rectified[inner]).mean() < 0.2
+
+
+def test_texture_mask_leaves_narrow_blank_gaps_to_the_matcher() -> None:
+    """Blank 9 x 9 and 60 x 60 patches in texture: with a reach of 12 px the narrow one (4 px from
+    texture at most) is left to the matcher and the wide one (30 px) masked whole, up to where the
+    7 x 7 window starts to see the texture around it."""
+    img = texture(H, W, seed=3).astype(np.uint8)
+    img[40:49, 40:49] = 128
+    img[100:160, 150:210] = 128
+    plain = st.texture_mask(img, 7, 1.5)
+    bridged = st.texture_mask(img, 7, 1.5, reach=12.0)
+    assert not plain[44, 44] and not plain[130, 180]
+    assert bridged[40:49, 40:49].all()
+    assert not bridged[103:157, 153:207].any()
+    np.testing.assert_array_equal(bridged[:, 120:], plain[:, 120:])
+    # the matcher indeed bridges the narrow gap: its disparity is the surroundings'
+    left, right = shifted_pair([(np.ones((H, W), bool), 16.0)])
+    left[40:49, 60:69] = 128
+    right[40:49, 44:53] = 128
+    res = st.disparity(left, right, ideal_calibration(), {"num_disparities": 32})
+    np.testing.assert_allclose(res.rectified[40:49, 60:69], 16.0, atol=0.5)
 
 
 def test_sampling_does_not_smear_depth_edges() -> None:

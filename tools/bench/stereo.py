@@ -28,19 +28,33 @@ invalid pixels as bad over the pixels with ground truth; "valid" is over answere
 
 ``--texture`` sweeps the texture mask's threshold on every pair (the four simulated scenes and
 both Middlebury pairs): the old absolute 2.5 DN, off, and multiples of the sensor noise expected
-at the local brightness (the shipped rule, :func:`prox_workflows.steps.stereo.texture_mask`).
+at the local brightness (the rule before the noise was measured per image,
+:func:`prox_workflows.steps.stereo.texture_mask` at noise scale 1).
+
+The dominance table (``--table`` prints only it; docs/STEREO_BENCH.md): every real pair and every
+simulated pair, rvs-stereo's default beside OpenCV's default SGBM, the tuned OpenCV SGBM and
+rvs-stereo's previous default (PREVIOUS_DEFAULT), with density, bad-2 on valid pixels and bad-2
+with invalid pixels counted, the ratios of density and of bad-2 on valid pixels to OpenCV's
+default, and whether the default dominates it (density at least as high, bad-2 on valid no worse).
+Then the DEM check: the stereo DEM of one ``dem-full`` scan per simulated scene through a server
+in this process (tests/test_dem_stereo.py's scan and RMSE), with the default and with the
+previous default (``--no-dem`` skips it, ~1 min).
 
     python -m tools.bench.stereo [--scene quarry] [--tilt -20] [--repeat 3] [--cache /tmp/pair.npz]
                                  [--compare quarry,marsyard,marsyard_harsh] [--breakdown] [--texture]
-                                 [--no-sim] [--search]
+                                 [--no-sim] [--search] [--table] [--no-dem]
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
+import socket
 import statistics
 import sys
+import tempfile
 import time
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -202,7 +216,7 @@ def real_rows(pair: dict[str, Any], repeat: int, tuned: dict[str, Any]) -> list[
 
     return [
         (f"rvs-stereo filled ({nd} disp, LR + fill)", t_fill, sc(filled)),
-        (f"rvs-stereo unfilled (measured; {nd} disp)", t_meas, sc(measured)),
+        (f"rvs-stereo default (measured; {nd} disp)", t_meas, sc(measured)),
         ("peer: OpenCV SGBM default (0, 64, 5)", t_def, sc(default)),
         (f"peer: OpenCV SGBM tuned (HH, {tuned['numDisparities']} disp, block {tuned['blockSize']}, uniq "
          f"{tuned['uniquenessRatio']})", t_tuned, sc(tuned_d)),
@@ -245,7 +259,16 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--breakdown", action="store_true",
                     help="where the harsh pair loses density: one effect at a time, shadow vs sun, and the "
                          "texture filter's share (diagnostic; ~1 min more)")
+    ap.add_argument("--table", action="store_true",
+                    help="only the dominance table (default vs OpenCV default and tuned, every pair) and the DEM check")
+    ap.add_argument("--no-dem", action="store_true", help="skip the DEM check (one server scan per simulated scene)")
     args = ap.parse_args(argv)
+    if args.table:
+        moto, bike = motorcycle(), bicycle1()
+        dominance_table([] if args.no_sim else list(TABLE_SCENES), args.tilt, moto, bike)
+        if not (args.no_dem or args.no_sim):
+            dem_check(DEM_SCENES)
+        return 0
     if not args.no_sim:
         simulated(args)
     tuned = dict(OPENCV_TUNED)
@@ -265,16 +288,199 @@ def main(argv: list[str] | None = None) -> int:
         breakdown("marsyard_harsh", args.tilt, moto)
     if args.texture:
         texture_sweep([] if args.no_sim else ["quarry", "marsyard", "marsyard_harsh", "office"], args.tilt, moto, bike)
+    dominance_table([] if args.no_sim else list(TABLE_SCENES), args.tilt, moto, bike)
+    if not (args.no_dem or args.no_sim):
+        dem_check(DEM_SCENES)
     return 0
+
+
+# rvs-stereo's default before the texture mask measured each image's noise: the PIKE model's noise
+# everywhere, every blank pixel masked, uniqueness 10
+PREVIOUS_DEFAULT: dict[str, Any] = {"texture_noise": 1.0, "texture_reach": 0.0, "uniqueness": 10}
+TABLE_SCENES = ("quarry", "marsyard", "marsyard_harsh", "office")
+DEM_SCENES = ("office", "quarry", "marsyard_harsh")
+
+
+def proxy_score(disp: np.ndarray) -> dict[str, float]:
+    """For a pair without ground truth (Bicycle1): density over all pixels, and as "bad-2 on valid"
+    the share of answered pixels more than 2 px from the mean of the answered pixels in their
+    9 x 9 neighbourhood (local consistency; a wrong match stands out of its neighbours)."""
+    ok = np.isfinite(disp)
+    dm, w = np.where(ok, disp, 0).astype(np.float32), ok.astype(np.float32)
+    local = cv2.boxFilter(dm, -1, (9, 9), normalize=False) / np.maximum(cv2.boxFilter(w, -1, (9, 9), normalize=False), 1)
+    bad = float((np.abs(disp[ok] - local[ok]) > 2).mean()) if ok.any() else float("nan")
+    return {"coverage": float(ok.mean()), "bad2": bad, "bad2_all": float("nan"), "within05": float("nan")}
+
+
+TableRow = tuple[str, dict[str, dict[str, float]], float, bool]
+
+
+def table_rows(scenes: list[str], tilt: float, moto: dict[str, Any] | None, bike: dict[str, Any] | None) -> list[TableRow]:
+    """(pair, {method: score}, the image noise the default measured, whether dominance is required:
+    real pairs with ground truth) for the dominance table. Real pairs come rectified: the matcher
+    runs on them as they are (the noise is measured on them); simulated pairs go through
+    :func:`st.disparity` from the images as taken, as the server's DEMs do. OpenCV's default on a
+    simulated pair searches the pair's disparity range (its 64 would not reach the near ground)."""
+    rows: list[TableRow] = []
+    for title, pair in (("Motorcycle (real, truth)", moto), ("Bicycle1 (real, proxy)", bike)):
+        if pair is None:
+            continue
+        left, right, true, nd = pair["left"], pair["right"], pair["true"], pair["nd"]
+        tuned = {**OPENCV_TUNED, "numDisparities": pair.get("tuned_nd", OPENCV_TUNED["numDisparities"])}
+        found = {
+            "default": st.disparity_rectified(left, right, st.SgbmParams(), nd),
+            "OpenCV default": opencv_sgbm(left, right, minDisparity=0, numDisparities=64, blockSize=5),
+            "OpenCV tuned": opencv_sgbm(left, right, **tuned),
+            "previous": st.disparity_rectified(left, right, st.SgbmParams(**PREVIOUS_DEFAULT), nd),
+        }
+        rows.append((title, {k: score(d, true) if true is not None else proxy_score(d) for k, d in found.items()},
+                     st.noise_scale(left), true is not None))
+    for scene in scenes:
+        pair = simulated_pair(scene, tilt, None)
+        left, right, calib, true = pair["left"], pair["right"], pair["calib"], pair["true"]
+        rect = st.rectification(calib)
+        nd = st.SgbmParams().disparities_for(rect)
+        rl, rr = st.rectify_pair(left, right, rect)
+        default = st.disparity(left, right, calib)
+        found = {
+            "default": default.rectified,
+            "OpenCV default": opencv_sgbm(rl, rr, minDisparity=0, numDisparities=nd, blockSize=5),
+            "OpenCV tuned": opencv_sgbm(rl, rr, **{**OPENCV_TUNED, "numDisparities": nd}),
+            "previous": st.disparity(left, right, calib, st.SgbmParams(**PREVIOUS_DEFAULT)).rectified,
+        }
+        rows.append((f"sim {scene}", {k: score(d, true) for k, d in found.items()}, float(default.noise_scale or 1.0),
+                     False))
+    return rows
+
+
+def dominates(mine: dict[str, float], peer: dict[str, float]) -> bool:
+    """Density at least as high and bad-2 on valid pixels no worse (what the table asks of the default)."""
+    return mine["coverage"] >= peer["coverage"] and mine["bad2"] <= peer["bad2"]
+
+
+def dominance_table(scenes: list[str], tilt: float, moto: dict[str, Any] | None,
+                    bike: dict[str, Any] | None) -> list[TableRow]:
+    """Prints the table of docs/STEREO_BENCH.md: per pair and method density / bad-2 on valid /
+    bad-2 with invalid counted, the ratios to OpenCV's default and the verdict: required of the
+    real pairs with ground truth, shown in brackets for the others (the simulated pairs answer to
+    the DEM check; the office's blank walls are masked on purpose, where OpenCV answers 25 % wrong)."""
+    rows = table_rows(scenes, tilt, moto, bike)
+    methods = ("default", "OpenCV default", "OpenCV tuned", "previous")
+    print("\ndominance: rvs-stereo default vs OpenCV SGBM default (0, 64, 5) and tuned (OPENCV_TUNED), and the "
+          "previous default; per method density / bad-2 on valid / bad-2 invalid counted (Bicycle1: no truth, "
+          "bad-2 on valid is the local-consistency proxy); ratios: default density / OpenCV's, default bad-2 "
+          "valid / OpenCV's; noise: the image noise the default measured, x the PIKE model's")
+    head = (f"{'pair':<26}" + "".join(f" {m:>24}" for m in methods)
+            + f" {'dens x':>6} {'bad2 x':>6} {'noise':>5}  dominates")
+    print(head)
+
+    def cell(sc: dict[str, float]) -> str:
+        b_all = "-" if np.isnan(sc["bad2_all"]) else f"{sc['bad2_all']:.2%}"
+        return f"{sc['coverage']:6.1%} /{sc['bad2']:6.2%} /{b_all:>7}"
+
+    for pair, found, noise, required in rows:
+        mine, peer = found["default"], found["OpenCV default"]
+        ratio_d = mine["coverage"] / max(peer["coverage"], 1e-9)
+        ratio_b = mine["bad2"] / peer["bad2"] if peer["bad2"] > 0 else float("nan")
+        verdict = ("yes" if dominates(mine, peer) else "NO") if required else \
+            ("(yes)" if dominates(mine, peer) else "(no)")
+        print(f"{pair:<26}" + "".join(f" {cell(found[m]):>24}" for m in methods)
+              + f" {ratio_d:6.3f} {ratio_b:6.2f} {noise:5.2f}  {verdict}")
+    return rows
+
+
+DEM_RANGE = "-60,60,-50,-20"
+
+
+@contextlib.contextmanager
+def matcher_defaults(overrides: dict[str, Any] | None) -> Iterator[None]:
+    """The server's stereo chain builds its matcher settings with SgbmParams.from_dict; for the
+    length of the block those settings start from ``overrides`` (the chain's own keys still win)."""
+    if not overrides:
+        yield
+        return
+    original = st.SgbmParams.from_dict.__func__  # type: ignore[attr-defined]
+
+    def patched(cls: type[st.SgbmParams], values: Any) -> st.SgbmParams:
+        return original(cls, {**overrides, **dict(values or {})})
+
+    st.SgbmParams.from_dict = classmethod(patched)  # type: ignore[method-assign, assignment]
+    try:
+        yield
+    finally:
+        st.SgbmParams.from_dict = classmethod(original)  # type: ignore[method-assign, assignment]
+
+
+def stereo_dem_rmse(scene: str, overrides: dict[str, Any] | None = None) -> tuple[float, int]:
+    """(RMSE in m, cells) of the stereo DEM of one ``dem-full -range DEM_RANGE`` scan of ``scene``
+    against the world's true DEM: the scan and the cells of tests/test_dem_stereo.py (2 cm grid
+    from (-1, -4) to (7, 4), terrain cells at least 3 cells from an object's edge, within 6 m)."""
+    from scipy import ndimage
+
+    from prox_workflows.grid import GridGeometry, read_geotiff
+    from prox_workflows.steps.dem_chain import resample_nearest
+    from rvs_server.client.session import ServerThread
+
+    ref = GridGeometry.covering(-1.0, -4.0, 7.0, 4.0, 0.02)
+    with tempfile.TemporaryDirectory(prefix="rvs_stereo_dem_") as tmp, matcher_defaults(overrides):
+        data = Path(tmp)
+        srv = ServerThread([f"server.data={data}", "server.port=0", "drivers.ptu.time_scale=0", "sim.time_scale=0",
+                            "server.warm_up=false", "server.web_port=0", f"server.scene={scene}"],
+                           log_level="warning").start()
+        try:
+            with socket.create_connection(("127.0.0.1", srv.port)) as sock:
+                reader = sock.makefile("rb")
+                reader.readline()
+                sock.sendall(f"dem-full -range {DEM_RANGE} -name stereo -mesh false\n".encode())
+                while True:
+                    line = reader.readline().decode()
+                    if not line:
+                        raise RuntimeError("the server closed the connection")
+                    words = line.split()
+                    if len(words) > 1 and words[1] in ("OK", "ERROR"):
+                        break
+            if words[1] != "OK":
+                raise RuntimeError(line.strip())
+            fields = dict(w.split("=", 1) for w in words if "=" in w)
+            dem, grid = read_geotiff(data / fields["dem"])
+            dem = resample_nearest(dem, grid, ref)
+            world = srv.app.world
+            truth = world.true_dem(ref.cell, ref.bounds)
+            bare = world.true_dem(ref.cell, ref.bounds, include_objects=False)
+        finally:
+            srv.stop()
+    edge = ~np.isclose(bare, truth, atol=1e-6) | ~np.isfinite(truth)
+    xs, ys = ref.centers()
+    xx, yy = np.meshgrid(xs, ys)
+    cells = ~ndimage.binary_dilation(edge, iterations=3) & (np.hypot(xx, yy) <= 6.0) & np.isfinite(dem)
+    return float(np.sqrt(np.mean((dem[cells] - truth[cells]) ** 2))), int(cells.sum())
+
+
+def dem_check(scenes: tuple[str, ...], tolerance_cm: float = 0.05) -> dict[str, tuple[float, float]]:
+    """The stereo DEM's RMSE per simulated scene with the default and with the previous default,
+    side by side: the default must not lose the DEMs' accuracy (within ``tolerance_cm``; the
+    tests' own bound is 5 cm)."""
+    print(f"\nDEM check: stereo DEM RMSE (cm) vs the simulator's truth, one dem-full -range {DEM_RANGE} scan per "
+          "scene (tests/test_dem_stereo.py's cells)")
+    print(f"{'scene':<16} {'default':>8} {'previous':>8} {'change':>8} {'cells':>7}  within {tolerance_cm:g} cm")
+    out: dict[str, tuple[float, float]] = {}
+    for scene in scenes:
+        now, cells = stereo_dem_rmse(scene)
+        before, _ = stereo_dem_rmse(scene, PREVIOUS_DEFAULT)
+        out[scene] = (now, before)
+        change = (now - before) * 100
+        print(f"{scene:<16} {now * 100:8.3f} {before * 100:8.3f} {change:+8.3f} {cells:7d}  "
+              f"{'yes' if change <= tolerance_cm else 'NO'}", flush=True)
+    return out
 
 
 TEXTURE_KS = (2.0, 1.75, 1.5, 1.25, 1.0)
 
 
 def texture_sweep(scenes: list[str], tilt: float, moto: dict[str, Any] | None, bike: dict[str, Any] | None) -> None:
-    """rvs-stereo measured with the texture mask at each threshold, on every pair: the mask is the
-    last filter (after LR and speckle), so one matcher run per pair with it off, masked afterwards,
-    is exactly what each setting returns. Bicycle1 has no truth: its accuracy column is the share
+    """rvs-stereo measured with the texture mask at each threshold against the fixed PIKE noise
+    model, on every pair: the mask is the last filter (after LR and speckle), so one matcher run
+    per pair with it off, masked afterwards, is exactly what each setting returns. Bicycle1 has no truth: its accuracy column is the share
     of answered pixels more than 2 px from the mean of the answered pixels in their 9 x 9
     neighbourhood (a local-consistency proxy; 3.4 % at the old setting)."""
     pairs: list[tuple[str, np.ndarray, np.ndarray, int, np.ndarray | None]] = []
@@ -283,12 +489,15 @@ def texture_sweep(scenes: list[str], tilt: float, moto: dict[str, Any] | None, b
         rect = st.rectification(pair["calib"])
         rl, rr = st.rectify_pair(pair["left"], pair["right"], rect)
         pairs.append((f"sim {scene}", rl, rr, st.SgbmParams().disparities_for(rect), pair["true"]))
+        print(f"sim {scene}: noise {st.noise_scale(st.gray_pair(pair['left'], pair['right'])[0]):.2f} x the PIKE "
+              "model, measured on the image as taken (the sweep uses the model's)")
     for name, pair in (("Motorcycle", moto), ("Bicycle1", bike)):
         if pair is not None:
             pairs.append((name, pair["left"], pair["right"], pair["nd"], pair["true"]))
     default = st.SgbmParams().texture_threshold
-    print(f"\ntexture mask threshold (shipped: {default:g} x the expected noise): density / bad-2 on valid pixels "
-          "(Bicycle1: local-consistency proxy)")
+    print(f"\ntexture mask threshold against the PIKE model's noise, every blank pixel masked (the default: {default:g} "
+          "x the noise measured per image, narrow blank gaps kept; docs/STEREO_BENCH.md): density / bad-2 on valid "
+          "pixels (Bicycle1: local-consistency proxy)")
     labels = ["abs 2.5 DN (old)", "off"] + [f"noise x{k:g}" for k in TEXTURE_KS]
     print(f"{'pair':<20}" + "".join(f" {lab:>17}" for lab in labels))
     for name, rl, rr, nd, true in pairs:
