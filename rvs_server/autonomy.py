@@ -37,6 +37,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from drivers.tof.constants import FOV_V_DEG
+from prox_workflows.steps.arcs import arc_poses
 from prox_workflows.steps.dem2hazard import HAZARDOUS, SAFE
 from prox_workflows.steps.hazard_monitor import rover_points
 from prox_workflows.steps.planner import NavMaps
@@ -193,18 +194,28 @@ class SeeingDriver:
         self.stats.cycle_ms.append((time.monotonic() - t1) * 1000)
         return check, unseen, pose
 
-    def judge(self, pose: tuple[float, float, float], remaining: np.ndarray) -> tuple[Any, Any]:
-        """The footprint swept along the next ``lookahead`` metres (blocked anywhere stops the
-        rover), and along the next ``blind`` metres: the check of that stretch when it covers
-        ground no map has seen, else None. The forward view starts about a metre ahead of the
-        rover (1.1 m from its centre at tilt -35 deg), so ground that close and still unseen
-        will not be seen before the body is on it: a rock the rover turned to face, or one
-        round the corner of its path."""
+    def judge(self, pose: tuple[float, float, float], remaining: np.ndarray,
+              motion: np.ndarray | None = None) -> tuple[Any, Any]:
+        """The footprint swept along the motion the rover executes next (``motion``, poses from
+        ``pose``: this cycle's arc or turn on the spot; by default the turn from its heading to
+        the path's) and on along the path for the next ``lookahead`` metres (blocked anywhere
+        stops the rover), and for the next ``blind`` metres: the check of that stretch when it
+        covers ground no map has seen, else None. The executed arc cuts the path's corners and
+        a turn on the spot swings the body's corners wide: the planned polyline alone leaves
+        that ground unchecked. The forward view starts about a metre ahead of the rover (1.1 m
+        from its centre at tilt -35 deg), so ground that close and still unseen will not be
+        seen before the body is on it: a rock the rover turned to face, or one round the corner
+        of its path."""
         trav, g = self._check_layer(pose), self.map.geometry
-        check = sweep_check(trav, g, path_poses(pose, remaining, self.p.lookahead), self.length, self.width)
+        lead = np.asarray([pose] if motion is None else motion, dtype=np.float64).reshape(-1, 3)
+
+        def along(distance: float) -> np.ndarray:
+            return np.vstack([lead, path_poses(tuple(lead[-1]), remaining, distance)])
+
+        check = sweep_check(trav, g, along(self.p.lookahead), self.length, self.width)
         if self.p.unseen == "off" or self.p.blind <= 0.0:
             return check, None
-        near = sweep_check(trav, g, path_poses(pose, remaining, self.p.blind), self.length, self.width)
+        near = sweep_check(trav, g, along(self.p.blind), self.length, self.width)
         return check, near if near.verdict == "unknown" else None
 
     def _check_layer(self, pose: tuple[float, float, float]) -> np.ndarray:
@@ -294,11 +305,8 @@ class SeeingDriver:
 
         with world.under_way():
             while True:
-                check, unseen, pose = self.cycle(wps[k:])
+                pose, t1 = self.see(self.pan_tilt)
                 job.check()
-                if check.verdict == "not_traversable":
-                    return DriveOutcome("hazard", k - 1, self._stop_event(check, pose))
-                self._clear()
                 while k <= segments and _passed(pose, wps[k - 1], wps[k]):
                     progress(k, segments, f"segment {k}/{segments} driven", "drive")
                     k += 1
@@ -322,10 +330,18 @@ class SeeingDriver:
                     return DriveOutcome("stalled", k - 1)
                 tx, ty = _pursuit_point(pose, wps, k, self.p.pursuit)
                 w = arc_rate(pose, (tx, ty), model.speed, model.turn_rate, self.p.arc_turn)
+                dt = min(self.p.period, to_end / model.speed)
+                motion = motion_poses(pose, (tx, ty), w, model.speed, dt)
+                check, unseen = self.judge(pose, wps[k:], motion)
+                self.stats.cycles += 1
+                self.stats.cycle_ms.append((time.monotonic() - t1) * 1000)
+                if check.verdict == "not_traversable":
+                    return DriveOutcome("hazard", k - 1, self._stop_event(check, pose))
+                self._clear()
                 # unseen ground ahead: the rover stops and looks (a turn on the spot comes first,
                 # after which that ground lies ahead and the look is a tilt, not a pan)
                 if unseen is not None and w is not None and self.look_at(unseen.worst_x, unseen.worst_y, pose):
-                    check, unseen = self.judge(pose, wps[k:])
+                    check, unseen = self.judge(pose, wps[k:], motion)
                     self.point_forward()
                     if check.verdict == "not_traversable":
                         return DriveOutcome("hazard", k - 1, self._stop_event(check, pose))
@@ -336,7 +352,6 @@ class SeeingDriver:
                 if w is None:
                     world.turn_toward(tx, ty, stop)
                 else:
-                    dt = min(self.p.period, to_end / model.speed)
                     world.drive(model.speed, w, dt, stop, on_step=follow)
                 job.check()
                 world.record_track(track, 0.0)
@@ -637,6 +652,19 @@ def arc_rate(pose: tuple[float, float, float], target: tuple[float, float], spee
     error = (math.degrees(math.atan2(dy, dx)) - pose[2] + 180.0) % 360.0 - 180.0
     w = math.degrees(speed * 2.0 * math.sin(math.radians(error)) / max(math.hypot(dx, dy), 1e-6))
     return None if abs(error) > arc_turn or abs(w) > turn_rate else w
+
+
+def motion_poses(pose: tuple[float, float, float], target: tuple[float, float], w: float | None, speed: float,
+                 dt: float) -> np.ndarray:
+    """The poses the rover passes through in one cycle of :meth:`SeeingDriver.drive`: the arc at
+    turn rate ``w`` (deg/s, :func:`arc_rate`) for ``dt`` seconds at ``speed``, or, with ``w``
+    None, the turn on the spot to face ``target`` (its two end poses; the check sweeps the turn
+    between them in 5-degree steps)."""
+    if w is None:
+        bearing = math.degrees(math.atan2(target[1] - pose[1], target[0] - pose[0]))
+        turn = (bearing - pose[2] + 180.0) % 360.0 - 180.0
+        return np.array([pose, (pose[0], pose[1], pose[2] + turn)], dtype=np.float64)
+    return arc_poses(pose, math.radians(w) / speed, speed * max(dt, 0.0), step=0.05)
 
 
 def _in_rover_frame(pose: tuple[float, float, float], x: float, y: float) -> tuple[float, float]:

@@ -596,3 +596,45 @@ def test_the_pursuit_point_never_falls_behind_the_rover_beside_a_short_side_stre
     assert _in_rover_frame(pose, tx, ty)[0] > 0.25
     # on an ordinary stretch the nearest is the current one: the aim is unchanged
     assert _nearest_stretch((0.5, 0.02, 0.0), wps, 1) == 1
+
+
+def test_the_live_check_sweeps_the_turn_on_the_spot_and_the_arc_the_rover_executes() -> None:
+    """The check swept the planned polyline with each stretch's heading: a turn on the spot at
+    the rover's position (its corners swing out to 0.36 m) and the arc that cuts a corner went
+    unchecked. It now sweeps the motion of the cycle, then the path."""
+    from types import SimpleNamespace
+
+    from prox_workflows.steps.rolling_map import path_poses, sweep_check
+    from rvs_server import autonomy
+    from rvs_server.commands.dem import Dem2HazardConfig
+    from rvs_server.config import HeadConfig
+
+    configs = {"head": HeadConfig(), "dem2hazard": Dem2HazardConfig()}  # body 0.51 x 0.40 m
+    app = SimpleNamespace(config=SimpleNamespace(get=configs.__getitem__),
+                          pose=SimpleNamespace(x=0.0, y=0.0, heading=0.0))
+    params = autonomy.SeeParams(period=1.0, lookahead=1.5, stop_distance=0.0, tilt=-35.0, subsample=2,
+                                max_range=3.0, margin=0.0, replan_ahead=0.0, pursuit=0.3, arc_turn=45.0,
+                                blind=0.8, unseen="off", auto=False)
+    driver = autonomy.SeeingDriver(SimpleNamespace(app=app), params, autonomy.LoopStats())
+    g = driver.map.geometry
+    layer = np.ones(g.shape, np.float32)  # all seen and drivable
+    r, c = g.cell_of(np.array(-0.325), np.array(-0.025))  # behind-right of the body's rear-left corner
+    layer[int(r), int(c)] = 0.0  # a rock only that corner's swing reaches
+    driver._check_layer = lambda pose: layer
+    pose, path = (0.0, 0.0, 0.0), np.array([(0.0, 1.5)])  # the path leaves northward: a quarter turn first
+    # the polyline, as checked before, never touches the rock: not where it stands, not northward
+    assert sweep_check(layer, g, path_poses(pose, path, 1.5), driver.length, driver.width).verdict == "ok"
+    turn = autonomy.motion_poses(pose, (0.0, 0.3), None, 0.1, 1.0)
+    assert turn[-1] == pytest.approx((0.0, 0.0, 90.0))
+    assert driver.judge(pose, path, turn)[0].verdict == "not_traversable"
+    assert driver.judge(pose, path)[0].verdict == "not_traversable"  # a GNC's pose: the turn to the path
+    # an arc that cuts inside a corner of the path (east to x = 1, then north) swings its tail out
+    arc = autonomy.motion_poses((0.8, 0.0, 0.0), (1.0, 0.22), 20.0, 0.1, 1.0)
+    assert arc[-1][2] == pytest.approx(20.0) and arc[-1][1] > 0.0 and arc[-1][0] < 0.9
+    corner = np.array([(1.0, 0.0), (1.0, 1.5)])
+    layer[:] = 1.0
+    r, c = g.cell_of(np.array(0.725), np.array(-0.275))  # where the turning arc swings the tail out
+    layer[int(r), int(c)] = 0.0
+    start = (0.8, 0.0, 0.0)
+    assert sweep_check(layer, g, path_poses(start, corner, 1.5), driver.length, driver.width).verdict == "ok"
+    assert driver.judge(start, corner, arc)[0].verdict == "not_traversable"
