@@ -19,7 +19,7 @@ from drivers.registry import DEVICE_KINDS, registry
 from .. import PROTOCOL_VERSION, __version__
 from ..app import Context
 from ..config import ModuleConfig, param
-from ..jobs import Job
+from ..jobs import HISTORY, Job
 from ..protocol import Fixed, Group, ProtocolError, render_value
 from ..table import ALWAYS, COMMANDS, CONTROL, command, lookup
 
@@ -56,6 +56,13 @@ class PoseConfig(ModuleConfig):
     y: float = param(float("nan"), "rover y in the global frame", unit="m", min=-1e6, max=1e6)
     heading: float = param(float("nan"), "rover heading, counter-clockwise from +x", unit="deg", min=-360.0, max=360.0)
     stopped: bool = param(False, "the rover stands still here: ends a navigate wait short of the leg's end")
+
+
+@dataclass
+class StatusConfig(ModuleConfig):
+    module: ClassVar[str] = "status"
+    job: int | None = param(None, f"a job id: how it runs, or how it ended (its final line; the last {HISTORY} "
+                            "jobs are kept)", min=1, max=2**31 - 1)
 
 
 @dataclass
@@ -258,9 +265,12 @@ def _show(value: Any) -> str:
     return render_value(value) if value != "" else ""
 
 
-@command("status", klass=ALWAYS, help="mode, running job, pose, devices and connections")
-def status(ctx: Context, cfg: None) -> dict[str, Any]:
+@command("status", klass=ALWAYS, config=StatusConfig,
+         help="mode, running job, pose, devices and connections; -job N: how job N runs or how it ended")
+def status(ctx: Context, cfg: StatusConfig) -> dict[str, Any]:
     app = ctx.app
+    if cfg.job is not None:
+        return _job_status(app, cfg.job)
     job = app.jobs.current
     out: dict[str, Any] = {"mode": app.mode, "job": job.id if job else None}
     if job is not None:
@@ -282,6 +292,13 @@ def status(ctx: Context, cfg: None) -> dict[str, Any]:
     out["clients"] = len(app.connections)
     out["uptime"] = Fixed(time.monotonic() - app.started, 1)
     out["recovery"] = app.last_recovery
+    # How the last job ended: a client that lost its connection meanwhile learns it here
+    # (status -job N for the whole final line).
+    last = next(reversed(app.jobs.history.values()), None)
+    out["last_job"] = last.id if last else None
+    if last is not None:
+        out["last_job_command"] = last.command
+        out["last_job_outcome"] = "OK" if last.status == "OK" else last.fields.get("code", "ERROR")
     from ..web.console import console_fields  # console=on console_url, or off console_reason
 
     out.update(console_fields(app))
@@ -293,6 +310,28 @@ def status(ctx: Context, cfg: None) -> dict[str, Any]:
         out["sim_time"] = Fixed(t["sim_time"], 3)
     out.update(app.monitors.status_fields())
     return out
+
+
+def _job_status(app: App, job_id: int) -> dict[str, Any]:
+    """One job: its progress while it runs; once ended, its final line's status and fields
+    under ``final`` (text: ``final_status=ERROR final_code=E_INTERRUPTED ...``)."""
+    job = app.jobs.current
+    if job is not None and job.id == job_id:
+        out: dict[str, Any] = {"job": job.id, "job_command": job.command, "job_tag": job.tag, "job_state": "running"}
+        if job.phase:
+            out["phase"] = job.phase
+        out["progress"] = f"{job.done}/{job.total}"
+        out["job_seconds"] = Fixed(time.monotonic() - job.started, 1)
+        return out
+    rec = app.jobs.record(job_id)
+    if rec is None:
+        newest = app.jobs.issued
+        if job_id > newest:
+            raise ProtocolError("E_DATA", f"there is no job {job_id}: the newest is {newest or 'none'}")
+        raise ProtocolError("E_DATA", f"job {job_id} ended before the last {HISTORY} jobs the server keeps; "
+                                      "its products, if any, are on disk and in the log")
+    return {"job": rec.id, "job_command": rec.command, "job_tag": rec.tag, "job_state": rec.status.lower(),
+            "job_seconds": Fixed(rec.seconds, 1), "final": {"status": rec.status, **rec.fields}}
 
 
 @command("version", klass=ALWAYS, open=True, help="server, protocol and Python versions")
