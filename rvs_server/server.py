@@ -248,14 +248,32 @@ def warm_up_kernels() -> None:
         log.warning("kernels_not_compiled", error=str(exc))
 
 
+def freeze_start_heap() -> None:
+    """Take what the start made out of the cyclic collector's walks. A full collection walks
+    every tracked object with the GIL held: the start leaves some 160,000 (modules, numba's
+    dispatchers, devices, the scene), a walk of 60-110 ms on the development machine every few
+    minutes of jobs, that held status and every other connection up meanwhile. Frozen, a full collection walks only what was made since. The start's objects live as long
+    as the server; one of them in a reference cycle let go while it runs (a replaced scene) stays
+    until it stops, when :func:`serve` unfreezes them (a process may start another server)."""
+    gc.collect()
+    gc.freeze()
+
+
 WARM_UP_THREAD = "rvs-warm-up"
 
 
-def start_warm_up() -> None:
+def start_warm_up(stopping: asyncio.Event | None = None) -> None:
     """Warm the kernels up in a daemon thread of its own, not in the loop's executor: a compile
     cannot be cancelled, and asyncio.run joins the executor's threads at exit, so a Ctrl-C in
-    the first seconds would wait (10-20 s, silently) for a compile nobody needs any more."""
-    threading.Thread(target=warm_up_kernels, name=WARM_UP_THREAD, daemon=True).start()
+    the first seconds would wait (10-20 s, silently) for a compile nobody needs any more. Then
+    the start's heap is frozen, unless the server already stops (its unfreeze may be done)."""
+
+    def work() -> None:
+        warm_up_kernels()
+        if stopping is None or not stopping.is_set():
+            freeze_start_heap()
+
+    threading.Thread(target=work, name=WARM_UP_THREAD, daemon=True).start()
 
 
 def kernels_warming() -> bool:
@@ -310,7 +328,7 @@ async def serve(app: App, sock: socket.socket, *, ready: Any = None, handle_sign
             log.warning("web_console_off", reason=app.console_off)
     server = await loop.create_server(lambda: Connection(app), sock=sock, backlog=512)
     if app.server_cfg.warm_up and not app.stopping.is_set():
-        start_warm_up()  # the first DEM or plan then skips the JIT
+        start_warm_up(app.stopping)  # the first DEM or plan then skips the JIT
     if ready is not None:
         ready(bound[1])
     try:
@@ -328,6 +346,7 @@ async def serve(app: App, sock: socket.socket, *, ready: Any = None, handle_sign
         app.jobs.shutdown()
         await loop.run_in_executor(None, app.stop_monitors)
         await loop.run_in_executor(None, app.devices.close)
+        gc.unfreeze()  # what freeze_start_heap kept from the collector goes back to it: this server is let go
         if handle_signals:
             for sig in (signal.SIGINT, signal.SIGTERM):
                 try:
