@@ -533,12 +533,9 @@ def test_the_memory_keeps_a_dead_end_after_it_scrolls_off_the_rolling_map() -> N
     assert memory.hazard[int(r), int(c)] == SAFE
 
 
-def test_the_check_takes_only_the_ground_under_the_body_as_seen_not_its_turning_disc() -> None:
-    """The ground the rover stands on counts as seen, whatever the maps hold. It used to be the
-    disc the body sweeps turning on the spot: that disc also holds ground beside the body that
-    the forward ToF never showed. In hirise mission 4 the rover turned beside a rock's flank and
-    drove over 364 true hazard cells no frame had seen, and the unseen check never looked at
-    them. Now only the body's own rectangle counts (the cells the check's footprint touches)."""
+def _standing_driver(unseen: str) -> Any:
+    """A see loop's driver on its own (no server, no devices): the rover at the origin facing
+    east, the default body (0.51 x 0.40 m) with no margin, an empty rolling map."""
     from types import SimpleNamespace
 
     from rvs_server import autonomy
@@ -550,8 +547,17 @@ def test_the_check_takes_only_the_ground_under_the_body_as_seen_not_its_turning_
                           pose=SimpleNamespace(x=0.0, y=0.0, heading=0.0))
     params = autonomy.SeeParams(period=1.0, lookahead=1.5, stop_distance=0.0, tilt=-35.0, subsample=2,
                                 max_range=3.0, margin=0.0, replan_ahead=0.0, pursuit=0.3, arc_turn=45.0,
-                                blind=0.8, unseen="look", auto=False)
-    driver = autonomy.SeeingDriver(SimpleNamespace(app=app), params, autonomy.LoopStats())
+                                blind=0.8, unseen=unseen, auto=False)
+    return autonomy.SeeingDriver(SimpleNamespace(app=app), params, autonomy.LoopStats())
+
+
+def test_the_check_takes_only_the_ground_under_the_body_as_seen_not_its_turning_disc() -> None:
+    """The ground the rover stands on counts as seen, whatever the maps hold. It used to be the
+    disc the body sweeps turning on the spot: that disc also holds ground beside the body that
+    the forward ToF never showed. In hirise mission 4 the rover turned beside a rock's flank and
+    drove over 364 true hazard cells no frame had seen, and the unseen check never looked at
+    them. Now only the body's own rectangle counts (the cells the check's footprint touches)."""
+    driver = _standing_driver("look")
     g = driver.map.geometry
 
     def seen(layer: np.ndarray, x: float, y: float) -> bool:
@@ -602,20 +608,10 @@ def test_the_live_check_sweeps_the_turn_on_the_spot_and_the_arc_the_rover_execut
     """The check swept the planned polyline with each stretch's heading: a turn on the spot at
     the rover's position (its corners swing out to 0.36 m) and the arc that cuts a corner went
     unchecked. It now sweeps the motion of the cycle, then the path."""
-    from types import SimpleNamespace
-
     from prox_workflows.steps.rolling_map import path_poses, sweep_check
     from rvs_server import autonomy
-    from rvs_server.commands.dem import Dem2HazardConfig
-    from rvs_server.config import HeadConfig
 
-    configs = {"head": HeadConfig(), "dem2hazard": Dem2HazardConfig()}  # body 0.51 x 0.40 m
-    app = SimpleNamespace(config=SimpleNamespace(get=configs.__getitem__),
-                          pose=SimpleNamespace(x=0.0, y=0.0, heading=0.0))
-    params = autonomy.SeeParams(period=1.0, lookahead=1.5, stop_distance=0.0, tilt=-35.0, subsample=2,
-                                max_range=3.0, margin=0.0, replan_ahead=0.0, pursuit=0.3, arc_turn=45.0,
-                                blind=0.8, unseen="off", auto=False)
-    driver = autonomy.SeeingDriver(SimpleNamespace(app=app), params, autonomy.LoopStats())
+    driver = _standing_driver("off")
     g = driver.map.geometry
     layer = np.ones(g.shape, np.float32)  # all seen and drivable
     r, c = g.cell_of(np.array(-0.325), np.array(-0.025))  # behind-right of the body's rear-left corner
