@@ -23,6 +23,7 @@ from .grid import GridGeometry, Layers, read_geotiff, write_geotiff
 from .mapview import Marks, Style, figure, layer_rgba
 from .products import write_png, write_sidecar
 from .steps import colormaps
+from .steps.dem2hazard import CODES_TEXT, UNDEFINED
 
 CRS = "local: x forward at the start pose, y left, z up (m)"
 
@@ -74,7 +75,7 @@ LAYERS: dict[str, LayerSpec] = {spec.name: spec for spec in (
        cv2.COLORMAP_INFERNO, threshold="step_max"),
     _L("roughness", "m", "float32", None, "standard deviation of the window's cells about the fitted plane",
        cv2.COLORMAP_INFERNO, threshold="roughness_max"),
-    _L("hazard", "class", "uint8", 128.0, "0 safe, 128 undefined, 255 hazardous (any criterion past its threshold)",
+    _L("hazard", "class", "uint8", float(UNDEFINED), f"{CODES_TEXT} (any criterion past its threshold)",
        None, preview="classes"),
     # green good, red bad
     _L("traversability", "0..1", "float32", None, "1 easy, 0 impassable: weighted sum of 1 - value/threshold per "

@@ -20,6 +20,7 @@ import numpy as np
 
 from .grid import GridGeometry
 from .steps.colormaps import colorize
+from .steps.dem2hazard import HAZARDOUS, SAFE
 
 Colour = tuple[int, int, int]
 
@@ -37,7 +38,7 @@ _FONT = cv2.FONT_HERSHEY_SIMPLEX
 @dataclass(frozen=True)
 class Style:
     """How a layer is coloured: ``kind`` continuous (a colour map over lo..hi, default the 1st..
-    99th percentile), classes (the hazard map's 0/255/128), grey (the ortho-image) or shaded
+    99th percentile), classes (the hazard map's codes), grey (the ortho-image) or shaded
     (continuous over a hillshade: the DEM)."""
 
     kind: str = "continuous"
@@ -91,8 +92,8 @@ def layer_rgba(values: np.ndarray, style: Style, cell: float = 1.0) -> tuple[np.
     defined = np.isfinite(values) if values.dtype.kind == "f" else np.ones(values.shape, bool)
     rgba = np.zeros(values.shape + (4,), np.uint8)
     if style.kind == "classes":
-        rgba[values == 0] = SAFE_RGBA
-        rgba[values == 255] = HAZARD_RGBA
+        rgba[values == SAFE] = SAFE_RGBA
+        rgba[values == HAZARDOUS] = HAZARD_RGBA
         # colours as drawn: RGBA (alpha 0: transparent, shown hatched)
         return rgba, {"kind": "classes", "entries": [[list(SAFE_RGBA), "safe"], [list(HAZARD_RGBA), "hazardous"],
                                                       [[0, 0, 0, 0], "undefined"]]}

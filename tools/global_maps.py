@@ -30,7 +30,7 @@ from drivers.sim.terrain import dtm_crop
 from drivers.sim.world import World
 from prox_workflows.grid import GridGeometry, write_geotiff
 from prox_workflows.products import write_text_atomic
-from prox_workflows.steps.dem2hazard import load_params
+from prox_workflows.steps.dem2hazard import UNDEFINED, load_params
 from prox_workflows.steps.global_map import orbital_hazard
 
 
@@ -72,7 +72,7 @@ def write_global_maps(scene: str, out: Path, slope_max: float | None = None) -> 
     paths = {
         "dem": write_geotiff(out / "dem.tif", dem, geom),
         "slope": write_geotiff(out / "slope.tif", layers["slope"].astype(np.float32), geom),
-        "hazard": write_geotiff(out / "hazard.tif", layers["hazard"].astype(np.uint8), geom, nodata=128),
+        "hazard": write_geotiff(out / "hazard.tif", layers["hazard"].astype(np.uint8), geom, nodata=UNDEFINED),
     }
     import yaml
 

@@ -29,6 +29,7 @@ from rvs_params import SettingError
 
 from ..engine import WorkflowError, run_workflow
 from ..parameters import PlanParams
+from ..steps.dem2hazard import UNDEFINED
 from ..steps.planner import NavMaps, PlannerParams, PlanningError
 from ..steps.readers import read_nav_maps
 from .parser import ToolParser
@@ -60,7 +61,7 @@ def _global_maps(path: Path, origin: tuple[float, float], prefix: str) -> tuple[
     g = load_global(path, origin)
     out = Path(prefix)
     out.parent.mkdir(parents=True, exist_ok=True)
-    hz = write_geotiff(out.with_name(out.name + "_global_hazard.tif"), g.hazard, g.geometry, nodata=128)
+    hz = write_geotiff(out.with_name(out.name + "_global_hazard.tif"), g.hazard, g.geometry, nodata=UNDEFINED)
     sl = write_geotiff(out.with_name(out.name + "_global_slope.tif"), g.slope, g.geometry)
     return Path(hz), Path(sl)
 

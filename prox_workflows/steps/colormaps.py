@@ -17,6 +17,9 @@ from collections.abc import Sequence
 import cv2
 import numpy as np
 
+from .dem2hazard import HAZARDOUS, SAFE
+from .dem2hazard import UNDEFINED as UNDEFINED_CODE
+
 Colour = tuple[int, int, int]
 
 BLACK: Colour = (0, 0, 0)
@@ -25,9 +28,9 @@ GREY: Colour = (128, 128, 128)
 UNDEFINED: Colour = GREY
 
 HAZARD_CLASSES: tuple[tuple[int, Colour, str], ...] = (
-    (0, BLACK, "safe"),
-    (255, WHITE, "hazardous"),
-    (128, GREY, "undefined"),
+    (SAFE, BLACK, "safe"),
+    (HAZARDOUS, WHITE, "hazardous"),
+    (UNDEFINED_CODE, GREY, "undefined"),
 )
 
 _FONT = cv2.FONT_HERSHEY_SIMPLEX

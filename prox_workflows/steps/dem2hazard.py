@@ -57,12 +57,15 @@ from ..grid import Layers
 
 CONFIG_PATH = Path(__file__).resolve().parents[2] / "config" / "dem2hazard.yaml"
 
+# the hazard map's classes (the thesis's black / grey / white); every reader of a hazard map asks these
 SAFE = 0
 UNDEFINED = 128
 HAZARDOUS = 255
+CODES = (SAFE, UNDEFINED, HAZARDOUS)
+CODES_TEXT = f"{SAFE} safe, {UNDEFINED} undefined, {HAZARDOUS} hazardous"
 
 LAYERS = ("slope", "roughness", "step", "hazard", "traversability")
-UNITS = {"slope": "deg", "roughness": "m", "step": "m", "hazard": "0 safe, 128 undefined, 255 hazardous",
+UNITS = {"slope": "deg", "roughness": "m", "step": "m", "hazard": CODES_TEXT,
          "traversability": "0..1"}
 
 _STRIP_ROWS = 128  # rows per strip (plus halo): a strip's float64 temporaries stay in cache

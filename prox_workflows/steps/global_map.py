@@ -24,7 +24,7 @@ from pathlib import Path
 import numpy as np
 
 from ..grid import GridGeometry, _is_geographic, epsg_code, read_geotiff
-from .dem2hazard import dem2hazard, load_params
+from .dem2hazard import CODES, dem2hazard, load_params
 
 
 @dataclass
@@ -49,8 +49,8 @@ def orbital_hazard(dem: np.ndarray, cell: float, slope_max: float | None = None)
 
 
 def is_hazard_map(values: np.ndarray) -> bool:
-    """A uint8 raster holding only 0, 128 and 255 is a hazard map, not heights."""
-    return values.dtype == np.uint8 and set(np.unique(values).tolist()) <= {0, 128, 255}
+    """A uint8 raster holding only the hazard codes is a hazard map, not heights."""
+    return values.dtype == np.uint8 and set(np.unique(values).tolist()) <= set(CODES)
 
 
 def load_global(path: str | Path, origin: tuple[float, float] = (0.0, 0.0),

@@ -31,6 +31,7 @@ import numpy as np
 from scipy import ndimage, optimize
 
 from ..grid import GridGeometry, Layers
+from .dem2hazard import UNDEFINED
 
 
 @dataclass(frozen=True)
@@ -265,7 +266,7 @@ def transform_layers(layers: Layers, pivot: tuple[float, float], dx: float, dy: 
     """The layers moved by the rigid motion of a match (rotation ``dyaw`` about ``pivot``, then
     ``dx, dy``), resampled nearest-neighbour onto the same grid: a DEM placed with a drifted pose
     becomes one placed with the corrected pose, so the plan made on it and the corrected pose
-    agree. Cells moved in from outside the grid are undefined (NaN, or 128 for uint8 maps)."""
+    agree. Cells moved in from outside the grid are undefined (:func:`undefined_fill`)."""
     g = layers.geometry
     xs, ys = g.centers()
     X, Y = np.meshgrid(xs, ys)
@@ -279,20 +280,19 @@ def transform_layers(layers: Layers, pivot: tuple[float, float], dx: float, dy: 
     out = Layers(g, meta=dict(layers.meta))
     for name, arr in layers.layers.items():
         moved = arr[rr, cc]
-        fill: float = 128 if arr.dtype == np.uint8 else (np.nan if np.issubdtype(arr.dtype, np.floating) else 0)
         if arr.ndim == 3:
             moved[~inside] = 0
         else:
-            moved = np.where(inside, moved, np.asarray(fill, dtype=arr.dtype)).astype(arr.dtype)
+            moved = np.where(inside, moved, undefined_fill(arr)).astype(arr.dtype)
         out.layers[name] = moved
     return out
 
 
 def undefined_fill(arr: np.ndarray) -> np.ndarray:
-    """The fill of an undefined cell of a layer: NaN, 128 for a uint8 map (hazard's grey), 0 else."""
+    """The fill of an undefined cell of a layer: NaN, the hazard map's UNDEFINED for a uint8 map, 0 else."""
     if np.issubdtype(arr.dtype, np.floating):
         return np.asarray(np.nan, arr.dtype)
-    return np.asarray(128 if arr.dtype == np.uint8 and arr.ndim == 2 else 0, arr.dtype)
+    return np.asarray(UNDEFINED if arr.dtype == np.uint8 and arr.ndim == 2 else 0, arr.dtype)
 
 
 def overlay_layers(base: Layers | None, top: Layers) -> Layers:

@@ -77,10 +77,7 @@ from scipy import ndimage
 from ..engine import step
 from ..grid import GridGeometry
 from ..mapview import Marks
-
-SAFE = 0
-UNDEFINED = 128
-HAZARDOUS = 255
+from .dem2hazard import HAZARDOUS, SAFE, UNDEFINED
 
 HEURISTICS = {"euclidean": 0, "manhattan": 1, "octile": 2, "chebyshev": 3}
 SQRT2 = math.sqrt(2.0)

@@ -23,6 +23,7 @@ from ..layers import read_layers as _read_layers
 from ..pointcloud import read_las
 from ..pointcloud import read_points as _read_points
 from .acquire import AUX_SUFFIX, View, view_from_images
+from .dem2hazard import CODES, UNDEFINED
 from .noise import tof_sigma
 from .transforms import read_cal
 
@@ -198,7 +199,7 @@ def read_global_maps(hazard: str | Path | None, slope: str | Path | None) -> Any
 
 @step("read_nav_maps", inputs={"hazard": "path", "slope": "path"}, outputs={"maps": "NavMaps"})
 def read_nav_maps(hazard: str | Path, slope: str | Path) -> Any:
-    """A hazard map (0 / 128 / 255) and its slope map (degrees) on the same grid, as the planner
+    """A hazard map (dem2hazard's CODES) and its slope map (degrees) on the same grid, as the planner
     takes them."""
     from .planner import NavMaps
 
@@ -207,10 +208,10 @@ def read_nav_maps(hazard: str | Path, slope: str | Path) -> Any:
     if hgeom != sgeom:
         raise ValueError(f"{hazard} and {slope} are on different grids ({hgeom} vs {sgeom})")
     if np.issubdtype(hz.dtype, np.floating):
-        hz = np.where(np.isnan(hz), 128, hz)
+        hz = np.where(np.isnan(hz), UNDEFINED, hz)
     values = set(np.unique(hz).tolist())
-    if not values <= {0, 128, 255}:
-        raise ValueError(f"{hazard}: a hazard map holds 0, 128 and 255 only, found {sorted(values)[:8]}")
+    if not values <= set(CODES):
+        raise ValueError(f"{hazard}: a hazard map holds {', '.join(map(str, CODES))} only, found {sorted(values)[:8]}")
     return NavMaps(hz.astype(np.uint8), sl.astype(np.float32), hgeom)
 
 

@@ -43,7 +43,7 @@ from scipy import ndimage
 
 from drivers.sim.world import World
 from prox_workflows.grid import GridGeometry
-from prox_workflows.steps.dem2hazard import HazardParams, classify, dem2hazard
+from prox_workflows.steps.dem2hazard import HAZARDOUS, SAFE, UNDEFINED, HazardParams, classify, dem2hazard
 from prox_workflows.steps.safety import check_move
 from rvs_server.client.session import ServerThread
 from rvs_server.protocol import Reply, parse_reply
@@ -101,7 +101,7 @@ def missions(scene: str, count: int, seed: int = 0) -> list[tuple[tuple[float, f
     """``count`` seeded (start, goal) pairs 15-20 m apart, both >= 1 m from every true hazard."""
     world = World.from_scene(scene)
     hazard, _, g = true_hazard(world, AREA[scene])
-    clear = (ndimage.distance_transform_edt(hazard != 255) * g.cell >= 1.0) & (hazard == 0)
+    clear = (ndimage.distance_transform_edt(hazard != HAZARDOUS) * g.cell >= 1.0) & (hazard == SAFE)
     rows, cols = np.nonzero(clear)
     xs, ys = g.centers()
     rng = np.random.default_rng(seed)
@@ -180,7 +180,7 @@ def ceiling_layers(fine: np.ndarray, g: GridGeometry, box: int) -> dict[str, np.
     params = HazardParams()
     mean = fine.reshape(g.height, 5, g.width, 5).mean(axis=(1, 3)).astype(np.float32)
     out = dem2hazard(mean, g.cell, params)
-    layers = {"slope": out["slope"], "roughness": out["roughness"], "step": out["step"], "valid": out["hazard"] != 128}
+    layers = {"slope": out["slope"], "roughness": out["roughness"], "step": out["step"], "valid": out["hazard"] != UNDEFINED}
     if box > 0:
         half = params.window_cells(g.cell) // 2 * 5
         kernel = np.ones((2 * half + 1, 2 * half + 1), np.uint8)
