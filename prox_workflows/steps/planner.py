@@ -400,11 +400,15 @@ def grid_graph(cost: np.ndarray, *, orth: float = 1.0, diag: float = SQRT2, shar
 
 @dataclass
 class NavMaps:
-    """A hazard map (0 / 128 / 255) and a slope map (degrees, NaN undefined) on one geometry."""
+    """A hazard map (0 / 128 / 255) and a slope map (degrees, NaN undefined) on one geometry;
+    ``whole`` marks the cells whose verdict rests on a wholly seen hazard window (None: all do,
+    as in a map made from a finished DEM), so that merging maps can tell a safe verdict that
+    may have missed a rock from one that cannot."""
 
     hazard: np.ndarray
     slope: np.ndarray
     geometry: GridGeometry
+    whole: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         self.hazard = np.asarray(self.hazard)

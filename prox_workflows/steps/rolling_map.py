@@ -83,14 +83,16 @@ class FuseResult:
 
 
 class MapMemory:
-    """The rolling map's verdicts for a whole mission: hazard class, slope and the frame that
-    measured each cell, on a fixed grid on the rolling map's lattice (cells off it are not
-    kept). The latest verdict of a cell wins, as in the rolling map itself."""
+    """The rolling map's verdicts for a whole mission: hazard class, slope, whether the verdict
+    rests on a wholly seen window and the frame that measured each cell, on a fixed grid on the
+    rolling map's lattice (cells off it are not kept). The latest verdict of a cell wins, but
+    for :func:`overrides`: a safe verdict from a partly seen window never erases a hazard."""
 
     def __init__(self, geometry: GridGeometry) -> None:
         self.geometry = geometry
         self.hazard = np.full(geometry.shape, UNDEFINED, np.uint8)
         self.slope = np.full(geometry.shape, np.nan, np.float32)
+        self.whole = np.zeros(geometry.shape, bool)
         self.stamp = np.zeros(geometry.shape, np.int32)
 
     @classmethod
@@ -113,19 +115,28 @@ class MapMemory:
             return
         src = (slice(r0 - dr, r1 - dr), slice(c0 - dc, c1 - dc))
         dst = (slice(r0, r1), slice(c0, c1))
-        seen = (m.hazard[src] != UNDEFINED) & (m.stamp[src] > 0)
-        self.hazard[dst][seen] = m.hazard[src][seen]
-        self.slope[dst][seen] = m.slope[src][seen]
-        self.stamp[dst][seen] = m.stamp[src][seen]
+        take = (m.stamp[src] > 0) & overrides(self.hazard[dst], m.hazard[src], m.whole[src])
+        for name in ("hazard", "slope", "whole", "stamp"):
+            getattr(self, name)[dst][take] = getattr(m, name)[src][take]
 
     def move(self, pivot: tuple[float, float], dx: float, dy: float, dyaw: float, since: int) -> None:
         """Move the verdicts of frames after ``since`` by a pose fix, as :meth:`RollingMap.move`
         moves the heights: they were placed with the pose the fix corrects."""
-        move_since(self, ("hazard", "slope", "stamp"), since, pivot, dx, dy, dyaw)
+        move_since(self, ("hazard", "slope", "whole", "stamp"), since, pivot, dx, dy, dyaw)
 
     def nav_maps(self) -> NavMaps:
         """The kept verdicts as the planner takes them."""
-        return NavMaps(self.hazard.copy(), self.slope.copy(), self.geometry)
+        return NavMaps(self.hazard.copy(), self.slope.copy(), self.geometry, self.whole.copy())
+
+
+def overrides(old: np.ndarray, new: np.ndarray, whole: np.ndarray | None) -> np.ndarray:
+    """Where a later verdict ``new`` replaces ``old``: wherever it has one, except that a safe
+    verdict from a partly seen window (``whole`` false) never erases a hazard. Dem2Hazard judges
+    a window from its seen cells alone, so such a "safe" may simply not have seen the rock that
+    made the earlier verdict; a wholly seen window has, and stands either way."""
+    if whole is None:
+        return new != UNDEFINED
+    return (new != UNDEFINED) & ~((old == HAZARDOUS) & (new == SAFE) & ~whole)
 
 
 class RollingMap:
@@ -148,6 +159,7 @@ class RollingMap:
         self.hazard = np.full(shape, UNDEFINED, np.uint8)
         self.slope = np.full(shape, np.nan, np.float32)
         self.traversability = np.full(shape, np.nan, np.float32)
+        self.whole = np.zeros(shape, bool)  # the cell's hazard window is seen in every cell
         self.frames = 0
         self.last_offset = 0.0  # the last frame's height offset to the map (m)
         self._half = hazard.window_cells(params.cell) // 2 + 1  # cells a change reaches in the hazard layers
@@ -175,7 +187,8 @@ class RollingMap:
         dc = int(round((new.xmin - self.geometry.xmin) / new.cell))
         dr = int(round((self.geometry.ymax - new.ymax) / new.cell))
         for name, fill in (("height", np.nan), ("variance", np.nan), ("count", 0), ("stamp", 0),
-                           ("hazard", UNDEFINED), ("slope", np.nan), ("traversability", np.nan)):
+                           ("hazard", UNDEFINED), ("slope", np.nan), ("traversability", np.nan),
+                           ("whole", False)):
             setattr(self, name, _shift(getattr(self, name), dr, dc, fill))
         self.geometry = new
         # cells that were at the old border had hazard verdicts from a partial window: redo them
@@ -239,6 +252,8 @@ class RollingMap:
         self.hazard[a0:a1, b0:b1] = out["hazard"][inner]
         self.slope[a0:a1, b0:b1] = out["slope"][inner]
         self.traversability[a0:a1, b0:b1] = out["traversability"][inner]
+        self.whole[a0:a1, b0:b1] = whole_windows(self.height[i0:i1, j0:j1],
+                                                 self.hazard_params.window_cells(self.params.cell))[inner]
 
     def remember(self) -> None:
         """Put the current verdicts into the memory (if any): before a shift, and before the
@@ -272,7 +287,7 @@ class RollingMap:
 
     def nav_maps(self) -> NavMaps:
         """The hazard and slope layers as the planner takes them."""
-        return NavMaps(self.hazard.copy(), self.slope.copy(), self.geometry)
+        return NavMaps(self.hazard.copy(), self.slope.copy(), self.geometry, self.whole.copy())
 
     def check(self, poses: np.ndarray, length: float, width: float, min_score: float = 0.0) -> MoveCheck:
         """The footprint swept along ``poses`` (x, y, heading deg), as check-move sweeps one motion."""
@@ -289,6 +304,16 @@ class RollingMap:
         hz = np.full(self.geometry.shape, UNDEFINED, np.uint8)
         hz[inside] = maps.hazard[r[inside], c[inside]]
         return np.where(hz == HAZARDOUS, np.float32(0), np.where(hz == SAFE, np.float32(1), np.float32(np.nan)))
+
+
+def whole_windows(dem: np.ndarray, n: int) -> np.ndarray:
+    """Cells whose ``n`` x ``n`` window (Dem2Hazard's) is defined in every cell; cells off the
+    grid count as unseen."""
+    import cv2
+
+    seen = np.isfinite(dem).astype(np.float32)
+    count = cv2.boxFilter(seen, -1, (n, n), normalize=False, borderType=cv2.BORDER_CONSTANT)
+    return count >= n * n - 0.5
 
 
 def move_since(grid: MapMemory | RollingMap, names: tuple[str, ...], since: int, pivot: tuple[float, float],
@@ -364,11 +389,12 @@ def path_poses(pose: tuple[float, float, float], waypoints: np.ndarray, distance
 
 def merge_nav_maps(base: NavMaps, fresh: NavMaps, older: np.ndarray | None = None) -> NavMaps:
     """The scan maps with the rolling map laid over them, on their union grid at ``base``'s cell:
-    the latest measurement of a cell gives its verdict. Where the rolling map measured a cell
-    after the scan, its verdict stands: it saw the cell from within 3 m (see_max_range) while
-    the scan's cells reach 4.5 m, where it misses 11-12 % of the true hazards and calls 5 % of
-    the cells hazardous that are not (hirise, against the truth); kept, a false hazard closed the way
-    to the goal or the goal itself for good (hirise mission 6: goal_in_hazard 1.8 m from a goal
+    the latest measurement of a cell gives its verdict, as :func:`overrides` allows (a partly
+    seen "safe" never erases a hazard). Where the rolling map measured a cell after the scan,
+    its verdict stands: it saw the cell from within 3 m (see_max_range) while the scan's cells
+    reach 4.5 m, where it misses 11-12 % of the true hazards and calls 5 % of the cells
+    hazardous that are not (hirise, against the truth); kept, a false hazard closed the way to
+    the goal or the goal itself for good (hirise mission 6: goal_in_hazard 1.8 m from a goal
     1 m clear of every true hazard). Elsewhere the scan's verdict stands (a rock the scan saw
     and the rolling map has not is still there); the slope is the fresh map's where it has one.
     ``older`` (on ``fresh``'s grid) marks the cells the rolling map last measured before the
@@ -385,15 +411,15 @@ def merge_nav_maps(base: NavMaps, fresh: NavMaps, older: np.ndarray | None = Non
                         m.geometry, g)[0]
 
     def hazard(m: NavMaps) -> np.ndarray:
-        return on_union(np.where(m.hazard == UNDEFINED, np.nan, m.hazard), m)
+        h = on_union(np.where(m.hazard == UNDEFINED, np.nan, m.hazard), m)
+        return np.where(np.isfinite(h), h, UNDEFINED).astype(np.uint8)
 
     bh, fh = hazard(base), hazard(fresh)
     if older is not None:
-        fh = np.where((on_union(older, fresh) > 0.5) & np.isfinite(bh), np.nan, fh)
-    fresh_seen = np.isfinite(fh)
-    hazardous = np.where(fresh_seen, fh == HAZARDOUS, bh == HAZARDOUS)
-    safe = np.where(fresh_seen, fh == SAFE, bh == SAFE)
-    merged = np.where(hazardous, HAZARDOUS, np.where(safe, SAFE, UNDEFINED)).astype(np.uint8)
+        fh = np.where((on_union(older, fresh) > 0.5) & (bh != UNDEFINED), UNDEFINED, fh).astype(np.uint8)
+    whole = None if fresh.whole is None else on_union(fresh.whole, fresh) > 0.5
+    take = overrides(bh, fh, whole)
+    merged = np.where(take, fh, bh).astype(np.uint8)
     fs = on_union(fresh.slope, fresh)
     slope = np.where(np.isfinite(fs), fs, on_union(base.slope, base)).astype(np.float32)
     return NavMaps(merged, slope, g)
