@@ -24,31 +24,12 @@ import math
 
 import numpy as np
 
-try:  # pragma: no branch - numba is a core dependency; the fallback is for broken installs
-    import numba
+from rvs_params.jit import jit
 
-    def _jit(f):  # type: ignore[no-untyped-def]
-        # error_model="numpy": IEEE division (an undetermined plane's det may be 0; its cell is
-        # overwritten with NaN), no zero checks in the loops, which would keep them from vectorising
-        try:  # compiled once, then loaded from numba's cache
-            return numba.njit(cache=True, nogil=True, error_model="numpy")(f)
-        except RuntimeError:  # no writable cache location: compile in each process instead
-            return numba.njit(nogil=True, error_model="numpy")(f)
-
-    def _inline(f):  # type: ignore[no-untyped-def]
-        try:
-            return numba.njit(cache=True, nogil=True, error_model="numpy", inline="always")(f)
-        except RuntimeError:
-            return numba.njit(nogil=True, error_model="numpy", inline="always")(f)
-
-    HAVE_NUMBA = True
-except ImportError:  # pragma: no cover
-    def _jit(f):  # type: ignore[no-untyped-def]
-        return f
-
-    _inline = _jit
-
-    HAVE_NUMBA = False
+# error_model="numpy": IEEE division (an undetermined plane's det may be 0; its cell is
+# overwritten with NaN), no zero checks in the loops, which would keep them from vectorising
+_jit = jit(error_model="numpy")
+_inline = jit(error_model="numpy", inline="always")
 
 
 # Cephes' atan (S. Moshier, netlib cephes/atan.c): a rational approximation after reducing the

@@ -28,31 +28,12 @@ import math
 
 import numpy as np
 
+from rvs_params.jit import jit
+
 INF = 1 << 62  # no path; every real cost stays below 2**61 (see replan._Scale)
 
-try:  # pragma: no branch - numba is a core dependency; the fallback is for broken installs
-    import numba
-
-    def _jit(f):  # type: ignore[no-untyped-def]
-        try:  # compiled once, then loaded from numba's cache
-            return numba.njit(cache=True, nogil=True)(f)
-        except RuntimeError:  # no writable cache location: compile in each process instead
-            return numba.njit(nogil=True)(f)
-
-    def _inline(f):  # type: ignore[no-untyped-def]
-        try:
-            return numba.njit(cache=True, nogil=True, inline="always")(f)
-        except RuntimeError:
-            return numba.njit(nogil=True, inline="always")(f)
-
-    HAVE_NUMBA = True
-except ImportError:  # pragma: no cover
-    def _jit(f):  # type: ignore[no-untyped-def]
-        return f
-
-    _inline = _jit
-
-    HAVE_NUMBA = False
+_jit = jit()
+_inline = jit(inline="always")
 
 
 @_jit

@@ -52,6 +52,7 @@ import numpy as np
 import yaml
 
 from rvs_params import Settings, param
+from rvs_params.jit import HAVE_NUMBA
 
 from ..grid import Layers
 
@@ -227,12 +228,10 @@ def _plane_kernel() -> Callable[..., None] | None:
         return None
     with _kernel_lock:
         if not _kernel_made:
-            try:
-                from . import _dem2hazard_kernel as kern
-            except ImportError:  # pragma: no cover - numba is a core dependency
+            if not HAVE_NUMBA:  # pragma: no cover - numba is a core dependency
                 return None
-            if not kern.HAVE_NUMBA:  # pragma: no cover
-                return None
+            from . import _dem2hazard_kernel as kern
+
             _kernel_made.append(kern.plane_rows)
     return _kernel_made[0]
 

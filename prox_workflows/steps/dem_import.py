@@ -42,7 +42,6 @@ same dtype), so points on a cell border land where ``cell_of`` says, whatever th
 
 from __future__ import annotations
 
-import importlib.util
 import math
 import os
 import threading
@@ -51,6 +50,8 @@ from concurrent.futures import ThreadPoolExecutor
 from typing import Any
 
 import numpy as np
+
+from rvs_params.jit import HAVE_NUMBA, jit
 
 from ..engine import step
 from ..grid import GridGeometry, Layers
@@ -618,14 +619,6 @@ def _finish_kernel(acc, clo, chi, block, z0, want_min, want_count, want_moments,
                         u[j] = 0.0
 
 
-def _find_numba() -> bool:
-    try:
-        return importlib.util.find_spec("numba") is not None
-    except (ImportError, ValueError):
-        return False
-
-
-HAVE_NUMBA = _find_numba()
 _compiled: dict[str, Any] = {}  # the compiled kernels, made on first use (importing numba takes ~0.3 s)
 _compile_lock = threading.Lock()
 _pool_made: list[ThreadPoolExecutor] = []  # the worker that takes the second part of the grid
@@ -647,13 +640,8 @@ def _kernels() -> dict[str, Any] | None:
         return None
     with _compile_lock:
         if not _compiled:
-            import numba
-
             for name, fn in (("accumulate", _accumulate_kernel), ("finish", _finish_kernel)):
-                try:  # cached beside this file (or in NUMBA_CACHE_DIR)
-                    _compiled[name] = numba.njit(cache=True, nogil=True, error_model="numpy")(fn)
-                except RuntimeError:  # no writable cache location: compile in each process instead
-                    _compiled[name] = numba.njit(cache=False, nogil=True, error_model="numpy")(fn)
+                _compiled[name] = jit(fn, error_model="numpy")
     return _compiled
 
 

@@ -64,7 +64,6 @@ results, two orders of magnitude slower.
 
 from __future__ import annotations
 
-import importlib.util
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass, field
@@ -73,6 +72,8 @@ from typing import Any
 import cv2
 import numpy as np
 from scipy import ndimage
+
+from rvs_params.jit import HAVE_NUMBA, jit
 
 from ..engine import step
 from ..grid import GridGeometry
@@ -243,33 +244,18 @@ def _astar_kernel(k, width, start, goal, c_orth, c_diag, share, corner, htype, h
     return found, expanded
 
 
-def _find_numba() -> bool:
-    try:
-        return importlib.util.find_spec("numba") is not None
-    except (ImportError, ValueError):
-        return False
-
-
-HAVE_NUMBA = _find_numba()
 _compiled: list[Any] = []  # the compiled kernel, made on first use (importing numba takes ~0.3 s)
 
 
 def _compiled_kernel() -> Any:
     """numba's compiled kernel; the plain-Python one (with a warning) when numba is missing."""
     if not _compiled:
-        try:
-            import numba
-        except ImportError:  # pragma: no cover - exercised only where numba is missing
+        if not HAVE_NUMBA:  # pragma: no cover - exercised only where numba is missing
             import warnings
 
             warnings.warn("numba is not installed: the path planner's A* runs as plain Python, about "
                           "100x slower", RuntimeWarning, stacklevel=3)
-            _compiled.append(_astar_kernel)
-            return _astar_kernel
-        try:  # compiled once, then loaded from numba's cache (beside this file or the user's)
-            _compiled.append(numba.njit(cache=True, nogil=True)(_astar_kernel))
-        except RuntimeError:  # no writable cache location: compile in each process instead
-            _compiled.append(numba.njit(cache=False, nogil=True)(_astar_kernel))
+        _compiled.append(jit(_astar_kernel))
     return _compiled[0]
 
 
