@@ -279,7 +279,7 @@ class SeeingDriver:
             self.see(self.pan_tilt)
             self.job.check()
 
-    def drive(self, waypoints: np.ndarray, track: list[tuple[float, float]], progress: Any,
+    def drive(self, waypoints: np.ndarray, track: list[tuple[float, float, float]], progress: Any,
               allow_ahead: bool, strict: bool = True) -> DriveOutcome:
         """Drive ``waypoints`` (k x 2, the first is where the rover is) steering by odometry,
         checking every cycle. The rover steers at the point ``pursuit`` metres ahead on the path
@@ -350,13 +350,13 @@ class SeeingDriver:
                                    f"{self.p.blind:g} m unseen", "stop")
                     return DriveOutcome("unseen", k - 1)
                 if w is None:
-                    world.turn_toward(tx, ty, stop)
+                    world.turn_toward(tx, ty, stop, on_step=follow)
                 else:
                     world.drive(model.speed, w, dt, stop, on_step=follow)
                 job.check()
-                world.record_track(track, 0.0)
+                world.record_track(track, 0.0, 0.0)
 
-    def watch(self, waypoints: np.ndarray, track: list[tuple[float, float]], progress: Any, version: int,
+    def watch(self, waypoints: np.ndarray, track: list[tuple[float, float, float]], progress: Any, version: int,
               cfg: Any) -> DriveOutcome:
         """The GNC drives ``waypoints`` and streams its pose: each report is a cycle (a forward
         frame fused at the reported pose, the footprint checked along the rest of the leg). A
@@ -373,7 +373,7 @@ class SeeingDriver:
 
         def on_pose(p: Any) -> None:
             nonlocal k, hazard
-            track.append((p.x, p.y))
+            track.append((p.x, p.y, p.heading))
             while k < segments and _passed((p.x, p.y, p.heading), wps[k - 1], wps[k]):
                 progress(k, segments, f"segment {k}/{segments} driven", "drive")
                 k += 1
@@ -385,7 +385,7 @@ class SeeingDriver:
                 self._clear()
 
         arrived = wait_for_rover(self.app, self.job, version, end, cfg, on_pose)
-        track.append((arrived.x, arrived.y))
+        track.append((arrived.x, arrived.y, arrived.heading))
         if hazard is not None:
             return DriveOutcome("hazard", k - 1, hazard)
         progress(segments, segments, f"rover stopped at ({arrived.x:.2f}, {arrived.y:.2f})", "drive")
@@ -549,7 +549,7 @@ class SeeLoop:
         finally:
             self.stats.replan_ms.append((time.monotonic() - t0) * 1000)
 
-    def drive_leg(self, leg: int, plan: Any, track: list[tuple[float, float]]) -> None:
+    def drive_leg(self, leg: int, plan: Any, track: list[tuple[float, float, float]]) -> None:
         """Drive one leg's waypoints while seeing (the simulated rover with -auto: the pose is its
         odometry afterwards; else the GNC, whose pose reports are the cycles)."""
         job, app = self.job, self.app
@@ -582,7 +582,7 @@ class SeeLoop:
             self.last_end = None
         self.localise(leg, track[start_of_leg:])
 
-    def localise(self, leg: int, driven: list[tuple[float, float]]) -> None:
+    def localise(self, leg: int, driven: list[tuple[float, float, float]]) -> None:
         """Dead reckoning's sigma grows with the leg, whatever -localise says. With ``map`` or
         ``both``, every ``see_localise_every`` metres and after every leg closer than that to the
         goal, what the rolling map saw since the last fix is matched on the global DEM, and a
@@ -597,7 +597,7 @@ class SeeLoop:
         slip; frames taken at one pose share one error, which the match measures whole. Where the
         look shows too little relief to match, the strip is matched as on the way."""
         loc = self.localiser
-        dist = loc.after_drive(self.job, np.asarray(driven))
+        dist = loc.after_drive(self.job, np.asarray(driven).reshape(-1, 3)[:, :2])
         if not loc.uses_map:
             return
         self.since_fix += dist

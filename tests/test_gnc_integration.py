@@ -150,7 +150,7 @@ def test_stopped_ends_the_wait_and_two_rescans_from_one_spot_are_e_data(server_f
     # the failed navigate still leaves the track the rover drove (here: stopped where it started)
     assert "the track so far: nav/stuck_track.csv" in final.fields["message"]
     rows = (srv.data / "nav" / "stuck_track.csv").read_text().splitlines()
-    assert rows[0] == "x,y" and len(rows) >= 3 and set(rows[1:]) == {"0.0000,0.0000"}
+    assert rows[0] == "x,y,heading" and len(rows) >= 3 and set(rows[1:]) == {"0.0000,0.0000,0.00"}
 
 
 # ------------------------------------------------------------------ 3. telnet's Ctrl-C, exit

@@ -267,6 +267,12 @@ def test_a_break_mid_drive_leaves_the_rovers_pose_and_its_track(server_factory) 
     manifest = yaml.safe_load((srv.data / brk.fields["recovery"] / "manifest.yaml").read_text())
     assert math.hypot(manifest["pose"]["x"], manifest["pose"]["y"]) >= 0.09
     rows = (srv.data / "nav" / "brk_track.csv").read_text().splitlines()
-    assert rows[0] == "x,y" and len(rows) >= 3
-    last = [float(v) for v in rows[-1].split(",")]
-    assert math.hypot(last[0], last[1]) >= 0.09
+    assert rows[0] == "x,y,heading" and len(rows) >= 3
+    track = np.array([[float(v) for v in row.split(",")] for row in rows[1:]])
+    assert math.hypot(*track[-1, :2]) >= 0.09
+    # the leg starts with a turn on the spot toward (1.5, -1.2): the track records it in rows 5
+    # degrees apart at the start, before the rover moved
+    turning = track[np.hypot(track[:, 0], track[:, 1]) < 1e-6]
+    assert len(turning) >= 5 and turning[0, 2] == pytest.approx(0.0, abs=1e-6)
+    assert np.all(np.abs(np.diff(turning[:, 2])) >= 5.0 - 1e-6) and turning[-1, 2] < -30.0
+    assert track[-1, 2] == pytest.approx(float(truth.fields["heading"]), abs=0.01)

@@ -256,7 +256,7 @@ class _Waypoints:
 def test_the_auto_drive_steers_by_odometry_so_slip_leaves_the_truth_off_the_waypoints() -> None:
     w = World.from_scene("office", clock_scale=0.0)
     w.set_slip(0.05, 2.0, 5)
-    track = [(0.0, 0.0)]
+    track = [(0.0, 0.0, 0.0)]
     reached: list[int] = []
     drive_simulated(w, _Waypoints([(0.0, 0.0), (1.0, 1.0), (2.0, 0.0)]), track, reached=reached.append)
     assert reached == [1, 2]
@@ -264,9 +264,23 @@ def test_the_auto_drive_steers_by_odometry_so_slip_leaves_the_truth_off_the_wayp
     assert (ox, oy) == pytest.approx((2.0, 0.0), abs=1e-6)  # where it believes it is: the last waypoint
     t = w.truth()
     assert 0.05 < math.hypot(t["x"] - 2.0, t["y"]) < 0.5  # where it is: short and beside
-    assert track[-1] == (t["x"], t["y"]) and len(track) > 20  # the true track, every 5 cm
+    assert track[-1] == (t["x"], t["y"], t["heading"]) and len(track) > 20  # the true track, every 5 cm
     # 2 * sqrt(2) m at 0.1 m/s plus turns of 45 and 90 degrees at 15 deg/s, in simulated time
     assert t["sim_time"] == pytest.approx(2 * math.sqrt(2) / 0.1 + 135.0 / 15.0, abs=0.2)
+
+
+def test_the_track_records_the_heading_and_turns_on_the_spot() -> None:
+    """A turn on the spot sweeps the body's corners over ground a position never shows: the track
+    gets a row every 5 degrees turned while the rover stands, each with its true heading."""
+    w = World.from_scene("office", clock_scale=0.0)
+    track = [(0.0, 0.0, 0.0)]
+    drive_simulated(w, _Waypoints([(0.0, 0.0), (0.0, 1.0)]), track)  # face +y (a 90-degree turn), then 1 m
+    standing = np.array([row for row in track if math.hypot(row[0], row[1]) < 1e-9])
+    steps = np.diff(standing[:, 2])
+    assert len(standing) >= 16 and standing[-1, 2] == pytest.approx(90.0, abs=1e-6)
+    assert np.all(steps >= 5.0 - 1e-9) and np.all(steps <= 6.0 + 1e-9)  # 1.5 deg per 0.1 s step at 15 deg/s
+    t = w.truth()
+    assert track[-1] == (t["x"], t["y"], t["heading"]) and t["y"] == pytest.approx(1.0, abs=1e-6)
 
 
 @long_suite

@@ -227,17 +227,19 @@ class World:
         with self._lock:
             self.slip = Slip(float(distance), float(heading), int(seed))
 
-    def turn_toward(self, x: float, y: float, stop: Callable[[], bool] | None = None) -> float:
+    def turn_toward(self, x: float, y: float, stop: Callable[[], bool] | None = None,
+                    on_step: Callable[[], None] | None = None) -> float:
         """Turn on the spot, at the drive model's turn rate, until the rover believes (by its
         odometry) it faces (x, y); returns the distance it believes is left to drive. The one
-        way a waypoint is approached, whichever loop drives the rover."""
+        way a waypoint is approached, whichever loop drives the rover. ``on_step`` runs after
+        each step of the turn, as in :meth:`drive` (a turn on the spot is motion too)."""
         ox, oy, heading = self.odometry()
         dist = math.hypot(x - ox, y - oy)
         if dist >= 1e-6:
             turn = (math.degrees(math.atan2(y - oy, x - ox)) - heading + 180.0) % 360.0 - 180.0
             if abs(turn) > 1e-9:
                 rate = self.drive_model.turn_rate
-                self.drive(0.0, math.copysign(rate, turn), abs(turn) / rate, stop)
+                self.drive(0.0, math.copysign(rate, turn), abs(turn) / rate, stop, on_step=on_step)
         return dist
 
     def drive(self, v: float, w_deg: float, seconds: float, stop: Callable[[], bool] | None = None,
@@ -270,14 +272,18 @@ class World:
                     on_step()
         return {"seconds": driven, "distance": v * driven, "turned": w_deg * driven}
 
-    def record_track(self, track: list[tuple[float, float]], step: float = 0.05) -> None:
-        """Append the true position to ``track`` once it is ``step`` from the last entry (0: on
-        any move): the ground truth a traverse is scored by, whichever loop drives."""
+    def record_track(self, track: list[tuple[float, float, float]], step: float = 0.05, turn: float = 5.0) -> None:
+        """Append the true pose (x, y, heading in degrees) to ``track`` once it is ``step`` from
+        the last entry or has turned ``turn`` degrees from its heading (0, 0: on any change):
+        the ground truth a traverse is scored by, whichever loop drives. Turns on the spot are
+        recorded too: the body's corners sweep ground there that a position alone never shows."""
         t = self.truth()
-        x, y = float(t["x"]), float(t["y"])
-        moved = math.hypot(x - track[-1][0], y - track[-1][1])
-        if moved > 0.0 and moved >= step:
-            track.append((x, y))
+        x, y, heading = float(t["x"]), float(t["y"]), float(t["heading"])
+        last = track[-1]
+        moved = math.hypot(x - last[0], y - last[1])
+        turned = abs(_wrap180(heading - last[2]))
+        if (moved > 0.0 and moved >= step) or (turned > 0.0 and turned >= turn):
+            track.append((x, y, heading))
 
     @contextlib.contextmanager
     def under_way(self) -> Iterator[None]:

@@ -266,8 +266,8 @@ def _load_global_maps(cfg: NavigateConfig) -> tuple[Any, Any]:
     return maps, GlobalMap(maps.hazard, maps.slope, maps.geometry, dem.dem if dem else None, str(dem_path))
 
 
-def follow_rover(app: App, track: list[tuple[float, float]]) -> Callable[[], None]:
-    """What the simulated rover does at each step of a drive: its true position goes to
+def follow_rover(app: App, track: list[tuple[float, float, float]]) -> Callable[[], None]:
+    """What the simulated rover does at each step of a drive: its true pose goes to
     ``track`` (what the traverse is scored by) and its odometry becomes the pose the server
     believes in, as a GNC streaming its pose would make it, so status, check-move and a break's
     recovery set see where the rover is mid-drive, not where the leg began."""
@@ -281,7 +281,7 @@ def follow_rover(app: App, track: list[tuple[float, float]]) -> Callable[[], Non
     return step
 
 
-def drive_simulated(world: Any, waypoints: Any, track: list[tuple[float, float]],
+def drive_simulated(world: Any, waypoints: Any, track: list[tuple[float, float, float]],
                     reached: Any = None, stop: Any = None, on_step: Callable[[], None] | None = None) -> None:
     """The simulated rover drives the waypoints as its GNC would, in simulated time: from where
     its odometry says it is, turn on the spot toward the next waypoint at the rover's turn rate,
@@ -289,18 +289,18 @@ def drive_simulated(world: Any, waypoints: Any, track: list[tuple[float, float]]
     each on the world's clock. Steering by the dead-reckoned pose is what makes wheel slip and
     heading drift (``sim slip``) leave the true rover short of and beside the waypoints.
 
-    ``track`` gets the true position every 5 cm (the simulator's ground truth, to score the
-    traverse against the true hazards); ``reached(k)`` is called as the rover's odometry arrives
+    ``track`` gets the true pose every 5 cm and every 5 degrees turned, on the spot too (the
+    simulator's ground truth, to score the traverse against the true hazards); ``reached(k)`` is called as the rover's odometry arrives
     at waypoint k; ``stop()`` true (a break) stops the rover at its next step; ``on_step`` runs
     at every step (default: the track only; navigate's :func:`follow_rover`)."""
     model = world.drive_model
     step = on_step or (lambda: world.record_track(track))
 
     for k, (wx, wy) in enumerate(waypoints.xy[1:], start=1):
-        dist = world.turn_toward(wx, wy, stop)
+        dist = world.turn_toward(wx, wy, stop, on_step=step)
         if dist >= 1e-6:
             world.drive(model.speed, 0.0, dist / model.speed, stop, on_step=step)
-            world.record_track(track, 0.0)
+        world.record_track(track, 0.0, 0.0)
         if stop is not None and stop():
             return
         if reached is not None:
@@ -313,7 +313,7 @@ def navigate(job: Job, cfg: NavigateConfig) -> dict[str, Any]:
     """The legs (:func:`_navigate`); a navigate that fails part way still leaves the track the rover
     drove (the operator's first question: where did it go, and what did it cross)."""
     name = cfg.name or default_stem("nav")
-    track: list[tuple[float, float]] = []
+    track: list[tuple[float, float, float]] = []
     try:
         return _navigate(job, cfg, name, track)
     except (ProtocolError, Interrupted) as exc:
@@ -329,15 +329,15 @@ def navigate(job: Job, cfg: NavigateConfig) -> dict[str, Any]:
         raise
 
 
-def _write_track(app: App, name: str, track: list[tuple[float, float]]) -> Path:
+def _write_track(app: App, name: str, track: list[tuple[float, float, float]]) -> Path:
     from prox_workflows.products import write_text_atomic
 
     tfile = app.data_path("nav", f"{name}_track.csv")
-    write_text_atomic(tfile, "x,y\n" + "".join(f"{x:.4f},{y:.4f}\n" for x, y in track))
+    write_text_atomic(tfile, "x,y,heading\n" + "".join(f"{x:.4f},{y:.4f},{h:.2f}\n" for x, y, h in track))
     return tfile
 
 
-def _navigate(job: Job, cfg: NavigateConfig, name: str, track: list[tuple[float, float]]) -> dict[str, Any]:
+def _navigate(job: Job, cfg: NavigateConfig, name: str, track: list[tuple[float, float, float]]) -> dict[str, Any]:
     from prox_workflows.mapview import Marks
     from prox_workflows.products import write_png, write_text_atomic
     from prox_workflows.steps.planner import (
@@ -372,7 +372,7 @@ def _navigate(job: Job, cfg: NavigateConfig, name: str, track: list[tuple[float,
     dem_cfg.range, dem_cfg.overlap = list(cfg.range), cfg.overlap
     all_paths: list[Any] = []
     all_waypoints: list[Any] = []
-    track.append((app.pose.x, app.pose.y))
+    track.append((app.pose.x, app.pose.y, app.pose.heading))
     leg_starts: list[tuple[float, float]] = []
     stalled = 0  # legs in a row that started where the previous one did
     see_stalled = 0  # see loop: replans in a row after which the rover had not moved
@@ -496,7 +496,7 @@ def _navigate(job: Job, cfg: NavigateConfig, name: str, track: list[tuple[float,
             loc.after_drive(job, plan.waypoints.xy)
         else:
             arrived = wait_for_rover(app, job, version, end, cfg)
-            track.append((arrived.x, arrived.y))
+            track.append((arrived.x, arrived.y, arrived.heading))
             there = math.hypot(arrived.x - end[0], arrived.y - end[1]) <= cfg.tolerance
             leg_progress(segments, segments, f"rover {'arrived' if there else 'stopped'} at "
                                              f"({arrived.x:.2f}, {arrived.y:.2f})", "drive")
@@ -513,7 +513,7 @@ def _navigate(job: Job, cfg: NavigateConfig, name: str, track: list[tuple[float,
     write_png(traverse, ortho_figure(maps["ortho"], maps.geometry, f"traverse to ({goal[0]:g}, {goal[1]:g})",
                                      Marks(rover=(pose.x, pose.y, pose.heading),
                                            rover_size=(head.rover_length, head.rover_width), path=path,
-                                           waypoints=wps, track=np.asarray(track), goal=goal)))
+                                           waypoints=wps, track=np.asarray(track)[:, :2], goal=goal)))
     wfile = app.data_path("nav", f"{name}_waypoints.csv")
     write_text_atomic(wfile, "x,y,leg\n" + "".join(
         f"{x:.4f},{y:.4f},{i + 1}\n" for i, leg_wps in enumerate(all_waypoints) for x, y in leg_wps))
