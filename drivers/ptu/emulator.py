@@ -4,8 +4,8 @@ The ``sim`` backend runs the very client that drives a real PTU over RS232 again
 emulator, so every byte the server would send to the hardware is exercised in simulation. The
 emulator behaves like a freshly powered D46: verbose feedback, echo on and a banner; the
 factory resolution (185.1428 arc-seconds per position) and axis bounds; trapezoidal moves at
-its speed and acceleration in simulated time (``time_scale`` simulated-to-wall ratio: 1 real
-time, 0.1 ten times faster, 0 instantly; or, given a ``clock``, on the simulated world's clock,
+its speed, acceleration and base speed (:mod:`drivers.ptu.motion`) in simulated time
+(``time_scale`` simulated-to-wall ratio: 1 real time, 0.1 ten times faster, 0 instantly; or, given a ``clock``, on the simulated world's clock,
 so PTU moves take their time on the same clock as the rover's drive and the ToF's frames); ``!`` errors for out-of-range positions and speeds;
 ``A`` answered when motion ends; a reset that runs each axis into its limits ("!T!T!P!P*").
 
@@ -34,9 +34,10 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
-from drivers.ptu.motion import Profile
+from drivers.ptu.motion import Profile, stop_distance
 from drivers.ptu.protocol import (
     D46_DEFAULT_ACCEL,
+    D46_DEFAULT_BASE,
     D46_DEFAULT_SPEED,
     D46_LIMITS,
     D46_MAX_ACCEL,
@@ -128,7 +129,7 @@ class _Axis:
     accel: int = D46_DEFAULT_ACCEL
     speed_lo: int = D46_SPEED_BOUNDS[0]
     speed_hi: int = D46_SPEED_BOUNDS[1]
-    base: int = 0
+    base: int = D46_DEFAULT_BASE
     pos: float = 0.0
     vel: float = 0.0
     target: int = 0
@@ -180,6 +181,7 @@ class PtuEmulator:
         limits: dict[str, tuple[int, int]] | None = None,
         speed: int = D46_DEFAULT_SPEED,
         acceleration: int = D46_DEFAULT_ACCEL,
+        base_speed: int = D46_DEFAULT_BASE,
         fault: str | None = None,
         chunk: int | None = None,
         tick: float = 0.01,
@@ -211,7 +213,7 @@ class PtuEmulator:
         self.verbose = True
         self.limits_enforced = True
         self.slaved = False
-        self.axes = {key: self._new_axis(name, lim[name.lower()], speed, acceleration)
+        self.axes = {key: self._new_axis(name, lim[name.lower()], speed, acceleration, base_speed)
                      for key, name in (("P", "Pan"), ("T", "Tilt"))}
         self.commands: list[str] = []
         self.rx = bytearray()
@@ -235,11 +237,11 @@ class PtuEmulator:
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
 
-    def _new_axis(self, name: str, bounds: tuple[int, int], speed: int, accel: int) -> _Axis:
+    def _new_axis(self, name: str, bounds: tuple[int, int], speed: int, accel: int, base: int) -> _Axis:
         """An axis with the flavour's speed bounds; a power-up speed above the unit's ceiling
         comes up at the ceiling, as a unit whose PU was lowered keeps its speed under it."""
         lo, hi = self.flavour.speed_bounds[name.lower()]
-        return _Axis(name, *bounds, speed=min(max(speed, lo), hi), accel=accel, speed_lo=lo, speed_hi=hi)
+        return _Axis(name, *bounds, speed=min(max(speed, lo), hi), accel=accel, speed_lo=lo, speed_hi=hi, base=base)
 
     # -- lifecycle ---------------------------------------------------------------------------
     def start(self) -> PtuEmulator:
@@ -421,7 +423,7 @@ class PtuEmulator:
         ax.target = target
         if self._fault == "stall":
             return  # accepted, but the axis never turns
-        ax.profile = Profile.start(self._sim_t, ax.pos, ax.vel, target, ax.speed, ax.accel)
+        ax.profile = Profile.start(self._sim_t, ax.pos, ax.vel, target, ax.speed, ax.accel, ax.base)
 
     def _busy(self) -> bool:
         return self._reset_phases is not None or any(ax.moving() for ax in self.axes.values())
@@ -572,7 +574,7 @@ class PtuEmulator:
             if ax.profile is None:
                 ax.target = ax.position  # a stalled axis gives up its target
                 continue
-            stop = ax.pos + math.copysign(ax.vel * ax.vel / (2 * ax.accel), ax.vel)
+            stop = ax.pos + math.copysign(stop_distance(ax.vel, ax.accel, ax.base), ax.vel)
             self._move(ax, int(math.floor(stop + 0.5)), new_move=False)
         self._ack()
 
@@ -585,6 +587,7 @@ class PtuEmulator:
         for ax in self.axes.values():
             lo, hi = self.flavour.speed_bounds[ax.name.lower()]
             ax.speed, ax.accel, ax.speed_lo, ax.speed_hi = min(D46_DEFAULT_SPEED, hi), D46_DEFAULT_ACCEL, lo, hi
+            ax.base = D46_DEFAULT_BASE
         self._ack()
 
     def _help(self) -> None:

@@ -21,10 +21,12 @@ ARCSEC_PER_DEG = 3600.0
 # (PN/PX/TN/TX replies after a reset), used by the emulator; the client always queries them.
 D46_RESOLUTION_ARCSEC = 185.1428
 D46_LIMITS = {"pan": (-3090, 3090), "tilt": (-907, 604)}
-# Speed bounds (PL/PU) and the power-up speed, base speed 0 and acceleration of the emulator.
+# Speed bounds (PL/PU) and the power-up speed and acceleration of the emulator; the base
+# (start-up) speed is the D46's default (manual v2.14, 4.4.5: "Defaults to 1000 positions/sec").
 D46_SPEED_BOUNDS = (31, 2902)
 D46_DEFAULT_SPEED = 1000
 D46_DEFAULT_ACCEL = 2000
+D46_DEFAULT_BASE = 1000
 D46_MAX_ACCEL = 30000
 
 # A command ends with a delimiter; the D46 takes a space or a CR. A space keeps an echoed

@@ -308,9 +308,11 @@ def test_move_takes_the_trapezoid_time_in_simulated_time(time_scale: float, flav
         t0 = emu.sim_time
         ptu.move(30, 0)
         pan = [m for m in emu.moves if m["axis"] == "pan"][-1]
-        expected = 583 / v + v / 2000  # ramps of v/a each, cruise for the rest
-        assert pan["duration"] == pytest.approx(expected, abs=0.005)
+        # at or below the base speed (the D46's default 1000 positions/s) an axis starts and stops at once
+        assert pan["duration"] == pytest.approx(583 / v, abs=0.005)
+        assert pan["duration"] == pytest.approx(trapezoid_time(583, v, 2000, base=1000), abs=0.005)
         assert pan["t_start"] >= t0 and emu.sim_time >= pan["t_end"]
+        assert ptu.raw("PB0") == "*" and ptu.raw("TB0") == "*"  # from rest: ramps of v/a each, cruise for the rest
         ptu.set_speed(500, 500)
         ptu.move(0, 0)
         back = [m for m in emu.moves if m["axis"] == "pan"][-1]
@@ -358,7 +360,9 @@ def test_cancel_event_interrupts_the_await(slow_flavour: Flavour) -> None:
 
 def test_a_cancelled_await_ends_at_the_halts_ack_and_the_next_command_waits_for_the_stop() -> None:
     # a slow acceleration (250 pos/s^2) makes the deceleration after the halt last about a second
-    with bench(time_scale=1.0, acceleration=250, client={"acceleration": 250, "move_timeout": 60}) as (emu, ptu):
+    # (base speed 0: the deceleration runs down from the full speed)
+    with bench(time_scale=1.0, acceleration=250, base_speed=0,
+               client={"acceleration": 250, "move_timeout": 60}) as (emu, ptu):
         cancel = threading.Event()
         threading.Thread(target=lambda: emu.wait_for(lambda e: "A" in e.commands and e.positions()[0] > 200, 60)
                          and cancel.set(), daemon=True).start()
