@@ -10,11 +10,11 @@ can be run on the believed one (as the GNC would) and scored against the true on
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 
 import numpy as np
 
-__all__ = ["RoverDrive", "Slip", "step_pose"]
+__all__ = ["RoverBody", "RoverDrive", "Slip", "step_pose"]
 
 
 @dataclass(frozen=True)
@@ -37,6 +37,66 @@ class RoverDrive:
         if out.speed <= 0 or out.turn_rate <= 0 or out.step <= 0:
             raise ValueError("rover speed, turn_rate and drive_step must be > 0")
         return out
+
+
+@dataclass(frozen=True)
+class RoverBody:
+    """The simulated rover's body and what it can drive over: one declaration that the rendered
+    body (:func:`drivers.sim.scene.build_rover`) and the vehicle check
+    (:mod:`prox_workflows.steps.vehicle`) both read. A scene overrides any field in its
+    ``rover: body:`` block.
+
+    The body copies a Pioneer 3-AT (MobileRobots/Adept; 508 x 497 x 277 mm, four 21.5 cm wheels,
+    skid steering, "max. traversable grade 35 %" in its documentation). Where the figure is the
+    P3-AT's, the field says so; the rest is the simulated body's own, which differs from the P3-AT
+    on purpose in one way: its wheels stand outside the 0.40 m box (the hubs 0.49 m apart, the
+    outer wheel faces at +-0.29 m), so the box is all belly between the wheel tracks.
+
+    - ``wheel_radius`` 0.1075 m: the P3-AT's 21.5 cm wheel (the ROS/Gazebo P3-AT drive plugins'
+      ``wheelDiameter`` 0.215).
+    - ``wheelbase`` 0.29 m, ``track`` 0.49 m: hub to hub, front to back and side to side; the wheels
+      sit at the box's corners (0.51 m long box: hubs one radius in from its ends, 0.255 - 0.11).
+    - ``clearance`` 0.08 m: the underside of the box over the plane through the wheel contacts.
+    - ``climb`` 0.10 m: the greatest step one wheel climbs, the P3-AT's published traversable
+      step; it is also what a rigid four-wheel skid steer with pneumatic tyres climbs at most:
+      about half its 21.5 cm wheel, a step whose edge still lies below the hub with margin.
+    - ``tilt`` 19.3 deg: the greatest tilt of the plane through the wheel contacts, the P3-AT's
+      35 % grade (atan 0.35). Dem2Hazard's 20 deg slope limit sits just above it.
+    """
+
+    length: float = 0.51  # m, the box (P3-AT: 0.508)
+    width: float = 0.40  # m, the box between the wheels
+    height: float = 0.28  # m, top of the box over the ground (P3-AT: 0.277)
+    clearance: float = 0.08  # m, belly over the contact plane
+    wheel_radius: float = 0.1075  # m (P3-AT: 21.5 cm wheels)
+    wheel_width: float = 0.09  # m
+    wheelbase: float = 0.29  # m, front to rear hub
+    track: float = 0.49  # m, left to right hub
+    climb: float = 0.10  # m, greatest step a wheel climbs (P3-AT: 10 cm)
+    tilt: float = 19.3  # deg, greatest tilt (P3-AT: 35 % grade)
+
+    @classmethod
+    def from_spec(cls, spec: dict | None) -> RoverBody:
+        """From a scene's ``rover: body:`` block (any subset of the fields); a bad or unknown key
+        is a ValueError naming the fields."""
+        spec = dict(spec or {})
+        names = [f.name for f in fields(cls)]
+        unknown = sorted(set(spec) - set(names))
+        if unknown:
+            raise ValueError(f"unknown rover body key(s) {', '.join(unknown)}; known: {', '.join(names)}")
+        out = cls(**{k: float(v) for k, v in spec.items()})
+        if min(getattr(out, n) for n in names) <= 0:
+            raise ValueError(f"rover body figures must be > 0: {out}")
+        if out.clearance >= out.height or out.wheelbase / 2 + out.wheel_radius > out.length / 2 + 1e-9:
+            raise ValueError("rover body: the belly must lie under the top, and the wheels within the box's length")
+        return out
+
+    @property
+    def wheels(self) -> np.ndarray:
+        """The four hubs (x forward, y left, rover frame), front-left, front-right, rear-left,
+        rear-right."""
+        a, b = self.wheelbase / 2, self.track / 2
+        return np.array([(a, b), (a, -b), (-a, b), (-a, -b)])
 
 
 @dataclass

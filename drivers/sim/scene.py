@@ -21,6 +21,7 @@ from drivers.sim.objects import (
     constant_albedo,
     marker_box_albedo,
 )
+from drivers.sim.rover import RoverBody
 from drivers.sim.transforms import make_T, rot_x, rot_z
 
 SCENES_DIR = Path(__file__).resolve().parents[2] / "config" / "scenes"
@@ -110,20 +111,14 @@ def build_target(spec: dict) -> SceneObject:
 
 
 def build_rover(spec: dict, head: HeadGeometry) -> SceneObject:
-    """Pioneer 3-AT-like body (box on four wheels) and the mast up to just under the PTU, in
-    the rover frame (origin on the ground under the rover centre)."""
-    body = spec.get("body", {})
-    L = float(body.get("length", 0.51))
-    W = float(body.get("width", 0.40))
-    H = float(body.get("height", 0.28))
-    clr = float(body.get("clearance", 0.08))
-    wr = float(body.get("wheel_radius", 0.11))
-    ww = float(body.get("wheel_width", 0.09))
-    shapes: list = [Box((-L / 2, -W / 2, clr), (L / 2, W / 2, H))]
-    for sx in (-1, 1):
-        for sy in (-1, 1):
-            T = make_T(rot_x(90.0), (sx * (L / 2 - wr), sy * (W / 2 + ww / 2), wr))
-            shapes.append(Posed(Cylinder(wr, -ww / 2, ww / 2), T))
+    """The rover's body as :class:`RoverBody` declares it (a box over four wheels at its hubs)
+    and the mast up to just under the PTU, in the rover frame (origin on the ground under the
+    rover centre)."""
+    body = RoverBody.from_spec(spec.get("body"))
+    L, W, H, wr, ww = body.length, body.width, body.height, body.wheel_radius, body.wheel_width
+    shapes: list = [Box((-L / 2, -W / 2, body.clearance), (L / 2, W / 2, H))]
+    for x, y in body.wheels:
+        shapes.append(Posed(Cylinder(wr, -ww / 2, ww / 2), make_T(rot_x(90.0), (x, y, wr))))
     bx, by, bz = head.ptu_base
     m = float(spec.get("mast_width", 0.04))
     shapes.append(Box((bx - m / 2, by - m / 2, H), (bx + m / 2, by + m / 2, bz - 0.12)))

@@ -1,0 +1,243 @@
+"""The vehicle check: whether the rover's own body, standing at a pose on a height grid, is safe.
+
+A rover fails on ground in three ways, each checked against the body's declared limits
+(:class:`VehicleBody`, e.g. ``drivers.sim.rover.RoverBody``):
+
+- **wheel**: a wheel meets a step it cannot climb. A wheel's *relief* is the highest minus the
+  lowest ground under its footprint (``2 * wheel_radius`` along the heading, ``wheel_width``
+  across), both taken over the ground plane fitted to everything under the rover, so a steady
+  slope adds nothing and a rock or a ledge under the wheel counts in full. Against ``climb``.
+- **belly**: the ground under the box between the wheels rises above the belly. The body stands
+  on its wheels: each wheel rests on the highest ground its circle touches, and a rigid body on
+  four wheels rests on three of them with the fourth at or below that plane (it rocks between two
+  such planes). Intrusion = the highest ground under the box over the worse of those planes,
+  minus ``clearance``. Against 0.
+- **tilt**: the angle of that plane from the horizontal (the worse of the two), against ``tilt``.
+
+ACE (Otsu et al. 2020) makes the same wheel-and-belly check on a rover's own geometry; this one
+has no suspension to model (the P3-AT is a rigid skid steer).
+
+Everything is vectorised over poses: :func:`check_poses` takes N poses and returns per-pose
+arrays, :func:`densify` turns a track (or a plan) into poses no more than a given distance apart,
+turns on the spot included, and :func:`unsafe_events` counts the distinct unsafe stretches: any
+run of consecutive unsafe poses is one event, with its worst excess and kind.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Protocol
+
+import numpy as np
+
+from ..grid import GridGeometry
+
+__all__ = ["VehicleBody", "PoseChecks", "Event", "check_poses", "densify", "unsafe_events", "track_poses",
+           "WHEELS"]
+
+WHEELS = ("front-left", "front-right", "rear-left", "rear-right")
+# The four planes a rigid body may rest on: three wheels each, the fourth named last.
+_TRIPLETS = ((0, 1, 2, 3), (0, 1, 3, 2), (0, 2, 3, 1), (1, 2, 3, 0))
+
+
+class VehicleBody(Protocol):
+    """What the check needs of a body (metres, degrees; rover frame x forward, y left)."""
+
+    length: float
+    width: float
+    clearance: float
+    wheel_radius: float
+    wheel_width: float
+    climb: float
+    tilt: float
+
+    @property
+    def wheels(self) -> np.ndarray: ...  # (4, 2) hubs: front-left, front-right, rear-left, rear-right
+
+
+@dataclass
+class PoseChecks:
+    """Per-pose results of :func:`check_poses` (N poses)."""
+
+    relief: np.ndarray  # (N, 4) m, per wheel (WHEELS order)
+    intrusion: np.ndarray  # (N,) m, ground over the belly (> 0: touches)
+    tilt: np.ndarray  # (N,) deg, the worse resting plane
+    excess: np.ndarray  # (N, 3) over the limits: wheel (m), belly (m), tilt (deg); <= 0 safe
+    wheel: np.ndarray  # (N,) int, the wheel with the greatest relief
+
+    @property
+    def unsafe(self) -> np.ndarray:
+        return (self.excess > 0).any(axis=1)
+
+
+@dataclass(frozen=True)
+class Event:
+    """A run of consecutive unsafe poses: where it starts and ends (pose indices, inclusive), the
+    kind of the worst excess (``wheel front-left``..., ``belly``, ``tilt``), that excess (m, or deg
+    for tilt) and the pose where it is worst."""
+
+    first: int
+    last: int
+    kind: str
+    excess: float
+    x: float
+    y: float
+    heading: float
+
+    def describe(self) -> str:
+        unit = "deg" if self.kind == "tilt" else "cm"
+        value = self.excess if self.kind == "tilt" else self.excess * 100
+        return f"{self.kind} +{value:.1f} {unit} at ({self.x:.2f}, {self.y:.2f}, {self.heading:.0f} deg)"
+
+
+def _pattern(body: VehicleBody, step: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Sample offsets in the rover frame every ``step``: (points (S, 2), wheel index per point or
+    -1, belly mask, the along-heading offset from the point's wheel hub)."""
+    hubs = np.asarray(body.wheels, float)
+    r, half_w = body.wheel_radius, body.wheel_width / 2
+    xmax = max(body.length / 2, float(np.abs(hubs[:, 0]).max()) + r)
+    ymax = max(body.width / 2, float(np.abs(hubs[:, 1]).max()) + half_w)
+    xs = np.arange(-xmax, xmax + step / 2, step)
+    ys = np.arange(-ymax, ymax + step / 2, step)
+    X, Y = (a.ravel() for a in np.meshgrid(xs, ys))
+    wheel = np.full(X.shape, -1)
+    dx = np.zeros(X.shape)
+    for i, (hx, hy) in enumerate(hubs):
+        on = (np.abs(X - hx) <= r + 1e-9) & (np.abs(Y - hy) <= half_w + 1e-9)
+        wheel[on] = i
+        dx[on] = X[on] - hx
+    belly = (np.abs(X) <= body.length / 2 + 1e-9) & (np.abs(Y) <= body.width / 2 + 1e-9) & (wheel < 0)
+    keep = (wheel >= 0) | belly
+    return np.stack([X, Y], axis=1)[keep], wheel[keep], belly[keep], dx[keep]
+
+
+def _sample(heights: np.ndarray, geom: GridGeometry, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """Bilinear heights between the cell centres (NaN off the grid)."""
+    fc = (x - geom.xmin) / geom.cell - 0.5
+    fr = (geom.ymax - y) / geom.cell - 0.5
+    c0, r0 = np.floor(fc).astype(np.int64), np.floor(fr).astype(np.int64)
+    tc, tr = fc - c0, fr - r0
+    inside = (r0 >= 0) & (r0 < geom.height - 1) & (c0 >= 0) & (c0 < geom.width - 1)
+    r0c, c0c = np.clip(r0, 0, geom.height - 2), np.clip(c0, 0, geom.width - 2)
+    h = heights
+    out = ((h[r0c, c0c] * (1 - tc) + h[r0c, c0c + 1] * tc) * (1 - tr)
+           + (h[r0c + 1, c0c] * (1 - tc) + h[r0c + 1, c0c + 1] * tc) * tr)
+    return np.where(inside, out, np.nan)
+
+
+def check_poses(heights: np.ndarray, geom: GridGeometry, poses: np.ndarray, body: VehicleBody,
+                step: float | None = None, chunk: int = 256) -> PoseChecks:
+    """Wheel relief, belly intrusion and tilt of ``body`` at each of ``poses`` ((N, 3): x, y,
+    heading in degrees) on the height grid ``heights`` over ``geom`` (the finer the truer: 1-2 cm).
+    The body is sampled every ``step`` (default: the grid's cell). Ground off the grid takes the
+    lowest height the pose sees (an edge is judged as a drop, not as a wall)."""
+    poses = np.atleast_2d(np.asarray(poses, float))
+    pts, wheel_of, belly, dx = _pattern(body, step or geom.cell)
+    hubs = np.asarray(body.wheels, float)
+    r = body.wheel_radius
+    # the ground plane z = a x + b y + c over all samples, as one pseudo-inverse for every pose
+    ground_pinv = np.linalg.pinv(np.column_stack([pts, np.ones(len(pts))]))  # (3, S)
+    # the wheel's circle: a point dx from the hub lifts the wheel's bottom by its height minus
+    # the circle's rise there (the wheel rests on whatever touches it first)
+    sag = r - np.sqrt(np.maximum(r * r - dx * dx, 0.0))
+    # each resting plane through three hubs: z = [x y 1] @ inv(A) @ z3
+    planes = [(t, np.linalg.inv(np.column_stack([hubs[list(t[:3])], np.ones(3)]))) for t in _TRIPLETS]
+    n = len(poses)
+    relief = np.zeros((n, 4))
+    intrusion = np.zeros(n)
+    tilt = np.zeros(n)
+    for s in range(0, n, chunk):
+        p = poses[s:s + chunk]
+        c, si = np.cos(np.radians(p[:, 2]))[:, None], np.sin(np.radians(p[:, 2]))[:, None]
+        wx = p[:, 0:1] + c * pts[:, 0] - si * pts[:, 1]
+        wy = p[:, 1:2] + si * pts[:, 0] + c * pts[:, 1]
+        h = _sample(heights, geom, wx, wy)
+        if np.isnan(h).any():
+            low = np.nanmin(np.where(np.isnan(h).all(axis=1, keepdims=True), 0.0, h), axis=1, keepdims=True)
+            h = np.where(np.isnan(h), low, h)
+        coef = h @ ground_pinv.T  # (m, 3)
+        resid = h - coef @ np.column_stack([pts, np.ones(len(pts))]).T
+        contact = np.empty((len(p), 4))
+        for w in range(4):
+            on = wheel_of == w
+            relief[s:s + len(p), w] = resid[:, on].max(axis=1) - resid[:, on].min(axis=1)
+            contact[:, w] = (h[:, on] - sag[on]).max(axis=1)
+        worst_in = np.full(len(p), -np.inf)
+        worst_tilt = np.zeros(len(p))
+        for t, inv in planes:
+            abc = contact[:, list(t[:3])] @ inv.T  # (m, 3): z = a x + b y + c
+            fourth = hubs[t[3]]
+            rests = contact[:, t[3]] <= abc[:, 0] * fourth[0] + abc[:, 1] * fourth[1] + abc[:, 2] + 1e-9
+            under = (h[:, belly] - (abc[:, :2] @ pts[belly].T + abc[:, 2:3])).max(axis=1)
+            angle = np.degrees(np.arctan(np.hypot(abc[:, 0], abc[:, 1])))
+            worst_in = np.where(rests, np.maximum(worst_in, under), worst_in)
+            worst_tilt = np.where(rests, np.maximum(worst_tilt, angle), worst_tilt)
+        intrusion[s:s + len(p)] = worst_in - body.clearance
+        tilt[s:s + len(p)] = worst_tilt
+    excess = np.column_stack([relief.max(axis=1) - body.climb, intrusion, tilt - body.tilt])
+    return PoseChecks(relief=relief, intrusion=intrusion, tilt=tilt, excess=excess, wheel=relief.argmax(axis=1))
+
+
+def unsafe_events(checks: PoseChecks, poses: np.ndarray, body: VehicleBody) -> list[Event]:
+    """The distinct unsafe events along ``poses`` (in the order driven): each run of consecutive
+    unsafe poses is one, named by its worst excess relative to its limit."""
+    poses = np.atleast_2d(np.asarray(poses, float))
+    bad = checks.unsafe
+    if not bad.any():
+        return []
+    edges = np.flatnonzero(np.diff(np.concatenate([[0], bad.astype(np.int8), [0]])))
+    limits = np.array([body.climb, body.clearance, body.tilt])
+    out = []
+    for first, end in zip(edges[::2], edges[1::2], strict=True):
+        rel = checks.excess[first:end] / limits
+        k, kind = np.unravel_index(int(np.argmax(rel)), rel.shape)
+        i = first + int(k)
+        name = f"wheel {WHEELS[checks.wheel[i]]}" if kind == 0 else ("belly", "tilt")[kind - 1]
+        out.append(Event(int(first), int(end - 1), name, round(float(checks.excess[i, kind]), 4),
+                         float(poses[i, 0]), float(poses[i, 1]), float(poses[i, 2])))
+    return out
+
+
+def densify(poses: np.ndarray, step: float = 0.02, body: VehicleBody | None = None) -> np.ndarray:
+    """Poses between consecutive ``poses`` ((N, 3): x, y, heading deg) so that no point of the body
+    moves more than ``step`` from one to the next: along a move every ``step``, through a turn on
+    the spot every ``step`` of arc at the body's farthest corner (``body``; 0.4 m without one).
+    Headings turn the short way round."""
+    poses = np.atleast_2d(np.asarray(poses, float))
+    if len(poses) < 2:
+        return poses.copy()
+    reach = 0.4
+    if body is not None:
+        hubs = np.abs(np.asarray(body.wheels, float))
+        reach = math.hypot(max(body.length / 2, float(hubs[:, 0].max()) + body.wheel_radius),
+                           max(body.width / 2, float(hubs[:, 1].max()) + body.wheel_width / 2))
+    d = np.hypot(*np.diff(poses[:, :2], axis=0).T)
+    turn = (np.diff(poses[:, 2]) + 180.0) % 360.0 - 180.0
+    n = np.maximum(1, np.ceil(np.maximum(d, np.radians(np.abs(turn)) * reach) / step - 1e-9)).astype(int)
+    out = [poses[:1]]
+    for k in range(len(d)):
+        t = (np.arange(1, n[k] + 1) / n[k])[:, None]
+        seg = np.empty((n[k], 3))
+        seg[:, :2] = poses[k, :2] + t * (poses[k + 1, :2] - poses[k, :2])
+        seg[:, 2] = ((poses[k, 2] + t[:, 0] * turn[k]) + 180.0) % 360.0 - 180.0
+        out.append(seg)
+    return np.concatenate(out)
+
+
+def track_poses(xy: np.ndarray, heading: np.ndarray | None = None) -> np.ndarray:
+    """(N, 3) poses of a track: its own headings (degrees) when recorded, else each point's
+    heading toward the next (the last keeps the one before; a rover that stood still keeps
+    its heading)."""
+    xy = np.asarray(xy, float).reshape(-1, 2)
+    if heading is not None:
+        return np.column_stack([xy, np.asarray(heading, float)])
+    if len(xy) < 2:
+        return np.column_stack([xy, np.zeros(len(xy))])
+    d = np.diff(xy, axis=0)
+    h = np.degrees(np.arctan2(d[:, 1], d[:, 0]))
+    moved = np.hypot(*d.T) > 1e-9
+    for k in range(1, len(h)):  # a still step keeps the heading before it
+        if not moved[k]:
+            h[k] = h[k - 1]
+    return np.column_stack([xy, np.append(h, h[-1])])
