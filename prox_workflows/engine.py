@@ -44,7 +44,7 @@ from typing import Any
 
 import yaml
 
-from rvs_params import SettingError, Settings
+from rvs_params import SettingError, Settings, assignments
 
 from .params import PARAMETER_SETS, show_value
 
@@ -838,18 +838,11 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     if args.from_:
         return _main_from(args.script, args.from_, args.set, args.out)
-    params: dict[str, Any] = {}
-    for item in args.set:
-        key, sep, raw = item.partition("=")
-        if not sep:
-            ap.error(f"--set {item}: write key=value")
-        params[key.replace("-", "_")] = raw
-    inputs: dict[str, Any] = {}
-    for item in args.input:
-        key, sep, raw = item.partition("=")
-        if not sep:
-            ap.error(f"--input {item}: write name=value")
-        inputs[key] = _parse_value(raw)
+    try:
+        params = assignments(args.set)
+        inputs = {k: _parse_value(v) for k, v in assignments(args.input, flag="--input", form="name=value").items()}
+    except SettingError as exc:
+        ap.error(exc.message)
     try:
         script = load_script(args.script)
         cls = param_class(script)

@@ -30,7 +30,7 @@ from typing import Any
 
 import yaml
 
-from rvs_params import SettingError, Settings
+from rvs_params import SettingError, Settings, assignments
 
 from .engine import run_workflow
 from .parameters import DemParams, DemStereoParams
@@ -123,18 +123,12 @@ def find_job(path: str | Path) -> RecordedJob:
 
 
 def parse_overrides(items: list[str] | str | None) -> dict[str, str]:
-    """``["cell=0.05", ...]`` or ``"cell=0.05 fill_radius=0.1"`` -> ``{"cell": "0.05", ...}``."""
-    if items is None:
-        return {}
-    if isinstance(items, str):
-        items = items.split()
-    out: dict[str, str] = {}
-    for item in items:
-        key, sep, raw = item.partition("=")
-        if not sep or not key:
-            raise ReprocessError(f"set {item[:40]!r}: write key=value")
-        out[key.strip().replace("-", "_")] = raw
-    return out
+    """``["cell=0.05", ...]`` or ``"cell=0.05 fill_radius=0.1"`` -> ``{"cell": "0.05", ...}``, as a
+    ReprocessError (the request's or the command line's fault) when a word is not key=value."""
+    try:
+        return assignments(items, flag="set")
+    except SettingError as exc:
+        raise ReprocessError(exc.message) from None
 
 
 def job_params(job: RecordedJob, overrides: dict[str, Any] | None = None) -> tuple[type[Settings], dict[str, Any]]:

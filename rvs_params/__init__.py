@@ -19,7 +19,7 @@ import math
 import re
 import types
 import typing
-from collections.abc import Mapping
+from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field, fields
 from typing import Any, TypeVar
 
@@ -339,6 +339,19 @@ class Settings:
                 kwargs[spec.name] = spec.coerce(value, where)
         return cls(**kwargs)
 
+    @classmethod
+    def parse_assignments(cls, items: Iterable[str] | str | None, *, flag: str = "--set") -> dict[str, Any]:
+        """``key=value`` words (:func:`assignments`) typed and checked by each key's ParamSpec, as
+        the wire checks an option; an unknown key is refused with the known ones."""
+        specs = cls.specs()
+        out: dict[str, Any] = {}
+        for key, raw in assignments(items, flag=flag).items():
+            spec = specs.get(key)
+            if spec is None:
+                raise SettingError(f"{flag} {key}: unknown key; known: {', '.join(specs)}")
+            out[key] = spec.parse(raw)
+        return out
+
     def as_dict(self) -> dict[str, Any]:
         """Plain values (nested settings as mappings), for replies, sidecars and YAML."""
         out: dict[str, Any] = {}
@@ -352,6 +365,27 @@ class Settings:
         mine = self.as_dict()
         theirs = other.as_dict() if other is not None else {}
         return [k for k in mine if k not in theirs or mine[k] != theirs[k]]
+
+
+def assignment(item: str, *, flag: str = "--set", form: str = "key=value") -> tuple[str, str]:
+    """One ``key=value`` word split at its first '=': the key stripped and spelled as a field name
+    ('-' written '_', as an option's flag is), the value as typed. ``flag`` and ``form`` name the
+    option and the shape in the error, so it says what to write."""
+    key, sep, raw = item.partition("=")
+    key = key.strip()
+    if not sep or not key:
+        raise SettingError(f"{flag} '{item[:40]}': write {form}")
+    return key.replace("-", "_"), raw
+
+
+def assignments(items: Iterable[str] | str | None, *, flag: str = "--set",
+                form: str = "key=value") -> dict[str, str]:
+    """``["cell=0.05", ...]`` or ``"cell=0.05 fill_radius=0.1"`` -> ``{"cell": "0.05", ...}``,
+    each word split by :func:`assignment`; a later key wins."""
+    if items is None:
+        return {}
+    words = items.split() if isinstance(items, str) else items
+    return dict(assignment(word, flag=flag, form=form) for word in words)
 
 
 def merge(base: dict[str, Any], over: Mapping[str, Any]) -> None:

@@ -19,7 +19,7 @@ from typing import Any, ClassVar
 import yaml
 
 from drivers.registry import DEVICE_KINDS, registry
-from rvs_params import ParamSpec, SettingError, Settings, merge, param
+from rvs_params import ParamSpec, SettingError, Settings, assignment, merge, param
 
 from .protocol import ProtocolError
 
@@ -159,10 +159,10 @@ class ConfigStore:
     def apply_overrides(self, items: list[str]) -> None:
         """``--set module.key=value`` at server start; errors are fatal there, so raise ValueError."""
         for item in items:
-            target, sep, raw = item.partition("=")
-            module, dot, key = target.partition(".")
-            if not sep or not dot or not key:
-                raise ValueError(f"--set {item!r}: write module.key=value")
+            module, dot, rest = item.partition(".")
+            if not dot or "=" in module:
+                raise ValueError(f"--set '{item[:40]}': write module.key=value")
+            key, raw = assignment(rest, form="module.key=value")
             try:
                 self.set(module, key, raw, runtime=False)
             except ProtocolError as exc:

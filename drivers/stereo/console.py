@@ -34,6 +34,7 @@ from drivers.console import (
 )
 from drivers.stereo import BACKENDS, create
 from drivers.stereo.modes import PIXEL_FORMATS, RESOLUTIONS, SIDES
+from rvs_params import assignments
 
 
 def save_image(path: str | Path, image: np.ndarray) -> Path:
@@ -51,16 +52,6 @@ def save_image(path: str | Path, image: np.ndarray) -> Path:
         if not cv2.imwrite(str(target), np.ascontiguousarray(out)):
             raise ValueError(f"cannot write {target}: unknown image extension")
     return target
-
-
-def _kv(args: list[str]) -> dict[str, str]:
-    out = {}
-    for arg in args:
-        if "=" not in arg:
-            raise ValueError(f"expected key=value, got {arg!r}")
-        key, value = arg.split("=", 1)
-        out[key.strip()] = value.strip()
-    return out
 
 
 class CamShell(DeviceConsole):
@@ -100,7 +91,7 @@ class CamShell(DeviceConsole):
 
     def _grab_args(self, arg: str, default_name: str) -> tuple[str, dict[str, str]]:
         tokens = shlex.split(arg)
-        opts = _kv([t for t in tokens if "=" in t])
+        opts = assignments([t for t in tokens if "=" in t], flag="grab")
         names = [t for t in tokens if "=" not in t]
         unknown = sorted(set(opts) - {"res", "fmt"})
         if unknown:
@@ -180,7 +171,7 @@ class CamShell(DeviceConsole):
             side = tokens.pop(0)
         if not tokens:
             raise ValueError("usage: set [left|right|both] key=value ...")
-        changes = _kv(tokens)
+        changes = assignments(tokens, flag="set")
         if "white_balance" in changes:
             changes["white_balance"] = changes["white_balance"].replace(",", " ")
         self.show(self.cam.set_settings(side, **changes))

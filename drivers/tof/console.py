@@ -35,6 +35,7 @@ from drivers.console import (
     run,
     split_words,
 )
+from rvs_params import assignments
 
 from . import constants as k
 from .backend import BACKENDS
@@ -187,12 +188,8 @@ class TofConsole(DeviceConsole):
 
     def do_modes(self, arg: str) -> None:
         """modes [NAME=on|off ...]: image correction modes (fix_pattern median denoise_anf conv_gray conf_map)."""
-        changes = {}
-        for word in shlex.split(arg):
-            name, sep, value = word.partition("=")
-            if not sep:
-                raise ValueError("usage: modes [NAME=on|off ...]")
-            changes[name] = _on_off(value)
+        words = assignments(shlex.split(arg), flag="modes", form="NAME=on|off ...")
+        changes = {name: _on_off(value) for name, value in words.items()}
         modes = self.cam.set_correction_modes(**changes) if changes else self.cam.get_correction_modes()
         self.say(" ".join(f"{n}={'on' if v else 'off'}" for n, v in modes.items()) + f"  (mode 0x{self.cam.get_mode():04x})")
 

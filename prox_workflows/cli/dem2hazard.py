@@ -8,7 +8,6 @@ config/dem2hazard.yaml (or ``--config``), then ``--set key=value`` and the thres
 
 from __future__ import annotations
 
-import argparse
 import sys
 import time
 from dataclasses import fields
@@ -16,6 +15,8 @@ from pathlib import Path
 from typing import Any
 
 import yaml
+
+from rvs_params import SettingError
 
 from ..engine import WorkflowError, run_workflow
 from ..grid import GridGeometry, parse_crs
@@ -30,16 +31,6 @@ def read_dem(path: Path, nodata: float | None = None) -> tuple[Any, GridGeometry
     """The DEM as float32 with NaN where undefined (the file's GDAL nodata value, or ``nodata``)."""
     layers = _read_dem(path, nodata)
     return layers["dem"], layers.geometry
-
-
-def _parse_set(items: list[str], ap: argparse.ArgumentParser) -> dict[str, Any]:
-    out: dict[str, Any] = {}
-    for item in items:
-        key, sep, raw = item.partition("=")
-        if not sep:
-            ap.error(f"--set {item}: write key=value")
-        out[key.strip().replace("-", "_")] = yaml.safe_load(raw)
-    return out
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -59,10 +50,11 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--no-preview", action="store_true", help="skip the PNG previews")
     args = ap.parse_args(argv)
 
-    overrides = _parse_set(args.set, ap)
-    overrides.update({f.name: getattr(args, f.name) for f in fields(HazardParams) if getattr(args, f.name) is not None})
     prefix = Path(args.output)
     try:
+        overrides = HazardParams.parse_assignments(args.set)
+        overrides.update({f.name: getattr(args, f.name) for f in fields(HazardParams)
+                          if getattr(args, f.name) is not None})
         params = load_params(args.config, **overrides)
         t0 = time.perf_counter()
         ws, _ = run_workflow("dem2hazard", params.as_dict(), {
@@ -70,7 +62,7 @@ def main(argv: list[str] | None = None) -> int:
             "crs": parse_crs(args.crs),
             "preview": not args.no_preview, "made_by": MADE_BY, "parameters": params.as_dict()})
         seconds = time.perf_counter() - t0
-    except (OSError, ValueError, TypeError, yaml.YAMLError, WorkflowError) as exc:
+    except (OSError, ValueError, TypeError, yaml.YAMLError, WorkflowError, SettingError) as exc:
         sys.stderr.write(f"rvs-dem2hazard: {exc}\n")
         return 2
     maps = ws["maps"]

@@ -28,6 +28,8 @@ from typing import Any
 import numpy as np
 import yaml
 
+from rvs_params import SettingError, assignments
+
 from ..engine import WorkflowError, run_workflow
 from ..steps.stereo import (
     DEFAULT_SIGMA_D,
@@ -37,16 +39,6 @@ from ..steps.stereo_products import read_image  # noqa: F401 - the reader tests 
 from .parser import ToolParser
 
 MADE_BY = "rvs-stereo (prox_workflows.steps.stereo)"
-
-
-def _parse_set(items: list[str], ap: argparse.ArgumentParser) -> dict[str, Any]:
-    out: dict[str, Any] = {}
-    for item in items:
-        key, sep, raw = item.partition("=")
-        if not sep:
-            ap.error(f"--set {item}: write key=value")
-        out[key.strip().replace("-", "_")] = yaml.safe_load(raw)
-    return out
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -84,7 +76,10 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     ap = build_parser()
     args = ap.parse_args(argv)
-    values = _parse_set(args.set, ap)
+    try:
+        values: dict[str, Any] = {k: yaml.safe_load(v) for k, v in assignments(args.set).items()}
+    except SettingError as exc:
+        ap.error(exc.message)
     for key in ("scale", "min_depth", "num_disparities", "block_size", "mode", "texture_noise"):
         if getattr(args, key) is not None:
             values[key] = getattr(args, key)

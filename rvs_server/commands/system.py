@@ -15,6 +15,7 @@ import structlog
 
 from drivers.base import DeviceInterrupted
 from drivers.registry import DEVICE_KINDS, registry
+from rvs_params import assignment
 
 from .. import PROTOCOL_VERSION, __version__
 from ..app import Context
@@ -413,10 +414,7 @@ def config(ctx: Context, cfg: None) -> dict[str, Any]:
         before = dict(vars(current))  # set replaces values (sections too), never edits them in place
         try:
             for item in sets:
-                key, sep, raw = item.partition("=")
-                if not sep:
-                    raise ProtocolError("E_ARG", f"-set {item[:40]}: write key=value")
-                store.set(name, key, raw)
+                store.set(name, *assignment(item, flag="-set"))
             if name == "drivers":
                 ctx.app.devices.reconfigure()
         except (ProtocolError, ValueError) as exc:
