@@ -28,6 +28,8 @@ import numpy as np
 import tifffile
 import yaml
 
+from rvs_params.plain import plain
+
 _UMASK = os.umask(0)
 os.umask(_UMASK)
 
@@ -157,23 +159,6 @@ def write_yaml_atomic(path: Path, data: Any) -> Path:
     """Every YAML the project writes goes through ``plain``: a numpy scalar that reached a
     manifest or sidecar once made safe_dump fail mid-break and lose the recovery set."""
     return write_text_atomic(path, yaml.safe_dump(plain(data), sort_keys=False, default_flow_style=None))
-
-
-def plain(value: Any) -> Any:
-    """Make values YAML-safe (numpy scalars and arrays, paths, tuples)."""
-    if isinstance(value, dict):
-        return {str(k): plain(v) for k, v in value.items()}
-    if isinstance(value, list | tuple):
-        return [plain(v) for v in value]
-    if isinstance(value, np.ndarray):
-        return value.tolist()
-    if isinstance(value, np.generic):
-        return value.item()
-    if isinstance(value, Path):
-        return str(value)
-    if isinstance(value, float) and value != value:
-        return None
-    return value
 
 
 def write_sidecar(product: Path, made_by: str, parameters: dict[str, Any] | None = None,

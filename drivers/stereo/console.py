@@ -35,6 +35,7 @@ from drivers.console import (
 from drivers.stereo import BACKENDS, create
 from drivers.stereo.modes import PIXEL_FORMATS, RESOLUTIONS, SIDES
 from rvs_params import assignments
+from rvs_params.plain import plain
 
 
 def save_image(path: str | Path, image: np.ndarray) -> Path:
@@ -87,7 +88,7 @@ class CamShell(DeviceConsole):
         return self.onecmd(self.precmd(line))
 
     def show(self, data: Any) -> None:
-        self.say(yaml.safe_dump(_plain(data), sort_keys=False).rstrip())
+        self.say(yaml.safe_dump(plain(data, decimals=6), sort_keys=False).rstrip())
 
     def _grab_args(self, arg: str, default_name: str) -> tuple[str, dict[str, str]]:
         tokens = shlex.split(arg)
@@ -266,18 +267,6 @@ def _side_first(arg: str) -> tuple[str, str]:
     if not parts or parts[0].lower() not in SIDES:
         raise ValueError(f"usage: grab-mono {'|'.join(SIDES)} [FILE] [res=..] [fmt=..]")
     return parts[0].lower(), parts[1] if len(parts) > 1 else ""
-
-
-def _plain(data: Any) -> Any:
-    if isinstance(data, dict):
-        return {str(k): _plain(v) for k, v in data.items()}
-    if isinstance(data, list | tuple):
-        return [_plain(v) for v in data]
-    if isinstance(data, np.ndarray):
-        return np.round(data, 6).tolist()
-    if isinstance(data, np.generic):
-        return data.item()
-    return data
 
 
 def load_config(path: str | Path | None) -> dict[str, Any]:
