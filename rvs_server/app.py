@@ -25,6 +25,7 @@ from drivers.base import DeviceError
 from prox_workflows.products import finish_product_sets
 
 from . import __version__
+from .bus import Bus
 from .config import ConfigStore, ServerConfig
 from .devices import DeviceRegistry
 from .jobs import Job, JobRunner, error_fields
@@ -39,6 +40,7 @@ if TYPE_CHECKING:
     from prox_workflows.steps.tracking import Detection
 
     from .server import Connection
+    from .telemetry import Station
     from .web.console import WebConsole
 
 log = structlog.get_logger("rvs")
@@ -163,6 +165,8 @@ class App:
     recovery: RecoverySets  # break's recovery sets and the newest of them
     console: WebConsole | None  # the operator web console, when server.web_port is set (event loop)
     console_off: str | None  # why there is no console (web_port 0, its port taken): status says it
+    bus: Bus  # what happens in the server, for Foxglove and recordings (thread-safe)
+    telemetry: Station | None  # the Foxglove server and the MCAP recording, once serve started them
 
     def __init__(
         self,
@@ -192,13 +196,15 @@ class App:
         self.console = None
         self.console_off = None
         self.stopping = asyncio.Event()
+        self.bus = Bus()
+        self.telemetry = None
         self._quitting = False
         self._base_mode = "ready"
         self._announced_mode = "ready"
         self.pose_changed = threading.Condition()
         self._pose = Pose()
         self._pose_version = 0
-        self.maps = CurrentMaps()
+        self.maps = CurrentMaps(self.bus)
         self.odometry = Shared(None)
         self.track_target = Shared(None)
         self.monitors = Monitors(loop)
@@ -269,6 +275,7 @@ class App:
     def broadcast(self, reply: Reply) -> None:
         """Send an EVENT to every connection that has not said ``events off`` (loop only)."""
         for conn in list(self.connections):
+        self.bus.publish("event", reply=reply)
             if conn.events:
                 conn.send(reply)
 
@@ -380,6 +387,7 @@ class App:
                 "code": "E_TOOLONG",
                 "message": f"request line over {self.server_cfg.max_line} bytes was discarded; send shorter lines",
             }, raw.tag))
+        self.bus.publish("request", conn=conn.id, line=b"(line too long)" if isinstance(raw, TooLong) else raw)
             return None
         if is_silent(raw):
             return None

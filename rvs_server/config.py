@@ -203,6 +203,10 @@ class ServerConfig(ModuleConfig):
                           protected=True)
     web_public: bool = param(False, "serve the console on a non-loopback host even without a token (anyone who "
                              "reaches the port can drive the rover)", protected=True)
+    foxglove_port: int = param(8765, "Foxglove WebSocket port (read-only live view), on the console's host (0: off)",
+                               min=0, max=65535, protected=True)
+    record: bool = param(False, "record the whole run from start to recordings/rvs_<UTC time>.mcap under the data "
+                         "directory (record -start/-stop for one part of it)", protected=True)
 
 
 def _drivers_config() -> type[ModuleConfig]:

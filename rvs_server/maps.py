@@ -28,6 +28,7 @@ from .protocol import Fixed, ProtocolError, valid_stem
 
 if TYPE_CHECKING:
     from .app import App
+    from .bus import Bus
 
 log = structlog.get_logger("rvs")
 
@@ -35,9 +36,11 @@ log = structlog.get_logger("rvs")
 class CurrentMaps:
     """The current DEM's layers (one grid), the files they were written to (layer -> path under
     the data directory, what a recovery set copies) and the views that a stopped acquisition left
-    behind for the next dem-update. Thread-safe; the three change together or not at all."""
+    behind for the next dem-update. Thread-safe; the three change together or not at all. A new
+    or restored DEM is published on ``bus`` (Foxglove's grids, a recording) once the lock is let go."""
 
-    def __init__(self) -> None:
+    def __init__(self, bus: Bus | None = None) -> None:
+        self._bus = bus
         self._lock = threading.RLock()
         self._layers: Layers | None = None
         self._name: str | None = None
@@ -74,11 +77,16 @@ class CurrentMaps:
         """A new current DEM, written as ``files``; the views kept for an update are used up."""
         with self._lock:
             self._layers, self._name, self._files, self._pending = layers, name, dict(files), []
+        if self._bus is not None:
+            self._bus.publish("maps", layers=layers, name=name)
 
     def restore(self, layers: Layers, files: dict[str, str]) -> None:
         """The maps of a recovery set; views kept for an update stay (they are newer)."""
         with self._lock:
             self._layers, self._files = layers, dict(files)
+            name = self._name
+        if self._bus is not None:
+            self._bus.publish("maps", layers=layers, name=name)
 
     def keep_views(self, views: list[Any]) -> None:
         """The views a stopped acquisition got, for the next dem-update to start from."""

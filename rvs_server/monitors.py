@@ -35,6 +35,7 @@ import structlog
 from drivers.base import DeviceError
 from prox_workflows.steps.transforms import HeadCalibration
 
+from .bus import tapped_call
 from .protocol import Fixed, ProtocolError, Reply
 
 if TYPE_CHECKING:
@@ -162,7 +163,7 @@ class Monitor:
         """A driver call that a stop interrupts (the cancel event of a job, for a monitor)."""
         t0 = time.monotonic()
         try:
-            return fn(*args, cancel=self.stop_event, **kwargs)
+            return tapped_call(self.app.bus, fn, *args, cancel=self.stop_event, **kwargs)
         except Exception:
             if self.stop_event.is_set():
                 raise Stopped() from None

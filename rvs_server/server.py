@@ -35,6 +35,8 @@ from .protocol import (
     format_reply,
     format_reply_json,
 )
+from .telemetry import Station
+from .web.console import console_host
 
 log = structlog.get_logger("rvs.server")
 
@@ -198,6 +200,8 @@ class Connection(asyncio.Protocol):
     def send(self, reply: Reply) -> None:
         if self.closed or self.transport is None or self.transport.is_closing():
             return
+        if reply.status != "EVENT":  # an EVENT is published once, by App.broadcast
+            self.app.bus.publish("reply", conn=self.id, reply=reply)
         line = format_reply_json(reply) + "\n" if self.json else format_reply(reply) + "\r\n"
         self.transport.write(line.encode("utf-8"))
         if self.transport.get_write_buffer_size() > MAX_OUTPUT_BYTES:
@@ -326,6 +330,8 @@ async def serve(app: App, sock: socket.socket, *, ready: Any = None, handle_sign
             web_sock.close()
             app.console, app.console_off = None, f"the web console did not start: {exc}"
             log.warning("web_console_off", reason=app.console_off)
+    app.telemetry = Station(app)  # before the TCP server: the first request is already published
+    await app.telemetry.start(console_host(app.server_cfg.host, app.server_cfg.token, app.server_cfg.web_public))
     server = await loop.create_server(lambda: Connection(app), sock=sock, backlog=512)
     if app.server_cfg.warm_up and not app.stopping.is_set():
         start_warm_up(app.stopping)  # the first DEM or plan then skips the JIT
@@ -343,6 +349,8 @@ async def serve(app: App, sock: socket.socket, *, ready: Any = None, handle_sign
             conn.close()
         with contextlib.suppress(TimeoutError):
             await asyncio.wait_for(server.wait_closed(), 1.0)
+        if app.telemetry is not None:
+            await app.telemetry.close()
         app.jobs.shutdown()
         await loop.run_in_executor(None, app.stop_monitors)
         await loop.run_in_executor(None, app.devices.close)

@@ -130,7 +130,7 @@ class ServerThread(session.ServerThread):
         # warm_up off: a hundred short-lived test servers would each load the numba kernels
         # sim.time_scale=0: the rover drives, and frames take, their simulated time in no wall time
         sets = [f"server.data={data}", "server.port=0", "drivers.ptu.time_scale=0", "sim.time_scale=0",
-                "server.warm_up=false", "server.web_port=0", *(overrides or [])]
+                "server.warm_up=false", "server.web_port=0", "server.foxglove_port=0", *(overrides or [])]
         super().__init__(sets, config_dir)
         self.data = data
 

@@ -456,9 +456,9 @@ class ServerProcess:
         root = str(Path(__file__).resolve().parents[1])  # so a source checkout works uninstalled
         env = dict(os.environ)
         env["PYTHONPATH"] = root + (os.pathsep + env["PYTHONPATH"] if env.get("PYTHONPATH") else "")
-        # a throwaway server takes no web console port (7071 may be the operator's real server's)
+        # a throwaway server takes no web console or Foxglove port (7071 and 8765 may be the operator's real server's)
         cmd = [sys.executable, "-m", "rvs_server", "--port", "0", "--data", str(self.data_dir),
-               "--set", "server.web_port=0", *self.extra_args]
+               "--set", "server.web_port=0", "--set", "server.foxglove_port=0", *self.extra_args]
         with open(self.log_path, "wb") as err:
             self.proc = subprocess.Popen(cmd, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=err, env=env)
         deadline = time.monotonic() + timeout

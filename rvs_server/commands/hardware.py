@@ -14,6 +14,7 @@ import numpy as np
 from prox_workflows.products import preview, product_set, write_png, write_sidecar, write_tiff
 
 from ..config import ModuleConfig, param
+from ..bus import tapped_call
 from ..jobs import Interrupted, Job
 from ..protocol import Fixed, ProtocolError
 from ..table import HARDWARE, command
@@ -25,7 +26,7 @@ if TYPE_CHECKING:
 def device_call(job: Job, fn: Any, *args: Any, **kwargs: Any) -> Any:
     """Call a driver with the job's cancel event; a stop caused by break is E_INTERRUPTED, not a fault."""
     try:
-        return fn(*args, cancel=job.cancel, **kwargs)
+        return tapped_call(job.app.bus, fn, *args, cancel=job.cancel, **kwargs)
     except Exception:
         if job.cancelled:
             raise Interrupted(f"{job.command} job {job.id} was interrupted") from None

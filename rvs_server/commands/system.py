@@ -303,6 +303,8 @@ def status(ctx: Context, cfg: StatusConfig) -> dict[str, Any]:
     from ..web.console import console_fields  # console=on console_url, or off console_reason
 
     out.update(console_fields(app))
+    if app.telemetry is not None:  # foxglove=on foxglove_url, or off foxglove_reason; recording
+        out.update(app.telemetry.fields())
     if app.world is not None:
         out["scene"] = app.world.scene_name
         # Beside the believed pose: the simulated rover's true one (they part with sim slip).

@@ -1,0 +1,286 @@
+"""The telemetry hub: takes what the server publishes on its bus, samples the pose and the PTU,
+and logs all of it as Foxglove messages to the live server and to a recording.
+
+Everything heavy (encoding grids, clouds and JPEGs, compressing MCAP chunks) runs in the hub's
+own thread. The bus subscriber only queues the item, so the event loop and the jobs pay a
+deque append; a queue the thread cannot keep up with drops its oldest items and counts them
+(``dropped``), rather than letting a burst of frames grow the server's memory.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections import deque
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+import structlog
+
+from prox_workflows.grid import Layers
+from prox_workflows.steps.transforms import HeadCalibration
+
+from ..bus import Item
+from ..maps import ground_height
+from ..protocol import format_reply
+from . import messages as m
+from .outlet import MAP_PREFIX, TOPICS, Outlet
+
+if TYPE_CHECKING:
+    from ..app import App
+
+log = structlog.get_logger("rvs.telemetry")
+
+TICK = 0.1  # s between samples of the frame tree and poses (10 Hz: a PTU sweep looks smooth)
+TRACK_EVERY = 1.0  # s between track updates (it grows to thousands of points)
+TRACK_POINTS = 5000
+TRACK_STEP = 0.02  # m the rover moves before the track gets a point
+MAX_QUEUED = 512  # items the thread may lag behind (a 24-view scan queues about 50)
+# The driver calls whose results are frames, and what each one returns.
+FRAME_CALLS = {"grab_xyz", "grab", "grab_stereo", "grab_mono", "grab_stereo_direct", "grab_mono_direct"}
+
+
+class Telemetry:
+    """The hub: one thread, a live outlet (if the Foxglove server runs) and a recording outlet
+    (while recording). Outlets are attached and detached through :meth:`attach`/:meth:`detach`
+    from any thread; the state the thread keeps (the last maps, plan, track) is its own."""
+
+    def __init__(self, app: App) -> None:
+        self.app = app
+        self.dropped = 0
+        self._queue: deque[Item | tuple[str, Any]] = deque()
+        self._wake = threading.Condition()
+        self._outlets: tuple[Outlet, ...] = ()
+        self._stop = False
+        self._maps: tuple[int, Layers, str | None] | None = None
+        self._latched: dict[str, tuple[int, bytes]] = {}  # plan, check-move: their last message
+        self._track: deque[tuple[float, float, float]] = deque(maxlen=TRACK_POINTS)
+        self._track_sent = 0.0
+        self._track_dirty = False
+        self._requests: dict[int, tuple[float, float, float]] = {}  # conn -> pose at its last check-move
+        self._thread = threading.Thread(target=self._run, name="rvs-telemetry", daemon=True)
+        self._thread.start()
+        app.bus.subscribe(self.accept)
+
+    # ------------------------------------------------------------------ outside the thread
+
+    def accept(self, item: Item) -> None:
+        """The bus subscriber (any thread): keep what the outlets use, copy frames (the job may
+        reuse its arrays), queue, return."""
+        if item.kind == "frame":
+            if item.data["call"] not in FRAME_CALLS:
+                return
+            result = item.data["result"]
+            copied = tuple(np.array(a) for a in result) if isinstance(result, tuple) else np.array(result)
+            item = Item(item.kind, item.time_ns, {**item.data, "result": copied})
+        self._put(item)
+
+    def _put(self, entry: Item | tuple[str, Any]) -> None:
+        with self._wake:
+            if len(self._queue) >= MAX_QUEUED:
+                self._queue.popleft()
+                self.dropped += 1
+            self._queue.append(entry)
+            self._wake.notify()
+
+    def attach(self, outlet: Outlet) -> None:
+        """Start logging to ``outlet``; what is latched (maps, plan, track) goes to it first."""
+        self._put(("attach", outlet))
+
+    def detach(self, outlet: Outlet) -> threading.Event:
+        """Stop logging to ``outlet``; the event is set once the thread has let it go (a recording
+        is closed after that, never while a message is half written)."""
+        done = threading.Event()
+        self._put(("detach", (outlet, done)))
+        return done
+
+    def resend(self, outlet: Outlet, topic: str) -> None:
+        """A live client subscribed to ``topic``: send it what is latched there."""
+        self._put(("resend", (outlet, topic)))
+
+    def close(self) -> None:
+        self.app.bus.unsubscribe(self.accept)
+        with self._wake:
+            self._stop = True
+            self._wake.notify()
+        self._thread.join(5.0)
+
+    # ------------------------------------------------------------------ the thread
+
+    def _run(self) -> None:
+        next_tick = time.monotonic()
+        while True:
+            with self._wake:
+                while not self._queue and not self._stop and time.monotonic() < next_tick:
+                    self._wake.wait(max(0.0, next_tick - time.monotonic()))
+                if self._stop:
+                    return
+                batch = list(self._queue)
+                self._queue.clear()
+            for entry in batch:
+                try:
+                    self._handle(entry)
+                except Exception:  # noqa: BLE001 - a bad item costs only itself
+                    log.exception("telemetry_item_failed", kind=entry[0] if isinstance(entry, tuple) else entry.kind)
+            if time.monotonic() >= next_tick:
+                next_tick = time.monotonic() + TICK
+                try:
+                    for outlet in self._outlets:
+                        outlet.tick(next_tick)
+                    self._sample()
+                except Exception:  # noqa: BLE001
+                    log.exception("telemetry_sample_failed")
+
+    def _handle(self, entry: Item | tuple[str, Any]) -> None:
+        if isinstance(entry, tuple):
+            what, arg = entry
+            if what == "attach":
+                self._outlets = (*self._outlets, arg)
+                if not arg.live:
+                    self._send_latched(arg)
+            elif what == "detach":
+                outlet, done = arg
+                self._outlets = tuple(o for o in self._outlets if o is not outlet)
+                done.set()
+            elif what == "resend":
+                outlet, topic = arg
+                if outlet in self._outlets:
+                    self._send_latched(outlet, topic)
+            return
+        handler = getattr(self, f"_on_{entry.kind}", None)
+        if handler is not None:
+            handler(entry)
+
+    def _log(self, topic: str, make: Any, t_ns: int, outlets: tuple[Outlet, ...] | None = None) -> None:
+        """Encode (``make()``) once, if any outlet wants the topic, and log it there."""
+        wanting = [o for o in (self._outlets if outlets is None else outlets) if o.wants(topic)]
+        if not wanting:
+            return
+        data = make()
+        for outlet in wanting:
+            outlet.log(topic, data, t_ns)
+
+    def _latch(self, topic: str, data: bytes, t_ns: int) -> None:
+        self._latched[topic] = (t_ns, data)
+        self._log(topic, lambda: data, t_ns)
+
+    def _send_latched(self, outlet: Outlet, topic: str | None = None) -> None:
+        if self._maps is not None:
+            t_ns, layers, _ = self._maps
+            for name in layers.layers:
+                if topic in (None, MAP_PREFIX + name):
+                    self._log(MAP_PREFIX + name, lambda n=name: m.grid(t_ns, layers, n), t_ns, (outlet,))
+        for key, (t_ns, data) in self._latched.items():
+            if topic in (None, key):
+                self._log(key, lambda d=data: d, t_ns, (outlet,))
+        if topic in (None, "/nav/track") and self._track:
+            self._log("/nav/track", lambda: m.track(time.time_ns(), list(self._track)), time.time_ns(), (outlet,))
+
+    # -- bus items
+
+    def _on_maps(self, item: Item) -> None:
+        layers: Layers = item.data["layers"]
+        self._maps = (item.time_ns, layers, item.data["name"])
+        for name in layers.layers:
+            self._log(MAP_PREFIX + name, lambda n=name: m.grid(item.time_ns, layers, n), item.time_ns)
+
+    def _on_frame(self, item: Item) -> None:
+        t, call, result = item.time_ns, item.data["call"], item.data["result"]
+        if item.data["device"] == "tof":
+            if call == "grab_xyz":
+                xyz, amplitude = result
+                self._log("/tof/points", lambda: m.point_cloud(t, "tof", xyz, amplitude), t)
+                self._log("/tof/depth", lambda: m.raw_image(t, "tof", np.where(xyz[..., 2] > 0, xyz[..., 2], np.nan)
+                                                            .astype(np.float32)), t)
+                self._log("/tof/amplitude", lambda: m.raw_image(t, "tof", amplitude), t)
+                self._log("/raw/tof/xyz", lambda: m.raw_image(t, "tof", xyz), t)
+                self._log("/raw/tof/amplitude", lambda: m.raw_image(t, "tof", amplitude), t)
+            else:  # grab(image_type): distance, amplitude, confidence, z, xyz
+                kind = str(item.data["args"][0]) if item.data["args"] else "distance"
+                topic = {"z": "/tof/depth"}.get(kind, f"/tof/{kind}")
+                if topic in TOPICS:
+                    self._log(topic, lambda: m.raw_image(t, "tof", result), t)
+                self._log("/raw/tof/image", lambda: m.raw_image(t, "tof", result), t)
+        elif item.data["device"] == "stereo":
+            if isinstance(result, tuple):
+                sides = dict(zip(("left", "right"), result, strict=True))
+            else:
+                args = item.data["args"]
+                sides = {str(args[0]) if args else "left": result}
+            for side, image in sides.items():
+                frame = m.sensor_frame(side)
+                self._log(f"/stereo/{side}/compressed", lambda i=image, f=frame: m.jpeg(t, f, i), t)
+                self._log(f"/raw/stereo/{side}", lambda i=image, f=frame: m.raw_image(t, f, i), t)
+
+    def _wire(self, item: Item, direction: str, conn: Any, text: str, reply: Any = None) -> None:
+        self._log("/rvs/log", lambda: m.log_line(item.time_ns, direction, conn, text, reply), item.time_ns)
+        self._log("/rvs/wire", lambda: m.json_bytes({"dir": direction, "conn": conn, "line": text}), item.time_ns)
+
+    def _on_request(self, item: Item) -> None:
+        line = item.data["line"].decode("utf-8", "replace").rstrip("\r\n")
+        self._wire(item, "request", item.data["conn"], line)
+        if _command(line) == "check-move":  # the move starts where the rover is now
+            p = self.app.pose
+            self._requests[item.data["conn"]] = (p.x, p.y, p.heading)
+
+    def _on_reply(self, item: Item) -> None:
+        reply = item.data["reply"]
+        self._wire(item, "reply", item.data["conn"], format_reply(reply), reply)
+        fields = reply.fields
+        if isinstance(fields.get("job"), int) and reply.status in ("ACK", "PROGRESS", "OK", "ERROR"):
+            done, total = int(fields.get("done", 0)), int(fields.get("total", 0))
+            progress = {"job": int(fields["job"]), "command": reply.module, "status": reply.status,
+                        "phase": str(fields.get("phase", "")), "done": done, "total": total,
+                        "fraction": done / total if total else float(reply.status == "OK"),
+                        "message": str(fields.get("message", ""))}
+            self._log("/rvs/job", lambda: m.json_bytes(progress), item.time_ns)
+        if reply.module == "EGP-RVS-CHECK-MOVE" and reply.status == "OK" and "to" in fields:
+            p = self.app.pose
+            start = self._requests.pop(item.data["conn"], (p.x, p.y, p.heading))
+            head = self.app.config.get("head")
+            z = ground_height(self.app.maps.layers, start[0], start[1])
+            self._latch("/nav/check_move", m.check_move(item.time_ns, start, fields, z,
+                                                        (head.rover_length, head.rover_width)), item.time_ns)
+
+    def _on_event(self, item: Item) -> None:
+        reply = item.data["reply"]
+        self._wire(item, "event", None, format_reply(reply), reply)
+        fields = reply.fields
+        if fields.get("kind") == "waiting" and fields.get("waypoints"):
+            waypoints = [(float(x), float(y), float(h)) for x, y, h in fields["waypoints"]]
+            z = ground_height(self.app.maps.layers, waypoints[0][0], waypoints[0][1])
+            self._latch("/nav/plan", m.plan(item.time_ns, waypoints, z, fields.get("leg")), item.time_ns)
+
+    # -- sampled state
+
+    def _sample(self) -> None:
+        if not self._outlets:
+            return
+        app, t = self.app, time.time_ns()
+        pose = app.pose
+        z = ground_height(app.maps.layers, pose.x, pose.y)
+        truth = None
+        if app.world is not None:
+            tr = app.world.truth()
+            truth = (float(tr["x"]), float(tr["y"]), float(tr["heading"]))
+        ptu = app.ptu_position()
+        head = HeadCalibration.from_dict(app.config.get("head").as_dict())
+        self._log("/tf", lambda: m.frame_tree(t, head, (pose.x, pose.y, pose.heading, z), ptu, truth), t)
+        self._log("/rover/pose", lambda: m.pose_in_world(t, pose.x, pose.y, pose.heading, z), t)
+        if truth is not None:
+            self._log("/rover/truth", lambda: m.pose_in_world(t, *truth, z), t)
+        here = truth or (pose.x, pose.y, pose.heading)
+        if not self._track or abs(self._track[-1][0] - here[0]) + abs(self._track[-1][1] - here[1]) > TRACK_STEP:
+            self._track.append((here[0], here[1], z + 0.02))
+            self._track_dirty = True
+        if self._track_dirty and time.monotonic() - self._track_sent >= TRACK_EVERY:
+            self._track_sent, self._track_dirty = time.monotonic(), False
+            self._log("/nav/track", lambda: m.track(t, list(self._track)), t)
+
+
+def _command(line: str) -> str:
+    """A request line's command word (after its ``@tag``)."""
+    words = line.split(None, 2)
+    if words and words[0].startswith("@"):
+        words = words[1:]
+    return words[0].lower() if words else ""

@@ -1,0 +1,243 @@
+"""The server's state as Foxglove messages (foxglove.* protobuf schemas), each encoded once to
+bytes that the live server and a recording both log.
+
+Frames (docs/PROTOCOL.md, Foxglove): ``world`` (the global frame: x, y as the pose, z up) ->
+``rover`` (the believed pose) -> ``mast`` (the pan axis' foot, ``head.ptu_base``) -> ``ptu_pan``
+-> ``ptu_tilt`` -> one optical frame per mounted sensor (``tof``, ``stereo_left``,
+``stereo_right``, any other mount by its name: x right, y down, z forward, as Foxglove's
+cameras and the drivers' images). ``world`` -> ``rover_truth`` is the simulated rover.
+"""
+
+from __future__ import annotations
+
+import json
+from typing import Any
+
+import cv2
+import numpy as np
+from foxglove.messages import (
+    ArrowPrimitive,
+    Color,
+    CompressedImage,
+    CubePrimitive,
+    FrameTransform,
+    FrameTransforms,
+    Grid,
+    LinePrimitive,
+    LinePrimitiveLineType,
+    Log,
+    LogLevel,
+    PackedElementField,
+    PackedElementFieldNumericType,
+    Point3,
+    PointCloud,
+    Pose,
+    PoseInFrame,
+    Quaternion,
+    RawImage,
+    SceneEntity,
+    SceneUpdate,
+    TextPrimitive,
+    Timestamp,
+    Vector2,
+    Vector3,
+)
+from scipy.spatial.transform import Rotation
+
+from prox_workflows.grid import Layers
+from prox_workflows.steps.transforms import HeadCalibration, make_T, rot_y, rot_z
+
+from ..protocol import Reply
+
+WORLD = "world"
+SENSOR_FRAMES = {"left": "stereo_left", "right": "stereo_right"}  # mount name -> frame id (else the name)
+
+_NUMERIC = {
+    np.dtype(np.uint8): PackedElementFieldNumericType.Uint8,
+    np.dtype(np.int8): PackedElementFieldNumericType.Int8,
+    np.dtype(np.uint16): PackedElementFieldNumericType.Uint16,
+    np.dtype(np.int16): PackedElementFieldNumericType.Int16,
+    np.dtype(np.uint32): PackedElementFieldNumericType.Uint32,
+    np.dtype(np.int32): PackedElementFieldNumericType.Int32,
+    np.dtype(np.float32): PackedElementFieldNumericType.Float32,
+    np.dtype(np.float64): PackedElementFieldNumericType.Float64,
+}
+
+PLAN_COLOUR = Color(r=1.0, g=0.55, b=0.0, a=1.0)
+TRACK_COLOUR = Color(r=0.1, g=0.5, b=1.0, a=1.0)
+VERDICT_COLOUR = {"safe": Color(r=0.1, g=0.8, b=0.2, a=0.8), "blocked": Color(r=0.9, g=0.1, b=0.1, a=0.8)}
+UNKNOWN_COLOUR = Color(r=0.6, g=0.6, b=0.6, a=0.8)
+
+
+def stamp(t_ns: int) -> Timestamp:
+    return Timestamp(t_ns // 1_000_000_000, t_ns % 1_000_000_000)
+
+
+def sensor_frame(mount: str) -> str:
+    return SENSOR_FRAMES.get(mount, mount)
+
+
+def _pose(T: np.ndarray) -> Pose:
+    return Pose(position=_vector(T[:3, 3]), orientation=_quaternion(T[:3, :3]))
+
+
+def _vector(t: Any) -> Vector3:
+    return Vector3(x=float(t[0]), y=float(t[1]), z=float(t[2]))
+
+
+def _quaternion(R: np.ndarray) -> Quaternion:
+    x, y, z, w = Rotation.from_matrix(R).as_quat()
+    return Quaternion(x=float(x), y=float(y), z=float(z), w=float(w))
+
+
+def _transform(t_ns: int, parent: str, child: str, T: np.ndarray) -> FrameTransform:
+    return FrameTransform(timestamp=stamp(t_ns), parent_frame_id=parent, child_frame_id=child,
+                          translation=_vector(T[:3, 3]), rotation=_quaternion(T[:3, :3]))
+
+
+def rover_T(x: float, y: float, heading: float, z: float) -> np.ndarray:
+    return make_T(rot_z(heading), (x, y, z))
+
+
+def frame_tree(t_ns: int, head: HeadCalibration, pose: tuple[float, float, float, float],
+               ptu: tuple[float, float] | None, truth: tuple[float, float, float] | None) -> bytes:
+    """The whole tree at ``t_ns``: pose (x, y, heading, ground z), PTU (pan, tilt; 0, 0 unknown),
+    the simulated rover's true (x, y, heading) on the same ground height."""
+    pan, tilt = ptu or (0.0, 0.0)
+    transforms = [
+        _transform(t_ns, WORLD, "rover", rover_T(*pose)),
+        _transform(t_ns, "rover", "mast", make_T(None, head.ptu_base)),
+        _transform(t_ns, "mast", "ptu_pan", make_T(rot_z(pan))),
+        _transform(t_ns, "ptu_pan", "ptu_tilt", make_T(rot_y(-tilt), (0.0, 0.0, head.tilt_offset))),
+    ]
+    transforms += [_transform(t_ns, "ptu_tilt", sensor_frame(name), head.T_tilt_from_sensor(name))
+                   for name in head.mounts]
+    if truth is not None:
+        transforms.append(_transform(t_ns, WORLD, "rover_truth", rover_T(*truth, pose[3])))
+    return FrameTransforms(transforms=transforms).encode()
+
+
+def pose_in_world(t_ns: int, x: float, y: float, heading: float, z: float) -> bytes:
+    return PoseInFrame(timestamp=stamp(t_ns), frame_id=WORLD, pose=_pose(rover_T(x, y, heading, z))).encode()
+
+
+def grid(t_ns: int, layers: Layers, name: str) -> bytes:
+    """One layer as a Grid in ``world``: Foxglove's cells run from the origin corner along +x then
+    +y, ours north-up from the north-west corner, so the rows are sent south first and the
+    origin is the south-west corner (xmin, ymin)."""
+    g = layers.geometry
+    values = np.ascontiguousarray(np.flipud(layers[name]))
+    if values.dtype not in _NUMERIC:
+        values = values.astype(np.float32)
+    size = values.dtype.itemsize
+    return Grid(timestamp=stamp(t_ns), frame_id=WORLD, pose=_pose(make_T(None, (g.xmin, g.ymin, 0.0))),
+                column_count=g.width, cell_size=Vector2(x=g.cell, y=g.cell), row_stride=g.width * size,
+                cell_stride=size, fields=[PackedElementField(name=name, offset=0, type=_NUMERIC[values.dtype])],
+                data=values.tobytes()).encode()
+
+
+_CLOUD_FIELDS = [PackedElementField(name=n, offset=4 * i, type=PackedElementFieldNumericType.Float32)
+                 for i, n in enumerate(("x", "y", "z", "intensity"))]
+
+
+def point_cloud(t_ns: int, frame: str, xyz: np.ndarray, amplitude: np.ndarray) -> bytes:
+    """The defined points of an organised H x W x 3 image (the ToF's: -1 where undefined) with
+    their amplitude, in the sensor's frame."""
+    valid = xyz[..., 2] > 0
+    packed = np.empty((int(valid.sum()), 4), np.float32)
+    packed[:, :3] = xyz[valid]
+    packed[:, 3] = amplitude[valid]
+    return PointCloud(timestamp=stamp(t_ns), frame_id=frame, pose=_pose(np.eye(4)), point_stride=16,
+                      fields=_CLOUD_FIELDS, data=packed.tobytes()).encode()
+
+
+def raw_image(t_ns: int, frame: str, image: np.ndarray) -> bytes:
+    """An image as the driver returned it, full resolution: float32 (1 or 3 channels, NaN or -1
+    undefined), mono8 or rgb8."""
+    image = np.ascontiguousarray(image)
+    channels = 1 if image.ndim == 2 else image.shape[2]
+    if image.dtype == np.float32:
+        encoding = f"32FC{channels}"
+    elif image.dtype == np.uint16:
+        encoding = "mono16" if channels == 1 else "rgb16"
+    else:
+        image = image.astype(np.uint8, copy=False)
+        encoding = "mono8" if channels == 1 else "rgb8"
+    return RawImage(timestamp=stamp(t_ns), frame_id=frame, width=image.shape[1], height=image.shape[0],
+                    encoding=encoding, step=image.strides[0], data=image.tobytes()).encode()
+
+
+def jpeg(t_ns: int, frame: str, image: np.ndarray, quality: int = 85) -> bytes:
+    """A camera image JPEG-compressed (what a live view needs: a tenth of the bytes)."""
+    if image.dtype != np.uint8:
+        image = (image >> 8).astype(np.uint8) if image.dtype == np.uint16 else np.clip(image, 0, 255).astype(np.uint8)
+    if image.ndim == 3:
+        image = cv2.cvtColor(image, cv2.COLOR_RGB2BGR)
+    ok, data = cv2.imencode(".jpg", image, [cv2.IMWRITE_JPEG_QUALITY, quality])
+    if not ok:
+        raise ValueError("the image could not be JPEG-encoded")
+    return CompressedImage(timestamp=stamp(t_ns), frame_id=frame, data=data.tobytes(), format="jpeg").encode()
+
+
+def _line(points: list[tuple[float, float, float]], colour: Color, thickness: float) -> LinePrimitive:
+    return LinePrimitive(type=LinePrimitiveLineType.LineStrip, pose=_pose(np.eye(4)), thickness=thickness,
+                         scale_invariant=True, points=[Point3(x=x, y=y, z=z) for x, y, z in points], color=colour)
+
+
+def _text(x: float, y: float, z: float, text: str) -> TextPrimitive:
+    return TextPrimitive(pose=_pose(make_T(None, (x, y, z))), billboard=True, font_size=14.0, scale_invariant=True,
+                         color=Color(r=1.0, g=1.0, b=1.0, a=1.0), text=text)
+
+
+def plan(t_ns: int, waypoints: list[tuple[float, float, float]], z: float, leg: Any) -> bytes:
+    """A leg's plan: the line through its waypoints and an arrow per waypoint along its heading."""
+    arrows = [ArrowPrimitive(pose=_pose(rover_T(x, y, h, z + 0.05)), shaft_length=0.25, shaft_diameter=0.04,
+                             head_length=0.1, head_diameter=0.1, color=PLAN_COLOUR) for x, y, h in waypoints]
+    entity = SceneEntity(timestamp=stamp(t_ns), frame_id=WORLD, id="plan", arrows=arrows,
+                         lines=[_line([(x, y, z + 0.05) for x, y, _ in waypoints], PLAN_COLOUR, 3.0)],
+                         texts=[_text(*waypoints[-1][:2], z + 0.4, f"leg {leg}")] if waypoints else [])
+    return SceneUpdate(entities=[entity]).encode()
+
+
+def track(t_ns: int, points: list[tuple[float, float, float]]) -> bytes:
+    """The driven track (the simulated rover's true positions where there is one)."""
+    entity = SceneEntity(timestamp=stamp(t_ns), frame_id=WORLD, id="track", lines=[_line(points, TRACK_COLOUR, 2.0)])
+    return SceneUpdate(entities=[entity]).encode()
+
+
+def check_move(t_ns: int, start: tuple[float, float, float], fields: dict[str, Any], z: float,
+               footprint: tuple[float, float]) -> bytes:
+    """A check-move's answer: the move as a line, the rover's box at its end coloured by the
+    verdict, the worst cell marked, and the verdict as text."""
+    end = [float(v) for v in fields["to"]]
+    verdict = str(fields.get("verdict"))
+    colour = VERDICT_COLOUR.get(verdict, UNKNOWN_COLOUR)
+    box = CubePrimitive(pose=_pose(rover_T(end[0], end[1], end[2], z + 0.1)),
+                        size=Vector3(x=footprint[0], y=footprint[1], z=0.2), color=colour)
+    cubes = [box]
+    if verdict != "safe" and "worst_x" in fields:
+        cubes.append(CubePrimitive(pose=_pose(make_T(None, (float(fields["worst_x"]), float(fields["worst_y"]), z))),
+                                   size=Vector3(x=0.1, y=0.1, z=0.3), color=colour))
+    entity = SceneEntity(timestamp=stamp(t_ns), frame_id=WORLD, id="check_move", cubes=cubes,
+                         lines=[_line([(start[0], start[1], z + 0.05), (end[0], end[1], z + 0.05)], colour, 2.0)],
+                         texts=[_text(end[0], end[1], z + 0.5, f"check-move: {verdict}")])
+    return SceneUpdate(entities=[entity]).encode()
+
+
+_LEVEL = {"ERROR": LogLevel.Error, "EVENT": LogLevel.Info}
+
+
+def log_line(t_ns: int, direction: str, conn: Any, text: str, reply: Reply | None = None) -> bytes:
+    """A wire line as a Log: ``name`` says who and which way (``conn 3 >`` a request, ``conn 3 <``
+    a reply, ``event`` an EVENT); ERROR lines and hazard events are warnings or errors."""
+    level = LogLevel.Info
+    if reply is not None:
+        level = _LEVEL.get(reply.status, LogLevel.Info)
+        if reply.status == "EVENT" and str(reply.fields.get("kind", "")).startswith(("hazard", "fault")):
+            level = LogLevel.Warning
+    name = "event" if direction == "event" else f"conn {conn} {'>' if direction == 'request' else '<'}"
+    return Log(timestamp=stamp(t_ns), level=level, message=text, name=name).encode()
+
+
+def json_bytes(obj: dict[str, Any]) -> bytes:
+    return json.dumps(obj, separators=(",", ":"), default=str).encode()

@@ -1,0 +1,118 @@
+"""Where encoded messages go: one Foxglove context per destination (the live server, a recording),
+each with its own channels, so a message is encoded once and logged to each destination that
+wants it, and what only one of them needs (a map again for a client that just subscribed, the
+current state at a recording's start) goes to that one alone.
+
+The topic table is the one declaration of every channel: its schema, and whether the live
+server carries it (the raw frames and the wire's JSON copy are for recordings only).
+"""
+
+from __future__ import annotations
+
+import threading
+from collections import Counter
+from dataclasses import dataclass
+from typing import Any
+
+import foxglove
+from foxglove.messages import (
+    CompressedImage,
+    FrameTransforms,
+    Grid,
+    Log,
+    PointCloud,
+    PoseInFrame,
+    RawImage,
+    SceneUpdate,
+)
+
+
+@dataclass(frozen=True)
+class Topic:
+    schema: Any  # a foxglove Schema (protobuf) or a JSON schema (dict)
+    live: bool = True  # the Foxglove server carries it (else recordings only)
+    latched: bool = False  # its last message is sent again to whoever starts listening
+
+
+JOB_SCHEMA = {"type": "object", "title": "rvs.JobProgress", "properties": {
+    "job": {"type": "integer"}, "command": {"type": "string"}, "status": {"type": "string"},
+    "phase": {"type": "string"}, "done": {"type": "integer"}, "total": {"type": "integer"},
+    "fraction": {"type": "number"}, "message": {"type": "string"}}}
+WIRE_SCHEMA = {"type": "object", "title": "rvs.WireLine", "properties": {
+    "dir": {"type": "string", "enum": ["request", "reply", "event"]}, "conn": {"type": ["integer", "null"]},
+    "line": {"type": "string"}}}
+
+TOPICS: dict[str, Topic] = {
+    "/tf": Topic(FrameTransforms.get_schema()),
+    "/rover/pose": Topic(PoseInFrame.get_schema()),
+    "/rover/truth": Topic(PoseInFrame.get_schema()),
+    "/tof/points": Topic(PointCloud.get_schema()),
+    "/tof/depth": Topic(RawImage.get_schema()),
+    "/tof/amplitude": Topic(RawImage.get_schema()),
+    "/tof/distance": Topic(RawImage.get_schema()),
+    "/tof/confidence": Topic(RawImage.get_schema()),
+    "/stereo/left/compressed": Topic(CompressedImage.get_schema()),
+    "/stereo/right/compressed": Topic(CompressedImage.get_schema()),
+    "/nav/plan": Topic(SceneUpdate.get_schema(), latched=True),
+    "/nav/track": Topic(SceneUpdate.get_schema(), latched=True),
+    "/nav/check_move": Topic(SceneUpdate.get_schema(), latched=True),
+    "/rvs/log": Topic(Log.get_schema()),
+    "/rvs/job": Topic(JOB_SCHEMA),
+    "/rvs/wire": Topic(WIRE_SCHEMA, live=False),
+    "/raw/tof/xyz": Topic(RawImage.get_schema(), live=False),
+    "/raw/tof/amplitude": Topic(RawImage.get_schema(), live=False),
+    "/raw/tof/image": Topic(RawImage.get_schema(), live=False),
+    "/raw/stereo/left": Topic(RawImage.get_schema(), live=False),
+    "/raw/stereo/right": Topic(RawImage.get_schema(), live=False),
+}
+MAP_PREFIX = "/map/"  # + layer name: one Grid channel per layer, latched
+
+
+def topic_spec(topic: str) -> Topic:
+    if topic.startswith(MAP_PREFIX):
+        return Topic(Grid.get_schema(), latched=True)
+    return TOPICS[topic]
+
+
+class Outlet:
+    """One destination's context and channels (created on first use); counts what it logged."""
+
+    def __init__(self, live: bool) -> None:
+        self.live = live
+        self.context = foxglove.Context()
+        self.counts: Counter[str] = Counter()
+        self._channels: dict[str, foxglove.Channel] = {}
+        self._lock = threading.Lock()
+
+    def channel(self, topic: str) -> foxglove.Channel | None:
+        """The topic's channel here, or None when this destination does not carry it."""
+        ch = self._channels.get(topic)
+        if ch is None:
+            spec = topic_spec(topic)
+            if self.live and not spec.live:
+                return None
+            with self._lock:
+                ch = self._channels.get(topic)
+                if ch is None:
+                    encoding = "json" if isinstance(spec.schema, dict) else "protobuf"
+                    ch = foxglove.Channel(topic, schema=spec.schema, message_encoding=encoding, context=self.context)
+                    self._channels[topic] = ch
+        return ch
+
+    def declare(self) -> None:
+        """Advertise every fixed topic at once, so that a client sees them all before data flows."""
+        for topic in TOPICS:
+            self.channel(topic)
+
+    def wants(self, topic: str) -> bool:
+        ch = self.channel(topic)
+        return ch is not None and ch.base.has_sinks()
+
+    def log(self, topic: str, data: bytes, t_ns: int) -> None:
+        ch = self.channel(topic)
+        if ch is not None:
+            ch.log(data, log_time=t_ns)
+            self.counts[topic] += 1
+
+    def tick(self, now: float) -> None:
+        """Called by the hub's thread about every tenth of a second (a recording flushes here)."""
