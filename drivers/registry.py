@@ -23,7 +23,7 @@ from typing import Any, ClassVar, Generic, Protocol, TypeVar
 from drivers.base import DeviceError
 from rvs_params import Settings, param
 
-DEVICE_KINDS: tuple[str, ...] = ("ptu", "tof", "stereo", "trigger")
+DEVICE_KINDS: tuple[str, ...] = ("ptu", "tof", "stereo", "trigger", "rover")
 
 
 class Capability(enum.StrEnum):
@@ -146,6 +146,13 @@ def peers(kind: str) -> tuple[str, ...]:
     return tuple(importlib.import_module(f"drivers.{kind}").PEERS)
 
 
+def inputs(kind: str) -> tuple[str, ...]:
+    """What else of the server's a device of ``kind`` is given at creation, by name (its
+    package's ``INPUTS``: the rover gets the pose feed its GNC reports into)."""
+    registry(kind)  # the kind check
+    return tuple(getattr(importlib.import_module(f"drivers.{kind}"), "INPUTS", ()))
+
+
 def open_order() -> list[str]:
     """DEVICE_KINDS with every kind after its peers (a device is built with its peers open)."""
     order: list[str] = []
@@ -165,10 +172,11 @@ def open_order() -> list[str]:
 
 
 def fault_kinds() -> dict[str, tuple[str, ...]]:
-    """Per device kind, the faults its simulator declares (what ``sim fault`` offers)."""
+    """Per device kind whose simulator declares faults, those faults (what ``sim fault`` offers)."""
     out: dict[str, tuple[str, ...]] = {}
     for kind in DEVICE_KINDS:
         reg = registry(kind)
-        if "sim" in reg.names():
-            out[kind] = tuple(reg.get("sim").faults)  # type: ignore[attr-defined]
+        faults = tuple(reg.get("sim").faults) if "sim" in reg.names() else ()  # type: ignore[attr-defined]
+        if faults:
+            out[kind] = faults
     return out

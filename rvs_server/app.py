@@ -188,7 +188,8 @@ class App:
         self.name = f"{self.server_cfg.name}/{__version__}"
         self.started = time.monotonic()
         self.jobs = JobRunner(loop)
-        self.devices = DeviceRegistry(config.get("drivers"), world)  # live: config -set reaches it
+        # live: config -set reaches it; the rover reports into (and its GNC is heard through) the pose
+        self.devices = DeviceRegistry(config.get("drivers"), world, poses=self)
         self.device_lock = threading.RLock()
         self.connections = set()
         self.last_used_hardware = False

@@ -23,7 +23,7 @@ from typing import Any
 import structlog
 
 from drivers.base import Cancel, Device, DeviceError, DeviceInterrupted
-from drivers.registry import DEVICE_KINDS, open_order, peers
+from drivers.registry import DEVICE_KINDS, inputs, open_order, peers
 from rvs_params import Settings
 
 log = structlog.get_logger("rvs.devices")
@@ -37,11 +37,13 @@ def _factory(name: str) -> Callable[..., Device]:
 class DeviceRegistry:
     """Open devices by name, with the error of each one that failed to open or check."""
 
-    def __init__(self, drivers: Any, world: Any = None) -> None:
+    def __init__(self, drivers: Any, world: Any = None, **given: Any) -> None:
         """``drivers`` is the live DriversConfig (one typed settings section per device kind), never
-        a copy: ``config -set`` replaces a section there, and the next build reads it."""
+        a copy: ``config -set`` replaces a section there, and the next build reads it. ``given``:
+        what a device package asks for besides the world (its ``INPUTS``, e.g. ``poses``)."""
         self.drivers = drivers
         self.world = world
+        self.given = given
         self.devices: dict[str, Device] = {}
         self.errors: dict[str, str] = {}
         self.built: dict[str, Settings] = {}  # per device: the settings it runs with
@@ -100,6 +102,7 @@ class DeviceRegistry:
     def _create(self, name: str) -> Device:
         create = _factory(name)
         kwargs = {peer: self.devices[peer] for peer in peers(name) if peer in self.devices}
+        kwargs.update({key: self.given[key] for key in inputs(name) if key in self.given})
         section = self.section(name)
         self.built[name] = copy.deepcopy(section)
         return create(section, self.world, **kwargs)

@@ -1,0 +1,101 @@
+"""The rover's own GNC drives: the server waits for its pose reports (seed 000 sect. 5.4).
+
+The GNC gets the leg's waypoints from navigate's ``EVENT kind=waiting`` and reports where the
+rover is with ``pose`` (into the server's pose, the :class:`~drivers.rover.backend.PoseFeed`).
+A drive here is the wait for those reports: each one that moved is a cycle of the pilot (the
+see loop's check), and the drive ends when the rover has stopped: a report with ``-stopped
+true``, or reports that hold still for the settle time, reported again or not. Where it stopped
+does not matter: a GNC streaming its pose passes the leg's end, or comes within the tolerance of
+it, while still moving, and a scan started then would start on a moving rover.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable
+from typing import Any
+
+from drivers.base import DeviceError, DeviceInterrupted
+
+from .backend import BACKENDS, Pilot, Pose, PoseFeed, RoverSettings, Settle, Silent
+
+
+@BACKENDS.backend("gnc")
+class GncRover:
+    """Waits for the GNC's pose reports."""
+
+    steers = False
+
+    def __init__(self, settings: RoverSettings, world: Any = None, poses: PoseFeed | None = None) -> None:
+        self.poses = poses
+
+    def open(self) -> None:
+        if self.poses is None:
+            raise DeviceError("rover", "the gnc backend needs the server's pose reports")
+
+    def close(self) -> None:
+        pass
+
+    def pose(self) -> Pose:
+        p = self.poses.pose
+        return p.x, p.y, p.heading
+
+    truth = pose  # the GNC's report is all the server knows of where the rover is
+
+    def speeds(self) -> tuple[float, float]:
+        raise DeviceError("rover", "the GNC steers itself: the server runs no motion of its own")
+
+    def drive(self, pilot: Pilot, stop: Callable[[], bool], settle: Settle, since: int) -> Pose:
+        """Each report that moved goes to the pilot outside the pose lock, so the pose command is
+        never kept waiting by it; the hold is timed from the end of that cycle, so a cycle slower
+        than the GNC's reports does not pass for a standing rover. The pilot's motions are not
+        sent (the GNC steers by the waypoints): it stops the rover by its own EVENT."""
+        feed = self.poses
+        deadline = time.monotonic() + settle.timeout if settle.timeout > 0 else math.inf
+        version = since
+        anchor: Any = None  # the first report of the run of reports that hold still
+        anchor_at = 0.0
+        latest: Any = None
+        while True:
+            with feed.pose_changed:
+                if stop():
+                    raise DeviceInterrupted("rover", "the wait for the GNC's pose was stopped")
+                if feed.pose_version == version:
+                    now = time.monotonic()
+                    if latest is not None and now - anchor_at >= settle.seconds:
+                        return self._ended(pilot, latest)
+                    if now >= deadline:
+                        raise Silent(f"no pose within {settle.timeout:g} s")
+                    wake = anchor_at + settle.seconds - now if latest is not None else 0.1
+                    feed.pose_changed.wait(min(0.1, max(wake, 0.001)))
+                    continue
+                version = feed.pose_version
+                p = feed.pose
+            if p.stopped:
+                return self._ended(pilot, p)
+            latest = p
+            turned = abs((p.heading - anchor.heading + 180.0) % 360.0 - 180.0) if anchor is not None else 0.0
+            if anchor is None or math.hypot(p.x - anchor.x, p.y - anchor.y) > settle.distance or \
+                    turned > settle.degrees:
+                anchor = p
+                pose = (p.x, p.y, p.heading)
+                pilot.moved(pose, False)
+                pilot.next(pose)  # a report that holds still shows nothing new: no cycle for it
+                anchor_at = time.monotonic()  # the hold counts from when the server took the report in
+
+    @staticmethod
+    def _ended(pilot: Pilot, p: Any) -> Pose:
+        pose = (p.x, p.y, p.heading)
+        pilot.moved(pose, True)
+        return pose
+
+    def place(self, pose: Pose) -> None:
+        """The GNC knows where its rover stands: nothing to move."""
+
+    def take_fix(self, pose: Pose) -> None:
+        """The GNC gets a fix by navigate's ``localised`` EVENT and applies it itself."""
+
+    def status(self) -> dict[str, Any]:
+        p = self.poses.pose if self.poses is not None else None
+        return {"last_report": None if p is None else [p.x, p.y, p.heading], "stopped": bool(p and p.stopped)}
