@@ -153,6 +153,10 @@ class Ptu:
     def acceleration(self) -> tuple[int, int]:
         return self._call(lambda c: c.get_acceleration())
 
+    def motion(self) -> dict[str, dict[str, float]]:
+        """Per axis: speed, acceleration and base speed in degrees (see PtuClient.motion)."""
+        return self._call(lambda c: c.motion())
+
     def power_status(self) -> dict[str, Any]:
         return self._call(lambda c: c.power_status())
 

@@ -584,6 +584,14 @@ class PtuClient:
         with self.lock:
             return int(self.query_number("PA")), int(self.query_number("TA"))
 
+    def motion(self) -> dict[str, dict[str, float]]:
+        """Per axis what its moves' durations follow from, in degrees: speed, acceleration and
+        base (start-up) speed as the unit holds them now."""
+        with self.lock:
+            return {axis: {key: self.to_degrees(axis, self.query_number(f"{axis[0].upper()}{letter}"))
+                           for key, letter in (("speed", "S"), ("acceleration", "A"), ("base", "B"))}
+                    for axis in ("pan", "tilt")}
+
     def power_status(self) -> dict[str, object]:
         reply = self.command("O", number=True)
         try:

@@ -20,11 +20,19 @@ HEIGHT = 144
 FOV_H_DEG = 43.6
 FOV_V_DEG = 34.6
 
+# Farthest distance whose returns are trusted: 30 MHz wraps at c/2f = 5 m, and the returns thin
+# out and get noisier toward it (phase-wrapped far surfaces fold back in front).
+USABLE_RANGE = 4.5  # m
+
 # Integration time register: SR4000 time = 0.3 ms + 0.1 ms * register (libMesaSR docs).
 INTEGRATION_MIN = 0
 INTEGRATION_MAX = 255
 INTEGRATION_BASE_MS = 0.3
 INTEGRATION_STEP_MS = 0.1
+
+# A frame is four phase samples, each exposed for the integration time, then read out.
+PHASE_SAMPLES = 4
+FRAME_READOUT_MS = 5.0
 
 # Raw image codes: distance 0..0xFFFF spans the unambiguous range, confidence 0xFFFF is best.
 RAW_MAX = 0xFFFF
@@ -159,6 +167,11 @@ def integration_register(ms: float) -> int:
     if not lo - 1e-9 <= ms <= hi + 1e-9:
         raise ValueError(f"integration time {ms} ms outside {lo:.1f} .. {hi:.1f} ms")
     return int(round((ms - INTEGRATION_BASE_MS) / INTEGRATION_STEP_MS))
+
+
+def frame_seconds(integration_ms_: float) -> float:
+    """One frame's time: four phase samples of the integration time, then the read-out."""
+    return (PHASE_SAMPLES * integration_ms_ + FRAME_READOUT_MS) / 1000.0
 
 
 def check_integration(register: int) -> int:

@@ -294,7 +294,7 @@ class SimTof:
             )
         integration = self._integration
         t_ms = k.integration_ms(integration)
-        frame_s = (4 * t_ms + 5.0) / 1000.0  # four phase samples per frame plus read-out
+        frame_s = k.frame_seconds(t_ms)
         if self._time_scale is None:
             if not self._world.rolling:  # exposed while the rover rolls, the frame overlaps the drive
                 self._world.clock.sleep(frame_s)

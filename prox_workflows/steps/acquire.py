@@ -156,18 +156,26 @@ def acquire_coord_images(
     cancelled: Callable[[], bool] | None = None,
     on_view: Callable[[View], None] | None = None,
     scan: dict[str, Any] | None = None,
+    move_ahead: Callable[[float, float], None] | None = None,
 ) -> list[View]:
     """Acquire every pointing; ``pose`` = (x, y, heading, z) of the rover in the global frame.
+
+    ``move_ahead(pan, tilt)``, if given, sends the PTU on to the next pointing without waiting
+    (the next ``grab`` waits for it): the PTU travels while this view is transformed, its
+    noise model evaluated and its files written, so a scan lasts about as long as the PTU's
+    travel and the sensor's frames.
 
     Each frame becomes a view: a 4-channel image (x, y, z global, intensity; NaN undefined)
     with a time-tagged name, its ``.cal`` and a row of the image list. Views acquired before a
     cancellation or a device fault are kept on disk and passed to ``on_view`` as they come, so a
     following dem-update can use them. ``scan`` (the rover pose and mask the processing uses)
-    goes to ``<stem>_scan.yaml``, so the folder alone is enough to process the views again.
+    goes to ``<stem>_scan.yaml`` with the pointings in the order taken, so the folder alone is
+    enough to process the views again and to see how they were taken.
     """
     T_gr = T_global_from_rover(pose[0], pose[1], pose[2], pose[3])
     if out_dir is not None:
-        write_yaml_atomic(Path(out_dir) / f"{stem}_scan.yaml", {"pose": list(pose), **(scan or {})})
+        write_yaml_atomic(Path(out_dir) / f"{stem}_scan.yaml",
+                          {"pose": list(pose), "positions": [[float(p), float(t)] for p, t in positions], **(scan or {})})
     views: list[View] = []
     rows: list[dict[str, Any]] = []
     for i, (pan, tilt) in enumerate(positions):
@@ -176,6 +184,8 @@ def acquire_coord_images(
         if progress is not None and i == 0:  # the phase's first line: its size before the first view
             progress(0, len(positions), f"view 1/{len(positions)}: pan={pan:.1f} tilt={tilt:.1f}")
         frames, pan_r, tilt_r = grab(pan, tilt)
+        if move_ahead is not None and i + 1 < len(positions) and not (cancelled is not None and cancelled()):
+            move_ahead(*positions[i + 1])
         for frame in frames:
             T_gc = T_gr @ head.T_rover_from_sensor(frame.sensor, pan_r, tilt_r)
             view = view_from_frame(len(views), frame, pan_r, tilt_r, T_gc)

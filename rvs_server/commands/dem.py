@@ -7,6 +7,7 @@ DEM (what dem-update merges into, what check-move and navigate read).
 
 from __future__ import annotations
 
+import contextlib
 import math
 from dataclasses import dataclass
 from functools import partial
@@ -15,12 +16,14 @@ from typing import TYPE_CHECKING, Any, ClassVar
 import cv2
 import numpy as np
 
+from drivers.tof import constants as tof_k
 from prox_workflows.engine import Cancelled, run_workflow, validate
 from prox_workflows.grid import Layers
 from prox_workflows.parameters import DemParams, DemStereoParams
 from prox_workflows.steps.acquire import Frame, acquire_coord_images
 from prox_workflows.steps.dem2hazard import HazardParams
 from prox_workflows.steps.noise import model_sigmas, stereo_point_variance, tof_point_variance
+from prox_workflows.steps.ptu_positions import ORDERS, move_time
 from prox_workflows.steps.stereo import disparity as stereo_disparity
 from prox_workflows.steps.stereo import sigma_d_for
 from prox_workflows.steps.transforms import HeadCalibration
@@ -49,7 +52,23 @@ class Dem2HazardConfig(HazardParams, ModuleConfig):
 
 
 @dataclass
-class DemTofConfig(DemParams, ModuleConfig):
+class ScanOptions:
+    """How a DEM command's scan is taken: the server's acquisition, not the DEM chain's
+    parameters (a reprocessing of the recorded views neither knows nor needs them)."""
+
+    on_the_move: bool = param(False, "grab each view's ToF frames while the PTU arrives (half of them before "
+                              "it stops) instead of at rest; refused where the head would turn a pixel or more "
+                              "meanwhile (PTU speed x that time vs the ToF's pixel)")
+    order: str = param("fastest", "view order: the serpentine the PTU travels soonest (rows or columns, from "
+                       "the nearest corner), or rows from the lowest pan and tilt", choices=ORDERS, option=False)
+    overlap_processing: bool = param(True, "process each view while the PTU moves to the next", option=False)
+
+
+SCAN_OPTIONS = tuple(ScanOptions.__dataclass_fields__)
+
+
+@dataclass
+class DemTofConfig(ScanOptions, DemParams, ModuleConfig):
     module: ClassVar[str] = "dem_full_tof"
 
 
@@ -58,11 +77,8 @@ class DemUpdateTofConfig(DemTofConfig):
     module: ClassVar[str] = "dem_update_tof"
 
 
-TOF_MAX_RANGE = 4.5  # m: the SR4000 wraps at 5 m (30 MHz); farther returns are not trusted
-
-
 @dataclass
-class DemStereoConfig(DemStereoParams, ModuleConfig):
+class DemStereoConfig(ScanOptions, DemStereoParams, ModuleConfig):
     """dem-full / dem-update: the same options as the ToF commands, plus the stereo ones."""
 
     module: ClassVar[str] = "dem_full"
@@ -76,8 +92,8 @@ class DemUpdateStereoConfig(DemStereoConfig):
 # What the server puts in the dem script's workspace (checked against the script's inputs: at
 # start, so a broken script stops the server before it serves, see validate_scripts).
 DEM_SCRIPT = "dem"
-DEM_INPUTS = ("fov", "ptu_limits", "pending_views", "rover_mask", "base", "hazard", "out_dir", "views_dir",
-              "made_by", "parameters")
+DEM_INPUTS = ("fov", "ptu_limits", "ptu_motion", "ptu_start", "scan_order", "pending_views", "rover_mask", "base",
+              "hazard", "out_dir", "views_dir", "made_by", "parameters")
 
 
 def validate_scripts() -> None:
@@ -137,6 +153,34 @@ def _stereo_frame(left: np.ndarray, right: np.ndarray, calib: dict[str, Any], cf
     )
 
 
+def view_seconds(tof: Any, cfg: Any) -> tuple[float, int]:
+    """The ToF's time at one view (its frames: -integrate plus the wrap check's, each four
+    phase samples of the integration time and a read-out) and the number of frames."""
+    frames = int(cfg.integrate) + (1 if cfg.wrap_check else 0)
+    return frames * tof_k.frame_seconds(float(tof.status()["integration_ms"])), frames
+
+
+def lead_in(tof: Any, cfg: Any) -> float:
+    """Seconds of a view's frames exposed before the PTU stops, with -on-the-move: the first
+    half of them (the rest at rest), so the head stands still for the view's middle frame."""
+    return view_seconds(tof, cfg)[0] / 2
+
+
+def check_on_the_move(motion: dict[str, dict[str, float]], fov: tuple[float, float], lead: float) -> None:
+    """E_ARG where the head would turn a pixel or more while the frames expose on the move."""
+    pixel = (fov[0] / tof_k.WIDTH, fov[1] / tof_k.HEIGHT)
+    for k, axis in enumerate(("pan", "tilt")):
+        speed = motion[axis]["speed"]
+        blur = speed * lead / pixel[k]
+        if blur >= 1.0:
+            most = 0.999 * pixel[k] / lead
+            raise ProtocolError(
+                "E_ARG", f"-on-the-move would blur the ToF views by {blur:.1f} px: the {axis} axis turns "
+                f"{speed:.1f} deg/s for the {lead * 1000:.0f} ms of frames before it stops (pixel "
+                f"{pixel[k]:.3f} deg); lower drivers.ptu.speed to at most {most:.2f} deg/s, or take fewer "
+                "frames a view (-integrate), or grab at rest (leave -on-the-move out)")
+
+
 def _check_update(app: App, cfg: Any) -> None:
     if not app.maps.updatable():
         raise ProtocolError("E_DATA", "there is no current DEM to update; run dem-full-tof or dem-full first")
@@ -159,7 +203,7 @@ def run_dem(job: Job, cfg: Any, *, update: bool, sensor: str = "tof",
     limits = (lim["pan"]["min_deg"], lim["pan"]["max_deg"], lim["tilt"]["min_deg"], lim["tilt"]["max_deg"])
     if tof is not None:  # the narrower field of view sets the pointings
         K, _ = tof.intrinsics()
-        size = (176, 144)
+        size = (tof_k.WIDTH, tof_k.HEIGHT)
     else:
         calib = cams.calibration(cfg.resolution)
         K, size = np.asarray(calib["K1"], float), tuple(calib["image_size"])
@@ -167,17 +211,51 @@ def run_dem(job: Job, cfg: Any, *, update: bool, sensor: str = "tof",
     calib = cams.calibration(cfg.resolution) if cams is not None else None
     name = cfg.name or default_stem("dem")
     views_dir = app.data_dir / out_dir / f"{name}_views"  # made by its first file: a job refused earlier leaves none
+    motion = ptu.motion()
+    start = ptu.position()
+    lead = 0.0
+    if cfg.on_the_move:
+        if tof is None:
+            raise ProtocolError("E_ARG", "-on-the-move is for the ToF's frames; dem-full -sensor stereo grabs "
+                                "its pairs at rest (leave -on-the-move out, or use -sensor fused)")
+        lead = lead_in(tof, cfg)
+        check_on_the_move(motion, fov, lead)
+    clock = app.world.clock if app.world is not None else None
+    ahead: dict[str, Any] = {}  # the move under way while the last view is processed: target, arrival
+
+    def move_ahead(pan: float, tilt: float) -> None:
+        """Send the PTU on to the next view and return at once: it travels while this view is
+        processed (the next grab waits for it, or with -on-the-move until just before it stops)."""
+        at = ahead.pop("at")
+        device_call(job, ptu.move, pan, tilt, False)
+        now = clock.now() if clock is not None else 0.0
+        ahead.update(to=(pan, tilt), arrival=now + move_time(at, (pan, tilt), motion))
+
+    def arrive(pan: float, tilt: float) -> tuple[float, float] | None:
+        """Wait for the PTU at (pan, tilt); with -on-the-move only until the frames' lead-in,
+        returning None (the position is read once the frames are taken)."""
+        if ahead.pop("to", None) != (pan, tilt):
+            return device_call(job, ptu.move, pan, tilt, True)
+        arrival = ahead.pop("arrival")
+        if lead > 0 and clock is not None:
+            clock.sleep(arrival - lead - clock.now(), cancel=lambda: job.cancelled)
+            job.check()
+            return None
+        return device_call(job, ptu.wait)
 
     def grab(pan: float, tilt: float) -> tuple[list[Frame], float, float]:
-        reached = device_call(job, ptu.move, pan, tilt, True)
+        reached = arrive(pan, tilt)
         frames: list[Frame] = []
         if tof is not None:
             xyz, amplitude = device_call(job, tof.grab_xyz, cfg.integrate, cfg.confidence,
                                         wrap_check=cfg.wrap_check)
             frames.append(Frame("tof", xyz, amplitude, K,
                                 variance=partial(tof_point_variance, **tof_sigmas(cfg)),
-                                max_range=min(cfg.max_range, TOF_MAX_RANGE),
+                                max_range=min(cfg.max_range, tof_k.USABLE_RANGE),
                                 min_reflectivity=cfg.min_reflectivity))
+        if reached is None:  # on the move: where it stopped, the middle of the ToF's frames
+            reached = device_call(job, ptu.wait)
+        ahead["at"] = reached
         if cams is not None:
             left, right = device_call(job, cams.grab_stereo, cfg.resolution, "mono8")
             job.check()
@@ -188,14 +266,23 @@ def run_dem(job: Job, cfg: Any, *, update: bool, sensor: str = "tof",
     rover_mask = rover_mask_polygon(app, pose)
 
     def acquire(positions: list[tuple[float, float]], progress: Any = None, cancelled: Any = None) -> list[Any]:
-        return acquire_coord_images(positions, grab, head, pose, views_dir, name, progress, cancelled,
-                                    on_view=acquired.append, scan={"rover_mask": rover_mask})
+        try:
+            return acquire_coord_images(positions, grab, head, pose, views_dir, name, progress, cancelled,
+                                        on_view=acquired.append,
+                                        scan={"rover_mask": rover_mask, "order": cfg.order, "ptu_start": list(start),
+                                              "ptu_motion": motion, "on_the_move": cfg.on_the_move},
+                                        move_ahead=move_ahead if cfg.overlap_processing else None)
+        finally:
+            if "to" in ahead and job.cancelled:  # stopped between views: the move sent ahead stops too
+                with contextlib.suppress(Exception):
+                    ptu.halt()
 
-    # the parameters are the command's config values, as they are; the rest is what only the
-    # server knows (its devices, the rover, the current DEM)
-    params = {**cfg.as_dict(), "name": name}
+    # the parameters are the command's config values, as they are, but for how the scan is taken;
+    # the rest is what only the server knows (its devices, the rover, the current DEM)
+    params = {**{k: v for k, v in cfg.as_dict().items() if k not in SCAN_OPTIONS}, "name": name}
     workspace = {
-        "fov": list(fov), "ptu_limits": list(limits), "pending_views": pending, "rover_mask": rover_mask,
+        "fov": list(fov), "ptu_limits": list(limits), "ptu_motion": motion, "ptu_start": list(start),
+        "scan_order": cfg.order, "pending_views": pending, "rover_mask": rover_mask,
         "base": base, "hazard": app.config.get("dem2hazard").as_dict(), "out_dir": app.data_dir / out_dir,
         "views_dir": views_dir.name, "made_by": job.command, "parameters": job.params,
     }
