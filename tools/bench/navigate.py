@@ -247,7 +247,9 @@ def plan_poses(xy: np.ndarray, start_heading: float) -> np.ndarray:
         if np.hypot(*(b - a)) < 1e-9:
             continue
         h = math.degrees(math.atan2(b[1] - a[1], b[0] - a[0]))
-        out += [(a[0], a[1], h), (b[0], b[1], h)]
+        if abs((h - out[-1][2] + 180.0) % 360.0 - 180.0) > 1e-9:
+            out.append((a[0], a[1], h))
+        out.append((b[0], b[1], h))
     return np.array(out)
 
 

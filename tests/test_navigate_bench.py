@@ -1,0 +1,74 @@
+"""The navigate benchmark's helpers (tools/bench/navigate.py): the track it judges, the plan poses,
+the tracking error, stop reasons and the thresholds a mission runs with."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from drivers.sim.rover import RoverBody
+from prox_workflows.grid import GridGeometry
+from tools.bench.navigate import (
+    capability_hazard,
+    cross_track,
+    mission_hazard,
+    plan_poses,
+    read_track,
+    stop_reason,
+    vehicle_check,
+)
+
+
+def test_a_track_is_read_with_its_headings_or_faces_along_itself(tmp_path: Path) -> None:
+    with_heading = tmp_path / "a.csv"
+    with_heading.write_text("x,y,heading\n0,0,0\n0,0,30\n0.05,0.03,30\n")
+    assert read_track(with_heading).tolist() == [[0, 0, 0], [0, 0, 30], [0.05, 0.03, 30]]
+    without = tmp_path / "b.csv"
+    without.write_text("x,y\n0,0\n0,0.05\n0,0.10\n")
+    assert read_track(without)[:, 2].tolist() == pytest.approx([90.0, 90.0, 90.0])
+
+
+def test_a_plan_is_driven_with_a_turn_on_the_spot_at_each_waypoint() -> None:
+    poses = plan_poses(np.array([(0.0, 0.0), (1.0, 0.0), (1.0, 1.0)]), 45.0)
+    assert np.allclose(poses, [[0, 0, 45], [0, 0, 0], [1, 0, 0], [1, 0, 90], [1, 1, 90]])
+    assert np.allclose(plan_poses(np.array([(0.0, 0.0), (1.0, 0.0)]), 0.0), [[0, 0, 0], [1, 0, 0]])
+
+
+def test_a_turn_in_a_plan_over_a_rock_is_an_event_the_straight_leg_is_not() -> None:
+    """A rock beside the start, outside the corridor the leg drives and outside the box the rover
+    starts in, is swept by the rear-right wheel while the rover turns from 90 deg to face the leg."""
+    g = GridGeometry.covering(-1.0, -1.0, 2.0, 2.0, 0.01)
+    xs, ys = g.centers()
+    X, Y = np.meshgrid(xs, ys)
+    h = np.where(np.hypot(X - 0.15, Y + 0.35) <= 0.03, 0.13, 0.0).astype(np.float32)
+    body, surface = RoverBody(), (h, g, g)
+    leg = np.array([(0.0, 0.0), (1.0, 0.0)])
+    events, checked = vehicle_check(plan_poses(leg, 0.0), surface, body)
+    assert (events, checked) == ([], 51)  # 1 m at 2 cm, clear
+    events, _ = vehicle_check(plan_poses(leg[:1].repeat(2, axis=0), 90.0), surface, body)
+    assert events == []  # standing at 90 deg, clear
+    events, checked = vehicle_check(plan_poses(leg, 90.0), surface, body)
+    assert checked > 51
+    assert [e.kind for e in events] == ["wheel rear-right"]
+    assert events[0].excess == pytest.approx(0.03, abs=0.005) and (events[0].x, events[0].y) == (0.0, 0.0)
+
+
+def test_cross_track_is_the_distance_to_the_nearest_stretch_of_the_same_leg() -> None:
+    wps = np.array([(0.0, 0.0), (2.0, 0.0), (2.0, 0.0), (2.0, 2.0)])
+    legs = np.array([1, 1, 2, 2])
+    track = np.array([(1.0, 0.1, 0.0), (2.05, 1.0, 90.0), (3.0, 0.0, 0.0)])
+    assert cross_track(track, wps, legs).tolist() == pytest.approx([0.1, 0.05, 1.0])
+    # no stretch joins the last waypoint of leg 1 to the first of a leg elsewhere
+    assert cross_track(np.array([(1.0, 1.0, 0.0)]), np.array([(0.0, 0.0), (2.0, 0.0), (0.0, 2.0), (2.0, 2.0)]),
+                       np.array([1, 2, 3, 3])).tolist() == pytest.approx([1.0])
+
+
+def test_stop_reasons_and_the_thresholds_a_mission_runs_with() -> None:
+    assert stop_reason("goal unreachable (enclosed): the goal lies in ...") == "goal unreachable"
+    assert stop_reason("goal not reached after 3 scans and 30 legs; the rover is at (1, 2)") == "goal not reached"
+    assert mission_hazard(()) == {"step_max": 0.15, "slope_max": 20.0}
+    assert mission_hazard(("dem2hazard.step_max=0.06", "navigate.margin=0.05")) == {"step_max": 0.06,
+                                                                                    "slope_max": 20.0}
+    assert capability_hazard(RoverBody()) == {"step_max": 0.08, "slope_max": 19.3}
