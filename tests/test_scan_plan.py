@@ -3,6 +3,7 @@ dem-full-tof taken in that order with the views processed while the PTU moves (s
 
 from __future__ import annotations
 
+import csv
 import itertools
 
 import numpy as np
@@ -43,18 +44,17 @@ def test_the_d46_move_time_by_hand() -> None:
 
 
 def test_the_limit_of_a_small_scan_by_hand() -> None:
-    # 80 deg of pan at 20 % overlap: 2 views at pan -18.2 and 18.2 (fov 43.6, 36.4 deg apart);
-    # one tilt row at -30. From pan 0 tilt 0: 18.2 deg (354 positions) to the first view, then
-    # 36.4 deg (708 positions), both at 1000 positions/s within the base speed; the tilt's 30 deg
-    # (583 positions) go with the first pan move and are the longer: 0.583 + 0.708 s of travel.
+    # 76 deg of pan at 20 % overlap: 2 views at pan -16.2 and 16.2 (fov 43.6, 32.4 deg apart,
+    # within the 34.88 deg step); one tilt row at -30. From pan 0 tilt 0: 16.2 deg (315
+    # positions) to the first view, then 32.4 deg (630 positions), at 1000 positions/s within
+    # the base speed; the tilt's 30 deg (583 positions) go with the first pan move and are the
+    # longer: 0.583 + 0.630 s of travel.
     motion = d46()
-    pans, tilts = grid((-40, 40, -47.3, -12.7), FOV, 0.2)
-    assert pans == [-18.2, 18.2] and tilts == [-30.0]
-    limit = scan_limit((-40, 40, -47.3, -12.7), FOV, 0.2, None, motion, (0.0, 0.0), view_seconds=0.1)
-    step = lambda deg: round(deg * 3600 / RES) / 1000  # noqa: E731 - positions at 1000 positions/s
+    pans, tilts = grid((-38, 38, -47.3, -12.7), FOV, 0.2)
+    assert pans == [-16.2, 16.2] and tilts == [-30.0]
+    limit = scan_limit((-38, 38, -47.3, -12.7), FOV, 0.2, None, motion, (0.0, 0.0), view_seconds=0.1)
     assert limit["views"] == 2
-    assert limit["travel"] == pytest.approx(max(step(18.2), step(30.0)) + step(36.4), abs=2e-3)
-    assert limit["travel"] == pytest.approx(0.583 + 0.708, abs=2e-3)
+    assert limit["travel"] == pytest.approx(0.583 + 0.630, abs=2e-3)
     assert limit["total"] == pytest.approx(limit["travel"] + 0.2)
 
 
@@ -125,8 +125,8 @@ def test_processing_while_the_ptu_moves_gives_the_same_dem(server_factory) -> No
     assert path_time(positions, scan["ptu_motion"], (0.0, 0.0)) == pytest.approx(min(
         path_time(plan([float(v) for v in RANGE.split(",")], FOV, 0.2, None, scan["ptu_motion"], (0.0, 0.0), o),
                   scan["ptu_motion"], (0.0, 0.0)) for o in ("fastest", "rows")), rel=0.05)
-    rows = (srv_a.data / "dem/s_views/s_images.csv").read_text().splitlines()[1:]
-    taken = [(round(float(r.split(",")[4]), 1), round(float(r.split(",")[5]), 1)) for r in rows]
+    with open(srv_a.data / "dem/s_views/s_images.csv") as fh:
+        taken = [(round(float(r["pan"]), 1), round(float(r["tilt"]), 1)) for r in csv.DictReader(fh)]
     assert taken == [(round(p, 1), round(t, 1)) for p, t in positions]
 
 
