@@ -13,12 +13,13 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from drivers.sim.transforms import R_BODY_FROM_OPTICAL, make_T, rot_y, rot_z
+from drivers.tof import constants as tof_k
 
 SENSORS = ("tof", "left", "right")
 
-# SR4000: 176 x 144 pixels, 43.6 x 34.6 degrees field of view (seed 000 sect. 4.2).
-TOF_SIZE = (176, 144)
-TOF_FOV_DEG = (43.6, 34.6)
+# the SR4000's image and field of view (seed 000 sect. 4.2), as its driver declares them
+TOF_SIZE = (tof_k.WIDTH, tof_k.HEIGHT)
+TOF_FOV_DEG = (tof_k.FOV_H_DEG, tof_k.FOV_V_DEG)
 # PIKE F-210B (1920 x 1080 at most) with a lens that gives about 60 degrees horizontally.
 STEREO_HFOV_DEG = 60.0
 

@@ -16,6 +16,8 @@ from typing import TYPE_CHECKING, Any, ClassVar
 import numpy as np
 import structlog
 
+from drivers.stereo.modes import RESOLUTIONS
+from drivers.tof import constants as tof_k
 from prox_workflows.steps import hazard_monitor as hm
 from prox_workflows.steps import tracking as tr
 from prox_workflows.steps.ptu_positions import get_ptu_positions
@@ -35,7 +37,7 @@ if TYPE_CHECKING:
 
 log = structlog.get_logger("rvs.awareness")
 
-TOF_SHAPE = (144, 176)
+TOF_SHAPE = (tof_k.HEIGHT, tof_k.WIDTH)
 
 
 def _fov(K: np.ndarray, shape: tuple[int, int]) -> tuple[float, float]:
@@ -68,7 +70,8 @@ class HazardStartConfig(ModuleConfig):
     cell: float = param(0.05, "coarse DEM cell", unit="m", min=0.01, max=0.5, option=False)
     subsample: int = param(2, "use every n-th ToF pixel in both directions", min=1, max=8, option=False)
     integrate: int = param(1, "ToF frames per cycle", min=1, max=20, option=False)
-    max_range: float = param(4.5, "ignore ToF points farther than this", unit="m", min=0.5, max=30.0, option=False)
+    max_range: float = param(tof_k.USABLE_RANGE, "ignore ToF points farther than this", unit="m", min=0.5,
+                             max=30.0, option=False)
     min_reflectivity: float = param(0.1, "drop ToF returns weaker than this share of the frame's median "
                                     "amplitude x range^2 (phase-wrapped far surfaces)", min=0.0, max=1.0,
                                     option=False)
@@ -215,7 +218,7 @@ class TrackConfig(ModuleConfig):
     marker_box: float = param(0.4, "side of the cube carrying the marker (the position is its foot point)",
                               unit="m", min=0.0, max=5.0, option=False)
     max_range: float = param(4.8, "ignore ToF points farther than this", unit="m", min=0.5, max=30.0, option=False)
-    resolution: str = param("high", "stereo resolution", choices=("low", "medium", "high", "highest"),
+    resolution: str = param("high", "stereo resolution", choices=tuple(RESOLUTIONS),
                             option=False)
 
 
@@ -236,7 +239,7 @@ class TrackStartConfig(TrackConfig):
                        option=False)
     lost_after: int = param(2, "missed cycles before the target counts as lost", min=1, max=100, option=False)
     resolution: str = param("low", "stereo resolution (low: ~0.5 s cycles in the simulator, high: ~2 s)",
-                            choices=("low", "medium", "high", "highest"), option=False)
+                            choices=tuple(RESOLUTIONS), option=False)
 
 
 def _prior(cfg: TrackConfig) -> tr.SizePrior:

@@ -11,6 +11,7 @@ from typing import TYPE_CHECKING, Any, ClassVar
 import cv2
 import numpy as np
 
+from drivers.stereo.modes import PIXEL_FORMATS, RESOLUTIONS
 from prox_workflows.products import preview, product_set, write_png, write_sidecar, write_tiff
 
 from ..config import ModuleConfig, param
@@ -180,8 +181,8 @@ def _scalar(value: Any) -> bool:
 class GrabStereoConfig(ModuleConfig):
     module: ClassVar[str] = "grab_stereo"
     output: str = param("", "file stem (default stereo_<UTC time>)", stem=True)
-    resolution: str = param("high", "resolution mode", choices=("low", "medium", "high", "highest"))
-    format: str = param("mono8", "pixel format", choices=("mono8", "rgb8"))
+    resolution: str = param("high", "resolution mode", choices=tuple(RESOLUTIONS))
+    format: str = param("mono8", "pixel format", choices=PIXEL_FORMATS)
 
 
 @command("grab-stereo", job=True, klass=HARDWARE, config=GrabStereoConfig,

@@ -17,6 +17,7 @@ from typing import TYPE_CHECKING, Any, ClassVar
 
 import numpy as np
 
+from drivers.stereo.modes import RESOLUTIONS
 from prox_workflows.products import write_yaml_atomic
 from prox_workflows.steps import ground_plane as gp
 from prox_workflows.steps import odometry as od
@@ -84,7 +85,7 @@ class OrientConfig(ModuleConfig):
                              max=100000)
     reset: bool = param(False, "take a new reference here (zero motion, pose unchanged)")
     detector: str = param("shi-tomasi", "interest operator", choices=od.DETECTORS)
-    resolution: str = param("low", "stereo resolution mode", choices=("low", "medium", "high", "highest"))
+    resolution: str = param("low", "stereo resolution mode", choices=tuple(RESOLUTIONS))
     integrate: int = param(4, "ToF frames averaged per acquisition", min=1, max=100)
     confidence: float = param(0.3, "discard ToF pixels below this confidence", min=0.0, max=1.0)
     max_points: int = param(1200, "interest points per image", min=10, max=20000, option=False)
@@ -171,7 +172,7 @@ class GroundAlignConfig(ModuleConfig):
     max_range: float = param(4.0, "ignore points farther than this from the sensor", unit="m", min=0.3, max=50.0)
     integrate: int = param(4, "ToF frames integrated per frame", min=1, max=100)
     confidence: float = param(0.3, "discard ToF pixels below this confidence", min=0.0, max=1.0)
-    resolution: str = param("low", "stereo resolution mode", choices=("low", "medium", "high", "highest"))
+    resolution: str = param("low", "stereo resolution mode", choices=tuple(RESOLUTIONS))
     apply: bool = param(True, "store the corrected mount in the head calibration (false: measure only)")
     height: bool = param(False, "also move the PTU base so the measured ground is at the rover frame's z = 0")
     max_correction: float = param(10.0, "a plane further than this off the believed level is not the ground",

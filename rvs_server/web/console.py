@@ -24,6 +24,7 @@ from typing import TYPE_CHECKING, Any
 import structlog
 from aiohttp import WSMsgType, web
 
+from drivers.tof.constants import FOV_H_DEG as TOF_HFOV_DEG
 from prox_workflows.grid import read_geotiff_geometry
 
 from ..protocol import Reply, TooLong, format_reply, format_reply_json
@@ -232,7 +233,7 @@ class WebConsole:
             out["scene"] = app.world.scene_name
         head = app.config.get("head")
         out["rover"] = {"length": head.rover_length, "width": head.rover_width}
-        out["tof_hfov"] = 43.6  # SR4000 field of view (drivers.tof), drawn as the ToF's wedge
+        out["tof_hfov"] = TOF_HFOV_DEG  # drawn as the ToF's wedge
         maps: dict[str, Any] = {}
         for name, path in self.layer_paths().items():
             try:
