@@ -65,14 +65,15 @@ class Telemetry:
     # ------------------------------------------------------------------ outside the thread
 
     def accept(self, item: Item) -> None:
-        """The bus subscriber (any thread): keep what the outlets use, copy frames (the job may
-        reuse its arrays), queue, return."""
+        """The bus subscriber (any thread): keep what the outlets use, queue, return. A frame is
+        copied (the job may reuse its arrays) with the PTU and pose it was taken at: the grabbing
+        thread holds the PTU still until the call returns, a sample a tick later may not."""
         if item.kind == "frame":
             if item.data["call"] not in FRAME_CALLS:
                 return
             result = item.data["result"]
             copied = tuple(np.array(a) for a in result) if isinstance(result, tuple) else np.array(result)
-            item = Item(item.kind, item.time_ns, {**item.data, "result": copied})
+            item = Item(item.kind, item.time_ns, {**item.data, "result": copied, "state": self._state()})
         self._put(item)
 
     def _put(self, entry: Item | tuple[str, Any]) -> None:
@@ -186,6 +187,7 @@ class Telemetry:
 
     def _on_frame(self, item: Item) -> None:
         t, call, result = item.time_ns, item.data["call"], item.data["result"]
+        self._log_state(t, item.data["state"])
         if item.data["device"] == "tof":
             if call == "grab_xyz":
                 xyz, amplitude = result
@@ -253,23 +255,33 @@ class Telemetry:
 
     # -- sampled state
 
-    def _sample(self) -> None:
-        if not self._outlets:
-            return
-        app, t = self.app, time.time_ns()
+    def _state(self) -> tuple[tuple[float, float, float, float], tuple[float, float] | None,
+                              tuple[float, float, float] | None]:
+        """The believed pose (x, y, heading, ground z), the PTU and the simulated true pose now."""
+        app = self.app
         pose = app.pose
-        z = ground_height(app.maps.layers, pose.x, pose.y)
         truth = None
         if app.world is not None:
             tr = app.world.truth()
             truth = (float(tr["x"]), float(tr["y"]), float(tr["heading"]))
-        ptu = app.ptu_position()
-        head = HeadCalibration.from_dict(app.config.get("head").as_dict())
-        self._log("/tf", lambda: m.frame_tree(t, head, (pose.x, pose.y, pose.heading, z), ptu, truth), t)
-        self._log("/rover/pose", lambda: m.pose_in_world(t, pose.x, pose.y, pose.heading, z), t)
+        return (pose.x, pose.y, pose.heading, ground_height(app.maps.layers, pose.x, pose.y)), app.ptu_position(), truth
+
+    def _log_state(self, t: int, state: Any) -> None:
+        pose, ptu, truth = state
+        head = HeadCalibration.from_dict(self.app.config.get("head").as_dict())
+        self._log("/tf", lambda: m.frame_tree(t, head, pose, ptu, truth), t)
+        self._log("/rover/pose", lambda: m.pose_in_world(t, *pose), t)
         if truth is not None:
-            self._log("/rover/truth", lambda: m.pose_in_world(t, *truth, z), t)
-        here = truth or (pose.x, pose.y, pose.heading)
+            self._log("/rover/truth", lambda: m.pose_in_world(t, *truth, pose[3]), t)
+
+    def _sample(self) -> None:
+        if not self._outlets:
+            return
+        t, state = time.time_ns(), self._state()
+        self._log_state(t, state)
+        pose, _, truth = state
+        z = pose[3]
+        here = truth or pose[:3]
         if not self._track or abs(self._track[-1][0] - here[0]) + abs(self._track[-1][1] - here[1]) > TRACK_STEP:
             self._track.append((here[0], here[1], z + 0.02))
             self._track_dirty = True

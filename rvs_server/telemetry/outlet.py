@@ -26,6 +26,8 @@ from foxglove.messages import (
     SceneUpdate,
 )
 
+from prox_workflows.layers import LAYERS
+
 
 @dataclass(frozen=True)
 class Topic:
@@ -100,8 +102,9 @@ class Outlet:
         return ch
 
     def declare(self) -> None:
-        """Advertise every fixed topic at once, so that a client sees them all before data flows."""
-        for topic in TOPICS:
+        """Advertise every topic at once (a map layer's of every registered layer), so that a
+        client sees and can subscribe to them all before data flows."""
+        for topic in [*TOPICS, *(MAP_PREFIX + name for name in LAYERS)]:
             self.channel(topic)
 
     def wants(self, topic: str) -> bool:

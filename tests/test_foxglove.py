@@ -1,0 +1,231 @@
+"""Foxglove live: a client speaking the foxglove.websocket.v1 protocol (from its spec; the SDK
+names the subprotocol foxglove.sdk.v1) connects, lists the channels, subscribes and decodes
+the protobuf messages with the schemas the server advertises, as the Foxglove app does; what
+it decodes is checked against the server's own map, pose and DEM."""
+
+from __future__ import annotations
+
+import asyncio
+import base64
+import json
+import socket
+import struct
+from pathlib import Path
+from typing import Any
+
+import aiohttp
+import numpy as np
+import pytest
+from google.protobuf import descriptor_pb2, descriptor_pool, message_factory
+from scipy.spatial.transform import Rotation
+
+from prox_workflows.grid import read_geotiff
+
+SUBPROTOCOL = "foxglove.sdk.v1"
+DEM = "dem-full-tof -range -30,30,-40,-20 -overlap 0.1 -name fx"  # two views: a second or two
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+class FoxgloveClient:
+    """The client side of foxglove.websocket.v1: serverInfo and advertise arrive first; a
+    subscribe names (subscription id, channel id); each message comes as a binary frame: opcode
+    1, the subscription id (uint32 LE), the log time (uint64 LE, ns), the payload."""
+
+    def __init__(self, ws: aiohttp.ClientWebSocketResponse) -> None:
+        self.ws = ws
+        self.info: dict[str, Any] = {}
+        self.channels: dict[str, dict[str, Any]] = {}  # topic -> advertised channel
+        self.subscriptions: dict[int, str] = {}  # subscription id -> topic
+        self.classes: dict[str, Any] = {}
+        self.trees: dict[int, Any] = {}  # every frame tree received, by its time
+
+    async def hello(self) -> None:
+        while not self.info or not self.channels:
+            msg = await self.ws.receive(timeout=10)
+            assert msg.type == aiohttp.WSMsgType.TEXT, msg
+            self._text(json.loads(msg.data))
+
+    def _text(self, obj: dict[str, Any]) -> None:
+        if obj["op"] == "serverInfo":
+            self.info = obj
+        elif obj["op"] == "advertise":
+            for ch in obj["channels"]:
+                self.channels[ch["topic"]] = ch
+
+    async def subscribe(self, *topics: str) -> None:
+        subs = []
+        for topic in topics:
+            sub = len(self.subscriptions) + 1
+            self.subscriptions[sub] = topic
+            subs.append({"id": sub, "channelId": self.channels[topic]["id"]})
+        await self.ws.send_str(json.dumps({"op": "subscribe", "subscriptions": subs}))
+
+    def decode(self, topic: str, payload: bytes) -> Any:
+        ch = self.channels[topic]
+        if ch["encoding"] == "json":
+            return json.loads(payload)
+        if ch["schemaName"] not in self.classes:
+            pool = descriptor_pool.DescriptorPool()
+            for f in descriptor_pb2.FileDescriptorSet.FromString(base64.b64decode(ch["schema"])).file:
+                pool.Add(f)
+            self.classes[ch["schemaName"]] = message_factory.GetMessageClass(
+                pool.FindMessageTypeByName(ch["schemaName"]))
+        return self.classes[ch["schemaName"]].FromString(payload)
+
+    async def next(self, timeout: float = 30.0) -> tuple[str, int, Any]:
+        """The next message on a subscribed channel: (topic, log time, decoded message)."""
+        while True:
+            msg = await self.ws.receive(timeout=timeout)
+            if msg.type == aiohttp.WSMsgType.TEXT:
+                self._text(json.loads(msg.data))
+                continue
+            assert msg.type == aiohttp.WSMsgType.BINARY, msg
+            op, sub, t = struct.unpack_from("<BIQ", msg.data)
+            assert op == 1
+            topic = self.subscriptions[sub]
+            message = self.decode(topic, msg.data[13:])
+            if topic == "/tf":
+                self.trees[t] = message
+            return topic, t, message
+
+    async def until(self, topic: str, timeout: float = 60.0) -> tuple[int, Any]:
+        async with asyncio.timeout(timeout):
+            while True:
+                got, t, message = await self.next(timeout)
+                if got == topic:
+                    return t, message
+
+
+def matrix(tf: Any) -> np.ndarray:
+    T = np.eye(4)
+    q = tf.rotation
+    T[:3, :3] = Rotation.from_quat([q.x, q.y, q.z, q.w]).as_matrix()
+    T[:3, 3] = [tf.translation.x, tf.translation.y, tf.translation.z]
+    return T
+
+
+def chain(transforms: Any, child: str) -> np.ndarray:
+    """world <- child through the tree's parent links."""
+    by_child = {tf.child_frame_id: tf for tf in transforms}
+    T = np.eye(4)
+    while child != "world":
+        tf = by_child[child]
+        T = matrix(tf) @ T
+        child = tf.parent_frame_id
+    return T
+
+
+def grid_values(grid: Any) -> np.ndarray:
+    """A Grid's single field as rows north first, as the server's GeoTIFFs hold them."""
+    dtype = {7: np.float32, 1: np.uint8, 6: np.int32}[grid.fields[0].type]
+    rows = np.frombuffer(grid.data, dtype).reshape(-1, grid.column_count)
+    return np.flipud(rows)
+
+
+async def connect(port: int) -> tuple[aiohttp.ClientSession, FoxgloveClient]:
+    session = aiohttp.ClientSession()
+    ws = await session.ws_connect(f"ws://127.0.0.1:{port}", protocols=[SUBPROTOCOL])
+    client = FoxgloveClient(ws)
+    await client.hello()
+    return session, client
+
+
+def test_foxglove_client_decodes_grid_cloud_and_frames(server_factory: Any) -> None:
+    port = free_port()
+    srv = server_factory([f"server.foxglove_port={port}"])
+    c = srv.client()
+    status = c.request("status").fields
+    assert status["foxglove"] == "on" and status["foxglove_url"] == f"ws://127.0.0.1:{port}", status
+
+    async def live() -> dict[str, Any]:
+        session, fx = await connect(port)
+        try:
+            # read-only whoever connects: nothing a client could publish, call or set
+            assert not set(fx.info["capabilities"]) & {"clientPublish", "services", "parameters"}, fx.info
+            assert {"/tf", "/rover/pose", "/rover/truth", "/tof/points", "/tof/depth", "/tof/amplitude",
+                    "/stereo/left/compressed", "/nav/plan", "/nav/check_move", "/rvs/log", "/rvs/job"} <= set(fx.channels)
+            assert not [t for t in fx.channels if t.startswith("/raw/") or t == "/rvs/wire"]  # recordings only
+            assert fx.channels["/tof/points"]["schemaName"] == "foxglove.PointCloud"
+            await fx.subscribe("/tf", "/tof/points", "/rvs/log")
+            await fx.until("/tf")  # the subscription is live before the scan starts
+            job = asyncio.get_running_loop().run_in_executor(None, c.request, DEM, 120.0)
+            t_cloud, cloud = await fx.until("/tof/points")
+            reply = await job
+            assert reply.status == "OK", reply
+            st = c.request("status").fields
+            await fx.subscribe(*[t for t in fx.channels if t.startswith("/map/")] or ["/map/dem"])
+            return {"cloud": cloud, "tree": fx.trees[t_cloud], "status": st,  # the tree of the cloud's time
+                    "dem": (await fx.until("/map/dem"))[1], "latest": (await fx.until("/tf"))[1]}
+        finally:
+            await fx.ws.close()
+            await session.close()
+
+    got = asyncio.run(live())
+    cloud, tree, st = got["cloud"], got["tree"], got["status"]
+
+    # the Grid is the server's DEM: size, cell, origin at the south-west corner, every cell
+    dem, geometry = read_geotiff(srv.data / "dem" / "fx_dem.tif")
+    grid = got["dem"]
+    assert grid.frame_id == "world" and grid.column_count == geometry.width
+    assert grid.cell_size.x == pytest.approx(geometry.cell) and grid.cell_size.y == pytest.approx(geometry.cell)
+    assert (grid.pose.position.x, grid.pose.position.y) == pytest.approx((geometry.xmin, geometry.ymin))
+    np.testing.assert_array_equal(grid_values(grid), dem)
+
+    # the frame tree: the rover where status says, true and believed, and every sensor frame
+    latest = got["latest"].transforms
+    assert {tf.child_frame_id for tf in latest} >= {"rover", "mast", "ptu_pan", "ptu_tilt", "tof", "stereo_left",
+                                                     "stereo_right", "rover_truth"}
+    rover = matrix(next(tf for tf in latest if tf.child_frame_id == "rover"))
+    pose = [float(v) for v in st["pose"].split(",")]
+    assert rover[:2, 3] == pytest.approx(pose[:2], abs=1e-3)
+    assert np.degrees(np.arctan2(rover[1, 0], rover[0, 0])) == pytest.approx(pose[2], abs=0.01)
+    truth = matrix(next(tf for tf in latest if tf.child_frame_id == "rover_truth"))
+    assert truth[:2, 3] == pytest.approx([float(v) for v in st["truth"].split(",")][:2], abs=1e-3)
+
+    # the cloud, put in the world through the tree of its own time, lies on the DEM made from it
+    assert cloud.frame_id == "tof" and cloud.point_stride == 16
+    assert [f.name for f in cloud.fields] == ["x", "y", "z", "intensity"]
+    pts = np.frombuffer(cloud.data, np.float32).reshape(-1, 4)
+    assert len(pts) > 5000
+    T = chain(tree.transforms, "tof")
+    world = pts[:, :3] @ T[:3, :3].T + T[:3, 3]
+    row, col = geometry.cell_of(world[:, 0], world[:, 1])
+    inside = geometry.inside(row, col)
+    ground = dem[row[inside], col[inside]]
+    err = np.abs(world[inside, 2] - ground)[np.isfinite(ground)]
+    assert len(err) > 0.5 * len(pts) and np.median(err) < 0.03, (len(err), np.median(err))
+
+
+def test_a_client_that_subscribes_late_gets_the_map_and_a_taken_port_costs_only_foxglove(
+        server_factory: Any, tmp_path: Path) -> None:
+    port = free_port()
+    srv = server_factory([f"server.foxglove_port={port}"])
+    c = srv.client()
+    assert c.request(DEM, timeout=120).status == "OK"
+    assert c.request("check-move -dx 0.5").status == "OK"
+
+    async def late() -> tuple[Any, Any]:
+        session, fx = await connect(port)
+        try:
+            await fx.subscribe("/map/traversability", "/nav/check_move")
+            first = await fx.until("/map/traversability")
+            return first[1], (await fx.until("/nav/check_move"))[1]
+        finally:
+            await fx.ws.close()
+            await session.close()
+
+    grid, scene = asyncio.run(late())
+    trav, _ = read_geotiff(srv.data / "dem" / "fx_traversability.tif")
+    np.testing.assert_array_equal(grid_values(grid), trav)
+    entity = scene.entities[0]
+    assert entity.id == "check_move" and entity.texts[0].text.startswith("check-move: ")
+
+    # a second server on the same Foxglove port starts without it and says why
+    other = server_factory([f"server.foxglove_port={port}"])
+    st = other.client().request("status").fields
+    assert st["foxglove"] == "off" and str(port) in st["foxglove_reason"], st
