@@ -23,7 +23,7 @@ from typing import Any
 import structlog
 
 from drivers.base import Cancel, Device, DeviceError, DeviceInterrupted
-from drivers.registry import DEVICE_KINDS, inputs, open_order, peers
+from drivers.registry import inputs, open_order, peers
 from rvs_params import Settings
 
 log = structlog.get_logger("rvs.devices")
@@ -57,9 +57,6 @@ class DeviceRegistry:
     def names(self) -> list[str]:
         """The device kinds, in the order they are opened (each after its peers)."""
         return open_order()
-
-    def uses_sim(self) -> bool:
-        return any(self.section(n).backend == "sim" for n in DEVICE_KINDS)
 
     def pending(self) -> list[str]:
         """``device.key`` of every drivers value that waits for its device's reinit or reset."""

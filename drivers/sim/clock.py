@@ -54,13 +54,6 @@ class SimClock:
             self._sync()
             return self._scale
 
-    def set_scale(self, scale: float) -> None:
-        """Fix the scale to a number from now on (replaces a callable source)."""
-        with self._lock:
-            self._sync()
-            self._source = float(scale)
-            self._sync()
-
     def now(self) -> float:
         """Simulated seconds since the world was made."""
         with self._lock:

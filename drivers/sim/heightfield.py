@@ -89,9 +89,6 @@ class Heightfield:
         """Bilinear height at world (x, y); NaN outside the grid."""
         return self._bilinear(self.heights, x, y)
 
-    def sample_albedo(self, x: np.ndarray | float, y: np.ndarray | float) -> np.ndarray:
-        return self._bilinear(self.albedo, x, y)
-
     def _bilinear(self, grid: np.ndarray, x: np.ndarray | float, y: np.ndarray | float) -> np.ndarray:
         fx, fy = self._frac(x, y)
         ny, nx = grid.shape

@@ -12,7 +12,6 @@ import contextlib
 import copy
 import math
 import threading
-import time
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -141,7 +140,6 @@ class World:
             self._target_obj = target
             self._trajectory = traj
             self._target_time = 0.0
-            self._target_clock: tuple[float, float] | None = None
             self._board: SceneObject | None = None
             self._board_geom: tuple[np.ndarray, int, int, float] | None = None
             start = rover_spec.get("start", {})
@@ -353,10 +351,9 @@ class World:
 
     # -- target and checkerboard -------------------------------------------------------------
     def set_target_time(self, t: float) -> None:
-        """Put the target where its trajectory is at time t (seconds); stops a running clock."""
+        """Put the target where its trajectory is at time t (seconds)."""
         with self._lock:
             self._target_time = float(t)
-            self._target_clock = None
 
     def set_target_visible(self, visible: bool) -> None:
         """Show or hide the target (scenes may start with it hidden to keep DEMs clean)."""
@@ -364,16 +361,8 @@ class World:
             if self._target_obj is not None:
                 self._target_obj.visible = bool(visible)
 
-    def run_target(self, start_time: float = 0.0, speed: float = 1.0) -> None:
-        """Let the target follow its trajectory in real time (scaled by ``speed``)."""
-        with self._lock:
-            self._target_clock = (time.monotonic() - start_time / max(speed, 1e-9), speed)
-
     def target_time(self) -> float:
         with self._lock:
-            if self._target_clock is not None:
-                t0, speed = self._target_clock
-                return (time.monotonic() - t0) * speed
             return self._target_time
 
     def target_pose(self) -> tuple[float, float, float, float] | None:

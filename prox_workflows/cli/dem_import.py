@@ -45,11 +45,6 @@ INPUT_FORMATS = ("PLY (.ply, ascii or binary), PCD (.pcd, ascii or binary), LAS/
                  "(.tif, .tiff)")
 
 
-def layer_prefix(dem_path: Path) -> Path:
-    """``site_dem.tif`` -> ``site``; ``DEM.tif`` -> ``DEM`` (companions are ``<prefix>_<layer>.tif``)."""
-    return prefix_of(dem_path)
-
-
 def layer_path(dem_path: Path, layer: str) -> Path:
     return Path(dem_path) if layer == "dem" else _layer_path(prefix_of(dem_path), layer)
 

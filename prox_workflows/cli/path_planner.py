@@ -30,8 +30,7 @@ from rvs_params import SettingError
 from ..engine import WorkflowError, run_workflow
 from ..parameters import PlanParams
 from ..steps.dem2hazard import UNDEFINED
-from ..steps.planner import NavMaps, PlannerParams, PlanningError
-from ..steps.readers import read_nav_maps
+from ..steps.planner import PlannerParams, PlanningError
 from .parser import ToolParser
 
 MADE_BY = "rvs-path-planner (prox_workflows.steps.planner)"
@@ -45,11 +44,6 @@ def _point(text: str) -> tuple[float, float]:
     if not (math.isfinite(x) and math.isfinite(y)):
         raise argparse.ArgumentTypeError(f"expected finite x,y, got {text!r}")
     return x, y
-
-
-def read_maps(hazard: Path, slope: Path) -> NavMaps:
-    """A hazard map (0 / 128 / 255) and its slope map (degrees) on the same grid."""
-    return read_nav_maps(hazard, slope)
 
 
 def _global_maps(path: Path, origin: tuple[float, float], prefix: str) -> tuple[Path, Path]:

@@ -93,31 +93,6 @@ def tof_height_variance(
     return np.maximum(var, floor**2).astype(np.float32)
 
 
-def stereo_height_variance(
-    points: np.ndarray,
-    sensor: np.ndarray,
-    amplitude: np.ndarray | None = None,
-    *,
-    baseline: float,
-    focal: float,
-    sigma_d: float = 0.25,
-    lateral_sigma_per_m: float = 0.0015,
-) -> np.ndarray:
-    """Height variance (m^2, float32) of stereo points seen from the left camera at ``sensor``.
-
-    Depth noise sigma_z = z^2 sigma_d / (b f) (z taken as the range: slightly pessimistic off
-    axis), projected onto the vertical like :func:`tof_height_variance`: the stereo pair loses
-    to the ToF camera near and wins far, and the fusion weighs each cell accordingly."""
-    p = np.asarray(points, dtype=np.float64)[:, :3]
-    d = p - np.asarray(sensor, dtype=np.float64)[None, :3]
-    r = np.linalg.norm(d, axis=1)
-    cz = np.abs(d[:, 2]) / np.maximum(r, 1e-9)
-    s_r = r * r * sigma_d / (baseline * focal)
-    s_l = lateral_sigma_per_m * r
-    var = (s_r * cz) ** 2 + (s_l**2) * (1.0 - cz * cz)
-    return np.maximum(var, NOISE_FLOOR**2).astype(np.float32)
-
-
 # -- per-pixel features of a view: what a point's neighbours in its own image say about it ------------
 SLOPE_CAP = 5.0  # rise over run: steeper is a depth edge, which ``jump`` measures
 # a larger height jump to a neighbour is the depth edge's height, not the point's error: a pixel on the

@@ -21,7 +21,7 @@ import sys
 import tempfile
 import threading
 import time
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from types import TracebackType
@@ -506,12 +506,3 @@ class ServerProcess:
         self.stop()
 
 
-@contextlib.contextmanager
-def running_server(extra_args: Sequence[str] = ()) -> Iterator[ServerProcess]:
-    """A fresh server in a temporary data directory for the duration of a block."""
-    server = ServerProcess(extra_args=extra_args)
-    server.start()
-    try:
-        yield server
-    finally:
-        server.stop()
