@@ -15,46 +15,17 @@ from typing import Any
 
 import numpy as np
 
+from rvs_params.frames import (  # noqa: F401 - the workflows and the server import them from here
+    R_BODY_FROM_OPTICAL,
+    invert,
+    make_T,
+    rot_x,
+    rot_y,
+    rot_z,
+    rpy,
+)
+
 from ..products import write_yaml_atomic
-
-# Camera optical frame expressed in a body frame.
-R_BODY_FROM_OPTICAL = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])
-
-
-def rot_x(deg: float) -> np.ndarray:
-    c, s = np.cos(np.radians(deg)), np.sin(np.radians(deg))
-    return np.array([[1.0, 0.0, 0.0], [0.0, c, -s], [0.0, s, c]])
-
-
-def rot_y(deg: float) -> np.ndarray:
-    c, s = np.cos(np.radians(deg)), np.sin(np.radians(deg))
-    return np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])
-
-
-def rot_z(deg: float) -> np.ndarray:
-    c, s = np.cos(np.radians(deg)), np.sin(np.radians(deg))
-    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
-
-
-def rpy(roll: float, pitch: float, yaw: float) -> np.ndarray:
-    """R = Rz(yaw) Ry(pitch) Rx(roll), degrees."""
-    return rot_z(yaw) @ rot_y(pitch) @ rot_x(roll)
-
-
-def make_T(R: np.ndarray | None = None, t: Any = None) -> np.ndarray:
-    T = np.eye(4)
-    if R is not None:
-        T[:3, :3] = R
-    if t is not None:
-        T[:3, 3] = np.asarray(t, dtype=float)
-    return T
-
-
-def invert(T: np.ndarray) -> np.ndarray:
-    out = np.eye(4)
-    out[:3, :3] = T[:3, :3].T
-    out[:3, 3] = -T[:3, :3].T @ T[:3, 3]
-    return out
 
 
 def apply(T: np.ndarray, points: np.ndarray) -> np.ndarray:
