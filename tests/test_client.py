@@ -278,7 +278,8 @@ def test_after_ctrl_c_the_late_lines_carry_no_tag_the_user_never_typed(server: S
     buf = bytearray()
     try:
         assert _read_until(master, buf, b"rvs> ")
-        os.write(master, b"sleep -seconds 0.6\n")
+        # long enough that the Ctrl-C lands while the client still waits, on a loaded machine too
+        os.write(master, b"sleep -seconds 3\n")
         assert _read_until(master, buf, b"EGP-RVS-SLEEP ACK job="), buf.decode()
         proc.send_signal(signal.SIGINT)
         assert _read_until(master, buf, b"stopped waiting"), buf.decode()
