@@ -196,9 +196,9 @@ class App:
         self.last_ptu = None
         self.console = None
         self.console_off = None
-        self.stopping = asyncio.Event()
         self.bus = Bus()
         self.telemetry = None
+        self.stopping = asyncio.Event()
         self._quitting = False
         self._base_mode = "ready"
         self._announced_mode = "ready"
@@ -275,10 +275,12 @@ class App:
 
     def broadcast(self, reply: Reply) -> None:
         """Send an EVENT to every connection that has not said ``events off`` (loop only)."""
-        for conn in list(self.connections):
         self.bus.publish("event", reply=reply)
+        for conn in list(self.connections):
             if conn.events:
                 conn.send(reply)
+        if self.console is not None:
+            self.console.remember(reply)
 
     def job_reply(self, conn: Connection, reply: Reply) -> None:
         """A line of a job: to the connection that started it, and to every connection that
@@ -287,6 +289,8 @@ class App:
         for other in list(self.connections):
             if other.observes_jobs and other is not conn:
                 other.observe(reply)
+        if self.console is not None:
+            self.console.remember(reply)
 
     async def start_console(self, sock: Any) -> None:
         """Serve the operator web console on ``sock`` (bound by the caller, as the TCP port is)."""
@@ -383,12 +387,12 @@ class App:
         """Handle one request line; returns an awaitable when the handler is asynchronous."""
         if self.quitting:
             return None  # quit was answered; every connection is about to close
+        self.bus.publish("request", conn=conn.id, line=b"(line too long)" if isinstance(raw, TooLong) else raw)
         if isinstance(raw, TooLong):
             conn.send(Reply("RVS", "ERROR", {
                 "code": "E_TOOLONG",
                 "message": f"request line over {self.server_cfg.max_line} bytes was discarded; send shorter lines",
             }, raw.tag))
-        self.bus.publish("request", conn=conn.id, line=b"(line too long)" if isinstance(raw, TooLong) else raw)
             return None
         if is_silent(raw):
             return None

@@ -6,6 +6,9 @@ from __future__ import annotations
 import asyncio
 import json
 import socket
+import subprocess
+import sys
+import time
 from pathlib import Path
 from typing import Any
 
@@ -13,9 +16,10 @@ import aiohttp
 import cv2
 import numpy as np
 import pytest
+import yaml
 
 from prox_workflows.grid import read_geotiff
-from rvs_server.web.console import console_host
+from rvs_server.web.console import HISTORY, console_host
 
 DEM = "dem-full-tof -range -20,20,-50,-35 -cell 0.05 -name web"
 
@@ -45,13 +49,19 @@ class Page:
         self.ws = ws
         self.states: list[dict[str, Any]] = []
         self.replies: list[dict[str, Any]] = []
+        self.history: list[dict[str, Any]] = []  # the lines the page was shown when it opened
 
     async def next(self, timeout: float = 60.0) -> dict[str, Any]:
-        msg = await asyncio.wait_for(self.ws.receive(), timeout)
-        assert msg.type == aiohttp.WSMsgType.TEXT, msg
-        data = json.loads(msg.data)
-        (self.states if data["type"] == "state" else self.replies).append(data)
-        return data
+        """The next state or reply (the history comes first, once: kept in ``history``)."""
+        while True:
+            msg = await asyncio.wait_for(self.ws.receive(), timeout)
+            assert msg.type == aiohttp.WSMsgType.TEXT, msg
+            data = json.loads(msg.data)
+            if data["type"] == "history":
+                self.history = data["lines"]
+                continue
+            (self.states if data["type"] == "state" else self.replies).append(data)
+            return data
 
     async def send(self, line: str) -> None:
         await self.ws.send_str(json.dumps({"line": line}))
@@ -240,3 +250,95 @@ def test_the_console_binds_to_loopback_without_a_token() -> None:
     assert console_host("0.0.0.0", "", True) == "0.0.0.0"
     assert console_host("127.0.0.1", "", False) == "127.0.0.1"
     assert console_host("::1", "", False) == "::1"
+
+
+def test_a_page_opens_with_the_recent_events_and_job_lines_each_with_the_servers_time(web: Any) -> None:
+    srv, base = web()
+    before = time.time()
+    with srv.client() as c:
+        assert c.request("sleep -seconds 0.05").status == "OK"
+        assert c.request("status").status == "OK"  # an immediate reply of another client: not shown
+
+    async def body(page: Page, http: aiohttp.ClientSession) -> None:
+        hello = await page.next()
+        assert hello["reply"]["kind"] == "hello" and before <= hello["t"] <= time.time()
+        lines = page.history
+        assert [m["reply"]["status"] for m in lines if m["reply"]["module"] == "EGP-RVS-SLEEP"] == ["ACK", "OK"]
+        assert not any(m["reply"]["module"] == "EGP-RVS-STATUS" for m in lines)
+        assert all(before - 1 <= m["t"] <= time.time() and m["own"] is False for m in lines)
+
+    run_page(base, body)
+    assert len(srv.app.console.history) <= HISTORY
+
+
+def test_the_hover_values_and_the_downloads_of_the_current_map(web: Any) -> None:
+    srv, base = web()
+    with srv.client() as c:
+        ok = c.request(DEM, timeout=300)
+    assert ok.status == "OK"
+    dem, g = read_geotiff(srv.data / ok.fields["dem"])
+    hazard, _ = read_geotiff(srv.data / ok.fields["hazard"])
+    rows, cols = np.nonzero(np.isfinite(dem))
+    r, col = int(rows[len(rows) // 2]), int(cols[len(cols) // 2])
+    xs, ys = g.centers()
+
+    async def probe() -> None:
+        async with aiohttp.ClientSession() as http:
+            url = f"{base}/api/at?x={xs[col]}&y={ys[r]}&layers=dem,hazard,slope,nosuch"
+            async with http.get(url) as resp:
+                values = (await resp.json())["values"]
+            assert values["dem"] == {"value": pytest.approx(float(dem[r, col]), abs=1e-6), "unit": "m"}
+            assert values["slope"]["unit"] == "deg" and "nosuch" not in values
+            assert values["hazard"]["class"] == {0: "safe", 255: "hazardous"}[int(hazard[r, col])]
+            async with http.get(f"{base}/api/at?x={g.xmax + 5}&y=0&layers=dem") as resp:
+                assert (await resp.json())["values"]["dem"]["value"] is None  # off the map
+            async with http.get(f"{base}/api/at?x=one&y=0") as resp:
+                assert resp.status == 400 and "x and y" in await resp.text()
+            async with http.get(base + "/api/state") as resp:
+                state = await resp.json()
+            names = [p["name"] for p in state["products"]]
+            assert {"web_dem.tif", "web_dem.png", "web_dem.yaml", "web_mesh.ply", "web_hazard.tif"} <= set(names)
+            assert state["maps"]["slope"]["unit"] == "deg"
+            async with http.get(base + "/products/web_mesh.ply") as resp:
+                assert resp.status == 200 and await resp.read() == (srv.data / "dem" / "web_mesh.ply").read_bytes()
+                assert "attachment" in resp.headers["Content-Disposition"]
+            for bad in ("rvs.log", "..%2Frvs.log", "..%2F..%2Fsecret.tif", "web_dem"):
+                async with http.get(base + "/products/" + bad) as resp:
+                    assert resp.status == 404, bad
+
+    asyncio.run(probe())
+
+
+def test_layer_images_mark_thresholds_and_draw_masks_and_counts_with_nothing_clear(web: Any) -> None:
+    srv, base = web()
+    with srv.client() as c:
+        ok = c.request(DEM, timeout=300)
+    meta = yaml.safe_load((srv.data / ok.fields["dem"]).with_suffix(".yaml").read_text())["meta"]["dem2hazard"]
+
+    async def get(http: aiohttp.ClientSession, name: str) -> tuple[np.ndarray, dict[str, Any]]:
+        async with http.get(f"{base}/layers/{name}.png") as resp:
+            legend = json.loads(resp.headers["X-Legend"])
+            return cv2.imdecode(np.frombuffer(await resp.read(), np.uint8), cv2.IMREAD_UNCHANGED), legend
+
+    async def probe() -> None:
+        async with aiohttp.ClientSession() as http:
+            for name, key in (("slope", "slope_max"), ("step", "step_max"), ("roughness", "roughness_max")):
+                _, legend = await get(http, name)
+                assert legend["marks"] == [[pytest.approx(meta[key]), "max"]], name
+                assert legend["hi"] == pytest.approx(2 * meta[key])
+            for name in ("filled", "count"):
+                rgba, legend = await get(http, name)
+                values, _ = read_geotiff(srv.data / "dem" / f"web_{name}.tif")
+                assert (rgba[..., 3][values == 0] == 0).all() and (rgba[..., 3][values > 0] > 0).all(), name
+            _, legend = await get(http, "filled")
+            assert legend["kind"] == "classes" and [label for _, label in legend["entries"]] == ["1", "0"]
+            _, legend = await get(http, "traversability")
+            assert legend["meaning"].startswith("1 easy, 0 impassable")
+
+    asyncio.run(probe())
+
+
+def test_rvs_server_help_names_the_console_and_its_port() -> None:
+    out = subprocess.run([sys.executable, "-m", "rvs_server", "--help"], capture_output=True, text=True, timeout=60)
+    assert out.returncode == 0
+    assert "--web-port N" in out.stdout and "console" in out.stdout and "7071" in out.stdout

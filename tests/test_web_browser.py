@@ -1,29 +1,40 @@
 """The operator console in a real browser: Debian's chromium driven by Playwright.
 
 What an operator does: open the page, run a DEM from its button and watch the progress bar and
-the map, click a goal on the map and watch navigate drive the simulated rover there. Screenshots
-go to ``test-artifacts/`` (or $RVS_ARTIFACTS) for a person to look at.
+the map, click a goal on the map and watch navigate drive the simulated rover there; and what the
+page must get right on the way (its layout on a laptop, a tablet and a phone, the layers' order,
+legends and thresholds, offline, two pages at once, the locked command line, confirmations).
+Screenshots go to ``test-artifacts/`` (or $RVS_ARTIFACTS) for a person to look at.
 """
 
 from __future__ import annotations
 
+import calendar
+import json
+import math
 import os
 import shutil
 import socket
 import subprocess
+import time
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import pytest
-from conftest import long_only
+import yaml
+from conftest import ServerThread, long_test
+
+from prox_workflows.grid import GridGeometry, read_geotiff, write_geotiff
+from prox_workflows.steps.dem2hazard import HAZARDOUS
 
 CHROMIUM = "/usr/bin/chromium"
 ARTIFACTS = Path(os.environ.get("RVS_ARTIFACTS", Path(__file__).resolve().parent.parent / "test-artifacts"))
 # Chromium on a closed network: no background connections, no sandbox (CI runs as root)
 CHROMIUM_ARGS = ["--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run", "--disable-background-networking",
                  "--disable-component-update", "--disable-sync"]
-
-pytestmark = long_only()
+DEM = "dem-full-tof -range -20,20,-50,-35 -cell 0.05 -name web"  # one view, a second's work
 
 
 def chromium_path() -> str:
@@ -40,7 +51,7 @@ def chromium_path() -> str:
     pytest.skip("apt-get could not install chromium (no package registry reachable?)")
 
 
-@pytest.fixture
+@pytest.fixture(scope="module")
 def browser() -> Any:
     playwright = pytest.importorskip("playwright.sync_api")
     path = chromium_path()
@@ -56,17 +67,139 @@ def free_port() -> int:
         return s.getsockname()[1]
 
 
-def test_operator_runs_a_dem_and_navigates_from_the_page(server_factory: Any, browser: Any) -> None:
-    port = free_port()
-    srv = server_factory([f"server.web_port={port}", "server.scene=office", "dem_full_tof.range=-60,60,-50,-20",
-                          "dem_full_tof.cell=0.04", "navigate.range=-110,30,-55,-20", "navigate.overlap=0.05",
-                          "navigate.border=0.3"])
+OPEN: list[Any] = []  # the browser contexts a test opened, closed after it (each holds a WebSocket)
+
+
+@pytest.fixture(autouse=True)
+def close_pages() -> Iterator[None]:
+    yield
+    while OPEN:
+        OPEN.pop().close()
+
+
+class Console:
+    """A test server with its console, and what the tests ask of it."""
+
+    def __init__(self, data: Path, *overrides: str, web_port: int | None = None) -> None:
+        self.web_port = web_port or free_port()
+        self.srv = ServerThread(data, [f"server.web_port={self.web_port}", *overrides]).start()
+        self.url = f"http://127.0.0.1:{self.web_port}/"
+        self.data = data
+
+    def request(self, line: str, timeout: float = 300) -> Any:
+        with self.srv.client() as c:
+            return c.request(line, timeout=timeout)
+
+    def open(self, browser: Any, width: int = 1280, height: int = 720, *, wait: bool = True, **kw: Any) -> Any:
+        """A page in a browser context of its own (its own storage, touch or not)."""
+        context = browser.new_context(viewport={"width": width, "height": height}, **kw)
+        OPEN.append(context)
+        page = context.new_page()
+        page.errors = []
+        page.on("pageerror", lambda exc: page.errors.append(str(exc)))
+        if wait:
+            page.goto(self.url)
+            page.wait_for_selector("#link.up")
+            page.wait_for_function("S.state !== null")
+        return page
+
+    def stop(self) -> None:
+        self.srv.stop()
+
+
+@pytest.fixture
+def console(tmp_path: Path) -> Iterator[Any]:
+    """``console(*overrides)``: a fresh server (for tests that change its mode or stop it)."""
+    made: list[Console] = []
+
+    def make(*overrides: str, data: str = "data", web_port: int | None = None) -> Console:
+        made.append(Console(tmp_path / data, *overrides, web_port=web_port))
+        return made[-1]
+
+    yield make
+    for c in made:
+        c.stop()
+
+
+@pytest.fixture(scope="module")
+def mapped(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Console]:
+    """One server with a DEM, for the tests that only look (layers, legends, hover, downloads)."""
+    c = Console(tmp_path_factory.mktemp("mapped") / "data")
+    assert c.request(DEM).status == "OK"
+    yield c
+    c.stop()
+
+
+def pixel(page: Any, x: float, y: float) -> list[int]:
+    """The canvas's RGBA at map point (x, y)."""
+    return page.evaluate(f"""(() => {{ const [px, py] = toScreen({x}, {y});
+        const d = ctx.getImageData(px * devicePixelRatio, py * devicePixelRatio, 1, 1).data;
+        return [d[0], d[1], d[2], d[3]]; }})()""")
+
+
+def wait_ready(page: Any, *names: str) -> None:
+    page.wait_for_function("names => names.every(n => S.layers[n] && S.layers[n].ready)", arg=list(names))
+
+
+def defined_cell(data: Path, layer: str = "dem") -> tuple[float, float]:
+    """The centre of a cell of the DEM's layer with a value, deep inside the seen ground."""
+    values, g = read_geotiff(data / "dem" / f"web_{layer}.tif")
+    finite = np.isfinite(values) if values.dtype.kind == "f" else values > 0
+    inner = finite.copy()
+    for dr in (-2, 0, 2):
+        for dc in (-2, 0, 2):
+            inner &= np.roll(np.roll(finite, dr, 0), dc, 1)
+    r, c = np.argwhere(inner)[len(np.argwhere(inner)) // 2]
+    xs, ys = g.centers()
+    return float(xs[c]), float(ys[r])
+
+
+def cell_where(data: Path, layer: str, value: float) -> tuple[float, float]:
+    """The centre of a cell where the DEM has a height and ``layer`` is ``value``, with its
+    neighbours alike (a pixel there is the cell's, not an edge's)."""
+    dem, g = read_geotiff(data / "dem" / "web_dem.tif")
+    values, _ = read_geotiff(data / "dem" / f"web_{layer}.tif")
+    ok = np.isfinite(dem) & (values == value)
+    inner = ok.copy()
+    for dr in (-1, 0, 1):
+        for dc in (-1, 0, 1):
+            inner &= np.roll(np.roll(ok, dr, 0), dc, 1)
+    r, c = np.argwhere(inner)[len(np.argwhere(inner)) // 2]
+    xs, ys = g.centers()
+    return float(xs[c]), float(ys[r])
+
+
+def unseen_cell(data: Path) -> tuple[float, float]:
+    """The centre of a cell the DEM has no height for, inside its bounds, with unseen neighbours."""
+    values, g = read_geotiff(data / "dem" / "web_dem.tif")
+    blank = ~np.isfinite(values)
+    inner = blank.copy()
+    for dr in (-1, 0, 1):
+        for dc in (-1, 0, 1):
+            inner &= np.roll(np.roll(blank, dr, 0), dc, 1)
+    inner[[0, -1], :] = False
+    inner[:, [0, -1]] = False
+    r, c = np.argwhere(inner)[0]
+    xs, ys = g.centers()
+    return float(xs[c]), float(ys[r])
+
+
+def sent_lines(page: Any) -> list[str]:
+    """Record the command lines the page sends from now on (its WebSocket frames)."""
+    lines: list[str] = []
+    page.on("websocket", lambda ws: ws.on("framesent", lambda payload: lines.append(json.loads(payload)["line"])))
+    return lines
+
+
+# ------------------------------------------------------------------------------ the whole flow
+
+
+@long_test
+def test_operator_runs_a_dem_and_navigates_from_the_page(console: Any, browser: Any) -> None:
+    c = console("server.scene=office", "dem_full_tof.range=-60,60,-50,-20", "dem_full_tof.cell=0.04",
+                "navigate.range=-110,30,-55,-20", "navigate.overlap=0.05", "navigate.border=0.3")
     ARTIFACTS.mkdir(exist_ok=True)
-    page = browser.new_page(viewport={"width": 1400, "height": 850})
-    errors: list[str] = []
-    page.on("pageerror", lambda exc: errors.append(str(exc)))
-    page.goto(f"http://127.0.0.1:{port}/")
-    page.wait_for_selector("#link.up")
+    page = c.open(browser, 1400, 850)
     assert page.text_content("#mode") == "ready"
     assert "no map yet" in page.text_content("#layers")
 
@@ -76,16 +209,12 @@ def test_operator_runs_a_dem_and_navigates_from_the_page(server_factory: Any, br
     assert page.text_content("#mode") == "busy"
     assert page.text_content("#job").startswith("dem-full-tof")
     page.wait_for_selector("#layers input[data-layer=dem]", timeout=300_000)
-    page.wait_for_function("S.layers.dem && S.layers.dem.ready && S.layers.hazard && S.layers.hazard.ready")
-    layers = page.eval_on_selector_all("#layers input", "els => els.map(e => [e.dataset.layer, e.checked])")
+    wait_ready(page, "dem", "hazard")
+    layers = page.eval_on_selector_all("#layers input[type=checkbox]", "els => els.map(e => [e.dataset.layer, e.checked])")
     assert {"dem", "hazard", "ortho", "traversability"} <= {name for name, _ in layers}
     assert dict(layers)["dem"] is True
-    assert page.text_content("#legend").startswith("hazard")  # the legend of the top layer drawn
     page.screenshot(path=str(ARTIFACTS / "console_dem.png"))
-    # the DEM is drawn where the map says: the pixel 1 m ahead of the rover is not background
-    x, y = page.evaluate("toScreen(1.0, 0.0)")
-    drawn = page.evaluate(f"""(() => {{ const d = ctx.getImageData({x} * devicePixelRatio, {y} * devicePixelRatio,
-                                 1, 1).data; return [d[0], d[1], d[2], d[3]]; }})()""")
+    drawn = pixel(page, 1.0, 0.0)  # the DEM is drawn where the map says: 1 m ahead of the rover
     assert drawn[3] > 0 and drawn[:3] != [255, 255, 255], drawn
 
     # click a goal, confirm, and watch the rover move on the map
@@ -107,5 +236,431 @@ def test_operator_runs_a_dem_and_navigates_from_the_page(server_factory: Any, br
     assert abs(truth["x"] - 1.5) <= 0.3 + 0.05 and abs(truth["y"] + 1.2) <= 0.3 + 0.05
     assert page.evaluate("S.state.track.length") >= 2
     page.screenshot(path=str(ARTIFACTS / "console_arrived.png"))
-    assert not errors, errors
-    assert srv.app.jobs.current is None
+    assert not page.errors, page.errors
+    assert c.srv.app.jobs.current is None
+
+
+# ------------------------------------------------------------------------------ wrong answers
+
+
+def test_two_pages_never_take_each_others_lines_for_their_own(console: Any, browser: Any) -> None:
+    c = console()
+    a, b = c.open(browser), c.open(browser)
+    sent_a, sent_b = sent_lines(a), sent_lines(b)
+    a.reload()
+    b.reload()
+    for page in (a, b):
+        page.wait_for_selector("#link.up")
+        page.wait_for_function("S.state !== null")
+    b.fill("#cmd", "sleep -seconds 30")
+    b.press("#cmd", "Enter")
+    a.wait_for_function("S.state.job && S.state.job.command === 'sleep'")
+    a.click("#btn-break")
+    a.wait_for_function("document.getElementById('result').textContent.includes('EGP-RVS-BREAK')")
+    b.wait_for_function("document.getElementById('result').textContent.includes('E_INTERRUPTED')")
+    assert "E_INTERRUPTED" not in a.text_content("#result")
+    tags_a = {line.split()[0] for line in sent_a}
+    tags_b = {line.split()[0] for line in sent_b}
+    assert tags_a and tags_b and not tags_a & tags_b, (sent_a, sent_b)
+
+
+def test_the_side_column_scrolls_and_a_long_reply_keeps_the_events_in_reach(mapped: Console, browser: Any) -> None:
+    page = mapped.open(browser, 1280, 720)
+    page.fill("#cmd", "status")
+    page.press("#cmd", "Enter")
+    page.wait_for_function("document.getElementById('result').textContent.includes('EGP-RVS-STATUS OK')")
+    result = page.eval_on_selector("#result", "e => e.getBoundingClientRect().height")
+    assert result < 140  # a long reply scrolls in its own box
+    aside = page.eval_on_selector("aside", """e => ({overflow: getComputedStyle(e).overflowY,
+                                                       scroll: e.scrollHeight, client: e.clientHeight})""")
+    assert aside["overflow"] in ("auto", "scroll"), aside
+    page.eval_on_selector("aside", "e => { e.scrollTop = e.scrollHeight; }")
+    log = page.eval_on_selector("#log", "e => e.getBoundingClientRect().toJSON()")
+    assert log["top"] < 720 - 60 and log["bottom"] <= 720 + 1 and log["height"] >= 100, log
+    page.screenshot(path=str(ARTIFACTS / "console_1280x720.png"))
+    assert not page.errors, page.errors
+
+
+@pytest.mark.parametrize("width, height", [(768, 1024), (390, 844)])
+def test_below_900_px_the_page_stacks_and_touch_pans_and_pinches_the_map(mapped: Console, browser: Any,
+                                                                         width: int, height: int) -> None:
+    page = mapped.open(browser, width, height, has_touch=True, is_mobile=True)
+    wait_ready(page, "dem", "hazard")
+    mapbox = page.eval_on_selector("#mapbox", "e => e.getBoundingClientRect().toJSON()")
+    aside = page.eval_on_selector("aside", "e => e.getBoundingClientRect().toJSON()")
+    assert mapbox["width"] >= width - 2 and mapbox["height"] >= 300, mapbox
+    assert aside["top"] >= mapbox["bottom"] - 1 and aside["width"] >= width - 20, aside
+    page.screenshot(path=str(ARTIFACTS / f"console_{width}x{height}.png"))
+
+    cdp = page.context.new_cdp_session(page)
+    cx, cy = mapbox["x"] + mapbox["width"] / 2, mapbox["y"] + mapbox["height"] / 2
+
+    def touch(kind: str, *points: tuple[float, float]) -> None:
+        cdp.send("Input.dispatchTouchEvent", {"type": kind, "touchPoints": [
+            {"x": x, "y": y, "id": i} for i, (x, y) in enumerate(points)]})
+
+    before = page.evaluate("({...S.view})")
+    touch("touchStart", (cx, cy))
+    for k in range(1, 6):
+        touch("touchMove", (cx + 12 * k, cy + 8 * k))
+    touch("touchEnd")
+    after = page.evaluate("({...S.view})")
+    # the point under the finger stays under it: the view's centre moved 60 px left and 40 px up
+    assert after["cx"] == pytest.approx(before["cx"] - 60 / before["scale"], rel=1e-3, abs=1e-3)
+    assert after["cy"] == pytest.approx(before["cy"] + 40 / before["scale"], rel=1e-3, abs=1e-3)
+    touch("touchStart", (cx - 20, cy), (cx + 20, cy))
+    for k in range(1, 6):
+        touch("touchMove", (cx - 20 - 4 * k, cy), (cx + 20 + 4 * k, cy))
+    touch("touchEnd")
+    pinched = page.evaluate("({...S.view, page: visualViewport.scale, menu: !document.getElementById('clickmenu').hidden})")
+    assert pinched["scale"] == pytest.approx(2 * after["scale"], rel=0.02)  # 40 px apart to 80 px
+    assert pinched["page"] == 1 and not pinched["menu"]  # the map zoomed, not the page; no click
+    assert not page.errors, page.errors
+
+
+def test_the_global_map_lies_under_the_rovers_own_layers_and_each_layer_has_an_opacity(
+        console: Any, browser: Any, tmp_path: Path) -> None:
+    glob = tmp_path / "global"
+    glob.mkdir()
+    g = GridGeometry.covering(-10, -10, 10, 10, 0.2)
+    write_geotiff(glob / "hazard.tif", np.full(g.shape, HAZARDOUS, np.uint8), g)
+    c = console(f"navigate.global_maps={glob}")
+    page = c.open(browser)
+    # a fresh page with a global map alone shows it, fitted, not an empty grid round the rover
+    wait_ready(page, "global_hazard")
+    view = page.evaluate("S.view")
+    assert view["scale"] == pytest.approx(0.92 * min(1280 - 360, 720 - 34) / 20, rel=0.1)
+    assert pixel(page, 5.0, 5.0)[0] > 150  # hazardous red
+
+    assert c.request(DEM).status == "OK"
+    x, y = defined_cell(c.data)
+    # the same stack on the page that met the global map first and on one opened after the DEM
+    for reload in (False, True):
+        if reload:
+            page.reload()
+            page.wait_for_selector("#link.up")
+        page.wait_for_selector("#layers input[data-layer=dem]")
+        page.check("#layers input[data-layer=global_hazard]")
+        page.check("#layers input[data-layer=dem]")
+        page.uncheck("#layers input[data-layer=hazard]")
+        wait_ready(page, "dem", "global_hazard")
+        page.evaluate("draw()")
+        r, g_, b, _ = pixel(page, x, y)
+        assert not (r > 150 and g_ < 80 and b < 80), (reload, r, g_, b)  # the DEM, not the orbital red
+    page.eval_on_selector("#layers input[data-opacity=dem]",  # the DEM made transparent shows what is under it
+                          "e => { e.value = '0'; e.dispatchEvent(new Event('input')); }")
+    r, g_, b, _ = pixel(page, x, y)
+    assert r > 150 and g_ < 80 and b < 80, (r, g_, b)
+    assert not page.errors, page.errors
+
+
+def test_an_offline_server_shows_offline_and_a_reconnect_brings_a_fresh_legend(console: Any, browser: Any) -> None:
+    c = console()
+    assert c.request(DEM).status == "OK"
+    page = c.open(browser)
+    wait_ready(page, "dem", "hazard")
+    assert page.is_visible("#legend")
+    c.stop()
+    page.wait_for_selector("#link.down")
+    assert page.text_content("#mode") == "offline"
+    enabled = page.eval_on_selector_all("button.act, #cmd-go", "els => els.filter(e => !e.disabled).map(e => e.id)")
+    assert enabled == []
+    assert not page.is_visible("#legend")
+    c2 = console(data="fresh", web_port=c.web_port)  # another server, no map yet
+    page.wait_for_selector("#link.up", timeout=30_000)
+    page.wait_for_function("S.state && S.state.mode === 'ready'")
+    assert page.text_content("#mode") == "ready"
+    assert not page.is_visible("#legend") and "no map yet" in page.text_content("#layers")
+    assert not page.eval_on_selector("#btn-dem", "e => e.disabled")
+    assert c2.srv.app.console is not None
+
+
+def test_overlays_stack_track_over_plan_over_check_move_in_distinct_colours(mapped: Console, browser: Any) -> None:
+    page = mapped.open(browser)
+    wait_ready(page, "dem", "hazard")
+    for name in ("dem", "hazard"):
+        page.uncheck(f"#layers input[data-layer={name}]")
+    page.uncheck("#show-fov")
+    page.evaluate("S.view = {cx: 1, cy: 0, scale: 200}; draw()")
+    box = page.eval_on_selector("#map", "c => c.getBoundingClientRect().toJSON()")
+    gx, gy = page.evaluate("toScreen(1.6, 0)")
+    page.mouse.click(box["x"] + gx, box["y"] + gy)
+    page.click("#go-check")  # a real check-move along y = 0, from the rover to x = 1.6
+    page.wait_for_function("S.check !== null")
+    # the plan and the track along the same line (the track as the state would bring it); at
+    # each place the colour most of a 16 px stretch of the line shows (dashes leave gaps)
+    shown = page.evaluate("""(() => { S.plan = [[0.2, 0, 0], [1.4, 0, 0]]; S.state.track = [[0.6, 0], [1.0, 0]];
+        draw(); const at = (x) => { const [px, py] = toScreen(x, 0);
+          const d = ctx.getImageData((px - 8) * devicePixelRatio, py * devicePixelRatio, 16 * devicePixelRatio, 1).data;
+          const n = {}; for (let i = 0; i < d.length; i += 4) {
+            const c = [d[i], d[i + 1], d[i + 2]]; if (Math.max(...c) - Math.min(...c) < 60) continue;
+            n[c] = (n[c] || 0) + 1; }
+          return Object.entries(n).sort((a, b) => b[1] - a[1])[0][0].split(",").map(Number); };
+        return {track: at(0.8), plan: at(1.3), check: at(1.5)}; })()""")
+    track, plan, check = (np.array(shown[k]) for k in ("track", "plan", "check"))
+    assert np.abs(track - [0x1F, 0x6F, 0xEB]).max() < 20, shown  # the track on top where all three lie
+    assert np.abs(plan - track).sum() > 150 and np.abs(check - plan).sum() > 150, shown
+    assert np.abs(check - track).sum() > 150, shown
+    assert not page.errors, page.errors
+
+
+def test_unseen_cells_are_drawn_hatched_as_the_legend_shows(mapped: Console, browser: Any) -> None:
+    page = mapped.open(browser)
+    wait_ready(page, "dem", "hazard")
+    x, y = unseen_cell(mapped.data)
+    page.evaluate(f"S.view = {{cx: {x}, cy: {y}, scale: 600}}; draw()")  # one cell is 30 px
+    colours = page.evaluate("""([x, y]) => { const [px, py] = toScreen(x, y);
+        const d = ctx.getImageData((px - 10) * devicePixelRatio, (py - 10) * devicePixelRatio, 20, 20).data;
+        const out = new Set();
+        for (let i = 0; i < d.length; i += 4) out.add(d[i + 3] > 0 ? `${d[i]},${d[i + 1]},${d[i + 2]}` : "clear");
+        return [...out]; }""", [x, y])
+    assert len(colours) >= 2, colours  # lines and gaps, not one blank
+    assert "swatch transparent" in page.inner_html("#legend")
+
+
+def test_a_refused_navigate_keeps_the_plan_and_an_accepted_one_marks_the_goal(console: Any, browser: Any) -> None:
+    c = console()
+    assert c.request(DEM).status == "OK"
+    page = c.open(browser)
+    page.evaluate("S.plan = [[0, 0, 0], [1, -0.5, 0]]; draw()")
+    box = page.eval_on_selector("#map", "c => c.getBoundingClientRect().toJSON()")
+    gx, gy = page.evaluate("toScreen(1.5, -1.2)")
+    page.mouse.click(box["x"] + gx, box["y"] + gy)
+    page.fill("#nav-tol", "0.01")  # under navigate's least tolerance: refused before its ACK
+    page.dispatch_event("#nav-tol", "change")
+    page.click("#go-nav")
+    page.wait_for_function("document.getElementById('result').textContent.includes('E_ARG')")
+    assert page.evaluate("S.plan.length") == 2 and page.evaluate("S.goal") is None
+
+    c.request("break")  # navigate is refused in break too; continue brings ready back
+    assert c.request("continue").status == "OK"
+    page.wait_for_function("S.state.mode === 'ready'")
+    page.mouse.click(box["x"] + gx, box["y"] + gy)
+    page.fill("#nav-tol", "0.3")
+    page.uncheck("#nav-auto")  # the GNC drives: the page's goal stays while it waits for pose
+    page.click("#go-nav")
+    page.wait_for_function("S.goal !== null", timeout=60_000)
+    assert page.evaluate("[S.goal.x, S.goal.y, S.goal.tolerance]") == pytest.approx([1.5, -1.2, 0.3], abs=0.01)
+    page.evaluate("draw()")
+    r, g, b, _ = pixel(page, 1.5, -1.2)
+    assert max(r, g, b) < 60, (r, g, b)  # the goal's cross, drawn where it was clicked
+    c.request("break")
+
+
+def test_the_rover_icon_follows_the_pose_and_heading_the_gnc_sends(mapped: Console, browser: Any) -> None:
+    page = mapped.open(browser)
+    try:
+        for x, y, heading in ((0.6, 0.3, 90.0), (1.2, -0.4, -45.0)):
+            assert mapped.request(f"pose -x {x} -y {y} -heading {heading}").status == "OK"
+            page.wait_for_function(f"Math.abs(S.state.pose.x - {x}) < 1e-6 && S.state.pose.heading === {heading}")
+            page.evaluate("draw()")
+            # the body is dark beside the forward arrow, the arrow yellow ahead along the heading
+            h = math.radians(heading)
+            body = pixel(page, x - 0.1 * math.sin(h), y + 0.1 * math.cos(h))
+            ahead = page.evaluate(f"""(() => {{ const [px, py] = toScreen({x}, {y}); const L = S.state.rover.length * S.view.scale;
+                const a = {heading} * Math.PI / 180, r = L / 2 + 10;
+                const d = ctx.getImageData((px + r * Math.cos(a)) * devicePixelRatio, (py - r * Math.sin(a)) * devicePixelRatio, 1, 1).data;
+                return [d[0], d[1], d[2]]; }})()""")
+            assert max(body[:3]) < 90, body
+            assert ahead[0] > 200 and ahead[1] > 150 and ahead[2] < 150, ahead
+    finally:
+        mapped.request("pose -x 0 -y 0 -heading 0")
+
+
+def test_the_locked_command_line_still_sends_and_the_server_answers(console: Any, browser: Any) -> None:
+    c = console("server.token=s3cret")
+    page = c.open(browser)
+    assert page.is_visible("#auth") and page.eval_on_selector("#btn-dem", "e => e.disabled")
+    # the server's token rule decides (help, version and auth are open), and its answer shows
+    for line, expect in (("help", "EGP-RVS-HELP OK"), ("version", "EGP-RVS-VERSION OK"),
+                         ("status", "E_AUTH"), ("dem-full-tof", "E_AUTH")):
+        page.fill("#cmd", line)
+        page.press("#cmd", "Enter")
+        page.wait_for_function(f"document.getElementById('result').textContent.includes({json.dumps(expect)})")
+    page.fill("#token", "s3cret")
+    page.click("#auth-go")
+    page.wait_for_function("!document.getElementById('btn-dem').disabled")
+
+
+# ------------------------------------------------------------------------------ what the map says
+
+
+def test_thresholds_are_marked_on_slope_step_and_roughness(mapped: Console, browser: Any) -> None:
+    page = mapped.open(browser)
+    for name in ("slope", "step", "roughness"):
+        page.check(f"#layers input[data-layer={name}]")
+    wait_ready(page, "slope", "step", "roughness")
+    meta = yaml.safe_load((mapped.data / "dem" / "web_dem.yaml").read_text())["meta"]["dem2hazard"]
+    for name, key in (("slope", "slope_max"), ("step", "step_max"), ("roughness", "roughness_max")):
+        marks = page.eval_on_selector_all(f"#legend .lg[data-layer={name}] .mark", "els => els.map(e => +e.dataset.value)")
+        assert marks == [pytest.approx(meta[key])], (name, marks)
+        assert "hazardous above" in page.text_content(f"#legend .lg[data-layer={name}]")
+
+
+def test_one_legend_per_visible_layer_masks_as_masks_and_which_end_is_good(mapped: Console, browser: Any) -> None:
+    page = mapped.open(browser)
+    wait_ready(page, "dem", "hazard")
+    assert page.eval_on_selector_all("#legend .lg", "els => els.map(e => e.dataset.layer)") == ["hazard", "dem"]
+    page.check("#layers input[data-layer=traversability]")
+    page.check("#layers input[data-layer=filled]")
+    wait_ready(page, "traversability", "filled")
+    assert page.eval_on_selector_all("#legend .lg", "els => els.map(e => e.dataset.layer)") == [
+        "filled", "traversability", "hazard", "dem"]
+    assert "1 easy, 0 impassable" in page.text_content("#legend .lg[data-layer=traversability]")
+    filled = page.eval_on_selector("#legend .lg[data-layer=filled]", "e => [e.querySelectorAll('.swatch').length, !!e.querySelector('.ramp')]")
+    assert filled == [2, False]  # 1 and 0 (clear), not a ramp
+    # a 0 of the mask is clear: where nothing was filled the DEM under it shows unchanged
+    x, y = cell_where(mapped.data, "filled", 0)
+    page.evaluate("S.visible.traversability = false; S.visible.hazard = false; draw()")
+    with_mask = pixel(page, x, y)
+    page.evaluate("S.visible.filled = false; draw()")
+    assert pixel(page, x, y) == with_mask
+
+
+def test_layers_are_fetched_when_shown_not_all_at_load(mapped: Console, browser: Any) -> None:
+    page = mapped.open(browser, wait=False)
+    fetched: list[str] = []
+    page.on("request", lambda req: fetched.append(req.url.split("/layers/")[1].split(".")[0])
+            if "/layers/" in req.url else None)
+    page.goto(mapped.url)
+    wait_ready(page, "dem", "hazard")
+    page.wait_for_timeout(300)
+    assert sorted(fetched) == ["dem", "hazard"]
+    page.check("#layers input[data-layer=slope]")
+    wait_ready(page, "slope")
+    assert sorted(fetched) == ["dem", "hazard", "slope"]
+
+
+# ------------------------------------------------------------------------------ buttons
+
+
+def test_the_buttons_follow_the_mode_and_reset_and_quit_ask_first(console: Any, browser: Any) -> None:
+    c = console()
+    page = c.open(browser)
+
+    def enabled() -> dict[str, bool]:
+        return page.evaluate("Object.fromEntries(['btn-dem', 'btn-break', 'btn-continue', 'btn-reset']"
+                             ".map(id => [id, !document.getElementById(id).disabled]))")
+
+    assert enabled() == {"btn-dem": True, "btn-break": False, "btn-continue": False, "btn-reset": True}
+    with c.srv.client() as gnc:
+        gnc.start_job("sleep -seconds 30")
+        page.wait_for_function("S.state.mode === 'sleep'")
+        assert enabled() == {"btn-dem": False, "btn-break": True, "btn-continue": False, "btn-reset": False}
+        page.click("#btn-break")
+        page.wait_for_function("S.state.mode === 'break' && !S.state.job")
+    assert enabled() == {"btn-dem": False, "btn-break": False, "btn-continue": True, "btn-reset": True}
+
+    sent = sent_lines(page)
+    page.reload()
+    page.wait_for_function("S.state && S.state.mode === 'break'")
+    asked: list[str] = []
+
+    def answer(dialog: Any, accept: bool) -> None:
+        asked.append(dialog.message)
+        dialog.accept() if accept else dialog.dismiss()
+
+    page.once("dialog", lambda d: answer(d, False))
+    page.click("#btn-reset")
+    page.fill("#cmd", "quit")
+    page.once("dialog", lambda d: answer(d, False))
+    page.press("#cmd", "Enter")
+    page.wait_for_timeout(300)
+    assert len(asked) == 2 and "Reset" in asked[0] and "Quit" in asked[1]
+    assert not any(line.split()[1] in ("reset", "quit") for line in sent), sent
+    page.once("dialog", lambda d: answer(d, True))
+    page.click("#btn-reset")
+    page.wait_for_function("S.state.mode === 'ready'", timeout=60_000)
+    assert any(line.split()[1] == "reset" for line in sent)
+
+
+# ------------------------------------------------------------------------------ what operators expect
+
+
+def test_events_carry_the_time_and_survive_a_reload(console: Any, browser: Any) -> None:
+    c = console()
+    page = c.open(browser)
+    before = time.time()
+    assert c.request("sleep -seconds 0.1").status == "OK"
+    page.wait_for_function("[...document.querySelectorAll('#log li')].some(li => li.textContent.includes('slept='))")
+    page.reload()
+    page.wait_for_selector("#link.up")
+    page.wait_for_function("[...document.querySelectorAll('#log li')].some(li => li.textContent.includes('slept='))")
+    rows = page.eval_on_selector_all("#log li", "els => els.map(e => [e.querySelector('time').dateTime, e.textContent])")
+    done = [(t, text) for t, text in rows if "slept=" in text]
+    assert len(done) == 1  # once: the history, not the history and a second copy
+    stamp = done[0][0]  # ISO, UTC
+    assert abs(calendar.timegm(time.strptime(stamp[:19], "%Y-%m-%dT%H:%M:%S")) - before) < 30, stamp
+    assert any("ACK" in text for _, text in rows)
+
+
+def test_the_hover_readout_gives_every_visible_layer_with_its_unit(mapped: Console, browser: Any) -> None:
+    page = mapped.open(browser)
+    wait_ready(page, "dem", "hazard")
+    page.check("#layers input[data-layer=slope]")
+    x, y = defined_cell(mapped.data)
+    box = page.eval_on_selector("#map", "c => c.getBoundingClientRect().toJSON()")
+    px, py = page.evaluate(f"toScreen({x}, {y})")
+    page.mouse.move(box["x"] + px, box["y"] + py)
+    page.wait_for_function("document.getElementById('cursor').textContent.includes('dem ')")
+    text = page.text_content("#cursor")
+    x_at, y_at = page.evaluate(f"toWorld({px}, {py})")
+    values, g = read_geotiff(mapped.data / "dem" / "web_dem.tif")
+    row, col = g.cell_of(np.array([x_at]), np.array([y_at]))
+    z = float(values[row[0], col[0]])
+    assert f"dem {page.evaluate(f'fmt({z})')} m" in text, (text, z)
+    assert " m" in text and "slope " in text and " deg" in text, text
+    assert "hazard safe" in text or "hazard hazardous" in text, text
+
+
+def test_the_command_line_keeps_a_history_on_up_and_down(console: Any, browser: Any) -> None:
+    c = console()
+    page = c.open(browser)
+    for line in ("status", "version", "help status"):
+        page.fill("#cmd", line)
+        page.press("#cmd", "Enter")
+    page.reload()  # the history is the browser's: it outlives the page
+    page.wait_for_selector("#link.up")
+    seen = []
+    for key in ("ArrowUp", "ArrowUp", "ArrowUp", "ArrowUp", "ArrowDown", "ArrowDown", "ArrowDown"):
+        page.press("#cmd", key)
+        seen.append(page.input_value("#cmd"))
+    assert seen == ["help status", "version", "status", "status", "version", "help status", ""]
+
+
+@long_test  # a scan of several views, slowed so that a phase lasts: ~10 s
+def test_a_job_shows_its_elapsed_and_remaining_time(console: Any, browser: Any) -> None:
+    c = console("drivers.ptu.time_scale=0.5")  # a scan of several views that takes a few seconds
+    page = c.open(browser)
+    with c.srv.client() as gnc:
+        gnc.start_job("dem-full-tof -range -90,90,-50,-35 -cell 0.1 -name slow")
+        page.wait_for_function("document.getElementById('times').textContent.includes('left')", timeout=120_000)
+        text = page.text_content("#times")
+        assert text.startswith("elapsed ") and " s" in text, text
+        gnc.until_final(300)
+
+
+def test_the_current_maps_products_can_be_downloaded(mapped: Console, browser: Any) -> None:
+    page = mapped.open(browser)
+    page.wait_for_selector("#downloads:not([hidden])")
+    names = page.eval_on_selector_all("#products a", "els => els.map(a => a.textContent)")
+    assert {"web_dem.tif", "web_dem.png", "web_hazard.tif", "web_mesh.ply"} <= set(names), names
+    with page.expect_download() as info:
+        page.click("#products a:text-is('web_dem.tif')")
+    path = info.value.path()
+    assert Path(path).read_bytes() == (mapped.data / "dem" / "web_dem.tif").read_bytes()
+
+
+def test_the_distance_and_bearing_tool(mapped: Console, browser: Any) -> None:
+    page = mapped.open(browser)
+    box = page.eval_on_selector("#map", "c => c.getBoundingClientRect().toJSON()")
+    page.click("#measure")
+    for x, y in ((0.0, 0.0), (-2.0, -3.0)):
+        px, py = page.evaluate(f"toScreen({x}, {y})")
+        page.mouse.click(box["x"] + px, box["y"] + py)
+    text = page.text_content("#measure-out")
+    bearing = math.degrees(math.atan2(-3, -2)) % 360
+    assert f"distance {math.hypot(2, 3):.2f} m" in text and f"bearing {bearing:.1f}°" in text, text
+    assert not page.is_visible("#clickmenu")  # measuring, not navigating
+    page.keyboard.press("Escape")
+    assert not page.is_visible("#measure-out")

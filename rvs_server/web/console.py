@@ -6,7 +6,8 @@ a command line that goes through the same dispatcher (so the same checks, modes,
 errors apply), and it sees the same EVENT lines, plus the lines of every job (so an operator
 watches a job the GNC started). What a map view needs beyond the lines (pose, PTU, layers and
 their versions) comes as a state snapshot, computed once per tick for all pages and sent only
-when it changed.
+when it changed. Every line carries the server's time; the events and job lines of the last
+minutes are kept in a bounded ring that a page gets when it opens, so a reload keeps its history.
 """
 
 from __future__ import annotations
@@ -16,6 +17,7 @@ import contextlib
 import ipaddress
 import json
 import socket
+import time
 from collections import deque
 from importlib import resources
 from pathlib import Path
@@ -28,7 +30,7 @@ from drivers.tof.constants import FOV_H_DEG as TOF_HFOV_DEG
 from prox_workflows.grid import read_geotiff_geometry
 
 from ..protocol import Reply, TooLong, format_reply, format_reply_json
-from .tiles import LayerCache, version_of
+from .tiles import LayerCache, ValueCache, unit_of, version_of
 
 if TYPE_CHECKING:
     from ..app import App
@@ -39,10 +41,14 @@ TICK = 0.2  # seconds between state snapshots (pose, PTU, progress): 5 Hz is smo
 MAX_QUEUED = 2000  # messages a page may lag behind before it is dropped (it reloads and catches up)
 TRACK_POINTS = 5000  # rover positions kept for the driven track
 SNAPSHOT_TRACK = 1000  # of which each state snapshot carries the newest (5 per second to every page)
+HISTORY = 500  # event and job lines a page is shown when it opens (a reload keeps its history)
+PRODUCTS_EVERY = 2.0  # seconds between two listings of the current map's products
+DOWNLOADS = (".tif", ".png", ".ply", ".csv", ".yaml")  # what a page may download of the current map
 STATIC = {"index.html": "text/html", "console.js": "text/javascript", "console.css": "text/css"}
 SHOWN_FIRST = ("dem", "hazard")  # the layers a new page shows (console.js S.visible)
-LAYER_ORDER = ("ortho", "dem", "hazard", "traversability", "slope", "step", "roughness", "variance", "count",
-               "global_hazard")
+# bottom to top: the orbital map under the rover's own (where the rover has seen, it knows better)
+LAYER_ORDER = ("global_hazard", "ortho", "dem", "hazard", "traversability", "slope", "step", "roughness",
+               "variance", "count", "filled")
 
 
 def is_loopback(host: str) -> bool:
@@ -60,8 +66,8 @@ def _encode(reply: Reply, own: bool) -> str:
     if _last and _last[0][0] is reply and _last[0][1] == own:
         return _last[0][2]
     obj = json.loads(format_reply_json(reply))
-    message = json.dumps({"type": "reply", "own": own, "reply": obj, "text": format_reply(reply)},
-                         separators=(",", ":"))
+    message = json.dumps({"type": "reply", "own": own, "t": round(time.time(), 3), "reply": obj,
+                          "text": format_reply(reply)}, separators=(",", ":"))
     _last[:] = [(reply, own, message)]
     return message
 
@@ -148,6 +154,9 @@ class WebConsole:
         self.app = app
         self.pages: set[WebPeer] = set()
         self.layers = LayerCache()
+        self.values = ValueCache()
+        self.history: deque[str] = deque(maxlen=HISTORY)
+        self._products: tuple[float, dict[str, Path]] = (0.0, {})
         self.track: deque[tuple[float, float]] = deque(maxlen=TRACK_POINTS)
         self.snapshot = ""  # the last state message sent to the pages
         self.bounds: dict[tuple[str, str], list[float]] = {}  # (path, version) -> layer bounds
@@ -164,6 +173,8 @@ class WebConsole:
             web.get("/static/{name}", self.static),
             web.get("/layers/{name}.png", self.layer),
             web.get("/api/state", self.state_json),
+            web.get("/api/at", self.values_at),
+            web.get("/products/{name}", self.product),
             web.get("/ws", self.websocket),
             web.get("/favicon.ico", self.favicon),
         ])
@@ -197,6 +208,37 @@ class WebConsole:
 
     # ------------------------------------------------------------ state
 
+    def remember(self, reply: Reply) -> None:
+        """Keep an event or job line for the pages that open later (loop only): PROGRESS is
+        left out, the state carries the running job's progress."""
+        if reply.status != "PROGRESS":
+            self.history.append(_encode(reply, False))
+
+    def history_message(self) -> str:
+        return '{"type":"history","lines":[' + ",".join(self.history) + "]}"
+
+    def dem_path(self) -> Path | None:
+        rel = self.app.maps.files().get("dem")
+        return None if rel is None else (self.app.data_dir / rel)
+
+    def products(self) -> dict[str, Path]:
+        """The current map's files by name (GeoTIFFs, their PNGs and sidecars, the mesh, CSV
+        tables): what is beside the DEM under its prefix. Listed at most every PRODUCTS_EVERY
+        seconds; only these names can be downloaded, so no request names a file."""
+        at, listed = self._products
+        if time.monotonic() - at < PRODUCTS_EVERY:
+            return listed
+        out: dict[str, Path] = {}
+        dem = self.dem_path()
+        if dem is not None and dem.is_file():
+            prefix = dem.name[: -len("_dem.tif")] if dem.name.endswith("_dem.tif") else dem.stem
+            for path in sorted(dem.parent.iterdir()):
+                if path.name.startswith(prefix + "_") or path.stem == prefix:
+                    if path.suffix in DOWNLOADS and path.is_file():
+                        out[path.name] = path
+        self._products = (time.monotonic(), out)
+        return out
+
     def layer_paths(self) -> dict[str, Path]:
         """The current map products by layer: only names the server itself recorded, so no
         request can name a file (no path from a request reaches the file system)."""
@@ -220,7 +262,9 @@ class WebConsole:
             "server": app.name,
             "mode": app.mode,
             "job": None if job is None else {"id": job.id, "command": job.command, "phase": job.phase,
-                                             "done": job.done, "total": job.total, "tag": job.tag},
+                                             "done": job.done, "total": job.total, "tag": job.tag,
+                                             # on the server's clock (the page corrects for its own)
+                                             "started": round(time.time() - (time.monotonic() - job.started), 1)},
             "pose": {"x": pose.x, "y": pose.y, "heading": pose.heading, "stopped": pose.stopped},
             "ptu": app.ptu_position(),
             "devices": app.devices.summary(),
@@ -244,8 +288,10 @@ class WebConsole:
             if key not in self.bounds:
                 self.bounds[key] = list(read_geotiff_geometry(path).bounds)
                 self._to_render.append((name, path))  # the page asks for it in a moment
-            maps[name] = {"url": f"/layers/{name}.png?v={version}", "bounds": self.bounds[key], "version": version}
+            maps[name] = {"url": f"/layers/{name}.png?v={version}", "bounds": self.bounds[key], "version": version,
+                          "unit": unit_of(name)}
         out["maps"] = {k: maps[k] for k in sorted(maps, key=lambda n: (LAYER_ORDER + (n,)).index(n))}
+        out["products"] = [{"name": n, "url": f"/products/{n}"} for n in self.products()]
         monitors = json.loads(format_reply_json(Reply("RVS", "OK", app.monitors.status_fields())))
         out["monitors"] = {k: v for k, v in monitors.items() if k not in ("module", "status")}
         here = out.get("truth") or out["pose"]
@@ -262,7 +308,7 @@ class WebConsole:
             self._to_render.sort(key=lambda item: item[0] not in SHOWN_FIRST)
             name, path = self._to_render.pop(0)
             try:
-                await loop.run_in_executor(None, self.layers.get, name, path)
+                await loop.run_in_executor(None, self.layers.get, name, path, self.dem_path())
             except (OSError, ValueError) as exc:
                 log.warning("layer_render_failed", layer=name, error=str(exc))
 
@@ -303,7 +349,7 @@ class WebConsole:
             raise web.HTTPNotFound(text=f"no current layer '{name[:40]}'; run dem-full-tof (or dem-full) first")
         loop = asyncio.get_running_loop()
         try:
-            image = await loop.run_in_executor(None, self.layers.get, name, path)
+            image = await loop.run_in_executor(None, self.layers.get, name, path, self.dem_path())
         except (OSError, ValueError) as exc:
             raise web.HTTPNotFound(text=f"layer '{name}' unreadable: {exc}") from None
         return web.Response(body=image.png, content_type="image/png", headers={
@@ -314,6 +360,33 @@ class WebConsole:
 
     async def state_json(self, request: web.Request) -> web.Response:
         return web.json_response(self.state())
+
+    async def values_at(self, request: web.Request) -> web.Response:
+        """The hover readout: each asked layer's value at x, y with its unit."""
+        try:
+            x, y = float(request.query["x"]), float(request.query["y"])
+        except (KeyError, ValueError):
+            raise web.HTTPBadRequest(text="give x and y in metres: /api/at?x=1.5&y=-0.2&layers=dem,slope") from None
+        paths = self.layer_paths()
+        names = [n for n in request.query.get("layers", "").split(",") if n in paths]
+        loop = asyncio.get_running_loop()
+
+        def read() -> dict[str, Any]:
+            out = {}
+            for name in names:
+                with contextlib.suppress(OSError, ValueError):
+                    out[name] = self.values.at(name, paths[name], x, y)
+            return out
+
+        return web.json_response({"x": x, "y": y, "values": await loop.run_in_executor(None, read)})
+
+    async def product(self, request: web.Request) -> web.StreamResponse:
+        name = request.match_info["name"]
+        self._products = (0.0, {})  # list again: a product may have been written since
+        path = self.products().get(name)
+        if path is None:
+            raise web.HTTPNotFound(text=f"'{name[:60]}' is not a product of the current map")
+        return web.FileResponse(path, headers={"Content-Disposition": f'attachment; filename="{name}"'})
 
     async def websocket(self, request: web.Request) -> web.StreamResponse:
         origin = request.headers.get("Origin")
@@ -334,6 +407,7 @@ class WebConsole:
         self.pages.add(page)
         page.writing = asyncio.create_task(page.writer())
         page.log.info("client_connected", clients=len(app.connections))
+        page.send_raw(self.history_message())
         page.greet()
         page.send_raw(json.dumps(self.state(), separators=(",", ":")))
         try:

@@ -1,93 +1,161 @@
 // RVS operator console: a map of the rover's world and the server's lines, live over a WebSocket.
 // Every action is a command line sent to the server's dispatcher, exactly as telnet sends it;
-// the page only draws what the server says. Map frame: x right, y up (the GeoTIFFs' east and
-// north), metres; the rover's forward direction is its heading, counter-clockwise from +x.
+// the page only draws what the server says, and the server decides what it accepts (the token,
+// the mode). Map frame: x right, y up (the GeoTIFFs' east and north), metres; the rover's
+// forward direction is its heading, counter-clockwise from +x.
 "use strict";
 
 const $ = (id) => document.getElementById(id);
 const canvas = $("map");
 const ctx = canvas.getContext("2d");
 
+// A page's own tag prefix: two pages (or a reloaded one) never label their requests alike, so a
+// page takes no other connection's line for the answer to its own request.
+const PAGE = Math.random().toString(36).slice(2, 8);
+// Overlays, bottom to top: check-move, plan, track. Colours no layer ramp or class uses.
+const COLOUR = {
+  track: "#1f6feb", plan: "#c026d3", goal: "#111111",
+  check: { ok: "#15803d", not_traversable: "#dc2626" }, checkOther: "#d97706", measure: "#111111",
+};
+const HISTORY_KEY = "rvs.commands";
+const HISTORY_MAX = 100;
+
 const S = {
   state: null,          // the last state snapshot
-  layers: {},           // name -> {url, img, legend, bounds, ready}
+  online: false,
+  layers: {},           // name -> {wanted, bounds, unit, img, imgBounds, legend, ready, loading}
   visible: { dem: true, hazard: true },
+  chosen: false,        // the operator changed the visible layers (no more defaults)
+  opacity: {},          // name -> 0..1
   plan: [],             // waypoints [[x, y, heading], ...] of the last navigate leg
   hazards: [],          // hazard events with a position
   check: null,          // the last check-move: {from, to, verdict}
+  goal: null,           // the navigate goal being driven to: {x, y, tolerance}
   authed: false,
   tagN: 0,
-  pending: {},          // tag -> callback for the final line
+  pending: {},          // tag -> {onAck, onFinal}
   progress: null,       // the last PROGRESS fields
+  phase: null,          // {key, t, done}: when the current phase was first seen (server time)
+  clock: 0,             // server time minus this page's time, seconds
   view: { cx: 0, cy: 0, scale: 60 },
   fitted: false,
   click: null,          // the map point of the open click menu
+  measure: null,        // {a, b} while the distance tool is on
+  commands: loadCommands(),
+  commandAt: -1,        // position in the command history while browsing it with Up / Down
 };
 let ws = null;
+
+function loadCommands() {
+  try { return JSON.parse(localStorage.getItem(HISTORY_KEY) || "[]"); } catch (e) { return []; }
+}
 
 // ------------------------------------------------------------------------------ connection
 
 function connect() {
   ws = new WebSocket((location.protocol === "https:" ? "wss://" : "ws://") + location.host + "/ws");
-  ws.onopen = () => setLink(true);
+  ws.onopen = () => {
+    // a new connection: whatever the old one knew may be stale (another server, a new map)
+    for (const l of Object.values(S.layers)) if (l.img) URL.revokeObjectURL(l.img.src);
+    S.layers = {};
+    S.pending = {};
+    S.authed = false;
+    $("layers").dataset.names = "(reconnected)";
+    setLink(true);
+  };
   ws.onclose = () => { setLink(false); setTimeout(connect, 1500); };
   ws.onmessage = (ev) => {
     const m = JSON.parse(ev.data);
     if (m.type === "state") onState(m);
-    else if (m.type === "reply") onReply(m);
+    else if (m.type === "reply") onReply(m, false);
+    else if (m.type === "history") onHistory(m.lines);
   };
 }
 
 function setLink(up) {
+  S.online = up;
   const el = $("link");
   el.textContent = up ? "live" : "offline";
   el.className = up ? "up" : "down";
+  if (!up) {
+    setMode("offline");
+    $("legend").hidden = true;
+    S.progress = null;
+  }
+  updateButtons();
+  draw();
 }
 
-function send(line, onFinal) {
-  if (!ws || ws.readyState !== WebSocket.OPEN) { showResult("not connected", true); return; }
-  const tag = "w" + (++S.tagN);
-  S.pending[tag] = onFinal || null;
+function send(line, handlers) {
+  if (!ws || ws.readyState !== WebSocket.OPEN) { showResult("not connected: the server is offline", true); return; }
+  const tag = `w${PAGE}-${++S.tagN}`;
+  S.pending[tag] = handlers || {};
   ws.send(JSON.stringify({ line: "@" + tag + " " + line }));
 }
 
 function canAct() {
-  return !!S.state && (!S.state.token || S.authed);
+  return S.online && !!S.state && (!S.state.token || S.authed);
 }
 
 // ------------------------------------------------------------------------------ lines
 
-function onReply(m) {
+function onReply(m, past) {
   const r = m.reply;
-  logLine(m.text, r.status, m.own);
+  if (!past && typeof m.t === "number") S.clock = m.t - Date.now() / 1000;
+  logLine(m.text, r.status, m.own, m.t, past);
   if (r.status === "PROGRESS") {
     S.progress = r;
+    const key = `${r.job}/${r.leg || ""}/${r.phase || ""}`;
+    if (!S.phase || S.phase.key !== key) S.phase = { key, t: m.t, done: r.done };
     showProgress();
   } else if (r.status === "EVENT") {
-    if (r.kind === "mode") setMode(r.mode);
+    if (r.kind === "mode" && !past) setMode(r.mode);
     if (r.kind === "waiting" && Array.isArray(r.waypoints)) S.plan = r.waypoints;
     if (r.kind === "hazard" && typeof r.x === "number") S.hazards.push({ x: r.x, y: r.y, level: r.level });
     draw();
-  } else if (r.status === "OK" || r.status === "ERROR") {
-    if (r.job !== undefined) S.progress = null;
-    const cb = r.tag !== undefined ? S.pending[r.tag] : undefined;
-    if (r.tag !== undefined && r.tag in S.pending) {
+  } else if (!past && m.own && r.tag !== undefined && r.tag in S.pending) {
+    // only this page's own lines answer its requests (m.own): another's job may use any tag
+    const handlers = S.pending[r.tag];
+    if (r.status === "ACK") {
+      if (handlers.onAck) handlers.onAck(r);
+    } else if (r.status === "OK" || r.status === "ERROR") {
       delete S.pending[r.tag];
       showResult(m.text, r.status === "ERROR");
-      if (cb) cb(r);
+      if (handlers.onFinal) handlers.onFinal(r);
     }
-    showProgress();
   }
+  if ((r.status === "OK" || r.status === "ERROR") && r.job !== undefined && r.module !== "EGP-RVS-STATUS" && !past) {
+    S.progress = null;
+    S.phase = null;
+  }
+  showProgress();
 }
 
-function logLine(text, status, own) {
+function onHistory(lines) {
+  $("log").textContent = "";
+  S.hazards = [];
+  S.plan = [];
+  for (const m of lines) onReply(m, true);
+}
+
+function clockText(t) {
+  if (typeof t !== "number") return "";
+  const d = new Date(t * 1000);
+  return d.toTimeString().slice(0, 8);
+}
+
+function logLine(text, status, own, t, past) {
   const li = document.createElement("li");
-  li.textContent = text;
-  li.className = status + (own ? " mine" : "");
+  const time = document.createElement("time");
+  time.textContent = clockText(t);
+  if (typeof t === "number") time.dateTime = new Date(t * 1000).toISOString();
+  li.append(time, text);
+  li.className = status + (own ? " mine" : "") + (past ? " past" : "");
   const log = $("log");
+  const atEnd = log.scrollTop + log.clientHeight >= log.scrollHeight - 4;
   log.appendChild(li);
-  while (log.children.length > 300) log.removeChild(log.firstChild);
-  log.scrollTop = log.scrollHeight;
+  while (log.children.length > 600) log.removeChild(log.firstChild);
+  if (atEnd || past) log.scrollTop = log.scrollHeight;
 }
 
 function showResult(text, error) {
@@ -100,10 +168,16 @@ function setMode(mode) {
   const el = $("mode");
   el.textContent = mode;
   el.dataset.mode = mode;
+  updateButtons();
+}
+
+function seconds(s) {
+  s = Math.max(0, Math.round(s));
+  return s >= 60 ? `${Math.floor(s / 60)} min ${String(s % 60).padStart(2, "0")} s` : `${s} s`;
 }
 
 function showProgress() {
-  const job = S.state && S.state.job;
+  const job = S.online && S.state && S.state.job;
   const p = S.progress;
   let done = 0, total = 0, phase = "", message = "";
   if (p && job && p.job === job.id) {
@@ -114,7 +188,22 @@ function showProgress() {
   $("job").textContent = job ? `${job.command} (job ${job.id})` : "none";
   $("bar-fill").style.width = total > 0 ? `${Math.min(100, (100 * done) / total).toFixed(1)}%` : (job ? "3%" : "0");
   $("phase").textContent = job ? `${phase ? phase + " " : ""}${done}/${total} ${message}` : "";
+  $("times").textContent = job ? jobTimes(job, done, total, phase) : "";
 }
+
+function jobTimes(job, done, total, phase) {
+  // the server's clock for both ends: the page's clock may be off
+  const now = Date.now() / 1000 + S.clock;
+  let text = `elapsed ${seconds(now - job.started)}`;
+  const ph = S.phase;
+  if (ph && total > 0 && done > ph.done && done < total) {
+    const rate = (now - ph.t) / (done - ph.done);
+    text += ` · ${phase || "this phase"}: about ${seconds(rate * (total - done))} left`;
+  }
+  return text;
+}
+
+setInterval(() => { if (S.state && S.state.job) showProgress(); }, 1000);
 
 // ------------------------------------------------------------------------------ state
 
@@ -124,7 +213,6 @@ function onState(st) {
   setMode(st.mode);
   $("devices").textContent = Object.entries(st.devices).map(([k, v]) => `${k}:${v}`).join(" ");
   $("auth").hidden = !st.token || S.authed;
-  document.querySelectorAll("button.act").forEach((b) => { b.disabled = !canAct(); });
   document.querySelectorAll(".simonly").forEach((el) => { el.hidden = !st.truth; });
   const p = st.pose;
   let pose = `pose x ${p.x.toFixed(2)} y ${p.y.toFixed(2)} heading ${p.heading.toFixed(1)}°`;
@@ -134,71 +222,172 @@ function onState(st) {
   $("pose").style.whiteSpace = "pre";
   $("monitors").textContent = Object.entries(st.monitors || {}).map(([k, v]) => `${k}=${v}`).join(" ");
   updateLayers(st.maps || {});
+  updateProducts(st.products || []);
   showProgress();
+  updateButtons();
   draw();
 }
 
+function updateButtons() {
+  const st = S.state, can = canAct();
+  const mode = S.online && st ? st.mode : "offline";
+  const job = S.online && st ? st.job : null;
+  const set = (id, ok, why) => { const b = $(id); b.disabled = !ok; b.title = ok ? "" : why; };
+  const lock = !S.online ? "the server is offline" : !can ? "read-only: unlock with the token" : "";
+  set("btn-dem", can && mode === "ready", lock || `mode ${mode}: a scan needs ready`);
+  set("btn-break", can && !!job, lock || "no job to break");
+  set("btn-continue", can && !job && ["break", "standby", "fault"].includes(mode), lock || "continue leaves break, standby or fault");
+  set("btn-reset", can && !job, lock || "a job runs: break it first");
+  set("go-nav", can && mode === "ready", lock || `mode ${mode}: navigate needs ready`);
+  set("go-check", can && !!(st && st.maps && st.maps.traversability), lock || "no traversability map yet");
+  // the command line stays open while locked: help, status and auth need no token
+  set("cmd-go", S.online, "the server is offline");
+  set("auth-go", S.online, "the server is offline");
+  $("cmd").disabled = !S.online;
+}
+
 function updateLayers(maps) {
-  for (const [name, m] of Object.entries(maps)) {
-    const have = S.layers[name];
-    if (have && (have.url === m.url || have.loading === m.url)) continue;
-    // the old image stays on the map until the new version has loaded: no blank map meanwhile
-    const layer = { url: m.url, bounds: m.bounds, img: new Image(), legend: null, ready: false };
-    if (have) have.loading = m.url; else S.layers[name] = layer;
-    fetch(m.url).then((resp) => {
-      if (!resp.ok) throw new Error(resp.statusText);
-      layer.legend = JSON.parse(resp.headers.get("X-Legend") || "null");
-      return resp.blob();
-    }).then((blob) => {
-      layer.img.onload = () => {
-        layer.ready = true;
-        const old = S.layers[name];
-        if (old && old !== layer && old.img.src.startsWith("blob:")) URL.revokeObjectURL(old.img.src);
-        S.layers[name] = layer;
-        if (!S.fitted) fit();
-        draw();
-        drawLegend();
-      };
-      layer.img.src = URL.createObjectURL(blob);
-    }).catch((err) => logLine(`layer ${name}: ${err}`, "ERROR", false));
+  const names = Object.keys(maps);  // the server's order: bottom first
+  if (!S.chosen && names.length && !names.some((n) => !n.startsWith("global_") && S.visible[n])) {
+    for (const n of names) if (n.startsWith("global_")) S.visible[n] = true;  // a global map alone
   }
-  for (const name of Object.keys(S.layers)) if (!(name in maps)) delete S.layers[name];
+  for (const [name, m] of Object.entries(maps)) {
+    const l = S.layers[name] || (S.layers[name] = { img: null, legend: null, ready: false, loading: null });
+    l.wanted = m.url;
+    l.bounds = m.bounds;
+    l.unit = m.unit || "";
+  }
+  for (const name of Object.keys(S.layers)) {
+    if (!(name in maps)) {
+      if (S.layers[name].img) URL.revokeObjectURL(S.layers[name].img.src);
+      delete S.layers[name];
+    }
+  }
+  for (const name of names) if (S.visible[name]) loadLayer(name);
+  if (!S.fitted && names.some((n) => S.visible[n])) fit();
   const box = $("layers");
-  const names = Object.keys(maps);
   if (box.dataset.names !== names.join(",")) {
     box.dataset.names = names.join(",");
     box.innerHTML = names.length ? "" : "<i>no map yet: run dem-full-tof</i>";
-    for (const name of names) {
+    for (const name of names.slice().reverse()) {
+      const row = document.createElement("div");
+      row.className = "layer";
       const label = document.createElement("label");
       const cb = document.createElement("input");
       cb.type = "checkbox";
       cb.dataset.layer = name;
       cb.checked = !!S.visible[name];
-      cb.onchange = () => { S.visible[name] = cb.checked; draw(); drawLegend(); };
-      label.append(cb, " " + name);
-      box.appendChild(label);
+      cb.onchange = () => {
+        S.chosen = true;
+        S.visible[name] = cb.checked;
+        if (cb.checked) loadLayer(name);
+        draw();
+        drawLegend();
+      };
+      label.append(cb, ` ${name}${S.layers[name].unit ? ` (${S.layers[name].unit})` : ""}`);
+      const op = document.createElement("input");
+      op.type = "range";
+      op.min = "0"; op.max = "1"; op.step = "0.05";
+      op.value = String(opacity(name));
+      op.dataset.opacity = name;
+      op.title = `${name} opacity`;
+      op.oninput = () => { S.opacity[name] = parseFloat(op.value); draw(); };
+      row.append(label, op);
+      box.appendChild(row);
     }
   }
+  drawLegend();
 }
 
+function opacity(name) {
+  return name in S.opacity ? S.opacity[name] : 1;
+}
+
+// A layer's image is fetched when it is shown, not before: a page that shows two layers loads two.
+function loadLayer(name) {
+  const l = S.layers[name];
+  if (!l || l.url === l.wanted || l.loading === l.wanted) return;
+  const url = l.wanted, bounds = l.bounds;
+  l.loading = url;
+  let legend = null;
+  fetch(url).then((resp) => {
+    if (!resp.ok) throw new Error(resp.statusText);
+    legend = JSON.parse(resp.headers.get("X-Legend") || "null");
+    return resp.blob();
+  }).then((blob) => {
+    const img = new Image();
+    img.onload = () => {
+      const cur = S.layers[name];
+      if (cur !== l || l.loading !== url) { URL.revokeObjectURL(img.src); return; }
+      // the old image stays on the map until the new version has loaded: no blank map meanwhile
+      if (l.img) URL.revokeObjectURL(l.img.src);
+      Object.assign(l, { img, imgBounds: bounds, legend, url, ready: true, loading: null });
+      if (!S.fitted) fit();
+      draw();
+      drawLegend();
+    };
+    img.src = URL.createObjectURL(blob);
+  }).catch((err) => { l.loading = null; logLine(`layer ${name}: ${err}`, "ERROR", false); });
+}
+
+function updateProducts(products) {
+  const box = $("products");
+  const key = products.map((p) => p.name).join(",");
+  if (box.dataset.key === key) return;
+  box.dataset.key = key;
+  box.textContent = "";
+  for (const p of products) {
+    const li = document.createElement("li");
+    const a = document.createElement("a");
+    a.href = p.url;
+    a.download = p.name;
+    a.textContent = p.name;
+    li.appendChild(a);
+    box.appendChild(li);
+  }
+  $("downloads").hidden = !products.length;
+}
+
+// One legend per visible layer, top first, as the layers list.
 function drawLegend() {
-  // the legend of the topmost visible layer with one: it matches what is drawn last
-  const names = Object.keys(S.layers).filter((n) => S.visible[n] && S.layers[n].legend).reverse();
   const el = $("legend");
-  if (!names.length) { el.hidden = true; return; }
-  const name = names[0], lg = S.layers[name].legend;
-  el.hidden = false;
-  el.innerHTML = "";
-  const title = document.createElement("div");
-  title.innerHTML = `<b>${name}</b>`;
-  el.appendChild(title);
+  const names = Object.keys(S.layers).filter((n) => S.visible[n] && S.layers[n].legend).reverse();
+  el.textContent = "";
+  el.hidden = !S.online || !names.length;
+  for (const name of names) el.appendChild(legendOf(name, S.layers[name]));
+}
+
+function legendOf(name, layer) {
+  const lg = layer.legend;
+  const box = document.createElement("div");
+  box.className = "lg";
+  box.dataset.layer = name;
+  const title = document.createElement("b");
+  title.textContent = name + (lg.unit || layer.unit ? ` (${lg.unit || layer.unit})` : "");
+  box.appendChild(title);
   if (lg.kind === "ramp") {
     const ramp = document.createElement("div");
     ramp.className = "ramp";
     ramp.style.background = `linear-gradient(to right, ${lg.colours.map((c) => `rgb(${c.join(",")})`).join(",")})`;
-    const scale = document.createElement("div");
-    scale.textContent = `${fmt(lg.lo)} … ${fmt(lg.hi)} ${lg.unit}`;
-    el.append(ramp, scale);
+    const ends = document.createElement("div");
+    ends.className = "ends";
+    const lo = document.createElement("span"), hi = document.createElement("span");
+    lo.textContent = fmt(lg.lo);
+    hi.textContent = fmt(lg.hi);
+    ends.append(lo, hi);
+    box.append(ramp, ends);
+    for (const [value, what] of lg.marks || []) {  // a threshold: where the hazard map says hazardous
+      const mark = document.createElement("div");
+      mark.className = "mark";
+      mark.dataset.value = value;
+      mark.style.left = `${(100 * (value - lg.lo)) / (lg.hi - lg.lo)}%`;
+      mark.title = `${what} ${fmt(value)} ${lg.unit}`;
+      ramp.appendChild(mark);
+      const caption = document.createElement("div");
+      caption.className = "threshold";
+      caption.textContent = `| ${what} ${fmt(value)} ${lg.unit}: hazardous above`;
+      box.appendChild(caption);
+    }
   } else if (lg.kind === "classes") {
     for (const [[r, g, b, a], label] of lg.entries) {  // the colours as drawn; alpha 0 shows hatched
       const row = document.createElement("div");
@@ -206,11 +395,19 @@ function drawLegend() {
       sw.className = "swatch" + (a === 0 ? " transparent" : "");
       if (a > 0) sw.style.background = `rgba(${r},${g},${b},${a / 255})`;
       row.append(sw, label);
-      el.appendChild(row);
+      box.appendChild(row);
     }
   } else {
-    el.appendChild(document.createTextNode("image"));
+    box.appendChild(document.createTextNode(" image"));
   }
+  if (lg.meaning) {
+    const meaning = document.createElement("div");
+    meaning.className = "meaning";
+    meaning.textContent = lg.meaning.split(":")[0];
+    meaning.title = lg.meaning;
+    box.appendChild(meaning);
+  }
+  return box;
 }
 
 function fmt(v) {
@@ -239,12 +436,16 @@ function toWorld(px, py) {
   return [S.view.cx + (px - w / 2) / S.view.scale, S.view.cy - (py - h / 2) / S.view.scale];
 }
 
+// The visible layers' bounds (known from the state before any image loads) and the rover.
 function fit() {
-  const boxes = Object.values(S.layers).filter((l) => l.ready).map((l) => l.bounds);
+  const names = Object.keys(S.layers);
+  const shown = names.filter((n) => S.visible[n]);
+  const boxes = (shown.length ? shown : names).map((n) => S.layers[n].bounds).filter(Boolean);
   const p = S.state ? (S.state.truth || S.state.pose) : { x: 0, y: 0 };
   let [x0, y0, x1, y1] = [p.x - 4, p.y - 4, p.x + 4, p.y + 4];
   for (const b of boxes) { x0 = Math.min(x0, b[0]); y0 = Math.min(y0, b[1]); x1 = Math.max(x1, b[2]); y1 = Math.max(y1, b[3]); }
   const { w, h } = size();
+  if (w < 2 || h < 2) return;
   S.view = { cx: (x0 + x1) / 2, cy: (y0 + y1) / 2, scale: 0.92 * Math.min(w / (x1 - x0), h / (y1 - y0)) };
   S.fitted = boxes.length > 0;
   draw();
@@ -258,38 +459,122 @@ function niceStep(raw) {
 
 // ------------------------------------------------------------------------------ drawing
 
+let hatch = null;
+function hatchPattern() {
+  // the legend's "unseen" swatch, drawn: where a local layer has nothing, the map says so
+  if (!hatch) {
+    const c = document.createElement("canvas");
+    c.width = c.height = 8;
+    const g = c.getContext("2d");
+    g.strokeStyle = "rgba(90, 100, 110, 0.6)";
+    g.lineWidth = 1.2;
+    g.beginPath();
+    g.moveTo(0, 8); g.lineTo(8, 0);
+    g.moveTo(-2, 2); g.lineTo(2, -2);
+    g.moveTo(6, 10); g.lineTo(10, 6);
+    g.stroke();
+    hatch = ctx.createPattern(c, "repeat");
+  }
+  return hatch;
+}
+
+function drawLayers() {
+  const names = S.state ? Object.keys(S.state.maps || {}) : Object.keys(S.layers);  // bottom first
+  let hatched = false;
+  for (const name of names) {
+    const l = S.layers[name];
+    if (!l || !S.visible[name] || !l.ready) continue;
+    if (!hatched && !name.startsWith("global_")) {
+      hatched = true;
+      ctx.save();
+      ctx.fillStyle = hatchPattern();
+      for (const n of names) {
+        const k = S.layers[n];
+        if (n.startsWith("global_") || !k || !S.visible[n] || !k.ready) continue;
+        const [x0, y0, x1, y1] = k.imgBounds;
+        const [px, py] = toScreen(x0, y1);
+        ctx.fillRect(px, py, (x1 - x0) * S.view.scale, (y1 - y0) * S.view.scale);
+      }
+      ctx.restore();
+    }
+    const [x0, y0, x1, y1] = l.imgBounds;
+    const [px, py] = toScreen(x0, y1);
+    ctx.globalAlpha = opacity(name);
+    ctx.drawImage(l.img, px, py, (x1 - x0) * S.view.scale, (y1 - y0) * S.view.scale);
+    ctx.globalAlpha = 1;
+  }
+}
+
 function draw() {
   const { w, h, dpr } = size();
   ctx.setTransform(dpr, 0, 0, dpr, 0, 0);
   ctx.clearRect(0, 0, w, h);
   ctx.imageSmoothingEnabled = false;
-  for (const [name, layer] of Object.entries(S.layers)) {
-    if (!S.visible[name] || !layer.ready) continue;
-    const [x0, y0, x1, y1] = layer.bounds;
-    const [px, py] = toScreen(x0, y1);
-    ctx.drawImage(layer.img, px, py, (x1 - x0) * S.view.scale, (y1 - y0) * S.view.scale);
-  }
+  drawLayers();
   drawGrid(w, h);
   const st = S.state;
-  if (!st) return;
-  if ($("show-track").checked) polyline(st.track, "#1f6feb", 2);
-  if ($("show-plan").checked && S.plan.length) {
-    polyline(S.plan, "#e67e22", 2.5, [6, 4]);
-    for (const wp of S.plan) dot(wp[0], wp[1], 3.5, "#e67e22");
+  if (st) {
+    if (S.check && $("show-check").checked) {
+      const colour = COLOUR.check[S.check.verdict] || COLOUR.checkOther;
+      polyline([S.check.from, S.check.to], colour, 2, [2, 4]);
+      dot(S.check.to[0], S.check.to[1], 4, colour);
+      const [px, py] = toScreen(S.check.to[0], S.check.to[1]);
+      label(`check: ${S.check.verdict}`, px + 8, py + 16, colour);
+    }
+    if ($("show-plan").checked && S.plan.length) {
+      polyline(S.plan, COLOUR.plan, 2.5, [8, 4]);
+      for (const wp of S.plan) dot(wp[0], wp[1], 3, COLOUR.plan);
+    }
+    if ($("show-track").checked) polyline(st.track, COLOUR.track, 2.5);
+    for (const hz of S.hazards) dot(hz.x, hz.y, 5, hz.level === "stop" ? "#d00" : "#f90");
+    drawGoal();
+    if (st.truth && Math.hypot(st.truth.x - st.pose.x, st.truth.y - st.pose.y) > 0.05) rover(st.truth, st, true);
+    rover(st.pose, st, false);
   }
-  for (const hz of S.hazards) dot(hz.x, hz.y, 5, hz.level === "stop" ? "#d00" : "#f90");
-  if (S.check) {
-    const colour = S.check.verdict === "ok" ? "#1a8f3a" : S.check.verdict === "not_traversable" ? "#c0392b" : "#d68910";
-    polyline([S.check.from, S.check.to], colour, 3);
-    dot(S.check.to[0], S.check.to[1], 5, colour);
-    const [px, py] = toScreen(S.check.to[0], S.check.to[1]);
-    label(S.check.verdict, px + 8, py - 8, colour);
-  }
-  if (st.truth && Math.hypot(st.truth.x - st.pose.x, st.truth.y - st.pose.y) > 0.05) rover(st.truth, st, true);
-  rover(st.pose, st, false);
   if (S.click) dot(S.click[0], S.click[1], 5, "#7d3cff");
+  drawMeasure();
   drawScale(w, h);
   drawNorth(w);
+}
+
+// The goal as asked (a cross in the tolerance circle) and, when the plan ends elsewhere (the
+// server moved it out of a hazard, or drives toward it to judge it from closer), that end.
+function drawGoal() {
+  const g = S.goal;
+  if (!g) return;
+  const [px, py] = toScreen(g.x, g.y);
+  ctx.save();
+  ctx.strokeStyle = "#fff";
+  ctx.lineWidth = 4;
+  cross(px, py, 8);
+  ctx.strokeStyle = COLOUR.goal;
+  ctx.lineWidth = 2;
+  cross(px, py, 8);
+  ctx.setLineDash([3, 3]);
+  ctx.beginPath();
+  ctx.arc(px, py, Math.max(3, g.tolerance * S.view.scale), 0, 2 * Math.PI);
+  ctx.stroke();
+  ctx.restore();
+  label("goal", px + 10, py - 8, COLOUR.goal);
+  const end = S.plan.length ? S.plan[S.plan.length - 1] : null;
+  if (end && Math.hypot(end[0] - g.x, end[1] - g.y) > 0.05) {
+    const [ex, ey] = toScreen(end[0], end[1]);
+    ctx.save();
+    ctx.strokeStyle = COLOUR.plan;
+    ctx.lineWidth = 2.5;
+    ctx.beginPath();
+    ctx.arc(ex, ey, 7, 0, 2 * Math.PI);
+    ctx.stroke();
+    ctx.restore();
+    label("planned end", ex + 10, ey + 4, COLOUR.plan);
+  }
+}
+
+function cross(px, py, r) {
+  ctx.beginPath();
+  ctx.moveTo(px - r, py - r); ctx.lineTo(px + r, py + r);
+  ctx.moveTo(px - r, py + r); ctx.lineTo(px + r, py - r);
+  ctx.stroke();
 }
 
 function polyline(points, colour, width, dash) {
@@ -317,12 +602,14 @@ function dot(x, y, r, colour) {
 }
 
 function label(text, x, y, colour) {
+  ctx.save();
   ctx.font = "12px system-ui, sans-serif";
   ctx.lineWidth = 3;
   ctx.strokeStyle = "#fff";
   ctx.strokeText(text, x, y);
   ctx.fillStyle = colour || "#222";
   ctx.fillText(text, x, y);
+  ctx.restore();
 }
 
 function rover(pose, st, ghost) {
@@ -366,29 +653,37 @@ function rover(pose, st, ghost) {
   if (ghost) label("simulator truth", px + 10, py + 16, "#555");
 }
 
+// Grid lines every nice step; the labels inside the map with a halo, clear of the buttons (left)
+// and of the scale bar (bottom left), so none is hidden or cut off.
 function drawGrid(w, h) {
+  const scaleRight = scaleBox().right;
   const step = niceStep(90 / S.view.scale);
   const [x0, y1] = toWorld(0, 0), [x1, y0] = toWorld(w, h);
   ctx.save();
   ctx.strokeStyle = "rgba(80, 90, 100, 0.25)";
   ctx.lineWidth = 1;
-  ctx.font = "10px monospace";
-  ctx.fillStyle = "#445";
+  const lines = [];
   for (let x = Math.ceil(x0 / step) * step; x <= x1; x += step) {
     const [px] = toScreen(x, 0);
     ctx.beginPath(); ctx.moveTo(px, 0); ctx.lineTo(px, h); ctx.stroke();
-    ctx.fillText(`${+x.toFixed(6)} m`, px + 2, h - 4);
+    lines.push([`${+x.toFixed(6)} m`, px + 3, h - 5, px > scaleRight + 4 && px < w - 40]);
   }
   for (let y = Math.ceil(y0 / step) * step; y <= y1; y += step) {
     const [, py] = toScreen(0, y);
     ctx.beginPath(); ctx.moveTo(0, py); ctx.lineTo(w, py); ctx.stroke();
-    ctx.fillText(`${+y.toFixed(6)} m`, 2, py - 2);
+    lines.push([`${+y.toFixed(6)} m`, 48, py - 3, py > 150 && py < h - 50]);  // below the buttons
   }
   ctx.restore();
+  for (const [text, x, y, clear] of lines) if (clear) label(text, x, y, "#334");
+}
+
+function scaleBox() {
+  const metres = niceStep(120 / S.view.scale), px = metres * S.view.scale;
+  return { metres, px, right: 14 + px + 54 };
 }
 
 function drawScale(w, h) {
-  const metres = niceStep(120 / S.view.scale), px = metres * S.view.scale;
+  const { metres, px } = scaleBox();
   const x = 14, y = h - 26;
   ctx.save();
   ctx.fillStyle = "rgba(255,255,255,0.85)";
@@ -410,37 +705,117 @@ function drawNorth(w) {
   ctx.moveTo(x, y - 24); ctx.lineTo(x - 8, y); ctx.lineTo(x + 8, y); ctx.closePath();
   ctx.fill();
   label("+y", x - 8, y + 14, "#111");
-  label("x →", x - 60, y + 30, "#111");
+  label("x →", x - 24, y + 30, "#111");
   ctx.restore();
 }
 
-// ------------------------------------------------------------------------------ input
+// ------------------------------------------------------------------------------ distance tool
 
-let drag = null;
-canvas.addEventListener("mousedown", (e) => { drag = { x: e.clientX, y: e.clientY, cx: S.view.cx, cy: S.view.cy, moved: false }; });
-window.addEventListener("mouseup", () => { setTimeout(() => { drag = null; }, 0); });
-canvas.addEventListener("mousemove", (e) => {
+function measureText(a, b) {
+  const dx = b[0] - a[0], dy = b[1] - a[1];
+  const bearing = ((Math.atan2(dy, dx) * 180) / Math.PI + 360) % 360;
+  return `distance ${Math.hypot(dx, dy).toFixed(2)} m · bearing ${bearing.toFixed(1)}° (counter-clockwise from +x, as the heading)`;
+}
+
+function drawMeasure() {
+  const m = S.measure;
+  if (!m || !m.a) return;
+  dot(m.a[0], m.a[1], 4, COLOUR.measure);
+  if (!m.b) return;
+  polyline([m.a, m.b], COLOUR.measure, 2, [6, 3]);
+  dot(m.b[0], m.b[1], 4, COLOUR.measure);
+}
+
+function setMeasuring(on) {
+  S.measure = on ? { a: null, b: null } : null;
+  $("measure").setAttribute("aria-pressed", String(on));
+  $("mapbox").classList.toggle("measuring", on);
+  $("measure-out").hidden = !on;
+  $("measure-out").textContent = on ? "click the first point" : "";
+  draw();
+}
+
+function measureClick(point) {
+  const m = S.measure;
+  if (!m.a || m.b) { m.a = point; m.b = null; $("measure-out").textContent = "click the second point"; }
+  else { m.b = point; $("measure-out").textContent = measureText(m.a, m.b); }
+  draw();
+}
+
+// ------------------------------------------------------------------------------ input: map
+
+// Pointer events: a mouse drag or a one-finger drag pans; two fingers pinch-zoom about their
+// midpoint; a press that does not move is a click.
+const pointers = new Map();
+let gesture = null;
+
+function startGesture() {
+  const pts = [...pointers.values()];
   const r = canvas.getBoundingClientRect();
-  const [wx, wy] = toWorld(e.clientX - r.left, e.clientY - r.top);
-  $("cursor").textContent = `x ${wx.toFixed(2)} m  y ${wy.toFixed(2)} m`;
-  if (drag && e.buttons) {
-    const dx = e.clientX - drag.x, dy = e.clientY - drag.y;
-    if (Math.abs(dx) + Math.abs(dy) > 3) drag.moved = true;
-    S.view.cx = drag.cx - dx / S.view.scale;
-    S.view.cy = drag.cy + dy / S.view.scale;
-    draw();
-  }
+  const mid = [pts.reduce((s, p) => s + p.x, 0) / pts.length - r.left, pts.reduce((s, p) => s + p.y, 0) / pts.length - r.top];
+  gesture = {
+    at: toWorld(mid[0], mid[1]), scale: S.view.scale, n: pts.length, start: mid,
+    d: pts.length > 1 ? Math.hypot(pts[0].x - pts[1].x, pts[0].y - pts[1].y) : 0,
+    moved: gesture ? gesture.moved : false,
+  };
+}
+
+canvas.addEventListener("pointerdown", (e) => {
+  if (e.pointerType === "mouse" && e.button !== 0) return;
+  canvas.setPointerCapture(e.pointerId);
+  pointers.set(e.pointerId, { x: e.clientX, y: e.clientY });
+  if (pointers.size === 1) gesture = null;
+  startGesture();
 });
+
+canvas.addEventListener("pointermove", (e) => {
+  const r = canvas.getBoundingClientRect();
+  if (!pointers.has(e.pointerId)) {
+    if (e.pointerType === "mouse") hover(e.clientX - r.left, e.clientY - r.top);
+    return;
+  }
+  pointers.set(e.pointerId, { x: e.clientX, y: e.clientY });
+  const pts = [...pointers.values()];
+  const mid = [pts.reduce((s, p) => s + p.x, 0) / pts.length - r.left, pts.reduce((s, p) => s + p.y, 0) / pts.length - r.top];
+  const g = gesture;
+  if (Math.hypot(mid[0] - g.start[0], mid[1] - g.start[1]) > 4 || pts.length > 1) g.moved = true;
+  if (!g.moved) return;
+  if (pts.length > 1 && g.d > 0) {
+    const d = Math.hypot(pts[0].x - pts[1].x, pts[0].y - pts[1].y);
+    S.view.scale = Math.max(2, Math.min(2000, (g.scale * d) / g.d));
+  }
+  const { w, h } = size();
+  S.view.cx = g.at[0] - (mid[0] - w / 2) / S.view.scale;
+  S.view.cy = g.at[1] + (mid[1] - h / 2) / S.view.scale;
+  draw();
+});
+
+function pointerEnd(e) {
+  if (!pointers.has(e.pointerId)) return;
+  pointers.delete(e.pointerId);
+  const g = gesture;
+  if (pointers.size) { startGesture(); return; }
+  gesture = null;
+  if (e.type === "pointerup" && g && !g.moved && g.n === 1) {
+    const r = canvas.getBoundingClientRect();
+    mapClick(e.clientX - r.left, e.clientY - r.top);
+  }
+}
+canvas.addEventListener("pointerup", pointerEnd);
+canvas.addEventListener("pointercancel", pointerEnd);
+canvas.addEventListener("pointerleave", (e) => { if (e.pointerType === "mouse" && !pointers.size) $("cursor").textContent = ""; });
+
 canvas.addEventListener("wheel", (e) => {
   e.preventDefault();
   const r = canvas.getBoundingClientRect();
   zoomAt(e.clientX - r.left, e.clientY - r.top, e.deltaY < 0 ? 1.2 : 1 / 1.2);
 }, { passive: false });
-canvas.addEventListener("click", (e) => {
-  if (drag && drag.moved) return;
-  const r = canvas.getBoundingClientRect();
-  openMenu(toWorld(e.clientX - r.left, e.clientY - r.top), e.clientX - r.left, e.clientY - r.top);
-});
+
+function mapClick(px, py) {
+  const point = toWorld(px, py);
+  if (S.measure) measureClick(point);
+  else openMenu(point, px, py);
+}
 
 function zoomAt(px, py, factor) {
   const [wx, wy] = toWorld(px, py);
@@ -450,6 +825,39 @@ function zoomAt(px, py, factor) {
   S.view.cy += wy - ny;
   draw();
 }
+
+// The hover readout: the cursor's position at once, the visible layers' values there once the
+// cursor rests (one request at a time; the newest position wins).
+let hoverAt = null, hoverTimer = null, hoverBusy = false;
+function hover(px, py) {
+  const [x, y] = toWorld(px, py);
+  hoverAt = [x, y];
+  $("cursor").textContent = `x ${x.toFixed(2)} m  y ${y.toFixed(2)} m`;
+  clearTimeout(hoverTimer);
+  hoverTimer = setTimeout(readValues, 120);
+}
+
+function readValues() {
+  const names = Object.keys(S.layers).filter((n) => S.visible[n]).reverse();
+  if (!hoverAt || !names.length || hoverBusy || !S.online) return;
+  const [x, y] = hoverAt;
+  hoverBusy = true;
+  fetch(`/api/at?x=${x.toFixed(4)}&y=${y.toFixed(4)}&layers=${names.join(",")}`).then((r) => r.json()).then((res) => {
+    hoverBusy = false;
+    if (!hoverAt || hoverAt[0] !== x || hoverAt[1] !== y) { readValues(); return; }
+    const parts = names.filter((n) => n in res.values).map((n) => `${n} ${valueText(res.values[n])}`);
+    $("cursor").textContent = `x ${x.toFixed(2)} m  y ${y.toFixed(2)} m` + (parts.length ? "\n" + parts.join(" · ") : "");
+  }).catch(() => { hoverBusy = false; });
+}
+
+function valueText(v) {
+  if (v.class !== undefined) return v.class;
+  if (v.value === null) return "unseen";
+  const unit = v.unit && v.unit !== "class" ? ` ${v.unit}` : "";
+  return `${fmt(v.value)}${unit}`;
+}
+
+// ------------------------------------------------------------------------------ input: menu
 
 function navLine() {
   const [x, y] = S.click;
@@ -467,10 +875,11 @@ function openMenu(point, px, py) {
   S.click = point;
   const menu = $("clickmenu");
   menu.hidden = false;
-  menu.style.left = `${Math.min(px + 12, canvas.clientWidth - 270)}px`;
-  menu.style.top = `${Math.min(py + 12, canvas.clientHeight - 200)}px`;
+  menu.style.left = `${Math.max(0, Math.min(px + 12, canvas.clientWidth - 270))}px`;
+  menu.style.top = `${Math.max(0, Math.min(py + 12, canvas.clientHeight - 200))}px`;
   menu.querySelector(".where").textContent = `x ${point[0].toFixed(2)} m, y ${point[1].toFixed(2)} m`;
   menu.querySelector(".cmdline").textContent = navLine();
+  updateButtons();
   draw();
 }
 
@@ -483,29 +892,75 @@ function closeMenu() {
 ["nav-sensor", "nav-auto", "nav-tol"].forEach((id) => $(id).addEventListener("change", () => {
   if (S.click) $("clickmenu").querySelector(".cmdline").textContent = navLine();
 }));
-$("go-nav").onclick = () => { S.plan = []; send(navLine()); closeMenu(); };
+$("go-nav").onclick = () => {
+  const goal = { x: S.click[0], y: S.click[1], tolerance: parseFloat($("nav-tol").value) || 0.3 };
+  // the plan on the map stays until the server takes the new goal: a refused navigate keeps it
+  send(navLine(), { onAck: () => { S.plan = []; S.goal = goal; draw(); } });
+  closeMenu();
+};
 $("go-check").onclick = () => {
   const to = S.click.slice(), st = S.state, from = st ? [st.pose.x, st.pose.y] : [0, 0];
-  send(checkLine(), (r) => { if (r.status === "OK") { S.check = { from, to, verdict: r.verdict }; draw(); } });
+  send(checkLine(), { onFinal: (r) => { if (r.status === "OK") { S.check = { from, to, verdict: r.verdict }; draw(); } } });
   closeMenu();
 };
 $("go-cancel").onclick = closeMenu;
 $("fit").onclick = fit;
 $("zoomin").onclick = () => zoomAt(canvas.clientWidth / 2, canvas.clientHeight / 2, 1.5);
 $("zoomout").onclick = () => zoomAt(canvas.clientWidth / 2, canvas.clientHeight / 2, 1 / 1.5);
+$("measure").onclick = () => setMeasuring(!S.measure);
+["show-track", "show-plan", "show-check", "show-fov"].forEach((id) => $(id).addEventListener("change", draw));
+
+// ------------------------------------------------------------------------------ input: commands
+
+// What cannot be undone asks first: reset re-initialises every device, quit stops the server.
+const CONFIRM = {
+  reset: "Reset re-initialises all the hardware (the PTU homes). Reset now?",
+  quit: "Quit stops the server for every client. Quit now?",
+};
+
+function confirmed(line) {
+  const word = line.replace(/^@\S+\s+/, "").split(/\s+/)[0];
+  return !(word in CONFIRM) || window.confirm(CONFIRM[word]);
+}
+
+function sendChecked(line) {
+  if (confirmed(line)) send(line);
+}
+
 $("btn-dem").onclick = () => send("dem-full-tof");
 $("btn-break").onclick = () => send("break");
 $("btn-continue").onclick = () => send("continue");
-$("btn-reset").onclick = () => send("reset");
+$("btn-reset").onclick = () => sendChecked("reset");
 $("cmdform").onsubmit = (e) => {
   e.preventDefault();
   const line = $("cmd").value.trim();
-  if (line) send(line);
+  if (!line) return;
+  if (S.commands[S.commands.length - 1] !== line) S.commands.push(line);
+  while (S.commands.length > HISTORY_MAX) S.commands.shift();
+  try { localStorage.setItem(HISTORY_KEY, JSON.stringify(S.commands)); } catch (err) { /* private mode */ }
+  S.commandAt = -1;
+  $("cmd").value = "";
+  sendChecked(line);
 };
-$("authform").onsubmit = (e) => { e.preventDefault(); send(`auth -token ${$("token").value}`, (r) => {
-  if (r.status === "OK") { S.authed = true; $("token").value = ""; onState(S.state); }
-}); };
+$("cmd").addEventListener("keydown", (e) => {
+  if (e.key !== "ArrowUp" && e.key !== "ArrowDown") return;
+  e.preventDefault();
+  const n = S.commands.length;
+  if (!n) return;
+  if (e.key === "ArrowUp") S.commandAt = S.commandAt < 0 ? n - 1 : Math.max(0, S.commandAt - 1);
+  else S.commandAt = S.commandAt < 0 || S.commandAt >= n - 1 ? -1 : S.commandAt + 1;
+  $("cmd").value = S.commandAt < 0 ? "" : S.commands[S.commandAt];
+});
+$("authform").onsubmit = (e) => {
+  e.preventDefault();
+  send(`auth -token ${$("token").value}`, { onFinal: (r) => {
+    if (r.status === "OK") { S.authed = true; $("token").value = ""; onState(S.state); }
+  } });
+};
 window.addEventListener("resize", draw);
-window.addEventListener("keydown", (e) => { if (e.key === "Escape") closeMenu(); });
+window.addEventListener("keydown", (e) => {
+  if (e.key === "Escape") { closeMenu(); if (S.measure) setMeasuring(false); }
+});
 
+updateButtons();
 connect();
