@@ -10,9 +10,7 @@ checks are the same ``ParamSpec.parse``.
 
 from __future__ import annotations
 
-import dataclasses
 from collections.abc import Callable
-from dataclasses import field, fields
 from typing import Any
 
 from rvs_params import Settings
@@ -30,16 +28,6 @@ def show_value(value: Any) -> str:
     if isinstance(value, float):
         return format(value, "g")
     return str(value) if value != "" else ""
-
-
-def reuse(cls: type[Settings], name: str) -> Any:
-    """A field declared as ``cls.<name>`` is, for a class that cannot derive from ``cls`` (its
-    own fields come first, and their order is its help's): the same default and metadata, so
-    the declaration still lives in one place."""
-    f = next(f for f in fields(cls) if f.name == name)
-    if f.default_factory is not dataclasses.MISSING:  # type: ignore[misc]
-        return field(default_factory=f.default_factory, metadata=f.metadata)  # type: ignore[misc]
-    return field(default=f.default, metadata=f.metadata)
 
 
 # Parameter classes of the workflow scripts, by the name a script's ``params:`` gives.

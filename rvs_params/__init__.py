@@ -54,6 +54,7 @@ def param(
     protected: bool = False,
     live: bool = False,
     ordered: bool = False,
+    flat: str | None = None,
 ) -> Any:
     """Declare a settings field with what a checker and a help text need to know about it.
 
@@ -61,6 +62,9 @@ def param(
     ``protected`` refuses run-time changes (host, port, token); ``stem`` marks output names;
     ``live`` marks a driver setting an open device takes at once (others wait for its reinit);
     ``ordered`` marks a list of min,max pairs (a view range), refused when a pair is inverted.
+    A nested settings section (``default`` a :class:`Settings`) declared ``flat`` (a prefix, ""
+    for none) also lends its keys to this class under that prefix: the request's options, ``-set``
+    and YAML take them by those names as well as by ``section.key`` (:meth:`Settings.keys`).
     """
     meta = {
         "help": help,
@@ -75,8 +79,9 @@ def param(
         "protected": protected,
         "live": live,
         "ordered": ordered,
+        "flat": flat,
     }
-    if isinstance(default, list | dict):
+    if isinstance(default, list | dict | Settings):
         return field(default_factory=lambda d=default: copy.deepcopy(d), metadata=meta)
     return field(default=default, metadata=meta)
 
@@ -102,6 +107,8 @@ class ParamSpec:
     live: bool = False
     section: type[Settings] | None = None  # kind "section": the nested settings class
     ordered: bool = False  # floats: min,max pairs, each min <= max
+    flat: str | None = None  # section: the prefix its keys take among this class's keys (None: not lent)
+    path: tuple[str, ...] = ()  # a section's key lent to this class (Settings.keys): the fields to its value
 
     @property
     def flag(self) -> str:
@@ -311,9 +318,46 @@ class Settings:
                 live=meta.get("live", False),
                 section=section,
                 ordered=meta.get("ordered", False),
+                flat=meta.get("flat"),
             )
         cls._specs = out  # type: ignore[attr-defined]
         return out
+
+    @classmethod
+    def keys(cls) -> dict[str, ParamSpec]:
+        """Every key by the name the request's options, ``-set`` and YAML know it by: this class's
+        own and those its flat sections lend it (each with the ``path`` of fields to its value)."""
+        cached = cls.__dict__.get("_keys")
+        if cached is not None:
+            return cached
+        own = cls.specs()
+        out = dict(own)
+        for name, spec in own.items():
+            if spec.kind != "section" or spec.flat is None:
+                continue
+            assert spec.section is not None
+            for sub, lent in spec.section.keys().items():
+                key = spec.flat + sub
+                if key in out:
+                    raise TypeError(f"{cls.__name__}: key {key!r} is declared twice (section {name})")
+                out[key] = dataclasses.replace(lent, name=key, path=(name, *(lent.path or (sub,))))
+        cls._keys = out  # type: ignore[attr-defined]
+        return out
+
+    def value_of(self, spec: ParamSpec) -> Any:
+        """The value of one of :meth:`keys` (a lent key's from its section)."""
+        node: Any = self
+        for name in spec.path or (spec.name,):
+            node = getattr(node, name)
+        return node
+
+    def assign(self, spec: ParamSpec, value: Any) -> None:
+        """Set one of :meth:`keys` to a checked value (a lent key's in its section)."""
+        *sections, name = spec.path or (spec.name,)
+        node: Any = self
+        for section in sections:
+            node = getattr(node, section)
+        setattr(node, name, value)
 
     @classmethod
     def from_mapping(cls: type[S], data: Mapping[str, Any] | Settings | None = None, *, where: str = "") -> S:
@@ -326,8 +370,9 @@ class Settings:
             raise SettingError(f"{where or cls.__name__}: expected a mapping of key: value, got {data!r}")
         specs = cls.specs()
         where = where or cls.__name__
+        data = _nest_lent(cls.keys(), data or {})
         kwargs: dict[str, Any] = {}
-        for key, value in (data or {}).items():
+        for key, value in data.items():
             spec = specs.get(str(key))
             if spec is None:
                 raise SettingError(f"{where}: unknown key '{key}'; known: {', '.join(specs)}")
@@ -386,6 +431,20 @@ def assignments(items: Iterable[str] | str | None, *, flag: str = "--set",
         return {}
     words = items.split() if isinstance(items, str) else items
     return dict(assignment(word, flag=flag, form=form) for word in words)
+
+
+def _nest_lent(keys: dict[str, ParamSpec], data: Mapping[str, Any]) -> dict[str, Any]:
+    """``data`` with the keys a flat section lends (see :meth:`Settings.keys`) moved into it."""
+    out = dict(data)
+    for key in [k for k in out if keys.get(str(k)) is not None and keys[str(k)].path]:
+        *sections, name = keys[str(key)].path
+        node = out
+        for section in sections:
+            inner = node.get(section)
+            node[section] = inner.as_dict() if isinstance(inner, Settings) else dict(inner or {})
+            node = node[section]
+        node[name] = out.pop(key)
+    return out
 
 
 def merge(base: dict[str, Any], over: Mapping[str, Any]) -> None:

@@ -93,7 +93,7 @@ class Pose:
     source: str = "start"
     # The estimate's 1-sigma: position along its worst direction (m) and heading (deg). 0 for a
     # pose given from outside (gnc, -start) that says nothing of its own accuracy; grows with
-    # the distance driven on dead reckoning, shrinks with a VO or map fix (rvs_server.localisation).
+    # the distance driven on dead reckoning, shrinks with a VO or map fix (rvs_server.navigation.localiser).
     sigma: float = 0.0
     sigma_heading: float = 0.0
 

@@ -47,6 +47,10 @@ def _set_in(cfg: Settings, path: list[str], raw: str, where: str, *, runtime: bo
     """
     specs = type(cfg).specs()
     spec = specs.get(path[0])
+    lent = type(cfg).keys().get(path[0]) if spec is None else None
+    if lent is not None:  # a key a flat section lends: set it in the section
+        _set_in(cfg, [*lent.path, *path[1:]], raw, where, runtime=runtime)
+        return
     if spec is None:
         raise ProtocolError("E_ARG", f"{where} has no key '{path[0]}'; keys: {', '.join(specs)}")
     if runtime and spec.protected:

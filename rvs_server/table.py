@@ -57,7 +57,7 @@ class Command:
     def usage(self) -> str:
         parts = [self.name] + [f"[{p}]" for p in self.positional]
         if self.config is not None and not self.raw:
-            for spec in self.config.specs().values():
+            for spec in self.config.keys().values():
                 if spec.option:
                     item = f"{spec.flag} {spec.describe().split(' in [')[0]}"
                     parts.append(item if spec.required else f"[{item}]")
@@ -119,7 +119,7 @@ def bind_options(cmd: Command, base: ModuleConfig | None, req: Request) -> Modul
 def apply_options(name: str, base: ModuleConfig, options: list[tuple[str, str | bool]]) -> ModuleConfig:
     """Options over a copy of ``base``; unknown, repeated, mistyped and missing ones are E_ARG."""
     cfg = copy.deepcopy(base)
-    specs = cfg.specs()
+    specs = cfg.keys()
     seen: set[str] = set()
     for opt, raw in options:
         spec = specs.get(opt) or (specs.get(opt + "_") if keyword.iskeyword(opt) else None)  # -global: global_
@@ -132,7 +132,7 @@ def apply_options(name: str, base: ModuleConfig, options: list[tuple[str, str | 
             raise ProtocolError("E_ARG", f"option {spec.flag} given twice")
         seen.add(spec.name)
         try:
-            setattr(cfg, spec.name, spec.parse(raw))
+            cfg.assign(spec, spec.parse(raw))
         except SettingError as exc:
             raise ProtocolError("E_ARG", exc.message) from None
     for spec in specs.values():

@@ -318,7 +318,7 @@ def test_the_localiser_corrects_a_drifted_pose_and_moves_the_legs_maps(hirise, m
 
     from prox_workflows.steps.global_map import GlobalMap
     from rvs_server.app import Pose
-    from rvs_server.localisation import Localiser
+    from rvs_server.navigation.localiser import Localiser
     from rvs_server.protocol import format_reply_json
 
     world, dem, geom = hirise
@@ -363,7 +363,7 @@ def test_a_look_round_on_arrival_is_matched_whole(hirise) -> None:
     loop's look round on arriving) share one error, and their fix moves the pose all of it."""
     from prox_workflows.steps.global_map import GlobalMap
     from rvs_server.app import Pose
-    from rvs_server.localisation import Localiser
+    from rvs_server.navigation.localiser import Localiser
 
     world, dem, geom = hirise
     ref = GlobalMap(np.zeros(geom.shape, np.uint8), np.zeros(geom.shape, np.float32), geom, dem)

@@ -211,7 +211,8 @@ def test_a_goal_short_of_the_clearance_is_planned_to_within_the_tolerance() -> N
     gets a stand-in within the goal's tolerance, reached from there; a goal on a rock gets none
     from close by (unreachable), and from farther than judge_range a point to drive toward."""
     from prox_workflows.steps.planner import HAZARDOUS, NavMaps, PlannerParams, PlanningError, plan_path
-    from rvs_server.commands.navigation import NavigateConfig, goal_stand_in
+    from rvs_server.navigation.config import NavigateConfig
+    from rvs_server.navigation.planning import goal_stand_in
 
     geom = GridGeometry(0.05, 0.0, 4.0, 200, 80)  # x 0..10, y 0..4
     xs, ys = geom.centers()

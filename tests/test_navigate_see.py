@@ -38,7 +38,7 @@ def test_a_rock_added_ahead_stops_the_rover_and_it_replans_around_it(server_fact
     the rock 3 m ahead is met by the per-cycle check (with replan_ahead the rover may already
     route around it from the rolling map before it enters the corridor: the long variant)."""
     ahead = 0.0 if seed % 2 == 0 else 1.0
-    srv = server_factory(["server.scene=marsyard", f"navigate.replan_ahead={ahead}",
+    srv = server_factory(["server.scene=marsyard", f"navigate.see_replan_ahead={ahead}",
                           "navigate.range=-60,60,-50,-10"])
     world = srv.app.world
     world.set_target_visible(False)
@@ -113,7 +113,7 @@ def test_an_arc_the_turn_rate_cannot_drive_is_turned_on_the_spot() -> None:
     and is driven; at 30 deg it needs 19 deg/s, more than the 15 deg/s turn rate: the capped arc
     would pass the point 3 cm wide (toward the rocks the body footprint hugs), so the rover turns
     on the spot instead. Beyond arc_turn it always turns on the spot."""
-    from rvs_server.autonomy import arc_rate
+    from rvs_server.navigation.pursuit import arc_rate
 
     def target(error: float) -> tuple[float, float]:
         return 0.3 * math.cos(math.radians(error)), 0.3 * math.sin(math.radians(error))
@@ -358,7 +358,7 @@ def test_break_stops_the_see_loop_within_one_cycle(server_factory) -> None:
     assert ctl.request("break").status == "OK"
     final = c.until_final(job=job, timeout=120)[-1]
     assert final.status == "ERROR" and final.fields["code"] == "E_INTERRUPTED", final.fields
-    period = srv.app.config.get("navigate").see_period
+    period = srv.app.config.get("navigate").see.period
     assert world.clock.now() - t_break <= period + 0.2
     assert not world.driving  # the rover stands
 
@@ -368,7 +368,7 @@ def test_a_leg_the_rover_gets_no_closer_on_is_ended_and_replanned(server_factory
     10 cm back: a marsyard mission did so for 5 simulated hours) ends the leg after 20 cycles
     without getting 5 cm closer to its end, and navigate replans; three replans that drive
     nowhere call for a scan, which -max-legs 1 does not allow: the job ends, it never hangs."""
-    from rvs_server import autonomy
+    from rvs_server.navigation import see
 
     calls = [0]
 
@@ -378,7 +378,7 @@ def test_a_leg_the_rover_gets_no_closer_on_is_ended_and_replanned(server_factory
         h = math.radians(pose[2])
         return pose[0] + sign * 0.05 * math.cos(h), pose[1] + sign * 0.05 * math.sin(h)
 
-    monkeypatch.setattr(autonomy, "_pursuit_point", swinging)
+    monkeypatch.setattr(see, "pursuit_point", swinging)
     srv = server_factory(["server.scene=marsyard", "navigate.range=-30,30,-50,-10"])  # a few views: cheap
     srv.app.world.set_target_visible(False)
     c = srv.client()
@@ -399,17 +399,17 @@ def test_the_gnc_drives_and_each_pose_report_is_a_cycle(server_factory, monkeypa
     once per leg) while the rover is still beyond the stopping distance; the GNC stops where it
     is (pose -stopped true) and the next waiting EVENT carries waypoints round the rock from the
     rolling map, without a new scan."""
-    from rvs_server import autonomy
+    from rvs_server.navigation import see
 
     cycles = [0]
-    cycle = autonomy.SeeingDriver.cycle
+    cycle = see.SeeingDriver.cycle
 
     def counted(self, *a, **k):
         out = cycle(self, *a, **k)
         cycles[0] += 1
         return out
 
-    monkeypatch.setattr(autonomy.SeeingDriver, "cycle", counted)
+    monkeypatch.setattr(see.SeeingDriver, "cycle", counted)
     srv = server_factory(["server.scene=marsyard", "navigate.range=-60,60,-50,-10", "navigate.pose_settle=1"])
     world = srv.app.world
     world.set_target_visible(False)
@@ -538,17 +538,17 @@ def _standing_driver(unseen: str) -> Any:
     east, the default body (0.51 x 0.40 m) with no margin, an empty rolling map."""
     from types import SimpleNamespace
 
-    from rvs_server import autonomy
     from rvs_server.commands.dem import Dem2HazardConfig
     from rvs_server.config import HeadConfig
+    from rvs_server.navigation.config import SeeConfig
+    from rvs_server.navigation.see import LoopStats, SeeingDriver
 
     configs = {"head": HeadConfig(), "dem2hazard": Dem2HazardConfig()}  # body 0.51 x 0.40 m
     app = SimpleNamespace(config=SimpleNamespace(get=configs.__getitem__),
                           pose=SimpleNamespace(x=0.0, y=0.0, heading=0.0))
-    params = autonomy.SeeParams(period=1.0, lookahead=1.5, stop_distance=0.0, tilt=-35.0, subsample=2,
-                                max_range=3.0, margin=0.0, replan_ahead=0.0, pursuit=0.3, arc_turn=45.0,
-                                blind=0.8, unseen=unseen, auto=False)
-    return autonomy.SeeingDriver(SimpleNamespace(app=app), params, autonomy.LoopStats())
+    params = SeeConfig(margin=0.0, replan_ahead=0.0, unseen=unseen)
+    rover = SimpleNamespace(pose=lambda: (0.0, 0.0, 0.0), steers=False)  # a GNC's rover standing there
+    return SeeingDriver(SimpleNamespace(app=app), rover, params, LoopStats())
 
 
 def test_the_check_takes_only_the_ground_under_the_body_as_seen_not_its_turning_disc() -> None:
@@ -587,21 +587,21 @@ def test_the_pursuit_point_never_falls_behind_the_rover_beside_a_short_side_stre
     """The rover drove past a 30 cm side step of its path without crossing the line square to
     its end: steering from the foot on that stretch aimed behind it (a 135-degree turn on the
     spot, then a drive the check never swept); from the nearest stretch it aims ahead."""
-    from rvs_server.autonomy import _in_rover_frame, _nearest_stretch, _passed, _pursuit_point
+    from rvs_server.navigation.pursuit import in_rover_frame, nearest_stretch, passed, pursuit_point
 
     wps = np.array([(0.0, 0.0), (1.0, 0.0), (1.0, 0.3), (3.0, 0.3)])
     pose = (1.3, 0.1, 0.0)  # past the side step's x, beside it, heading along the path
-    k = 2  # waypoint 1 is passed, the side step's end is not (by _passed)
-    assert _passed(pose, wps[0], wps[1]) and not _passed(pose, wps[1], wps[2])
-    stale = _pursuit_point(pose, wps, k, 0.3)
-    assert _in_rover_frame(pose, *stale)[0] < 0  # the old aim: behind the rover
-    k = _nearest_stretch(pose, wps, k)
+    k = 2  # waypoint 1 is passed, the side step's end is not (by passed)
+    assert passed(pose, wps[0], wps[1]) and not passed(pose, wps[1], wps[2])
+    stale = pursuit_point(pose, wps, k, 0.3)
+    assert in_rover_frame(pose, *stale)[0] < 0  # the old aim: behind the rover
+    k = nearest_stretch(pose, wps, k)
     assert k == 3
-    tx, ty = _pursuit_point(pose, wps, k, 0.3)
+    tx, ty = pursuit_point(pose, wps, k, 0.3)
     assert (tx, ty) == pytest.approx((1.6, 0.3))
-    assert _in_rover_frame(pose, tx, ty)[0] > 0.25
+    assert in_rover_frame(pose, tx, ty)[0] > 0.25
     # on an ordinary stretch the nearest is the current one: the aim is unchanged
-    assert _nearest_stretch((0.5, 0.02, 0.0), wps, 1) == 1
+    assert nearest_stretch((0.5, 0.02, 0.0), wps, 1) == 1
 
 
 def test_the_live_check_sweeps_the_turn_on_the_spot_and_the_arc_the_rover_executes() -> None:
@@ -609,7 +609,7 @@ def test_the_live_check_sweeps_the_turn_on_the_spot_and_the_arc_the_rover_execut
     the rover's position (its corners swing out to 0.36 m) and the arc that cuts a corner went
     unchecked. It now sweeps the motion of the cycle, then the path."""
     from prox_workflows.steps.rolling_map import path_poses, sweep_check
-    from rvs_server import autonomy
+    from rvs_server.navigation.pursuit import motion_poses
 
     driver = _standing_driver("off")
     g = driver.map.geometry
@@ -620,12 +620,12 @@ def test_the_live_check_sweeps_the_turn_on_the_spot_and_the_arc_the_rover_execut
     pose, path = (0.0, 0.0, 0.0), np.array([(0.0, 1.5)])  # the path leaves northward: a quarter turn first
     # the polyline, as checked before, never touches the rock: not where it stands, not northward
     assert sweep_check(layer, g, path_poses(pose, path, 1.5), driver.length, driver.width).verdict == "ok"
-    turn = autonomy.motion_poses(pose, (0.0, 0.3), None, 0.1, 1.0)
+    turn = motion_poses(pose, (0.0, 0.3), None, 0.1, 1.0)
     assert turn[-1] == pytest.approx((0.0, 0.0, 90.0))
     assert driver.judge(pose, path, turn)[0].verdict == "not_traversable"
     assert driver.judge(pose, path)[0].verdict == "not_traversable"  # a GNC's pose: the turn to the path
     # an arc that cuts inside a corner of the path (east to x = 1, then north) swings its tail out
-    arc = autonomy.motion_poses((0.8, 0.0, 0.0), (1.0, 0.22), 20.0, 0.1, 1.0)
+    arc = motion_poses((0.8, 0.0, 0.0), (1.0, 0.22), 20.0, 0.1, 1.0)
     assert arc[-1][2] == pytest.approx(20.0) and arc[-1][1] > 0.0 and arc[-1][0] < 0.9
     corner = np.array([(1.0, 0.0), (1.0, 1.5)])
     layer[:] = 1.0

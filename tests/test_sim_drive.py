@@ -12,6 +12,7 @@ import math
 import shutil
 import time
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -19,9 +20,11 @@ import tifffile
 from conftest import long_suite
 from jsonschema import Draft202012Validator
 
+from drivers.rover import create as create_rover
 from drivers.sim.clock import SimClock
 from drivers.sim.world import World
-from rvs_server.commands.navigation import drive_simulated
+from rvs_server.navigation.scan import WaypointPilot
+from rvs_server.navigation.track import Track
 
 ROOT = Path(__file__).resolve().parents[1]
 SCHEMA = Draft202012Validator(json.loads((ROOT / "docs" / "replies.schema.json").read_text()))
@@ -232,10 +235,10 @@ def test_the_hirise_scene_is_the_dtm_with_rocks_at_15_percent_cover(tmp_path: Pa
 
 
 def test_a_dem_full_tof_runs_on_the_hirise_scene(server_factory, tmp_path: Path) -> None:
-    from rvs_server.commands.navigation import _load_global
+    from rvs_server.navigation.planning import load_global_folder
     from tools.global_maps import write_global_maps
 
-    maps = _load_global(str(write_global_maps("hirise", tmp_path / "global").get("hazard").parent))
+    maps = load_global_folder(str(write_global_maps("hirise", tmp_path / "global").get("hazard").parent))
     assert maps is not None and maps.geometry.cell == pytest.approx(1.01)  # usable as navigate.global_maps
     srv = server_factory(["server.scene=hirise"])
     c = srv.client()
@@ -248,17 +251,21 @@ def test_a_dem_full_tof_runs_on_the_hirise_scene(server_factory, tmp_path: Path)
 # ------------------------------------------------------------------ navigate -auto on odometry
 
 
-class _Waypoints:
-    def __init__(self, xy: list[tuple[float, float]]) -> None:
-        self.xy = np.asarray(xy, float)
+def drive_simulated(world: World, waypoints: list[tuple[float, float]], reached: Any = None) -> Track:
+    """navigate -auto's scan leg on the simulated rover: to each waypoint, turn, then straight."""
+    rover = create_rover({"backend": "sim"}, world)
+    rover.open()
+    track = Track()
+    track.add(world.rover_pose())
+    rover.drive(WaypointPilot(np.asarray(waypoints, float), track, reached or (lambda k: None), rover.steers))
+    return track
 
 
 def test_the_auto_drive_steers_by_odometry_so_slip_leaves_the_truth_off_the_waypoints() -> None:
     w = World.from_scene("office", clock_scale=0.0)
     w.set_slip(0.05, 2.0, 5)
-    track = [(0.0, 0.0, 0.0)]
     reached: list[int] = []
-    drive_simulated(w, _Waypoints([(0.0, 0.0), (1.0, 1.0), (2.0, 0.0)]), track, reached=reached.append)
+    track = drive_simulated(w, [(0.0, 0.0), (1.0, 1.0), (2.0, 0.0)], reached=reached.append).rows
     assert reached == [1, 2]
     ox, oy, _ = w.odometry()
     assert (ox, oy) == pytest.approx((2.0, 0.0), abs=1e-6)  # where it believes it is: the last waypoint
@@ -273,8 +280,7 @@ def test_the_track_records_the_heading_and_turns_on_the_spot() -> None:
     """A turn on the spot sweeps the body's corners over ground a position never shows: the track
     gets a row every 5 degrees turned while the rover stands, each with its true heading."""
     w = World.from_scene("office", clock_scale=0.0)
-    track = [(0.0, 0.0, 0.0)]
-    drive_simulated(w, _Waypoints([(0.0, 0.0), (0.0, 1.0)]), track)  # face +y (a 90-degree turn), then 1 m
+    track = drive_simulated(w, [(0.0, 0.0), (0.0, 1.0)]).rows  # face +y (a 90-degree turn), then 1 m
     standing = np.array([row for row in track if math.hypot(row[0], row[1]) < 1e-9])
     steps = np.diff(standing[:, 2])
     assert len(standing) >= 16 and standing[-1, 2] == pytest.approx(90.0, abs=1e-6)

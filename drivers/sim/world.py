@@ -270,19 +270,6 @@ class World:
                     on_step()
         return {"seconds": driven, "distance": v * driven, "turned": w_deg * driven}
 
-    def record_track(self, track: list[tuple[float, float, float]], step: float = 0.05, turn: float = 5.0) -> None:
-        """Append the true pose (x, y, heading in degrees) to ``track`` once it is ``step`` from
-        the last entry or has turned ``turn`` degrees from its heading (0, 0: on any change):
-        the ground truth a traverse is scored by, whichever loop drives. Turns on the spot are
-        recorded too: the body's corners sweep ground there that a position alone never shows."""
-        t = self.truth()
-        x, y, heading = float(t["x"]), float(t["y"]), float(t["heading"])
-        last = track[-1]
-        moved = math.hypot(x - last[0], y - last[1])
-        turned = abs(_wrap180(heading - last[2]))
-        if (moved > 0.0 and moved >= step) or (turned > 0.0 and turned >= turn):
-            track.append((x, y, heading))
-
     @contextlib.contextmanager
     def under_way(self) -> Iterator[None]:
         """A drive loop that checks its sensors between short drive calls: on a real rover those

@@ -17,7 +17,7 @@ candidate of the grid search seeds a robust Gauss-Newton refinement (residuals b
 rocks the orbiter cannot see, are dropped), whose covariance, inflated for residuals that are
 correlated over a reference cell, is the estimate's sigma.
 
-Pure functions on arrays; the server (``rvs_server.localisation``) decides when to call them and
+Pure functions on arrays; the server (``rvs_server.navigation.localiser``) decides when to call them and
 what to do with the answer.
 """
 

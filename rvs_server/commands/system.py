@@ -246,9 +246,9 @@ def help_(ctx: Context, cfg: None) -> dict[str, Any]:
     }
     if cmd.config is not None and not cmd.raw:
         current = ctx.app.config.values.get(cmd.config.module)
-        for spec in cmd.config.specs().values():
+        for spec in cmd.config.keys().values():
             if spec.option:
-                default = getattr(current, spec.name, spec.default)
+                default = current.value_of(spec) if current is not None else spec.default
                 shown = _show(default)
                 out["opt_" + spec.flag[1:].replace("-", "_")] = f"{cmd.describe(spec, ctx.app)}{f'; default {shown}' if shown else ''}: {spec.help}"
     return out

@@ -1,4 +1,4 @@
-"""Knowing where the rover is during navigate (issue 12 item 4): the pose estimate between legs.
+"""Knowing where the rover is during navigate: the pose estimate between legs.
 
 Dead reckoning alone (the wheels' odometry after an ``-auto`` leg) drifts with every metre: with
 5 % slip and 2 degrees of heading drift per metre the rover ends metres from where it believes it
@@ -16,8 +16,8 @@ references can measure that:
   grow with the distance driven.
 
 ``both`` applies VO and then the map, fusing their positions by their sigmas. The correction
-moves the pose (source ``vo`` or ``map``, with the match's sigma), the simulated rover's odometry
-(a GNC accepting the fix; for a real GNC the ``localised`` EVENT carries it) and the leg's maps
+moves the pose (source ``vo`` or ``map``, with the match's sigma), the rover's own estimate (the
+simulated rover's odometry takes it; a real GNC gets it by the ``localised`` EVENT) and the leg's maps
 (resampled onto the corrected placement, so the plan made on them agrees with the pose). A
 match that cannot tell (flat ground, too little seen, best match at the window's edge) leaves
 the dead-reckoned pose and says so.
@@ -38,12 +38,13 @@ import numpy as np
 from prox_workflows.grid import Layers
 from prox_workflows.steps.map_match import MatchResult, match_dem, overlay_layers, transform_layers
 
-from .protocol import Fixed, Reply
+from ..protocol import Fixed, Reply
 
 if TYPE_CHECKING:
     from prox_workflows.steps.global_map import GlobalMap
 
-    from .jobs import Job
+    from ..jobs import Job
+    from .config import LocaliseConfig
 
 MODES = ("none", "vo", "map", "both")
 
@@ -57,13 +58,18 @@ class Localiser:
     reference: GlobalMap | None = None
     drift: float = 0.05  # share of the distance driven the position may be off by (1 sigma)
     heading_drift: float = 2.0  # deg per metre driven (1 sigma)
-    auto: bool = False  # the simulated rover drives: a fix resets its odometry too
+    rover: Any = None  # the rover device (drivers.rover): a fix goes to its own estimate too
     previous: Layers | None = None  # the maps of the legs so far, on their corrected placements
     sigma: float = 0.0  # the estimate's position sigma (m): the pose set from odometry does not carry it
     sigma_heading: float = 0.0  # deg
     grown: float = 0.0  # position sigma added by dead reckoning since the last fix (m)
     grown_heading: float = 0.0  # deg
     fixes: list[dict[str, Any]] = field(default_factory=list)
+
+    @classmethod
+    def configured(cls, cfg: LocaliseConfig, reference: GlobalMap | None, rover: Any) -> Localiser:
+        """The localiser navigate's ``localisation`` section asks for."""
+        return cls(cfg.localise, reference, cfg.drift, cfg.heading_drift, rover)
 
     @property
     def active(self) -> bool:
@@ -84,7 +90,7 @@ class Localiser:
     def after_drive(self, job: Job, waypoints: np.ndarray) -> float:
         """The pose just set from dead reckoning along ``waypoints`` (or the track driven): its
         sigma grows with the distance, which is returned."""
-        xy = np.asarray(waypoints, dtype=float).reshape(-1, 2)
+        xy = np.asarray(waypoints, dtype=float).reshape(-1, 2)  # k x 2: the waypoints or the track driven
         dist = float(np.hypot(*np.diff(xy, axis=0).T).sum()) if len(xy) > 1 else 0.0
         app = job.app
         p = app.pose
@@ -192,11 +198,11 @@ class Localiser:
         return w * m.dx, w * m.dy, wh * m.dyaw, sigma, sigma_h
 
     def _take(self, app: Any, x: float, y: float, h: float, source: str, sigma: float, sigma_h: float) -> None:
-        """A fix becomes the pose (and the simulated rover's odometry: its GNC takes it)."""
+        """A fix becomes the pose, and the rover's own estimate takes it."""
         h = (h + 180.0) % 360.0 - 180.0
         app.set_pose(x, y, h, source=source, sigma=sigma, sigma_heading=sigma_h)
-        if self.auto and app.world is not None:
-            app.world.set_odometry(x, y, h)
+        if self.rover is not None:
+            self.rover.take_fix((x, y, h))
         self.grown = self.grown_heading = 0.0
         self.sigma, self.sigma_heading = sigma, sigma_h
 

@@ -1,5 +1,6 @@
-"""Drive while seeing (issue 12, item 2): the rover drives a leg in cycles (the simulated rover
-with -auto; the GNC otherwise, each pose it reports while driving being a cycle); each cycle
+"""The see strategy (``navigate -loop see``), drive while seeing: the rover drives a leg in
+cycles (the simulated rover: every ``see_period`` of driving; the GNC: each pose it reports
+while driving); each cycle
 one forward ToF frame feeds the rolling local elevation map, Dem2Hazard updates the window the
 frame touched, and the rover's footprint is swept over the next metres of its path. A hazard
 there stops the rover (an ``EVENT kind=hazard level=stop`` shaped as the hazard monitor's) and
@@ -22,8 +23,8 @@ Why the cycle looks as it does
       rolling map only refines; unseen cells (the blind patch under the view) are the plan's,
       unless ``see_unseen`` says to look at them first (and with ``keep``, to plan round them).
 
-Kept out of navigation.py so that the scan-only loop there stays as it was, and the two can be
-compared side by side (``python -m tools.bench.navigate``).
+The scan strategy (:mod:`.scan`) and this one are driven by the same mission (:mod:`.mission`),
+so the two compare side by side (``python -m tools.bench.navigate``).
 """
 
 from __future__ import annotations
@@ -36,8 +37,8 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from drivers.rover import Motion
 from drivers.tof.constants import FOV_V_DEG
-from prox_workflows.steps.arcs import arc_poses
 from prox_workflows.steps.dem2hazard import HAZARDOUS, SAFE
 from prox_workflows.steps.hazard_monitor import rover_points
 from prox_workflows.steps.planner import NavMaps
@@ -53,17 +54,18 @@ from prox_workflows.steps.rolling_map import (
 from prox_workflows.steps.safety import in_footprint
 from prox_workflows.steps.transforms import HeadCalibration, T_global_from_rover
 
-from .commands.awareness import look_at
-from .commands.hardware import device_call
-from .commands.navigation import follow_rover, goal_stand_in, wait_for_rover
-from .localisation import pose_fields
-from .maps import ground_height
-from .protocol import Fixed, Reply, Rows
+from ..commands.awareness import look_at
+from ..commands.hardware import device_call
+from ..maps import ground_height
+from ..protocol import Fixed, ProtocolError, Reply
+from .planning import goal_stand_in
+from .pursuit import arc_rate, in_rover_frame, motion_poses, nearest_stretch, passed, pursuit_point
 
 if TYPE_CHECKING:
-    from .app import App
-    from .jobs import Job
-    from .localisation import Localiser
+    from ..app import App
+    from ..jobs import Job
+    from .config import SeeConfig
+    from .mission import Mission
 
 
 STALL_CYCLES = 20  # a leg driven this many cycles without getting STALL_PROGRESS closer to its end is stalled
@@ -96,25 +98,6 @@ class LoopStats:
 
 
 @dataclass
-class SeeParams:
-    """The see loop's settings (navigate's config declares them, with units and ranges)."""
-
-    period: float
-    lookahead: float
-    stop_distance: float
-    tilt: float
-    subsample: int
-    max_range: float
-    margin: float
-    replan_ahead: float
-    pursuit: float  # m: the point of the path the rover steers at lies this far ahead
-    arc_turn: float  # deg: a larger heading error is turned on the spot, a smaller one driven as an arc
-    blind: float = 0.0  # m of path ahead whose sweep is to lie on seen ground
-    unseen: str = "off"  # what the rover does about unseen ground there: off | look | keep (navigate.see_unseen)
-    auto: bool = True  # the simulated rover drives (odometry is the pose); False: the GNC drives and reports pose
-
-
-@dataclass
 class DriveOutcome:
     """How a leg driven while seeing ended."""
 
@@ -128,9 +111,11 @@ class DriveOutcome:
 class SeeingDriver:
     """One navigate's see loop: the rolling map lives for the whole mission."""
 
-    def __init__(self, job: Job, params: SeeParams, stats: LoopStats, memory: MapMemory | None = None) -> None:
+    def __init__(self, job: Job, rover: Any, params: SeeConfig, stats: LoopStats,
+                 memory: MapMemory | None = None) -> None:
         self.job = job
         self.app: App = job.app
+        self.rover = rover
         self.p = params
         self.stats = stats
         head = self.app.config.get("head")
@@ -159,12 +144,8 @@ class SeeingDriver:
         self.pan_tilt = (float(reached[0]), float(reached[1]))
 
     def pose(self) -> tuple[float, float, float]:
-        """The rover's belief: the simulated rover's odometry while it drives itself, else the
-        GNC's last pose report."""
-        if self.p.auto:
-            return self.app.world.odometry()
-        p = self.app.pose
-        return p.x, p.y, p.heading
+        """The rover's belief: the simulated rover's odometry, the GNC's last pose report."""
+        return self.rover.pose()
 
     def see(self, pan_tilt: tuple[float, float]) -> tuple[tuple[float, float, float], float]:
         """One ToF frame into the rolling map; returns the rover's pose and the wall time
@@ -265,7 +246,7 @@ class SeeingDriver:
         self.looked_from = pose
         self.stats.looks += 1
         self.job.progress(0, 1, f"looking at unseen ground ({x:.2f}, {y:.2f}) before driving onto it", phase="drive")
-        pan, tilt = look_at(self.head, np.array([*_in_rover_frame(pose, x, y), 0.0]))
+        pan, tilt = look_at(self.head, np.array([*in_rover_frame(pose, x, y), 0.0]))
         self._point(max(-150.0, min(150.0, pan)), max(self._lowest_tilt(), min(self.p.tilt, tilt)))
         self.see(self.pan_tilt)
         self.job.check()
@@ -279,122 +260,10 @@ class SeeingDriver:
             self.see(self.pan_tilt)
             self.job.check()
 
-    def drive(self, waypoints: np.ndarray, track: list[tuple[float, float, float]], progress: Any,
-              allow_ahead: bool, strict: bool = True) -> DriveOutcome:
-        """Drive ``waypoints`` (k x 2, the first is where the rover is) steering by odometry,
-        checking every cycle. The rover steers at the point ``pursuit`` metres ahead on the path
-        (pure pursuit): a heading error up to ``arc_turn`` is driven out as an arc at full speed
-        when the turn rate allows that arc, a larger one is turned on the spot, so a replanned
-        path or a waypoint's corner costs no stop (MER's and Perseverance's drive arcs; the
-        stop-and-go loop turns on the spot at every waypoint). With ``allow_ahead`` the drive
-        hands back ``ahead`` once the leg's end is ``replan_ahead`` away, so navigate extends the
-        path from what the rolling map has seen, on the move. Ground no map has seen under the
-        next ``blind`` metres (:meth:`judge`): the rover stops and looks at it; with ``strict``
-        (the plan kept the body to seen ground) it ends the leg (``unseen``) when the look does
-        not show it, else it drives on."""
-        app, job = self.app, self.job
-        world = app.world
-        model = world.drive_model
-        stop = job.cancel.is_set
-        follow = follow_rover(app, track)
-        self.point_forward()
-        wps = np.asarray(waypoints, dtype=np.float64)[:, :2]
-        segments = len(wps) - 1
-        k = 1  # the waypoint the rover is heading for
-        best, since_best = math.inf, 0  # the least path left to the leg's end, and cycles since
-
-        with world.under_way():
-            while True:
-                pose, t1 = self.see(self.pan_tilt)
-                job.check()
-                while k <= segments and _passed(pose, wps[k - 1], wps[k]):
-                    progress(k, segments, f"segment {k}/{segments} driven", "drive")
-                    k += 1
-                if k > segments:
-                    return DriveOutcome("done", segments)
-                nearest = _nearest_stretch(pose, wps, k)
-                while k < nearest:
-                    progress(k, segments, f"segment {k}/{segments} driven", "drive")
-                    k += 1
-                left = math.hypot(wps[k][0] - pose[0], wps[k][1] - pose[1])
-                to_end = left + float(np.sum(np.hypot(*np.diff(wps[k:], axis=0).T)))
-                if allow_ahead and to_end <= self.p.replan_ahead:
-                    return DriveOutcome("ahead", k - 1)
-                # a watchdog: steering that swings about a point it cannot settle on (10 cm forward,
-                # a turn on the spot, 10 cm back: a marsyard mission did so for 5 simulated hours)
-                # ends the leg, and navigate replans from where the rover is
-                best, since_best = (to_end, 0) if to_end < best - STALL_PROGRESS else (best, since_best + 1)
-                if since_best >= STALL_CYCLES:
-                    progress(1, 1, f"stopped: {to_end:.2f} m from the leg's end, no closer in {STALL_CYCLES} "
-                                   "cycles", "stop")
-                    return DriveOutcome("stalled", k - 1)
-                tx, ty = _pursuit_point(pose, wps, k, self.p.pursuit)
-                w = arc_rate(pose, (tx, ty), model.speed, model.turn_rate, self.p.arc_turn)
-                dt = min(self.p.period, to_end / model.speed)
-                motion = motion_poses(pose, (tx, ty), w, model.speed, dt)
-                check, unseen = self.judge(pose, wps[k:], motion)
-                self.stats.cycles += 1
-                self.stats.cycle_ms.append((time.monotonic() - t1) * 1000)
-                if check.verdict == "not_traversable":
-                    return DriveOutcome("hazard", k - 1, self._stop_event(check, pose))
-                self._clear()
-                # unseen ground ahead: the rover stops and looks (a turn on the spot comes first,
-                # after which that ground lies ahead and the look is a tilt, not a pan)
-                if unseen is not None and w is not None and self.look_at(unseen.worst_x, unseen.worst_y, pose):
-                    check, unseen = self.judge(pose, wps[k:], motion)
-                    self.point_forward()
-                    if check.verdict == "not_traversable":
-                        return DriveOutcome("hazard", k - 1, self._stop_event(check, pose))
-                if unseen is not None and w is not None and strict:
-                    progress(1, 1, f"stopped: ground {unseen.unknown_cells} cells under the next "
-                                   f"{self.p.blind:g} m unseen", "stop")
-                    return DriveOutcome("unseen", k - 1)
-                if w is None:
-                    world.turn_toward(tx, ty, stop, on_step=follow)
-                else:
-                    world.drive(model.speed, w, dt, stop, on_step=follow)
-                job.check()
-                world.record_track(track, 0.0, 0.0)
-
-    def watch(self, waypoints: np.ndarray, track: list[tuple[float, float, float]], progress: Any, version: int,
-              cfg: Any) -> DriveOutcome:
-        """The GNC drives ``waypoints`` and streams its pose: each report is a cycle (a forward
-        frame fused at the reported pose, the footprint checked along the rest of the leg). A
-        hazard in the corridor is an ``EVENT kind=hazard level=stop`` for the GNC to stop on;
-        the leg ends once the GNC's pose stands still (wherever it is), and navigate replans from
-        there. Frames are taken at pose reports because a frame is only placed in the map at a
-        known pose."""
-        self.point_forward()
-        wps = np.asarray(waypoints, dtype=np.float64)[:, :2]
-        segments = len(wps) - 1
-        end = (float(wps[-1][0]), float(wps[-1][1]))
-        k = 1  # the waypoint the rover is heading for
-        hazard: dict[str, Any] | None = None
-
-        def on_pose(p: Any) -> None:
-            nonlocal k, hazard
-            track.append((p.x, p.y, p.heading))
-            while k < segments and _passed((p.x, p.y, p.heading), wps[k - 1], wps[k]):
-                progress(k, segments, f"segment {k}/{segments} driven", "drive")
-                k += 1
-            check, _, pose = self.cycle(wps[k:])
-            if check.verdict == "not_traversable":
-                if hazard is None:  # once per leg: the GNC is stopping
-                    hazard = self._stop_event(check, pose)
-            elif hazard is None:
-                self._clear()
-
-        arrived = wait_for_rover(self.app, self.job, version, end, cfg, on_pose)
-        track.append((arrived.x, arrived.y, arrived.heading))
-        if hazard is not None:
-            return DriveOutcome("hazard", k - 1, hazard)
-        progress(segments, segments, f"rover stopped at ({arrived.x:.2f}, {arrived.y:.2f})", "drive")
-        return DriveOutcome("done", segments)
-
     def _stop_event(self, check: Any, pose: tuple[float, float, float]) -> dict[str, Any]:
         """The stop EVENT, shaped as the hazard monitor's (distance from the rover's front to the
         hazard, bearing CCW from the heading, x and y in the rover frame)."""
-        rx, ry = _in_rover_frame(pose, check.worst_x, check.worst_y)
+        rx, ry = in_rover_frame(pose, check.worst_x, check.worst_y)
         distance = max(0.0, rx - self.app.config.get("head").rover_length / 2 - self.map.params.cell / 2)
         self.stats.stops += 1
         fields = {"kind": "hazard", "level": "stop", "distance": Fixed(distance, 2),
@@ -412,32 +281,140 @@ class SeeingDriver:
                 "source": "navigate"}))
 
 
-class SeeLoop:
-    """navigate's side of the see loop: keeps the last scan's maps, replans on them with the
-    rolling map laid over them, and drives each leg with :class:`SeeingDriver`."""
+class SeePilot:
+    """One leg driven while seeing, for :meth:`drivers.rover.Rover.drive`: every cycle one
+    forward frame and the check. With the simulated rover each cycle also steers: the rover
+    steers at the point ``pursuit`` metres ahead on the path (pure pursuit): a heading error up
+    to ``arc_turn`` is driven out as an arc at full speed when the turn rate allows that arc, a
+    larger one is turned on the spot, so a replanned path or a waypoint's corner costs no stop
+    (MER's and Perseverance's drive arcs; the stop-and-go loop turns on the spot at every
+    waypoint). With ``allow_ahead`` the leg ends ``ahead`` once its end is ``replan_ahead``
+    away, so navigate extends the path from what the rolling map has seen, on the move. Ground
+    no map has seen under the next ``blind`` metres (:meth:`SeeingDriver.judge`): the rover
+    stops and looks at it; with ``strict`` (the plan kept the body to seen ground) it ends the
+    leg (``unseen``) when the look does not show it, else it drives on.
 
-    def __init__(self, job: Job, cfg: Any, localiser: Localiser) -> None:
-        self.job = job
-        self.app: App = job.app
-        self.cfg = cfg
-        self.localiser = localiser
+    With the GNC steering, each pose it reports while driving is a cycle (a frame is only placed
+    in the map at a known pose): a hazard in the corridor is an ``EVENT kind=hazard level=stop``
+    for the GNC to stop on, and the leg ends once the GNC's pose stands still."""
+
+    def __init__(self, driver: SeeingDriver, waypoints: np.ndarray, progress: Any, track: Any, allow_ahead: bool,
+                 strict: bool) -> None:
+        self.d = driver
+        self.wps = np.asarray(waypoints, dtype=np.float64)[:, :2]
+        self.segments = len(self.wps) - 1
+        self.progress = progress
+        self.track = track
+        self.allow_ahead = allow_ahead
+        self.strict = strict
+        self.k = 1  # the waypoint the rover is heading for
+        self.best, self.since_best = math.inf, 0  # the least path left to the leg's end, and cycles since
+        self.outcome: DriveOutcome | None = None  # how the leg ended, when the pilot ended it
+        self.hazard: dict[str, Any] | None = None  # the GNC was told to stop (once per leg)
+
+    def moved(self, truth: tuple[float, float, float], end: bool) -> None:
+        self.track.add(truth, end)
+
+    def next(self, pose: tuple[float, float, float]) -> Motion | None:
+        return self._steer() if self.d.rover.steers else self._watch(pose)
+
+    def _advance(self, pose: tuple[float, float, float], last: int) -> None:
+        while self.k <= last and passed(pose, self.wps[self.k - 1], self.wps[self.k]):
+            self.progress(self.k, self.segments, f"segment {self.k}/{self.segments} driven", "drive")
+            self.k += 1
+
+    def _watch(self, pose: tuple[float, float, float]) -> None:
+        self._advance(pose, self.segments - 1)
+        check, _, seen_at = self.d.cycle(self.wps[self.k:])
+        if check.verdict == "not_traversable":
+            if self.hazard is None:  # once per leg: the GNC is stopping
+                self.hazard = self.d._stop_event(check, seen_at)
+        elif self.hazard is None:
+            self.d._clear()
+
+    def _end(self, kind: str, done: int, hazard: dict[str, Any] | None = None) -> None:
+        self.outcome = DriveOutcome(kind, done, hazard)
+
+    def _steer(self) -> Motion | None:
+        d, wps, segments, p = self.d, self.wps, self.segments, self.d.p
+        speed, turn_rate = d.rover.speeds()
+        pose, t1 = d.see(d.pan_tilt)
+        d.job.check()
+        self._advance(pose, segments)
+        if self.k > segments:
+            return self._end("done", segments)
+        nearest = nearest_stretch(pose, wps, self.k)
+        while self.k < nearest:
+            self.progress(self.k, segments, f"segment {self.k}/{segments} driven", "drive")
+            self.k += 1
+        k = self.k
+        left = math.hypot(wps[k][0] - pose[0], wps[k][1] - pose[1])
+        to_end = left + float(np.sum(np.hypot(*np.diff(wps[k:], axis=0).T)))
+        if self.allow_ahead and to_end <= p.replan_ahead:
+            return self._end("ahead", k - 1)
+        # a watchdog: steering that swings about a point it cannot settle on (10 cm forward, a
+        # turn on the spot, 10 cm back: a marsyard mission did so for 5 simulated hours) ends the
+        # leg, and navigate replans from where the rover is
+        if to_end < self.best - STALL_PROGRESS:
+            self.best, self.since_best = to_end, 0
+        else:
+            self.since_best += 1
+        if self.since_best >= STALL_CYCLES:
+            self.progress(1, 1, f"stopped: {to_end:.2f} m from the leg's end, no closer in {STALL_CYCLES} cycles",
+                          "stop")
+            return self._end("stalled", k - 1)
+        tx, ty = pursuit_point(pose, wps, k, p.pursuit)
+        w = arc_rate(pose, (tx, ty), speed, turn_rate, p.arc_turn)
+        dt = min(p.period, to_end / speed)
+        motion = motion_poses(pose, (tx, ty), w, speed, dt)
+        check, unseen = d.judge(pose, wps[k:], motion)
+        d.stats.cycles += 1
+        d.stats.cycle_ms.append((time.monotonic() - t1) * 1000)
+        if check.verdict == "not_traversable":
+            return self._end("hazard", k - 1, d._stop_event(check, pose))
+        d._clear()
+        # unseen ground ahead: the rover stops and looks (a turn on the spot comes first, after
+        # which that ground lies ahead and the look is a tilt, not a pan)
+        if unseen is not None and w is not None and d.look_at(unseen.worst_x, unseen.worst_y, pose):
+            check, unseen = d.judge(pose, wps[k:], motion)
+            d.point_forward()
+            if check.verdict == "not_traversable":
+                return self._end("hazard", k - 1, d._stop_event(check, pose))
+        if unseen is not None and w is not None and self.strict:
+            self.progress(1, 1, f"stopped: ground {unseen.unknown_cells} cells under the next {p.blind:g} m unseen",
+                          "stop")
+            return self._end("unseen", k - 1)
+        return Motion.face(tx, ty) if w is None else Motion.arc(speed, w, dt)
+
+
+class SeeStrategy:
+    """The see strategy of a mission: keeps the last scan's maps, replans on them with the
+    rolling map laid over them, and drives each leg with a :class:`SeePilot`; it asks for a
+    360-degree scan only when the rolling map shows no way on."""
+
+    def __init__(self, mission: Mission) -> None:
+        self.mission = mission
+        self.job = mission.job
+        self.app: App = mission.app
+        self.cfg = mission.cfg
+        self.p = self.cfg.see
+        self.localiser = mission.loc
+        self.max_plans = self.p.max_replans
+        self.need_scan = True  # the see loop scans first, then only when the rolling map shows no way
+        self.stalled = 0  # replans in a row after which the rover had not moved
         self.since_fix = 0.0  # metres driven since the rolling map was last matched on the global DEM
         self.fixed_at = 0  # the rolling map's frame count then: a fix matches and moves what came after
         self.reapproached = False  # drove on once after a fix near the goal (closer)
         self.stats = LoopStats()
         # the mission's start and goal: the planning grid keeps them (and the blank ground between,
         # as a plan from the start would have it) so that it changes only where the maps grow
-        self.cover = [(self.app.pose.x, self.app.pose.y), (cfg.goal[0], cfg.goal[1])]
-        memory = MapMemory.covering(self.cover, cfg.see_memory, RollingParams().cell) if cfg.see_memory > 0 else None
-        self.driver = SeeingDriver(job, SeeParams(
-            period=cfg.see_period, lookahead=cfg.see_lookahead, stop_distance=0.0, tilt=cfg.see_tilt,
-            subsample=cfg.see_subsample, max_range=cfg.see_max_range, margin=cfg.see_margin,
-            replan_ahead=cfg.replan_ahead, pursuit=cfg.see_pursuit, arc_turn=cfg.see_arc_turn, blind=cfg.see_blind,
-            unseen=cfg.see_unseen, auto=cfg.auto), self.stats, memory)
+        self.cover = [(self.app.pose.x, self.app.pose.y), mission.goal]
+        memory = MapMemory.covering(self.cover, self.p.memory, RollingParams().cell) if self.p.memory > 0 else None
+        self.driver = SeeingDriver(self.job, mission.rover, self.p, self.stats, memory)
         head = self.app.config.get("head")
         # how far round the rover unseen ground cannot be seen before the body is on it: the
         # checked stretch plus the half body ahead of the rover's centre
-        self.reach = cfg.see_blind + head.rover_length / 2
+        self.reach = self.p.blind + head.rover_length / 2
         self.strict = False  # the last plan kept the body to seen ground
         self.mast_foot: tuple[float, float, float] | None = None  # x, y, radius: the last scan's blind disc
         self.scan: Any = None  # NavMaps of the scans so far
@@ -448,8 +425,39 @@ class SeeLoop:
         self.last_end: tuple[float, float] | None = None
         self.search: Replanner | None = None  # D* Lite across replans (see_search dstar)
 
-    def scanned(self, local: Any) -> None:
-        """A 360-degree scan made the maps ``local`` (the scans so far, merged)."""
+    def arrived(self, left: float) -> bool:
+        """The goal is within the tolerance by the believed pose: an arrival on dead reckoning
+        is checked by the loop's own map match first, and a fix that moved the pose far from the
+        goal drives on once (:meth:`closer`)."""
+        checked = self.localiser.wants_fix(self.app.pose) and self.localiser.uses_map
+        return not checked and not self.closer(left)
+
+    def drive_on(self, leg: int) -> bool:
+        """Replan from the scans and the rolling map and drive; False: a 360-degree scan first."""
+        if self.need_scan:
+            return False
+        pose = self.app.pose
+        plan = self.replan(leg)
+        if plan is not None:
+            self.mission.record(plan)
+            before = (pose.x, pose.y)
+            self.drive_leg(leg, plan)
+            moved = math.hypot(self.app.pose.x - before[0], self.app.pose.y - before[1]) >= self.cfg.min_progress
+            self.stalled = 0 if moved else self.stalled + 1
+            if self.stalled >= 3:  # replans that drive nowhere (stopped at once, or no way the body fits)
+                self.stalled = 0
+                self.need_scan = True
+            return True
+        if self.fresh_scan:  # the 360-degree scan just made shows no way either
+            raise ProtocolError("E_DATA", f"no way on from ({pose.x:.2f}, {pose.y:.2f}) after a 360-degree scan: "
+                                          f"{self.why}")
+        self.need_scan = True  # the rolling map shows no way: scan 360 degrees from here
+        return False
+
+    def scanned(self, leg: int, local: Any) -> None:
+        """A 360-degree scan made the maps ``local`` (the scans so far, merged): the next plan is
+        made from them and what the rover sees next."""
+        self.need_scan = False
         self.scan = local
         self.mast_foot = self.driver.blind_disc()
         self.scan_frame = self.driver.map.frames
@@ -468,7 +476,7 @@ class SeeLoop:
         seen = m if m.memory is None else m.memory
         return merge_nav_maps(self.scan, seen.nav_maps(), seen.stamp <= self.scan_frame)
 
-    def replan(self, leg: int, global_maps: Any, goal: tuple[float, float], params: Any) -> Any:
+    def replan(self, leg: int) -> Any:
         """A plan from the rover's believed pose on the merged maps (D* Lite repairing the
         mission's last search, or A*; timed); None when that shows no way to drive (then
         navigate scans).
@@ -477,13 +485,14 @@ class SeeLoop:
         few seconds of PTU motion) often show the way a 360-degree scan (half a minute) would,
         when the way on lies outside the forward view (round an obstacle, the goal behind)."""
         pose = self.app.pose
-        plan, why = self._plan(global_maps, goal, params)
+        goal = self.mission.goal
+        plan, why = self._plan()
         if plan is None and self.looked != (round(pose.x, 1), round(pose.y, 1)):
             self.looked = (round(pose.x, 1), round(pose.y, 1))
             bearing = math.degrees(math.atan2(goal[1] - pose.y, goal[0] - pose.x)) - pose.heading
             self.job.progress(0, 1, f"{why}; looking toward the goal", phase="plan", leg=leg)
             self.driver.look((bearing + 180.0) % 360.0 - 180.0)
-            plan, why = self._plan(global_maps, goal, params)
+            plan, why = self._plan()
         self.why = why
         if plan is None:  # fresh_scan stays: navigate ends the job when the scan just made shows no way either
             if not self.fresh_scan:
@@ -493,20 +502,21 @@ class SeeLoop:
         self.stats.replans += 1
         return plan
 
-    def _plan(self, global_maps: Any, goal: tuple[float, float], params: Any) -> tuple[Any, str]:
+    def _plan(self) -> tuple[Any, str]:
         """(plan, "") or (None, why there is none) on the merged maps."""
         from prox_workflows.steps.planner import MIN_LEG, PlanningError, plan_path
 
         pose = self.app.pose
         here = (pose.x, pose.y)
-        params = dataclasses.replace(params, border=min(params.border, self.cfg.see_border))
-        if self.search is None and self.cfg.see_search == "dstar":
+        goal, global_maps = self.mission.goal, self.mission.global_maps
+        params = dataclasses.replace(self.mission.params, border=min(self.mission.params.border, self.p.border))
+        if self.search is None and self.p.search == "dstar":
             self.search = Replanner(params.heuristic, params.weight)
         t0 = time.monotonic()
         # the ground round the mast's foot that no tilt shows is taken as seen after a scan there
         # (the rover stands where it drove, or was set down); the check counts it too
         merged = self.merged()
-        if self.mast_foot is not None and self.cfg.see_unseen != "off":
+        if self.mast_foot is not None and self.p.unseen != "off":
             merged = mark_unseen(merged, self.mast_foot[:2], 0.0, self.mast_foot[2], SAFE)
         self.driver.known = merged
 
@@ -528,7 +538,7 @@ class SeeLoop:
         # but for the body's own disc (it stands there). A 360-degree scan just made has shown all
         # that can be seen from here: what it left unseen so close is the blind ground round the
         # mast, and then the plan may cross it, as it must to leave.
-        keep = self.cfg.see_unseen == "keep" and self.cfg.see_blind > 0
+        keep = self.p.unseen == "keep" and self.p.blind > 0
         tries = ([True] if keep else []) + ([False] if self.fresh_scan or not keep else [])
         why = ""
         try:
@@ -549,40 +559,38 @@ class SeeLoop:
         finally:
             self.stats.replan_ms.append((time.monotonic() - t0) * 1000)
 
-    def drive_leg(self, leg: int, plan: Any, track: list[tuple[float, float, float]]) -> None:
-        """Drive one leg's waypoints while seeing (the simulated rover with -auto: the pose is its
-        odometry afterwards; else the GNC, whose pose reports are the cycles)."""
-        job, app = self.job, self.app
-        version = app.pose_version  # before the event: a GNC may answer it at once
+    def drive_leg(self, leg: int, plan: Any) -> None:
+        """Drive one leg's waypoints while seeing (the simulated rover steers by its odometry,
+        which is the pose afterwards; the GNC's pose reports are the cycles)."""
+        mission, driver = self.mission, self.driver
         segments = len(plan.waypoints) - 1
         end = (float(plan.waypoints.xy[-1][0]), float(plan.waypoints.xy[-1][1]))
 
         def progress(done: int, total: int, message: str, phase: str = "") -> None:
-            job.progress(done, total, message, phase=phase, leg=leg)
+            mission.progress(leg, done, total, message, phase)
 
         progress(1, 1, f"planned from the scan and the rolling map: {segments} segments to ({end[0]:.2f}, "
                        f"{end[1]:.2f})", "plan")
-        rows = [(Fixed(x, 3), Fixed(y, 3), Fixed(h, 2)) for x, y, h in plan.waypoints.table()[:, :3]]
-        app.broadcast_threadsafe(Reply("RVS", "EVENT", {
-            "kind": "waiting", "job": job.id, "leg": leg, "waypoints": Rows(rows), "file": "none", **pose_fields(job)}))
+        since = mission.announce(leg, plan.waypoints, "none")
         progress(0, segments, f"driving {segments} segments to ({end[0]:.2f}, {end[1]:.2f}) while seeing", "drive")
-        start_of_leg = len(track)
+        start_of_leg = len(mission.track)
         extends = self.last_end is None or math.hypot(end[0] - self.last_end[0], end[1] - self.last_end[1]) > 0.25
         self.last_end = end
-        if not self.cfg.auto:
-            outcome = self.driver.watch(plan.waypoints.xy, track, progress, version, self.cfg)
-        else:
-            try:
-                outcome = self.driver.drive(plan.waypoints.xy, track, progress,
-                                            allow_ahead=extends and not plan.reaches_goal, strict=self.strict)
-            finally:  # a break too leaves the pose where the rover's odometry says it stopped
-                odo = app.world.odometry()
-                app.set_pose(odo[0], odo[1], odo[2], source="odometry")
+        pilot = SeePilot(driver, plan.waypoints.xy, progress, mission.track,
+                         allow_ahead=extends and not plan.reaches_goal, strict=self.strict)
+        driver.point_forward()
+        stopped = mission.drive(pilot, since, end)
+        outcome = pilot.outcome
+        if outcome is None:  # the GNC stood still: wherever it is, the leg is over
+            if pilot.hazard is None:
+                progress(segments, segments, f"rover stopped at ({stopped[0]:.2f}, {stopped[1]:.2f})", "drive")
+            outcome = DriveOutcome("done", segments) if pilot.hazard is None else \
+                DriveOutcome("hazard", pilot.k - 1, pilot.hazard)
         if outcome.kind in ("hazard", "unseen", "stalled"):  # the next leg replans from here
             self.last_end = None
-        self.localise(leg, track[start_of_leg:])
+        self.localise(leg, mission.track.xy(start_of_leg))
 
-    def localise(self, leg: int, driven: list[tuple[float, float, float]]) -> None:
+    def localise(self, leg: int, driven: np.ndarray) -> None:
         """Dead reckoning's sigma grows with the leg, whatever -localise says. With ``map`` or
         ``both``, every ``see_localise_every`` metres and after every leg closer than that to the
         goal, what the rolling map saw since the last fix is matched on the global DEM, and a
@@ -597,22 +605,22 @@ class SeeLoop:
         slip; frames taken at one pose share one error, which the match measures whole. Where the
         look shows too little relief to match, the strip is matched as on the way."""
         loc = self.localiser
-        dist = loc.after_drive(self.job, np.asarray(driven).reshape(-1, 3)[:, :2])
+        dist = loc.after_drive(self.job, driven)
         if not loc.uses_map:
             return
         self.since_fix += dist
         p = self.app.pose
-        left = math.hypot(self.cfg.goal[0] - p.x, self.cfg.goal[1] - p.y)
+        left = math.hypot(self.mission.goal[0] - p.x, self.mission.goal[1] - p.y)
         # near the goal every leg ends with a fix: the last approach and the arrival are judged
         # on a fresh one, not on the drift of the last few metres
-        near = left <= self.cfg.see_localise_every
-        if self.since_fix < self.cfg.see_localise_every and not (near and loc.grown > 0):
+        near = left <= self.p.localise_every
+        if self.since_fix < self.p.localise_every and not (near and loc.grown > 0):
             return
         m = self.driver.map
         fix = None
         if left <= self.cfg.tolerance:
             first = m.frames
-            self.driver.look(0.0, spread=self.cfg.see_arrival_spread)
+            self.driver.look(0.0, spread=self.p.arrival_spread)
             fix = loc.while_seeing(self.job, leg, m.since(first), m.geometry, standing=True)
         if fix is None:  # on the way, or the look alone shows too little relief to match
             fix = loc.while_seeing(self.job, leg, m.since(self.fixed_at), m.geometry)
@@ -630,93 +638,7 @@ class SeeLoop:
         self.reapproached = left > self.cfg.tolerance / 2
         return self.reapproached
 
-    def stats_fields(self, scans: int) -> dict[str, Any]:
+    def fields(self) -> dict[str, Any]:
         """The OK line's keys of the see loop."""
         searched = {"searches": self.search.searches, "repairs": self.search.repairs} if self.search else {}
-        return {**self.stats.fields(), "scans": scans, "search": self.cfg.see_search, **searched}
-
-
-def start(job: Job, cfg: Any, localiser: Localiser) -> SeeLoop:
-    """The see loop of one navigate -loop see."""
-    return SeeLoop(job, cfg, localiser)
-
-
-def arc_rate(pose: tuple[float, float, float], target: tuple[float, float], speed: float, turn_rate: float,
-             arc_turn: float) -> float | None:
-    """Pure pursuit: the turn rate (deg/s) of the arc at ``speed`` from ``pose`` through
-    ``target``, or None when the heading error is turned on the spot instead: above
-    ``arc_turn``, or when that arc is tighter than ``turn_rate`` allows. A capped arc would
-    swing wide of the path, over ground neither the plan nor the check looked at (with the
-    body footprint hugging rocks in hirise, onto them)."""
-    dx, dy = target[0] - pose[0], target[1] - pose[1]
-    error = (math.degrees(math.atan2(dy, dx)) - pose[2] + 180.0) % 360.0 - 180.0
-    w = math.degrees(speed * 2.0 * math.sin(math.radians(error)) / max(math.hypot(dx, dy), 1e-6))
-    return None if abs(error) > arc_turn or abs(w) > turn_rate else w
-
-
-def motion_poses(pose: tuple[float, float, float], target: tuple[float, float], w: float | None, speed: float,
-                 dt: float) -> np.ndarray:
-    """The poses the rover passes through in one cycle of :meth:`SeeingDriver.drive`: the arc at
-    turn rate ``w`` (deg/s, :func:`arc_rate`) for ``dt`` seconds at ``speed``, or, with ``w``
-    None, the turn on the spot to face ``target`` (its two end poses; the check sweeps the turn
-    between them in 5-degree steps)."""
-    if w is None:
-        bearing = math.degrees(math.atan2(target[1] - pose[1], target[0] - pose[0]))
-        turn = (bearing - pose[2] + 180.0) % 360.0 - 180.0
-        return np.array([pose, (pose[0], pose[1], pose[2] + turn)], dtype=np.float64)
-    return arc_poses(pose, math.radians(w) / speed, speed * max(dt, 0.0), step=0.05)
-
-
-def _in_rover_frame(pose: tuple[float, float, float], x: float, y: float) -> tuple[float, float]:
-    """Global (x, y) in the frame of the rover at ``pose`` (x forward, y left)."""
-    c, s = math.cos(math.radians(pose[2])), math.sin(math.radians(pose[2]))
-    dx, dy = x - pose[0], y - pose[1]
-    return dx * c + dy * s, -dx * s + dy * c
-
-
-def _passed(pose: tuple[float, float, float], a: np.ndarray, b: np.ndarray, reach: float = 0.02) -> bool:
-    """Whether the rover (by odometry) has reached waypoint ``b`` of the stretch a-b: within
-    ``reach`` of it, or past the line through it square to the stretch."""
-    dx, dy = float(b[0] - a[0]), float(b[1] - a[1])
-    px, py = pose[0] - float(b[0]), pose[1] - float(b[1])
-    if math.hypot(px, py) <= reach:
-        return True
-    return (dx != 0.0 or dy != 0.0) and dx * px + dy * py >= 0.0
-
-
-def _nearest_stretch(pose: tuple[float, float, float], wps: np.ndarray, k: int, window: int = 3) -> int:
-    """The waypoint ending the stretch nearest the rover among k-1..k and the next ones (the
-    earliest of equals). :func:`_passed` alone leaves the rover on a short side stretch it drove
-    beside without crossing the line square to its end; pursuit from the foot on that stretch
-    aims behind the rover, which then turns about and drives where no check has looked."""
-    here = np.asarray(pose[:2], dtype=np.float64)
-    best, best_j = math.inf, k
-    for j in range(k, min(k + window, len(wps))):
-        a, b = wps[j - 1], wps[j]
-        ab = b - a
-        n = float(ab @ ab)
-        t = 0.0 if n == 0.0 else min(1.0, max(0.0, float((here - a) @ ab) / n))
-        d = float(np.hypot(*(a + t * ab - here)))
-        if d < best - 1e-9:
-            best, best_j = d, j
-    return best_j
-
-
-def _pursuit_point(pose: tuple[float, float, float], wps: np.ndarray, k: int, ahead: float) -> tuple[float, float]:
-    """The point ``ahead`` metres along the path from the rover's foot on stretch k-1..k (the
-    last waypoint when the path is shorter)."""
-    a, b = wps[k - 1], wps[k]
-    ab = b - a
-    n = float(ab @ ab)
-    t = 0.0 if n == 0.0 else min(1.0, max(0.0, float((np.array(pose[:2]) - a) @ ab) / n))
-    here = a + t * ab
-    left = ahead
-    for j in range(k, len(wps)):
-        seg = wps[j] - here
-        d = float(np.hypot(*seg))
-        if d >= left:
-            p = here + seg * (left / d)
-            return float(p[0]), float(p[1])
-        left -= d
-        here = wps[j]
-    return float(wps[-1][0]), float(wps[-1][1])
+        return {**self.stats.fields(), "scans": self.mission.scans, "search": self.p.search, **searched}

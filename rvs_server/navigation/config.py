@@ -1,0 +1,132 @@
+"""navigate's configuration: the mission's own keys and its ``plan``, ``see`` and
+``localisation`` sections, each declared once. The sections lend their keys to navigate
+(``flat``): the request's options (``-weight``, ``-localise``), ``--set navigate.see_margin``
+and ``config -set navigate.border`` name them as before, and ``navigate.see.margin`` names the
+same key in its section. Each section goes whole to the part of navigation that reads it (the
+planner, the see strategy, the localiser).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import ClassVar
+
+from prox_workflows.parameters import PlanParams
+from rvs_params import Settings
+
+from ..config import ModuleConfig, param
+
+
+@dataclass
+class SeeConfig(Settings):
+    """The see loop (``-loop see``): drive while checking the next metres with the forward ToF."""
+
+    period: float = param(1.0, "see loop: simulated time driven between two forward ToF frames (1 s: 10 cm at "
+                          "0.1 m/s; each simulated frame is rendered, which costs CPU)", unit="s", min=0.05, max=10.0,
+                          option=False)
+    lookahead: float = param(1.5, "see loop: the footprint is checked this far along the path ahead", unit="m",
+                             min=0.2, max=5.0, option=False)
+    tilt: float = param(-35.0, "see loop: PTU tilt of the forward ToF", unit="deg", min=-90.0, max=0.0, option=False)
+    subsample: int = param(2, "see loop: use every n-th ToF pixel in both directions", min=1, max=8, option=False)
+    margin: float = param(0.05, "see loop: added around the rover body in the check", unit="m", min=0.0, max=1.0,
+                          option=False)
+    max_range: float = param(3.0, "see loop: ignore ToF points farther than this (a single frame's returns beyond "
+                             "3 m are sparse and noisy enough to make phantom steps near the goal)", unit="m",
+                             min=0.5, max=30.0, option=False)
+    replan_ahead: float = param(1.0, "see loop: extend the path from the rolling map once the leg's end is this "
+                                "close, without stopping", unit="m", min=0.0, max=5.0, option=False)
+    pursuit: float = param(0.3, "see loop: the rover steers at the point of its path this far ahead (pure pursuit; "
+                           "shorter follows the waypoints' corners closer)", unit="m", min=0.05, max=3.0,
+                           option=False)
+    arc_turn: float = param(45.0, "see loop: a heading error up to this is driven out as an arc at full speed, a "
+                            "larger one is turned on the spot", unit="deg", min=0.0, max=180.0, option=False)
+    unseen: str = param("off", "see loop: ground no map has seen under the rover's sweep over the next see_blind "
+                        "metres (the forward ToF sees from about a metre ahead of the rover, so it will not see "
+                        "that ground before the body is on it): look stops and looks at it, then drives on; keep "
+                        "also ends the leg when the look does not show it and keeps plans off such ground that "
+                        "close (plus half the body) as off a rock (experimental: it can stall where a scan leaves "
+                        "the way on unseen); off drives on (docs/PROTOCOL.md)", choices=("look", "keep", "off"),
+                        option=False)
+    blind: float = param(0.8, "see loop: the stretch of path ahead that see_unseen judges", unit="m", min=0.0,
+                         max=3.0, option=False)
+    memory: float = param(0.0, "see loop: keep what the rolling map saw for the whole mission, over the box of "
+                          "start and goal grown by this (8 is a fair box), so a dead end driven out of is not "
+                          "planned into again once it scrolls off the 8 m rolling map; experimental, its false "
+                          "hazards are kept too (docs/PROTOCOL.md); 0: not kept", unit="m", min=0.0, max=100.0,
+                          option=False)
+    border: float = param(0.3, "see loop: plans stop this far inside the seen ground (the forward ToF sees the "
+                          "ground ahead before the rover gets there; a scan leg keeps navigate.border)", unit="m",
+                          min=0.0, max=5.0, option=False)
+    search: str = param("dstar", "see loop: the search of a replan: dstar repairs the mission's last search with "
+                        "the cells that changed (D* Lite, the same path cost as astar), astar searches again",
+                        choices=("dstar", "astar"), option=False)
+    localise_every: float = param(2.0, "see loop with -localise map or both: match the rolling map on the global "
+                                  "DEM after every this many metres driven, and after every leg closer than this "
+                                  "to the goal", unit="m", min=0.1, max=1000.0, option=False)
+    arrival_spread: float = param(120.0, "see loop with -localise map or both: on arriving, the rover looks round "
+                                  "standing (three ToF frames, this far either side of ahead: the ground behind "
+                                  "too, which a goal near the map's edge needs) and matches what they saw on the "
+                                  "global DEM", unit="deg", min=0.0, max=150.0, option=False)
+    max_replans: int = param(100, "see loop: give up after this many plans in all", min=1, max=10000, option=False)
+
+
+@dataclass
+class LocaliseConfig(Settings):
+    """Knowing where the rover is between legs (:mod:`rvs_server.navigation.localiser`)."""
+
+    localise: str = param("none", "correct the dead-reckoned pose after each leg: vo (the leg's DEM on the last "
+                          "one), map (on the global DEM), both, or none", choices=("none", "vo", "map", "both"))
+    drift: float = param(0.05, "dead reckoning's position error per metre driven (1 sigma, share of distance)",
+                         min=0.0, max=1.0, option=False)
+    heading_drift: float = param(2.0, "dead reckoning's heading error per metre driven (1 sigma)", unit="deg/m",
+                                 min=0.0, max=90.0, option=False)
+
+
+@dataclass
+class NavigateConfig(ModuleConfig):
+    module: ClassVar[str] = "navigate"
+    goal: list[float] = param([], "goal x,y in the global frame", unit="m", length=2, min=-1e6, max=1e6,
+                              required=True)
+    start: list[float] = param([], "start x,y[,heading] (default: the current pose)", unit="m,m,deg",
+                               length=(2, 3), min=-1e6, max=1e6)
+    sensor: str = param("tof", "sensor for the 360-degree DEMs", choices=("tof", "stereo", "fused"))
+    auto: bool = param(False, "simulated rover only: drive the waypoints without waiting for pose (as "
+                       "drivers.rover.backend=sim does for every navigate)")
+    tolerance: float = param(0.3, "the goal is reached within this distance", unit="m", min=0.05, max=10.0)
+    max_legs: int = param(12, "give up after this many legs", min=1, max=200)
+    name: str = param("", "stem of the products (default nav_<UTC time>)", stem=True)
+    # the planner's parameters are declared once, in prox_workflows.parameters.PlanParams (the
+    # plan_leg script and rvs-path-planner read the same declarations)
+    plan: PlanParams = param(PlanParams(), "the planner's parameters", flat="")
+    range: list[float] = param([-180.0, 180.0, -50.0, -10.0], "view range of each leg's DEM", unit="deg",
+                               length=4, min=-360.0, max=360.0, option=False, ordered=True)
+    overlap: float = param(0.3, "view overlap of each leg's DEM", min=0.0, max=0.9, option=False)
+    wait_timeout: float = param(0.0, "seconds to wait for the GNC's pose after a leg (0: forever)", unit="s",
+                                min=0.0, max=86400.0, option=False)
+    pose_settle: float = param(2.0, "a leg's wait for the GNC ends when its pose holds still this long (reported "
+                               "again or not), or at pose -stopped true; a pose near the leg's end while moving "
+                               "does not end it", unit="s", min=0.05, max=600.0, option=False)
+    pose_still: list[float] = param([0.01, 1.0], "pose reports within this distance and heading of the first of "
+                                    "them hold still", unit="m,deg", length=2, min=0.0, max=10.0, option=False)
+    judge_range: float = param(3.0, "a goal judged unreachable (goal_in_hazard, enclosed) from farther than this "
+                               "is driven toward and judged again from closer, where the ToF sees it densely and "
+                               "reliably (its returns thin out and get noisier toward the 4.5 m it keeps)", unit="m",
+                               min=0.0, max=50.0, option=False)
+    min_progress: float = param(0.1, "a leg that starts closer than this to the previous leg's start made no "
+                                "progress; the second such leg in a row ends the job", unit="m", min=0.0, max=5.0,
+                                option=False)
+    global_maps: str = param("", "folder with global hazard.tif and slope.tif, and dem.tif for map matching "
+                             "(empty: blank maps, or -global)", option=False)
+    global_: str = param("", "global DEM (or 0/128/255 hazard map) GeoTIFF from orbit, in any CRS in metres; "
+                         "its hazard and slope come from Dem2Hazard, its heights serve map matching (instead of "
+                         "navigate.global_maps)")
+    global_origin: list[float] = param([0.0, 0.0], "the rover frame's origin (the start) in the global map's CRS",
+                                       unit="m", length=2, min=-1e8, max=1e8)
+    localisation: LocaliseConfig = param(LocaliseConfig(), "knowing where the rover is", flat="")
+    # scan stays the default: in the benchmark's dense hirise scene the see loop's rover body crossed
+    # true hazards the rolling map had left unseen (tools.bench.navigate; docs/PROTOCOL.md)
+    loop: str = param("scan", "scan stops for a 360-degree scan at every leg's end; see checks the next metres "
+                      "with the forward ToF while the rover drives (-auto: every cycle; the GNC: at every pose "
+                      "report) and replans from what it sees (a 360-degree scan first and when that shows no "
+                      "way)", choices=("see", "scan"))
+    see: SeeConfig = param(SeeConfig(), "the see loop", flat="see_")

@@ -1,0 +1,194 @@
+"""One navigate (seed 000 sect. 4.4.4, appendix F): the legs from the start to the goal.
+
+The mission owns what every leg shares: the rover (drivers/rover), the believed pose and its
+localiser, the planner's parameters and the global maps, the 360-degree scans, the track and
+the products. Its strategy (:mod:`.scan` or :mod:`.see`, behind :class:`.strategy.Strategy`)
+plans and drives the legs between scans.
+"""
+
+from __future__ import annotations
+
+import copy
+import math
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from drivers.rover import Settle, Silent
+
+from ..commands.hardware import device_call
+from ..protocol import Fixed, ProtocolError, Reply, Rows
+from .localiser import Localiser, pose_fields
+from .planning import load_global_maps, planner_params
+from .scan import ScanStrategy
+from .see import SeeStrategy
+from .track import Track
+
+if TYPE_CHECKING:
+    from drivers.rover import Pilot, Rover
+
+    from ..app import App
+    from ..jobs import Job
+    from .config import NavigateConfig
+    from .strategy import Strategy
+
+
+def rover_for(app: App, auto: bool) -> Rover:
+    """The rover that drives this navigate: the configured one (drivers.rover), or with
+    ``-auto`` the simulated one (the configured one if it is simulated)."""
+    import drivers.rover
+
+    rover = app.devices.get("rover")
+    if not auto or rover.steers:
+        return rover
+    sim = drivers.rover.create({"backend": "sim"}, app.world, app)
+    sim.open()
+    return sim
+
+
+def check_request(app: App, cfg: NavigateConfig) -> None:
+    """Refusals before the ACK."""
+    from .planning import check_plan_size
+
+    if cfg.auto and app.world is None:
+        raise ProtocolError("E_ARG", "-auto drives the simulated rover; with real hardware the GNC sends pose")
+    check_plan_size(app, cfg)
+
+
+class Mission:
+    def __init__(self, job: Job, cfg: NavigateConfig, name: str, track: Track) -> None:
+        self.job = job
+        self.app: App = job.app
+        self.cfg = cfg
+        self.name = name
+        self.track = track
+        self.goal = (cfg.goal[0], cfg.goal[1])
+        self.rover = rover_for(self.app, cfg.auto)
+        self.global_maps, global_map = load_global_maps(cfg)
+        self.loc = Localiser.configured(cfg.localisation, global_map, self.rover)
+        self.params = planner_params(self.app, cfg.plan)
+        self.paths: list[np.ndarray] = []  # each leg's planned path, as driven (to its cut)
+        self.waypoints: list[np.ndarray] = []
+        self.scans = 0
+        self.leg_starts: list[tuple[float, float]] = []
+        self.stalled = 0  # legs in a row that started where the previous one did
+        self.strategy: Strategy = SeeStrategy(self) if cfg.loop == "see" else ScanStrategy(self)
+
+    # -- what the strategies share ---------------------------------------------------------
+    def progress(self, leg: int, done: int, total: int, message: str, phase: str = "") -> None:
+        self.job.progress(done, total, message, phase=phase, leg=leg)
+
+    def record(self, plan: Any) -> None:
+        """A plan about to be driven: its path and waypoints go into the mission's products."""
+        self.paths.append(plan.path[: plan.cut])
+        self.waypoints.append(plan.waypoints.xy)
+
+    def announce(self, leg: int, waypoints: Any, file: str) -> int:
+        """``EVENT kind=waiting`` with the leg's waypoints (the GNC drives them); returns the mark
+        of the pose reports before it (a GNC may answer it at once)."""
+        since = self.rover.mark()
+        rows = Rows((Fixed(x, 3), Fixed(y, 3), Fixed(h, 2)) for x, y, h in waypoints.table()[:, :3])
+        self.app.broadcast_threadsafe(Reply("RVS", "EVENT", {
+            "kind": "waiting", "job": self.job.id, "leg": leg, "waypoints": rows, "file": file,
+            **pose_fields(self.job)}))
+        return since
+
+    def drive(self, pilot: Pilot, since: int, end: tuple[float, float]) -> tuple[float, float, float]:
+        """One leg driven by the rover with ``pilot``; a break stops it (E_INTERRUPTED). Returns
+        where the rover believes it stopped."""
+        cfg = self.cfg
+        settle = Settle(cfg.pose_settle, cfg.pose_still[0], cfg.pose_still[1], cfg.wait_timeout)
+        try:
+            return device_call(self.job, self.rover.drive, pilot, settle=settle, since=since)
+        except Silent:
+            raise ProtocolError("E_DATA", f"no pose at the leg's end ({end[0]:.2f}, {end[1]:.2f}) within "
+                                          f"{cfg.wait_timeout:g} s; send pose -x -y -heading (with -stopped true "
+                                          "once the rover stands)") from None
+
+    # -- the legs ----------------------------------------------------------------------------
+    def run(self) -> dict[str, Any]:
+        app, cfg, goal, strategy = self.app, self.cfg, self.goal, self.strategy
+        if cfg.start:
+            heading = cfg.start[2] if len(cfg.start) == 3 else app.pose.heading
+            app.set_pose(cfg.start[0], cfg.start[1], heading, source="navigate")
+            self.rover.place((cfg.start[0], cfg.start[1], heading))
+        self.track.add((app.pose.x, app.pose.y, app.pose.heading))
+        for _ in range(strategy.max_plans):
+            self.job.check()
+            leg = len(self.paths) + 1  # the leg being prepared: its scan, plan and drive carry its number
+            pose = app.pose
+            left = math.hypot(goal[0] - pose.x, goal[1] - pose.y)
+            if left <= cfg.tolerance and strategy.arrived(left):
+                break
+            if strategy.drive_on(leg):
+                continue
+            if self.scans >= cfg.max_legs:
+                break
+            local = self.scan(leg)
+            pose = app.pose
+            if math.hypot(goal[0] - pose.x, goal[1] - pose.y) <= cfg.tolerance:
+                break  # (a scan to check a dead-reckoned arrival, and it holds)
+            strategy.scanned(leg, local)
+        pose = app.pose
+        if math.hypot(goal[0] - pose.x, goal[1] - pose.y) > cfg.tolerance:
+            raise ProtocolError("E_DATA", f"goal not reached after {self.scans} scans and {len(self.paths)} legs; the "
+                                          f"rover is at ({pose.x:.2f}, {pose.y:.2f}), "
+                                          f"{math.hypot(goal[0] - pose.x, goal[1] - pose.y):.2f} m away")
+        return self.products()
+
+    def scan(self, leg: int) -> Any:
+        """The leg's 360-degree DEM, matched by the localiser; returns its NavMaps. A second leg
+        in a row that starts where the previous one did ends the job (no progress)."""
+        from prox_workflows.steps.planner import NavMaps
+
+        from ..commands.dem import run_dem
+
+        app, cfg = self.app, self.cfg
+        self.scans += 1
+        pose = app.pose
+        last = self.leg_starts[-1] if self.leg_starts else None
+        if last is not None and math.hypot(pose.x - last[0], pose.y - last[1]) < cfg.min_progress:
+            self.stalled += 1
+            if self.stalled >= 2:
+                raise ProtocolError("E_DATA", f"no progress: legs {leg - 2} to {leg} all started at ({pose.x:.2f}, "
+                                              f"{pose.y:.2f}) (within {cfg.min_progress:g} m); the rover does not "
+                                              "get along the waypoints, so a further scan from here would not help")
+        else:
+            self.stalled = 0
+        self.leg_starts.append((pose.x, pose.y))
+        dem_cfg = copy.deepcopy(app.config.get("dem_full_tof" if cfg.sensor == "tof" else "dem_full"))
+        dem_cfg.range, dem_cfg.overlap, dem_cfg.name = list(cfg.range), cfg.overlap, f"{self.name}_leg{leg}"
+
+        def progress(done: int, total: int, message: str, phase: str = "") -> None:
+            self.progress(leg, done, total, message, phase)
+
+        run_dem(self.job, dem_cfg, update=leg > 1 and not self.loc.active, sensor=cfg.sensor, progress=progress,
+                out_dir="nav")
+        self.loc.after_scan(self.job, leg)  # VO / map matching: corrects the pose and the leg's maps
+        maps = app.maps.layers
+        return NavMaps(maps["hazard"], maps["slope"], maps.geometry)
+
+    def products(self) -> dict[str, Any]:
+        """The traverse figure, the waypoints and the track; the OK line."""
+        from prox_workflows.mapview import Marks
+        from prox_workflows.products import write_png, write_text_atomic
+        from prox_workflows.steps.planner import ortho_figure
+
+        app, goal, job = self.app, self.goal, self.job
+        pose = app.pose
+        maps = app.maps.layers
+        path = np.concatenate(self.paths) if self.paths else np.zeros((0, 2))
+        wps = np.concatenate(self.waypoints) if self.waypoints else np.zeros((0, 2))
+        traverse = app.data_path("nav", f"{self.name}_traverse.png")
+        head = app.config.get("head")
+        write_png(traverse, ortho_figure(maps["ortho"], maps.geometry, f"traverse to ({goal[0]:g}, {goal[1]:g})",
+                                         Marks(rover=(pose.x, pose.y, pose.heading),
+                                               rover_size=(head.rover_length, head.rover_width), path=path,
+                                               waypoints=wps, track=self.track.xy(), goal=goal)))
+        wfile = app.data_path("nav", f"{self.name}_waypoints.csv")
+        write_text_atomic(wfile, "x,y,leg\n" + "".join(
+            f"{x:.4f},{y:.4f},{i + 1}\n" for i, leg_wps in enumerate(self.waypoints) for x, y in leg_wps))
+        tfile = self.track.write(app, self.name)
+        return {"reached": True, "legs": len(self.paths), "path": app.rel(traverse), "waypoints": app.rel(wfile),
+                "track": app.rel(tfile), "x": Fixed(pose.x, 3), "y": Fixed(pose.y, 3), **pose_fields(job),
+                "loop": self.cfg.loop, **self.strategy.fields()}
