@@ -14,10 +14,8 @@ import numpy as np
 
 from drivers.registry import BackendRegistry, Capability
 from drivers.stereo.modes import PIXEL_FORMATS, RESOLUTIONS
-from drivers.stereo.settings import GAIN_DB, SHUTTER_US, TARGET_GREY, CameraSettings
+from drivers.stereo.settings import CameraSettings, camera_key
 from rvs_params import Settings, param
-
-_C = CameraSettings()
 
 
 @dataclass
@@ -31,13 +29,11 @@ class StereoSettings(Settings):
     right_id: str = param("1", "right camera GUID (hex)")
     resolution: str = param("high", "default grab resolution", choices=tuple(RESOLUTIONS))
     pixel_format: str = param("mono8", "default grab pixel format", choices=PIXEL_FORMATS)
-    shutter_us: int = param(_C.shutter_us, "exposure time", unit="us", min=SHUTTER_US[0], max=SHUTTER_US[1])
-    gain_db: float = param(_C.gain_db, "gain", unit="dB", min=GAIN_DB[0], max=GAIN_DB[1])
-    white_balance: list[int] = param(list(_C.white_balance), "IIDC U/B, V/R registers (rgb8 only; 512 = unity "
-                                     "in the sim)", min=0, max=1023, length=2)
-    target_grey: int = param(_C.target_grey, "auto-exposure target grey level", min=TARGET_GREY[0],
-                             max=TARGET_GREY[1])
-    auto_exposure: bool = param(_C.auto_exposure, "true: the shutter follows target_grey")
+    shutter_us: int = camera_key("shutter_us")
+    gain_db: float = camera_key("gain_db")
+    white_balance: list[int] = camera_key("white_balance")
+    target_grey: int = camera_key("target_grey")
+    auto_exposure: bool = camera_key("auto_exposure")
     trigger_timeout: float = param(1.0, "a triggered grab waits this long for its frames before DeviceError",
                                    unit="s", min=0.0, max=3600.0)
     direct_timeout: float = param(2.0, "a free-running (direct) grab waits this long for a frame", unit="s",

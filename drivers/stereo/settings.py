@@ -16,81 +16,67 @@ from typing import Any
 import yaml
 
 from drivers.stereo.modes import SIDES, check_side
+from rvs_params import Settings, param
 
-# PIKE F-210B limits (AVT PIKE technical manual): shutter 1 us .. 67 s, gain 0 .. 22 dB,
-# white balance registers 10 bit, auto-exposure target 8 bit.
-SHUTTER_US = (1, 67_000_000)
-GAIN_DB = (0.0, 22.0)
-WHITE_BALANCE = (0, 1023)
-TARGET_GREY = (1, 254)
+
+@dataclass
+class CameraKeys(Settings):
+    """The keys each camera of the pair is set by, declared once with the PIKE F-210B's limits
+    (AVT PIKE technical manual: shutter 1 us .. 67 s, gain 0 .. 22 dB, white balance registers
+    10 bit, auto-exposure target 8 bit). The drivers.stereo settings lend them as the power-up
+    values; :class:`CameraSettings` checks every change by them."""
+
+    shutter_us: int = param(8000, "exposure time", unit="us", min=1, max=67_000_000)
+    gain_db: float = param(0.0, "gain", unit="dB", min=0.0, max=22.0)
+    white_balance: list[int] = param([512, 512], "IIDC U/B, V/R registers (rgb8 only; 512 = unity in the sim)",
+                                     min=0, max=1023, length=2)
+    target_grey: int = param(128, "auto-exposure target grey level", min=1, max=254)
+    auto_exposure: bool = param(False, "true: the shutter follows target_grey")
+
+
+def camera_key(name: str) -> Any:
+    """A field declaring camera key ``name`` as :class:`CameraKeys` does, for a settings class that
+    lends it (the drivers.stereo settings)."""
+    spec = CameraKeys.specs()[name]
+    return param(spec.default, spec.help, unit=spec.unit, min=spec.min, max=spec.max, length=spec.length)
+
+
+_DEFAULTS = CameraKeys()
 
 
 @dataclass(frozen=True)
 class CameraSettings:
-    shutter_us: int = 8000
-    gain_db: float = 0.0
-    white_balance: tuple[int, int] = (512, 512)  # (U/B, V/R) register values; 512 = unity in the sim
-    target_grey: int = 128  # auto-exposure target grey level
-    auto_exposure: bool = False  # shutter follows target_grey instead of shutter_us
+    """One camera's settings as a value: what the pair holds per side and writes to its file."""
 
-    def __post_init__(self) -> None:
-        self._check()
-
-    def _check(self) -> None:
-        def within(name: str, value: float, bounds: tuple[float, float]) -> None:
-            if not bounds[0] <= value <= bounds[1]:
-                raise ValueError(f"{name} must be in [{bounds[0]}, {bounds[1]}], got {value}")
-
-        within("shutter_us", self.shutter_us, SHUTTER_US)
-        within("gain_db", self.gain_db, GAIN_DB)
-        if len(self.white_balance) != 2:
-            raise ValueError(f"white_balance must be two values (U/B, V/R), got {self.white_balance!r}")
-        for value in self.white_balance:
-            within("white_balance", value, WHITE_BALANCE)
-        within("target_grey", self.target_grey, TARGET_GREY)
+    shutter_us: int = _DEFAULTS.shutter_us
+    gain_db: float = _DEFAULTS.gain_db
+    white_balance: tuple[int, int] = tuple(_DEFAULTS.white_balance)  # (U/B, V/R) register values
+    target_grey: int = _DEFAULTS.target_grey
+    auto_exposure: bool = _DEFAULTS.auto_exposure
 
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> CameraSettings:
         return cls().replace(**data)
 
     def replace(self, **changes: Any) -> CameraSettings:
-        """A copy with ``changes`` applied, coerced and validated (ValueError on a bad key or value)."""
-        names = [f.name for f in dataclasses.fields(self)]
-        unknown = sorted(set(changes) - set(names))
+        """A copy with ``changes`` applied, each typed and checked by its :class:`CameraKeys`
+        declaration (ValueError on a bad key or value)."""
+        specs = CameraKeys.specs()
+        unknown = sorted(set(changes) - set(specs))
         if unknown:
-            raise ValueError(f"unknown camera setting(s) {', '.join(unknown)}; accepted: {', '.join(names)}")
+            raise ValueError(f"unknown camera setting(s) {', '.join(unknown)}; accepted: {', '.join(specs)}")
         values = dataclasses.asdict(self)
         for key, raw in changes.items():
-            try:
-                values[key] = _coerce(key, raw)
-            except (TypeError, ValueError) as exc:
-                raise ValueError(f"bad value for {key}: {raw!r} ({exc})") from None
+            if key == "white_balance" and isinstance(raw, str):
+                raw = ",".join(raw.replace(",", " ").split())  # "500 520" as the console splits it
+            value = specs[key].coerce(raw, f"camera setting {key}")
+            values[key] = tuple(value) if key == "white_balance" else value
         return CameraSettings(**values)
 
     def to_dict(self) -> dict[str, Any]:
         data = dataclasses.asdict(self)
         data["white_balance"] = list(self.white_balance)
         return data
-
-
-def _coerce(key: str, raw: Any) -> Any:
-    if key == "white_balance":
-        if isinstance(raw, str):
-            raw = raw.replace(",", " ").split()
-        return tuple(int(v) for v in raw)
-    if key == "auto_exposure":
-        if isinstance(raw, str):
-            lowered = raw.strip().lower()
-            if lowered not in ("1", "0", "true", "false", "on", "off", "yes", "no"):
-                raise ValueError("expected true/false")
-            return lowered in ("1", "true", "on", "yes")
-        return bool(raw)
-    if key == "gain_db":
-        return float(raw)
-    value = float(raw)
-    if value != int(value):
-        raise ValueError("expected an integer")
-    return int(value)
 
 
 def defaults_from_config(config: Any) -> CameraSettings:
