@@ -49,8 +49,9 @@ class AutoExposure:
     desired: int = 70
 
     def validate(self) -> AutoExposure:
-        k.check_integration(self.min_integration)
-        k.check_integration(self.max_integration)
+        integration = SR4000Settings.specs()["integration"]  # the same register as the camera's own
+        self.min_integration = integration.coerce(self.min_integration, "auto exposure min_integration")
+        self.max_integration = integration.coerce(self.max_integration, "auto exposure max_integration")
         if self.min_integration > self.max_integration:
             raise ValueError("auto exposure: min_integration must not exceed max_integration")
         if not 0 <= int(self.percent_over) <= 100:
@@ -76,24 +77,19 @@ class TofSettings:
     colour_range: dict[str, list[float] | None] = field(default_factory=lambda: dict(DEFAULT_COLOUR_RANGE))
 
     def validate(self) -> TofSettings:
-        if isinstance(self.amplitude_threshold, bool) or not 0 <= int(self.amplitude_threshold) <= k.RAW_MAX:
-            raise ValueError(f"amplitude threshold {self.amplitude_threshold} outside 0..65535")
-        self.amplitude_threshold = int(self.amplitude_threshold)
+        """Each key typed and range-checked by its drivers.tof declaration; then what a declaration
+        cannot say: the frequencies the SR4000 takes, the correction modes, the colour ranges."""
+        specs = SR4000Settings.specs()
+        for name in _DECLARED:
+            setattr(self, name, specs[name].coerce(getattr(self, name), "ToF settings"))
         self.modulation_mhz = k.check_frequency(self.modulation_mhz)
-        self.integration = k.check_integration(self.integration)
-        self.auto_exposure = _as_bool(self.auto_exposure, "auto_exposure")
         self.auto_exposure_params.validate()
-        if int(self.auto_exposure_max_iterations) < 1:
-            raise ValueError("auto_exposure_max_iterations must be at least 1")
-        self.auto_exposure_max_iterations = int(self.auto_exposure_max_iterations)
         unknown = set(self.corrections) - set(k.CORRECTION_FLAGS)
         if unknown:
             raise ValueError(f"unknown correction mode(s) {sorted(unknown)}; known: {sorted(k.CORRECTION_FLAGS)}")
         full = {name: False for name in k.CORRECTION_FLAGS}
         full.update({name: _as_bool(v, name) for name, v in self.corrections.items()})
         self.corrections = full
-        self.enhanced_xyz = _as_bool(self.enhanced_xyz, "enhanced_xyz")
-        self.undistort = _as_bool(self.undistort, "undistort")
         ranges = dict(DEFAULT_COLOUR_RANGE)
         for image_type, rng in (self.colour_range or {}).items():
             ranges[check_colour_type(image_type)] = check_colour_range(rng)
@@ -145,6 +141,11 @@ class TofSettings:
 
     def copy(self) -> TofSettings:
         return TofSettings.from_dict(self.to_dict())
+
+
+# the keys whose SR4000Settings declaration (type, range) is the whole check
+_DECLARED = ("amplitude_threshold", "modulation_mhz", "integration", "auto_exposure", "auto_exposure_max_iterations",
+             "enhanced_xyz", "undistort")
 
 
 def check_colour_type(image_type: str) -> str:
