@@ -1,10 +1,9 @@
 """The layer registry: every map layer's name, unit, data type, nodata value, meaning, colour map
 and preview rule, declared once and used by every writer and reader.
 
-Before this, the server's product writer, ``rvs-dem-import`` and ``rvs-dem2hazard`` each kept
-their own table, so one layer had two colour maps (traversability: OpenCV's RdYlGn or JET in one
-place, a hand-made red-yellow-green in the other) and two meanings. Now a layer looks the same
-whichever entry point wrote it: :func:`write_layer` writes the GeoTIFF with the registry's
+One table, so that a layer looks the same and means the same whichever entry point wrote it (the
+server's product writer, ``rvs-dem-import``, ``rvs-dem2hazard``): tables kept per writer drift
+apart (one layer, two colour maps, two meanings). :func:`write_layer` writes the GeoTIFF with the registry's
 dtype and nodata, its YAML sidecar with unit and meaning, and its PNG preview by the registry's
 rule; :func:`read_layers` reads a product's layers back.
 """

@@ -156,8 +156,8 @@ def write_text_atomic(path: Path, text: str) -> Path:
 
 
 def write_yaml_atomic(path: Path, data: Any) -> Path:
-    """Every YAML the project writes goes through ``plain``: a numpy scalar that reached a
-    manifest or sidecar once made safe_dump fail mid-break and lose the recovery set."""
+    """Every YAML the project writes goes through ``plain``: a numpy scalar that reaches a
+    manifest or sidecar makes safe_dump fail, mid-break that would lose the recovery set."""
     return write_text_atomic(path, yaml.safe_dump(plain(data), sort_keys=False, default_flow_style=None))
 
 

@@ -1,4 +1,4 @@
-"""Offline reprocessing: a DEM job's folder is enough to run it again (issue 14, item 4).
+"""Offline reprocessing: a DEM job's folder is enough to run it again.
 
 A dem job leaves ``<dir>/<name>_views/`` (coordinate images, ``.aux.tiff`` companions, ``.cal``
 files, the image list, ``<name>_scan.yaml`` with the pose and rover mask) and its products

@@ -1,4 +1,4 @@
-"""config -set on drivers reaches the devices (issue 11 item 8): the ToF's camera settings at once,
+"""config -set on drivers reaches the devices: the ToF's camera settings at once,
 every other key when its device is next re-initialised, and a grab's sidecar says what the camera
 measured with. All through a real server on a real socket."""
 

@@ -1,4 +1,4 @@
-"""Typed driver settings (issue 15): the settings classes the device backends declare are the only
+"""Typed driver settings: the settings classes the device backends declare are the only
 keys drivers.yaml, --config overlays, --set and config -set accept, and a run-time change of an
 SR4000 camera setting reaches the next grab. Servers are real, on real sockets."""
 

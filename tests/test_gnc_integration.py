@@ -1,4 +1,4 @@
-"""What a rover team hits in its first hour (issue 11), each through a real TCP socket: break after
+"""What a rover team hits in its first hour, each through a real TCP socket: break after
 every pose-setting job, pose reports during navigate, telnet's Ctrl-C, exit, progress lines a
 progress bar can use, refusals before the ACK, help as typed on the wire, modes."""
 

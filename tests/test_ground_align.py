@@ -1,5 +1,5 @@
 """ground-align through the server: the simulated world's true sensor mount differs from the
-server's head calibration; the ground plane must reveal by how much (issue 7, Show: a 2 degree
+server's head calibration; the ground plane must reveal by how much (a 2 degree
 misalignment recovered within 0.2 degrees), and the correction must land in the calibration
 every transform reads."""
 

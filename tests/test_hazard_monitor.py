@@ -1,6 +1,6 @@
 """hazard-start / hazard-stop through the server, against the simulator's truth.
 
-The Show of issue 7: with the rover driven toward a rock, the stop event arrives before the
+The requirement: with the rover driven toward a rock, the stop event arrives before the
 rover is within the configured stopping distance, in every one of 10 seeded runs; the cycle time
 (PTU motion excluded) stays under 0.5 s. Plus the protocol rules: the monitor yields to jobs and
 restores its pointing, break pauses it, one PTU holder at a time, device faults end it, and

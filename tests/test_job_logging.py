@@ -1,4 +1,4 @@
-"""Log context in job and monitor threads (issue 15, item 4): every line a job's worker thread or a
+"""Log context in job and monitor threads: every line a job's worker thread or a
 monitor's thread writes to the JSON log file says which request it belongs to, as the event
 loop's lines do, through a real TCP socket and the real log file."""
 

@@ -1,6 +1,6 @@
 """JSON mode through real sockets: every reply line matches docs/replies.schema.json, and the keys
-whose JSON type used to depend on the command or the case (job, worst, waypoints, lists, rounded
-numbers, config settings) have one; the greeting comes in JSON to a client that asks at connect."""
+whose JSON type could depend on the command or the case (job, worst, waypoints, lists, rounded
+numbers, config settings) have one type; the greeting comes in JSON to a client that asks at connect."""
 
 from __future__ import annotations
 

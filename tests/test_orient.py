@@ -2,7 +2,7 @@
 
 The rover is moved by ``sim move-rover`` (the server is not told); each orient must find the
 motion from the images alone: per 1 m step the translation error stays under 2 % of the
-distance moved and the heading error under 0.5 degrees (issue 7, Show).
+distance moved and the heading error under 0.5 degrees.
 """
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""The same product from every entry point (issue 14): the server's dem job, the workflow engine
+"""The same product from every entry point: the server's dem job, the workflow engine
 on the job's recorded views (``rvs-prox dem_views``) and the toolbox CLIs make byte-identical
 GeoTIFF data from the same inputs and parameters, layer by layer. Cheap: one small ToF scan
 (few views, 5 cm cells) shared by the module; a stereo scan is the long variant."""

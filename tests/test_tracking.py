@@ -1,6 +1,6 @@
 """track3d-detect / track3d-start / track3d-stop through the server, against the simulator's truth.
 
-The Show of issue 7: tracking follows a target walking at 1 m/s across the view, with position
+The requirement: tracking follows a target walking at 1 m/s across the view, with position
 error under 10 cm while it is in view, and reports lost and re-acquired correctly.
 """
 

@@ -1,4 +1,4 @@
-"""Offline and distributed reprocessing (issue 14, items 4 and 5): ``rvs-prox dem --from``, the
+"""Offline and distributed reprocessing: ``rvs-prox dem --from``, the
 server's ``prox`` command, ``rvs-prox batch`` on Dask and the tiled campaign mosaic. Cheap: one
 small ToF scan (one view, 5 cm cells) recorded by a real server, shared by the module; the
 batch's other inputs are that scan shifted (tools/bench/batch.py's shifted_copy)."""

@@ -58,8 +58,8 @@ def save_image(path: str | Path, image: np.ndarray) -> Path:
 class CamShell(DeviceConsole):
     intro = "rvs-cam: PIKE stereo pair console. 'help' lists commands, 'quit' leaves."
     prompt = "rvs-cam> "
-    # As rvs-cam always did: every error names its type, and Ctrl-C ends the session (main closes
-    # the cameras on the way out) instead of returning to the prompt.
+    # rvs-cam's contract, which scripts driving it rely on: every error names its type, and Ctrl-C
+    # ends the session (main closes the cameras on the way out) instead of returning to the prompt.
     plain_errors = ()
     catch_interrupts = False
     unknown_hint = "'help' lists commands"

@@ -1,4 +1,4 @@
-"""Heading-aware local choice (issue 12, item 3; Carsten et al. 2007, GESTALT + Field D* on MER):
+"""Heading-aware local choice (Carsten et al. 2007, GESTALT + Field D* on MER):
 the grid path of the incremental planner turns on the spot at every cell, which a rover with a
 turning limit cannot drive; so the rover chooses among the arcs it *can* drive from its pose, each
 judged safe or not by its footprint swept over the traversability map (as the move gate,

@@ -176,7 +176,7 @@ def pixel_features(coords: np.ndarray, sensor: np.ndarray, image: np.ndarray | N
     return out
 
 
-# -- the per-point noise models the ToF-stereo fusion weighs by (issue 13 item 6) -----------------------
+# -- the per-point noise models the ToF-stereo fusion weighs by ----------------------------------------
 # Each is a sum of independent height variances, one per cause, each with one coefficient that
 # tools/bench/fusion.py --calibrate fits against the simulator's truth (a robust least-squares fit of
 # the squared height errors of the points, per sensor); the fitted values are the defaults of the

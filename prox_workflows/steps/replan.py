@@ -1,4 +1,4 @@
-"""Incremental replanning (issue 12, item 3): D* Lite (Koenig & Likhachev 2002) on the same grid
+"""Incremental replanning: D* Lite (Koenig & Likhachev 2002) on the same grid
 graph and cost model as :func:`.planner.astar_grid`, so that a rover that sees a few cells change
 repairs its path in milliseconds instead of searching the map again.
 
@@ -33,12 +33,10 @@ Where it differs from astar_grid, and why
 Between ``plan()`` calls the rover may ``move_start`` (any free cell, on the path or not: slip)
 and the map may ``update`` (any cells, blocked, freed, dearer, cheaper) in any order and number.
 
-Speed (``python -m tools.bench.replan``, 400 x 400 cells, simulated and real HiRISE maps): a
-repair after 1-10 changed cells ahead of the rover or a start move takes 0.3-1 ms (p50), after
-100 cells or a rock appearing on the path 3 m ahead 0.6-5.5 ms, 3-50x less than a fresh A*
-(11-30 ms); the first plan of a mission has nothing to repair and costs ~2.5x an A* (its
-backward search keeps two values per cell and a two-part key). The kernels are numba-compiled
-(``cache=True``: ~7 s of CPU once per installation, then loaded from the cache; :func:`warm_up`).
+Speed: a repair after a few changed cells or a start move costs a small fraction of a fresh A*;
+the first plan of a mission has nothing to repair and costs more than an A* (its backward search
+keeps two values per cell and a two-part key). ``python -m tools.bench.replan`` measures both
+against A* (figures in the README). The kernels are compiled on first use (:func:`warm_up`).
 """
 
 from __future__ import annotations

@@ -1,6 +1,6 @@
-"""A rolling local elevation map for driving while seeing (issue 12, item 2).
+"""A rolling local elevation map for driving while seeing.
 
-Between 360-degree scans the rover used to drive blind on the last scan's maps. Here every
+Between 360-degree scans a rover on the last scan's maps drives blind to what changed. Here every
 forward ToF frame taken while it drives is fused into a fixed-size elevation map that moves with
 the rover, and the hazard layers are recomputed only where the frame changed them, so one cycle
 (fuse + Dem2Hazard + the footprint check of the next metres) costs a few milliseconds whatever the

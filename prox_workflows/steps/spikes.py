@@ -5,7 +5,7 @@ return lands on the ray between the surfaces it mixes: one or two points, centim
 decimetres off the ground, alone in their cell. DemImport keeps them (the noise model gives one
 point a centimetre's variance, not the decimetre it is off), and Dem2Hazard's step, the window's
 max - min, turns one such cell 9 cm up and another 5 cm down into a 0.15 m step hazard on open
-ground (marsyard, issue 11 item 9: a clear goal judged "0.45 m from a hazardous cell").
+ground (on the marsyard a clear goal was judged "0.45 m from a hazardous cell" that way).
 
 A cell is a spike (a pit) when it stands higher (lower) than *every* defined one of its eight
 neighbours by more than ``max(min_jump, k * sigma)``, sigma its height's standard deviation, and

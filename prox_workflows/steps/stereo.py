@@ -318,7 +318,7 @@ class SgbmParams:
 
     ``texture_noise``: that noise as a fraction of the PIKE model's. None (default) measures it on
     each image as taken (:func:`noise_scale`, never above the model): the simulated PIKE pairs
-    measure 1.0 (their mask is the model's, as before), Middlebury's pairs 0.3-0.6 (its quarter-size
+    measure 1.0 (their mask is the model's), Middlebury's pairs 0.3-0.6 (its quarter-size
     images are 4 x 4 averages). Judged against the PIKE's noise, those clean images' low-contrast
     ground looked blank although it matched well: on Motorcycle the fixed model masked 8 % of the
     pixels, of which 1 % were > 2 px off. Noise is what makes a blank surface dangerous: the same
@@ -332,32 +332,25 @@ class SgbmParams:
     blank walls and box faces reach 15-120 px from texture at 640 x 480 and stay masked (16 px
     already lets one in and costs the office DEM 0.3 cm); Motorcycle's blank gaps reach 4-10 px.
 
-    ``uniqueness`` 5 (was 10): the left-right check already rejects what an ambiguous match gets
+    ``uniqueness`` 5: the left-right check already rejects what an ambiguous match gets
     wrong on the simulated pairs (their DEMs: office +0.03 cm, quarry -0.06 cm, marsyard_harsh,
     marsyard and hirise within 0.005 cm); on real pairs 5 answers 0.2-0.9 % more pixels, about
     half of them right, which keeps bad-2 on valid pixels at half OpenCV's default's or less.
 
-    Together (tools/bench/stereo.py ``--table``, docs/STEREO_BENCH.md): on Motorcycle 89.0 % density
-    at 4.66 % bad-2 on valid pixels (OpenCV's default SGBM: 86.8 % at 8.48 %; before: 80.4 % at
-    4.84 %); the simulated pairs within 0.3 points of their density and 0.01 of their bad-2,
-    except marsyard_harsh, whose JPEG smooths the noise away (measured 0.09: 92.3 -> 93.8 %,
-    0.28 -> 0.32 %; its DEM unchanged).
+    What these defaults give against OpenCV's SGBM, on Middlebury and the simulated pairs, is
+    measured by ``tools/bench/stereo.py --table`` and kept in docs/STEREO_BENCH.md.
 
-    ``mode``: ``sgbm_3way`` (default) because it is both the fastest and the most accurate here:
-    on the 1920 x 1080 quarry pair with 192 disparities one matcher run took 0.25 s (3-way),
-    0.7 s (sgbm, 5 paths) and 2.1 s (hh4), with 0.09 % / 0.12 % of pixels more than 2 px off
-    for 3-way / sgbm. Block size 3 and 7 changed neither accuracy nor speed much; 5 is kept.
-    The 3-way mode ignores ``disp12MaxDiff``, hence the explicit left-right check: without any
-    filter 0.8 % of the pixels are more than 2 px off, with them 0.08 %.
+    ``mode``: ``sgbm_3way`` (default) because on the PIKE's full-size pairs it is both the fastest
+    and the most accurate of OpenCV's modes (tools/bench/stereo.py); block size 3 and 7 change
+    neither much. The 3-way mode ignores ``disp12MaxDiff``, hence the explicit left-right check,
+    which removes most of the pixels more than 2 px off.
 
     ``fill`` (off by default) completes the disparity where the filters rejected it
     (:func:`fill_disparity`: background-preferring scanline fill, then an edge-aware weighted
     median of radius ``fill_radius`` guided by the left image, grey-level scale ``fill_sigma``).
-    On real scenes the filters reject a tenth of the pixels (occlusions, thin structures): on
-    Middlebury Motorcycle the share of ground-truth pixels that are invalid or > 2 px off falls
-    from 15.1 % to 7.3 % with filling (OpenCV's default SGBM: 20.5 %, the best of a small search
-    of its settings: 17.4 %); on the simulated quarry from 5.6 % to 0.45 %, while the measured
-    pixels keep their 0.09 % (tools/bench/stereo.py). The filled values stay guesses: :class:`Disparity` keeps the
+    On real scenes the filters reject a tenth of the pixels (occlusions, thin structures); filling
+    about halves the share of pixels that are invalid or > 2 px off while the measured pixels keep
+    their error (tools/bench/stereo.py, docs/STEREO_BENCH.md). The filled values stay guesses: :class:`Disparity` keeps the
     measured-only disparity beside them and the point cloud (:func:`cloud`, hence every DEM) is
     made of measured pixels only; the filled disparity is for images and dense consumers.
     """
@@ -498,8 +491,8 @@ def noise_dn(mean: np.ndarray, scale: float = 1.0) -> np.ndarray:
     against the PIKE model, :func:`noise_scale`), and 8-bit quantisation, which no camera escapes.
     The same at every matching scale: area averaging lowers the noise of a downsampled pair, but
     thresholding it at full-resolution noise keeps the blank walls out at half scale as well
-    (office at scale 0.5: 65 % density as with the old absolute mask, 72 % with the noise scaled
-    down, the extra pixels on the walls; marsyard_harsh 94.0 % either way)."""
+    (with the noise scaled down, the extra matches at half scale are on the walls; the figures
+    are in docs/STEREO_BENCH.md)."""
     sensor = np.maximum(mean, 0.0) / NOISE_E_PER_DN + (NOISE_READ_E / NOISE_E_PER_DN) ** 2
     return np.sqrt(scale * scale * sensor + 1.0 / 12.0)
 

@@ -404,7 +404,7 @@ def test_integrating_across_the_wrap_leaves_no_phantom_half_way() -> None:
 
 
 def test_the_wrap_check_drops_a_far_wall_read_close_by_and_keeps_every_true_return() -> None:
-    """From the office corner of issue 11 item 9 the top rows of a view see the front wall about
+    """From the office's corner (the navigate corner missions' start) the top rows of a view see the front wall about
     7 m away; at 30 MHz it reads 2.2 m, phantoms above the floor that the amplitude filter keeps
     (a bright wall is as bright as a dark rock at grazing incidence). The frame at 15 MHz reads
     them at 7 m: the check drops them, and no pixel whose range is right."""

@@ -1,4 +1,4 @@
-"""ToF-stereo fusion (issue 13 item 6): the per-point noise models, the image features they read,
+"""ToF-stereo fusion: the per-point noise models, the image features they read,
 the two-sensor fusion with its gate, and the parameters they come from. Cheap: synthetic arrays;
 the figures against the simulator's truth are tools/bench/fusion.py's."""
 

@@ -1,4 +1,4 @@
-"""Footprint-aware planning (issue 12: the dense scene's 15 % rock cover, where a circle-expanded
+"""Footprint-aware planning (the dense scene's 15 % rock cover, where a circle-expanded
 planner finds no way; ACE against GESTALT): straight stretches keep the rover's half width +
 margin from the hazards, waypoints (where it stops and turns on the spot) its whole circle; and
 the any-angle shortcut of the waypoint polyline."""

@@ -1,5 +1,5 @@
 """Validation: a broken script is refused whole, before its first step runs, and every message
-names the script line and the fix (issue 14). Cheap: nothing here runs a step."""
+names the script line and the fix. Cheap: nothing here runs a step."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""break and continue during every job kind (issue 8, item 4).
+"""break and continue during every job kind.
 
 The test is parametrised over the job commands of the command table, which is what ``help``
 lists (``help CMD`` says ``kind=job``), so a job kind that lands later is covered at once: RECIPES
@@ -32,7 +32,7 @@ from reliability_harness import record
 from rvs_server.protocol import Reply
 from rvs_server.table import COMMANDS
 
-BREAK_WITHIN = 1.0  # seconds from the break request to the job's ERROR line (issue 8): an idle machine's figure
+BREAK_WITHIN = 1.0  # seconds from the break request to the job's ERROR line: an idle machine's figure
 POSE = ("pose -x 1.25 -y -0.5 -heading 15", {"x": 1.25, "y": -0.5, "heading": 15.0})
 DEM_RANGE = "-60,60,-50,-30"
 

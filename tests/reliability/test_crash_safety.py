@@ -1,4 +1,4 @@
-"""Crash safety (issue 8, item 3): ``rvs_server`` in a child process killed with SIGKILL while it
+"""Crash safety: ``rvs_server`` in a child process killed with SIGKILL while it
 writes products.
 
 The same products are written twice under one name and the server is killed during the second

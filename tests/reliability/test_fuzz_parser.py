@@ -1,4 +1,4 @@
-"""Fuzzing the pure protocol layer (issue 8, item 1): hypothesis drives the request generator of
+"""Fuzzing the pure protocol layer: hypothesis drives the request generator of
 reliability_harness (valid commands from the table with random options, values, tags, quotes,
 escapes, en dashes, numbers and lists) and its byte mutator (bit flips, telnet IAC bytes, NULs,
 CRs, huge tokens, truncated quotes, bytes that are not UTF-8).

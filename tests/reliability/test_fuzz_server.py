@@ -1,4 +1,4 @@
-"""Fuzzing a live server (issue 8, item 1): generated, junk and mutated request lines over 20
+"""Fuzzing a live server: generated, junk and mutated request lines over 20
 concurrent connections to ``rvs_server`` in a child process.
 
 Every non-blank, non-comment request gets exactly one final line (counted per connection

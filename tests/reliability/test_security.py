@@ -1,4 +1,4 @@
-"""Security (issue 8, item 5): loopback by default, the token, output names confined to the data
+"""Security: loopback by default, the token, output names confined to the data
 directory, max clients, slow and silent clients, 1 MB lines, protected configuration keys.
 
 Servers run in child processes where memory, file descriptors or latency are measured (the

@@ -1,4 +1,4 @@
-"""Soak (issue 8, item 6): tools/soak.py against a simulated server in a child process: 20
+"""Soak: tools/soak.py against a simulated server in a child process: 20
 clients of mixed traffic (valid and invalid requests, jobs, breaks, continues, format and
 events switches). Every request answered, resident memory grows under 10 % after the warm-up,
 no file descriptor leaks, the server still alive and stopping cleanly.

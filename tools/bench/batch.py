@@ -1,4 +1,4 @@
-"""Benchmark of campaign reprocessing on Dask (issue 14, item 5), side by side in one run:
+"""Benchmark of campaign reprocessing on Dask, side by side in one run:
 
 1. N recorded scans reprocessed serially (a plain loop of the same task function in this
    process) and on a LocalCluster of 2 worker processes: wall time, speedup, and the per-task

@@ -1,4 +1,4 @@
-"""Benchmark of the ToF DEM chain, side by side in one run (issue 4):
+"""Benchmark of the ToF DEM chain, side by side in one run:
 
 1. DemImport of 1 M and 10 M points into a 0.02 m grid over 10 x 10 m (500 x 500 cells), against
    ``scipy.stats.binned_statistic_2d(statistic='max')`` on the same cells (the peer; it computes

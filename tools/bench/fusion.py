@@ -1,4 +1,4 @@
-"""Benchmark of ToF-stereo fusion (issue 13, item 6): RMSE per 1 m range band, per sensor and
+"""Benchmark of ToF-stereo fusion: RMSE per 1 m range band, per sensor and
 fused, on the cells both sensors see, in the office, quarry and marsyard scenes.
 
 One ``dem-full -sensor fused`` scan per scene through a real server (simulated hardware) records

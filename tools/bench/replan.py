@@ -1,6 +1,6 @@
 """Benchmark: incremental replanning (D* Lite, :mod:`prox_workflows.steps.replan`) against a fresh
 A* (:func:`prox_workflows.steps.planner.astar_grid`) on the same changed 400 x 400 map, side by
-side in one process (issue 12, item 3: "replanning in milliseconds").
+side in one process: the see loop needs its replans in milliseconds.
 
 Two maps, both as the planner sees them (cost per metre ``k = w + (1 - w) * slope / critical``,
 hazards grown by rover radius + margin + half a cell diagonal, blocked):
