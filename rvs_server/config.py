@@ -52,7 +52,7 @@ def _set_in(cfg: Settings, path: list[str], raw: str, where: str, *, runtime: bo
         _set_in(cfg, [*lent.path, *path[1:]], raw, where, runtime=runtime)
         return
     if spec is None:
-        raise ProtocolError("E_ARG", f"{where} has no key '{path[0]}'; keys: {', '.join(specs)}")
+        raise ProtocolError("E_ARG", f"{where} has no key '{path[0]}'; keys: {', '.join(type(cfg).keys())}")
     if runtime and spec.protected:
         raise ProtocolError("E_ARG", f"{where}.{spec.name} is protected; set it when starting the server")
     if spec.kind == "section":

@@ -277,3 +277,31 @@ def test_a_break_mid_drive_leaves_the_rovers_pose_and_its_track(server_factory) 
     assert len(turning) >= 5 and turning[0, 2] == pytest.approx(0.0, abs=1e-6)
     assert np.all(np.abs(np.diff(turning[:, 2])) >= 5.0 - 1e-6) and turning[-1, 2] < -30.0
     assert track[-1, 2] == pytest.approx(float(truth.fields["heading"]), abs=0.01)
+
+
+def test_navigates_sections_answer_by_their_lent_names_and_by_section_key(server) -> None:
+    """navigate's plan, localisation and see sections lend their keys to navigate: the wire
+    options, help and config -set name them as one flat module, and section.key names the same
+    value; a name no section lends is refused with the keys there are."""
+    c = server.client()
+    assert c.request("config -module navigate -set see_margin=0.02 -set see.blind=0.5 -set border=0.4 "
+                     "-set localisation.drift=0.1").status == "OK"
+    cfg = server.app.config.get("navigate")
+    assert (cfg.see.margin, cfg.see.blind, cfg.plan.border, cfg.localisation.drift) == (0.02, 0.5, 0.4, 0.1)
+    shown = c.request("config -module navigate").fields
+    assert shown["see_margin"] == "0.02" and shown["plan_border"] == "0.4"  # the sections, nested
+    help_ = c.request("help navigate").fields
+    assert "default 0.4" in help_["opt_border"] and "opt_localise" in help_ and "opt_see_margin" not in help_
+    refused = c.request("config -module navigate -set replan_ahead=1").fields
+    assert refused["code"] == "E_ARG" and "see_replan_ahead" in refused["message"]
+    # the wire options land in their sections (checked as declared: a footprint it has not is E_ARG)
+    from rvs_server.navigation.config import NavigateConfig
+    from rvs_server.table import apply_options
+
+    opts = apply_options("navigate", cfg, [("goal", "1,2"), ("weight", "0.7"), ("footprint", "body"),
+                                           ("localise", "vo")])
+    assert (opts.plan.weight, opts.plan.footprint, opts.localisation.localise) == (0.7, "body", "vo")
+    assert isinstance(opts, NavigateConfig) and cfg.plan.weight == 0.5  # the module's own config is untouched
+    bad = c.request("navigate -goal 1,2 -footprint square").fields
+    assert bad["code"] == "E_ARG" and "circle|body" in bad["message"]
+    c.close()
