@@ -50,10 +50,12 @@ from .params import PARAMETER_SETS, show_value
 
 SCRIPTS_DIR = Path(__file__).resolve().parent / "scripts"
 
-# Modules whose @step functions make up the registry; imported when the registry is first read,
-# so that importing the engine stays cheap.
+# Modules whose @step functions make up the registry, and those that declare script parameter
+# classes beyond them; imported when the registry is first read, so that importing the engine
+# stays cheap. (A step module registers the parameter classes it declares itself.)
 STEP_MODULES: tuple[str, ...] = (
     "prox_workflows.steps.ptu_positions",
+    "prox_workflows.steps.dem_import",
     "prox_workflows.steps.dem_chain",
     "prox_workflows.steps.spikes",
     "prox_workflows.steps.readers",
@@ -61,8 +63,8 @@ STEP_MODULES: tuple[str, ...] = (
     "prox_workflows.steps.planner",
     "prox_workflows.steps.stereo_products",
     "prox_workflows.steps.stereo_odometry",
-    "prox_workflows.parameters",
 )
+PARAMETER_MODULES: tuple[str, ...] = ("prox_workflows.parameters",)
 
 # Keywords the engine passes itself to a step that accepts them; never wired by a script.
 INJECTED = ("progress", "cancelled", "run_log")
@@ -196,7 +198,7 @@ def step(name: str, *, inputs: dict[str, str] | None = None,
 def registry() -> dict[str, StepSpec]:
     """Every registered step (importing the step modules the first time)."""
     if not _loaded[0]:
-        for module in STEP_MODULES:
+        for module in STEP_MODULES + PARAMETER_MODULES:
             importlib.import_module(module)
         _loaded[0] = True
     return _REGISTRY

@@ -1,4 +1,5 @@
-"""The parameter classes of the workflow scripts: each parameter declared once, with its default.
+"""The parameter classes of the workflow scripts that no single step owns (a step's own settings
+class lives beside it: DemMosaik's, Dem2Hazard's): each parameter declared once, with its default.
 
 A script names its class (``params: dem``) and reads the values as ``$cell``; the server's
 command config classes derive from these (``DemTofConfig(DemParams, ModuleConfig)``), so a
@@ -15,9 +16,6 @@ from dataclasses import dataclass
 from rvs_params import Settings, param
 
 from .params import parameters
-from .steps.dem2hazard import HazardParams
-
-parameters("hazard")(HazardParams)
 
 
 @parameters("dem")
@@ -113,23 +111,6 @@ class DemImportParams(Settings):
     cell: float = param(0.02, "DEM cell size", unit="m", min=0.0001, max=100.0)
     height: str = param("mean", "what the dem layer holds: the (information-weighted) mean height of the "
                         "cell's points, or the greatest (the thesis's direct rule)", choices=("mean", "max"))
-
-
-@parameters("dem_mosaik")
-@dataclass
-class DemMosaikParams(Settings):
-    """DemMosaik of DEM products into one (``rvs-dem-mosaik``)."""
-
-    rule: str = param("max", "merge rule", choices=("max", "newest", "fuse"))
-    cell: float = param(0.0, "output cell size (0: the finest input's)", unit="m", min=0.0, max=100.0)
-    sigma: float = param(0.01, "fuse: height sigma of inputs without a measurement variance layer", unit="m",
-                         min=1e-6, max=10.0)
-    gate: float = param(3.0, "fuse: Mahalanobis gate", min=0.0, max=1000.0)
-    inflation: float = param(0.0025, "fuse: variance added to the prior when a measurement is rejected",
-                             unit="m^2", min=0.0, max=100.0)
-    on_conflict: str = param("inflate", "fuse: reject and inflate (separate scans) or let the higher win "
-                             "(views of one scan)", choices=("inflate", "higher"))
-    fill: float = param(0.0, "fill holes narrower than a disk of this radius", unit="m", min=0.0, max=100.0)
 
 
 @parameters("plan")

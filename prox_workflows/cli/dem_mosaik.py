@@ -28,8 +28,8 @@ from rvs_params import SettingError
 from ..engine import WorkflowError, run_workflow
 from ..grid import parse_crs
 from ..layers import prefix_of
-from ..parameters import DemMosaikParams
 from ..steps.dem_import import cells_from_bounds
+from ..steps.dem_mosaik import DemMosaikParams
 from .parser import ToolParser
 
 MADE_BY = "rvs-dem-mosaik (prox_workflows.steps.dem_mosaik)"

@@ -55,6 +55,7 @@ from rvs_params import Settings, param
 from rvs_params.jit import HAVE_NUMBA
 
 from ..grid import Layers
+from ..params import parameters
 
 CONFIG_PATH = Path(__file__).resolve().parents[2] / "config" / "dem2hazard.yaml"
 
@@ -76,6 +77,7 @@ _kernel_made: list[Callable[..., None]] = []
 _kernel_lock = threading.Lock()
 
 
+@parameters("hazard")
 @dataclass
 class HazardParams(Settings):
     """Thresholds and window of Dem2Hazard: declared once here, with units and ranges; the

@@ -12,6 +12,7 @@ from ..grid import GridGeometry, Layers
 from .acquire import View
 from .dem2hazard import dem2hazard_layers
 from .dem_import import dem_import
+from .dem_mosaik import DEFAULTS as MOSAIK
 from .dem_mosaik import dem_mosaik, fuse_sensors, union_geometry
 from .holes import fill_layers
 from .ortho import OrthoView, ortho_image
@@ -76,9 +77,9 @@ def view_dem(view: View, cell: float, rover_mask: np.ndarray | None = None, heig
 @step("dem_mosaik", inputs={"dems": "list[Layers]", "rule": "str", "bounds": "floats?", "cell": "float",
                             "sigma": "float", "gate": "float", "inflation": "float", "on_conflict": "str"},
       outputs={"mosaic": "Layers"})
-def mosaik_layers(dems: list[Layers], rule: str = "max", bounds: list[float] | None = None, cell: float = 0.0,
-                  sigma: float = 0.01, gate: float = 3.0, inflation: float = 0.0025,
-                  on_conflict: str = "inflate") -> Layers:
+def mosaik_layers(dems: list[Layers], rule: str = MOSAIK.rule, bounds: list[float] | None = None,
+                  cell: float = MOSAIK.cell, sigma: float = MOSAIK.sigma, gate: float = MOSAIK.gate,
+                  inflation: float = MOSAIK.inflation, on_conflict: str = MOSAIK.on_conflict) -> Layers:
     """DemMosaik of DEM products (``rvs-dem-mosaik``): on ``bounds`` if given, else the union of
     the inputs; ``cell`` 0 takes the finest input's."""
     geometry = None
@@ -93,7 +94,7 @@ def mosaik_layers(dems: list[Layers], rule: str = "max", bounds: list[float] | N
                         "within_scan": "str", "gate": "float", "tof_scatter": "float", "stereo_scatter": "float"},
       outputs={"mosaic": "Layers"})
 def mosaic(dems: list[Layers | None], base: Layers | None, rule: str, cell: float,
-           within_scan: str = "higher", gate: float = 3.0, tof_scatter: float = 0.0,
+           within_scan: str = "higher", gate: float = MOSAIK.gate, tof_scatter: float = 0.0,
            stereo_scatter: float = 0.0) -> Layers:
     """DemMosaik of the views, then onto the current DEM (if any), on the union of extents.
 

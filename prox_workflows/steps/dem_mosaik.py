@@ -43,14 +43,38 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
+from dataclasses import dataclass
 
 import numpy as np
 
+from rvs_params import Settings, param
+
 from ..grid import GridGeometry, Layers
+from ..params import parameters
 
 RULES = ("max", "newest", "fuse")
 WINDOW = 5  # cells per side of the neighbourhood fuse_sensors reads (the median a conflict is settled by)
 CONFLICTS = ("inflate", "higher", "precise")
+
+
+@parameters("dem_mosaik")
+@dataclass
+class DemMosaikParams(Settings):
+    """DemMosaik of DEM products into one (``rvs-dem-mosaik``)."""
+
+    rule: str = param("max", "merge rule", choices=RULES)
+    cell: float = param(0.0, "output cell size (0: the finest input's)", unit="m", min=0.0, max=100.0)
+    sigma: float = param(0.01, "fuse: height sigma of inputs without a measurement variance layer", unit="m",
+                         min=1e-6, max=10.0)
+    gate: float = param(3.0, "fuse: Mahalanobis gate", min=0.0, max=1000.0)
+    inflation: float = param(0.0025, "fuse: variance added to the prior when a measurement is rejected",
+                             unit="m^2", min=0.0, max=100.0)
+    on_conflict: str = param("inflate", "fuse: reject and inflate (separate scans) or let the higher win "
+                             "(views of one scan)", choices=("inflate", "higher"))
+    fill: float = param(0.0, "fill holes narrower than a disk of this radius", unit="m", min=0.0, max=100.0)
+
+
+DEFAULTS = DemMosaikParams()  # what a caller that gives no value gets, here and in the step
 
 
 def union_geometry(geometries: Sequence[GridGeometry], cell: float | None = None) -> GridGeometry:
@@ -74,7 +98,7 @@ def common_crs(geometries: Sequence[GridGeometry]) -> str | None:
     return named.pop() if named else None
 
 
-def input_variance(layers: Layers, sigma: float = 0.01) -> np.ndarray:
+def input_variance(layers: Layers, sigma: float = DEFAULTS.sigma) -> np.ndarray:
     """Per-cell height variance of one input (see the module doc), float64, NaN where undefined."""
     if layers.meta.get("variance") == "estimate" and "variance" in layers:
         return np.asarray(layers["variance"], dtype=np.float64)
@@ -156,13 +180,13 @@ def resample(height: np.ndarray, variance: np.ndarray, count: np.ndarray, src: G
 
 def dem_mosaik(
     dems: Sequence[Layers],
-    rule: str = "max",
+    rule: str = DEFAULTS.rule,
     geometry: GridGeometry | None = None,
     cell: float | None = None,
-    sigma: float = 0.01,
-    gate: float = 3.0,
-    inflation: float = 0.0025,
-    on_conflict: str = "inflate",
+    sigma: float = DEFAULTS.sigma,
+    gate: float = DEFAULTS.gate,
+    inflation: float = DEFAULTS.inflation,
+    on_conflict: str = DEFAULTS.on_conflict,
     height_layer: str = "dem",
 ) -> Layers:
     """Merge ``dems`` (in order: later = newer) into one Layers: ``dem`` (float32), ``variance``
@@ -245,8 +269,8 @@ def local_scatter(height: np.ndarray, window: int = WINDOW) -> np.ndarray:
     return np.where(np.isfinite(dev), dev * dev, 0.0)
 
 
-def fuse_sensors(dems: Sequence[Layers], geometry: GridGeometry | None = None, gate: float = 3.0,
-                 window: int = WINDOW, sigma: float = 0.01, scatter: Sequence[float] = (0.0, 0.0)) -> Layers:
+def fuse_sensors(dems: Sequence[Layers], geometry: GridGeometry | None = None, gate: float = DEFAULTS.gate,
+                 window: int = WINDOW, sigma: float = DEFAULTS.sigma, scatter: Sequence[float] = (0.0, 0.0)) -> Layers:
     """Fuse the DEMs of two sensors of one scan (a ToF DEM and a stereo DEM) cell by cell.
 
     Where both see a cell and agree - the Mahalanobis distance |h1 - h2| / sqrt(s1^2 + s2^2)
