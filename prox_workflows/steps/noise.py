@@ -93,6 +93,27 @@ def tof_height_variance(
     return np.maximum(var, floor**2).astype(np.float32)
 
 
+
+def tof_horizontal_sigma(
+    points: np.ndarray,
+    sensor: np.ndarray,
+    amplitude: np.ndarray | None = None,
+    *,
+    lateral_sigma_per_m: float = 0.0015,
+    **model: float,
+) -> np.ndarray:
+    """Horizontal position sigma (m, float32) of global points seen from ``sensor``: the range
+    error's share along the ground (sqrt(1 - (dz/r)^2): nearly all of it at a grazing angle) and
+    the lateral error. A return read long or short lands in another cell; on a rock's flank that
+    is a height error :func:`tof_height_variance` cannot show, so a map of bounds spreads each
+    cell's returns by this much."""
+    p = np.asarray(points, dtype=np.float64)[:, :3]
+    d = p - np.asarray(sensor, dtype=np.float64)[None, :3]
+    r = np.linalg.norm(d, axis=1)
+    cz = np.abs(d[:, 2]) / np.maximum(r, 1e-9)
+    s_r = tof_sigma(r, amplitude, **model).astype(np.float64)
+    return np.sqrt((s_r**2) * (1.0 - cz * cz) + (lateral_sigma_per_m * r) ** 2).astype(np.float32)
+
 # -- per-pixel features of a view: what a point's neighbours in its own image say about it ------------
 SLOPE_CAP = 5.0  # rise over run: steeper is a depth edge, which ``jump`` measures
 # a larger height jump to a neighbour is the depth edge's height, not the point's error: a pixel on the

@@ -1,0 +1,40 @@
+"""The bounds map's ray kernel, compiled on first use (see rvs_params.jit)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from rvs_params.jit import jit
+
+
+@jit
+def lower_ceiling(ox: float, oy: float, oz: float, px: np.ndarray, py: np.ndarray, pz: np.ndarray,
+                  xmin: float, ymax: float, cell: float, near: float, reach: float, ceiling: np.ndarray) -> None:
+    """Lower ``ceiling`` (rows north-first) to the height of each ray from the sensor at
+    (ox, oy, oz) to a return (px, py, pz) over the cells it crosses, up to ``near`` metres
+    (horizontally) short of the return. Sampled once a cell: a ray crossing a cell's corner
+    may skip it, which only leaves that cell's bound where it was. Only the stretch where the ray
+    is at most ``reach`` above its return is walked: higher up it bounds nothing a rover meets."""
+    h, w = ceiling.shape
+    step = cell
+    for i in range(px.shape[0]):
+        dx = px[i] - ox
+        dy = py[i] - oy
+        dz = pz[i] - oz
+        length = math.sqrt(dx * dx + dy * dy)
+        if length <= near:
+            continue
+        n = int((length - near) / step)
+        j0 = 1
+        if oz - pz[i] > reach:  # the ray comes down to ``reach`` over its return only at t_reach
+            j0 = max(1, int((1.0 - reach / (oz - pz[i])) * length / step))
+        for j in range(j0, n + 1):
+            t = j * step / length
+            c = int(math.floor((ox + t * dx - xmin) / cell))
+            r = int(math.floor((ymax - (oy + t * dy)) / cell))
+            if 0 <= r < h and 0 <= c < w:
+                z = oz + t * dz
+                if z < ceiling[r, c]:
+                    ceiling[r, c] = z

@@ -1,0 +1,253 @@
+"""The bounds map: per cell a lower and an upper bound on the ground's height, the map a
+worst-case (ACE-style) wheel and belly check runs on.
+
+JPL's ENav on Perseverance (Otsu et al. 2020, "Approximate Clearance Evaluation") plans on such
+bounds rather than on one height per cell: a clearance check on the highest the ground may be
+under the belly, and the lowest and highest a wheel may rest, never accepts a false negative,
+whatever the sensor missed. A mean per cell cannot give that: 5 cm cell means read rocks
+1.1-2.5 cm low, and a window judged from its seen cells alone calls half-seen rocks safe.
+
+What each observation says, and so what the map keeps:
+
+- A frame's returns in a cell give the ground's mean height there, with the variance of that
+  mean (the returns' height variance over their number), and how far the returns rise above and
+  drop below the mean beyond what their noise explains (``rise``, ``drop``: a rock's flank or
+  edge within the cell). Across frames the means are fused by their variance, as DemMosaik fuses
+  heights, so repeated looks tighten the bounds; the rise and drop are averaged alike. A
+  frame that disagrees beyond the gate (a rock dropped in, a frame placed with a drifted pose)
+  widens the cell to the union of both: the map keeps what may be there, not an average of two
+  stories. Bounds: ``mean + rise + k sigma`` and ``mean - drop - k sigma``.
+- A ray that passed over a cell without a return there bounds the ground from above at the ray's
+  height (``ceiling``): ground behind a rock the rays skimmed, or between sparse far returns, is
+  not known, but it is known not to stand higher than the ray. It gives no lower bound.
+- A cell nothing saw has neither: no upper bound means nothing may be assumed about it; the
+  check treats it as unknown, never as safe.
+
+Memory is the whole mission: the grid is fixed (it covers the mission, as the planner's does),
+so ground the rover saw and turned away from keeps its bounds.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from rvs_params import Settings, param
+
+from ..grid import GridGeometry
+
+__all__ = ["BoundsMap", "BoundsParams"]
+
+
+@dataclass
+class BoundsParams(Settings):
+    """The bounds map's cell and how wide its bounds are drawn."""
+
+    cell: float = param(0.025, "side of a bounds-map cell; rocks are read by their top at this size",
+                        unit="m", min=0.005, max=0.5)
+    k: float = param(2.5, "bounds are drawn this many standard deviations out from a measurement",
+                     min=0.0, max=10.0)
+    gate: float = param(3.0, "a frame further than this many sigmas from the cell's bounds widens them "
+                             "to the union instead of being averaged in", min=0.5, max=100.0)
+    reach: float = param(0.5, "a ray bounds the ground only where it runs at most this high over its "
+                              "return: higher, the bound is of no use to a rover", unit="m", min=0.05, max=10.0)
+    min_returns: int = param(2, "a frame's returns in a cell give it bounds only from this many on: a lone "
+                                "far return's range error moves it across cells, onto a rock's flank from the "
+                                "ground before it", min=1, max=100)
+    max_shift: int = param(4, "most cells a return's range error is taken to move it across (a far, "
+                              "lone return moves further, and gives no bound: min_returns)", min=1, max=16)
+    near: float = param(0.06, "a ray's last stretch before its return bounds nothing (it meets the "
+                              "ground there at a grazing angle)", unit="m", min=0.0, max=1.0)
+
+
+class BoundsMap:
+    """Lower and upper ground-height bounds on a fixed grid, fused frame by frame."""
+
+    def __init__(self, geometry: GridGeometry, params: BoundsParams | None = None) -> None:
+        self.geometry = geometry
+        self.params = params or BoundsParams()
+        shape = geometry.shape
+        self.mean = np.full(shape, np.nan, np.float32)  # fused mean ground height (m)
+        self.mean_var = np.full(shape, np.nan, np.float32)  # its variance (m^2)
+        self.rise = np.zeros(shape, np.float32)  # ground above the mean within the cell (m)
+        self.drop = np.zeros(shape, np.float32)  # ground below it (m)
+        self.shift = np.zeros(shape, np.float32)  # how far (m) the cell's returns may lie from their ground
+        self.ceiling = np.full(shape, np.inf, np.float32)  # lowest ray that passed over (m)
+        self.stamp = np.zeros(shape, np.int32)  # the frame (1, 2, ...) that last touched the cell
+        self.frames = 0
+
+    @classmethod
+    def covering(cls, points: Any, pad: float, params: BoundsParams | None = None) -> BoundsMap:
+        """A map over the box of ``points`` (x, y) grown by ``pad`` metres (a mission's start,
+        goal and the ground around them), bounded as a plan's grid is."""
+        from .planner import check_plan_size
+
+        p = params or BoundsParams()
+        xy = np.asarray(points, dtype=np.float64).reshape(-1, 2)
+        g = GridGeometry.covering(xy[:, 0].min() - pad, xy[:, 1].min() - pad, xy[:, 0].max() + pad,
+                                  xy[:, 1].max() + pad, p.cell)
+        check_plan_size(g, "bounds map")
+        return cls(g, p)
+
+    # ------------------------------------------------------------------ what the map says
+
+    @property
+    def upper(self) -> np.ndarray:
+        """The highest the ground may be per cell (NaN: no bound, nothing may be assumed)."""
+        return self.bounds((slice(0, self.geometry.height), slice(0, self.geometry.width)))[1]
+
+    @property
+    def lower(self) -> np.ndarray:
+        """The lowest the ground may be per cell (NaN: no bound, a hole cannot be ruled out)."""
+        return self.bounds((slice(0, self.geometry.height), slice(0, self.geometry.width)))[0]
+
+    def bounds(self, sl: tuple[slice, slice]) -> tuple[np.ndarray, np.ndarray]:
+        """(lower, upper) over the rows and columns ``sl`` (slices with explicit ends).
+
+        A return's range error moves it along its ray, so across cells: the ground before a rock,
+        read a few centimetres long, lands on the rock's flank and reads it low; the rock's own
+        returns land on the ground around it. So a cell's bounds are the extremes of its own and
+        of every cell whose returns may have moved to it, each cell spreading by its ``shift``
+        (at least one cell: a rock's flank inside a cell shows in its neighbour)."""
+        import cv2
+
+        g, p = self.geometry, self.params
+        pad = p.max_shift
+        r0, r1 = max(0, sl[0].start - pad), min(g.height, sl[0].stop + pad)
+        c0, c1 = max(0, sl[1].start - pad), min(g.width, sl[1].stop + pad)
+        big = (slice(r0, r1), slice(c0, c1))
+        sd = p.k * np.sqrt(self.mean_var[big])
+        top = self.mean[big] + self.rise[big] + sd
+        bottom = self.mean[big] - self.drop[big] - sd
+        seen = np.isfinite(top)
+        reach = np.clip(np.ceil(self.shift[big] / g.cell), 1, p.max_shift).astype(np.int32)
+        up = np.full(top.shape, -np.inf, np.float32)
+        lo = np.full(top.shape, np.inf, np.float32)
+        for r in np.unique(reach[seen]):
+            disc = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * int(r) + 1, 2 * int(r) + 1))
+            at = seen & (reach == r)
+            up = np.maximum(up, cv2.dilate(np.where(at, top, -np.inf).astype(np.float32), disc))
+            lo = np.minimum(lo, cv2.erode(np.where(at, bottom, np.inf).astype(np.float32), disc))
+        inner = (slice(sl[0].start - r0, sl[0].stop - r0), slice(sl[1].start - c0, sl[1].stop - c0))
+        up, lo, seen = up[inner], lo[inner], seen[inner]
+        ceiling = self.ceiling[sl]
+        upper = np.where(seen, up, np.where(np.isfinite(ceiling), ceiling, np.nan))
+        lower = np.where(seen, lo, np.nan)
+        return lower.astype(np.float32), upper.astype(np.float32)
+
+    def bounded(self) -> np.ndarray:
+        """Cells with an upper bound: ground the belly may pass over."""
+        return np.isfinite(self.mean) | np.isfinite(self.ceiling)
+
+    # ------------------------------------------------------------------ fusion
+
+    def fuse(self, points: np.ndarray, sigma: np.ndarray | float, origin: np.ndarray | None = None,
+             max_range: float | None = None, sigma_xy: np.ndarray | float = 0.0) -> int:
+        """One frame: global-frame returns ``points`` (N x 3) with their height sigmas ``sigma`` and
+        horizontal sigmas ``sigma_xy`` (m; the range error's share along the ground), and the
+        sensor's position ``origin`` (3,) for the rays' ceilings (None: returns only). With
+        ``max_range`` (the range the frame was cut at; needs ``origin``), a cell the cut crosses
+        takes no bounds from the frame: its returns come from its near part only, and the rest
+        (a rock's top beyond the cut) is unseen; their rays still bound the cells they crossed.
+        Returns the cells the frame gave bounds to."""
+        g = self.geometry
+        pts = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+        sig = np.broadcast_to(np.asarray(sigma, dtype=np.float64), (len(pts),))
+        sig_xy = np.broadcast_to(np.asarray(sigma_xy, dtype=np.float64), (len(pts),))
+        keep = np.isfinite(pts).all(axis=1) & np.isfinite(sig) & np.isfinite(sig_xy)
+        pts, sig, sig_xy = pts[keep], sig[keep], sig_xy[keep]
+        self.frames += 1
+        if origin is not None and len(pts):
+            o = np.asarray(origin, dtype=np.float64)
+            self._pass_over(o, pts, sig)
+            if max_range is not None:
+                # the cell's far corner from the sensor, at the return's height, within the cut
+                far = np.hypot(np.abs(pts[:, 0] - o[0]) + g.cell, np.abs(pts[:, 1] - o[1]) + g.cell)
+                whole = np.hypot(far, pts[:, 2] - o[2]) <= max_range
+                pts, sig, sig_xy = pts[whole], sig[whole], sig_xy[whole]
+        r, c = g.cell_of(pts[:, 0], pts[:, 1])
+        inside = g.inside(r, c)
+        flat = (r[inside] * g.width + c[inside]).astype(np.int64)
+        order = np.argsort(flat, kind="stable")
+        flat = flat[order]
+        z, var, var_xy = pts[inside, 2][order], sig[inside][order] ** 2, sig_xy[inside][order] ** 2
+        starts = np.flatnonzero(np.r_[True, flat[1:] != flat[:-1]]) if len(flat) else np.zeros(0, np.int64)
+        n = np.diff(np.r_[starts, len(flat)]).astype(np.float64)
+        enough = n >= self.params.min_returns
+        if not enough.any():
+            return 0
+        mean = np.add.reduceat(z, starts) / n
+        point_var = np.add.reduceat(var, starts) / n
+        # the noise alone makes the highest of n returns stand about sqrt(2 ln n) sigmas over their
+        # mean; what stands higher is the ground's own relief within the cell
+        allowance = np.sqrt(2.0 * np.log(n) * point_var)
+        rise = np.maximum(np.maximum.reduceat(z, starts) - mean - allowance, 0.0)
+        drop = np.maximum(mean - np.minimum.reduceat(z, starts) - allowance, 0.0)
+        shift = self.params.k * np.sqrt(np.add.reduceat(var_xy, starts) / n)
+        cells = flat[starts][enough]
+        self._fuse_cells(cells, mean[enough], (point_var / n)[enough], rise[enough], drop[enough], shift[enough])
+        self.stamp.flat[cells] = self.frames
+        return int(len(cells))
+
+    def _fuse_cells(self, cells: np.ndarray, mean: np.ndarray, var: np.ndarray, rise: np.ndarray,
+                    drop: np.ndarray, shift: np.ndarray) -> None:
+        """One frame's per-cell mean, its variance, rise, drop and shift into the map."""
+        k = self.params.k
+        old = self.mean.flat[cells].astype(np.float64)
+        old_var = self.mean_var.flat[cells].astype(np.float64)
+        first = ~np.isfinite(old)
+        old = np.where(first, mean, old)
+        old_var = np.where(first, np.inf, old_var)
+        fused_var = 1.0 / (1.0 / old_var + 1.0 / var)
+        fused = (old / old_var + mean / var) * fused_var
+        # rise, drop and shift are averaged as the mean is: a frame's noise lifts its own highest
+        # return past the allowance now and then, and a running maximum would keep every such lift
+        share = np.where(first, 1.0, fused_var / var)
+        blended = {}
+        for name, new in (("rise", rise), ("drop", drop), ("shift", shift)):
+            before = getattr(self, name).flat[cells].astype(np.float64)
+            blended[name] = before + share * (new - before)
+        old_rise, old_drop = self.rise.flat[cells], self.drop.flat[cells]
+        # a frame's mean may differ from the map's by the cell's own relief (other returns of it)
+        room = self.params.gate * np.sqrt(np.where(first, 0.0, old_var) + var) + blended["rise"] + blended["drop"]
+        agree = first | (np.abs(mean - old) <= room)
+        # disagreeing: the union of both intervals, around the fused mean
+        with np.errstate(invalid="ignore"):
+            up = np.maximum(old + old_rise + k * np.sqrt(old_var), mean + rise + k * np.sqrt(var))
+            lo = np.minimum(old - old_drop - k * np.sqrt(old_var), mean - drop - k * np.sqrt(var))
+        sd = np.sqrt(fused_var)
+        self.mean.flat[cells] = fused
+        self.mean_var.flat[cells] = fused_var
+        self.rise.flat[cells] = np.where(agree, blended["rise"], np.maximum(up - fused - k * sd, 0.0))
+        self.drop.flat[cells] = np.where(agree, blended["drop"], np.maximum(fused - lo - k * sd, 0.0))
+        self.shift.flat[cells] = np.where(agree, blended["shift"], np.maximum(self.shift.flat[cells], shift))
+
+    def _pass_over(self, origin: np.ndarray, pts: np.ndarray, sig: np.ndarray) -> None:
+        from ._bounds_kernels import lower_ceiling
+
+        g = self.geometry
+        heights = pts[:, 2] + self.params.k * sig  # the ray's height may be off as its return's is
+        lower_ceiling(float(origin[0]), float(origin[1]), float(origin[2]),
+                      np.ascontiguousarray(pts[:, 0]), np.ascontiguousarray(pts[:, 1]),
+                      np.ascontiguousarray(heights), float(g.xmin), float(g.ymax), float(g.cell),
+                      float(max(self.params.near, g.cell)), float(self.params.reach), self.ceiling)
+
+    def window(self, xmin: float, ymin: float, xmax: float, ymax: float
+               ) -> tuple[np.ndarray, np.ndarray, GridGeometry]:
+        """The lower and upper bounds over a box (clipped to the map), with its grid: what a
+        check of the motions inside the box reads."""
+        g = self.geometry
+        c0 = max(0, int(math.floor((xmin - g.xmin) / g.cell)))
+        c1 = min(g.width, int(math.ceil((xmax - g.xmin) / g.cell)))
+        r0 = max(0, int(math.floor((g.ymax - ymax) / g.cell)))
+        r1 = min(g.height, int(math.ceil((g.ymax - ymin) / g.cell)))
+        if r1 <= r0 or c1 <= c0:
+            empty = np.full((0, 0), np.nan, np.float32)
+            return empty, empty, GridGeometry(g.cell, g.xmin, g.ymax, 1, 1, g.crs)
+        sub = GridGeometry(g.cell, g.xmin + c0 * g.cell, g.ymax - r0 * g.cell, c1 - c0, r1 - r0, g.crs)
+        sl = (slice(r0, r1), slice(c0, c1))
+        lower, upper = self.bounds(sl)
+        return lower, upper, sub

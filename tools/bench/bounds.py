@@ -1,0 +1,198 @@
+"""Benchmark: the bounds map against the truth, beside the rolling map's 5 cm means (today's map).
+
+A worst-case wheel and belly check is only as safe as its bounds hold and only as useful as they
+are tight. Per scene and per way of looking, this prints:
+
+- **held**: the share of cells with returns whose true highest ground (from the simulator's
+  0.5 cm surface) lies under their upper bound; the target is >= 99.5 %;
+- **upper - top** p50 / p99: how far above the true top the bound sits (tightness);
+- **mean read low** p99: the rolling map's 5 cm cell mean under the true top of its cell, what
+  the planner and the live check read today (the peer);
+- **fuse ms** p50: one ToF frame into the bounds map, against the rolling map's fuse of the same
+  frame (ratio);
+- **bounded**: cells with an upper bound, and how many of them only by a ray passing over.
+
+Looks: ``one`` (one frame, pan 0, tilt -35), ``sweep`` (pans -40 / 0 / +40), ``approach`` (the
+sweep, then a frame every 0.1 m over 2 m of straight drive, as the see loop sees the ground it
+comes to). Range noise along each ray from the ToF's noise model, height sigma from
+``tof_height_variance``: the sigmas the map is given are the ones the frames were drawn with,
+so this measures the map, not a mis-stated sensor. The real-data row (Middlebury Motorcycle,
+real stereo errors against its ground-truth disparity) shows what happens when they are not.
+
+    python -m tools.bench.bounds                       # marsyard, hirise, dense; all looks
+    python -m tools.bench.bounds --scenes hirise --looks approach --k 2.5 3
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+from collections.abc import Iterator
+from typing import Any
+
+import cv2
+import numpy as np
+
+from drivers.sim.world import World
+from drivers.tof.constants import HEIGHT, USABLE_RANGE, WIDTH
+from prox_workflows.grid import GridGeometry
+from prox_workflows.steps.bounds_map import BoundsMap, BoundsParams
+from prox_workflows.steps.dem2hazard import HazardParams
+from prox_workflows.steps.noise import tof_height_variance, tof_horizontal_sigma, tof_sigma
+from prox_workflows.steps.rolling_map import RollingMap, RollingParams
+
+LOOKS = ("one", "sweep", "approach")
+TRUE_CELL = 0.005  # m: the truth's surface, pooled to the map's cells
+
+
+def frames(world: World, look: str, rng: np.random.Generator
+           ) -> Iterator[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]]:
+    """(points, height sigmas, sensor origin, horizontal sigmas) per ToF frame of a way of looking."""
+    x0, y0, h0 = world.rover_pose()
+
+    def grab(pan: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        world.set_ptu(pan, -35.0)
+        origin = world.sensor_pose("tof")[:3, 3]
+        view = world.render_sensor("tof", WIDTH, HEIGHT)
+        r = view.range.reshape(-1)
+        keep = np.isfinite(r) & (r < USABLE_RANGE) & (view.object_id.reshape(-1) != 1)
+        pts, r = view.points.reshape(-1, 3)[keep].astype(np.float64), r[keep].astype(np.float64)
+        noisy = pts + (pts - origin) / r[:, None] * (tof_sigma(r) * rng.standard_normal(len(r)))[:, None]
+        return (noisy, np.sqrt(tof_height_variance(noisy, origin)).astype(np.float64), origin,
+                tof_horizontal_sigma(noisy, origin).astype(np.float64))
+
+    pans = (0.0,) if look == "one" else (-40.0, 0.0, 40.0)
+    for pan in pans:
+        yield grab(pan)
+    if look == "approach":
+        for i in range(1, 21):
+            world.set_rover_pose(x0 + 0.1 * i, y0, h0)
+            yield grab(0.0)
+        world.set_rover_pose(x0, y0, h0)
+
+
+def pooled(fine: np.ndarray, g: GridGeometry, how: Any) -> np.ndarray:
+    f = int(round(g.cell / TRUE_CELL))
+    return how(fine[:g.height * f, :g.width * f].reshape(g.height, f, g.width, f), axis=(1, 3))
+
+
+def sim_row(scene: str, look: str, k: float, seed: int = 0) -> dict[str, Any]:
+    world = World.from_scene(scene, seed=1)
+    x0, y0, _ = world.rover_pose()
+    box = [[x0 - 1.0, y0 - 3.0], [x0 + 6.5, y0 + 3.0]]
+    bounds = BoundsMap.covering(box, 0.0, BoundsParams(k=k))
+    rolling = RollingMap(RollingParams(size=12.0), HazardParams(), (x0 + 2.5, y0))
+    t_bounds, t_rolling = [], []
+    for pts, sigma, origin, sigma_xy in frames(world, look, np.random.default_rng(seed)):
+        t0 = time.perf_counter()
+        bounds.fuse(pts, sigma, origin, USABLE_RANGE, sigma_xy)
+        t1 = time.perf_counter()
+        rolling.fuse(pts, np.linalg.norm(pts - origin, axis=1))
+        t2 = time.perf_counter()
+        t_bounds.append(t1 - t0)
+        t_rolling.append(t2 - t1)
+    g = bounds.geometry
+    fine = world.true_dem(TRUE_CELL, (g.xmin, g.ymin, g.xmin + g.width * g.cell, g.ymax))
+    top = pooled(fine, g, np.max)
+    seen = np.isfinite(bounds.mean)
+    upper = bounds.upper
+    # the peer: the rolling map's 5 cm means under the true top of their own cells
+    rg = rolling.geometry
+    rfine = world.true_dem(TRUE_CELL, (rg.xmin, rg.ymin, rg.xmin + rg.width * rg.cell, rg.ymax))
+    rtop = pooled(rfine, rg, np.max)
+    rseen = np.isfinite(rolling.height)
+    ceiling_only = np.isfinite(bounds.ceiling) & ~seen
+    first = 1 if len(t_bounds) > 1 else 0  # the first call compiles the ray kernel
+    return {
+        "scene": scene, "look": look, "k": k, "frames": len(t_bounds),
+        "held": float(np.mean(top[seen] <= upper[seen])),
+        "held_ceiling": float(np.mean(top[ceiling_only] <= upper[ceiling_only])) if ceiling_only.any() else float("nan"),
+        "over_p50": float(np.percentile(upper[seen] - top[seen], 50)),
+        "over_p99": float(np.percentile(upper[seen] - top[seen], 99)),
+        "mean_low_p99": float(np.percentile(rtop[rseen] - rolling.height[rseen], 99)),
+        "fuse_ms": 1000 * float(np.median(t_bounds[first:])),
+        "rolling_ms": 1000 * float(np.median(t_rolling[first:])),
+        "bounded": int(seen.sum() + ceiling_only.sum()), "ceiling_only": int(ceiling_only.sum()),
+    }
+
+
+def motorcycle_row(k: float) -> dict[str, Any] | None:
+    """Middlebury Motorcycle (quarter size, scikit-image): the project's stereo on the real pair,
+    its points as a height map over the floor plane (camera x right, z ahead; height = -y), bounds
+    drawn with the matcher's own noise model, against the ground-truth disparity's points."""
+    try:
+        from skimage.data import stereo_motorcycle
+
+        left, right, truth = stereo_motorcycle()
+    except Exception as exc:  # the test extra (scikit-image) absent or its data missing
+        print(f"Motorcycle skipped: {exc}")
+        return None
+    from prox_workflows.steps import stereo as st
+
+    f, b, doffs = 994.978, 0.193001, 31.086  # the pair's calibration (scikit-image's docstring)
+    gl, gr = (cv2.cvtColor(a, cv2.COLOR_RGB2GRAY) for a in (left, right))
+    params = st.SgbmParams()
+    disp = st.disparity_rectified(gl, gr, params, 80)
+    h, w = gl.shape
+    v, u = np.mgrid[0:h, 0:w]
+
+    def cloud(d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        ok = np.isfinite(d) & (d > 0)
+        z = f * b / (d[ok] + doffs)
+        x = (u[ok] - w / 2) * z / f
+        y = (v[ok] - h / 2) * z / f
+        return np.column_stack([x, z, -y]), z  # map x, map y (ahead), height
+
+    pts, z = cloud(disp)
+    true_pts, _ = cloud(truth.astype(np.float32))
+    sigma_z = st.depth_sigma(z, b, f, st.sigma_d_for(params.scale))
+    r = np.linalg.norm(pts, axis=1)
+    up_share = np.abs(pts[:, 2]) / np.maximum(r, 1e-9)  # the depth error's share along the height
+    sigma = np.sqrt((sigma_z * up_share) ** 2 + (0.0015 * r) ** 2)
+    sigma_xy = np.sqrt(sigma_z**2 * (1.0 - up_share**2) + (0.0015 * r) ** 2)
+    bounds = BoundsMap.covering(true_pts[:, :2], 0.05, BoundsParams(k=k))
+    t0 = time.perf_counter()
+    bounds.fuse(pts, sigma, np.zeros(3), None, sigma_xy)
+    fuse_ms = 1000 * (time.perf_counter() - t0)
+    g = bounds.geometry
+    rr, cc = g.cell_of(true_pts[:, 0], true_pts[:, 1])
+    top = np.full(g.shape, np.nan, np.float32)
+    inside = g.inside(rr, cc)
+    np.fmax.at(top, (rr[inside], cc[inside]), true_pts[inside, 2].astype(np.float32))
+    seen = np.isfinite(bounds.mean) & np.isfinite(top)
+    upper = bounds.upper
+    return {"scene": "Motorcycle (real)", "look": "one pair", "k": k, "frames": 1,
+            "held": float(np.mean(top[seen] <= upper[seen])), "held_ceiling": float("nan"),
+            "over_p50": float(np.percentile(upper[seen] - top[seen], 50)),
+            "over_p99": float(np.percentile(upper[seen] - top[seen], 99)),
+            "mean_low_p99": float("nan"), "fuse_ms": fuse_ms, "rolling_ms": float("nan"),
+            "bounded": int(seen.sum()), "ceiling_only": 0}
+
+
+def print_rows(rows: list[dict[str, Any]]) -> None:
+    print("| scene | look | k | frames | held | held (ray only) | upper - top p50 / p99 (cm) | 5 cm mean read low p99 (cm) "
+          "| fuse ms (rolling map; ratio) | bounded (ray only) |")
+    print("|---|---|---|---|---|---|---|---|---|---|")
+    for r in rows:
+        ratio = r["fuse_ms"] / r["rolling_ms"] if r["rolling_ms"] == r["rolling_ms"] else float("nan")
+        print(f"| {r['scene']} | {r['look']} | {r['k']:g} | {r['frames']} | {100 * r['held']:.2f} % "
+              f"| {100 * r['held_ceiling']:.2f} % | {100 * r['over_p50']:.1f} / {100 * r['over_p99']:.1f} "
+              f"| {100 * r['mean_low_p99']:.1f} | {r['fuse_ms']:.1f} ({r['rolling_ms']:.1f}; {ratio:.2f}) "
+              f"| {r['bounded']} ({r['ceiling_only']}) |")
+
+
+def main(argv: list[str] | None = None) -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--scenes", nargs="+", default=["marsyard", "hirise", "dense"])
+    ap.add_argument("--looks", nargs="+", choices=LOOKS, default=list(LOOKS))
+    ap.add_argument("--k", nargs="+", type=float, default=[BoundsParams().k])
+    ap.add_argument("--no-real", action="store_true", help="leave out the Motorcycle row")
+    args = ap.parse_args(argv)
+    rows = [sim_row(s, look, k) for k in args.k for s in args.scenes for look in args.looks]
+    if not args.no_real:
+        rows += [r for k in args.k if (r := motorcycle_row(k)) is not None]
+    print_rows(rows)
+
+
+if __name__ == "__main__":
+    main()
