@@ -114,13 +114,17 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
         prog="rvs-server",
         description="Rover vision system server (simulated hardware unless config/drivers.yaml says otherwise): "
                     "the RVS protocol on a TCP port, and an operator web console (map, jobs, commands) at "
-                    "http://HOST:7071/ (--web-port). A console port already taken (another server on this "
-                    "machine) only turns the console off; the log, status and the hello line say so.",
+                    "http://HOST:7071/ (--web-port), and a Foxglove live view at ws://HOST:8765 (--foxglove-port). "
+                    "A console or Foxglove port already taken (another server on this machine) only turns that "
+                    "view off; the log and status say so.",
     )
     p.add_argument("--host", help="listen address (default 127.0.0.1)")
     p.add_argument("--port", type=int, help="listen port (default 7070; 0 picks a free one)")
     p.add_argument("--web-port", type=int, metavar="N",
                    help="operator web console port, on the same host (default 7071; 0: no console)")
+    p.add_argument("--foxglove-port", type=int, metavar="N",
+                   help="Foxglove WebSocket port for a read-only live view in Foxglove Studio, on the same host "
+                        "(default 8765; 0: off)")
     p.add_argument("--data", help="data directory (default ./data)")
     p.add_argument("--scene", help="simulated scene: office, quarry, marsyard, hirise, or a scene .yaml path (default office)")
     p.add_argument("--config", help="folder of YAML files overriding config/")
@@ -134,7 +138,7 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
 def main(argv: list[str] | None = None) -> int:
     args = parse_args(argv)
     overrides = list(args.set)
-    for key in ("host", "port", "data", "scene", "web_port"):
+    for key in ("host", "port", "data", "scene", "web_port", "foxglove_port"):
         value = getattr(args, key)
         if value is not None:
             overrides.append(f"server.{key}={value}")

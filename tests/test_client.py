@@ -23,7 +23,7 @@ from rvs_server.protocol import parse_reply
 
 ROOT = Path(__file__).resolve().parents[1]
 FAST = ["--set", "drivers.ptu.time_scale=0", "--set", "sim.time_scale=0",  # a simulated world that takes no wall time
-        "--set", "server.web_port=0"]  # and no web console (parallel test servers would share its port)
+        "--set", "server.web_port=0", "--set", "server.foxglove_port=0"]  # no console or Foxglove (parallel servers would share their ports)
 
 
 @pytest.fixture(scope="module")

@@ -314,7 +314,7 @@ def test_quit_interrupts_jobs_closes_everyone_and_exits_zero(server) -> None:
 def test_sigterm_shuts_down_gracefully(tmp_path: Path) -> None:
     proc = subprocess.Popen(
         [sys.executable, "-m", "rvs_server", "--port", "0", "--data", str(tmp_path / "d"),
-         "--set", "drivers.ptu.time_scale=0", "--set", "server.web_port=0"],
+         "--set", "drivers.ptu.time_scale=0", "--set", "server.web_port=0", "--set", "server.foxglove_port=0"],
         stderr=subprocess.PIPE, text=True, cwd=Path(__file__).parent.parent,
     )
     try:

@@ -141,7 +141,8 @@ def test_ctrl_c_stops_the_server_at_once_while_the_kernels_compile(tmp_path: Pat
     for it. The bound is generous for a loaded machine, and far below a compile."""
     env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path / "numba"))  # nothing cached: it compiles
     proc = subprocess.Popen(
-        [sys.executable, "-m", "rvs_server", "--port", "0", "--data", str(tmp_path / "d"), "--web-port", "0"],
+        [sys.executable, "-m", "rvs_server", "--port", "0", "--data", str(tmp_path / "d"), "--web-port", "0",
+         "--foxglove-port", "0"],
         stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, cwd=ROOT, env=env,
     )
     try:
@@ -152,6 +153,7 @@ def test_ctrl_c_stops_the_server_at_once_while_the_kernels_compile(tmp_path: Pat
             assert parse_reply(c.greeting).fields["console"] == "off"
             st = c.request("status").fields  # --web-port 0 is server.web_port=0
             assert st["console"] == "off" and "web_port is 0" in st["console_reason"], st
+            assert st["foxglove"] == "off", st  # --foxglove-port 0 is server.foxglove_port=0
             t0 = time.monotonic()
             proc.send_signal(signal.SIGINT)
             status = proc.wait(60)  # a safety net; the bound is below

@@ -33,7 +33,8 @@ from typing import Any
 from rvs_server.protocol import ProtocolError, parse_reply
 
 FINAL = ("OK", "ERROR")
-FAST = ["--set", "drivers.ptu.time_scale=0", "--set", "sim.time_scale=0", "--set", "server.web_port=0"]
+FAST = ["--set", "drivers.ptu.time_scale=0", "--set", "sim.time_scale=0", "--set", "server.web_port=0",
+        "--set", "server.foxglove_port=0"]
 
 # (weight, kind, line); {t} is the client's tag for the request, {a} {b} random numbers
 MIX: list[tuple[float, str, str]] = [

@@ -381,12 +381,14 @@ class ServerThread:
     """The real server (the same code path as rvs-server) on an ephemeral port in a thread of
     this process, for tests and benchmarks that want its ``app`` at hand: ``sets`` are the
     ``--set`` overrides (``server.data=...`` among them); the log goes to the server's own log
-    file in its data folder."""
+    file in its data folder. Like :class:`ServerProcess` it takes no web console or Foxglove
+    port unless ``sets`` give one: those ports may be an operator's real server's, and publishing
+    to Foxglove would weigh on what a benchmark measures."""
 
     def __init__(self, sets: Sequence[str], config_dir: str | None = None, log_level: str = "info") -> None:
         from rvs_server.main import build_config
 
-        self.store = build_config(config_dir, list(sets))
+        self.store = build_config(config_dir, ["server.web_port=0", "server.foxglove_port=0", *sets])
         server = self.store.get("server")
         self.port = 0
         self.app: Any = None

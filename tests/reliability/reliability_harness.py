@@ -34,7 +34,7 @@ from rvs_server.table import COMMANDS, Command, bind_options, check_positional, 
 
 ROOT = Path(__file__).resolve().parents[2]
 FAST = ("--set", "drivers.ptu.time_scale=0", "--set", "sim.time_scale=0",
-        "--set", "server.web_port=0")  # a simulated world that takes no wall time; no console
+        "--set", "server.web_port=0", "--set", "server.foxglove_port=0")  # a world that takes no wall time; no console or Foxglove
 FINAL = ("OK", "ERROR")
 TAIL_KEEP = 40
 

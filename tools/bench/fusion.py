@@ -45,7 +45,7 @@ def scan_scene(scene: str, folder: Path, view_range: str = RANGE) -> Path:
 
     data = folder / "scan"
     sets = [f"server.data={data}", "server.port=0", "drivers.ptu.time_scale=0", "sim.time_scale=0",
-            "server.warm_up=false", "server.web_port=0", f"server.scene={scene}"]
+            "server.warm_up=false", "server.web_port=0", "server.foxglove_port=0", f"server.scene={scene}"]
     store = build_config(None, sets)
     setup_logging("warning", data / "bench.log", console=False)
     box: dict[str, Any] = {}
