@@ -430,7 +430,7 @@ def test_a_refused_navigate_keeps_the_plan_and_an_accepted_one_marks_the_goal(co
     page.dispatch_event("#nav-tol", "change")
     page.click("#go-nav")
     page.wait_for_function("document.getElementById('result').textContent.includes('E_ARG')")
-    assert page.evaluate("S.plan.length") == 2 and page.evaluate("S.goal") is None
+    assert page.evaluate("S.plan.length") == 2 and page.evaluate("S.state.goal") is None
 
     c.request("break")  # navigate is refused in break too; continue brings ready back
     assert c.request("continue").status == "OK"
@@ -439,8 +439,10 @@ def test_a_refused_navigate_keeps_the_plan_and_an_accepted_one_marks_the_goal(co
     page.fill("#nav-tol", "0.3")
     page.uncheck("#nav-auto")  # the GNC drives: the page's goal stays while it waits for pose
     page.click("#go-nav")
-    page.wait_for_function("S.goal !== null", timeout=60_000)
-    assert page.evaluate("[S.goal.x, S.goal.y, S.goal.tolerance]") == pytest.approx([1.5, -1.2, 0.3], abs=0.01)
+    page.wait_for_function("S.state.goal !== null", timeout=60_000)
+    goal = page.evaluate("S.state.goal")
+    assert [goal["x"], goal["y"], goal["tolerance"]] == pytest.approx([1.5, -1.2, 0.3], abs=0.01)
+    page.wait_for_function("S.plan.length === 0")  # the old plan went when the server took the goal
     page.evaluate("draw()")
     r, g, b, _ = pixel(page, 1.5, -1.2)
     assert max(r, g, b) < 60, (r, g, b)  # the goal's cross, drawn where it was clicked
@@ -664,3 +666,27 @@ def test_the_distance_and_bearing_tool(mapped: Console, browser: Any) -> None:
     assert not page.is_visible("#clickmenu")  # measuring, not navigating
     page.keyboard.press("Escape")
     assert not page.is_visible("#measure-out")
+
+
+@long_test  # the simulated rover drives on the wall clock: ~40 s
+def test_the_rover_icon_moves_and_turns_live_during_a_drive_and_keeps_the_true_heading_after_a_break(
+        console: Any, browser: Any) -> None:
+    c = console("sim.time_scale=1", "dem_full_tof.range=-60,60,-50,-20", "dem_full_tof.cell=0.04",
+                "navigate.range=-110,30,-55,-20", "navigate.overlap=0.05", "navigate.border=0.3")
+    page = c.open(browser)
+    page.evaluate("""window.seen = []; const onStateWas = onState;
+        onState = (st) => { onStateWas(st); if (st.job && st.truth) seen.push([st.pose.x, st.pose.y, st.pose.heading,
+            st.truth.heading]); }; 0""")  # (a function as the last value would be called)
+    with c.srv.client() as gnc:
+        gnc.start_job("navigate -goal 1.5,-1.2 -auto true")
+        page.wait_for_function("seen.length > 1 && Math.hypot(seen.at(-1)[0], seen.at(-1)[1]) > 0.4", timeout=300_000)
+        with c.srv.client() as other:
+            assert other.request("break").status == "OK"
+        gnc.until_final(120)
+    page.wait_for_function("S.state.mode === 'break' && !S.state.job")
+    seen = page.evaluate("seen")
+    positions = {(round(x, 2), round(y, 2)) for x, y, _, _ in seen}
+    headings = {round(h) for _, _, h, _ in seen}
+    assert len(positions) >= 5 and len(headings) >= 2, seen  # it moved and it turned, live
+    st = page.evaluate("[S.state.pose.heading, S.state.truth.heading]")
+    assert abs((st[0] - st[1] + 180) % 360 - 180) < 5, st  # the icon's heading is the rover's

@@ -1,7 +1,8 @@
 """Make the pictures in docs/img: every preview kind of a DEM and a navigation, and the web
-console, from one simulated session (office scene). Look at them after running this.
+console (after the DEM, and after a navigate on a laptop, a tablet and a phone: 1280 x 720,
+768 x 1024, 390 x 844), from one simulated session (office scene). Look at them after running this.
 
-    python -m tools.docs_images [--out docs/img]
+    python -m tools.docs_images [--out docs/img] [--console-only]
 """
 
 from __future__ import annotations
@@ -14,6 +15,7 @@ from pathlib import Path
 
 from tools.bench.web import Server, free_port, tcp_request
 
+SCREENS = ((1280, 720), (768, 1024), (390, 844))  # laptop, tablet, phone
 PREVIEWS = ("dem", "ortho", "hazard", "traversability", "slope", "step", "roughness", "variance", "count",
             "filled")
 
@@ -21,7 +23,9 @@ PREVIEWS = ("dem", "ortho", "hazard", "traversability", "slope", "step", "roughn
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--out", default="docs/img")
-    out = Path(ap.parse_args().out)
+    ap.add_argument("--console-only", action="store_true", help="only the console's screenshots")
+    args = ap.parse_args()
+    out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     with tempfile.TemporaryDirectory() as tmp:
         web_port = free_port()
@@ -31,7 +35,7 @@ def main() -> None:
             from playwright.sync_api import sync_playwright
 
             asyncio.run(tcp_request(srv.port, "dem-full-tof -range -150,150,-50,-15 -name site"))
-            for layer in PREVIEWS:
+            for layer in () if args.console_only else PREVIEWS:
                 shutil.copy(Path(tmp) / "data" / "dem" / f"site_{layer}.png", out / f"preview_{layer}.png")
             with sync_playwright() as p:
                 browser = p.chromium.launch(executable_path="/usr/bin/chromium", args=[
@@ -48,9 +52,15 @@ def main() -> None:
                 page.wait_for_function("S.state.job === null", timeout=600_000)
                 page.wait_for_timeout(800)
                 page.screenshot(path=str(out / "console_navigate.png"))
+                for width, height in SCREENS:  # each a fresh page: its own layout and fit
+                    small = browser.new_page(viewport={"width": width, "height": height}, has_touch=width < 900)
+                    small.goto(f"http://127.0.0.1:{web_port}/")
+                    small.wait_for_function("S.layers.dem && S.layers.dem.ready && S.layers.hazard && S.layers.hazard.ready")
+                    small.wait_for_timeout(400)
+                    small.screenshot(path=str(out / f"console_{width}x{height}.png"))
                 browser.close()
             nav = Path(tmp) / "data" / "nav"
-            for src, name in ((next(nav.glob("*_traverse.png")), "traverse.png"),
+            for src, name in () if args.console_only else ((next(nav.glob("*_traverse.png")), "traverse.png"),
                               (next(nav.glob("*_leg1_plan_ortho.png")), "plan_ortho.png"),
                               (next(nav.glob("*_leg1_plan_map.png")), "plan_map.png")):
                 shutil.copy(src, out / name)

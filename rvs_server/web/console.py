@@ -157,6 +157,7 @@ class WebConsole:
         self.values = ValueCache()
         self.history: deque[str] = deque(maxlen=HISTORY)
         self._products: tuple[float, dict[str, Path]] = (0.0, {})
+        self.goal: dict[str, Any] | None = None  # the last navigate's goal, whoever sent it
         self.track: deque[tuple[float, float]] = deque(maxlen=TRACK_POINTS)
         self.snapshot = ""  # the last state message sent to the pages
         self.bounds: dict[tuple[str, str], list[float]] = {}  # (path, version) -> layer bounds
@@ -277,6 +278,10 @@ class WebConsole:
             out["scene"] = app.world.scene_name
         head = app.config.get("head")
         out["rover"] = {"length": head.rover_length, "width": head.rover_width}
+        if job is not None and job.command == "navigate" and len(job.params.get("goal") or ()) == 2:
+            self.goal = {"x": job.params["goal"][0], "y": job.params["goal"][1],
+                         "tolerance": job.params.get("tolerance"), "job": job.id}
+        out["goal"] = self.goal
         out["tof_hfov"] = TOF_HFOV_DEG  # drawn as the ToF's wedge
         maps: dict[str, Any] = {}
         for name, path in self.layer_paths().items():

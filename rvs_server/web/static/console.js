@@ -30,10 +30,9 @@ const S = {
   plan: [],             // waypoints [[x, y, heading], ...] of the last navigate leg
   hazards: [],          // hazard events with a position
   check: null,          // the last check-move: {from, to, verdict}
-  goal: null,           // the navigate goal being driven to: {x, y, tolerance}
   authed: false,
   tagN: 0,
-  pending: {},          // tag -> {onAck, onFinal}
+  pending: {},          // tag -> {onFinal}
   progress: null,       // the last PROGRESS fields
   phase: null,          // {key, t, done}: when the current phase was first seen (server time)
   clock: 0,             // server time minus this page's time, seconds
@@ -108,6 +107,9 @@ function onReply(m, past) {
     const key = `${r.job}/${r.leg || ""}/${r.phase || ""}`;
     if (!S.phase || S.phase.key !== key) S.phase = { key, t: m.t, done: r.done };
     showProgress();
+  } else if (r.status === "ACK" && r.module === "EGP-RVS-NAVIGATE" && !past) {
+    S.plan = [];  // a new navigate, whoever sent it: the old plan goes once the server took it
+    draw();
   } else if (r.status === "EVENT") {
     if (r.kind === "mode" && !past) setMode(r.mode);
     if (r.kind === "waiting" && Array.isArray(r.waypoints)) S.plan = r.waypoints;
@@ -116,9 +118,7 @@ function onReply(m, past) {
   } else if (!past && m.own && r.tag !== undefined && r.tag in S.pending) {
     // only this page's own lines answer its requests (m.own): another's job may use any tag
     const handlers = S.pending[r.tag];
-    if (r.status === "ACK") {
-      if (handlers.onAck) handlers.onAck(r);
-    } else if (r.status === "OK" || r.status === "ERROR") {
+    if (r.status === "OK" || r.status === "ERROR") {
       delete S.pending[r.tag];
       showResult(m.text, r.status === "ERROR");
       if (handlers.onFinal) handlers.onFinal(r);
@@ -537,10 +537,11 @@ function draw() {
   drawNorth(w);
 }
 
-// The goal as asked (a cross in the tolerance circle) and, when the plan ends elsewhere (the
-// server moved it out of a hazard, or drives toward it to judge it from closer), that end.
+// The last navigate's goal as asked, whoever sent it (a cross in the tolerance circle) and, when
+// the plan ends elsewhere (the server moved it out of a hazard, or drives toward it to judge it
+// from closer), that end.
 function drawGoal() {
-  const g = S.goal;
+  const g = S.state.goal;
   if (!g) return;
   const [px, py] = toScreen(g.x, g.y);
   ctx.save();
@@ -678,7 +679,7 @@ function drawGrid(w, h) {
 }
 
 function scaleBox() {
-  const metres = niceStep(120 / S.view.scale), px = metres * S.view.scale;
+  const metres = niceStep(60 / S.view.scale), px = metres * S.view.scale;  // 60 to 150 px: clear of the legend
   return { metres, px, right: 14 + px + 54 };
 }
 
@@ -893,9 +894,8 @@ function closeMenu() {
   if (S.click) $("clickmenu").querySelector(".cmdline").textContent = navLine();
 }));
 $("go-nav").onclick = () => {
-  const goal = { x: S.click[0], y: S.click[1], tolerance: parseFloat($("nav-tol").value) || 0.3 };
   // the plan on the map stays until the server takes the new goal: a refused navigate keeps it
-  send(navLine(), { onAck: () => { S.plan = []; S.goal = goal; draw(); } });
+  send(navLine());
   closeMenu();
 };
 $("go-check").onclick = () => {
