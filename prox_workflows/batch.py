@@ -372,7 +372,7 @@ def mosaic_in_memory(paths: Sequence[Path | str], cell: float | None = None, **f
 
 
 def _bar(done: int, total: int, message: str) -> None:
-    from .engine import show_progress
+    from .cli.progress import show_progress
 
     show_progress(done, total, message, phase="batch")
 

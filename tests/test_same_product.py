@@ -16,7 +16,7 @@ from conftest import ServerThread, long_only
 from prox_workflows.cli import dem2hazard as cli_dem2hazard
 from prox_workflows.cli import dem_import as cli_dem_import
 from prox_workflows.cli import dem_mosaik as cli_dem_mosaik
-from prox_workflows.engine import main as rvs_prox
+from prox_workflows.cli.prox import main as rvs_prox
 from prox_workflows.engine import run_workflow
 
 DEM_LAYERS = ("dem", "variance", "count", "filled", "ortho", "slope", "step", "roughness", "hazard",

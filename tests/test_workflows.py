@@ -28,7 +28,7 @@ from prox_workflows.batch import (
 from prox_workflows.batch import (
     main as batch_main,
 )
-from prox_workflows.engine import main as rvs_prox
+from prox_workflows.cli.prox import main as rvs_prox
 from tools.bench.batch import shifted_copy
 
 DEM_LAYERS = ("dem", "variance", "count", "filled", "ortho", "slope", "step", "roughness", "hazard",

@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 import tifffile
 
-from prox_workflows.engine import main as rvs_prox
+from prox_workflows.cli.prox import main as rvs_prox
 from prox_workflows.grid import GridGeometry, write_geotiff
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -23,7 +23,7 @@ ROOT = Path(__file__).resolve().parents[2]
 def run_prox(cwd: Path, *args: str) -> subprocess.CompletedProcess[str]:
     """The real command line in a process of its own, so a traceback is seen as the user sees it."""
     env = dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
-    code = "import sys; from prox_workflows.engine import main; sys.exit(main())"
+    code = "import sys; from prox_workflows.cli.prox import main; sys.exit(main())"
     return subprocess.run([sys.executable, "-c", code, *args], cwd=cwd, env=env, capture_output=True,
                           text=True, timeout=60)
 

@@ -4,7 +4,8 @@ from __future__ import annotations
 
 import pytest
 
-from prox_workflows.engine import Cancelled, WorkflowError, main, run_workflow
+from prox_workflows.cli.prox import main
+from prox_workflows.engine import Cancelled, WorkflowError, run_workflow
 
 SCRIPT = {
     "name": "demo",

@@ -10,7 +10,9 @@ from pathlib import Path
 import pytest
 
 from prox_workflows import engine
-from prox_workflows.engine import ScriptError, main, validate
+from prox_workflows.cli.prox import main
+from prox_workflows.engine import ScriptError, loader, validate
+from prox_workflows.engine import run as engine_run
 
 GOOD = """\
 name: broken
@@ -87,7 +89,7 @@ def no_step_runs(monkeypatch: pytest.MonkeyPatch) -> list[str]:
         ran.append(name)
         raise AssertionError(f"step {name} was reached")
 
-    monkeypatch.setattr(engine, "resolve_step", spy)
+    monkeypatch.setattr(engine_run, "resolve_step", spy)
     return ran
 
 
@@ -137,7 +139,7 @@ def test_the_server_refuses_to_start_with_a_broken_command_script(
     shutil.copytree(engine.SCRIPTS_DIR, scripts)
     chain = scripts / "dem_chain.yaml"
     chain.write_text(chain.read_text().replace("step: fill_holes_layers", "step: fill_hole_layers"))
-    monkeypatch.setattr(engine, "SCRIPTS_DIR", scripts)
+    monkeypatch.setattr(loader, "SCRIPTS_DIR", scripts)
     store = build_config(None, [f"server.data={tmp_path / 'data'}", "server.port=0", "server.warm_up=false"])
     with pytest.raises(StartupError) as err:
         asyncio.run(run(store, handle_signals=False))
