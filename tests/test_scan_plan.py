@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 import yaml
 
-from drivers.ptu.motion import Profile, trapezoid_time
+from rvs_params.motion import Profile, trapezoid_time
 from drivers.ptu.protocol import pos_to_deg
 from prox_workflows.grid import read_geotiff
 from prox_workflows.steps.ptu_positions import get_ptu_positions, grid, path_time, plan, scan_limit

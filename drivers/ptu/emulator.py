@@ -4,7 +4,7 @@ The ``sim`` backend runs the very client that drives a real PTU over RS232 again
 emulator, so every byte the server would send to the hardware is exercised in simulation. The
 emulator behaves like a freshly powered D46: verbose feedback, echo on and a banner; the
 factory resolution (185.1428 arc-seconds per position) and axis bounds; trapezoidal moves at
-its speed, acceleration and base speed (:mod:`drivers.ptu.motion`) in simulated time
+its speed, acceleration and base speed (:mod:`rvs_params.motion`) in simulated time
 (``time_scale`` simulated-to-wall ratio: 1 real time, 0.1 ten times faster, 0 instantly; or, given a ``clock``, on the simulated world's clock,
 so PTU moves take their time on the same clock as the rover's drive and the ToF's frames); ``!`` errors for out-of-range positions and speeds;
 ``A`` answered when motion ends; a reset that runs each axis into its limits ("!T!T!P!P*").
@@ -34,7 +34,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
-from drivers.ptu.motion import Profile, stop_distance
+from rvs_params.motion import Profile, stop_distance
 from drivers.ptu.protocol import (
     D46_DEFAULT_ACCEL,
     D46_DEFAULT_BASE,

@@ -23,7 +23,7 @@ from typing import Any
 
 import numpy as np
 
-from drivers.ptu.motion import trapezoid_time
+from rvs_params.motion import trapezoid_time
 
 from ..engine import step
 
@@ -111,9 +111,7 @@ def scan_limit(view_range: Sequence[float], fov: Sequence[float], overlap: float
     return {"views": len(positions), "travel": travel, "exposure": exposure, "total": travel + exposure}
 
 
-@step("get_ptu_positions", inputs={"view_range": "floats", "fov": "floats", "overlap": "float", "limits": "floats?",
-                                   "motion": "dict?", "start": "floats?", "order": "str?"},
-      outputs={"positions": "list"})
+@step("get_ptu_positions", outputs={"positions": "list"})
 def get_ptu_positions(
     view_range: list[float] | tuple[float, float, float, float],
     fov: tuple[float, float],

@@ -7,7 +7,7 @@ import math
 import pytest
 
 from drivers.ptu.emulator import misframe
-from drivers.ptu.motion import Profile, plan, trapezoid_time
+from rvs_params.motion import Profile, plan, trapezoid_time
 from drivers.ptu.protocol import ReplyParser, deg_to_pos, encode_command, parse_bound, parse_power, pos_to_deg
 
 RES = 185.1428

@@ -18,7 +18,7 @@ from ptu_rig import bench
 from drivers.base import DeviceError
 from drivers.ptu.client import MoveInterrupted, PtuClient
 from drivers.ptu.emulator import FLAVOURS, Flavour
-from drivers.ptu.motion import trapezoid_time
+from rvs_params.motion import trapezoid_time
 
 OPEN_SEQUENCE = ["FT", "ED", "CI", "I", "PR", "TR", "PN", "PX", "TN", "TX", "PL", "PU", "TL", "TU"]
 RES = 185.1428
