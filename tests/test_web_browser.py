@@ -141,47 +141,37 @@ def wait_ready(page: Any, *names: str) -> None:
     page.wait_for_function("names => names.every(n => S.layers[n] && S.layers[n].ready)", arg=list(names))
 
 
-def defined_cell(data: Path, layer: str = "dem") -> tuple[float, float]:
-    """The centre of a cell of the DEM's layer with a value, deep inside the seen ground."""
-    values, g = read_geotiff(data / "dem" / f"web_{layer}.tif")
-    finite = np.isfinite(values) if values.dtype.kind == "f" else values > 0
-    inner = finite.copy()
-    for dr in (-2, 0, 2):
-        for dc in (-2, 0, 2):
-            inner &= np.roll(np.roll(finite, dr, 0), dc, 1)
-    r, c = np.argwhere(inner)[len(np.argwhere(inner)) // 2]
+def cell_inside(data: Path, where: Any, reach: int = 1, first: bool = False) -> tuple[float, float]:
+    """The centre of a cell of the DEM's grid where ``where(dem)`` holds for every cell
+    within ``reach`` (a pixel there is the cell's, not an edge's): the middle one, or the first."""
+    dem, g = read_geotiff(data / "dem" / "web_dem.tif")
+    ok = where(dem)
+    ok[[0, -1], :] = False
+    ok[:, [0, -1]] = False
+    inner = ok.copy()
+    for dr in range(-reach, reach + 1):
+        for dc in range(-reach, reach + 1):
+            inner &= np.roll(np.roll(ok, dr, 0), dc, 1)
+    cells = np.argwhere(inner)
+    r, c = cells[0] if first else cells[len(cells) // 2]
     xs, ys = g.centers()
     return float(xs[c]), float(ys[r])
+
+
+def defined_cell(data: Path) -> tuple[float, float]:
+    """Deep inside the seen ground."""
+    return cell_inside(data, np.isfinite, reach=2)
 
 
 def cell_where(data: Path, layer: str, value: float) -> tuple[float, float]:
-    """The centre of a cell where the DEM has a height and ``layer`` is ``value``, with its
-    neighbours alike (a pixel there is the cell's, not an edge's)."""
-    dem, g = read_geotiff(data / "dem" / "web_dem.tif")
+    """On seen ground where ``layer`` is ``value``."""
     values, _ = read_geotiff(data / "dem" / f"web_{layer}.tif")
-    ok = np.isfinite(dem) & (values == value)
-    inner = ok.copy()
-    for dr in (-1, 0, 1):
-        for dc in (-1, 0, 1):
-            inner &= np.roll(np.roll(ok, dr, 0), dc, 1)
-    r, c = np.argwhere(inner)[len(np.argwhere(inner)) // 2]
-    xs, ys = g.centers()
-    return float(xs[c]), float(ys[r])
+    return cell_inside(data, lambda dem: np.isfinite(dem) & (values == value))
 
 
 def unseen_cell(data: Path) -> tuple[float, float]:
-    """The centre of a cell the DEM has no height for, inside its bounds, with unseen neighbours."""
-    values, g = read_geotiff(data / "dem" / "web_dem.tif")
-    blank = ~np.isfinite(values)
-    inner = blank.copy()
-    for dr in (-1, 0, 1):
-        for dc in (-1, 0, 1):
-            inner &= np.roll(np.roll(blank, dr, 0), dc, 1)
-    inner[[0, -1], :] = False
-    inner[:, [0, -1]] = False
-    r, c = np.argwhere(inner)[0]
-    xs, ys = g.centers()
-    return float(xs[c]), float(ys[r])
+    """Inside the DEM's bounds where it has no height."""
+    return cell_inside(data, lambda dem: ~np.isfinite(dem), first=True)
 
 
 def sent_lines(page: Any) -> list[str]:

@@ -37,15 +37,14 @@ def load(browser: Any, url: str) -> tuple[float, int, int]:
     """(seconds to the first map, layer images fetched, their bytes) of one fresh page."""
     context = browser.new_context(viewport={"width": 1280, "height": 720})
     page = context.new_page()
-    sizes: list[int] = []
-    page.on("response", lambda r: sizes.append(int(r.headers.get("content-length", 0))) if "/layers/" in r.url
-            else None)
     t0 = time.perf_counter()
     page.goto(url)
     page.wait_for_function("S.layers.dem && S.layers.dem.ready && S.layers.hazard && S.layers.hazard.ready",
                            timeout=300_000)
     first = time.perf_counter() - t0
     page.wait_for_timeout(SETTLE_MS)
+    sizes = page.evaluate("""performance.getEntriesByType("resource").filter(e => e.name.includes("/layers/"))
+                             .map(e => e.encodedBodySize)""")
     context.close()
     return first, len(sizes), sum(sizes)
 
