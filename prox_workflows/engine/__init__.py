@@ -21,8 +21,8 @@ pipelines are, readers and writers included):
 
 Values: ``$name`` is a parameter (a field of the script's parameter class: declared once, with
 its default, there and nowhere else), ``@name`` a workspace value (``@a.b`` an attribute or key
-of it), anything else a literal. Each step declares its inputs and outputs with types
-(``@step("dem_import", inputs=..., outputs=...)``); :func:`validate` checks the whole script
+of it), anything else a literal. Each step's input types are its function's annotations, and it declares its
+outputs with types (``@step("dem_import", outputs={"layers": "Layers"})``); :func:`validate` checks the whole script
 against those declarations before the first step runs (unknown step, unknown or missing input,
 type mismatch, unused output, a ``$param`` nobody supplies, ...) and names the script line and
 the fix of every mistake. Cancellation is checked before every step and every loop item;

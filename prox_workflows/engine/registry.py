@@ -10,6 +10,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from .errors import WorkflowError
+from .types import annotation_type
 
 # Modules whose @step functions make up the registry, and those that declare script parameter
 # classes beyond them; imported when the registry is first read, so that importing the engine
@@ -33,7 +34,8 @@ INJECTED = ("progress", "cancelled", "run_log")
 
 @dataclass
 class StepSpec:
-    """A registered step: its function and the declared types of its inputs and outputs."""
+    """A registered step: its function, the types of its inputs (from the function's annotations)
+    and the declared names and types of its outputs."""
 
     name: str
     fn: Callable[..., Any]
@@ -43,15 +45,10 @@ class StepSpec:
     accepts: set[str] = field(default_factory=set)  # injected keywords it takes (progress, ...)
 
     @classmethod
-    def of(cls, name: str, fn: Callable[..., Any], inputs: dict[str, str] | None = None,
-           outputs: dict[str, str] | str | None = None) -> StepSpec:
+    def of(cls, name: str, fn: Callable[..., Any], outputs: dict[str, str] | str | None = None) -> StepSpec:
         sig = inspect.signature(fn)
         params = {n: p for n, p in sig.parameters.items() if p.kind not in (p.VAR_POSITIONAL, p.VAR_KEYWORD)}
-        declared = dict(inputs or {})
-        ins = {n: declared.get(n, "any") for n in params if n not in INJECTED}
-        unknown = set(declared) - set(ins)
-        if unknown:
-            raise TypeError(f"step {name}: declares inputs {sorted(unknown)} its function does not take")
+        ins = {n: _input_type(p.annotation) for n, p in params.items() if n not in INJECTED}
         required = {n for n in ins if params[n].default is inspect.Parameter.empty}
         outs = {name: outputs} if isinstance(outputs, str) else (dict(outputs) if outputs is not None else None)
         return cls(name, fn, ins, required, outs, {n for n in INJECTED if n in params})
@@ -61,18 +58,24 @@ _REGISTRY: dict[str, StepSpec] = {}
 _loaded = [False]
 
 
-def step(name: str, *, inputs: dict[str, str] | None = None,
-         outputs: dict[str, str] | str | None = None) -> Callable[[Callable[..., Any]], Callable[..., Any]]:
+def _input_type(annotation: Any) -> str:
+    if annotation is inspect.Parameter.empty:
+        return "any"
+    return annotation_type(annotation if isinstance(annotation, str) else inspect.formatannotation(annotation))
+
+
+def step(name: str, *, outputs: dict[str, str] | str | None = None
+         ) -> Callable[[Callable[..., Any]], Callable[..., Any]]:
     """Register a function as the workflow step ``name``.
 
-    ``inputs`` gives the types of its keyword arguments (undeclared ones are ``any``; those
-    without a default are required); ``outputs`` names what it returns: ``{"dem": "Layers"}``
-    for one value, several names for a dict or tuple result. The declaration is what
+    The types of its keyword arguments are its annotations (:func:`.types.annotation_type`;
+    those without a default are required); ``outputs`` names what it returns: ``{"dem":
+    "Layers"}`` for one value, several names for a dict or tuple result. These are what
     :func:`validate` checks a script against, so a miswired script fails before anything runs.
     """
 
     def register(fn: Callable[..., Any]) -> Callable[..., Any]:
-        _REGISTRY[name] = StepSpec.of(name, fn, inputs, outputs)
+        _REGISTRY[name] = StepSpec.of(name, fn, outputs)
         return fn
 
     return register

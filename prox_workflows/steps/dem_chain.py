@@ -18,7 +18,7 @@ from .holes import fill_layers
 from .ortho import OrthoView, ortho_image
 
 
-@step("acquire", inputs={"positions": "list"}, outputs={"views": "list[View]"})
+@step("acquire", outputs={"views": "list[View]"})
 def acquire(positions: list[tuple[float, float]], progress: Any = None, cancelled: Any = None) -> list[View]:
     """The declaration of the acquisition step; its implementation is the caller's.
 
@@ -29,7 +29,7 @@ def acquire(positions: list[tuple[float, float]], progress: Any = None, cancelle
     raise NotImplementedError("acquire is supplied by the server; offline, read recorded views with read_views")
 
 
-@step("scan_rule", inputs={"views": "list[View]"}, outputs={"within_scan": "str"})
+@step("scan_rule", outputs={"within_scan": "str"})
 def scan_rule(views: list[View]) -> str:
     """How views of one scan settle a conflict, from the sensors that took them: views of one
     sensor, the higher wins (a rock's top over its foot); ToF and stereo together, the gate
@@ -38,15 +38,13 @@ def scan_rule(views: list[View]) -> str:
     return "inflate" if len({v.sensor for v in views}) > 1 else "higher"
 
 
-@step("join_views", inputs={"earlier": "list[View]?", "new": "list[View]"}, outputs={"views": "list[View]"})
+@step("join_views", outputs={"views": "list[View]"})
 def join_views(earlier: list[View] | None, new: list[View]) -> list[View]:
     """Views a stopped acquisition left behind, then the new ones (newest last)."""
     return list(earlier or []) + list(new)
 
 
-@step("view_dem", inputs={"view": "View", "cell": "float", "rover_mask": "array?", "height": "str",
-                          "tof_correlation": "float", "stereo_correlation": "float"},
-      outputs={"dem": "Layers?"})
+@step("view_dem", outputs={"dem": "Layers?"})
 def view_dem(view: View, cell: float, rover_mask: np.ndarray | None = None, height: str = "mean",
              tof_correlation: float = 0.0, stereo_correlation: float = 0.0) -> Layers | None:
     """DemImport of one view's points, each with its noise-model variance.
@@ -74,9 +72,7 @@ def view_dem(view: View, cell: float, rover_mask: np.ndarray | None = None, heig
     return layers
 
 
-@step("dem_mosaik", inputs={"dems": "list[Layers]", "rule": "str", "bounds": "floats?", "cell": "float",
-                            "sigma": "float", "gate": "float", "inflation": "float", "on_conflict": "str"},
-      outputs={"mosaic": "Layers"})
+@step("dem_mosaik", outputs={"mosaic": "Layers"})
 def mosaik_layers(dems: list[Layers], rule: str = MOSAIK.rule, bounds: list[float] | None = None,
                   cell: float = MOSAIK.cell, sigma: float = MOSAIK.sigma, gate: float = MOSAIK.gate,
                   inflation: float = MOSAIK.inflation, on_conflict: str = MOSAIK.on_conflict) -> Layers:
@@ -90,9 +86,7 @@ def mosaik_layers(dems: list[Layers], rule: str = MOSAIK.rule, bounds: list[floa
                       on_conflict=on_conflict)
 
 
-@step("mosaic", inputs={"dems": "list[Layers?]", "base": "Layers?", "rule": "str", "cell": "float",
-                        "within_scan": "str", "gate": "float", "tof_scatter": "float", "stereo_scatter": "float"},
-      outputs={"mosaic": "Layers"})
+@step("mosaic", outputs={"mosaic": "Layers"})
 def mosaic(dems: list[Layers | None], base: Layers | None, rule: str, cell: float,
            within_scan: str = "higher", gate: float = MOSAIK.gate, tof_scatter: float = 0.0,
            stereo_scatter: float = 0.0) -> Layers:
@@ -134,20 +128,19 @@ def mosaic(dems: list[Layers | None], base: Layers | None, rule: str, cell: floa
     return dem_mosaik([base, scan], rule="fuse", cell=cell, on_conflict="inflate")
 
 
-@step("fill_holes_layers", inputs={"layers": "Layers", "radius": "float"}, outputs={"layers": "Layers"})
+@step("fill_holes_layers", outputs={"layers": "Layers"})
 def fill_holes_layers(layers: Layers, radius: float) -> Layers:
     """Holes up to ``radius`` filled from their neighbours; a ``filled`` layer marks them."""
     return fill_layers(layers, radius)
 
 
-@step("hazard_layers", inputs={"layers": "Layers", "params": "dict?"}, outputs={"layers": "Layers"})
+@step("hazard_layers", outputs={"layers": "Layers"})
 def hazard_layers(layers: Layers, params: dict[str, Any] | None = None) -> Layers:
     """Dem2Hazard on the ``dem`` layer: slope, step, roughness, hazard, traversability."""
     return dem2hazard_layers(layers, params)
 
 
-@step("ortho_layer", inputs={"layers": "Layers", "views": "list[View]", "base": "Layers?"},
-      outputs={"layers": "Layers"})
+@step("ortho_layer", outputs={"layers": "Layers"})
 def ortho_layer(layers: Layers, views: list[View], base: Layers | None = None) -> Layers:
     """The ortho-image from the views; where none sees a cell, the current DEM's ortho is kept."""
     g: GridGeometry = layers.geometry
@@ -170,7 +163,7 @@ def resample_nearest(image: np.ndarray, src: GridGeometry, dst: GridGeometry, fi
     return out
 
 
-@step("view_files", inputs={"views": "list[View]", "folder": "str?"}, outputs={"inputs": "list[str]"})
+@step("view_files", outputs={"inputs": "list[str]"})
 def view_files(views: list[View], folder: str | None = None) -> list[str]:
     """The recorded images the views came from, as the products' sidecars cite them."""
     prefix = f"{folder}/" if folder else ""

@@ -139,10 +139,7 @@ def _rover_polygon(rover_mask: np.ndarray | Sequence[float]) -> np.ndarray:
     return poly
 
 
-@step("dem_import", inputs={"points": "array", "geometry": "any", "cell": "float", "bounds": "floats?",
-                          "point_variance": "array?", "rover_mask": "any", "rover_ground_z": "float?",
-                          "stats": "list", "chunk": "int", "height": "str"},
-      outputs={"dem": "Layers"})
+@step("dem_import", outputs={"dem": "Layers"})
 def dem_import(
     points: np.ndarray,
     geometry: GridGeometry | None = None,

@@ -55,10 +55,7 @@ def write_dem_products(
     return written
 
 
-@step("write_products", inputs={"layers": "Layers", "out_dir": "path", "name": "str", "made_by": "str?",
-                                "parameters": "dict?", "inputs": "list?", "mesh": "bool", "select": "list?",
-                                "preview": "bool", "dem_file": "str?", "rover_mask": "array?", "crs": "str?"},
-      outputs={"files": "dict"})
+@step("write_products", outputs={"files": "dict"})
 def write_products(layers: Layers, out_dir: str | Path, name: str, made_by: str | None = None,
                    parameters: dict[str, Any] | None = None, inputs: list[str] | None = None,
                    mesh: bool = False, select: list[str] | None = None, preview: bool = True,

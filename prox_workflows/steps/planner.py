@@ -1023,12 +1023,7 @@ def write_plan(result: PlanResult, prefix: str, ortho: tuple[np.ndarray, GridGeo
 # ------------------------------------------------------------------------------ workflow steps
 
 
-@step("plan_path", inputs={"local": "NavMaps", "global_maps": "NavMaps?", "start": "floats", "goal": "floats",
-                           "start_heading": "float?", "weight": "float", "heuristic": "str", "grid": "float",
-                           "margin": "float", "max_deviation": "float", "border": "float",
-                           "rover_radius": "float", "critical_slope": "float", "unknown_cost": "float?",
-                           "footprint": "str?", "rover_half_width": "float?"},
-      outputs={"plan": "PlanResult"})
+@step("plan_path", outputs={"plan": "PlanResult"})
 def plan_step(local: NavMaps, global_maps: NavMaps | None, start: Sequence[float], goal: Sequence[float],
               start_heading: float | None = None, weight: float = 0.5, heuristic: str = "octile",
               grid: float | None = None, margin: float = 0.1, max_deviation: float = 0.1, border: float = 0.3,
@@ -1045,8 +1040,7 @@ def plan_step(local: NavMaps, global_maps: NavMaps | None, start: Sequence[float
     return plan_path(local, global_maps, start, goal, params, start_heading=start_heading)
 
 
-@step("write_plan", inputs={"plan": "PlanResult", "prefix": "path", "ortho": "any", "made_by": "str?",
-                            "inputs": "list?"}, outputs={"files": "list[str]"})
+@step("write_plan", outputs={"files": "list[str]"})
 def write_plan_step(plan: PlanResult, prefix: str, ortho: tuple[np.ndarray, GridGeometry] | None = None,
                     made_by: str | None = None, inputs: Sequence[str] | None = None) -> list[str]:
     """The plan's products (:func:`write_plan`): path, waypoints, summary and drawings."""

@@ -28,7 +28,7 @@ from .noise import tof_sigma
 from .transforms import read_cal
 
 
-@step("read_views", inputs={"folder": "path"}, outputs={"views": "list[View]", "rover_mask": "array?"})
+@step("read_views", outputs={"views": "list[View]", "rover_mask": "array?"})
 def read_views(folder: str | Path) -> dict[str, Any]:
     """The views of a recorded folder in the order they were taken, and the rover mask the
     scan used (from ``*_scan.yaml``)."""
@@ -57,7 +57,7 @@ def read_views(folder: str | Path) -> dict[str, Any]:
     return {"views": views, "rover_mask": mask}
 
 
-@step("read_layers", inputs={"path": "path"}, outputs={"layers": "Layers"})
+@step("read_layers", outputs={"layers": "Layers"})
 def read_layers(path: str | Path) -> Layers:
     """A DEM GeoTIFF and its companion layers (the layer registry's names beside it)."""
     return _read_layers(Path(path))
@@ -75,7 +75,7 @@ def gdal_nodata(path: str | Path) -> float | None:
         return None
 
 
-@step("read_dem", inputs={"path": "path", "nodata": "float?"}, outputs={"layers": "Layers"})
+@step("read_dem", outputs={"layers": "Layers"})
 def read_dem(path: str | Path, nodata: float | None = None) -> Layers:
     """A single-band DEM GeoTIFF (ours or GDAL's) as a lone ``dem`` layer, float32 with NaN
     where undefined (the file's GDAL nodata value, or ``nodata``). The rover one of our DEMs
@@ -100,9 +100,7 @@ def read_dem(path: str | Path, nodata: float | None = None) -> Layers:
     return Layers(geometry, {"dem": dem}, meta)
 
 
-@step("read_points", inputs={"paths": "list", "noise": "str", "sensor": "floats?", "frequency": "float",
-                             "classes": "list?", "range": "floats?", "min_reflectivity": "float?", "crs": "str?"},
-      outputs={"points": "array", "variance": "array?", "points_crs": "str?"})
+@step("read_points", outputs={"points": "array", "variance": "array?", "points_crs": "str?"})
 def read_points(paths: list[str | Path], noise: str = "recorded", sensor: list[float] | None = None,
                 frequency: float = 30.0, classes: list[int] | None = None, range: list[float] | None = None,
                 min_reflectivity: float | None = None, crs: str | None = None) -> dict[str, Any]:
@@ -187,7 +185,7 @@ def _read_map_layer(path: Path) -> tuple[np.ndarray, Any]:
     return image, geometry
 
 
-@step("read_global_maps", inputs={"hazard": "path?", "slope": "path?"}, outputs={"maps": "NavMaps?"})
+@step("read_global_maps", outputs={"maps": "NavMaps?"})
 def read_global_maps(hazard: str | Path | None, slope: str | Path | None) -> Any:
     """Global maps (as :func:`read_nav_maps`) if given; None means blank ones."""
     if hazard is None and slope is None:
@@ -197,7 +195,7 @@ def read_global_maps(hazard: str | Path | None, slope: str | Path | None) -> Any
     return read_nav_maps(hazard, slope)
 
 
-@step("read_nav_maps", inputs={"hazard": "path", "slope": "path"}, outputs={"maps": "NavMaps"})
+@step("read_nav_maps", outputs={"maps": "NavMaps"})
 def read_nav_maps(hazard: str | Path, slope: str | Path) -> Any:
     """A hazard map (dem2hazard's CODES) and its slope map (degrees) on the same grid, as the planner
     takes them."""
@@ -215,7 +213,7 @@ def read_nav_maps(hazard: str | Path, slope: str | Path) -> Any:
     return NavMaps(hz.astype(np.uint8), sl.astype(np.float32), hgeom)
 
 
-@step("read_image", inputs={"path": "path?"}, outputs={"image": "any"})
+@step("read_image", outputs={"image": "any"})
 def read_image(path: str | Path | None) -> Any:
     """A GeoTIFF image and its grid (an ortho-image to draw on), or None without a path."""
     return None if path is None else read_geotiff(Path(path))

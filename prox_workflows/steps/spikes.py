@@ -61,8 +61,7 @@ def find_spikes(dem: np.ndarray, variance: np.ndarray | None = None, count: np.n
     return lone
 
 
-@step("remove_spikes_layers", inputs={"layers": "Layers", "min_jump": "float", "k": "float", "max_points": "int"},
-      outputs={"layers": "Layers"})
+@step("remove_spikes_layers", outputs={"layers": "Layers"})
 def remove_spikes_layers(layers: Layers, min_jump: float = 0.05, k: float = 4.0, max_points: int = 3) -> Layers:
     """The workflow step: a copy of ``layers`` with the spikes of its ``dem`` undefined (and
     their variance and count cleared), and a ``spikes`` layer (uint8, 1 where one was)."""

@@ -159,9 +159,7 @@ def stereo_odometry(left_a: np.ndarray, right_a: np.ndarray, left_b: np.ndarray,
                         motion.rms_px, motion.spread, right_b is not None)
 
 
-@step("stereo_odometry", inputs={"left_a": "path", "right_a": "path", "left_b": "path", "right_b": "path?",
-                                 "calib": "path", "params": "dict?"},
-      outputs={"motion": "dict"})
+@step("stereo_odometry", outputs={"motion": "dict"})
 def stereo_odometry_files(left_a: str | Path, right_a: str | Path, left_b: str | Path,
                           right_b: str | Path | None, calib: str | Path,
                           params: dict[str, Any] | None = None) -> dict[str, Any]:

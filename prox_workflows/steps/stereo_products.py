@@ -37,25 +37,20 @@ def read_image(path: str | Path) -> np.ndarray:
     return img
 
 
-@step("read_stereo_pair", inputs={"left": "path", "right": "path", "calib": "path"},
-      outputs={"left": "array", "right": "array", "calib": "any"})
+@step("read_stereo_pair", outputs={"left": "array", "right": "array", "calib": "any"})
 def read_stereo_pair(left: str | Path, right: str | Path, calib: str | Path) -> dict[str, Any]:
     """A pair as taken and its calibration (image_size, K1 D1 K2 D2 R T)."""
     return {"calib": load_calibration(calib), "left": read_image(left), "right": read_image(right)}
 
 
-@step("stereo_disparity", inputs={"left": "array", "right": "array", "calib": "any", "params": "dict?"},
-      outputs={"disparity": "Disparity"})
+@step("stereo_disparity", outputs={"disparity": "Disparity"})
 def stereo_disparity(left: np.ndarray, right: np.ndarray, calib: Any, params: dict[str, Any] | None = None
                      ) -> Disparity:
     """SGBM with left-right check, speckle filter and texture mask (:func:`disparity`)."""
     return disparity(left, right, calib, SgbmParams.from_dict(params or {}))
 
 
-@step("write_stereo", inputs={"disparity": "Disparity", "left": "array", "params": "dict?",
-                              "disparity_path": "path?", "rectified_path": "path?", "cloud_path": "path?",
-                              "sigma_d": "float?", "max_depth": "float?", "made_by": "str?", "inputs": "list?"},
-      outputs={"files": "dict"})
+@step("write_stereo", outputs={"files": "dict"})
 def write_stereo(disparity: Disparity, left: np.ndarray, params: dict[str, Any] | None = None,
                  disparity_path: str | Path | None = None, rectified_path: str | Path | None = None,
                  cloud_path: str | Path | None = None, sigma_d: float | None = None, max_depth: float | None = None,

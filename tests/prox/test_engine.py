@@ -106,3 +106,16 @@ def test_rvs_prox_runs_a_script_file(tmp_path, capsys) -> None:
     out = capsys.readouterr().out
     assert "get_ptu_positions" in out and (tmp_path / "run.yaml").is_file()
     assert main([str(tmp_path / "missing.yaml")]) == 2  # no such file: the command line's fault
+
+
+def test_a_steps_input_types_are_its_annotations() -> None:
+    from prox_workflows.engine import registry
+    from prox_workflows.engine.types import annotation_type
+
+    assert annotation_type("str | Path | None") == "path?" and annotation_type("np.ndarray") == "array"
+    assert annotation_type("list[float] | tuple[float, float, float, float]") == "floats"
+    assert annotation_type("list[Layers | None]") == "list[Layers?]" and annotation_type("Sequence[str]") == "list"
+    assert annotation_type("dict[str, Any] | None") == "dict?" and annotation_type("int | str") == "any"
+    spec = registry()["mosaic"]
+    assert spec.inputs["dems"] == "list[Layers?]" and spec.inputs["base"] == "Layers?"
+    assert spec.inputs["gate"] == "float" and spec.required == {"dems", "base", "rule", "cell"}
