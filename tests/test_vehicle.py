@@ -132,3 +132,12 @@ def test_a_track_without_headings_faces_along_itself() -> None:
     poses = track_poses(np.array([(0.0, 0.0), (0.05, 0.0), (0.05, 0.05), (0.05, 0.05)]))
     assert poses[:, 2].tolist() == pytest.approx([0.0, 90.0, 90.0, 90.0])
     assert track_poses(np.zeros((2, 2)), np.array([10.0, 20.0]))[:, 2].tolist() == [10.0, 20.0]
+
+
+def test_the_margins_put_the_thresholds_below_the_capability_by_the_measured_budget() -> None:
+    from prox_workflows.steps.vehicle import Margins
+
+    assert Margins(read_low=0.02, tracking=0.05).thresholds(BODY) == {"step_max": 0.06, "slope_max": 19.3,
+                                                                       "margin": 0.05}
+    assert RoverBody(clearance=0.12).climb == 0.10
+    assert Margins(read_low=0.02, tracking=0.05).thresholds(RoverBody(clearance=0.12))["step_max"] == 0.08

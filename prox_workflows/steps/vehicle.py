@@ -33,9 +33,11 @@ import numpy as np
 
 from ..grid import GridGeometry
 
-__all__ = ["VehicleBody", "PoseChecks", "Event", "check_poses", "densify", "unsafe_events", "track_poses",
-           "WHEELS"]
+__all__ = ["VehicleBody", "PoseChecks", "Event", "Margins", "check_poses", "densify", "unsafe_events",
+           "track_poses", "WHEELS"]
 
+READ_LOW_P99 = 0.051  # m: ToF DEM, 5 cm cells, marsyard (docs/NAVIGATE_BENCH.md, Error budget)
+TRACKING_P99 = 0.03  # m: the see loop's true track from its planned legs, worst mission p99
 WHEELS = ("front-left", "front-right", "rear-left", "rear-right")
 # The four planes a rigid body may rest on: three wheels each, the fourth named last.
 _TRIPLETS = ((0, 1, 2, 3), (0, 1, 3, 2), (0, 2, 3, 1), (1, 2, 3, 0))
@@ -54,6 +56,29 @@ class VehicleBody(Protocol):
 
     @property
     def wheels(self) -> np.ndarray: ...  # (4, 2) hubs: front-left, front-right, rear-left, rear-right
+
+
+@dataclass(frozen=True)
+class Margins:
+    """How far below the body's capability the planner and the live check must judge, so that
+    what the maps read and how the rover follows its path stay within it: the error budget
+    ``python -m tools.bench.navigate --budget`` measures and prints (docs/NAVIGATE_BENCH.md,
+    "Error budget"). The defaults are its figures, not guesses:
+
+    - ``read_low``: how much lower than the true top the maps read a rock cell, p99 at 5 cm (the
+      rolling map's cell), the worse of the ToF and the stereo pair over marsyard and hirise;
+    - ``tracking``: how far the true track strays from the planned path, p99 over the missions.
+    """
+
+    read_low: float = READ_LOW_P99
+    tracking: float = TRACKING_P99
+
+    def thresholds(self, body: VehicleBody) -> dict[str, float]:
+        """Dem2Hazard's step and slope limits and the planner's lateral margin for ``body``: its
+        step capability (the lower of its climb and its belly: a rock under the box must pass
+        beneath it) less the read-low error; its tilt; the tracking error."""
+        return {"step_max": round(min(body.climb, body.clearance) - self.read_low, 3), "slope_max": body.tilt,
+                "margin": self.tracking}
 
 
 @dataclass

@@ -51,7 +51,7 @@ from drivers.sim.world import World
 from prox_workflows.grid import GridGeometry
 from prox_workflows.steps.dem2hazard import HAZARDOUS, SAFE, UNDEFINED, HazardParams, classify, dem2hazard
 from prox_workflows.steps.safety import check_move
-from prox_workflows.steps.vehicle import Event, check_poses, densify, track_poses, unsafe_events
+from prox_workflows.steps.vehicle import Event, Margins, check_poses, densify, track_poses, unsafe_events
 from rvs_server.client.session import ServerThread
 from rvs_server.protocol import Reply, parse_reply
 from tools.global_maps import write_global_maps
@@ -582,7 +582,9 @@ def read_low_budget(scene: str, count: int, seed: int = 0, cells: tuple[float, .
     360-degree DEM (``dem-full-tof`` or ``dem-full``) from each of the first ``count`` mission
     starts, its defined cells within :data:`BUDGET_RANGE` of the rover whose centre lies on a
     rock (the simulator's rock list), true top (the greatest height of the 5 mm true surface in
-    the cell) minus the DEM's value. The same over the rest of the ground, for the bias."""
+    the cell) minus the DEM's value, each DEM first registered in height to the truth by the median
+    of its rock-free cells (``shift_max``: the largest such shift, about 0 when the frames agree).
+    ``ground_bias_p50``: the rock-free cells' true mean minus the DEM's value after it."""
     from prox_workflows.steps.readers import read_dem
 
     out: dict[tuple[str, float], dict[str, list[np.ndarray]]] = {}
@@ -596,6 +598,7 @@ def read_low_budget(scene: str, count: int, seed: int = 0, cells: tuple[float, .
                 heading = math.degrees(math.atan2(goal[1] - start[1], goal[0] - start[0]))
                 world.set_rover_pose(start[0], start[1], heading)
                 srv.request(f"pose -x {start[0]} -y {start[1]} -heading {heading:.2f}")
+                ground = world.rover_z()  # the DEM's heights are over the ground under the rover
                 for sensor in sensors:
                     for cell in cells:
                         name = f"{sensor}{k}_{int(round(cell * 1000))}"
@@ -606,8 +609,9 @@ def read_low_budget(scene: str, count: int, seed: int = 0, cells: tuple[float, .
                         dem = read_dem(Path(tmp) / "dem" / f"{name}_dem.tif")
                         g = dem.geometry
                         k_sub = int(round(cell / 0.005))
-                        true = world.true_dem(0.005, g.bounds, include_target=False)
-                        top = true.reshape(g.height, k_sub, g.width, k_sub).max(axis=(1, 3))
+                        true = world.true_dem(0.005, g.bounds, include_target=False) - np.float32(ground)
+                        blocks = true.reshape(g.height, k_sub, g.width, k_sub)
+                        top, mean = blocks.max(axis=(1, 3)), blocks.mean(axis=(1, 3))
                         xs, ys = g.centers()
                         X, Y = np.meshgrid(xs, ys)
                         d = np.hypot(X - start[0], Y - start[1])
@@ -620,10 +624,14 @@ def read_low_budget(scene: str, count: int, seed: int = 0, cells: tuple[float, .
                             v = -(X - rk["x"]) * math.sin(yaw) + (Y - rk["y"]) * math.cos(yaw)
                             on_rock |= (u / rk["a"]) ** 2 + (v / rk["b"]) ** 2 <= 1.0
                         band = (d >= BUDGET_RANGE[0]) & (d <= BUDGET_RANGE[1]) & np.isfinite(dem["dem"]) & np.isfinite(top)
-                        low = top - dem["dem"]
-                        bucket = out.setdefault((sensor, cell), {"rock": [], "ground": []})
-                        bucket["rock"].append(low[band & on_rock])
-                        bucket["ground"].append(low[band & ~on_rock])
+                        bucket = out.setdefault((sensor, cell), {"rock": [], "ground": [], "shift": []})
+                        # a DEM's heights are over the ground the server put under the rover when
+                        # it was made: each is registered to the truth by its rock-free cells
+                        bias = (mean - dem["dem"])[band & ~on_rock]
+                        shift = float(np.median(bias)) if bias.size else 0.0
+                        bucket["rock"].append((top - dem["dem"])[band & on_rock] - shift)
+                        bucket["ground"].append(bias - shift)
+                        bucket["shift"].append(np.array([shift]))
         finally:
             srv.stop()
     rows = []
@@ -631,7 +639,8 @@ def read_low_budget(scene: str, count: int, seed: int = 0, cells: tuple[float, .
         rock, ground = np.concatenate(b["rock"]), np.concatenate(b["ground"])
         rows.append({"scene": scene, "sensor": sensor, "cell": cell, "rock_cells": int(rock.size),
                      "read_low_p50": _pct(list(rock), 50), "read_low_p99": _pct(list(rock), 99),
-                     "ground_p50": _pct(list(ground), 50)})
+                     "ground_bias_p50": _pct(list(ground), 50),
+                     "shift_max": round(float(np.max(np.abs(np.concatenate(b["shift"])))), 3)})
     return rows
 
 
@@ -703,8 +712,20 @@ def main(argv: list[str] | None = None) -> None:
                     help="a server setting for every mission (e.g. navigate.see_margin=0)")
     ap.add_argument("--jobs", type=int, default=1, choices=[1, 2], help="missions run in this many processes")
     ap.add_argument("--budget", action="store_true",
-                    help="only the error budget: each sensor's DEM read-low error on rock cells (--missions starts)")
+                    help="only the error budget: each sensor's DEM read-low error on rock cells (--missions starts), "
+                         "and the margin table (the tracking error from --tracking-from)")
+    ap.add_argument("--tracking-from", nargs="*", default=[], metavar="JSON",
+                    help="with --budget: earlier runs' --out files, whose missions give the path-tracking error")
+    ap.add_argument("--derived", action="store_true",
+                    help="run with the thresholds the error budget gives (vehicle.Margins): dem2hazard.step_max, "
+                         "dem2hazard.slope_max and navigate.margin")
     args = ap.parse_args(argv)
+    body = vehicle_body(World.from_scene(args.scenes[0]))
+    if args.derived:
+        t = Margins().thresholds(body)
+        args.set += [f"dem2hazard.step_max={t['step_max']}", f"dem2hazard.slope_max={t['slope_max']}",
+                     f"navigate.margin={t['margin']}"]
+        print("derived thresholds:", " ".join(args.set), flush=True)
     FOOTPRINT["see"] = args.footprint
     if args.ceiling:
         for scene in args.scenes:
@@ -721,15 +742,24 @@ def main(argv: list[str] | None = None) -> None:
         return
     if args.budget:
         budget = [b for scene in args.scenes for b in read_low_budget(scene, args.missions, args.seed)]
-        print("\nscene     sensor cell   rock cells  read-low p50  p99 (m)   ground p50")
+        print("\nscene     sensor cell   rock cells  read-low p50  p99 (m)   ground bias p50 (m)  height shift max (m)")
         for b in budget:
             print(f"{b['scene']:9} {b['sensor']:6} {b['cell']:.3f} {b['rock_cells']:10} {b['read_low_p50']:12} "
-                  f"{b['read_low_p99']:8} {b['ground_p50']:10}", flush=True)
+                  f"{b['read_low_p99']:8} {b['ground_bias_p50']:10} {b['shift_max']:10}", flush=True)
+        tracked = [r for f in args.tracking_from for r in json.loads(Path(f).read_text())["rows"]]
+        track = [r["cross_track_p50"] for r in tracked if "cross_track_p50" in r]
+        if track:
+            print(f"\npath tracking over {len(track)} missions: cross-track p50 (median of missions) "
+                  f"{float(np.median(track)):.3f} m, p99 (worst mission) "
+                  f"{max(r['cross_track_p99'] for r in tracked if 'cross_track_p99' in r):.3f} m")
+        print("\nmargins:\n  " + "\n  ".join(margin_table(budget, tracked, body)))
         if args.out:
             Path(args.out).write_text(json.dumps({"budget": budget}, indent=1))
         return
-    jobs = [(scene, mode, start, goal, tuple(args.set), i, args.footprint) for scene in args.scenes
-            for i, (start, goal) in enumerate(missions(scene, args.missions, args.seed)) for mode in args.modes]
+    # scenes and modes interleaved mission by mission: a run cut short still compares them
+    todo = {scene: missions(scene, args.missions, args.seed) for scene in args.scenes}
+    jobs = [(scene, mode, *todo[scene][i], tuple(args.set), i, args.footprint) for i in range(args.missions)
+            for scene in args.scenes for mode in args.modes]
     rows: list[dict[str, Any]] = []
     if args.jobs > 1:
         import multiprocessing
