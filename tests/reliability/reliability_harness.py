@@ -337,7 +337,7 @@ class LineGen:
             positional.append(word)
             parts.append(word)
         options: list[tuple[str, str | bool]] = []
-        specs = [s for s in cmd.config.specs().values() if s.option] if cmd and cmd.config and not cmd.raw else []
+        specs = [s for s in cmd.config.keys().values() if s.option] if cmd and cmd.config and not cmd.raw else []
         if name == "config":
             specs = []
             if rng.random() < 0.8:

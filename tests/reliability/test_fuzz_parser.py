@@ -98,10 +98,10 @@ def test_options_bind_or_are_e_arg(rng) -> None:
     cmd = lookup(req.command)
     if cfg is None or cmd is None or cmd.raw:
         return
-    specs = cfg.specs()
+    specs = cfg.keys()
     for name, _ in req.options:
         spec = specs[name]
-        value = getattr(cfg, name)
+        value = cfg.value_of(spec)
         if spec.kind in ("float", "int") and (spec.min is not None or spec.max is not None):
             assert math.isfinite(value) and spec.min <= value <= spec.max, (gen.line, name, value)
         if spec.kind == "floats":
@@ -249,7 +249,7 @@ def test_every_command_and_option_of_the_table_is_generated() -> None:
     for name, cmd in COMMANDS.items():
         if cmd.config is None or cmd.raw:
             continue
-        options = {s.name for s in cmd.config.specs().values() if s.option}
+        options = {s.name for s in cmd.config.keys().values() if s.option}
         assert options <= seen[name], (name, options - seen[name])
 
 

@@ -68,7 +68,7 @@ def stem_options() -> list[tuple[str, str]]:
     out = []
     for name, cmd in sorted(COMMANDS.items()):
         if cmd.config is not None and not cmd.raw:
-            out += [(name, spec.flag) for spec in cmd.config.specs().values() if spec.stem and spec.option]
+            out += [(name, spec.flag) for spec in cmd.config.keys().values() if spec.stem and spec.option]
     return out
 
 
