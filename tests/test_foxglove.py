@@ -8,6 +8,7 @@ from __future__ import annotations
 import asyncio
 import base64
 import json
+import os
 import socket
 import struct
 from pathlib import Path
@@ -16,6 +17,7 @@ from typing import Any
 import aiohttp
 import numpy as np
 import pytest
+from conftest import wait_for
 from google.protobuf import descriptor_pb2, descriptor_pool, message_factory
 from scipy.spatial.transform import Rotation
 
@@ -23,6 +25,27 @@ from prox_workflows.grid import read_geotiff
 
 SUBPROTOCOL = "foxglove.sdk.v1"
 DEM = "dem-full-tof -range -30,30,-40,-20 -overlap 0.1 -name fx"  # two views: a second or two
+
+
+def listener_pid(port: int) -> int:
+    """The process listening on TCP ``port`` (from /proc: the socket's inode, then whose fd it is)."""
+    inodes = set()
+    for table in ("/proc/net/tcp", "/proc/net/tcp6"):
+        for row in Path(table).read_text().splitlines()[1:]:
+            cols = row.split()
+            if int(cols[1].rsplit(":", 1)[1], 16) == port and cols[3] == "0A":  # 0A: LISTEN
+                inodes.add(f"socket:[{cols[9]}]")
+    for pid in filter(str.isdigit, os.listdir("/proc")):
+        try:
+            if any(os.readlink(f"/proc/{pid}/fd/{fd}") in inodes for fd in os.listdir(f"/proc/{pid}/fd")):
+                return int(pid)
+        except OSError:  # gone meanwhile, or not ours to read
+            continue
+    raise AssertionError(f"nothing listens on {port}")
+
+
+def parent_of(pid: int) -> int:
+    return int(Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[1])
 
 
 def free_port() -> int:
@@ -219,6 +242,11 @@ def test_a_client_that_subscribes_late_gets_the_map_and_a_taken_port_costs_only_
             await fx.ws.close()
             await session.close()
 
+    # the SDK runs in a process of the server's own, which a stopped server leaves none of
+    owner = listener_pid(port)
+    assert owner != os.getpid() and parent_of(owner) == os.getpid()
+    assert c.request("status").fields["foxglove_dropped"] == "0"
+
     grid, scene = asyncio.run(late())
     trav, _ = read_geotiff(srv.data / "dem" / "fx_traversability.tif")
     np.testing.assert_array_equal(grid_values(grid), trav)
@@ -229,3 +257,5 @@ def test_a_client_that_subscribes_late_gets_the_map_and_a_taken_port_costs_only_
     other = server_factory([f"server.foxglove_port={port}"])
     st = other.client().request("status").fields
     assert st["foxglove"] == "off" and str(port) in st["foxglove_reason"], st
+    srv.stop()
+    assert wait_for(lambda: not Path(f"/proc/{owner}").exists(), 10.0)

@@ -1,10 +1,11 @@
 """The telemetry hub: takes what the server publishes on its bus, samples the pose and the PTU,
-and logs all of it as Foxglove messages to the live server and to a recording.
+and sends all of it as Foxglove messages to the telemetry process (:mod:`.link`), which encodes
+them and logs them to the live server and to a recording.
 
-Everything heavy (encoding grids, clouds and JPEGs, compressing MCAP chunks) runs in the hub's
-own thread. The bus subscriber only queues the item, so the event loop and the jobs pay a
-deque append; a queue the thread cannot keep up with drops its oldest items and counts them
-(``dropped``), rather than letting a burst of frames grow the server's memory.
+The hub's thread only picks what is wanted and queues each message's function and arguments for
+the link's sender thread. The bus subscriber only queues the item, so the event loop and the
+jobs pay a deque append; a queue the thread cannot keep up with drops its oldest items and counts
+them (``dropped``), rather than letting a burst of frames grow the server's memory.
 """
 
 from __future__ import annotations
@@ -22,9 +23,10 @@ from prox_workflows.steps.transforms import HeadCalibration
 
 from ..bus import Item
 from ..maps import ground_height
-from ..protocol import format_reply
+from ..protocol import Reply, format_reply
 from . import messages as m
-from .outlet import MAP_PREFIX, TOPICS, Outlet
+from .link import Link
+from .outlet import MAP_PREFIX, TOPICS
 
 if TYPE_CHECKING:
     from ..app import App
@@ -41,19 +43,19 @@ FRAME_CALLS = {"grab_xyz", "grab", "grab_stereo", "grab_mono", "grab_stereo_dire
 
 
 class Telemetry:
-    """The hub: one thread, a live outlet (if the Foxglove server runs) and a recording outlet
-    (while recording). Outlets are attached and detached through :meth:`attach`/:meth:`detach`
-    from any thread; the state the thread keeps (the last maps, plan, track) is its own."""
+    """The hub: one thread, and the link to the telemetry process once there is one
+    (:meth:`attach`). The state the thread keeps (the last maps, plan, check-move, track) is its
+    own; the process gets it all when it is attached, and each change after."""
 
     def __init__(self, app: App) -> None:
         self.app = app
         self.dropped = 0
         self._queue: deque[Item | tuple[str, Any]] = deque()
         self._wake = threading.Condition()
-        self._outlets: tuple[Outlet, ...] = ()
+        self._link: Link | None = None
         self._stop = False
-        self._maps: tuple[int, Layers, str | None] | None = None
-        self._latched: dict[str, tuple[int, bytes]] = {}  # plan, check-move: their last message
+        self._maps: tuple[int, Layers] | None = None
+        self._latched: dict[str, tuple[int, Any, tuple[Any, ...]]] = {}  # plan, check-move: their last message
         self._track: deque[tuple[float, float, float]] = deque(maxlen=TRACK_POINTS)
         self._track_sent = 0.0
         self._track_dirty = False
@@ -65,11 +67,12 @@ class Telemetry:
     # ------------------------------------------------------------------ outside the thread
 
     def accept(self, item: Item) -> None:
-        """The bus subscriber (any thread): keep what the outlets use, queue, return. A frame is
-        copied (the job may reuse its arrays) with the PTU and pose it was taken at: the grabbing
-        thread holds the PTU still until the call returns, a sample a tick later may not."""
+        """The bus subscriber (any thread): queue, return. A frame, only if the process wants it,
+        is copied (the job may reuse its arrays) with the PTU and pose it was taken at: the
+        grabbing thread holds the PTU still until the call returns, a sample a tick later may not."""
         if item.kind == "frame":
-            if item.data["call"] not in FRAME_CALLS:
+            link = self._link
+            if item.data["call"] not in FRAME_CALLS or link is None or not link.wants_any():
                 return
             result = item.data["result"]
             copied = tuple(np.array(a) for a in result) if isinstance(result, tuple) else np.array(result)
@@ -78,26 +81,27 @@ class Telemetry:
 
     def _put(self, entry: Item | tuple[str, Any]) -> None:
         with self._wake:
-            if len(self._queue) >= MAX_QUEUED:
+            if len(self._queue) >= MAX_QUEUED and isinstance(self._queue[0], Item):  # never an attach or drained
                 self._queue.popleft()
                 self.dropped += 1
             self._queue.append(entry)
             self._wake.notify()
 
-    def attach(self, outlet: Outlet) -> None:
-        """Start logging to ``outlet``; what is latched (maps, plan, track) goes to it first."""
-        self._put(("attach", outlet))
-
-    def detach(self, outlet: Outlet) -> threading.Event:
-        """Stop logging to ``outlet``; the event is set once the thread has let it go (a recording
-        is closed after that, never while a message is half written)."""
+    def attach(self, link: Link) -> threading.Event:
+        """Send to ``link`` from now on, what is latched (maps, plan, check-move, track) first;
+        the event is set once that is queued."""
         done = threading.Event()
-        self._put(("detach", (outlet, done)))
+        with self._wake:  # ahead of the items: the process has the state before what changes it
+            self._queue.appendleft(("attach", (link, done)))
+            self._wake.notify()
         return done
 
-    def resend(self, outlet: Outlet, topic: str) -> None:
-        """A live client subscribed to ``topic``: send it what is latched there."""
-        self._put(("resend", (outlet, topic)))
+    def drained(self) -> threading.Event:
+        """Set once the thread has sent on every item queued before (a recording stops after
+        the reply that ended its last job)."""
+        done = threading.Event()
+        self._put(("drained", done))
+        return done
 
     def close(self) -> None:
         self.app.bus.unsubscribe(self.accept)
@@ -126,8 +130,6 @@ class Telemetry:
             if time.monotonic() >= next_tick:
                 next_tick = time.monotonic() + TICK
                 try:
-                    for outlet in self._outlets:
-                        outlet.tick(next_tick)
                     self._sample()
                 except Exception:  # noqa: BLE001
                     log.exception("telemetry_sample_failed")
@@ -136,54 +138,44 @@ class Telemetry:
         if isinstance(entry, tuple):
             what, arg = entry
             if what == "attach":
-                self._outlets = (*self._outlets, arg)
-                if not arg.live:
-                    self._send_latched(arg)
-            elif what == "detach":
-                outlet, done = arg
-                self._outlets = tuple(o for o in self._outlets if o is not outlet)
-                done.set()
-            elif what == "resend":
-                outlet, topic = arg
-                if outlet in self._outlets:
-                    self._send_latched(outlet, topic)
+                self._link, done = arg
+                self._send_latched()
+            else:
+                done = arg
+            done.set()
             return
         handler = getattr(self, f"_on_{entry.kind}", None)
         if handler is not None:
             handler(entry)
 
-    def _log(self, topic: str, make: Any, t_ns: int, outlets: tuple[Outlet, ...] | None = None) -> None:
-        """Encode (``make()``) once, if any outlet wants the topic, and log it there."""
-        wanting = [o for o in (self._outlets if outlets is None else outlets) if o.wants(topic)]
-        if not wanting:
-            return
-        data = make()
-        for outlet in wanting:
-            outlet.log(topic, data, t_ns)
+    def _log(self, topic: str, t_ns: int, encode: Any, *args: Any) -> None:
+        """Send ``encode(*args)`` to the process (which encodes it) if ``topic`` is wanted there."""
+        link = self._link
+        if link is not None and link.wants(topic):
+            link.log(topic, t_ns, encode, *args)
 
-    def _latch(self, topic: str, data: bytes, t_ns: int) -> None:
-        self._latched[topic] = (t_ns, data)
-        self._log(topic, lambda: data, t_ns)
+    def _latch(self, topic: str, t_ns: int, encode: Any, *args: Any) -> None:
+        self._latched[topic] = (t_ns, encode, args)
+        self._log(topic, t_ns, encode, *args)
 
-    def _send_latched(self, outlet: Outlet, topic: str | None = None) -> None:
+    def _send_latched(self) -> None:
         if self._maps is not None:
-            t_ns, layers, _ = self._maps
+            t_ns, layers = self._maps
             for name in layers.layers:
-                if topic in (None, MAP_PREFIX + name):
-                    self._log(MAP_PREFIX + name, lambda n=name: m.grid(t_ns, layers, n), t_ns, (outlet,))
-        for key, (t_ns, data) in self._latched.items():
-            if topic in (None, key):
-                self._log(key, lambda d=data: d, t_ns, (outlet,))
-        if topic in (None, "/nav/track") and self._track:
-            self._log("/nav/track", lambda: m.track(time.time_ns(), list(self._track)), time.time_ns(), (outlet,))
+                self._log(MAP_PREFIX + name, t_ns, m.grid, t_ns, layers.geometry, name, layers[name])
+        for topic, (t_ns, encode, args) in self._latched.items():
+            self._log(topic, t_ns, encode, *args)
+        if self._track:
+            t = time.time_ns()
+            self._log("/nav/track", t, m.track, t, np.array(self._track))
 
     # -- bus items
 
     def _on_maps(self, item: Item) -> None:
         layers: Layers = item.data["layers"]
-        self._maps = (item.time_ns, layers, item.data["name"])
+        self._maps = (item.time_ns, layers)
         for name in layers.layers:
-            self._log(MAP_PREFIX + name, lambda n=name: m.grid(item.time_ns, layers, n), item.time_ns)
+            self._log(MAP_PREFIX + name, item.time_ns, m.grid, item.time_ns, layers.geometry, name, layers[name])
 
     def _on_frame(self, item: Item) -> None:
         t, call, result = item.time_ns, item.data["call"], item.data["result"]
@@ -191,18 +183,17 @@ class Telemetry:
         if item.data["device"] == "tof":
             if call == "grab_xyz":
                 xyz, amplitude = result
-                self._log("/tof/points", lambda: m.point_cloud(t, "tof", xyz, amplitude), t)
-                self._log("/tof/depth", lambda: m.raw_image(t, "tof", np.where(xyz[..., 2] > 0, xyz[..., 2], np.nan)
-                                                            .astype(np.float32)), t)
-                self._log("/tof/amplitude", lambda: m.raw_image(t, "tof", amplitude), t)
-                self._log("/raw/tof/xyz", lambda: m.raw_image(t, "tof", xyz), t)
-                self._log("/raw/tof/amplitude", lambda: m.raw_image(t, "tof", amplitude), t)
+                self._log("/tof/points", t, m.point_cloud, t, "tof", xyz, amplitude)
+                self._log("/tof/depth", t, m.depth, t, "tof", xyz)
+                self._log("/tof/amplitude", t, m.raw_image, t, "tof", amplitude)
+                self._log("/raw/tof/xyz", t, m.raw_image, t, "tof", xyz)
+                self._log("/raw/tof/amplitude", t, m.raw_image, t, "tof", amplitude)
             else:  # grab(image_type): distance, amplitude, confidence, z, xyz
                 kind = str(item.data["args"][0]) if item.data["args"] else "distance"
                 topic = {"z": "/tof/depth"}.get(kind, f"/tof/{kind}")
                 if topic in TOPICS:
-                    self._log(topic, lambda: m.raw_image(t, "tof", result), t)
-                self._log("/raw/tof/image", lambda: m.raw_image(t, "tof", result), t)
+                    self._log(topic, t, m.raw_image, t, "tof", result)
+                self._log("/raw/tof/image", t, m.raw_image, t, "tof", result)
         elif item.data["device"] == "stereo":
             if isinstance(result, tuple):
                 sides = dict(zip(("left", "right"), result, strict=True))
@@ -211,12 +202,14 @@ class Telemetry:
                 sides = {str(args[0]) if args else "left": result}
             for side, image in sides.items():
                 frame = m.sensor_frame(side)
-                self._log(f"/stereo/{side}/compressed", lambda i=image, f=frame: m.jpeg(t, f, i), t)
-                self._log(f"/raw/stereo/{side}", lambda i=image, f=frame: m.raw_image(t, f, i), t)
+                self._log(f"/stereo/{side}/compressed", t, m.jpeg, t, frame, image)
+                self._log(f"/raw/stereo/{side}", t, m.raw_image, t, frame, image)
 
-    def _wire(self, item: Item, direction: str, conn: Any, text: str, reply: Any = None) -> None:
-        self._log("/rvs/log", lambda: m.log_line(item.time_ns, direction, conn, text, reply), item.time_ns)
-        self._log("/rvs/wire", lambda: m.json_bytes({"dir": direction, "conn": conn, "line": text}), item.time_ns)
+    def _wire(self, item: Item, direction: str, conn: Any, text: str, reply: Reply | None = None) -> None:
+        t = item.time_ns
+        status, kind = (reply.status, str(reply.fields.get("kind", ""))) if reply is not None else ("", "")
+        self._log("/rvs/log", t, m.log_line, t, direction, conn, text, status, kind)
+        self._log("/rvs/wire", t, m.json_bytes, {"dir": direction, "conn": conn, "line": text})
 
     def _on_request(self, item: Item) -> None:
         line = item.data["line"].decode("utf-8", "replace").rstrip("\r\n")
@@ -235,14 +228,14 @@ class Telemetry:
                         "phase": str(fields.get("phase", "")), "done": done, "total": total,
                         "fraction": done / total if total else float(reply.status == "OK"),
                         "message": str(fields.get("message", ""))}
-            self._log("/rvs/job", lambda: m.json_bytes(progress), item.time_ns)
+            self._log("/rvs/job", item.time_ns, m.json_bytes, progress)
         if reply.module == "EGP-RVS-CHECK-MOVE" and reply.status == "OK" and "to" in fields:
             p = self.app.pose
             start = self._requests.pop(item.data["conn"], (p.x, p.y, p.heading))
             head = self.app.config.get("head")
             z = ground_height(self.app.maps.layers, start[0], start[1])
-            self._latch("/nav/check_move", m.check_move(item.time_ns, start, fields, z,
-                                                        (head.rover_length, head.rover_width)), item.time_ns)
+            self._latch("/nav/check_move", item.time_ns, m.check_move, item.time_ns, start, dict(fields), z,
+                        (head.rover_length, head.rover_width))
 
     def _on_event(self, item: Item) -> None:
         reply = item.data["reply"]
@@ -251,7 +244,7 @@ class Telemetry:
         if fields.get("kind") == "waiting" and fields.get("waypoints"):
             waypoints = [(float(x), float(y), float(h)) for x, y, h in fields["waypoints"]]
             z = ground_height(self.app.maps.layers, waypoints[0][0], waypoints[0][1])
-            self._latch("/nav/plan", m.plan(item.time_ns, waypoints, z, fields.get("leg")), item.time_ns)
+            self._latch("/nav/plan", item.time_ns, m.plan, item.time_ns, waypoints, z, fields.get("leg"))
 
     # -- sampled state
 
@@ -269,13 +262,13 @@ class Telemetry:
     def _log_state(self, t: int, state: Any) -> None:
         pose, ptu, truth = state
         head = HeadCalibration.from_dict(self.app.config.get("head").as_dict())
-        self._log("/tf", lambda: m.frame_tree(t, head, pose, ptu, truth), t)
-        self._log("/rover/pose", lambda: m.pose_in_world(t, *pose), t)
+        self._log("/tf", t, m.frame_tree, t, head, pose, ptu, truth)
+        self._log("/rover/pose", t, m.pose_in_world, t, *pose)
         if truth is not None:
-            self._log("/rover/truth", lambda: m.pose_in_world(t, *truth, pose[3]), t)
+            self._log("/rover/truth", t, m.pose_in_world, t, *truth, pose[3])
 
     def _sample(self) -> None:
-        if not self._outlets:
+        if self._link is None:
             return
         t, state = time.time_ns(), self._state()
         self._log_state(t, state)
@@ -287,7 +280,7 @@ class Telemetry:
             self._track_dirty = True
         if self._track_dirty and time.monotonic() - self._track_sent >= TRACK_EVERY:
             self._track_sent, self._track_dirty = time.monotonic(), False
-            self._log("/nav/track", lambda: m.track(t, list(self._track)), t)
+            self._log("/nav/track", t, m.track, t, np.array(self._track))
 
 
 def _command(line: str) -> str:

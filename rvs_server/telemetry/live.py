@@ -1,4 +1,5 @@
-"""The live Foxglove server (foxglove-sdk's WebSocket server, in its own threads).
+"""The live Foxglove server (foxglove-sdk's WebSocket server, in threads of its own inside the
+telemetry process).
 
 It is read-only whoever connects: it advertises no capability that lets a client publish, call
 a service or set a parameter, so what the console without its token cannot change, Foxglove
@@ -11,42 +12,37 @@ The SDK speaks the foxglove.websocket.v1 protocol under the subprotocol name
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
+from collections.abc import Callable
 
 import foxglove
 from foxglove.websocket import ChannelView, Client, ServerListener
 
 from .outlet import Outlet
 
-if TYPE_CHECKING:
-    from .hub import Telemetry
-
 SUBPROTOCOL = "foxglove.sdk.v1"
 
 
 class _Listener(ServerListener):
-    """A client that subscribes gets what is latched on the topic (a map made before it came)."""
+    """Runs in the SDK's threads: passes each subscription on (a late subscriber is sent what is
+    latched on the topic by whoever owns the latched copies) and returns."""
 
-    def __init__(self, hub: Telemetry, outlet: Outlet) -> None:
-        self.hub = hub
-        self.outlet = outlet
+    def __init__(self, on_subscribe: Callable[[str], None]) -> None:
+        self.on_subscribe_topic = on_subscribe
 
     def on_subscribe(self, client: Client, channel: ChannelView) -> None:
-        self.hub.resend(self.outlet, channel.topic)
+        self.on_subscribe_topic(channel.topic)
 
 
 class LiveOutlet(Outlet):
-    """The Foxglove server on ``host:port``; raises OSError-like RuntimeError if it cannot bind."""
+    """The Foxglove server on ``host:port``; raises RuntimeError if it cannot bind.
+    ``on_subscribe(topic)`` is called in the SDK's threads when a client subscribes."""
 
-    def __init__(self, hub: Telemetry, host: str, port: int, name: str) -> None:
+    def __init__(self, host: str, port: int, name: str, on_subscribe: Callable[[str], None]) -> None:
         super().__init__(live=True)
         self.declare()
         self.server = foxglove.start_server(name=name, host=host, port=port, context=self.context,
-                                            server_listener=_Listener(hub, self), capabilities=[])
+                                            server_listener=_Listener(on_subscribe), capabilities=[])
         self.url = f"ws://{f'[{host}]' if ':' in host else host}:{self.server.port}"
-        self._hub = hub
-        hub.attach(self)
 
     def close(self) -> None:
-        self._hub.detach(self).wait(5.0)
         self.server.stop()

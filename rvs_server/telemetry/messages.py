@@ -1,5 +1,8 @@
 """The server's state as Foxglove messages (foxglove.* protobuf schemas), each encoded once to
-bytes that the live server and a recording both log.
+bytes that the live server and a recording both log. They run in the telemetry process
+(:mod:`.worker`): the server's hub sends a function here and its arguments, plain values and
+arrays, since the SDK's encoding holds the GIL while it copies (a map layer's Grid for several
+milliseconds).
 
 Frames (docs/PROTOCOL.md, Foxglove): ``world`` (the global frame: x, y as the pose, z up) ->
 ``rover`` (the believed pose) -> ``mast`` (the pan axis' foot, ``head.ptu_base``) -> ``ptu_pan``
@@ -44,10 +47,8 @@ from foxglove.messages import (
 )
 from scipy.spatial.transform import Rotation
 
-from prox_workflows.grid import Layers
+from prox_workflows.grid import GridGeometry
 from prox_workflows.steps.transforms import HeadCalibration, make_T, rot_y, rot_z
-
-from ..protocol import Reply
 
 WORLD = "world"
 SENSOR_FRAMES = {"left": "stereo_left", "right": "stereo_right"}  # mount name -> frame id (else the name)
@@ -121,12 +122,11 @@ def pose_in_world(t_ns: int, x: float, y: float, heading: float, z: float) -> by
     return PoseInFrame(timestamp=stamp(t_ns), frame_id=WORLD, pose=_pose(rover_T(x, y, heading, z))).encode()
 
 
-def grid(t_ns: int, layers: Layers, name: str) -> bytes:
+def grid(t_ns: int, g: GridGeometry, name: str, values: np.ndarray) -> bytes:
     """One layer as a Grid in ``world``: Foxglove's cells run from the origin corner along +x then
     +y, ours north-up from the north-west corner, so the rows are sent south first and the
     origin is the south-west corner (xmin, ymin)."""
-    g = layers.geometry
-    values = np.ascontiguousarray(np.flipud(layers[name]))
+    values = np.ascontiguousarray(np.flipud(values))
     if values.dtype not in _NUMERIC:
         values = values.astype(np.float32)
     size = values.dtype.itemsize
@@ -149,6 +149,11 @@ def point_cloud(t_ns: int, frame: str, xyz: np.ndarray, amplitude: np.ndarray) -
     packed[:, 3] = amplitude[valid]
     return PointCloud(timestamp=stamp(t_ns), frame_id=frame, pose=_pose(np.eye(4)), point_stride=16,
                       fields=_CLOUD_FIELDS, data=packed.tobytes()).encode()
+
+
+def depth(t_ns: int, frame: str, xyz: np.ndarray) -> bytes:
+    """An organised point image's z as a depth image, NaN where undefined."""
+    return raw_image(t_ns, frame, np.where(xyz[..., 2] > 0, xyz[..., 2], np.nan).astype(np.float32))
 
 
 def raw_image(t_ns: int, frame: str, image: np.ndarray) -> bytes:
@@ -179,7 +184,7 @@ def jpeg(t_ns: int, frame: str, image: np.ndarray, quality: int = 85) -> bytes:
     return CompressedImage(timestamp=stamp(t_ns), frame_id=frame, data=data.tobytes(), format="jpeg").encode()
 
 
-def _line(points: list[tuple[float, float, float]], colour: Color, thickness: float) -> LinePrimitive:
+def _line(points: list[tuple[float, float, float]] | list[list[float]], colour: Color, thickness: float) -> LinePrimitive:
     return LinePrimitive(type=LinePrimitiveLineType.LineStrip, pose=_pose(np.eye(4)), thickness=thickness,
                          scale_invariant=True, points=[Point3(x=x, y=y, z=z) for x, y, z in points], color=colour)
 
@@ -199,9 +204,10 @@ def plan(t_ns: int, waypoints: list[tuple[float, float, float]], z: float, leg: 
     return SceneUpdate(entities=[entity]).encode()
 
 
-def track(t_ns: int, points: list[tuple[float, float, float]]) -> bytes:
-    """The driven track (the simulated rover's true positions where there is one)."""
-    entity = SceneEntity(timestamp=stamp(t_ns), frame_id=WORLD, id="track", lines=[_line(points, TRACK_COLOUR, 2.0)])
+def track(t_ns: int, points: np.ndarray) -> bytes:
+    """The driven track, n x 3 (the simulated rover's true positions where there is one)."""
+    entity = SceneEntity(timestamp=stamp(t_ns), frame_id=WORLD, id="track",
+                         lines=[_line(np.asarray(points, float).tolist(), TRACK_COLOUR, 2.0)])
     return SceneUpdate(entities=[entity]).encode()
 
 
@@ -227,14 +233,13 @@ def check_move(t_ns: int, start: tuple[float, float, float], fields: dict[str, A
 _LEVEL = {"ERROR": LogLevel.Error, "EVENT": LogLevel.Info}
 
 
-def log_line(t_ns: int, direction: str, conn: Any, text: str, reply: Reply | None = None) -> bytes:
+def log_line(t_ns: int, direction: str, conn: Any, text: str, status: str = "", kind: str = "") -> bytes:
     """A wire line as a Log: ``name`` says who and which way (``conn 3 >`` a request, ``conn 3 <``
-    a reply, ``event`` an EVENT); ERROR lines and hazard events are warnings or errors."""
-    level = LogLevel.Info
-    if reply is not None:
-        level = _LEVEL.get(reply.status, LogLevel.Info)
-        if reply.status == "EVENT" and str(reply.fields.get("kind", "")).startswith(("hazard", "fault")):
-            level = LogLevel.Warning
+    a reply, ``event`` an EVENT); ERROR lines (``status``) and hazard events (an EVENT's
+    ``kind``) are errors or warnings."""
+    level = _LEVEL.get(status, LogLevel.Info)
+    if status == "EVENT" and kind.startswith(("hazard", "fault")):
+        level = LogLevel.Warning
     name = "event" if direction == "event" else f"conn {conn} {'>' if direction == 'request' else '<'}"
     return Log(timestamp=stamp(t_ns), level=level, message=text, name=name).encode()
 

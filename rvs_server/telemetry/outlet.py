@@ -1,15 +1,15 @@
-"""Where encoded messages go: one Foxglove context per destination (the live server, a recording),
-each with its own channels, so a message is encoded once and logged to each destination that
-wants it, and what only one of them needs (a map again for a client that just subscribed, the
-current state at a recording's start) goes to that one alone.
+"""Where encoded messages go, in the telemetry process: one Foxglove context per destination
+(the live server, a recording), each with its own channels, so a message is encoded once and
+logged to each destination that wants it, and what only one of them needs (a map again for a
+client that just subscribed, the current state at a recording's start) goes to that one alone.
 
-The topic table is the one declaration of every channel: its schema, and whether the live
-server carries it (the raw frames and the wire's JSON copy are for recordings only).
+The topic table is the one declaration of every channel: its schema, whether the live server
+carries it (the raw frames and the wire's JSON copy are for recordings only) and whether it is
+latched; the server's hub reads it too, to send only what a destination wants.
 """
 
 from __future__ import annotations
 
-import threading
 from collections import Counter
 from dataclasses import dataclass
 from typing import Any
@@ -84,7 +84,6 @@ class Outlet:
         self.context = foxglove.Context()
         self.counts: Counter[str] = Counter()
         self._channels: dict[str, foxglove.Channel] = {}
-        self._lock = threading.Lock()
 
     def channel(self, topic: str) -> foxglove.Channel | None:
         """The topic's channel here, or None when this destination does not carry it."""
@@ -93,12 +92,9 @@ class Outlet:
             spec = topic_spec(topic)
             if self.live and not spec.live:
                 return None
-            with self._lock:
-                ch = self._channels.get(topic)
-                if ch is None:
-                    encoding = "json" if isinstance(spec.schema, dict) else "protobuf"
-                    ch = foxglove.Channel(topic, schema=spec.schema, message_encoding=encoding, context=self.context)
-                    self._channels[topic] = ch
+            encoding = "json" if isinstance(spec.schema, dict) else "protobuf"
+            ch = foxglove.Channel(topic, schema=spec.schema, message_encoding=encoding, context=self.context)
+            self._channels[topic] = ch
         return ch
 
     def declare(self) -> None:
@@ -117,5 +113,6 @@ class Outlet:
             ch.log(data, log_time=t_ns)
             self.counts[topic] += 1
 
-    def tick(self, now: float) -> None:
-        """Called by the hub's thread about every tenth of a second (a recording flushes here)."""
+    def listened(self) -> frozenset[str]:
+        """The topics whose channel has a sink here (a subscribed client, the MCAP writer)."""
+        return frozenset(topic for topic, ch in self._channels.items() if ch.base.has_sinks())

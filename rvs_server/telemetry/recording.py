@@ -1,36 +1,35 @@
 """An MCAP recording: the live channels, plus each device's raw frames in full resolution and
-every wire line with its time, written through foxglove-sdk's MCAP writer.
+every wire line with its time, written through foxglove-sdk's MCAP writer in the telemetry
+process.
 
 The file is written in place (not to a temporary name renamed at the end) because a recording
-must be readable after the server is killed: messages go into zstd-compressed chunks, and a
-chunk that is finished is on disk for good. The hub finishes the open chunk at least every
-:data:`FLUSH_S`, so a SIGKILL loses the messages of the last second or so, plus the summary
-(the index and statistics at the end): an MCAP reader then reads the file front to back, as
-``mcap recover`` or :func:`read_messages` here do.
+must be readable after a crash. A SIGKILL of the server closes the telemetry process's pipe,
+and the process then finishes the file whole (summary and all) before it exits. Should the
+telemetry process itself be killed: messages go into zstd-compressed chunks, a finished chunk
+is on disk for good, and the open one is finished at least every :data:`FLUSH_S`, so the file
+loses the messages of the last second or so plus the summary (the index and statistics at the
+end); an MCAP reader then reads it front to back, as ``mcap recover`` or :func:`read_messages`
+here do.
 """
 
 from __future__ import annotations
 
-import threading
 import time
 from collections.abc import Iterator
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import foxglove
 from foxglove.mcap import MCAPCompression, MCAPWriteOptions
 
 from .outlet import Outlet
 
-if TYPE_CHECKING:
-    from .hub import Telemetry
-
-FLUSH_S = 1.0  # the longest a message waits in the open chunk (what a SIGKILL loses at most)
+FLUSH_S = 1.0  # the longest a message waits in the open chunk (what a SIGKILL of the telemetry process loses)
 CHUNK_BYTES = 4 * 1024 * 1024  # a chunk is also finished at this uncompressed size
 
 
 class Recording(Outlet):
-    def __init__(self, hub: Telemetry, path: Path, metadata: dict[str, str]) -> None:
+    def __init__(self, path: Path, metadata: dict[str, str]) -> None:
         super().__init__(live=False)
         self.declare()
         self.path = path
@@ -39,21 +38,16 @@ class Recording(Outlet):
             compression=MCAPCompression.Zstd, chunk_size=CHUNK_BYTES, compression_threads=0))
         self.writer.write_metadata("rvs", metadata)
         self._flushed = time.monotonic()
-        self._flush_lock = threading.Lock()
-        self._hub = hub
-        hub.attach(self)
 
     def tick(self, now: float) -> None:
+        """Finish the open chunk if it is :data:`FLUSH_S` old (``now``: time.monotonic())."""
         if now - self._flushed >= FLUSH_S:
             self._flushed = now
-            with self._flush_lock:
-                self.writer.flush()
+            self.writer.flush()
 
     def close(self) -> dict[str, Any]:
-        """Stop, write the summary; what the file holds (blocking: run it off the event loop)."""
-        self._hub.detach(self).wait(5.0)
-        with self._flush_lock:
-            self.writer.close()
+        """Write the summary; what the file holds."""
+        self.writer.close()
         return {"messages": sum(self.counts.values()), "seconds": time.monotonic() - self.started,
                 "bytes": self.path.stat().st_size}
 
