@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -30,22 +31,34 @@ def params_help(cls: type[Settings] | None) -> str:
     return "\n".join(lines)
 
 
+def _run(work: Callable[[], Any], failures: tuple[type[Exception], ...],
+         refused: tuple[type[Exception], ...] = ()) -> tuple[Any, int | None]:
+    """``work()`` under the progress bar: its result, or the exit code of why it stopped (2 the
+    command line's fault, 1 the run's, 130 Ctrl-C), said on a line of its own."""
+    try:
+        result = work()
+    except refused as exc:
+        code, text = 2, str(exc)
+    except failures as exc:
+        code, text = 1, str(exc)
+    except KeyboardInterrupt:
+        code, text = 130, "interrupted"
+    else:
+        sys.stderr.write("\n")
+        return result, None
+    sys.stderr.write(f"\nrvs-prox: {text}\n")
+    return None, code
+
+
 def _main_from(script: str, source: str, sets: list[str], out: str | None) -> int:
     """``rvs-prox dem --from JOB``: a recorded DEM job run again (prox_workflows.reprocess)."""
     from ..reprocess import ReprocessError, parse_overrides, reprocess
 
-    try:
-        result = reprocess(source, parse_overrides(sets), out, script=script, progress=show_progress)
-    except ReprocessError as exc:  # the command line's fault: no such job, a parameter it refuses
-        sys.stderr.write(f"\nrvs-prox: {exc}\n")
-        return 2
-    except (WorkflowError, FileNotFoundError) as exc:
-        sys.stderr.write(f"\nrvs-prox: {exc}\n")
-        return 1
-    except KeyboardInterrupt:
-        sys.stderr.write("\nrvs-prox: interrupted\n")
-        return 130
-    sys.stderr.write("\n")
+    # a ReprocessError is the command line's fault: no such job, a parameter it refuses
+    result, code = _run(lambda: reprocess(source, parse_overrides(sets), out, script=script, progress=show_progress),
+                        (WorkflowError, FileNotFoundError), refused=(ReprocessError,))
+    if code is not None:
+        return code
     print(f"views: {result['views']}")
     for layer, path in result["files"].items():
         print(f"{layer}: {path}")
@@ -133,15 +146,11 @@ def main(argv: list[str] | None = None) -> int:
         sys.stderr.write(f"rvs-prox: {exc}\n")
         return 2
 
-    try:
-        ws, log = run_workflow(script, typed, inputs, progress=show_progress)
-    except (WorkflowError, FileNotFoundError, ValueError) as exc:
-        sys.stderr.write(f"\nrvs-prox: {exc}\n")
-        return 1
-    except KeyboardInterrupt:
-        sys.stderr.write("\nrvs-prox: interrupted\n")
-        return 130
-    sys.stderr.write("\n")
+    done, code = _run(lambda: run_workflow(script, typed, inputs, progress=show_progress),
+                      (WorkflowError, FileNotFoundError, ValueError))
+    if code is not None:
+        return code
+    ws, log = done
     text = yaml.safe_dump(log.as_dict(), sort_keys=False)
     if args.log:
         try:
