@@ -352,8 +352,11 @@ function updateProducts(products) {
 function drawLegend() {
   const el = $("legend");
   const names = Object.keys(S.layers).filter((n) => S.visible[n] && S.layers[n].legend).reverse();
-  el.textContent = "";
   el.hidden = !S.online || !names.length;
+  const key = names.map((n) => `${n}@${S.layers[n].url}`).join(",");
+  if (el.dataset.key === key) return;  // the state comes 5 times a second: rebuild only on change
+  el.dataset.key = key;
+  el.textContent = "";
   for (const name of names) el.appendChild(legendOf(name, S.layers[name]));
 }
 
