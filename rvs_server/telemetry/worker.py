@@ -30,6 +30,7 @@ from .outlet import Outlet, topic_spec
 from .recording import Recording
 
 TICK = 0.1  # s between looks at subscriptions, the recording's flush and the parent
+NICE = 10  # on a busy machine the server's event loop and jobs get the CPU first; the queue waits
 
 
 class Worker:
@@ -141,6 +142,7 @@ class Worker:
 
 def main(argv: list[str]) -> None:
     in_fd, out_fd, host, port, name = argv
+    os.nice(NICE)
     source = Connection(int(in_fd), writable=False)
     parent = os.getppid()
     worker = Worker(Connection(int(out_fd), readable=False), host, int(port), name)

@@ -1,8 +1,11 @@
 """Benchmark: what Foxglove publishing and MCAP recording cost the server, on and off side by
-side in one run: the time of a heavy job (the README's 24-view ``dem-full-tof``) and the TCP
-``status`` latency (p50, p99, max) from another connection while it runs.
+side in one run, for this tree and (``--peer``) another checkout of the server (the revision
+before the telemetry process, in a ``git worktree``): the time of a heavy job (the README's
+24-view ``dem-full-tof``) and the TCP ``status`` latency (p50, p99, max) from another connection
+while it runs.
 
-Rows, each on a fresh data directory, interleaved and repeated (``--repeat``, the best kept):
+Rows, each on a fresh data directory and a fresh server process (run from the tree measured),
+interleaved and repeated (``--repeat``, the best kept):
 
 - ``off``: no Foxglove server, no recording (the baseline);
 - ``foxglove``: the Foxglove server with a client subscribed to every channel it advertises
@@ -14,7 +17,13 @@ Rows, each on a fresh data directory, interleaved and repeated (``--repeat``, th
 The status poller and the Foxglove client run in processes of their own (tools.bench.server's
 poller; ``--client`` here), so that only the server's own work decides the figures.
 
-    python -m tools.bench.record [--repeat 2] [--job "dem-full-tof ..."] [--json out.jsonl]
+``--stall`` measures instead how long the server's event loop is held up while a map of 10
+layers of 1717 x 1695 float32 cells (11.6 MB each, the size of the quarry's) is published to a
+subscribed client and to a recording: a coroutine on the server's loop sleeps 1 ms over and over
+and notes how late it wakes, for 2 s before the map (the baseline) and 8 s after it.
+
+    python -m tools.bench.record [--repeat 2] [--job "dem-full-tof ..."] [--peer ../old] [--json out.jsonl]
+    python -m tools.bench.record --stall [--repeat 3] [--peer ../old]
 """
 
 from __future__ import annotations
@@ -22,6 +31,7 @@ from __future__ import annotations
 import argparse
 import asyncio
 import json
+import os
 import socket
 import subprocess
 import sys
@@ -108,6 +118,51 @@ def free_port() -> int:
         return s.getsockname()[1]
 
 
+def stall_row(row: str, tmp: Path, n: int) -> dict[str, Any]:
+    """The event loop's lateness (ms) before and after a 10-layer map is published."""
+    import numpy as np
+
+    from prox_workflows.grid import GridGeometry, Layers
+    from prox_workflows.layers import LAYERS
+
+    fox = free_port() if row in ("foxglove", "both") else 0
+    port, app = start_rvs(tmp / f"stall-{row}{n}", [f"server.foxglove_port={fox}", "server.web_port=0"])
+    rng = np.random.default_rng(n)
+    layers = Layers(GridGeometry(0.02, 0.0, 33.9, 1717, 1695),
+                    {name: rng.random((1695, 1717), np.float32) for name in list(LAYERS)[:10]})
+    ctl = Control(port)
+
+    async def lateness(seconds: float) -> list[float]:
+        late: list[float] = []
+        end = time.perf_counter() + seconds
+        while time.perf_counter() < end:
+            t0 = time.perf_counter()
+            await asyncio.sleep(0.001)
+            late.append((time.perf_counter() - t0 - 0.001) * 1000)
+        return late
+
+    try:
+        if row in ("record", "both"):
+            assert ctl.request(f"record -start -name stall{n}").status == "OK"
+        with foxglove_client(fox or None) as seen:
+            base = asyncio.run_coroutine_threadsafe(lateness(2.0), app.loop).result()
+            during = asyncio.run_coroutine_threadsafe(lateness(8.0), app.loop)
+            time.sleep(0.05)
+            app.bus.publish("maps", layers=layers, name="stall")
+            late = during.result()
+        out: dict[str, Any] = {"row": row, "base_max_ms": max(base), "max_ms": max(late),
+                               "p99_ms": float(np.percentile(late, 99)), "over_20ms": sum(x > 20 for x in late),
+                               "client_mb": seen.get("bytes", 0) / 1e6}
+        if row in ("record", "both"):
+            stop = ctl.request("record -stop")
+            out.update(file_mb=int(stop.fields["bytes"]) / 1e6)
+        return out
+    finally:
+        ctl.close()
+        app.loop.call_soon_threadsafe(app.stopping.set)
+        time.sleep(1.0)
+
+
 def run_row(row: str, job: str, tmp: Path, n: int) -> dict[str, Any]:
     fox = free_port() if row in ("foxglove", "both") else 0
     port, app = start_rvs(tmp / f"{row}{n}", [f"server.foxglove_port={fox}", "server.web_port=0"])
@@ -136,39 +191,70 @@ def run_row(row: str, job: str, tmp: Path, n: int) -> dict[str, Any]:
         time.sleep(1.0)
 
 
+def in_tree(tree: Path, args: list[str]) -> dict[str, Any]:
+    """One row in a fresh process running ``tree``'s server (its rvs_server first on the path)."""
+    env = {**os.environ, "PYTHONPATH": str(tree)}
+    out = subprocess.run([sys.executable, str(Path(__file__).resolve()), *args], cwd=tree, env=env,
+                         stdout=subprocess.PIPE, text=True, check=True)
+    return json.loads(out.stdout.strip().splitlines()[-1])
+
+
 def main() -> None:
     if sys.argv[1:2] == ["--client"]:
         client_main(sys.argv[2:])
         return
+    if sys.argv[1:2] in (["--row"], ["--stall-row"]):
+        row, n, tmp, job = sys.argv[2], int(sys.argv[3]), Path(sys.argv[4]), sys.argv[5]
+        res = stall_row(row, tmp, n) if sys.argv[1] == "--stall-row" else run_row(row, job, tmp, n)
+        print(json.dumps(res), flush=True)
+        return
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--repeat", type=int, default=2, help="runs of each row; the best is kept (default 2)")
     ap.add_argument("--job", default=JOB, help=f"the heavy job (default: {JOB})")
+    ap.add_argument("--peer", type=Path, help="another checkout of the server, measured side by side")
+    ap.add_argument("--stall", action="store_true", help="the event loop's lateness while a large map is published")
     ap.add_argument("--json", type=Path, help="append every run as a JSON line here")
     args = ap.parse_args()
-    best: dict[str, dict[str, Any]] = {}
+    trees = {"this": ROOT, **({"peer": args.peer.resolve()} if args.peer else {})}
+    rows = ("foxglove", "record", "both") if args.stall else ROWS
+    key = "max_ms" if args.stall else "job_s"
+    best: dict[tuple[str, str], dict[str, Any]] = {}
     with tempfile.TemporaryDirectory(prefix="rvs-bench-record-") as tmp:
         for n in range(args.repeat):
-            for row in ROWS:
-                res = run_row(row, args.job, Path(tmp), n)
-                res["load"] = load_average()
-                print(json.dumps({k: round(v, 3) if isinstance(v, float) else v for k, v in res.items()}), flush=True)
-                if args.json:
-                    with args.json.open("a") as f:
-                        f.write(json.dumps(res) + "\n")
-                if row not in best or res["job_s"] < best[row]["job_s"]:
-                    best[row] = res
-    base = best["off"]
+            for row in rows:
+                for name, tree in trees.items():
+                    res = in_tree(tree, ["--stall-row" if args.stall else "--row", row, str(n), tmp, args.job])
+                    res.update(tree=name, load=load_average())
+                    print(json.dumps({k: round(v, 3) if isinstance(v, float) else v for k, v in res.items()}),
+                          flush=True)
+                    if args.json:
+                        with args.json.open("a") as f:
+                            f.write(json.dumps(res) + "\n")
+                    if (row, name) not in best or res[key] < best[row, name][key]:
+                        best[row, name] = res
+    if args.stall:
+        print(f"\nevent loop lateness, ms (best of {args.repeat} by max; target < {TARGET_MS:g} ms)")
+        print(f"{'row':9} {'tree':5} {'base max':>8} {'max':>7} {'p99':>7} {'>20 ms':>7} {'x this':>7}")
+        for row in rows:
+            for name in trees:
+                r = best[row, name]
+                print(f"{row:9} {name:5} {r['base_max_ms']:8.1f} {r['max_ms']:7.1f} {r['p99_ms']:7.1f} "
+                      f"{r['over_20ms']:7d} {r['max_ms'] / best[row, 'this']['max_ms']:7.2f}")
+        return
     print(f"\njob: {args.job}   (best of {args.repeat}; status p99 target < {TARGET_MS:g} ms)")
-    print(f"{'row':9} {'job s':>7} {'x off':>6} {'p50 ms':>7} {'p99 ms':>7} {'max ms':>7} {'p99 x off':>9}  extra")
-    for row in ROWS:
-        r = best[row]
-        extra = ""
-        if "file_mb" in r:
-            extra += f"file {r['file_mb']:.1f} MB, {r['messages']} msgs, stop {r['stop_s']:.2f} s, dropped {r['dropped']}"
-        if r["client_messages"]:
-            extra += f"{'; ' if extra else ''}client got {r['client_messages']} msgs, {r['client_mb']:.1f} MB"
-        print(f"{row:9} {r['job_s']:7.2f} {r['job_s'] / base['job_s']:6.3f} {r['status_p50']:7.2f} "
-              f"{r['status_p99']:7.2f} {r['status_max']:7.2f} {r['status_p99'] / base['status_p99']:9.2f}  {extra}")
+    print(f"{'row':9} {'tree':5} {'job s':>7} {'x off':>6} {'p50 ms':>7} {'p99 ms':>7} {'max ms':>7} {'p99 x off':>9}"
+          "  extra")
+    for row in rows:
+        for name in trees:
+            r, base = best[row, name], best["off", name]
+            extra = ""
+            if "file_mb" in r:
+                extra += (f"file {r['file_mb']:.1f} MB, {r['messages']} msgs, stop {r['stop_s']:.2f} s, "
+                          f"dropped {r['dropped']}")
+            if r["client_messages"]:
+                extra += f"{'; ' if extra else ''}client got {r['client_messages']} msgs, {r['client_mb']:.1f} MB"
+            print(f"{row:9} {name:5} {r['job_s']:7.2f} {r['job_s'] / base['job_s']:6.3f} {r['status_p50']:7.2f} "
+                  f"{r['status_p99']:7.2f} {r['status_max']:7.2f} {r['status_p99'] / base['status_p99']:9.2f}  {extra}")
 
 
 if __name__ == "__main__":
