@@ -16,6 +16,7 @@ from dataclasses import dataclass
 from rvs_params import Settings, param
 
 from .params import parameters
+from .steps.planner import PlanParams  # noqa: F401 - the navigation package imports it from here
 
 
 @parameters("dem")
@@ -111,23 +112,3 @@ class DemImportParams(Settings):
     cell: float = param(0.02, "DEM cell size", unit="m", min=0.0001, max=100.0)
     height: str = param("mean", "what the dem layer holds: the (information-weighted) mean height of the "
                         "cell's points, or the greatest (the thesis's direct rule)", choices=("mean", "max"))
-
-
-@parameters("plan")
-@dataclass
-class PlanParams(Settings):
-    """Path planning on hazard and slope maps (a navigate leg, ``rvs-path-planner``)."""
-
-    weight: float = param(0.5, "A* weight w: 1 distance only, 0 environmental cost only", min=0.0, max=1.0)
-    heuristic: str = param("octile", "A* heuristic", choices=("euclidean", "manhattan", "octile"))
-    grid: float = param(0.05, "planning cell size", unit="m", min=0.01, max=1.0)
-    margin: float = param(0.1, "added to the rover radius around hazards", unit="m", min=0.0, max=2.0)
-    max_deviation: float = param(0.1, "waypoint polyline's largest deviation from the A* path", unit="m",
-                                 min=0.0, max=5.0)
-    border: float = param(1.0, "stop this far inside the locally seen ground: at least the radius the next "
-                          "scan cannot see around the rover, so the legs join; halved (down to 0) where the "
-                          "seen ground is too narrow for the rover to move at all", unit="m", min=0.0, max=5.0)
-    footprint: str = param("circle", "what must clear the hazards: circle, the rover's circumscribed circle (radius + "
-                           "margin) along the whole path; body, its half width + margin along straight stretches "
-                           "and the circle only where it stops and turns on the spot (waypoints and the goal), "
-                           "which opens the gaps of a rock field that the circle closes", choices=("circle", "body"))

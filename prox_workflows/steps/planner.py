@@ -73,11 +73,13 @@ import cv2
 import numpy as np
 from scipy import ndimage
 
+from rvs_params import Settings, param
 from rvs_params.jit import HAVE_NUMBA, jit
 
 from ..engine import step
 from ..grid import GridGeometry
 from ..mapview import Marks
+from ..params import parameters
 from .dem2hazard import HAZARDOUS, SAFE, UNDEFINED
 
 HEURISTICS = {"euclidean": 0, "manhattan": 1, "octile": 2, "chebyshev": 3}
@@ -563,28 +565,52 @@ def border_distance(local: np.ndarray, cell: float, passable: np.ndarray | None 
     return (_distance_cells(border)[1:-1, 1:-1] * cell).astype(np.float32)
 
 
+@parameters("plan")
+@dataclass
+class PlanParams(Settings):
+    """Path planning on hazard and slope maps (a navigate leg, ``rvs-path-planner``): the settings an
+    operator or a script sets. :class:`PlannerParams`, what :func:`plan_path` is called with,
+    takes its defaults and checks from here and adds what the caller knows of the rover."""
+
+    weight: float = param(0.5, "A* weight w: 1 distance only, 0 environmental cost only", min=0.0, max=1.0)
+    heuristic: str = param("octile", "A* heuristic", choices=("euclidean", "manhattan", "octile"))
+    grid: float = param(0.05, "planning cell size", unit="m", min=0.01, max=1.0)
+    margin: float = param(0.1, "added to the rover radius around hazards", unit="m", min=0.0, max=2.0)
+    max_deviation: float = param(0.1, "waypoint polyline's largest deviation from the A* path", unit="m",
+                                 min=0.0, max=5.0)
+    border: float = param(1.0, "stop this far inside the locally seen ground: at least the radius the next "
+                          "scan cannot see around the rover, so the legs join; halved (down to 0) where the "
+                          "seen ground is too narrow for the rover to move at all", unit="m", min=0.0, max=5.0)
+    footprint: str = param("circle", "what must clear the hazards: circle, the rover's circumscribed circle (radius + "
+                           "margin) along the whole path; body, its half width + margin along straight stretches "
+                           "and the circle only where it stops and turns on the spot (waypoints and the goal), "
+                           "which opens the gaps of a rock field that the circle closes", choices=("circle", "body"))
+
+
+_PLAN = PlanParams()
+
+
 @dataclass(frozen=True)
 class PlannerParams:
     """The planner's parameters (metres and degrees)."""
 
     grid: float | None = None  # planning cell size; default: the local map's
-    weight: float = 0.5  # w: 1 distance only, 0 environmental cost only
-    heuristic: str = "octile"
+    weight: float = _PLAN.weight  # w: 1 distance only, 0 environmental cost only
+    heuristic: str = _PLAN.heuristic
     rover_radius: float = 0.3
     half_width: float | None = None  # footprint "body": straight stretches keep this + margin from hazards
-    margin: float = 0.1
+    margin: float = _PLAN.margin
     critical_slope: float = 20.0  # degrees: c = 1 here
     unknown_cost: float = 1.0  # c of unknown ground (inf: not traversable)
-    max_deviation: float = 0.1  # of the waypoint polyline from the A* path
+    max_deviation: float = _PLAN.max_deviation  # of the waypoint polyline from the A* path
     border: float = 0.3  # stop this far inside the local map's outer border
     blank_pad: float = 2.0  # blank global maps reach this far beyond start, goal and local map
     window: float | None = None  # plan only within this margin around start, goal and local map
 
     def __post_init__(self) -> None:
-        if not 0.0 <= self.weight <= 1.0:
-            raise ValueError(f"weight must be in 0..1, not {self.weight}")
-        if self.heuristic not in ("euclidean", "manhattan", "octile"):
-            raise ValueError(f"heuristic must be euclidean, manhattan or octile, not {self.heuristic!r}")
+        specs = PlanParams.specs()  # the operator's range and choices are the planner's own
+        specs["weight"].coerce(self.weight, "planner")
+        specs["heuristic"].coerce(self.heuristic, "planner")
         for name in ("rover_radius", "margin", "max_deviation", "border", "blank_pad"):
             if getattr(self, name) < 0:
                 raise ValueError(f"{name} must be >= 0")
