@@ -28,9 +28,8 @@ from pathlib import Path
 from rvs_params import SettingError
 
 from ..engine import WorkflowError, run_workflow
-from ..parameters import PlanParams
 from ..steps.dem2hazard import UNDEFINED
-from ..steps.planner import PlannerParams, PlanningError
+from ..steps.planner import PlannerParams, PlanningError, PlanParams
 from .parser import ToolParser
 
 MADE_BY = "rvs-path-planner (prox_workflows.steps.planner)"
@@ -77,7 +76,7 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--start", type=_point, required=True, help="x,y in metres")
     ap.add_argument("--goal", type=_point, required=True, help="x,y in metres")
     ap.add_argument("--start-heading", type=float, help="the rover's heading at the start, degrees")
-    for spec in specs.values():  # declared once, in PlanParams (navigate's options are the same)
+    for spec in specs.values():  # declared once, in the planner step's PlanParams (navigate's options are the same)
         ap.add_argument("--" + spec.name.replace("_", "-"), dest=spec.name, default=str(spec.default),
                         help=f"{spec.help} ({spec.describe()})")
     ap.add_argument("--rover-radius", type=float, default=d.rover_radius, help="m")
