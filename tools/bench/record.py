@@ -226,7 +226,8 @@ def main() -> None:
         for n in range(args.repeat):
             for row in rows:
                 for name, tree in trees.items():
-                    res = in_tree(tree, ["--stall-row" if args.stall else "--row", row, str(n), tmp, args.job])
+                    res = in_tree(tree, ["--stall-row" if args.stall else "--row", row, str(n), str(Path(tmp) / name),
+                                         args.job])
                     res.update(tree=name, load=load_average())
                     print(json.dumps({k: round(v, 3) if isinstance(v, float) else v for k, v in res.items()}),
                           flush=True)
