@@ -279,18 +279,14 @@ class App:
         for conn in list(self.connections):
             if conn.events:
                 conn.send(reply)
-        if self.console is not None:
-            self.console.remember(reply)
 
     def job_reply(self, conn: Connection, reply: Reply) -> None:
         """A line of a job: to the connection that started it, and to every connection that
         watches all jobs (the web console's pages; loop only)."""
-        conn.send(reply)
+        conn.send(reply, job=True)
         for other in list(self.connections):
             if other.observes_jobs and other is not conn:
                 other.observe(reply)
-        if self.console is not None:
-            self.console.remember(reply)
 
     async def start_console(self, sock: Any) -> None:
         """Serve the operator web console on ``sock`` (bound by the caller, as the TCP port is)."""

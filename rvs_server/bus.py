@@ -18,7 +18,8 @@ from typing import Any
 
 # Item kinds and what their ``data`` holds:
 #   request  conn (id), line (bytes as received)
-#   reply    conn (id), reply (protocol.Reply): every line but EVENTs, to the connection it was sent to
+#   reply    conn (id), reply (protocol.Reply), job (bool: a line of a job, not an immediate reply): every
+#            line but EVENTs, to the connection it was sent to (a TCP client or a console page)
 #   event    reply (protocol.Reply): an EVENT, once however many connections get it
 #   maps     layers (grid.Layers), name: the current DEM was replaced or restored
 #   frame    device, call (the driver method's name), args, result: a driver grab returned

@@ -10,10 +10,10 @@ import numpy as np
 import pytest
 import yaml
 
-from rvs_params.motion import Profile, trapezoid_time
 from drivers.ptu.protocol import pos_to_deg
 from prox_workflows.grid import read_geotiff
 from prox_workflows.steps.ptu_positions import get_ptu_positions, grid, path_time, plan, scan_limit
+from rvs_params.motion import Profile, trapezoid_time
 
 FOV = (43.6, 34.6)
 LIMITS = (-158.9, 158.9, -46.6, 31.1)

@@ -120,6 +120,36 @@ def test_page_gets_hello_and_state_then_runs_lines_through_the_dispatcher(web: A
         assert c.request("status").fields["clients"] == "1"
 
 
+def test_a_pages_requests_and_replies_reach_the_bus_as_a_tcp_clients_do(web: Any) -> None:
+    """Foxglove and recordings watch the bus: a page's lines must be there, once each, its job
+    lines marked as such; a line of a job another client started is that client's, not the page's."""
+    srv, base = web()
+    items: list[Any] = []
+    srv.app.bus.subscribe(items.append)
+
+    async def body(page: Page, http: aiohttp.ClientSession) -> None:
+        await page.next()
+        await page.send("@v1 version")
+        await page.final("v1")
+        await page.send("@z1 sleep -seconds 0.05")
+        await page.final("z1")
+
+    run_page(base, body)
+    with srv.client() as c:
+        assert c.request("sleep -seconds 0.05").status == "OK"
+    replies = [i for i in items if i.kind == "reply"]
+    page = {i.data["conn"] for i in replies if i.data["reply"].module == "EGP-RVS-VERSION"}
+    assert len(page) == 1
+    mine = [(i.data["reply"].module, i.data["reply"].status, i.data["job"]) for i in replies if i.data["conn"] in page]
+    assert mine == [("EGP-RVS-VERSION", "OK", False), ("EGP-RVS-SLEEP", "ACK", True),
+                    ("EGP-RVS-SLEEP", "OK", True)], mine
+    tcp = [(i.data["reply"].status, i.data["job"]) for i in replies if i.data["conn"] not in page]
+    assert tcp == [("ACK", True), ("OK", True)], tcp
+    requests = [i.data["line"] for i in items if i.kind == "request"]
+    assert any(b"@v1 version" in line for line in requests), requests
+    assert sum(1 for i in srv.app.console.history if '"EGP-RVS-SLEEP"' in i) == 4  # ACK, OK of both
+
+
 def test_a_job_from_tcp_shows_on_the_page_with_progress_and_its_layers(web: Any, tmp_path: Path) -> None:
     srv, base = web()
 

@@ -34,7 +34,6 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
-from rvs_params.motion import Profile, stop_distance
 from drivers.ptu.protocol import (
     D46_DEFAULT_ACCEL,
     D46_DEFAULT_BASE,
@@ -45,6 +44,7 @@ from drivers.ptu.protocol import (
     D46_SPEED_BOUNDS,
     pos_to_deg,
 )
+from rvs_params.motion import Profile, stop_distance
 
 FAULTS = (None, "silent", "garbage", "stall")
 FIRMWARE = "PTU-D46 emulator v2.14.0 (RVS simulated backend)"

@@ -34,6 +34,7 @@ from .tiles import LayerCache, ValueCache, unit_of, version_of
 
 if TYPE_CHECKING:
     from ..app import App
+    from ..bus import Item
 
 log = structlog.get_logger("rvs.web")
 
@@ -98,14 +99,17 @@ class WebPeer:
         self.queue: asyncio.Queue[str | None] = asyncio.Queue()
         self.writing: asyncio.Task[None] | None = None  # the task that writes the queue out
 
-    def send(self, reply: Reply, *, own: bool = True) -> None:
-        """Queue a reply line for the page (event loop only)."""
+    def send(self, reply: Reply, *, own: bool = True, job: bool = False) -> None:
+        """Queue a reply line for the page (event loop only); ``own``: an answer to this page's
+        request, ``job``: a line of a job (see Connection.send)."""
         if self.closed:
             return
         if self.queue.qsize() > MAX_QUEUED:
             self.log.warning("client_dropped", reason="page not reading its messages")
             self.close()
             return
+        if own and reply.status != "EVENT":  # as a TCP connection's (an EVENT: App.broadcast's)
+            self.app.bus.publish("reply", conn=self.id, reply=reply, job=job)
         self.queue.put_nowait(_encode(reply, own))
 
     def observe(self, reply: Reply) -> None:
@@ -190,10 +194,12 @@ class WebConsole:
         host, self.port = sock.getsockname()[:2]
         self.url = f"http://{f'[{host}]' if ':' in host else host}:{self.port}/"
         self._ticker = asyncio.create_task(self._tick())
+        self.app.bus.subscribe(self.remember)
         log.info("web_console", url=self.url)
 
     async def close(self) -> None:
         """Close every page's WebSocket with 'going away' (1001), then the HTTP server."""
+        self.app.bus.unsubscribe(self.remember)
         for task in (self._ticker, self._renderer):
             if task is not None:
                 task.cancel()
@@ -209,10 +215,13 @@ class WebConsole:
 
     # ------------------------------------------------------------ state
 
-    def remember(self, reply: Reply) -> None:
-        """Keep an event or job line for the pages that open later (loop only): PROGRESS is
-        left out, the state carries the running job's progress."""
-        if reply.status != "PROGRESS":
+    def remember(self, item: Item) -> None:
+        """Keep each event and job line the server sends (the bus, on the event loop) for the
+        pages that open later; PROGRESS is left out, the state carries the running job's progress."""
+        reply = item.data.get("reply")
+        if reply is None or reply.status == "PROGRESS":
+            return
+        if item.kind == "event" or item.data.get("job"):
             self.history.append(_encode(reply, False))
 
     def history_message(self) -> str:

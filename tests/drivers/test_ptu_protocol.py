@@ -7,8 +7,8 @@ import math
 import pytest
 
 from drivers.ptu.emulator import misframe
-from rvs_params.motion import Profile, plan, trapezoid_time
 from drivers.ptu.protocol import ReplyParser, deg_to_pos, encode_command, parse_bound, parse_power, pos_to_deg
+from rvs_params.motion import Profile, plan, trapezoid_time
 
 RES = 185.1428
 
