@@ -16,7 +16,6 @@ from dataclasses import dataclass
 from rvs_params import Settings, param
 
 from .params import parameters
-from .steps.planner import PlanParams  # noqa: F401 - the navigation package imports it from here
 
 
 @parameters("dem")

@@ -8,7 +8,7 @@ import math
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from prox_workflows.parameters import PlanParams
+from prox_workflows.steps.planner import PlanParams
 
 from ..protocol import ProtocolError
 
