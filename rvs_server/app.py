@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import asyncio
 import difflib
+import itertools
 import threading
 import time
 from collections.abc import Awaitable, Callable
@@ -24,7 +25,7 @@ import structlog
 from drivers.base import DeviceError
 from prox_workflows.products import finish_product_sets
 
-from . import __version__
+from . import PROTOCOL_VERSION, __version__
 from .bus import Bus
 from .config import ConfigStore, ServerConfig
 from .devices import DeviceRegistry
@@ -196,6 +197,7 @@ class App:
         self.last_ptu = None
         self.console = None
         self.console_off = None
+        self._connection_ids = itertools.count(1)
         self.bus = Bus()
         self.telemetry = None
         self.stopping = asyncio.Event()
@@ -288,12 +290,15 @@ class App:
             if other.observes_jobs and other is not conn:
                 other.observe(reply)
 
-    async def start_console(self, sock: Any) -> None:
-        """Serve the operator web console on ``sock`` (bound by the caller, as the TCP port is)."""
-        from .web.console import WebConsole
+    def hello(self) -> Reply:
+        """The greeting: the contract's keys first, then ``console`` (on/off), so an operator whose
+        server started without its console (its port taken) learns it at connect."""
+        return Reply("RVS", "EVENT", {"kind": "hello", "protocol": PROTOCOL_VERSION, "server": self.name,
+                                      "mode": self.mode, "console": "off" if self.console is None else "on"})
 
-        self.console = WebConsole(self)
-        await self.console.start(sock)
+    def new_connection_id(self) -> int:
+        """Connection numbers are shared by TCP clients and web pages: logs name each one once."""
+        return next(self._connection_ids)
 
     def broadcast_threadsafe(self, reply: Reply) -> None:
         self.loop.call_soon_threadsafe(self.broadcast, reply)

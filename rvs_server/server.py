@@ -11,7 +11,6 @@ import asyncio
 import contextlib
 import ctypes
 import gc
-import itertools
 import logging
 import os
 import signal
@@ -22,7 +21,6 @@ from typing import Any
 
 import structlog
 
-from . import PROTOCOL_VERSION
 from .app import App
 from .protocol import (
     INTERRUPT,
@@ -36,19 +34,13 @@ from .protocol import (
     format_reply_json,
 )
 from .telemetry import Station
-from .web.console import console_host
+from .web.console import WebConsole, console_host
 
 log = structlog.get_logger("rvs.server")
 
 MAX_PENDING_LINES = 256  # stop reading from a client that is this far ahead of us
 LINES_PER_TURN = 64  # lines of one connection handled before the event loop serves the others
 MAX_OUTPUT_BYTES = 8 * 1024 * 1024  # a client that reads nothing is dropped past this
-_conn_ids = itertools.count(1)
-
-
-def next_connection_id() -> int:
-    """Connection numbers are shared by TCP clients and web pages: logs name each one once."""
-    return next(_conn_ids)
 
 
 class Connection(asyncio.Protocol):
@@ -56,7 +48,7 @@ class Connection(asyncio.Protocol):
 
     def __init__(self, app: App) -> None:
         self.app = app
-        self.id = next_connection_id()
+        self.id = app.new_connection_id()
         self.transport: asyncio.Transport | None = None
         self.splitter = LineSplitter(app.server_cfg.max_line)
         self.pending: deque[bytes | TooLong | Telnet] = deque()
@@ -106,7 +98,7 @@ class Connection(asyncio.Protocol):
     def greet(self) -> None:
         """The hello EVENT: at connect, and again in JSON when format json comes at connect time
         (a JSON-only client then has a greeting it can parse)."""
-        self.send(hello(self.app))
+        self.send(self.app.hello())
 
     def data_received(self, data: bytes) -> None:
         if self.closed or self.exiting:
@@ -220,13 +212,6 @@ class Connection(asyncio.Protocol):
         self.app.connections.discard(self)
 
 
-def hello(app: App) -> Reply:
-    """The greeting: the contract's keys first, then ``console`` (on/off), so an operator whose
-    server started without its console (its port taken) learns it at connect."""
-    return Reply("RVS", "EVENT", {"kind": "hello", "protocol": PROTOCOL_VERSION, "server": app.name,
-                                  "mode": app.mode, "console": "off" if app.console is None else "on"})
-
-
 def give_back_memory() -> None:
     """Return freed heap to the system after dropping a client with megabytes queued: glibc keeps
     freed memory in its arenas, so without a trim a rover's server would carry every flood it
@@ -326,7 +311,8 @@ async def serve(app: App, sock: socket.socket, *, ready: Any = None, handle_sign
         app.set_mode("fault")
     if web_sock is not None:  # before the TCP server, so that every greeting says console=on
         try:
-            await app.start_console(web_sock)
+            app.console = WebConsole(app)
+            await app.console.start(web_sock)
         except OSError as exc:
             web_sock.close()
             app.console, app.console_off = None, f"the web console did not start: {exc}"

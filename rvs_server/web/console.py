@@ -121,9 +121,7 @@ class WebPeer:
             self.queue.put_nowait(message)
 
     def greet(self) -> None:
-        from ..server import hello
-
-        self.send(hello(self.app))
+        self.send(self.app.hello())
 
     def close_if_done(self) -> None:
         """A page closes when its socket does; nothing waits for its jobs' final lines."""
@@ -414,9 +412,7 @@ class WebConsole:
         # closing the page's socket (aiohttp closes with 1009 past max_msg_size)
         ws = web.WebSocketResponse(heartbeat=20.0, max_msg_size=4 * app.server_cfg.max_line + 1024)
         await ws.prepare(request)
-        from ..server import next_connection_id
-
-        page = WebPeer(app, ws, request.remote or "?", next_connection_id())
+        page = WebPeer(app, ws, request.remote or "?", app.new_connection_id())
         app.connections.add(page)  # type: ignore[arg-type]
         self.pages.add(page)
         page.writing = asyncio.create_task(page.writer())
