@@ -18,11 +18,12 @@ import cv2
 import numpy as np
 import yaml
 
+from rvs_params.hazard import CODES_TEXT, UNDEFINED
+
+from . import colormaps
 from .grid import GridGeometry, Layers, read_geotiff, write_geotiff
 from .mapview import Marks, Style, figure, layer_rgba
 from .products import write_png, write_sidecar
-from .steps import colormaps
-from .steps.dem2hazard import CODES_TEXT, UNDEFINED
 
 CRS = "local: x forward at the start pose, y left, z up (m)"
 

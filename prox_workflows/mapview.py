@@ -18,9 +18,10 @@ from typing import Any
 import cv2
 import numpy as np
 
+from rvs_params.hazard import HAZARDOUS, SAFE
+
+from .colormaps import colorize
 from .grid import GridGeometry
-from .steps.colormaps import colorize
-from .steps.dem2hazard import HAZARDOUS, SAFE
 
 Colour = tuple[int, int, int]
 

@@ -9,7 +9,7 @@ from __future__ import annotations
 import numpy as np
 
 from prox_workflows.grid import GridGeometry
-from prox_workflows.steps.dem2hazard import HAZARDOUS, SAFE, UNDEFINED, HazardParams
+from prox_workflows.steps.dem2hazard import HazardParams
 from prox_workflows.steps.planner import NavMaps
 from prox_workflows.steps.rolling_map import (
     MapMemory,
@@ -18,6 +18,7 @@ from prox_workflows.steps.rolling_map import (
     merge_nav_maps,
     whole_windows,
 )
+from rvs_params.hazard import HAZARDOUS, SAFE, UNDEFINED
 
 ROCK = (1.5, 0.0)
 

@@ -210,9 +210,9 @@ def test_the_body_is_kept_off_ground_no_map_has_seen() -> None:
     ground within reach of the rover is kept out of plans as a rock is, and the sweep of the next
     blind metres stops on it (the rover then looks there); ground farther off stays plannable,
     since the forward view shows it before the body gets there."""
-    from prox_workflows.steps.dem2hazard import HAZARDOUS, SAFE, UNDEFINED
     from prox_workflows.steps.planner import PlannerParams, plan_path
     from prox_workflows.steps.rolling_map import mark_unseen, sweep_check
+    from rvs_params.hazard import HAZARDOUS, SAFE, UNDEFINED
 
     g = GridGeometry(0.05, -1.0, 2.0, 100, 80)  # x -1..4, y -2..2
     hazard = np.full(g.shape, SAFE, np.uint8)
@@ -301,8 +301,8 @@ def test_a_pose_fix_moves_only_what_the_rolling_map_saw_since_the_last_fix() -> 
     fix corrects) move by it, and the hazard layers follow: a rock seen 0.3 m off lands on its
     true place, a rock seen before stays on its own; the mission's memory of the verdicts moves
     with them."""
-    from prox_workflows.steps.dem2hazard import HAZARDOUS, SAFE
     from prox_workflows.steps.rolling_map import MapMemory
+    from rvs_params.hazard import HAZARDOUS, SAFE
 
     params = HazardParams()
     memory = MapMemory.covering([(-3.0, -3.0), (3.0, 3.0)], 1.0, 0.05)
@@ -496,8 +496,8 @@ def test_the_memory_keeps_a_dead_end_after_it_scrolls_off_the_rolling_map() -> N
     the rover is 6 m on and the 4 m rolling map has long shifted past it (without the memory the
     wall is gone and D* Lite sends the rover back into the dead end); a later verdict of a cell
     replaces the kept one, and cells off the memory's box are simply not kept."""
-    from prox_workflows.steps.dem2hazard import HAZARDOUS, SAFE, UNDEFINED
     from prox_workflows.steps.rolling_map import MapMemory
+    from rvs_params.hazard import HAZARDOUS, SAFE, UNDEFINED
 
     rng = np.random.default_rng(5)
     memory = MapMemory.covering([(0.0, 0.0), (6.0, 0.0)], 2.0, 0.05)

@@ -27,7 +27,7 @@ import yaml
 from conftest import ServerThread, long_test
 
 from prox_workflows.grid import GridGeometry, read_geotiff, write_geotiff
-from prox_workflows.steps.dem2hazard import HAZARDOUS
+from rvs_params.hazard import HAZARDOUS
 
 CHROMIUM = "/usr/bin/chromium"
 ARTIFACTS = Path(os.environ.get("RVS_ARTIFACTS", Path(__file__).resolve().parent.parent / "test-artifacts"))

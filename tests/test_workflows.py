@@ -25,9 +25,7 @@ from prox_workflows.batch import (
     mosaic_in_memory,
     run_batch,
 )
-from prox_workflows.batch import (
-    main as batch_main,
-)
+from prox_workflows.cli.batch import main as batch_main
 from prox_workflows.cli.prox import main as rvs_prox
 from tools.bench.batch import shifted_copy
 

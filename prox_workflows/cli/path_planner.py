@@ -26,9 +26,9 @@ import time
 from pathlib import Path
 
 from rvs_params import SettingError
+from rvs_params.hazard import UNDEFINED
 
 from ..engine import WorkflowError, run_workflow
-from ..steps.dem2hazard import UNDEFINED
 from ..steps.planner import PlannerParams, PlanningError, PlanParams
 from .parser import ToolParser
 

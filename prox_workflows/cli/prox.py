@@ -83,7 +83,7 @@ def main(argv: list[str] | None = None) -> int:
     ``rvs-prox batch|mosaic-campaign ...``: the campaign tools (prox_workflows.batch)."""
     argv = list(sys.argv[1:] if argv is None else argv)
     if argv and argv[0] in ("batch", "mosaic-campaign"):  # the campaign tools (prox_workflows.batch)
-        from .. import batch
+        from . import batch
 
         return batch.main(argv)
     ap = argparse.ArgumentParser(prog="rvs-prox", description="Validate or run a PROX-like workflow script.",

@@ -52,19 +52,18 @@ import numpy as np
 import yaml
 
 from rvs_params import Settings, param
+from rvs_params.hazard import (  # the thesis's black / grey / white
+    CODES_TEXT,
+    HAZARDOUS,
+    SAFE,
+    UNDEFINED,
+)
 from rvs_params.jit import HAVE_NUMBA
 
 from ..grid import Layers
 from ..params import parameters
 
 CONFIG_PATH = Path(__file__).resolve().parents[2] / "config" / "dem2hazard.yaml"
-
-# the hazard map's classes (the thesis's black / grey / white); every reader of a hazard map asks these
-SAFE = 0
-UNDEFINED = 128
-HAZARDOUS = 255
-CODES = (SAFE, UNDEFINED, HAZARDOUS)
-CODES_TEXT = f"{SAFE} safe, {UNDEFINED} undefined, {HAZARDOUS} hazardous"
 
 LAYERS = ("slope", "roughness", "step", "hazard", "traversability")
 UNITS = {"slope": "deg", "roughness": "m", "step": "m", "hazard": CODES_TEXT,

@@ -23,8 +23,10 @@ from pathlib import Path
 
 import numpy as np
 
+from rvs_params.hazard import CODES
+
 from ..grid import GridGeometry, _is_geographic, epsg_code, read_geotiff
-from .dem2hazard import CODES, dem2hazard, load_params
+from .dem2hazard import dem2hazard, load_params
 
 
 @dataclass

@@ -35,8 +35,10 @@ from typing import Any
 
 import numpy as np
 
+from rvs_params.hazard import HAZARDOUS, SAFE
+
 from ..grid import GridGeometry
-from .dem2hazard import HAZARDOUS, SAFE, HazardParams, dem2hazard
+from .dem2hazard import HazardParams, dem2hazard
 from .dem_import import dem_import
 
 LEVELS = ("clear", "warning", "stop")

@@ -30,8 +30,9 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import ndimage, optimize
 
+from rvs_params.hazard import UNDEFINED
+
 from ..grid import GridGeometry, Layers
-from .dem2hazard import UNDEFINED
 
 
 @dataclass(frozen=True)

@@ -74,13 +74,13 @@ import numpy as np
 from scipy import ndimage
 
 from rvs_params import Settings, param
+from rvs_params.hazard import HAZARDOUS, SAFE, UNDEFINED
 from rvs_params.jit import HAVE_NUMBA, jit
 
 from ..engine import step
 from ..grid import GridGeometry
 from ..mapview import Marks
 from ..params import parameters
-from .dem2hazard import HAZARDOUS, SAFE, UNDEFINED
 
 HEURISTICS = {"euclidean": 0, "manhattan": 1, "octile": 2, "chebyshev": 3}
 SQRT2 = math.sqrt(2.0)

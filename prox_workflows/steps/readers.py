@@ -17,13 +17,14 @@ import numpy as np
 import tifffile
 import yaml
 
+from rvs_params.hazard import CODES, UNDEFINED
+
 from ..engine import step
 from ..grid import GDAL_NODATA, Layers, parse_crs, read_geotiff
 from ..layers import read_layers as _read_layers
 from ..pointcloud import read_las
 from ..pointcloud import read_points as _read_points
 from .acquire import AUX_SUFFIX, View, view_from_images
-from .dem2hazard import CODES, UNDEFINED
 from .noise import tof_sigma
 from .transforms import read_cal
 

@@ -46,8 +46,10 @@ from typing import Any
 
 import numpy as np
 
+from rvs_params.hazard import HAZARDOUS, SAFE, UNDEFINED
+
 from ..grid import GridGeometry, Layers, median_near
-from .dem2hazard import HAZARDOUS, SAFE, UNDEFINED, HazardParams, dem2hazard
+from .dem2hazard import HazardParams, dem2hazard
 from .dem_import import dem_import
 from .dem_mosaik import dem_mosaik
 from .planner import NavMaps, check_plan_size

@@ -39,7 +39,6 @@ import numpy as np
 
 from drivers.rover import Motion
 from drivers.tof.constants import FOV_V_DEG
-from prox_workflows.steps.dem2hazard import HAZARDOUS, SAFE
 from prox_workflows.steps.hazard_monitor import rover_points
 from prox_workflows.steps.planner import NavMaps
 from prox_workflows.steps.replan import Replanner
@@ -53,6 +52,7 @@ from prox_workflows.steps.rolling_map import (
 )
 from prox_workflows.steps.safety import in_footprint
 from prox_workflows.steps.transforms import HeadCalibration, T_global_from_rover
+from rvs_params.hazard import HAZARDOUS, SAFE
 
 from ..commands.awareness import look_at
 from ..commands.hardware import device_call

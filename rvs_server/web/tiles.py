@@ -25,7 +25,7 @@ import yaml
 from prox_workflows.grid import GridGeometry, read_geotiff
 from prox_workflows.layers import LAYERS, LayerSpec, style_of
 from prox_workflows.mapview import Style, layer_rgba
-from prox_workflows.steps.dem2hazard import HAZARDOUS, SAFE, UNDEFINED
+from rvs_params.hazard import HAZARDOUS, SAFE, UNDEFINED
 
 MAX_SIDE = 2048  # larger layers are reduced: a browser draws 2048 px as fast as it needs to
 MASK_RGBA = (170, 60, 200, 200)  # a 0/1 mask's 1: a colour no ramp or class of the console uses

@@ -13,14 +13,11 @@ import yaml
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from prox_workflows import colormaps
 from prox_workflows.cli import dem2hazard as cli
 from prox_workflows.grid import GridGeometry, Layers, write_geotiff
-from prox_workflows.steps import colormaps
 from prox_workflows.steps import dem2hazard as d2h
 from prox_workflows.steps.dem2hazard import (
-    HAZARDOUS,
-    SAFE,
-    UNDEFINED,
     HazardParams,
     dem2hazard,
     dem2hazard_layers,
@@ -28,6 +25,7 @@ from prox_workflows.steps.dem2hazard import (
     hazard_summary,
     load_params,
 )
+from rvs_params.hazard import HAZARDOUS, SAFE, UNDEFINED
 from tools.bench.dem2hazard import vectorised
 
 CELL = 0.02

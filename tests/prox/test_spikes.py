@@ -6,9 +6,10 @@ import numpy as np
 import pytest
 
 from prox_workflows.grid import GridGeometry, Layers
-from prox_workflows.steps.dem2hazard import HAZARDOUS, dem2hazard
+from prox_workflows.steps.dem2hazard import dem2hazard
 from prox_workflows.steps.holes import fill_holes
 from prox_workflows.steps.spikes import find_spikes, remove_spikes_layers
+from rvs_params.hazard import HAZARDOUS
 
 CELL = 0.02
 

@@ -34,6 +34,7 @@ import cv2
 import numpy as np
 
 from prox_workflows.steps import dem2hazard as d2h
+from rvs_params.hazard import UNDEFINED
 
 TARGET_MS = 150.0  # for 1000 x 1000
 CELL = 0.02
@@ -124,7 +125,7 @@ def agreement(ours: dict[str, np.ndarray], peer: dict[str, np.ndarray]) -> dict[
     (tests/prox/test_dem2hazard.py: slope 1e-3 deg, roughness 1e-3 relative + 2e-6 m, step 1e-6 m)."""
     same_nan = all(np.array_equal(np.isnan(ours[k]), np.isnan(peer[k]))
                    for k in ("slope", "roughness", "step", "traversability"))
-    same_nan = same_nan and np.array_equal(ours["hazard"] == d2h.UNDEFINED, peer["hazard"] == d2h.UNDEFINED)
+    same_nan = same_nan and np.array_equal(ours["hazard"] == UNDEFINED, peer["hazard"] == UNDEFINED)
 
     def worst(name: str) -> float:
         d = np.abs(ours[name].astype(np.float64) - peer[name])
@@ -136,7 +137,7 @@ def agreement(ours: dict[str, np.ndarray], peer: dict[str, np.ndarray]) -> dict[
     out = {"same_nan": same_nan, "slope": worst("slope"), "roughness": worst("roughness"),
            "step": worst("step"), "traversability": worst("traversability"),
            "hazard_cells_differ": int(np.count_nonzero(ours["hazard"] != peer["hazard"])),
-           "defined": int(np.count_nonzero(ours["hazard"] != d2h.UNDEFINED))}
+           "defined": int(np.count_nonzero(ours["hazard"] != UNDEFINED))}
     out["equal"] = bool(same_nan and out["slope"] <= 1e-3 and not np.any(r_excess > 0)
                         and out["step"] <= 1e-6 and out["hazard_cells_differ"] == 0)
     return out

@@ -49,9 +49,10 @@ from scipy import ndimage
 from drivers.sim.rover import RoverBody
 from drivers.sim.world import World
 from prox_workflows.grid import GridGeometry
-from prox_workflows.steps.dem2hazard import HAZARDOUS, SAFE, UNDEFINED, HazardParams, classify, dem2hazard
+from prox_workflows.steps.dem2hazard import HazardParams, classify, dem2hazard
 from prox_workflows.steps.safety import check_move
 from prox_workflows.steps.vehicle import Event, Margins, check_poses, densify, track_poses, unsafe_events
+from rvs_params.hazard import HAZARDOUS, SAFE, UNDEFINED
 from rvs_server.client.session import ServerThread
 from rvs_server.protocol import Reply, parse_reply
 from tools.global_maps import write_global_maps

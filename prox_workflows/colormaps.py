@@ -17,8 +17,8 @@ from collections.abc import Sequence
 import cv2
 import numpy as np
 
-from .dem2hazard import HAZARDOUS, SAFE
-from .dem2hazard import UNDEFINED as UNDEFINED_CODE
+from rvs_params.hazard import HAZARDOUS, SAFE
+from rvs_params.hazard import UNDEFINED as UNDEFINED_CODE
 
 Colour = tuple[int, int, int]
 
