@@ -23,12 +23,14 @@ from collections import OrderedDict
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
+from datetime import UTC, datetime
 from typing import TYPE_CHECKING, Any
 
 import structlog
 
 from drivers.base import DeviceError, DeviceInterrupted
 
+from .bus import tapped_call
 from .protocol import ProtocolError
 
 if TYPE_CHECKING:
@@ -265,3 +267,18 @@ class JobRunner:
         if self.current is not None:
             self.current.stop()
         self._pool.shutdown(wait=False, cancel_futures=True)
+
+
+def device_call(job: Job, fn: Any, *args: Any, **kwargs: Any) -> Any:
+    """Call a driver with the job's cancel event; a stop caused by break is E_INTERRUPTED, not a fault."""
+    try:
+        return tapped_call(job.app.bus, fn, *args, cancel=job.cancel, **kwargs)
+    except Exception:
+        if job.cancelled:
+            raise Interrupted(f"{job.command} job {job.id} was interrupted") from None
+        raise
+
+
+def default_stem(prefix: str) -> str:
+    """A job's product name when the request gives none: the kind and the UTC time to the ms."""
+    return f"{prefix}_{datetime.now(UTC).strftime('%Y%m%dT%H%M%S_%f')[:-3]}"

@@ -110,7 +110,7 @@ def test_rvs_prox_help_lists_the_commands_parameters_with_their_defaults(
     assert r.status == "OK"
     assert rvs_prox(["dem", "--help"]) == 0
     text = capsys.readouterr().out
-    from rvs_server.commands.dem import SCAN_OPTIONS
+    from rvs_server.scanning import SCAN_OPTIONS
 
     options = {k[4:]: v for k, v in r.fields.items() if k.startswith("opt_")}
     assert "on_the_move" in options  # how the server takes the scan: not the chain's to know

@@ -9,6 +9,7 @@ server's *belief*, read from ``config/head.yaml``, which a calibration may corre
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -78,6 +79,15 @@ class HeadCalibration:
         T_pan = make_T(rot_z(pan), self.ptu_base)
         T_tilt = make_T(rot_y(-tilt), (0.0, 0.0, self.tilt_offset))
         return T_pan @ T_tilt @ self.T_tilt_from_sensor(sensor)
+
+    def look_at(self, target_rover: np.ndarray) -> tuple[float, float]:
+        """Pan and tilt that put a rover-frame point on the PTU's axis of view (sensor offsets are
+        a few centimetres against metres of range, so the PTU's own axes stand in for the sensor)."""
+        base = np.array(self.ptu_base, dtype=float) + np.array([0.0, 0.0, self.tilt_offset])
+        d = np.asarray(target_rover, float) - base
+        pan = math.degrees(math.atan2(d[1], d[0]))
+        tilt = math.degrees(math.atan2(d[2], math.hypot(d[0], d[1])))
+        return pan, tilt
 
 
 def T_global_from_rover(x: float, y: float, heading: float, z: float = 0.0) -> np.ndarray:

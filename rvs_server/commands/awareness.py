@@ -25,12 +25,11 @@ from prox_workflows.steps.transforms import HeadCalibration, T_global_from_rover
 
 from ..app import Context
 from ..config import ModuleConfig, param
-from ..jobs import Job
+from ..jobs import Job, device_call
 from ..maps import current_pose
 from ..monitors import Monitor
 from ..protocol import Fixed, ProtocolError
 from ..table import HARDWARE, command
-from .hardware import device_call
 
 if TYPE_CHECKING:
     from ..app import App
@@ -253,16 +252,6 @@ def _frame(app: App) -> np.ndarray:
     return T_global_from_rover(x, y, heading, z)
 
 
-def look_at(head: HeadCalibration, target_rover: np.ndarray) -> tuple[float, float]:
-    """Pan and tilt that put a rover-frame point on the PTU's axis of view (sensor offsets are
-    a few centimetres against metres of range, so the PTU's own axes stand in for the sensor)."""
-    base = np.array(head.ptu_base, dtype=float) + np.array([0.0, 0.0, head.tilt_offset])
-    d = np.asarray(target_rover, float) - base
-    pan = math.degrees(math.atan2(d[1], d[0]))
-    tilt = math.degrees(math.atan2(d[2], math.hypot(d[0], d[1])))
-    return pan, tilt
-
-
 def _sense(app: App, cfg: TrackConfig, pan: float, tilt: float, call: Any
            ) -> tuple[list[tr.Detection], float, float]:
     """One view's detections in the global frame; returns them with the monotonic and wall-clock
@@ -361,7 +350,7 @@ class TargetTracker(Monitor):
         if pred is not None:
             T_rg = invert(_frame(app))
             aim = T_rg[:3, :3] @ (pred + np.array([0.0, 0.0, cfg.aim])) + T_rg[:3, 3]
-            pan, tilt = look_at(self.head(), aim)
+            pan, tilt = self.head().look_at(aim)
             lim = _limits(app.devices.get("ptu"))
             pan_tilt = (float(np.clip(pan, lim[0], lim[1])), float(np.clip(tilt, lim[2], lim[3])))
         if pan_tilt is None:

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from datetime import UTC, datetime
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, ClassVar
 
@@ -15,27 +14,12 @@ from drivers.stereo.modes import PIXEL_FORMATS, RESOLUTIONS
 from prox_workflows.products import preview, product_set, write_png, write_sidecar, write_tiff
 
 from ..config import ModuleConfig, param
-from ..bus import tapped_call
-from ..jobs import Interrupted, Job
+from ..jobs import Job, default_stem, device_call
 from ..protocol import Fixed, ProtocolError
 from ..table import HARDWARE, command
 
 if TYPE_CHECKING:
     from ..app import App
-
-
-def device_call(job: Job, fn: Any, *args: Any, **kwargs: Any) -> Any:
-    """Call a driver with the job's cancel event; a stop caused by break is E_INTERRUPTED, not a fault."""
-    try:
-        return tapped_call(job.app.bus, fn, *args, cancel=job.cancel, **kwargs)
-    except Exception:
-        if job.cancelled:
-            raise Interrupted(f"{job.command} job {job.id} was interrupted") from None
-        raise
-
-
-def default_stem(prefix: str) -> str:
-    return f"{prefix}_{datetime.now(UTC).strftime('%Y%m%dT%H%M%S_%f')[:-3]}"
 
 
 def acquisition_context(app: App) -> dict[str, Any]:

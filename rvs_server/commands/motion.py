@@ -26,10 +26,10 @@ from prox_workflows.steps.transforms import HeadCalibration
 
 from ..app import OrientReference
 from ..config import ModuleConfig, param
-from ..jobs import Job
+from ..jobs import Job, device_call
 from ..protocol import Fixed, ProtocolError
 from ..table import HARDWARE, command
-from .hardware import check_ptu_angles, device_call
+from .hardware import check_ptu_angles
 
 if TYPE_CHECKING:
     from ..app import App

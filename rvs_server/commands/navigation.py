@@ -12,14 +12,13 @@ from prox_workflows.steps.safety import MAX_SWEEP_CELLS, check_move, sweep_cells
 
 from ..app import Context
 from ..config import ModuleConfig, param
-from ..jobs import Interrupted, Job
+from ..jobs import Interrupted, Job, default_stem
 from ..navigation.config import NavigateConfig
 from ..navigation.mission import Mission, check_request
 from ..navigation.planning import validate_scripts
 from ..navigation.track import Track
 from ..protocol import Fixed, ProtocolError
 from ..table import HARDWARE, command
-from .hardware import default_stem
 
 __all__ = ["CheckMoveConfig", "NavigateConfig", "check_move_cmd", "navigate", "validate_scripts"]
 

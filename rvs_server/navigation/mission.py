@@ -16,7 +16,7 @@ import numpy as np
 
 from drivers.rover import Settle, Silent
 
-from ..commands.hardware import device_call
+from ..jobs import device_call
 from ..protocol import Fixed, ProtocolError, Reply, Rows
 from .localiser import Localiser, pose_fields
 from .planning import load_global_maps, planner_params
@@ -141,7 +141,7 @@ class Mission:
         in a row that starts where the previous one did ends the job (no progress)."""
         from prox_workflows.steps.planner import NavMaps
 
-        from ..commands.dem import run_dem
+        from ..scanning import run_dem
 
         app, cfg = self.app, self.cfg
         self.scans += 1

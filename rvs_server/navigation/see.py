@@ -54,8 +54,7 @@ from prox_workflows.steps.safety import in_footprint
 from prox_workflows.steps.transforms import HeadCalibration, T_global_from_rover
 from rvs_params.hazard import HAZARDOUS, SAFE
 
-from ..commands.awareness import look_at
-from ..commands.hardware import device_call
+from ..jobs import device_call
 from ..maps import ground_height
 from ..protocol import Fixed, ProtocolError, Reply
 from .planning import goal_stand_in
@@ -246,7 +245,7 @@ class SeeingDriver:
         self.looked_from = pose
         self.stats.looks += 1
         self.job.progress(0, 1, f"looking at unseen ground ({x:.2f}, {y:.2f}) before driving onto it", phase="drive")
-        pan, tilt = look_at(self.head, np.array([*in_rover_frame(pose, x, y), 0.0]))
+        pan, tilt = self.head.look_at(np.array([*in_rover_frame(pose, x, y), 0.0]))
         self._point(max(-150.0, min(150.0, pan)), max(self._lowest_tilt(), min(self.p.tilt, tilt)))
         self.see(self.pan_tilt)
         self.job.check()

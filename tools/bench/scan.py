@@ -107,7 +107,8 @@ def run_scan(app: Any, client: Client, view_range: str, name: str, variant: str)
 
 
 def limit_of(app: Any, view_range: str) -> dict[str, Any]:
-    from rvs_server.commands.dem import DemTofConfig, view_seconds
+    from rvs_server.commands.dem import DemTofConfig
+    from rvs_server.scanning import view_seconds
 
     ptu, tof = app.devices.get("ptu"), app.devices.get("tof")
     lim = ptu.limits()
