@@ -135,7 +135,7 @@ class ParamSpec:
             what += " or null"
         return what
 
-    def parse(self, raw: str | bool) -> Any:
+    def parse(self, raw: str | bool) -> Any:  # noqa: C901 - one branch per kind of value, read in order
         """Convert and validate one value from a request or a ``-set``; the error names the option."""
         name = self.flag
         if self.optional and isinstance(raw, str) and raw.lower() in ("null", "none", "~"):

@@ -52,7 +52,7 @@ STEP_KEYS = {"step", "in", "out", "foreach", "when", "phase"}
 SCRIPT_KEYS = {"name", "params", "inputs", "outputs", "steps", "_file"}
 
 
-def validate(
+def validate(  # noqa: C901 - one pass over the script, so the mistakes come back in the order written
     script: dict[str, Any] | str | Path,
     params: dict[str, Any] | None = None,
     workspace: dict[str, Any] | Iterable[str] | None = None,

@@ -368,7 +368,7 @@ THREADS = min(2, os.cpu_count() or 1)  # threads the compiled pass splits the gr
 THREAD_MIN_POINTS = 400_000  # ... when there are this many points, at least 2 a cell, and a free core
 
 
-def _accumulate_kernel(pts, var, clo, chi, block, xmin, ymax, cell, fw, fh, w, z0,
+def _accumulate_kernel(pts, var, clo, chi, block, xmin, ymax, cell, fw, fh, w, z0,  # noqa: C901 - one pass
                        want_min, want_count, want_moments, poly, pbox, use_ground, ground32, ground,
                        zmax, zmin, count, s1, s2, i1, i2, isum, idx, zb, ib):
     """Every statistic of the points that fall in cells ``clo <= c < chi``, in one pass over the
