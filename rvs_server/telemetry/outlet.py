@@ -68,12 +68,11 @@ TOPICS: dict[str, Topic] = {
     "/raw/stereo/right": Topic(RawImage.get_schema(), live=False),
 }
 MAP_PREFIX = "/map/"  # + layer name: one Grid channel per layer, latched
+MAP_TOPIC = Topic(Grid.get_schema(), latched=True)
 
 
 def topic_spec(topic: str) -> Topic:
-    if topic.startswith(MAP_PREFIX):
-        return Topic(Grid.get_schema(), latched=True)
-    return TOPICS[topic]
+    return MAP_TOPIC if topic.startswith(MAP_PREFIX) else TOPICS[topic]
 
 
 class Outlet:
