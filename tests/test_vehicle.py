@@ -141,3 +141,5 @@ def test_the_margins_put_the_thresholds_below_the_capability_by_the_measured_bud
                                                                        "margin": 0.05}
     assert RoverBody(clearance=0.12).climb == 0.10
     assert Margins(read_low=0.02, tracking=0.05).thresholds(RoverBody(clearance=0.12))["step_max"] == 0.08
+    with pytest.raises(ValueError, match="9.5 cm read-low budget leaves no step below the body's 8.0 cm"):
+        Margins(read_low=0.095).thresholds(BODY)  # hirise's ToF at 5 cm

@@ -36,7 +36,7 @@ from ..grid import GridGeometry
 __all__ = ["VehicleBody", "PoseChecks", "Event", "Margins", "check_poses", "densify", "unsafe_events",
            "track_poses", "WHEELS"]
 
-READ_LOW_P99 = 0.051  # m: ToF DEM, 5 cm cells, marsyard (docs/NAVIGATE_BENCH.md, Error budget)
+READ_LOW_P99 = 0.051  # m: the ToF's DEM at 5 cm, marsyard (docs/NAVIGATE_BENCH.md, Error budget)
 TRACKING_P99 = 0.03  # m: the see loop's true track from its planned legs, worst mission p99
 WHEELS = ("front-left", "front-right", "rear-left", "rear-right")
 # The four planes a rigid body may rest on: three wheels each, the fourth named last.
@@ -65,9 +65,11 @@ class Margins:
     ``python -m tools.bench.navigate --budget`` measures and prints (docs/NAVIGATE_BENCH.md,
     "Error budget"). The defaults are its figures, not guesses:
 
-    - ``read_low``: how much lower than the true top the maps read a rock cell, p99 at 5 cm (the
-      rolling map's cell), the worse of the ToF and the stereo pair over marsyard and hirise;
-    - ``tracking``: how far the true track strays from the planned path, p99 over the missions.
+    - ``read_low``: how much lower than the true top the ToF's map (what both loops map with)
+      reads a rock cell, p99 at 5 cm cells in marsyard; hirise's is 0.095, above the body's 8 cm
+      step capability itself, so no threshold is left there (:meth:`thresholds` says so);
+    - ``tracking``: how far the see loop's true track strays from its planned legs, p99 of the
+      worst mission (the scan loop follows its waypoints exactly: 0).
     """
 
     read_low: float = READ_LOW_P99
@@ -76,9 +78,13 @@ class Margins:
     def thresholds(self, body: VehicleBody) -> dict[str, float]:
         """Dem2Hazard's step and slope limits and the planner's lateral margin for ``body``: its
         step capability (the lower of its climb and its belly: a rock under the box must pass
-        beneath it) less the read-low error; its tilt; the tracking error."""
-        return {"step_max": round(min(body.climb, body.clearance) - self.read_low, 3), "slope_max": body.tilt,
-                "margin": self.tracking}
+        beneath it) less the read-low error; its tilt; the tracking error. A ValueError when the
+        read-low error leaves no step at all."""
+        cap = min(body.climb, body.clearance)
+        if self.read_low >= cap:
+            raise ValueError(f"a {self.read_low * 100:.1f} cm read-low budget leaves no step below the body's "
+                             f"{cap * 100:.1f} cm capability: the maps must read rocks closer to their tops")
+        return {"step_max": round(cap - self.read_low, 3), "slope_max": body.tilt, "margin": self.tracking}
 
 
 @dataclass
