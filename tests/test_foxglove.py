@@ -246,8 +246,12 @@ def test_a_client_that_subscribes_late_gets_the_map_and_a_taken_port_costs_only_
     owner = listener_pid(port)
     assert owner != os.getpid() and parent_of(owner) == os.getpid()
     assert c.request("status").fields["foxglove_dropped"] == "0"
+    # nobody listened: the maps stayed in the server, not piped to the process (10 x 1-100 MB)
+    link = srv.app.telemetry.link
+    assert not any(topic.startswith("/map/") for topic in link.logged), link.logged
 
     grid, scene = asyncio.run(late())
+    assert link.logged["/map/traversability"] == 1 and link.logged["/map/dem"] == 0  # what was asked for
     trav, _ = read_geotiff(srv.data / "dem" / "fx_traversability.tif")
     np.testing.assert_array_equal(grid_values(grid), trav)
     entity = scene.entities[0]

@@ -100,6 +100,13 @@ def test_record_a_dem_and_read_it_back(server: Any) -> None:
     progress = [json.loads(data) for topic, _, data in messages if topic == "/rvs/job"]
     assert progress[-1]["status"] == "OK" and progress[-1]["fraction"] == 1.0
 
+    # a recording started later stands alone: the current maps and check-move, once each
+    assert c.request("record -start -name run2").status == "OK"
+    assert c.request("record -stop").status == "OK"
+    later, _, _ = summary(server.data / "recordings" / "run2.mcap")
+    assert {t for t in later if t.startswith("/map/") and later[t]} == layers
+    assert all(later[t] == 1 for t in layers) and later["/nav/check_move"] == 1, later
+
 
 def test_record_refuses_what_it_cannot_do(server: Any) -> None:
     c = server.client()

@@ -90,6 +90,7 @@ class Station:
             link = await self._connect()
             link.recording = True  # from here every message goes, and is kept when the process lags
             await asyncio.get_running_loop().run_in_executor(None, link.call, "record_start", path, metadata)
+            self.hub.resend()  # what is latched and the process never got (nobody listened)
         except TelemetryError as exc:
             if link is not None:
                 link.recording = False

@@ -26,7 +26,7 @@ from ..maps import ground_height
 from ..protocol import Reply, format_reply
 from . import messages as m
 from .link import Link
-from .outlet import MAP_PREFIX, TOPICS
+from .outlet import MAP_PREFIX, TOPICS, topic_spec
 
 if TYPE_CHECKING:
     from ..app import App
@@ -56,6 +56,7 @@ class Telemetry:
         self._stop = False
         self._maps: tuple[int, Layers] | None = None
         self._latched: dict[str, tuple[int, Any, tuple[Any, ...]]] = {}  # plan, check-move: their last message
+        self._sent: dict[str, int] = {}  # latched topic -> the time of the message the process holds
         self._track: deque[tuple[float, float, float]] = deque(maxlen=TRACK_POINTS)
         self._track_sent = 0.0
         self._track_dirty = False
@@ -139,7 +140,12 @@ class Telemetry:
             what, arg = entry
             if what == "attach":
                 self._link, done = arg
+                self._sent.clear()
+                self._link.on_subscribed = lambda topics: self._put(("resend", topics))
                 self._send_latched()
+            elif what == "resend":
+                self._send_latched(arg)
+                return
             else:
                 done = arg
             done.set()
@@ -153,21 +159,34 @@ class Telemetry:
         link = self._link
         if link is not None and link.wants(topic):
             link.log(topic, t_ns, encode, *args)
+            if topic_spec(topic).latched:
+                self._sent[topic] = t_ns
 
     def _latch(self, topic: str, t_ns: int, encode: Any, *args: Any) -> None:
         self._latched[topic] = (t_ns, encode, args)
         self._log(topic, t_ns, encode, *args)
 
-    def _send_latched(self) -> None:
+    def _send_latched(self, topics: frozenset[str] | None = None) -> None:
+        """The latched messages (of ``topics``, or all) that the process does not hold yet: it
+        keeps what it was sent for the listeners and recordings that come later."""
+        def wanted(topic: str, t_ns: int | None) -> bool:
+            return (topics is None or topic in topics) and (t_ns is None or self._sent.get(topic) != t_ns)
+
         if self._maps is not None:
             t_ns, layers = self._maps
             for name in layers.layers:
-                self._log(MAP_PREFIX + name, t_ns, m.grid, t_ns, layers.geometry, name, layers[name])
+                if wanted(MAP_PREFIX + name, t_ns):
+                    self._log(MAP_PREFIX + name, t_ns, m.grid, t_ns, layers.geometry, name, layers[name])
         for topic, (t_ns, encode, args) in self._latched.items():
-            self._log(topic, t_ns, encode, *args)
-        if self._track:
+            if wanted(topic, t_ns):
+                self._log(topic, t_ns, encode, *args)
+        if self._track and wanted("/nav/track", None):
             t = time.time_ns()
             self._log("/nav/track", t, m.track, t, np.array(self._track))
+
+    def resend(self) -> None:
+        """Send what is latched and not yet with the process (a recording starts: it takes all)."""
+        self._put(("resend", None))
 
     # -- bus items
 

@@ -28,7 +28,8 @@ import pickle
 import subprocess
 import sys
 import threading
-from collections import deque
+from collections import Counter, deque
+from collections.abc import Callable
 from multiprocessing.connection import Connection
 from pathlib import Path
 from typing import Any
@@ -94,10 +95,12 @@ class Link:
         self._out = Connection(to_w, readable=False)
         self._in = Connection(from_r, writable=False)
         self.subscribed: frozenset[str] = frozenset()  # live topics a Foxglove client listens to
+        self.on_subscribed: Callable[[frozenset[str]], None] | None = None  # told the topics newly listened to
         self.recording = False
         self.exited: str | None = None  # why the process is gone, once it is
         self.live_dropped = 0
         self.dropped = 0
+        self.logged: Counter[str] = Counter()  # messages handed to the process, by topic
         self._queue: deque[tuple[Any, int]] = deque()
         self._queued = 0  # bytes in the queue
         self._wake = threading.Condition()
@@ -124,12 +127,12 @@ class Link:
         return self.url is not None and self.exited is None
 
     def wants(self, topic: str) -> bool:
-        """Whether a message on ``topic`` goes anywhere: the recording takes every topic, the
-        process keeps the latched ones for whoever comes later (a client, the next recording), a
-        live topic goes when a client listens."""
+        """Whether a message on ``topic`` goes anywhere: the recording takes every topic, a live
+        one goes when a client listens. A latched topic nobody wants stays with the hub until
+        someone does (:attr:`on_subscribed`): a map is a hundred megabytes of pipe."""
         if self.exited is not None:
             return False
-        return self.recording or topic in self.subscribed or topic_spec(topic).latched
+        return self.recording or topic in self.subscribed
 
     def wants_any(self) -> bool:
         return self.exited is None and (self.recording or bool(self.subscribed))
@@ -138,7 +141,7 @@ class Link:
         """Queue a message: ``encode(*args)`` (a function of :mod:`.messages`) runs in the
         process. Never waits: past the queue's bounds the message is dropped and counted."""
         size = _size(args)
-        keep = self.recording or topic_spec(topic).latched
+        keep = self.recording or topic_spec(topic).latched  # the process keeps it for later listeners
         with self._wake:
             if self._queued + size > (QUEUE_BYTES if keep else LIVE_BYTES):
                 if keep:
@@ -148,6 +151,7 @@ class Link:
                 return
             self._queue.append((("log", topic, t_ns, encode, args), size))
             self._queued += size
+            self.logged[topic] += 1
             self._wake.notify()
 
     def call(self, op: str, *args: Any, timeout: float = CALL_S) -> Any:
@@ -231,7 +235,10 @@ class Link:
             except (EOFError, OSError):
                 break
             if what == "subscribed":
+                added = rest[0] - self.subscribed
                 self.subscribed = rest[0]
+                if added and self.on_subscribed is not None:
+                    self.on_subscribed(added)
             elif what == "reply":
                 call_id, ok, result = rest
                 slot = self._calls.get(call_id)
