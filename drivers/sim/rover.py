@@ -57,9 +57,10 @@ class RoverBody:
     - ``wheelbase`` 0.29 m, ``track`` 0.49 m: hub to hub, front to back and side to side; the wheels
       sit at the box's corners (0.51 m long box: hubs one radius in from its ends, 0.255 - 0.11).
     - ``clearance`` 0.08 m: the underside of the box over the plane through the wheel contacts.
-    - ``climb`` 0.10 m: the greatest step one wheel climbs, the P3-AT's published traversable
-      step; it is also what a rigid four-wheel skid steer with pneumatic tyres climbs at most:
-      about half its 21.5 cm wheel, a step whose edge still lies below the hub with margin.
+    - ``climb`` 0.10 m: the greatest step one wheel climbs, the traversable step quoted for the
+      P3-AT (its datasheet was not at hand to confirm it); it is also what a rigid four-wheel skid
+      steer with pneumatic tyres climbs at most: about half its 21.5 cm wheel, a step whose edge
+      still lies below the hub with margin.
     - ``tilt`` 19.3 deg: the greatest tilt of the plane through the wheel contacts, the P3-AT's
       35 % grade (atan 0.35). Dem2Hazard's 20 deg slope limit sits just above it.
     """
