@@ -646,22 +646,23 @@ def read_low_budget(scene: str, count: int, seed: int = 0, cells: tuple[float, .
 
 
 def margin_table(budget: list[dict[str, Any]], rows: list[dict[str, Any]], body: RoverBody) -> list[str]:
-    """The margins the budget gives: the step threshold = the body's step capability minus the
-    worst p99 read-low at the maps' 5 cm cells; the lateral margin = the missions' worst p99
-    path-tracking error."""
-    lines = []
+    """The margins the budget gives (:class:`Margins`): per scene, the step threshold = the body's
+    step capability minus the ToF's p99 read-low at 5 cm (the loops map with the ToF, the rolling
+    map at 5 cm), or none left; the lateral margin = the missions' worst p99 path-tracking error."""
     cap = capability_hazard(body)
-    at5 = [b["read_low_p99"] for b in budget if b["cell"] == 0.05 and b["read_low_p99"] is not None]
+    lines = [f"step capability min(climb {body.climb:.3f}, clearance {body.clearance:.3f}) = {cap['step_max']:.3f} m "
+             "(today's step_max 0.150)"]
+    for b in budget:
+        if b["sensor"] == "tof" and b["cell"] == 0.05 and b["read_low_p99"] is not None:
+            left = cap["step_max"] - b["read_low_p99"]
+            lines.append(f"  {b['scene']}: ToF read-low p99 at 5 cm {b['read_low_p99']:.3f} m -> step threshold "
+                         + (f"{left:.3f} m" if left > 0 else "none left"))
+    lines.append(f"tilt capability {body.tilt:.1f} deg -> slope threshold {body.tilt:.1f} deg (today 20.0; the slope's "
+                 "read error is not measured)")
     track = [r["cross_track_p99"] for r in rows if "cross_track_p99" in r]
-    read_low = max(at5) if at5 else float("nan")
-    tracking = max(track) if track else float("nan")
-    lines.append(f"step capability min(climb {body.climb:.3f}, clearance {body.clearance:.3f}) = {cap['step_max']:.3f} m; "
-                 f"read-low p99 at 5 cm (worst sensor, scene) {read_low:.3f} m -> step threshold "
-                 f"{cap['step_max'] - read_low:.3f} m (today 0.150)")
-    lines.append(f"tilt capability {body.tilt:.1f} deg -> slope threshold {body.tilt:.1f} deg (today 20.0; slope read "
-                 "error not measured)")
-    lines.append(f"path tracking p99 (worst mission) {tracking:.3f} m -> lateral margin {tracking:.3f} m (navigate.margin, "
-                 "today 0.100)")
+    lines.append(f"path tracking p99 (worst of {len(track)} missions) "
+                 + (f"{max(track):.3f} m -> lateral margin {max(track):.3f} m" if track else "not measured")
+                 + " (navigate.margin, today 0.100)")
     return lines
 
 
@@ -721,6 +722,9 @@ def main(argv: list[str] | None = None) -> None:
                     help="run with the thresholds the error budget gives (vehicle.Margins): dem2hazard.step_max, "
                          "dem2hazard.slope_max and navigate.margin")
     args = ap.parse_args(argv)
+    missing = [f for f in args.tracking_from if not Path(f).is_file()]
+    if missing:
+        ap.error(f"--tracking-from: no such file {missing[0]} (a run's --out JSON)")
     body = vehicle_body(World.from_scene(args.scenes[0]))
     if args.derived:
         t = Margins().thresholds(body)
