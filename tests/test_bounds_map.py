@@ -129,3 +129,84 @@ def test_the_simulated_tof_frames_bound_the_true_surface_where_a_footprint_reads
     # each cell on its own returns alone (no spread) does not hold
     own = m.mean + m.rise + m.params.k * np.sqrt(m.mean_var)
     assert np.mean(true_top[seen] <= own[seen]) < 0.97
+
+
+def _flat(half: float = 1.0, cell: float = 0.02) -> tuple[np.ndarray, GridGeometry]:
+    n = int(round(2 * half / cell))
+    return np.zeros((n, n), np.float32), GridGeometry(cell, -half, half, n, n)
+
+
+def test_the_vehicle_check_on_equal_bounds_is_the_check_on_the_surface() -> None:
+    """One code path: bounds that pin the ground give what the ground itself gives."""
+    from drivers.sim.rover import RoverBody
+    from prox_workflows.steps.vehicle import check_poses
+
+    h, g = _flat()
+    xs, ys = g.centers()
+    X, Y = np.meshgrid(xs, ys)
+    h += np.where(np.hypot(X - 0.15, Y - 0.25) < 0.06, 0.12, 0.0).astype(np.float32)  # under a wheel
+    h += np.where(np.hypot(X + 0.05, Y) < 0.08, 0.1, 0.0).astype(np.float32)  # under the belly
+    poses = np.array([[0.0, 0.0, 0.0], [0.3, -0.2, 40.0], [-0.3, 0.3, 200.0]])
+    one = check_poses(h, g, poses, RoverBody())
+    pair = check_poses((h, h.copy()), g, poses, RoverBody())
+    for name in ("relief", "intrusion", "tilt", "excess"):
+        np.testing.assert_allclose(getattr(pair, name), getattr(one, name), atol=1e-9, err_msg=name)
+    assert one.unsafe[0] and not pair.unknown.any()
+
+
+def test_the_vehicle_check_on_bounds_takes_the_worst_and_never_calls_unseen_ground_safe() -> None:
+    from drivers.sim.rover import RoverBody
+    from prox_workflows.steps.vehicle import check_poses
+
+    body = RoverBody()
+    h, g = _flat()
+    pose = np.array([[0.0, 0.0, 0.0]])
+    # flat ground known to +-2 cm: the worst a wheel may meet is 4 cm, the belly may find the
+    # ground 2 cm up over wheels resting 2 cm down, the body may lean by the wheels' spread
+    lower, upper = h - 0.02, h + 0.02
+    worst = check_poses((lower, upper), g, pose, body)
+    np.testing.assert_allclose(worst.relief[0], 0.04, atol=1e-6)
+    # the belly: 4 cm over the level plane, more where the worst plane leans away under it
+    assert 0.04 - body.clearance - 1e-6 <= worst.intrusion[0] < 0.0
+    assert worst.tilt[0] > 0.0 and worst.safe[0]
+    # ground under the belly nothing saw: not safe, whatever else is known
+    upper[45:55, 45:55] = np.nan
+    hidden = check_poses((lower, upper), g, pose, body)
+    assert hidden.unknown[0] and not hidden.safe[0]
+    assert not check_poses(h, g, pose, body).unknown[0]  # a surface has no unseen ground
+
+
+def test_bounds_from_simulated_tof_looks_never_call_an_unsafe_pose_safe() -> None:
+    """hirise, three ToF looks: every pose the vehicle check on the true 1 cm surface finds
+    unsafe is unsafe or unknown on the bounds map (ACE's rule: no false negative). How many
+    truly safe poses the bounds still call safe is the benchmark's figure (tools/bench/bounds.py)."""
+    from drivers.sim.rover import RoverBody
+    from drivers.sim.world import World
+    from drivers.tof.constants import HEIGHT, USABLE_RANGE, WIDTH
+    from prox_workflows.steps.vehicle import check_poses
+
+    world = World.from_scene("hirise", seed=1)
+    rng = np.random.default_rng(0)
+    m = BoundsMap.covering([[-1.0, -3.0], [6.0, 3.0]], 0.0)
+    for pan in (-40.0, 0.0, 40.0):
+        world.set_ptu(pan, -35.0)
+        origin = world.sensor_pose("tof")[:3, 3]
+        view = world.render_sensor("tof", WIDTH, HEIGHT)
+        rng_ = view.range.reshape(-1)
+        keep = np.isfinite(rng_) & (rng_ < USABLE_RANGE) & (view.object_id.reshape(-1) != 1)
+        pts, r = view.points.reshape(-1, 3)[keep].astype(np.float64), rng_[keep].astype(np.float64)
+        noisy = pts + (pts - origin) / r[:, None] * (tof_sigma(r) * rng.standard_normal(len(r)))[:, None]
+        m.fuse(noisy, np.sqrt(tof_height_variance(noisy, origin)), origin, USABLE_RANGE,
+               tof_horizontal_sigma(noisy, origin))
+    g = m.geometry
+    truth = world.true_dem(0.01, (g.xmin, g.ymin, g.xmin + g.width * g.cell, g.ymax))
+    tg = GridGeometry(0.01, g.xmin, g.ymax, truth.shape[1], truth.shape[0])
+    xs, ys = np.meshgrid(np.arange(1.6, 4.0, 0.1), np.arange(-1.2, 1.25, 0.1))
+    poses = np.column_stack([np.repeat(xs.ravel(), 4), np.repeat(ys.ravel(), 4),
+                             np.tile([0.0, 45.0, 90.0, 135.0], xs.size)])
+    body = RoverBody()
+    on_truth = check_poses(truth, tg, poses, body)
+    on_bounds = check_poses((m.lower, m.upper), g, poses, body)
+    judged = ~on_bounds.unknown
+    assert judged.sum() > 100 and (judged & on_truth.unsafe).sum() > 10  # rocks among the judged poses
+    assert not (on_truth.unsafe & on_bounds.safe).any()

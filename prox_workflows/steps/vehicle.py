@@ -96,10 +96,16 @@ class PoseChecks:
     tilt: np.ndarray  # (N,) deg, the worse resting plane
     excess: np.ndarray  # (N, 3) over the limits: wheel (m), belly (m), tilt (deg); <= 0 safe
     wheel: np.ndarray  # (N,) int, the wheel with the greatest relief
+    unknown: np.ndarray  # (N,) bool: on bounds, ground under the body no bound covers (never safe)
 
     @property
     def unsafe(self) -> np.ndarray:
         return (self.excess > 0).any(axis=1)
+
+    @property
+    def safe(self) -> np.ndarray:
+        """Judged and within every limit: what a rover may drive on."""
+        return ~self.unsafe & ~self.unknown
 
 
 @dataclass(frozen=True)
@@ -157,57 +163,95 @@ def _sample(heights: np.ndarray, geom: GridGeometry, x: np.ndarray, y: np.ndarra
     return np.where(inside, out, np.nan)
 
 
-def check_poses(heights: np.ndarray, geom: GridGeometry, poses: np.ndarray, body: VehicleBody,
-                step: float | None = None, chunk: int = 256) -> PoseChecks:
+def check_poses(heights: np.ndarray | tuple[np.ndarray, np.ndarray], geom: GridGeometry, poses: np.ndarray,
+                body: VehicleBody, step: float | None = None, chunk: int = 256) -> PoseChecks:
     """Wheel relief, belly intrusion and tilt of ``body`` at each of ``poses`` ((N, 3): x, y,
-    heading in degrees) on the height grid ``heights`` over ``geom`` (the finer the truer: 1-2 cm).
-    The body is sampled every ``step`` (default: the grid's cell). Ground off the grid takes the
-    lowest height the pose sees (an edge is judged as a drop, not as a wall)."""
+    heading in degrees) on ``heights`` over ``geom``: one height grid (the truth; the finer the
+    truer: 1-2 cm), or a ``(lower, upper)`` pair of bound grids (a bounds map, as ACE checks).
+
+    On bounds every measure is its worst case over the ground they allow: the relief from the
+    highest upper to the lowest lower bound under a wheel, the belly's ground at its upper bound
+    over the lowest plane the wheels may rest on, the tilt over every plane their contacts allow.
+    A pose whose body covers ground with no upper bound, or a wheel with no lower bound under it,
+    is ``unknown``: never safe. On one grid, ground off it takes the lowest height the pose sees
+    (an edge is judged as a drop, not as a wall). The body is sampled every ``step`` (default: the
+    grid's cell)."""
+    lower, upper = heights if isinstance(heights, tuple) else (heights, heights)
+    bounded = lower is not upper
     poses = np.atleast_2d(np.asarray(poses, float))
     pts, wheel_of, belly, dx = _pattern(body, step or geom.cell)
     hubs = np.asarray(body.wheels, float)
     r = body.wheel_radius
+    design = np.column_stack([pts, np.ones(len(pts))])
     # the ground plane z = a x + b y + c over all samples, as one pseudo-inverse for every pose
-    ground_pinv = np.linalg.pinv(np.column_stack([pts, np.ones(len(pts))]))  # (3, S)
+    ground_pinv = np.linalg.pinv(design)  # (3, S)
     # the wheel's circle: a point dx from the hub lifts the wheel's bottom by its height minus
     # the circle's rise there (the wheel rests on whatever touches it first)
     sag = r - np.sqrt(np.maximum(r * r - dx * dx, 0.0))
-    # each resting plane through three hubs: z = [x y 1] @ inv(A) @ z3
+    # each resting plane through three hubs: z = [x y 1] @ inv(A) @ z3; on bounds, each of the
+    # three at its lowest or highest contact (the worst plane is at a corner of that box)
     planes = [(t, np.linalg.inv(np.column_stack([hubs[list(t[:3])], np.ones(3)]))) for t in _TRIPLETS]
+    corners = [(0, 0, 0)] if not bounded else [(a, b, c) for a in (0, 1) for b in (0, 1) for c in (0, 1)]
     n = len(poses)
     relief = np.zeros((n, 4))
     intrusion = np.zeros(n)
     tilt = np.zeros(n)
+    unknown = np.zeros(n, bool)
     for s in range(0, n, chunk):
         p = poses[s:s + chunk]
         c, si = np.cos(np.radians(p[:, 2]))[:, None], np.sin(np.radians(p[:, 2]))[:, None]
         wx = p[:, 0:1] + c * pts[:, 0] - si * pts[:, 1]
         wy = p[:, 1:2] + si * pts[:, 0] + c * pts[:, 1]
-        h = _sample(heights, geom, wx, wy)
-        if np.isnan(h).any():
-            low = np.nanmin(np.where(np.isnan(h).all(axis=1, keepdims=True), 0.0, h), axis=1, keepdims=True)
-            h = np.where(np.isnan(h), low, h)
-        coef = h @ ground_pinv.T  # (m, 3)
-        resid = h - coef @ np.column_stack([pts, np.ones(len(pts))]).T
-        contact = np.empty((len(p), 4))
-        for w in range(4):
-            on = wheel_of == w
-            relief[s:s + len(p), w] = resid[:, on].max(axis=1) - resid[:, on].min(axis=1)
-            contact[:, w] = (h[:, on] - sag[on]).max(axis=1)
+        lo = _sample(lower, geom, wx, wy)
+        hi = _sample(upper, geom, wx, wy) if bounded else lo
+        if bounded:
+            # judged: an upper bound everywhere under the body, a lower one under half of each
+            # wheel at least. Ground a ray passed over but no return met has no lower bound: a
+            # hole narrower than a wheel's reach there is bridged (the wheel rests on the ground
+            # around it), so the wheel is judged on the ground its bounds cover
+            unseen = np.isnan(hi).any(axis=1)
+            for w in range(4):
+                unseen |= np.isnan(lo[:, wheel_of == w]).mean(axis=1) > 0.5
+            unknown[s:s + len(p)] = unseen
+            hi = np.where(np.isnan(hi), np.nanmax(np.where(np.isnan(hi).all(axis=1, keepdims=True), 0.0, hi),
+                                                  axis=1, keepdims=True), hi)
+            # an unbounded low takes no part in the wheel's lowest point or contact (the NaN
+            # extremes below skip it), and stands in by its high in the plane fitted under the body
+            mid = (np.where(np.isnan(lo), hi, lo) + hi) / 2
+        else:
+            if np.isnan(lo).any():
+                low = np.nanmin(np.where(np.isnan(lo).all(axis=1, keepdims=True), 0.0, lo), axis=1, keepdims=True)
+                lo = hi = np.where(np.isnan(lo), low, lo)
+            mid = lo
+        plane = (mid @ ground_pinv.T) @ design.T
+        contact = np.empty((2, len(p), 4))  # the wheel's lowest and highest resting height
+        with np.errstate(invalid="ignore"):  # an unknown pose's wheel may have no low at all
+            for w in range(4):
+                on = wheel_of == w
+                relief[s:s + len(p), w] = ((hi[:, on] - plane[:, on]).max(axis=1)
+                                           - np.fmin.reduce(lo[:, on] - plane[:, on], axis=1))
+                contact[0, :, w] = np.fmax.reduce(lo[:, on] - sag[on], axis=1)
+                contact[1, :, w] = (hi[:, on] - sag[on]).max(axis=1) if bounded else contact[0, :, w]
+        open_box = (contact[1] - contact[0] > 1e-12).any(axis=1)  # where the contacts are not pinned down
         worst_in = np.full(len(p), -np.inf)
         worst_tilt = np.zeros(len(p))
         for t, inv in planes:
-            abc = contact[:, list(t[:3])] @ inv.T  # (m, 3): z = a x + b y + c
             fourth = hubs[t[3]]
-            rests = contact[:, t[3]] <= abc[:, 0] * fourth[0] + abc[:, 1] * fourth[1] + abc[:, 2] + 1e-9
-            under = (h[:, belly] - (abc[:, :2] @ pts[belly].T + abc[:, 2:3])).max(axis=1)
-            angle = np.degrees(np.arctan(np.hypot(abc[:, 0], abc[:, 1])))
-            worst_in = np.where(rests, np.maximum(worst_in, under), worst_in)
-            worst_tilt = np.where(rests, np.maximum(worst_tilt, angle), worst_tilt)
+            for corner in corners:
+                z3 = np.column_stack([contact[k, :, wheel] for k, wheel in zip(corner, t[:3], strict=True)])
+                abc = z3 @ inv.T  # (m, 3): z = a x + b y + c
+                rests = contact[0, :, t[3]] <= abc[:, 0] * fourth[0] + abc[:, 1] * fourth[1] + abc[:, 2] + 1e-9
+                under = (hi[:, belly] - (abc[:, :2] @ pts[belly].T + abc[:, 2:3])).max(axis=1)
+                angle = np.degrees(np.arctan(np.hypot(abc[:, 0], abc[:, 1])))
+                worst_in = np.where(rests, np.maximum(worst_in, under), worst_in)
+                # the tilt is convex in the contacts, so its worst over the bounds is at a corner
+                # of their box; which plane the body rests on there is not known, so every one counts
+                worst_tilt = np.where(rests | open_box, np.maximum(worst_tilt, angle), worst_tilt)
         intrusion[s:s + len(p)] = worst_in - body.clearance
         tilt[s:s + len(p)] = worst_tilt
     excess = np.column_stack([relief.max(axis=1) - body.climb, intrusion, tilt - body.tilt])
-    return PoseChecks(relief=relief, intrusion=intrusion, tilt=tilt, excess=excess, wheel=relief.argmax(axis=1))
+    return PoseChecks(relief=relief, intrusion=intrusion, tilt=tilt, excess=excess, wheel=relief.argmax(axis=1),
+                      unknown=unknown)
 
 
 def unsafe_events(checks: PoseChecks, poses: np.ndarray, body: VehicleBody) -> list[Event]:

@@ -10,7 +10,11 @@ are tight. Per scene and per way of looking, this prints:
   the planner and the live check read today (the peer);
 - **fuse ms** p50: one ToF frame into the bounds map, against the rolling map's fuse of the same
   frame (ratio);
-- **bounded**: cells with an upper bound, and how many of them only by a ray passing over.
+- **bounded**: cells with an upper bound, and how many of them only by a ray passing over;
+- **vehicle check**: the worst-case wheel, belly and tilt check on the bounds at poses over the
+  ground ahead, against the same check on the true 1 cm surface: poses it can judge (the others
+  cover unseen ground), poses it calls safe that are not (must be 0), and the share of truly safe
+  judged poses it still calls safe (what the rover may plan through).
 
 Looks: ``one`` (one frame, pan 0, tilt -35), ``sweep`` (pans -40 / 0 / +40), ``approach`` (the
 sweep, then a frame every 0.1 m over 2 m of straight drive, as the see loop sees the ground it
@@ -33,6 +37,7 @@ from typing import Any
 import cv2
 import numpy as np
 
+from drivers.sim.rover import RoverBody
 from drivers.sim.world import World
 from drivers.tof.constants import HEIGHT, USABLE_RANGE, WIDTH
 from prox_workflows.grid import GridGeometry
@@ -40,6 +45,7 @@ from prox_workflows.steps.bounds_map import BoundsMap, BoundsParams
 from prox_workflows.steps.dem2hazard import HazardParams
 from prox_workflows.steps.noise import tof_height_variance, tof_horizontal_sigma, tof_sigma
 from prox_workflows.steps.rolling_map import RollingMap, RollingParams
+from prox_workflows.steps.vehicle import check_poses
 
 LOOKS = ("one", "sweep", "approach")
 TRUE_CELL = 0.005  # m: the truth's surface, pooled to the map's cells
@@ -103,6 +109,18 @@ def sim_row(scene: str, look: str, k: float, seed: int = 0) -> dict[str, Any]:
     rseen = np.isfinite(rolling.height)
     ceiling_only = np.isfinite(bounds.ceiling) & ~seen
     first = 1 if len(t_bounds) > 1 else 0  # the first call compiles the ray kernel
+    # the vehicle check on the bounds against the same check on the true 1 cm surface, at poses
+    # over the ground ahead (4 headings each)
+    truth = world.true_dem(0.01, (g.xmin, g.ymin, g.xmin + g.width * g.cell, g.ymax))
+    tg = GridGeometry(0.01, g.xmin, g.ymax, truth.shape[1], truth.shape[0])
+    px, py = np.meshgrid(x0 + np.arange(1.6, 4.0, 0.1), y0 + np.arange(-1.2, 1.25, 0.1))
+    poses = np.column_stack([np.repeat(px.ravel(), 4), np.repeat(py.ravel(), 4),
+                             np.tile([0.0, 45.0, 90.0, 135.0], px.size)])
+    body = RoverBody()
+    on_truth = check_poses(truth, tg, poses, body)
+    on_bounds = check_poses((bounds.lower, upper), g, poses, body)
+    judged = ~on_bounds.unknown
+    truly_safe = judged & ~on_truth.unsafe
     return {
         "scene": scene, "look": look, "k": k, "frames": len(t_bounds),
         "held": float(np.mean(top[seen] <= upper[seen])),
@@ -113,6 +131,8 @@ def sim_row(scene: str, look: str, k: float, seed: int = 0) -> dict[str, Any]:
         "fuse_ms": 1000 * float(np.median(t_bounds[first:])),
         "rolling_ms": 1000 * float(np.median(t_rolling[first:])),
         "bounded": int(seen.sum() + ceiling_only.sum()), "ceiling_only": int(ceiling_only.sum()),
+        "poses": len(poses), "judged": int(judged.sum()), "false_safe": int((on_truth.unsafe & on_bounds.safe).sum()),
+        "safe_kept": float(on_bounds.safe[truly_safe].mean()) if truly_safe.any() else float("nan"),
     }
 
 
@@ -166,19 +186,21 @@ def motorcycle_row(k: float) -> dict[str, Any] | None:
             "over_p50": float(np.percentile(upper[seen] - top[seen], 50)),
             "over_p99": float(np.percentile(upper[seen] - top[seen], 99)),
             "mean_low_p99": float("nan"), "fuse_ms": fuse_ms, "rolling_ms": float("nan"),
-            "bounded": int(seen.sum()), "ceiling_only": 0}
+            "bounded": int(seen.sum()), "ceiling_only": 0, "poses": 0, "judged": 0, "false_safe": 0,
+            "safe_kept": float("nan")}
 
 
 def print_rows(rows: list[dict[str, Any]]) -> None:
     print("| scene | look | k | frames | held | held (ray only) | upper - top p50 / p99 (cm) | 5 cm mean read low p99 (cm) "
-          "| fuse ms (rolling map; ratio) | bounded (ray only) |")
-    print("|---|---|---|---|---|---|---|---|---|---|")
+          "| fuse ms (rolling map; ratio) | bounded (ray only) | vehicle check: judged / false safe / truly safe kept |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|")
     for r in rows:
         ratio = r["fuse_ms"] / r["rolling_ms"] if r["rolling_ms"] == r["rolling_ms"] else float("nan")
         print(f"| {r['scene']} | {r['look']} | {r['k']:g} | {r['frames']} | {100 * r['held']:.2f} % "
               f"| {100 * r['held_ceiling']:.2f} % | {100 * r['over_p50']:.1f} / {100 * r['over_p99']:.1f} "
               f"| {100 * r['mean_low_p99']:.1f} | {r['fuse_ms']:.1f} ({r['rolling_ms']:.1f}; {ratio:.2f}) "
-              f"| {r['bounded']} ({r['ceiling_only']}) |")
+              f"| {r['bounded']} ({r['ceiling_only']}) | {r['judged']}/{r['poses']} / {r['false_safe']} "
+              f"/ {100 * r['safe_kept']:.1f} % |")
 
 
 def main(argv: list[str] | None = None) -> None:
