@@ -18,7 +18,8 @@ are tight. Per scene and per way of looking, this prints:
 
 Looks: ``one`` (one frame, pan 0, tilt -35), ``sweep`` (pans -40 / 0 / +40), ``approach`` (the
 sweep, then a frame every 0.1 m over 2 m of straight drive, as the see loop sees the ground it
-comes to). Range noise along each ray from the ToF's noise model, height sigma from
+comes to), ``approach+hazcam`` (the same with a front hazard camera's frame at every step: see
+:data:`HAZCAM`). Range noise along each ray from the ToF's noise model, height sigma from
 ``tof_height_variance``: the sigmas the map is given are the ones the frames were drawn with,
 so this measures the map, not a mis-stated sensor. The real-data row (Middlebury Motorcycle,
 real stereo errors against its ground-truth disparity) shows what happens when they are not.
@@ -47,7 +48,7 @@ from prox_workflows.steps.noise import tof_height_variance, tof_horizontal_sigma
 from prox_workflows.steps.rolling_map import RollingMap, RollingParams
 from prox_workflows.steps.vehicle import check_poses
 
-LOOKS = ("one", "sweep", "approach")
+LOOKS = ("one", "sweep", "approach", "approach+hazcam")
 TRUE_CELL = 0.005  # m: the truth's surface, pooled to the map's cells
 
 
@@ -70,11 +71,43 @@ def frames(world: World, look: str, rng: np.random.Generator
     pans = (0.0,) if look == "one" else (-40.0, 0.0, 40.0)
     for pan in pans:
         yield grab(pan)
-    if look == "approach":
+    if look.startswith("approach"):
         for i in range(1, 21):
             world.set_rover_pose(x0 + 0.1 * i, y0, h0)
             yield grab(0.0)
+            if look == "approach+hazcam":
+                yield hazcam(world, rng)
         world.set_rover_pose(x0, y0, h0)
+
+
+# A front hazard camera as MER and MSL carry (seed 000 sect. 2): a stereo pair on the body's nose
+# looking down at the ground the wheels meet next. Modelled here as a pinhole 90 x 70 deg (MER's
+# are 124 deg fisheyes), 640 x 480, 10 cm baseline, 0.25 px disparity noise, 0.35 m up, 40 deg down:
+# what such a sensor would add to the map, measured before it is built as a device.
+HAZCAM = {"mount": (0.27, 0.0, 0.35), "pitch": 40.0, "size": (640, 480), "hfov": 90.0, "baseline": 0.10,
+          "sigma_d": 0.25}
+
+
+def hazcam(world: World, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    from rvs_params.frames import R_BODY_FROM_OPTICAL, make_T, rot_y
+
+    w, h = HAZCAM["size"]
+    f = (w / 2) / np.tan(np.radians(HAZCAM["hfov"] / 2))
+    K = np.array([[f, 0.0, w / 2], [0.0, f, h / 2], [0.0, 0.0, 1.0]])
+    T = world.T_world_rover() @ make_T(rot_y(HAZCAM["pitch"]) @ R_BODY_FROM_OPTICAL, HAZCAM["mount"])
+    view = world.render(K, w, h, T)
+    z = view.depth.reshape(-1)
+    r = view.range.reshape(-1)
+    keep = np.isfinite(z) & (z < 3.0) & (view.object_id.reshape(-1) != 1)
+    pts, z, r = view.points.reshape(-1, 3)[keep].astype(np.float64), z[keep].astype(np.float64), r[keep].astype(np.float64)
+    origin = T[:3, 3]
+    sigma_r = z * z * HAZCAM["sigma_d"] / (HAZCAM["baseline"] * f) * r / z  # depth error along the ray
+    noisy = pts + (pts - origin) / r[:, None] * (sigma_r * rng.standard_normal(len(r)))[:, None]
+    cz = np.abs(noisy[:, 2] - origin[2]) / np.linalg.norm(noisy - origin, axis=1)
+    lateral = 0.0015 * r
+    sigma = np.sqrt((sigma_r * cz) ** 2 + lateral**2 * (1 - cz * cz))
+    sigma_xy = np.sqrt(sigma_r**2 * (1 - cz * cz) + lateral**2)
+    return noisy, sigma, origin, sigma_xy
 
 
 def pooled(fine: np.ndarray, g: GridGeometry, how: Any) -> np.ndarray:
