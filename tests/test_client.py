@@ -272,14 +272,16 @@ def test_after_ctrl_c_the_late_lines_carry_no_tag_the_user_never_typed(server: S
     did, without the automatic ``tag=c<n>`` the client added."""
     master, slave = pty.openpty()
     env = dict(os.environ, RVS_CLIENT_HISTORY=str(tmp_path / "history"), TERM="dumb")
+    # as a terminal starts it: with Ctrl-C's default action (a test worker may ignore SIGINT, and
+    # a Python started with SIGINT ignored never raises KeyboardInterrupt)
     proc = subprocess.Popen([sys.executable, "-m", "rvs_server.client.console", "--port", str(server.port),
-                             "--progress", "lines"], stdin=slave, stdout=slave, stderr=slave, env=env, cwd=ROOT)
+                             "--progress", "lines"], stdin=slave, stdout=slave, stderr=slave, env=env, cwd=ROOT,
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     os.close(slave)
     buf = bytearray()
     try:
         assert _read_until(master, buf, b"rvs> ")
-        # long enough that the Ctrl-C lands while the client still waits, on a loaded machine too
-        os.write(master, b"sleep -seconds 3\n")
+        os.write(master, b"sleep -seconds 2\n")
         assert _read_until(master, buf, b"EGP-RVS-SLEEP ACK job="), buf.decode()
         proc.send_signal(signal.SIGINT)
         assert _read_until(master, buf, b"stopped waiting"), buf.decode()
