@@ -175,6 +175,7 @@ class PtuEmulator:
         *,
         time_scale: float = 1.0,
         on_position: Callable[[float, float], None] | None = None,
+        on_target: Callable[[float, float], None] | None = None,
         eol: bytes = b"\r\n",
         banner: bool = True,
         resolution: float = D46_RESOLUTION_ARCSEC,
@@ -201,6 +202,7 @@ class PtuEmulator:
         lim = dict(flavour.limits, **(limits or {}))
         self.fd = fd
         self.on_position = on_position
+        self.on_target = on_target  # told (pan, tilt) in degrees where a move will stop, as it starts
         self.eol = eol
         self.banner = banner
         self.resolution = float(resolution)
@@ -424,6 +426,9 @@ class PtuEmulator:
         if self._fault == "stall":
             return  # accepted, but the axis never turns
         ax.profile = Profile.start(self._sim_t, ax.pos, ax.vel, target, ax.speed, ax.accel, ax.base)
+        if self.on_target is not None:
+            self.on_target(pos_to_deg(self.axes["P"].target, self.resolution),
+                           pos_to_deg(self.axes["T"].target, self.resolution))
 
     def _busy(self) -> bool:
         return self._reset_phases is not None or any(ax.moving() for ax in self.axes.values())

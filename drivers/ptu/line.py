@@ -56,8 +56,9 @@ class EmulatedLine:
         on_position = self.world.set_ptu if self.world is not None else None
         clock = self.world.clock if self.time_scale is None and self.world is not None else None
         scale = 1.0 if self.time_scale is None else self.time_scale
+        on_target = getattr(self.world, "set_ptu_target", None)  # a world that renders ahead
         self._emulator = PtuEmulator(
-            master, time_scale=scale, on_position=on_position, fault=self._fault, clock=clock,
+            master, time_scale=scale, on_position=on_position, on_target=on_target, fault=self._fault, clock=clock,
             flavour=self.flavour
         ).start()
         return path

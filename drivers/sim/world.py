@@ -74,6 +74,9 @@ class World:
         self._under_way = 0  # a drive loop keeps the rover rolling between its drive calls
         self._pan = 0.0
         self._tilt = 0.0
+        # who is told where the PTU is heading when a move starts (a simulated camera renders
+        # the view there meanwhile, as a real one costs no rendering at all)
+        self._ptu_watchers: list[Callable[[float, float], None]] = []
         self._load(spec, seed)
 
     # -- construction ---------------------------------------------------------------------
@@ -183,6 +186,27 @@ class World:
     def ptu(self) -> tuple[float, float]:
         with self._lock:
             return self._pan, self._tilt
+
+    def watch_ptu_target(self, fn: Callable[[float, float], None]) -> None:
+        """Call ``fn(pan, tilt)`` (degrees, where the PTU will stop) whenever a move starts."""
+        with self._lock:
+            self._ptu_watchers.append(fn)
+
+    def unwatch_ptu_target(self, fn: Callable[[float, float], None]) -> None:
+        with self._lock:
+            self._ptu_watchers = [w for w in self._ptu_watchers if w != fn]
+
+    def set_ptu_target(self, pan_deg: float, tilt_deg: float) -> None:
+        """The PTU started toward (pan, tilt): the simulated PTU says so as its move starts."""
+        with self._lock:
+            watchers = list(self._ptu_watchers)
+        for fn in watchers:
+            fn(float(pan_deg), float(tilt_deg))
+
+    def sensor_pose_at(self, sensor: str, pan_deg: float, tilt_deg: float) -> np.ndarray:
+        """T_world_from_camera of ``sensor`` with the PTU at (pan, tilt) and the rover where it is."""
+        with self._lock:
+            return self.T_world_rover() @ self.head.T_rover_from_sensor(sensor, pan_deg, tilt_deg)
 
     def rover_pose(self) -> tuple[float, float, float]:
         """x, y, heading_deg in the global frame."""
@@ -317,9 +341,7 @@ class World:
     def sensor_pose(self, sensor: str) -> np.ndarray:
         """T_world_from_camera (OpenCV optical frame) of "tof", "left" or "right"."""
         with self._lock:
-            pan, tilt = self._pan, self._tilt
-            T_wr = self.T_world_rover()
-            return T_wr @ self.head.T_rover_from_sensor(sensor, pan, tilt)
+            return self.sensor_pose_at(sensor, self._pan, self._tilt)
 
     def camera_intrinsics(self, sensor: str, width: int, height: int) -> np.ndarray:
         return self.head.intrinsics(sensor, width, height)

@@ -25,6 +25,7 @@ from __future__ import annotations
 import math
 import threading
 import time
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
 from typing import Any
 
@@ -164,6 +165,9 @@ class SimTof:
         self._ae: tuple[int, int, int, int] | None = None
         self._cache_key: tuple | None = None
         self._cache: _Expected | None = None
+        # the view where the PTU is heading, rendered while it travels (one at a time, the latest)
+        self._ahead: tuple[tuple, Future[_Expected]] | None = None
+        self._ahead_pool: ThreadPoolExecutor | None = None  # while open
         self.frames = 0
         self._rays, self._undist_maps = self._ray_geometry()
 
@@ -218,9 +222,16 @@ class SimTof:
                 "tof", f"no SR4000 with serial 0x{serial:08X} on the USB bus (found 0x{self._serial:08X}); use 0 for the first camera"
             )
         self._open = True
+        if self._ahead_pool is None and hasattr(self._world, "watch_ptu_target"):
+            self._ahead_pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="tof-ahead")
+            self._world.watch_ptu_target(self._render_ahead)
 
     def close(self) -> None:
         self._open = False
+        if self._ahead_pool is not None:
+            self._world.unwatch_ptu_target(self._render_ahead)
+            self._ahead_pool.shutdown(wait=False, cancel_futures=True)
+            self._ahead_pool, self._ahead = None, None
 
     @property
     def is_open(self) -> bool:
@@ -304,13 +315,39 @@ class SimTof:
         self.frames += 1
         return frame
 
+    def _key(self, T: np.ndarray, t_ms: float) -> tuple:
+        return (T.tobytes(), self._frequency, t_ms, world_state(self._world))
+
     def _expected(self, t_ms: float) -> _Expected:
         T = np.asarray(self._world.sensor_pose("tof"), dtype=np.float64)
-        key = (T.tobytes(), self._frequency, t_ms, world_state(self._world))
+        key = self._key(T, t_ms)
         if key != self._cache_key or self._cache is None:
-            self._cache = self._render_expected(T, t_ms)
+            ahead = self._ahead
+            if ahead is not None and ahead[0] == key:
+                self._cache = ahead[1].result()
+            else:
+                self._cache = self._render_expected(T, t_ms)
             self._cache_key = key
         return self._cache
+
+    def _render_ahead(self, pan: float, tilt: float) -> None:
+        """The PTU started toward (pan, tilt): render the view there while it travels, so that a
+        grab on arrival costs what the camera's frame costs, not the simulator's render too."""
+        pool = self._ahead_pool
+        if not self._open or pool is None:
+            return
+        T = np.asarray(self._world.sensor_pose_at("tof", pan, tilt), dtype=np.float64)
+        t_ms = k.integration_ms(self._integration)
+        key = self._key(T, t_ms)
+        ahead = self._ahead
+        if ahead is not None and ahead[0] == key:
+            return
+        if ahead is not None:
+            ahead[1].cancel()  # superseded before it started: a two-axis move names its pan first
+        try:
+            self._ahead = (key, pool.submit(self._render_expected, T, t_ms))
+        except RuntimeError:  # closed meanwhile: the grab renders for itself, as without this
+            self._ahead = None
 
     def _ray_geometry(self) -> tuple[np.ndarray, tuple[np.ndarray, np.ndarray, int] | None]:
         """Unit ray per raw pixel, and (when distorted) where each raw pixel lies in the pinhole image."""
