@@ -8,6 +8,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from drivers.sim.world import World
 from prox_workflows.grid import GridGeometry
 from prox_workflows.steps.bounds_map import BoundsMap, BoundsParams
 from prox_workflows.steps.noise import tof_height_variance, tof_horizontal_sigma, tof_sigma
@@ -35,6 +36,27 @@ def _cells(m: BoundsMap, x0: float, x1: float, y0: float, y1: float) -> tuple[sl
     g = m.geometry
     return (slice(int(round((g.ymax - y1) / g.cell)), int(round((g.ymax - y0) / g.cell))),
             slice(int(round((x0 - g.xmin) / g.cell)), int(round((x1 - g.xmin) / g.cell))))
+
+
+def _hirise_looks(reach: float) -> tuple[World, BoundsMap]:
+    """The hirise world and a bounds map of three ToF looks (pans -40 / 0 / +40, tilt -35) over
+    the ground out to ``reach`` metres ahead, each frame with the range noise it is told of."""
+    from drivers.tof.constants import HEIGHT, USABLE_RANGE, WIDTH
+
+    world = World.from_scene("hirise", seed=1)
+    rng = np.random.default_rng(0)
+    m = BoundsMap.covering([[-1.0, -3.0], [reach, 3.0]], 0.0)
+    for pan in (-40.0, 0.0, 40.0):
+        world.set_ptu(pan, -35.0)
+        origin = world.sensor_pose("tof")[:3, 3]
+        view = world.render_sensor("tof", WIDTH, HEIGHT)
+        ranges = view.range.reshape(-1)
+        keep = np.isfinite(ranges) & (ranges < USABLE_RANGE) & (view.object_id.reshape(-1) != 1)
+        pts, r = view.points.reshape(-1, 3)[keep].astype(np.float64), ranges[keep].astype(np.float64)
+        noisy = pts + (pts - origin) / r[:, None] * (tof_sigma(r) * rng.standard_normal(len(r)))[:, None]
+        m.fuse(noisy, np.sqrt(tof_height_variance(noisy, origin)), origin, USABLE_RANGE,
+               tof_horizontal_sigma(noisy, origin))
+    return world, m
 
 
 def test_returns_bound_the_ground_both_ways_and_more_looks_tighten_the_bounds() -> None:
@@ -101,22 +123,7 @@ def test_the_simulated_tof_frames_bound_the_true_surface_where_a_footprint_reads
     on 99.5 % of the cells they reached, though a return read long lands on a rock's flank with
     the ground's height (each cell spreads its bounds by its returns' horizontal error), and the
     bounds sit close: the median upper bound within 5 cm of the top."""
-    from drivers.sim.world import World
-    from drivers.tof.constants import HEIGHT, USABLE_RANGE, WIDTH
-
-    world = World.from_scene("hirise", seed=1)
-    rng = np.random.default_rng(0)
-    m = BoundsMap.covering([[-1.0, -3.0], [5.0, 3.0]], 0.0)
-    for pan in (-40.0, 0.0, 40.0):
-        world.set_ptu(pan, -35.0)
-        origin = world.sensor_pose("tof")[:3, 3]
-        view = world.render_sensor("tof", WIDTH, HEIGHT)
-        rng_ = view.range.reshape(-1)
-        keep = np.isfinite(rng_) & (rng_ < USABLE_RANGE) & (view.object_id.reshape(-1) != 1)
-        pts, r = view.points.reshape(-1, 3)[keep].astype(np.float64), rng_[keep].astype(np.float64)
-        noisy = pts + (pts - origin) / r[:, None] * (tof_sigma(r) * rng.standard_normal(len(r)))[:, None]
-        m.fuse(noisy, np.sqrt(tof_height_variance(noisy, origin)), origin, USABLE_RANGE,
-               tof_horizontal_sigma(noisy, origin))
+    world, m = _hirise_looks(5.0)
     g = m.geometry
     fine = world.true_dem(0.005, (g.xmin, g.ymin, g.xmax, g.ymax))
     f = 5
@@ -181,23 +188,9 @@ def test_bounds_from_simulated_tof_looks_never_call_an_unsafe_pose_safe() -> Non
     unsafe is unsafe or unknown on the bounds map (ACE's rule: no false negative). How many
     truly safe poses the bounds still call safe is the benchmark's figure (tools/bench/bounds.py)."""
     from drivers.sim.rover import RoverBody
-    from drivers.sim.world import World
-    from drivers.tof.constants import HEIGHT, USABLE_RANGE, WIDTH
     from prox_workflows.steps.vehicle import check_poses
 
-    world = World.from_scene("hirise", seed=1)
-    rng = np.random.default_rng(0)
-    m = BoundsMap.covering([[-1.0, -3.0], [6.0, 3.0]], 0.0)
-    for pan in (-40.0, 0.0, 40.0):
-        world.set_ptu(pan, -35.0)
-        origin = world.sensor_pose("tof")[:3, 3]
-        view = world.render_sensor("tof", WIDTH, HEIGHT)
-        rng_ = view.range.reshape(-1)
-        keep = np.isfinite(rng_) & (rng_ < USABLE_RANGE) & (view.object_id.reshape(-1) != 1)
-        pts, r = view.points.reshape(-1, 3)[keep].astype(np.float64), rng_[keep].astype(np.float64)
-        noisy = pts + (pts - origin) / r[:, None] * (tof_sigma(r) * rng.standard_normal(len(r)))[:, None]
-        m.fuse(noisy, np.sqrt(tof_height_variance(noisy, origin)), origin, USABLE_RANGE,
-               tof_horizontal_sigma(noisy, origin))
+    world, m = _hirise_looks(6.0)
     g = m.geometry
     truth = world.true_dem(0.01, (g.xmin, g.ymin, g.xmin + g.width * g.cell, g.ymax))
     tg = GridGeometry(0.01, g.xmin, g.ymax, truth.shape[1], truth.shape[0])
