@@ -16,6 +16,7 @@ from typing import Any
 
 from drivers.base import Cancel, DeviceError
 from drivers.ptu import line as _line  # noqa: F401 - registers the sim and serial backends
+from drivers.ptu import replay as _replay  # noqa: F401 - registers the replay backend
 from drivers.ptu.backend import BACKENDS, PtuBackend, PtuSettings
 from drivers.ptu.client import DEVICE, MoveInterrupted, PtuClient, ReplyTimeout
 from drivers.ptu.emulator import PtuEmulator

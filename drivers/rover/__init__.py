@@ -13,7 +13,7 @@ from typing import Any
 
 from rvs_params import Settings
 
-from . import gnc, sim  # noqa: F401 - registers the backends
+from . import gnc, replay, sim  # noqa: F401 - registers the backends
 from .backend import BACKENDS, Motion, Pilot, Pose, PoseFeed, RoverBackend, RoverSettings, Settle, Silent
 from .device import Rover
 

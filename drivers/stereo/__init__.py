@@ -12,7 +12,7 @@ from __future__ import annotations
 from collections.abc import Mapping
 from typing import Any
 
-from drivers.stereo import dc1394, sim  # noqa: F401 - registers the backends
+from drivers.stereo import dc1394, replay, sim  # noqa: F401 - registers the backends
 from drivers.stereo.backend import BACKENDS, CameraBackend, StereoSettings
 from drivers.stereo.errors import GrabCancelled
 from drivers.stereo.modes import PIXEL_FORMATS, RESOLUTIONS

@@ -13,7 +13,7 @@ from typing import Any
 
 from rvs_params import Settings
 
-from . import mesasr, simulated  # noqa: F401 - registers the backends
+from . import mesasr, replay, simulated  # noqa: F401 - registers the backends
 from .backend import BACKENDS, Backend, SR4000Settings
 from .device import Cancelled, Tof, parse_serial
 from .query import find_cameras

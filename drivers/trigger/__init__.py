@@ -11,7 +11,7 @@ from __future__ import annotations
 from collections.abc import Mapping
 from typing import Any
 
-from drivers.trigger import ppdev, sim  # noqa: F401 - registers the backends
+from drivers.trigger import ppdev, replay, sim  # noqa: F401 - registers the backends
 from drivers.trigger.backend import BACKENDS, TriggerBackend, TriggerSettings
 from drivers.trigger.device import Trigger
 from rvs_params import Settings

@@ -310,7 +310,8 @@ def report_failure(outcome: Outcome, out: Any) -> None:
 def parse_args(argv: list[str] | None) -> argparse.Namespace:
     p = argparse.ArgumentParser(
         prog="rvs-replay",
-        description="Replay scripts of '> request' / '< regex' lines against an RVS server and check its replies.",
+        description="Replay scripts of '> request' / '< regex' lines against an RVS server and check its replies. "
+                    "rvs-replay --mcap FILE [--products] replays a recording instead (rvs-replay --mcap X --help).",
     )
     p.add_argument("scripts", nargs="+", type=Path, metavar="SCRIPT", help="replay script(s); with --record, "
                    "one script or plain file of requests")
@@ -392,6 +393,11 @@ def run_file(args: argparse.Namespace, items: list[Item]) -> list[Outcome]:
 
 
 def main(argv: list[str] | None = None) -> int:
+    argv = sys.argv[1:] if argv is None else argv
+    if any(a == "--mcap" or a.startswith("--mcap=") for a in argv):  # a recording, not a script
+        from .recording_replay import main as replay_recording
+
+        return replay_recording(argv)
     args = parse_args(argv)
     if args.record is not None and len(args.scripts) != 1:
         print("rvs-replay: --record takes exactly one input file", file=sys.stderr)

@@ -13,6 +13,7 @@ from typing import TYPE_CHECKING, Any
 import structlog
 
 from ..protocol import ProtocolError
+from .facts import replay_facts
 from .hub import Telemetry
 from .link import Link, TelemetryError
 
@@ -87,6 +88,7 @@ class Station:
         self._busy = True
         link = None
         try:
+            metadata.update(await asyncio.get_running_loop().run_in_executor(None, replay_facts, self.app))
             link = await self._connect()
             link.recording = True  # from here every message goes, and is kept when the process lags
             await asyncio.get_running_loop().run_in_executor(None, link.call, "record_start", path, metadata)

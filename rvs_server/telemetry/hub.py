@@ -73,7 +73,8 @@ class Telemetry:
         grabbing thread holds the PTU still until the call returns, a sample a tick later may not."""
         if item.kind == "frame":
             link = self._link
-            if item.data["call"] not in FRAME_CALLS or link is None or not link.wants_any():
+            # a call that returns no frame (a PTU move) is only for a recording's /raw/calls
+            if link is None or not (link.wants_any() if item.data["call"] in FRAME_CALLS else link.recording):
                 return
             result = item.data["result"]
             copied = tuple(np.array(a) for a in result) if isinstance(result, tuple) else np.array(result)
@@ -199,6 +200,9 @@ class Telemetry:
     def _on_frame(self, item: Item) -> None:
         t, call, result = item.time_ns, item.data["call"], item.data["result"]
         self._log_state(t, item.data["state"])
+        self._log_call(item)
+        if call not in FRAME_CALLS:
+            return
         if item.data["device"] == "tof":
             if call == "grab_xyz":
                 xyz, amplitude = result
@@ -223,6 +227,17 @@ class Telemetry:
                 frame = m.sensor_frame(side)
                 self._log(f"/stereo/{side}/compressed", t, m.jpeg, t, frame, image)
                 self._log(f"/raw/stereo/{side}", t, m.raw_image, t, frame, image)
+
+    def _log_call(self, item: Item) -> None:
+        """The call on /raw/calls, ahead of its frames (a replay serves them for it): its
+        arguments, a result that is no image (a PTU's position), where the PTU and the rover were."""
+        pose, ptu, _ = item.data["state"]
+        result = item.data["result"]
+        images = isinstance(result, np.ndarray) and result.ndim >= 2 or isinstance(result, tuple) and any(
+            isinstance(r, np.ndarray) and r.ndim >= 2 for r in result)
+        self._log("/raw/calls", item.time_ns, m.json_bytes, {
+            "device": item.data["device"], "call": item.data["call"], "args": list(item.data["args"]),
+            "result": None if images else _plain(result), "ptu": ptu, "pose": list(pose[:3])})
 
     def _wire(self, item: Item, direction: str, conn: Any, text: str, reply: Reply | None = None) -> None:
         t = item.time_ns
@@ -300,6 +315,13 @@ class Telemetry:
         if self._track_dirty and time.monotonic() - self._track_sent >= TRACK_EVERY:
             self._track_sent, self._track_dirty = time.monotonic(), False
             self._log("/nav/track", t, m.track, t, np.array(self._track))
+
+
+def _plain(value: Any) -> Any:
+    """A call's result as JSON takes it (a PTU's position comes as numpy scalars)."""
+    if isinstance(value, tuple | list):
+        return [_plain(v) for v in value]
+    return value.tolist() if isinstance(value, np.ndarray | np.generic) else value
 
 
 def _command(line: str) -> str:

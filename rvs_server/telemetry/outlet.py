@@ -44,6 +44,10 @@ WIRE_SCHEMA = {"type": "object", "title": "rvs.WireLine", "properties": {
     "dir": {"type": "string", "enum": ["request", "reply", "event"]}, "conn": {"type": ["integer", "null"]},
     "line": {"type": "string"}}}
 
+CALL_SCHEMA = {"type": "object", "title": "rvs.DeviceCall", "properties": {
+    "device": {"type": "string"}, "call": {"type": "string"}, "args": {"type": "array"}, "result": {},
+    "ptu": {"type": ["array", "null"]}, "pose": {"type": "array"}}}
+
 TOPICS: dict[str, Topic] = {
     "/tf": Topic(FrameTransforms.get_schema()),
     "/rover/pose": Topic(PoseInFrame.get_schema()),
@@ -61,6 +65,7 @@ TOPICS: dict[str, Topic] = {
     "/rvs/log": Topic(Log.get_schema()),
     "/rvs/job": Topic(JOB_SCHEMA),
     "/rvs/wire": Topic(WIRE_SCHEMA, live=False),
+    "/raw/calls": Topic(CALL_SCHEMA, live=False),
     "/raw/tof/xyz": Topic(RawImage.get_schema(), live=False),
     "/raw/tof/amplitude": Topic(RawImage.get_schema(), live=False),
     "/raw/tof/image": Topic(RawImage.get_schema(), live=False),

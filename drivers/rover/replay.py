@@ -1,0 +1,92 @@
+"""The rover replayed from a recording (drivers/replay.py): it starts where the recorded rover
+was, and a drive is the recorded believed poses that follow the last call the replay served,
+reported into the server's pose as a GNC reports them (``replay_timing``: at their recorded
+pace or at once), until the recorded rover stood still. The server's motions are not executed
+(it steers nothing, as with the ``gnc`` backend); the poses are the recording's whatever the
+replayed navigation plans. A recording samples the pose ten times a second, so a drive replays
+at that resolution, and a drive the recording does not hold is a DeviceError saying so.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from typing import Any
+
+from drivers.base import DeviceError, DeviceInterrupted
+from drivers.replay import Replay, ReplaySettings, open_replay
+
+from .backend import BACKENDS, Pilot, Pose, PoseFeed, Settle
+from .gnc import GncRover
+
+STAND_S = 1.0  # recorded seconds without motion that end a drive
+STILL_M, STILL_DEG = 0.001, 0.1
+
+
+@BACKENDS.backend("replay")
+class ReplayRover(GncRover):
+    """A GNC whose pose reports come from a recording."""
+
+    settings = ReplaySettings
+
+    def __init__(self, settings: Any, world: Any = None, poses: PoseFeed | None = None) -> None:
+        super().__init__(settings, world, poses)
+        self._file = settings.replay_file
+        self._timing = settings.replay_timing
+        self._replay: Replay | None = None
+
+    def open(self) -> None:
+        super().open()
+        run = self._replay = open_replay("rover", self._file)
+        start = run.recording.metadata.get("pose")
+        if start is not None and not run.placed:
+            run.placed = True
+            self.poses.set_pose(*map(float, start), source="replay")
+
+    def drive(self, pilot: Pilot, stop: Callable[[], bool], settle: Settle, since: int) -> Pose:
+        run = self._replay
+        if run is None:
+            raise DeviceError("rover", "the replayed rover is not open; run reinit or reset")
+        segment = drive_after(run.recording.poses, run.last_ns)
+        if not segment:
+            raise DeviceError("rover", f"the recording {run.recording.path.name} holds no drive after the calls "
+                                       "replayed so far: the replay drives where the recorded run did not")
+        pose: Pose = self.pose()
+        for t_ns, x, y, heading in segment:
+            if stop():
+                raise DeviceInterrupted("rover", "the replayed drive was stopped")
+            run.pace(t_ns, self._timing)
+            run.last_ns = max(run.last_ns, t_ns)
+            self.poses.set_pose(x, y, heading, source="replay")
+            pose = (x, y, heading)
+            pilot.moved(pose, False)
+            pilot.next(pose)
+        self.poses.set_pose(*pose, stopped=True, source="replay")
+        pilot.moved(pose, True)
+        return pose
+
+    def status(self) -> dict[str, Any]:
+        run = self._replay
+        return {**super().status(), "replay": run.recording.path.name if run is not None else self._file}
+
+
+def drive_after(poses: list[tuple[int, float, float, float]], after_ns: int) -> list[tuple[int, float, float, float]]:
+    """The recorded poses of the first drive after ``after_ns``: from the first that moved to
+    where the rover then stood :data:`STAND_S`, or the recording ended."""
+    later = [p for p in poses if p[0] > after_ns]
+    before = [p for p in poses if p[0] <= after_ns]
+    anchor = before[-1] if before else (later[0] if later else None)
+    out: list[tuple[int, float, float, float]] = []
+    for p in later:
+        if anchor is not None and _still(anchor, p):
+            if out and p[0] - anchor[0] >= STAND_S * 1e9:
+                break
+            continue
+        out.append(p)
+        anchor = p
+    return out
+
+
+def _still(a: tuple[int, float, float, float], b: tuple[int, float, float, float]) -> bool:
+    turned = abs((b[3] - a[3] + 180.0) % 360.0 - 180.0)
+    return math.hypot(b[1] - a[1], b[2] - a[2]) <= STILL_M and turned <= STILL_DEG
