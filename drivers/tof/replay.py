@@ -47,6 +47,7 @@ class ReplayTof:
         self._mode = int(k.AcquireMode.AM_SW_TRIGGER)
         self._auto = False
         self._pending: list[RawFrame] = []
+        self._grab: Call | None = None  # the recorded grab the current grab's frames come from
         self._grab_mhz: float | None = None  # the modulation the frames of the last grab were served at
 
     def open(self, serial: int) -> None:
@@ -57,6 +58,9 @@ class ReplayTof:
 
     @property
     def is_open(self) -> bool:
+        """The front end asks this once as each grab starts (and never between its frames): the
+        frames a grab that integrated fewer than the recorded one left are dropped here."""
+        self._pending, self._grab = [], None
         return self._replay is not None
 
     def _run(self) -> Replay:
@@ -112,7 +116,10 @@ class ReplayTof:
                 k.WRAP_CHECK_FREQUENCY.get(self._grab_mhz) == self._frequency:
             return self._unseen()  # the wrap check's frame: it contradicts nothing recorded
         if not self._pending:
-            call = run.next("tof", GRABS, self._timing)
+            if self._grab is not None:
+                raise DeviceError("tof", f"{self._grab.at()} was recorded with fewer frames than this grab "
+                                         "integrates: the recording holds no more frames for it")
+            call = self._grab = run.next("tof", GRABS, self._timing)
             run.check_pointing(call)
             self._grab_mhz = self._frequency
             frames = frames_for(call, k.unambiguous_range(self._frequency), self._integration)

@@ -219,7 +219,8 @@ def _varint(data: bytes, i: int) -> tuple[int, int]:
         shift += 7
 
 
-def compare_products(recorded: Path, replayed: Path, rec_start: int, rep_start: int) -> list[str]:
+def compare_products(recorded: Path, replayed: Path, rec_start: int, rep_start: int) -> tuple[list[str], int]:
+    """The mismatches, and how many maps (a layer each) were compared."""
     want, got = grids(recorded, rec_start), grids(replayed, rep_start)
     problems = []
     for topic in sorted(set(want) | set(got)):
@@ -229,7 +230,7 @@ def compare_products(recorded: Path, replayed: Path, rec_start: int, rep_start: 
         problems += [f"{topic}: map {i + 1} differs" for i, (x, y) in enumerate(zip(a, b, strict=False)) if x != y]
     if not want:
         problems.append("the recording holds no map made after its first request to compare")
-    return problems
+    return problems, sum(min(len(want.get(t, [])), len(got.get(t, []))) for t in want)
 
 
 def config_dir(metadata: dict[str, Any], where: Path) -> Path | None:
@@ -272,7 +273,8 @@ class Outcome:
     sent: int
     skipped: list[str]
     problems: list[str]
-    recording: Path
+    recording: Path  # the replay's own
+    maps: int = 0  # map layers compared cell for cell
 
 
 def replay(path: Path, data: Path, *, products: bool = False, timing: str = "fast",
@@ -288,6 +290,7 @@ def replay(path: Path, data: Path, *, products: bool = False, timing: str = "fas
     server.start()
     conns: dict[Any, Connection] = {}
     replayed: list[Exchange] = []
+    maps = 0
     try:
         client = Connection(server.port)
         ok = _request(client, "record -start -name replay", timeout)
@@ -306,12 +309,13 @@ def replay(path: Path, data: Path, *, products: bool = False, timing: str = "fas
         problems = compare(chosen, replayed)
         if products:
             rec_start = chosen[0].t_ns if chosen else 0
-            problems += compare_products(path, data / "recordings" / "replay.mcap", rec_start, rep_start)
+            mismatches, maps = compare_products(path, data / "recordings" / "replay.mcap", rec_start, rep_start)
+            problems += mismatches
     finally:
         for conn in conns.values():
             conn.close()
         server.stop()
-    return Outcome(len(replayed), skipped, problems, data / "recordings" / "replay.mcap")
+    return Outcome(len(replayed), skipped, problems, data / "recordings" / "replay.mcap", maps)
 
 
 def _await(rec: Exchange, mine: Exchange, next_ns: int | None, timeout: float) -> None:
@@ -362,7 +366,7 @@ def main(argv: list[str]) -> int:
         print(f"MISMATCH {problem}")
     if outcome.skipped:
         print(f"not sent ({', '.join(sorted(SKIPPED))}): {len(outcome.skipped)}")
-    what = "replies and products" if args.products else "replies"
+    what = f"replies and {outcome.maps} map layers" if args.products else "replies"
     print(f"{outcome.sent} requests replayed from {args.mcap}: {what} "
           f"{'differ' if outcome.problems else 'match'} ({len(outcome.problems)} mismatches)")
     return 1 if outcome.problems else 0
