@@ -23,7 +23,7 @@ from typing import Any, ClassVar, Generic, Protocol, TypeVar
 from drivers.base import DeviceError
 from rvs_params import Settings, param
 
-DEVICE_KINDS: tuple[str, ...] = ("ptu", "tof", "stereo", "trigger", "rover")
+DEVICE_KINDS: tuple[str, ...] = ("ptu", "tof", "stereo", "trigger", "rover", "hazcam")
 
 
 class Capability(enum.StrEnum):

@@ -28,7 +28,7 @@ from prox_workflows.products import finish_product_sets
 from . import PROTOCOL_VERSION, __version__
 from .bus import Bus
 from .config import ConfigStore, ServerConfig
-from .devices import DeviceRegistry
+from .devices import DeviceRegistry, stereo_points
 from .jobs import Job, JobRunner, error_fields
 from .maps import CurrentMaps, RecoverySets
 from .monitors import Monitors
@@ -190,7 +190,7 @@ class App:
         self.started = time.monotonic()
         self.jobs = JobRunner(loop)
         # live: config -set reaches it; the rover reports into (and its GNC is heard through) the pose
-        self.devices = DeviceRegistry(config.get("drivers"), world, poses=self)
+        self.devices = DeviceRegistry(config.get("drivers"), world, poses=self, matcher=stereo_points)
         self.device_lock = threading.RLock()
         self.connections = set()
         self.last_used_hardware = False

@@ -20,13 +20,22 @@ import threading
 from collections.abc import Callable
 from typing import Any
 
+import numpy as np
 import structlog
 
 from drivers.base import Cancel, Device, DeviceError, DeviceInterrupted
 from drivers.registry import inputs, open_order, peers
+from prox_workflows.steps.stereo import cloud, disparity
 from rvs_params import Settings
 
 log = structlog.get_logger("rvs.devices")
+
+
+def stereo_points(left: np.ndarray, right: np.ndarray, calibration: Any, params: Any) -> tuple[np.ndarray, np.ndarray]:
+    """The workflows' stereo matcher as a device that matches its own pairs takes it (the hazcams'
+    ``matcher``): the matched points in the left camera's frame and their left pixels."""
+    points, _, pixels = cloud(disparity(left, right, calibration, params))
+    return points, pixels
 
 
 @functools.cache

@@ -1,0 +1,139 @@
+"""The body hazard cameras: the simulated pairs' points against the world's true ground, the rear
+pair looking behind, the switch that keeps them off by default, and their settings through the
+device registry and a real server. ~10 s in all."""
+
+from __future__ import annotations
+
+import threading
+from typing import Any
+
+import numpy as np
+import pytest
+
+import drivers.hazcam as hazcam
+from drivers.base import DeviceError, DeviceInterrupted
+from drivers.registry import DEVICE_KINDS, registry
+from drivers.sim.world import World
+from rvs_server.devices import stereo_points
+
+
+@pytest.fixture(scope="module")
+def marsyard() -> World:
+    return World.from_scene("marsyard", seed=1)
+
+
+def opened(world: World, cameras: str = "front,rear", **settings: Any) -> hazcam.Hazcam:
+    dev = hazcam.create({"cameras": cameras, **settings}, world, stereo_points)
+    dev.open()
+    return dev
+
+
+def heights_against_truth(world: World, frame: hazcam.HazcamFrame) -> tuple[np.ndarray, np.ndarray]:
+    """Each point's height over the true ground under it (m) and its declared height sigma."""
+    T = world.T_world_rover()
+    pw = frame.points @ T[:3, :3].T + T[:3, 3]
+    cell = 0.005
+    box = (pw[:, 0].min() - 0.05, pw[:, 1].min() - 0.05, pw[:, 0].max() + 0.05, pw[:, 1].max() + 0.05)
+    dem = world.true_dem(cell, box)
+    col = np.clip(((pw[:, 0] - box[0]) / cell).astype(int), 0, dem.shape[1] - 1)
+    row = np.clip(((box[3] - pw[:, 1]) / cell).astype(int), 0, dem.shape[0] - 1)
+    ray = frame.points - frame.origin
+    return pw[:, 2] - dem[row, col], frame.sigma_range * np.abs(ray[:, 2]) / np.linalg.norm(ray, axis=1)
+
+
+def test_the_front_pair_measures_the_ground_ahead_within_its_declared_sigma(marsyard: World) -> None:
+    marsyard.set_rover_pose(0.0, 0.0, 0.0)
+    dev = opened(marsyard, "front")
+    frame = dev.grab("front")
+    assert frame.camera == "front" and frame.points.dtype == np.float64 and frame.points.shape[1] == 3
+    assert frame.sigma_range.shape == (len(frame.points),) and np.all(frame.sigma_range > 0)
+    np.testing.assert_allclose(frame.origin, [0.27, 0.05, 0.35])  # half the baseline left of the mount
+    assert len(frame.points) > 100_000  # most of the 480 x 360 pixels: textured ground, no sky within 3 m
+    # ahead of the nose, from the image's bottom edge (0.35 m) to max_range (3 m) from the camera
+    assert frame.points[:, 0].min() > 0.3 and 2.8 < frame.points[:, 0].max() < 3.3
+    assert np.linalg.norm(frame.points - frame.origin, axis=1).max() <= 3.0 + 1e-9
+    dz, sigma = heights_against_truth(marsyard, frame)
+    assert abs(np.median(dz)) < 0.002
+    within = np.abs(dz) < 3 * sigma
+    assert within.mean() > 0.95, within.mean()  # the tails: rock edges (a point a little off sideways)
+    # and the sigma is the noise, not a blanket: most points lie within one declared sigma
+    assert 0.7 < (np.abs(dz) < sigma).mean() < 0.95
+    # the farther the point, the noisier (z^2 of stereo)
+    far = np.linalg.norm(frame.points - frame.origin, axis=1) > 2.0
+    assert np.median(frame.sigma_range[far]) > 4 * np.median(frame.sigma_range[~far])
+    assert frame.left.shape == frame.right.shape == (360, 480) and frame.left.dtype == np.uint8
+    rows, cols = frame.pixels.T
+    assert rows.max() < 360 and cols.max() < 480
+
+
+def test_the_rear_pair_sees_behind_the_rover_whatever_its_heading(marsyard: World) -> None:
+    marsyard.set_rover_pose(1.0, 0.5, 90.0)  # facing +y: behind is -y in the world
+    dev = opened(marsyard, "rear", size=[320, 240])
+    frame = dev.grab("rear")
+    assert dev.cameras() == ["rear"]
+    assert len(frame.points) > 30_000
+    assert frame.points[:, 0].max() < -0.3 and np.all(np.abs(frame.points[:, 1]) < 3.0)
+    np.testing.assert_allclose(frame.origin, [-0.27, -0.05, 0.35])  # its left is the rover's right
+    T = marsyard.T_world_rover()
+    world_y = (frame.points @ T[:3, :3].T + T[:3, 3])[:, 1]
+    assert world_y.max() < 0.5 - 0.3
+    dz, sigma = heights_against_truth(marsyard, frame)
+    assert (np.abs(dz) < 3 * sigma).mean() > 0.95
+
+
+def test_the_hazcams_are_off_by_default_and_say_how_to_switch_them_on(marsyard: World) -> None:
+    assert hazcam.BACKENDS.settings().cameras == "off"
+    dev = hazcam.create(None, marsyard, stereo_points)
+    dev.open()  # the device stands while off
+    status = dev.status()
+    assert status["open"] and not status["enabled"] and status["cameras"] == []
+    assert "drivers.hazcam.cameras front,rear" in status["note"]
+    assert dev.cameras() == []
+    for call in (dev.grab, dev.images):
+        with pytest.raises(DeviceError, match="hazcams are off: set drivers.hazcam.cameras front,rear") as err:
+            call("front")
+        assert err.value.device == "hazcam"
+    front_only = opened(marsyard, "front", size=[160, 120])
+    with pytest.raises(DeviceError, match="rear hazcams are off"):
+        front_only.grab("rear")
+    with pytest.raises(ValueError, match="front, rear"):
+        front_only.grab("left")
+    left, right = front_only.images("front")
+    assert left.shape == (120, 160) and not np.array_equal(left, right)  # two viewpoints
+    stop = threading.Event()
+    stop.set()
+    with pytest.raises(DeviceInterrupted):
+        front_only.grab("front", cancel=stop)
+    with pytest.raises(DeviceError, match="no stereo matcher"):
+        hazcam.create({"cameras": "front"}, marsyard).grab("front")
+
+
+def test_the_settings_are_the_registry_s_and_the_mount_is_declared_once(marsyard: World) -> None:
+    assert "hazcam" in DEVICE_KINDS and registry("hazcam") is hazcam.BACKENDS
+    keys = hazcam.BACKENDS.settings_class().specs()
+    assert {"cameras", "front_xyz", "front_pitch_deg", "rear_yaw_deg", "hfov_deg", "size", "baseline", "sigma_d",
+            "seed", "library", "front_left_id"} <= set(keys)
+    with pytest.raises(ValueError, match="front,rear"):
+        hazcam.BACKENDS.settings({"cameras": "sideways"})
+    # a pair tilted further down sees nearer ground: the rig follows the settings
+    steep = hazcam.pair_rig(hazcam.BACKENDS.settings({"front_pitch_deg": 70.0}), "front")
+    flat = hazcam.pair_rig(hazcam.BACKENDS.settings(), "front")
+    assert steep.T_rover_left[2, 2] < flat.T_rover_left[2, 2] < 0  # the optical axis points further down
+
+
+def test_the_server_builds_the_hazcams_and_config_set_switches_them(server_factory: Any) -> None:
+    srv = server_factory(["drivers.hazcam.cameras=front", "drivers.hazcam.size=320,240"])
+    c = srv.client()
+    try:
+        assert "hazcam:ok" in c.request("status").fields["devices"]
+        dev = srv.app.devices.get("hazcam")
+        frame = dev.grab("front")  # the server's own matcher, on its world (the office's flat floor)
+        assert len(frame.points) > 20_000 and abs(np.median(frame.points[:, 2])) < 0.01
+        r = c.request("config -module drivers -set hazcam.cameras=rear")
+        assert r.status == "OK" and r.fields["pending"] == "hazcam.cameras"
+        assert c.request("reinit -device hazcam").status == "OK"
+        assert srv.app.devices.get("hazcam").cameras() == ["rear"]
+        r = c.request("config -module drivers -set hazcam.cameras=left")
+        assert r.fields["code"] == "E_ARG" and "front,rear" in r.fields["message"]
+    finally:
+        c.close()

@@ -1,0 +1,134 @@
+"""Benchmark: the body hazard cameras' stereo, measured where drivers.hazcam declares it.
+
+**Disparity noise** (what ``drivers.hazcam.sigma_d`` declares): the simulated pairs' matched
+disparity (the server's matcher, ``rvs_server.devices.stereo_points``'s ``disparity`` with the
+hazcams' settings) against the disparity of the renderer's true depth for the left camera
+(f b / z: the pairs are ideal, rectification is the identity), over the matched pixels within
+``max_range``, front and rear pairs at three rover poses per scene; and the same matcher
+settings on the real Middlebury 2014 Motorcycle pair (quarter size, scikit-image's copy with its
+ground truth; the Bicycle1 pair in ../shared/realdata has none) against its true disparity.
+Columns: matched pixels, mean error (bias), rms, robust sigma (1.4826 x the median absolute
+deviation), rms of the matches within 2 px of the truth (the Gaussian core), shares more than
+1 and 2 px off.
+
+**Grab time**: ``Hazcam.grab`` on the simulated world, median over ``--grabs`` grabs per pair at
+each ``--sizes``: the capture (the simulator's render of both cameras and their image
+formation; a real camera renders nothing) and the matching (disparity, points, rover frame).
+
+    python -m tools.bench.hazcam                     # marsyard hirise dense, 640x480
+    python -m tools.bench.hazcam --sizes 640x480 320x240 --grabs 5
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+from typing import Any
+
+import cv2
+import numpy as np
+
+import drivers.hazcam as hazcam
+from drivers.sim.world import World
+from prox_workflows.steps import stereo as st
+from rvs_server.devices import stereo_points
+
+POSES = ((0.0, 0.0, 0.0), (1.0, 0.5, 30.0), (2.0, -0.5, -60.0))  # x, y, heading: rover poses per scene
+MOTORCYCLE_ND = 80  # Middlebury's ndisp 270 at full size, quarter size, SGBM's multiple of 16
+
+
+def stats(name: str, err: np.ndarray) -> dict[str, Any]:
+    core = np.abs(err) < 2.0
+    return {"pair": name, "n": int(err.size), "mean": float(err.mean()), "rms": float(np.sqrt(np.mean(err**2))),
+            "robust": float(1.4826 * np.median(np.abs(err - np.median(err)))),
+            "core": float(np.sqrt(np.mean(err[core] ** 2))), "over1": float(np.mean(np.abs(err) > 1.0)),
+            "over2": float(np.mean(np.abs(err) > 2.0))}
+
+
+def sim_errors(scene: str, settings: dict[str, Any]) -> np.ndarray:
+    """Matched minus true disparity (px) of every matched pixel within max_range, both pairs, all poses."""
+    world = World.from_scene(scene, seed=1)
+    dev = hazcam.create({**settings, "cameras": "front,rear"}, world)
+    dev.open()
+    cfg = dev.config
+    errs = []
+    for pose in POSES:
+        world.set_rover_pose(*pose)
+        for camera in dev.cameras():
+            rig = dev.rig(camera)
+            left, right = dev.images(camera)
+            disp = st.disparity(left, right, rig.calibration, {"min_depth": cfg.min_range}).measured
+            truth = world.render(rig.K, *rig.size, world.T_world_rover() @ rig.T_rover_left)
+            true_d = rig.focal * rig.baseline / truth.depth
+            ok = np.isfinite(disp) & np.isfinite(true_d) & (truth.range <= cfg.max_range) & (truth.object_id != 1)
+            errs.append(disp[ok] - true_d[ok])
+    return np.concatenate(errs)
+
+
+def motorcycle_errors() -> np.ndarray | None:
+    try:
+        from skimage.data import stereo_motorcycle
+
+        left, right, truth = stereo_motorcycle()
+    except Exception as exc:  # the test extra (scikit-image) absent or its data missing
+        print(f"Motorcycle skipped: {exc}")
+        return None
+    gl, gr = (cv2.cvtColor(a, cv2.COLOR_RGB2GRAY) for a in (left, right))
+    disp = st.disparity_rectified(gl, gr, st.SgbmParams(), MOTORCYCLE_ND)
+    truth = truth.astype(np.float32)
+    ok = np.isfinite(disp) & np.isfinite(truth) & (truth > 0)
+    return disp[ok] - truth[ok]
+
+
+def grab_times(size: tuple[int, int], grabs: int, scene: str) -> dict[str, Any]:
+    world = World.from_scene(scene, seed=1)
+    dev = hazcam.create({"cameras": "front,rear", "size": list(size)}, world, stereo_points)
+    dev.open()
+    capture, match, points = [], [], []
+    dev.grab("front")  # the first grab builds the rectification maps
+    for i in range(grabs):
+        for camera in dev.cameras():
+            world.set_rover_pose(0.1 * i, 0.0, 0.0)
+            t0 = time.perf_counter()
+            frame = dev.grab(camera)
+            total = time.perf_counter() - t0
+            last = dev.status()["last_grab"]
+            capture.append(last["capture_ms"])
+            match.append(1000 * total - last["capture_ms"])
+            points.append(len(frame.points))
+    return {"size": f"{size[0]}x{size[1]}", "grabs": len(capture), "capture_ms": float(np.median(capture)),
+            "match_ms": float(np.median(match)), "match_p90": float(np.percentile(match, 90)),
+            "points": int(np.median(points))}
+
+
+def main(argv: list[str] | None = None) -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--scenes", nargs="+", default=["marsyard", "hirise", "dense"])
+    ap.add_argument("--sizes", nargs="+", default=["640x480"])
+    ap.add_argument("--grabs", type=int, default=5, help="grabs per pair for the grab time")
+    args = ap.parse_args(argv)
+    sizes = [tuple(int(v) for v in s.lower().split("x")) for s in args.sizes]
+    rows = []
+    for size in sizes:
+        rows += [stats(f"{scene} {size[0]}x{size[1]} (sim)", sim_errors(scene, {"size": list(size)}))
+                 for scene in args.scenes]
+    if (err := motorcycle_errors()) is not None:
+        rows.append(stats("Motorcycle (real, Middlebury)", err))
+    print("| pair | matched px | mean (px) | rms | robust sigma | rms within 2 px | > 1 px | > 2 px |")
+    print("|---|---|---|---|---|---|---|---|")
+    for r in rows:
+        print(f"| {r['pair']} | {r['n']} | {r['mean']:+.3f} | {r['rms']:.3f} | {r['robust']:.3f} | {r['core']:.3f} "
+              f"| {100 * r['over1']:.2f} % | {100 * r['over2']:.2f} % |")
+    print()
+    print(f"declared drivers.hazcam.sigma_d: {hazcam.BACKENDS.settings().sigma_d} px")
+    print()
+    print("| size | grabs | capture ms p50 (render of both cameras) | match ms p50 / p90 | points p50 |")
+    print("|---|---|---|---|---|")
+    for size in sizes:
+        t = grab_times(size, args.grabs, args.scenes[0])
+        print(f"| {t['size']} | {t['grabs']} | {t['capture_ms']:.0f} | {t['match_ms']:.0f} / {t['match_p90']:.0f} "
+              f"| {t['points']} |")
+
+
+if __name__ == "__main__":
+    main()
