@@ -19,6 +19,7 @@ from drivers.stereo.modes import channels
 from drivers.stereo.settings import CameraSettings
 
 GRABS = ("grab_stereo", "grab_mono", "grab_stereo_direct", "grab_mono_direct")
+MATRICES = ("K1", "D1", "K2", "D2", "R", "T")  # the rest (image_size, source) as recorded
 GUIDS = ("000a4701ffff0001", "000a4701ffff0002")  # the left mount's, the right mount's (no camera's)
 
 
@@ -78,7 +79,7 @@ class ReplayCameras:
         run = self._run()
         for calib in run.fact("stereo_calibration", "stereo").values():
             if tuple(calib["image_size"]) == tuple(size):
-                return {key: np.asarray(v, float) if key != "image_size" else list(v) for key, v in calib.items()}
+                return {key: np.asarray(v, float) if key in MATRICES else v for key, v in calib.items()}
         raise DeviceError("stereo", f"the recording {run.recording.path.name} holds no stereo calibration for "
                                     f"{size[0]}x{size[1]} (the resolution it was grabbed at has one)")
 

@@ -80,6 +80,8 @@ class ReplayTof:
                 self._replay = open_replay("tof", self._file)
             except DeviceError:
                 return nominal_camera_matrix(self.cols, self.rows), np.zeros(5)
+        if not self._replay.recording.calls.get("tof"):  # no frame to project: any matrix does
+            return nominal_camera_matrix(self.cols, self.rows), np.zeros(5)
         facts = self._replay.fact("tof_intrinsics", "tof")
         return np.asarray(facts["K"], float), np.asarray(facts["dist"], float)
 
