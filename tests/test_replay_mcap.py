@@ -148,3 +148,18 @@ def test_a_replay_without_a_recording_says_what_to_set(server_factory: Any) -> N
     assert c.request("grab-tof -output x", timeout=60).fields["code"] == "E_STATE"  # the camera did not open
     reset = c.request("reset", timeout=60)
     assert reset.fields["code"] == "E_DEVICE" and "drivers.tof.replay_file" in reset.fields["message"], reset
+
+
+def test_a_replayed_drive_is_the_recorded_poses_from_the_first_move_to_where_the_rover_stood() -> None:
+    from drivers.rover.replay import drive_after
+
+    s = 1_000_000_000
+    still = [(i * s // 10, 0.0, 0.0, 0.0) for i in range(5)]  # standing, sampled at 10 Hz
+    moving = [(5 * s // 10 + i * s // 10, 0.05 * (i + 1), 0.0, 0.0) for i in range(10)]
+    stood = [(15 * s // 10 + i * s // 10, 0.5, 0.0, 0.0) for i in range(15)]  # 1.5 s still
+    later = [(31 * s // 10, 0.6, 0.0, 0.0)]  # a second drive
+    poses = still + moving + stood + later
+    drive = drive_after(poses, after_ns=2 * s // 10)
+    assert np.allclose([p[1] for p in drive], [0.05 * (i + 1) for i in range(10)])
+    assert drive_after(poses, after_ns=drive[-1][0]) == later
+    assert drive_after(poses, after_ns=later[0][0]) == []
