@@ -18,11 +18,13 @@ are tight. Per scene and per way of looking, this prints:
 
 Looks: ``one`` (one frame, pan 0, tilt -35), ``sweep`` (pans -40 / 0 / +40), ``approach`` (the
 sweep, then a frame every 0.1 m over 2 m of straight drive, as the see loop sees the ground it
-comes to), ``approach+hazcam`` (the same with a front hazard camera's frame at every step: see
-:data:`HAZCAM`). Range noise along each ray from the ToF's noise model, height sigma from
-``tof_height_variance``: the sigmas the map is given are the ones the frames were drawn with,
-so this measures the map, not a mis-stated sensor. The real-data row (Middlebury Motorcycle,
-real stereo errors against its ground-truth disparity) shows what happens when they are not.
+comes to), ``approach+hazcam`` (the same with the front hazard camera pair's frame at every step:
+the simulated ``drivers.hazcam`` device as declared, its pair rendered and matched by the
+server's stereo matcher, see :func:`hazcam`). ToF range noise along each ray from the ToF's
+noise model, height sigma from ``tof_height_variance``: the sigmas the map is given are the ones
+the ToF frames were drawn with, so this measures the map, not a mis-stated sensor. The hazcam's
+errors are real stereo errors against the sigmas its device declares, as are those of the
+real-data row (Middlebury Motorcycle, against its ground-truth disparity).
 
     python -m tools.bench.bounds                       # marsyard, hirise, dense; all looks
     python -m tools.bench.bounds --scenes hirise --looks approach --k 2.5 3
@@ -38,6 +40,7 @@ from typing import Any
 import cv2
 import numpy as np
 
+import drivers.hazcam as hazcam_device
 from drivers.sim.rover import RoverBody
 from drivers.sim.world import World
 from drivers.tof.constants import HEIGHT, USABLE_RANGE, WIDTH
@@ -47,17 +50,23 @@ from prox_workflows.steps.dem2hazard import HazardParams
 from prox_workflows.steps.noise import tof_height_variance, tof_horizontal_sigma, tof_sigma
 from prox_workflows.steps.rolling_map import RollingMap, RollingParams
 from prox_workflows.steps.vehicle import check_poses
+from rvs_server.devices import stereo_points
 
 LOOKS = ("one", "sweep", "approach", "approach+hazcam")
+# one frame: points, height sigmas, sensor origin, horizontal sigmas, the range it was cut at
+Frame = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, float]
 TRUE_CELL = 0.005  # m: the truth's surface, pooled to the map's cells
 
 
-def frames(world: World, look: str, rng: np.random.Generator
-           ) -> Iterator[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]]:
-    """(points, height sigmas, sensor origin, horizontal sigmas) per ToF frame of a way of looking."""
+def frames(world: World, look: str, rng: np.random.Generator) -> Iterator[Frame]:
+    """Each frame of a way of looking."""
     x0, y0, h0 = world.rover_pose()
+    front = None
+    if look == "approach+hazcam":
+        front = hazcam_device.create({"cameras": "front"}, world, stereo_points)
+        front.open()
 
-    def grab(pan: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    def grab(pan: float) -> Frame:
         world.set_ptu(pan, -35.0)
         origin = world.sensor_pose("tof")[:3, 3]
         view = world.render_sensor("tof", WIDTH, HEIGHT)
@@ -66,7 +75,7 @@ def frames(world: World, look: str, rng: np.random.Generator
         pts, r = view.points.reshape(-1, 3)[keep].astype(np.float64), r[keep].astype(np.float64)
         noisy = pts + (pts - origin) / r[:, None] * (tof_sigma(r) * rng.standard_normal(len(r)))[:, None]
         return (noisy, np.sqrt(tof_height_variance(noisy, origin)).astype(np.float64), origin,
-                tof_horizontal_sigma(noisy, origin).astype(np.float64))
+                tof_horizontal_sigma(noisy, origin).astype(np.float64), USABLE_RANGE)
 
     pans = (0.0,) if look == "one" else (-40.0, 0.0, 40.0)
     for pan in pans:
@@ -75,39 +84,25 @@ def frames(world: World, look: str, rng: np.random.Generator
         for i in range(1, 21):
             world.set_rover_pose(x0 + 0.1 * i, y0, h0)
             yield grab(0.0)
-            if look == "approach+hazcam":
-                yield hazcam(world, rng)
+            if front is not None:
+                yield hazcam(world, front)
         world.set_rover_pose(x0, y0, h0)
 
 
-# A front hazard camera as MER and MSL carry (seed 000 sect. 2): a stereo pair on the body's nose
-# looking down at the ground the wheels meet next. Modelled here as a pinhole 90 x 70 deg (MER's
-# are 124 deg fisheyes), 640 x 480, 10 cm baseline, 0.25 px disparity noise, 0.35 m up, 40 deg down:
-# what such a sensor would add to the map, measured before it is built as a device.
-HAZCAM = {"mount": (0.27, 0.0, 0.35), "pitch": 40.0, "size": (640, 480), "hfov": 90.0, "baseline": 0.10,
-          "sigma_d": 0.25}
-
-
-def hazcam(world: World, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    from rvs_params.frames import R_BODY_FROM_OPTICAL, make_T, rot_y
-
-    w, h = HAZCAM["size"]
-    f = (w / 2) / np.tan(np.radians(HAZCAM["hfov"] / 2))
-    K = np.array([[f, 0.0, w / 2], [0.0, f, h / 2], [0.0, 0.0, 1.0]])
-    T = world.T_world_rover() @ make_T(rot_y(HAZCAM["pitch"]) @ R_BODY_FROM_OPTICAL, HAZCAM["mount"])
-    view = world.render(K, w, h, T)
-    z = view.depth.reshape(-1)
-    r = view.range.reshape(-1)
-    keep = np.isfinite(z) & (z < 3.0) & (view.object_id.reshape(-1) != 1)
-    pts, z, r = view.points.reshape(-1, 3)[keep].astype(np.float64), z[keep].astype(np.float64), r[keep].astype(np.float64)
-    origin = T[:3, 3]
-    sigma_r = z * z * HAZCAM["sigma_d"] / (HAZCAM["baseline"] * f) * r / z  # depth error along the ray
-    noisy = pts + (pts - origin) / r[:, None] * (sigma_r * rng.standard_normal(len(r)))[:, None]
-    cz = np.abs(noisy[:, 2] - origin[2]) / np.linalg.norm(noisy - origin, axis=1)
-    lateral = 0.0015 * r
+def hazcam(world: World, device: hazcam_device.Hazcam) -> Frame:
+    """The front hazcam pair's frame in the world frame, with its declared range sigma split
+    into height and horizontal parts (and half a pixel across the ray)."""
+    frame = device.grab("front")
+    T = world.T_world_rover()
+    pts = frame.points @ T[:3, :3].T + T[:3, 3]
+    origin = T[:3, :3] @ frame.origin + T[:3, 3]
+    r = np.linalg.norm(pts - origin, axis=1)
+    cz = np.abs(pts[:, 2] - origin[2]) / r
+    lateral = r / (2.0 * device.rig("front").focal)
+    sigma_r = frame.sigma_range
     sigma = np.sqrt((sigma_r * cz) ** 2 + lateral**2 * (1 - cz * cz))
     sigma_xy = np.sqrt(sigma_r**2 * (1 - cz * cz) + lateral**2)
-    return noisy, sigma, origin, sigma_xy
+    return pts, sigma, origin, sigma_xy, device.config.max_range
 
 
 def pooled(fine: np.ndarray, g: GridGeometry, how: Any) -> np.ndarray:
@@ -122,9 +117,9 @@ def sim_row(scene: str, look: str, k: float, seed: int = 0) -> dict[str, Any]:
     bounds = BoundsMap.covering(box, 0.0, BoundsParams(k=k))
     rolling = RollingMap(RollingParams(size=12.0), HazardParams(), (x0 + 2.5, y0))
     t_bounds, t_rolling = [], []
-    for pts, sigma, origin, sigma_xy in frames(world, look, np.random.default_rng(seed)):
+    for pts, sigma, origin, sigma_xy, cut in frames(world, look, np.random.default_rng(seed)):
         t0 = time.perf_counter()
-        bounds.fuse(pts, sigma, origin, USABLE_RANGE, sigma_xy)
+        bounds.fuse(pts, sigma, origin, cut, sigma_xy)
         t1 = time.perf_counter()
         rolling.fuse(pts, np.linalg.norm(pts - origin, axis=1))
         t2 = time.perf_counter()

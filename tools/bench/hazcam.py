@@ -15,8 +15,8 @@ deviation), rms of the matches within 2 px of the truth (the Gaussian core), sha
 each ``--sizes``: the capture (the simulator's render of both cameras and their image
 formation; a real camera renders nothing) and the matching (disparity, points, rover frame).
 
-    python -m tools.bench.hazcam                     # marsyard hirise dense, 640x480
-    python -m tools.bench.hazcam --sizes 640x480 320x240 --grabs 5
+    python -m tools.bench.hazcam                     # marsyard hirise dense, the declared size
+    python -m tools.bench.hazcam --sizes 640x480 480x360 320x240 --grabs 5
 """
 
 from __future__ import annotations
@@ -104,7 +104,7 @@ def grab_times(size: tuple[int, int], grabs: int, scene: str) -> dict[str, Any]:
 def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--scenes", nargs="+", default=["marsyard", "hirise", "dense"])
-    ap.add_argument("--sizes", nargs="+", default=["640x480"])
+    ap.add_argument("--sizes", nargs="+", default=["x".join(map(str, hazcam.BACKENDS.settings().size))])
     ap.add_argument("--grabs", type=int, default=5, help="grabs per pair for the grab time")
     args = ap.parse_args(argv)
     sizes = [tuple(int(v) for v in s.lower().split("x")) for s in args.sizes]
