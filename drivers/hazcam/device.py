@@ -138,6 +138,7 @@ class Hazcam:
     def grab(self, camera: str, cancel: Cancel = None) -> HazcamFrame:
         """One pair's images matched into points (see :class:`HazcamFrame`)."""
         with self._op:
+            self._require(camera)
             if self._matcher is None:
                 raise DeviceError(NAME, "no stereo matcher was given to this device (the server gives its own; "
                                         "drivers.hazcam.create(..., matcher=...)): only images() works")
