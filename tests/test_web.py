@@ -98,7 +98,7 @@ def test_page_gets_hello_and_state_then_runs_lines_through_the_dispatcher(web: A
         assert hello["reply"]["kind"] == "hello" and hello["text"].startswith("RVS EVENT kind=hello")
         state = await page.next()
         assert state["type"] == "state" and state["mode"] == "ready" and state["scene"] == "office"
-        assert state["devices"] == {"ptu": "ok", "tof": "ok", "trigger": "ok", "stereo": "ok", "rover": "ok"}
+        assert state["devices"] == {"ptu": "ok", "tof": "ok", "trigger": "ok", "stereo": "ok", "rover": "ok", "hazcam": "ok"}
         assert state["rover"] == {"length": 0.51, "width": 0.4} and state["maps"] == {}
         await page.send("@s1 status")
         ok = await page.final("s1")
