@@ -203,3 +203,77 @@ def test_bounds_from_simulated_tof_looks_never_call_an_unsafe_pose_safe() -> Non
     judged = ~on_bounds.unknown
     assert judged.sum() > 100 and (judged & on_truth.unsafe).sum() > 10  # rocks among the judged poses
     assert not (on_truth.unsafe & on_bounds.safe).any()
+
+
+def test_the_gate_stops_at_the_first_pose_over_a_rock_and_blames_its_top() -> None:
+    from drivers.sim.rover import RoverBody
+    from prox_workflows.steps.vehicle import densify, gate_poses
+
+    body = RoverBody()
+    h, g = _flat()
+    xs, ys = g.centers()
+    X, Y = np.meshgrid(xs, ys)
+    lower, upper = h - 0.005, h + 0.005
+    poses = densify(np.array([[-0.6, 0.0, 0.0], [0.6, 0.0, 0.0]]), 0.02, body)
+    assert gate_poses(lower, upper, g, poses, body).verdict == "safe"
+    # a 9 cm rock on the centre line: under the climb, over the belly's 8 cm clearance
+    on = np.hypot(X - 0.4, Y) <= 0.04
+    lower[on], upper[on] = 0.085, 0.095
+    gate = gate_poses(lower, upper, g, poses, body)
+    assert (gate.verdict, gate.kind) == ("unsafe", "belly")
+    assert np.hypot(gate.x - 0.4, gate.y) <= 0.05  # the rock's top
+    # the first pose whose box reaches the rock: its front edge is at the rock's near side
+    assert poses[gate.index, 0] + body.length / 2 == pytest.approx(0.36, abs=0.03)
+    assert 0.0 < gate.excess <= 0.095 + 0.005 - body.clearance + 1e-6  # the rock's edge first meets the box
+    # ground beside the path that no frame saw: the gate does not guess
+    lower[on], upper[on] = h[on] - 0.005, h[on] + 0.005
+    hole = (np.abs(X - 0.2) <= 0.05) & (np.abs(Y) <= 0.05)
+    lower[hole] = upper[hole] = np.nan
+    gate = gate_poses(lower, upper, g, poses, body)
+    assert gate.verdict == "unknown" and np.hypot(gate.x - 0.2, gate.y) <= 0.1
+    # bounded only by a ray that passed over it, high: not a rock, ground to look at
+    upper[hole] = 0.3
+    assert gate_poses(lower, upper, g, poses, body).verdict == "unknown"
+
+
+def test_the_ground_the_rover_stands_on_and_was_set_down_on_is_assessed() -> None:
+    from drivers.sim.rover import RoverBody
+    from prox_workflows.steps.vehicle import check_poses
+
+    body = RoverBody()
+    m = BoundsMap.covering([[-1.0, -1.0], [1.0, 1.0]], 0.0)
+    pose = np.array([[0.0, 0.0, 30.0]])
+    assert check_poses((m.lower, m.upper), m.geometry, pose, body).unknown[0]  # nothing seen
+    m.stood((0.0, 0.0, 30.0), 0.02, body)
+    here = check_poses((m.lower, m.upper), m.geometry, pose, body)
+    assert here.safe[0]  # the pose it stands at passes the worst case
+    # the wheels' ground is at the contact, the box's no higher than the belly
+    assert np.nanmax(m.upper) <= 0.02 + body.clearance
+    turned = check_poses((m.lower, m.upper), m.geometry, np.array([[0.0, 0.0, 90.0]]), body)
+    assert turned.unknown[0]  # turning on the spot sweeps ground its body did not cover
+    m.set_down((0.0, 0.0), 0.5, 0.02)
+    assert check_poses((m.lower, m.upper), m.geometry, np.array([[0.0, 0.0, 90.0]]), body).safe[0]
+    # a return already there is kept: what a frame saw outranks the assumption
+    m2 = BoundsMap.covering([[-1.0, -1.0], [1.0, 1.0]], 0.0)
+    assert m2.fuse(np.array([[0.31, 0.01, 0.2], [0.315, 0.015, 0.2]]), 0.002) == 1
+    m2.set_down((0.0, 0.0), 0.5, 0.0)
+    r, c = m2.geometry.cell_of(np.array([0.31]), np.array([0.01]))
+    assert m2.mean[r[0], c[0]] == pytest.approx(0.2, abs=0.01)
+
+
+def test_rocks_on_the_bounds_stand_out_of_a_slope_which_alone_flags_nothing() -> None:
+    m = BoundsMap.covering([[-1.5, -1.5], [1.5, 1.5]], 0.0)
+    g = m.geometry
+    xs, ys = g.centers()
+    X, Y = np.meshgrid(xs, ys)
+    ground = np.tan(np.radians(15.0)) * X  # a 15 deg slope
+    m.mean[:] = ground
+    m.mean_var[:] = 0.002**2
+    assert len(m.rocks((0.0, 0.0), 1.0, 0.08)) == 0
+    on = np.hypot(X - 0.5, Y - 0.2) <= 0.06
+    m.mean[on] += 0.10  # a 10 cm rock: over the belly's 8 cm
+    small = np.hypot(X + 0.5, Y + 0.3) <= 0.06
+    m.mean[small] += 0.05  # a 5 cm one: the body passes over it
+    found = m.rocks((0.0, 0.0), 1.0, 0.08)
+    assert len(found) and np.hypot(found[:, 0] - 0.5, found[:, 1] - 0.2).max() <= 0.08
+    assert len(m.rocks((0.0, 0.0), 0.2, 0.08)) == 0  # outside the radius asked

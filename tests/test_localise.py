@@ -194,7 +194,9 @@ def _mission(server_factory, tmp_path: Path, mode: str, seed: int, loop: str = "
     from tools.bench.navigate import missions
 
     scene = "marsyard" if far else "quarry"
-    srv = server_factory([f"server.scene={scene}"])
+    # localisation is the subject: the see loop drives without the vehicle gate, which on this
+    # mission stops before the first metre (docs/NAVIGATE_BENCH.md)
+    srv = server_factory([f"server.scene={scene}", "navigate.see_gate=off"])
     world = srv.app.world
     world.set_target_visible(False)
     start, goal = missions(scene, seed + 1)[seed] if far else pick_start_goal(world, scene, seed)

@@ -26,4 +26,4 @@ def test_a_rover_backend_is_its_module_and_one_import_line() -> None:
              if "GncRover" in p.read_text() or "SimRover" in p.read_text()]
     assert not named, named
     init = (ROOT / "drivers" / "rover" / "__init__.py").read_text()
-    assert "from . import gnc, sim  # noqa: F401 - registers the backends" in init
+    assert "from . import gnc, replay, sim  # noqa: F401 - registers the backends" in init

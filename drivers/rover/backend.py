@@ -17,6 +17,7 @@ from dataclasses import dataclass
 from typing import Any, ClassVar, Protocol
 
 from drivers.registry import BackendRegistry, Capability
+from drivers.sim.rover import RoverBody
 from rvs_params import Settings, param
 
 Pose = tuple[float, float, float]  # x, y (m) and heading (deg, counter-clockwise from x) in the global frame
@@ -121,6 +122,10 @@ class RoverBackend(Protocol):
 
     def speeds(self) -> tuple[float, float]:
         """Forward speed (m/s) and turn rate (deg/s) the server's motions run at."""
+
+    def body(self) -> RoverBody:
+        """What the rover is and drives over: the wheels, the belly's clearance, the climb and tilt
+        limits the vehicle check holds its motions to."""
 
     def drive(self, pilot: Pilot, stop: Callable[[], bool], settle: Settle, since: int) -> Pose:
         """The drive loop: until the pilot says the leg is over (sim) or the GNC stands (gnc);

@@ -89,6 +89,11 @@ class Rover:
         """Forward speed (m/s) and turn rate (deg/s) of the motions the server runs (sim only)."""
         return self.port.speeds()
 
+    def body(self) -> Any:
+        """The rover's body (:class:`drivers.sim.rover.RoverBody`): what its motions are checked
+        against."""
+        return self.port.body()
+
     def mark(self) -> int:
         """Where the pose reports stand now: a drive started with this mark takes reports after it
         as the GNC's answer (take it before announcing the leg: a GNC may answer at once)."""

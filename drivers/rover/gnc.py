@@ -18,7 +18,7 @@ from typing import Any
 
 from drivers.base import DeviceError, DeviceInterrupted
 
-from .backend import BACKENDS, Pilot, Pose, PoseFeed, RoverSettings, Settle, Silent
+from .backend import BACKENDS, Pilot, Pose, PoseFeed, RoverBody, RoverSettings, Settle, Silent
 
 
 @BACKENDS.backend("gnc")
@@ -42,6 +42,9 @@ class GncRover:
         return p.x, p.y, p.heading
 
     truth = pose  # the GNC's report is all the server knows of where the rover is
+
+    def body(self) -> RoverBody:
+        return RoverBody()  # the rover the server is built for; a scene's body is the simulator's
 
     def speeds(self) -> tuple[float, float]:
         raise DeviceError("rover", "the GNC steers itself: the server runs no motion of its own")

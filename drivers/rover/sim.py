@@ -14,7 +14,7 @@ from typing import Any
 
 from drivers.base import DeviceError, DeviceInterrupted
 
-from .backend import BACKENDS, Motion, Pilot, Pose, PoseFeed, RoverSettings, Settle
+from .backend import BACKENDS, Motion, Pilot, Pose, PoseFeed, RoverBody, RoverSettings, Settle
 
 
 @BACKENDS.backend("sim")
@@ -44,6 +44,9 @@ class SimRover:
     def speeds(self) -> tuple[float, float]:
         model = self.world.drive_model
         return model.speed, model.turn_rate
+
+    def body(self) -> RoverBody:
+        return self.world.body
 
     def drive(self, pilot: Pilot, stop: Callable[[], bool], settle: Settle, since: int) -> Pose:
         """Ask the pilot for a motion, run it, tell the pilot where the rover got to, again,

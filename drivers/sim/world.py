@@ -25,7 +25,7 @@ from drivers.sim.heightfield import Heightfield
 from drivers.sim.noise import periodic_tile
 from drivers.sim.objects import Rect, SceneObject, checker_albedo
 from drivers.sim.render import Detail, Render, render
-from drivers.sim.rover import RoverDrive, Slip, step_pose
+from drivers.sim.rover import RoverBody, RoverDrive, Slip, step_pose
 from drivers.sim.scene import (
     CHECKERBOARD_ID,
     FIRST_OBJECT_ID,
@@ -152,6 +152,7 @@ class World:
             # or drift pulls them apart while driving.
             self._odom = self._rover
             self.drive_model = drive
+            self.body = RoverBody.from_spec(rover_spec.get("body"))  # what the rover drives over
             self.slip = slip
             self._rock_rng = np.random.default_rng([seed, 7])  # rocks added at run time
             cb = spec.get("checkerboard")

@@ -98,18 +98,35 @@ class CorridorCheck:
 
 
 def rover_points(xyz_cam: np.ndarray, T_rover_cam: np.ndarray, subsample: int = 1, max_range: float = 4.5,
-                 amplitude: np.ndarray | None = None, min_reflectivity: float = 0.0) -> np.ndarray:
+                 amplitude: np.ndarray | None = None, min_reflectivity: float = 0.0,
+                 max_jump: float | None = None) -> np.ndarray:
     """Defined pixels of a ToF XYZ image (camera frame, -1/NaN undefined) as N x 3 rover-frame points.
 
     ``subsample`` keeps every k-th pixel in both directions: a coarse DEM needs no more and the
     cycle gets k^2 cheaper. ``min_reflectivity`` drops phase-wrapped far returns as
     :func:`acquire.view_from_xyz` does (amplitude x range^2 far below the frame's median).
+    ``max_jump`` (a share of the range) drops pixels whose range differs from a neighbour's by
+    more than that plus 1 cm: a pixel straddling a depth edge returns a mix of fore- and
+    background, a point in mid-air or under the ground behind a rock's rim. A cell mean
+    averages such a point away; a bound on the ground's lowest or highest takes it whole.
+    Ground seen at a grazing angle stays: its neighbours' ranges differ by about 1 % of the range.
     """
     k = max(1, int(subsample))
     xyz = np.asarray(xyz_cam, dtype=np.float32)[::k, ::k]
     z = xyz[..., 2]
     rng = np.linalg.norm(xyz, axis=2)
     ok = np.isfinite(z) & (z > 0) & (rng <= max_range)
+    if max_jump is not None:
+        r = np.where(ok, rng, np.nan)
+        jump = np.zeros(r.shape, np.float32)
+        with np.errstate(invalid="ignore"):
+            for axis in (0, 1):
+                d = np.abs(np.diff(r, axis=axis))
+                d = np.where(np.isnan(d), 0.0, d)
+                lead = [(0, 1), (0, 0)] if axis == 0 else [(0, 0), (0, 1)]
+                trail = [(1, 0), (0, 0)] if axis == 0 else [(0, 0), (1, 0)]
+                jump = np.maximum(jump, np.maximum(np.pad(d, lead), np.pad(d, trail)))
+        ok &= jump <= max_jump * rng + 0.01
     if amplitude is not None and min_reflectivity > 0 and ok.any():
         refl = np.asarray(amplitude, dtype=np.float64)[::k, ::k] * rng.astype(np.float64) ** 2
         ok &= refl >= min_reflectivity * float(np.median(refl[ok]))

@@ -437,6 +437,17 @@ def mark_unseen(maps: NavMaps, centre: tuple[float, float], inner: float, outer:
     return NavMaps(hazard.astype(np.uint8), maps.slope, maps.geometry)
 
 
+def mark_points(maps: NavMaps, points: list[tuple[float, float]], value: int) -> NavMaps:
+    """``maps`` with the cells holding ``points`` (x, y) set to ``value`` (HAZARDOUS: ground the
+    planner keeps the body's footprint off, as off a rock)."""
+    xy = np.asarray(points, dtype=np.float64).reshape(-1, 2)
+    r, c = maps.geometry.cell_of(xy[:, 0], xy[:, 1])
+    inside = maps.geometry.inside(r, c)
+    hazard = maps.hazard.copy()
+    hazard[r[inside], c[inside]] = value
+    return NavMaps(hazard, maps.slope, maps.geometry, maps.whole)
+
+
 def _shift(a: np.ndarray, dr: int, dc: int, fill: Any) -> np.ndarray:
     """``a`` moved so that old cell (r, c) lands at (r - dr, c - dc); new cells get ``fill``."""
     out = np.full_like(a, fill)

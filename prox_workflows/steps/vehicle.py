@@ -33,8 +33,8 @@ import numpy as np
 
 from ..grid import GridGeometry
 
-__all__ = ["VehicleBody", "PoseChecks", "Event", "Margins", "check_poses", "densify", "unsafe_events",
-           "track_poses", "WHEELS"]
+__all__ = ["VehicleBody", "PoseChecks", "Event", "Margins", "Gate", "check_poses", "densify", "gate_poses",
+           "unsafe_events", "track_poses", "WHEELS"]
 
 READ_LOW_P99 = 0.051  # m: the ToF's DEM at 5 cm, marsyard (docs/NAVIGATE_BENCH.md, Error budget)
 TRACKING_P99 = 0.03  # m: the see loop's true track from its planned legs, worst mission p99
@@ -252,6 +252,54 @@ def check_poses(heights: np.ndarray | tuple[np.ndarray, np.ndarray], geom: GridG
     excess = np.column_stack([relief.max(axis=1) - body.climb, intrusion, tilt - body.tilt])
     return PoseChecks(relief=relief, intrusion=intrusion, tilt=tilt, excess=excess, wheel=relief.argmax(axis=1),
                       unknown=unknown)
+
+
+@dataclass(frozen=True)
+class Gate:
+    """The verdict on a motion before the rover executes it (:func:`gate_poses`): ``safe``, or the
+    first pose that is not, why (``unsafe``: judged and over a limit; ``unknown``: ground under it
+    no bound covers) and the ground to blame: the highest upper bound under the body over its
+    lowest wheel ground (a rock's top; the body's middle for a tilt), or the middle of the unseen
+    ground under it. ``kind`` names the worst excess as :class:`Event` does."""
+
+    verdict: str
+    index: int = -1
+    x: float = math.nan
+    y: float = math.nan
+    kind: str = ""
+    excess: float = 0.0
+
+
+def gate_poses(lower: np.ndarray, upper: np.ndarray, geom: GridGeometry, poses: np.ndarray,
+               body: VehicleBody) -> Gate:
+    """The worst-case check of ``poses`` (in the order the rover passes them) on bounds: the first
+    that is not safe stops the motion. Unknown ground is never safe (ACE's rule: a false negative
+    is never accepted); the caller looks at it or plans round it."""
+    poses = np.atleast_2d(np.asarray(poses, float))
+    checks = check_poses((lower, upper), geom, poses, body)
+    bad = np.flatnonzero(~checks.safe)
+    if not len(bad):
+        return Gate("safe")
+    i = int(bad[0])
+    pts, _, _, _ = _pattern(body, geom.cell)
+    x, y, heading = poses[i]
+    c, s = math.cos(math.radians(heading)), math.sin(math.radians(heading))
+    wx, wy = x + c * pts[:, 0] - s * pts[:, 1], y + s * pts[:, 0] + c * pts[:, 1]
+    hi = _sample(upper, geom, wx, wy)
+    if checks.unknown[i]:
+        at = np.isnan(hi) | np.isnan(_sample(lower, geom, wx, wy))
+        return Gate("unknown", i, float(wx[at].mean()), float(wy[at].mean()), "unknown")
+    excess = checks.excess[i] / np.array([body.climb, body.clearance, body.tilt])
+    worst = int(np.argmax(excess))
+    kind = (f"wheel {WHEELS[checks.wheel[i]]}", "belly", "tilt")[worst]
+    if worst == 2 or np.isnan(hi).all():
+        return Gate("unsafe", i, float(x), float(y), kind, float(checks.excess[i, worst]))
+    top = int(np.nanargmax(hi))
+    # a top bounded only by a ray that passed over it (no return there) is ground not yet seen,
+    # which a look may clear: unknown, not a rock
+    seen = np.isfinite(_sample(lower, geom, wx[top:top + 1], wy[top:top + 1]))[0]
+    return Gate("unsafe" if seen else "unknown", i, float(wx[top]), float(wy[top]), kind if seen else "unknown",
+                float(checks.excess[i, worst]))
 
 
 def unsafe_events(checks: PoseChecks, poses: np.ndarray, body: VehicleBody) -> list[Event]:

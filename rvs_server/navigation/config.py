@@ -67,6 +67,18 @@ class SeeConfig(Settings):
                                   "standing (three ToF frames, this far either side of ahead: the ground behind "
                                   "too, which a goal near the map's edge needs) and matches what they saw on the "
                                   "global DEM", unit="deg", min=0.0, max=150.0, option=False)
+    gate: str = param("bounds", "see loop: the last check before every motion the rover makes: bounds runs the "
+                      "body's wheel, belly and tilt check worst case on a map of each cell's lower and upper "
+                      "height bounds (never moving onto ground no frame bounded: it looks there first, then stops "
+                      "and plans round it); off trusts the 5 cm maps' hazard check alone", choices=("bounds", "off"),
+                      option=False)
+    gaze: str = param("path", "see loop: where the ToF looks while driving: path pans along the path (the ground a "
+                      "turn will put under the wheels) and every other frame looks at the path just ahead at the "
+                      "lowest tilt (where the gate judges next); off holds pan 0 and see_tilt",
+                      choices=("path", "off"), option=False)
+    gate_ahead: float = param(0.5, "see loop: the gate also holds this much of the path past the next motion to "
+                              "assessed ground, so the rover stops and replans before it stands at the problem",
+                              unit="m", min=0.0, max=3.0, option=False)
     max_replans: int = param(100, "see loop: give up after this many plans in all", min=1, max=10000, option=False)
 
 

@@ -72,7 +72,17 @@ class Mission:
         self.scans = 0
         self.leg_starts: list[tuple[float, float]] = []
         self.stalled = 0  # legs in a row that started where the previous one did
+        self._place()
+        # made where the rover starts: the see strategy's maps cover the start and the goal
         self.strategy: Strategy = SeeStrategy(self) if cfg.loop == "see" else ScanStrategy(self)
+
+    def _place(self) -> None:
+        """navigate -start: the rover is set down there."""
+        app, cfg = self.app, self.cfg
+        if cfg.start:
+            heading = cfg.start[2] if len(cfg.start) == 3 else app.pose.heading
+            app.set_pose(cfg.start[0], cfg.start[1], heading, source="navigate")
+            self.rover.place((cfg.start[0], cfg.start[1], heading))
 
     # -- what the strategies share ---------------------------------------------------------
     def progress(self, leg: int, done: int, total: int, message: str, phase: str = "") -> None:
@@ -108,10 +118,6 @@ class Mission:
     # -- the legs ----------------------------------------------------------------------------
     def run(self) -> dict[str, Any]:
         app, cfg, goal, strategy = self.app, self.cfg, self.goal, self.strategy
-        if cfg.start:
-            heading = cfg.start[2] if len(cfg.start) == 3 else app.pose.heading
-            app.set_pose(cfg.start[0], cfg.start[1], heading, source="navigate")
-            self.rover.place((cfg.start[0], cfg.start[1], heading))
         self.track.add((app.pose.x, app.pose.y, app.pose.heading))
         for _ in range(strategy.max_plans):
             self.job.check()

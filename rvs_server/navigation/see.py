@@ -39,19 +39,23 @@ import numpy as np
 
 from drivers.rover import Motion
 from drivers.tof.constants import FOV_V_DEG
+from prox_workflows.steps.bounds_map import BoundsMap
 from prox_workflows.steps.hazard_monitor import rover_points
+from prox_workflows.steps.noise import tof_height_variance, tof_horizontal_sigma
 from prox_workflows.steps.planner import NavMaps
 from prox_workflows.steps.replan import Replanner
 from prox_workflows.steps.rolling_map import (
     MapMemory,
     RollingMap,
     RollingParams,
+    mark_points,
     mark_unseen,
     path_poses,
     sweep_check,
 )
 from prox_workflows.steps.safety import in_footprint
 from prox_workflows.steps.transforms import HeadCalibration, T_global_from_rover
+from prox_workflows.steps.vehicle import Gate, densify, gate_poses
 from rvs_params.hazard import HAZARDOUS, SAFE
 
 from ..jobs import device_call
@@ -67,6 +71,13 @@ if TYPE_CHECKING:
     from .mission import Mission
 
 
+GAZE_NEAR, GAZE_FAR = 0.9, 1.8  # m along the path: where the near and the far frames of the gaze look
+GAZE_PAN = 60.0  # deg: the gaze pans along the path at most this far off the heading
+EDGE_JUMP = 0.02  # share of the range: a bigger jump to a neighbouring pixel marks a depth edge's mixed pixel
+BODY_MARGIN = 0.06  # m round the rover's box and wheels whose returns are its own
+BLIND_EDGE = 0.1  # m past the mast's blind disc that its rays only graze (bounded by a ray, seldom by returns)
+ROCK_RADIUS = 3.0  # m round the rover within which a replan reads rocks off the bounds map (the ToF's 3 m)
+GATE_PAD = 4.0  # m round the mission's start and goal that the gate's bounds map covers (past it: unknown)
 STALL_CYCLES = 20  # a leg driven this many cycles without getting STALL_PROGRESS closer to its end is stalled
 STALL_PROGRESS = 0.05  # m
 
@@ -111,10 +122,14 @@ class SeeingDriver:
     """One navigate's see loop: the rolling map lives for the whole mission."""
 
     def __init__(self, job: Job, rover: Any, params: SeeConfig, stats: LoopStats,
-                 memory: MapMemory | None = None) -> None:
+                 memory: MapMemory | None = None, bounds: BoundsMap | None = None) -> None:
         self.job = job
         self.app: App = job.app
         self.rover = rover
+        self.body = rover.body()
+        # the vehicle gate's map (see_gate bounds): every frame's bounds over the whole mission
+        self.bounds = bounds
+        self.vetoed: list[tuple[float, float]] = []  # ground the gate stopped the rover at: rocks to plan round
         self.p = params
         self.stats = stats
         head = self.app.config.get("head")
@@ -127,6 +142,7 @@ class SeeingDriver:
         self.radius = math.hypot(head.rover_length, head.rover_width) / 2 + self.map.params.cell
         self.level = "clear"
         self.pan_tilt = (0.0, params.tilt)  # where the ToF points (what the PTU reached)
+        self.frame_no = 0  # frames taken while driving (the gaze alternates far and near)
         # the maps the leg was planned on (the scans and the rolling map then) on the rolling map's
         # grid, as traversability: the check counts the ground they saw as seen
         self.known: NavMaps | None = None
@@ -141,6 +157,24 @@ class SeeingDriver:
         reached = device_call(self.job, self.app.devices.get("ptu").move, pan,
                               self.p.tilt if tilt is None else tilt, True)
         self.pan_tilt = (float(reached[0]), float(reached[1]))
+
+    def gaze(self, pose: tuple[float, float, float], remaining: np.ndarray) -> None:
+        """Where the ToF looks for this cycle's frame (``see_gaze path``): the mast pans along the
+        path, not the heading, so the ground a turn will put under the wheels is seen before the
+        turn; every other frame it looks at the path ``GAZE_NEAR`` m ahead at the PTU's lowest
+        tilt, where the gate judges next (closer, so with a third of the range noise), and
+        otherwise at the point ``GAZE_FAR`` m ahead at ``see_tilt``, as the 5 cm maps' check
+        needs. Off: pan 0, ``see_tilt``."""
+        if self.p.gaze == "off":
+            return
+        self.frame_no += 1
+        near = self.frame_no % 2 == 0
+        ahead = path_poses(pose, remaining, GAZE_NEAR if near else GAZE_FAR, step=0.05)[-1]
+        pan, _ = self.head.look_at(np.array([*in_rover_frame(pose, ahead[0], ahead[1]), 0.0]))
+        pan = max(-GAZE_PAN, min(GAZE_PAN, round(pan / 5.0) * 5.0))  # 5-degree steps: fewer moves
+        tilt = self._lowest_tilt() if near else self.p.tilt
+        if (pan, tilt) != self.pan_tilt:
+            self._point(pan, tilt)
 
     def pose(self) -> tuple[float, float, float]:
         """The rover's belief: the simulated rover's odometry, the GNC's last pose report."""
@@ -162,6 +196,14 @@ class SeeingDriver:
         world_pts = pts.astype(np.float64) @ T[:3, :3].T + T[:3, 3]
         self.map.follow(x, y)
         self.map.fuse(world_pts, ranges)
+        if self.bounds is not None:
+            # every pixel: a rock's top is read by the few returns on it, which a subsample drops
+            full = rover_points(xyz, T_rc, 1, self.p.max_range, amplitude, 0.1, EDGE_JUMP).astype(np.float64)
+            full = full[~self.on_body(full)] @ T[:3, :3].T + T[:3, 3]
+            origin = T[:3, :3] @ T_rc[:3, 3] + T[:3, 3]
+            self.bounds.fuse(full, np.sqrt(tof_height_variance(full, origin)), origin, self.p.max_range,
+                             tof_horizontal_sigma(full, origin))
+            self.bounds.stood((x, y, heading), float(T[2, 3]), self.body)
         self.stats.frame_ms.append((t1 - t0) * 1000)
         return (x, y, heading), t1
 
@@ -197,6 +239,27 @@ class SeeingDriver:
             return check, None
         near = sweep_check(trav, g, along(self.p.blind), self.length, self.width)
         return check, near if near.verdict == "unknown" else None
+
+    def on_body(self, pts: np.ndarray) -> np.ndarray:
+        """Rover-frame points on the rover itself (its box and wheels, a few centimetres grown):
+        the mast looking down and back sees its own deck and wheels, which are not ground."""
+        b = self.body
+        half_x = max(b.length / 2, b.wheelbase / 2 + b.wheel_radius) + BODY_MARGIN
+        half_y = max(b.width / 2, b.track / 2 + b.wheel_width / 2) + BODY_MARGIN
+        return (np.abs(pts[:, 0]) <= half_x) & (np.abs(pts[:, 1]) <= half_y)
+
+    def gate(self, pose: tuple[float, float, float], remaining: np.ndarray,
+             motion: np.ndarray | None = None) -> Gate:
+        """The vehicle gate: the body's worst-case check on the bounds map along the motion the
+        rover executes next (``motion``; by default from ``pose`` on along the path) and the next
+        ``gate_ahead`` metres of the path, every 2 cm of the body's travel, turns included."""
+        lead = np.asarray([pose] if motion is None else motion, dtype=np.float64).reshape(-1, 3)
+        poses = densify(np.vstack([lead, path_poses(tuple(lead[-1]), remaining, self.p.gate_ahead)]), 0.02,
+                        self.body)
+        reach = math.hypot(self.body.length, self.body.track + self.body.wheel_width) / 2 + 0.1
+        lower, upper, g = self.bounds.window(poses[:, 0].min() - reach, poses[:, 1].min() - reach,
+                                             poses[:, 0].max() + reach, poses[:, 1].max() + reach)
+        return gate_poses(lower, upper, g, poses, self.body)
 
     def _check_layer(self, pose: tuple[float, float, float]) -> np.ndarray:
         """The traversability the check sweeps: the rolling map's, lowered to 0 where the maps the
@@ -251,6 +314,21 @@ class SeeingDriver:
         self.job.check()
         return True
 
+    def look_round(self) -> None:
+        """Frames all round at the PTU's lowest tilt, the rover standing: the ground from the mast's
+        blind disc out to about 1.5 m, which the forward view at ``see_tilt`` starts beyond and
+        which a turn on the spot sweeps (the gate's bounds of it). After a scan: the scan's
+        views make the 5 cm maps only."""
+        tilt = self._lowest_tilt()
+        self.stats.looks += 1
+        self.job.progress(0, 1, f"looking round at tilt {tilt:.0f} deg: the ground the forward view starts beyond",
+                          phase="drive")
+        for pan in np.linspace(-150.0, 150.0, 9):  # 37.5 deg apart: the ToF spans 43.6 deg
+            self._point(pan, tilt)
+            self.see(self.pan_tilt)
+            self.job.check()
+        self.point_forward()
+
     def look(self, bearing: float, spread: float = 40.0) -> None:
         """Frames panned to ``bearing`` (deg from the rover's heading) and ``spread`` either side,
         the rover standing: the rolling map's view round the forward one."""
@@ -259,18 +337,33 @@ class SeeingDriver:
             self.see(self.pan_tilt)
             self.job.check()
 
-    def _stop_event(self, check: Any, pose: tuple[float, float, float]) -> dict[str, Any]:
+    def _stop_event(self, x: float, y: float, pose: tuple[float, float, float],
+                    reason: str = "hazard") -> dict[str, Any]:
         """The stop EVENT, shaped as the hazard monitor's (distance from the rover's front to the
-        hazard, bearing CCW from the heading, x and y in the rover frame)."""
-        rx, ry = in_rover_frame(pose, check.worst_x, check.worst_y)
+        hazard at global (x, y), bearing CCW from the heading, x and y in the rover frame), with
+        why: ``hazard`` (the 5 cm maps' hazard), ``vehicle`` (the gate: the body would exceed a
+        limit on the worst ground the bounds allow), ``unknown`` (the gate: ground no frame
+        bounded, which a look did not show)."""
+        rx, ry = in_rover_frame(pose, x, y)
         distance = max(0.0, rx - self.app.config.get("head").rover_length / 2 - self.map.params.cell / 2)
         self.stats.stops += 1
-        fields = {"kind": "hazard", "level": "stop", "distance": Fixed(distance, 2),
+        fields = {"kind": "hazard", "level": "stop", "reason": reason, "distance": Fixed(distance, 2),
                   "bearing": Fixed(math.degrees(math.atan2(ry, rx)), 1), "x": Fixed(rx, 2), "y": Fixed(ry, 2),
-                  "seen": "true", "cycle": self.stats.cycles, "job": self.job.id, "source": "navigate"}
+                  "seen": "false" if reason == "unknown" else "true", "cycle": self.stats.cycles,
+                  "job": self.job.id, "source": "navigate"}
         self.level = "stop"
         self.app.broadcast_threadsafe(Reply("RVS", "EVENT", fields))
-        return {"distance": distance, "x": rx, "y": ry}
+        return {"distance": distance, "x": rx, "y": ry, "reason": reason}
+
+    def gate_stop(self, gate: Gate, pose: tuple[float, float, float]) -> dict[str, Any]:
+        """The gate stopped the rover: the EVENT, and the ground it blamed kept out of every later
+        plan (the 5 cm maps may call it safe; the next plan would drive there again)."""
+        self.vetoed.append((gate.x, gate.y))
+        self.job.progress(0, 1, f"stopped: {gate.kind} {'+' if gate.excess > 0 else ''}"
+                                f"{gate.excess * (1 if gate.kind == 'tilt' else 100):.1f}"
+                                f"{' deg' if gate.kind == 'tilt' else ' cm' if gate.kind != 'unknown' else ''} "
+                                f"at ({gate.x:.2f}, {gate.y:.2f})", phase="drive")
+        return self._stop_event(gate.x, gate.y, pose, "unknown" if gate.verdict == "unknown" else "vehicle")
 
     def _clear(self) -> None:
         if self.level != "clear":
@@ -325,10 +418,14 @@ class SeePilot:
     def _watch(self, pose: tuple[float, float, float]) -> None:
         self._advance(pose, self.segments - 1)
         check, _, seen_at = self.d.cycle(self.wps[self.k:])
+        gate = self.d.gate(seen_at, self.wps[self.k:]) if self.d.bounds is not None else Gate("safe")
+        if self.hazard is not None:  # once per leg: the GNC is stopping
+            return
         if check.verdict == "not_traversable":
-            if self.hazard is None:  # once per leg: the GNC is stopping
-                self.hazard = self.d._stop_event(check, seen_at)
-        elif self.hazard is None:
+            self.hazard = self.d._stop_event(check.worst_x, check.worst_y, seen_at)
+        elif gate.verdict != "safe":
+            self.hazard = self.d.gate_stop(gate, seen_at)
+        else:
             self.d._clear()
 
     def _end(self, kind: str, done: int, hazard: dict[str, Any] | None = None) -> None:
@@ -337,6 +434,7 @@ class SeePilot:
     def _steer(self) -> Motion | None:
         d, wps, segments, p = self.d, self.wps, self.segments, self.d.p
         speed, turn_rate = d.rover.speeds()
+        d.gaze(d.pose(), wps[self.k:])
         pose, t1 = d.see(d.pan_tilt)
         d.job.check()
         self._advance(pose, segments)
@@ -370,19 +468,29 @@ class SeePilot:
         d.stats.cycles += 1
         d.stats.cycle_ms.append((time.monotonic() - t1) * 1000)
         if check.verdict == "not_traversable":
-            return self._end("hazard", k - 1, d._stop_event(check, pose))
-        d._clear()
+            return self._end("hazard", k - 1, d._stop_event(check.worst_x, check.worst_y, pose))
         # unseen ground ahead: the rover stops and looks (a turn on the spot comes first, after
         # which that ground lies ahead and the look is a tilt, not a pan)
         if unseen is not None and w is not None and d.look_at(unseen.worst_x, unseen.worst_y, pose):
             check, unseen = d.judge(pose, wps[k:], motion)
             d.point_forward()
             if check.verdict == "not_traversable":
-                return self._end("hazard", k - 1, d._stop_event(check, pose))
+                return self._end("hazard", k - 1, d._stop_event(check.worst_x, check.worst_y, pose))
         if unseen is not None and w is not None and self.strict:
             self.progress(1, 1, f"stopped: ground {unseen.unknown_cells} cells under the next {p.blind:g} m unseen",
                           "stop")
             return self._end("unseen", k - 1)
+        if d.bounds is not None:
+            gate = d.gate(pose, wps[k:], motion)
+            # ground no frame bounded, or a rock at the edge of what the body passes: one look at
+            # it (tilted down, panned to it, from closer than the forward view saw it) before the
+            # stop; the bounds narrow with every frame of it
+            if gate.verdict != "safe" and d.look_at(gate.x, gate.y, pose):
+                gate = d.gate(pose, wps[k:], motion)
+                d.point_forward()
+            if gate.verdict != "safe":
+                return self._end("hazard", k - 1, d.gate_stop(gate, pose))
+        d._clear()
         return Motion.face(tx, ty) if w is None else Motion.arc(speed, w, dt)
 
 
@@ -409,7 +517,17 @@ class SeeStrategy:
         # as a plan from the start would have it) so that it changes only where the maps grow
         self.cover = [(self.app.pose.x, self.app.pose.y), mission.goal]
         memory = MapMemory.covering(self.cover, self.p.memory, RollingParams().cell) if self.p.memory > 0 else None
-        self.driver = SeeingDriver(self.job, mission.rover, self.p, self.stats, memory)
+        bounds = BoundsMap.covering(self.cover, GATE_PAD) if self.p.gate == "bounds" else None
+        self.driver = SeeingDriver(self.job, mission.rover, self.p, self.stats, memory, bounds)
+        if bounds is not None:
+            # the rover was set down here: the ground round the mast's foot, which no tilt shows,
+            # and the disc its body turns in are taken as clear (the one place the gate assumes
+            # what it has not seen)
+            x, y = self.app.pose.x, self.app.pose.y
+            z = ground_height(self.app.maps.layers, x, y)
+            fx, fy, radius = self.driver.blind_disc()
+            bounds.set_down((fx, fy), radius + BLIND_EDGE, z)
+            bounds.set_down((x, y), self.driver.radius, z)
         head = self.app.config.get("head")
         # how far round the rover unseen ground cannot be seen before the body is on it: the
         # checked stretch plus the half body ahead of the rover's centre
@@ -458,6 +576,8 @@ class SeeStrategy:
         made from them and what the rover sees next."""
         self.need_scan = False
         self.scan = local
+        if self.driver.bounds is not None:
+            self.driver.look_round()
         self.mast_foot = self.driver.blind_disc()
         self.scan_frame = self.driver.map.frames
         self.stats.scans += 1
@@ -517,6 +637,12 @@ class SeeStrategy:
         merged = self.merged()
         if self.mast_foot is not None and self.p.unseen != "off":
             merged = mark_unseen(merged, self.mast_foot[:2], 0.0, self.mast_foot[2], SAFE)
+        if self.driver.bounds is not None:
+            # the gate's own view for the plan: rocks on the bounds (the 5 cm means read them low)
+            # and the ground the gate stopped the rover at
+            body = self.driver.body
+            rocks = self.driver.bounds.rocks(here, ROCK_RADIUS, min(body.climb, body.clearance))
+            merged = mark_points(merged, [*map(tuple, rocks), *self.driver.vetoed], HAZARDOUS)
         self.driver.known = merged
 
         def attempt(maps: NavMaps) -> Any:

@@ -64,7 +64,7 @@ def _sim_rover(feed: Feed | None = None) -> tuple[Rover, World]:
 
 def test_the_registry_offers_both_backends_and_a_sim_rover_needs_a_world() -> None:
     reg = registry("rover")
-    assert reg.names() == ["gnc", "sim"]  # the default first: a real rover's GNC drives
+    assert reg.names() == ["gnc", "replay", "sim"]  # the default first: a real rover's GNC drives
     assert reg.settings_class()().backend == "gnc"
     with pytest.raises(DeviceError, match="drivers.rover.backend=gnc"):
         create({"backend": "sim"}, None).open()

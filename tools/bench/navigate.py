@@ -204,11 +204,6 @@ def ceiling_layers(fine: np.ndarray, g: GridGeometry, box: int) -> dict[str, np.
 TRACK_STEP = 0.02  # m: the truth check's pose spacing (no point of the body moves farther between two)
 
 
-def vehicle_body(world: World) -> RoverBody:
-    """The body the scene declares (its ``rover: body:`` block over :class:`RoverBody`)."""
-    return RoverBody.from_spec((world.spec.get("rover") or {}).get("body"))
-
-
 _TRUTH: dict[str, tuple[np.ndarray, GridGeometry, GridGeometry]] = {}
 
 
@@ -416,7 +411,7 @@ def run_mission(scene: str, mode: str, start: tuple[float, float], goal: tuple[f
             # navigate leaves its track whenever the rover moved
             poses = read_track(track_file) if track_file.exists() else np.array([(*start, heading)])
             out["track_heading"] = bool(track_file.exists() and "heading" in track_file.read_text().split("\n", 1)[0])
-            body = vehicle_body(world)
+            body = world.body
             surface = truth_surface(world, scene)
             events, checked = vehicle_check(poses, surface, body)
             out["events"] = [{"kind": e.kind, "excess": e.excess, "x": round(e.x, 2), "y": round(e.y, 2),
@@ -725,7 +720,7 @@ def main(argv: list[str] | None = None) -> None:
     missing = [f for f in args.tracking_from if not Path(f).is_file()]
     if missing:
         ap.error(f"--tracking-from: no such file {missing[0]} (a run's --out JSON)")
-    body = vehicle_body(World.from_scene(args.scenes[0]))
+    body = World.from_scene(args.scenes[0]).body
     if args.derived:
         t = Margins().thresholds(body)
         args.set += [f"dem2hazard.step_max={t['step_max']}", f"dem2hazard.slope_max={t['slope_max']}",
