@@ -1,144 +1,22 @@
-"""Shared fixtures: a real server on a real TCP port, in a background thread, and a line client."""
+"""The fixtures every test may ask for: a real server on a real TCP port (``server_factory``,
+``server``), a line client to it (``client``) and simulated time for its monitors (``sim_time``).
+What they are built on lives in ``tests/support``."""
 
 from __future__ import annotations
 
-import os
-import socket
-import time
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
 import pytest
 from hypothesis import HealthCheck, settings
-from simtime import SimTime
-
-from rvs_server.client import session
-from rvs_server.protocol import Reply, parse_reply
-
-FINAL = ("OK", "ERROR")
-LONG = os.environ.get("RVS_LONG", "") == "1"
-long = pytest.mark.long  # RVS_LONG=1 runs this test longer (more examples, seeds, kill points, ...)
-
-
-def long_suite(obj: Any) -> Any:
-    """A test (or a ``pytest.param``'s marks) that runs only with RVS_LONG=1, where a shorter
-    version of the same check runs always; CI's second pass (``-m long``) runs it."""
-    skip = pytest.mark.skipif(not LONG, reason="long suite: run with RVS_LONG=1 (see docs/RELIABILITY.md)")
-    return long(skip(obj))
-
-
-def long_test(fn: Any) -> Any:
-    """A whole test that runs only with RVS_LONG=1 (the long suite CI runs after the default one)."""
-    for mark in long_only():
-        fn = mark(fn)
-    return fn
-
-
-def long_only() -> list[Any]:
-    """The marks of a ``pytest.param`` that runs only with RVS_LONG=1."""
-    return [long, pytest.mark.skipif(not LONG, reason="long variant: run with RVS_LONG=1")]
+from support.server import LineClient, ServerThread
+from support.simtime import SimTime
 
 # Hypothesis times its examples (a 200 ms deadline, the too_slow health check): that is the
 # machine's speed, which no test may depend on. Tests that set their own settings keep them.
 settings.register_profile("rvs", deadline=None, suppress_health_check=[HealthCheck.too_slow])
 settings.load_profile("rvs")
-
-
-class LineClient:
-    """A plain socket client: what a GNC program would do, with no help from the server's code."""
-
-    def __init__(self, port: int, host: str = "127.0.0.1", timeout: float = 60.0) -> None:
-        # The timeout is a safety net against a hang, not a speed bound: a loaded machine may
-        # take seconds between two lines of a job.
-        self.sock = socket.create_connection((host, port), timeout=timeout)
-        self.buf = b""
-        self.timeout = timeout
-        self.greeting = self.line()
-
-    def send(self, text: str | bytes) -> None:
-        data = text if isinstance(text, bytes) else text.encode()
-        if not data.endswith(b"\n"):
-            data += b"\n"
-        self.sock.sendall(data)
-
-    def line(self, timeout: float | None = None) -> str:
-        self.sock.settimeout(timeout or self.timeout)
-        while b"\n" not in self.buf:
-            chunk = self.sock.recv(65536)
-            if not chunk:
-                raise ConnectionError("server closed the connection")
-            self.buf += chunk
-        raw, self.buf = self.buf.split(b"\n", 1)
-        return raw.decode().rstrip("\r")
-
-    def reply(self, timeout: float | None = None) -> Reply:
-        return parse_reply(self.line(timeout))
-
-    def until_final(self, timeout: float | None = None, job: str | None = None) -> list[Reply]:
-        """Replies up to the final line (of ``job`` if given; an ACK makes the job the target)."""
-        out: list[Reply] = []
-        while True:
-            r = self.reply(timeout)
-            out.append(r)
-            if r.status == "ACK" and job is None:
-                job = r.fields["job"]
-                continue
-            if r.status in FINAL and (job is None or r.fields.get("job") == job):
-                return out
-
-    def start_job(self, text: str, timeout: float | None = None) -> str:
-        """Send a job request and return its job id (EVENT lines before the ACK are skipped)."""
-        self.send(text)
-        while True:
-            r = self.reply(timeout)
-            if r.status == "ACK":
-                return r.fields["job"]
-            if r.status in FINAL:
-                raise AssertionError(f"job refused: {r}")
-
-    def request(self, text: str, timeout: float | None = None) -> Reply:
-        """Send one request and return its final line (skipping EVENT and PROGRESS lines)."""
-        self.send(text)
-        return self.until_final(timeout)[-1]
-
-    def lines_before_status(self) -> list[Reply]:
-        """Every line received before the answer to a status sent now: the server writes a
-        connection's lines in order, so this collects the events caused by what came before."""
-        self.send("status")
-        out: list[Reply] = []
-        while True:
-            r = self.reply()
-            if r.module == "EGP-RVS-STATUS":
-                return out
-            out.append(r)
-
-    def __enter__(self) -> LineClient:
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()
-
-    def close(self) -> None:
-        self.sock.close()
-
-
-class ServerThread(session.ServerThread):
-    """The real server in a thread, with the tests' settings and a ``data`` folder."""
-
-    def __init__(self, data: Path, overrides: list[str] | None = None, config_dir: str | None = None) -> None:
-        # warm_up off: a hundred short-lived test servers would each load the numba kernels
-        # sim.time_scale=0: the rover drives, and frames take, their simulated time in no wall time
-        sets = [f"server.data={data}", "server.port=0", "drivers.ptu.time_scale=0", "sim.time_scale=0",
-                "server.warm_up=false", "server.web_port=0", "server.foxglove_port=0", *(overrides or [])]
-        super().__init__(sets, config_dir)
-        self.data = data
-
-    def client(self, **kw: Any) -> LineClient:
-        return LineClient(self.port, **kw)
-
-    def stop(self, timeout: float = 20.0) -> None:
-        super().stop(timeout)
 
 
 @pytest.fixture
@@ -169,7 +47,7 @@ def client(server: ServerThread) -> Iterator[LineClient]:
 
 @pytest.fixture
 def sim_time(monkeypatch: pytest.MonkeyPatch) -> Iterator[Any]:
-    """``sim_time(app, frame, on_frame)``: run a server's monitors in simulated time (tests/simtime.py)."""
+    """``sim_time(app, frame, on_frame)``: run a server's monitors in simulated time (tests/support/simtime.py)."""
     made: list[SimTime] = []
 
     def make(app: Any, frame: float, on_frame: Any = None) -> SimTime:
@@ -179,13 +57,3 @@ def sim_time(monkeypatch: pytest.MonkeyPatch) -> Iterator[Any]:
     yield make
     for sim in made:
         sim.close()
-
-
-def wait_for(predicate: Any, timeout: float = 60.0, interval: float = 0.01) -> bool:
-    """Poll until ``predicate()`` is true; the timeout is a safety net, not a speed bound."""
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        if predicate():
-            return True
-        time.sleep(interval)
-    return predicate()

@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from conftest import long_only
 from scipy import ndimage
+from support.marks import long_only
 
 from prox_workflows.grid import GridGeometry, read_geotiff
 from prox_workflows.steps.dem_chain import resample_nearest
@@ -37,7 +37,7 @@ def three_dems(request, tmp_path_factory):
     from pathlib import Path
 
     sys.path.insert(0, str(Path(__file__).parent))
-    from conftest import ServerThread
+    from support.server import ServerThread
 
     srv = ServerThread(tmp_path_factory.mktemp(request.param), [f"server.scene={request.param}"]).start()
     try:

@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 import rasterio
 import yaml
-from conftest import long_only, long_test
 from scipy import ndimage
+from support.marks import long_only, long_test
 
 from prox_workflows.grid import GridGeometry, read_geotiff
 from prox_workflows.steps.dem_chain import resample_nearest

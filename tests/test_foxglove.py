@@ -17,9 +17,9 @@ from typing import Any
 import aiohttp
 import numpy as np
 import pytest
-from conftest import wait_for
 from google.protobuf import descriptor_pb2, descriptor_pool, message_factory
 from scipy.spatial.transform import Rotation
+from support.server import wait_for
 
 from prox_workflows.grid import read_geotiff
 

@@ -8,7 +8,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import pytest
-from conftest import long_test
+from support.marks import long_test
 
 from tools.bench.fusion import band_rmse, evaluation_cells, load_scan, scan_scene, sensor_dems
 

@@ -10,12 +10,12 @@ import threading
 
 import numpy as np
 import pytest
+from support.server import ServerThread
 
 from prox_workflows.grid import GridGeometry, Layers
 from prox_workflows.steps.planner import MAX_PLAN_CELLS
 from prox_workflows.steps.safety import MAX_SWEEP_CELLS
 from rvs_server.commands import navigation
-from tests.conftest import ServerThread
 
 # a 10 m x 10 m map of 5 cm cells, all drivable, around the rover at the origin
 G = GridGeometry(0.05, -5.0, 5.0, 200, 200)

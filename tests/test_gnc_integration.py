@@ -11,7 +11,7 @@ from pathlib import Path
 
 import pytest
 import yaml
-from conftest import LineClient, ServerThread
+from support.server import LineClient, ServerThread
 
 from rvs_server.protocol import Reply
 

@@ -15,7 +15,8 @@ from typing import Any
 
 import numpy as np
 import pytest
-from conftest import long_test, wait_for
+from support.marks import long_test
+from support.server import wait_for
 
 STOP, WARN, WIDTH, ROVER_LENGTH = 0.5, 1.0, 0.6, 0.51
 SPEED = 0.7  # m/s, the Pioneer 3-AT's top speed

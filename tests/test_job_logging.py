@@ -8,7 +8,7 @@ import json
 import time
 from typing import Any
 
-from conftest import wait_for
+from support.server import wait_for
 
 
 def _log(srv: Any) -> list[dict[str, Any]]:

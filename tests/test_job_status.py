@@ -6,7 +6,7 @@ from __future__ import annotations
 import json
 
 import pytest
-from conftest import wait_for
+from support.server import wait_for
 
 from rvs_server.jobs import HISTORY
 

@@ -10,8 +10,8 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from conftest import ServerThread
 from jsonschema import Draft202012Validator
+from support.server import ServerThread
 
 from rvs_server.client import console as rvs_client
 from rvs_server.client import replay

@@ -13,7 +13,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from conftest import wait_for
+from support.server import wait_for
 
 ROOT = Path(__file__).resolve().parents[1]
 PACKAGES = ("prox_workflows", "rvs_server", "rvs_params", "drivers")

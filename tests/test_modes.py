@@ -5,9 +5,9 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from conftest import LineClient
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
+from support.server import LineClient
 
 BLOCKING = ("standby", "break", "fault")
 

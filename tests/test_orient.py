@@ -10,7 +10,7 @@ from __future__ import annotations
 import math
 
 import pytest
-from conftest import long_only, long_test
+from support.marks import long_only, long_test
 
 STEPS = [(1.0, 0.0, 0.0), (1.0, 0.0, 6.0), (1.0, 0.0, -8.0), (1.0, 0.0, 3.0)]
 

@@ -14,8 +14,9 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from conftest import LineClient, long_test, wait_for
 from mcap.reader import make_reader
+from support.marks import long_test
+from support.server import LineClient, wait_for
 
 from rvs_server.client.session import ServerProcess
 from rvs_server.telemetry import link as telemetry_link

@@ -9,7 +9,7 @@ from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
-from conftest import long_test
+from support.marks import long_test
 
 from rvs_server import __version__
 from rvs_server.client import replay

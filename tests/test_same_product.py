@@ -11,7 +11,8 @@ from typing import Any
 import numpy as np
 import pytest
 import tifffile
-from conftest import ServerThread, long_only
+from support.marks import long_only
+from support.server import ServerThread
 
 from prox_workflows.cli import dem2hazard as cli_dem2hazard
 from prox_workflows.cli import dem_import as cli_dem_import

@@ -13,7 +13,7 @@ import time
 from pathlib import Path
 
 import yaml
-from conftest import LineClient, wait_for
+from support.server import LineClient, wait_for
 
 from rvs_server.protocol import parse_reply
 from rvs_server.table import COMMANDS, command

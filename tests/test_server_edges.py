@@ -15,7 +15,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from conftest import LineClient
+from support.server import LineClient
 
 from rvs_server.protocol import parse_reply
 

@@ -24,7 +24,8 @@ from typing import Any
 import numpy as np
 import pytest
 import yaml
-from conftest import ServerThread, long_test
+from support.marks import long_test
+from support.server import ServerThread
 
 from prox_workflows.grid import GridGeometry, read_geotiff, write_geotiff
 from rvs_params.hazard import HAZARDOUS

@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 import tifffile
 import yaml
-from conftest import ServerThread
+from support.server import ServerThread
 
 from prox_workflows.batch import (
     close_client,

@@ -12,8 +12,8 @@ from __future__ import annotations
 import threading
 
 import pytest
-from conftest import LONG, long_only
 from ptu_rig import bench
+from support.marks import LONG, long_only
 
 from drivers.base import DeviceError
 from drivers.ptu.client import MoveInterrupted, PtuClient

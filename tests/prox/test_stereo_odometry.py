@@ -11,7 +11,7 @@ import cv2
 import numpy as np
 import pytest
 import yaml
-from conftest import long_suite
+from support.marks import long_suite
 
 from prox_workflows.cli.odometry import main
 from prox_workflows.steps.stereo_odometry import ORDER, stereo_odometry

@@ -25,7 +25,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from conftest import LONG, long, long_suite  # noqa: F401 - the suites import them from here
+from support.marks import LONG, long, long_suite  # noqa: F401 - the suites import them from here
 
 from rvs_server import commands as _commands  # noqa: F401 - fills the command table
 from rvs_server.main import build_config

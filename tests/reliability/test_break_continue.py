@@ -26,8 +26,8 @@ from typing import Any
 
 import pytest
 import yaml
-from conftest import LineClient
 from reliability_harness import record
+from support.server import LineClient
 
 from rvs_server.protocol import Reply
 from rvs_server.table import COMMANDS

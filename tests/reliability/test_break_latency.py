@@ -14,7 +14,7 @@ from __future__ import annotations
 import time
 
 import pytest
-from conftest import LineClient
+from support.server import LineClient
 
 from rvs_server.protocol import Reply
 

@@ -23,8 +23,9 @@ import cv2
 import pytest
 import tifffile
 import yaml
-from conftest import LineClient, long_test
 from reliability_harness import FAST, LONG, record
+from support.marks import long_test
+from support.server import LineClient
 
 from prox_workflows.grid import read_geotiff
 from prox_workflows.pointcloud import read_ply

@@ -16,7 +16,6 @@ import time
 from collections.abc import Iterator
 
 import pytest
-from conftest import LineClient, long_test
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from reliability_harness import (
@@ -37,6 +36,8 @@ from reliability_harness import (
     summarize,
     wait_until,
 )
+from support.marks import long_test
+from support.server import LineClient
 
 from rvs_server.client.session import ServerProcess
 

@@ -18,7 +18,6 @@ from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
-from conftest import LONG, LineClient, long
 from reliability_harness import (
     FAST,
     Plan,
@@ -32,6 +31,8 @@ from reliability_harness import (
     summarize,
     wait_until,
 )
+from support.marks import LONG, long
+from support.server import LineClient
 
 from rvs_server.client.session import ServerProcess
 from rvs_server.protocol import MAX_LINE, parse_reply

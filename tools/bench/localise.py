@@ -3,7 +3,7 @@
 Each mission is a real server (the tests' in-process ServerThread, simulated time at scale 0)
 with wheel slip 5 % and heading drift 2 deg/m (``sim slip``) and no GNC pose (``navigate
 -auto``), from a start to a goal 3.5-5 m away, both clear of true hazards (the seeded pick of
-tests/test_navigate.py). The global map is the scene's true DEM sampled at 0.5 m (what an
+tests/support/navigation.py). The global map is the scene's true DEM sampled at 0.5 m (what an
 orbiter's DTM would show), written as a GeoTIFF in UTM zone 33N coordinates and given to
 navigate with ``-global FILE -global-origin E,N``. For every mission and ``-localise`` mode it
 prints the end pose error (believed vs true) and the true distance to the goal; then a table,
@@ -110,8 +110,8 @@ def matcher_timing(trials: int, seed: int = 0) -> None:
 
 def main(argv: list[str] | None = None) -> int:
     sys.path.insert(0, str(ROOT / "tests"))
-    from conftest import ServerThread  # the tests' real server in a thread
-    from test_navigate import pick_start_goal
+    from support.navigation import pick_start_goal
+    from support.server import ServerThread  # the tests' real server in a thread
 
     from tools.bench.navigate import missions
 

@@ -17,8 +17,8 @@ from typing import Any
 import numpy as np
 import pytest
 import tifffile
-from conftest import long_suite
 from jsonschema import Draft202012Validator
+from support.marks import long_suite
 
 from drivers.rover import create as create_rover
 from drivers.sim.clock import SimClock
@@ -26,7 +26,7 @@ from drivers.sim.world import World
 from rvs_server.navigation.scan import WaypointPilot
 from rvs_server.navigation.track import Track
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 SCHEMA = Draft202012Validator(json.loads((ROOT / "docs" / "replies.schema.json").read_text()))
 
 

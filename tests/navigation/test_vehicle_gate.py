@@ -7,7 +7,7 @@ simulator's 1 cm surface."""
 from __future__ import annotations
 
 import pytest
-from conftest import long_only
+from support.marks import long_only
 
 from prox_workflows.grid import GridGeometry
 from tools.bench.navigate import fine_surface, read_track, vehicle_check

@@ -13,8 +13,9 @@ from typing import Any
 
 import numpy as np
 import pytest
-from conftest import long_only, wait_for
-from test_navigate import true_hazard
+from support.marks import long_only
+from support.navigation import true_hazard
+from support.server import wait_for
 
 from prox_workflows.grid import GridGeometry
 from prox_workflows.steps.dem2hazard import HazardParams, dem2hazard

@@ -12,41 +12,16 @@ import time
 import numpy as np
 import pytest
 import yaml
-from conftest import long_only, long_test
 from scipy import ndimage
+from support.marks import long_only, long_test
+from support.navigation import AREA, pick_start_goal, true_hazard
 
 from drivers.sim.world import World
 from prox_workflows.grid import GridGeometry
-from prox_workflows.steps.dem2hazard import HazardParams, dem2hazard
-
-AREA = {"office": (-2.5, -3.0, 5.5, 3.0), "quarry": (-3.0, -4.0, 7.0, 4.0), "marsyard": (-4.0, -6.0, 8.0, 6.0)}
-
-
-def true_hazard(world: World, bounds) -> tuple[np.ndarray, GridGeometry]:
-    g = GridGeometry.covering(*bounds, 0.05)
-    dem = world.true_dem(g.cell, g.bounds, include_target=False)
-    return dem2hazard(dem, g.cell, HazardParams())["hazard"], g
-
-
-def pick_start_goal(world: World, scene: str, seed: int) -> tuple[tuple[float, float], tuple[float, float]]:
-    """A start and a goal 3.5-5 m apart, both at least 1 m from any true hazard."""
-    hazard, g = true_hazard(world, AREA[scene])
-    clear = ndimage.distance_transform_edt(hazard != 255) * g.cell >= 1.0
-    clear &= hazard == 0
-    rows, cols = np.nonzero(clear)
-    xs, ys = g.centers()
-    rng = np.random.default_rng(seed)
-    for _ in range(1000):
-        i, j = rng.integers(len(rows), size=2)
-        s = (float(xs[cols[i]]), float(ys[rows[i]]))
-        e = (float(xs[cols[j]]), float(ys[rows[j]]))
-        if 3.5 <= np.hypot(e[0] - s[0], e[1] - s[1]) <= 5.0:
-            return s, e
-    raise AssertionError("no start/goal pair found")
 
 
 # all in the long suite (30 s each); the default run's office corner below asserts the same (reached, no
-# true hazard crossed), and tests/test_navigate_see.py drives marsyard
+# true hazard crossed), and tests/navigation/test_navigate_see.py drives marsyard
 @pytest.mark.parametrize("scene,seed", [pytest.param(scene, seed, marks=long_only())
                                         for seed in (1, 2, 3) for scene in ("quarry", "marsyard")])
 def test_navigate_reaches_the_goal_without_crossing_a_hazard(server_factory, scene: str, seed: int) -> None:

@@ -9,7 +9,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import long_test
+from support.marks import long_test
 
 from drivers.sim.world import World
 from prox_workflows.grid import GridGeometry, Layers, read_geotiff, write_geotiff
@@ -188,7 +188,7 @@ def _mission(server_factory, tmp_path: Path, mode: str, seed: int, loop: str = "
              far: bool = False) -> dict[str, float]:
     """A seeded mission with slip, the orbital DEM given as a UTM GeoTIFF with its origin: in the
     quarry over 3.5-5 m, or (``far``) the traverse benchmark's marsyard mission ``seed`` (15-20 m)."""
-    from test_navigate import pick_start_goal
+    from support.navigation import pick_start_goal
 
     from tools.bench.localise import ORIGIN, orbital_geotiff
     from tools.bench.navigate import missions
@@ -325,7 +325,7 @@ def test_the_localiser_corrects_a_drifted_pose_and_moves_the_legs_maps(hirise, m
 
     world, dem, geom = hirise
     rng = np.random.default_rng(3)
-    root = Path(__file__).resolve().parents[1]
+    root = Path(__file__).resolve().parents[2]
     schema = Draft202012Validator(json.loads((root / "docs" / "replies.schema.json").read_text()))
     ref = GlobalMap(np.zeros(geom.shape, np.uint8), np.zeros(geom.shape, np.float32), geom, dem)
     app = _App(Pose(0.0, 0.0, 0.0, source="navigate"))
