@@ -10,7 +10,7 @@ import pytest
 
 from prox_workflows.grid import GridGeometry
 from prox_workflows.steps.arcs import arc_poses, choose_arc, default_curvatures
-from prox_workflows.steps.planner import SQRT2, astar_grid
+from prox_workflows.steps.astar import SQRT2, astar_grid
 from prox_workflows.steps.replan import IncrementalPlanner
 
 G = GridGeometry(0.1, -5.0, 5.0, 100, 100)  # 10 x 10 m, x right, y up

@@ -14,7 +14,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from prox_workflows.steps.planner import SQRT2, PlanningError, astar_grid
+from prox_workflows.steps.astar import SQRT2, PlanningError, astar_grid
 from prox_workflows.steps.replan import IncrementalPlanner
 
 HEURISTICS = ("octile", "euclidean", "chebyshev")
@@ -239,7 +239,7 @@ def test_plain_python_kernels_agree() -> None:
     code = (
         "import numpy as np\n"
         "from prox_workflows.steps.replan import IncrementalPlanner\n"
-        "from prox_workflows.steps.planner import astar_grid\n"
+        "from prox_workflows.steps.astar import astar_grid\n"
         "rng = np.random.default_rng(4)\n"
         "for _ in range(5):\n"
         "    k = 0.5 + rng.uniform(0, 1, (12, 12)); k[rng.random((12, 12)) < 0.2] = np.inf\n"

@@ -2,12 +2,8 @@
 model of how many replies a byte stream must get, a fuzzing client for many connections, and
 /proc probes for a server's memory, file descriptors and listening sockets.
 
-Not a conftest (a second ``conftest.py`` would shadow ``tests/conftest.py`` for modules that do
-``from conftest import ...``); test modules import it by name, as ``tests/drivers`` does its rigs.
-
-The long versions of the suites run only with ``RVS_LONG=1``: ``long_suite`` marks the tests that
-run only then, ``long`` (the pytest marker) every test that ``RVS_LONG=1`` makes longer, so that
-CI's second pass (``RVS_LONG=1 pytest -m long``) runs exactly those and not the whole suite again.
+Test modules import it by name, as ``tests/drivers`` does its rigs. The long versions of the
+suites run only with ``RVS_LONG=1`` (the marks in ``tests/support/marks.py``).
 """
 
 from __future__ import annotations
@@ -25,7 +21,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from support.marks import LONG, long, long_suite  # noqa: F401 - the suites import them from here
+from support.marks import LONG
 
 from rvs_server import commands as _commands  # noqa: F401 - fills the command table
 from rvs_server.main import build_config

@@ -23,8 +23,8 @@ import cv2
 import pytest
 import tifffile
 import yaml
-from reliability_harness import FAST, LONG, record
-from support.marks import long_test
+from reliability_harness import FAST, record
+from support.marks import LONG, long_test
 from support.server import LineClient
 
 from prox_workflows.grid import read_geotiff

@@ -18,12 +18,12 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from reliability_harness import (
     IAC_SEQUENCE,
-    LONG,
     LineGen,
     close_iac,
     expects_reply,
     logical_line,
 )
+from support.marks import LONG
 
 from rvs_server.main import build_config
 from rvs_server.protocol import (

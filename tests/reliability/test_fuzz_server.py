@@ -20,7 +20,6 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from reliability_harness import (
     FAST,
-    LONG,
     LineGen,
     Plan,
     Sampler,
@@ -29,14 +28,13 @@ from reliability_harness import (
     fd_count,
     hazard,
     logical_line,
-    long_suite,
     make_plan,
     record,
     rss_kb,
     summarize,
     wait_until,
 )
-from support.marks import long_test
+from support.marks import LONG, long_suite, long_test
 from support.server import LineClient
 
 from rvs_server.client.session import ServerProcess

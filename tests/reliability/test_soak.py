@@ -13,8 +13,8 @@ import json
 from pathlib import Path
 
 import pytest
-from reliability_harness import long_suite, record
-from support.marks import long_test
+from reliability_harness import record
+from support.marks import long_suite, long_test
 
 from tools import soak
 

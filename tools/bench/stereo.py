@@ -37,7 +37,7 @@ rvs-stereo's previous default (PREVIOUS_DEFAULT), with density, bad-2 on valid p
 with invalid pixels counted, the ratios of density and of bad-2 on valid pixels to OpenCV's
 default, and whether the default dominates it (density at least as high, bad-2 on valid no worse).
 Then the DEM check: the stereo DEM of one ``dem-full`` scan per simulated scene through a server
-in this process (tests/test_dem_stereo.py's scan and RMSE), with the default and with the
+in this process (tests/server/commands/test_dem_stereo.py's scan and RMSE), with the default and with the
 previous default (``--no-dem`` skips it, ~1 min).
 
     python -m tools.bench.stereo [--scene quarry] [--tilt -20] [--repeat 3] [--cache /tmp/pair.npz]
@@ -413,7 +413,7 @@ def matcher_defaults(overrides: dict[str, Any] | None) -> Iterator[None]:
 
 def stereo_dem_rmse(scene: str, overrides: dict[str, Any] | None = None) -> tuple[float, int]:
     """(RMSE in m, cells) of the stereo DEM of one ``dem-full -range DEM_RANGE`` scan of ``scene``
-    against the world's true DEM: the scan and the cells of tests/test_dem_stereo.py (2 cm grid
+    against the world's true DEM: the scan and the cells of tests/server/commands/test_dem_stereo.py (2 cm grid
     from (-1, -4) to (7, 4), terrain cells at least 3 cells from an object's edge, within 6 m)."""
     from scipy import ndimage
 
@@ -461,7 +461,7 @@ def dem_check(scenes: tuple[str, ...], tolerance_cm: float = 0.05) -> dict[str, 
     side by side: the default must not lose the DEMs' accuracy (within ``tolerance_cm``; the
     tests' own bound is 5 cm)."""
     print(f"\nDEM check: stereo DEM RMSE (cm) vs the simulator's truth, one dem-full -range {DEM_RANGE} scan per "
-          "scene (tests/test_dem_stereo.py's cells)")
+          "scene (tests/server/commands/test_dem_stereo.py's cells)")
     print(f"{'scene':<16} {'default':>8} {'previous':>8} {'change':>8} {'cells':>7}  within {tolerance_cm:g} cm")
     out: dict[str, tuple[float, float]] = {}
     for scene in scenes:

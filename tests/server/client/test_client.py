@@ -21,7 +21,7 @@ from rvs_server.client import console as client
 from rvs_server.client.session import Line, ServerProcess, Session, SessionError, prepare, strip_tag
 from rvs_server.protocol import parse_reply
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[3]
 FAST = ["--set", "drivers.ptu.time_scale=0", "--set", "sim.time_scale=0",  # a simulated world that takes no wall time
         "--set", "server.web_port=0", "--set", "server.foxglove_port=0"]  # no console or Foxglove (parallel servers would share their ports)
 

@@ -1,7 +1,7 @@
 """ToF-stereo fusion against the simulated truth per 1 m range band: the table
 ``python -m tools.bench.fusion`` prints, asserted. Long: one fused scan per scene (about 40 s
 each), so it runs in the long suite; the cheap checks of the same code are tests/prox/test_fusion.py
-and tests/test_dem_stereo.py's fused-beats-each-sensor test."""
+and tests/server/commands/test_dem_stereo.py's fused-beats-each-sensor test."""
 
 from __future__ import annotations
 

@@ -31,7 +31,7 @@ from prox_workflows.grid import GridGeometry, read_geotiff, write_geotiff
 from rvs_params.hazard import HAZARDOUS
 
 CHROMIUM = "/usr/bin/chromium"
-ARTIFACTS = Path(os.environ.get("RVS_ARTIFACTS", Path(__file__).resolve().parent.parent / "test-artifacts"))
+ARTIFACTS = Path(os.environ.get("RVS_ARTIFACTS", Path(__file__).resolve().parents[3] / "test-artifacts"))
 # Chromium on a closed network: no background connections, no sandbox (CI runs as root)
 CHROMIUM_ARGS = ["--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run", "--disable-background-networking",
                  "--disable-component-update", "--disable-sync"]

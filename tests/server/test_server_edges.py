@@ -19,7 +19,7 @@ from support.server import LineClient
 
 from rvs_server.protocol import parse_reply
 
-ROOT = Path(__file__).resolve().parent.parent
+ROOT = Path(__file__).resolve().parents[2]
 
 
 def test_monitor_mean_and_longest_cycle_cover_the_same_cycles(server_factory: Any, sim_time: Any,

@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 from scipy import ndimage
 from support.marks import long_only
+from support.server import ServerThread
 
 from prox_workflows.grid import GridGeometry, read_geotiff
 from prox_workflows.steps.dem_chain import resample_nearest
@@ -28,17 +29,11 @@ def rmse(dem: np.ndarray, truth: np.ndarray, cells: np.ndarray) -> float:
     return float(np.sqrt(np.mean((dem[sel] - truth[sel]) ** 2)))
 
 
-# office in the long suite only (the default run's time: tests/test_fusion_bands.py checks the
+# office in the long suite only (the default run's time: tests/prox/test_fusion_bands.py checks the
 # fused office DEM band by band there too)
 @pytest.fixture(scope="module", params=[pytest.param("office", marks=long_only()), "quarry"])
 def three_dems(request, tmp_path_factory):
     """One scan each with stereo, ToF and both fused, from the same pose."""
-    import sys
-    from pathlib import Path
-
-    sys.path.insert(0, str(Path(__file__).parent))
-    from support.server import ServerThread
-
     srv = ServerThread(tmp_path_factory.mktemp(request.param), [f"server.scene={request.param}"]).start()
     try:
         c = srv.client()

@@ -16,7 +16,7 @@ from rvs_server.client import replay
 from rvs_server.client.replay import ScriptError, Step, check, parse_script, pattern_for
 from rvs_server.client.session import Line, ServerProcess
 
-REPLAYS = sorted((Path(__file__).parent / "replays").glob("*.rvs"))
+REPLAYS = sorted((Path(__file__).resolve().parents[2] / "replays").glob("*.rvs"))
 SUMMARY = re.compile(r"(\d+) passed, (\d+) failed")
 FAST = ["--set", "drivers.ptu.time_scale=0", "--set", "sim.time_scale=0",  # a simulated world that takes no wall time
         "--set", "server.web_port=0", "--set", "server.foxglove_port=0"]  # no console or Foxglove (parallel servers would share their ports)

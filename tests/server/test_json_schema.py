@@ -17,7 +17,7 @@ from rvs_server.client import console as rvs_client
 from rvs_server.client import replay
 from rvs_server.client.session import Session
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 VALIDATOR = Draft202012Validator(json.loads((ROOT / "docs" / "replies.schema.json").read_text()))
 REPLAYS = sorted((ROOT / "tests" / "replays").glob("*.rvs"))
 FINAL = ("OK", "ERROR")

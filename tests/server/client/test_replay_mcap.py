@@ -10,7 +10,7 @@ from typing import Any
 
 import numpy as np
 import pytest
-from support.server import LineClient
+from support.server import LineClient, ServerThread
 
 from prox_workflows.grid import read_geotiff
 from rvs_server.client.recording_replay import (
@@ -30,8 +30,6 @@ RUN = [DEM, "check-move -dx 0.5", "move-ptu -pan 12 -tilt -25", "grab-tof -outpu
 @pytest.fixture(scope="module")
 def recording(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Any]:
     """A simulated run recorded: a two-view DEM, a check-move, a PTU move and a 2-D ToF grab."""
-    from support.server import ServerThread
-
     data = tmp_path_factory.mktemp("recorded")
     srv = ServerThread(data).start()
     try:

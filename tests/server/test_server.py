@@ -315,7 +315,7 @@ def test_sigterm_shuts_down_gracefully(tmp_path: Path) -> None:
     proc = subprocess.Popen(
         [sys.executable, "-m", "rvs_server", "--port", "0", "--data", str(tmp_path / "d"),
          "--set", "drivers.ptu.time_scale=0", "--set", "server.web_port=0", "--set", "server.foxglove_port=0"],
-        stderr=subprocess.PIPE, text=True, cwd=Path(__file__).parent.parent,
+        stderr=subprocess.PIPE, text=True, cwd=Path(__file__).resolve().parents[2],
     )
     try:
         first = proc.stderr.readline()
@@ -348,11 +348,11 @@ def test_half_closed_client_still_gets_its_job_result(server) -> None:
 def test_startup_errors_are_reported_once(tmp_path: Path) -> None:
     proc = subprocess.run(
         [sys.executable, "-m", "rvs_server", "--port", "0", "--data", str(tmp_path), "--scene", "nosuch"],
-        capture_output=True, text=True, timeout=60, cwd=Path(__file__).parent.parent,
+        capture_output=True, text=True, timeout=60, cwd=Path(__file__).resolve().parents[2],
     )
     assert proc.returncode == 1 and "nosuch" in proc.stderr and "listen" not in proc.stderr
     proc = subprocess.run([sys.executable, "-m", "rvs_server", "--set", "sleep.seconds=-1"],
-                          capture_output=True, text=True, timeout=60, cwd=Path(__file__).parent.parent)
+                          capture_output=True, text=True, timeout=60, cwd=Path(__file__).resolve().parents[2])
     assert proc.returncode == 2 and "-seconds" in proc.stderr
 
 

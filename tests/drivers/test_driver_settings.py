@@ -129,7 +129,7 @@ def test_a_run_time_change_of_each_sr4000_setting_reaches_the_next_grab(server_f
 def test_drivers_yaml_holds_no_copy_of_a_declared_default() -> None:
     """Defaults live in the settings classes; drivers.yaml says only what this rover changes
     (and which backend each device uses)."""
-    shipped = yaml.safe_load((Path(__file__).parents[1] / "config" / "drivers.yaml").read_text())
+    shipped = yaml.safe_load((Path(__file__).parents[2] / "config" / "drivers.yaml").read_text())
     assert set(shipped) == set(DEVICE_KINDS)
     for kind, section in shipped.items():
         specs = registry(kind).settings_class().specs()

@@ -15,7 +15,7 @@ from typing import Any
 import pytest
 from support.server import wait_for
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 PACKAGES = ("prox_workflows", "rvs_server", "rvs_params", "drivers")
 JIT_NAMES = {"njit", "jit", "generated_jit"}
 
