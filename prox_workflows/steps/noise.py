@@ -68,6 +68,32 @@ def tof_sigma(
     return sigma.astype(np.float32)
 
 
+def ray_sigmas(points: np.ndarray, sensor: np.ndarray, sigma_range: np.ndarray | float,
+               sigma_lateral: np.ndarray | float) -> tuple[np.ndarray, np.ndarray]:
+    """Height and horizontal sigmas (m) of global points seen from ``sensor`` (x, y, z), from their
+    error along the ray (``sigma_range``) and across it (``sigma_lateral``). The range error's
+    vertical share is |dz| / r, the rest lies along the ground; the lateral error the other way
+    round. On a floor seen at a grazing angle the height is much better than the range, and a
+    return read long lands in the next cell: a bounds map spreads each cell by the horizontal
+    sigma. Any range sensor: the ToF's sigmas below, a stereo pair's from its disparity noise."""
+    p = np.asarray(points, dtype=np.float64)[:, :3]
+    d = p - np.asarray(sensor, dtype=np.float64)[None, :3]
+    cz = np.abs(d[:, 2]) / np.maximum(np.linalg.norm(d, axis=1), 1e-9)
+    s_r = np.asarray(sigma_range, dtype=np.float64)
+    s_l = np.asarray(sigma_lateral, dtype=np.float64)
+    sz2 = 1.0 - cz * cz
+    return np.sqrt((s_r * cz) ** 2 + s_l**2 * sz2), np.sqrt(s_r**2 * sz2 + s_l**2)
+
+
+def pair_sigmas(points: np.ndarray, sensor: np.ndarray, sigma_range: np.ndarray, focal: float
+                ) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`ray_sigmas` of a stereo pair's points: its range sigma from the disparity noise, half
+    a pixel across the ray (``focal`` in pixels)."""
+    r = np.linalg.norm(np.asarray(points, dtype=np.float64)[:, :3] - np.asarray(sensor, dtype=np.float64)[None, :3],
+                       axis=1)
+    return ray_sigmas(points, sensor, sigma_range, r / (2.0 * focal))
+
+
 def tof_height_variance(
     points: np.ndarray,
     sensor: np.ndarray,
@@ -82,15 +108,11 @@ def tof_height_variance(
     (pixel footprint, angular calibration) acts across it and shows up as height on sloped
     rays, with share sqrt(1 - (dz/r)^2). On a floor seen at a grazing angle that makes the
     height much better than the range, and on a wall face-on much worse - as observed."""
-    p = np.asarray(points, dtype=np.float64)[:, :3]
-    d = p - np.asarray(sensor, dtype=np.float64)[None, :3]
-    r = np.linalg.norm(d, axis=1)
-    cz = np.abs(d[:, 2]) / np.maximum(r, 1e-9)
-    s_r = tof_sigma(r, amplitude, **model).astype(np.float64)
-    s_l = lateral_sigma_per_m * r
-    var = (s_r * cz) ** 2 + (s_l**2) * (1.0 - cz * cz)
+    r = np.linalg.norm(np.asarray(points, dtype=np.float64)[:, :3] - np.asarray(sensor, dtype=np.float64)[None, :3],
+                       axis=1)
+    sigma, _ = ray_sigmas(points, sensor, tof_sigma(r, amplitude, **model), lateral_sigma_per_m * r)
     floor = model.get("noise_floor", NOISE_FLOOR)
-    return np.maximum(var, floor**2).astype(np.float32)
+    return np.maximum(sigma**2, floor**2).astype(np.float32)
 
 
 
@@ -107,12 +129,10 @@ def tof_horizontal_sigma(
     the lateral error. A return read long or short lands in another cell; on a rock's flank that
     is a height error :func:`tof_height_variance` cannot show, so a map of bounds spreads each
     cell's returns by this much."""
-    p = np.asarray(points, dtype=np.float64)[:, :3]
-    d = p - np.asarray(sensor, dtype=np.float64)[None, :3]
-    r = np.linalg.norm(d, axis=1)
-    cz = np.abs(d[:, 2]) / np.maximum(r, 1e-9)
-    s_r = tof_sigma(r, amplitude, **model).astype(np.float64)
-    return np.sqrt((s_r**2) * (1.0 - cz * cz) + (lateral_sigma_per_m * r) ** 2).astype(np.float32)
+    r = np.linalg.norm(np.asarray(points, dtype=np.float64)[:, :3] - np.asarray(sensor, dtype=np.float64)[None, :3],
+                       axis=1)
+    _, sigma_xy = ray_sigmas(points, sensor, tof_sigma(r, amplitude, **model), lateral_sigma_per_m * r)
+    return sigma_xy.astype(np.float32)
 
 # -- per-pixel features of a view: what a point's neighbours in its own image say about it ------------
 SLOPE_CAP = 5.0  # rise over run: steeper is a depth edge, which ``jump`` measures

@@ -47,7 +47,7 @@ from drivers.tof.constants import HEIGHT, USABLE_RANGE, WIDTH
 from prox_workflows.grid import GridGeometry
 from prox_workflows.steps.bounds_map import BoundsMap, BoundsParams
 from prox_workflows.steps.dem2hazard import HazardParams
-from prox_workflows.steps.noise import tof_height_variance, tof_horizontal_sigma, tof_sigma
+from prox_workflows.steps.noise import pair_sigmas, tof_height_variance, tof_horizontal_sigma, tof_sigma
 from prox_workflows.steps.rolling_map import RollingMap, RollingParams
 from prox_workflows.steps.vehicle import check_poses
 from rvs_server.devices import stereo_points
@@ -96,12 +96,7 @@ def hazcam(world: World, device: hazcam_device.Hazcam) -> Frame:
     T = world.T_world_rover()
     pts = frame.points @ T[:3, :3].T + T[:3, 3]
     origin = T[:3, :3] @ frame.origin + T[:3, 3]
-    r = np.linalg.norm(pts - origin, axis=1)
-    cz = np.abs(pts[:, 2] - origin[2]) / r
-    lateral = r / (2.0 * device.rig("front").focal)
-    sigma_r = frame.sigma_range
-    sigma = np.sqrt((sigma_r * cz) ** 2 + lateral**2 * (1 - cz * cz))
-    sigma_xy = np.sqrt(sigma_r**2 * (1 - cz * cz) + lateral**2)
+    sigma, sigma_xy = pair_sigmas(pts, origin, frame.sigma_range, device.rig("front").focal)
     return pts, sigma, origin, sigma_xy, device.config.max_range
 
 

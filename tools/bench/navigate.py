@@ -58,8 +58,8 @@ from rvs_server.protocol import Reply, parse_reply
 from tools.global_maps import write_global_maps
 
 TOP_SPEED = 0.1  # m/s: the scenes' rover speed
-AREA = {"marsyard": (-5.5, -9.5, 13.5, 9.5), "hirise": (-14.0, -14.0, 14.0, 14.0)}
-ORBITAL = {"hirise"}  # scenes built on an orbital DTM (tools.global_maps writes it)
+AREA = {"marsyard": (-5.5, -9.5, 13.5, 9.5), "hirise": (-14.0, -14.0, 14.0, 14.0), "dense": (-14.0, -14.0, 14.0, 14.0)}
+ORBITAL = {"hirise", "dense"}  # scenes built on an orbital DTM (tools.global_maps writes it)
 ROVER = (0.51, 0.40)  # config/head.yaml rover_length, rover_width
 # both loops plan with the rover's circle by default: in hirise 6 of the 10 missions have no
 # circle path even on the true maps, the body footprint (half width along straight stretches,
