@@ -23,6 +23,7 @@ STEP_MODULES: tuple[str, ...] = (
     "prox_workflows.steps.readers",
     "prox_workflows.steps.dem_products",
     "prox_workflows.steps.planner",
+    "prox_workflows.steps.plan_products",
     "prox_workflows.steps.stereo_products",
     "prox_workflows.steps.stereo_odometry",
 )

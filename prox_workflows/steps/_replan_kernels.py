@@ -7,7 +7,7 @@ as plain Python.
 State (all arrays over the padded grid, whose outer ring is blocked so that a neighbour index
 never leaves the array):
 
-- ``k``: float64 cost per unit length (inf blocked), as :func:`.planner.astar_grid` takes it;
+- ``k``: float64 cost per unit length (inf blocked), as :func:`.astar.astar_grid` takes it;
 - ``g``, ``rhs``: int64 fixed-point cost to the goal and its one-step lookahead (``INF`` none);
 - the open list, an indexed binary heap: ``h1``, ``h2`` (the two-part key), ``hc`` (the cell)
   and ``pos`` (each cell's position in the heap, -1 when not in it); ``meta[0]`` is its size,

@@ -200,7 +200,7 @@ def read_global_maps(hazard: str | Path | None, slope: str | Path | None) -> Any
 def read_nav_maps(hazard: str | Path, slope: str | Path) -> Any:
     """A hazard map (dem2hazard's CODES) and its slope map (degrees) on the same grid, as the planner
     takes them."""
-    from .planner import NavMaps
+    from .plan_maps import NavMaps
 
     hz, hgeom = _read_map_layer(Path(hazard))
     sl, sgeom = _read_map_layer(Path(slope))

@@ -1,5 +1,5 @@
 """Incremental replanning: D* Lite (Koenig & Likhachev 2002) on the same grid
-graph and cost model as :func:`.planner.astar_grid`, so that a rover that sees a few cells change
+graph and cost model as :func:`.astar.astar_grid`, so that a rover that sees a few cells change
 repairs its path in milliseconds instead of searching the map again.
 
 Why D* Lite and not A* again
@@ -47,7 +47,7 @@ from typing import Any
 
 import numpy as np
 
-from .planner import HEURISTICS, SQRT2, GridPath, PlanningError
+from .astar import HEURISTICS, SQRT2, GridPath, PlanningError
 
 HEADROOM_BITS = 6  # costs may grow 64x over the dearest at construction before a restart
 _SAFETY_UNITS = 2  # heuristic weights this far below the cheapest step: float rounding of the step
@@ -74,7 +74,7 @@ def warm_up() -> None:
 
 class IncrementalPlanner:
     """D* Lite on a cost grid (see the module docstring); the same arguments as
-    :func:`.planner.astar_grid` except ``python`` (without numba the kernels run as Python)."""
+    :func:`.astar.astar_grid` except ``python`` (without numba the kernels run as Python)."""
 
     def __init__(self, cost: np.ndarray, start: Sequence[int], goal: Sequence[int], *,
                  heuristic: str = "octile", orth: float = 1.0, diag: float = SQRT2, share: float = 0.5,
@@ -146,7 +146,7 @@ class IncrementalPlanner:
 
     def plan(self) -> GridPath:
         """The optimal path from the current start to the goal, repairing the previous search.
-        Raises :class:`.planner.PlanningError` as astar_grid does (start_in_hazard,
+        Raises :class:`.astar.PlanningError` as astar_grid does (start_in_hazard,
         goal_in_hazard, enclosed); ``expanded`` counts the cells this call expanded."""
         kern = _kernels()
         if not np.isfinite(self._k[self._start]):
@@ -302,7 +302,7 @@ def _check_values(values: np.ndarray) -> None:
 
 
 class Replanner:
-    """A :data:`.planner.Search` for :func:`.planner.plan_path` that keeps one D* Lite search
+    """A :data:`.astar.Search` for :func:`.planner.plan_path` that keeps one D* Lite search
     for as long as the planning grid's geometry and the goal cell stay the same, and repairs it
     with the cells that changed since the last call (``update_map``) and the rover's new cell.
     A new grid (the maps grew past it) or a new goal starts a new search: the see loop passes

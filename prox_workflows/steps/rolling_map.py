@@ -52,7 +52,7 @@ from ..grid import GridGeometry, Layers, median_near
 from .dem2hazard import HazardParams, dem2hazard
 from .dem_import import dem_import
 from .dem_mosaik import dem_mosaik
-from .planner import NavMaps, check_plan_size
+from .plan_maps import NavMaps, check_plan_size
 from .safety import MoveCheck, check_move
 
 

@@ -13,7 +13,7 @@ import pytest
 from support.server import ServerThread
 
 from prox_workflows.grid import GridGeometry, Layers
-from prox_workflows.steps.planner import MAX_PLAN_CELLS
+from prox_workflows.steps.plan_maps import MAX_PLAN_CELLS
 from prox_workflows.steps.safety import MAX_SWEEP_CELLS
 from rvs_server.commands import navigation
 

@@ -62,7 +62,7 @@ def test_every_numba_kernel_is_declared_nogil() -> None:
 def _dispatchers() -> dict[str, Any]:
     """The compiled kernels themselves, module-level ones and those made on first use."""
     dispatcher = pytest.importorskip("numba.core.dispatcher").Dispatcher
-    from prox_workflows.steps import dem_import, planner
+    from prox_workflows.steps import astar, dem_import
 
     found: dict[str, Any] = {}
     for module in ("prox_workflows.steps._replan_kernels", "prox_workflows.steps._dem2hazard_kernel"):
@@ -71,7 +71,7 @@ def _dispatchers() -> dict[str, Any]:
     kernels = dem_import._kernels()
     assert kernels is not None
     found.update({f"dem_import.{name}": v for name, v in kernels.items()})
-    found["planner.astar"] = planner._compiled_kernel()
+    found["astar"] = astar._compiled_kernel()
     return found
 
 

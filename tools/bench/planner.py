@@ -23,7 +23,8 @@ import numpy as np
 from scipy import ndimage
 from scipy.sparse.csgraph import dijkstra
 
-from prox_workflows.steps.planner import HAVE_NUMBA, astar_grid, grid_graph, warm_up
+from prox_workflows.steps.astar import astar_grid, grid_graph, warm_up
+from rvs_params.jit import HAVE_NUMBA
 
 
 def cost_grid(n: int, seed: int = 0, obstacles: float = 0.2) -> tuple[np.ndarray, tuple[int, int], tuple[int, int]]:

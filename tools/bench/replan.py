@@ -1,5 +1,5 @@
 """Benchmark: incremental replanning (D* Lite, :mod:`prox_workflows.steps.replan`) against a fresh
-A* (:func:`prox_workflows.steps.planner.astar_grid`) on the same changed 400 x 400 map, side by
+A* (:func:`prox_workflows.steps.astar.astar_grid`) on the same changed 400 x 400 map, side by
 side in one process: the see loop needs its replans in milliseconds.
 
 Two maps, both as the planner sees them (cost per metre ``k = w + (1 - w) * slope / critical``,
@@ -32,8 +32,8 @@ import cv2
 import numpy as np
 from scipy import ndimage
 
-from prox_workflows.steps.planner import PlanningError, astar_grid
-from prox_workflows.steps.planner import warm_up as astar_warm_up
+from prox_workflows.steps.astar import PlanningError, astar_grid
+from prox_workflows.steps.astar import warm_up as astar_warm_up
 from prox_workflows.steps.replan import IncrementalPlanner
 from prox_workflows.steps.replan import warm_up as replan_warm_up
 
@@ -44,7 +44,7 @@ DTM = Path(__file__).resolve().parents[2] / ".." / "shared" / "realdata" / "dem"
 
 
 def _grow(hazard: np.ndarray, cell: float) -> np.ndarray:
-    """Blocked cells: within rover radius + margin + half a cell diagonal of a hazard (planner.py)."""
+    """Blocked cells: within rover radius + margin + half a cell diagonal of a hazard (plan_maps.py)."""
     d = cv2.distanceTransform(np.where(hazard, 0, 255).astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
     return d * cell <= ROVER + cell * math.sqrt(2) / 2
 
