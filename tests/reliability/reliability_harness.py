@@ -719,13 +719,6 @@ def record(suite: str, **figures: Any) -> None:
             fh.write(json.dumps({"suite": suite, "long": LONG, "time": time.time(), **figures}) + "\n")
 
 
-def wait_until(predicate: Any, timeout: float = 10.0, interval: float = 0.05) -> bool:
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        if predicate():
-            return True
-        time.sleep(interval)
-    return bool(predicate())
 
 
 def percentile(values: Sequence[float], q: float) -> float:

@@ -32,10 +32,9 @@ from reliability_harness import (
     record,
     rss_kb,
     summarize,
-    wait_until,
 )
 from support.marks import LONG, long_suite, long_test
-from support.server import LineClient
+from support.server import LineClient, wait_for
 
 from rvs_server.client.session import ServerProcess
 
@@ -120,7 +119,7 @@ def fuzz(srv: ServerProcess, lines_per_connection: int, rounds: int, seed: int, 
                 failures.append(summary)
     seconds = time.monotonic() - t0
     assert alive(srv), srv.log_tail()
-    assert wait_until(lambda: fd_count(pid) <= fds_before, 60), (fd_count(pid), fds_before)
+    assert wait_for(lambda: fd_count(pid) <= fds_before, 60), (fd_count(pid), fds_before)
     rss_end = rss_kb(pid)
     figures = {
         "lines": sent, "requests": expected, "finals": finals, "connections": CONNECTIONS, "seconds": round(seconds, 1),

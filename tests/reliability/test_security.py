@@ -29,10 +29,9 @@ from reliability_harness import (
     record,
     rss_kb,
     summarize,
-    wait_until,
 )
 from support.marks import LONG, long
-from support.server import LineClient
+from support.server import LineClient, wait_for
 
 from rvs_server.client.session import ServerProcess
 from rvs_server.protocol import MAX_LINE, parse_reply
@@ -272,7 +271,7 @@ def test_a_flood_of_connections_past_max_clients(child: ServerProcess) -> None:
         assert m.request(f"@m{i} status").fields["clients"] == "16"
     for m in members:
         m.close()
-    assert wait_until(lambda: fd_count(pid) <= base_fds, 60), (fd_count(pid), base_fds)
+    assert wait_for(lambda: fd_count(pid) <= base_fds, 60), (fd_count(pid), base_fds)
     record("security_max_clients", refused=refused, fds_before=base_fds, fds_after=fd_count(pid))
     assert LineClient(child.port).request("version").status == "OK"
 
@@ -386,14 +385,14 @@ def test_slow_and_silent_clients_do_not_slow_the_others(child: ServerProcess) ->
     p99_calm, p99 = percentile(calm, 99) * 1000, percentile(loaded, 99) * 1000
     record("security_slowloris", p99_calm_ms=round(p99_calm, 2), p99_ms=round(p99, 2), requests=len(loaded),
            rss_before_kb=rss_before, rss_after_kb=rss_kb(pid))
-    wait_until(lambda: rss_kb(pid) < rss_before + 20_000, 30)
+    wait_for(lambda: rss_kb(pid) < rss_before + 20_000, 30)
     rss_first = rss_kb(pid)
     second = threading.Thread(target=flood, args=(threading.Event(),))
     second.start()
     second.join(120)
     assert not second.is_alive(), "the second flooder was not dropped"
     bound = max(rss_first, rss_before + 20_000)
-    assert wait_until(lambda: rss_kb(pid) < bound + 10_000, 60), (rss_before, rss_first, rss_kb(pid))
+    assert wait_for(lambda: rss_kb(pid) < bound + 10_000, 60), (rss_before, rss_first, rss_kb(pid))
     st = LineClient(child.port).request("status")
     assert st.status == "OK" and st.fields["clients"] == "1"  # the flooder was dropped, the others left
 

@@ -171,17 +171,6 @@ def test_ctrl_c_stops_the_server_at_once_while_the_kernels_compile(tmp_path: Pat
 # ---------------------------------------------------------------------- protocol corners
 
 
-def raw_line(c: LineClient) -> bytes:
-    """The next line as sent, bytes and all (LineClient.line decodes and strips it)."""
-    while b"\n" not in c.buf:
-        chunk = c.sock.recv(65536)
-        if not chunk:
-            raise ConnectionError("server closed the connection")
-        c.buf += chunk
-    line, c.buf = c.buf.split(b"\n", 1)
-    return line + b"\n"
-
-
 def test_a_too_long_line_keeps_its_tag(client: LineClient) -> None:
     client.send(b"@t77 grab-tof -output " + b"x" * 5000 + b"\n")
     r = client.reply()
@@ -209,18 +198,18 @@ def test_control_characters_from_the_client_are_shown_not_sent(client: LineClien
     """Ctrl-L, BEL, NUL and an ESC sequence echoed raw would clear, ring and drive the
     operator's terminal: every reply shows them in caret notation, JSON escapes them."""
     client.send(b"\x0c\x07\x00\x1b[2J\n")
-    line = raw_line(client)
+    line = client.raw_line()
     assert not any(b < 0x20 for b in line.rstrip(b"\r\n")), line
     r = parse_reply(line.decode())
     assert r.fields["code"] == "E_UNKNOWN" and "'^L^G^@^[[2j'" in r.fields["message"], r
     client.send(b"sleep -seconds 1\x07\x7f")  # a bad option value, quoted back
-    r = parse_reply(raw_line(client).decode())
+    r = parse_reply(client.raw_line().decode())
     assert r.fields["code"] == "E_ARG" and "1^G^?" in r.fields["message"], r
     client.send("format json")
     assert client.reply().fields["format"] == "json"
     assert client.reply().fields["kind"] == "hello"  # again, in JSON (no job started yet)
     client.send(b"\x0c\xc2\x9b\x7f\n")  # C0, C1 (CSI) and DEL
-    line = raw_line(client)
+    line = client.raw_line()
     assert not any(b < 0x20 or b == 0x7f for b in line.rstrip(b"\n")) and b"\xc2\x9b" not in line, line
     assert "'\x0c\x9b\x7f'" in json.loads(line)["message"]  # JSON carries them exactly
 

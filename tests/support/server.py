@@ -31,6 +31,10 @@ class LineClient:
         self.sock.sendall(data)
 
     def line(self, timeout: float | None = None) -> str:
+        return self.raw_line(timeout)[:-1].decode().rstrip("\r")
+
+    def raw_line(self, timeout: float | None = None) -> bytes:
+        """The next line as sent, bytes and all, its LF included."""
         self.sock.settimeout(timeout or self.timeout)
         while b"\n" not in self.buf:
             chunk = self.sock.recv(65536)
@@ -38,7 +42,7 @@ class LineClient:
                 raise ConnectionError("server closed the connection")
             self.buf += chunk
         raw, self.buf = self.buf.split(b"\n", 1)
-        return raw.decode().rstrip("\r")
+        return raw + b"\n"
 
     def reply(self, timeout: float | None = None) -> Reply:
         return parse_reply(self.line(timeout))
