@@ -41,7 +41,7 @@ from drivers.rover import Motion
 from drivers.tof.constants import FOV_V_DEG
 from prox_workflows.steps.bounds_map import BoundsMap
 from prox_workflows.steps.hazard_monitor import rover_points
-from prox_workflows.steps.noise import tof_height_variance, tof_horizontal_sigma
+from prox_workflows.steps.noise import pair_sigmas, tof_height_variance, tof_horizontal_sigma
 from prox_workflows.steps.planner import NavMaps
 from prox_workflows.steps.replan import Replanner
 from prox_workflows.steps.rolling_map import (
@@ -77,6 +77,7 @@ EDGE_JUMP = 0.02  # share of the range: a bigger jump to a neighbouring pixel ma
 BODY_MARGIN = 0.06  # m round the rover's box and wheels whose returns are its own
 BLIND_EDGE = 0.1  # m past the mast's blind disc that its rays only graze (bounded by a ray, seldom by returns)
 ROCK_RADIUS = 3.0  # m round the rover within which a replan reads rocks off the bounds map (the ToF's 3 m)
+GATE_TRIES = 8  # plans a replan checks against the gate before the rover drives one (see SeeStrategy._gated)
 GATE_PAD = 4.0  # m round the mission's start and goal that the gate's bounds map covers (past it: unknown)
 STALL_CYCLES = 20  # a leg driven this many cycles without getting STALL_PROGRESS closer to its end is stalled
 STALL_PROGRESS = 0.05  # m
@@ -130,6 +131,10 @@ class SeeingDriver:
         # the vehicle gate's map (see_gate bounds): every frame's bounds over the whole mission
         self.bounds = bounds
         self.vetoed: list[tuple[float, float]] = []  # ground the gate stopped the rover at: rocks to plan round
+        # the body's hazard cameras switched on (drivers.hazcam.cameras): each frame feeds the gate
+        self.hazcams: list[str] = []
+        if bounds is not None and "hazcam" in self.app.devices.devices:
+            self.hazcams = list(self.app.devices.get("hazcam").cameras())
         self.p = params
         self.stats = stats
         head = self.app.config.get("head")
@@ -180,9 +185,12 @@ class SeeingDriver:
         """The rover's belief: the simulated rover's odometry, the GNC's last pose report."""
         return self.rover.pose()
 
-    def see(self, pan_tilt: tuple[float, float]) -> tuple[tuple[float, float, float], float]:
-        """One ToF frame into the rolling map; returns the rover's pose and the wall time
-        (monotonic) the fusion started."""
+    def see(self, pan_tilt: tuple[float, float], cameras: tuple[str, ...] = ("front",)
+            ) -> tuple[tuple[float, float, float], float]:
+        """One ToF frame into the rolling map, and with the gate into the bounds map with a frame of
+        each of the hazard ``cameras`` switched on (driving: the front pair, which sees the ground
+        the wheels meet next); returns the rover's pose and the wall time (monotonic) the fusion
+        started."""
         job, app = self.job, self.app
         t0 = time.monotonic()
         xyz, amplitude = device_call(job, app.devices.get("tof").grab_xyz, 1, 0.0)
@@ -203,6 +211,8 @@ class SeeingDriver:
             origin = T[:3, :3] @ T_rc[:3, 3] + T[:3, 3]
             self.bounds.fuse(full, np.sqrt(tof_height_variance(full, origin)), origin, self.p.max_range,
                              tof_horizontal_sigma(full, origin))
+            for camera in (c for c in self.hazcams if c in cameras):
+                self._fuse_hazcam(camera, T)
             self.bounds.stood((x, y, heading), float(T[2, 3]), self.body)
         self.stats.frame_ms.append((t1 - t0) * 1000)
         return (x, y, heading), t1
@@ -239,6 +249,17 @@ class SeeingDriver:
             return check, None
         near = sweep_check(trav, g, along(self.p.blind), self.length, self.width)
         return check, near if near.verdict == "unknown" else None
+
+    def _fuse_hazcam(self, camera: str, T: np.ndarray) -> None:
+        """One body hazard camera's pair into the bounds map (with the rover at ``T``): the ground
+        from 0.2 m ahead of the nose, where the mast never sees."""
+        device = self.app.devices.get("hazcam")
+        frame = device_call(self.job, device.grab, camera)
+        pts = frame.points[~self.on_body(frame.points)] @ T[:3, :3].T + T[:3, 3]
+        origin = T[:3, :3] @ frame.origin + T[:3, 3]
+        sigma, sigma_xy = pair_sigmas(pts, origin, frame.sigma_range[~self.on_body(frame.points)],
+                                      device.rig(camera).focal)
+        self.bounds.fuse(pts, sigma, origin, device.config.max_range, sigma_xy)
 
     def on_body(self, pts: np.ndarray) -> np.ndarray:
         """Rover-frame points on the rover itself (its box and wheels, a few centimetres grown):
@@ -310,7 +331,7 @@ class SeeingDriver:
         self.job.progress(0, 1, f"looking at unseen ground ({x:.2f}, {y:.2f}) before driving onto it", phase="drive")
         pan, tilt = self.head.look_at(np.array([*in_rover_frame(pose, x, y), 0.0]))
         self._point(max(-150.0, min(150.0, pan)), max(self._lowest_tilt(), min(self.p.tilt, tilt)))
-        self.see(self.pan_tilt)
+        self.see(self.pan_tilt, ())  # the body's cameras saw this cycle's ground already
         self.job.check()
         return True
 
@@ -323,18 +344,22 @@ class SeeingDriver:
         self.stats.looks += 1
         self.job.progress(0, 1, f"looking round at tilt {tilt:.0f} deg: the ground the forward view starts beyond",
                           phase="drive")
+        cameras = tuple(self.hazcams)  # the body's cameras do not pan: one frame of each
         for pan in np.linspace(-150.0, 150.0, 9):  # 37.5 deg apart: the ToF spans 43.6 deg
             self._point(pan, tilt)
-            self.see(self.pan_tilt)
+            self.see(self.pan_tilt, cameras)
+            cameras = ()
             self.job.check()
         self.point_forward()
 
     def look(self, bearing: float, spread: float = 40.0) -> None:
         """Frames panned to ``bearing`` (deg from the rover's heading) and ``spread`` either side,
         the rover standing: the rolling map's view round the forward one."""
+        cameras = tuple(self.hazcams)
         for pan in (bearing - spread, bearing, bearing + spread):
             self._point(max(-150.0, min(150.0, pan)))
-            self.see(self.pan_tilt)
+            self.see(self.pan_tilt, cameras)
+            cameras = ()
             self.job.check()
 
     def _stop_event(self, x: float, y: float, pose: tuple[float, float, float],
@@ -670,7 +695,7 @@ class SeeStrategy:
             for strict in tries:
                 maps = mark_unseen(merged, here, self.driver.radius, self.reach, HAZARDOUS) if strict else merged
                 try:
-                    plan = attempt(maps)
+                    plan = self._gated(attempt, maps, (pose.x, pose.y, pose.heading))
                 except PlanningError as exc:
                     why = f"replan from the rolling map: {exc.reason}"
                     continue
@@ -683,6 +708,24 @@ class SeeStrategy:
             return None, why
         finally:
             self.stats.replan_ms.append((time.monotonic() - t0) * 1000)
+
+    def _gated(self, attempt: Any, maps: NavMaps, pose: tuple[float, float, float]) -> Any:
+        """A plan whose start the gate passes: the first ``see_gate_ahead`` of each plan (its turn
+        on the spot included) is checked before the rover moves, and the ground the gate blames
+        is planned round, up to ``GATE_TRIES`` times: the rover stands while the planner learns
+        what the gate will refuse, instead of driving each refused plan to its first stop. The
+        last plan goes out whatever its check (the drive's own gate stops it, and says why)."""
+        plan = attempt(maps)
+        if self.driver.bounds is None:
+            return plan
+        for _ in range(GATE_TRIES):
+            gate = self.driver.gate(pose, plan.waypoints.xy[1:])
+            if gate.verdict == "safe":
+                break
+            self.driver.vetoed.append((gate.x, gate.y))
+            maps = mark_points(maps, [(gate.x, gate.y)], HAZARDOUS)
+            plan = attempt(maps)
+        return plan
 
     def drive_leg(self, leg: int, plan: Any) -> None:
         """Drive one leg's waypoints while seeing (the simulated rover steers by its odometry,

@@ -13,12 +13,15 @@ from prox_workflows.grid import GridGeometry
 from tools.bench.navigate import fine_surface, read_track, vehicle_check
 
 
-@pytest.mark.parametrize("gate", ["bounds", pytest.param("off", marks=long_only())])
+@pytest.mark.parametrize("gate", ["bounds", pytest.param("off", marks=long_only()),
+                                  pytest.param("bounds+hazcam", marks=long_only())])
 def test_the_gate_keeps_the_belly_off_a_rock_the_5cm_maps_call_safe(server_factory, gate: str) -> None:
     """A 12 cm rock on the straight way across the quarry: under the 5 cm maps' 15 cm step, so
     their plan and check drive over it, and over the belly's 8 cm clearance. With the gate the
     rover goes round it (and the quarry's own small rocks) to the goal without one unsafe pose."""
-    srv = server_factory(["server.scene=quarry", "navigate.range=-30,30,-50,-10", f"navigate.see_gate={gate}"])
+    hazcams = ["drivers.hazcam.cameras=front,rear"] if gate.endswith("hazcam") else []
+    srv = server_factory(["server.scene=quarry", "navigate.range=-30,30,-50,-10",
+                          f"navigate.see_gate={gate.split('+')[0]}", *hazcams])
     world = srv.app.world
     world.set_target_visible(False)
     c = srv.client()
