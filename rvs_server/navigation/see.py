@@ -214,6 +214,7 @@ class SeeingDriver:
             for camera in (c for c in self.hazcams if c in cameras):
                 self._fuse_hazcam(camera, T)
             self.bounds.stood((x, y, heading), float(T[2, 3]), self.body)
+            app.bus.publish("bounds", bounds=self.bounds)  # Foxglove and recordings (their hub throttles)
         self.stats.frame_ms.append((t1 - t0) * 1000)
         return (x, y, heading), t1
 
@@ -668,6 +669,7 @@ class SeeStrategy:
             body = self.driver.body
             rocks = self.driver.bounds.rocks(here, ROCK_RADIUS, min(body.climb, body.clearance))
             merged = mark_points(merged, [*map(tuple, rocks), *self.driver.vetoed], HAZARDOUS)
+            self.app.bus.publish("bounds", bounds=self.driver.bounds, replan=True)  # what this plan read
         self.driver.known = merged
 
         def attempt(maps: NavMaps) -> Any:
