@@ -16,7 +16,7 @@ from typing import Any
 
 from rvs_params import Settings
 
-from . import dc1394, sim  # noqa: F401 - registers the backends
+from . import dc1394, replay, sim  # noqa: F401 - registers the backends
 from .backend import BACKENDS, CAMERAS, HazcamBackend, HazcamSettings
 from .device import Hazcam, HazcamFrame, StereoMatcher
 from .rig import PairRig, pair_rig
