@@ -23,7 +23,9 @@ from typing import Any
 #   event    reply (protocol.Reply): an EVENT, once however many connections get it
 #   maps     layers (grid.Layers), name: the current DEM was replaced or restored
 #   frame    device, call (the driver method's name), args, result: a driver grab returned
-KINDS = ("request", "reply", "event", "maps", "frame")
+#   bounds   bounds (the see loop's BoundsMap itself, which it goes on fusing into), replan (bool): a
+#            frame was fused into it, or a plan is made on it
+KINDS = ("request", "reply", "event", "maps", "frame", "bounds")
 
 
 @dataclass(frozen=True)

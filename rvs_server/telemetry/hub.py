@@ -10,6 +10,7 @@ them (``dropped``), rather than letting a burst of frames grow the server's memo
 
 from __future__ import annotations
 
+import dataclasses
 import threading
 import time
 from collections import deque
@@ -18,7 +19,8 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 import structlog
 
-from prox_workflows.grid import Layers
+from drivers.base import DeviceError
+from prox_workflows.grid import GridGeometry, Layers
 from prox_workflows.steps.transforms import HeadCalibration
 
 from ..bus import Item
@@ -29,6 +31,8 @@ from .link import Link
 from .outlet import MAP_PREFIX, TOPICS, topic_spec
 
 if TYPE_CHECKING:
+    from prox_workflows.steps.bounds_map import BoundsMap
+
     from ..app import App
 
 log = structlog.get_logger("rvs.telemetry")
@@ -39,7 +43,9 @@ TRACK_POINTS = 5000
 TRACK_STEP = 0.02  # m the rover moves before the track gets a point
 MAX_QUEUED = 512  # items the thread may lag behind (a 24-view scan queues about 50)
 # The driver calls whose results are frames, and what each one returns.
-FRAME_CALLS = {"grab_xyz", "grab", "grab_stereo", "grab_mono", "grab_stereo_direct", "grab_mono_direct"}
+FRAME_CALLS = {"grab_xyz", "grab", "grab_stereo", "grab_mono", "grab_stereo_direct", "grab_mono_direct", "images"}
+BOUNDS_TOPIC = "/nav/bounds"
+BOUNDS_EVERY = 10  # see-loop frames between two sends of the bounds map (a replan sends it too)
 
 
 class Telemetry:
@@ -61,6 +67,8 @@ class Telemetry:
         self._track_sent = 0.0
         self._track_dirty = False
         self._requests: dict[int, tuple[float, float, float]] = {}  # conn -> pose at its last check-move
+        self._bounds: tuple[int, BoundsMap] | None = None  # the see loop's bounds map as last published (live)
+        self._bounds_items = 0
         self._thread = threading.Thread(target=self._run, name="rvs-telemetry", daemon=True)
         self._thread.start()
         app.bus.subscribe(self.accept)
@@ -70,15 +78,29 @@ class Telemetry:
     def accept(self, item: Item) -> None:
         """The bus subscriber (any thread): queue, return. A frame, only if the process wants it,
         is copied (the job may reuse its arrays) with the PTU and pose it was taken at: the
-        grabbing thread holds the PTU still until the call returns, a sample a tick later may not."""
+        grabbing thread holds the PTU still until the call returns, a sample a tick later may not.
+        The bounds map goes on as its lower and upper bounds, read in the see loop's thread (it
+        fuses the next frame into the same arrays), every :data:`BOUNDS_EVERY` frames and at
+        each replan, and only when someone listens; otherwise the hub keeps the map itself."""
         if item.kind == "frame":
             link = self._link
             # a call that returns no frame (a PTU move) is only for a recording's /raw/calls
             if link is None or not (link.wants_any() if item.data["call"] in FRAME_CALLS else link.recording):
                 return
-            result = item.data["result"]
-            copied = tuple(np.array(a) for a in result) if isinstance(result, tuple) else np.array(result)
+            copied = _copied(item.data["result"])
             item = Item(item.kind, item.time_ns, {**item.data, "result": copied, "state": self._state()})
+        elif item.kind == "bounds":
+            bounds = item.data["bounds"]
+            self._bounds = (item.time_ns, bounds)
+            self._bounds_items += 1
+            link = self._link
+            if not (item.data.get("replan") or self._bounds_items % BOUNDS_EVERY == 0) or link is None \
+                    or not link.wants(BOUNDS_TOPIC):
+                return
+            window = bounds_window(bounds)
+            if window is None:
+                return
+            item = Item(item.kind, item.time_ns, {"window": window})
         self._put(item)
 
     def _put(self, entry: Item | tuple[str, Any]) -> None:
@@ -177,7 +199,16 @@ class Telemetry:
             t_ns, layers = self._maps
             for name in layers.layers:
                 if wanted(MAP_PREFIX + name, t_ns):
-                    self._log(MAP_PREFIX + name, t_ns, m.grid, t_ns, layers.geometry, name, layers[name])
+                    self._log(MAP_PREFIX + name, t_ns, m.grid, t_ns, layers.geometry, {name: layers[name]})
+        bounds = self._bounds
+        link = self._link
+        if bounds is not None and link is not None and link.wants(BOUNDS_TOPIC) and wanted(BOUNDS_TOPIC, bounds[0]) \
+                and self._latched.get(BOUNDS_TOPIC, (None,))[0] != bounds[0]:
+            # read here, while the see loop may be fusing into it: a cell may be a frame behind its
+            # neighbour until the loop's next send, which it reads whole
+            window = bounds_window(bounds[1])
+            if window is not None:
+                self._latch(BOUNDS_TOPIC, bounds[0], m.grid, bounds[0], *window)
         for topic, (t_ns, encode, args) in self._latched.items():
             if wanted(topic, t_ns):
                 self._log(topic, t_ns, encode, *args)
@@ -195,7 +226,10 @@ class Telemetry:
         layers: Layers = item.data["layers"]
         self._maps = (item.time_ns, layers)
         for name in layers.layers:
-            self._log(MAP_PREFIX + name, item.time_ns, m.grid, item.time_ns, layers.geometry, name, layers[name])
+            self._log(MAP_PREFIX + name, item.time_ns, m.grid, item.time_ns, layers.geometry, {name: layers[name]})
+
+    def _on_bounds(self, item: Item) -> None:
+        self._latch(BOUNDS_TOPIC, item.time_ns, m.grid, item.time_ns, *item.data["window"])
 
     def _on_frame(self, item: Item) -> None:
         t, call, result = item.time_ns, item.data["call"], item.data["result"]
@@ -227,6 +261,22 @@ class Telemetry:
                 frame = m.sensor_frame(side)
                 self._log(f"/stereo/{side}/compressed", t, m.jpeg, t, frame, image)
                 self._log(f"/raw/stereo/{side}", t, m.raw_image, t, frame, image)
+        elif item.data["device"] == "hazcam":
+            self._on_hazcam(t, item.data["args"], result)
+
+    def _on_hazcam(self, t: int, args: Any, result: Any) -> None:
+        """A body hazard camera pair's grab (a HazcamFrame: images and matched points, in the
+        rover frame) or its ``images(pair)`` (the two images alone)."""
+        if isinstance(result, tuple):
+            pair, (left, right), frame = str(args[0]), result, None
+        else:
+            pair, left, right, frame = result.camera, result.left, result.right, result
+        self._log(f"/hazcam/{pair}/left/compressed", t, m.jpeg, t, m.hazcam_frame(pair, "left"), left)
+        for side, image in (("left", left), ("right", right)):
+            self._log(f"/raw/hazcam/{pair}/{side}", t, m.raw_image, t, m.hazcam_frame(pair, side), image)
+        if frame is not None:
+            self._log(f"/hazcam/{pair}/points", t, m.cloud, t, "rover", frame.points, frame.sigma_range,
+                      "sigma_range")
 
     def _log_call(self, item: Item) -> None:
         """The call on /raw/calls, ahead of its frames (a replay serves them for it): its
@@ -236,7 +286,7 @@ class Telemetry:
         images = isinstance(result, np.ndarray) and result.ndim >= 2 or isinstance(result, tuple) and any(
             isinstance(r, np.ndarray) and r.ndim >= 2 for r in result)
         self._log("/raw/calls", item.time_ns, m.json_bytes, {
-            "device": item.data["device"], "call": item.data["call"], "args": list(item.data["args"]),
+            "device": item.data["device"], "call": item.data["call"], "args": _plain(item.data["args"]),
             "result": None if images else _plain(result), "ptu": ptu, "pose": list(pose[:3])})
 
     def _wire(self, item: Item, direction: str, conn: Any, text: str, reply: Reply | None = None) -> None:
@@ -296,10 +346,24 @@ class Telemetry:
     def _log_state(self, t: int, state: Any) -> None:
         pose, ptu, truth = state
         head = HeadCalibration.from_dict(self.app.config.get("head").as_dict())
-        self._log("/tf", t, m.frame_tree, t, head, pose, ptu, truth)
+        self._log("/tf", t, m.frame_tree, t, head, pose, ptu, truth, self._body_frames())
         self._log("/rover/pose", t, m.pose_in_world, t, *pose)
         if truth is not None:
             self._log("/rover/truth", t, m.pose_in_world, t, *truth, pose[3])
+
+    def _body_frames(self) -> list[tuple[str, np.ndarray]]:
+        """The optical frames of the hazard camera pairs switched on, in the rover frame, where
+        the device declares them (none while it is off or not open)."""
+        hazcam = self.app.devices.devices.get("hazcam")
+        frames: list[tuple[str, np.ndarray]] = []
+        for pair in hazcam.cameras() if hazcam is not None else ():
+            try:
+                rig = hazcam.rig(pair)
+            except (DeviceError, KeyError):  # not open (yet)
+                continue
+            frames += [(m.hazcam_frame(pair, "left"), rig.T_rover_left), (m.hazcam_frame(pair, "right"),
+                                                                           rig.T_rover_right)]
+        return frames
 
     def _sample(self) -> None:
         if self._link is None:
@@ -317,11 +381,44 @@ class Telemetry:
             self._log("/nav/track", t, m.track, t, np.array(self._track))
 
 
+def bounds_window(bounds: BoundsMap) -> tuple[GridGeometry, dict[str, np.ndarray]] | None:
+    """The bounds map's lower and upper bounds over the box of its bounded cells (the mission's
+    grid round them holds none), with that box's grid; None while no cell has a bound."""
+    bounded = bounds.bounded()
+    rows, cols = np.flatnonzero(bounded.any(axis=1)), np.flatnonzero(bounded.any(axis=0))
+    if not len(rows):
+        return None
+    g = bounds.geometry
+    lower, upper, box = bounds.window(g.xmin + cols[0] * g.cell, g.ymax - (rows[-1] + 1) * g.cell,
+                                      g.xmin + (cols[-1] + 1) * g.cell, g.ymax - rows[0] * g.cell)
+    return box, {"lower": lower, "upper": upper}
+
+
+def _copied(result: Any) -> Any:
+    """A call's result with its arrays copied; a frame object (a hazcam's) field by field."""
+    if isinstance(result, tuple):
+        return tuple(np.array(a) for a in result)
+    if dataclasses.is_dataclass(result) and not isinstance(result, type):
+        return dataclasses.replace(result, **{f.name: np.array(getattr(result, f.name))
+                                              for f in dataclasses.fields(result)
+                                              if isinstance(getattr(result, f.name), np.ndarray)})
+    return np.array(result)
+
+
 def _plain(value: Any) -> Any:
-    """A call's result as JSON takes it (a PTU's position comes as numpy scalars)."""
+    """A call's arguments or result as JSON takes them (a PTU's position comes as numpy
+    scalars); of a frame object (a hazcam's), the fields that are no array (its pair and time
+    stamp); any other object (a drive's pilot, which holds the job) by its type's name."""
     if isinstance(value, tuple | list):
         return [_plain(v) for v in value]
-    return value.tolist() if isinstance(value, np.ndarray | np.generic) else value
+    if isinstance(value, dict):
+        return {str(k): _plain(v) for k, v in value.items()}
+    if dataclasses.is_dataclass(value) and not isinstance(value, type):
+        return {f.name: _plain(getattr(value, f.name)) for f in dataclasses.fields(value)
+                if not isinstance(getattr(value, f.name), np.ndarray)}
+    if isinstance(value, np.ndarray | np.generic):
+        return value.tolist()
+    return value if value is None or isinstance(value, str | int | float | bool) else type(value).__name__
 
 
 def _command(line: str) -> str:

@@ -8,7 +8,9 @@ Frames (docs/PROTOCOL.md, Foxglove): ``world`` (the global frame: x, y as the po
 ``rover`` (the believed pose) -> ``mast`` (the pan axis' foot, ``head.ptu_base``) -> ``ptu_pan``
 -> ``ptu_tilt`` -> one optical frame per mounted sensor (``tof``, ``stereo_left``,
 ``stereo_right``, any other mount by its name: x right, y down, z forward, as Foxglove's
-cameras and the drivers' images). ``world`` -> ``rover_truth`` is the simulated rover.
+cameras and the drivers' images). The body's own cameras hang from ``rover``: each hazard
+camera pair's ``hazcam_<pair>_left`` and ``hazcam_<pair>_right``, optical frames as above.
+``world`` -> ``rover_truth`` is the simulated rover.
 """
 
 from __future__ import annotations
@@ -78,6 +80,11 @@ def sensor_frame(mount: str) -> str:
     return SENSOR_FRAMES.get(mount, mount)
 
 
+def hazcam_frame(pair: str, side: str) -> str:
+    """The optical frame of one camera (``left``, ``right``) of a body hazard camera pair."""
+    return f"hazcam_{pair}_{side}"
+
+
 def _pose(T: np.ndarray) -> Pose:
     return Pose(position=_vector(T[:3, 3]), orientation=_quaternion(T[:3, :3]))
 
@@ -101,9 +108,11 @@ def rover_T(x: float, y: float, heading: float, z: float) -> np.ndarray:
 
 
 def frame_tree(t_ns: int, head: HeadCalibration, pose: tuple[float, float, float, float],
-               ptu: tuple[float, float] | None, truth: tuple[float, float, float] | None) -> bytes:
+               ptu: tuple[float, float] | None, truth: tuple[float, float, float] | None,
+               body: list[tuple[str, np.ndarray]] | tuple[()] = ()) -> bytes:
     """The whole tree at ``t_ns``: pose (x, y, heading, ground z), PTU (pan, tilt; 0, 0 unknown),
-    the simulated rover's true (x, y, heading) on the same ground height."""
+    the simulated rover's true (x, y, heading) on the same ground height; ``body``: the frames
+    fixed on the rover (frame id, its 4 x 4 pose in the rover frame)."""
     pan, tilt = ptu or (0.0, 0.0)
     transforms = [
         _transform(t_ns, WORLD, "rover", rover_T(*pose)),
@@ -113,6 +122,7 @@ def frame_tree(t_ns: int, head: HeadCalibration, pose: tuple[float, float, float
     ]
     transforms += [_transform(t_ns, "ptu_tilt", sensor_frame(name), head.T_tilt_from_sensor(name))
                    for name in head.mounts]
+    transforms += [_transform(t_ns, "rover", frame, T) for frame, T in body]
     if truth is not None:
         transforms.append(_transform(t_ns, WORLD, "rover_truth", rover_T(*truth, pose[3])))
     return FrameTransforms(transforms=transforms).encode()
@@ -122,33 +132,40 @@ def pose_in_world(t_ns: int, x: float, y: float, heading: float, z: float) -> by
     return PoseInFrame(timestamp=stamp(t_ns), frame_id=WORLD, pose=_pose(rover_T(x, y, heading, z))).encode()
 
 
-def grid(t_ns: int, g: GridGeometry, name: str, values: np.ndarray) -> bytes:
-    """One layer as a Grid in ``world``: Foxglove's cells run from the origin corner along +x then
-    +y, ours north-up from the north-west corner, so the rows are sent south first and the
-    origin is the south-west corner (xmin, ymin)."""
-    values = np.ascontiguousarray(np.flipud(values))
-    if values.dtype not in _NUMERIC:
-        values = values.astype(np.float32)
-    size = values.dtype.itemsize
+def grid(t_ns: int, g: GridGeometry, layers: dict[str, np.ndarray]) -> bytes:
+    """Layers of one grid as a Grid in ``world``, a field per layer named after it (in the layers'
+    type when they share one, else float32). Foxglove's cells run from the origin corner along
+    +x then +y, ours north-up from the north-west corner, so the rows are sent south first and
+    the origin is the south-west corner (xmin, ymin)."""
+    dtypes = {v.dtype for v in layers.values()}
+    dtype = dtypes.pop() if len(dtypes) == 1 else np.dtype(np.float32)
+    if dtype not in _NUMERIC:
+        dtype = np.dtype(np.float32)
+    cells = np.ascontiguousarray(np.stack([np.flipud(v).astype(dtype, copy=False) for v in layers.values()], axis=-1))
+    size = dtype.itemsize * len(layers)
+    fields = [PackedElementField(name=name, offset=i * dtype.itemsize, type=_NUMERIC[dtype])
+              for i, name in enumerate(layers)]
     return Grid(timestamp=stamp(t_ns), frame_id=WORLD, pose=_pose(make_T(None, (g.xmin, g.ymin, 0.0))),
                 column_count=g.width, cell_size=Vector2(x=g.cell, y=g.cell), row_stride=g.width * size,
-                cell_stride=size, fields=[PackedElementField(name=name, offset=0, type=_NUMERIC[values.dtype])],
-                data=values.tobytes()).encode()
+                cell_stride=size, fields=fields, data=cells.tobytes()).encode()
 
 
-_CLOUD_FIELDS = [PackedElementField(name=n, offset=4 * i, type=PackedElementFieldNumericType.Float32)
-                 for i, n in enumerate(("x", "y", "z", "intensity"))]
+def cloud(t_ns: int, frame: str, xyz: np.ndarray, values: np.ndarray, name: str) -> bytes:
+    """Points (N x 3) in ``frame`` with one value each: fields x, y, z and ``name``, float32."""
+    packed = np.empty((len(xyz), 4), np.float32)
+    packed[:, :3] = xyz
+    packed[:, 3] = values
+    fields = [PackedElementField(name=n, offset=4 * i, type=PackedElementFieldNumericType.Float32)
+              for i, n in enumerate(("x", "y", "z", name))]
+    return PointCloud(timestamp=stamp(t_ns), frame_id=frame, pose=_pose(np.eye(4)), point_stride=16,
+                      fields=fields, data=packed.tobytes()).encode()
 
 
 def point_cloud(t_ns: int, frame: str, xyz: np.ndarray, amplitude: np.ndarray) -> bytes:
     """The defined points of an organised H x W x 3 image (the ToF's: -1 where undefined) with
     their amplitude, in the sensor's frame."""
     valid = xyz[..., 2] > 0
-    packed = np.empty((int(valid.sum()), 4), np.float32)
-    packed[:, :3] = xyz[valid]
-    packed[:, 3] = amplitude[valid]
-    return PointCloud(timestamp=stamp(t_ns), frame_id=frame, pose=_pose(np.eye(4)), point_stride=16,
-                      fields=_CLOUD_FIELDS, data=packed.tobytes()).encode()
+    return cloud(t_ns, frame, xyz[valid], amplitude[valid], "intensity")
 
 
 def depth(t_ns: int, frame: str, xyz: np.ndarray) -> bytes:

@@ -26,6 +26,7 @@ from foxglove.messages import (
     SceneUpdate,
 )
 
+from drivers.hazcam import CAMERAS as HAZCAMS
 from prox_workflows.layers import LAYERS
 
 
@@ -59,6 +60,9 @@ TOPICS: dict[str, Topic] = {
     "/tof/confidence": Topic(RawImage.get_schema()),
     "/stereo/left/compressed": Topic(CompressedImage.get_schema()),
     "/stereo/right/compressed": Topic(CompressedImage.get_schema()),
+    **{f"/hazcam/{pair}/left/compressed": Topic(CompressedImage.get_schema()) for pair in HAZCAMS},
+    **{f"/hazcam/{pair}/points": Topic(PointCloud.get_schema()) for pair in HAZCAMS},
+    "/nav/bounds": Topic(Grid.get_schema(), latched=True),
     "/nav/plan": Topic(SceneUpdate.get_schema(), latched=True),
     "/nav/track": Topic(SceneUpdate.get_schema(), latched=True),
     "/nav/check_move": Topic(SceneUpdate.get_schema(), latched=True),
@@ -71,6 +75,8 @@ TOPICS: dict[str, Topic] = {
     "/raw/tof/image": Topic(RawImage.get_schema(), live=False),
     "/raw/stereo/left": Topic(RawImage.get_schema(), live=False),
     "/raw/stereo/right": Topic(RawImage.get_schema(), live=False),
+    **{f"/raw/hazcam/{pair}/{side}": Topic(RawImage.get_schema(), live=False)
+       for pair in HAZCAMS for side in ("left", "right")},
 }
 MAP_PREFIX = "/map/"  # + layer name: one Grid channel per layer, latched
 MAP_TOPIC = Topic(Grid.get_schema(), latched=True)
