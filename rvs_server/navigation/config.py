@@ -72,9 +72,10 @@ class SeeConfig(Settings):
                       "height bounds (never moving onto ground no frame bounded: it looks there first, then stops "
                       "and plans round it); off trusts the 5 cm maps' hazard check alone", choices=("bounds", "off"),
                       option=False)
-    gaze: str = param("path", "see loop: where the ToF looks while driving: path pans along the path (the ground a "
-                      "turn will put under the wheels) and every other frame looks at the path just ahead at the "
-                      "lowest tilt (where the gate judges next); off holds pan 0 and see_tilt",
+    gaze: str = param("path", "see loop with the gate: where the ToF looks while driving: path pans along the path "
+                      "(the ground a turn will put under the wheels) and every other frame looks at the path just "
+                      "ahead at the lowest tilt (where the gate judges next); off, or see_gate off, holds pan 0 and "
+                      "see_tilt (each PTU move costs the drive its time)",
                       choices=("path", "off"), option=False)
     gate_ahead: float = param(0.5, "see loop: the gate also holds this much of the path past the next motion to "
                               "assessed ground, so the rover stops and replans before it stands at the problem",

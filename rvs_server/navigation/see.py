@@ -169,8 +169,9 @@ class SeeingDriver:
         turn; every other frame it looks at the path ``GAZE_NEAR`` m ahead at the PTU's lowest
         tilt, where the gate judges next (closer, so with a third of the range noise), and
         otherwise at the point ``GAZE_FAR`` m ahead at ``see_tilt``, as the 5 cm maps' check
-        needs. Off: pan 0, ``see_tilt``."""
-        if self.p.gaze == "off":
+        needs. Off, or without the gate (which the near frames feed): pan 0, ``see_tilt``, and no
+        PTU move between frames (each move costs the drive its time)."""
+        if self.p.gaze == "off" or self.bounds is None:
             return
         self.frame_no += 1
         near = self.frame_no % 2 == 0
