@@ -18,7 +18,7 @@ import aiohttp
 import numpy as np
 import pytest
 from google.protobuf import descriptor_pb2, descriptor_pool, message_factory
-from scipy.spatial.transform import Rotation
+from support.mcap import transform_matrix
 from support.server import wait_for
 
 from prox_workflows.grid import read_geotiff
@@ -124,21 +124,13 @@ class FoxgloveClient:
                     return t, message
 
 
-def matrix(tf: Any) -> np.ndarray:
-    T = np.eye(4)
-    q = tf.rotation
-    T[:3, :3] = Rotation.from_quat([q.x, q.y, q.z, q.w]).as_matrix()
-    T[:3, 3] = [tf.translation.x, tf.translation.y, tf.translation.z]
-    return T
-
-
 def chain(transforms: Any, child: str) -> np.ndarray:
     """world <- child through the tree's parent links."""
     by_child = {tf.child_frame_id: tf for tf in transforms}
     T = np.eye(4)
     while child != "world":
         tf = by_child[child]
-        T = matrix(tf) @ T
+        T = transform_matrix(tf) @ T
         child = tf.parent_frame_id
     return T
 
@@ -203,11 +195,11 @@ def test_foxglove_client_decodes_grid_cloud_and_frames(server_factory: Any) -> N
     latest = got["latest"].transforms
     assert {tf.child_frame_id for tf in latest} >= {"rover", "mast", "ptu_pan", "ptu_tilt", "tof", "stereo_left",
                                                      "stereo_right", "rover_truth"}
-    rover = matrix(next(tf for tf in latest if tf.child_frame_id == "rover"))
+    rover = transform_matrix(next(tf for tf in latest if tf.child_frame_id == "rover"))
     pose = [float(v) for v in st["pose"].split(",")]
     assert rover[:2, 3] == pytest.approx(pose[:2], abs=1e-3)
     assert np.degrees(np.arctan2(rover[1, 0], rover[0, 0])) == pytest.approx(pose[2], abs=0.01)
-    truth = matrix(next(tf for tf in latest if tf.child_frame_id == "rover_truth"))
+    truth = transform_matrix(next(tf for tf in latest if tf.child_frame_id == "rover_truth"))
     assert truth[:2, 3] == pytest.approx([float(v) for v in st["truth"].split(",")][:2], abs=1e-3)
 
     # the cloud, put in the world through the tree of its own time, lies on the DEM made from it
