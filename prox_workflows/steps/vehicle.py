@@ -269,6 +269,12 @@ class Gate:
     kind: str = ""
     excess: float = 0.0
 
+    def describe(self) -> str:
+        if self.verdict == "unknown":
+            return f"unseen ground at ({self.x:.2f}, {self.y:.2f})"
+        unit, value = ("deg", self.excess) if self.kind == "tilt" else ("cm", self.excess * 100)
+        return f"{self.kind} +{value:.1f} {unit} at ({self.x:.2f}, {self.y:.2f})"
+
 
 def gate_poses(lower: np.ndarray, upper: np.ndarray, geom: GridGeometry, poses: np.ndarray,
                body: VehicleBody) -> Gate:

@@ -257,10 +257,10 @@ class SeeingDriver:
         from 0.2 m ahead of the nose, where the mast never sees."""
         device = self.app.devices.get("hazcam")
         frame = device_call(self.job, device.grab, camera)
-        pts = frame.points[~self.on_body(frame.points)] @ T[:3, :3].T + T[:3, 3]
+        ground = ~self.on_body(frame.points)
+        pts = frame.points[ground] @ T[:3, :3].T + T[:3, 3]
         origin = T[:3, :3] @ frame.origin + T[:3, 3]
-        sigma, sigma_xy = pair_sigmas(pts, origin, frame.sigma_range[~self.on_body(frame.points)],
-                                      device.rig(camera).focal)
+        sigma, sigma_xy = pair_sigmas(pts, origin, frame.sigma_range[ground], device.rig(camera).focal)
         self.bounds.fuse(pts, sigma, origin, device.config.max_range, sigma_xy)
 
     def on_body(self, pts: np.ndarray) -> np.ndarray:
@@ -386,10 +386,7 @@ class SeeingDriver:
         """The gate stopped the rover: the EVENT, and the ground it blamed kept out of every later
         plan (the 5 cm maps may call it safe; the next plan would drive there again)."""
         self.vetoed.append((gate.x, gate.y))
-        self.job.progress(0, 1, f"stopped: {gate.kind} {'+' if gate.excess > 0 else ''}"
-                                f"{gate.excess * (1 if gate.kind == 'tilt' else 100):.1f}"
-                                f"{' deg' if gate.kind == 'tilt' else ' cm' if gate.kind != 'unknown' else ''} "
-                                f"at ({gate.x:.2f}, {gate.y:.2f})", phase="drive")
+        self.job.progress(0, 1, f"stopped: {gate.describe()}", phase="drive")
         return self._stop_event(gate.x, gate.y, pose, "unknown" if gate.verdict == "unknown" else "vehicle")
 
     def _clear(self) -> None:
@@ -445,9 +442,9 @@ class SeePilot:
     def _watch(self, pose: tuple[float, float, float]) -> None:
         self._advance(pose, self.segments - 1)
         check, _, seen_at = self.d.cycle(self.wps[self.k:])
-        gate = self.d.gate(seen_at, self.wps[self.k:]) if self.d.bounds is not None else Gate("safe")
         if self.hazard is not None:  # once per leg: the GNC is stopping
             return
+        gate = self.d.gate(seen_at, self.wps[self.k:]) if self.d.bounds is not None else Gate("safe")
         if check.verdict == "not_traversable":
             self.hazard = self.d._stop_event(check.worst_x, check.worst_y, seen_at)
         elif gate.verdict != "safe":

@@ -221,6 +221,7 @@ def test_the_gate_stops_at_the_first_pose_over_a_rock_and_blames_its_top() -> No
     lower[on], upper[on] = 0.085, 0.095
     gate = gate_poses(lower, upper, g, poses, body)
     assert (gate.verdict, gate.kind) == ("unsafe", "belly")
+    assert gate.describe().startswith("belly +") and gate.describe().endswith(f"at ({gate.x:.2f}, {gate.y:.2f})")
     assert np.hypot(gate.x - 0.4, gate.y) <= 0.05  # the rock's top
     # the first pose whose box reaches the rock: its front edge is at the rock's near side
     assert poses[gate.index, 0] + body.length / 2 == pytest.approx(0.36, abs=0.03)
@@ -231,6 +232,7 @@ def test_the_gate_stops_at_the_first_pose_over_a_rock_and_blames_its_top() -> No
     lower[hole] = upper[hole] = np.nan
     gate = gate_poses(lower, upper, g, poses, body)
     assert gate.verdict == "unknown" and np.hypot(gate.x - 0.2, gate.y) <= 0.1
+    assert gate.describe().startswith("unseen ground at (")
     # bounded only by a ray that passed over it, high: not a rock, ground to look at
     upper[hole] = 0.3
     assert gate_poses(lower, upper, g, poses, body).verdict == "unknown"
