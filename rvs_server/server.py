@@ -56,6 +56,7 @@ class Connection(asyncio.Protocol):
         self.events = True
         self.json = False
         self.authenticated = False
+        self.auth_failures = 0  # wrong tokens so far: each one delays the next auth (commands/system.py)
         self.closed = False
         self.paused = False
         self.peer = "?"

@@ -3,6 +3,7 @@ and the extensions (help, status, version, events, format, config, pose, auth)."
 
 from __future__ import annotations
 
+import asyncio
 import hmac
 import platform
 import shutil
@@ -19,7 +20,7 @@ from rvs_params import assignment
 
 from .. import PROTOCOL_VERSION, __version__
 from ..app import Context
-from ..config import ModuleConfig, param
+from ..config import ModuleConfig, ServerConfig, param
 from ..jobs import HISTORY, Job
 from ..protocol import Fixed, Group, ProtocolError, render_value
 from ..table import ALWAYS, COMMANDS, CONTROL, command, lookup
@@ -449,14 +450,31 @@ def pose(ctx: Context, cfg: PoseConfig) -> dict[str, Any]:
     return {"x": Fixed(p.x, 3), "y": Fixed(p.y, 3), "heading": Fixed(p.heading, 2), "stopped": p.stopped}
 
 
+def _auth_wait(server: ServerConfig, failures: int) -> float:
+    """Seconds before an auth is answered on a connection that sent ``failures`` wrong tokens:
+    guessing the token over one connection gets slower the longer it goes on."""
+    if failures == 0:
+        return 0.0
+    return min(server.auth_delay * 2.0 ** (failures - 1), server.auth_delay_max)
+
+
 @command("auth", klass=ALWAYS, config=AuthConfig, open=True, help="authenticate this connection with the server's token")
-def auth(ctx: Context, cfg: AuthConfig) -> dict[str, Any]:
-    token = ctx.app.server_cfg.token
-    if not token:
-        ctx.conn.authenticated = True
+async def auth(ctx: Context, cfg: AuthConfig) -> dict[str, Any]:
+    server, conn = ctx.app.server_cfg, ctx.conn
+    if not server.token:
+        conn.authenticated = True
         return {"authenticated": True, "required": False}
-    if not hmac.compare_digest(cfg.token.encode(), token.encode()):
-        ctx.conn.log.warning("auth_failed")
-        raise ProtocolError("E_AUTH", "wrong token; check server.token in the server's configuration")
-    ctx.conn.authenticated = True
+    wait = _auth_wait(server, conn.auth_failures)
+    if wait > 0:
+        # only this connection waits: its later lines queue behind this one, others are served
+        conn.log.info("auth_delayed", seconds=wait, failures=conn.auth_failures)
+        await asyncio.sleep(wait)
+    if not hmac.compare_digest(cfg.token.encode(), server.token.encode()):
+        conn.auth_failures += 1
+        wait = _auth_wait(server, conn.auth_failures)
+        conn.log.warning("auth_failed", failures=conn.auth_failures, next_wait=wait)
+        raise ProtocolError("E_AUTH", f"wrong token; check server.token in the server's configuration; the next auth on "
+                            f"this connection is answered after {wait:g} s")
+    conn.auth_failures = 0
+    conn.authenticated = True
     return {"authenticated": True}

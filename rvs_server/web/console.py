@@ -91,6 +91,7 @@ class WebPeer:
         self.events = True
         self.json = True
         self.authenticated = False
+        self.auth_failures = 0  # as a TCP connection's
         self.jobs_running = 0
         self.jobs_started = 0
         self.exiting = False
