@@ -534,12 +534,14 @@ class LineSplitter:
                     self._buf.clear()
                     if line.endswith(b"\r"):
                         line = line[:-1]
+                    # the tag is read from the bytes a line is judged on, however TCP cut them:
+                    # the same line then gets the same tag whether its LF came with it or later
                     if len(line) > self.max_line:
-                        out.append(TooLong.of(line))
+                        out.append(TooLong.of(line[: self.max_line + 2]))
                     else:
                         out.append(line)
                 elif len(self._buf) > self.max_line + 1:  # +1: a CR may still precede the LF
-                    out.append(TooLong.of(bytes(self._buf[: TooLong.HEAD])))
+                    out.append(TooLong.of(bytes(self._buf[: self.max_line + 2])))
                     self._buf.clear()
                     self._discarding = True
             if nl < 0:

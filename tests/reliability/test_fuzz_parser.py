@@ -14,7 +14,7 @@ import math
 import re
 
 import pytest
-from hypothesis import HealthCheck, given, settings
+from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 from reliability_harness import (
     IAC_SEQUENCE,
@@ -198,7 +198,8 @@ def model_lines(stream: bytes, max_line: int) -> list[bytes | TooLong | Telnet]:
         nl = text.find(b"\n", start)
         end = len(text) if nl < 0 else nl
         if end - start > max_line + 1:
-            events.append((start + max_line + 1, 1, too_long(bytes(text[start:end]))))
+            # judged as soon as it cannot fit: its tag is in what had come by then
+            events.append((start + max_line + 1, 1, too_long(bytes(text[start:start + max_line + 2]))))
         elif nl >= 0:
             line = bytes(text[start:nl].removesuffix(b"\r"))
             events.append((nl, 1, too_long(line) if len(line) > max_line else line))
@@ -220,6 +221,10 @@ stream_parts = st.one_of(
 @examples(800)
 @given(st.lists(stream_parts, max_size=30), st.lists(st.integers(1, 50), min_size=1, max_size=10),
        st.sampled_from([16, 32, 64]))
+# a tag longer than the limit ends after the byte the line is judged on: byte by byte or with
+# its LF in one piece, the line gets no tag
+@example(parts=[b"@", b"-" * 17, b"\r"], cuts=[1], max_line=16)
+@example(parts=[b"@", b"-" * 17, b" x\r\n"], cuts=[50], max_line=16)
 def test_splitter_agrees_with_the_model_however_tcp_cuts_the_stream(parts, cuts, max_line) -> None:
     stream = b"".join(parts)
     splitter = LineSplitter(max_line=max_line)
