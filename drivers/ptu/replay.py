@@ -14,6 +14,7 @@ from __future__ import annotations
 import os
 from typing import Any
 
+from drivers.base import DeviceError
 from drivers.ptu.backend import BACKENDS
 from drivers.ptu.emulator import PtuEmulator, open_pty
 from drivers.ptu.protocol import deg_to_pos
@@ -72,4 +73,4 @@ class ReplayLine:
         return {"replay": run.recording.path.name if run is not None else self._file, "timing": self._timing}
 
     def inject_fault(self, kind: str | None) -> None:
-        raise NotImplementedError("a replayed PTU has no simulated faults")
+        raise DeviceError("ptu", "a replayed PTU has no simulated faults: inject them into the sim backend")

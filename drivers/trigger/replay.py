@@ -7,6 +7,7 @@ from __future__ import annotations
 
 from typing import Any
 
+from drivers.base import DeviceError
 from drivers.replay import Replay, ReplaySettings, open_replay
 from drivers.trigger.backend import BACKENDS
 
@@ -35,4 +36,4 @@ class ReplayTrigger:
         return {"replay": self._replay.recording.path.name if self._replay is not None else self._file}
 
     def inject_fault(self, kind: str | None) -> None:
-        raise NotImplementedError("a replayed trigger box has no simulated faults")
+        raise DeviceError("trigger", "a replayed trigger box has no simulated faults: inject them into the sim backend")
