@@ -23,7 +23,7 @@ import json
 import threading
 import time
 import weakref
-from collections.abc import Iterator
+from collections.abc import Generator, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -98,29 +98,16 @@ class Recording:
                 self.poses.append((message.log_time, pose.position.x, pose.position.y, heading))
 
     def _records(self) -> Iterator[tuple[Any, Any, Any]]:
-        from mcap.records import Channel, Message, Metadata, Schema
-        from mcap.stream_reader import StreamReader
-
-        schemas: dict[int, Any] = {}
-        channels: dict[int, Any] = {}
         try:
             f = open(self.path, "rb")  # noqa: SIM115 - closed below, after the generator's last record
         except OSError as exc:
             raise DeviceError("replay", f"recording {self.path} cannot be read: {exc.strerror or exc}") from None
         with f:
-            try:
-                for record in StreamReader(f, skip_magic=False, emit_chunks=False).records:
-                    if isinstance(record, Schema):
-                        schemas[record.id] = record
-                    elif isinstance(record, Channel):
-                        channels[record.id] = record
-                    elif isinstance(record, Metadata) and record.name == "rvs":
-                        self.metadata = {k: _json(v) for k, v in record.metadata.items()}
-                    elif isinstance(record, Message):
-                        channel = channels[record.channel_id]
-                        yield schemas.get(channel.schema_id), channel, record
-            except Exception:  # noqa: BLE001 - a torn tail fails in the record parser or the decompressor alike
-                self.torn = True
+            def metadata(name: str, data: dict[str, str]) -> None:
+                if name == "rvs":
+                    self.metadata = {k: _json(v) for k, v in data.items()}
+
+            self.torn = yield from mcap_messages(f, metadata)
 
     def describe(self) -> str:
         counts = ", ".join(f"{len(v)} {k}" for k, v in sorted(self.calls.items()))
@@ -226,6 +213,31 @@ def open_replay(device: str, path: str | None) -> Replay:
             run = Replay(recording)
             _RUNS[recording.path] = run
         return run
+
+
+def mcap_messages(f: Any, metadata: Any = None) -> Generator[tuple[Any, Any, Any], None, bool]:
+    """(schema, channel, message) of every message of an open MCAP file, front to back, also of one
+    whose writer was killed (no summary, a torn last record): up to the first torn record. Metadata
+    records go to ``metadata(name, data)``. Returns whether the file was torn."""
+    from mcap.records import Channel, Message, Metadata, Schema
+    from mcap.stream_reader import StreamReader
+
+    schemas: dict[int, Any] = {}
+    channels: dict[int, Any] = {}
+    try:
+        for record in StreamReader(f, skip_magic=False, emit_chunks=False).records:
+            if isinstance(record, Schema):
+                schemas[record.id] = record
+            elif isinstance(record, Channel):
+                channels[record.id] = record
+            elif isinstance(record, Metadata) and metadata is not None:
+                metadata(record.name, record.metadata)
+            elif isinstance(record, Message):
+                channel = channels[record.channel_id]
+                yield schemas.get(channel.schema_id), channel, record
+    except Exception:  # noqa: BLE001 - a torn tail fails in the record parser or the decompressor alike
+        return True
+    return False
 
 
 def _json(text: str) -> Any:

@@ -55,20 +55,7 @@ class Recording(Outlet):
 def read_messages(path: Path) -> Iterator[tuple[Any, Any, Any]]:
     """(schema, channel, message) of every message in an MCAP file, also one whose writer was
     killed (no summary, a torn last record): read front to back, up to the first torn record."""
-    from mcap.records import Channel, Message, Schema
-    from mcap.stream_reader import StreamReader
+    from drivers.replay import mcap_messages
 
-    schemas: dict[int, Any] = {}
-    channels: dict[int, Any] = {}
     with open(path, "rb") as f:
-        try:
-            for record in StreamReader(f, skip_magic=False, emit_chunks=False).records:
-                if isinstance(record, Schema):
-                    schemas[record.id] = record
-                elif isinstance(record, Channel):
-                    channels[record.id] = record
-                elif isinstance(record, Message):
-                    channel = channels[record.channel_id]
-                    yield schemas.get(channel.schema_id), channel, record
-        except Exception:  # noqa: BLE001 - a torn tail fails in the record parser or the decompressor alike
-            return
+        yield from mcap_messages(f)
