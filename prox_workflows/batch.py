@@ -34,6 +34,7 @@ from typing import Any
 import numpy as np
 import tifffile
 
+from .algorithms.dem_mosaik import dem_mosaik, union_geometry
 from .grid import GridGeometry, Layers, geo_tags, read_geotiff, read_geotiff_geometry
 from .products import atomic_path, write_yaml_atomic
 from .reprocess import (
@@ -43,7 +44,6 @@ from .reprocess import (
     is_current,
     reprocess,
 )
-from .steps.dem_mosaik import dem_mosaik, union_geometry
 
 # ------------------------------------------------------------------------------ inputs
 

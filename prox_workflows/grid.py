@@ -264,3 +264,15 @@ def read_geotiff_geometry(path: Path) -> GridGeometry:
     """The grid of a GeoTIFF from its header alone (a map view places a layer without its data)."""
     with tifffile.TiffFile(path) as tif:
         return _geometry_of(tif.pages[0], path)
+
+
+def gdal_nodata(path: str | Path) -> float | None:
+    """The GDAL nodata value a GeoTIFF declares (None: none, or one that is not a number)."""
+    with tifffile.TiffFile(path) as tif:
+        tag = tif.pages[0].tags.get(GDAL_NODATA)
+    if tag is None:
+        return None
+    try:
+        return float(str(tag.value).strip("\x00 "))
+    except ValueError:
+        return None

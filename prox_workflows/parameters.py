@@ -47,7 +47,7 @@ class DemParams(Settings):
     spike_points: int = param(3, "... with at most this many points is a spike: made undefined, then filled",
                               min=0, max=1000, option=False)
     # ToF-stereo fusion (-sensor fused): each sensor's per-point height noise model, one standard
-    # deviation per cause (prox_workflows/steps/noise.py), fitted to the simulator's truth by
+    # deviation per cause (prox_workflows/algorithms/noise.py), fitted to the simulator's truth by
     # ``python -m tools.bench.fusion --calibrate``, which prints these values and predicted vs
     # measured error per range band; a real head would be calibrated the same way on a surveyed site
     tof_noise_floor: float = param(0.0, "ToF height noise: floor", unit="m", min=0.0, max=1.0, option=False)

@@ -32,9 +32,9 @@ import yaml
 
 from rvs_params import SettingError, Settings, assignments
 
+from .algorithms.dem2hazard import HazardParams
 from .engine import run_workflow
 from .parameters import DemParams, DemStereoParams
-from .steps.dem2hazard import HazardParams
 
 # The scripts --from can run: a script that acquires (dem) runs offline as its recorded-views
 # twin (dem_views); the twin itself is accepted under its own name.

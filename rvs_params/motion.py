@@ -9,7 +9,7 @@ Profiles are exact piecewise-constant-acceleration segments rather than a numeri
 integration, so the emulator's simulated move time is the analytic one whatever its tick.
 
 It sits in the bottom layer because the PTU's emulator and the scan planner
-(:mod:`prox_workflows.steps.ptu_positions`, which may not import a driver) both time moves by it.
+(:mod:`prox_workflows.algorithms.ptu_positions`, which may not import a driver) both time moves by it.
 """
 
 from __future__ import annotations

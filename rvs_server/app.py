@@ -37,8 +37,8 @@ from .table import ALWAYS, CONTROL, HARDWARE, Command, bind_options, check_posit
 
 if TYPE_CHECKING:
     from drivers.sim.world import World
-    from prox_workflows.steps.odometry import DepthFrame
-    from prox_workflows.steps.tracking import Detection
+    from prox_workflows.algorithms.odometry import DepthFrame
+    from prox_workflows.algorithms.tracking import Detection
 
     from .server import Connection
     from .telemetry import Station

@@ -25,7 +25,7 @@ import structlog
 
 from drivers.base import Cancel, Device, DeviceError, DeviceInterrupted
 from drivers.registry import inputs, open_order, peers
-from prox_workflows.steps.stereo import cloud, disparity
+from prox_workflows.algorithms.stereo import cloud, disparity
 from rvs_params import Settings
 
 log = structlog.get_logger("rvs.devices")

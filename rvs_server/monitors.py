@@ -33,7 +33,7 @@ import numpy as np
 import structlog
 
 from drivers.base import DeviceError
-from prox_workflows.steps.transforms import HeadCalibration
+from prox_workflows.algorithms.transforms import HeadCalibration
 
 from .bus import tapped_call
 from .protocol import Fixed, ProtocolError, Reply

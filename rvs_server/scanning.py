@@ -15,15 +15,15 @@ import cv2
 import numpy as np
 
 from drivers.tof import constants as tof_k
+from prox_workflows.algorithms.acquire import Frame, acquire_coord_images
+from prox_workflows.algorithms.noise import model_sigmas, stereo_point_variance, tof_point_variance
+from prox_workflows.algorithms.ptu_positions import ORDERS, move_time
+from prox_workflows.algorithms.stereo import disparity as stereo_disparity
+from prox_workflows.algorithms.stereo import sigma_d_for
+from prox_workflows.algorithms.transforms import HeadCalibration
 from prox_workflows.engine import Cancelled, run_workflow
 from prox_workflows.grid import Layers
 from prox_workflows.parameters import DemParams
-from prox_workflows.steps.acquire import Frame, acquire_coord_images
-from prox_workflows.steps.noise import model_sigmas, stereo_point_variance, tof_point_variance
-from prox_workflows.steps.ptu_positions import ORDERS, move_time
-from prox_workflows.steps.stereo import disparity as stereo_disparity
-from prox_workflows.steps.stereo import sigma_d_for
-from prox_workflows.steps.transforms import HeadCalibration
 
 from .config import param
 from .jobs import Interrupted, Job, default_stem, device_call

@@ -228,7 +228,7 @@ def give_back_memory() -> None:
 
 def warm_up_kernels() -> None:
     """Compile (first run after installing) or load from cache the numba kernels."""
-    from prox_workflows.steps import dem2hazard, dem_import, planner
+    from prox_workflows.algorithms import dem2hazard, dem_import, planner
 
     try:
         dem_import.warm_up()

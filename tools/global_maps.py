@@ -28,10 +28,10 @@ import numpy as np
 from drivers.sim.scene import load_scene_spec
 from drivers.sim.terrain import dtm_crop
 from drivers.sim.world import World
+from prox_workflows.algorithms.dem2hazard import load_params
+from prox_workflows.algorithms.global_map import orbital_hazard
 from prox_workflows.grid import GridGeometry, write_geotiff
 from prox_workflows.products import write_text_atomic
-from prox_workflows.steps.dem2hazard import load_params
-from prox_workflows.steps.global_map import orbital_hazard
 from rvs_params.hazard import UNDEFINED
 
 

@@ -43,7 +43,7 @@ class RoverDrive:
 class RoverBody:
     """The simulated rover's body and what it can drive over: one declaration that the rendered
     body (:func:`drivers.sim.scene.build_rover`) and the vehicle check
-    (:mod:`prox_workflows.steps.vehicle`) both read. A scene overrides any field in its
+    (:mod:`prox_workflows.algorithms.vehicle`) both read. A scene overrides any field in its
     ``rover: body:`` block.
 
     The body copies a Pioneer 3-AT (MobileRobots/Adept; 508 x 497 x 277 mm, four 21.5 cm wheels,

@@ -7,7 +7,7 @@ Verbs:
   non-linear refinement of the reprojection error), decomposed into K, R, t, with the RMS.
   CSV columns x y z u v (a header naming them, an extra ``id``/``name`` column, or five bare
   numeric columns); YAML either ``{world: [[x,y,z]...], image: [[u,v]...]}`` or a list of
-  ``{world: [x,y,z], image: [u,v]}``. Writes the ``.cal`` of prox_workflows.steps.transforms.
+  ``{world: [x,y,z], image: [u,v]}``. Writes the ``.cal`` of prox_workflows.algorithms.transforms.
 * ``stereo (DIR | --left L... --right R...) --pattern 8x6 --square 0.05 -o CALIB.yaml``:
   intrinsics and stereo extrinsics from checkerboard pairs, with the RMS. In DIR, a file whose
   name contains ``left`` pairs with the one where ``left`` reads ``right``.
@@ -36,15 +36,15 @@ from typing import Any
 import numpy as np
 import yaml
 
-from ..products import write_yaml_atomic
-from ..steps.calibration import (
+from ..algorithms.calibration import (
     TofStereoView,
     calibrate_control_points,
     calibrate_stereo_checkerboard,
     calibrate_tof_stereo,
 )
-from ..steps.stereo import load_calibration, save_calibration
-from ..steps.transforms import write_cal
+from ..algorithms.stereo import load_calibration, save_calibration
+from ..algorithms.transforms import write_cal
+from ..products import write_yaml_atomic
 from .parser import ToolParser
 from .stereo import read_image
 
@@ -53,7 +53,7 @@ IMAGE_EXT = (".tif", ".tiff", ".png", ".pgm", ".ppm", ".bmp", ".jpg", ".jpeg", "
 
 def _provenance(verb: str, inputs: list[str], **parameters: Any) -> dict[str, Any]:
     return {
-        "made_by": f"rvs-calib {verb} (prox_workflows.steps.calibration)",
+        "made_by": f"rvs-calib {verb} (prox_workflows.algorithms.calibration)",
         "time": datetime.now(UTC).isoformat(timespec="seconds"),
         "inputs": inputs,
         "parameters": parameters,

@@ -18,13 +18,13 @@ import yaml
 
 from rvs_params import SettingError
 
+from ..algorithms.dem2hazard import HazardParams, load_params
 from ..engine import WorkflowError, run_workflow
 from ..grid import GridGeometry, parse_crs
-from ..steps.dem2hazard import HazardParams, load_params
-from ..steps.readers import read_dem as _read_dem
+from ..steps.read import read_dem as _read_dem
 from .parser import ToolParser
 
-MADE_BY = "rvs-dem2hazard (prox_workflows.steps.dem2hazard)"
+MADE_BY = "rvs-dem2hazard (prox_workflows.algorithms.dem2hazard)"
 
 
 def read_dem(path: Path, nodata: float | None = None) -> tuple[Any, GridGeometry]:

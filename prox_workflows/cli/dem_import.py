@@ -30,15 +30,15 @@ import numpy as np
 
 from rvs_params import SettingError
 
+from ..algorithms.dem_import import cells_from_bounds
 from ..engine import WorkflowError, run_workflow
 from ..grid import parse_crs
 from ..layers import layer_path as _layer_path
 from ..layers import prefix_of, read_layers, write_layers  # noqa: F401 - the readers and writers of DEM files
 from ..parameters import DemImportParams
-from ..steps.dem_import import cells_from_bounds
 from .parser import ToolParser
 
-MADE_BY = "rvs-dem-import (prox_workflows.steps.dem_import)"
+MADE_BY = "rvs-dem-import (prox_workflows.algorithms.dem_import)"
 # What prox_workflows.pointcloud.read_points reads, by extension: the --help names every one.
 INPUT_FORMATS = ("PLY (.ply, ascii or binary), PCD (.pcd, ascii or binary), LAS/LAZ (.las, .laz), .npy "
                  "(N x 3 or N x 4), x y z [i] text (.txt .xyz .csv .asc .pts) or a 4-channel coordinate TIFF "

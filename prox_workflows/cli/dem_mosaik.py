@@ -1,7 +1,7 @@
 """``rvs-dem-mosaik A.tif B.tif ... --rule fuse -o M.tif``: DemMosaik - DEMs of different extents
 and cell sizes merged onto one grid (the union of their extents at the finest cell, or ``--cell``
 / ``--bounds``), by the rule ``max``, ``newest`` (later inputs win) or ``fuse`` (Kalman update
-with a Mahalanobis gate; see prox_workflows.steps.dem_mosaik).
+with a Mahalanobis gate; see prox_workflows.algorithms.dem_mosaik).
 
 Each input is read with the companion layers beside it (``A_count.tif``, ``A_variance.tif``,
 ``A_measurement_variance.tif`` ... as rvs-dem-import writes them). For ``fuse`` an input's cell
@@ -25,14 +25,14 @@ import numpy as np
 
 from rvs_params import SettingError
 
+from ..algorithms.dem_import import cells_from_bounds
+from ..algorithms.dem_mosaik import DemMosaikParams
 from ..engine import WorkflowError, run_workflow
 from ..grid import parse_crs
 from ..layers import prefix_of
-from ..steps.dem_import import cells_from_bounds
-from ..steps.dem_mosaik import DemMosaikParams
 from .parser import ToolParser
 
-MADE_BY = "rvs-dem-mosaik (prox_workflows.steps.dem_mosaik)"
+MADE_BY = "rvs-dem-mosaik (prox_workflows.algorithms.dem_mosaik)"
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -2,7 +2,7 @@
 
 Visual odometry on files: camera B's motion in camera A's frame from A's stereo pair and B's
 left image (or pair), by the server's orient machinery
-(:func:`prox_workflows.steps.stereo_odometry.stereo_odometry_files`, a registered step). This
+(:func:`prox_workflows.algorithms.stereo_odometry.stereo_odometry_files`, a registered step). This
 program only parses the command line, prints, and writes the YAML atomically: the estimate is
 the step's, so a script, a test and this CLI get the same numbers.
 
@@ -21,9 +21,9 @@ from typing import Any
 
 import yaml
 
+from ..algorithms.odometry import OdometryError
 from ..products import write_yaml_atomic
-from ..steps.odometry import OdometryError
-from ..steps.stereo_odometry import stereo_odometry_files
+from ..steps.stereo import stereo_odometry_files
 from .parser import ToolParser
 
 

@@ -10,7 +10,7 @@ Start, goal and every output are in the maps' world coordinates (their GeoTIFF t
 Without global maps, blank ones are made to cover the local map, the start and the goal.
 ``--global`` takes a global DEM (or 0/128/255 hazard map) from orbit in any CRS in metres, moved
 to the maps' frame by ``--global-origin`` (the frame's origin in the file's CRS); its hazard and
-slope come from Dem2Hazard (prox_workflows.steps.global_map, as navigate -global) and are written
+slope come from Dem2Hazard (prox_workflows.algorithms.global_map, as navigate -global) and are written
 as PREFIX_global_hazard.tif and PREFIX_global_slope.tif, which the plan then reads. Writes
 PREFIX_path.csv, PREFIX_waypoints.csv, PREFIX_plan.yaml and PREFIX_plan_map.png (plus
 PREFIX_plan_ortho.png with ``--ortho``); prints the path cost and the waypoints. Exit status 1
@@ -28,11 +28,11 @@ from pathlib import Path
 from rvs_params import SettingError
 from rvs_params.hazard import UNDEFINED
 
+from ..algorithms.planner import PlannerParams, PlanningError, PlanParams
 from ..engine import WorkflowError, run_workflow
-from ..steps.planner import PlannerParams, PlanningError, PlanParams
 from .parser import ToolParser
 
-MADE_BY = "rvs-path-planner (prox_workflows.steps.planner)"
+MADE_BY = "rvs-path-planner (prox_workflows.algorithms.planner)"
 
 
 def _point(text: str) -> tuple[float, float]:
@@ -48,8 +48,8 @@ def _point(text: str) -> tuple[float, float]:
 def _global_maps(path: Path, origin: tuple[float, float], prefix: str) -> tuple[Path, Path]:
     """Hazard and slope of a global DEM in the maps' frame, written beside the outputs (the plan
     reads maps from files, and the products say what they were planned on)."""
+    from ..algorithms.global_map import load_global
     from ..grid import write_geotiff
-    from ..steps.global_map import load_global
 
     g = load_global(path, origin)
     out = Path(prefix)

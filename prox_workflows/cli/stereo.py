@@ -1,7 +1,7 @@
 """``rvs-stereo LEFT RIGHT --calib CALIB.yaml [--disparity OUT.tif] [-o CLOUD.ply]``.
 
 The stereo step on one pair as taken (unrectified, distorted): semi-global matching with a
-left-right check, speckle filter and texture mask (prox_workflows.steps.stereo). The texture mask
+left-right check, speckle filter and texture mask (prox_workflows.algorithms.stereo). The texture mask
 measures the left image's noise (``--texture-noise`` fixes it) and says what it found.
 
 * ``--disparity OUT.tif``: float32 disparity in pixels, NaN where invalid, in the LEFT image's
@@ -30,15 +30,15 @@ import yaml
 
 from rvs_params import SettingError, assignments
 
-from ..engine import WorkflowError, run_workflow
-from ..steps.stereo import (
+from ..algorithms.stereo import (
     DEFAULT_SIGMA_D,
     SgbmParams,
+    read_image,  # noqa: F401 - the reader tests and tools use
 )
-from ..steps.stereo_products import read_image  # noqa: F401 - the reader tests and tools use
+from ..engine import WorkflowError, run_workflow
 from .parser import ToolParser
 
-MADE_BY = "rvs-stereo (prox_workflows.steps.stereo)"
+MADE_BY = "rvs-stereo (prox_workflows.algorithms.stereo)"
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -15,18 +15,9 @@ from .types import annotation_type
 # Modules whose @step functions make up the registry, and those that declare script parameter
 # classes beyond them; imported when the registry is first read, so that importing the engine
 # stays cheap. (A step module registers the parameter classes it declares itself.)
-STEP_MODULES: tuple[str, ...] = (
-    "prox_workflows.steps.ptu_positions",
-    "prox_workflows.steps.dem_import",
-    "prox_workflows.steps.dem_chain",
-    "prox_workflows.steps.spikes",
-    "prox_workflows.steps.readers",
-    "prox_workflows.steps.dem_products",
-    "prox_workflows.steps.planner",
-    "prox_workflows.steps.plan_products",
-    "prox_workflows.steps.stereo_products",
-    "prox_workflows.steps.stereo_odometry",
-)
+STEP_MODULES: tuple[str, ...] = tuple(f"prox_workflows.steps.{role}" for role in (
+    "read", "scan", "dem", "hazard", "plan", "stereo", "write",
+))
 PARAMETER_MODULES: tuple[str, ...] = ("prox_workflows.parameters",)
 
 # Keywords the engine passes itself to a step that accepts them; never wired by a script.

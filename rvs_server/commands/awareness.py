@@ -18,10 +18,10 @@ import structlog
 
 from drivers.stereo.modes import RESOLUTIONS
 from drivers.tof import constants as tof_k
-from prox_workflows.steps import hazard_monitor as hm
-from prox_workflows.steps import tracking as tr
-from prox_workflows.steps.ptu_positions import get_ptu_positions
-from prox_workflows.steps.transforms import HeadCalibration, T_global_from_rover, invert
+from prox_workflows.algorithms import hazard_monitor as hm
+from prox_workflows.algorithms import tracking as tr
+from prox_workflows.algorithms.transforms import HeadCalibration, T_global_from_rover, invert
+from prox_workflows.steps.scan import get_ptu_positions
 
 from ..app import Context
 from ..config import ModuleConfig, param

@@ -10,9 +10,9 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any, ClassVar
 
+from prox_workflows.algorithms.dem2hazard import HazardParams
 from prox_workflows.engine import validate
 from prox_workflows.parameters import DemParams, DemStereoParams
-from prox_workflows.steps.dem2hazard import HazardParams
 
 from ..config import ModuleConfig, param, standalone
 from ..jobs import Job

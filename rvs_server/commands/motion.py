@@ -2,7 +2,7 @@
 ground-align (the sensor head's attitude from the ground plane, seed 003 sect. 4.3.1).
 
 Both are thin: they point the PTU, grab through the drivers and hand arrays to
-``prox_workflows.steps.odometry`` / ``ground_plane``; what they keep between requests (the
+``prox_workflows.algorithms.odometry`` / ``ground_plane``; what they keep between requests (the
 orient reference) is the app's ``odometry`` field, and what they correct (the mounts) in the ``head`` config
 module that every transform reads.
 """
@@ -18,11 +18,11 @@ from typing import TYPE_CHECKING, Any, ClassVar
 import numpy as np
 
 from drivers.stereo.modes import RESOLUTIONS
+from prox_workflows.algorithms import ground_plane as gp
+from prox_workflows.algorithms import odometry as od
+from prox_workflows.algorithms.stereo import disparity, load_calibration
+from prox_workflows.algorithms.transforms import HeadCalibration
 from prox_workflows.products import write_yaml_atomic
-from prox_workflows.steps import ground_plane as gp
-from prox_workflows.steps import odometry as od
-from prox_workflows.steps.stereo import disparity, load_calibration
-from prox_workflows.steps.transforms import HeadCalibration
 
 from ..app import OrientReference
 from ..config import ModuleConfig, param

@@ -8,7 +8,7 @@ from collections.abc import Awaitable
 from dataclasses import dataclass
 from typing import Any, ClassVar
 
-from prox_workflows.steps.safety import MAX_SWEEP_CELLS, check_move, sweep_cells
+from prox_workflows.algorithms.safety import MAX_SWEEP_CELLS, check_move, sweep_cells
 
 from ..app import Context
 from ..config import ModuleConfig, param

@@ -11,7 +11,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import ClassVar
 
-from prox_workflows.steps.planner import PlanParams
+from prox_workflows.algorithms.planner import PlanParams
 from rvs_params import Settings
 
 from ..config import ModuleConfig, param

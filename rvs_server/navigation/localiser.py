@@ -24,7 +24,7 @@ the dead-reckoned pose and says so.
 
 Navigate calls :meth:`Localiser.after_drive` once a leg is driven and :meth:`Localiser.after_scan`
 once the next leg's DEM is made; everything else lives here and in
-``prox_workflows.steps.map_match``.
+``prox_workflows.algorithms.map_match``.
 """
 
 from __future__ import annotations
@@ -35,13 +35,13 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from prox_workflows.algorithms.map_match import MatchResult, match_dem, overlay_layers, transform_layers
 from prox_workflows.grid import Layers
-from prox_workflows.steps.map_match import MatchResult, match_dem, overlay_layers, transform_layers
 
 from ..protocol import Fixed, Reply
 
 if TYPE_CHECKING:
-    from prox_workflows.steps.global_map import GlobalMap
+    from prox_workflows.algorithms.global_map import GlobalMap
 
     from ..jobs import Job
     from .config import LocaliseConfig

@@ -145,7 +145,7 @@ class Mission:
     def scan(self, leg: int) -> Any:
         """The leg's 360-degree DEM, matched by the localiser; returns its NavMaps. A second leg
         in a row that starts where the previous one did ends the job (no progress)."""
-        from prox_workflows.steps.planner import NavMaps
+        from prox_workflows.algorithms.planner import NavMaps
 
         from ..scanning import run_dem
 
@@ -176,9 +176,9 @@ class Mission:
 
     def products(self) -> dict[str, Any]:
         """The traverse figure, the waypoints and the track; the OK line."""
+        from prox_workflows.algorithms.planner import ortho_figure
         from prox_workflows.mapview import Marks
         from prox_workflows.products import write_png, write_text_atomic
-        from prox_workflows.steps.planner import ortho_figure
 
         app, goal, job = self.app, self.goal, self.job
         pose = app.pose

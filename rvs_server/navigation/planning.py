@@ -8,12 +8,12 @@ import math
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from prox_workflows.steps.planner import PlanParams
+from prox_workflows.algorithms.planner import PlanParams
 
 from ..protocol import ProtocolError
 
 if TYPE_CHECKING:
-    from prox_workflows.steps.planner import NavMaps, PlannerParams, PlanningError
+    from prox_workflows.algorithms.planner import NavMaps, PlannerParams, PlanningError
 
     from ..app import App
     from .config import NavigateConfig
@@ -33,7 +33,7 @@ def validate_scripts() -> None:
 def planner_params(app: App, plan: PlanParams) -> PlannerParams:
     """The planner's parameters: the ``plan`` section with this rover's body (config head) and
     the slope whose cost is 1 (dem2hazard.slope_max)."""
-    from prox_workflows.steps.planner import PlannerParams
+    from prox_workflows.algorithms.planner import PlannerParams
 
     head = app.config.get("head")
     return PlannerParams(grid=plan.grid, weight=plan.weight, heuristic=plan.heuristic,
@@ -46,7 +46,7 @@ def planner_params(app: App, plan: PlanParams) -> PlannerParams:
 def check_plan_size(app: App, cfg: NavigateConfig) -> None:
     """A goal so far that its plans could not be held in memory is E_ARG before the ACK, not
     after the first 360-degree scan."""
-    from prox_workflows.steps.planner import PlannerParams, blank_geometry, check_plan_size
+    from prox_workflows.algorithms.planner import PlannerParams, blank_geometry, check_plan_size
 
     start = cfg.start[:2] if cfg.start else [app.pose.x, app.pose.y]
     try:
@@ -58,8 +58,8 @@ def check_plan_size(app: App, cfg: NavigateConfig) -> None:
 
 def load_global_folder(folder: str) -> NavMaps | None:
     """The global hazard and slope maps of a folder (navigate.global_maps); None without one."""
+    from prox_workflows.algorithms.planner import NavMaps
     from prox_workflows.grid import read_geotiff
-    from prox_workflows.steps.planner import NavMaps
 
     if not folder:
         return None
@@ -77,8 +77,8 @@ def load_global_folder(folder: str) -> NavMaps | None:
 def load_global_maps(cfg: NavigateConfig) -> tuple[Any, Any]:
     """The planner's global maps and the global map with its DEM (for map matching), from
     -global FILE or navigate.global_maps; (None, None) without either (blank maps)."""
-    from prox_workflows.steps.global_map import GlobalMap, load_global
-    from prox_workflows.steps.planner import NavMaps
+    from prox_workflows.algorithms.global_map import GlobalMap, load_global
+    from prox_workflows.algorithms.planner import NavMaps
 
     origin = (cfg.global_origin[0], cfg.global_origin[1])
     if cfg.global_:
@@ -108,7 +108,7 @@ def goal_stand_in(local: NavMaps, global_maps: NavMaps | None, here: tuple[float
     tolerance (a goal a few centimetres short of the rover's clearance from a hazard is reached
     from there, as the tolerance says), or, from farther than judge_range, to drive toward and
     judge the goal again from closer. None: the goal is unreachable."""
-    from prox_workflows.steps.planner import PlanningError, nearest_reachable
+    from prox_workflows.algorithms.planner import PlanningError, nearest_reachable
 
     if exc.reason not in ("goal_in_hazard", "enclosed"):
         return None

@@ -8,7 +8,7 @@ import math
 
 import numpy as np
 
-from prox_workflows.steps.arcs import arc_poses
+from prox_workflows.algorithms.arcs import arc_poses
 
 
 def arc_rate(pose: tuple[float, float, float], target: tuple[float, float], speed: float, turn_rate: float,

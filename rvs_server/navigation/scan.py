@@ -17,7 +17,7 @@ from ..protocol import ProtocolError
 from .planning import goal_stand_in
 
 if TYPE_CHECKING:
-    from prox_workflows.steps.planner import PlanningError
+    from prox_workflows.algorithms.planner import PlanningError
 
     from .mission import Mission
     from .track import Track
@@ -67,7 +67,7 @@ class ScanStrategy:
     def scanned(self, leg: int, local: Any) -> None:
         """Plan the leg on the scan's maps (toward a stand-in where the goal cannot be planned
         to) and drive it."""
-        from prox_workflows.steps.planner import MIN_LEG, PlanningError
+        from prox_workflows.algorithms.planner import MIN_LEG, PlanningError
 
         m = self.mission
         app, cfg, goal = m.app, m.cfg, m.goal

@@ -39,12 +39,12 @@ import numpy as np
 
 from drivers.rover import Motion
 from drivers.tof.constants import FOV_V_DEG
-from prox_workflows.steps.bounds_map import BoundsMap
-from prox_workflows.steps.hazard_monitor import rover_points
-from prox_workflows.steps.noise import pair_sigmas, tof_height_variance, tof_horizontal_sigma
-from prox_workflows.steps.planner import NavMaps
-from prox_workflows.steps.replan import Replanner
-from prox_workflows.steps.rolling_map import (
+from prox_workflows.algorithms.bounds_map import BoundsMap
+from prox_workflows.algorithms.hazard_monitor import rover_points
+from prox_workflows.algorithms.noise import pair_sigmas, tof_height_variance, tof_horizontal_sigma
+from prox_workflows.algorithms.planner import NavMaps
+from prox_workflows.algorithms.replan import Replanner
+from prox_workflows.algorithms.rolling_map import (
     MapMemory,
     RollingMap,
     RollingParams,
@@ -53,9 +53,9 @@ from prox_workflows.steps.rolling_map import (
     path_poses,
     sweep_check,
 )
-from prox_workflows.steps.safety import in_footprint
-from prox_workflows.steps.transforms import HeadCalibration, T_global_from_rover
-from prox_workflows.steps.vehicle import Gate, densify, gate_poses
+from prox_workflows.algorithms.safety import in_footprint
+from prox_workflows.algorithms.transforms import HeadCalibration, T_global_from_rover
+from prox_workflows.algorithms.vehicle import Gate, densify, gate_poses
 from rvs_params.hazard import HAZARDOUS, SAFE
 
 from ..jobs import device_call
@@ -610,7 +610,7 @@ class SeeStrategy:
     def merged(self) -> Any:
         """The scan maps with what the rolling map has seen since laid over them (all it saw in
         the mission, with its memory)."""
-        from prox_workflows.steps.rolling_map import merge_nav_maps
+        from prox_workflows.algorithms.rolling_map import merge_nav_maps
 
         m = self.driver.map
         if m.frames == 0:
@@ -647,7 +647,7 @@ class SeeStrategy:
 
     def _plan(self) -> tuple[Any, str]:
         """(plan, "") or (None, why there is none) on the merged maps."""
-        from prox_workflows.steps.planner import MIN_LEG, PlanningError, plan_path
+        from prox_workflows.algorithms.planner import MIN_LEG, PlanningError, plan_path
 
         pose = self.app.pose
         here = (pose.x, pose.y)

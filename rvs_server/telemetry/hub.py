@@ -20,8 +20,8 @@ import numpy as np
 import structlog
 
 from drivers.base import DeviceError
+from prox_workflows.algorithms.transforms import HeadCalibration
 from prox_workflows.grid import GridGeometry, Layers
-from prox_workflows.steps.transforms import HeadCalibration
 
 from ..bus import Item
 from ..maps import ground_height
@@ -31,7 +31,7 @@ from .link import Link
 from .outlet import MAP_PREFIX, TOPICS, topic_spec
 
 if TYPE_CHECKING:
-    from prox_workflows.steps.bounds_map import BoundsMap
+    from prox_workflows.algorithms.bounds_map import BoundsMap
 
     from ..app import App
 

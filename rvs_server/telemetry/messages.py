@@ -49,8 +49,8 @@ from foxglove.messages import (
 )
 from scipy.spatial.transform import Rotation
 
+from prox_workflows.algorithms.transforms import HeadCalibration, make_T, rot_y, rot_z
 from prox_workflows.grid import GridGeometry
-from prox_workflows.steps.transforms import HeadCalibration, make_T, rot_y, rot_z
 
 WORLD = "world"
 SENSOR_FRAMES = {"left": "stereo_left", "right": "stereo_right"}  # mount name -> frame id (else the name)

@@ -26,7 +26,7 @@ from drivers.sim.terrain import DATA_DIR
 from drivers.sim.transforms import make_T
 from drivers.sim.world import World
 from drivers.stereo import create
-from prox_workflows.steps import stereo as st
+from prox_workflows.algorithms import stereo as st
 from rvs_params import SettingError
 
 FRAMES = Path(__file__).resolve().parents[3] / "shared" / "realdata" / "images"

@@ -178,8 +178,8 @@ def test_real_backend_without_libdc1394_reports_and_exits_nonzero(monkeypatch: p
 def test_one_shot_calibration_is_the_yaml_rvs_odometry_reads(tmp_path: Path) -> None:
     """``rvs-cam -c calibration > calib.yaml``: stdout is the calibration alone (no ids from
     start-up, no echoed command line), so rvs-odometry reads the file as it is."""
+    from prox_workflows.algorithms.stereo import load_calibration
     from prox_workflows.cli import odometry
-    from prox_workflows.steps.stereo import load_calibration
 
     world = FakeWorld()
     rc, out, err = run("calibration", world=world)

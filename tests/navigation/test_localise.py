@@ -12,9 +12,9 @@ import pytest
 from support.marks import long_test
 
 from drivers.sim.world import World
+from prox_workflows.algorithms.global_map import load_global
+from prox_workflows.algorithms.map_match import match_dem, transform_layers
 from prox_workflows.grid import GridGeometry, Layers, read_geotiff, write_geotiff
-from prox_workflows.steps.global_map import load_global
-from prox_workflows.steps.map_match import match_dem, transform_layers
 
 
 @pytest.fixture(scope="module")
@@ -256,7 +256,7 @@ def test_the_see_loop_matches_its_rolling_map_on_the_global_dem_while_driving(se
 
 
 def test_overlay_layers_lays_a_leg_over_the_earlier_legs_maps() -> None:
-    from prox_workflows.steps.map_match import overlay_layers
+    from prox_workflows.algorithms.map_match import overlay_layers
 
     gb = GridGeometry(0.1, 0.0, 1.0, 10, 10)
     gt = GridGeometry(0.1, 0.5, 1.5, 10, 10)  # overlaps the base's east half, extends east and north
@@ -318,7 +318,7 @@ def test_the_localiser_corrects_a_drifted_pose_and_moves_the_legs_maps(hirise, m
 
     from jsonschema import Draft202012Validator
 
-    from prox_workflows.steps.global_map import GlobalMap
+    from prox_workflows.algorithms.global_map import GlobalMap
     from rvs_server.app import Pose
     from rvs_server.navigation.localiser import Localiser
     from rvs_server.protocol import format_reply_json
@@ -363,7 +363,7 @@ def test_a_look_round_on_arrival_is_matched_whole(hirise) -> None:
     drove were placed along a pose that drifted frame by frame, so their fix keeps half of that
     drift in its sigma and moves the pose only part of the way; frames taken standing (the see
     loop's look round on arriving) share one error, and their fix moves the pose all of it."""
-    from prox_workflows.steps.global_map import GlobalMap
+    from prox_workflows.algorithms.global_map import GlobalMap
     from rvs_server.app import Pose
     from rvs_server.navigation.localiser import Localiser
 

@@ -185,7 +185,7 @@ def test_a_goal_short_of_the_clearance_is_planned_to_within_the_tolerance() -> N
     """A goal a few centimetres closer to a hazard than the rover's clearance (radius + margin)
     gets a stand-in within the goal's tolerance, reached from there; a goal on a rock gets none
     from close by (unreachable), and from farther than judge_range a point to drive toward."""
-    from prox_workflows.steps.planner import HAZARDOUS, NavMaps, PlannerParams, PlanningError, plan_path
+    from prox_workflows.algorithms.planner import HAZARDOUS, NavMaps, PlannerParams, PlanningError, plan_path
     from rvs_server.navigation.config import NavigateConfig
     from rvs_server.navigation.planning import goal_stand_in
 

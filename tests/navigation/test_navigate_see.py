@@ -17,10 +17,10 @@ from support.marks import long_only
 from support.navigation import true_hazard
 from support.server import wait_for
 
+from prox_workflows.algorithms.dem2hazard import HazardParams, dem2hazard
+from prox_workflows.algorithms.planner import NavMaps
+from prox_workflows.algorithms.rolling_map import RollingMap, RollingParams, merge_nav_maps, path_poses
 from prox_workflows.grid import GridGeometry
-from prox_workflows.steps.dem2hazard import HazardParams, dem2hazard
-from prox_workflows.steps.planner import NavMaps
-from prox_workflows.steps.rolling_map import RollingMap, RollingParams, merge_nav_maps, path_poses
 
 STOP_DISTANCE = 0.5  # m: the hazard monitor's default stop distance
 
@@ -218,8 +218,8 @@ def test_the_body_is_kept_off_ground_no_map_has_seen() -> None:
     ground within reach of the rover is kept out of plans as a rock is, and the sweep of the next
     blind metres stops on it (the rover then looks there); ground farther off stays plannable,
     since the forward view shows it before the body gets there."""
-    from prox_workflows.steps.planner import PlannerParams, plan_path
-    from prox_workflows.steps.rolling_map import mark_unseen, sweep_check
+    from prox_workflows.algorithms.planner import PlannerParams, plan_path
+    from prox_workflows.algorithms.rolling_map import mark_unseen, sweep_check
     from rvs_params.hazard import HAZARDOUS, SAFE, UNDEFINED
 
     g = GridGeometry(0.05, -1.0, 2.0, 100, 80)  # x -1..4, y -2..2
@@ -309,7 +309,7 @@ def test_a_pose_fix_moves_only_what_the_rolling_map_saw_since_the_last_fix() -> 
     fix corrects) move by it, and the hazard layers follow: a rock seen 0.3 m off lands on its
     true place, a rock seen before stays on its own; the mission's memory of the verdicts moves
     with them."""
-    from prox_workflows.steps.rolling_map import MapMemory
+    from prox_workflows.algorithms.rolling_map import MapMemory
     from rvs_params.hazard import HAZARDOUS, SAFE
 
     params = HazardParams()
@@ -504,7 +504,7 @@ def test_the_memory_keeps_a_dead_end_after_it_scrolls_off_the_rolling_map() -> N
     the rover is 6 m on and the 4 m rolling map has long shifted past it (without the memory the
     wall is gone and D* Lite sends the rover back into the dead end); a later verdict of a cell
     replaces the kept one, and cells off the memory's box are simply not kept."""
-    from prox_workflows.steps.rolling_map import MapMemory
+    from prox_workflows.algorithms.rolling_map import MapMemory
     from rvs_params.hazard import HAZARDOUS, SAFE, UNDEFINED
 
     rng = np.random.default_rng(5)
@@ -586,7 +586,7 @@ def test_the_check_takes_only_the_ground_under_the_body_as_seen_not_its_turning_
     assert seen(north, 0.025, 0.275) and not seen(north, 0.325, 0.025)
     # the check's own footprint agrees: the body where it stands meets no unseen cell in the layer
     # (the rolling map alone, empty, has none seen), and a quarter turn meets unseen ones
-    from prox_workflows.steps.rolling_map import sweep_check
+    from prox_workflows.algorithms.rolling_map import sweep_check
 
     assert driver.map.check(np.array([[0.0, 0.0, 0.0]]), driver.length, driver.width).verdict == "unknown"
     assert sweep_check(east, g, np.array([[0.0, 0.0, 0.0]]), driver.length, driver.width).verdict == "ok"
@@ -618,7 +618,7 @@ def test_the_live_check_sweeps_the_turn_on_the_spot_and_the_arc_the_rover_execut
     """The check swept the planned polyline with each stretch's heading: a turn on the spot at
     the rover's position (its corners swing out to 0.36 m) and the arc that cuts a corner went
     unchecked. It now sweeps the motion of the cycle, then the path."""
-    from prox_workflows.steps.rolling_map import path_poses, sweep_check
+    from prox_workflows.algorithms.rolling_map import path_poses, sweep_check
     from rvs_server.navigation.pursuit import motion_poses
 
     driver = _standing_driver("off")

@@ -9,9 +9,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from prox_workflows.algorithms.dem2hazard import HazardParams
 from prox_workflows.cli import dem2hazard as cli
 from prox_workflows.grid import GridGeometry, write_geotiff
-from prox_workflows.steps.dem2hazard import HazardParams
 from rvs_params import SettingError, assignments
 
 

@@ -8,10 +8,10 @@ import math
 import numpy as np
 import pytest
 
+from prox_workflows.algorithms.arcs import arc_poses, choose_arc, default_curvatures
+from prox_workflows.algorithms.astar import SQRT2, astar_grid
+from prox_workflows.algorithms.replan import IncrementalPlanner
 from prox_workflows.grid import GridGeometry
-from prox_workflows.steps.arcs import arc_poses, choose_arc, default_curvatures
-from prox_workflows.steps.astar import SQRT2, astar_grid
-from prox_workflows.steps.replan import IncrementalPlanner
 
 G = GridGeometry(0.1, -5.0, 5.0, 100, 100)  # 10 x 10 m, x right, y up
 ROVER = {"rover_length": 0.5, "rover_width": 0.4}

@@ -9,9 +9,9 @@ import numpy as np
 import pytest
 
 from drivers.sim.world import World
+from prox_workflows.algorithms.bounds_map import BoundsMap, BoundsParams
+from prox_workflows.algorithms.noise import tof_height_variance, tof_horizontal_sigma, tof_sigma
 from prox_workflows.grid import GridGeometry
-from prox_workflows.steps.bounds_map import BoundsMap, BoundsParams
-from prox_workflows.steps.noise import tof_height_variance, tof_horizontal_sigma, tof_sigma
 
 SENSOR = np.array([0.0, 0.0, 1.2])
 
@@ -146,7 +146,7 @@ def _flat(half: float = 1.0, cell: float = 0.02) -> tuple[np.ndarray, GridGeomet
 def test_the_vehicle_check_on_equal_bounds_is_the_check_on_the_surface() -> None:
     """One code path: bounds that pin the ground give what the ground itself gives."""
     from drivers.sim.rover import RoverBody
-    from prox_workflows.steps.vehicle import check_poses
+    from prox_workflows.algorithms.vehicle import check_poses
 
     h, g = _flat()
     xs, ys = g.centers()
@@ -163,7 +163,7 @@ def test_the_vehicle_check_on_equal_bounds_is_the_check_on_the_surface() -> None
 
 def test_the_vehicle_check_on_bounds_takes_the_worst_and_never_calls_unseen_ground_safe() -> None:
     from drivers.sim.rover import RoverBody
-    from prox_workflows.steps.vehicle import check_poses
+    from prox_workflows.algorithms.vehicle import check_poses
 
     body = RoverBody()
     h, g = _flat()
@@ -188,7 +188,7 @@ def test_bounds_from_simulated_tof_looks_never_call_an_unsafe_pose_safe() -> Non
     unsafe is unsafe or unknown on the bounds map (ACE's rule: no false negative). How many
     truly safe poses the bounds still call safe is the benchmark's figure (tools/bench/bounds.py)."""
     from drivers.sim.rover import RoverBody
-    from prox_workflows.steps.vehicle import check_poses
+    from prox_workflows.algorithms.vehicle import check_poses
 
     world, m = _hirise_looks(6.0)
     g = m.geometry
@@ -207,7 +207,7 @@ def test_bounds_from_simulated_tof_looks_never_call_an_unsafe_pose_safe() -> Non
 
 def test_the_gate_stops_at_the_first_pose_over_a_rock_and_blames_its_top() -> None:
     from drivers.sim.rover import RoverBody
-    from prox_workflows.steps.vehicle import densify, gate_poses
+    from prox_workflows.algorithms.vehicle import densify, gate_poses
 
     body = RoverBody()
     h, g = _flat()
@@ -240,7 +240,7 @@ def test_the_gate_stops_at_the_first_pose_over_a_rock_and_blames_its_top() -> No
 
 def test_the_ground_the_rover_stands_on_and_was_set_down_on_is_assessed() -> None:
     from drivers.sim.rover import RoverBody
-    from prox_workflows.steps.vehicle import check_poses
+    from prox_workflows.algorithms.vehicle import check_poses
 
     body = RoverBody()
     m = BoundsMap.covering([[-1.0, -1.0], [1.0, 1.0]], 0.0)

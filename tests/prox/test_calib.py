@@ -14,11 +14,11 @@ import numpy as np
 import pytest
 import yaml
 
+from prox_workflows.algorithms import calibration as cb
+from prox_workflows.algorithms.stereo import load_calibration
+from prox_workflows.algorithms.transforms import read_cal
 from prox_workflows.cli.calib import main as calib_main
 from prox_workflows.products import write_tiff
-from prox_workflows.steps import calibration as cb
-from prox_workflows.steps.stereo import load_calibration
-from prox_workflows.steps.transforms import read_cal
 
 
 def _rig() -> Any:
@@ -282,7 +282,7 @@ def tof_views(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Any]:
     rig.place(world, (0.05, 0.03, 1.7), (0, 10, 10), rows, cols, sq)
     moved_xyz, moved_amp = tof.grab_xyz()
     calib = rig.true_stereo_calibration(cam)
-    from prox_workflows.steps.stereo import save_calibration
+    from prox_workflows.algorithms.stereo import save_calibration
 
     save_calibration(folder / "calib.yaml", calib)
     return {"folder": folder, "views": views, "calib": calib, "truth": rig.T_left_tof(world),

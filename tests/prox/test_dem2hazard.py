@@ -14,10 +14,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from prox_workflows import colormaps
-from prox_workflows.cli import dem2hazard as cli
-from prox_workflows.grid import GridGeometry, Layers, write_geotiff
-from prox_workflows.steps import dem2hazard as d2h
-from prox_workflows.steps.dem2hazard import (
+from prox_workflows.algorithms import dem2hazard as d2h
+from prox_workflows.algorithms.dem2hazard import (
     HazardParams,
     dem2hazard,
     dem2hazard_layers,
@@ -25,6 +23,8 @@ from prox_workflows.steps.dem2hazard import (
     hazard_summary,
     load_params,
 )
+from prox_workflows.cli import dem2hazard as cli
+from prox_workflows.grid import GridGeometry, Layers, write_geotiff
 from rvs_params.hazard import HAZARDOUS, SAFE, UNDEFINED
 from tools.bench.dem2hazard import vectorised
 
@@ -270,7 +270,7 @@ def test_strips_of_tall_and_wide_grids_equal_the_vectorised_peer(shape: tuple[in
 
 
 def test_the_kernels_arctangent_is_within_an_ulp_or_two_of_numpys() -> None:
-    kern = pytest.importorskip("prox_workflows.steps._dem2hazard_kernel")
+    kern = pytest.importorskip("prox_workflows.algorithms._dem2hazard_kernel")
     # both sides of the reductions at 0.66 and tan(3 pi / 8), tiny and huge slopes
     x = np.concatenate([np.linspace(0, 3, 301), [0.66, np.nextafter(0.66, 1), 2.414213562373095, 1e-300,
                                                  1e-8, 1e3, 1e12, 1e300]])

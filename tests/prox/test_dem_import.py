@@ -7,9 +7,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-import prox_workflows.steps.dem_import as dem_import_module
+import prox_workflows.algorithms.dem_import as dem_import_module
+from prox_workflows.algorithms.dem_import import dem_import, geometry_for
 from prox_workflows.grid import GridGeometry
-from prox_workflows.steps.dem_import import dem_import, geometry_for
 
 IMPLS = ["numba", "numba-threads", "numpy"]
 
@@ -202,10 +202,10 @@ def test_bad_input_is_refused() -> None:
 
 def test_cli_end_to_end_geotiff_opens_in_rasterio(tmp_path, capsys) -> None:
     rasterio = pytest.importorskip("rasterio")
+    from prox_workflows.algorithms.transforms import write_cal
     from prox_workflows.cli.dem_import import main, read_layers
     from prox_workflows.pointcloud import write_ply
     from prox_workflows.products import write_tiff
-    from prox_workflows.steps.transforms import write_cal
 
     rng = np.random.default_rng(7)
     pts = np.column_stack([rng.uniform(1, 3, 4000), rng.uniform(-1, 1, 4000), rng.normal(0, 0.01, 4000),

@@ -7,9 +7,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-import prox_workflows.steps.dem_import as dem_import_module
+import prox_workflows.algorithms.dem_import as dem_import_module
+from prox_workflows.algorithms.dem_import import LAYERS, dem_import
 from prox_workflows.grid import GridGeometry
-from prox_workflows.steps.dem_import import LAYERS, dem_import
 
 pytest.importorskip("numba")
 

@@ -6,10 +6,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from prox_workflows.algorithms.dem_import import dem_import
+from prox_workflows.algorithms.dem_mosaik import dem_mosaik, input_variance, union_geometry
+from prox_workflows.algorithms.noise import tof_height_variance, tof_sigma
 from prox_workflows.grid import GridGeometry, Layers
-from prox_workflows.steps.dem_import import dem_import
-from prox_workflows.steps.dem_mosaik import dem_mosaik, input_variance, union_geometry
-from prox_workflows.steps.noise import tof_height_variance, tof_sigma
 
 
 def flat(g: GridGeometry, z: float | np.ndarray, var: float | None = None) -> Layers:

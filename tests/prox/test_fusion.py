@@ -9,12 +9,9 @@ from dataclasses import fields
 import numpy as np
 import pytest
 
-from prox_workflows.grid import GridGeometry, Layers
-from prox_workflows.parameters import DemParams
-from prox_workflows.steps.acquire import View
-from prox_workflows.steps.dem_chain import mosaic, view_dem
-from prox_workflows.steps.dem_mosaik import fuse_sensors, local_scatter
-from prox_workflows.steps.noise import (
+from prox_workflows.algorithms.acquire import View
+from prox_workflows.algorithms.dem_mosaik import fuse_sensors, local_scatter
+from prox_workflows.algorithms.noise import (
     JUMP_CAP,
     STEREO_TERMS,
     TOF_TERMS,
@@ -23,6 +20,9 @@ from prox_workflows.steps.noise import (
     stereo_point_variance,
     tof_point_variance,
 )
+from prox_workflows.grid import GridGeometry, Layers
+from prox_workflows.parameters import DemParams
+from prox_workflows.steps.dem import mosaic, view_dem
 
 G = GridGeometry(0.02, 0.0, 1.0, 50, 50)
 

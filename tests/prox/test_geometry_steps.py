@@ -5,10 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from prox_workflows.steps.mesh import dem_mesh, write_mesh_ply
-from prox_workflows.steps.ortho import OrthoView, ortho_image
-from prox_workflows.steps.ptu_positions import get_ptu_positions
-from prox_workflows.steps.transforms import (
+from prox_workflows.algorithms.mesh import dem_mesh, write_mesh_ply
+from prox_workflows.algorithms.ortho import OrthoView, ortho_image
+from prox_workflows.algorithms.transforms import (
     HeadCalibration,
     T_global_from_rover,
     apply,
@@ -17,6 +16,7 @@ from prox_workflows.steps.transforms import (
     read_cal,
     write_cal,
 )
+from prox_workflows.steps.scan import get_ptu_positions
 
 FOV = (43.6, 34.6)
 

@@ -6,8 +6,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from prox_workflows.steps import ground_plane as gp
-from prox_workflows.steps.transforms import HeadCalibration, apply, invert, rpy
+from prox_workflows.algorithms import ground_plane as gp
+from prox_workflows.algorithms.transforms import HeadCalibration, apply, invert, rpy
 
 
 def ground_seen_by(head: HeadCalibration, sensor: str, pan: float, tilt: float, rng: np.random.Generator,

@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from prox_workflows.steps import hazard_monitor as hm
+from prox_workflows.algorithms import hazard_monitor as hm
 
 FRONT = 0.51 / 2
 

@@ -10,8 +10,8 @@ import pytest
 from scipy import ndimage
 
 from drivers.sim.world import World
+from prox_workflows.algorithms.dem2hazard import HazardParams, dem2hazard
 from prox_workflows.grid import GridGeometry
-from prox_workflows.steps.dem2hazard import HazardParams, dem2hazard
 
 PARAMS = HazardParams()  # config/dem2hazard.yaml's defaults: step 0.15 m, slope 20 deg, window 0.3 m
 

@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from prox_workflows.algorithms.holes import fill_holes, fill_layers, fillable
 from prox_workflows.grid import GridGeometry, Layers
-from prox_workflows.steps.holes import fill_holes, fill_layers, fillable
 
 CELL = 0.02
 

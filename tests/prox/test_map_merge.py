@@ -8,16 +8,16 @@ from __future__ import annotations
 
 import numpy as np
 
-from prox_workflows.grid import GridGeometry
-from prox_workflows.steps.dem2hazard import HazardParams
-from prox_workflows.steps.planner import NavMaps
-from prox_workflows.steps.rolling_map import (
+from prox_workflows.algorithms.dem2hazard import HazardParams
+from prox_workflows.algorithms.planner import NavMaps
+from prox_workflows.algorithms.rolling_map import (
     MapMemory,
     RollingMap,
     RollingParams,
     merge_nav_maps,
     whole_windows,
 )
+from prox_workflows.grid import GridGeometry
 from rvs_params.hazard import HAZARDOUS, SAFE, UNDEFINED
 
 ROCK = (1.5, 0.0)

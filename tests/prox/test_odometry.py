@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 
 from drivers.sim.world import World
-from prox_workflows.steps import odometry as od
-from prox_workflows.steps.transforms import apply, invert, make_T, rot_z
+from prox_workflows.algorithms import odometry as od
+from prox_workflows.algorithms.transforms import apply, invert, make_T, rot_z
 
 W, H = 320, 240
 
@@ -105,7 +105,7 @@ def test_compose_pose_applies_the_motion_in_the_rover_frame() -> None:
 
 
 def test_motion_angles() -> None:
-    from prox_workflows.steps.transforms import rpy
+    from prox_workflows.algorithms.transforms import rpy
 
     m = od.Motion(make_T(rpy(1.0, -2.0, 30.0), (0.0, 0.0, 0.0)), np.eye(4), 0, 0, 0, 0.0, 0.0)
     assert (m.droll, m.dpitch, m.dyaw) == pytest.approx((1.0, -2.0, 30.0))

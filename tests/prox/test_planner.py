@@ -10,7 +10,7 @@ import pytest
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import dijkstra
 
-from prox_workflows.steps.astar import SQRT2, PlanningError, astar_grid, grid_graph
+from prox_workflows.algorithms.astar import SQRT2, PlanningError, astar_grid, grid_graph
 
 OFFSETS = [(-1, -1), (-1, 0), (-1, 1), (0, -1), (0, 1), (1, -1), (1, 0), (1, 1)]
 

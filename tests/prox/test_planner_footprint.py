@@ -10,9 +10,9 @@ import math
 import numpy as np
 import pytest
 
+from prox_workflows.algorithms.planner import HAZARDOUS, NavMaps, PlannerParams, PlanningError, plan_path
+from prox_workflows.algorithms.safety import check_move
 from prox_workflows.grid import GridGeometry
-from prox_workflows.steps.planner import HAZARDOUS, NavMaps, PlannerParams, PlanningError, plan_path
-from prox_workflows.steps.safety import check_move
 
 GEOM = GridGeometry(0.05, 10.0, 5.0, 160, 120)  # x 10..18, y -1..5
 LENGTH, WIDTH = 0.51, 0.40
@@ -96,7 +96,7 @@ def test_on_open_ground_the_waypoints_are_the_straight_line(goal: tuple[float, f
 
 
 def test_the_shortcut_never_crosses_a_hazard_nor_costs_more_than_the_path() -> None:
-    from prox_workflows.steps.waypoints import segment_cells
+    from prox_workflows.algorithms.waypoints import segment_cells
 
     rng = np.random.default_rng(3)
     hz = np.zeros(GEOM.shape, np.uint8)

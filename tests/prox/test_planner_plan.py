@@ -10,10 +10,16 @@ import cv2
 import numpy as np
 import pytest
 
+from prox_workflows.algorithms.plan_maps import expand_hazards, planning_image
+from prox_workflows.algorithms.planner import (
+    NavMaps,
+    PlannerParams,
+    PlanningError,
+    nearest_reachable,
+    plan_path,
+)
+from prox_workflows.algorithms.waypoints import segment_cells
 from prox_workflows.grid import GridGeometry
-from prox_workflows.steps.plan_maps import expand_hazards, planning_image
-from prox_workflows.steps.planner import NavMaps, PlannerParams, PlanningError, nearest_reachable, plan_path
-from prox_workflows.steps.waypoints import segment_cells
 from rvs_params.hazard import HAZARDOUS, SAFE, UNDEFINED
 
 # an off-origin frame, so a swapped axis or a sign error shows
@@ -185,7 +191,7 @@ def test_cut_at_the_local_border() -> None:
 def test_a_map_without_hazards_is_far_from_any_and_says_so_quietly() -> None:
     """OpenCV gives 2^64 as the distance when no cell is a hazard; squaring it to restore
     the exact value overflowed (a RuntimeWarning in every plan on a hazard-free map)."""
-    from prox_workflows.steps.plan_maps import _distance_cells
+    from prox_workflows.algorithms.plan_maps import _distance_cells
 
     with warnings.catch_warnings():
         warnings.simplefilter("error")

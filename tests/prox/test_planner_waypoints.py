@@ -6,14 +6,14 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from prox_workflows.grid import GridGeometry
-from prox_workflows.steps.waypoints import (
+from prox_workflows.algorithms.waypoints import (
     cut_at_border,
     make_waypoints,
     segment_cells,
     segment_clear,
     simplify,
 )
+from prox_workflows.grid import GridGeometry
 
 
 def polyline_distance(points: np.ndarray, line: np.ndarray) -> np.ndarray:

@@ -1,4 +1,4 @@
-"""D* Lite (prox_workflows.steps.replan) against a fresh A* on the same map: equal path cost on
+"""D* Lite (prox_workflows.algorithms.replan) against a fresh A* on the same map: equal path cost on
 static random maps and after random batches of changes and start moves, the same errors, valid
 paths (free cells, 8-neighbour steps, no cut corners), and repairs that expand few cells."""
 
@@ -14,8 +14,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from prox_workflows.steps.astar import SQRT2, PlanningError, astar_grid
-from prox_workflows.steps.replan import IncrementalPlanner
+from prox_workflows.algorithms.astar import SQRT2, PlanningError, astar_grid
+from prox_workflows.algorithms.replan import IncrementalPlanner
 
 HEURISTICS = ("octile", "euclidean", "chebyshev")
 
@@ -238,8 +238,8 @@ def test_plain_python_kernels_agree() -> None:
     """Without numba (NUMBA_DISABLE_JIT: the kernels run as plain Python) the same results."""
     code = (
         "import numpy as np\n"
-        "from prox_workflows.steps.replan import IncrementalPlanner\n"
-        "from prox_workflows.steps.astar import astar_grid\n"
+        "from prox_workflows.algorithms.replan import IncrementalPlanner\n"
+        "from prox_workflows.algorithms.astar import astar_grid\n"
         "rng = np.random.default_rng(4)\n"
         "for _ in range(5):\n"
         "    k = 0.5 + rng.uniform(0, 1, (12, 12)); k[rng.random((12, 12)) < 0.2] = np.inf\n"
@@ -277,9 +277,9 @@ def test_plan_path_with_the_replanner_equals_astar_and_repairs() -> None:
     """plan_path with a Replanner (the see loop's D* Lite) gives A*'s path cost on the same maps
     while rocks appear on the way and the rover moves on; with the mission's box as ``cover``
     the planning grid keeps its geometry, so only the first plan is a whole search."""
+    from prox_workflows.algorithms.planner import HAZARDOUS, NavMaps, PlannerParams, plan_path
+    from prox_workflows.algorithms.replan import Replanner
     from prox_workflows.grid import GridGeometry
-    from prox_workflows.steps.planner import HAZARDOUS, NavMaps, PlannerParams, plan_path
-    from prox_workflows.steps.replan import Replanner
 
     geom = GridGeometry(0.05, 0.0, 6.0, 200, 120)  # x 0..10, y 0..6
     hz = np.zeros(geom.shape, np.uint8)

@@ -7,8 +7,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from prox_workflows.algorithms.safety import check_move, sweep_poses
 from prox_workflows.grid import GridGeometry
-from prox_workflows.steps.safety import check_move, sweep_poses
 
 G = GridGeometry(0.05, -5.0, 5.0, 200, 200)
 

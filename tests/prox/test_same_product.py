@@ -123,7 +123,7 @@ def test_rvs_prox_help_lists_the_commands_parameters_with_their_defaults(
 
 
 def test_recorded_views_round_trip_exactly(tof_scan: dict[str, Any]) -> None:
-    from prox_workflows.steps.readers import read_views
+    from prox_workflows.steps.read import read_views
 
     got = read_views(tof_scan["data"] / "dem" / "site_views")
     assert len(got["views"]) == int(tof_scan["fields"]["views"]) and got["rover_mask"].shape == (4, 2)
@@ -133,9 +133,9 @@ def test_recorded_views_round_trip_exactly(tof_scan: dict[str, Any]) -> None:
 
 def test_a_plan_from_a_navigate_leg_and_from_rvs_path_planner_is_byte_identical(
         tof_scan: dict[str, Any], tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    from prox_workflows.algorithms.planner import NavMaps
     from prox_workflows.cli import path_planner
     from prox_workflows.layers import read_layers
-    from prox_workflows.steps.planner import NavMaps
 
     dem = tof_scan["data"] / "dem"
     maps = read_layers(dem / "site_dem.tif")  # what a leg holds in memory, as it wrote it

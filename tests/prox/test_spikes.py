@@ -1,14 +1,15 @@
-"""Spike removal (prox_workflows/steps/spikes.py): lone flying-pixel cells go, obstacles stay."""
+"""Spike removal (prox_workflows/algorithms/spikes.py): lone flying-pixel cells go, obstacles stay."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
+from prox_workflows.algorithms.dem2hazard import dem2hazard
+from prox_workflows.algorithms.holes import fill_holes
+from prox_workflows.algorithms.spikes import find_spikes
 from prox_workflows.grid import GridGeometry, Layers
-from prox_workflows.steps.dem2hazard import dem2hazard
-from prox_workflows.steps.holes import fill_holes
-from prox_workflows.steps.spikes import find_spikes, remove_spikes_layers
+from prox_workflows.steps.dem import remove_spikes_layers
 from rvs_params.hazard import HAZARDOUS
 
 CELL = 0.02

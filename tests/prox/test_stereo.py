@@ -16,9 +16,9 @@ import tifffile
 import yaml
 from scipy.ndimage import map_coordinates
 
+from prox_workflows.algorithms import stereo as st
 from prox_workflows.cli.stereo import main as stereo_main
 from prox_workflows.pointcloud import read_ply
-from prox_workflows.steps import stereo as st
 
 
 def _rig() -> Any:

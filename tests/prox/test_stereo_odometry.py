@@ -13,8 +13,8 @@ import pytest
 import yaml
 from support.marks import long_suite
 
+from prox_workflows.algorithms.stereo_odometry import ORDER, stereo_odometry
 from prox_workflows.cli.odometry import main
-from prox_workflows.steps.stereo_odometry import ORDER, stereo_odometry
 from tools.bench.odometry import motion_error, sim_sequence
 
 

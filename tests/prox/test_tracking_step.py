@@ -8,7 +8,7 @@ import cv2
 import numpy as np
 import pytest
 
-from prox_workflows.steps import tracking as tr
+from prox_workflows.algorithms import tracking as tr
 
 W, H, F = 176, 144, 220.0
 K = np.array([[F, 0, (W - 1) / 2], [0, F, (H - 1) / 2], [0, 0, 1.0]])

@@ -1,4 +1,4 @@
-"""The vehicle check (prox_workflows.steps.vehicle) on synthetic 1 cm surfaces with the declared
+"""The vehicle check (prox_workflows.algorithms.vehicle) on synthetic 1 cm surfaces with the declared
 Pioneer 3-AT-like body (drivers.sim.rover.RoverBody): wheel relief against the 10 cm climb,
 belly intrusion against the 8 cm clearance, tilt against 19.3 deg, and events along a track."""
 
@@ -12,8 +12,8 @@ import pytest
 from drivers.sim.head import HeadGeometry
 from drivers.sim.rover import RoverBody
 from drivers.sim.scene import build_rover
+from prox_workflows.algorithms.vehicle import check_poses, densify, track_poses, unsafe_events
 from prox_workflows.grid import GridGeometry
-from prox_workflows.steps.vehicle import check_poses, densify, track_poses, unsafe_events
 
 BODY = RoverBody()
 CELL = 0.01
@@ -135,7 +135,7 @@ def test_a_track_without_headings_faces_along_itself() -> None:
 
 
 def test_the_margins_put_the_thresholds_below_the_capability_by_the_measured_budget() -> None:
-    from prox_workflows.steps.vehicle import Margins
+    from prox_workflows.algorithms.vehicle import Margins
 
     assert Margins(read_low=0.02, tracking=0.05).thresholds(BODY) == {"step_max": 0.06, "slope_max": 19.3,
                                                                        "margin": 0.05}

@@ -9,9 +9,9 @@ from pathlib import Path
 
 import numpy as np
 
-from prox_workflows.steps.acquire import Frame, view_from_frame
-from prox_workflows.steps.readers import read_points
-from prox_workflows.steps.transforms import apply
+from prox_workflows.algorithms.acquire import Frame, view_from_frame
+from prox_workflows.algorithms.transforms import apply
+from prox_workflows.steps.read import read_points
 
 
 def test_range_and_reflectivity_filters_match_the_servers(tmp_path: Path) -> None:

@@ -17,12 +17,12 @@ import numpy as np
 import pytest
 import yaml
 
+from prox_workflows.algorithms.safety import check_move
 from prox_workflows.cli import dem2hazard as cli_hazard
 from prox_workflows.cli import dem_import as cli_import
 from prox_workflows.cli import dem_mosaik as cli_mosaik
 from prox_workflows.cli import path_planner as cli_planner
 from prox_workflows.grid import read_geotiff
-from prox_workflows.steps.safety import check_move
 
 SHIFT = np.array([556440.0, 5394932.0])  # the Kootenai DEM's UTM origin (zone 11N), metres
 EPSG = "EPSG:32611"  # WGS 84 / UTM zone 11N, the Kootenai reach's zone

@@ -20,9 +20,9 @@ import numpy as np
 import pytest
 from scipy import ndimage
 
+from prox_workflows.algorithms.dem2hazard import dem2hazard
+from prox_workflows.algorithms.planner import NavMaps, PlannerParams, plan_path
 from prox_workflows.grid import GridGeometry
-from prox_workflows.steps.dem2hazard import dem2hazard
-from prox_workflows.steps.planner import NavMaps, PlannerParams, plan_path
 
 REALDATA = Path(__file__).resolve().parents[2].parent / "shared" / "realdata"
 DTM = REALDATA / "dem" / "mars_dtm.npy"

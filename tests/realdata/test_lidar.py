@@ -16,7 +16,7 @@ import pytest
 from prox_workflows.cli import dem_import as cli_import
 from prox_workflows.grid import read_geotiff
 from prox_workflows.pointcloud import read_las, read_pcd, read_points
-from prox_workflows.steps.readers import read_points as read_points_step
+from prox_workflows.steps.read import read_points as read_points_step
 
 REALDATA = Path(__file__).resolve().parents[2].parent / "shared" / "realdata"
 AUTZEN = REALDATA / "points" / "autzen_trim.las"

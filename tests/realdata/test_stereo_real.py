@@ -14,7 +14,7 @@ import cv2
 import numpy as np
 import pytest
 
-from prox_workflows.steps import stereo as st
+from prox_workflows.algorithms import stereo as st
 
 # Middlebury's calib.txt for Motorcycle gives ndisp = 270 at full size: 67.5 at quarter size,
 # rounded up to SGBM's multiple of 16.

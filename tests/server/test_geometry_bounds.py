@@ -12,9 +12,9 @@ import numpy as np
 import pytest
 from support.server import ServerThread
 
+from prox_workflows.algorithms.plan_maps import MAX_PLAN_CELLS
+from prox_workflows.algorithms.safety import MAX_SWEEP_CELLS
 from prox_workflows.grid import GridGeometry, Layers
-from prox_workflows.steps.plan_maps import MAX_PLAN_CELLS
-from prox_workflows.steps.safety import MAX_SWEEP_CELLS
 from rvs_server.commands import navigation
 
 # a 10 m x 10 m map of 5 cm cells, all drivable, around the rover at the origin

@@ -62,10 +62,10 @@ def test_every_numba_kernel_is_declared_nogil() -> None:
 def _dispatchers() -> dict[str, Any]:
     """The compiled kernels themselves, module-level ones and those made on first use."""
     dispatcher = pytest.importorskip("numba.core.dispatcher").Dispatcher
-    from prox_workflows.steps import astar, dem_import
+    from prox_workflows.algorithms import astar, dem_import
 
     found: dict[str, Any] = {}
-    for module in ("prox_workflows.steps._replan_kernels", "prox_workflows.steps._dem2hazard_kernel"):
+    for module in ("prox_workflows.algorithms._replan_kernels", "prox_workflows.algorithms._dem2hazard_kernel"):
         mod = importlib.import_module(module)
         found.update({f"{module}.{name}": v for name, v in vars(mod).items() if isinstance(v, dispatcher)})
     kernels = dem_import._kernels()

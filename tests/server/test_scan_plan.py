@@ -11,8 +11,9 @@ import pytest
 import yaml
 
 from drivers.ptu.protocol import pos_to_deg
+from prox_workflows.algorithms.ptu_positions import grid, path_time, plan, scan_limit
 from prox_workflows.grid import read_geotiff
-from prox_workflows.steps.ptu_positions import get_ptu_positions, grid, path_time, plan, scan_limit
+from prox_workflows.steps.scan import get_ptu_positions
 from rvs_params.motion import Profile, trapezoid_time
 
 FOV = (43.6, 34.6)

@@ -31,8 +31,8 @@ import numpy as np
 import tifffile
 import yaml
 
+from prox_workflows.algorithms.transforms import camera_matrix
 from prox_workflows.batch import close_client, make_client, mosaic_campaign, run_batch, run_one, serial
-from prox_workflows.steps.transforms import camera_matrix
 
 SCAN = "dem-full-tof -range -20,20,-50,-30 -cell 0.05 -mesh false -name {name}"
 

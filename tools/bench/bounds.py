@@ -44,12 +44,12 @@ import drivers.hazcam as hazcam_device
 from drivers.sim.rover import RoverBody
 from drivers.sim.world import World
 from drivers.tof.constants import HEIGHT, USABLE_RANGE, WIDTH
+from prox_workflows.algorithms.bounds_map import BoundsMap, BoundsParams
+from prox_workflows.algorithms.dem2hazard import HazardParams
+from prox_workflows.algorithms.noise import pair_sigmas, tof_height_variance, tof_horizontal_sigma, tof_sigma
+from prox_workflows.algorithms.rolling_map import RollingMap, RollingParams
+from prox_workflows.algorithms.vehicle import check_poses
 from prox_workflows.grid import GridGeometry
-from prox_workflows.steps.bounds_map import BoundsMap, BoundsParams
-from prox_workflows.steps.dem2hazard import HazardParams
-from prox_workflows.steps.noise import pair_sigmas, tof_height_variance, tof_horizontal_sigma, tof_sigma
-from prox_workflows.steps.rolling_map import RollingMap, RollingParams
-from prox_workflows.steps.vehicle import check_poses
 from rvs_server.devices import stereo_points
 
 LOOKS = ("one", "sweep", "approach", "approach+hazcam")
@@ -170,7 +170,7 @@ def motorcycle_row(k: float) -> dict[str, Any] | None:
     except Exception as exc:  # the test extra (scikit-image) absent or its data missing
         print(f"Motorcycle skipped: {exc}")
         return None
-    from prox_workflows.steps import stereo as st
+    from prox_workflows.algorithms import stereo as st
 
     f, b, doffs = 994.978, 0.193001, 31.086  # the pair's calibration (scikit-image's docstring)
     gl, gr = (cv2.cvtColor(a, cv2.COLOR_RGB2GRAY) for a in (left, right))

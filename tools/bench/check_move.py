@@ -16,8 +16,8 @@ from pathlib import Path
 
 import numpy as np
 
+from prox_workflows.algorithms.safety import check_move, sweep_poses
 from prox_workflows.grid import GridGeometry, Layers
-from prox_workflows.steps.safety import check_move, sweep_poses
 
 MOVES = {"0.5 m forward": (0.5, 0.0, 0.0), "2 m diagonal": (1.5, 1.3, 0.0), "turn 90 deg": (0.0, 0.0, 90.0),
          "3 m with a 45 deg turn": (2.5, 1.5, 45.0)}

@@ -30,7 +30,7 @@
 3. Dem2Hazard of a 1000 x 1000 DEM: the section tools/bench/dem2hazard.py provides.
 4. A 24-view dem-full-tof in simulation: the lead's section.
 5. Hole filling on the HiRISE crop (with the real data): holes of 1-3 cells radius cut out, filled by
-   prox_workflows/steps/holes.py and by GDAL's fillnodata (rasterio.fill), RMSE and max error
+   prox_workflows/algorithms/holes.py and by GDAL's fillnodata (rasterio.fill), RMSE and max error
    against the cut-out heights, and the time of each.
 
 Times are the minimum over interleaved repetitions (the machine may be shared); the spread
@@ -54,9 +54,9 @@ from pathlib import Path
 import numpy as np
 from scipy import stats
 
-import prox_workflows.steps.dem_import as dem_import_module
+import prox_workflows.algorithms.dem_import as dem_import_module
+from prox_workflows.algorithms.dem_import import dem_import
 from prox_workflows.grid import GridGeometry
-from prox_workflows.steps.dem_import import dem_import
 
 CELL = 0.02
 SIDE = 10.0
@@ -142,7 +142,7 @@ def compile_times() -> tuple[float, float, float] | None:
     if not dem_import_module.HAVE_NUMBA:
         return None
     code = ("import time; t0 = time.perf_counter(); import numba; t1 = time.perf_counter(); "
-            "from prox_workflows.steps import dem_import as m; m.warm_up(); "
+            "from prox_workflows.algorithms import dem_import as m; m.warm_up(); "
             "print(t1 - t0, time.perf_counter() - t1)")
     root = Path(__file__).resolve().parents[2]
     with tempfile.TemporaryDirectory() as cache:
@@ -369,10 +369,10 @@ def cut_holes(z: np.ndarray, seed: int = 0) -> np.ndarray:
 
 
 def section_holes(runs: int = 5) -> None:
-    """Hole filling on the HiRISE crop with cut-out holes: our fill (prox_workflows/steps/holes.py,
+    """Hole filling on the HiRISE crop with cut-out holes: our fill (prox_workflows/algorithms/holes.py,
     first-order normalised convolution) against GDAL's (rasterio.fill.fillnodata: inverse distance
     weighting along search rays, no smoothing), on the same holes, against the cut-out truth."""
-    from prox_workflows.steps.holes import fill_holes_array
+    from prox_workflows.algorithms.holes import fill_holes_array
 
     dtm = REALDATA / "dem" / "mars_dtm.npy"
     if not dtm.is_file():

@@ -33,7 +33,7 @@ from typing import Any
 import cv2
 import numpy as np
 
-from prox_workflows.steps import dem2hazard as d2h
+from prox_workflows.algorithms import dem2hazard as d2h
 from rvs_params.hazard import UNDEFINED
 
 TARGET_MS = 150.0  # for 1000 x 1000

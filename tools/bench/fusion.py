@@ -81,7 +81,7 @@ def scan_scene(scene: str, folder: Path, view_range: str = RANGE) -> Path:
                 raise RuntimeError(line)
         app = box["app"]
         world = app.world
-        from prox_workflows.steps.stereo import rectification
+        from prox_workflows.algorithms.stereo import rectification
 
         rect = rectification(app.devices.get("stereo").calibration("low"))
         x, y, _ = world.rover_pose()
@@ -98,7 +98,7 @@ def scan_scene(scene: str, folder: Path, view_range: str = RANGE) -> Path:
 def load_scan(folder: Path) -> dict[str, Any]:
     """The recorded views of a :func:`scan_scene` folder, its rover mask and the truth."""
     from prox_workflows.grid import GridGeometry
-    from prox_workflows.steps.readers import read_views
+    from prox_workflows.steps.read import read_views
 
     rec = read_views(folder / "scan" / "dem" / "fused_views")
     t = np.load(folder / "truth.npz")
@@ -109,7 +109,7 @@ def load_scan(folder: Path) -> dict[str, Any]:
 
 def view_features(view: Any) -> dict[str, np.ndarray]:
     """The per-point features of a recorded view, as view_from_frame computed them live."""
-    from prox_workflows.steps.noise import coord_image, pixel_features
+    from prox_workflows.algorithms.noise import coord_image, pixel_features
 
     shape = view.intensity.shape[:2]
     feats = pixel_features(coord_image(view.points, view.pixels, shape), view.T_global_camera[:3, 3], view.intensity)
@@ -118,7 +118,7 @@ def view_features(view: Any) -> dict[str, np.ndarray]:
 
 def model_bases(view: Any, stereo: np.ndarray) -> np.ndarray:
     """The noise model's basis (one column per term) for every point of a recorded view."""
-    from prox_workflows.steps.noise import stereo_basis, tof_basis
+    from prox_workflows.algorithms.noise import stereo_basis, tof_basis
 
     sensor = view.T_global_camera[:3, 3]
     feats = view_features(view)
@@ -132,7 +132,7 @@ def with_model(views: list[Any], stereo: np.ndarray, params: Any) -> list[Any]:
     (so a calibration is evaluated without scanning again)."""
     import copy
 
-    from prox_workflows.steps.noise import STEREO_TERMS, TOF_TERMS, model_sigmas, model_variance
+    from prox_workflows.algorithms.noise import STEREO_TERMS, TOF_TERMS, model_sigmas, model_variance
 
     out = []
     for v in views:
@@ -151,9 +151,10 @@ def sensor_dems(views: list[Any], rover_mask: Any, ref: Any, params: Any = None,
     every defined cell was seen) from the ToF views alone, the stereo views alone and all of
     them, each resampled onto ``ref``; ``params`` (default DemParams()) gives the chain's
     parameters."""
+    from prox_workflows.algorithms.dem_mosaik import resample_nearest
     from prox_workflows.parameters import DemParams
-    from prox_workflows.steps.dem_chain import mosaic, resample_nearest, scan_rule, view_dem
-    from prox_workflows.steps.spikes import remove_spikes_layers
+    from prox_workflows.steps.dem import mosaic, remove_spikes_layers, view_dem
+    from prox_workflows.steps.scan import scan_rule
 
     p = params if params is not None else DemParams()
     out = {}
@@ -301,9 +302,9 @@ def calibrate(scans: dict[str, dict[str, Any]]) -> dict[str, float]:
     Returns the parameter values (DemParams field names), to be declared as their defaults."""
     from dataclasses import replace
 
+    from prox_workflows.algorithms.dem_mosaik import local_scatter
+    from prox_workflows.algorithms.noise import JUMP_CAP, STEREO_TERMS, TOF_TERMS
     from prox_workflows.parameters import DemParams
-    from prox_workflows.steps.dem_mosaik import local_scatter
-    from prox_workflows.steps.noise import JUMP_CAP, STEREO_TERMS, TOF_TERMS
 
     fitted: dict[str, float] = {}
     cellsets = {scene: evaluation_cells(scan) for scene, scan in scans.items()}

@@ -30,7 +30,7 @@ import numpy as np
 
 import drivers.hazcam as hazcam
 from drivers.sim.world import World
-from prox_workflows.steps import stereo as st
+from prox_workflows.algorithms import stereo as st
 from rvs_server.devices import stereo_points
 
 POSES = ((0.0, 0.0, 0.0), (1.0, 0.5, 30.0), (2.0, -0.5, -60.0))  # x, y, heading: rover poses per scene

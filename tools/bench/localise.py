@@ -82,8 +82,8 @@ def matcher_timing(trials: int, seed: int = 0) -> None:
     from drivers.sim.scene import load_scene_spec
     from drivers.sim.terrain import dtm_crop
     from drivers.sim.world import World
+    from prox_workflows.algorithms.map_match import match_dem
     from prox_workflows.grid import GridGeometry
-    from prox_workflows.steps.map_match import match_dem
 
     world = World.from_scene("hirise", clock_scale=0.0)
     spec = load_scene_spec("hirise")

@@ -5,7 +5,7 @@ judged by the vehicle itself (docs/NAVIGATE_BENCH.md).
 The yardstick is the rover's own body (``drivers.sim.rover.RoverBody``, declared in the scene's
 ``rover: body:`` block): at every true pose of the track (the simulator's truth, interpolated to
 2 cm, turns on the spot included, headings from the track's ``heading`` column), on the
-simulator's 1 cm surface, :mod:`prox_workflows.steps.vehicle` checks each wheel's relief against
+simulator's 1 cm surface, :mod:`prox_workflows.algorithms.vehicle` checks each wheel's relief against
 the climb limit, the ground under the belly against its clearance and the tilt against its limit.
 Consecutive unsafe poses are one **event**, with its kind and worst excess; one event fails the
 mission. A mission is **feasible** when a perfect-knowledge plan (navigate's planner and
@@ -48,10 +48,10 @@ from scipy import ndimage
 
 from drivers.sim.rover import RoverBody
 from drivers.sim.world import World
+from prox_workflows.algorithms.dem2hazard import HazardParams, classify, dem2hazard
+from prox_workflows.algorithms.safety import check_move
+from prox_workflows.algorithms.vehicle import Event, Margins, check_poses, densify, track_poses, unsafe_events
 from prox_workflows.grid import GridGeometry
-from prox_workflows.steps.dem2hazard import HazardParams, classify, dem2hazard
-from prox_workflows.steps.safety import check_move
-from prox_workflows.steps.vehicle import Event, Margins, check_poses, densify, track_poses, unsafe_events
 from rvs_params.hazard import HAZARDOUS, SAFE, UNDEFINED
 from rvs_server.client.session import ServerThread
 from rvs_server.protocol import Reply, parse_reply
@@ -141,7 +141,7 @@ def crossed(track: np.ndarray, maps: dict[str, np.ndarray], g: GridGeometry) -> 
 def plan_params(cell: float, footprint: str) -> Any:
     """navigate's planner as the bench's ideal and ceiling plans run it: the rover's circle or,
     with ``footprint`` body, its half width along straight stretches; no border (all is known)."""
-    from prox_workflows.steps.planner import PlannerParams
+    from prox_workflows.algorithms.planner import PlannerParams
 
     return PlannerParams(grid=cell, rover_radius=math.hypot(*ROVER) / 2, border=0.0,
                          half_width=ROVER[1] / 2 if footprint == "body" else None)
@@ -153,7 +153,7 @@ def ideal_efficiency(maps: dict[str, np.ndarray], g: GridGeometry, start: tuple[
     the length of the plan's waypoints on them (navigate's planner and footprint; turns on the
     spot not counted): about what a mission can reach at best (hirise's rock field makes some
     missions detour to three times the straight line). 0 when the true maps show no way."""
-    from prox_workflows.steps.planner import NavMaps, PlanningError, plan_path
+    from prox_workflows.algorithms.planner import NavMaps, PlanningError, plan_path
 
     params = plan_params(g.cell, footprint)
     try:
@@ -263,7 +263,7 @@ def perfect_plan(surface: tuple[np.ndarray, GridGeometry, GridGeometry], body: R
     (:func:`ceiling_layers`, thresholds ``hazard``), driven as :func:`plan_poses` and judged by the
     vehicle check: reached (a plan exists), its efficiency (straight line over its length),
     its events."""
-    from prox_workflows.steps.planner import NavMaps, PlanningError, plan_path
+    from prox_workflows.algorithms.planner import NavMaps, PlanningError, plan_path
 
     fine, _, g = surface
     key = (id(fine), tuple(sorted(hazard.items())))
@@ -340,7 +340,7 @@ def perception_ceiling(scene: str, count: int, seed: int = 0, limits: tuple[floa
     cell-mean map still drives over true hazards, and with too wide a margin it finds no way:
     the window between is what any perception must hit. The finer maps show what a finer
     representation buys: with 3 cm means both scenes are clear and open at the limit itself."""
-    from prox_workflows.steps.planner import NavMaps, PlanningError, plan_path
+    from prox_workflows.algorithms.planner import NavMaps, PlanningError, plan_path
 
     world = World.from_scene(scene)
     truth, g = true_maps(world, AREA[scene])
@@ -510,10 +510,10 @@ def replan_vs_astar(trials: int = 20, seed: int = 0) -> dict[str, Any]:
     """D* Lite's repair after a rock appears 3 m ahead on the path, against a fresh A*, on a
     planning image of 400 x 400 cells (20 m at 5 cm) built as navigate builds it from marsyard's
     true hazard map; the path costs must agree."""
-    from prox_workflows.steps.planner import NavMaps, PlannerParams, astar_grid, planning_image
-    from prox_workflows.steps.planner import warm_up as astar_warm_up
-    from prox_workflows.steps.replan import IncrementalPlanner
-    from prox_workflows.steps.replan import warm_up as replan_warm_up
+    from prox_workflows.algorithms.planner import NavMaps, PlannerParams, astar_grid, planning_image
+    from prox_workflows.algorithms.planner import warm_up as astar_warm_up
+    from prox_workflows.algorithms.replan import IncrementalPlanner
+    from prox_workflows.algorithms.replan import warm_up as replan_warm_up
 
     astar_warm_up()
     replan_warm_up()
@@ -581,7 +581,7 @@ def read_low_budget(scene: str, count: int, seed: int = 0, cells: tuple[float, .
     the cell) minus the DEM's value, each DEM first registered in height to the truth by the median
     of its rock-free cells (``shift_max``: the largest such shift, about 0 when the frames agree).
     ``ground_bias_p50``: the rock-free cells' true mean minus the DEM's value after it."""
-    from prox_workflows.steps.readers import read_dem
+    from prox_workflows.steps.read import read_dem
 
     out: dict[tuple[str, float], dict[str, list[np.ndarray]]] = {}
     with tempfile.TemporaryDirectory() as tmp:

@@ -73,7 +73,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--scene", default="quarry")
     ap.add_argument("--move", default="0.3,0,2", help="dx,dy,dyaw of the rover between the pairs (m, m, deg)")
     args = ap.parse_args(argv)
-    from prox_workflows.steps.stereo_odometry import feature_stats, stereo_odometry
+    from prox_workflows.algorithms.stereo_odometry import feature_stats, stereo_odometry
 
     move = tuple(float(v) for v in args.move.split(","))
     seq = sim_sequence(args.scene, move)  # type: ignore[arg-type]

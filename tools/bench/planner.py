@@ -23,7 +23,7 @@ import numpy as np
 from scipy import ndimage
 from scipy.sparse.csgraph import dijkstra
 
-from prox_workflows.steps.astar import astar_grid, grid_graph, warm_up
+from prox_workflows.algorithms.astar import astar_grid, grid_graph, warm_up
 from rvs_params.jit import HAVE_NUMBA
 
 

@@ -1,5 +1,5 @@
-"""Benchmark: incremental replanning (D* Lite, :mod:`prox_workflows.steps.replan`) against a fresh
-A* (:func:`prox_workflows.steps.astar.astar_grid`) on the same changed 400 x 400 map, side by
+"""Benchmark: incremental replanning (D* Lite, :mod:`prox_workflows.algorithms.replan`) against a fresh
+A* (:func:`prox_workflows.algorithms.astar.astar_grid`) on the same changed 400 x 400 map, side by
 side in one process: the see loop needs its replans in milliseconds.
 
 Two maps, both as the planner sees them (cost per metre ``k = w + (1 - w) * slope / critical``,
@@ -32,10 +32,10 @@ import cv2
 import numpy as np
 from scipy import ndimage
 
-from prox_workflows.steps.astar import PlanningError, astar_grid
-from prox_workflows.steps.astar import warm_up as astar_warm_up
-from prox_workflows.steps.replan import IncrementalPlanner
-from prox_workflows.steps.replan import warm_up as replan_warm_up
+from prox_workflows.algorithms.astar import PlanningError, astar_grid
+from prox_workflows.algorithms.astar import warm_up as astar_warm_up
+from prox_workflows.algorithms.replan import IncrementalPlanner
+from prox_workflows.algorithms.replan import warm_up as replan_warm_up
 
 N = 400
 WEIGHT = 0.5

@@ -13,7 +13,7 @@ world's clock as ``rvs-server`` starts):
   the PTU moves on (the defaults);
 - limit: the fewest views, the PTU's travel along the shortest serpentine at the unit's speed,
   acceleration and base speed (read from it), and the ToF's frames at each view
-  (:func:`prox_workflows.steps.ptu_positions.scan_limit`); ratio = now / limit.
+  (:func:`prox_workflows.algorithms.ptu_positions.scan_limit`); ratio = now / limit.
 
 Cells: defined DEM cells; RMSE: against the world's true DEM on plain terrain cells (no objects,
 3 cells' margin) within 4 m of the rover. The time depends on the PTU's speed setting
@@ -38,8 +38,8 @@ from typing import Any
 import numpy as np
 from scipy import ndimage
 
+from prox_workflows.algorithms.ptu_positions import scan_limit
 from prox_workflows.grid import read_geotiff
-from prox_workflows.steps.ptu_positions import scan_limit
 
 RANGES = ("-180,180,-50,-10", "-90,90,-50,-15")
 OVERLAP = 0.3

@@ -1,4 +1,4 @@
-"""Benchmark: the stereo step (prox_workflows.steps.stereo) on a 1920 x 1080 simulated PIKE pair,
+"""Benchmark: the stereo step (prox_workflows.algorithms.stereo) on a 1920 x 1080 simulated PIKE pair,
 side by side in one run with OpenCV's block matcher StereoBM at matching settings (the peer:
 same rectified mono8 pair, same numDisparities, block size and uniqueness, its own speckle
 filter at the same window and range).
@@ -29,7 +29,7 @@ invalid pixels as bad over the pixels with ground truth; "valid" is over answere
 ``--texture`` sweeps the texture mask's threshold on every pair (the four simulated scenes and
 both Middlebury pairs): the old absolute 2.5 DN, off, and multiples of the sensor noise expected
 at the local brightness (the rule before the noise was measured per image,
-:func:`prox_workflows.steps.stereo.texture_mask` at noise scale 1).
+:func:`prox_workflows.algorithms.stereo.texture_mask` at noise scale 1).
 
 The dominance table (``--table`` prints only it; docs/STEREO_BENCH.md): every real pair and every
 simulated pair, rvs-stereo's default beside OpenCV's default SGBM, the tuned OpenCV SGBM and
@@ -61,7 +61,7 @@ from typing import Any
 import cv2
 import numpy as np
 
-from prox_workflows.steps import stereo as st
+from prox_workflows.algorithms import stereo as st
 
 _PAIRS: dict[tuple[str, float], dict[str, Any]] = {}
 
@@ -417,8 +417,8 @@ def stereo_dem_rmse(scene: str, overrides: dict[str, Any] | None = None) -> tupl
     from (-1, -4) to (7, 4), terrain cells at least 3 cells from an object's edge, within 6 m)."""
     from scipy import ndimage
 
+    from prox_workflows.algorithms.dem_mosaik import resample_nearest
     from prox_workflows.grid import GridGeometry, read_geotiff
-    from prox_workflows.steps.dem_chain import resample_nearest
     from rvs_server.client.session import ServerThread
 
     ref = GridGeometry.covering(-1.0, -4.0, 7.0, 4.0, 0.02)

@@ -8,8 +8,8 @@ from scipy import ndimage
 from support.marks import long_only
 from support.server import ServerThread
 
+from prox_workflows.algorithms.dem_mosaik import resample_nearest
 from prox_workflows.grid import GridGeometry, read_geotiff
-from prox_workflows.steps.dem_chain import resample_nearest
 
 RANGE = "-60,60,-50,-20"
 REF = GridGeometry.covering(-1.0, -4.0, 7.0, 4.0, 0.02)

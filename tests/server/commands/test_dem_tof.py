@@ -11,8 +11,8 @@ import yaml
 from scipy import ndimage
 from support.marks import long_only, long_test
 
+from prox_workflows.algorithms.dem_mosaik import resample_nearest
 from prox_workflows.grid import GridGeometry, read_geotiff
-from prox_workflows.steps.dem_chain import resample_nearest
 
 RANGE = "-90,90,-50,-15"
 

@@ -8,8 +8,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from prox_workflows.steps.ground_plane import sensor_attitude
-from prox_workflows.steps.transforms import R_BODY_FROM_OPTICAL, HeadCalibration, make_T, rpy
+from prox_workflows.algorithms.ground_plane import sensor_attitude
+from prox_workflows.algorithms.transforms import R_BODY_FROM_OPTICAL, HeadCalibration, make_T, rpy
 
 
 def misalign(world, sensors: tuple[str, ...], roll: float, pitch: float) -> None:

@@ -13,7 +13,7 @@ from foxglove.messages import LogLevel
 from support.marks import long_test
 from support.mcap import decoded, grid_fields
 
-from prox_workflows.steps.bounds_map import BoundsMap
+from prox_workflows.algorithms.bounds_map import BoundsMap
 from rvs_server.protocol import Reply
 from rvs_server.telemetry.hub import BOUNDS_EVERY
 

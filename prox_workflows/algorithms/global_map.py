@@ -76,7 +76,7 @@ def load_global(path: str | Path, origin: tuple[float, float] = (0.0, 0.0),
     if not np.issubdtype(values.dtype, np.number):
         raise ValueError(f"{path}: neither heights nor a 0/128/255 hazard map ({values.dtype})")
     dem = values.astype(np.float32)
-    from .readers import gdal_nodata
+    from ..grid import gdal_nodata
 
     nodata = gdal_nodata(Path(path))
     if nodata is not None:

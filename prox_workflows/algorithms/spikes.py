@@ -20,9 +20,6 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..engine import step
-from ..grid import Layers
-
 
 def find_spikes(dem: np.ndarray, variance: np.ndarray | None = None, count: np.ndarray | None = None,
                 min_jump: float = 0.05, k: float = 4.0, max_points: int = 3, min_neighbours: int = 3) -> np.ndarray:
@@ -59,21 +56,3 @@ def find_spikes(dem: np.ndarray, variance: np.ndarray | None = None, count: np.n
     if count is not None:
         lone &= np.asarray(count) <= max_points
     return lone
-
-
-@step("remove_spikes_layers", outputs={"layers": "Layers"})
-def remove_spikes_layers(layers: Layers, min_jump: float = 0.05, k: float = 4.0, max_points: int = 3) -> Layers:
-    """The workflow step: a copy of ``layers`` with the spikes of its ``dem`` undefined (and
-    their variance and count cleared), and a ``spikes`` layer (uint8, 1 where one was)."""
-    dem = layers["dem"]
-    mask = find_spikes(dem, layers["variance"] if "variance" in layers else None,
-                       layers["count"] if "count" in layers else None, min_jump, k, max_points)
-    out = Layers(layers.geometry, dict(layers.layers), dict(layers.meta))
-    out["dem"] = np.where(mask, np.nan, dem).astype(dem.dtype)
-    if "variance" in layers:
-        out["variance"] = np.where(mask, np.nan, layers["variance"]).astype(layers["variance"].dtype)
-    if "count" in layers:
-        out["count"] = np.where(mask, 0, layers["count"]).astype(layers["count"].dtype)
-    out["spikes"] = mask.astype(np.uint8)
-    out.meta["spikes_removed"] = int(mask.sum())
-    return out

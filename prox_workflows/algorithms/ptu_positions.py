@@ -25,8 +25,6 @@ import numpy as np
 
 from rvs_params.motion import trapezoid_time
 
-from ..engine import step
-
 # per axis ("pan", "tilt"): {"speed": deg/s, "acceleration": deg/s^2, "base": deg/s}
 Motion = Mapping[str, Mapping[str, float]]
 ORDERS = ("fastest", "rows")
@@ -109,20 +107,3 @@ def scan_limit(view_range: Sequence[float], fov: Sequence[float], overlap: float
     travel = path_time(positions, motion, start)
     exposure = len(positions) * view_seconds
     return {"views": len(positions), "travel": travel, "exposure": exposure, "total": travel + exposure}
-
-
-@step("get_ptu_positions", outputs={"positions": "list"})
-def get_ptu_positions(
-    view_range: list[float] | tuple[float, float, float, float],
-    fov: tuple[float, float],
-    overlap: float = 0.2,
-    limits: tuple[float, float, float, float] | None = None,
-    motion: dict[str, dict[str, float]] | None = None,
-    start: list[float] | None = None,
-    order: str | None = None,
-) -> list[tuple[float, float]]:
-    """``view_range`` = (pan_min, pan_max, tilt_min, tilt_max) in degrees; ``fov`` = (h, v);
-    ``motion`` and ``start`` (the PTU's, see :func:`plan`) choose the order; ``order`` "rows"
-    keeps the rows from the lowest pan and tilt whatever the motion (default "fastest")."""
-    return plan(view_range, fov, overlap, limits, motion, tuple(start) if start is not None else None,
-                order or "fastest")

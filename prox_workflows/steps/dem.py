@@ -1,47 +1,21 @@
-"""The steps of the DEM workflow scripts on :class:`Layers`: each wraps one array algorithm
-(DemImport, DemMosaik, hole filling, Dem2Hazard, ortho) so a script can chain them by name."""
+"""The DEM steps on :class:`Layers`: each wraps one array algorithm (DemImport, DemMosaik, spike
+removal, hole filling, ortho) so a script can chain them by name."""
 
 from __future__ import annotations
 
-from typing import Any
-
 import numpy as np
 
+from ..algorithms.acquire import View
+from ..algorithms.dem_import import dem_import
+from ..algorithms.dem_mosaik import DEFAULTS as MOSAIK
+from ..algorithms.dem_mosaik import dem_mosaik, fuse_sensors, resample_nearest, union_geometry
+from ..algorithms.holes import fill_layers
+from ..algorithms.ortho import OrthoView, ortho_image
+from ..algorithms.spikes import find_spikes
 from ..engine import step
 from ..grid import GridGeometry, Layers
-from .acquire import View
-from .dem2hazard import dem2hazard_layers
-from .dem_import import dem_import
-from .dem_mosaik import DEFAULTS as MOSAIK
-from .dem_mosaik import dem_mosaik, fuse_sensors, union_geometry
-from .holes import fill_layers
-from .ortho import OrthoView, ortho_image
 
-
-@step("acquire", outputs={"views": "list[View]"})
-def acquire(positions: list[tuple[float, float]], progress: Any = None, cancelled: Any = None) -> list[View]:
-    """The declaration of the acquisition step; its implementation is the caller's.
-
-    The server supplies it (its PTU and sensors: ``run_workflow(..., steps={"acquire": fn})``),
-    so this package never imports a driver; offline a script reads recorded views instead
-    (``read_views``).
-    """
-    raise NotImplementedError("acquire is supplied by the server; offline, read recorded views with read_views")
-
-
-@step("scan_rule", outputs={"within_scan": "str"})
-def scan_rule(views: list[View]) -> str:
-    """How views of one scan settle a conflict, from the sensors that took them: views of one
-    sensor, the higher wins (a rock's top over its foot); ToF and stereo together, the gate
-    rejects what the other sensor contradicts. Derived from the views, so the server and a
-    reprocessing of its recorded views choose alike."""
-    return "inflate" if len({v.sensor for v in views}) > 1 else "higher"
-
-
-@step("join_views", outputs={"views": "list[View]"})
-def join_views(earlier: list[View] | None, new: list[View]) -> list[View]:
-    """Views a stopped acquisition left behind, then the new ones (newest last)."""
-    return list(earlier or []) + list(new)
+step("dem_import", outputs={"dem": "Layers"})(dem_import)
 
 
 @step("view_dem", outputs={"dem": "Layers?"})
@@ -134,10 +108,22 @@ def fill_holes_layers(layers: Layers, radius: float) -> Layers:
     return fill_layers(layers, radius)
 
 
-@step("hazard_layers", outputs={"layers": "Layers"})
-def hazard_layers(layers: Layers, params: dict[str, Any] | None = None) -> Layers:
-    """Dem2Hazard on the ``dem`` layer: slope, step, roughness, hazard, traversability."""
-    return dem2hazard_layers(layers, params)
+@step("remove_spikes_layers", outputs={"layers": "Layers"})
+def remove_spikes_layers(layers: Layers, min_jump: float = 0.05, k: float = 4.0, max_points: int = 3) -> Layers:
+    """The workflow step: a copy of ``layers`` with the spikes of its ``dem`` undefined (and
+    their variance and count cleared), and a ``spikes`` layer (uint8, 1 where one was)."""
+    dem = layers["dem"]
+    mask = find_spikes(dem, layers["variance"] if "variance" in layers else None,
+                       layers["count"] if "count" in layers else None, min_jump, k, max_points)
+    out = Layers(layers.geometry, dict(layers.layers), dict(layers.meta))
+    out["dem"] = np.where(mask, np.nan, dem).astype(dem.dtype)
+    if "variance" in layers:
+        out["variance"] = np.where(mask, np.nan, layers["variance"]).astype(layers["variance"].dtype)
+    if "count" in layers:
+        out["count"] = np.where(mask, 0, layers["count"]).astype(layers["count"].dtype)
+    out["spikes"] = mask.astype(np.uint8)
+    out.meta["spikes_removed"] = int(mask.sum())
+    return out
 
 
 @step("ortho_layer", outputs={"layers": "Layers"})
@@ -151,20 +137,3 @@ def ortho_layer(layers: Layers, views: list[View], base: Layers | None = None) -
         ortho = np.where(ortho == 0, old, ortho).astype(np.uint8)
     layers["ortho"] = ortho
     return layers
-
-
-def resample_nearest(image: np.ndarray, src: GridGeometry, dst: GridGeometry, fill: Any = np.nan) -> np.ndarray:
-    """A layer of one grid on another, nearest cell (for layers that must not be blended)."""
-    xs, ys = dst.centers()
-    row, col = src.cell_of(np.broadcast_to(xs, dst.shape), np.broadcast_to(ys[:, None], dst.shape))
-    inside = src.inside(row, col)
-    out = np.full(dst.shape, fill, dtype=image.dtype)
-    out[inside] = image[row[inside], col[inside]]
-    return out
-
-
-@step("view_files", outputs={"inputs": "list[str]"})
-def view_files(views: list[View], folder: str | None = None) -> list[str]:
-    """The recorded images the views came from, as the products' sidecars cite them."""
-    prefix = f"{folder}/" if folder else ""
-    return [f"{prefix}{v.files['image']}" for v in views if v.files]

@@ -3,7 +3,8 @@
 ``read_views`` turns a recorded views folder (what a DEM job's acquisition wrote: coordinate
 images, their companions, ``.cal`` files, the image list and the scan's pose) back into the
 views the server processed live, value for value; ``read_layers`` reads a DEM product and its
-companion layers; ``read_points`` stacks point clouds for DemImport.
+companion layers; ``read_points`` stacks point clouds for DemImport; ``read_stereo_pair`` a
+stereo pair as taken and its calibration.
 """
 
 from __future__ import annotations
@@ -19,14 +20,16 @@ import yaml
 
 from rvs_params.hazard import CODES, UNDEFINED
 
+from ..algorithms.acquire import AUX_SUFFIX, View, view_from_images
+from ..algorithms.noise import tof_sigma
+from ..algorithms.stereo import load_calibration
+from ..algorithms.stereo import read_image as read_image_file
+from ..algorithms.transforms import read_cal
 from ..engine import step
-from ..grid import GDAL_NODATA, Layers, parse_crs, read_geotiff
+from ..grid import Layers, gdal_nodata, parse_crs, read_geotiff
 from ..layers import read_layers as _read_layers
 from ..pointcloud import read_las
 from ..pointcloud import read_points as _read_points
-from .acquire import AUX_SUFFIX, View, view_from_images
-from .noise import tof_sigma
-from .transforms import read_cal
 
 
 @step("read_views", outputs={"views": "list[View]", "rover_mask": "array?"})
@@ -62,18 +65,6 @@ def read_views(folder: str | Path) -> dict[str, Any]:
 def read_layers(path: str | Path) -> Layers:
     """A DEM GeoTIFF and its companion layers (the layer registry's names beside it)."""
     return _read_layers(Path(path))
-
-
-def gdal_nodata(path: str | Path) -> float | None:
-    """The GDAL nodata value a GeoTIFF declares (None: none, or one that is not a number)."""
-    with tifffile.TiffFile(path) as tif:
-        tag = tif.pages[0].tags.get(GDAL_NODATA)
-    if tag is None:
-        return None
-    try:
-        return float(str(tag.value).strip("\x00 "))
-    except ValueError:
-        return None
 
 
 @step("read_dem", outputs={"layers": "Layers"})
@@ -200,7 +191,7 @@ def read_global_maps(hazard: str | Path | None, slope: str | Path | None) -> Any
 def read_nav_maps(hazard: str | Path, slope: str | Path) -> Any:
     """A hazard map (dem2hazard's CODES) and its slope map (degrees) on the same grid, as the planner
     takes them."""
-    from .plan_maps import NavMaps
+    from ..algorithms.plan_maps import NavMaps
 
     hz, hgeom = _read_map_layer(Path(hazard))
     sl, sgeom = _read_map_layer(Path(slope))
@@ -218,3 +209,9 @@ def read_nav_maps(hazard: str | Path, slope: str | Path) -> Any:
 def read_image(path: str | Path | None) -> Any:
     """A GeoTIFF image and its grid (an ortho-image to draw on), or None without a path."""
     return None if path is None else read_geotiff(Path(path))
+
+
+@step("read_stereo_pair", outputs={"left": "array", "right": "array", "calib": "any"})
+def read_stereo_pair(left: str | Path, right: str | Path, calib: str | Path) -> dict[str, Any]:
+    """A pair as taken and its calibration (image_size, K1 D1 K2 D2 R T)."""
+    return {"calib": load_calibration(calib), "left": read_image_file(left), "right": read_image_file(right)}

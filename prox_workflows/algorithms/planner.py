@@ -2,8 +2,8 @@
 planning image, expand the hazards by the rover's size, and find the path with A*.
 
 The maps and their merging are in :mod:`.plan_maps`, the search in :mod:`.astar`, the
-parameters in :mod:`.plan_params`, the drawings and products in :mod:`.plan_drawing` and
-:mod:`.plan_products`; the names callers use are importable from here too.
+parameters in :mod:`.plan_params`, the drawings in :mod:`.plan_drawing` (the products are written by
+:mod:`prox_workflows.steps.write`); the names callers use are importable from here too.
 
 Cost model (A* G)
     A step between 8-connected neighbours u -> v of length L (``grid`` or ``grid * sqrt(2)``
@@ -26,7 +26,6 @@ from scipy import ndimage
 
 from rvs_params.hazard import HAZARDOUS
 
-from ..engine import step
 from .astar import SQRT2, PlanningError, Search, astar_grid, warm_up
 from .plan_drawing import ortho_figure
 from .plan_maps import NavMaps, PlanningImage, blank_geometry, check_plan_size, planning_image
@@ -35,7 +34,7 @@ from .plan_params import PlannerParams, PlanParams
 # what callers plan with, wherever it is declared
 __all__ = [
     "MIN_LEG", "NavMaps", "PlanParams", "PlanResult", "PlannerParams", "PlanningError", "astar_grid", "blank_geometry",
-    "check_plan_size", "nearest_reachable", "ortho_figure", "plan_path", "plan_step", "planning_image", "warm_up",
+    "check_plan_size", "nearest_reachable", "ortho_figure", "plan_path", "planning_image", "warm_up",
 ]
 
 MIN_LEG = 0.05  # m: a leg shorter than this makes no progress (navigate says E_DATA)
@@ -236,20 +235,3 @@ def _enclosed_message(free: np.ndarray, start: tuple[int, int], goal: tuple[int,
     which = "start" if size_s <= size_g else "goal"
     return (f"the goal is not reachable: the {which} is enclosed by hazards (the start's free region is "
             f"{size_s * area:.2f} m^2, the goal's {size_g * area:.2f} m^2)")
-
-
-@step("plan_path", outputs={"plan": "PlanResult"})
-def plan_step(local: NavMaps, global_maps: NavMaps | None, start: Sequence[float], goal: Sequence[float],
-              start_heading: float | None = None, weight: float = 0.5, heuristic: str = "octile",
-              grid: float | None = None, margin: float = 0.1, max_deviation: float = 0.1, border: float = 0.3,
-              rover_radius: float = 0.3, critical_slope: float = 20.0,
-              unknown_cost: float | None = None, footprint: str | None = None,
-              rover_half_width: float | None = None) -> PlanResult:
-    """:func:`plan_path` with the planner's parameters as the script passes them one by one."""
-    if footprint == "body" and rover_half_width is None:
-        raise ValueError("footprint body needs the rover's half width (rover_half_width)")
-    params = PlannerParams(grid=grid, weight=weight, heuristic=heuristic, rover_radius=rover_radius, margin=margin,
-                           half_width=rover_half_width if footprint == "body" else None,
-                           critical_slope=critical_slope, max_deviation=max_deviation, border=border,
-                           **({} if unknown_cost is None else {"unknown_cost": unknown_cost}))
-    return plan_path(local, global_maps, start, goal, params, start_heading=start_heading)

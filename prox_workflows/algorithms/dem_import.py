@@ -53,7 +53,6 @@ import numpy as np
 
 from rvs_params.jit import HAVE_NUMBA, jit
 
-from ..engine import step
 from ..grid import GridGeometry, Layers
 
 CHUNK = 1 << 16  # points per chunk (numpy): index, heights and weights of one chunk stay in L2 cache
@@ -139,7 +138,6 @@ def _rover_polygon(rover_mask: np.ndarray | Sequence[float]) -> np.ndarray:
     return poly
 
 
-@step("dem_import", outputs={"dem": "Layers"})
 def dem_import(
     points: np.ndarray,
     geometry: GridGeometry | None = None,

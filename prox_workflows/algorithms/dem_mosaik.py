@@ -44,6 +44,7 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -176,6 +177,17 @@ def resample(height: np.ndarray, variance: np.ndarray, count: np.ndarray, src: G
         v_out[block] = variance[sub]
         n_out[block] = count[sub]
     return h_out, v_out, n_out
+
+
+def resample_nearest(image: np.ndarray, src: GridGeometry, dst: GridGeometry, fill: Any = np.nan) -> np.ndarray:
+    """A layer of one grid on another, nearest cell (for layers that must not be blended)."""
+    xs, ys = dst.centers()
+    row, col = src.cell_of(np.broadcast_to(xs, dst.shape), np.broadcast_to(ys[:, None], dst.shape))
+    inside = src.inside(row, col)
+    out = np.full(dst.shape, fill, dtype=image.dtype)
+    out[inside] = image[row[inside], col[inside]]
+    return out
+
 
 
 def dem_mosaik(

@@ -1,11 +1,11 @@
 """Visual odometry from files: a stereo pair A and the next left image (or pair) B.
 
-The server's orient machinery (:mod:`prox_workflows.steps.odometry`: Shi-Tomasi/Harris points
+The server's orient machinery (:mod:`prox_workflows.algorithms.odometry`: Shi-Tomasi/Harris points
 where A has depth, pyramidal Lucas-Kanade with a forward-backward check, PnP inside RANSAC,
 two-way weighted refinement) is run here on frames made from image files, so that the same
 estimate can be checked on recorded data without a server, a PTU or a rover model.
 
-A's depth comes from the stereo step (:func:`prox_workflows.steps.stereo.disparity`, the
+A's depth comes from the stereo step (:func:`prox_workflows.algorithms.stereo.disparity`, the
 calibration of rvs-stereo). B needs no depth: PnP uses A's 3D points and B's pixels; B's right
 image, when given, adds B's depth to the refinement (the B -> A residuals).
 
@@ -22,16 +22,20 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Any
 
 import cv2
 import numpy as np
 
-from ..engine import step
 from . import odometry as od
-from .stereo import SgbmParams, StereoCalibration, depth_sigma, disparity, load_calibration, sigma_d_for
-from .stereo_products import read_image
+from .stereo import (
+    SgbmParams,
+    StereoCalibration,
+    depth_sigma,
+    disparity,
+    load_calibration,
+    sigma_d_for,
+)
 from .transforms import invert
 
 ORDER = ("tx", "ty", "tz", "rx", "ry", "rz")
@@ -142,7 +146,7 @@ def stereo_odometry(left_a: np.ndarray, right_a: np.ndarray, left_b: np.ndarray,
                     sgbm: SgbmParams | None = None) -> CameraMotion:
     """Camera B's motion in camera A's frame from A's pair and B's left image (or pair).
 
-    :class:`prox_workflows.steps.odometry.OdometryError` (a ValueError carrying the counts)
+    :class:`prox_workflows.algorithms.odometry.OdometryError` (a ValueError carrying the counts)
     when too few points are found or agree on one motion; ValueError for images that do not
     fit the calibration."""
     cal = load_calibration(calib)
@@ -157,27 +161,6 @@ def stereo_odometry(left_a: np.ndarray, right_a: np.ndarray, left_b: np.ndarray,
     cov = covariance(motion, cal, p, sigma_d_for(sg.scale))
     return CameraMotion(invert(motion.T_sensor), cov, motion.inliers, motion.matches, motion.points,
                         motion.rms_px, motion.spread, right_b is not None)
-
-
-@step("stereo_odometry", outputs={"motion": "dict"})
-def stereo_odometry_files(left_a: str | Path, right_a: str | Path, left_b: str | Path,
-                          right_b: str | Path | None, calib: str | Path,
-                          params: dict[str, Any] | None = None) -> dict[str, Any]:
-    """:func:`stereo_odometry` on image files (what rvs-odometry runs): the motion's YAML keys.
-    ``params`` sets OdometryParams fields. Missing files raise FileNotFoundError naming them."""
-    paths = [Path(x) for x in (left_a, right_a, left_b, right_b, calib) if x is not None]
-    missing = [str(x) for x in paths if not x.exists()]
-    if missing:
-        raise FileNotFoundError(f"no such file: {', '.join(missing)}")
-    try:
-        cal = load_calibration(calib)
-    except (ValueError, KeyError, TypeError) as exc:
-        raise ValueError(f"{calib}: not a stereo calibration ({exc}); make one with rvs-calib stereo "
-                         "(or rvs-calib sim-truth for the simulator)") from exc
-    p = od.OdometryParams(**(params or {}))
-    images = [read_image(x) for x in (left_a, right_a, left_b)]
-    rb = read_image(right_b) if right_b is not None else None
-    return stereo_odometry(*images, rb, cal, p).as_dict()
 
 
 # -- texture and feature statistics (frames without depth or calibration) --------------------------
