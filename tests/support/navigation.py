@@ -7,8 +7,8 @@ import numpy as np
 from scipy import ndimage
 
 from drivers.sim.world import World
+from prox_workflows.algorithms.dem2hazard import HazardParams, dem2hazard
 from prox_workflows.grid import GridGeometry
-from prox_workflows.steps.dem2hazard import HazardParams, dem2hazard
 
 AREA = {"office": (-2.5, -3.0, 5.5, 3.0), "quarry": (-3.0, -4.0, 7.0, 4.0), "marsyard": (-4.0, -6.0, 8.0, 6.0)}
 
