@@ -140,32 +140,50 @@ def run_workflow(
         accepts = inspect.signature(fn).parameters
         t0 = time.perf_counter()
         if "foreach" in spec:
-            items = list(evaluate(spec["foreach"], ws, merged))
-            results = []
-            for item in items:
-                check()
-                ws["item"] = item
-                results.append(fn(**evaluate(spec.get("in") or {}, ws, merged)))
-            ws.pop("item", None)
-            result: Any = results
+            result: Any = _call_each(fn, spec, ws, merged, check)
         else:
-            kwargs = evaluate(spec.get("in") or {}, ws, merged)
-            if "progress" in accepts:
-                if own_count and progress is not None:
-                    kwargs["progress"] = lambda d, t, m, phase=phase: progress(d, t, m, phase=phase)
-                else:
-                    kwargs["progress"] = lambda d, t, m: None
-            if "cancelled" in accepts:
-                kwargs["cancelled"] = cancelled or (lambda: False)
-            if "run_log" in accepts:
-                kwargs["run_log"] = log.as_dict()
-            result = fn(**kwargs)
+            own = progress if own_count else None
+            result = fn(**_kwargs(spec, ws, merged, accepts, _phase_progress(own, phase), cancelled, log))
         declared = registry().get(name)
         _store(spec, result, ws, name, list(declared.outputs) if declared and declared.outputs else None)
         log.add(name, time.perf_counter() - t0, outputs=output_names(spec.get("out")))
         if not (own_count and "progress" in accepts):
             report(name if "foreach" not in spec else f"{name} x{len(result)}")
     return ws, log
+
+
+def _call_each(fn: Callable[..., Any], spec: dict[str, Any], ws: dict[str, Any], merged: dict[str, Any],
+               check: Callable[[], None]) -> list[Any]:
+    """A foreach step: once per item (``@item``), the results in a list."""
+    items = list(evaluate(spec["foreach"], ws, merged))
+    results = []
+    for item in items:
+        check()
+        ws["item"] = item
+        results.append(fn(**evaluate(spec.get("in") or {}, ws, merged)))
+    ws.pop("item", None)
+    return results
+
+
+def _phase_progress(progress: Progress | None, phase: str) -> Callable[[int, int, str], None]:
+    """A step's own progress as its phase's (a no-op when the phase counts its steps instead)."""
+    if progress is None:
+        return lambda d, t, m: None
+    return lambda d, t, m: progress(d, t, m, phase=phase)
+
+
+def _kwargs(spec: dict[str, Any], ws: dict[str, Any], merged: dict[str, Any], accepts: Any,
+            step_progress: Callable[[int, int, str], None], cancelled: Callable[[], bool] | None,
+            log: RunLog) -> dict[str, Any]:
+    """The step's wired inputs and the keywords the engine passes itself to a step that takes them."""
+    kwargs = evaluate(spec.get("in") or {}, ws, merged)
+    if "progress" in accepts:
+        kwargs["progress"] = step_progress
+    if "cancelled" in accepts:
+        kwargs["cancelled"] = cancelled or (lambda: False)
+    if "run_log" in accepts:
+        kwargs["run_log"] = log.as_dict()
+    return kwargs
 
 
 def _store(spec: dict[str, Any], result: Any, ws: dict[str, Any], name: str,
