@@ -1,5 +1,5 @@
 """The architecture is checked, not only described: the import contracts of pyproject.toml
-([tool.importlinter]: tools > rvs_server > prox_workflows | drivers > rvs_params, no import cycle
+([tool.importlinter]: tools > rvs_truth > rvs_server > prox_workflows | drivers > rvs_params, no import cycle
 between sibling packages or modules) and ruff's rules, complexity among them, hold on the tree."""
 
 from __future__ import annotations

@@ -15,39 +15,17 @@ from drivers.sim.world import World
 from prox_workflows.algorithms.global_map import load_global
 from prox_workflows.algorithms.map_match import match_dem, transform_layers
 from prox_workflows.grid import GridGeometry, Layers, read_geotiff, write_geotiff
+from rvs_truth.orbital import ORIGIN, orbital_geotiff, rover_patch, scene_dtm
+from rvs_truth.surface import missions, pick_start_goal
 
 
 @pytest.fixture(scope="module")
 def hirise() -> tuple[World, np.ndarray, GridGeometry]:
-    """The scene (one build: it is the costly part) and its orbital DTM, as tools.global_maps
-    writes it (DTM nodes as cell centres, the world's height shift applied)."""
-    from drivers.sim.scene import load_scene_spec
-    from drivers.sim.terrain import dtm_crop
-
+    """The scene (one build: it is the costly part) and its orbital DTM, as rvs_truth.orbital
+    takes it (DTM nodes as cell centres, the world's height shift applied)."""
     world = World.from_scene("hirise", clock_scale=0.0)
-    spec = load_scene_spec("hirise")
-    prim = next(p for p in spec["terrain"]["primitives"] if p["type"] == "dtm")
-    z, x_nw, y_nw, cell = dtm_crop(prim, Path(spec["_dir"]))
-    dem = (float(prim.get("scale", 1.0)) * z - world.z_shift).astype(np.float32)
-    return world, dem, GridGeometry(cell, x_nw - cell / 2.0, y_nw + cell / 2.0, z.shape[1], z.shape[0])
-
-
-def _patch(world: World, true_pose: tuple[float, float, float], error: tuple[float, float, float],
-           rng: np.random.Generator) -> tuple[np.ndarray, GridGeometry, tuple[float, float]]:
-    """The rover's 360-degree DEM (rocks and roughness included, the ToF's ring from 1 to 4.5 m,
-    30 % holes, its own height datum) placed with a believed pose = truth + ``error``."""
-    tx, ty, _ = true_pose
-    ex, ey, eyaw = error
-    bx, by = tx + ex, ty + ey
-    geom = GridGeometry.covering(bx - 4.6, by - 4.6, bx + 4.6, by + 4.6, 0.05)
-    xs, ys = geom.centers()
-    X, Y = np.meshgrid(xs, ys)
-    c, s = math.cos(math.radians(-eyaw)), math.sin(math.radians(-eyaw))
-    ux, uy = X - bx, Y - by
-    z = world.terrain.sample(c * ux - s * uy + tx, s * ux + c * uy + ty).astype(np.float32) + 0.4
-    r = np.hypot(ux, uy)
-    z[(r > 4.5) | (r < 1.0) | (rng.uniform(size=z.shape) < 0.3)] = np.nan
-    return z, geom, (bx, by)
+    dem, geom, _, _ = scene_dtm("hirise", world)
+    return world, dem, geom
 
 
 @pytest.mark.parametrize("case", [(2.0, 1.0, 0.4, -0.3, 3.0), (-5.0, 4.0, -0.5, -0.2, -4.0),
@@ -57,7 +35,7 @@ def test_the_map_matcher_recovers_a_known_offset_on_the_hirise_dtm(hirise, case)
     (1.01 m cells) to about a tenth of a cell and a degree, and the sigma it claims covers that."""
     world, dem, geom = hirise
     tx, ty, ex, ey, eyaw = case
-    z, lg, pivot = _patch(world, (tx, ty, 0.0), (ex, ey, eyaw), np.random.default_rng(1))
+    z, lg, pivot = rover_patch(world, (tx, ty, 0.0), (ex, ey, eyaw), np.random.default_rng(1))
     m = match_dem(z, lg, dem, geom, pivot)
     assert m.ok, m.reason
     err = math.hypot(m.dx + ex, m.dy + ey)
@@ -74,7 +52,7 @@ def test_the_map_matcher_narrows_its_window_near_the_reference_edge(hirise) -> N
     window, fewer than the 50 a match needs (slip mission 4 ended 0.89 m off so, its goal 1.3 m
     from the map's edge). The window halves until enough stay, and the match is found."""
     world, dem, geom = hirise
-    z, lg, pivot = _patch(world, (14.0, 13.5, 0.0), (0.3, -0.25, 2.0), np.random.default_rng(1))
+    z, lg, pivot = rover_patch(world, (14.0, 13.5, 0.0), (0.3, -0.25, 2.0), np.random.default_rng(1))
     m = match_dem(z, lg, dem, geom, pivot, search_xy=3.0, search_yaw=8.0)
     assert m.ok, m.reason
     assert math.hypot(m.dx + 0.3, m.dy - 0.25) < 0.15 and abs(m.dyaw + 2.0) < 1.5, m
@@ -188,11 +166,6 @@ def _mission(server_factory, tmp_path: Path, mode: str, seed: int, loop: str = "
              far: bool = False) -> dict[str, float]:
     """A seeded mission with slip, the orbital DEM given as a UTM GeoTIFF with its origin: in the
     quarry over 3.5-5 m, or (``far``) the traverse benchmark's marsyard mission ``seed`` (15-20 m)."""
-    from support.navigation import pick_start_goal
-
-    from tools.bench.localise import ORIGIN, orbital_geotiff
-    from tools.bench.navigate import missions
-
     scene = "marsyard" if far else "quarry"
     # localisation is the subject: the see loop drives without the vehicle gate, which on this
     # mission stops before the first metre (docs/NAVIGATE_BENCH.md)
@@ -332,7 +305,7 @@ def test_the_localiser_corrects_a_drifted_pose_and_moves_the_legs_maps(hirise, m
     loc = Localiser(mode, ref)
     job = _Job(app)
     # leg 1 at the start (exact): the earlier maps
-    z0, g0, _ = _patch(world, (4.0, 2.0, 0.0), (0.0, 0.0, 0.0), rng)
+    z0, g0, _ = rover_patch(world, (4.0, 2.0, 0.0), (0.0, 0.0, 0.0), rng)
     app.set_pose(4.0, 2.0, 0.0, source="navigate")
     app.maps.replace(Layers(g0, {"dem": z0, "hazard": np.zeros(g0.shape, np.uint8)}), "leg1", {})
     loc.after_scan(job, 1)
@@ -343,7 +316,7 @@ def test_the_localiser_corrects_a_drifted_pose_and_moves_the_legs_maps(hirise, m
     app.set_pose(true[0] + err[0], true[1] + err[1], true[2] + err[2], source="odometry")
     loc.after_drive(job, np.array([[4.0, 2.0], [true[0] + err[0], true[1] + err[1]]]))
     assert app.pose.sigma > 0.1 and app.pose.source == "odometry"
-    z1, g1, _ = _patch(world, true, err, rng)
+    z1, g1, _ = rover_patch(world, true, err, rng)
     app.maps.replace(Layers(g1, {"dem": z1, "hazard": np.zeros(g1.shape, np.uint8)}), "leg2", {})
     loc.after_scan(job, 2)
     p = app.pose
@@ -377,7 +350,7 @@ def test_a_look_round_on_arrival_is_matched_whole(hirise) -> None:
         loc = Localiser("map", ref)
         app.set_pose(true[0] + err[0], true[1] + err[1], err[2], source="odometry")
         loc.after_drive(job, np.array([[2.0, 3.0], [true[0] + err[0], true[1] + err[1]]]))
-        z, g, _ = _patch(world, true, err, np.random.default_rng(11))
+        z, g, _ = rover_patch(world, true, err, np.random.default_rng(11))
         fix = loc.while_seeing(job, 1, z, g, standing=standing)
         assert fix is not None and app.pose.source == "map"
         left[standing] = math.hypot(app.pose.x - true[0], app.pose.y - true[1])

@@ -14,10 +14,10 @@ import pytest
 import yaml
 from scipy import ndimage
 from support.marks import long_only, long_test
-from support.navigation import AREA, pick_start_goal, true_hazard
 
 from drivers.sim.world import World
 from prox_workflows.grid import GridGeometry
+from rvs_truth.surface import NEAR_AREA, pick_start_goal, true_hazard
 
 
 # all in the long suite (30 s each); the default run's office corner below asserts the same (reached, no
@@ -40,7 +40,7 @@ def test_navigate_reaches_the_goal_without_crossing_a_hazard(server_factory, sce
     with open(srv.data / r.fields["track"]) as fh:
         track = np.array([[float(row["x"]), float(row["y"])] for row in csv.DictReader(fh)])
     assert len(track) > 10
-    hazard, g = true_hazard(world, AREA[scene])
+    hazard, g = true_hazard(world, NEAR_AREA[scene])
     rr, cc = g.cell_of(track[:, 0], track[:, 1])
     assert g.inside(rr, cc).all()
     assert not (hazard[rr, cc] == 255).any(), "the rover's true track crossed a true hazard"
@@ -98,7 +98,7 @@ def corners_and_centre(world: World, scene: str, clearance: float = 0.8) -> tupl
                                                                               tuple[float, float]]:
     """The clear points (at least ``clearance`` from any true hazard, by the simulator's truth)
     nearest to each corner of the scene's area (0.9 m in from both sides) and to its centre."""
-    hazard, g = true_hazard(world, AREA[scene])
+    hazard, g = true_hazard(world, NEAR_AREA[scene])
     clear = (ndimage.distance_transform_edt(hazard != 255) * g.cell >= clearance) & (hazard == 0)
     xs, ys = g.centers()
     X, Y = np.meshgrid(xs, ys)
@@ -108,7 +108,7 @@ def corners_and_centre(world: World, scene: str, clearance: float = 0.8) -> tupl
         r, c = np.unravel_index(np.argmin(d), d.shape)
         return float(X[r, c]), float(Y[r, c])
 
-    x0, y0, x1, y1 = AREA[scene]
+    x0, y0, x1, y1 = NEAR_AREA[scene]
     starts = [nearest(x, y) for x, y in ((x0 + 0.9, y0 + 0.9), (x0 + 0.9, y1 - 0.9), (x1 - 0.9, y0 + 0.9),
                                           (x1 - 0.9, y1 - 0.9))]
     return starts, nearest((x0 + x1) / 2, (y0 + y1) / 2)
@@ -142,7 +142,7 @@ def test_navigate_from_every_corner_reaches_a_clear_goal(server_factory, scene: 
     with open(srv.data / r.fields["track"]) as fh:
         track = np.array([[float(row["x"]), float(row["y"])] for row in csv.DictReader(fh)])
     assert len(track) > 10 and math.hypot(*(track[0] - start)) < 1e-3
-    hazard, g = true_hazard(world, AREA[scene])
+    hazard, g = true_hazard(world, NEAR_AREA[scene])
     rr, cc = g.cell_of(track[:, 0], track[:, 1])
     assert g.inside(rr, cc).all()
     assert not (hazard[rr, cc] == 255).any(), "the rover's true track crossed a true hazard"
@@ -176,7 +176,7 @@ def test_a_goal_judged_in_a_hazard_from_far_is_judged_again_from_closer(server_f
             track.append(a + t * (b - a))
     pts = np.concatenate(track)
     assert math.hypot(*(pts[-1] - [truth["x"], truth["y"]])) < 0.05
-    hazard, g = true_hazard(world, AREA["office"])
+    hazard, g = true_hazard(world, NEAR_AREA["office"])
     rr, cc = g.cell_of(pts[:, 0], pts[:, 1])
     assert not (hazard[rr, cc] == 255).any(), "the rover's true track crossed a true hazard"
 

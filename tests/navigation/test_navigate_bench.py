@@ -1,4 +1,4 @@
-"""The navigate benchmark's helpers (tools/bench/navigate.py): the track it judges, the plan poses,
+"""The vehicle yardstick (rvs_truth.vehicle) the navigate benchmark scores with: the track it judges, the plan poses,
 the tracking error, stop reasons and the thresholds a mission runs with."""
 
 from __future__ import annotations
@@ -10,7 +10,7 @@ import pytest
 
 from drivers.sim.rover import RoverBody
 from prox_workflows.grid import GridGeometry
-from tools.bench.navigate import (
+from rvs_truth.vehicle import (
     capability_hazard,
     cross_track,
     mission_hazard,

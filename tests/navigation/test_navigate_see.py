@@ -14,13 +14,13 @@ from typing import Any
 import numpy as np
 import pytest
 from support.marks import long_only
-from support.navigation import true_hazard
 from support.server import wait_for
 
 from prox_workflows.algorithms.dem2hazard import HazardParams, dem2hazard
 from prox_workflows.algorithms.planner import NavMaps
 from prox_workflows.algorithms.rolling_map import RollingMap, RollingParams, merge_nav_maps, path_poses
 from prox_workflows.grid import GridGeometry
+from rvs_truth.surface import true_hazard
 
 STOP_DISTANCE = 0.5  # m: the hazard monitor's default stop distance
 

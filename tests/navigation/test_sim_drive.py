@@ -25,6 +25,7 @@ from drivers.sim.clock import SimClock
 from drivers.sim.world import World
 from rvs_server.navigation.scan import WaypointPilot
 from rvs_server.navigation.track import Track
+from rvs_truth.orbital import write_global_maps
 
 ROOT = Path(__file__).resolve().parents[2]
 SCHEMA = Draft202012Validator(json.loads((ROOT / "docs" / "replies.schema.json").read_text()))
@@ -217,7 +218,6 @@ def test_the_hirise_scene_is_the_dtm_with_rocks_at_15_percent_cover(tmp_path: Pa
     assert relief > 2.0  # the DTM's metres of relief, not a flat yard
 
     from prox_workflows.grid import read_geotiff
-    from tools.global_maps import write_global_maps
 
     paths = write_global_maps(str(copy), tmp_path / "global")
     hazard, g = read_geotiff(paths["hazard"])
@@ -236,7 +236,6 @@ def test_the_hirise_scene_is_the_dtm_with_rocks_at_15_percent_cover(tmp_path: Pa
 
 def test_a_dem_full_tof_runs_on_the_hirise_scene(server_factory, tmp_path: Path) -> None:
     from rvs_server.navigation.planning import load_global_folder
-    from tools.global_maps import write_global_maps
 
     maps = load_global_folder(str(write_global_maps("hirise", tmp_path / "global").get("hazard").parent))
     assert maps is not None and maps.geometry.cell == pytest.approx(1.01)  # usable as navigate.global_maps

@@ -10,7 +10,8 @@ import pytest
 from support.marks import long_only
 
 from prox_workflows.grid import GridGeometry
-from tools.bench.navigate import fine_surface, read_track, vehicle_check
+from rvs_truth.surface import fine_surface
+from rvs_truth.vehicle import read_track, vehicle_check
 
 
 @pytest.mark.parametrize("gate", ["bounds", pytest.param("off", marks=long_only()),

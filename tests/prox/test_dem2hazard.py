@@ -26,7 +26,7 @@ from prox_workflows.algorithms.dem2hazard import (
 from prox_workflows.cli import dem2hazard as cli
 from prox_workflows.grid import GridGeometry, Layers, write_geotiff
 from rvs_params.hazard import HAZARDOUS, SAFE, UNDEFINED
-from tools.bench.dem2hazard import vectorised
+from rvs_truth.reference import dem2hazard_vectorised
 
 CELL = 0.02
 P = HazardParams()  # window 0.3 m -> 15 x 15 cells at 0.02 m, step 0.15 m, slope 20 deg, roughness 0.05 m
@@ -259,14 +259,14 @@ def test_equals_the_vectorised_peer_on_random_dems_with_holes(
     rng = np.random.default_rng(seed)
     dem = np.asarray(holey_dem(rng, h, w, holes, offset), dtype=dtype, order=order)
     params = load_params(window=window, min_fraction=min_fraction)
-    assert_same_layers(dem2hazard(dem, cell, params), vectorised(dem, cell, params))
+    assert_same_layers(dem2hazard(dem, cell, params), dem2hazard_vectorised(dem, cell, params))
 
 
 @pytest.mark.parametrize("shape", [(700, 23), (40, 5000)])
 def test_strips_of_tall_and_wide_grids_equal_the_vectorised_peer(shape: tuple[int, int]) -> None:
     rng = np.random.default_rng(11)
     dem = holey_dem(rng, *shape, holes=0.1, offset=3.0).astype(np.float32)
-    assert_same_layers(dem2hazard(dem, CELL, P), vectorised(dem, CELL, P))
+    assert_same_layers(dem2hazard(dem, CELL, P), dem2hazard_vectorised(dem, CELL, P))
 
 
 def test_the_kernels_arctangent_is_within_an_ulp_or_two_of_numpys() -> None:

@@ -10,6 +10,7 @@ import pytest
 import prox_workflows.algorithms.dem_import as dem_import_module
 from prox_workflows.algorithms.dem_import import LAYERS, dem_import
 from prox_workflows.grid import GridGeometry
+from rvs_truth.synthetic import SIDE, tof_scan
 
 pytest.importorskip("numba")
 
@@ -83,8 +84,6 @@ def test_numba_one_and_two_threads_match_numpy(dtype, cols, opts, monkeypatch) -
 def test_scan_ordered_tof_points_all_layers(monkeypatch) -> None:
     """The benchmark's synthetic 24-view scan (points in pixel order), with point variances and
     intensity: all eight layers agree, the two-thread pass is taken and changes nothing."""
-    from tools.bench.dem import SIDE, tof_scan
-
     pts = tof_scan(200_000)
     rng = np.random.default_rng(3)
     pts4 = np.column_stack([pts, rng.uniform(100, 900, len(pts)).astype(np.float32)])
@@ -194,8 +193,6 @@ def test_kept_sums_are_clean_for_the_next_call(monkeypatch) -> None:
 
 
 def test_one_thread_when_no_core_is_free(monkeypatch) -> None:
-    from tools.bench.dem import tof_scan
-
     pts = tof_scan(50_000)
     calls = []
     submit = dem_import_module.ThreadPoolExecutor.submit

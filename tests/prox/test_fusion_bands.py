@@ -10,7 +10,7 @@ from pathlib import Path
 import pytest
 from support.marks import long_test
 
-from tools.bench.fusion import band_rmse, evaluation_cells, load_scan, scan_scene, sensor_dems
+from rvs_truth.fusion import band_rmse, evaluation_cells, load_scan, scan_scene, sensor_dems
 
 
 @long_test

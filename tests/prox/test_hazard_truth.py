@@ -12,6 +12,7 @@ from scipy import ndimage
 from drivers.sim.world import World
 from prox_workflows.algorithms.dem2hazard import HazardParams, dem2hazard
 from prox_workflows.grid import GridGeometry
+from rvs_truth.ceiling import perception_ceiling
 
 PARAMS = HazardParams()  # config/dem2hazard.yaml's defaults: step 0.15 m, slope 20 deg, window 0.3 m
 
@@ -56,8 +57,6 @@ def test_hirise_passages_leave_a_perfect_5cm_map_a_window_of_a_centimetre() -> N
     long way round, clear of every true hazard; with 2.5 cm it finds none. A perfect map of the
     surface's 3 cm means, its step taken every centimetre, finds that way round at the limit
     itself (tools.bench.navigate --ceiling has all ten missions and the 1 cm surface)."""
-    from tools.bench.navigate import perception_ceiling
-
     rows = perception_ceiling("hirise", 2, limits=(0.15, 0.135, 0.125), maps=("cell_mean", "mean_3cm"))
     got = {(r["map"], r["step_max"]): r for r in rows if r["mission"] == 1}
     assert got["cell_mean", 0.15]["reached"] and got["cell_mean", 0.15]["crossed_cells"] > 0

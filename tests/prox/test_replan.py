@@ -263,9 +263,9 @@ def test_plain_python_kernels_agree() -> None:
 
 
 def test_benchmark_runs_and_agrees_with_astar_on_400_cells() -> None:
-    """tools/bench/replan.py's cycle (drive, change ahead, repair) on its simulated 400 x 400 map:
-    it raises if a repaired cost ever differs from the fresh A*'s."""
-    from tools.bench.replan import run, sim_map
+    """The replanning benchmark's cycle (rvs_truth.replan: drive, change ahead, repair) on its
+    simulated 400 x 400 map: it raises if a repaired cost ever differs from the fresh A*'s."""
+    from rvs_truth.replan import run, sim_map
 
     m = sim_map(1)
     for what in (10, "rock", "move"):

@@ -15,7 +15,7 @@ from support.marks import long_suite
 
 from prox_workflows.algorithms.stereo_odometry import ORDER, stereo_odometry
 from prox_workflows.cli.odometry import main
-from tools.bench.odometry import motion_error, sim_sequence
+from rvs_truth.motion import motion_error, sim_sequence
 
 
 @pytest.fixture(scope="module")

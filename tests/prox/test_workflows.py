@@ -1,7 +1,7 @@
 """Offline and distributed reprocessing: ``rvs-prox dem --from``, the
 server's ``prox`` command, ``rvs-prox batch`` on Dask and the tiled campaign mosaic. Cheap: one
 small ToF scan (one view, 5 cm cells) recorded by a real server, shared by the module; the
-batch's other inputs are that scan shifted (tools/bench/batch.py's shifted_copy)."""
+batch's other inputs are that scan shifted (rvs_truth.synthetic.shifted_copy)."""
 
 from __future__ import annotations
 
@@ -27,7 +27,7 @@ from prox_workflows.batch import (
 )
 from prox_workflows.cli.batch import main as batch_main
 from prox_workflows.cli.prox import main as rvs_prox
-from tools.bench.batch import shifted_copy
+from rvs_truth.synthetic import shifted_copy
 
 DEM_LAYERS = ("dem", "variance", "count", "filled", "ortho", "slope", "step", "roughness", "hazard",
               "traversability")

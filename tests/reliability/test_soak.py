@@ -1,4 +1,5 @@
-"""Soak: tools/soak.py against a simulated server in a child process: 20
+"""Soak: tools/soak.py, run as the program it is (``python -m tools.soak`` from the repository),
+against a simulated server in a child process: 20
 clients of mixed traffic (valid and invalid requests, jobs, breaks, continues, format and
 events switches). Every request answered, resident memory grows under 10 % after the warm-up,
 no file descriptor leaks, the server still alive and stopping cleanly.
@@ -10,19 +11,26 @@ a one-minute warm-up with RVS_LONG=1, memory growth under 10 %.
 from __future__ import annotations
 
 import json
+import subprocess
+import sys
 from pathlib import Path
 
 import pytest
 from reliability_harness import record
 from support.marks import long_suite, long_test
 
-from tools import soak
+ROOT = Path(__file__).resolve().parents[2]
+
+
+def soak(*args: str) -> subprocess.CompletedProcess[str]:
+    return subprocess.run([sys.executable, "-m", "tools.soak", *args], cwd=ROOT, capture_output=True, text=True,
+                          timeout=1500)
 
 
 def run(tmp_path: Path, seconds: float, warmup: float, max_growth: float) -> dict:
     out = tmp_path / "soak.json"
-    rc = soak.main(["--seconds", str(seconds), "--warmup", str(warmup), "--clients", "20", "--quiet",
-                    "--data", str(tmp_path / "data"), "--json", str(out), "--max-growth", str(max_growth)])
+    rc = soak("--seconds", str(seconds), "--warmup", str(warmup), "--clients", "20", "--quiet",
+              "--data", str(tmp_path / "data"), "--json", str(out), "--max-growth", str(max_growth)).returncode
     result = json.loads(out.read_text())
     record("soak", **{k: v for k, v in result.items() if k not in ("codes", "rss_timeline_mib")},
            codes=result["codes"])
@@ -49,6 +57,5 @@ def test_soak_ten_minutes(tmp_path: Path) -> None:
 
 
 def test_soak_refuses_bad_options() -> None:
-    with pytest.raises(SystemExit) as exc:
-        soak.main(["--clients", "0"])
-    assert exc.value.code == 2
+    out = soak("--clients", "0")
+    assert out.returncode == 2 and "--clients" in out.stderr, out.stderr

@@ -20,7 +20,6 @@ from __future__ import annotations
 import argparse
 import logging
 import os
-import shutil
 import socket
 import tempfile
 import time
@@ -29,10 +28,9 @@ from pathlib import Path
 
 import numpy as np
 import tifffile
-import yaml
 
-from prox_workflows.algorithms.transforms import camera_matrix
 from prox_workflows.batch import close_client, make_client, mosaic_campaign, run_batch, run_one, serial
+from rvs_truth.synthetic import shifted_copy
 
 SCAN = "dem-full-tof -range -20,20,-50,-30 -cell 0.05 -mesh false -name {name}"
 
@@ -61,45 +59,6 @@ def record_scans(data: Path, count: int) -> list[Path]:
             raise RuntimeError(line)
         out.append(data / "dem" / f"real{i}_views")
     sock.close()
-    return out
-
-
-def shifted_copy(views: Path, dest: Path, name: str, dx: float, dy: float) -> Path:
-    """A recorded job copied to ``dest`` as ``name``, moved by (dx, dy) in the global frame: what
-    the same scan taken elsewhere would have recorded (points, camera poses, rover pose and mask)."""
-    src_name = views.name[: -len("_views")]
-    out = dest / f"{name}_views"
-    out.mkdir(parents=True, exist_ok=True)
-    shift = np.array([dx, dy], np.float64)
-    for p in views.iterdir():
-        target = out / p.name.replace(src_name, name, 1)
-        if p.name.endswith(".aux.tiff"):
-            shutil.copyfile(p, target)
-        elif p.suffix == ".tif":
-            img = tifffile.imread(p)
-            img[..., :2] = (img[..., :2].astype(np.float64) + shift).astype(np.float32)
-            tifffile.imwrite(target, img, photometric="minisblack")
-        elif p.suffix == ".cal":
-            cal = yaml.safe_load(p.read_text())
-            T = np.asarray(cal["T_global_camera"], float)
-            T[:2, 3] += shift
-            cal["T_global_camera"] = T.tolist()
-            cal["P"] = camera_matrix(np.asarray(cal["K"], float), T).tolist()
-            target.write_text(yaml.safe_dump(cal, sort_keys=False))
-        elif p.name.endswith("_scan.yaml"):
-            scan = yaml.safe_load(p.read_text())
-            scan["pose"][0] += dx
-            scan["pose"][1] += dy
-            if scan.get("rover_mask") is not None:
-                scan["rover_mask"] = (np.asarray(scan["rover_mask"]) + shift).tolist()
-            target.write_text(yaml.safe_dump(scan, sort_keys=False))
-        elif p.suffix == ".csv":
-            target.write_text(p.read_text().replace(src_name, name))
-    sidecar = views.parent / f"{src_name}_dem.yaml"
-    if sidecar.is_file():  # the parameters the job recorded: what a re-run reads
-        info = yaml.safe_load(sidecar.read_text())
-        info["parameters"]["name"] = name
-        (dest / f"{name}_dem.yaml").write_text(yaml.safe_dump(info, sort_keys=False))
     return out
 
 

@@ -57,46 +57,10 @@ from scipy import stats
 import prox_workflows.algorithms.dem_import as dem_import_module
 from prox_workflows.algorithms.dem_import import dem_import
 from prox_workflows.grid import GridGeometry
+from rvs_truth.synthetic import SIDE, tof_scan
 
 CELL = 0.02
-SIDE = 10.0
 PEER_MAX_POINTS = 1_000_000
-
-
-def terrain(x: np.ndarray, y: np.ndarray) -> np.ndarray:
-    """Rolling ground with a few rocks (m)."""
-    z = 0.15 * np.sin(0.9 * x) * np.cos(0.7 * y) + 0.05 * np.sin(3.1 * x + 1.3 * y)
-    for cx, cy, r, h in ((2.0, 3.0, 0.3, 0.25), (7.5, 6.0, 0.5, 0.4), (4.0, 8.0, 0.2, 0.15)):
-        d2 = (x - cx) ** 2 + (y - cy) ** 2
-        z = z + h * np.exp(-d2 / (r * r))
-    return z
-
-
-def tof_scan(n: int, seed: int = 0) -> np.ndarray:
-    """About ``n`` points (N x 3 float32) of a 24-view scan from a sensor at the centre, 1 m up:
-    12 pan sectors x 2 tilt bands, each view a pixel raster (rows = range, cols = azimuth),
-    in pixel order, so consecutive points are neighbours on the ground as in a real image."""
-    rng = np.random.default_rng(seed)
-    views = []
-    per_view = int(n * 1.35 / 24) + 1  # about a quarter of the far band falls outside the square
-    for k in range(24):
-        pan = (k % 12) * (2 * np.pi / 12)
-        near = k < 12
-        r0, r1 = (0.6, 3.0) if near else (2.8, 7.2)
-        rows = int(np.sqrt(per_view * 0.8))
-        cols = per_view // rows
-        t = np.linspace(0.0, 1.0, rows)[:, None]
-        # pixels at equal angles below the horizon: range grows faster than linearly with the row
-        r = r0 * (r1 / r0) ** t
-        a = pan + np.linspace(-0.32, 0.32, cols)[None, :]
-        x = SIDE / 2 + r * np.cos(a)
-        y = SIDE / 2 + r * np.sin(a)
-        z = terrain(x, y) + rng.normal(0, 0.004, x.shape) * (r / 2)
-        views.append(np.stack([x, y, z], -1).reshape(-1, 3))
-    pts = np.concatenate(views)
-    inside = (pts[:, 0] >= 0) & (pts[:, 0] < SIDE) & (pts[:, 1] >= 0) & (pts[:, 1] < SIDE)
-    pts = pts[inside][:n].astype(np.float32)
-    return pts
 
 
 def floor_pass(points: np.ndarray, g: GridGeometry) -> np.ndarray:

@@ -2,13 +2,14 @@
 simulated 1000 x 1000 and 2000 x 2000 DEMs (0.02 m cells, 0.3 m = 15 x 15 window) and on the real
 HiRISE DTM crop (../shared/realdata/dem/mars_dtm.npy, 1.01 m cells, 3 x 3 window).
 
-The peer (:func:`vectorised`) is how one would write Dem2Hazard's definitions with whole-array
-library calls: the ten windowed sums of the least-squares plane as OpenCV box filters over the
-defined-cell mask and the heights (NaN -> 0), slope and roughness from them in closed form with
-numpy, the step as cv2.dilate minus cv2.erode with undefined cells at -inf / +inf, the hazard map
-and traversability by Dem2Hazard's own ``classify``. It is a fair baseline, not a strawman: the
-same quantities, so its outputs are checked equal to ours (same undefined cells, slope, roughness
-and step within float tolerance, the same hazard classes) on every case before any time is shown.
+The peer (:func:`rvs_truth.reference.dem2hazard_vectorised`) is how one would write Dem2Hazard's
+definitions with whole-array library calls: the ten windowed sums of the least-squares plane as
+OpenCV box filters over the defined-cell mask and the heights (NaN -> 0), slope and roughness from
+them in closed form with numpy, the step as cv2.dilate minus cv2.erode with undefined cells at -inf
+/ +inf, the hazard map and traversability by Dem2Hazard's own ``classify``. It is a fair baseline,
+not a strawman: the same quantities, so its outputs are checked equal to ours (same undefined cells,
+slope, roughness and step within float tolerance, the same hazard classes) on every case before any
+time is shown.
 
 Timing: best of ``--rounds`` interleaved rounds (ours with its strip threads, ours on one thread,
 the peer, in alternating order, so a busy moment on a shared machine hits all of them alike); the
@@ -30,11 +31,11 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-import cv2
 import numpy as np
 
 from prox_workflows.algorithms import dem2hazard as d2h
 from rvs_params.hazard import UNDEFINED
+from rvs_truth.reference import dem2hazard_vectorised
 
 TARGET_MS = 150.0  # for 1000 x 1000
 CELL = 0.02
@@ -62,62 +63,6 @@ def terrain(size: int, cell: float, seed: int = 0) -> np.ndarray:
         r, c = rng.integers(0, size, 2)
         dem[r:r + rng.integers(3, 40), c:c + rng.integers(3, 40)] = np.nan
     return dem.astype(np.float32)
-
-
-# ------------------------------------------------------------------------------ the peer
-
-
-def vectorised(dem: np.ndarray, cell: float, params: d2h.HazardParams | dict[str, Any] | None = None
-               ) -> dict[str, np.ndarray]:
-    """Dem2Hazard's five layers from whole-array OpenCV filters and numpy expressions.
-
-    The plane z = a x + b y + c over each window's defined cells needs the sums of 1, x, y, z,
-    xx, xy, yy, xz, yz, zz over those cells: box filters of the mask m and of m x, m y, z0, ...
-    (z0 the heights with undefined cells 0, relative to their mean so z^2 keeps its precision).
-    With C_uv = N S_uv - S_u S_v the plane's gradient solves a 2 x 2 system and the residual sum
-    of squares is (Czz - a Cxz - b Cyz) / N. Undefined: the centre, fewer than ``min_cells``
-    defined, or a determinant too small for a plane, the same rule as ours.
-    """
-    p = d2h.load_params(**params) if isinstance(params, dict) else (params or d2h.load_params())
-    n, need = p.window_cells(cell), p.min_cells(cell)
-    z = np.asarray(dem)
-    if not np.issubdtype(z.dtype, np.floating):
-        z = z.astype(np.float64)
-    h, w = z.shape
-    defined = np.isfinite(z)
-    zref = float(z[defined].mean()) if defined.any() else 0.0
-    m = defined.astype(np.float64)
-    z0 = np.where(defined, z.astype(np.float64) - zref, 0.0)
-    x = (np.arange(w, dtype=np.float64) - (w - 1) / 2)[None, :]
-    y = ((h - 1) / 2 - np.arange(h, dtype=np.float64))[:, None]  # y grows up the raster (north)
-
-    def box(a: np.ndarray) -> np.ndarray:
-        return cv2.boxFilter(a, cv2.CV_64F, (n, n), normalize=False, borderType=cv2.BORDER_CONSTANT)
-
-    mx, my = m * x, m * y
-    count, sx, sy, sz = box(m), box(mx), box(my), box(z0)
-    cxx = count * box(mx * x) - sx * sx
-    cxy = count * box(mx * y) - sx * sy
-    cyy = count * box(my * y) - sy * sy
-    cxz = count * box(z0 * x) - sx * sz
-    cyz = count * box(z0 * y) - sy * sz
-    czz = count * box(z0 * z0) - sz * sz
-    det = cxx * cyy - cxy * cxy
-    valid = defined & (count >= need) & (det > 1e-6 * count**4)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        a = (cyy * cxz - cxy * cyz) / det
-        b = (cxx * cyz - cxy * cxz) / det
-        rss = np.maximum(czz - a * cxz - b * cyz, 0.0) / np.maximum(count * (count - 3.0), 1.0)
-    slope = np.degrees(np.arctan(np.hypot(a, b) / cell))
-    roughness = np.sqrt(rss)
-    kernel = np.ones((n, n), np.uint8)
-    zs = z if z.dtype in (np.float32, np.float64) else z.astype(np.float64)
-    zmax = cv2.dilate(np.where(defined, zs, -np.inf), kernel)
-    zmin = cv2.erode(np.where(defined, zs, np.inf), kernel)
-    with np.errstate(over="ignore", invalid="ignore"):
-        step = zmax.astype(np.float64) - zmin
-    layers = [np.where(valid, v, np.nan).astype(np.float32) for v in (slope, roughness, step)]
-    return d2h.classify(*layers, valid, p)
 
 
 def agreement(ours: dict[str, np.ndarray], peer: dict[str, np.ndarray]) -> dict[str, Any]:
@@ -186,11 +131,11 @@ def load_average() -> float:
 def run_case(label: str, dem: np.ndarray, cell: float, params: d2h.HazardParams, rounds: int
              ) -> dict[str, Any]:
     ours = d2h.dem2hazard(dem, cell, params)
-    peer = vectorised(dem, cell, params)
+    peer = dem2hazard_vectorised(dem, cell, params)
     agree = agreement(ours, peer)
     t = race({"ours": lambda: d2h.dem2hazard(dem, cell, params),
               "ours1": _one_thread(lambda: d2h.dem2hazard(dem, cell, params)),
-              "peer": lambda: vectorised(dem, cell, params)}, rounds)
+              "peer": lambda: dem2hazard_vectorised(dem, cell, params)}, rounds)
     return {"label": label, "agree": agree, "t": t}
 
 

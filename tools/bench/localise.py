@@ -1,9 +1,9 @@
 """Pose error at the end of seeded slipping missions: dead reckoning, VO, map matching, both.
 
-Each mission is a real server (the tests' in-process ServerThread, simulated time at scale 0)
+Each mission is a real server (an in-process ServerThread, simulated time at scale 0)
 with wheel slip 5 % and heading drift 2 deg/m (``sim slip``) and no GNC pose (``navigate
 -auto``), from a start to a goal 3.5-5 m away, both clear of true hazards (the seeded pick of
-tests/support/navigation.py). The global map is the scene's true DEM sampled at 0.5 m (what an
+rvs_truth.surface.pick_start_goal). The global map is the scene's true DEM sampled at 0.5 m (what an
 orbiter's DTM would show), written as a GeoTIFF in UTM zone 33N coordinates and given to
 navigate with ``-global FILE -global-origin E,N``. For every mission and ``-localise`` mode it
 prints the end pose error (believed vs true) and the true distance to the goal; then a table,
@@ -26,41 +26,31 @@ from typing import Any
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[2]
-ORIGIN = (500000.0, 4000000.0)  # the rover frame's origin in the map's UTM coordinates
+from rvs_server.client.session import ServerThread, Session
+from rvs_truth.orbital import ORIGIN, orbital_geotiff, rover_patch, scene_dtm
+from rvs_truth.surface import missions, pick_start_goal
 
-
-def orbital_geotiff(world: Any, path: Path, origin: tuple[float, float] = ORIGIN, cell: float = 0.5) -> Path:
-    """The world's true DEM at ``cell`` metres as a UTM GeoTIFF whose (E, N) = ``origin`` is the
-    rover frame's (0, 0)."""
-    from prox_workflows.grid import GridGeometry, write_geotiff
-
-    g = GridGeometry.covering(*world.terrain.bounds, cell)
-    dem = world.true_dem(cell, g.bounds, include_target=False).astype(np.float32)
-    utm = GridGeometry(cell, g.xmin + origin[0], g.ymax + origin[1], g.width, g.height, crs="EPSG:32633")
-    return Path(write_geotiff(path, dem, utm))
+# the tests' server settings: simulated time and the PTU instant, no warm-up
+SETS = ("drivers.ptu.time_scale=0", "sim.time_scale=0", "server.warm_up=false")
 
 
 def run_mission(srv: Any, start: tuple[float, float], goal: tuple[float, float], mode: str, seed: int,
                 global_file: Path, tolerance: float = 0.3, loop: str = "scan") -> dict[str, Any]:
     """One navigate -auto mission with slip; the end pose, the truth and the fixes."""
-    c = srv.client(timeout=1800)
-    try:
-        r = c.request(f"sim slip -distance 0.05 -heading 2 -seed {seed}")
-        assert r.status == "OK", r
+    with Session(port=srv.port) as c:
+        c.connect()
+        r = c.request(f"sim slip -distance 0.05 -heading 2 -seed {seed}", timeout=60)
+        assert r.ok, r
         heading = math.degrees(math.atan2(goal[1] - start[1], goal[0] - start[0]))
         t0 = time.perf_counter()
-        c.send(f"navigate -start {start[0]:.3f},{start[1]:.3f},{heading:.1f} -goal {goal[0]:.3f},{goal[1]:.3f} "
-               f"-auto -loop {loop} -localise {mode} -tolerance {tolerance} -global {global_file} "
-               f"-global-origin {ORIGIN[0]},{ORIGIN[1]} -name m{seed}_{mode}")
-        lines = c.until_final(timeout=1800)
+        nav = c.request(f"navigate -start {start[0]:.3f},{start[1]:.3f},{heading:.1f} -goal {goal[0]:.3f},{goal[1]:.3f} "
+                        f"-auto -loop {loop} -localise {mode} -tolerance {tolerance} -global {global_file} "
+                        f"-global-origin {ORIGIN[0]},{ORIGIN[1]} -name m{seed}_{mode}", timeout=1800)
         wall = time.perf_counter() - t0
-        final = lines[-1]
-        fixes = [r for r in lines if r.status == "EVENT" and r.fields.get("kind") == "localised"]
-        truth = c.request("sim truth").fields
-        status = c.request("status").fields
-    finally:
-        c.close()
+        final = nav.final.reply
+        fixes = [line.reply for line in nav.own if line.status == "EVENT" and line.reply.fields.get("kind") == "localised"]
+        truth = c.request("sim truth", timeout=60).final.reply.fields
+        status = c.request("status", timeout=60).final.reply.fields
     px, py, ph = (float(v) for v in status["pose"].split(","))
     tx, ty, th = float(truth["x"]), float(truth["y"]), float(truth["heading"])
     return {"mode": mode, "seed": seed, "ok": final.status == "OK", "message": final.fields.get("message", ""),
@@ -76,27 +66,17 @@ def matcher_timing(trials: int, seed: int = 0) -> None:
     """The map matcher alone: ``trials`` 360-degree DEM patches of the hirise scene (2 cm
     heights with rocks and roughness, the ToF's 1-4.5 m ring, 30 % holes) placed up to 0.6 m and
     5 deg off, matched on the orbital HiRISE DTM (1.01 m cells): error and time per match."""
-    sys.path.insert(0, str(ROOT / "tests"))
-    from test_localise import _patch
-
-    from drivers.sim.scene import load_scene_spec
-    from drivers.sim.terrain import dtm_crop
     from drivers.sim.world import World
     from prox_workflows.algorithms.map_match import match_dem
-    from prox_workflows.grid import GridGeometry
 
     world = World.from_scene("hirise", clock_scale=0.0)
-    spec = load_scene_spec("hirise")
-    prim = next(p for p in spec["terrain"]["primitives"] if p["type"] == "dtm")
-    z, x_nw, y_nw, cell = dtm_crop(prim, Path(spec["_dir"]))
-    dem = (float(prim.get("scale", 1.0)) * z - world.z_shift).astype(np.float32)
-    geom = GridGeometry(cell, x_nw - cell / 2.0, y_nw + cell / 2.0, z.shape[1], z.shape[0])
+    dem, geom, _, _ = scene_dtm("hirise", world)
     rng = np.random.default_rng(seed)
     errs, yaws, times, ok = [], [], [], 0
     for _ in range(trials):
         tx, ty = rng.uniform(-8.0, 8.0, 2)
         e = (float(rng.uniform(-0.6, 0.6)), float(rng.uniform(-0.6, 0.6)), float(rng.uniform(-5.0, 5.0)))
-        local, lg, pivot = _patch(world, (float(tx), float(ty), 0.0), e, rng)
+        local, lg, pivot = rover_patch(world, (float(tx), float(ty), 0.0), e, rng)
         m = match_dem(local, lg, dem, geom, pivot)
         ok += m.ok
         errs.append(math.hypot(m.dx + e[0], m.dy + e[1]))
@@ -109,12 +89,6 @@ def matcher_timing(trials: int, seed: int = 0) -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
-    sys.path.insert(0, str(ROOT / "tests"))
-    from support.navigation import pick_start_goal
-    from support.server import ServerThread  # the tests' real server in a thread
-
-    from tools.bench.navigate import missions
-
     ap = argparse.ArgumentParser(prog="python -m tools.bench.localise", description=__doc__.splitlines()[0])
     ap.add_argument("--scene", default="quarry", choices=("quarry", "marsyard"))
     ap.add_argument("--seeds", type=int, nargs="+", default=[1, 2, 3])
@@ -134,7 +108,8 @@ def main(argv: list[str] | None = None) -> int:
     with tempfile.TemporaryDirectory() as tmp:
         for seed in args.seeds:
             for mode in args.modes:
-                srv = ServerThread(Path(tmp) / f"d{seed}{mode}", [f"server.scene={args.scene}"]).start()
+                srv = ServerThread([f"server.data={Path(tmp) / f'd{seed}{mode}'}", "server.port=0", *SETS,
+                                    f"server.scene={args.scene}"], log_level="warning").start()
                 try:
                     world = srv.app.world
                     world.set_target_visible(False)

@@ -44,23 +44,32 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from scipy import ndimage
 
 from drivers.sim.rover import RoverBody
 from drivers.sim.world import World
-from prox_workflows.algorithms.dem2hazard import HazardParams, classify, dem2hazard
-from prox_workflows.algorithms.safety import check_move
-from prox_workflows.algorithms.vehicle import Event, Margins, check_poses, densify, track_poses, unsafe_events
+from prox_workflows.algorithms.dem2hazard import HazardParams, dem2hazard
+from prox_workflows.algorithms.vehicle import Margins
 from prox_workflows.grid import GridGeometry
-from rvs_params.hazard import HAZARDOUS, SAFE, UNDEFINED
 from rvs_server.client.session import ServerThread
 from rvs_server.protocol import Reply, parse_reply
-from tools.global_maps import write_global_maps
+from rvs_truth.ceiling import perception_ceiling
+from rvs_truth.orbital import write_global_maps
+from rvs_truth.surface import AREA, CEILING_MAPS, missions, true_maps, truth_surface
+from rvs_truth.vehicle import (
+    ROVER,
+    capability_hazard,
+    cross_track,
+    crossed,
+    feasibility,
+    mission_hazard,
+    perfect_plan,
+    read_track,
+    stop_reason,
+    vehicle_check,
+)
 
 TOP_SPEED = 0.1  # m/s: the scenes' rover speed
-AREA = {"marsyard": (-5.5, -9.5, 13.5, 9.5), "hirise": (-14.0, -14.0, 14.0, 14.0), "dense": (-14.0, -14.0, 14.0, 14.0)}
-ORBITAL = {"hirise", "dense"}  # scenes built on an orbital DTM (tools.global_maps writes it)
-ROVER = (0.51, 0.40)  # config/head.yaml rover_length, rover_width
+ORBITAL = {"hirise", "dense"}  # scenes built on an orbital DTM (rvs_truth.orbital writes it)
 # both loops plan with the rover's circle by default: in hirise 6 of the 10 missions have no
 # circle path even on the true maps, the body footprint (half width along straight stretches,
 # --footprint body) has one for all 10, but the see loop's body then crosses ground its rolling
@@ -88,287 +97,6 @@ class _Server(ServerThread):
                     job = r.fields["job"]
                 elif r.status in ("OK", "ERROR") and (job is None or r.fields.get("job") == job):
                     return r
-
-
-def true_maps(world: World, bounds: tuple[float, float, float, float]) -> tuple[dict[str, np.ndarray],
-                                                                               GridGeometry]:
-    """The simulator's true DEM through Dem2Hazard at 5 cm: all its layers."""
-    g = GridGeometry.covering(*bounds, 0.05)
-    dem = world.true_dem(g.cell, g.bounds, include_target=False)
-    return dem2hazard(dem, g.cell, HazardParams()), g
-
-
-def true_hazard(world: World, bounds: tuple[float, float, float, float]) -> tuple[np.ndarray, np.ndarray,
-                                                                                  GridGeometry]:
-    """The simulator's true hazard and traversability at 5 cm."""
-    out, g = true_maps(world, bounds)
-    return out["hazard"], out["traversability"], g
-
-
-def missions(scene: str, count: int, seed: int = 0) -> list[tuple[tuple[float, float], tuple[float, float]]]:
-    """``count`` seeded (start, goal) pairs 15-20 m apart, both >= 1 m from every true hazard."""
-    world = World.from_scene(scene)
-    hazard, _, g = true_hazard(world, AREA[scene])
-    clear = (ndimage.distance_transform_edt(hazard != HAZARDOUS) * g.cell >= 1.0) & (hazard == SAFE)
-    rows, cols = np.nonzero(clear)
-    xs, ys = g.centers()
-    rng = np.random.default_rng(seed)
-    out = []
-    while len(out) < count:
-        i, j = rng.integers(len(rows), size=2)
-        s = (round(float(xs[cols[i]]), 2), round(float(ys[rows[i]]), 2))
-        e = (round(float(xs[cols[j]]), 2), round(float(ys[rows[j]]), 2))
-        if 15.0 <= math.hypot(e[0] - s[0], e[1] - s[1]) <= 20.0:
-            out.append((s, e))
-    return out
-
-
-def crossed(track: np.ndarray, maps: dict[str, np.ndarray], g: GridGeometry) -> tuple[int, float, float]:
-    """Hazardous true cells under the rover body swept along its true track (0: clean), and the
-    true step and slope of the worst of them (how far past the limits: 15.4 cm against 15 cm is
-    not a 40 cm rock)."""
-    blocked, step, slope = 0, 0.0, 0.0
-    for a, b in zip(track[:-1], track[1:], strict=True):
-        h = math.degrees(math.atan2(b[1] - a[1], b[0] - a[0]))
-        m = check_move(maps["traversability"], g, (a[0], a[1], h), (b[0], b[1], h), ROVER[0], ROVER[1])
-        if m.blocked_cells:
-            blocked += m.blocked_cells
-            r, c = g.cell_of(np.array(m.worst_x), np.array(m.worst_y))
-            step, slope = max(step, float(maps["step"][r, c])), max(slope, float(maps["slope"][r, c]))
-    return blocked, step, slope
-
-
-def plan_params(cell: float, footprint: str) -> Any:
-    """navigate's planner as the bench's ideal and ceiling plans run it: the rover's circle or,
-    with ``footprint`` body, its half width along straight stretches; no border (all is known)."""
-    from prox_workflows.algorithms.planner import PlannerParams
-
-    return PlannerParams(grid=cell, rover_radius=math.hypot(*ROVER) / 2, border=0.0,
-                         half_width=ROVER[1] / 2 if footprint == "body" else None)
-
-
-def ideal_efficiency(maps: dict[str, np.ndarray], g: GridGeometry, start: tuple[float, float],
-                     goal: tuple[float, float], footprint: str) -> float:
-    """The efficiency of a rover that knows the true maps and never stops: goal distance over
-    the length of the plan's waypoints on them (navigate's planner and footprint; turns on the
-    spot not counted): about what a mission can reach at best (hirise's rock field makes some
-    missions detour to three times the straight line). 0 when the true maps show no way."""
-    from prox_workflows.algorithms.planner import NavMaps, PlanningError, plan_path
-
-    params = plan_params(g.cell, footprint)
-    try:
-        plan = plan_path(NavMaps(maps["hazard"], maps["slope"], g), None, start, goal, params)
-    except PlanningError:
-        return 0.0
-    length = float(np.sum(np.hypot(*np.diff(plan.waypoints.xy, axis=0).T)))  # the simplified path, as driven
-    return round(math.hypot(goal[0] - start[0], goal[1] - start[1]) / length, 3)
-
-
-# The maps a perfect sensor could make of the true surface, for the ceiling: the step each reads
-# over Dem2Hazard's window, from the 1 cm surface averaged over this many centimetres (0: 5 cm cell
-# means, what the rolling map's cells are: means of the points in them).
-CEILING_MAPS = {"cell_mean": 0, "mean_3cm": 3, "surface_1cm": 1}
-
-
-def fine_surface(world: World, bounds: tuple[float, float, float, float]) -> tuple[np.ndarray, GridGeometry]:
-    """The true surface sampled every centimetre over the 5 cm grid of ``bounds`` (each 5 cm
-    cell's centre is its sample (2, 2)), and that grid."""
-    g = GridGeometry.covering(*bounds, 0.05)
-    return world.true_dem(0.01, g.bounds, include_target=False).astype(np.float32), g
-
-
-def ceiling_layers(fine: np.ndarray, g: GridGeometry, box: int) -> dict[str, np.ndarray]:
-    """Slope, roughness and step at 5 cm as a perfect sensor would map them (:data:`CEILING_MAPS`):
-    Dem2Hazard's of the 5 cm cell means, whose step is, with ``box`` > 0, replaced by the greatest
-    minus the least height within the same window (each cell's centre +- 15 cm) of the 1 cm
-    surface averaged over ``box`` centimetres. That step is never below the true map's (which
-    takes the same window's 5 cm centre samples) when ``box`` is 1. None depends on the limits."""
-    import cv2
-
-    params = HazardParams()
-    mean = fine.reshape(g.height, 5, g.width, 5).mean(axis=(1, 3)).astype(np.float32)
-    out = dem2hazard(mean, g.cell, params)
-    layers = {"slope": out["slope"], "roughness": out["roughness"], "step": out["step"], "valid": out["hazard"] != UNDEFINED}
-    if box > 0:
-        half = params.window_cells(g.cell) // 2 * 5
-        kernel = np.ones((2 * half + 1, 2 * half + 1), np.uint8)
-        surface = cv2.blur(fine, (box, box), borderType=cv2.BORDER_REPLICATE) if box > 1 else fine
-        layers["step"] = (cv2.dilate(surface, kernel, borderType=cv2.BORDER_REPLICATE)
-                          - cv2.erode(surface, kernel, borderType=cv2.BORDER_REPLICATE))[2::5, 2::5]
-    return layers
-
-
-
-# ----------------------------------------------------------------------------- the vehicle yardstick
-
-TRACK_STEP = 0.02  # m: the truth check's pose spacing (no point of the body moves farther between two)
-
-
-_TRUTH: dict[str, tuple[np.ndarray, GridGeometry, GridGeometry]] = {}
-
-
-def truth_surface(world: World, scene: str) -> tuple[np.ndarray, GridGeometry, GridGeometry]:
-    """The scene's true 1 cm surface over its mission area, its grid, and the 5 cm grid it
-    refines (computed once per process and scene)."""
-    if scene not in _TRUTH:
-        fine, g = fine_surface(world, AREA[scene])
-        _TRUTH[scene] = (fine, GridGeometry(0.01, g.xmin, g.ymax, g.width * 5, g.height * 5), g)
-    return _TRUTH[scene]
-
-
-def read_track(path: Path) -> np.ndarray:
-    """(N, 3) true poses of a navigate track CSV: x, y and its ``heading`` column, or, in a
-    track written without one, the heading of the track's own direction."""
-    with open(path) as fh:
-        rows = list(csv.DictReader(fh))
-    xy = np.array([[float(r["x"]), float(r["y"])] for r in rows]).reshape(-1, 2)
-    heading = np.array([float(r["heading"]) for r in rows]) if rows and "heading" in rows[0] else None
-    return track_poses(xy, heading)
-
-
-def vehicle_check(poses: np.ndarray, surface: tuple[np.ndarray, GridGeometry, GridGeometry],
-                  body: RoverBody) -> tuple[list[Event], int]:
-    """The distinct unsafe events of ``poses`` densified to :data:`TRACK_STEP`, and how many poses
-    were checked."""
-    dense = densify(poses, TRACK_STEP, body)
-    checks = check_poses(surface[0], surface[1], dense, body)
-    return unsafe_events(checks, dense, body), len(dense)
-
-
-def plan_poses(xy: np.ndarray, start_heading: float) -> np.ndarray:
-    """A waypoint path as the rover drives it: at each waypoint it turns on the spot toward the
-    next, then drives straight."""
-    out = [(xy[0, 0], xy[0, 1], start_heading)]
-    for a, b in zip(xy[:-1], xy[1:], strict=True):
-        if np.hypot(*(b - a)) < 1e-9:
-            continue
-        h = math.degrees(math.atan2(b[1] - a[1], b[0] - a[0]))
-        if abs((h - out[-1][2] + 180.0) % 360.0 - 180.0) > 1e-9:
-            out.append((a[0], a[1], h))
-        out.append((b[0], b[1], h))
-    return np.array(out)
-
-
-def capability_hazard(body: RoverBody) -> dict[str, float]:
-    """Dem2Hazard thresholds at the body's own limits: a step no higher than both the climb and
-    the belly (a rock under the box must pass beneath it, one under a wheel must be climbed; the
-    planner's footprint keeps a hazard from either), a slope no steeper than the tilt."""
-    return {"step_max": min(body.climb, body.clearance), "slope_max": body.tilt}
-
-
-def perfect_plan(surface: tuple[np.ndarray, GridGeometry, GridGeometry], body: RoverBody,
-                 start: tuple[float, float], goal: tuple[float, float], footprint: str,
-                 hazard: dict[str, float]) -> dict[str, Any]:
-    """navigate's planner with ``footprint`` on the hazard map of the true 1 cm surface
-    (:func:`ceiling_layers`, thresholds ``hazard``), driven as :func:`plan_poses` and judged by the
-    vehicle check: reached (a plan exists), its efficiency (straight line over its length),
-    its events."""
-    from prox_workflows.algorithms.planner import NavMaps, PlanningError, plan_path
-
-    fine, _, g = surface
-    key = (id(fine), tuple(sorted(hazard.items())))
-    if key not in _HAZARD:
-        layers = ceiling_layers(fine, g, 1)
-        _HAZARD[key] = (classify(layers["slope"], layers["roughness"], layers["step"], layers["valid"],
-                                 HazardParams(**hazard))["hazard"], layers["slope"])
-    hz, slope = _HAZARD[key]
-    try:
-        plan = plan_path(NavMaps(hz, slope, g), None, start, goal, plan_params(g.cell, footprint))
-    except PlanningError as exc:
-        return {"reached": False, "efficiency": 0.0, "events": [], "why": exc.reason}
-    xy = plan.waypoints.xy
-    length = float(np.sum(np.hypot(*np.diff(xy, axis=0).T)))
-    heading = math.degrees(math.atan2(goal[1] - start[1], goal[0] - start[0]))
-    events, _ = vehicle_check(plan_poses(xy, heading), surface, body)
-    return {"reached": True, "efficiency": round(math.hypot(goal[0] - start[0], goal[1] - start[1]) / length, 3),
-            "events": events}
-
-
-_HAZARD: dict[tuple[Any, ...], tuple[np.ndarray, np.ndarray]] = {}
-# m: the step thresholds a perfect-knowledge plan is tried at, the body's step capability first.
-# A window's step (max - min over 30 cm, slopes included) is not a wheel's relief nor the ground
-# under the belly: a plan at a looser threshold that passes the vehicle check proves the mission
-# feasible as well, and at the capability itself most missions find no plan (docs/NAVIGATE_BENCH.md).
-FEASIBLE_STEPS = (0.08, 0.09, 0.10, 0.11, 0.12, 0.13, 0.14, 0.15)
-
-
-def feasibility(surface: tuple[np.ndarray, GridGeometry, GridGeometry], body: RoverBody,
-                start: tuple[float, float], goal: tuple[float, float], footprint: str) -> dict[str, Any]:
-    """Whether a perfect-knowledge plan reaches the goal and passes the vehicle check: the plan at
-    each of :data:`FEASIBLE_STEPS` (at most the body's step capability to begin with, the slope at its
-    tilt) until one passes. The first passing plan's efficiency and threshold (None: infeasible)."""
-    cap = capability_hazard(body)
-    for step in sorted({min(cap["step_max"], FEASIBLE_STEPS[0]), *FEASIBLE_STEPS}):
-        hazard = {**cap, "step_max": step}
-        plan = perfect_plan(surface, body, start, goal, footprint, hazard)
-        if plan["reached"] and not plan["events"]:
-            return {"feasible": True, "efficiency": plan["efficiency"], "step_max": step}
-    return {"feasible": False, "efficiency": 0.0, "step_max": None}
-
-
-def cross_track(track: np.ndarray, waypoints: np.ndarray, legs: np.ndarray) -> np.ndarray:
-    """Each true track point's distance from the nearest stretch of the planned waypoint legs
-    (consecutive waypoints of one leg)."""
-    segs = [(a, b) for k in np.unique(legs) for a, b in zip(waypoints[legs == k][:-1], waypoints[legs == k][1:],
-                                                             strict=True)]
-    if not segs or len(track) == 0:
-        return np.zeros(0)
-    a = np.array([s[0] for s in segs])[None]  # (1, M, 2)
-    b = np.array([s[1] for s in segs])[None]
-    p = track[:, None, :2]
-    ab = b - a
-    t = np.clip(np.sum((p - a) * ab, axis=2) / np.maximum(np.sum(ab * ab, axis=2), 1e-12), 0.0, 1.0)
-    return np.min(np.hypot(*(p - (a + t[..., None] * ab)).transpose(2, 0, 1)), axis=1)
-
-
-def stop_reason(message: str) -> str:
-    """The short reason of a navigate ERROR: its message up to the first detail."""
-    m = message.strip()
-    for cut in (":", ";", " after ", " ("):
-        if cut in m[:60]:
-            m = m[:m.index(cut)]
-    return m[:60] or "error"
-
-
-def perception_ceiling(scene: str, count: int, seed: int = 0, limits: tuple[float, ...] = (0.16, 0.15, 0.14, 0.135, 0.125),
-                       footprint: str = "body", maps: tuple[str, ...] = ("cell_mean",)) -> list[dict[str, Any]]:
-    """Per map kind (:data:`CEILING_MAPS`) and step limit, what a rover that mapped the terrain
-    perfectly would do: the plan (navigate's planner and ``footprint``) on that map (reached: a
-    plan exists; efficiency: the straight line over its length) and the true hazard cells the
-    body swept along it crosses. Where a mission's only passages step within a centimetre of
-    the limit, a 5 cm cell mean reads them 0.3-1.2 cm low (hirise), so at the limit a perfect
-    cell-mean map still drives over true hazards, and with too wide a margin it finds no way:
-    the window between is what any perception must hit. The finer maps show what a finer
-    representation buys: with 3 cm means both scenes are clear and open at the limit itself."""
-    from prox_workflows.algorithms.planner import NavMaps, PlanningError, plan_path
-
-    world = World.from_scene(scene)
-    truth, g = true_maps(world, AREA[scene])
-    params = plan_params(g.cell, footprint)
-    fine, _ = fine_surface(world, AREA[scene])
-    todo = missions(scene, count, seed)
-    rows = []
-    for kind in maps:
-        layers = ceiling_layers(fine, g, CEILING_MAPS[kind])
-        slope = layers["slope"]
-        for limit in limits:
-            hazard = classify(layers["slope"], layers["roughness"], layers["step"], layers["valid"],
-                              HazardParams(step_max=limit))["hazard"]
-            for i, (start, goal) in enumerate(todo):
-                row: dict[str, Any] = {"scene": scene, "map": kind, "step_max": limit, "mission": i}
-                try:
-                    plan = plan_path(NavMaps(hazard, slope, g), None, start, goal, params)
-                except PlanningError:
-                    rows.append({**row, "reached": False, "efficiency": 0.0, "crossed_cells": 0})
-                    continue
-                xy = plan.waypoints.xy
-                length = float(np.sum(np.hypot(*np.diff(xy, axis=0).T)))
-                track = np.concatenate([np.linspace(a, b, max(2, int(math.ceil(np.hypot(*(b - a)) / g.cell)) + 1))[:-1]
-                                        for a, b in zip(xy[:-1], xy[1:], strict=True)] + [xy[-1:]])
-                rows.append({**row, "reached": True,
-                             "efficiency": round(math.hypot(goal[0] - start[0], goal[1] - start[1]) / length, 3),
-                             "crossed_cells": crossed(track, truth, g)[0]})
-    return rows
 
 
 def run_mission(scene: str, mode: str, start: tuple[float, float], goal: tuple[float, float],
@@ -441,18 +169,6 @@ def run_mission(scene: str, mode: str, start: tuple[float, float], goal: tuple[f
             return out
         finally:
             srv.stop()
-
-
-def mission_hazard(sets: list[str] | tuple[str, ...]) -> dict[str, float]:
-    """The Dem2Hazard thresholds a mission's server runs with: the defaults under its
-    ``dem2hazard.*`` settings."""
-    base = HazardParams()
-    out = {"step_max": base.step_max, "slope_max": base.slope_max}
-    for item in sets:
-        key, _, value = item.partition("=")
-        if key in ("dem2hazard.step_max", "dem2hazard.slope_max"):
-            out[key.split(".", 1)[1]] = float(value)
-    return out
 
 
 def _pct(values: list[float], q: float) -> float | None:
