@@ -53,7 +53,7 @@ class Station:
                 self.live_off = f"the telemetry process did not start ({exc})"
                 log.warning("foxglove_off", reason=self.live_off)
         if cfg.record:
-            await self.start_recording("")
+            await self.start_recording("", self.app.config.get("record").profile)
 
     async def _connect(self) -> Link:
         """A telemetry process (a new one if there is none or it exited), with the hub attached."""
@@ -75,7 +75,8 @@ class Station:
         process's queue had no room for."""
         return self.hub.dropped + (self.link.dropped if self.link is not None else 0)
 
-    async def start_recording(self, name: str) -> dict[str, Any]:
+    async def start_recording(self, name: str, profile: str) -> dict[str, Any]:
+        """Record to ``recordings/<name>.mcap`` in ``profile`` (one of :data:`.recording.PROFILES`)."""
         if self.recording is not None or self._busy:
             where = self.app.rel(self.recording) if self.recording is not None else "a file"
             raise ProtocolError("E_STATE", f"already recording to {where}; send record -stop first")
@@ -91,7 +92,7 @@ class Station:
             metadata.update(await asyncio.get_running_loop().run_in_executor(None, replay_facts, self.app))
             link = await self._connect()
             link.recording = True  # from here every message goes, and is kept when the process lags
-            await asyncio.get_running_loop().run_in_executor(None, link.call, "record_start", path, metadata)
+            await asyncio.get_running_loop().run_in_executor(None, link.call, "record_start", path, metadata, profile)
             self.hub.resend()  # what is latched and the process never got (nobody listened)
         except TelemetryError as exc:
             if link is not None:

@@ -122,7 +122,8 @@ class Telemetry:
 
     def drained(self) -> threading.Event:
         """Set once the thread has sent on every item queued before (a recording stops after
-        the reply that ended its last job)."""
+        the reply that ended its last job) and the state sampled once more, the track with it
+        (the recording ends where the rover stands)."""
         done = threading.Event()
         self._put(("drained", done))
         return done
@@ -171,6 +172,7 @@ class Telemetry:
                 return
             else:
                 done = arg
+                self._sample(track_now=True)
             done.set()
             return
         handler = getattr(self, f"_on_{entry.kind}", None)
@@ -365,7 +367,7 @@ class Telemetry:
                                                                            rig.T_rover_right)]
         return frames
 
-    def _sample(self) -> None:
+    def _sample(self, track_now: bool = False) -> None:
         if self._link is None:
             return
         t, state = time.time_ns(), self._state()
@@ -376,7 +378,7 @@ class Telemetry:
         if not self._track or abs(self._track[-1][0] - here[0]) + abs(self._track[-1][1] - here[1]) > TRACK_STEP:
             self._track.append((here[0], here[1], z + 0.02))
             self._track_dirty = True
-        if self._track_dirty and time.monotonic() - self._track_sent >= TRACK_EVERY:
+        if self._track_dirty and (track_now or time.monotonic() - self._track_sent >= TRACK_EVERY):
             self._track_sent, self._track_dirty = time.monotonic(), False
             self._log("/nav/track", t, m.track, t, np.array(self._track))
 

@@ -107,25 +107,33 @@ def rover_T(x: float, y: float, heading: float, z: float) -> np.ndarray:
     return make_T(rot_z(heading), (x, y, z))
 
 
+def frame_transforms(head: HeadCalibration, pose: tuple[float, float, float, float], ptu: tuple[float, float] | None,
+                     truth: tuple[float, float, float] | None,
+                     body: list[tuple[str, np.ndarray]] | tuple[()] = ()) -> list[tuple[str, str, np.ndarray]]:
+    """The whole tree as (parent, child, 4 x 4 pose of the child in the parent): pose (x, y,
+    heading, ground z), PTU (pan, tilt; 0, 0 unknown), the simulated rover's true (x, y,
+    heading) on the same ground height; ``body``: the frames fixed on the rover (frame id, its
+    4 x 4 pose in the rover frame)."""
+    pan, tilt = ptu or (0.0, 0.0)
+    tree = [
+        (WORLD, "rover", rover_T(*pose)),
+        ("rover", "mast", make_T(None, head.ptu_base)),
+        ("mast", "ptu_pan", make_T(rot_z(pan))),
+        ("ptu_pan", "ptu_tilt", make_T(rot_y(-tilt), (0.0, 0.0, head.tilt_offset))),
+    ]
+    tree += [("ptu_tilt", sensor_frame(name), head.T_tilt_from_sensor(name)) for name in head.mounts]
+    tree += [("rover", frame, T) for frame, T in body]
+    if truth is not None:
+        tree.append((WORLD, "rover_truth", rover_T(*truth, pose[3])))
+    return tree
+
+
 def frame_tree(t_ns: int, head: HeadCalibration, pose: tuple[float, float, float, float],
                ptu: tuple[float, float] | None, truth: tuple[float, float, float] | None,
                body: list[tuple[str, np.ndarray]] | tuple[()] = ()) -> bytes:
-    """The whole tree at ``t_ns``: pose (x, y, heading, ground z), PTU (pan, tilt; 0, 0 unknown),
-    the simulated rover's true (x, y, heading) on the same ground height; ``body``: the frames
-    fixed on the rover (frame id, its 4 x 4 pose in the rover frame)."""
-    pan, tilt = ptu or (0.0, 0.0)
-    transforms = [
-        _transform(t_ns, WORLD, "rover", rover_T(*pose)),
-        _transform(t_ns, "rover", "mast", make_T(None, head.ptu_base)),
-        _transform(t_ns, "mast", "ptu_pan", make_T(rot_z(pan))),
-        _transform(t_ns, "ptu_pan", "ptu_tilt", make_T(rot_y(-tilt), (0.0, 0.0, head.tilt_offset))),
-    ]
-    transforms += [_transform(t_ns, "ptu_tilt", sensor_frame(name), head.T_tilt_from_sensor(name))
-                   for name in head.mounts]
-    transforms += [_transform(t_ns, "rover", frame, T) for frame, T in body]
-    if truth is not None:
-        transforms.append(_transform(t_ns, WORLD, "rover_truth", rover_T(*truth, pose[3])))
-    return FrameTransforms(transforms=transforms).encode()
+    """The whole tree at ``t_ns`` (:func:`frame_transforms`)."""
+    return FrameTransforms(transforms=[_transform(t_ns, parent, child, T) for parent, child, T
+                                       in frame_transforms(head, pose, ptu, truth, body)]).encode()
 
 
 def pose_in_world(t_ns: int, x: float, y: float, heading: float, z: float) -> bytes:
@@ -161,35 +169,48 @@ def cloud(t_ns: int, frame: str, xyz: np.ndarray, values: np.ndarray, name: str)
                       fields=fields, data=packed.tobytes()).encode()
 
 
-def point_cloud(t_ns: int, frame: str, xyz: np.ndarray, amplitude: np.ndarray) -> bytes:
-    """The defined points of an organised H x W x 3 image (the ToF's: -1 where undefined) with
-    their amplitude, in the sensor's frame."""
+def defined_points(xyz: np.ndarray, amplitude: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The defined points of an organised H x W x 3 image (the ToF's: -1 where undefined) and
+    their amplitude."""
     valid = xyz[..., 2] > 0
-    return cloud(t_ns, frame, xyz[valid], amplitude[valid], "intensity")
+    return xyz[valid], amplitude[valid]
+
+
+def point_cloud(t_ns: int, frame: str, xyz: np.ndarray, amplitude: np.ndarray) -> bytes:
+    """The defined points of an organised point image with their amplitude, in the sensor's frame."""
+    return cloud(t_ns, frame, *defined_points(xyz, amplitude), "intensity")
+
+
+def depth_image(xyz: np.ndarray) -> np.ndarray:
+    """An organised point image's z as a depth image, NaN where undefined."""
+    return np.where(xyz[..., 2] > 0, xyz[..., 2], np.nan).astype(np.float32)
 
 
 def depth(t_ns: int, frame: str, xyz: np.ndarray) -> bytes:
-    """An organised point image's z as a depth image, NaN where undefined."""
-    return raw_image(t_ns, frame, np.where(xyz[..., 2] > 0, xyz[..., 2], np.nan).astype(np.float32))
+    return raw_image(t_ns, frame, depth_image(xyz))
 
 
-def raw_image(t_ns: int, frame: str, image: np.ndarray) -> bytes:
-    """An image as the driver returned it, full resolution: float32 (1 or 3 channels, NaN or -1
-    undefined), mono8 or rgb8."""
+def image_encoding(image: np.ndarray) -> tuple[np.ndarray, str]:
+    """An image as the driver returned it, contiguous, and its encoding's name (ROS's, which
+    Foxglove's RawImage shares): float32 (1 or 3 channels, NaN or -1 undefined), 16-bit, else
+    mono8 or rgb8."""
     image = np.ascontiguousarray(image)
     channels = 1 if image.ndim == 2 else image.shape[2]
     if image.dtype == np.float32:
-        encoding = f"32FC{channels}"
-    elif image.dtype == np.uint16:
-        encoding = "mono16" if channels == 1 else "rgb16"
-    else:
-        image = image.astype(np.uint8, copy=False)
-        encoding = "mono8" if channels == 1 else "rgb8"
+        return image, f"32FC{channels}"
+    if image.dtype == np.uint16:
+        return image, "mono16" if channels == 1 else "rgb16"
+    return image.astype(np.uint8, copy=False), "mono8" if channels == 1 else "rgb8"
+
+
+def raw_image(t_ns: int, frame: str, image: np.ndarray) -> bytes:
+    """An image as the driver returned it, full resolution (:func:`image_encoding`)."""
+    image, encoding = image_encoding(image)
     return RawImage(timestamp=stamp(t_ns), frame_id=frame, width=image.shape[1], height=image.shape[0],
                     encoding=encoding, step=image.strides[0], data=image.tobytes()).encode()
 
 
-def jpeg(t_ns: int, frame: str, image: np.ndarray, quality: int = 85) -> bytes:
+def jpeg_bytes(image: np.ndarray, quality: int = 85) -> bytes:
     """A camera image JPEG-compressed (what a live view needs: a tenth of the bytes)."""
     if image.dtype != np.uint8:
         image = (image >> 8).astype(np.uint8) if image.dtype == np.uint16 else np.clip(image, 0, 255).astype(np.uint8)
@@ -198,7 +219,11 @@ def jpeg(t_ns: int, frame: str, image: np.ndarray, quality: int = 85) -> bytes:
     ok, data = cv2.imencode(".jpg", image, [cv2.IMWRITE_JPEG_QUALITY, quality])
     if not ok:
         raise ValueError("the image could not be JPEG-encoded")
-    return CompressedImage(timestamp=stamp(t_ns), frame_id=frame, data=data.tobytes(), format="jpeg").encode()
+    return data.tobytes()
+
+
+def jpeg(t_ns: int, frame: str, image: np.ndarray) -> bytes:
+    return CompressedImage(timestamp=stamp(t_ns), frame_id=frame, data=jpeg_bytes(image), format="jpeg").encode()
 
 
 def _line(points: list[tuple[float, float, float]] | list[list[float]], colour: Color, thickness: float) -> LinePrimitive:
@@ -250,14 +275,19 @@ def check_move(t_ns: int, start: tuple[float, float, float], fields: dict[str, A
 _LEVEL = {"ERROR": LogLevel.Error, "EVENT": LogLevel.Info}
 
 
-def log_line(t_ns: int, direction: str, conn: Any, text: str, status: str = "", kind: str = "") -> bytes:
-    """A wire line as a Log: ``name`` says who and which way (``conn 3 >`` a request, ``conn 3 <``
-    a reply, ``event`` an EVENT); ERROR lines (``status``) and hazard events (an EVENT's
-    ``kind``) are errors or warnings."""
+def log_level_name(direction: str, conn: Any, status: str = "", kind: str = "") -> tuple[LogLevel, str]:
+    """A wire line's level and who sent it which way (``conn 3 >`` a request, ``conn 3 <`` a
+    reply, ``event`` an EVENT): ERROR lines (``status``) are errors, hazard and fault events
+    (an EVENT's ``kind``) warnings."""
     level = _LEVEL.get(status, LogLevel.Info)
     if status == "EVENT" and kind.startswith(("hazard", "fault")):
         level = LogLevel.Warning
-    name = "event" if direction == "event" else f"conn {conn} {'>' if direction == 'request' else '<'}"
+    return level, "event" if direction == "event" else f"conn {conn} {'>' if direction == 'request' else '<'}"
+
+
+def log_line(t_ns: int, direction: str, conn: Any, text: str, status: str = "", kind: str = "") -> bytes:
+    """A wire line as a Log (:func:`log_level_name`)."""
+    level, name = log_level_name(direction, conn, status, kind)
     return Log(timestamp=stamp(t_ns), level=level, message=text, name=name).encode()
 
 

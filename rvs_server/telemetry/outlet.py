@@ -11,6 +11,7 @@ latched; the server's hub reads it too, to send only what a destination wants.
 from __future__ import annotations
 
 from collections import Counter
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
@@ -87,7 +88,11 @@ def topic_spec(topic: str) -> Topic:
 
 
 class Outlet:
-    """One destination's context and channels (created on first use); counts what it logged."""
+    """One destination's context and channels (created on first use); counts what it logged.
+    ``profile`` names how it encodes a message: Foxglove's schemas here, ROS 2's in a
+    recording of the ``ros2`` profile (:class:`.recording.Ros2Recording`)."""
+
+    profile = "foxglove"
 
     def __init__(self, live: bool) -> None:
         self.live = live
@@ -95,17 +100,25 @@ class Outlet:
         self.counts: Counter[str] = Counter()
         self._channels: dict[str, foxglove.Channel] = {}
 
-    def channel(self, topic: str) -> foxglove.Channel | None:
-        """The topic's channel here, or None when this destination does not carry it."""
+    def channel(self, topic: str, encode: Callable[..., bytes] | None = None) -> foxglove.Channel | None:
+        """The topic's channel here, or None when this destination does not carry it; ``encode``
+        (the function of :mod:`.messages` its messages come from) for a destination whose
+        schema depends on it."""
         ch = self._channels.get(topic)
         if ch is None:
             spec = topic_spec(topic)
             if self.live and not spec.live:
                 return None
-            encoding = "json" if isinstance(spec.schema, dict) else "protobuf"
-            ch = foxglove.Channel(topic, schema=spec.schema, message_encoding=encoding, context=self.context)
-            self._channels[topic] = ch
+            ch = self._channels[topic] = self.open_channel(topic, spec, encode)
         return ch
+
+    def open_channel(self, topic: str, spec: Topic, encode: Callable[..., bytes] | None) -> foxglove.Channel:
+        encoding = "json" if isinstance(spec.schema, dict) else "protobuf"
+        return foxglove.Channel(topic, schema=spec.schema, message_encoding=encoding, context=self.context)
+
+    def encode(self, encode: Callable[..., bytes], args: tuple[Any, ...]) -> bytes:
+        """A message as this destination logs it: ``encode(*args)``, a function of :mod:`.messages`."""
+        return encode(*args)
 
     def declare(self) -> None:
         """Advertise every topic at once (a map layer's of every registered layer), so that a
@@ -113,8 +126,8 @@ class Outlet:
         for topic in [*TOPICS, *(MAP_PREFIX + name for name in LAYERS)]:
             self.channel(topic)
 
-    def wants(self, topic: str) -> bool:
-        ch = self.channel(topic)
+    def wants(self, topic: str, encode: Callable[..., bytes] | None = None) -> bool:
+        ch = self.channel(topic, encode)
         return ch is not None and ch.base.has_sinks()
 
     def log(self, topic: str, data: bytes, t_ns: int) -> None:

@@ -1,6 +1,6 @@
 """An MCAP recording: the live channels, plus each device's raw frames in full resolution and
 every wire line with its time, written through foxglove-sdk's MCAP writer in the telemetry
-process.
+process, in Foxglove's schemas or (the ``ros2`` profile) as ROS 2 messages.
 
 The file is written in place (not to a temporary name renamed at the end) because a recording
 must be readable after a crash. A SIGKILL of the server closes the telemetry process's pipe,
@@ -15,27 +15,34 @@ here do.
 from __future__ import annotations
 
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
 import foxglove
 from foxglove.mcap import MCAPCompression, MCAPWriteOptions
 
-from .outlet import Outlet
+from .outlet import Outlet, Topic
+from .ros2_messages import ENCODERS
+from .ros2_msgs import MESSAGE_ENCODING, SCHEMA_ENCODING, definition, type_name
 
 FLUSH_S = 1.0  # the longest a message waits in the open chunk (what a SIGKILL of the telemetry process loses)
 CHUNK_BYTES = 4 * 1024 * 1024  # a chunk is also finished at this uncompressed size
 
 
 class Recording(Outlet):
+    """A recording of the ``foxglove`` profile: every message in Foxglove's schemas, as live."""
+
+    mcap_profile = ""  # the MCAP header's (foxglove's files have none)
+
     def __init__(self, path: Path, metadata: dict[str, str]) -> None:
         super().__init__(live=False)
         self.declare()
         self.path = path
         self.started = time.monotonic()
         self.writer = foxglove.open_mcap(path, context=self.context, writer_options=MCAPWriteOptions(
-            compression=MCAPCompression.Zstd, chunk_size=CHUNK_BYTES, compression_threads=0))
+            compression=MCAPCompression.Zstd, chunk_size=CHUNK_BYTES, compression_threads=0,
+            profile=self.mcap_profile))
         self.writer.write_metadata("rvs", metadata)
         self._flushed = time.monotonic()
 
@@ -50,6 +57,32 @@ class Recording(Outlet):
         self.writer.close()
         return {"messages": sum(self.counts.values()), "seconds": time.monotonic() - self.started,
                 "bytes": self.path.stat().st_size}
+
+
+class Ros2Recording(Recording):
+    """A recording of the ``ros2`` profile, for ROS 2's tools (``ros2 bag info``, ``ros2 bag
+    play``): the same messages as ROS 2 messages (:mod:`.ros2_messages`), CDR-encoded, each
+    channel's schema the type's full definition (:mod:`.ros2_msgs`). A channel is made with its
+    first message, whose encoding gives its type; the rest is as :class:`Recording`."""
+
+    profile = "ros2"
+    mcap_profile = "ros2"
+
+    def declare(self) -> None:
+        """Nothing ahead: a topic's ROS 2 type is known from its first message."""
+
+    def open_channel(self, topic: str, spec: Topic, encode: Callable[..., bytes] | None) -> foxglove.Channel:
+        if encode is None:
+            raise KeyError(f"{topic}: a ROS 2 channel is opened by its first message")
+        short = ENCODERS[encode][0]
+        schema = foxglove.Schema(name=type_name(short), encoding=SCHEMA_ENCODING, data=definition(short).encode())
+        return foxglove.Channel(topic, schema=schema, message_encoding=MESSAGE_ENCODING, context=self.context)
+
+    def encode(self, encode: Callable[..., bytes], args: tuple[Any, ...]) -> bytes:
+        return ENCODERS[encode][1](*args)
+
+
+PROFILES: dict[str, type[Recording]] = {"foxglove": Recording, "ros2": Ros2Recording}
 
 
 def read_messages(path: Path) -> Iterator[tuple[Any, Any, Any]]:

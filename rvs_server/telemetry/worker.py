@@ -27,7 +27,7 @@ from typing import Any
 from .link import read, write
 from .live import LiveOutlet
 from .outlet import Outlet, topic_spec
-from .recording import Recording
+from .recording import PROFILES, Recording
 
 TICK = 0.1  # s between looks at subscriptions, the recording's flush and the parent
 NICE = 10  # on a busy machine the server's event loop and jobs get the CPU first; the queue waits
@@ -39,7 +39,7 @@ class Worker:
         self.live: LiveOutlet | None = None
         self.live_off: str | None = "server.foxglove_port is 0"
         self.recording: Recording | None = None
-        self._latched: dict[str, list[Any]] = {}  # topic -> [t_ns, encode, args, its bytes once encoded]
+        self._latched: dict[str, list[Any]] = {}  # topic -> [t_ns, encode, args, its bytes by profile once encoded]
         self._subscribed: SimpleQueue[str] = SimpleQueue()  # filled in the SDK's threads
         self._listened: frozenset[str] = frozenset()
         if port:
@@ -81,18 +81,14 @@ class Worker:
              outlets: tuple[Outlet, ...] | None = None) -> None:
         latched = topic_spec(topic).latched
         if latched and outlets is None:
-            self._latched[topic] = [t_ns, encode, args, None]
-        wanting = [o for o in (self.outlets() if outlets is None else outlets) if o.wants(topic)]
-        if not wanting:
-            return
-        if latched:
-            kept = self._latched[topic]
-            if kept[3] is None:
-                kept[3] = encode(*args)
-            data = kept[3]
-        else:
-            data = encode(*args)
+            self._latched[topic] = [t_ns, encode, args, {}]
+        wanting = [o for o in (self.outlets() if outlets is None else outlets) if o.wants(topic, encode)]
+        # each profile's bytes once, for every destination of that profile; a latched topic's kept
+        encoded: dict[str, bytes] = self._latched[topic][3] if latched else {}
         for outlet in wanting:
+            data = encoded.get(outlet.profile)
+            if data is None:
+                data = encoded[outlet.profile] = outlet.encode(encode, args)
             outlet.log(topic, data, t_ns)
 
     def _send_latched(self, outlet: Outlet, topic: str | None = None) -> None:
@@ -120,10 +116,10 @@ class Worker:
 
     # -- calls from the server
 
-    def call_record_start(self, path: Path, metadata: dict[str, str]) -> None:
+    def call_record_start(self, path: Path, metadata: dict[str, str], profile: str) -> None:
         if self.recording is not None:
             raise RuntimeError(f"already recording to {self.recording.path}")
-        self.recording = Recording(path, metadata)
+        self.recording = PROFILES[profile](path, metadata)
         self._send_latched(self.recording)  # the recording stands alone
 
     def call_record_stop(self) -> dict[str, Any]:

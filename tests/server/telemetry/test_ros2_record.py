@@ -1,0 +1,179 @@
+"""Recordings of the ``ros2`` profile (record -start -profile ros2, record.profile with
+server.record): the same channels as ROS 2 messages, CDR-encoded, each schema the type's full
+definition, as rosbag2 writes them; read back with mcap-ros2-support's decoder (what
+``ros2 bag`` relies on: the profile, the encodings, the type names and the definitions), the
+values checked against the server's DEM, pose and frames."""
+
+from __future__ import annotations
+
+import json
+from collections import Counter, defaultdict
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+from mcap.reader import make_reader
+from mcap_ros2.decoder import DecoderFactory
+from scipy.spatial.transform import Rotation
+from support.marks import long_test
+
+from prox_workflows.grid import read_geotiff
+
+DEM = "dem-full-tof -range -30,30,-40,-20 -overlap 0.1 -name r2"  # two views
+
+
+def read_ros2(path: Path) -> tuple[Any, dict[str, tuple[str, str, str, bytes]], dict[str, list[tuple[int, Any]]]]:
+    """The file's header; per topic (schema name, schema encoding, message encoding, schema
+    text); per topic its (log time, decoded message) in time order."""
+    with open(path, "rb") as f:
+        reader = make_reader(f, decoder_factories=[DecoderFactory()])
+        header = reader.get_header()
+        channels: dict[str, tuple[str, str, str, bytes]] = {}
+        messages: dict[str, list[tuple[int, Any]]] = defaultdict(list)
+        for schema, channel, message, decoded in reader.iter_decoded_messages():
+            channels[channel.topic] = (schema.name, schema.encoding, channel.message_encoding, schema.data)
+            messages[channel.topic].append((message.log_time, decoded))
+    return header, channels, messages
+
+
+def matrix(transform: Any) -> np.ndarray:
+    T = np.eye(4)
+    q = transform.rotation
+    T[:3, :3] = Rotation.from_quat([q.x, q.y, q.z, q.w]).as_matrix()
+    T[:3, 3] = [transform.translation.x, transform.translation.y, transform.translation.z]
+    return T
+
+
+def grid_layer(msg: Any, index: int = 0) -> np.ndarray:
+    """A GridMap's layer as our north-up raster (grid_map: column-major, cell 0 at +x +y)."""
+    layout = msg.data[index].layout
+    assert [d.label for d in layout.dim] == ["column_index", "row_index"]
+    rows_y, cols_x = layout.dim[0].size, layout.dim[1].size
+    return np.asarray(msg.data[index].data, np.float32).reshape(rows_y, cols_x)[:, ::-1]
+
+
+def test_a_dem_recorded_as_ros2_reads_back_as_ros2_messages(server: Any) -> None:
+    c = server.client()
+    assert c.request("record -start -name r2 -profile ros2").status == "OK"
+    dem = c.request(DEM, timeout=120)
+    assert dem.status == "OK", dem
+    views = int(dem.fields["views"])
+    move = c.request("check-move -dx 0.5")
+    assert move.status == "OK"
+    st = c.request("status").fields
+    stop = c.request("record -stop")
+    assert stop.status == "OK" and stop.fields["dropped"] == "0", stop
+
+    header, channels, messages = read_ros2(server.data / "recordings" / "r2.mcap")
+    assert header.profile == "ros2"
+    assert sum(len(v) for v in messages.values()) == int(stop.fields["messages"])
+    assert {(enc, msg_enc) for _, enc, msg_enc, _ in channels.values()} == {("ros2msg", "cdr")}
+    types = {topic: ch[0] for topic, ch in channels.items()}
+    assert types["/tf"] == "tf2_msgs/msg/TFMessage" and types["/rover/pose"] == "geometry_msgs/msg/PoseStamped"
+    assert types["/tof/points"] == "sensor_msgs/msg/PointCloud2"
+    assert types["/tof/depth"] == types["/raw/tof/xyz"] == "sensor_msgs/msg/Image"
+    assert types["/map/dem"] == types["/map/hazard"] == "grid_map_msgs/msg/GridMap"
+    assert types["/rvs/log"] == "rcl_interfaces/msg/Log"
+    assert types["/rvs/wire"] == types["/rvs/job"] == types["/raw/calls"] == types["/nav/check_move"] == \
+        "std_msgs/msg/String"
+    # each schema carries its dependencies' definitions, as rosbag2 writes them
+    grid_schema = channels["/map/dem"][3].decode()
+    assert grid_schema.startswith("std_msgs/Header header\n")
+    for dep in ("std_msgs/Header", "builtin_interfaces/Time", "grid_map_msgs/GridMapInfo", "geometry_msgs/Pose",
+                "std_msgs/Float32MultiArray", "std_msgs/MultiArrayDimension"):
+        assert f"\n{'=' * 80}\nMSG: {dep}\n" in grid_schema, dep
+    assert "\nMSG: sensor_msgs/PointField\n" in channels["/tof/points"][3].decode()
+
+    counts = Counter({topic: len(v) for topic, v in messages.items()})
+    assert counts["/raw/tof/xyz"] == counts["/tof/points"] == counts["/tof/depth"] == views
+    layers = {t for t in counts if t.startswith("/map/")}
+    assert {"/map/dem", "/map/hazard", "/map/traversability", "/map/slope"} <= layers
+    assert all(counts[t] == 1 for t in layers) and counts["/nav/check_move"] == 1
+
+    # the DEM: cell, size, centre and every value as the GeoTIFF holds them
+    dem_tif, g = read_geotiff(server.data / "dem" / "r2_dem.tif")
+    (_, grid), = messages["/map/dem"]
+    assert grid.header.frame_id == "world" and grid.layers == ["dem"] and grid.basic_layers == []
+    assert grid.info.resolution == pytest.approx(g.cell)
+    assert (grid.info.length_x, grid.info.length_y) == pytest.approx((g.width * g.cell, g.height * g.cell))
+    centre = grid.info.pose.position
+    assert (centre.x, centre.y) == pytest.approx((g.xmin + g.width * g.cell / 2, g.ymin + g.height * g.cell / 2))
+    np.testing.assert_array_equal(grid_layer(grid), dem_tif.astype(np.float32))
+
+    # each cloud: the defined points of its raw frame, x y z intensity as float32
+    for (_, cloud), (_, raw) in zip(messages["/tof/points"], messages["/raw/tof/xyz"], strict=True):
+        assert cloud.header.frame_id == raw.header.frame_id == "tof" and raw.encoding == "32FC3"
+        xyz = np.frombuffer(raw.data, np.float32).reshape(raw.height, raw.width, 3)
+        assert cloud.height == 1 and cloud.width == int((xyz[..., 2] > 0).sum()) > 1000
+        assert [(f.name, f.offset, f.datatype, f.count) for f in cloud.fields] == [
+            ("x", 0, 7, 1), ("y", 4, 7, 1), ("z", 8, 7, 1), ("intensity", 12, 7, 1)]
+        assert cloud.point_step == 16 and cloud.row_step == 16 * cloud.width and not cloud.is_bigendian
+        points = np.frombuffer(cloud.data, np.float32).reshape(-1, 4)
+        np.testing.assert_array_equal(points[:, :3], xyz[xyz[..., 2] > 0])
+    (_, depth), *_ = messages["/tof/depth"]
+    assert depth.encoding == "32FC1" and depth.step == 4 * depth.width
+
+    # the frame tree: every frame, the rover where status says it is
+    _, tf = messages["/tf"][-1]
+    assert {t.header.frame_id for t in tf.transforms} >= {"world", "rover", "mast", "ptu_pan", "ptu_tilt"}
+    assert {t.child_frame_id for t in tf.transforms} >= {"rover", "mast", "ptu_pan", "ptu_tilt", "tof",
+                                                          "stereo_left", "stereo_right", "rover_truth"}
+    rover = matrix(next(t.transform for t in tf.transforms if t.child_frame_id == "rover"))
+    x, y, heading = (float(v) for v in st["pose"].split(","))
+    assert rover[:2, 3] == pytest.approx((x, y), abs=1e-3)
+    assert np.degrees(np.arctan2(rover[1, 0], rover[0, 0])) == pytest.approx(heading, abs=0.01)
+    _, pose = messages["/rover/pose"][-1]
+    assert pose.header.frame_id == "world" and (pose.pose.position.x, pose.pose.position.y) == \
+        pytest.approx((x, y), abs=1e-3)
+    t_ns, tf = messages["/tf"][0]
+    assert tf.transforms[0].header.stamp.sec * 10**9 + tf.transforms[0].header.stamp.nanosec == t_ns
+
+    # the wire: requests and replies as Log lines, their JSON copy and the check-move's answer
+    logs = [m for _, m in messages["/rvs/log"]]
+    request = next(m for m in logs if m.msg == DEM)
+    assert request.name.startswith("conn ") and request.name.endswith(" >") and request.level == 20
+    assert any(m.msg.startswith("EGP-RVS-DEM-FULL-TOF OK") and m.name.endswith(" <") for m in logs)
+    assert DEM in [json.loads(m.data)["line"] for _, m in messages["/rvs/wire"]]
+    assert json.loads(messages["/rvs/job"][-1][1].data)["fraction"] == 1.0
+    (_, answer), = messages["/nav/check_move"]
+    assert json.loads(answer.data)["verdict"] == move.fields["verdict"]
+
+
+def test_the_profile_is_checked_and_server_record_takes_it(server_factory: Any) -> None:
+    srv = server_factory(["server.record=true", "record.profile=ros2"])
+    c = srv.client()
+    bad = c.request("record -start -profile ros1")
+    assert bad.fields["code"] == "E_ARG" and "foxglove" in bad.fields["message"] and "ros2" in bad.fields["message"]
+    alone = c.request("record -profile ros2")
+    assert alone.fields["code"] == "E_ARG" and "-profile goes with -start" in alone.fields["message"], alone
+    assert c.request("grab-tof -output k -type amplitude").status == "OK"
+    st = c.request("status").fields
+    srv.stop()
+    (path,) = (srv.data / "recordings").glob("rvs_*.mcap")
+    header, channels, messages = read_ros2(path)
+    assert header.profile == "ros2" and st["recording"] == f"recordings/{path.name}"
+    assert channels["/tof/amplitude"][0] == "sensor_msgs/msg/Image" and len(messages["/tof/amplitude"]) == 1
+    (_, image), = messages["/tof/amplitude"]
+    assert (image.encoding, image.height, image.width) == ("32FC1", 144, 176)  # the SR4000's
+
+
+@long_test
+def test_a_navigate_recorded_as_ros2_has_its_plan_and_track_as_paths(server_factory: Any) -> None:
+    srv = server_factory(["server.scene=office", "navigate.range=-90,30,-50,-10"])
+    c = srv.client()
+    assert c.request("record -start -name nav -profile ros2").status == "OK"
+    final = c.request("navigate -goal 1.5,-1.2 -auto -name nav", timeout=300)
+    assert final.status == "OK", final
+    st = c.request("status").fields
+    assert c.request("record -stop").fields["dropped"] == "0"
+    _, channels, messages = read_ros2(srv.data / "recordings" / "nav.mcap")
+    assert channels["/nav/plan"][0] == channels["/nav/track"][0] == "nav_msgs/msg/Path"
+    _, plan = messages["/nav/plan"][-1]
+    assert plan.header.frame_id == "world" and len(plan.poses) >= 2
+    last = plan.poses[-1].pose.position
+    assert (last.x, last.y) == pytest.approx((1.5, -1.2), abs=0.3)
+    _, track = messages["/nav/track"][-1]  # the last, sent at the stop
+    end = track.poses[-1].pose.position
+    truth = [float(v) for v in st["truth"].split(",")]
+    assert (end.x, end.y) == pytest.approx(truth[:2], abs=0.05)
