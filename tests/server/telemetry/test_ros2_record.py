@@ -15,8 +15,8 @@ import numpy as np
 import pytest
 from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
-from scipy.spatial.transform import Rotation
 from support.marks import long_test
+from support.mcap import transform_matrix
 
 from prox_workflows.grid import read_geotiff
 
@@ -35,14 +35,6 @@ def read_ros2(path: Path) -> tuple[Any, dict[str, tuple[str, str, str, bytes]], 
             channels[channel.topic] = (schema.name, schema.encoding, channel.message_encoding, schema.data)
             messages[channel.topic].append((message.log_time, decoded))
     return header, channels, messages
-
-
-def matrix(transform: Any) -> np.ndarray:
-    T = np.eye(4)
-    q = transform.rotation
-    T[:3, :3] = Rotation.from_quat([q.x, q.y, q.z, q.w]).as_matrix()
-    T[:3, 3] = [transform.translation.x, transform.translation.y, transform.translation.z]
-    return T
 
 
 def grid_layer(msg: Any, index: int = 0) -> np.ndarray:
@@ -119,7 +111,7 @@ def test_a_dem_recorded_as_ros2_reads_back_as_ros2_messages(server: Any) -> None
     assert {t.header.frame_id for t in tf.transforms} >= {"world", "rover", "mast", "ptu_pan", "ptu_tilt"}
     assert {t.child_frame_id for t in tf.transforms} >= {"rover", "mast", "ptu_pan", "ptu_tilt", "tof",
                                                           "stereo_left", "stereo_right", "rover_truth"}
-    rover = matrix(next(t.transform for t in tf.transforms if t.child_frame_id == "rover"))
+    rover = transform_matrix(next(t.transform for t in tf.transforms if t.child_frame_id == "rover"))
     x, y, heading = (float(v) for v in st["pose"].split(","))
     assert rover[:2, 3] == pytest.approx((x, y), abs=1e-3)
     assert np.degrees(np.arctan2(rover[1, 0], rover[0, 0])) == pytest.approx(heading, abs=0.01)
