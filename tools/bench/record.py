@@ -12,7 +12,9 @@ interleaved and repeated (``--repeat``, the best kept):
   (without one nothing is encoded: the SDK tells the hub nobody listens);
 - ``record``: ``record -start`` before the job, ``record -stop`` after (the stop's time, the
   summary written, is printed apart);
-- ``both``: the two together.
+- ``ros2``: as ``record``, in the ``ros2`` profile (``record -start -profile ros2``: the same
+  messages as ROS 2 messages, CDR), printed beside ``record`` with the ratio of the two;
+- ``both``: Foxglove and a recording together.
 
 The status poller and the Foxglove client run in processes of their own (tools.bench.server's
 poller; ``--client`` here), so that only the server's own work decides the figures.
@@ -23,8 +25,9 @@ subscribed client and to a recording: a coroutine on the server's loop sleeps 1 
 and notes how late it wakes, for 6 s before the map (the baseline: what the machine's load
 alone costs) and 6 s from its publication.
 
-    python -m tools.bench.record [--repeat 2] [--job "dem-full-tof ..."] [--peer ../old] [--json out.jsonl]
-    python -m tools.bench.record --stall [--repeat 3] [--peer ../old]
+    python -m tools.bench.record [--repeat 2] [--rows off,record,ros2] [--job "dem-full-tof ..."] [--peer ../old]
+                                 [--json out.jsonl]
+    python -m tools.bench.record --stall [--repeat 3] [--rows record,ros2] [--peer ../old]
 """
 
 from __future__ import annotations
@@ -47,7 +50,11 @@ from typing import Any
 from tools.bench.server import ROOT, TARGET_MS, Control, load_average, polling, start_rvs, wait_warm_up
 
 JOB = "dem-full-tof -range -180,180,-50,-10 -overlap 0.3 -name site1"
-ROWS = ("off", "foxglove", "record", "both")
+ROWS = ("off", "foxglove", "record", "ros2", "both")
+STALL_ROWS = ("foxglove", "record", "ros2", "both")
+# the rows that record, and the request that starts their recording (a peer without profiles takes the first)
+RECORDING = {"record": "record -start -name {}", "ros2": "record -start -name {} -profile ros2",
+             "both": "record -start -name {}"}
 WINDOW_S = 6.0  # --stall: the loop is watched this long before the map and as long from its publication
 
 
@@ -144,8 +151,8 @@ def stall_row(row: str, tmp: Path, n: int) -> dict[str, Any]:
         return late
 
     try:
-        if row in ("record", "both"):
-            assert ctl.request(f"record -start -name stall{n}").status == "OK"
+        if row in RECORDING:
+            assert ctl.request(RECORDING[row].format(f"stall{n}")).status == "OK"
         with foxglove_client(fox or None) as seen:
             base = asyncio.run_coroutine_threadsafe(lateness(WINDOW_S), app.loop).result()
             during = asyncio.run_coroutine_threadsafe(lateness(WINDOW_S), app.loop)
@@ -156,9 +163,10 @@ def stall_row(row: str, tmp: Path, n: int) -> dict[str, Any]:
                                "max_ms": max(late), "p99_ms": float(np.percentile(late, 99)),
                                "over_20ms": sum(x > TARGET_MS for x in late),
                                "client_mb": seen.get("bytes", 0) / 1e6}
-        if row in ("record", "both"):
+        if row in RECORDING:
+            t0 = time.perf_counter()
             stop = ctl.request("record -stop")
-            out.update(file_mb=int(stop.fields["bytes"]) / 1e6)
+            out.update(file_mb=int(stop.fields["bytes"]) / 1e6, stop_s=time.perf_counter() - t0)
         return out
     finally:
         ctl.close()
@@ -172,8 +180,8 @@ def run_row(row: str, job: str, tmp: Path, n: int) -> dict[str, Any]:
     wait_warm_up()
     ctl = Control(port)
     try:
-        if row in ("record", "both"):
-            r = ctl.request(f"record -start -name {row}{n}")
+        if row in RECORDING:
+            r = ctl.request(RECORDING[row].format(f"{row}{n}"))
             assert r.status == "OK", r
         with foxglove_client(fox or None) as seen, polling(port) as status:
             t0 = time.perf_counter()
@@ -182,7 +190,7 @@ def run_row(row: str, job: str, tmp: Path, n: int) -> dict[str, Any]:
         assert r.status == "OK", r
         out: dict[str, Any] = {"row": row, "job_s": seconds, **{f"status_{k}": v for k, v in status.items()},
                                "client_messages": seen.get("messages", 0), "client_mb": seen.get("bytes", 0) / 1e6}
-        if row in ("record", "both"):
+        if row in RECORDING:
             t0 = time.perf_counter()
             stop = ctl.request("record -stop")
             out.update(stop_s=time.perf_counter() - t0, file_mb=int(stop.fields["bytes"]) / 1e6,
@@ -216,16 +224,26 @@ def main() -> None:
     ap.add_argument("--job", default=JOB, help=f"the heavy job (default: {JOB})")
     ap.add_argument("--peer", type=Path, help="another checkout of the server, measured side by side")
     ap.add_argument("--stall", action="store_true", help="the event loop's lateness while a large map is published")
+    ap.add_argument("--rows", help=f"comma-separated rows to run (default all: {','.join(ROWS)}; --stall: "
+                                   f"{','.join(STALL_ROWS)}); off is the job's baseline and always runs")
     ap.add_argument("--json", type=Path, help="append every run as a JSON line here")
     args = ap.parse_args()
     trees = {"this": ROOT, **({"peer": args.peer.resolve()} if args.peer else {})}
-    rows = ("foxglove", "record", "both") if args.stall else ROWS
+    rows = STALL_ROWS if args.stall else ROWS
+    if args.rows:
+        asked = args.rows.split(",")
+        unknown = set(asked) - set(rows)
+        if unknown:
+            ap.error(f"unknown rows {', '.join(sorted(unknown))}; rows: {', '.join(rows)}")
+        rows = tuple(r for r in rows if r in asked or (r == "off" and not args.stall))
     key = "max_ms" if args.stall else "job_s"
     best: dict[tuple[str, str], dict[str, Any]] = {}
     with tempfile.TemporaryDirectory(prefix="rvs-bench-record-") as tmp:
         for n in range(args.repeat):
             for row in rows:
                 for name, tree in trees.items():
+                    if row == "ros2" and name != "this":  # a peer may predate the profiles
+                        continue
                     res = in_tree(tree, ["--stall-row" if args.stall else "--row", row, str(n), str(Path(tmp) / name),
                                          args.job])
                     res.update(tree=name, load=load_average())
@@ -239,18 +257,24 @@ def main() -> None:
     if args.stall:
         print(f"\nevent loop lateness, ms (best of {args.repeat} by max; target < {TARGET_MS:g} ms)")
         print(f"{'row':9} {'tree':5} {'base max':>8} {'base >20':>8} {'max':>7} {'p99':>7} {'>20 ms':>7} "
-              f"{'max x this':>10}")
+              f"{'max x this':>10}  extra")
         for row in rows:
             for name in trees:
+                if (row, name) not in best:
+                    continue
                 r = best[row, name]
+                extra = f"file {r['file_mb']:.1f} MB, stop {r['stop_s']:.2f} s" if "file_mb" in r else ""
                 print(f"{row:9} {name:5} {r['base_max_ms']:8.1f} {r['base_over_20ms']:8d} {r['max_ms']:7.1f} "
-                      f"{r['p99_ms']:7.1f} {r['over_20ms']:7d} {r['max_ms'] / best[row, 'this']['max_ms']:10.2f}")
+                      f"{r['p99_ms']:7.1f} {r['over_20ms']:7d} {r['max_ms'] / best[row, 'this']['max_ms']:10.2f}  {extra}")
+        _profiles(best, ("max_ms", "stop_s", "file_mb"))
         return
     print(f"\njob: {args.job}   (best of {args.repeat}; status p99 target < {TARGET_MS:g} ms)")
     print(f"{'row':9} {'tree':5} {'job s':>7} {'x off':>6} {'p50 ms':>7} {'p99 ms':>7} {'max ms':>7} {'p99 x off':>9}"
           "  extra")
     for row in rows:
         for name in trees:
+            if (row, name) not in best:
+                continue
             r, base = best[row, name], best["off", name]
             extra = ""
             if "file_mb" in r:
@@ -260,6 +284,16 @@ def main() -> None:
                 extra += f"{'; ' if extra else ''}client got {r['client_messages']} msgs, {r['client_mb']:.1f} MB"
             print(f"{row:9} {name:5} {r['job_s']:7.2f} {r['job_s'] / base['job_s']:6.3f} {r['status_p50']:7.2f} "
                   f"{r['status_p99']:7.2f} {r['status_max']:7.2f} {r['status_p99'] / base['status_p99']:9.2f}  {extra}")
+    _profiles(best, ("job_s", "status_p99", "stop_s", "file_mb"))
+
+
+def _profiles(best: dict[tuple[str, str], dict[str, Any]], keys: tuple[str, ...]) -> None:
+    """The ros2 row against the record row of this tree, figure by figure."""
+    ros2, fox = best.get(("ros2", "this")), best.get(("record", "this"))
+    if ros2 is None or fox is None:
+        return
+    print("\nros2 profile / foxglove profile (this tree): " + ", ".join(
+        f"{key} {ros2[key]:.2f} / {fox[key]:.2f} = x{ros2[key] / fox[key]:.2f}" for key in keys))
 
 
 if __name__ == "__main__":
