@@ -26,6 +26,7 @@ from drivers.base import DeviceError
 from prox_workflows.products import finish_product_sets
 
 from . import PROTOCOL_VERSION, __version__
+from .auth_failures import AuthFailures
 from .bus import Bus
 from .config import ConfigStore, ServerConfig
 from .devices import DeviceRegistry, stereo_points
@@ -166,6 +167,7 @@ class App:
     recovery: RecoverySets  # break's recovery sets and the newest of them
     console: WebConsole | None  # the operator web console, when server.web_port is set (event loop)
     console_off: str | None  # why there is no console (web_port 0, its port taken): status says it
+    auth_failures: AuthFailures  # wrong tokens by client address (event loop only)
     bus: Bus  # what happens in the server, for Foxglove and recordings (thread-safe)
     telemetry: Station | None  # the Foxglove server and the MCAP recording, once serve started them
 
@@ -197,6 +199,7 @@ class App:
         self.last_ptu = None
         self.console = None
         self.console_off = None
+        self.auth_failures = AuthFailures()
         self._connection_ids = itertools.count(1)
         self.bus = Bus()
         self.telemetry = None

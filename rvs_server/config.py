@@ -197,10 +197,14 @@ class ServerConfig(ModuleConfig):
     data: str = param("data", "data directory", protected=True)
     scene: str = param("office", "simulated world scene (config/scenes/<scene>.yaml)")
     token: str = param("", "if set, clients must send auth -token first", protected=True)
-    auth_delay: float = param(0.5, "after a wrong token, the next auth on that connection is answered this late, "
-                              "doubling with each further wrong token", unit="s", min=0.0, max=60.0, protected=True)
-    auth_delay_max: float = param(8.0, "longest wait before an auth answer on a connection with wrong tokens",
+    auth_delay: float = param(0.5, "after a wrong token, the next auth from that client address is answered this "
+                              "late, doubling with each further wrong token", unit="s", min=0.0, max=60.0, protected=True)
+    auth_delay_max: float = param(8.0, "longest wait before an auth answer to an address with wrong tokens",
                                   unit="s", min=0.0, max=600.0, protected=True)
+    auth_forget: float = param(900.0, "an address's wrong tokens are forgotten after this long without another",
+                               unit="s", min=0.1, max=86400.0, protected=True)
+    auth_addresses: int = param(1024, "client addresses whose wrong tokens are remembered (the one quiet longest "
+                                "is forgotten first)", min=1, max=1000000, protected=True)
     max_clients: int = param(32, "connections served at once", min=1, max=10000)
     max_line: int = param(4096, "longest request line", unit="bytes", min=64, max=1048576, protected=True)
     log_level: str = param("info", "console and file log level", choices=("debug", "info", "warning", "error"))

@@ -56,10 +56,10 @@ class Connection(asyncio.Protocol):
         self.events = True
         self.json = False
         self.authenticated = False
-        self.auth_failures = 0  # wrong tokens so far: each one delays the next auth (commands/system.py)
         self.closed = False
         self.paused = False
         self.peer = "?"
+        self.address = "?"  # the client's IP address: wrong tokens are counted by it (commands/system.py)
         self.log = log
         self.jobs_running = 0  # jobs this connection started: their final lines still owed
         self.exiting = False  # `exit` was answered: close once that reply is out, read nothing more
@@ -83,6 +83,7 @@ class Connection(asyncio.Protocol):
                 sock.setsockopt(socket.SOL_SOCKET, socket.SO_OOBINLINE, 1)
         peer = transport.get_extra_info("peername")
         self.peer = f"{peer[0]}:{peer[1]}" if isinstance(peer, tuple) else str(peer)
+        self.address = str(peer[0]) if isinstance(peer, tuple) else str(peer)
         self.log = log.bind(conn=self.id, peer=self.peer)
         if len(self.app.connections) >= self.app.server_cfg.max_clients:
             self.send(Reply("RVS", "ERROR", {

@@ -4,6 +4,7 @@ and the extensions (help, status, version, events, format, config, pose, auth)."
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import hmac
 import platform
 import shutil
@@ -451,8 +452,8 @@ def pose(ctx: Context, cfg: PoseConfig) -> dict[str, Any]:
 
 
 def _auth_wait(server: ServerConfig, failures: int) -> float:
-    """Seconds before an auth is answered on a connection that sent ``failures`` wrong tokens:
-    guessing the token over one connection gets slower the longer it goes on."""
+    """Seconds before an auth is answered from an address that sent ``failures`` wrong tokens:
+    guessing the token gets slower the longer it goes on, however often the guesser reconnects."""
     if failures == 0:
         return 0.0
     return min(server.auth_delay * 2.0 ** (failures - 1), server.auth_delay_max)
@@ -460,21 +461,28 @@ def _auth_wait(server: ServerConfig, failures: int) -> float:
 
 @command("auth", klass=ALWAYS, config=AuthConfig, open=True, help="authenticate this connection with the server's token")
 async def auth(ctx: Context, cfg: AuthConfig) -> dict[str, Any]:
-    server, conn = ctx.app.server_cfg, ctx.conn
+    app, conn = ctx.app, ctx.conn
+    server = app.server_cfg
     if not server.token:
         conn.authenticated = True
         return {"authenticated": True, "required": False}
-    wait = _auth_wait(server, conn.auth_failures)
-    if wait > 0:
-        # only this connection waits: its later lines queue behind this one, others are served
-        conn.log.info("auth_delayed", seconds=wait, failures=conn.auth_failures)
-        await asyncio.sleep(wait)
-    if not hmac.compare_digest(cfg.token.encode(), server.token.encode()):
-        conn.auth_failures += 1
-        wait = _auth_wait(server, conn.auth_failures)
-        conn.log.warning("auth_failed", failures=conn.auth_failures, next_wait=wait)
-        raise ProtocolError("E_AUTH", f"wrong token; check server.token in the server's configuration; the next auth on "
-                            f"this connection is answered after {wait:g} s")
-    conn.auth_failures = 0
+    table, address = app.auth_failures, conn.address
+    known = table.of(address, server.auth_forget)
+    # an address with wrong tokens is answered one auth at a time: parallel connections from it
+    # guess no faster than one; only this connection's lines wait, others are served at once
+    async with known.turn if known is not None else contextlib.nullcontext():
+        known = table.of(address, server.auth_forget)  # what the auths before this one left
+        failures = known.failures if known is not None else 0
+        wait = _auth_wait(server, failures)
+        if wait > 0:
+            conn.log.info("auth_delayed", seconds=wait, failures=failures, address=address)
+            await asyncio.sleep(wait)
+        if not hmac.compare_digest(cfg.token.encode(), server.token.encode()):
+            failures = table.failed(address, server.auth_addresses)
+            wait = _auth_wait(server, failures)
+            conn.log.warning("auth_failed", failures=failures, next_wait=wait, address=address)
+            raise ProtocolError("E_AUTH", f"wrong token; check server.token in the server's configuration; the next "
+                                f"auth from {address} is answered after {wait:g} s")
+        table.clear(address)
     conn.authenticated = True
     return {"authenticated": True}
