@@ -87,11 +87,11 @@ class WebPeer:
         self.ws = ws
         self.id = conn_id
         self.peer = peer
+        self.address = peer  # wrong tokens are counted by it, as a TCP client's
         self.log = log.bind(conn=conn_id, peer=peer, web=True)
         self.events = True
         self.json = True
         self.authenticated = False
-        self.auth_failures = 0  # as a TCP connection's
         self.jobs_running = 0
         self.jobs_started = 0
         self.exiting = False
