@@ -1,7 +1,8 @@
 """Foxglove live: a client speaking the foxglove.websocket.v1 protocol (from its spec; the SDK
 names the subprotocol foxglove.sdk.v1) connects, lists the channels, subscribes and decodes
 the protobuf messages with the schemas the server advertises, as the Foxglove app does; what
-it decodes is checked against the server's own map, pose and DEM."""
+it decodes is checked against the server's own map, pose and DEM, and with the body hazard
+cameras on, against the pair the device grabbed."""
 
 from __future__ import annotations
 
@@ -15,6 +16,7 @@ from pathlib import Path
 from typing import Any
 
 import aiohttp
+import cv2
 import numpy as np
 import pytest
 from google.protobuf import descriptor_pb2, descriptor_pool, message_factory
@@ -22,6 +24,7 @@ from support.mcap import transform_matrix
 from support.server import wait_for
 
 from prox_workflows.grid import read_geotiff
+from rvs_server.bus import tapped_call
 
 SUBPROTOCOL = "foxglove.sdk.v1"
 DEM = "dem-full-tof -range -30,30,-40,-20 -overlap 0.1 -name fx"  # two views: a second or two
@@ -255,3 +258,52 @@ def test_a_client_that_subscribes_late_gets_the_map_and_a_taken_port_costs_only_
     assert st["foxglove"] == "off" and str(port) in st["foxglove_reason"], st
     srv.stop()
     assert wait_for(lambda: not Path(f"/proc/{owner}").exists(), 10.0)
+
+
+def test_foxglove_client_sees_the_hazcam_frames_and_decodes_their_image_and_points(server_factory: Any) -> None:
+    port = free_port()
+    srv = server_factory([f"server.foxglove_port={port}", "drivers.hazcam.cameras=front"])
+    hazcam = srv.app.devices.get("hazcam")
+    image_topic, points_topic = "/hazcam/front/left/compressed", "/hazcam/front/points"
+
+    async def live() -> tuple[Any, Any, dict[str, Any]]:
+        session, fx = await connect(port)
+        try:
+            assert fx.channels[image_topic]["schemaName"] == "foxglove.CompressedImage"
+            assert fx.channels[points_topic]["schemaName"] == "foxglove.PointCloud"
+            await fx.subscribe("/tf", image_topic, points_topic)
+            tree = (await fx.until("/tf"))[1]  # the subscription is live before the grab
+            # a grab as the see loop makes it: through the bus, in a thread of its own
+            frame = await asyncio.get_running_loop().run_in_executor(None, tapped_call, srv.app.bus, hazcam.grab,
+                                                                     "front")
+            got: dict[str, Any] = {}
+            async with asyncio.timeout(60):
+                while len(got) < 2:
+                    topic, _, message = await fx.next()
+                    if topic in (image_topic, points_topic):
+                        got[topic] = message
+            return tree, frame, got
+        finally:
+            await fx.ws.close()
+            await session.close()
+
+    tree, frame, got = asyncio.run(live())
+    # the frame tree: both cameras of the pair on the rover, where the device's rig puts them
+    rig = hazcam.rig("front")
+    by_child = {tf.child_frame_id: tf for tf in tree.transforms}
+    for side, T in (("left", rig.T_rover_left), ("right", rig.T_rover_right)):
+        tf = by_child[f"hazcam_front_{side}"]
+        assert tf.parent_frame_id == "rover"
+        np.testing.assert_allclose(transform_matrix(tf), T, atol=1e-6)
+    # the left image, JPEG in the left camera's frame: the grabbed one
+    image = got[image_topic]
+    assert image.frame_id == "hazcam_front_left" and image.format == "jpeg"
+    decoded_left = cv2.imdecode(np.frombuffer(image.data, np.uint8), cv2.IMREAD_GRAYSCALE)
+    assert decoded_left.shape == frame.left.shape and np.abs(decoded_left.astype(float) - frame.left).mean() < 3.0
+    # the matched points in the rover frame with each one's range sigma, every one of them
+    cloud = got[points_topic]
+    assert cloud.frame_id == "rover" and [f.name for f in cloud.fields] == ["x", "y", "z", "sigma_range"]
+    packed = np.frombuffer(cloud.data, np.float32).reshape(-1, 4)
+    assert len(packed) == len(frame.points) > 10000
+    np.testing.assert_array_equal(packed[:, :3], frame.points.astype(np.float32))
+    np.testing.assert_array_equal(packed[:, 3], frame.sigma_range.astype(np.float32))
