@@ -8,7 +8,7 @@ import pytest
 from ptu_rig import bench
 
 from drivers.base import Device, DeviceError
-from drivers.ptu import MoveInterrupted, Ptu, create
+from drivers.ptu import BACKENDS, MoveInterrupted, Ptu, create
 
 FAST = {"backend": "sim", "time_scale": 0.0, "timeout": 0.3, "move_timeout": 1.0}
 
@@ -34,7 +34,7 @@ def test_create_gives_a_device() -> None:
     assert dev.status()["open"] is False  # create does not open; first use or open() does
     with pytest.raises(DeviceError) as err:
         create({"backend": "usb"})
-    assert err.value.device == "ptu" and "registered: sim, serial" in err.value.message
+    assert err.value.device == "ptu" and f"registered: {', '.join(BACKENDS.names())}" in err.value.message
 
 
 def test_sim_backend_moves_the_head_in_the_world_as_it_turns() -> None:

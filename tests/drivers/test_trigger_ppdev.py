@@ -7,7 +7,7 @@ import errno
 import pytest
 
 from drivers.base import DeviceError
-from drivers.trigger import Trigger, create, ioctl, ppdev
+from drivers.trigger import BACKENDS, Trigger, create, ioctl, ppdev
 
 FAKE_FD = 42
 
@@ -193,5 +193,5 @@ def test_real_missing_port_names_the_fix() -> None:
 def test_invalid_width_and_backend_are_usage_errors() -> None:
     with pytest.raises(ValueError, match="pulse_us"):
         create({"backend": "ppdev", "pulse_us": 0})
-    with pytest.raises(ValueError, match="sim, ppdev"):
+    with pytest.raises(ValueError, match="unknown backend 'usb'.*registered: " + ", ".join(BACKENDS.names())):
         create({"backend": "usb"})
