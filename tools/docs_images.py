@@ -1,6 +1,6 @@
 """Make the pictures in docs/img: every preview kind of a DEM and a navigation, and the web
-console (after the DEM, and after a navigate on a laptop, a tablet and a phone: 1280 x 720,
-768 x 1024, 390 x 844), from one simulated session (office scene). Look at them after running this.
+console (after the DEM, its camera panel, and after a navigate on a laptop, a tablet and a phone:
+1280 x 720, 768 x 1024, 390 x 844), from one simulated session (office scene). Look at them after running this.
 
     python -m tools.docs_images [--out docs/img] [--console-only]
 """
@@ -35,6 +35,7 @@ def main() -> None:
             from playwright.sync_api import sync_playwright
 
             asyncio.run(tcp_request(srv.port, "dem-full-tof -range -150,150,-50,-15 -name site"))
+            asyncio.run(tcp_request(srv.port, "grab-stereo -resolution low -output docs"))  # for the camera panel
             for layer in () if args.console_only else PREVIEWS:
                 shutil.copy(Path(tmp) / "data" / "dem" / f"site_{layer}.png", out / f"preview_{layer}.png")
             with sync_playwright() as p:
@@ -44,6 +45,13 @@ def main() -> None:
                 page.goto(f"http://127.0.0.1:{web_port}/")
                 page.wait_for_function("S.layers.dem && S.layers.dem.ready && S.layers.hazard && S.layers.hazard.ready")
                 page.screenshot(path=str(out / "console_dem.png"))
+                # the camera panel: the scan's last ToF frames and the stereo pair's left image
+                page.click("#cameras summary")
+                page.wait_for_function("['tof_amplitude', 'tof_depth', 'stereo_left'].every(n => "
+                                       "document.querySelector(`figure[data-camera=${n}] img[data-v]`))")
+                page.eval_on_selector("#cameras", "e => e.scrollIntoView()")
+                page.screenshot(path=str(out / "console_cameras.png"))
+                page.click("#cameras summary")
                 box = page.eval_on_selector("#map", "c => c.getBoundingClientRect().toJSON()")
                 gx, gy = page.evaluate("toScreen(1.5, -1.2)")
                 page.mouse.click(box["x"] + gx, box["y"] + gy)

@@ -30,6 +30,7 @@ from drivers.tof.constants import FOV_H_DEG as TOF_HFOV_DEG
 from prox_workflows.grid import read_geotiff_geometry
 
 from ..protocol import Reply, TooLong, format_reply, format_reply_json
+from .cameras import CameraFrames
 from .tiles import LayerCache, ValueCache, unit_of, version_of
 
 if TYPE_CHECKING:
@@ -158,6 +159,7 @@ class WebConsole:
         self.pages: set[WebPeer] = set()
         self.layers = LayerCache()
         self.values = ValueCache()
+        self.cameras = CameraFrames()
         self.history: deque[str] = deque(maxlen=HISTORY)
         self._products: tuple[float, dict[str, Path]] = (0.0, {})
         self.goal: dict[str, Any] | None = None  # the last navigate's goal, whoever sent it
@@ -179,6 +181,7 @@ class WebConsole:
             web.get("/api/state", self.state_json),
             web.get("/api/at", self.values_at),
             web.get("/products/{name}", self.product),
+            web.get("/cameras/{file}", self.camera),
             web.get("/ws", self.websocket),
             web.get("/favicon.ico", self.favicon),
         ])
@@ -194,11 +197,13 @@ class WebConsole:
         self.url = f"http://{f'[{host}]' if ':' in host else host}:{self.port}/"
         self._ticker = asyncio.create_task(self._tick())
         self.app.bus.subscribe(self.remember)
+        self.app.bus.subscribe(self.cameras.accept)
         log.info("web_console", url=self.url)
 
     async def close(self) -> None:
         """Close every page's WebSocket with 'going away' (1001), then the HTTP server."""
         self.app.bus.unsubscribe(self.remember)
+        self.app.bus.unsubscribe(self.cameras.accept)
         for task in (self._ticker, self._renderer):
             if task is not None:
                 task.cancel()
@@ -305,6 +310,8 @@ class WebConsole:
                           "unit": unit_of(name)}
         out["maps"] = {k: maps[k] for k in sorted(maps, key=lambda n: (LAYER_ORDER + (n,)).index(n))}
         out["products"] = [{"name": n, "url": f"/products/{n}"} for n in self.products()]
+        hazcam = app.devices.devices.get("hazcam")
+        out["cameras"] = self.cameras.listing(hazcam.cameras() if hazcam is not None else [])
         monitors = json.loads(format_reply_json(Reply("RVS", "OK", app.monitors.status_fields())))
         out["monitors"] = {k: v for k, v in monitors.items() if k not in ("module", "status")}
         here = out.get("truth") or out["pose"]
@@ -400,6 +407,23 @@ class WebConsole:
         if path is None:
             raise web.HTTPNotFound(text=f"'{name[:60]}' is not a product of the current map")
         return web.FileResponse(path, headers={"Content-Disposition": f'attachment; filename="{name}"'})
+
+    async def camera(self, request: web.Request) -> web.Response:
+        """A camera's newest frame (the state's ``cameras`` lists them with their versions)."""
+        file = request.match_info["file"]
+        name = self.cameras.name_of(file)
+        if name is None:
+            raise web.HTTPNotFound(text=f"no frame of '{file[:40]}' yet; grab one (grab-tof, grab-stereo) or run a DEM")
+        loop = asyncio.get_running_loop()
+        try:
+            image = await loop.run_in_executor(None, self.cameras.encoded, name)
+        except (KeyError, ValueError) as exc:
+            raise web.HTTPNotFound(text=f"camera '{name}' has no image: {exc}") from None
+        return web.Response(body=image.body, content_type=image.content_type, headers={
+            "Cache-Control": "max-age=3600" if request.query.get("v") == str(image.seq) else "no-cache",
+            "X-Version": str(image.seq),
+            "X-Caption": image.caption,
+        })
 
     async def websocket(self, request: web.Request) -> web.StreamResponse:
         origin = request.headers.get("Origin")

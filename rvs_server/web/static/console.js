@@ -42,6 +42,7 @@ const S = {
   measure: null,        // {a, b} while the distance tool is on
   commands: loadCommands(),
   commandAt: -1,        // position in the command history while browsing it with Up / Down
+  cameras: {},          // name -> {v, loading, at}: the image each camera shows
 };
 let ws = null;
 
@@ -57,6 +58,7 @@ function connect() {
     // a new connection: whatever the old one knew may be stale (another server, a new map)
     for (const l of Object.values(S.layers)) if (l.img) URL.revokeObjectURL(l.img.src);
     S.layers = {};
+    S.cameras = {};
     S.pending = {};
     S.authed = false;
     $("layers").dataset.names = "(reconnected)";
@@ -223,6 +225,7 @@ function onState(st) {
   $("monitors").textContent = Object.entries(st.monitors || {}).map(([k, v]) => `${k}=${v}`).join(" ");
   updateLayers(st.maps || {});
   updateProducts(st.products || []);
+  updateCameras();
   showProgress();
   updateButtons();
   draw();
@@ -347,6 +350,79 @@ function updateProducts(products) {
   }
   $("downloads").hidden = !products.length;
 }
+
+// ------------------------------------------------------------------------------ cameras
+
+// The newest frame of each camera, from what the server's devices grabbed anyway. Fetched only
+// while the panel is open, only when the state names a newer frame than the one shown, one
+// request per camera at a time and at most one a second (the hazard monitor grabs at video
+// rate; the page needs a glance, not a stream).
+const CAMERA_EVERY_MS = 1000;
+
+function updateCameras() {
+  const list = (S.state && S.state.cameras) || [];
+  const box = $("camera-list");
+  const key = list.map((c) => c.name).join(",");
+  if (box.dataset.key !== key) {
+    box.dataset.key = key;
+    box.textContent = "";
+    for (const c of list) {
+      const fig = document.createElement("figure");
+      fig.dataset.camera = c.name;
+      const img = document.createElement("img");
+      img.alt = c.label;
+      const cap = document.createElement("figcaption");
+      fig.append(img, cap);
+      box.appendChild(fig);
+    }
+  }
+  for (const c of list) {
+    const fig = box.querySelector(`figure[data-camera="${c.name}"]`);
+    const cam = S.cameras[c.name] || (S.cameras[c.name] = { v: null, loading: false, at: 0 });
+    if (!c.url) {
+      fig.querySelector("img").removeAttribute("src");
+      setCaption(fig, c.label, `no frame yet: ${c.hint}`);
+      continue;
+    }
+    if (!$("cameras").open || !S.online || cam.v === c.v || cam.loading || Date.now() - cam.at < CAMERA_EVERY_MS) continue;
+    loadCamera(c, cam, fig);
+  }
+}
+
+function setCaption(fig, label, text) {
+  const cap = fig.querySelector("figcaption");
+  cap.textContent = "";
+  const b = document.createElement("b");
+  b.textContent = label;
+  cap.append(b, " " + text);
+}
+
+function loadCamera(c, cam, fig) {
+  cam.loading = true;
+  cam.at = Date.now();
+  let caption = "";
+  fetch(c.url).then((r) => {
+    if (!r.ok) throw new Error(`HTTP ${r.status}`);
+    caption = r.headers.get("X-Caption") || "";
+    cam.v = +(r.headers.get("X-Version") || c.v);
+    return r.blob();
+  }).then((blob) => {
+    const img = fig.querySelector("img");
+    const old = img.src;
+    img.onload = () => {
+      if (old.startsWith("blob:")) URL.revokeObjectURL(old);
+      img.dataset.v = cam.v;
+      cam.loading = false;
+    };
+    img.onerror = () => { cam.loading = false; };
+    img.src = URL.createObjectURL(blob);
+    setCaption(fig, c.label, caption);
+  }).catch((err) => { cam.loading = false; setCaption(fig, c.label, `unavailable: ${err.message}`); });
+}
+
+$("cameras").addEventListener("toggle", updateCameras);
+// a frame newer than the one shown may have come within the last second: look again
+setInterval(() => { if ($("cameras").open) updateCameras(); }, CAMERA_EVERY_MS);
 
 // One legend per visible layer, top first, as the layers list.
 function drawLegend() {

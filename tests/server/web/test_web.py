@@ -233,7 +233,8 @@ def test_no_request_reaches_outside_the_data_directory(web: Any, tmp_path: Path)
         async with aiohttp.ClientSession() as http:
             for path in ("/static/../../secret.tif", "/static/%2e%2e%2fsecret.tif", "/static/console.py",
                          "/layers/..%2F..%2Fsecret.png", "/layers/%2e%2e.png", "/layers/dem.png",
-                         "/layers/../secret.tif", "/../secret.tif", "/static/", "/layers/.png"):
+                         "/layers/../secret.tif", "/../secret.tif", "/static/", "/layers/.png",
+                         "/cameras/..%2F..%2Fsecret.tif", "/cameras/tof_depth.png", "/cameras/"):
                 async with http.get(base + path) as resp:
                     body = await resp.read()
                     assert b"not for you" not in body

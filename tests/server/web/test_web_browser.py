@@ -9,6 +9,7 @@ Screenshots go to ``test-artifacts/`` (or $RVS_ARTIFACTS) for a person to look a
 
 from __future__ import annotations
 
+import base64
 import calendar
 import json
 import math
@@ -17,18 +18,22 @@ import shutil
 import socket
 import subprocess
 import time
+import urllib.request
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
+import cv2
 import numpy as np
 import pytest
+import tifffile
 import yaml
 from support.marks import long_test
 from support.server import ServerThread
 
 from prox_workflows.grid import GridGeometry, read_geotiff, write_geotiff
 from rvs_params.hazard import HAZARDOUS
+from rvs_server.bus import tapped_call
 
 CHROMIUM = "/usr/bin/chromium"
 ARTIFACTS = Path(os.environ.get("RVS_ARTIFACTS", Path(__file__).resolve().parents[3] / "test-artifacts"))
@@ -681,3 +686,97 @@ def test_the_rover_icon_moves_and_turns_live_during_a_drive_and_keeps_the_true_h
     assert len(positions) >= 5 and len(headings) >= 2, seen  # it moved and it turned, live
     st = page.evaluate("[S.state.pose.heading, S.state.truth.heading]")
     assert abs((st[0] - st[1] + 180) % 360 - 180) < 5, st  # the icon's heading is the rover's
+
+
+def camera_pixels(page: Any, name: str) -> np.ndarray:
+    """The RGBA pixels of the image the camera panel shows for ``name``, at its own size (drawn
+    on a canvas and read back as a lossless PNG)."""
+    url = page.evaluate("""(name) => { const img = document.querySelector(`figure[data-camera="${name}"] img`);
+        const c = document.createElement("canvas"); c.width = img.naturalWidth; c.height = img.naturalHeight;
+        c.getContext("2d").drawImage(img, 0, 0); return c.toDataURL("image/png"); }""", name)
+    png = base64.b64decode(url.split(",", 1)[1])
+    return cv2.cvtColor(cv2.imdecode(np.frombuffer(png, np.uint8), cv2.IMREAD_UNCHANGED), cv2.COLOR_BGRA2RGBA)
+
+
+def served(url: str) -> np.ndarray:
+    """An image the console serves, as RGBA (or grey) pixels."""
+    with urllib.request.urlopen(url, timeout=30) as resp:
+        image = cv2.imdecode(np.frombuffer(resp.read(), np.uint8), cv2.IMREAD_UNCHANGED)
+    return cv2.cvtColor(image, cv2.COLOR_BGRA2RGBA) if image.ndim == 3 else image
+
+
+def open_cameras(c: Console, browser: Any) -> tuple[Any, list[str]]:
+    """A page and the camera images it fetches from now on."""
+    page = c.open(browser)
+    asked: list[str] = []
+    page.on("request", lambda r: asked.append(r.url) if "/cameras/" in r.url else None)
+    return page, asked
+
+
+def test_the_camera_panel_shows_the_tof_frames_the_server_grabbed_once_opened(console: Any, browser: Any) -> None:
+    c = console()
+    page, asked = open_cameras(c, browser)
+    assert c.request("grab-tof -type amplitude -output amp").status == "OK"
+    assert c.request("grab-tof -type z -output depth").status == "OK"
+    page.wait_for_function("S.state.cameras.filter(c => c.url).length === 2")
+    page.wait_for_timeout(1200)  # a tick of the panel's clock: closed, it fetches nothing
+    assert not page.is_visible("#camera-list") and asked == []
+    assert page.evaluate("S.state.cameras.map(c => c.name)") == ["tof_amplitude", "tof_depth", "stereo_left"]
+    page.click("#cameras summary")
+    for name in ("tof_amplitude", "tof_depth"):
+        page.wait_for_selector(f"figure[data-camera={name}] img[data-v]")
+    assert "no frame yet: grab-stereo" in page.text_content("figure[data-camera=stereo_left] figcaption")
+
+    # the depth image on the page is the one served, and it is the grabbed frame: its pixels
+    # without a measurement are the transparent ones, the rest a ramp of the depth
+    depth = camera_pixels(page, "tof_depth")
+    v = page.get_attribute("figure[data-camera=tof_depth] img", "data-v")
+    np.testing.assert_array_equal(depth, served(f"{c.url}cameras/tof_depth.png?v={v}"))
+    z = tifffile.imread(c.data / "tof" / "depth_z.tif")
+    measured = np.isfinite(z) & (z > 0)
+    assert depth.shape[:2] == z.shape and measured.mean() > 0.5
+    np.testing.assert_array_equal(depth[..., 3] == 255, measured)
+    assert depth[measured][:, :3].std(axis=0).max() > 20  # not blank: a ramp of many colours
+    # nearer is bluer, farther redder (turbo): the nearest tenth against the farthest tenth
+    near, far = z[measured] < np.percentile(z[measured], 10), z[measured] > np.percentile(z[measured], 90)
+    rgb = depth[measured][:, :3].astype(float)
+    assert rgb[near, 2].mean() > rgb[near, 0].mean() and rgb[far, 0].mean() > rgb[far, 2].mean()
+    caption = page.text_content("figure[data-camera=tof_depth] figcaption")
+    assert caption.startswith("ToF depth ") and f" m (z), {z.shape[1]}x{z.shape[0]}, " in caption, caption
+    amplitude = camera_pixels(page, "tof_amplitude")
+    assert amplitude[..., :3].std() > 10, amplitude[..., :3].std()
+    assert len(asked) == 2, asked
+    assert not page.errors, page.errors
+
+
+@long_test  # a stereo grab, a hazcam pair matched and the panel's clock watched: ~8 s
+def test_the_camera_panel_shows_stereo_and_hazcam_frames_and_fetches_only_new_ones_while_open(
+        console: Any, browser: Any) -> None:
+    c = console("drivers.hazcam.cameras=front")
+    page, asked = open_cameras(c, browser)
+    assert page.evaluate("S.state.cameras.map(c => c.name)") == ["tof_amplitude", "tof_depth", "stereo_left",
+                                                                 "hazcam_front_left"]
+    page.click("#cameras summary")
+    assert "no frame yet" in page.text_content("figure[data-camera=hazcam_front_left] figcaption")
+    assert c.request("grab-stereo -resolution low -output pair").status == "OK"
+    page.wait_for_selector("figure[data-camera=stereo_left] img[data-v]")
+    left = camera_pixels(page, "stereo_left")
+    assert left.shape[:2] == (480, 640) and left[..., :3].std() > 10
+    hazcam = c.srv.app.devices.get("hazcam")
+    frame = tapped_call(c.srv.app.bus, hazcam.grab, "front")
+    page.wait_for_selector("figure[data-camera=hazcam_front_left] img[data-v]")
+    shown = camera_pixels(page, "hazcam_front_left")[..., 0].astype(float)
+    assert shown.shape == frame.left.shape and np.abs(shown - frame.left).mean() < 3.0  # the JPEG of that frame
+    assert len(asked) == 2, asked
+    page.wait_for_timeout(1500)  # no new frame, no new fetch
+    assert len(asked) == 2, asked
+    # a new frame replaces the shown one
+    assert c.request("grab-tof -type amplitude").status == "OK"
+    page.wait_for_selector("figure[data-camera=tof_amplitude] img[data-v]")
+    assert len(asked) == 3, asked
+    # closed again: new frames are not fetched
+    page.click("#cameras summary")
+    assert c.request("grab-tof -type z").status == "OK"
+    page.wait_for_timeout(1500)
+    assert len(asked) == 3, asked
+    assert not page.errors, page.errors
