@@ -20,7 +20,10 @@ Looks: ``one`` (one frame, pan 0, tilt -35), ``sweep`` (pans -40 / 0 / +40), ``a
 sweep, then a frame every 0.1 m over 2 m of straight drive, as the see loop sees the ground it
 comes to), ``approach+hazcam`` (the same with the front hazard camera pair's frame at every step:
 the simulated ``drivers.hazcam`` device as declared, its pair rendered and matched by the
-server's stereo matcher, see :func:`hazcam`). ToF range noise along each ray from the ToF's
+server's stereo matcher, see :func:`hazcam`), ``approach+stereo`` (the approach with the mast's
+own stereo pair every 0.4 m, at the PTU's lowest tilt where it sees the ground 0.9-2.5 m ahead:
+the simulated PIKE pair at ``high``, matched by the workflows' matcher with its declared noise,
+every matched pixel as a DEM takes them, see :func:`mast_stereo`). ToF range noise along each ray from the ToF's
 noise model, height sigma from ``tof_height_variance``: the sigmas the map is given are the ones
 the ToF frames were drawn with, so this measures the map, not a mis-stated sensor. The hazcam's
 errors are real stereo errors against the sigmas its device declares, as are those of the
@@ -41,6 +44,8 @@ import cv2
 import numpy as np
 
 import drivers.hazcam as hazcam_device
+import drivers.stereo as stereo_device
+from drivers.ptu.protocol import D46_LIMITS, D46_RESOLUTION_ARCSEC, pos_to_deg
 from drivers.sim.rover import RoverBody
 from drivers.sim.world import World
 from drivers.tof.constants import HEIGHT, USABLE_RANGE, WIDTH
@@ -48,11 +53,14 @@ from prox_workflows.algorithms.bounds_map import BoundsMap, BoundsParams
 from prox_workflows.algorithms.dem2hazard import HazardParams
 from prox_workflows.algorithms.noise import pair_sigmas, tof_height_variance, tof_horizontal_sigma, tof_sigma
 from prox_workflows.algorithms.rolling_map import RollingMap, RollingParams
+from prox_workflows.algorithms.stereo import disparity
 from prox_workflows.algorithms.vehicle import check_poses
 from prox_workflows.grid import GridGeometry
 from rvs_server.devices import stereo_points
 
-LOOKS = ("one", "sweep", "approach", "approach+hazcam")
+LOOKS = ("one", "sweep", "approach", "approach+hazcam", "approach+stereo")
+MAST_STEREO = "high"  # the PIKE pair's mode for the near ground: 1280 x 960, 0.2 m baseline
+MAST_STEREO_RANGE = 3.0  # m: the pair's points kept (the lowest tilt sees the ground to about 2.5 m)
 # one frame: points, height sigmas, sensor origin, horizontal sigmas, the range it was cut at
 Frame = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, float]
 TRUE_CELL = 0.005  # m: the truth's surface, pooled to the map's cells
@@ -61,10 +69,13 @@ TRUE_CELL = 0.005  # m: the truth's surface, pooled to the map's cells
 def frames(world: World, look: str, rng: np.random.Generator) -> Iterator[Frame]:
     """Each frame of a way of looking."""
     x0, y0, h0 = world.rover_pose()
-    front = None
+    front = pair = None
     if look == "approach+hazcam":
         front = hazcam_device.create({"cameras": "front"}, world, stereo_points)
         front.open()
+    if look == "approach+stereo":
+        pair = stereo_device.create({"backend": "sim"}, world)
+        pair.open()
 
     def grab(pan: float) -> Frame:
         world.set_ptu(pan, -35.0)
@@ -86,6 +97,8 @@ def frames(world: World, look: str, rng: np.random.Generator) -> Iterator[Frame]
             yield grab(0.0)
             if front is not None:
                 yield hazcam(world, front)
+            if pair is not None and i % 4 == 1:
+                yield mast_stereo(world, pair)
         world.set_rover_pose(x0, y0, h0)
 
 
@@ -98,6 +111,24 @@ def hazcam(world: World, device: hazcam_device.Hazcam) -> Frame:
     origin = T[:3, :3] @ frame.origin + T[:3, 3]
     sigma, sigma_xy = pair_sigmas(pts, origin, frame.sigma_range, device.rig("front").focal)
     return pts, sigma, origin, sigma_xy, device.config.max_range
+
+
+def mast_stereo(world: World, pair: stereo_device.StereoPair) -> Frame:
+    """The mast's stereo pair at the PTU's lowest tilt: every matched pixel in the world frame,
+    its range sigma from the matcher's declared disparity noise, split as the hazcam's is."""
+    world.set_ptu(0.0, pos_to_deg(D46_LIMITS["tilt"][0], D46_RESOLUTION_ARCSEC))
+    left, right = pair.grab_stereo_direct(MAST_STEREO)
+    d = disparity(left, right, pair.calibration(MAST_STEREO))
+    pts = d.points().reshape(-1, 3).astype(np.float64)
+    sigma_z = d.sigma_z().reshape(-1).astype(np.float64)
+    keep = np.isfinite(pts).all(axis=1) & np.isfinite(sigma_z) & (pts[:, 2] < MAST_STEREO_RANGE)
+    pts, sigma_z = pts[keep], sigma_z[keep]
+    T = np.asarray(world.sensor_pose("left"), dtype=np.float64)
+    origin = T[:3, 3]
+    sigma_range = sigma_z * np.linalg.norm(pts, axis=1) / pts[:, 2]  # along the ray, not the optical axis
+    world_pts = pts @ T[:3, :3].T + origin
+    sigma, sigma_xy = pair_sigmas(world_pts, origin, sigma_range, d.rect.focal)
+    return world_pts, sigma, origin, sigma_xy, MAST_STEREO_RANGE
 
 
 def pooled(fine: np.ndarray, g: GridGeometry, how: Any) -> np.ndarray:
