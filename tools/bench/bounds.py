@@ -36,6 +36,7 @@ real-data row (Middlebury Motorcycle, against its ground-truth disparity).
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import time
 from collections.abc import Iterator
 from typing import Any
@@ -136,7 +137,7 @@ def pooled(fine: np.ndarray, g: GridGeometry, how: Any) -> np.ndarray:
     return how(fine[:g.height * f, :g.width * f].reshape(g.height, f, g.width, f), axis=(1, 3))
 
 
-def sim_row(scene: str, look: str, k: float, seed: int = 0) -> dict[str, Any]:
+def sim_row(scene: str, look: str, k: float, seed: int = 0, body: RoverBody | None = None) -> dict[str, Any]:
     world = World.from_scene(scene, seed=1)
     x0, y0, _ = world.rover_pose()
     box = [[x0 - 1.0, y0 - 3.0], [x0 + 6.5, y0 + 3.0]]
@@ -170,7 +171,7 @@ def sim_row(scene: str, look: str, k: float, seed: int = 0) -> dict[str, Any]:
     px, py = np.meshgrid(x0 + np.arange(1.6, 4.0, 0.1), y0 + np.arange(-1.2, 1.25, 0.1))
     poses = np.column_stack([np.repeat(px.ravel(), 4), np.repeat(py.ravel(), 4),
                              np.tile([0.0, 45.0, 90.0, 135.0], px.size)])
-    body = RoverBody()
+    body = body or RoverBody()
     on_truth = check_poses(truth, tg, poses, body)
     on_bounds = check_poses((bounds.lower, upper), g, poses, body)
     judged = ~on_bounds.unknown
@@ -187,6 +188,8 @@ def sim_row(scene: str, look: str, k: float, seed: int = 0) -> dict[str, Any]:
         "bounded": int(seen.sum() + ceiling_only.sum()), "ceiling_only": int(ceiling_only.sum()),
         "poses": len(poses), "judged": int(judged.sum()), "false_safe": int((on_truth.unsafe & on_bounds.safe).sum()),
         "safe_kept": float(on_bounds.safe[truly_safe].mean()) if truly_safe.any() else float("nan"),
+        # why the truly safe poses the bounds refuse are refused: wheel, belly, tilt (a pose may have several)
+        "refused_by": [int(n) for n in (on_bounds.excess[truly_safe & on_bounds.unsafe] > 0).sum(axis=0)],
     }
 
 
@@ -241,20 +244,21 @@ def motorcycle_row(k: float) -> dict[str, Any] | None:
             "over_p99": float(np.percentile(upper[seen] - top[seen], 99)),
             "mean_low_p99": float("nan"), "fuse_ms": fuse_ms, "rolling_ms": float("nan"),
             "bounded": int(seen.sum()), "ceiling_only": 0, "poses": 0, "judged": 0, "false_safe": 0,
-            "safe_kept": float("nan")}
+            "safe_kept": float("nan"), "refused_by": None}
 
 
 def print_rows(rows: list[dict[str, Any]]) -> None:
     print("| scene | look | k | frames | held | held (ray only) | upper - top p50 / p99 (cm) | 5 cm mean read low p99 (cm) "
-          "| fuse ms (rolling map; ratio) | bounded (ray only) | vehicle check: judged / false safe / truly safe kept |")
-    print("|---|---|---|---|---|---|---|---|---|---|---|")
+          "| fuse ms (rolling map; ratio) | bounded (ray only) | vehicle check: judged / false safe / truly safe kept "
+          "| truly safe refused by wheel / belly / tilt |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|")
     for r in rows:
         ratio = r["fuse_ms"] / r["rolling_ms"] if r["rolling_ms"] == r["rolling_ms"] else float("nan")
         print(f"| {r['scene']} | {r['look']} | {r['k']:g} | {r['frames']} | {100 * r['held']:.2f} % "
               f"| {100 * r['held_ceiling']:.2f} % | {100 * r['over_p50']:.1f} / {100 * r['over_p99']:.1f} "
               f"| {100 * r['mean_low_p99']:.1f} | {r['fuse_ms']:.1f} ({r['rolling_ms']:.1f}; {ratio:.2f}) "
               f"| {r['bounded']} ({r['ceiling_only']}) | {r['judged']}/{r['poses']} / {r['false_safe']} "
-              f"/ {100 * r['safe_kept']:.1f} % |")
+              f"/ {100 * r['safe_kept']:.1f} % | {' / '.join(map(str, r['refused_by'] or ['-']))} |")
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -263,8 +267,12 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--looks", nargs="+", choices=LOOKS, default=list(LOOKS))
     ap.add_argument("--k", nargs="+", type=float, default=[BoundsParams().k])
     ap.add_argument("--no-real", action="store_true", help="leave out the Motorcycle row")
+    ap.add_argument("--body", action="append", default=[], metavar="KEY=VALUE",
+                    help="a RoverBody field for the vehicle check (e.g. clearance=0.16): what a body with other "
+                         "margins would keep")
     args = ap.parse_args(argv)
-    rows = [sim_row(s, look, k) for k in args.k for s in args.scenes for look in args.looks]
+    body = dataclasses.replace(RoverBody(), **{key: float(v) for key, v in (a.split("=", 1) for a in args.body)})
+    rows = [sim_row(s, look, k, body=body) for k in args.k for s in args.scenes for look in args.looks]
     if not args.no_real:
         rows += [r for k in args.k if (r := motorcycle_row(k)) is not None]
     print_rows(rows)
