@@ -5,7 +5,8 @@ defaults and checks from them and adds what the caller knows of the rover."""
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass
+from collections.abc import Mapping
+from dataclasses import asdict, dataclass, fields
 from typing import Any
 
 from rvs_params import Settings, param
@@ -71,3 +72,19 @@ class PlannerParams:
 
     def as_dict(self) -> dict[str, Any]:
         return asdict(self)
+
+    @classmethod
+    def of(cls, plan: PlanParams | Mapping[str, Any], *, rover_radius: float, half_width: float | None = None,
+           critical_slope: float, unknown_cost: float | None = None) -> PlannerParams:
+        """The planner's parameters from the operator's ``plan`` settings (or a script's
+        parameters) and what the caller knows of its rover: every setting both classes declare is
+        taken by name, so a setting declared in both here reaches every caller (a navigate leg, the
+        see loop, the plan_leg script, rvs-path-planner) with no other change. ``half_width`` is
+        used for the ``body`` footprint only."""
+        given = plan.as_dict() if isinstance(plan, PlanParams) else dict(plan)
+        shared = {f.name: given[f.name] for f in fields(cls) if f.name in given and f.name in PlanParams.specs()}
+        footprint = given.get("footprint", _PLAN.footprint)
+        if footprint == "body" and half_width is None:
+            raise ValueError("footprint body needs the rover's half width")
+        return cls(**shared, rover_radius=rover_radius, half_width=half_width if footprint == "body" else None,
+                   critical_slope=critical_slope, **({} if unknown_cost is None else {"unknown_cost": unknown_cost}))

@@ -20,7 +20,8 @@ pipelines are, readers and writers included):
         when: "$mesh"                     # optional: skip the step when the value is false
 
 Values: ``$name`` is a parameter (a field of the script's parameter class: declared once, with
-its default, there and nowhere else), ``@name`` a workspace value (``@a.b`` an attribute or key
+its default, there and nowhere else), ``$`` all of them as a dict (for a step whose settings are
+the parameter class, so that a new setting reaches it with no new wiring), ``@name`` a workspace value (``@a.b`` an attribute or key
 of it), anything else a literal. Each step's input types are its function's annotations, and it declares its
 outputs with types (``@step("dem_import", outputs={"layers": "Layers"})``); :func:`validate` checks the whole script
 against those declarations before the first step runs (unknown step, unknown or missing input,

@@ -32,6 +32,8 @@ class RunLog:
 
 
 def _lookup(ref: str, workspace: dict[str, Any], params: dict[str, Any]) -> Any:
+    if ref == "$":  # all the parameters, for a step that takes its settings whole
+        return dict(params)
     source = params if ref[0] == "$" else workspace
     head, *rest = ref[1:].split(".")
     if head not in source:
@@ -44,7 +46,7 @@ def _lookup(ref: str, workspace: dict[str, Any], params: dict[str, Any]) -> Any:
 
 
 def evaluate(expr: Any, workspace: dict[str, Any], params: dict[str, Any]) -> Any:
-    if isinstance(expr, str) and len(expr) > 1 and expr[0] in "$@":
+    if isinstance(expr, str) and (expr == "$" or (len(expr) > 1 and expr[0] in "$@")):
         return _lookup(expr, workspace, params)
     if isinstance(expr, list):
         return [evaluate(e, workspace, params) for e in expr]

@@ -162,6 +162,10 @@ class _Check:
             if not compatible(got, want):
                 self.problems.append(f"{where}: {what} wants {want} but the literal {expr!r} is {got}; give a {want}")
             return
+        if expr == "$":  # all the parameters, as a dict
+            if not compatible("dict", want):
+                self.problems.append(f"{where}: {what} wants {want} but $ is all the parameters (a dict)")
+            return
         if len(expr) < 2 or not expr[1:2].isidentifier():
             self.problems.append(f"{where}: {what} '{expr}' is not a reference; write $param or @value")
             return

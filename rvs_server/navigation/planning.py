@@ -36,11 +36,8 @@ def planner_params(app: App, plan: PlanParams) -> PlannerParams:
     from prox_workflows.algorithms.planner import PlannerParams
 
     head = app.config.get("head")
-    return PlannerParams(grid=plan.grid, weight=plan.weight, heuristic=plan.heuristic,
-                         rover_radius=math.hypot(head.rover_length, head.rover_width) / 2, margin=plan.margin,
-                         half_width=head.rover_width / 2 if plan.footprint == "body" else None,
-                         critical_slope=app.config.get("dem2hazard").slope_max,
-                         max_deviation=plan.max_deviation, border=plan.border)
+    return PlannerParams.of(plan, rover_radius=math.hypot(head.rover_length, head.rover_width) / 2,
+                            half_width=head.rover_width / 2, critical_slope=app.config.get("dem2hazard").slope_max)
 
 
 def check_plan_size(app: App, cfg: NavigateConfig) -> None:

@@ -32,6 +32,13 @@ def test_wiring_loops_and_conditions() -> None:
     assert ws["sum"] == 60 and "doubled" not in ws and log.entries[-1]["skipped"] is True
 
 
+def test_dollar_alone_hands_a_step_all_the_parameters() -> None:
+    script = {"name": "whole", "outputs": ["settings"],
+              "steps": [{"step": "keep", "in": {"settings": "$"}, "out": "settings"}]}
+    ws, _ = run_workflow(script, {"scale": 3, "double": False}, steps={"keep": lambda settings: settings})
+    assert ws["settings"] == {"scale": 3, "double": False}
+
+
 def test_progress_is_per_phase_with_a_fixed_total_and_a_growing_done() -> None:
     seen: list[tuple[str, int, int, str]] = []
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import math
 import warnings
+from typing import Any
 
 import cv2
 import numpy as np
@@ -347,3 +348,29 @@ def test_the_orbital_maps_edge_is_no_border_to_stop_short_of() -> None:
     r, c = plan.image.geometry.cell_of(np.array([1.0, 1.0]), np.array([3.05, 4.75]))
     assert bd[r[0], c[0]] < 0.1  # unseen ground on the map south of the strip: a border
     assert bd[r[1], c[1]] > 1.0  # past the map's edge: none, the nearest is the strip's south side
+
+
+def test_every_plan_setting_the_planner_declares_reaches_it_by_name() -> None:
+    """A navigate leg, the see loop and the plan_leg script build the planner's parameters through
+    PlannerParams.of: a setting declared in both classes reaches the planner with no more wiring."""
+    from dataclasses import fields
+
+    from prox_workflows.algorithms.plan_params import PlannerParams, PlanParams
+
+    specs = PlanParams.specs()
+
+    def other(spec: Any) -> Any:  # a valid value that is not the default
+        if spec.choices:
+            return next(c for c in spec.choices if c != spec.default)
+        return (spec.default + spec.max) / 2
+
+    changed = {f.name: other(specs[f.name]) for f in fields(PlannerParams) if f.name in specs}
+    assert {"weight", "heuristic", "grid", "margin", "max_deviation", "border"} <= set(changed)
+    for given in (PlanParams(**changed, footprint="body"), {**changed, "footprint": "body", "extra": 1}):
+        p = PlannerParams.of(given, rover_radius=0.4, half_width=0.25, critical_slope=15.0)
+        assert {name: getattr(p, name) for name in changed} == changed
+        assert (p.rover_radius, p.half_width, p.critical_slope, p.unknown_cost) == (0.4, 0.25, 15.0, 1.0)
+    circle = PlannerParams.of(PlanParams(), rover_radius=0.4, half_width=0.25, critical_slope=15.0, unknown_cost=3.0)
+    assert circle.half_width is None and circle.unknown_cost == 3.0 and circle.border == PlanParams().border
+    with pytest.raises(ValueError, match="half width"):
+        PlannerParams.of({"footprint": "body"}, rover_radius=0.4, critical_slope=15.0)
