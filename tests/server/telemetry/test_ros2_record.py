@@ -169,3 +169,19 @@ def test_a_navigate_recorded_as_ros2_has_its_plan_and_track_as_paths(server_fact
     end = track.poses[-1].pose.position
     truth = [float(v) for v in st["truth"].split(",")]
     assert (end.x, end.y) == pytest.approx(truth[:2], abs=0.05)
+
+
+def test_the_grid_maps_own_encoder_writes_the_generic_encoders_bytes() -> None:
+    """GridMap is encoded by hand (its float32 cells as one block); the bytes must be those of the
+    definition-driven encoder, NaN cells, both layouts' dimensions and the trailing indices
+    included."""
+    from prox_workflows.grid import GridGeometry
+    from rvs_server.telemetry.ros2_messages import grid, grid_map_cdr
+    from rvs_server.telemetry.ros2_msgs import encoder
+
+    rng = np.random.default_rng(3)
+    layers = {"dem": rng.normal(size=(5, 7)).astype(np.float32), "upper": rng.normal(size=(5, 7)).astype(np.float32)}
+    layers["dem"][1, 2] = np.nan
+    msg = grid(1_234_567_890_123, GridGeometry(0.05, -1.0, 2.0, 7, 5, None), layers)
+    as_lists = dict(msg, data=[dict(d, data=d["data"].tolist()) for d in msg["data"]])
+    assert grid_map_cdr(msg) == encoder("grid_map_msgs/GridMap")(as_lists)
