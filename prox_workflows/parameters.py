@@ -40,12 +40,6 @@ class DemParams(Settings):
     rule: str = param("fuse", "how views and the current DEM merge", choices=("fuse", "max", "newest"))
     fill_radius: float = param(0.06, "fill holes up to this radius", unit="m", min=0.0, max=2.0)
     mesh: bool = param(True, "also write a textured mesh (PLY)")
-    spike_jump: float = param(0.05, "a cell above (below) all its neighbours by more than this ...", unit="m",
-                              min=0.0, max=2.0, option=False)
-    spike_sigma: float = param(4.0, "... and by more than this many of its height's standard deviations ...",
-                               min=0.0, max=100.0, option=False)
-    spike_points: int = param(3, "... with at most this many points is a spike: made undefined, then filled",
-                              min=0, max=1000, option=False)
     # ToF-stereo fusion (-sensor fused): each sensor's per-point height noise model, one standard
     # deviation per cause (prox_workflows/algorithms/noise.py), fitted to the simulator's truth by
     # ``python -m tools.bench.fusion --calibrate``, which prints these values and predicted vs
@@ -63,9 +57,6 @@ class DemParams(Settings):
                                    "(the cell's sampling of steep ground)", unit="m", min=0.0, max=1.0, option=False)
     tof_noise_multipath: float = param(0.01068, "ToF height noise: per metre of range x share of wall pixels nearby "
                                        "(multipath)", unit="m/m", min=0.0, max=1.0, option=False)
-    tof_cell_correlation: float = param(0.7, "correlation of the ToF points' errors within a cell (the cell's "
-                                        "variance is the points' / N x (1 + rho (N - 1)))", min=0.0, max=1.0,
-                                        option=False)
     stereo_noise_floor: float = param(0.0, "stereo height noise: floor", unit="m", min=0.0, max=1.0, option=False)
     stereo_noise_disparity: float = param(0.1324, "stereo height noise: disparity sigma (depth error z^2 "
                                           "sigma / (b f))", unit="px", min=0.0, max=100.0, option=False)
@@ -79,16 +70,6 @@ class DemParams(Settings):
                                       unit="m", min=0.0, max=1.0, option=False)
     stereo_noise_multipath: float = param(0.02663, "stereo height noise: per metre of range x share of wall "
                                           "pixels nearby", unit="m/m", min=0.0, max=1.0, option=False)
-    stereo_cell_correlation: float = param(1.0, "correlation of the stereo points' errors within a cell (see "
-                                           "tof_cell_correlation)", min=0.0, max=1.0, option=False)
-    tof_fuse_scatter: float = param(1.23, "ToF-stereo fusion: share of the squared deviation of a ToF cell from "
-                                    "the median of its neighbours added to its variance (the ToF map's own "
-                                    "evidence against the cell)", min=0.0, max=100.0, option=False)
-    stereo_fuse_scatter: float = param(1.66, "ToF-stereo fusion: the same for a stereo cell", min=0.0, max=100.0,
-                                       option=False)
-    fuse_gate: float = param(2.0, "ToF-stereo fusion: Mahalanobis gate between the two sensors' cell heights; "
-                             "past it the one the neighbouring cells support wins (chosen by the same "
-                             "calibration)", min=0.0, max=1000.0, option=False)
 
 
 @parameters("dem_stereo")

@@ -33,7 +33,7 @@ import yaml
 from rvs_params import SettingError, Settings, assignments
 
 from .algorithms.dem2hazard import HazardParams
-from .engine import run_workflow
+from .engine import run_workflow, script_parameters
 from .parameters import DemParams, DemStereoParams
 
 # The scripts --from can run: a script that acquires (dem) runs offline as its recorded-views
@@ -76,9 +76,10 @@ class RecordedJob:
     def param_class(self) -> type[Settings]:
         """The job's parameter class: the stereo one for dem-full/dem-update (their max_range
         default differs), the ToF one otherwise."""
-        if self.made_by in STEREO_COMMANDS or "sensor" in self.parameters:
-            return DemStereoParams
-        return DemParams
+        own = DemStereoParams if self.made_by in STEREO_COMMANDS or "sensor" in self.parameters else DemParams
+        cls = script_parameters(OFFLINE_SCRIPTS["dem"], own)
+        assert cls is not None
+        return cls
 
 
 def find_job(path: str | Path) -> RecordedJob:

@@ -385,6 +385,13 @@ class Settings:
         return cls(**kwargs)
 
     @classmethod
+    def picked_from(cls: type[S], source: Mapping[str, Any] | Settings) -> S:
+        """This class's own keys out of a wider set of values (a script's parameters, a command's
+        config that composes this class with others), each checked by its declaration."""
+        values = source.as_dict() if isinstance(source, Settings) else source
+        return cls.from_mapping({k: values[k] for k in cls.specs() if k in values})
+
+    @classmethod
     def parse_assignments(cls, items: Iterable[str] | str | None, *, flag: str = "--set") -> dict[str, Any]:
         """``key=value`` words (:func:`assignments`) typed and checked by each key's ParamSpec, as
         the wire checks an option; an unknown key is refused with the known ones."""

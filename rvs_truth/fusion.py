@@ -14,9 +14,16 @@ from scipy import ndimage
 
 from prox_workflows.algorithms.dem_mosaik import resample_nearest
 from prox_workflows.algorithms.stereo import rectification
+from prox_workflows.engine import script_parameters
 from prox_workflows.grid import GridGeometry
-from prox_workflows.parameters import DemParams
-from prox_workflows.steps.dem import mosaic, remove_spikes_layers, view_dem
+from prox_workflows.steps.dem import (
+    PointCorrelation,
+    SensorFusion,
+    SpikeRemoval,
+    mosaic,
+    remove_spikes_layers,
+    view_dem,
+)
 from prox_workflows.steps.read import read_views
 from prox_workflows.steps.scan import scan_rule
 from rvs_server.client.session import ServerThread, Session
@@ -73,17 +80,17 @@ def sensor_dems(views: list[Any], rover_mask: Any, ref: Any, params: Any = None,
                 ) -> dict[str, dict[str, np.ndarray]]:
     """The DEM chain's layers (after DemMosaik and spike removal; holes are not filled, so
     every defined cell was seen) from the ToF views alone, the stereo views alone and all of
-    them, each resampled onto ``ref``; ``params`` (default DemParams()) gives the chain's
+    them, each resampled onto ``ref``; ``params`` (default the dem script's) gives the chain's
     parameters."""
-    p = params if params is not None else DemParams()
+    p = params if params is not None else script_parameters("dem")()
     out = {}
     for name, keep in (("tof", {"tof"}), ("stereo", {"left"}), ("fused", {"tof", "left"})):
         if name not in names:
             continue
         vs = [v for v in views if v.sensor in keep]
-        dems = [view_dem(v, CELL, rover_mask, "mean", p.tof_cell_correlation, p.stereo_cell_correlation) for v in vs]
-        m = mosaic(dems, None, "fuse", CELL, scan_rule(vs), p.fuse_gate, p.tof_fuse_scatter, p.stereo_fuse_scatter)
-        m = remove_spikes_layers(m, p.spike_jump, p.spike_sigma, p.spike_points)
+        dems = [view_dem(v, CELL, rover_mask, "mean", PointCorrelation.picked_from(p)) for v in vs]
+        m = mosaic(dems, None, "fuse", CELL, scan_rule(vs), SensorFusion.picked_from(p))
+        m = remove_spikes_layers(m, SpikeRemoval.picked_from(p))
         out[name] = {k: resample_nearest(m[k], m.geometry, ref) for k in layers}
     return out
 

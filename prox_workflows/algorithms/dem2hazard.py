@@ -61,7 +61,6 @@ from rvs_params.hazard import (  # the thesis's black / grey / white
 from rvs_params.jit import HAVE_NUMBA
 
 from ..grid import Layers
-from ..params import parameters
 
 CONFIG_PATH = Path(__file__).resolve().parents[2] / "config" / "dem2hazard.yaml"
 
@@ -76,7 +75,6 @@ _kernel_made: list[Callable[..., None]] = []
 _kernel_lock = threading.Lock()
 
 
-@parameters("hazard")
 @dataclass
 class HazardParams(Settings):
     """Thresholds and window of Dem2Hazard: declared once here, with units and ranges; the

@@ -1,5 +1,5 @@
 """The path planner's parameters: :class:`PlanParams`, the settings the operator and the
-scripts set (registered as ``plan``; the ``plan_path`` step of :mod:`.planner` reads them), and
+scripts set (the ``plan_path`` step's own settings), and
 :class:`PlannerParams`, what :func:`.planner.plan_path` is called with, which takes its
 defaults and checks from them and adds what the caller knows of the rover."""
 
@@ -11,10 +11,7 @@ from typing import Any
 
 from rvs_params import Settings, param
 
-from ..params import parameters
 
-
-@parameters("plan")
 @dataclass
 class PlanParams(Settings):
     """Path planning on hazard and slope maps (a navigate leg, ``rvs-path-planner``): the settings an

@@ -25,14 +25,22 @@ import sys
 import time
 from pathlib import Path
 
-from rvs_params import SettingError
+from rvs_params import SettingError, Settings
 from rvs_params.hazard import UNDEFINED
 
-from ..algorithms.planner import PlannerParams, PlanningError, PlanParams
-from ..engine import WorkflowError, run_workflow
+from ..algorithms.planner import PlannerParams, PlanningError
+from ..engine import WorkflowError, run_workflow, script_parameters
 from .parser import ToolParser
 
 MADE_BY = "rvs-path-planner (prox_workflows.algorithms.planner)"
+SCRIPT = "path_planner"
+
+
+def _params() -> type[Settings]:
+    """The script's parameters: its steps' settings (the plan_path step's PlanParams)."""
+    cls = script_parameters(SCRIPT)
+    assert cls is not None
+    return cls
 
 
 def _point(text: str) -> tuple[float, float]:
@@ -61,7 +69,7 @@ def _global_maps(path: Path, origin: tuple[float, float], prefix: str) -> tuple[
 
 def build_parser() -> argparse.ArgumentParser:
     d = PlannerParams()
-    specs = PlanParams.specs()
+    specs = _params().specs()
     ap = ToolParser(prog="rvs-path-planner", description=__doc__.split("\n\n")[0],
                                  formatter_class=argparse.ArgumentDefaultsHelpFormatter)
     ap.add_argument("--hazard", type=Path, required=True, help="local hazard map GeoTIFF (0/128/255)")
@@ -76,7 +84,7 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--start", type=_point, required=True, help="x,y in metres")
     ap.add_argument("--goal", type=_point, required=True, help="x,y in metres")
     ap.add_argument("--start-heading", type=float, help="the rover's heading at the start, degrees")
-    for spec in specs.values():  # declared once, in the planner step's PlanParams (navigate's options are the same)
+    for spec in specs.values():  # declared once, beside the plan_path step (navigate's options are the same)
         ap.add_argument("--" + spec.name.replace("_", "-"), dest=spec.name, default=str(spec.default),
                         help=f"{spec.help} ({spec.describe()})")
     ap.add_argument("--rover-radius", type=float, default=d.rover_radius, help="m")
@@ -105,7 +113,7 @@ def main(argv: list[str] | None = None) -> int:
         except (OSError, ValueError) as exc:
             print(f"rvs-path-planner: --global {args.global_dem}: {exc}", file=sys.stderr)
             return 2
-    specs = PlanParams.specs()
+    specs = _params().specs()
     try:
         params = {name: spec.parse(str(getattr(args, name))) for name, spec in specs.items()}
     except SettingError as exc:
@@ -114,7 +122,7 @@ def main(argv: list[str] | None = None) -> int:
     inputs = [str(p) for p in (args.hazard, args.slope, args.global_hazard, args.global_slope, args.ortho) if p]
     t0 = time.perf_counter()
     try:
-        ws, log = run_workflow("path_planner", params, {
+        ws, log = run_workflow(SCRIPT, params, {
             "hazard": args.hazard, "slope": args.slope, "global_hazard": args.global_hazard,
             "global_slope": args.global_slope, "ortho_path": args.ortho, "start": list(args.start),
             "goal": list(args.goal), "start_heading": args.start_heading, "rover_radius": args.rover_radius,

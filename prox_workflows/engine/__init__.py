@@ -19,10 +19,11 @@ pipelines are, readers and writers included):
         phase: write                      # progress is reported per phase
         when: "$mesh"                     # optional: skip the step when the value is false
 
-Values: ``$name`` is a parameter (a field of the script's parameter class: declared once, with
-its default, there and nowhere else), ``$`` all of them as a dict (for a step whose settings are
-the parameter class, so that a new setting reaches it with no new wiring), ``@name`` a workspace value (``@a.b`` an attribute or key
-of it), anything else a literal. Each step's input types are its function's annotations, and it declares its
+Values: ``$name`` is a parameter, ``@name`` a workspace value (``@a.b`` an attribute or key of
+it), anything else a literal. A script's parameters are its own class's fields (``params:``, the
+settings no single step owns) and those of its steps' own settings classes
+(``@step(..., settings=SpikeRemoval)``), composed by :func:`.settings.script_parameters`: a step
+reads its settings with no wiring, and each is declared once, with its default, beside the step. Each step's input types are its function's annotations, and it declares its
 outputs with types (``@step("dem_import", outputs={"layers": "Layers"})``); :func:`validate` checks the whole script
 against those declarations before the first step runs (unknown step, unknown or missing input,
 type mismatch, unused output, a ``$param`` nobody supplies, ...) and names the script line and
@@ -30,7 +31,8 @@ the fix of every mistake. Cancellation is checked before every step and every lo
 progress is reported per phase; every step's time and outputs go to the run log.
 
 The engine is this package: :mod:`.types` (the value types and which fits where), :mod:`.registry`
-(``@step`` and the step modules), :mod:`.loader` (scripts from YAML, lines kept), :mod:`.validation`
+(``@step`` and the step modules), :mod:`.settings` (a script's parameters composed from its steps'
+settings), :mod:`.loader` (scripts from YAML, lines kept), :mod:`.validation`
 (the whole script checked first) and :mod:`.run` (phases, progress, cancellation, the run log).
 The ``rvs-prox`` program is :mod:`prox_workflows.cli.prox`.
 """
@@ -41,12 +43,13 @@ from .errors import Cancelled, ScriptError, WorkflowError
 from .loader import SCRIPTS_DIR, load_script, script_path
 from .registry import INJECTED, PARAMETER_MODULES, STEP_MODULES, StepSpec, registry, resolve_step, step
 from .run import Progress, RunLog, evaluate, phases_of, resolve_params, run_workflow
+from .settings import compose, script_parameters, step_settings
 from .types import compatible, literal_type
 from .validation import output_names, param_class, param_types, validate
 
 __all__ = [
     "INJECTED", "PARAMETER_MODULES", "SCRIPTS_DIR", "STEP_MODULES", "Cancelled", "Progress", "RunLog",
-    "ScriptError", "StepSpec", "WorkflowError", "compatible", "evaluate", "literal_type", "load_script",
+    "ScriptError", "StepSpec", "WorkflowError", "compatible", "compose", "evaluate", "literal_type", "load_script",
     "output_names", "param_class", "param_types", "phases_of", "registry", "resolve_params", "resolve_step",
-    "run_workflow", "script_path", "step", "validate",
+    "run_workflow", "script_parameters", "script_path", "step", "step_settings", "validate",
 ]

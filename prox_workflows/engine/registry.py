@@ -9,6 +9,8 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
+from rvs_params import Settings
+
 from .errors import WorkflowError
 from .types import annotation_type
 
@@ -26,8 +28,8 @@ INJECTED = ("progress", "cancelled", "run_log")
 
 @dataclass
 class StepSpec:
-    """A registered step: its function, the types of its inputs (from the function's annotations)
-    and the declared names and types of its outputs."""
+    """A registered step: its function, the types of its inputs (from the function's annotations),
+    the declared names and types of its outputs, and the class of its own settings."""
 
     name: str
     fn: Callable[..., Any]
@@ -35,15 +37,21 @@ class StepSpec:
     required: set[str]  # inputs without a default
     outputs: dict[str, str] | None  # output -> type, in the order a tuple result gives them; None: free
     accepts: set[str] = field(default_factory=set)  # injected keywords it takes (progress, ...)
+    settings: type[Settings] | None = None  # its own settings, the ``settings`` keyword
 
     @classmethod
-    def of(cls, name: str, fn: Callable[..., Any], outputs: dict[str, str] | str | None = None) -> StepSpec:
+    def of(cls, name: str, fn: Callable[..., Any], outputs: dict[str, str] | str | None = None,
+           settings: type[Settings] | None = None) -> StepSpec:
         sig = inspect.signature(fn)
         params = {n: p for n, p in sig.parameters.items() if p.kind not in (p.VAR_POSITIONAL, p.VAR_KEYWORD)}
         ins = {n: _input_type(p.annotation) for n, p in params.items() if n not in INJECTED}
+        if settings is not None:
+            if "settings" not in params or params["settings"].default is inspect.Parameter.empty:
+                raise TypeError(f"step {name}: a step with settings takes them as 'settings=None'")
+            ins["settings"] = "dict?"  # wired only to hand the step other values than the script's
         required = {n for n in ins if params[n].default is inspect.Parameter.empty}
         outs = {name: outputs} if isinstance(outputs, str) else (dict(outputs) if outputs is not None else None)
-        return cls(name, fn, ins, required, outs, {n for n in INJECTED if n in params})
+        return cls(name, fn, ins, required, outs, {n for n in INJECTED if n in params}, settings)
 
 
 _REGISTRY: dict[str, StepSpec] = {}
@@ -56,7 +64,7 @@ def _input_type(annotation: Any) -> str:
     return annotation_type(annotation if isinstance(annotation, str) else inspect.formatannotation(annotation))
 
 
-def step(name: str, *, outputs: dict[str, str] | str | None = None
+def step(name: str, *, outputs: dict[str, str] | str | None = None, settings: type[Settings] | None = None
          ) -> Callable[[Callable[..., Any]], Callable[..., Any]]:
     """Register a function as the workflow step ``name``.
 
@@ -64,10 +72,17 @@ def step(name: str, *, outputs: dict[str, str] | str | None = None
     those without a default are required); ``outputs`` names what it returns: ``{"dem":
     "Layers"}`` for one value, several names for a dict or tuple result. These are what
     :func:`validate` checks a script against, so a miswired script fails before anything runs.
+
+    ``settings`` is the step's own settings class, declared beside it, as a PDAL stage declares
+    its arguments: every script that calls the step has its fields as parameters
+    (:func:`.settings.script_parameters`), and the engine hands the step an instance of it as
+    ``settings`` (from the script's parameters, or from what ``in: {settings: ...}`` wires). A
+    setting of the step is then one ``param()`` in that class; its default, range, help, ``--set``,
+    ``config -set``, YAML and the server's command options all follow from it.
     """
 
     def register(fn: Callable[..., Any]) -> Callable[..., Any]:
-        _REGISTRY[name] = StepSpec.of(name, fn, outputs)
+        _REGISTRY[name] = StepSpec.of(name, fn, outputs, settings)
         return fn
 
     return register

@@ -32,8 +32,6 @@ class RunLog:
 
 
 def _lookup(ref: str, workspace: dict[str, Any], params: dict[str, Any]) -> Any:
-    if ref == "$":  # all the parameters, for a step that takes its settings whole
-        return dict(params)
     source = params if ref[0] == "$" else workspace
     head, *rest = ref[1:].split(".")
     if head not in source:
@@ -46,7 +44,7 @@ def _lookup(ref: str, workspace: dict[str, Any], params: dict[str, Any]) -> Any:
 
 
 def evaluate(expr: Any, workspace: dict[str, Any], params: dict[str, Any]) -> Any:
-    if isinstance(expr, str) and (expr == "$" or (len(expr) > 1 and expr[0] in "$@")):
+    if isinstance(expr, str) and len(expr) > 1 and expr[0] in "$@":
         return _lookup(expr, workspace, params)
     if isinstance(expr, list):
         return [evaluate(e, workspace, params) for e in expr]
@@ -140,13 +138,15 @@ def run_workflow(
             continue
         fn = resolve_step(name, steps)
         accepts = inspect.signature(fn).parameters
+        declared = registry().get(name)
+        settings = declared.settings if declared is not None else None
         t0 = time.perf_counter()
         if "foreach" in spec:
-            result: Any = _call_each(fn, spec, ws, merged, check)
+            result: Any = _call_each(fn, spec, ws, merged, check, settings)
         else:
             own = progress if own_count else None
-            result = fn(**_kwargs(spec, ws, merged, accepts, _phase_progress(own, phase), cancelled, log))
-        declared = registry().get(name)
+            kwargs = _kwargs(spec, ws, merged, accepts, _phase_progress(own, phase), cancelled, log)
+            result = fn(**_with_settings(kwargs, settings, merged))
         _store(spec, result, ws, name, list(declared.outputs) if declared and declared.outputs else None)
         log.add(name, time.perf_counter() - t0, outputs=output_names(spec.get("out")))
         if not (own_count and "progress" in accepts):
@@ -155,16 +155,28 @@ def run_workflow(
 
 
 def _call_each(fn: Callable[..., Any], spec: dict[str, Any], ws: dict[str, Any], merged: dict[str, Any],
-               check: Callable[[], None]) -> list[Any]:
+               check: Callable[[], None], settings: type[Settings] | None) -> list[Any]:
     """A foreach step: once per item (``@item``), the results in a list."""
     items = list(evaluate(spec["foreach"], ws, merged))
     results = []
     for item in items:
         check()
         ws["item"] = item
-        results.append(fn(**evaluate(spec.get("in") or {}, ws, merged)))
+        results.append(fn(**_with_settings(evaluate(spec.get("in") or {}, ws, merged), settings, merged)))
     ws.pop("item", None)
     return results
+
+
+def _with_settings(kwargs: dict[str, Any], settings: type[Settings] | None, merged: dict[str, Any]
+                   ) -> dict[str, Any]:
+    """A step's own settings: from the script's parameters, or what ``in: {settings: ...}``
+    wires (None: the declared defaults), checked by the class either way."""
+    if settings is not None:
+        if "settings" in kwargs:
+            kwargs["settings"] = settings.from_mapping(kwargs["settings"], where=f"{settings.__name__} (in: settings)")
+        else:
+            kwargs["settings"] = settings.picked_from(merged)
+    return kwargs
 
 
 def _phase_progress(progress: Progress | None, phase: str) -> Callable[[int, int, str], None]:

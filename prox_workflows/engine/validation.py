@@ -11,9 +11,10 @@ from typing import Any
 from rvs_params import Settings
 
 from ..params import PARAMETER_SETS
-from .errors import ScriptError
+from .errors import ScriptError, WorkflowError
 from .loader import Lined, load_script
 from .registry import StepSpec, registry
+from .settings import script_parameters
 from .types import PARAM_KIND, base_type, compatible, literal_type
 
 
@@ -29,11 +30,8 @@ def _suggest(name: str, known: Iterable[str]) -> str:
 
 
 def param_class(script: dict[str, Any]) -> type[Settings] | None:
-    name = script.get("params")
-    if isinstance(name, str):
-        registry()
-        return PARAMETER_SETS.get(name)
-    return None
+    """The script's parameters: its own class composed with its steps' settings."""
+    return script_parameters(script)
 
 
 def param_types(script: dict[str, Any], params: dict[str, Any] | None = None,
@@ -74,6 +72,10 @@ def validate(
     problems = [f"{where0}: unknown script key '{key}'; use one of {', '.join(sorted(SCRIPT_KEYS - {'_file'}))}"
                 for key in script if key not in SCRIPT_KEYS]
     problems += _param_class_problems(script, where0, param_cls)
+    try:
+        param_cls = param_cls or param_class(script)
+    except WorkflowError as exc:  # two steps' settings claim one name
+        problems.append(f"{where0}: {exc}")
     ptypes = param_types(script, params, param_cls)
     declared_params = script.get("params")
     if isinstance(declared_params, dict):  # reported above; do not report each of its names again
@@ -104,10 +106,12 @@ def _param_class_problems(script: dict[str, Any], where0: str, param_cls: type[S
         return [f"{where0}: 'params:' declares values ({', '.join(map(str, declared))}); a "
                 "parameter and its default are declared once, in its parameter class: write "
                 "'params: <class name>' and set values from the caller (--set)"]
-    if isinstance(declared, str) and param_cls is None and param_class(script) is None:
+    registry()  # the step modules register the parameter classes they declare
+    if isinstance(declared, str) and param_cls is None and declared not in PARAMETER_SETS:
         hint = _suggest(declared, PARAMETER_SETS)
         return [f"{where0}: no parameter class '{declared}'; {hint + ' ' if hint else ''}known: "
-                f"{', '.join(sorted(PARAMETER_SETS))} (prox_workflows/parameters.py)"]
+                f"{', '.join(sorted(PARAMETER_SETS))} (prox_workflows/parameters.py), or leave "
+                "'params:' out when the steps' own settings are all the script reads"]
     return []
 
 
@@ -161,10 +165,6 @@ class _Check:
             got = literal_type(expr)
             if not compatible(got, want):
                 self.problems.append(f"{where}: {what} wants {want} but the literal {expr!r} is {got}; give a {want}")
-            return
-        if expr == "$":  # all the parameters, as a dict
-            if not compatible("dict", want):
-                self.problems.append(f"{where}: {what} wants {want} but $ is all the parameters (a dict)")
             return
         if len(expr) < 2 or not expr[1:2].isidentifier():
             self.problems.append(f"{where}: {what} '{expr}' is not a reference; write $param or @value")
@@ -284,6 +284,13 @@ class _Check:
         if missing:
             self.problems.append(f"{where}: step {sname} needs input(s) {', '.join(missing)}; add them under in: "
                                  f"({', '.join(f'{m}: ...' for m in missing)})")
+        if sspec.settings is not None and "settings" not in wiring:
+            unread = [n for n in sspec.settings.specs() if n not in self.ptypes]
+            if unread:
+                self.problems.append(f"{where}: step {sname} reads its settings ({', '.join(unread)}) from the "
+                                     f"parameters, and the caller's class lacks them; derive it from "
+                                     f"script_parameters('{self.script.get('name', 'script')}') or wire "
+                                     "in: {settings: ...}")
 
     def _outputs(self, spec: dict[str, Any], sspec: StepSpec, where: str) -> None:
         out = spec.get("out")

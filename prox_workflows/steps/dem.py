@@ -3,7 +3,11 @@ removal, hole filling, ortho) so a script can chain them by name."""
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
+
+from rvs_params import Settings, param
 
 from ..algorithms.acquire import View
 from ..algorithms.dem_import import dem_import
@@ -18,9 +22,21 @@ from ..grid import GridGeometry, Layers
 step("dem_import", outputs={"dem": "Layers"})(dem_import)
 
 
-@step("view_dem", outputs={"dem": "Layers?"})
+@dataclass
+class PointCorrelation(Settings):
+    """How much of their error the points of one cell share, per sensor (calibrated with the
+    noise models by ``python -m tools.bench.fusion --calibrate``)."""
+
+    tof_cell_correlation: float = param(0.7, "correlation of the ToF points' errors within a cell (the cell's "
+                                        "variance is the points' / N x (1 + rho (N - 1)))", min=0.0, max=1.0,
+                                        option=False)
+    stereo_cell_correlation: float = param(1.0, "correlation of the stereo points' errors within a cell (see "
+                                           "tof_cell_correlation)", min=0.0, max=1.0, option=False)
+
+
+@step("view_dem", outputs={"dem": "Layers?"}, settings=PointCorrelation)
 def view_dem(view: View, cell: float, rover_mask: np.ndarray | None = None, height: str = "mean",
-             tof_correlation: float = 0.0, stereo_correlation: float = 0.0) -> Layers | None:
+             settings: PointCorrelation | None = None) -> Layers | None:
     """DemImport of one view's points, each with its noise-model variance.
 
     ``height`` is DemImport's rule for the ``dem`` layer (the mean for measured data, see
@@ -28,13 +44,14 @@ def view_dem(view: View, cell: float, rover_mask: np.ndarray | None = None, heig
     ``variance`` is cleared for the fusion. The N points of a cell share part of their error
     (a stereo match is smoothed over its neighbours, a ToF pixel's multipath over a patch), so
     their mean is not N times better: with correlation rho its variance is the independent
-    one times 1 + rho (N - 1), rho the sensor's (``tof_correlation`` / ``stereo_correlation``,
-    calibrated with the noise models). A view that saw nothing (sky, all beyond range) gives None.
+    one times 1 + rho (N - 1), rho the sensor's (:class:`PointCorrelation`). A view that saw
+    nothing (sky, all beyond range) gives None.
     """
     if len(view.points) == 0:
         return None
+    s = settings or PointCorrelation()
     layers = dem_import(view.points, cell=cell, point_variance=view.variance, rover_mask=rover_mask, height=height)
-    rho = tof_correlation if view.sensor == "tof" else stereo_correlation
+    rho = s.tof_cell_correlation if view.sensor == "tof" else s.stereo_cell_correlation
     if rho > 0 and "measurement_variance" in layers:
         n = np.maximum(np.asarray(layers["count"], np.float32), 1.0)
         layers["measurement_variance"] = (layers["measurement_variance"] * (1.0 + rho * (n - 1.0))).astype(np.float32)
@@ -60,10 +77,24 @@ def mosaik_layers(dems: list[Layers], rule: str = MOSAIK.rule, bounds: list[floa
                       on_conflict=on_conflict)
 
 
-@step("mosaic", outputs={"mosaic": "Layers"})
+@dataclass
+class SensorFusion(Settings):
+    """How a ToF DEM and a stereo DEM of one scan fuse (:func:`fuse_sensors`), chosen by the same
+    calibration as the noise models."""
+
+    tof_fuse_scatter: float = param(1.23, "ToF-stereo fusion: share of the squared deviation of a ToF cell from "
+                                    "the median of its neighbours added to its variance (the ToF map's own "
+                                    "evidence against the cell)", min=0.0, max=100.0, option=False)
+    stereo_fuse_scatter: float = param(1.66, "ToF-stereo fusion: the same for a stereo cell", min=0.0, max=100.0,
+                                       option=False)
+    fuse_gate: float = param(2.0, "ToF-stereo fusion: Mahalanobis gate between the two sensors' cell heights; "
+                             "past it the one the neighbouring cells support wins (chosen by the same "
+                             "calibration)", min=0.0, max=1000.0, option=False)
+
+
+@step("mosaic", outputs={"mosaic": "Layers"}, settings=SensorFusion)
 def mosaic(dems: list[Layers | None], base: Layers | None, rule: str, cell: float,
-           within_scan: str = "higher", gate: float = MOSAIK.gate, tof_scatter: float = 0.0,
-           stereo_scatter: float = 0.0) -> Layers:
+           within_scan: str = "higher", settings: SensorFusion | None = None) -> Layers:
     """DemMosaik of the views, then onto the current DEM (if any), on the union of extents.
 
     Views of one sensor in one scan disagree mostly where one sees a rock's top and another its
@@ -73,8 +104,7 @@ def mosaic(dems: list[Layers | None], base: Layers | None, rule: str, cell: floa
     they agree within ``gate`` standard deviations of their difference, else the one the
     neighbourhood supports - order-free, where fusing the views in acquisition order let
     whichever sensor came first keep a cell it had wrong; each sensor's cells count as less
-    certain the farther they stand from their neighbours (``tof_scatter`` / ``stereo_scatter``,
-    fuse_sensors's ``scatter``). Between scans a disagreement is a
+    certain the farther they stand from their neighbours (:class:`SensorFusion`). Between scans a disagreement is a
     change or an outlier, so the gate rejects it and inflates the prior's variance
     (elevation_mapping's rule).
     """
@@ -92,8 +122,9 @@ def mosaic(dems: list[Layers | None], base: Layers | None, rule: str, cell: floa
             g = union_geometry([v.geometry for v in views], cell)
             each = [dem_mosaik([v for v in views if v.meta.get("sensor", "") == s], rule="fuse", geometry=g,
                                on_conflict="higher") for s in sensors]
-            scan = fuse_sensors(each, geometry=g, gate=gate,
-                                scatter=[tof_scatter if s == "tof" else stereo_scatter for s in sensors])
+            f = settings or SensorFusion()
+            scan = fuse_sensors(each, geometry=g, gate=f.fuse_gate,
+                                scatter=[f.tof_fuse_scatter if s == "tof" else f.stereo_fuse_scatter for s in sensors])
     if base is None:
         assert scan is not None
         return scan
@@ -108,13 +139,27 @@ def fill_holes_layers(layers: Layers, radius: float) -> Layers:
     return fill_layers(layers, radius)
 
 
-@step("remove_spikes_layers", outputs={"layers": "Layers"})
-def remove_spikes_layers(layers: Layers, min_jump: float = 0.05, k: float = 4.0, max_points: int = 3) -> Layers:
-    """The workflow step: a copy of ``layers`` with the spikes of its ``dem`` undefined (and
-    their variance and count cleared), and a ``spikes`` layer (uint8, 1 where one was)."""
+@dataclass
+class SpikeRemoval(Settings):
+    """What makes a lone cell a spike (:func:`find_spikes`): flying pixels and multipath that
+    every neighbour contradicts."""
+
+    spike_jump: float = param(0.05, "a cell above (below) all its neighbours by more than this ...", unit="m",
+                              min=0.0, max=2.0, option=False)
+    spike_sigma: float = param(4.0, "... and by more than this many of its height's standard deviations ...",
+                               min=0.0, max=100.0, option=False)
+    spike_points: int = param(3, "... with at most this many points is a spike: made undefined, then filled",
+                              min=0, max=1000, option=False)
+
+
+@step("remove_spikes_layers", outputs={"layers": "Layers"}, settings=SpikeRemoval)
+def remove_spikes_layers(layers: Layers, settings: SpikeRemoval | None = None) -> Layers:
+    """A copy of ``layers`` with the spikes of its ``dem`` undefined (and their variance and
+    count cleared), and a ``spikes`` layer (uint8, 1 where one was)."""
+    s = settings or SpikeRemoval()
     dem = layers["dem"]
     mask = find_spikes(dem, layers["variance"] if "variance" in layers else None,
-                       layers["count"] if "count" in layers else None, min_jump, k, max_points)
+                       layers["count"] if "count" in layers else None, s.spike_jump, s.spike_sigma, s.spike_points)
     out = Layers(layers.geometry, dict(layers.layers), dict(layers.meta))
     out["dem"] = np.where(mask, np.nan, dem).astype(dem.dtype)
     if "variance" in layers:

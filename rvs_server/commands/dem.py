@@ -11,8 +11,8 @@ from dataclasses import dataclass
 from typing import Any, ClassVar
 
 from prox_workflows.algorithms.dem2hazard import HazardParams
-from prox_workflows.engine import validate
-from prox_workflows.parameters import DemParams, DemStereoParams
+from prox_workflows.engine import script_parameters, validate
+from prox_workflows.parameters import DemStereoParams
 
 from ..config import ModuleConfig, param, standalone
 from ..jobs import Job
@@ -20,9 +20,12 @@ from ..maps import load_recovery
 from ..scanning import DEM_INPUTS, DEM_SCRIPT, ScanOptions, check_update, run_dem
 from ..table import CONTROL, HARDWARE, command
 
-# The parameters are declared once, in the workflow's parameter classes (prox_workflows.parameters:
-# the dem script and rvs-prox read the same declarations); these add the module name the server's
-# configuration (config/<module>.yaml, config -module, help) knows them by.
+# The parameters are declared once, in the dem script's own class (prox_workflows.parameters) and
+# its steps' settings classes, composed by script_parameters (the dem script and rvs-prox read the
+# same declarations); these add the module name the server's configuration (config/<module>.yaml,
+# config -module, help) knows them by.
+DemParams = script_parameters(DEM_SCRIPT)
+DemStereoScriptParams = script_parameters(DEM_SCRIPT, DemStereoParams)
 
 
 @standalone
@@ -44,7 +47,7 @@ class DemUpdateTofConfig(DemTofConfig):
 
 
 @dataclass
-class DemStereoConfig(ScanOptions, DemStereoParams, ModuleConfig):
+class DemStereoConfig(ScanOptions, DemStereoScriptParams, ModuleConfig):
     """dem-full / dem-update: the same options as the ToF commands, plus the stereo ones."""
 
     module: ClassVar[str] = "dem_full"

@@ -2,10 +2,25 @@
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
+import numpy as np
 import pytest
 
+from prox_workflows.algorithms.dem2hazard import HazardParams
 from prox_workflows.cli.prox import main
-from prox_workflows.engine import Cancelled, WorkflowError, run_workflow
+from prox_workflows.engine import (
+    Cancelled,
+    ScriptError,
+    WorkflowError,
+    compose,
+    run_workflow,
+    script_parameters,
+    validate,
+)
+from prox_workflows.grid import GridGeometry, Layers
+from prox_workflows.steps.dem import SensorFusion, SpikeRemoval
+from rvs_params import SettingError, Settings, param
 
 SCRIPT = {
     "name": "demo",
@@ -32,11 +47,52 @@ def test_wiring_loops_and_conditions() -> None:
     assert ws["sum"] == 60 and "doubled" not in ws and log.entries[-1]["skipped"] is True
 
 
-def test_dollar_alone_hands_a_step_all_the_parameters() -> None:
-    script = {"name": "whole", "outputs": ["settings"],
-              "steps": [{"step": "keep", "in": {"settings": "$"}, "out": "settings"}]}
-    ws, _ = run_workflow(script, {"scale": 3, "double": False}, steps={"keep": lambda settings: settings})
-    assert ws["settings"] == {"scale": 3, "double": False}
+SPIKES = {"name": "despike", "inputs": {"layers": "Layers"}, "outputs": ["despiked"],
+          "steps": [{"step": "remove_spikes_layers", "in": {"layers": "@layers"}, "out": "despiked"}]}
+
+
+def _spiked() -> Layers:
+    """Flat ground, well measured, with one lone cell 0.2 m up seen by one point."""
+    dem = np.zeros((20, 20), np.float32)
+    dem[10, 10] = 0.2
+    count = np.full((20, 20), 10, np.int32)
+    count[10, 10] = 1
+    return Layers(GridGeometry(0.02, 0.0, 0.4, 20, 20),
+                  {"dem": dem, "variance": np.full((20, 20), 1e-6, np.float32), "count": count})
+
+
+def test_a_step_reads_its_own_settings_from_the_script_parameters_with_no_wiring() -> None:
+    composed = script_parameters(SPIKES)
+    assert composed is SpikeRemoval  # the script declares nothing else
+    ws, _ = run_workflow(SPIKES, None, {"layers": _spiked()})
+    assert np.isnan(ws["despiked"]["dem"][10, 10])  # 0.2 m > spike_jump 0.05: a spike
+    ws, _ = run_workflow(SPIKES, {"spike_jump": 0.5}, {"layers": _spiked()})
+    assert ws["despiked"]["dem"][10, 10] == pytest.approx(0.2)  # the caller's value reached the step
+    with pytest.raises(SettingError, match="spike-jump is 5, out of range"):
+        run_workflow(SPIKES, {"spike_jump": 5.0}, {"layers": _spiked()})  # checked by its declaration (max 2)
+
+
+def test_a_wired_settings_mapping_replaces_the_parameters_and_is_no_parameter_of_the_script() -> None:
+    wired = {**SPIKES, "steps": [{"step": "remove_spikes_layers", "in": {"layers": "@layers",
+                                                                         "settings": {"spike_jump": 0.5}},
+                                  "out": "despiked"}]}
+    assert script_parameters(wired) is None
+    ws, _ = run_workflow(wired, None, {"layers": _spiked()})
+    assert ws["despiked"]["dem"][10, 10] == pytest.approx(0.2)
+    bad = {**SPIKES, "steps": [{**wired["steps"][0], "in": {"layers": "@layers", "settings": {"spike_jmp": 1}}}]}
+    with pytest.raises(SettingError, match="unknown key 'spike_jmp'"):
+        run_workflow(bad, None, {"layers": _spiked()})
+
+
+def test_two_declarations_of_one_parameter_are_refused_and_a_caller_class_must_hold_the_step_settings() -> None:
+    @dataclass
+    class Own(Settings):
+        spike_jump: float = param(0.1, "a second declaration")
+
+    with pytest.raises(WorkflowError, match="'spike_jump' is declared by both Own and SpikeRemoval"):
+        compose(Own, (SpikeRemoval,))
+    with pytest.raises(ScriptError, match=r"reads its settings \(spike_jump, spike_sigma, spike_points\)"):
+        validate(SPIKES, workspace=["layers"], param_cls=HazardParams)
 
 
 def test_progress_is_per_phase_with_a_fixed_total_and_a_growing_done() -> None:
@@ -125,4 +181,5 @@ def test_a_steps_input_types_are_its_annotations() -> None:
     assert annotation_type("dict[str, Any] | None") == "dict?" and annotation_type("int | str") == "any"
     spec = registry()["mosaic"]
     assert spec.inputs["dems"] == "list[Layers?]" and spec.inputs["base"] == "Layers?"
-    assert spec.inputs["gate"] == "float" and spec.required == {"dems", "base", "rule", "cell"}
+    assert spec.inputs["within_scan"] == "str" and spec.required == {"dems", "base", "rule", "cell"}
+    assert spec.settings is SensorFusion and spec.inputs["settings"] == "dict?"  # its own, not a wire's

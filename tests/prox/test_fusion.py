@@ -20,9 +20,10 @@ from prox_workflows.algorithms.noise import (
     stereo_point_variance,
     tof_point_variance,
 )
+from prox_workflows.engine import script_parameters
 from prox_workflows.grid import GridGeometry, Layers
 from prox_workflows.parameters import DemParams
-from prox_workflows.steps.dem import mosaic, view_dem
+from prox_workflows.steps.dem import PointCorrelation, SensorFusion, mosaic, view_dem
 
 G = GridGeometry(0.02, 0.0, 1.0, 50, 50)
 
@@ -42,8 +43,9 @@ def test_every_model_term_is_a_declared_parameter_with_its_calibrated_default() 
     p = DemParams()
     assert model_sigmas(p, "tof")["edge"] == p.tof_noise_edge
     assert model_sigmas(p, "stereo")["disparity"] == p.stereo_noise_disparity
+    # the chain's own settings (PointCorrelation, SensorFusion) are the dem script's parameters too
     assert {"tof_cell_correlation", "stereo_cell_correlation", "tof_fuse_scatter", "stereo_fuse_scatter",
-            "fuse_gate"} <= names
+            "fuse_gate"} <= {f.name for f in fields(script_parameters("dem"))}
 
 
 def test_models_grow_with_range_and_stereo_with_depth_squared() -> None:
@@ -163,16 +165,18 @@ def _view(sensor: str, z: np.ndarray, var: float, index: int) -> View:
 def test_view_dem_correlation_and_the_two_sensor_mosaic() -> None:
     z = np.zeros((10, 10))
     tv = _view("tof", z, 1e-4, 0)
-    independent = view_dem(tv, 0.02)
-    correlated = view_dem(tv, 0.02, tof_correlation=1.0)
+    independent = view_dem(tv, 0.02, settings=PointCorrelation(0.0, 0.0))
+    correlated = view_dem(tv, 0.02, settings=PointCorrelation(1.0, 0.0))
     n = correlated["count"][np.isfinite(correlated["dem"])]
     assert np.all(n == 4)
     ratio = correlated["measurement_variance"] / independent["measurement_variance"]
     assert np.nanmax(np.abs(ratio - 4.0)) < 1e-4  # fully correlated: the mean is no better than one point
-    assert view_dem(_view("left", z, 1e-4, 1), 0.02, tof_correlation=1.0)["measurement_variance"][0, 0] == \
-        pytest.approx(independent["measurement_variance"][0, 0])
+    assert view_dem(_view("left", z, 1e-4, 1), 0.02, settings=PointCorrelation(1.0, 0.0))[
+        "measurement_variance"][0, 0] == pytest.approx(independent["measurement_variance"][0, 0])
     sv = _view("left", z + 0.001, 4e-4, 1)
-    m = mosaic([view_dem(tv, 0.02), view_dem(sv, 0.02)], None, "fuse", 0.02, "inflate", 2.5)
+    alone = PointCorrelation(0.0, 0.0)
+    m = mosaic([view_dem(tv, 0.02, settings=alone), view_dem(sv, 0.02, settings=alone)], None, "fuse", 0.02,
+               "inflate", SensorFusion(0.0, 0.0, 2.5))
     assert m.meta["rule"] == "fuse_sensors"
     cell = m["dem"][np.isfinite(m["dem"])]
     assert np.allclose(cell, 0.001 * 1e-4 / 5e-4, atol=1e-6)  # 1 : 4 by the variances

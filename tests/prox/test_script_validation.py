@@ -56,8 +56,8 @@ BROKEN = [
      "wants float but $rule is str"),
     ("unused output", "  - step: mosaic", "  - step: scan_rule\n    in: {views: \"@views\"}\n    out: rule\n"
      "  - step: mosaic", "step: scan_rule", "output 'rule' is never used; read it in a later step"),
-    ("all the parameters where a number goes", "radius: $fill_radius", 'radius: "$"', "step: fill_holes_layers",
-     "wants float but $ is all the parameters (a dict)"),
+    ("a number where a step's own settings go", "within_scan: higher}", "within_scan: higher, settings: 2}",
+     "step: mosaic", "input settings of mosaic wants dict? but the literal 2 is int"),
     ("parameter nobody supplies", "radius: $fill_radius", "radius: $fill_radiu", "step: fill_holes_layers",
      "$fill_radiu, which no one supplies; did you mean 'fill_radius'"),
     ("second default in the script", "params: dem", "params: {cell: 0.02}", None,
