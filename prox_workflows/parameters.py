@@ -1,12 +1,13 @@
-"""The parameter classes of the workflow scripts that no single step owns (a step's own settings
-class lives beside it: DemMosaik's, Dem2Hazard's): each parameter declared once, with its default.
+"""The parameter classes of the workflow scripts for what no single registered step owns: settings
+several steps share (the cell size), and the acquisition the server supplies (views, ranges, the
+sensors' noise models). A step's own settings class lives beside the step (``SpikeRemoval`` in
+steps/dem.py) and joins every script that calls it (:func:`prox_workflows.engine.script_parameters`).
 
 A script names its class (``params: dem``) and reads the values as ``$cell``; the server's
-command config classes derive from these (``DemTofConfig(DemParams, ModuleConfig)``), so a
-parameter's default, range, unit and help are written here and nowhere else: ``help
-dem-full-tof`` and ``rvs-prox dem --help`` print the same list. Fields with ``option=False`` are
-settings (``config -module dem_full_tof -set spike_jump=0.04``, ``rvs-prox --set``), not request
-options.
+command config classes derive from the composed class, so a parameter's default, range, unit and
+help are written once: ``help dem-full-tof`` and ``rvs-prox dem --help`` print the same list.
+Fields with ``option=False`` are settings (``config -module dem_full_tof -set spike_jump=0.04``,
+``rvs-prox --set``), not request options.
 """
 
 from __future__ import annotations

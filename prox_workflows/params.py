@@ -1,11 +1,12 @@
-"""Parameters declared once: a workflow script's parameter class, registered by name.
+"""Parameters declared once: a workflow script's own parameter class, registered by name.
 
 A parameter class (a :class:`rvs_params.Settings` dataclass of :func:`rvs_params.param`
-fields) is the one declaration of a workflow's parameters and their defaults: a script names its
-class (``params: dem``) and receives the values as ``$cell`` etc.; ``rvs-prox SCRIPT --help``
-lists the class; the server's per-command config classes (``rvs_server/commands/*.py``) derive
-from it, so ``help dem-full-tof`` lists the same parameters with the same defaults, and its E_ARG
-checks are the same ``ParamSpec.parse``.
+fields) declares the parameters no single step owns: a script names its class (``params: dem``)
+and receives the values as ``$cell`` etc. Its steps' own settings classes join it
+(:func:`prox_workflows.engine.script_parameters`); ``rvs-prox SCRIPT --help`` lists the result,
+and the server's per-command config classes (``rvs_server/commands/*.py``) derive from it, so
+``help dem-full-tof`` lists the same parameters with the same defaults, and its E_ARG checks are
+the same ``ParamSpec.parse``.
 """
 
 from __future__ import annotations
