@@ -10,6 +10,7 @@ from pathlib import Path
 
 import pytest
 
+from prox_workflows.cli import dem2hazard, dem_import, dem_mosaik, path_planner
 from prox_workflows.cli.path_planner import build_parser
 from prox_workflows.cli.prox import main as rvs_prox
 from prox_workflows.engine import SCRIPTS_DIR, load_script, registry, script_parameters, step_settings
@@ -110,3 +111,15 @@ def test_rvs_prox_help_lists_every_parameter_with_its_declared_default(script: s
     for name, spec in script_parameters(script).specs().items():
         shown = show_value(spec.default)
         assert f"  {name}: {spec.describe()}{f'; default {shown}' if shown else ''}: " in text, name
+
+
+@pytest.mark.parametrize("cli,script", [(dem_import, "dem_import"), (dem_mosaik, "dem_mosaik"),
+                                        (dem2hazard, "dem2hazard"), (path_planner, "path_planner")],
+                         ids=lambda v: v if isinstance(v, str) else "")
+def test_each_cli_offers_every_parameter_of_its_script(cli: object, script: str,
+                                                      capsys: pytest.CaptureFixture[str]) -> None:
+    with pytest.raises(SystemExit):
+        cli.main(["--help"])  # type: ignore[attr-defined]
+    text = " ".join(capsys.readouterr().out.split())  # argparse wraps its lines
+    for name in script_parameters(script).specs():
+        assert "--" + name.replace("_", "-") in text, name

@@ -26,8 +26,7 @@ import numpy as np
 from rvs_params import SettingError
 
 from ..algorithms.dem_import import cells_from_bounds
-from ..algorithms.dem_mosaik import DemMosaikParams
-from ..engine import WorkflowError, run_workflow
+from ..engine import WorkflowError, run_workflow, script_parameters
 from ..grid import parse_crs
 from ..layers import prefix_of
 from .parser import ToolParser
@@ -36,13 +35,13 @@ MADE_BY = "rvs-dem-mosaik (prox_workflows.algorithms.dem_mosaik)"
 
 
 def main(argv: list[str] | None = None) -> int:
-    specs = DemMosaikParams.specs()
+    specs = script_parameters("dem_mosaik").specs()  # type: ignore[union-attr]
     ap = ToolParser(prog="rvs-dem-mosaik", description=__doc__.split("\n\n")[0],
                     formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("inputs", nargs="+", type=Path, help="DEM GeoTIFFs, oldest first")
     ap.add_argument("-o", "--output", type=Path, required=True, help="the mosaic DEM GeoTIFF")
     ap.add_argument("--bounds", help="xmin,ymin,xmax,ymax of the output; default: the union of the inputs")
-    for spec in specs.values():  # the script's parameters, declared once in DemMosaikParams
+    for spec in specs.values():  # the script's parameters: DemMosaikParams and its steps' settings
         ap.add_argument("--" + spec.name.replace("_", "-"), dest=spec.name, default=None,
                         help=f"{spec.help} ({spec.describe()}; default {spec.default})")
     ap.add_argument("--crs", help="the CRS of the inputs' x and y, as an EPSG code (e.g. EPSG:32611 for UTM 11N), written into every GeoTIFF and sidecar; default: the inputs' own CRS, else the rover's local frame")
