@@ -10,6 +10,7 @@ from scipy import ndimage
 
 from drivers.sim.world import World
 from prox_workflows.algorithms.dem2hazard import HazardParams, dem2hazard
+from prox_workflows.algorithms.vehicle import check_poses, densify, unsafe_events
 from prox_workflows.grid import GridGeometry
 from rvs_params.hazard import HAZARDOUS, SAFE, UNDEFINED
 
@@ -34,7 +35,12 @@ def true_hazard(world: World, bounds: tuple[float, float, float, float]) -> tupl
 
 
 def missions(scene: str, count: int, seed: int = 0) -> list[tuple[tuple[float, float], tuple[float, float]]]:
-    """``count`` seeded (start, goal) pairs 15-20 m apart, both >= 1 m from every true hazard."""
+    """``count`` seeded (start, goal) pairs 15-20 m apart, both >= 1 m from every true hazard,
+    each start one the rover can be set down on and turn on the spot at (:func:`set_down_safe`).
+
+    The hazard map's 15 cm step limit is above the body's own limits, so a start 1 m from its
+    hazards can still put a wheel on a step or the belly on a rock; a loop that takes the ground
+    it is set down on as clear (as navigate does) would then be blamed for the start."""
     world = World.from_scene(scene)
     hazard, g = true_hazard(world, AREA[scene])
     clear = (ndimage.distance_transform_edt(hazard != HAZARDOUS) * g.cell >= 1.0) & (hazard == SAFE)
@@ -46,9 +52,18 @@ def missions(scene: str, count: int, seed: int = 0) -> list[tuple[tuple[float, f
         i, j = rng.integers(len(rows), size=2)
         s = (round(float(xs[cols[i]]), 2), round(float(ys[rows[i]]), 2))
         e = (round(float(xs[cols[j]]), 2), round(float(ys[rows[j]]), 2))
-        if 15.0 <= math.hypot(e[0] - s[0], e[1] - s[1]) <= 20.0:
+        if 15.0 <= math.hypot(e[0] - s[0], e[1] - s[1]) <= 20.0 and set_down_safe(world, scene, s):
             out.append((s, e))
     return out
+
+
+def set_down_safe(world: World, scene: str, xy: tuple[float, float]) -> bool:
+    """Whether the rover set down at ``xy`` can stand there at every heading, turning on the spot
+    (the first thing a mission does), without a wheel, its belly or its tilt past the body's
+    limits on the true 1 cm surface."""
+    fine, g, _ = truth_surface(world, scene)
+    turn = densify(np.array([(xy[0], xy[1], h) for h in (0.0, 90.0, 180.0, 270.0, 360.0)]), 0.02, world.body)
+    return not unsafe_events(check_poses(fine, g, turn, world.body), turn, world.body)
 
 
 def pick_start_goal(world: World, scene: str, seed: int) -> tuple[tuple[float, float], tuple[float, float]]:

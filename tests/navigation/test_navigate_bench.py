@@ -9,7 +9,10 @@ import numpy as np
 import pytest
 
 from drivers.sim.rover import RoverBody
+from drivers.sim.world import World
+from prox_workflows.algorithms.vehicle import check_poses, densify
 from prox_workflows.grid import GridGeometry
+from rvs_truth.surface import missions, set_down_safe, truth_surface
 from rvs_truth.vehicle import (
     capability_hazard,
     cross_track,
@@ -72,3 +75,17 @@ def test_stop_reasons_and_the_thresholds_a_mission_runs_with() -> None:
     assert mission_hazard(("dem2hazard.step_max=0.06", "navigate.margin=0.05")) == {"step_max": 0.06,
                                                                                     "slope_max": 20.0}
     assert capability_hazard(RoverBody()) == {"step_max": 0.08, "slope_max": 19.3}
+
+
+def test_every_mission_start_is_one_the_rover_can_be_set_down_and_turn_at() -> None:
+    """(-3.67, 2.62) in marsyard is 1 m from every hazard of the 15 cm map, yet a full turn there
+    puts the body past its own limits on the true surface: the missions refuse it and draw on."""
+    world = World.from_scene("marsyard")
+    unsafe = (-3.67, 2.62)
+    assert not set_down_safe(world, "marsyard", unsafe)
+    drawn = missions("marsyard", 8)
+    assert unsafe not in [s for s, _ in drawn] and len(drawn) == 8
+    fine, g, _ = truth_surface(world, "marsyard")
+    for start, _ in drawn:
+        turn = densify(np.array([(*start, h) for h in (0.0, 120.0, 240.0, 360.0)]), 0.02, world.body)
+        assert check_poses(fine, g, turn, world.body).safe.all(), start
