@@ -80,7 +80,6 @@ class DemStereoParams(DemParams):
 
     sensor: str = param("stereo", "sensor: the stereo pair, or stereo and ToF fused", choices=("stereo", "fused"))
     max_range: float = param(6.0, "ignore points farther than this from the sensor", unit="m", min=0.3, max=30.0)
-    resolution: str = param("low", "stereo resolution mode", choices=("low", "medium", "high", "highest"))
     stereo_scale: float = param(1.0, "matching scale (0.5: half resolution, faster)", min=0.25, max=1.0,
                                 option=False)
 

@@ -316,7 +316,7 @@ def build_parser() -> argparse.ArgumentParser:
     sim = sub.add_parser("sim-truth", help="write the simulator's true calibration (needs drivers.sim)")
     sim.add_argument("-o", "--output", type=Path, required=True, help="CALIB.yaml to write")
     sim.add_argument("--scene", default="office")
-    sim.add_argument("--resolution", default="high", choices=("low", "medium", "high", "highest"))
+    sim.add_argument("--resolution", default="high", help="the stereo pair's resolution mode (the driver's)")
     sim.add_argument("--tof", type=Path, help="also write the true ToF -> left transform here")
     sim.set_defaults(func=cmd_sim_truth)
 

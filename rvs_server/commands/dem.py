@@ -10,6 +10,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any, ClassVar
 
+from drivers.stereo.modes import RESOLUTIONS
 from prox_workflows.algorithms.dem2hazard import HazardParams
 from prox_workflows.engine import script_parameters, validate
 from prox_workflows.parameters import DemStereoParams
@@ -49,6 +50,8 @@ class DemUpdateTofConfig(DemTofConfig):
 @dataclass
 class DemStereoConfig(ScanOptions, DemStereoScriptParams, ModuleConfig):
     """dem-full / dem-update: the same options as the ToF commands, plus the stereo ones."""
+
+    resolution: str = param("low", "stereo resolution mode", choices=tuple(RESOLUTIONS))
 
     module: ClassVar[str] = "dem_full"
 
