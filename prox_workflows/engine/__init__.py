@@ -23,12 +23,14 @@ Values: ``$name`` is a parameter, ``@name`` a workspace value (``@a.b`` an attri
 it), anything else a literal. A script's parameters are its own class's fields (``params:``, the
 settings no single step owns) and those of its steps' own settings classes
 (``@step(..., settings=SpikeRemoval)``), composed by :func:`.settings.script_parameters`: a step
-reads its settings with no wiring, and each is declared once, with its default, beside the step. Each step's input types are its function's annotations, and it declares its
-outputs with types (``@step("dem_import", outputs={"layers": "Layers"})``); :func:`validate` checks the whole script
+reads its settings with no wiring, and each is declared once, with its default, beside the step.
+Each step's input types are its function's annotations, and it declares its outputs with types
+(``@step("dem_import", outputs={"layers": "Layers"})``); :func:`validate` checks the whole script
 against those declarations before the first step runs (unknown step, unknown or missing input,
-type mismatch, unused output, a ``$param`` nobody supplies, ...) and names the script line and
-the fix of every mistake. Cancellation is checked before every step and every loop item;
-progress is reported per phase; every step's time and outputs go to the run log.
+type mismatch, unused output, a ``$param`` nobody supplies, a step setting its caller's class
+lacks, ...) and names the script line and the fix of every mistake. Cancellation is checked
+before every step and every loop item; progress is reported per phase; every step's time and
+outputs go to the run log.
 
 The engine is this package: :mod:`.types` (the value types and which fits where), :mod:`.registry`
 (``@step`` and the step modules), :mod:`.settings` (a script's parameters composed from its steps'
