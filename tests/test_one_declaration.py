@@ -123,3 +123,4 @@ def test_each_cli_offers_every_parameter_of_its_script(cli: object, script: str,
     text = " ".join(capsys.readouterr().out.split())  # argparse wraps its lines
     for name in script_parameters(script).specs():
         assert "--" + name.replace("_", "-") in text, name
+    assert "None" not in text  # an option without a default says what happens instead

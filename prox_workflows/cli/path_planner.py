@@ -30,6 +30,7 @@ from rvs_params.hazard import UNDEFINED
 
 from ..algorithms.planner import PlannerParams, PlanningError
 from ..engine import WorkflowError, run_workflow, script_parameters
+from ..params import show_value
 from .parser import ToolParser
 
 MADE_BY = "rvs-path-planner (prox_workflows.algorithms.planner)"
@@ -70,8 +71,7 @@ def _global_maps(path: Path, origin: tuple[float, float], prefix: str) -> tuple[
 def build_parser() -> argparse.ArgumentParser:
     d = PlannerParams()
     specs = _params().specs()
-    ap = ToolParser(prog="rvs-path-planner", description=__doc__.split("\n\n")[0],
-                                 formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+    ap = ToolParser(prog="rvs-path-planner", description=__doc__.split("\n\n")[0])
     ap.add_argument("--hazard", type=Path, required=True, help="local hazard map GeoTIFF (0/128/255)")
     ap.add_argument("--slope", type=Path, required=True, help="local slope map GeoTIFF (degrees)")
     ap.add_argument("--global-hazard", type=Path, help="global hazard map GeoTIFF")
@@ -79,21 +79,22 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--global", dest="global_dem", type=Path,
                     help="global DEM (or hazard map) GeoTIFF in any CRS in metres, instead of --global-hazard/slope")
     ap.add_argument("--global-origin", type=_point, default=(0.0, 0.0),
-                    help="E,N: the maps' frame origin in the --global file's CRS")
+                    help="E,N: the maps' frame origin in the --global file's CRS (default 0,0)")
     ap.add_argument("--ortho", type=Path, help="ortho-image GeoTIFF to draw the plan on")
     ap.add_argument("--start", type=_point, required=True, help="x,y in metres")
     ap.add_argument("--goal", type=_point, required=True, help="x,y in metres")
     ap.add_argument("--start-heading", type=float, help="the rover's heading at the start, degrees")
     for spec in specs.values():  # declared once, beside the plan_path step (navigate's options are the same)
         ap.add_argument("--" + spec.name.replace("_", "-"), dest=spec.name, default=str(spec.default),
-                        help=f"{spec.help} ({spec.describe()})")
-    ap.add_argument("--rover-radius", type=float, default=d.rover_radius, help="m")
+                        help=f"{spec.help} ({spec.describe()}; default {show_value(spec.default)})")
+    ap.add_argument("--rover-radius", type=float, default=d.rover_radius, help=f"m (default {d.rover_radius:g})")
     ap.add_argument("--rover-half-width", type=float, default=0.2,
-                    help="m: half the rover's width, for --footprint body")
+                    help="m: half the rover's width, for --footprint body (default 0.2)")
     ap.add_argument("--critical-slope", type=float, default=d.critical_slope,
-                    help="slope (deg) whose cost equals unknown ground's at --unknown-cost 1")
+                    help=f"slope (deg) whose cost equals unknown ground's at --unknown-cost 1 (default "
+                         f"{d.critical_slope:g})")
     ap.add_argument("--unknown-cost", type=float, default=d.unknown_cost,
-                    help="environmental cost of unknown ground (inf: never enter it)")
+                    help=f"environmental cost of unknown ground (inf: never enter it; default {d.unknown_cost:g})")
     ap.add_argument("-o", "--output", required=True, help="output prefix (PREFIX_path.csv ...)")
     return ap
 
