@@ -20,6 +20,7 @@ import numpy as np
 import structlog
 
 from drivers.base import DeviceError
+from drivers.call_images import CallImage, carries_images, images_of
 from prox_workflows.algorithms.transforms import HeadCalibration
 from prox_workflows.grid import GridGeometry, Layers
 
@@ -42,8 +43,6 @@ TRACK_EVERY = 1.0  # s between track updates (it grows to thousands of points)
 TRACK_POINTS = 5000
 TRACK_STEP = 0.02  # m the rover moves before the track gets a point
 MAX_QUEUED = 512  # items the thread may lag behind (a 24-view scan queues about 50)
-# The driver calls whose results are frames, and what each one returns.
-FRAME_CALLS = {"grab_xyz", "grab", "grab_stereo", "grab_mono", "grab_stereo_direct", "grab_mono_direct", "images"}
 BOUNDS_TOPIC = "/nav/bounds"
 BOUNDS_EVERY = 10  # see-loop frames between two sends of the bounds map (a replan sends it too)
 
@@ -84,8 +83,9 @@ class Telemetry:
         each replan, and only when someone listens; otherwise the hub keeps the map itself."""
         if item.kind == "frame":
             link = self._link
-            # a call that returns no frame (a PTU move) is only for a recording's /raw/calls
-            if link is None or not (link.wants_any() if item.data["call"] in FRAME_CALLS else link.recording):
+            # a call that returns no image (a PTU move) is only for a recording's /raw/calls
+            frame = carries_images(item.data["device"], item.data["call"])
+            if link is None or not (link.wants_any() if frame else link.recording):
                 return
             copied = _copied(item.data["result"])
             item = Item(item.kind, item.time_ns, {**item.data, "result": copied, "state": self._state()})
@@ -234,50 +234,47 @@ class Telemetry:
         self._latch(BOUNDS_TOPIC, item.time_ns, m.grid, item.time_ns, *item.data["window"])
 
     def _on_frame(self, item: Item) -> None:
-        t, call, result = item.time_ns, item.data["call"], item.data["result"]
+        t, device, result = item.time_ns, item.data["device"], item.data["result"]
         self._log_state(t, item.data["state"])
         self._log_call(item)
-        if call not in FRAME_CALLS:
-            return
-        if item.data["device"] == "tof":
-            if call == "grab_xyz":
-                xyz, amplitude = result
-                self._log("/tof/points", t, m.point_cloud, t, "tof", xyz, amplitude)
-                self._log("/tof/depth", t, m.depth, t, "tof", xyz)
-                self._log("/tof/amplitude", t, m.raw_image, t, "tof", amplitude)
-                self._log("/raw/tof/xyz", t, m.raw_image, t, "tof", xyz)
-                self._log("/raw/tof/amplitude", t, m.raw_image, t, "tof", amplitude)
-            else:  # grab(image_type): distance, amplitude, confidence, z, xyz
-                kind = str(item.data["args"][0]) if item.data["args"] else "distance"
-                topic = {"z": "/tof/depth"}.get(kind, f"/tof/{kind}")
-                if topic in TOPICS:
-                    self._log(topic, t, m.raw_image, t, "tof", result)
-                self._log("/raw/tof/image", t, m.raw_image, t, "tof", result)
-        elif item.data["device"] == "stereo":
-            if isinstance(result, tuple):
-                sides = dict(zip(("left", "right"), result, strict=True))
-            else:
-                args = item.data["args"]
-                sides = {str(args[0]) if args else "left": result}
-            for side, image in sides.items():
-                frame = m.sensor_frame(side)
-                self._log(f"/stereo/{side}/compressed", t, m.jpeg, t, frame, image)
-                self._log(f"/raw/stereo/{side}", t, m.raw_image, t, frame, image)
-        elif item.data["device"] == "hazcam":
-            self._on_hazcam(t, item.data["args"], result)
+        images = images_of(device, item.data["call"], item.data["args"], result)
+        if device == "tof":
+            self._on_tof(t, images)
+        elif device == "stereo":
+            for image in images:
+                frame = m.sensor_frame(image.what)
+                self._log(f"/stereo/{image.what}/compressed", t, m.jpeg, t, frame, image.image)
+                self._log(f"/raw/stereo/{image.key}", t, m.raw_image, t, frame, image.image)
+        elif images:  # a hazcam pair's
+            self._on_hazcam(t, images, result)
 
-    def _on_hazcam(self, t: int, args: Any, result: Any) -> None:
+    def _on_tof(self, t: int, images: list[CallImage]) -> None:
+        """A ``grab_xyz`` goes out as its points, their depth and amplitude; a ``grab`` as its
+        image on the topic of its type, if there is one."""
+        by_key = {image.key: image.image for image in images}
+        if "xyz" in by_key:
+            xyz, amplitude = by_key["xyz"], by_key["amplitude"]
+            self._log("/tof/points", t, m.point_cloud, t, "tof", xyz, amplitude)
+            self._log("/tof/depth", t, m.depth, t, "tof", xyz)
+            self._log("/tof/amplitude", t, m.raw_image, t, "tof", amplitude)
+        else:
+            for image in images:
+                topic = {"z": "/tof/depth"}.get(image.what, f"/tof/{image.what}")
+                if topic in TOPICS:
+                    self._log(topic, t, m.raw_image, t, "tof", image.image)
+        for image in images:
+            self._log(f"/raw/tof/{image.key}", t, m.raw_image, t, "tof", image.image)
+
+    def _on_hazcam(self, t: int, images: list[CallImage], result: Any) -> None:
         """A body hazard camera pair's grab (a HazcamFrame: images and matched points, in the
         rover frame) or its ``images(pair)`` (the two images alone)."""
-        if isinstance(result, tuple):
-            pair, (left, right), frame = str(args[0]), result, None
-        else:
-            pair, left, right, frame = result.camera, result.left, result.right, result
-        self._log(f"/hazcam/{pair}/left/compressed", t, m.jpeg, t, m.hazcam_frame(pair, "left"), left)
-        for side, image in (("left", left), ("right", right)):
-            self._log(f"/raw/hazcam/{pair}/{side}", t, m.raw_image, t, m.hazcam_frame(pair, side), image)
-        if frame is not None:
-            self._log(f"/hazcam/{pair}/points", t, m.cloud, t, "rover", frame.points, frame.sigma_range,
+        for image in images:
+            frame = m.hazcam_frame(image.pair, image.what)
+            if image.what == "left":
+                self._log(f"/hazcam/{image.pair}/left/compressed", t, m.jpeg, t, frame, image.image)
+            self._log(f"/raw/hazcam/{image.key}", t, m.raw_image, t, frame, image.image)
+        if not isinstance(result, tuple):
+            self._log(f"/hazcam/{images[0].pair}/points", t, m.cloud, t, "rover", result.points, result.sigma_range,
                       "sigma_range")
 
     def _log_call(self, item: Item) -> None:

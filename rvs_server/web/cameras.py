@@ -19,6 +19,8 @@ from typing import TYPE_CHECKING, Any
 import cv2
 import numpy as np
 
+from drivers.call_images import images_of
+
 if TYPE_CHECKING:
     from ..bus import Item
 
@@ -57,30 +59,18 @@ def file_of(name: str) -> str:
 
 
 def frames_of(device: str, call: str, args: tuple[Any, ...], result: Any) -> list[tuple[str, np.ndarray, str]]:
-    """(camera name, image, kind) of a driver call's result, as the telemetry hub reads them."""
-    if device == "tof":
-        if call == "grab_xyz":
-            xyz, amplitude = result
-            return [("tof_amplitude", amplitude, "amplitude"), ("tof_depth", xyz[..., 2], "z")]
-        if call == "grab":
-            kind = str(args[0]) if args else "distance"
-            if kind == "amplitude":
-                return [("tof_amplitude", result, kind)]
-            if kind in DEPTH_KINDS:
-                return [("tof_depth", result[..., 2] if kind == "xyz" else result, kind)]
-        return []
-    if device == "stereo":
-        if isinstance(result, tuple) and len(result) == 2:  # a pair: left, right
-            return [("stereo_left", result[0], "image")]
-        if call in ("grab_mono", "grab_mono_direct") and (str(args[0]) if args else "left") == "left":
-            return [("stereo_left", result, "image")]
-        return []
-    if device == "hazcam":
-        if call == "images" and args:  # the two images of a pair
-            return [(f"hazcam_{args[0]}_left", result[0], "image")]
-        if call == "grab":  # a HazcamFrame
-            return [(f"hazcam_{result.camera}_left", result.left, "image")]
-    return []
+    """(camera name, image, kind) of the images of a driver call's result that the panel shows:
+    the ToF's amplitude and depth (the z of its points), each camera pair's left image."""
+    out: list[tuple[str, np.ndarray, str]] = []
+    for image in images_of(device, call, args, result):
+        if device == "tof":
+            if image.what == "amplitude":
+                out.append(("tof_amplitude", image.image, image.what))
+            elif image.what in DEPTH_KINDS:
+                out.append(("tof_depth", image.image[..., 2] if image.what == "xyz" else image.image, image.what))
+        elif image.what == "left":
+            out.append(("stereo_left" if device == "stereo" else f"hazcam_{image.pair}_left", image.image, "image"))
+    return out
 
 
 class CameraFrames:
@@ -131,11 +121,15 @@ class CameraFrames:
         with self._lock:
             return next((n for n in self._frames if file_of(n) == file), None)
 
+    def latest(self, name: str) -> Frame:
+        """The newest frame of ``name``; KeyError when there is none."""
+        with self._lock:
+            return self._frames[name]
+
     def encoded(self, name: str) -> Encoded:
         """The newest frame of ``name`` encoded (blocking: run it off the event loop); KeyError
         when there is none."""
-        with self._lock:
-            frame = self._frames[name]
+        frame = self.latest(name)
         with self._encoding:
             done = self._encoded.get(name)
             if done is None or done.seq != frame.seq:
