@@ -26,7 +26,7 @@ from typing import Any
 
 import pytest
 import yaml
-from reliability_harness import record
+from support.reliability_figures import record
 from support.server import LineClient
 
 from rvs_server.protocol import Reply

@@ -23,9 +23,9 @@ import cv2
 import pytest
 import tifffile
 import yaml
-from reliability_harness import FAST, record
 from support.marks import LONG, long_test
-from support.server import LineClient
+from support.reliability_figures import record
+from support.server import FAST, LineClient
 
 from prox_workflows.grid import read_geotiff
 from prox_workflows.pointcloud import read_ply

@@ -1,5 +1,5 @@
 """Fuzzing the pure protocol layer: hypothesis drives the request generator of
-reliability_harness (valid commands from the table with random options, values, tags, quotes,
+tests/support/wire_fuzz.py (valid commands from the table with random options, values, tags, quotes,
 escapes, en dashes, numbers and lists) and its byte mutator (bit flips, telnet IAC bytes, NULs,
 CRs, huge tokens, truncated quotes, bytes that are not UTF-8).
 
@@ -16,14 +16,8 @@ import re
 import pytest
 from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
-from reliability_harness import (
-    IAC_SEQUENCE,
-    LineGen,
-    close_iac,
-    expects_reply,
-    logical_line,
-)
 from support.marks import LONG
+from support.wire_fuzz import IAC_SEQUENCE, LineGen, close_iac, expects_reply, logical_line
 
 from rvs_server.main import build_config
 from rvs_server.protocol import (

@@ -2,7 +2,7 @@
 concurrent connections to ``rvs_server`` in a child process.
 
 Every non-blank, non-comment request gets exactly one final line (counted per connection
-against the reference model of reliability_harness, and per tag for the unmutated requests),
+against the reference model of tests/support/wire_fuzz.py, and per tag for the unmutated requests),
 no reply is E_INTERNAL or unparseable, the server never dies, its resident memory stays flat
 and its file descriptors come back. The short version (about 10,000 lines) runs always; the long
 one (100,000 lines) with RVS_LONG=1.
@@ -18,23 +18,11 @@ from collections.abc import Iterator
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
-from reliability_harness import (
-    FAST,
-    LineGen,
-    Plan,
-    Sampler,
-    close_iac,
-    drive,
-    fd_count,
-    hazard,
-    logical_line,
-    make_plan,
-    record,
-    rss_kb,
-    summarize,
-)
 from support.marks import LONG, long_suite, long_test
-from support.server import LineClient, wait_for
+from support.proc_probes import Sampler, fd_count, rss_kb
+from support.reliability_figures import record
+from support.server import FAST, LineClient, wait_for
+from support.wire_fuzz import LineGen, Plan, close_iac, drive, hazard, logical_line, make_plan, summarize
 
 from rvs_server.client.session import ServerProcess
 

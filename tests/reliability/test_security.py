@@ -18,20 +18,11 @@ from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
-from reliability_harness import (
-    FAST,
-    Plan,
-    drive,
-    fd_count,
-    listening_addresses,
-    percentile,
-    quote,
-    record,
-    rss_kb,
-    summarize,
-)
 from support.marks import LONG, long
-from support.server import LineClient, wait_for
+from support.proc_probes import fd_count, listening_addresses, rss_kb
+from support.reliability_figures import percentile, record
+from support.server import FAST, LineClient, wait_for
+from support.wire_fuzz import Plan, drive, quote, summarize
 
 from rvs_server.client.session import ServerProcess
 from rvs_server.protocol import MAX_LINE, parse_reply

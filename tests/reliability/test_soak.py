@@ -16,8 +16,8 @@ import sys
 from pathlib import Path
 
 import pytest
-from reliability_harness import record
 from support.marks import long_suite, long_test
+from support.reliability_figures import record
 
 ROOT = Path(__file__).resolve().parents[2]
 

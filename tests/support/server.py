@@ -11,6 +11,9 @@ from rvs_server.client import session
 from rvs_server.protocol import Reply, parse_reply
 
 FINAL = ("OK", "ERROR")
+# a ServerProcess's arguments for a world that takes no wall time, with no console or Foxglove
+FAST = ("--set", "drivers.ptu.time_scale=0", "--set", "sim.time_scale=0",
+        "--set", "server.web_port=0", "--set", "server.foxglove_port=0")
 
 
 class LineClient:

@@ -1,118 +1,29 @@
-"""Shared machinery of the reliability suites: request-line generators and mutators, a reference
-model of how many replies a byte stream must get, a fuzzing client for many connections, and
-/proc probes for a server's memory, file descriptors and listening sockets.
+"""Fuzzing the wire protocol: request lines generated from the command table and mutated, a
+reference model of how many replies a byte stream must get, which lines the bulk fuzz must not
+send, and a client that sends plans over many connections and counts what comes back.
 
-Test modules import it by name, as ``tests/drivers`` does its rigs. The long versions of the
-suites run only with ``RVS_LONG=1`` (the marks in ``tests/support/marks.py``).
+The reliability suites (tests/reliability, docs/RELIABILITY.md) use it; their long versions run
+only with ``RVS_LONG=1`` (the marks in ``tests/support/marks.py``).
 """
 
 from __future__ import annotations
 
 import asyncio
 import json
-import math
-import os
 import random
 import re
-import threading
 import time
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Any
-
-from support.marks import LONG
 
 from rvs_server import commands as _commands  # noqa: F401 - fills the command table
 from rvs_server.main import build_config
 from rvs_server.protocol import MAX_LINE, WILL_TIMING_MARK, ProtocolError, parse_reply, parse_request
 from rvs_server.table import COMMANDS, Command, bind_options, check_positional, lookup
+from support.server import FINAL
 
-ROOT = Path(__file__).resolve().parents[2]
-FAST = ("--set", "drivers.ptu.time_scale=0", "--set", "sim.time_scale=0",
-        "--set", "server.web_port=0", "--set", "server.foxglove_port=0")  # a world that takes no wall time; no console or Foxglove
-FINAL = ("OK", "ERROR")
 TAIL_KEEP = 40
-
-
-# ------------------------------------------------------------------------------------------ /proc
-
-
-def rss_kb(pid: int) -> int:
-    """Resident set size of a process, from /proc/<pid>/status (kB)."""
-    for line in Path(f"/proc/{pid}/status").read_text().splitlines():
-        if line.startswith("VmRSS:"):
-            return int(line.split()[1])
-    raise RuntimeError(f"no VmRSS for pid {pid}")
-
-
-def fd_count(pid: int) -> int:
-    return len(os.listdir(f"/proc/{pid}/fd"))
-
-
-def listening_addresses(pid: int) -> list[tuple[str, int]]:
-    """(address, port) of every TCP socket in LISTEN state that the process holds."""
-    inodes = set()
-    for fd in os.listdir(f"/proc/{pid}/fd"):
-        try:
-            target = os.readlink(f"/proc/{pid}/fd/{fd}")
-        except OSError:
-            continue
-        m = re.fullmatch(r"socket:\[(\d+)\]", target)
-        if m:
-            inodes.add(m.group(1))
-    out: list[tuple[str, int]] = []
-    for table, v6 in (("tcp", False), ("tcp6", True)):
-        path = Path(f"/proc/{pid}/net/{table}")
-        if not path.exists():
-            continue
-        for row in path.read_text().splitlines()[1:]:
-            cols = row.split()
-            if cols[3] != "0A" or cols[9] not in inodes:  # 0A = TCP_LISTEN
-                continue
-            addr_hex, port_hex = cols[1].split(":")
-            out.append((_proc_addr(addr_hex, v6), int(port_hex, 16)))
-    return out
-
-
-def _proc_addr(hexaddr: str, v6: bool) -> str:
-    raw = bytes.fromhex(hexaddr)
-    if not v6:
-        return ".".join(str(b) for b in raw[::-1])
-    words = [raw[i : i + 4][::-1] for i in range(0, 16, 4)]
-    import ipaddress
-
-    return str(ipaddress.IPv6Address(b"".join(words)))
-
-
-class Sampler:
-    """Samples a process's RSS (and fd count) in a thread while a load runs."""
-
-    def __init__(self, pid: int, interval: float = 0.25) -> None:
-        self.pid = pid
-        self.interval = interval
-        self.samples: list[tuple[float, int, int]] = []  # (t, rss_kb, fds)
-        self._stop = threading.Event()
-        self._thread = threading.Thread(target=self._run, daemon=True)
-
-    def _run(self) -> None:
-        while not self._stop.is_set():
-            try:
-                self.samples.append((time.monotonic(), rss_kb(self.pid), fd_count(self.pid)))
-            except (OSError, RuntimeError):
-                return
-            self._stop.wait(self.interval)
-
-    def __enter__(self) -> Sampler:
-        self._thread.start()
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self._stop.set()
-        self._thread.join(5)
-
-    def peak_kb(self) -> int:
-        return max((s[1] for s in self.samples), default=0)
 
 
 # ------------------------------------------------------------------------------------------ model
@@ -708,22 +619,3 @@ def summarize(results: Sequence[ConnResult]) -> dict[str, Any]:
         "internal": [x for r in results for x in r.internal][:5],
         "malformed": [x for r in results for x in r.malformed][:5],
     }
-
-
-def record(suite: str, **figures: Any) -> None:
-    """Append measured figures to the JSON-lines file named by RVS_RESULTS (for the results table
-    of docs/RELIABILITY.md); a no-op without it."""
-    path = os.environ.get("RVS_RESULTS")
-    if path:
-        with open(path, "a", encoding="utf-8") as fh:
-            fh.write(json.dumps({"suite": suite, "long": LONG, "time": time.time(), **figures}) + "\n")
-
-
-
-
-def percentile(values: Sequence[float], q: float) -> float:
-    if not values:
-        return math.nan
-    s = sorted(values)
-    k = min(len(s) - 1, max(0, math.ceil(q / 100 * len(s)) - 1))
-    return s[k]
