@@ -17,6 +17,14 @@ What each observation says, and so what the map keeps:
   frame that disagrees beyond the gate (a rock dropped in, a frame placed with a drifted pose)
   widens the cell to the union of both: the map keeps what may be there, not an average of two
   stories. Bounds: ``mean + rise + k sigma`` and ``mean - drop - k sigma``.
+- A stereo pair's frame is fused as its own kind of sensor (``sensor="stereo"``): its pixels in a
+  cell share the matcher's window and its semi-global paths, so their errors are one error, not
+  n (``stereo_correlation``: a cell's mean is no better than a pixel, and none of the spread
+  within the cell is put down to noise); and where it bounded a cell its bounds stand alone
+  (``stereo_first``): fused with the ToF's, a mean better than either sensor's shrinks the bounds
+  below what each holds alone. On the simulated approach with the mast's pair (tools/bench/bounds.py)
+  n independent pixels held 83-91 % of the cells and the fused sensors 99.2 % in marsyard; as
+  stated here, 99.86-99.93 % in all three scenes, with no unsafe pose judged safe.
 - A ray that passed over a cell without a return there bounds the ground from above at the ray's
   height (``ceiling``): ground behind a rock the rays skimmed, or between sparse far returns, is
   not known, but it is known not to stand higher than the ray. It gives no lower bound.
@@ -39,7 +47,10 @@ from rvs_params import Settings, param
 
 from ..grid import GridGeometry
 
-__all__ = ["BoundsMap", "BoundsParams"]
+__all__ = ["BoundsMap", "BoundsParams", "SENSORS"]
+
+# the kinds of frame the map fuses, in rising precedence (``stereo_first``)
+SENSORS = ("tof", "stereo")
 
 
 @dataclass
@@ -61,6 +72,13 @@ class BoundsParams(Settings):
                               "lone return moves further, and gives no bound: min_returns)", min=1, max=16)
     near: float = param(0.06, "a ray's last stretch before its return bounds nothing (it meets the "
                               "ground there at a grazing angle)", unit="m", min=0.0, max=1.0)
+    stereo_correlation: float = param(1.0, "correlation of a stereo frame's height errors within a cell: its "
+                                           "pixels share the matcher's window, so n of them are no better than one "
+                                           "(0.9 already misses rock tops in the simulated rock fields)",
+                                      min=0.0, max=1.0)
+    stereo_first: bool = param(True, "where a stereo frame bounded a cell, its bounds stand alone: ToF frames no "
+                                     "longer fuse into the cell (fused, a mean better than either sensor's "
+                                     "shrinks the bounds below what each holds alone)")
 
 
 class BoundsMap:
@@ -77,6 +95,7 @@ class BoundsMap:
         self.shift = np.zeros(shape, np.float32)  # how far (m) the cell's returns may lie from their ground
         self.ceiling = np.full(shape, np.inf, np.float32)  # lowest ray that passed over (m)
         self.stamp = np.zeros(shape, np.int32)  # the frame (1, 2, ...) that last touched the cell
+        self.source = np.zeros(shape, np.int8)  # the sensor (index in SENSORS) whose frames bound the cell
         self.frames = 0
 
     @classmethod
@@ -227,14 +246,18 @@ class BoundsMap:
     # ------------------------------------------------------------------ fusion
 
     def fuse(self, points: np.ndarray, sigma: np.ndarray | float, origin: np.ndarray | None = None,
-             max_range: float | None = None, sigma_xy: np.ndarray | float = 0.0) -> int:
+             max_range: float | None = None, sigma_xy: np.ndarray | float = 0.0, sensor: str = "tof") -> int:
         """One frame: global-frame returns ``points`` (N x 3) with their height sigmas ``sigma`` and
         horizontal sigmas ``sigma_xy`` (m; the range error's share along the ground), and the
         sensor's position ``origin`` (3,) for the rays' ceilings (None: returns only). With
         ``max_range`` (the range the frame was cut at; needs ``origin``), a cell the cut crosses
         takes no bounds from the frame: its returns come from its near part only, and the rest
         (a rock's top beyond the cut) is unseen; their rays still bound the cells they crossed.
-        Returns the cells the frame gave bounds to."""
+        ``sensor`` (one of SENSORS) says how the returns' errors go together (see the module's
+        docstring). Returns the cells the frame gave bounds to."""
+        if sensor not in SENSORS:
+            raise ValueError(f"sensor {sensor!r} is not one of {', '.join(SENSORS)}")
+        rho = self.params.stereo_correlation if sensor == "stereo" else 0.0
         g = self.geometry
         pts = np.asarray(points, dtype=np.float64).reshape(-1, 3)
         sig = np.broadcast_to(np.asarray(sigma, dtype=np.float64), (len(pts),))
@@ -264,15 +287,31 @@ class BoundsMap:
         mean = np.add.reduceat(z, starts) / n
         point_var = np.add.reduceat(var, starts) / n
         # the noise alone makes the highest of n returns stand about sqrt(2 ln n) sigmas over their
-        # mean; what stands higher is the ground's own relief within the cell
-        allowance = np.sqrt(2.0 * np.log(n) * point_var)
+        # mean, of its share that is not common to them all; what stands higher is the ground's own
+        # relief within the cell. The mean of n returns whose errors correlate by rho has the
+        # variance of one times (1 + rho (n - 1)) / n
+        allowance = np.sqrt(2.0 * np.log(n) * (1.0 - rho) * point_var)
+        mean_var = point_var * (1.0 + rho * (n - 1.0)) / n
         rise = np.maximum(np.maximum.reduceat(z, starts) - mean - allowance, 0.0)
         drop = np.maximum(mean - np.minimum.reduceat(z, starts) - allowance, 0.0)
         shift = self.params.k * np.sqrt(np.add.reduceat(var_xy, starts) / n)
-        cells = flat[starts][enough]
-        self._fuse_cells(cells, mean[enough], (point_var / n)[enough], rise[enough], drop[enough], shift[enough])
+        cells = flat[starts]
+        if self.params.stereo_first:
+            rank, held = SENSORS.index(sensor), self.source.flat[cells]
+            enough &= held <= rank  # a cell the stereo bounded takes no ToF frame
+            self._forget(cells[enough & (held < rank)])
+            self.source.flat[cells[enough]] = rank
+        cells = cells[enough]
+        self._fuse_cells(cells, mean[enough], mean_var[enough], rise[enough], drop[enough], shift[enough])
         self.stamp.flat[cells] = self.frames
         return int(len(cells))
+
+    def _forget(self, cells: np.ndarray) -> None:
+        """Drop what the frames gave ``cells`` (a sensor of higher precedence takes them over)."""
+        self.mean.flat[cells] = np.nan
+        self.mean_var.flat[cells] = np.nan
+        for layer in (self.rise, self.drop, self.shift):
+            layer.flat[cells] = 0.0
 
     def _fuse_cells(self, cells: np.ndarray, mean: np.ndarray, var: np.ndarray, rise: np.ndarray,
                     drop: np.ndarray, shift: np.ndarray) -> None:

@@ -94,6 +94,47 @@ def test_a_rock_reads_at_its_top_and_a_later_look_at_a_new_rock_widens_the_cell(
     assert (m2.upper[top] >= 0.12).mean() > 0.99 and (m2.lower[top] <= 0.0).mean() > 0.99
 
 
+
+def _level(rng: np.random.Generator, z: float, noise: float, n: int = 40_000) -> np.ndarray:
+    """Returns over x 1..2 m, y -0.5..0.5 m at height ``z`` with independent noise ``noise``."""
+    return np.column_stack([rng.uniform(1.0, 2.0, n), rng.uniform(-0.5, 0.5, n), z + noise * rng.standard_normal(n)])
+
+
+def test_a_stereo_frames_pixels_in_a_cell_share_one_error() -> None:
+    # a stereo frame reads flat ground at z = 0 two of its pixels' sigmas low, all its pixels alike
+    # (they share the matcher's window): its ~16 pixels a cell are one measurement, not sixteen
+    rng = np.random.default_rng(3)
+    sigma = 0.003
+    frame = _level(rng, -2 * sigma, 0.0002)
+    flat = _cells(_map(), 1.05, 1.95, -0.45, 0.45)
+    as_stereo, as_independent = _map(), _map()
+    as_stereo.fuse(frame, sigma, sensor="stereo")
+    as_independent.fuse(frame, sigma)
+    assert (as_stereo.upper[flat] >= 0.0).all()  # -6 mm + 2.5 x 3 mm
+    assert (as_independent.upper[flat] < 0.0).all()  # -6 mm + 2.5 x 3 mm / 4: the truth out
+    assert float(np.median(as_stereo.upper[flat] - as_stereo.lower[flat])) < 0.02
+    with pytest.raises(ValueError, match="sensor 'lidar' is not one of tof, stereo"):
+        _map().fuse(frame, sigma, sensor="lidar")
+
+
+def test_where_a_stereo_frame_bounded_a_cell_its_bounds_stand_alone() -> None:
+    rng = np.random.default_rng(4)
+    tof, stereo = _level(rng, 0.004, 0.006), _level(rng, 0.0, 0.0005)
+    flat = _cells(_map(), 1.05, 1.95, -0.45, 0.45)
+    alone = _map()
+    alone.fuse(stereo, 0.002, sensor="stereo")
+    m = _map()
+    m.fuse(tof, 0.006)
+    m.fuse(stereo, 0.002, sensor="stereo")
+    m.fuse(_level(rng, 0.004, 0.006), 0.006)  # a later ToF frame changes nothing there
+    assert np.array_equal(m.upper[flat], alone.upper[flat]) and np.array_equal(m.lower[flat], alone.lower[flat])
+    assert (m.source[flat] == 1).all()
+    # fused, the ToF's mean pulls the stereo's bounds up by a third of its offset
+    fused = BoundsMap(_map().geometry, BoundsParams(stereo_first=False))
+    fused.fuse(tof, 0.006)
+    fused.fuse(stereo, 0.002, sensor="stereo")
+    assert float(np.median(fused.lower[flat] - alone.lower[flat])) > 0.0005
+
 def test_a_ray_over_a_cell_bounds_it_from_above_only_and_unseen_cells_have_no_bound() -> None:
     m = _map()
     ret = np.array([[2.0, -0.005, 0.0], [2.005, -0.01, 0.0]])  # two returns 2 m out; its ray passes over x 0..1.94, 0.5 m up at 1.17

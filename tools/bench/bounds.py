@@ -20,10 +20,12 @@ Looks: ``one`` (one frame, pan 0, tilt -35), ``sweep`` (pans -40 / 0 / +40), ``a
 sweep, then a frame every 0.1 m over 2 m of straight drive, as the see loop sees the ground it
 comes to), ``approach+hazcam`` (the same with the front hazard camera pair's frame at every step:
 the simulated ``drivers.hazcam`` device as declared, its pair rendered and matched by the
-server's stereo matcher, see :func:`hazcam`), ``approach+stereo`` (the approach with the mast's
-own stereo pair every 0.4 m, at the PTU's lowest tilt where it sees the ground 0.9-2.5 m ahead:
-the simulated PIKE pair at ``high``, matched by the workflows' matcher with its declared noise,
-every matched pixel as a DEM takes them, see :func:`mast_stereo`). ToF range noise along each ray from the ToF's
+server's stereo matcher, see :func:`hazcam`; fused as the see loop fuses them, as independent
+returns), ``approach+stereo`` (the approach with the mast's own stereo pair every 0.4 m, at the
+PTU's lowest tilt where it sees the ground 0.9-2.5 m ahead: the simulated PIKE pair at ``high``,
+matched by the workflows' matcher with its declared noise over a search range that reaches the
+nearest ground, every matched pixel fused as a stereo frame, see :func:`mast_stereo` and
+``BoundsMap.fuse``'s ``sensor``). ToF range noise along each ray from the ToF's
 noise model, height sigma from ``tof_height_variance``: the sigmas the map is given are the ones
 the ToF frames were drawn with, so this measures the map, not a mis-stated sensor. The hazcam's
 errors are real stereo errors against the sigmas its device declares, as are those of the
@@ -62,8 +64,13 @@ from rvs_server.devices import stereo_points
 LOOKS = ("one", "sweep", "approach", "approach+hazcam", "approach+stereo")
 MAST_STEREO = "high"  # the PIKE pair's mode for the near ground: 1280 x 960, 0.2 m baseline
 MAST_STEREO_RANGE = 3.0  # m: the pair's points kept (the lowest tilt sees the ground to about 2.5 m)
-# one frame: points, height sigmas, sensor origin, horizontal sigmas, the range it was cut at
-Frame = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, float]
+# m: the matcher's nearest depth for the lowest tilt, whose nearest ground lies 1.15 m along the
+# optical axis; at the matcher's default (1.5 m) the image's bottom rows are out of its search
+# range, and what it matches there lands up to 1 m under the ground in islands past the speckle filter
+MAST_STEREO_NEAR = 1.0
+# one frame: points, height sigmas, sensor origin, horizontal sigmas, the range it was cut at, the
+# kind of sensor (bounds_map.SENSORS)
+Frame = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, float, str]
 TRUE_CELL = 0.005  # m: the truth's surface, pooled to the map's cells
 
 
@@ -87,7 +94,7 @@ def frames(world: World, look: str, rng: np.random.Generator) -> Iterator[Frame]
         pts, r = view.points.reshape(-1, 3)[keep].astype(np.float64), r[keep].astype(np.float64)
         noisy = pts + (pts - origin) / r[:, None] * (tof_sigma(r) * rng.standard_normal(len(r)))[:, None]
         return (noisy, np.sqrt(tof_height_variance(noisy, origin)).astype(np.float64), origin,
-                tof_horizontal_sigma(noisy, origin).astype(np.float64), USABLE_RANGE)
+                tof_horizontal_sigma(noisy, origin).astype(np.float64), USABLE_RANGE, "tof")
 
     pans = (0.0,) if look == "one" else (-40.0, 0.0, 40.0)
     for pan in pans:
@@ -111,7 +118,7 @@ def hazcam(world: World, device: hazcam_device.Hazcam) -> Frame:
     pts = frame.points @ T[:3, :3].T + T[:3, 3]
     origin = T[:3, :3] @ frame.origin + T[:3, 3]
     sigma, sigma_xy = pair_sigmas(pts, origin, frame.sigma_range, device.rig("front").focal)
-    return pts, sigma, origin, sigma_xy, device.config.max_range
+    return pts, sigma, origin, sigma_xy, device.config.max_range, "tof"  # as the see loop fuses it
 
 
 def mast_stereo(world: World, pair: stereo_device.StereoPair) -> Frame:
@@ -119,7 +126,7 @@ def mast_stereo(world: World, pair: stereo_device.StereoPair) -> Frame:
     its range sigma from the matcher's declared disparity noise, split as the hazcam's is."""
     world.set_ptu(0.0, pos_to_deg(D46_LIMITS["tilt"][0], D46_RESOLUTION_ARCSEC))
     left, right = pair.grab_stereo_direct(MAST_STEREO)
-    d = disparity(left, right, pair.calibration(MAST_STEREO))
+    d = disparity(left, right, pair.calibration(MAST_STEREO), {"min_depth": MAST_STEREO_NEAR})
     pts = d.points().reshape(-1, 3).astype(np.float64)
     sigma_z = d.sigma_z().reshape(-1).astype(np.float64)
     keep = np.isfinite(pts).all(axis=1) & np.isfinite(sigma_z) & (pts[:, 2] < MAST_STEREO_RANGE)
@@ -129,7 +136,7 @@ def mast_stereo(world: World, pair: stereo_device.StereoPair) -> Frame:
     sigma_range = sigma_z * np.linalg.norm(pts, axis=1) / pts[:, 2]  # along the ray, not the optical axis
     world_pts = pts @ T[:3, :3].T + origin
     sigma, sigma_xy = pair_sigmas(world_pts, origin, sigma_range, d.rect.focal)
-    return world_pts, sigma, origin, sigma_xy, MAST_STEREO_RANGE
+    return world_pts, sigma, origin, sigma_xy, MAST_STEREO_RANGE, "stereo"
 
 
 def pooled(fine: np.ndarray, g: GridGeometry, how: Any) -> np.ndarray:
@@ -144,9 +151,9 @@ def sim_row(scene: str, look: str, k: float, seed: int = 0, body: RoverBody | No
     bounds = BoundsMap.covering(box, 0.0, BoundsParams(k=k))
     rolling = RollingMap(RollingParams(size=12.0), HazardParams(), (x0 + 2.5, y0))
     t_bounds, t_rolling = [], []
-    for pts, sigma, origin, sigma_xy, cut in frames(world, look, np.random.default_rng(seed)):
+    for pts, sigma, origin, sigma_xy, cut, sensor in frames(world, look, np.random.default_rng(seed)):
         t0 = time.perf_counter()
-        bounds.fuse(pts, sigma, origin, cut, sigma_xy)
+        bounds.fuse(pts, sigma, origin, cut, sigma_xy, sensor)
         t1 = time.perf_counter()
         rolling.fuse(pts, np.linalg.norm(pts - origin, axis=1))
         t2 = time.perf_counter()
@@ -196,7 +203,8 @@ def sim_row(scene: str, look: str, k: float, seed: int = 0, body: RoverBody | No
 def motorcycle_row(k: float) -> dict[str, Any] | None:
     """Middlebury Motorcycle (quarter size, scikit-image): the project's stereo on the real pair,
     its points as a height map over the floor plane (camera x right, z ahead; height = -y), bounds
-    drawn with the matcher's own noise model, against the ground-truth disparity's points."""
+    drawn with the matcher's own noise model as a stereo frame, against the ground-truth disparity's
+    points."""
     try:
         from skimage.data import stereo_motorcycle
 
@@ -229,7 +237,7 @@ def motorcycle_row(k: float) -> dict[str, Any] | None:
     sigma_xy = np.sqrt(sigma_z**2 * (1.0 - up_share**2) + (0.0015 * r) ** 2)
     bounds = BoundsMap.covering(true_pts[:, :2], 0.05, BoundsParams(k=k))
     t0 = time.perf_counter()
-    bounds.fuse(pts, sigma, np.zeros(3), None, sigma_xy)
+    bounds.fuse(pts, sigma, np.zeros(3), None, sigma_xy, "stereo")
     fuse_ms = 1000 * (time.perf_counter() - t0)
     g = bounds.geometry
     rr, cc = g.cell_of(true_pts[:, 0], true_pts[:, 1])
