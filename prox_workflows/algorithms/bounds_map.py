@@ -22,9 +22,7 @@ What each observation says, and so what the map keeps:
   n (``stereo_correlation``: a cell's mean is no better than a pixel, and none of the spread
   within the cell is put down to noise); and where it bounded a cell its bounds stand alone
   (``stereo_first``): fused with the ToF's, a mean better than either sensor's shrinks the bounds
-  below what each holds alone. On the simulated approach with the mast's pair (tools/bench/bounds.py)
-  n independent pixels held 83-91 % of the cells and the fused sensors 99.2 % in marsyard; as
-  stated here, 99.86-99.93 % in all three scenes, with no unsafe pose judged safe.
+  below what each holds alone (the bounds bench's mast-stereo look measures both: docs/BENCHMARKS.md).
 - A ray that passed over a cell without a return there bounds the ground from above at the ray's
   height (``ceiling``): ground behind a rock the rays skimmed, or between sparse far returns, is
   not known, but it is known not to stand higher than the ray. It gives no lower bound.
