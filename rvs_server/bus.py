@@ -55,8 +55,9 @@ class Bus:
             self._subscribers = (*self._subscribers, fn)
 
     def unsubscribe(self, fn: Subscriber) -> None:
+        # equality, not identity: each ``obj.method`` is a new bound method, equal to the one subscribed
         with self._lock:
-            self._subscribers = tuple(s for s in self._subscribers if s is not fn)
+            self._subscribers = tuple(s for s in self._subscribers if s != fn)
 
     def publish(self, kind: str, at: int | None = None, **data: Any) -> None:
         """``at``: when it happened (ns since the epoch), if not now."""
