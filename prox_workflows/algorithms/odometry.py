@@ -20,10 +20,10 @@ Per pair of acquisitions A (earlier) and B (later), both looking roughly the sam
 6. expressed as the rover's motion with the two sensor poses on the rover (mount calibration at
    the PTU angles of each acquisition): ``T_roverA_roverB``.
 
-Measured on the simulator (tests/prox/test_odometry.py, tests/server/commands/test_orient.py): ideal frames
-give the motion to 2 mm; simulated 640 x 480 stereo pairs 1 m apart to 0.1-0.3 % of the
-distance and 0.01 deg. The ToF camera (176 x 144, 1-5 m, its own light moving with it) holds
-about a centimetre over 0.3 m steps and loses track beyond ~0.5 m.
+How well it holds on each sensor is measured by tests/prox/test_odometry.py,
+tests/server/commands/test_orient.py and ``tools.bench.odometry`` (docs/BENCHMARKS.md): the
+stereo pairs far better than the ToF camera, whose small image and own moving light lose track
+over longer steps.
 
 Everything is arrays in, arrays out; the server grabs and passes the frames.
 """

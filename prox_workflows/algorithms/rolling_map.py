@@ -394,10 +394,8 @@ def merge_nav_maps(base: NavMaps, fresh: NavMaps, older: np.ndarray | None = Non
     the latest measurement of a cell gives its verdict, as :func:`overrides` allows (a partly
     seen "safe" never erases a hazard). Where the rolling map measured a cell after the scan,
     its verdict stands: it saw the cell from within 3 m (see_max_range) while the scan's cells
-    reach 4.5 m, where it misses 11-12 % of the true hazards and calls 5 % of the cells
-    hazardous that are not (hirise, against the truth); kept, a false hazard closed the way to
-    the goal or the goal itself for good (hirise mission 6: goal_in_hazard 1.8 m from a goal
-    1 m clear of every true hazard). Elsewhere the scan's verdict stands (a rock the scan saw
+    reach 4.5 m, where the scan misses true hazards and calls cells hazardous that are not;
+    kept, such a false hazard can close the way to the goal, or the goal itself, for good. Elsewhere the scan's verdict stands (a rock the scan saw
     and the rolling map has not is still there); the slope is the fresh map's where it has one.
     ``older`` (on ``fresh``'s grid) marks the cells the rolling map last measured before the
     scan was made: there the scan's verdict stands where it has one, since a 360-degree scan

@@ -342,10 +342,9 @@ class SgbmParams:
     each image as taken (:func:`noise_scale`, never above the model): the simulated PIKE pairs
     measure 1.0 (their mask is the model's), Middlebury's pairs 0.3-0.6 (its quarter-size
     images are 4 x 4 averages). Judged against the PIKE's noise, those clean images' low-contrast
-    ground looked blank although it matched well: on Motorcycle the fixed model masked 8 % of the
-    pixels, of which 1 % were > 2 px off. Noise is what makes a blank surface dangerous: the same
-    Motorcycle pair with the PIKE's noise added matches its low-texture pixels to 0.5 px 85 % of
-    the time instead of 97 %, like the office's blank walls (~70 %). 1.0 restores the fixed model.
+    ground looked blank although it matched well; it is the noise that makes a blank surface
+    dangerous, which the same pair with the PIKE's noise added shows (docs/STEREO_BENCH.md).
+    1.0 restores the fixed model.
 
     ``texture_reach`` (px at full resolution, at the PIKE's noise): a blank patch is only masked
     if it reaches farther than this from texture; narrower gaps are left to the matcher, whose
@@ -355,9 +354,8 @@ class SgbmParams:
     already lets one in and costs the office DEM 0.3 cm); Motorcycle's blank gaps reach 4-10 px.
 
     ``uniqueness`` 5: the left-right check already rejects what an ambiguous match gets
-    wrong on the simulated pairs (their DEMs: office +0.03 cm, quarry -0.06 cm, marsyard_harsh,
-    marsyard and hirise within 0.005 cm); on real pairs 5 answers 0.2-0.9 % more pixels, about
-    half of them right, which keeps bad-2 on valid pixels at half OpenCV's default's or less.
+    wrong, so the looser ratio leaves the simulated DEMs as they were and answers a few more
+    pixels on real pairs, about half of them right (docs/STEREO_BENCH.md, item 3).
 
     What these defaults give against OpenCV's SGBM, on Middlebury and the simulated pairs, is
     measured by ``tools/bench/stereo.py --table`` and kept in docs/STEREO_BENCH.md.
@@ -717,9 +715,8 @@ def fill_disparity(disp: np.ndarray, guide: np.ndarray, radius: int = 3, sigma: 
 
     Why not a second matching pass: the pixels the left-right check rejects are mostly
     half-occluded, seen by one camera only, and no matcher finds their match; the surface behind
-    them (the background) is the best guess, which the scanline fill gives. On Middlebury
-    Motorcycle (quarter size) 16 % of the filled pixels end > 2 px off, against 4.9 % of the
-    measured ones; the weighted median takes the bad-2 of the whole image from 7.7 % to 7.4 %.
+    them (the background) is the best guess, which the scanline fill gives; the weighted median
+    then pulls the filled pixels toward their neighbours of like grey (docs/STEREO_BENCH.md).
     """
     filled = _scanline_fill(disp)
     return _weighted_median(filled, ~np.isfinite(disp), guide, radius, sigma)
