@@ -104,9 +104,9 @@ def mosaic(dems: list[Layers | None], base: Layers | None, rule: str, cell: floa
     they agree within ``gate`` standard deviations of their difference, else the one the
     neighbourhood supports - order-free, where fusing the views in acquisition order let
     whichever sensor came first keep a cell it had wrong; each sensor's cells count as less
-    certain the farther they stand from their neighbours (:class:`SensorFusion`). Between scans a disagreement is a
-    change or an outlier, so the gate rejects it and inflates the prior's variance
-    (elevation_mapping's rule).
+    certain the farther they stand from their neighbours (:class:`SensorFusion`). Between scans
+    a disagreement is a change or an outlier, so the gate rejects it and inflates the prior's
+    variance (elevation_mapping's rule).
     """
     views = [d for d in dems if d is not None and np.isfinite(d["dem"]).any()]
     if not views and base is None:
