@@ -33,7 +33,7 @@ import yaml
 from rvs_params import SettingError, Settings, assignments
 
 from .algorithms.dem2hazard import HazardParams
-from .engine import run_workflow, script_parameters
+from .engine import parameters_of, run_workflow
 from .parameters import DemParams, DemStereoParams
 
 # The scripts --from can run: a script that acquires (dem) runs offline as its recorded-views
@@ -77,9 +77,7 @@ class RecordedJob:
         """The job's parameter class: the stereo one for dem-full/dem-update (their max_range
         default differs), the ToF one otherwise."""
         own = DemStereoParams if self.made_by in STEREO_COMMANDS or "sensor" in self.parameters else DemParams
-        cls = script_parameters(OFFLINE_SCRIPTS["dem"], own)
-        assert cls is not None
-        return cls
+        return parameters_of(OFFLINE_SCRIPTS["dem"], own)
 
 
 def find_job(path: str | Path) -> RecordedJob:

@@ -14,7 +14,7 @@ from scipy import ndimage
 
 from prox_workflows.algorithms.dem_mosaik import resample_nearest
 from prox_workflows.algorithms.stereo import rectification
-from prox_workflows.engine import script_parameters
+from prox_workflows.engine import parameters_of
 from prox_workflows.grid import GridGeometry
 from prox_workflows.steps.dem import (
     PointCorrelation,
@@ -82,7 +82,7 @@ def sensor_dems(views: list[Any], rover_mask: Any, ref: Any, params: Any = None,
     every defined cell was seen) from the ToF views alone, the stereo views alone and all of
     them, each resampled onto ``ref``; ``params`` (default the dem script's) gives the chain's
     parameters."""
-    p = params if params is not None else script_parameters("dem")()
+    p = params if params is not None else parameters_of("dem")()
     out = {}
     for name, keep in (("tof", {"tof"}), ("stereo", {"left"}), ("fused", {"tof", "left"})):
         if name not in names:

@@ -26,7 +26,7 @@ import numpy as np
 from rvs_params import SettingError
 
 from ..algorithms.dem_import import cells_from_bounds
-from ..engine import WorkflowError, run_workflow, script_parameters
+from ..engine import WorkflowError, parameters_of, run_workflow
 from ..grid import parse_crs
 from ..layers import prefix_of
 from .parser import ToolParser
@@ -35,7 +35,7 @@ MADE_BY = "rvs-dem-mosaik (prox_workflows.algorithms.dem_mosaik)"
 
 
 def main(argv: list[str] | None = None) -> int:
-    specs = script_parameters("dem_mosaik").specs()  # type: ignore[union-attr]
+    specs = parameters_of("dem_mosaik").specs()
     ap = ToolParser(prog="rvs-dem-mosaik", description=__doc__.split("\n\n")[0],
                     formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("inputs", nargs="+", type=Path, help="DEM GeoTIFFs, oldest first")

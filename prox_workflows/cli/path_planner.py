@@ -25,23 +25,16 @@ import sys
 import time
 from pathlib import Path
 
-from rvs_params import SettingError, Settings
+from rvs_params import SettingError
 from rvs_params.hazard import UNDEFINED
 
 from ..algorithms.planner import PlannerParams, PlanningError
-from ..engine import WorkflowError, run_workflow, script_parameters
+from ..engine import WorkflowError, parameters_of, run_workflow
 from ..params import show_value
 from .parser import ToolParser
 
 MADE_BY = "rvs-path-planner (prox_workflows.algorithms.planner)"
 SCRIPT = "path_planner"
-
-
-def _params() -> type[Settings]:
-    """The script's parameters: its steps' settings (the plan_path step's PlanParams)."""
-    cls = script_parameters(SCRIPT)
-    assert cls is not None
-    return cls
 
 
 def _point(text: str) -> tuple[float, float]:
@@ -70,7 +63,7 @@ def _global_maps(path: Path, origin: tuple[float, float], prefix: str) -> tuple[
 
 def build_parser() -> argparse.ArgumentParser:
     d = PlannerParams()
-    specs = _params().specs()
+    specs = parameters_of(SCRIPT).specs()
     ap = ToolParser(prog="rvs-path-planner", description=__doc__.split("\n\n")[0])
     ap.add_argument("--hazard", type=Path, required=True, help="local hazard map GeoTIFF (0/128/255)")
     ap.add_argument("--slope", type=Path, required=True, help="local slope map GeoTIFF (degrees)")
@@ -114,7 +107,7 @@ def main(argv: list[str] | None = None) -> int:
         except (OSError, ValueError) as exc:
             print(f"rvs-path-planner: --global {args.global_dem}: {exc}", file=sys.stderr)
             return 2
-    specs = _params().specs()
+    specs = parameters_of(SCRIPT).specs()
     try:
         params = {name: spec.parse(str(getattr(args, name))) for name, spec in specs.items()}
     except SettingError as exc:

@@ -45,13 +45,13 @@ from .errors import Cancelled, ScriptError, WorkflowError
 from .loader import SCRIPTS_DIR, load_script, script_path
 from .registry import INJECTED, PARAMETER_MODULES, STEP_MODULES, StepSpec, registry, resolve_step, step
 from .run import Progress, RunLog, evaluate, phases_of, resolve_params, run_workflow
-from .settings import compose, script_parameters, step_settings
+from .settings import compose, parameters_of, script_parameters, step_settings
 from .types import compatible, literal_type
 from .validation import output_names, param_class, param_types, validate
 
 __all__ = [
     "INJECTED", "PARAMETER_MODULES", "SCRIPTS_DIR", "STEP_MODULES", "Cancelled", "Progress", "RunLog",
     "ScriptError", "StepSpec", "WorkflowError", "compatible", "compose", "evaluate", "literal_type", "load_script",
-    "output_names", "param_class", "param_types", "phases_of", "registry", "resolve_params", "resolve_step",
+    "output_names", "param_class", "parameters_of", "param_types", "phases_of", "registry", "resolve_params", "resolve_step",
     "run_workflow", "script_parameters", "script_path", "step", "step_settings", "validate",
 ]

@@ -49,6 +49,16 @@ def script_parameters(script: dict[str, Any] | str | Path, own: type[Settings] |
     return compose(own, step_settings(script))
 
 
+def parameters_of(script: dict[str, Any] | str | Path, own: type[Settings] | None = None) -> type[Settings]:
+    """:func:`script_parameters` for a caller that runs the script with its parameters (a command's
+    config derives from it, a CLI lists it): a script that reads none is a mistake there."""
+    cls = script_parameters(script, own)
+    if cls is None:
+        name = script.get("name", "script") if isinstance(script, dict) else str(script)
+        raise WorkflowError(f"workflow {name} reads no parameter: there is no parameter class to derive from")
+    return cls
+
+
 @functools.cache
 def compose(own: type[Settings] | None, steps: tuple[type[Settings], ...]) -> type[Settings] | None:
     """One class with the fields of ``own`` (first) and of each step's settings, refusing a name

@@ -12,7 +12,7 @@ from typing import Any, ClassVar
 
 from drivers.stereo.modes import RESOLUTIONS
 from prox_workflows.algorithms.dem2hazard import HazardParams
-from prox_workflows.engine import script_parameters, validate
+from prox_workflows.engine import parameters_of, validate
 from prox_workflows.parameters import DemStereoParams
 
 from ..config import ModuleConfig, param, standalone
@@ -22,11 +22,11 @@ from ..scanning import DEM_INPUTS, DEM_SCRIPT, ScanOptions, check_update, run_de
 from ..table import CONTROL, HARDWARE, command
 
 # The parameters are declared once, in the dem script's own class (prox_workflows.parameters) and
-# its steps' settings classes, composed by script_parameters (the dem script and rvs-prox read the
+# its steps' settings classes, composed by parameters_of (the dem script and rvs-prox read the
 # same declarations); these add the module name the server's configuration (config/<module>.yaml,
 # config -module, help) knows them by.
-DemParams = script_parameters(DEM_SCRIPT)
-DemStereoScriptParams = script_parameters(DEM_SCRIPT, DemStereoParams)
+DemScriptParams = parameters_of(DEM_SCRIPT)
+DemStereoScriptParams = parameters_of(DEM_SCRIPT, DemStereoParams)
 
 
 @standalone
@@ -38,7 +38,7 @@ class Dem2HazardConfig(HazardParams, ModuleConfig):
 
 
 @dataclass
-class DemTofConfig(ScanOptions, DemParams, ModuleConfig):
+class DemTofConfig(ScanOptions, DemScriptParams, ModuleConfig):
     module: ClassVar[str] = "dem_full_tof"
 
 
