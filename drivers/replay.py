@@ -74,6 +74,7 @@ class Recording:
         self.path = path
         self.calls: dict[str, list[Call]] = {}
         self.poses: list[tuple[int, float, float, float]] = []  # (t_ns, x, y, heading): the believed pose
+        self.requests: list[str] = []  # the request lines received, in order
         self.start_ns: int | None = None
         self.metadata: dict[str, Any] = {}
         self.torn = False
@@ -91,6 +92,10 @@ class Recording:
                 calls.append(last)
             elif topic.startswith("/raw/") and last is not None and message.log_time == last.t_ns:
                 last.images[topic.removeprefix(f"/raw/{last.device}/")] = _image(_decoder(decoders, schema)(message.data))
+            elif topic == "/rvs/wire":
+                wire = json.loads(message.data)
+                if wire.get("dir") == "request":
+                    self.requests.append(str(wire.get("line", "")))
             elif topic == "/rover/pose":
                 pose = _decoder(decoders, schema)(message.data).pose
                 q = pose.orientation

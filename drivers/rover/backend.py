@@ -109,6 +109,7 @@ class RoverBackend(Protocol):
     capabilities: ClassVar[frozenset[Capability]]
     faults: ClassVar[tuple[str, ...]]
     steers: ClassVar[bool]  # whether the server's motions are executed (else the GNC steers itself)
+    drives_auto: ClassVar[bool]  # whether it drives a navigate -auto leg (the simulator; a replay of one)
 
     def open(self) -> None: ...
 

@@ -26,6 +26,7 @@ class GncRover:
     """Waits for the GNC's pose reports."""
 
     steers = False
+    drives_auto = False  # the GNC drives its own legs; -auto asks for the simulator
 
     def __init__(self, settings: RoverSettings, world: Any = None, poses: PoseFeed | None = None) -> None:
         self.poses = poses

@@ -22,6 +22,7 @@ def replay_facts(app: App) -> dict[str, str]:
         "config": {name: app.config.get(name).as_dict() for name in app.config.module_names()},
         "ptu": app.ptu_position(),
         "pose": [pose.x, pose.y, pose.heading],
+        "pose_estimate": [pose.source, pose.sigma, pose.sigma_heading],
     }
     devices = app.devices.devices
     tof = devices.get("tof")
