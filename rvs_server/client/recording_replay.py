@@ -36,12 +36,17 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import yaml
 
+from drivers.base import DeviceError
 from drivers.registry import DEVICE_KINDS, registry
-from drivers.replay import TIMINGS, load
+from drivers.replay import TIMINGS, Replay, decoder, load, running
+from prox_workflows.grid import GridGeometry, Layers
 
 from ..protocol import Reply, parse_reply
+from ..telemetry.messages import DTYPES
+from ..telemetry.outlet import MAP_PREFIX
 from ..telemetry.recording import read_messages
 from .session import ServerThread
 
@@ -228,9 +233,34 @@ def compare_products(recorded: Path, replayed: Path, rec_start: int, rep_start: 
         if len(a) != len(b):
             problems.append(f"{topic}: {len(a)} maps recorded, {len(b)} replayed")
         problems += [f"{topic}: map {i + 1} differs" for i, (x, y) in enumerate(zip(a, b, strict=False)) if x != y]
-    if not want:
-        problems.append("the recording holds no map made after its first request to compare")
     return problems, sum(min(len(want.get(t, [])), len(got.get(t, []))) for t in want)
+
+
+def start_maps(path: Path, metadata: dict[str, Any], before_ns: int) -> tuple[Layers, str | None, dict[str, str]] | None:
+    """The maps the server had when the recording started (a recording started after a DEM):
+    their grid, name and files from the metadata, their cells from the latched /map/* Grids the
+    recording begins with (the last of each layer before the first request), as they were."""
+    info = metadata.get("maps")
+    if not isinstance(info, dict):
+        return None
+    cell, xmin, ymax, width, height, crs = info["geometry"]
+    geometry = GridGeometry(float(cell), float(xmin), float(ymax), int(width), int(height), crs)
+    layers = Layers(geometry)
+    parsers: dict[int, Any] = {}
+    for schema, channel, message in read_messages(path):
+        if not channel.topic.startswith(MAP_PREFIX) or message.log_time >= before_ns:
+            continue
+        grid = decoder(parsers, schema)(message.data)
+        if grid.column_count != width or len(grid.data) != height * grid.row_stride:
+            continue  # another grid than the current maps'
+        cells = np.frombuffer(grid.data, np.uint8).reshape(height, width, grid.cell_stride)
+        for f in grid.fields:
+            dtype = np.dtype(DTYPES[f.type])
+            column = cells[..., f.offset:f.offset + dtype.itemsize].copy().view(dtype)
+            layers[f.name] = np.flipud(column.reshape(height, width))  # the Grid's rows run south first
+    if "dem" not in layers:
+        return None
+    return layers, info.get("name"), {str(k): str(v) for k, v in (info.get("files") or {}).items()}
 
 
 def config_dir(metadata: dict[str, Any], where: Path) -> Path | None:
@@ -292,6 +322,11 @@ def replay(path: Path, data: Path, *, products: bool = False, timing: str = "fas
     replayed: list[Exchange] = []
     maps = 0
     try:
+        first_ns = chosen[0].t_ns if chosen else recording.start_ns or 0
+        start = start_maps(path, recording.metadata, first_ns)
+        if start is not None:  # the state the recorded run started from
+            server.app.maps.replace(*start)
+        run = running(path)
         client = Connection(server.port)
         ok = _request(client, "record -start -name replay", timeout)
         if ok.status != "OK":
@@ -301,6 +336,7 @@ def replay(path: Path, data: Path, *, products: bool = False, timing: str = "fas
             conn = conns.get(ex.conn) or conns.setdefault(ex.conn, Connection(server.port))
             mine = Exchange(ex.conn, ex.request)
             replayed.append(mine)
+            _hold(server.app, run, ex.t_ns, timing, timeout)
             conn.send(mine)
             _await(ex, mine, chosen[i + 1].t_ns if i + 1 < len(chosen) else None, timeout)
         for mine in replayed:
@@ -316,6 +352,19 @@ def replay(path: Path, data: Path, *, products: bool = False, timing: str = "fas
             conn.close()
         server.stop()
     return Outcome(len(replayed), skipped, problems, data / "recordings" / "replay.mcap", maps)
+
+
+def _hold(app: Any, run: Replay | None, t_ns: int, timing: str, timeout: float) -> None:
+    """Send a request no earlier than the recorded run did: with recorded timing at its recorded
+    time after the start; always not before the replay served the frames recorded before it
+    while a job or a monitor (hazard-start, track3d-start) may still ask for them, so a
+    hazard-stop ends a monitor that made as many cycles as the recorded one."""
+    if run is None:
+        return
+    run.pace(t_ns, timing)
+    deadline = time.monotonic() + timeout
+    while run.behind(t_ns) and (app.jobs.current is not None or len(app.monitors)) and time.monotonic() < deadline:
+        time.sleep(0.01)
 
 
 def _await(rec: Exchange, mine: Exchange, next_ns: int | None, timeout: float) -> None:
@@ -353,14 +402,14 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
 
 def main(argv: list[str]) -> int:
     args = parse_args(argv)
-    if not args.mcap.is_file():
+    if not args.mcap.exists():
         print(f"rvs-replay: --mcap {args.mcap}: no such file", file=sys.stderr)
         return 2
     with _data_dir(args.data) as data:
         try:
             outcome = replay(args.mcap, data, products=args.products, timing=args.timing, timeout=args.timeout)
-        except (OSError, RuntimeError, ValueError) as exc:
-            print(f"rvs-replay: {exc}", file=sys.stderr)
+        except (OSError, RuntimeError, ValueError, DeviceError) as exc:
+            print(f"rvs-replay: {exc.message if isinstance(exc, DeviceError) else exc}", file=sys.stderr)
             return 2
     for problem in outcome.problems:
         print(f"MISMATCH {problem}")
