@@ -54,6 +54,7 @@ IGNORED_FIELDS = frozenset({"job", "seconds", "elapsed", "duration", "time", "st
 STATUS_ONLY = frozenset({"status", "version", "config", "logbook", "events"})
 SKIPPED = frozenset({"record", "quit", "sim", "auth", "exit", "bye"})
 FINAL = ("OK", "ERROR")
+DURATION = re.compile(r"_m?s(_|$)")  # a time it took (cycle_ms, cycle_ms_max, drive_s): the machine's, not the run's
 WALL_STAMP = re.compile(r"\d{8}T\d{6}(_\d{3})?")  # default product names: the UTC time of day
 NOT_REPLAYED_CONFIG = ("server",)  # where it listens and keeps its data is the replay's own
 DEFAULT_TIMEOUT = 600.0
@@ -169,7 +170,7 @@ def normalised(reply: Reply, command: str) -> tuple[Any, ...]:
     if command in STATUS_ONLY:
         return reply.module, reply.status
     fields = {k: WALL_STAMP.sub("<time>", str(v)) for k, v in reply.fields.items()
-              if k not in IGNORED_FIELDS and not k.endswith(("_s", "_ms"))}
+              if k not in IGNORED_FIELDS and not DURATION.search(k)}
     return reply.module, reply.status, reply.tag, fields
 
 
