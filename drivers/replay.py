@@ -31,7 +31,7 @@ from typing import Any
 
 import numpy as np
 
-from drivers.base import DeviceError
+from drivers.base import CALL_CANCEL, DeviceError, DeviceInterrupted
 from rvs_params import Settings, param
 
 TIMINGS = ("fast", "recorded")
@@ -160,6 +160,10 @@ class Replay:
         self.placed = False  # the replayed rover was set down where the recorded one started
         self.last_ns = recording.start_ns or 0
         self._wall0: float | None = None
+        # rvs-replay --mcap's gate: only calls recorded before this time are served (the requests
+        # recorded before them were sent); None: no gate, every call as it comes
+        self.allowed_ns: int | None = None
+        self.turn = threading.Condition(self.lock)
 
     def next(self, device: str, calls: tuple[str, ...], timing: str) -> Call:
         """The device's next recorded call among ``calls``, paced by ``timing``; DeviceError
@@ -170,6 +174,7 @@ class Replay:
             i = self.cursors.get(device, 0)
             while i < len(mine) and mine[i].call not in calls:
                 i += 1
+            self._await_turn(device, mine[i].t_ns if i < len(mine) else None)
             if i >= len(mine):
                 self.cursors[device] = i
                 served = sum(1 for c in mine if c.call in calls)
@@ -181,6 +186,27 @@ class Replay:
             self.last_ns = max(self.last_ns, call.t_ns)
         self.pace(call.t_ns, timing)
         return call
+
+    def allow(self, t_ns: int | None) -> None:
+        """Serve the calls recorded before ``t_ns`` (None: every call, and say past the end)."""
+        with self.turn:
+            self.allowed_ns = t_ns
+            self.turn.notify_all()
+
+    def _await_turn(self, device: str, t_ns: int | None) -> None:
+        """Hold a monitor's call back (lock held) while the gate is shut for it: a call the
+        recorded run made after a request the replay has not sent yet, or one it never made
+        while requests are still to come (a cycle the recorded stop cut short). Its stop (the
+        caller's CALL_CANCEL) ends the wait as an interruption. A job's calls are not held: the
+        replay sends the requests after a job as the recorded run did (on its final line or
+        ACK), and a job that asks for more than was recorded hears so at once."""
+        cancel = CALL_CANCEL.get()
+        if cancel is None:
+            return
+        while self.allowed_ns is not None and (t_ns is None or t_ns >= self.allowed_ns):
+            if cancel is not None and cancel.is_set():
+                raise DeviceInterrupted(device, "stopped while its frame waited for its recorded turn")
+            self.turn.wait(0.01)
 
     def behind(self, t_ns: int) -> bool:
         """Whether a frame call recorded before ``t_ns`` is still to be served: a request recorded

@@ -328,6 +328,8 @@ def replay(path: Path, data: Path, *, products: bool = False, timing: str = "fas
         if start is not None:  # the state the recorded run started from
             server.app.maps.replace(*start)
         run = running(path)
+        if run is not None:
+            run.allow(chosen[0].t_ns if chosen else None)
         client = Connection(server.port)
         ok = _request(client, "record -start -name replay", timeout)
         if ok.status != "OK":
@@ -338,8 +340,12 @@ def replay(path: Path, data: Path, *, products: bool = False, timing: str = "fas
             mine = Exchange(ex.conn, ex.request)
             replayed.append(mine)
             _hold(server.app, run, ex.t_ns, timing, timeout)
+            if run is not None:  # the calls the recorded run made before its next request
+                run.allow(chosen[i + 1].t_ns if i + 1 < len(chosen) else None)
             conn.send(mine)
             _await(ex, mine, chosen[i + 1].t_ns if i + 1 < len(chosen) else None, timeout)
+        if run is not None:
+            run.allow(None)
         for mine in replayed:
             mine.done.wait(timeout)
         _request(client, "record -stop", timeout)
@@ -358,8 +364,10 @@ def replay(path: Path, data: Path, *, products: bool = False, timing: str = "fas
 def _hold(app: Any, run: Replay | None, t_ns: int, timing: str, timeout: float) -> None:
     """Send a request no earlier than the recorded run did: with recorded timing at its recorded
     time after the start; always not before the replay served the frames recorded before it
-    while a job or a monitor (hazard-start, track3d-start) may still ask for them, so a
-    hazard-stop ends a monitor that made as many cycles as the recorded one."""
+    while a job or a monitor (hazard-start, track3d-start) may still ask for them. With the
+    gate of :meth:`Replay.allow` (no call the recorded run made after the next request is
+    served before it is sent), a hazard-stop ends a monitor that made as many cycles as the
+    recorded one, however slow this machine is."""
     if run is None:
         return
     run.pace(t_ns, timing)
