@@ -3,10 +3,15 @@ replay backends, its replies compared with the recorded ones.
 
 The server starts in this process on a free port (the same code path as rvs-server), with the
 configuration the recorded run had and every device on its ``replay`` backend reading the file
-(drivers/replay.py), recording the replay itself to ``<data>/recordings/replay.mcap``. The
-recorded requests are sent over TCP in their recorded order, each on a connection of its own
-recorded connection, and each waits for what the recorded run had seen of the request before
-it (its final line, its ACK, or nothing: a ``break`` sent during a job is sent during it).
+(drivers/replay.py), recording the replay itself to ``<data>/recordings/replay.mcap``. It
+starts from the state the recorded server had at ``record -start``: the current maps (their
+cells the latched Grids the recording begins with, their grid the metadata's), the pose and
+its estimate (the replayed rover). The recorded requests are sent over TCP in their recorded
+order, each on a connection of its own recorded connection, and each waits for what the
+recorded run had seen of the request before it (its final line, its ACK, or nothing: a
+``break`` sent during a job is sent during it), for the frames recorded before it while a job
+or a monitor runs (a monitor's calls are served in their recorded turn, so it stops after as
+many cycles as it made), and with ``--timing recorded`` for its recorded time.
 
 Each request's ACK and final line (OK or ERROR) must equal the recorded ones, but for the
 fields that legitimately differ (:data:`IGNORED_FIELDS`: job numbers, times) and product names
@@ -15,7 +20,8 @@ itself (:data:`STATUS_ONLY`: status, version, config, logbook, events) are compa
 status word only. Requests that manage the run rather than belong to it (:data:`SKIPPED`:
 record, quit, sim, auth) are not sent. ``--products``: every map layer the replay published
 (the /map/* Grids of both recordings, those made after the first request) equal, cell for
-cell.
+cell; a run that made none compares none. A ``ros2``-profile recording (a rosbag2 directory or
+its MCAP file) does not replay: one line says so, exit status 2.
 
     rvs-replay --mcap data/recordings/run1.mcap [--products] [--timing recorded] [--data DIR]
 """
