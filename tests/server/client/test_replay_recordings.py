@@ -29,7 +29,9 @@ def record(data: Path, steps: list[str], before: tuple[str, ...] = (), profile: 
         for line in steps:
             if line.startswith("wait:"):
                 field, least = line[5:].split(">=")
-                assert wait_for(lambda c=c, f=field, n=int(least): int(c.request("status").fields.get(f, -1)) >= n)
+                # each poll is a recorded request the replay sends again: a few, not hundreds
+                assert wait_for(lambda c=c, f=field, n=int(least): int(c.request("status").fields.get(f, -1)) >= n,
+                                interval=0.25)
                 continue
             reply = c.request(line, timeout=120)
             assert reply.status == "OK", (line, reply)
@@ -64,14 +66,16 @@ def test_a_console_click_navigate_with_auto_replays(tmp_path: Path) -> None:
 
 
 def test_monitor_summaries_replay_as_recorded_and_recorded_timing_takes_the_recorded_time(tmp_path: Path) -> None:
-    steps = ["hazard-start -period 0.5", "wait:hazard_cycles>=2", "hazard-stop",
-             "track3d-start -period 0.5", "wait:track_cycles>=2", "track3d-stop"]
+    steps = ["hazard-start", "wait:hazard_cycles>=2", "hazard-stop",  # their default periods: 0.3 s, none
+             "track3d-start", "wait:track_cycles>=2", "track3d-stop"]
     got = record(tmp_path / "rec", steps)
     assert int(got["hazard-stop"]["cycles"]) >= 2 and got["hazard-stop"]["level"] != "none", got
     assert int(got["track3d-stop"]["cycles"]) >= 2, got
     path = tmp_path / "rec" / "recordings" / "run.mcap"
-    fast = rvs_replay("--mcap", path)  # each monitor cycle as soon as the one before ended
-    assert fast.returncode == 0 and "replies match (0 mismatches)" in fast.stdout, fast.stdout + fast.stderr
+    fast = rvs_replay("--mcap", path, "--data", tmp_path / "fast")  # each cycle as soon as the one before ended
+    events = [m["line"] for topic, _, m in decoded(tmp_path / "fast" / "recordings" / "replay.mcap")
+              if topic == "/rvs/wire" and m["dir"] == "event"]
+    assert fast.returncode == 0 and "replies match (0 mismatches)" in fast.stdout, (fast.stdout, fast.stderr, events)
     out = rvs_replay("--mcap", path, "--timing", "recorded", "--data", tmp_path / "replay")
     assert out.returncode == 0 and "MISMATCH" not in out.stdout, out.stdout + out.stderr
     assert "replies match (0 mismatches)" in out.stdout, out.stdout  # the status polls are replayed too
