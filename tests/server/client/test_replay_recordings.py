@@ -15,11 +15,11 @@ from support.server import ServerThread, wait_for
 DEM = "dem-full-tof -range -30,30,-40,-20 -overlap 0.1 -name rec"  # two views
 
 
-def record(data: Path, steps: list[str], before: tuple[str, ...] = (), profile: str = "foxglove") \
-        -> dict[str, dict[str, str]]:
+def record(data: Path, steps: list[str], before: tuple[str, ...] = (), profile: str = "foxglove",
+           sets: tuple[str, ...] = ()) -> dict[str, dict[str, str]]:
     """Run ``before``, then record ``steps`` (``wait:FIELD>=N`` polls status until it holds);
     the final replies' fields by command."""
-    srv = ServerThread(data).start()
+    srv = ServerThread(data, list(sets)).start()
     replies: dict[str, dict[str, str]] = {}
     try:
         c = srv.client()
@@ -59,7 +59,8 @@ def assert_matches(out: subprocess.CompletedProcess[str], requests: int, layers:
 def test_a_console_click_navigate_with_auto_replays(tmp_path: Path) -> None:
     # the console's click-navigate line, with its "-auto" box ticked
     nav = "navigate -goal 0.60,0.00 -sensor tof -tolerance 0.3 -auto true"
-    got = record(tmp_path / "rec", [nav, "status"])
+    # a narrower scan than the default (fewer views: a smaller recording), replayed with it
+    got = record(tmp_path / "rec", [nav, "status"], sets=("navigate.range=-40,40,-45,-20",))
     assert got["navigate"]["reached"] == "true" and got["navigate"]["pose_source"] == "odometry"
     out = rvs_replay("--mcap", tmp_path / "rec" / "recordings" / "run.mcap", "--products")
     assert_matches(out, 2, layers=12)  # the scan's DEM, every layer, cell for cell
