@@ -30,6 +30,7 @@ from drivers.tof.constants import FOV_H_DEG as TOF_HFOV_DEG
 from prox_workflows.grid import read_geotiff_geometry
 
 from ..protocol import Reply, TooLong, format_reply, format_reply_json
+from ..table import COMMANDS
 from .cameras import CameraFrames
 from .tiles import LayerCache, ValueCache, unit_of, version_of
 
@@ -110,7 +111,9 @@ class WebPeer:
             self.log.warning("client_dropped", reason="page not reading its messages")
             self.close()
             return
-        if own and reply.status != "EVENT":  # as a TCP connection's (an EVENT: App.broadcast's)
+        if reply.status == "EVENT":  # every page's (App.broadcast publishes it): no page's answer
+            own = False
+        elif own:  # as a TCP connection's
             self.app.bus.publish("reply", conn=self.id, reply=reply, job=job)
         self.queue.put_nowait(_encode(reply, own))
 
@@ -163,6 +166,8 @@ class WebConsole:
         self.history: deque[str] = deque(maxlen=HISTORY)
         self._products: tuple[float, dict[str, Path]] = (0.0, {})
         self.goal: dict[str, Any] | None = None  # the last navigate's goal, whoever sent it
+        self.check: dict[str, Any] | None = None  # the last check-move's answer, whoever asked
+        self._check_from: dict[int, tuple[float, float]] = {}  # conn -> pose when it asked for a check-move
         self.track: deque[tuple[float, float]] = deque(maxlen=TRACK_POINTS)
         self.snapshot = ""  # the last state message sent to the pages
         self.bounds: dict[tuple[str, str], list[float]] = {}  # (path, version) -> layer bounds
@@ -221,10 +226,24 @@ class WebConsole:
 
     def remember(self, item: Item) -> None:
         """Keep each event and job line the server sends (the bus, on the event loop) for the
-        pages that open later; PROGRESS is left out, the state carries the running job's progress."""
+        pages that open later; PROGRESS is left out, the state carries the running job's progress.
+        A check-move's answer, whoever asked, is kept for the state: every page draws it."""
+        if item.kind == "request":
+            words = item.data["line"].decode("utf-8", "replace").split(None, 2)
+            if words and words[0].startswith("@"):
+                words = words[1:]
+            if words and words[0].lower() == "check-move":  # the move starts where the rover is now
+                self._check_from[item.data["conn"]] = (self.app.pose.x, self.app.pose.y)
+            return
         reply = item.data.get("reply")
         if reply is None or reply.status == "PROGRESS":
             return
+        if reply.module == "EGP-RVS-CHECK-MOVE" and item.kind == "reply":
+            start = self._check_from.pop(item.data["conn"], (self.app.pose.x, self.app.pose.y))
+            to = reply.fields.get("to")
+            if reply.status == "OK" and to is not None:
+                self.check = {"from": [round(start[0], 3), round(start[1], 3)], "to": [float(to[0]), float(to[1])],
+                              "verdict": str(reply.fields.get("verdict")), "t": round(item.time_ns / 1e9, 3)}
         if item.kind == "event" or item.data.get("job"):
             self.history.append(_encode(reply, False))
 
@@ -283,6 +302,8 @@ class WebConsole:
             "ptu": app.ptu_position(),
             "devices": app.devices.summary(),
             "token": bool(app.server_cfg.token),
+            # what a page without the token may send: the command table's answer, not the page's
+            "open_commands": [name for name, cmd in COMMANDS.items() if cmd.open],
         }
         if app.world is not None:
             t = app.world.truth()
@@ -295,6 +316,7 @@ class WebConsole:
             self.goal = {"x": job.params["goal"][0], "y": job.params["goal"][1],
                          "tolerance": job.params.get("tolerance"), "job": job.id}
         out["goal"] = self.goal
+        out["check"] = self.check
         out["tof_hfov"] = TOF_HFOV_DEG  # drawn as the ToF's wedge
         maps: dict[str, Any] = {}
         for name, path in self.layer_paths().items():
