@@ -1206,9 +1206,7 @@ $("cmd").addEventListener("keydown", (e) => {
 });
 $("authform").onsubmit = (e) => {
   e.preventDefault();
-  send(`auth -token ${$("token").value}`, { onFinal: (r) => {
-    if (r.status === "OK") { S.authed = true; $("token").value = ""; onState(S.state); }
-  } });
+  authenticate($("token").value);
 };
 window.addEventListener("resize", draw);
 window.addEventListener("keydown", (e) => {
