@@ -539,12 +539,14 @@ for (const tab of document.querySelectorAll("#tabs [role=tab]")) tab.onclick = (
 function drawLegend() {
   const el = $("legend");
   const names = Object.keys(S.layers).filter((n) => S.visible[n] && S.layers[n].legend).reverse();
-  el.hidden = !S.online || !names.length;
+  const hidden = !S.online || !names.length;
   const key = names.map((n) => `${n}@${S.layers[n].url}`).join(",");
-  if (el.dataset.key === key) return;  // the state comes 5 times a second: rebuild only on change
+  if (el.dataset.key === key && el.hidden === hidden) return;  // the state comes 5 times a second: rebuild only on change
+  el.hidden = hidden;
   el.dataset.key = key;
   el.textContent = "";
   for (const name of names) el.appendChild(legendOf(name, S.layers[name]));
+  draw();  // the legend's strip took its height from the map's (a resized canvas is blank)
 }
 
 function legendOf(name, layer) {
