@@ -143,7 +143,10 @@ function onReply(m, past) {
   } else if (r.status === "ACK" && !past) {
     // a new job, whoever started it: the result box's last job line is the previous job's
     if (S.resultJob !== null && S.resultJob !== r.job) markPrevious();
-    if (m.own && r.tag in S.pending) showResult(m.text, false);
+    if (m.own && r.tag in S.pending) {
+      S.pending[r.tag].job = r.job;  // its final line is that job's result
+      showResult(m.text, false);
+    }
     if (r.module === "EGP-RVS-NAVIGATE") {
       S.plan = [];  // the old plan goes once the server took the new goal
       draw();
@@ -160,7 +163,7 @@ function onReply(m, past) {
     if (handlers) {
       if (r.tag !== undefined) delete S.pending[r.tag];
       showResult(m.text, r.status === "ERROR");
-      S.resultJob = r.job !== undefined && r.module !== "EGP-RVS-STATUS" ? r.job : null;
+      S.resultJob = handlers.job !== undefined ? handlers.job : null;
       if (handlers.onFinal) handlers.onFinal(r);
     }
   }
@@ -203,7 +206,7 @@ function logLine(text, status, own, t, past) {
   log.appendChild(li);
   while (log.children.length > 600) log.removeChild(log.firstChild);
   if (atEnd || past) log.scrollTop = log.scrollHeight;
-  if (!past && $("pane-events").hidden) {  // lines the operator has not seen: counted on the tab
+  if (!past && status !== "PROGRESS" && $("pane-events").hidden) {  // lines not seen yet: counted on the tab
     const unread = $("tab-events").querySelector(".unread");
     unread.textContent = String((+unread.textContent || 0) + 1);
     unread.hidden = false;
