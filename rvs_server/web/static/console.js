@@ -135,7 +135,8 @@ function canAct() {
 function onReply(m, past) {
   const r = m.reply;
   if (!past && typeof m.t === "number") S.clock = m.t - Date.now() / 1000;
-  logLine(m.text, r.status, m.own, m.t, past);
+  // the greeting and PROGRESS (the bar shows it) are no news to count on the Events tab
+  logLine(m.text, r.status, m.own, m.t, past, !past && r.status !== "PROGRESS" && r.kind !== "hello");
   if (r.status === "PROGRESS") {
     S.progress = r;
     jobBar(r);
@@ -194,7 +195,7 @@ function clockText(t) {
   return d.toTimeString().slice(0, 8);
 }
 
-function logLine(text, status, own, t, past) {
+function logLine(text, status, own, t, past, news) {
   const li = document.createElement("li");
   const time = document.createElement("time");
   time.textContent = clockText(t);
@@ -206,7 +207,7 @@ function logLine(text, status, own, t, past) {
   log.appendChild(li);
   while (log.children.length > 600) log.removeChild(log.firstChild);
   if (atEnd || past) log.scrollTop = log.scrollHeight;
-  if (!past && status !== "PROGRESS" && $("pane-events").hidden) {  // lines not seen yet: counted on the tab
+  if (news && $("pane-events").hidden) {  // lines not seen yet: counted on the tab
     const unread = $("tab-events").querySelector(".unread");
     unread.textContent = String((+unread.textContent || 0) + 1);
     unread.hidden = false;
@@ -421,7 +422,7 @@ function loadLayer(name) {
       drawLegend();
     };
     img.src = URL.createObjectURL(blob);
-  }).catch((err) => { l.loading = null; logLine(`layer ${name}: ${err}`, "ERROR", false); });
+  }).catch((err) => { l.loading = null; logLine(`layer ${name}: ${err}`, "ERROR", false, undefined, false, true); });
 }
 
 function updateProducts(products) {
@@ -903,6 +904,15 @@ function placeMarks(st, w, h) {
     }
     taken.push(best);
     S.labels.push({ text: m.text, x: best.x, y: best.y, w: best.w, h: best.h });
+    const nx = Math.max(best.x, Math.min(m.px, best.x + best.w)), ny = Math.max(best.y, Math.min(m.py, best.y + best.h));
+    if (Math.hypot(nx - m.px, ny - m.py) > 16) {  // pushed away: a thin line says what it names
+      ctx.strokeStyle = m.colour;
+      ctx.lineWidth = 1;
+      ctx.beginPath();
+      ctx.moveTo(m.px, m.py);
+      ctx.lineTo(nx, ny);
+      ctx.stroke();
+    }
     label(m.text, best.x + 2, best.y + LABEL_H - 3, m.colour);
   }
   ctx.restore();
