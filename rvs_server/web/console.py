@@ -45,6 +45,7 @@ MAX_QUEUED = 2000  # messages a page may lag behind before it is dropped (it rel
 TRACK_POINTS = 5000  # rover positions kept for the driven track
 SNAPSHOT_TRACK = 1000  # of which each state snapshot carries the newest (5 per second to every page)
 HISTORY = 500  # event and job lines a page is shown when it opens (a reload keeps its history)
+MAX_CHECKS_ASKED = 256  # check-moves asked and not answered yet (each connection's last)
 PRODUCTS_EVERY = 2.0  # seconds between two listings of the current map's products
 DOWNLOADS = (".tif", ".png", ".ply", ".csv", ".yaml")  # what a page may download of the current map
 STATIC = {"index.html": "text/html", "console.js": "text/javascript", "console.css": "text/css"}
@@ -164,10 +165,10 @@ class WebConsole:
         self.values = ValueCache()
         self.cameras = CameraFrames()
         self.history: deque[str] = deque(maxlen=HISTORY)
-        self._products: tuple[float, dict[str, Path]] = (0.0, {})
-        self.goal: dict[str, Any] | None = None  # the last navigate's goal, whoever sent it
         self.check: dict[str, Any] | None = None  # the last check-move's answer, whoever asked
         self._check_from: dict[int, tuple[float, float]] = {}  # conn -> pose when it asked for a check-move
+        self._products: tuple[float, dict[str, Path]] = (0.0, {})
+        self.goal: dict[str, Any] | None = None  # the last navigate's goal, whoever sent it
         self.track: deque[tuple[float, float]] = deque(maxlen=TRACK_POINTS)
         self.snapshot = ""  # the last state message sent to the pages
         self.bounds: dict[tuple[str, str], list[float]] = {}  # (path, version) -> layer bounds
@@ -233,6 +234,8 @@ class WebConsole:
             if words and words[0].startswith("@"):
                 words = words[1:]
             if words and words[0].lower() == "check-move":  # the move starts where the rover is now
+                if len(self._check_from) > MAX_CHECKS_ASKED:  # lines refused before check-move's reply
+                    self._check_from.clear()
                 self._check_from[item.data["conn"]] = (self.app.pose.x, self.app.pose.y)
             return
         reply = item.data.get("reply")
@@ -316,7 +319,6 @@ class WebConsole:
             self.goal = {"x": job.params["goal"][0], "y": job.params["goal"][1],
                          "tolerance": job.params.get("tolerance"), "job": job.id}
         out["goal"] = self.goal
-        out["check"] = self.check
         out["tof_hfov"] = TOF_HFOV_DEG  # drawn as the ToF's wedge
         maps: dict[str, Any] = {}
         for name, path in self.layer_paths().items():
@@ -334,6 +336,7 @@ class WebConsole:
         out["products"] = [{"name": n, "url": f"/products/{n}"} for n in self.products()]
         hazcam = app.devices.devices.get("hazcam")
         out["cameras"] = self.cameras.listing(hazcam.cameras() if hazcam is not None else [])
+        out["check"] = self.check
         monitors = json.loads(format_reply_json(Reply("RVS", "OK", app.monitors.status_fields())))
         out["monitors"] = {k: v for k, v in monitors.items() if k not in ("module", "status")}
         here = out.get("truth") or out["pose"]
