@@ -648,6 +648,9 @@ def test_the_progress_bar_is_the_jobs_and_the_result_box_says_whose_result_it_sh
     acquired = max(w for p, _, _, w in bars if p == "acquire")
     processed = max(w for p, _, _, w in bars if p == "process")
     assert 35 < acquired < 60 and 85 < processed < 99, bars
+    # the estimate is the job's: a quarter of the bar in 10 s leaves 30 s
+    assert page.evaluate("jobTimes({started: Date.now() / 1000 + S.clock - 10}, 0.25)") == \
+        "elapsed 10 s · about 30 s left"
     first = page.text_content("#result")
     job = int(first.split("job=")[1].split()[0])
 
