@@ -558,9 +558,14 @@ def test_the_locked_page_names_what_the_server_answers_and_an_unlock_outlives_a_
     page.fill("#cmd", "status")
     page.press("#cmd", "Enter")
     page.wait_for_function("document.getElementById('result').textContent.includes('EGP-RVS-STATUS OK')")
-    # another tab is not: the token stays with the tab it was given to
-    other = c.open(browser)
-    page.wait_for_timeout(300)
+    # another tab of the same browser is not: the token stays with the tab it was given to
+    other = page.context.new_page()
+    other.errors = []
+    other.on("pageerror", lambda exc: other.errors.append(str(exc)))
+    other.goto(c.url)
+    other.wait_for_selector("#link.up")
+    other.wait_for_function("S.state !== null")
+    other.wait_for_timeout(300)
     assert other.is_visible("#auth") and other.eval_on_selector("#btn-dem", "e => e.disabled")
     assert not page.errors and not other.errors, (page.errors, other.errors)
 
