@@ -195,7 +195,7 @@ def sim_row(scene: str, look: str, k: float, seed: int = 0, body: RoverBody | No
         "bounded": int(seen.sum() + ceiling_only.sum()), "ceiling_only": int(ceiling_only.sum()),
         "poses": len(poses), "judged": int(judged.sum()), "false_safe": int((on_truth.unsafe & on_bounds.safe).sum()),
         "safe_kept": float(on_bounds.safe[truly_safe].mean()) if truly_safe.any() else float("nan"),
-        # why the truly safe poses the bounds refuse are refused: wheel, belly, tilt (a pose may have several)
+        # why the truly safe poses the bounds refuse are refused: step, belly, stability, grade (a pose may have several)
         "refused_by": [int(n) for n in (on_bounds.excess[truly_safe & on_bounds.unsafe] > 0).sum(axis=0)],
     }
 
