@@ -273,7 +273,10 @@ def _edges(lo: np.ndarray, hi: np.ndarray, lanes: np.ndarray) -> np.ndarray:
     with np.errstate(invalid="ignore"):
         for k in range(1, min(_EDGE_SAMPLES, lanes.shape[1] - 1) + 1):
             a, b = lanes[:, :-k], lanes[:, k:]
-            up = np.fmax(hi[:, b] - lo[:, a], hi[:, a] - lo[:, b])  # (m, W, L - k)
+            if hi is lo:
+                up = np.abs(lo[:, b] - lo[:, a])  # (m, W, L - k)
+            else:
+                up = np.fmax(hi[:, b] - lo[:, a], hi[:, a] - lo[:, b])
             out = np.fmax(out, np.fmax.reduce(up.reshape(len(lo), -1), axis=1))
     return np.where(np.isinf(out), np.nan, out)
 

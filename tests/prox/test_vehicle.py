@@ -14,7 +14,14 @@ import pytest
 from drivers.sim.head import HeadGeometry
 from drivers.sim.rover import RoverBody
 from drivers.sim.scene import build_rover
-from prox_workflows.algorithms.vehicle import check_poses, densify, severity, tip_angle, track_poses, unsafe_events
+from prox_workflows.algorithms.vehicle import (
+    check_poses,
+    densify,
+    severity,
+    tip_angle,
+    track_poses,
+    unsafe_events,
+)
 from prox_workflows.grid import GridGeometry
 
 BODY = RoverBody()
