@@ -11,7 +11,7 @@ are tight. Per scene and per way of looking, this prints:
 - **fuse ms** p50: one ToF frame into the bounds map, against the rolling map's fuse of the same
   frame (ratio);
 - **bounded**: cells with an upper bound, and how many of them only by a ray passing over;
-- **vehicle check**: the worst-case wheel, belly and tilt check on the bounds at poses over the
+- **vehicle check**: the worst-case check of the four limits on the bounds at poses over the
   ground ahead, against the same check on the true 1 cm surface: poses it can judge (the others
   cover unseen ground), poses it calls safe that are not (must be 0), and the share of truly safe
   judged poses it still calls safe (what the rover may plan through).
