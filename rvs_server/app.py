@@ -285,6 +285,14 @@ class App:
             if conn.events:
                 conn.send(reply)
 
+    def sent(self, conn: Connection, reply: Reply, *, job: bool = False) -> None:
+        """Publish a line sent to ``conn`` (its ``send`` calls this first, whether or not it is
+        still open: a job's final line is part of the record when its client left before it);
+        an EVENT is published once, by :meth:`broadcast`. ``job``: a line of a job (its ACK,
+        PROGRESS, OK or ERROR), not an immediate reply."""
+        if reply.status != "EVENT":
+            self.bus.publish("reply", conn=conn.id, reply=reply, job=job)
+
     def job_reply(self, conn: Connection, reply: Reply) -> None:
         """A line of a job: to the connection that started it, and to every connection that
         watches all jobs (the web console's pages; loop only)."""

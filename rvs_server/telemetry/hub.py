@@ -305,7 +305,8 @@ class Telemetry:
         reply = item.data["reply"]
         self._wire(item, "reply", item.data["conn"], format_reply(reply), reply)
         fields = reply.fields
-        if isinstance(fields.get("job"), int) and reply.status in ("ACK", "PROGRESS", "OK", "ERROR"):
+        # a job's own lines only: ``status -job N`` names job N too, but is no line of it
+        if item.data.get("job") and isinstance(fields.get("job"), int):
             done, total = int(fields.get("done", 0)), int(fields.get("total", 0))
             progress = {"job": int(fields["job"]), "command": reply.module, "status": reply.status,
                         "phase": str(fields.get("phase", "")), "done": done, "total": total,

@@ -104,14 +104,14 @@ class WebPeer:
     def send(self, reply: Reply, *, own: bool = True, job: bool = False) -> None:
         """Queue a reply line for the page (event loop only); ``own``: an answer to this page's
         request, ``job``: a line of a job (see Connection.send)."""
+        if own:  # also once the page is gone (another line's: its own connection publishes it)
+            self.app.sent(self, reply, job=job)
         if self.closed:
             return
         if self.queue.qsize() > MAX_QUEUED:
             self.log.warning("client_dropped", reason="page not reading its messages")
             self.close()
             return
-        if own and reply.status != "EVENT":  # as a TCP connection's (an EVENT: App.broadcast's)
-            self.app.bus.publish("reply", conn=self.id, reply=reply, job=job)
         self.queue.put_nowait(_encode(reply, own))
 
     def observe(self, reply: Reply) -> None:
