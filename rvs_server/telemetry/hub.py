@@ -40,8 +40,6 @@ log = structlog.get_logger("rvs.telemetry")
 
 TICK = 0.1  # s between samples of the frame tree and poses (10 Hz: a PTU sweep looks smooth)
 TRACK_EVERY = 1.0  # s between track updates (it grows to thousands of points)
-TRACK_POINTS = 5000
-TRACK_STEP = 0.02  # m the rover moves before the track gets a point
 MAX_QUEUED = 512  # items the thread may lag behind (a 24-view scan queues about 50)
 BOUNDS_TOPIC = "/nav/bounds"
 BOUNDS_EVERY = 10  # see-loop frames between two sends of the bounds map (a replan sends it too)
@@ -49,8 +47,9 @@ BOUNDS_EVERY = 10  # see-loop frames between two sends of the bounds map (a repl
 
 class Telemetry:
     """The hub: one thread, and the link to the telemetry process once there is one
-    (:meth:`attach`). The state the thread keeps (the last maps, plan, check-move, track) is its
-    own; the process gets it all when it is attached, and each change after."""
+    (:meth:`attach`). The state the thread keeps (the last maps, plan, check-move) is its own, the
+    track the server's (``App.travel``); the process gets it all when it is attached, and each
+    change after."""
 
     def __init__(self, app: App) -> None:
         self.app = app
@@ -62,9 +61,9 @@ class Telemetry:
         self._maps: tuple[int, Layers] | None = None
         self._latched: dict[str, tuple[int, Any, tuple[Any, ...]]] = {}  # plan, check-move: their last message
         self._sent: dict[str, int] = {}  # latched topic -> the time of the message the process holds
-        self._track: deque[tuple[float, float, float]] = deque(maxlen=TRACK_POINTS)
-        self._track_sent = 0.0
-        self._track_dirty = False
+        self._track_sent = 0.0  # monotonic time of the last send
+        self._track_version = -1  # App.travel's version the process holds
+        self._state_ns = 0  # the time of the newest pose sent: the pose channels never step back
         self._requests: dict[int, tuple[float, float, float]] = {}  # conn -> pose at its last check-move
         self._bounds: tuple[int, BoundsMap] | None = None  # the see loop's bounds map as last published (live)
         self._bounds_items = 0
@@ -88,7 +87,11 @@ class Telemetry:
             if link is None or not (link.wants_any() if frame else link.recording):
                 return
             copied = _copied(item.data["result"])
-            item = Item(item.kind, item.time_ns, {**item.data, "result": copied, "state": self._state()})
+            # the state as the call returns, stamped so: the frame's time is its start (when a
+            # camera exposes), and a drive's pose at its end is where the rover is only then
+            state_ns = time.time_ns()
+            item = Item(item.kind, item.time_ns, {**item.data, "result": copied, "state": self._state(),
+                                                  "state_ns": state_ns})
         elif item.kind == "bounds":
             bounds = item.data["bounds"]
             self._bounds = (item.time_ns, bounds)
@@ -214,9 +217,8 @@ class Telemetry:
         for topic, (t_ns, encode, args) in self._latched.items():
             if wanted(topic, t_ns):
                 self._log(topic, t_ns, encode, *args)
-        if self._track and wanted("/nav/track", None):
-            t = time.time_ns()
-            self._log("/nav/track", t, m.track, t, np.array(self._track))
+        if wanted("/nav/track", None):
+            self._send_track()
 
     def resend(self) -> None:
         """Send what is latched and not yet with the process (a recording starts: it takes all)."""
@@ -235,7 +237,7 @@ class Telemetry:
 
     def _on_frame(self, item: Item) -> None:
         t, device, result = item.time_ns, item.data["device"], item.data["result"]
-        self._log_state(t, item.data["state"])
+        self._log_state(item.data["state_ns"], item.data["state"])
         self._log_call(item)
         images = images_of(device, item.data["call"], item.data["args"], result)
         if device == "tof":
@@ -344,6 +346,12 @@ class Telemetry:
         return (pose.x, pose.y, pose.heading, ground_height(app.maps.layers, pose.x, pose.y)), app.ptu_position(), truth
 
     def _log_state(self, t: int, state: Any) -> None:
+        """The frame tree and the poses at ``t``, unless a newer state went already (a frame's,
+        sampled in its job's thread, may come after the tick's): a player steps through the
+        pose channels in time, and one going back would show the rover jumping."""
+        if t <= self._state_ns:
+            return
+        self._state_ns = t
         pose, ptu, truth = state
         head = HeadCalibration.from_dict(self.app.config.get("head").as_dict())
         self._log("/tf", t, m.frame_tree, t, head, pose, ptu, truth, self._body_frames())
@@ -370,15 +378,17 @@ class Telemetry:
             return
         t, state = time.time_ns(), self._state()
         self._log_state(t, state)
-        pose, _, truth = state
-        z = pose[3]
-        here = truth or pose[:3]
-        if not self._track or abs(self._track[-1][0] - here[0]) + abs(self._track[-1][1] - here[1]) > TRACK_STEP:
-            self._track.append((here[0], here[1], z + 0.02))
-            self._track_dirty = True
-        if self._track_dirty and (track_now or time.monotonic() - self._track_sent >= TRACK_EVERY):
-            self._track_sent, self._track_dirty = time.monotonic(), False
-            self._log("/nav/track", t, m.track, t, np.array(self._track))
+        if self.app.travel.version != self._track_version and (
+                track_now or time.monotonic() - self._track_sent >= TRACK_EVERY):
+            self._send_track()
+
+    def _send_track(self) -> None:
+        """The server's track (``App.travel``), a little above the ground it was driven on."""
+        self._track_version, self._track_sent = self.app.travel.version, time.monotonic()
+        points = np.array(self.app.travel.track(), float).reshape(-1, 3)
+        points[:, 2] += 0.02
+        t = time.time_ns()
+        self._log("/nav/track", t, m.track, t, points)
 
 
 def bounds_window(bounds: BoundsMap) -> tuple[GridGeometry, dict[str, np.ndarray]] | None:

@@ -41,7 +41,6 @@ log = structlog.get_logger("rvs.web")
 
 TICK = 0.2  # seconds between state snapshots (pose, PTU, progress): 5 Hz is smooth enough to watch
 MAX_QUEUED = 2000  # messages a page may lag behind before it is dropped (it reloads and catches up)
-TRACK_POINTS = 5000  # rover positions kept for the driven track
 SNAPSHOT_TRACK = 1000  # of which each state snapshot carries the newest (5 per second to every page)
 HISTORY = 500  # event and job lines a page is shown when it opens (a reload keeps its history)
 PRODUCTS_EVERY = 2.0  # seconds between two listings of the current map's products
@@ -152,7 +151,7 @@ class WebPeer:
 
 
 class WebConsole:
-    """The console's HTTP routes, its open pages and what only the console keeps (the track)."""
+    """The console's HTTP routes, its open pages and what they are shown."""
 
     def __init__(self, app: App) -> None:
         self.app = app
@@ -162,8 +161,6 @@ class WebConsole:
         self.cameras = CameraFrames()
         self.history: deque[str] = deque(maxlen=HISTORY)
         self._products: tuple[float, dict[str, Path]] = (0.0, {})
-        self.goal: dict[str, Any] | None = None  # the last navigate's goal, whoever sent it
-        self.track: deque[tuple[float, float]] = deque(maxlen=TRACK_POINTS)
         self.snapshot = ""  # the last state message sent to the pages
         self.bounds: dict[tuple[str, str], list[float]] = {}  # (path, version) -> layer bounds
         self.runner: web.AppRunner | None = None
@@ -291,10 +288,8 @@ class WebConsole:
             out["scene"] = app.world.scene_name
         head = app.config.get("head")
         out["rover"] = {"length": head.rover_length, "width": head.rover_width}
-        if job is not None and job.command == "navigate" and len(job.params.get("goal") or ()) == 2:
-            self.goal = {"x": job.params["goal"][0], "y": job.params["goal"][1],
-                         "tolerance": job.params.get("tolerance"), "job": job.id}
-        out["goal"] = self.goal
+        goal = app.travel.goal
+        out["goal"] = None if goal is None else {"x": goal.x, "y": goal.y, "tolerance": goal.tolerance, "job": goal.job}
         out["tof_hfov"] = TOF_HFOV_DEG  # drawn as the ToF's wedge
         maps: dict[str, Any] = {}
         for name, path in self.layer_paths().items():
@@ -314,10 +309,7 @@ class WebConsole:
         out["cameras"] = self.cameras.listing(hazcam.cameras() if hazcam is not None else [])
         monitors = json.loads(format_reply_json(Reply("RVS", "OK", app.monitors.status_fields())))
         out["monitors"] = {k: v for k, v in monitors.items() if k not in ("module", "status")}
-        here = out.get("truth") or out["pose"]
-        if not self.track or (abs(self.track[-1][0] - here["x"]) + abs(self.track[-1][1] - here["y"])) > 0.02:
-            self.track.append((round(here["x"], 3), round(here["y"], 3)))
-        out["track"] = list(self.track)[-SNAPSHOT_TRACK:]
+        out["track"] = [(round(x, 3), round(y, 3)) for x, y, _ in app.travel.track()[-SNAPSHOT_TRACK:]]
         return out
 
     async def _prerender(self) -> None:
