@@ -63,10 +63,11 @@ class Telemetry:
         self._sent: dict[str, int] = {}  # latched topic -> the time of the message the process holds
         self._track_sent = 0.0  # monotonic time of the last send
         self._track_version = -1  # App.travel's version the process holds
-        self._state_ns = 0  # the time of the newest pose sent: the pose channels never step back
+        self._state_lock = threading.Lock()  # a state is sampled, stamped and queued in one go: in time order
         self._requests: dict[int, tuple[float, float, float]] = {}  # conn -> pose at its last check-move
         self._bounds: tuple[int, BoundsMap] | None = None  # the see loop's bounds map as last published (live)
         self._bounds_items = 0
+        self._offered_calls: set[tuple[str, ...]] = set()  # kinds of call passed on while nobody listened
         self._thread = threading.Thread(target=self._run, name="rvs-telemetry", daemon=True)
         self._thread.start()
         app.bus.subscribe(self.accept)
@@ -80,23 +81,33 @@ class Telemetry:
         The bounds map goes on as its lower and upper bounds, read in the see loop's thread (it
         fuses the next frame into the same arrays), every :data:`BOUNDS_EVERY` frames and at
         each replan, and only when someone listens; otherwise the hub keeps the map itself."""
+        if item.kind == "calling":
+            link = self._link
+            if link is not None and (link.wants_any() if carries_images(item.data["device"], item.data["call"])
+                                     else link.recording):
+                self._log_state()  # here, before the call: the frame tree of its start, stamped before it
+            return
         if item.kind == "frame":
             link = self._link
             # a call that returns no image (a PTU move) is only for a recording's /raw/calls
             frame = carries_images(item.data["device"], item.data["call"])
-            if link is None or not (link.wants_any() if frame else link.recording):
+            if link is None:
                 return
+            if not (link.wants_any() if frame else link.recording):
+                # nobody listens: the first of its kind still goes, so its topics are offered
+                kind = (item.data["device"], item.data["call"], *map(str, item.data["args"][:1]))
+                if not frame or kind in self._offered_calls:
+                    return
+                self._offered_calls.add(kind)
             copied = _copied(item.data["result"])
-            # the state as the call returns, stamped so: the frame's time is its start (when a
-            # camera exposes), and a drive's pose at its end is where the rover is only then
-            state_ns = time.time_ns()
-            item = Item(item.kind, item.time_ns, {**item.data, "result": copied, "state": self._state(),
-                                                  "state_ns": state_ns})
+            item = Item(item.kind, item.time_ns, {**item.data, "result": copied, "state": self._state()})
         elif item.kind == "bounds":
             bounds = item.data["bounds"]
             self._bounds = (item.time_ns, bounds)
             self._bounds_items += 1
             link = self._link
+            if link is not None and not link.wants(BOUNDS_TOPIC):
+                link.offer(BOUNDS_TOPIC)
             if not (item.data.get("replan") or self._bounds_items % BOUNDS_EVERY == 0) or link is None \
                     or not link.wants(BOUNDS_TOPIC):
                 return
@@ -183,12 +194,17 @@ class Telemetry:
             handler(entry)
 
     def _log(self, topic: str, t_ns: int, encode: Any, *args: Any) -> None:
-        """Send ``encode(*args)`` to the process (which encodes it) if ``topic`` is wanted there."""
+        """Send ``encode(*args)`` to the process (which encodes it) if ``topic`` is wanted there,
+        else offer the topic (the live server advertises it: it has something to say)."""
         link = self._link
-        if link is not None and link.wants(topic):
+        if link is None:
+            return
+        if link.wants(topic):
             link.log(topic, t_ns, encode, *args)
             if topic_spec(topic).latched:
                 self._sent[topic] = t_ns
+        else:
+            link.offer(topic)
 
     def _latch(self, topic: str, t_ns: int, encode: Any, *args: Any) -> None:
         self._latched[topic] = (t_ns, encode, args)
@@ -237,7 +253,6 @@ class Telemetry:
 
     def _on_frame(self, item: Item) -> None:
         t, device, result = item.time_ns, item.data["device"], item.data["result"]
-        self._log_state(item.data["state_ns"], item.data["state"])
         self._log_call(item)
         images = images_of(device, item.data["call"], item.data["args"], result)
         if device == "tof":
@@ -345,19 +360,20 @@ class Telemetry:
             truth = (float(tr["x"]), float(tr["y"]), float(tr["heading"]))
         return (pose.x, pose.y, pose.heading, ground_height(app.maps.layers, pose.x, pose.y)), app.ptu_position(), truth
 
-    def _log_state(self, t: int, state: Any) -> None:
-        """The frame tree and the poses at ``t``, unless a newer state went already (a frame's,
-        sampled in its job's thread, may come after the tick's): a player steps through the
-        pose channels in time, and one going back would show the rover jumping."""
-        if t <= self._state_ns:
-            return
-        self._state_ns = t
-        pose, ptu, truth = state
+    def _log_state(self) -> None:
+        """The frame tree and the poses as they are now, stamped now: from the hub's thread every
+        tick and from a device call's thread as it starts (the tree a frame is seen through).
+        Sampled, stamped and queued under one lock, so the pose channels never step back in time
+        and each pose is stamped with the time it describes (a player would show the rover
+        jumping)."""
         head = HeadCalibration.from_dict(self.app.config.get("head").as_dict())
-        self._log("/tf", t, m.frame_tree, t, head, pose, ptu, truth, self._body_frames())
-        self._log("/rover/pose", t, m.pose_in_world, t, *pose)
-        if truth is not None:
-            self._log("/rover/truth", t, m.pose_in_world, t, *truth, pose[3])
+        body = self._body_frames()
+        with self._state_lock:
+            t, (pose, ptu, truth) = time.time_ns(), self._state()
+            self._log("/tf", t, m.frame_tree, t, head, pose, ptu, truth, body)
+            self._log("/rover/pose", t, m.pose_in_world, t, *pose)
+            if truth is not None:
+                self._log("/rover/truth", t, m.pose_in_world, t, *truth, pose[3])
 
     def _body_frames(self) -> list[tuple[str, np.ndarray]]:
         """The optical frames of the hazard camera pairs switched on, in the rover frame, where
@@ -376,8 +392,7 @@ class Telemetry:
     def _sample(self, track_now: bool = False) -> None:
         if self._link is None:
             return
-        t, state = time.time_ns(), self._state()
-        self._log_state(t, state)
+        self._log_state()
         if self.app.travel.version != self._track_version and (
                 track_now or time.monotonic() - self._track_sent >= TRACK_EVERY):
             self._send_track()

@@ -34,12 +34,14 @@ class _Listener(ServerListener):
 
 
 class LiveOutlet(Outlet):
-    """The Foxglove server on ``host:port``; raises RuntimeError if it cannot bind.
+    """The Foxglove server on ``host:port``; raises RuntimeError if it cannot bind. A channel is
+    advertised once its topic has something to say (its first message, or the hub's offer when
+    nobody listens yet), so a client lists no channel that stays empty (a hazard camera not
+    fitted, a map layer no DEM makes).
     ``on_subscribe(topic)`` is called in the SDK's threads when a client subscribes."""
 
     def __init__(self, host: str, port: int, name: str, on_subscribe: Callable[[str], None]) -> None:
         super().__init__(live=True)
-        self.declare()
         self.server = foxglove.start_server(name=name, host=host, port=port, context=self.context,
                                             server_listener=_Listener(on_subscribe), capabilities=[])
         self.url = f"ws://{f'[{host}]' if ':' in host else host}:{self.server.port}"

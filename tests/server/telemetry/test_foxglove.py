@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import asyncio
 import base64
+import contextlib
 import json
 import os
 import socket
@@ -82,6 +83,14 @@ class FoxgloveClient:
         elif obj["op"] == "advertise":
             for ch in obj["channels"]:
                 self.channels[ch["topic"]] = ch
+
+    async def advertised(self, *topics: str, timeout: float = 30.0) -> None:
+        """Until every one of ``topics`` is advertised (a channel is, once it has said something)."""
+        async with asyncio.timeout(timeout):
+            while not set(topics) <= set(self.channels):
+                msg = await self.ws.receive()
+                assert msg.type == aiohttp.WSMsgType.TEXT, msg
+                self._text(json.loads(msg.data))
 
     async def subscribe(self, *topics: str) -> None:
         subs = []
@@ -159,14 +168,15 @@ def test_foxglove_client_decodes_grid_cloud_and_frames(server_factory: Any) -> N
     c = srv.client()
     status = c.request("status").fields
     assert status["foxglove"] == "on" and status["foxglove_url"] == f"ws://127.0.0.1:{port}", status
+    assert c.request(DEM, timeout=120).status == "OK"  # a channel is advertised once it has said something
 
     async def live() -> dict[str, Any]:
         session, fx = await connect(port)
         try:
             # read-only whoever connects: nothing a client could publish, call or set
             assert not set(fx.info["capabilities"]) & {"clientPublish", "services", "parameters"}, fx.info
-            assert {"/tf", "/rover/pose", "/rover/truth", "/tof/points", "/tof/depth", "/tof/amplitude",
-                    "/stereo/left/compressed", "/nav/plan", "/nav/check_move", "/rvs/log", "/rvs/job"} <= set(fx.channels)
+            await fx.advertised("/tf", "/rover/pose", "/rover/truth", "/tof/points", "/tof/depth", "/tof/amplitude",
+                                "/rvs/log", "/rvs/job", "/map/dem")
             assert not [t for t in fx.channels if t.startswith("/raw/") or t == "/rvs/wire"]  # recordings only
             assert fx.channels["/tof/points"]["schemaName"] == "foxglove.PointCloud"
             await fx.subscribe("/tf", "/tof/points", "/rvs/log")
@@ -177,7 +187,8 @@ def test_foxglove_client_decodes_grid_cloud_and_frames(server_factory: Any) -> N
             assert reply.status == "OK", reply
             st = c.request("status").fields
             await fx.subscribe(*[t for t in fx.channels if t.startswith("/map/")] or ["/map/dem"])
-            return {"cloud": cloud, "tree": fx.trees[t_cloud], "status": st,  # the tree of the cloud's time
+            # the tree of the cloud's time: the newest at its start (the call's state, stamped before it)
+            return {"cloud": cloud, "tree": fx.trees[max(t for t in fx.trees if t <= t_cloud)], "status": st,
                     "dem": (await fx.until("/map/dem"))[1], "latest": (await fx.until("/tf"))[1]}
         finally:
             await fx.ws.close()
@@ -265,10 +276,12 @@ def test_foxglove_client_sees_the_hazcam_frames_and_decodes_their_image_and_poin
     srv = server_factory([f"server.foxglove_port={port}", "drivers.hazcam.cameras=front"])
     hazcam = srv.app.devices.get("hazcam")
     image_topic, points_topic = "/hazcam/front/left/compressed", "/hazcam/front/points"
+    tapped_call(srv.app.bus, hazcam.grab, "front")  # its channels are advertised once it has grabbed
 
     async def live() -> tuple[Any, Any, dict[str, Any]]:
         session, fx = await connect(port)
         try:
+            await fx.advertised(image_topic, points_topic)
             assert fx.channels[image_topic]["schemaName"] == "foxglove.CompressedImage"
             assert fx.channels[points_topic]["schemaName"] == "foxglove.PointCloud"
             await fx.subscribe("/tf", image_topic, points_topic)
@@ -307,3 +320,51 @@ def test_foxglove_client_sees_the_hazcam_frames_and_decodes_their_image_and_poin
     assert len(packed) == len(frame.points) > 10000
     np.testing.assert_array_equal(packed[:, :3], frame.points.astype(np.float32))
     np.testing.assert_array_equal(packed[:, 3], frame.sigma_range.astype(np.float32))
+
+
+def test_a_channel_is_advertised_once_it_has_something_to_say_and_every_one_advertised_carries_messages(
+        server_factory: Any) -> None:
+    port = free_port()
+    srv = server_factory([f"server.foxglove_port={port}"])
+    c = srv.client()
+
+    async def watch() -> tuple[set[str], dict[str, int]]:
+        session, fx = await connect(port)
+        got: dict[str, int] = {}
+        subscribed: set[str] = set()
+
+        async def pump() -> None:  # subscribe to every channel as it is advertised, count its messages
+            while True:
+                new = [t for t in fx.channels if t not in subscribed]
+                if new:
+                    subscribed.update(new)
+                    await fx.subscribe(*new)
+                topic, _, _ = await fx.next(60)
+                got[topic] = got.get(topic, 0) + 1
+
+        task = asyncio.create_task(pump())
+        try:
+            loop = asyncio.get_running_loop()
+            for _ in range(2):  # the second round speaks on the channels the first one had advertised
+                for line in ("grab-tof -output adv -type amplitude", DEM, "check-move -dx 0.5"):
+                    reply = await loop.run_in_executor(None, c.request, line, 120.0)
+                    assert reply.status == "OK", reply
+            with contextlib.suppress(TimeoutError):  # a safety net: the assertion below says what stayed empty
+                async with asyncio.timeout(30):
+                    while not set(fx.channels) <= set(got):
+                        await asyncio.sleep(0.05)
+            return set(fx.channels), got
+        finally:
+            task.cancel()
+            await fx.ws.close()
+            await session.close()
+
+    channels, got = asyncio.run(watch())
+    assert channels <= set(got), channels - set(got)  # nothing advertised stays empty
+    assert {"/tf", "/rover/pose", "/tof/amplitude", "/tof/points", "/map/dem", "/map/hazard", "/nav/check_move",
+            "/nav/track", "/rvs/log", "/rvs/job"} <= channels, channels
+    # what these commands never make is not advertised: the hazard cameras (none fitted), the
+    # layers a ToF DEM has none of, the see loop's bounds, a plan
+    never = {"/hazcam/front/points", "/hazcam/front/left/compressed", "/map/intensity", "/map/wmean",
+             "/map/measurement_variance", "/nav/bounds", "/nav/plan", "/stereo/left/compressed"}
+    assert not channels & never, channels & never
