@@ -154,9 +154,10 @@ def grid_values(grid: Any) -> np.ndarray:
     return np.flipud(rows)
 
 
-async def connect(port: int) -> tuple[aiohttp.ClientSession, FoxgloveClient]:
+async def connect(port: int, protocols: tuple[str, ...] = (SUBPROTOCOL,)) -> tuple[aiohttp.ClientSession,
+                                                                                 FoxgloveClient]:
     session = aiohttp.ClientSession()
-    ws = await session.ws_connect(f"ws://127.0.0.1:{port}", protocols=[SUBPROTOCOL])
+    ws = await session.ws_connect(f"ws://127.0.0.1:{port}", protocols=protocols)
     client = FoxgloveClient(ws)
     await client.hello()
     return session, client
@@ -368,3 +369,29 @@ def test_a_channel_is_advertised_once_it_has_something_to_say_and_every_one_adve
     never = {"/hazcam/front/points", "/hazcam/front/left/compressed", "/map/intensity", "/map/wmean",
              "/map/measurement_variance", "/nav/bounds", "/nav/plan", "/stereo/left/compressed"}
     assert not channels & never, channels & never
+
+
+@pytest.mark.parametrize("offered", [("foxglove.websocket.v1",), ("foxglove.websocket.v1", "foxglove.sdk.v1")])
+def test_a_client_offering_the_old_subprotocol_name_connects_lists_and_decodes(server_factory: Any,
+                                                                               offered: tuple[str, ...]) -> None:
+    """@foxglove/ws-protocol's FoxgloveClient (Lichtblick, foxglove_bridge's users) offers
+    foxglove.websocket.v1 alone: the same protocol, under the name it had before the SDK's."""
+    port = free_port()
+    srv = server_factory([f"server.foxglove_port={port}"])
+
+    async def live() -> tuple[str | None, Any]:
+        session, fx = await connect(port, offered)
+        try:
+            await fx.advertised("/tf", "/rover/pose")
+            await fx.subscribe("/rover/pose")
+            return fx.ws.protocol, (await fx.until("/rover/pose"))[1]
+        finally:
+            await fx.ws.close()
+            await session.close()
+
+    protocol, pose = asyncio.run(live())
+    # the name the client offered, the SDK's when it offered both
+    assert protocol == ("foxglove.sdk.v1" if "foxglove.sdk.v1" in offered else "foxglove.websocket.v1")
+    assert pose.frame_id == "world"
+    p = srv.app.pose
+    assert (pose.pose.position.x, pose.pose.position.y) == pytest.approx((p.x, p.y), abs=1e-6)
