@@ -14,6 +14,7 @@ from typing import Any
 import pytest
 from support.marks import long_test
 from support.mcap import decoded, transform_matrix
+from support.server import wait_for
 
 TIME_SCALE = 20.0  # simulated seconds per wall second: the rover drives at SPEED * TIME_SCALE m/s of wall time
 SPEED = 0.1  # m/s, the scene's drive model (config/scenes)
@@ -77,7 +78,8 @@ def test_track_and_goal_are_the_servers_and_the_recorded_poses_move_as_the_rover
 
     # a navigate that ends in a break leaves no goal on the map
     job = c.start_job("navigate -goal -1.0,0.5 -auto true")
-    assert srv.app.travel.goal is not None and srv.app.travel.goal.job == int(job)
+    assert wait_for(lambda: (goal := srv.app.travel.goal) is not None and goal.job == int(job), 60.0)
+    assert api_state(web_port)["goal"]["x"] == pytest.approx(-1.0)
     assert c.request("break").status == "OK"
     assert c.until_final(job=job)[-1].fields["code"] == "E_INTERRUPTED"
     assert api_state(web_port)["goal"] is None
