@@ -20,7 +20,7 @@ import threading
 SDK_NAME = "foxglove.sdk.v1"
 OLD_NAME = "foxglove.websocket.v1"  # the same protocol, as foxglove.websocket's clients name it
 HEADER = b"sec-websocket-protocol:"
-CHUNK = 256 * 1024
+CHUNK = 4 * 1024 * 1024  # read and written at once: a map layer in a few copies, not hundreds
 
 
 def renamed_offer(head: bytes) -> tuple[bytes, bool]:
@@ -65,7 +65,7 @@ class SubprotocolRelay:
     def start(self, sdk_port: int) -> None:
         self.sdk_port = sdk_port
         self._thread.start()
-        asyncio.run_coroutine_threadsafe(asyncio.start_server(self._serve, sock=self._sock), self._loop).result(10)
+        asyncio.run_coroutine_threadsafe(asyncio.start_server(self._serve, sock=self._sock, limit=CHUNK), self._loop).result(10)
 
     def close(self) -> None:
         if self._thread.is_alive():
@@ -78,7 +78,7 @@ class SubprotocolRelay:
         try:
             head = await reader.readuntil(b"\r\n\r\n")  # up to the reader's limit, 64 KiB
             head, renamed = renamed_offer(head)
-            up_reader, up_writer = await asyncio.open_connection("127.0.0.1", self.sdk_port)
+            up_reader, up_writer = await asyncio.open_connection("127.0.0.1", self.sdk_port, limit=CHUNK)
             up_writer.write(head)
             answer = await up_reader.readuntil(b"\r\n\r\n")
             writer.write(renamed_answer(answer) if renamed else answer)
