@@ -345,7 +345,7 @@ class App:
         really went, slip and all), else the pose the GNC reports."""
         if self.world is not None:
             x, y, _ = self.world.rover_pose()
-        self.travel.moved(x, y, ground_height(self.maps.layers, x, y))
+        self.travel.moved(x, y, lambda x, y: ground_height(self.maps.layers, x, y))
 
     def ptu_position(self) -> tuple[float, float] | None:
         """The PTU's last reported position, without touching the serial line."""

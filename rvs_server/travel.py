@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import threading
 from collections import deque
+from collections.abc import Callable
 from dataclasses import dataclass
 
 TRACK_POINTS = 5000  # positions kept: at TRACK_STEP apart, 100 m of driving
@@ -30,12 +31,13 @@ class Travel:
         self._goal: Goal | None = None
         self._version = 0  # counts track points added: a reader tells a new track from the one it has
 
-    def moved(self, x: float, y: float, z: float) -> None:
-        """The rover is at (x, y) on ground of height z: a point once it is TRACK_STEP from the last."""
+    def moved(self, x: float, y: float, ground: Callable[[float, float], float]) -> None:
+        """The rover is at (x, y): a point once it is TRACK_STEP from the last, at the height
+        ``ground(x, y)`` (asked only then: the pose changes at every step of a drive)."""
         with self._lock:
             if self._track and abs(self._track[-1][0] - x) + abs(self._track[-1][1] - y) <= TRACK_STEP:
                 return
-            self._track.append((x, y, z))
+            self._track.append((x, y, ground(x, y)))
             self._version += 1
 
     def track(self) -> list[tuple[float, float, float]]:
