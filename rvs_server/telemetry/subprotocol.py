@@ -12,15 +12,16 @@ loopback, on a port of its own choosing.
 
 from __future__ import annotations
 
-import asyncio
 import contextlib
+import os
 import socket
 import threading
 
 SDK_NAME = "foxglove.sdk.v1"
 OLD_NAME = "foxglove.websocket.v1"  # the same protocol, as foxglove.websocket's clients name it
 HEADER = b"sec-websocket-protocol:"
-CHUNK = 4 * 1024 * 1024  # read and written at once: a map layer in a few copies, not hundreds
+CHUNK = 1024 * 1024  # moved per splice call at most
+MAX_HEAD = 64 * 1024  # a handshake's head; more is no WebSocket client's
 
 
 def renamed_offer(head: bytes) -> tuple[bytes, bool]:
@@ -49,7 +50,9 @@ def renamed_answer(head: bytes) -> bytes:
 
 class SubprotocolRelay:
     """Listens on ``host:port`` (RuntimeError if it cannot bind) and relays each connection to
-    the SDK's server on ``127.0.0.1:sdk_port``, renaming the subprotocol in the handshake."""
+    the SDK's server on ``127.0.0.1:sdk_port``, renaming the subprotocol in the handshake. A
+    thread per direction of each connection (Foxglove clients are a handful) moves the bytes
+    with splice(2): kernel to kernel, never through Python objects or the GIL."""
 
     def __init__(self, host: str, port: int) -> None:
         family = socket.AF_INET6 if ":" in host else socket.AF_INET
@@ -59,44 +62,90 @@ class SubprotocolRelay:
             raise RuntimeError(str(exc)) from None
         self.port: int = self._sock.getsockname()[1]
         self.sdk_port = 0  # set by start(), once the SDK listens
-        self._loop = asyncio.new_event_loop()
-        self._thread = threading.Thread(target=self._loop.run_forever, name="rvs-foxglove-relay", daemon=True)
+        self._open: set[socket.socket] = set()  # the relayed connections' sockets, shut at close
+        self._lock = threading.Lock()
+        self._thread = threading.Thread(target=self._accept, name="rvs-foxglove-relay", daemon=True)
 
     def start(self, sdk_port: int) -> None:
         self.sdk_port = sdk_port
         self._thread.start()
-        asyncio.run_coroutine_threadsafe(asyncio.start_server(self._serve, sock=self._sock, limit=CHUNK), self._loop).result(10)
 
     def close(self) -> None:
-        if self._thread.is_alive():
-            self._loop.call_soon_threadsafe(self._loop.stop)
-            self._thread.join(5.0)
-        self._sock.close()
-
-    async def _serve(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
-        up_writer: asyncio.StreamWriter | None = None
-        try:
-            head = await reader.readuntil(b"\r\n\r\n")  # up to the reader's limit, 64 KiB
-            head, renamed = renamed_offer(head)
-            up_reader, up_writer = await asyncio.open_connection("127.0.0.1", self.sdk_port, limit=CHUNK)
-            up_writer.write(head)
-            answer = await up_reader.readuntil(b"\r\n\r\n")
-            writer.write(renamed_answer(answer) if renamed else answer)
-            await asyncio.gather(_copy(reader, up_writer), _copy(up_reader, writer))
-        except (OSError, asyncio.IncompleteReadError, asyncio.LimitOverrunError):
-            pass  # a client or the SDK went away: the other side is closed below
-        finally:
-            for w in (writer, up_writer):
-                if w is not None:
-                    w.close()
-
-
-async def _copy(reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
-    """Bytes as they come until EOF, then the write side closed (the other direction ends too)."""
-    try:
-        while data := await reader.read(CHUNK):
-            writer.write(data)
-            await writer.drain()
-    finally:
         with contextlib.suppress(OSError):
-            writer.close()
+            self._sock.shutdown(socket.SHUT_RDWR)  # wakes the accept
+        self._sock.close()
+        with self._lock:
+            for sock in self._open:
+                with contextlib.suppress(OSError):
+                    sock.shutdown(socket.SHUT_RDWR)
+        if self._thread.is_alive():
+            self._thread.join(5.0)
+
+    def _accept(self) -> None:
+        while True:
+            try:
+                client, _ = self._sock.accept()
+            except OSError:  # closed
+                return
+            threading.Thread(target=self._serve, args=(client,), name="rvs-foxglove-relay", daemon=True).start()
+
+    def _serve(self, client: socket.socket) -> None:
+        upstream: socket.socket | None = None
+        with self._lock:
+            self._open.add(client)
+        try:
+            head, rest = _head(client)
+            head, renamed = renamed_offer(head)
+            upstream = socket.create_connection(("127.0.0.1", self.sdk_port))
+            with self._lock:
+                self._open.add(upstream)
+            upstream.sendall(head + rest)
+            answer, rest = _head(upstream)
+            client.sendall((renamed_answer(answer) if renamed else answer) + rest)
+            back = threading.Thread(target=_pump, args=(upstream, client), name="rvs-foxglove-relay", daemon=True)
+            back.start()
+            _pump(client, upstream)
+            back.join()
+        except OSError:
+            pass  # a client or the SDK went away, or sent no handshake
+        finally:
+            with self._lock:
+                self._open.discard(client)
+                if upstream is not None:
+                    self._open.discard(upstream)
+            client.close()
+            if upstream is not None:
+                upstream.close()
+
+
+def _head(sock: socket.socket) -> tuple[bytes, bytes]:
+    """An HTTP head read from ``sock`` up to its blank line, and what came after it (the SDK may
+    send its first frame in the same segment as its answer). OSError at EOF or past MAX_HEAD."""
+    data = b""
+    while b"\r\n\r\n" not in data:
+        if len(data) > MAX_HEAD:
+            raise OSError("handshake too long")
+        chunk = sock.recv(4096)
+        if not chunk:
+            raise OSError("closed during the handshake")
+        data += chunk
+    end = data.index(b"\r\n\r\n") + 4
+    return data[:end], data[end:]
+
+
+def _pump(src: socket.socket, dst: socket.socket) -> None:
+    """Move bytes from ``src`` to ``dst`` until EOF or an error, then end both directions of the
+    pair (the other pump stops too)."""
+    r, w = os.pipe()
+    try:
+        while n := os.splice(src.fileno(), w, CHUNK):
+            while n:
+                n -= os.splice(r, dst.fileno(), n)
+    except OSError:
+        pass
+    finally:
+        os.close(r)
+        os.close(w)
+        for sock in (src, dst):
+            with contextlib.suppress(OSError):
+                sock.shutdown(socket.SHUT_RDWR)
