@@ -396,3 +396,17 @@ def test_a_client_offering_the_old_subprotocol_name_connects_lists_and_decodes(s
     assert pose.frame_id == "world"
     p = srv.app.pose
     assert (pose.pose.position.x, pose.pose.position.y) == pytest.approx((p.x, p.y), abs=1e-6)
+
+
+def test_the_relay_renames_an_offer_of_the_old_name_alone_and_the_answer_back() -> None:
+    from rvs_server.telemetry.subprotocol import renamed_answer, renamed_offer
+
+    head = b"GET / HTTP/1.1\r\nHost: x\r\nsec-websocket-protocol: foxglove.websocket.v1\r\n\r\n"
+    new, renamed = renamed_offer(head)
+    assert renamed and b"Sec-WebSocket-Protocol: foxglove.sdk.v1\r\n" in new and b"websocket.v1" not in new
+    both = b"GET / HTTP/1.1\r\nSec-WebSocket-Protocol: foxglove.websocket.v1, foxglove.sdk.v1\r\n\r\n"
+    assert renamed_offer(both) == (both, False)  # the SDK picks its own name, which the client offered
+    other = b"GET / HTTP/1.1\r\nSec-WebSocket-Protocol: chat\r\n\r\n"
+    assert renamed_offer(other) == (other, False)  # the SDK refuses it, as it would
+    answer = b"HTTP/1.1 101 Switching Protocols\r\nSec-WebSocket-Protocol: foxglove.sdk.v1\r\n\r\n"
+    assert renamed_answer(answer) == answer.replace(b"foxglove.sdk.v1", b"foxglove.websocket.v1")
