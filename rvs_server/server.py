@@ -193,10 +193,9 @@ class Connection(asyncio.Protocol):
 
     def send(self, reply: Reply, *, job: bool = False) -> None:
         """``job``: a line of a job this connection started (App.job_reply), not an immediate reply."""
+        self.app.sent(self, reply, job=job)  # also once the client is gone: a recording keeps every line
         if self.closed or self.transport is None or self.transport.is_closing():
             return
-        if reply.status != "EVENT":  # an EVENT is published once, by App.broadcast
-            self.app.bus.publish("reply", conn=self.id, reply=reply, job=job)
         line = format_reply_json(reply) + "\n" if self.json else format_reply(reply) + "\r\n"
         self.transport.write(line.encode("utf-8"))
         if self.transport.get_write_buffer_size() > MAX_OUTPUT_BYTES:

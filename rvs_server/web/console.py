@@ -42,7 +42,6 @@ log = structlog.get_logger("rvs.web")
 
 TICK = 0.2  # seconds between state snapshots (pose, PTU, progress): 5 Hz is smooth enough to watch
 MAX_QUEUED = 2000  # messages a page may lag behind before it is dropped (it reloads and catches up)
-TRACK_POINTS = 5000  # rover positions kept for the driven track
 SNAPSHOT_TRACK = 1000  # of which each state snapshot carries the newest (5 per second to every page)
 HISTORY = 500  # event and job lines a page is shown when it opens (a reload keeps its history)
 MAX_CHECKS_ASKED = 256  # check-moves asked and not answered yet (each connection's last)
@@ -106,6 +105,8 @@ class WebPeer:
     def send(self, reply: Reply, *, own: bool = True, job: bool = False) -> None:
         """Queue a reply line for the page (event loop only); ``own``: an answer to this page's
         request, ``job``: a line of a job (see Connection.send)."""
+        if own:  # also once the page is gone (another line's: its own connection publishes it)
+            self.app.sent(self, reply, job=job)
         if self.closed:
             return
         if self.queue.qsize() > MAX_QUEUED:
@@ -114,8 +115,6 @@ class WebPeer:
             return
         if reply.status == "EVENT":  # every page's (App.broadcast publishes it): no page's answer
             own = False
-        elif own:  # as a TCP connection's
-            self.app.bus.publish("reply", conn=self.id, reply=reply, job=job)
         self.queue.put_nowait(_encode(reply, own))
 
     def observe(self, reply: Reply) -> None:
@@ -156,7 +155,7 @@ class WebPeer:
 
 
 class WebConsole:
-    """The console's HTTP routes, its open pages and what only the console keeps (the track)."""
+    """The console's HTTP routes, its open pages and what they are shown."""
 
     def __init__(self, app: App) -> None:
         self.app = app
@@ -168,8 +167,6 @@ class WebConsole:
         self.check: dict[str, Any] | None = None  # the last check-move's answer, whoever asked
         self._check_from: dict[int, tuple[float, float]] = {}  # conn -> pose when it asked for a check-move
         self._products: tuple[float, dict[str, Path]] = (0.0, {})
-        self.goal: dict[str, Any] | None = None  # the last navigate's goal, whoever sent it
-        self.track: deque[tuple[float, float]] = deque(maxlen=TRACK_POINTS)
         self.snapshot = ""  # the last state message sent to the pages
         self.bounds: dict[tuple[str, str], list[float]] = {}  # (path, version) -> layer bounds
         self.runner: web.AppRunner | None = None
@@ -315,10 +312,8 @@ class WebConsole:
             out["scene"] = app.world.scene_name
         head = app.config.get("head")
         out["rover"] = {"length": head.rover_length, "width": head.rover_width}
-        if job is not None and job.command == "navigate" and len(job.params.get("goal") or ()) == 2:
-            self.goal = {"x": job.params["goal"][0], "y": job.params["goal"][1],
-                         "tolerance": job.params.get("tolerance"), "job": job.id}
-        out["goal"] = self.goal
+        goal = app.travel.goal
+        out["goal"] = None if goal is None else {"x": goal.x, "y": goal.y, "tolerance": goal.tolerance, "job": goal.job}
         out["tof_hfov"] = TOF_HFOV_DEG  # drawn as the ToF's wedge
         maps: dict[str, Any] = {}
         for name, path in self.layer_paths().items():
@@ -339,10 +334,7 @@ class WebConsole:
         out["check"] = self.check
         monitors = json.loads(format_reply_json(Reply("RVS", "OK", app.monitors.status_fields())))
         out["monitors"] = {k: v for k, v in monitors.items() if k not in ("module", "status")}
-        here = out.get("truth") or out["pose"]
-        if not self.track or (abs(self.track[-1][0] - here["x"]) + abs(self.track[-1][1] - here["y"])) > 0.02:
-            self.track.append((round(here["x"], 3), round(here["y"], 3)))
-        out["track"] = list(self.track)[-SNAPSHOT_TRACK:]
+        out["track"] = [(round(x, 3), round(y, 3)) for x, y, _ in app.travel.track()[-SNAPSHOT_TRACK:]]
         return out
 
     async def _prerender(self) -> None:
