@@ -141,6 +141,9 @@ class Connection(asyncio.Protocol):
     def connection_lost(self, exc: Exception | None) -> None:
         self.closed = True
         self.app.connections.discard(self)
+        job = self.app.jobs.current
+        if job is not None and job.connection == self.id:
+            job.requester_gone.set()
         self.log.info("client_disconnected", clients=len(self.app.connections))
 
     # ------------------------------------------------------------ lines in
