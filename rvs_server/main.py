@@ -12,6 +12,8 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+from rvs_params.cli import ToolParser
+
 from . import commands as _commands  # noqa: F401 - fills the command table
 from .app import App
 from .config import STANDALONE, ConfigStore, ModuleConfig
@@ -110,7 +112,7 @@ async def run(store: ConfigStore, *, ready: Callable[[int], None] | None = None,
 
 
 def parse_args(argv: list[str] | None) -> argparse.Namespace:
-    p = argparse.ArgumentParser(
+    p = ToolParser(
         prog="rvs-server",
         description="Rover vision system server (simulated hardware unless config/drivers.yaml says otherwise): "
                     "the RVS protocol on a TCP port, and an operator web console (map, jobs, commands) at "

@@ -16,6 +16,7 @@ from collections.abc import Callable, Iterable, Iterator
 from pathlib import Path
 from typing import Any, TextIO
 
+from rvs_params.cli import ToolParser
 from rvs_server.protocol import render_value
 
 from .session import DEFAULT_HOST, DEFAULT_PORT, Line, Result, Session, SessionError, is_request, port_number
@@ -26,7 +27,7 @@ HISTORY_FILE = ".rvs_client_history"
 
 
 def parse_args(argv: list[str] | None) -> argparse.Namespace:
-    p = argparse.ArgumentParser(
+    p = ToolParser(
         prog="rvs-client",
         description="Send requests to an RVS server and print its replies. Without -c, reads requests "
         "from stdin when it is piped, otherwise starts an interactive session (Ctrl-D leaves; "

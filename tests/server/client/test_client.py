@@ -306,4 +306,4 @@ def test_a_port_out_of_range_is_one_error_line_not_another_port(port: str, capsy
         with pytest.raises(SystemExit) as exc:
             tool(["--port", port, "-c", "status"] if tool is client.main else ["--port", port, "x.rvs"])
         err = capsys.readouterr().err
-        assert exc.value.code == 2 and "error: argument --port: " in err and "Traceback" not in err
+        assert exc.value.code == 2 and ": argument --port: " in err and "Traceback" not in err and err.count("\n") == 1
