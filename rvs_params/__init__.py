@@ -135,9 +135,15 @@ class ParamSpec:
             what += " or null"
         return what
 
-    def parse(self, raw: str | bool) -> Any:  # noqa: C901 - one branch per kind of value, read in order
-        """Convert and validate one value from a request or a ``-set``; the error names the option."""
-        name = self.flag
+    @property
+    def cli_flag(self) -> str:
+        """The option as a program's command line spells it (``--cell``; the wire's is ``-cell``)."""
+        return "-" + self.flag
+
+    def parse(self, raw: str | bool, flag: str | None = None) -> Any:  # noqa: C901 - one branch per kind, in order
+        """Convert and validate one value from a request or a ``-set``; the error names the option
+        as ``flag`` (default: the wire's spelling; a program's command line passes ``cli_flag``)."""
+        name = flag or self.flag
         if self.optional and isinstance(raw, str) and raw.lower() in ("null", "none", "~"):
             return None
         if self.kind == "any":

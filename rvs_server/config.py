@@ -119,6 +119,10 @@ class ConfigStore:
     def __init__(self, classes: list[type[ModuleConfig]], config_dir: Path | None = None) -> None:
         self.classes = {c.module: c for c in classes}
         self.values: dict[str, ModuleConfig] = {}
+        if config_dir is not None and not Path(config_dir).is_dir():
+            # a mistyped folder would otherwise start the server on the built-in defaults, silently
+            raise ValueError(f"--config {config_dir}: no such folder (want a folder of <module>.yaml files "
+                             "overriding config/)")
         dirs = [DEFAULT_CONFIG_DIR] + ([Path(config_dir)] if config_dir else [])
         for name, cls in self.classes.items():
             data: dict[str, Any] = {}
@@ -126,7 +130,15 @@ class ConfigStore:
             for d in dirs:
                 path = d / f"{name}.yaml"
                 if path.is_file():
-                    loaded = yaml.safe_load(path.read_text()) or {}
+                    try:
+                        loaded = yaml.safe_load(path.read_text()) or {}
+                    except yaml.YAMLError as exc:
+                        mark = getattr(exc, "problem_mark", None)
+                        where = f" (line {mark.line + 1}, column {mark.column + 1})" if mark is not None else ""
+                        raise ValueError(f"{path}: not valid YAML: {getattr(exc, 'problem', None) or exc}"
+                                         f"{where}") from None
+                    except OSError as exc:
+                        raise ValueError(f"{path}: cannot read it: {exc.strerror or exc}") from None
                     if not isinstance(loaded, dict):
                         raise ValueError(f"{path}: expected a mapping of key: value")
                     merge(data, loaded)

@@ -16,6 +16,7 @@ import os
 import signal
 import socket
 import threading
+import time
 from collections import deque
 from typing import Any
 
@@ -141,6 +142,9 @@ class Connection(asyncio.Protocol):
     def connection_lost(self, exc: Exception | None) -> None:
         self.closed = True
         self.app.connections.discard(self)
+        job = self.app.jobs.current
+        if job is not None and job.connection == self.id:
+            job.requester_gone.set()
         self.log.info("client_disconnected", clients=len(self.app.connections))
 
     # ------------------------------------------------------------ lines in
@@ -267,12 +271,6 @@ def start_warm_up(stopping: asyncio.Event | None = None) -> None:
     threading.Thread(target=work, name=WARM_UP_THREAD, daemon=True).start()
 
 
-def kernels_warming() -> bool:
-    """Whether the warm-up still compiles: the process then exits without finalising the
-    interpreter under it (``rvs_server.main``)."""
-    return any(t.name == WARM_UP_THREAD and t.is_alive() for t in threading.enumerate())
-
-
 def _on_signal(app: App, sig: signal.Signals) -> None:
     """SIGINT/SIGTERM: say so, then shut down as quit does; a second one ends the process at
     once (a device that does not answer its close may hold the first one up)."""
@@ -329,6 +327,7 @@ async def serve(app: App, sock: socket.socket, *, ready: Any = None, handle_sign
         await app.stopping.wait()
     finally:
         log.info("shutting_down")
+        began = time.monotonic()
         await app.interrupt()
         if app.console is not None:
             await app.console.close()
@@ -343,6 +342,9 @@ async def serve(app: App, sock: socket.socket, *, ready: Any = None, handle_sign
         await loop.run_in_executor(None, app.stop_monitors)
         await loop.run_in_executor(None, app.devices.close)
         gc.unfreeze()  # what freeze_start_heap kept from the collector goes back to it: this server is let go
+        # the last line: every job, connection, recording and device is closed (the process then
+        # ends without finalising the interpreter, rvs_server.main)
+        log.info("stopped", seconds=round(time.monotonic() - began, 3))
         if handle_signals:
             for sig in (signal.SIGINT, signal.SIGTERM):
                 try:

@@ -160,6 +160,11 @@ def main(argv: list[str]) -> None:
             worker.tick()
     finally:
         worker.call_close()
+    # The recording is finished and Foxglove's server stopped: the interpreter's teardown would
+    # only free memory, which this niced process takes seconds for on a busy machine while the
+    # server's shutdown waits for it to exit.
+    sys.stdout.flush()
+    os._exit(0)
 
 
 if __name__ == "__main__":
