@@ -41,13 +41,18 @@ class Request:
     ``options`` keeps the order and repeats of the line (``config -set a=1 -set b=2``); option
     names are lower case with ``-`` folded to ``_`` so they match config field names. A flag's
     value is ``True``. ``positional`` holds bare words that follow the command before any option
-    (``help grab-tof``, ``events off``).
+    (``help grab-tof``, ``events off``). ``sent`` is the command word as the client wrote it
+    (``command`` is its lower-case lookup key), for replies that quote it back.
     """
 
     command: str
     tag: str | None = None
     options: list[tuple[str, str | bool]] = field(default_factory=list)
     positional: list[str] = field(default_factory=list)
+    sent: str = ""
+
+    def __post_init__(self) -> None:
+        self.sent = self.sent or self.command
 
 
 @dataclass
@@ -199,7 +204,7 @@ def parse_request(line: str) -> Request | None:
     text, quoted, _ = tokens[0]
     if quoted or not text or _option_name(text, quoted) is not None:
         raise _tagged_error(tag, "E_SYNTAX", "a request starts with a command name; try help")
-    req = Request(command=text.lower(), tag=tag)
+    req = Request(command=text.lower(), tag=tag, sent=text)
     i = 1
     while i < len(tokens):
         text, quoted, eq = tokens[i]
