@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import copy
 import dataclasses
+import keyword
 import math
 import re
 import types
@@ -24,6 +25,19 @@ from dataclasses import dataclass, field, fields
 from typing import Any, TypeVar
 
 STEM_RE = re.compile(r"[A-Za-z0-9_\-][A-Za-z0-9_.\-]{0,63}")
+
+
+def wire_key(name: str) -> str:
+    """The name a field goes by on the wire, in YAML keys shown and in replies: a trailing
+    underscore is Python's escape of a keyword (the field ``global_`` is the key ``global``, the
+    option ``-global``), and reply keys are lower_snake_case without it."""
+    bare = name[:-1]
+    return bare if name.endswith("_") and keyword.iskeyword(bare) else name
+
+
+# How a value says "not set" for a setting that can be unset (:attr:`ParamSpec.optional`): the
+# word text replies show for it, YAML's null spellings, or nothing at all (``-set name=``).
+NOT_SET = ("none", "null", "~", "")
 
 
 def valid_stem(name: str) -> bool:
@@ -103,17 +117,22 @@ class ParamSpec:
     required: bool
     protected: bool
     default: Any
-    optional: bool = False  # None (YAML null) is a value: "not set, use the backend's own"
+    optional: bool = False  # can be put back to "not set" (NOT_SET words): its value is then ``unset``
     live: bool = False
     section: type[Settings] | None = None  # kind "section": the nested settings class
     ordered: bool = False  # floats: min,max pairs, each min <= max
     flat: str | None = None  # section: the prefix its keys take among this class's keys (None: not lent)
     path: tuple[str, ...] = ()  # a section's key lent to this class (Settings.keys): the fields to its value
+    unset: Any = None  # an optional setting's "not set" value: None, or the declared default NaN / ""
+
+    @property
+    def key(self) -> str:
+        """The name on the wire and in replies (:func:`wire_key`)."""
+        return wire_key(self.name)
 
     @property
     def flag(self) -> str:
-        # a trailing underscore is Python's escape of a keyword (global_ is the option -global)
-        return "-" + self.name.rstrip("_").replace("_", "-")
+        return "-" + self.key.replace("_", "-")
 
     def describe(self) -> str:
         """One phrase for help and error messages: type, range, unit, default."""
@@ -132,14 +151,14 @@ class ParamSpec:
         if self.unit:
             what += f" {self.unit}"
         if self.optional:
-            what += " or null"
+            what += " or none"
         return what
 
     def parse(self, raw: str | bool) -> Any:  # noqa: C901 - one branch per kind of value, read in order
         """Convert and validate one value from a request or a ``-set``; the error names the option."""
         name = self.flag
-        if self.optional and isinstance(raw, str) and raw.lower() in ("null", "none", "~"):
-            return None
+        if self.optional and isinstance(raw, str) and raw.strip().lower() in NOT_SET:
+            return copy.copy(self.unset)
         if self.kind == "any":
             if raw is True:
                 raise SettingError(f"{name} needs a value: {self.describe()}")
@@ -214,7 +233,7 @@ class ParamSpec:
     def coerce(self, value: Any, where: str) -> Any:
         """A value that is already typed (YAML, a Python caller): checked with the wire's rules."""
         if value is None and self.optional:
-            return None
+            return copy.copy(self.unset)
         if self.kind == "any":
             return copy.deepcopy(value)
         if self.kind == "section":
@@ -255,6 +274,18 @@ def _num(v: float | None) -> str:
 
 
 _KIND = {float: "float", int: "int", str: "str", bool: "bool"}
+
+
+def _unset_default(kind: str, default: Any, meta: Mapping[str, Any]) -> Any:
+    """The "not set" value a declaration gives by its default, for a type without None: a number
+    declared NaN (a PTU axis that keeps its position) or a free text or file stem declared ""
+    (an output named by the time). None when the default is a value like any other (a required
+    option has none: it is always given)."""
+    if kind == "float" and isinstance(default, float) and math.isnan(default):
+        return default
+    if kind == "str" and default == "" and not meta.get("choices") and not meta.get("required"):
+        return default
+    return None
 
 S = TypeVar("S", bound="Settings")
 
@@ -300,6 +331,9 @@ class Settings:
             length = meta.get("length")
             if isinstance(length, int):
                 length = (length, length)
+            unset = None if optional else _unset_default(kind, default, meta)
+            if unset is not None:
+                optional = True
             out[f.name] = ParamSpec(
                 name=f.name,
                 kind=kind,
@@ -319,6 +353,7 @@ class Settings:
                 section=section,
                 ordered=meta.get("ordered", False),
                 flat=meta.get("flat"),
+                unset=unset,
             )
         cls._specs = out  # type: ignore[attr-defined]
         return out
@@ -404,6 +439,10 @@ class Settings:
             out[key] = spec.parse(raw)
         return out
 
+    def wire_dict(self) -> dict[str, Any]:
+        """:meth:`as_dict` with every key as the wire names it (:func:`wire_key`), for replies."""
+        return _wire_keys(self.as_dict())
+
     def as_dict(self) -> dict[str, Any]:
         """Plain values (nested settings as mappings), for replies, sidecars and YAML."""
         out: dict[str, Any] = {}
@@ -452,6 +491,10 @@ def _nest_lent(keys: dict[str, ParamSpec], data: Mapping[str, Any]) -> dict[str,
             node = node[section]
         node[name] = out.pop(key)
     return out
+
+
+def _wire_keys(values: dict[str, Any]) -> dict[str, Any]:
+    return {wire_key(k): _wire_keys(v) if isinstance(v, dict) else v for k, v in values.items()}
 
 
 def merge(base: dict[str, Any], over: Mapping[str, Any]) -> None:

@@ -51,6 +51,8 @@ def _set_in(cfg: Settings, path: list[str], raw: str, where: str, *, runtime: bo
     if lent is not None:  # a key a flat section lends: set it in the section
         _set_in(cfg, [*lent.path, *path[1:]], raw, where, runtime=runtime)
         return
+    if spec is None:  # a key as the wire names it (global for the field global_)
+        spec = next((s for s in specs.values() if s.key == path[0]), None)
     if spec is None:
         raise ProtocolError("E_ARG", f"{where} has no key '{path[0]}'; keys: {', '.join(type(cfg).keys())}")
     if runtime and spec.protected:

@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import copy
 import dataclasses
-import keyword
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
@@ -122,7 +121,7 @@ def apply_options(name: str, base: ModuleConfig, options: list[tuple[str, str | 
     specs = cfg.keys()
     seen: set[str] = set()
     for opt, raw in options:
-        spec = specs.get(opt) or (specs.get(opt + "_") if keyword.iskeyword(opt) else None)  # -global: global_
+        spec = specs.get(opt) or next((s for s in specs.values() if s.key == opt), None)  # -global: global_
         if spec is None or not spec.option:
             accepted = " ".join(s.flag for s in specs.values() if s.option) or "none"
             raise ProtocolError(

@@ -240,7 +240,7 @@ def test_auth_token(server_factory) -> None:
 
 def test_config_show_set_and_protected(client: LineClient) -> None:
     r = client.request("config -module EGP-RVS-SLEEP")
-    assert r.fields == {"name": "sleep", "seconds": "10"}
+    assert r.fields == {"module_name": "sleep", "seconds": "10"}
     assert client.request("config -module sleep -set seconds=0.25").fields["seconds"] == "0.25"
     ok = client.request("sleep")
     assert 0.2 <= float(ok.fields["slept"]) < 5
