@@ -27,6 +27,35 @@ from typing import Any, TypeVar
 STEM_RE = re.compile(r"[A-Za-z0-9_\-][A-Za-z0-9_.\-]{0,63}")
 
 
+# Numbers on the wire are ASCII decimal (PROTOCOL.md): Python's float() and int() also take
+# "1_0", a full-width "９" or other Unicode digits, and blanks round them, none of which a GNC
+# sends on purpose. inf and nan are read as numbers so that the finite check names them.
+NUMBER_RE = re.compile(r"[+-]?(?:(?:[0-9]+(?:\.[0-9]*)?|\.[0-9]+)(?:[eE][+-]?[0-9]+)?|inf|infinity|nan)",
+                       re.IGNORECASE)
+INTEGER_RE = re.compile(r"[+-]?[0-9]+")
+NUMBER_FORM = "ASCII decimal like -12, 0.5 or 1e-3"
+INTEGER_FORM = "ASCII digits like 12 or -3"
+
+
+def is_number(text: str) -> bool:
+    """Whether ``text`` is a number as the wire writes it (inf and nan included)."""
+    return NUMBER_RE.fullmatch(text) is not None
+
+
+def parse_number(text: str, form: str) -> float:
+    """``text`` as a float if it is written in ASCII decimal; ValueError naming ``form`` if not."""
+    if not is_number(text):
+        raise ValueError(form)
+    return float(text)
+
+
+def parse_integer(text: str) -> int:
+    """``text`` as an int if it is ASCII digits; ValueError otherwise."""
+    if INTEGER_RE.fullmatch(text) is None:
+        raise ValueError(INTEGER_FORM)
+    return int(text, 10)
+
+
 def wire_key(name: str) -> str:
     """The name a field goes by on the wire, in YAML keys shown and in replies: a trailing
     underscore is Python's escape of a keyword (the field ``global_`` is the key ``global``, the
@@ -186,12 +215,15 @@ class ParamSpec:
         if self.kind in ("floats", "ints"):
             parts = [p for p in raw.split(",")] if raw else []
             try:
-                values = [float(p) for p in parts]
+                values = [parse_number(p, NUMBER_FORM) for p in parts]
             except ValueError:
-                raise SettingError(f"{name} takes {self.describe()}, not '{raw[:40]}'") from None
+                raise SettingError(f"{name} takes {self.describe()}, not '{raw[:40]}' "
+                                   f"(write each in {NUMBER_FORM})") from None
             lo, hi = self.length or (1, 99)
-            if not lo <= len(values) <= hi or not all(math.isfinite(v) for v in values):
+            if not lo <= len(values) <= hi:
                 raise SettingError(f"{name} takes {self.describe()}, not '{raw[:40]}'")
+            if not all(math.isfinite(v) for v in values):
+                raise SettingError(f"{name} takes {self.describe()}, each finite, not '{raw[:40]}'")
             for v in values:
                 self._check_range(v)
             for i in range(0, len(values) - 1, 2) if self.ordered else ():
@@ -205,18 +237,20 @@ class ParamSpec:
             return values
         if self.kind == "float":
             try:
-                value = float(raw)
+                value = parse_number(raw, NUMBER_FORM)
             except ValueError:
-                raise SettingError(f"{name} takes a {self.describe()}, not '{raw[:40]}'") from None
+                raise SettingError(f"{name} takes a {self.describe()}, not '{raw[:40]}' "
+                                   f"(write it in {NUMBER_FORM})") from None
             if not math.isfinite(value):
                 raise SettingError(f"{name} must be a finite {self.describe()}")
             self._check_range(value)
             return value
         if self.kind == "int":
             try:
-                value = int(raw, 10)
+                value = parse_integer(raw)
             except ValueError:
-                raise SettingError(f"{name} takes an {self.describe()}, not '{raw[:40]}'") from None
+                raise SettingError(f"{name} takes an {self.describe()}, not '{raw[:40]}' "
+                                   f"(write it in {INTEGER_FORM})") from None
             self._check_range(value)
             return value
         if self.choices:

@@ -19,7 +19,18 @@ from typing import Any, ClassVar
 import yaml
 
 from drivers.registry import DEVICE_KINDS, registry
-from rvs_params import ParamSpec, SettingError, Settings, assignment, merge, param
+from rvs_params import (
+    INTEGER_FORM,
+    NUMBER_FORM,
+    ParamSpec,
+    SettingError,
+    Settings,
+    assignment,
+    merge,
+    param,
+    parse_integer,
+    parse_number,
+)
 
 from .protocol import ProtocolError
 
@@ -98,9 +109,9 @@ def _set_nested(target: dict[str, Any], path: list[str], raw: str, where: str) -
                 raise ValueError
             node[key] = low in ("true", "1", "yes", "on")
         elif isinstance(old, int):
-            node[key] = int(raw)
+            node[key] = parse_integer(raw)
         elif isinstance(old, float):
-            node[key] = float(raw)
+            node[key] = parse_number(raw, NUMBER_FORM)
         elif isinstance(old, list):
             node[key] = yaml.safe_load(f"[{raw}]")
         elif old is None:
@@ -108,7 +119,8 @@ def _set_nested(target: dict[str, Any], path: list[str], raw: str, where: str) -
         else:
             node[key] = raw
     except ValueError:
-        raise ProtocolError("E_ARG", f"{where}: '{raw}' is not a {type(old).__name__}") from None
+        form = f" (write it in {INTEGER_FORM if type(old) is int else NUMBER_FORM})" if type(old) in (int, float) else ""
+        raise ProtocolError("E_ARG", f"{where}: '{raw}' is not a {type(old).__name__}{form}") from None
 
 
 class ConfigStore:
