@@ -64,6 +64,11 @@ def wire_key(name: str) -> str:
     return bare if name.endswith("_") and keyword.iskeyword(bare) else name
 
 
+def wire_flag(name: str) -> str:
+    """The option a field is given by: ``-`` and its :func:`wire_key`, words joined by ``-``."""
+    return "-" + wire_key(name).replace("_", "-")
+
+
 # How a value says "not set" for a setting that can be unset (:attr:`ParamSpec.optional`): the
 # word text replies show for it, YAML's null spellings, or nothing at all (``-set name=``).
 NOT_SET = ("none", "null", "~", "")
@@ -98,6 +103,7 @@ def param(
     live: bool = False,
     ordered: bool = False,
     flat: str | None = None,
+    at_most: str | None = None,
 ) -> Any:
     """Declare a settings field with what a checker and a help text need to know about it.
 
@@ -108,6 +114,9 @@ def param(
     A nested settings section (``default`` a :class:`Settings`) declared ``flat`` (a prefix, ""
     for none) also lends its keys to this class under that prefix: the request's options, ``-set``
     and YAML take them by those names as well as by ``section.key`` (:meth:`Settings.keys`).
+    ``at_most`` names another key of the class this value must not exceed (a stop distance within
+    the warning distance): both keys' help states it, and :meth:`Settings.check` refuses a pair
+    that breaks it, whichever of the two was given.
     """
     meta = {
         "help": help,
@@ -123,6 +132,7 @@ def param(
         "live": live,
         "ordered": ordered,
         "flat": flat,
+        "at_most": at_most,
     }
     if isinstance(default, list | dict | Settings):
         return field(default_factory=lambda d=default: copy.deepcopy(d), metadata=meta)
@@ -153,6 +163,8 @@ class ParamSpec:
     flat: str | None = None  # section: the prefix its keys take among this class's keys (None: not lent)
     path: tuple[str, ...] = ()  # a section's key lent to this class (Settings.keys): the fields to its value
     unset: Any = None  # an optional setting's "not set" value: None, or the declared default NaN / ""
+    at_most: str | None = None  # another key of the class this value must not exceed
+    at_least: str | None = None  # the key that declared at_most this one (the same rule, seen from here)
 
     @property
     def key(self) -> str:
@@ -161,7 +173,7 @@ class ParamSpec:
 
     @property
     def flag(self) -> str:
-        return "-" + self.key.replace("_", "-")
+        return wire_flag(self.name)
 
     def describe(self) -> str:
         """One phrase for help and error messages: type, range, unit, default."""
@@ -179,6 +191,10 @@ class ParamSpec:
             what += f" in [{_num(self.min)}, {_num(self.max)}]"
         if self.unit:
             what += f" {self.unit}"
+        if self.at_most:
+            what += f", at most {wire_flag(self.at_most)}"
+        if self.at_least:
+            what += f", at least {wire_flag(self.at_least)}"
         if self.optional:
             what += " or none"
         return what
@@ -388,7 +404,13 @@ class Settings:
                 ordered=meta.get("ordered", False),
                 flat=meta.get("flat"),
                 unset=unset,
+                at_most=meta.get("at_most"),
             )
+        for spec in list(out.values()):
+            if spec.at_most is not None:
+                if spec.at_most not in out:
+                    raise TypeError(f"{cls.__name__}.{spec.name}: at_most names no field {spec.at_most!r}")
+                out[spec.at_most] = dataclasses.replace(out[spec.at_most], at_least=spec.name)
         cls._specs = out  # type: ignore[attr-defined]
         return out
 
@@ -451,7 +473,12 @@ class Settings:
                 kwargs[spec.name] = merged
             else:
                 kwargs[spec.name] = spec.coerce(value, where)
-        return cls(**kwargs)
+        made = cls(**kwargs)
+        try:
+            made.check()
+        except SettingError as exc:
+            raise SettingError(f"{where}: {exc.message}") from None
+        return made
 
     @classmethod
     def picked_from(cls: type[S], source: Mapping[str, Any] | Settings) -> S:
@@ -472,6 +499,21 @@ class Settings:
                 raise SettingError(f"{flag} {key}: unknown key; known: {', '.join(specs)}")
             out[key] = spec.parse(raw)
         return out
+
+    def check(self) -> None:
+        """The rules between keys (``at_most``), in this class and its sections: SettingError
+        naming both keys and what to give when a pair breaks one."""
+        for spec in self.specs().values():
+            value = getattr(self, spec.name)
+            if isinstance(value, Settings):
+                value.check()
+            if spec.at_most is None:
+                continue
+            limit = getattr(self, spec.at_most)
+            if value is not None and limit is not None and value > limit:
+                hi = wire_flag(spec.at_most)
+                raise SettingError(f"{spec.flag} {_num(value)} must not exceed {hi} {_num(limit)}: give {hi} "
+                                   f"at least {_num(value)} or {spec.flag} at most {_num(limit)}")
 
     def wire_dict(self) -> dict[str, Any]:
         """:meth:`as_dict` with every key as the wire names it (:func:`wire_key`), for replies."""

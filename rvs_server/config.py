@@ -185,6 +185,11 @@ class ConfigStore:
                 self.set(module, key, raw, runtime=False)
             except ProtocolError as exc:
                 raise ValueError(f"--set {item!r}: {exc.message}") from None
+        for name, values in self.values.items():
+            try:
+                values.check()
+            except SettingError as exc:
+                raise ValueError(f"--set {name}: {exc.message}") from None
 
 
 # ------------------------------------------------------------------------------------------

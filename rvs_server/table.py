@@ -137,6 +137,10 @@ def apply_options(name: str, base: ModuleConfig, options: list[tuple[str, str | 
     for spec in specs.values():
         if spec.required and spec.name not in seen:
             raise ProtocolError("E_ARG", f"{name} needs {spec.flag} ({spec.describe()})")
+    try:
+        cfg.check()
+    except SettingError as exc:
+        raise ProtocolError("E_ARG", exc.message) from None
     return cfg
 
 

@@ -84,10 +84,9 @@ def _axes(cfg: MovePtuConfig) -> tuple[float | None, float | None]:
 
 
 def _check_move_ptu(app: App, cfg: MovePtuConfig) -> None:
-    pan, tilt = _axes(cfg)
-    if pan is None and tilt is None:
-        raise ProtocolError("E_ARG", "move-ptu needs -pan and/or -tilt (degrees)")
-    check_ptu_angles(app, pan, tilt)
+    # neither axis given is no move: the job answers where the PTU stands, as an axis not given
+    # keeps its position
+    check_ptu_angles(app, *_axes(cfg))
 
 
 @command("move-ptu", job=True, klass=HARDWARE, config=MovePtuConfig, check=_check_move_ptu, ranges=ptu_ranges,

@@ -419,6 +419,7 @@ def config(ctx: Context, cfg: None) -> dict[str, Any]:
         try:
             for item in sets:
                 store.set(name, *assignment(item, flag="-set"))
+            current.check()  # the rules between keys, on the values all the -set gave together
             if name == "drivers":
                 ctx.app.devices.reconfigure()
         except (ProtocolError, ValueError) as exc:
