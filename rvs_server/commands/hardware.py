@@ -182,7 +182,11 @@ def grab_stereo(job: Job, cfg: GrabStereoConfig) -> dict[str, Any]:
     with product_set(app.data_path("stereo")):  # a pair is never one new image beside an old one
         for side, image in (("left", left), ("right", right)):
             path: Path = app.data_path("stereo", f"{stem}_{side}.tif")
+            # each write of a 2-megapixel image takes a good share of a second on a busy machine: a
+            # break between them ends the job and keeps none of them (the set is all or nothing)
+            job.check()
             write_tiff(path, image)
+            job.check()
             write_png(path.with_suffix(".png"), image)
             write_sidecar(path, "grab-stereo", cfg.as_dict(), side=side, device=_device_info(cams),
                           **acquisition_context(app))
