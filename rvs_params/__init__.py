@@ -70,8 +70,9 @@ def wire_flag(name: str) -> str:
 
 
 # How a value says "not set" for a setting that can be unset (:attr:`ParamSpec.optional`): the
-# word text replies show for it, YAML's null spellings, or nothing at all (``-set name=``).
-NOT_SET = ("none", "null", "~", "")
+# word text replies show for it, and YAML's null spellings. Not an empty value: an empty output
+# name is a mistake to refuse (tests/reliability/test_security.py), not a wish for the default.
+NOT_SET = ("none", "null", "~")
 
 
 def valid_stem(name: str) -> bool:
@@ -277,6 +278,7 @@ class ParamSpec:
         if self.stem and not valid_stem(raw):
             raise SettingError(
                 f"{name} must be a file stem of 1-64 letters, digits, '_', '.', '-' not starting with '.'"
+                + ("; none for the default" if self.optional else "")
             )
         return raw
 

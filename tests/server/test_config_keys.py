@@ -42,13 +42,18 @@ def test_navigate_global_is_shown_and_set_by_its_wire_name(client: LineClient) -
     assert r.status == "OK" and r.fields["global"] == "", r
 
 
-@pytest.mark.parametrize("spelling", ["none", "NULL", "~", '""', ""])
+@pytest.mark.parametrize("spelling", ["none", "NULL", "~"])
 @pytest.mark.parametrize("module", ["dem_full", "navigate", "logbook"])
 def test_a_name_is_put_back_to_not_set(client: LineClient, module: str, spelling: str) -> None:
     r = client.request(f"config -module {module} -set name=site_7")
     assert r.status == "OK" and r.fields["name"] == "site_7", r
     r = client.request(f"config -module {module} -set name={spelling}")
     assert r.status == "OK" and r.fields["name"] == "", r
+
+
+def test_an_empty_name_is_refused_saying_how_to_unset(client: LineClient) -> None:
+    r = client.request('config -module dem_full -set name=""')
+    assert r.fields["code"] == "E_ARG" and "none for the default" in r.fields["message"], r
 
 
 def test_a_number_declared_not_set_is_put_back_to_not_set(client: LineClient) -> None:
@@ -65,5 +70,5 @@ def test_a_number_declared_not_set_is_put_back_to_not_set(client: LineClient) ->
 def test_an_optional_driver_setting_is_put_back_to_not_set(client: LineClient) -> None:
     r = client.request("config -module drivers -set stereo.sim_hfov_deg=60")
     assert r.status == "OK" and r.fields["stereo_sim_hfov_deg"] == "60", r
-    r = client.request("config -module drivers -set stereo.sim_hfov_deg=")
+    r = client.request("config -module drivers -set stereo.sim_hfov_deg=null")
     assert r.status == "OK" and r.fields["stereo_sim_hfov_deg"] == "none", r
