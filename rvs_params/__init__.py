@@ -56,6 +56,21 @@ def parse_integer(text: str) -> int:
     return int(text, 10)
 
 
+_YAML_WORD = re.compile(r"[^\s\[\]{},:]+")
+
+
+def load_wire_yaml(text: str) -> Any:
+    """A YAML value typed on the wire (a matrix, a list): its numbers must be ASCII decimal too,
+    whereas YAML also reads ``1_0``, ``0x10``, ``0o17`` or ``.inf`` as numbers. ValueError
+    names the first such word; yaml.YAMLError for text that is no YAML."""
+    import yaml
+
+    for word in _YAML_WORD.findall(text):
+        if type(yaml.safe_load(word)) in (int, float) and not is_number(word):  # (a bool is no number here)
+            raise ValueError(f"'{word[:20]}' is not a number in {NUMBER_FORM}")
+    return yaml.safe_load(text)
+
+
 def wire_key(name: str) -> str:
     """The name a field goes by on the wire, in YAML keys shown and in replies: a trailing
     underscore is Python's escape of a keyword (the field ``global_`` is the key ``global``, the
@@ -214,9 +229,11 @@ class ParamSpec:
             if isinstance(self.default, list) and not text.lstrip().startswith("["):
                 text = f"[{text}]"  # a list typed as on the wire: a,b,c
             try:
-                return yaml.safe_load(text)
+                return load_wire_yaml(text)
             except yaml.YAMLError:
                 raise SettingError(f"{name} takes {self.describe()}, not '{str(raw)[:40]}'") from None
+            except ValueError as exc:
+                raise SettingError(f"{name}: {exc}") from None
         if self.kind == "bool":
             if isinstance(raw, bool):
                 return raw

@@ -26,6 +26,7 @@ from rvs_params import (
     SettingError,
     Settings,
     assignment,
+    load_wire_yaml,
     merge,
     param,
     parse_integer,
@@ -113,12 +114,14 @@ def _set_nested(target: dict[str, Any], path: list[str], raw: str, where: str) -
         elif isinstance(old, float):
             node[key] = parse_number(raw, NUMBER_FORM)
         elif isinstance(old, list):
-            node[key] = yaml.safe_load(f"[{raw}]")
+            node[key] = load_wire_yaml(f"[{raw}]")
         elif old is None:
-            node[key] = yaml.safe_load(raw)
+            node[key] = load_wire_yaml(raw)
         else:
             node[key] = raw
-    except ValueError:
+    except ValueError as exc:
+        if "is not a number" in str(exc):
+            raise ProtocolError("E_ARG", f"{where}: {exc}") from None
         form = f" (write it in {INTEGER_FORM if type(old) is int else NUMBER_FORM})" if type(old) in (int, float) else ""
         raise ProtocolError("E_ARG", f"{where}: '{raw}' is not a {type(old).__name__}{form}") from None
 

@@ -43,6 +43,7 @@ def test_every_numeric_path_is_ascii_decimal(client: LineClient) -> None:
         "dem-full -range -150,150,-50,\uff11": "-range takes 4 numbers",
         "config -module sleep -set seconds=1_0": "-seconds takes a number",  # config -set
         "config -module drivers -set tof.auto_exposure_params.desired=7_0": "is not a int (write it in ASCII",  # a mapping's key
+        "config -module drivers -set tof.camera_matrix=[[1_0,0,0],[0,1,0],[0,0,1]]": "'1_0' is not a number",  # YAML
     }
     for line, start in cases.items():
         r = client.request(line)
