@@ -437,7 +437,7 @@ class App:
             return None
         cmd = lookup(req.command)
         if cmd is None or (cmd.sim_only and self.world is None):
-            conn.send(Reply("RVS", "ERROR", {"code": "E_UNKNOWN", "message": self._unknown(req.command)}, req.tag))
+            conn.send(Reply("RVS", "ERROR", {"code": "E_UNKNOWN", "message": self._unknown(req.sent)}, req.tag))
             return None
         try:
             if self.server_cfg.token and not conn.authenticated and not cmd.open:

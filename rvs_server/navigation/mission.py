@@ -208,6 +208,24 @@ class Mission:
         maps = app.maps.layers
         return NavMaps(maps["hazard"], maps["slope"], maps.geometry)
 
+    def _ortho(self, maps: Any, path: np.ndarray, wps: np.ndarray, rover: tuple[float, float],
+               size: float) -> tuple[np.ndarray, Any]:
+        """The ortho-image the traverse is drawn on, and its grid. A mission that scanned nothing
+        (the goal was within tolerance at the start) may have no map at all: the figure is then
+        drawn on an unknown (NaN) ground that covers the rover, the goal and the track, so the OK
+        line names a traverse figure as it always does."""
+        from prox_workflows.grid import GridGeometry
+
+        if maps is not None and "ortho" in maps:
+            return maps["ortho"], maps.geometry
+        xy = np.concatenate([np.asarray([rover, self.goal], dtype=np.float64), path.reshape(-1, 2),
+                             wps.reshape(-1, 2), self.track.xy()])
+        margin = size + 1.0  # m: the rover's outline and some ground round it
+        lo, hi = xy.min(axis=0) - margin, xy.max(axis=0) + margin
+        cell = max(float((hi - lo).max()) / 400.0, 0.01)  # a figure of about 400 cells a side
+        geometry = GridGeometry.covering(float(lo[0]), float(lo[1]), float(hi[0]), float(hi[1]), cell)
+        return np.full(geometry.shape, np.nan, dtype=np.float32), geometry
+
     def products(self) -> dict[str, Any]:
         """The traverse figure, the waypoints and the track; the OK line."""
         from prox_workflows.algorithms.planner import ortho_figure
@@ -221,7 +239,8 @@ class Mission:
         wps = np.concatenate(self.waypoints) if self.waypoints else np.zeros((0, 2))
         traverse = app.data_path("nav", f"{self.name}_traverse.png")
         head = app.config.get("head")
-        write_png(traverse, ortho_figure(maps["ortho"], maps.geometry, f"traverse to ({goal[0]:g}, {goal[1]:g})",
+        ortho, geometry = self._ortho(maps, path, wps, (pose.x, pose.y), max(head.rover_length, head.rover_width))
+        write_png(traverse, ortho_figure(ortho, geometry, f"traverse to ({goal[0]:g}, {goal[1]:g})",
                                          Marks(rover=(pose.x, pose.y, pose.heading),
                                                rover_size=(head.rover_length, head.rover_width), path=path,
                                                waypoints=wps, track=self.track.xy(), goal=goal)))

@@ -235,7 +235,7 @@ def test_control_characters_from_the_client_are_shown_not_sent(client: LineClien
     line = client.raw_line()
     assert not any(b < 0x20 for b in line.rstrip(b"\r\n")), line
     r = parse_reply(line.decode())
-    assert r.fields["code"] == "E_UNKNOWN" and "'^L^G^@^[[2j'" in r.fields["message"], r
+    assert r.fields["code"] == "E_UNKNOWN" and "'^L^G^@^[[2J'" in r.fields["message"], r
     client.send(b"sleep -seconds 1\x07\x7f")  # a bad option value, quoted back
     r = parse_reply(client.raw_line().decode())
     assert r.fields["code"] == "E_ARG" and "1^G^?" in r.fields["message"], r
