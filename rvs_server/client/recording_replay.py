@@ -49,6 +49,7 @@ from drivers.base import DeviceError
 from drivers.registry import DEVICE_KINDS, registry
 from drivers.replay import TIMINGS, Replay, decoder, load, running
 from prox_workflows.grid import GridGeometry, Layers
+from rvs_params.cli import ToolParser
 
 from ..protocol import Reply, parse_reply
 from ..telemetry.messages import DTYPES
@@ -402,7 +403,7 @@ def _request(conn: Connection, line: str, timeout: float) -> Reply:
 
 
 def parse_args(argv: list[str]) -> argparse.Namespace:
-    p = argparse.ArgumentParser(prog="rvs-replay --mcap", description=__doc__.split("\n\n")[0],
+    p = ToolParser(prog="rvs-replay --mcap", description=__doc__.split("\n\n")[0],
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--mcap", type=Path, required=True, metavar="FILE", help="the recording (record -start) to replay")
     p.add_argument("--products", action="store_true", help="also compare every map layer made, cell for cell")

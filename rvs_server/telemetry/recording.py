@@ -43,11 +43,18 @@ class Recording(Outlet):
         self.declare()
         self.path = path
         self.started = time.monotonic()
+        self.start_ns = time.time_ns()
         self.writer = foxglove.open_mcap(path, context=self.context, writer_options=MCAPWriteOptions(
             compression=MCAPCompression.Zstd, chunk_size=CHUNK_BYTES, compression_threads=0,
             profile=self.mcap_profile))
         self.writer.write_metadata("rvs", metadata)
         self._flushed = time.monotonic()
+
+    def log(self, topic: str, data: bytes, t_ns: int) -> None:
+        """A message from before the start (what is latched, sent again to the new file: a map,
+        the plan; one under way as the recording started) is logged at the start, so that the
+        file's time range is the recording's; its content keeps its own time."""
+        super().log(topic, data, max(t_ns, self.start_ns))
 
     def tick(self, now: float) -> None:
         """Finish the open chunk if it is :data:`FLUSH_S` old (``now``: time.monotonic())."""
