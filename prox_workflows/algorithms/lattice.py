@@ -182,13 +182,14 @@ def search(start: tuple[float, float], start_heading: float, goal: tuple[float, 
     heading nearest ``start_heading`` (deg) to the cell holding ``goal`` (any heading), over the
     states whose cell centre lies inside ``bounds`` (xmin, ymin, xmax, ymax). ``edge_check`` judges
     the dense poses of a batch of motions at once (see the module's docstring). ``max_expansions``
-    bounds each search, ``max_searches`` the lazy re-searches (``budget`` when either runs out)."""
+    bounds the expansions of all the lazy re-searches together, ``max_searches`` their number
+    (``budget`` when either runs out: nothing proven)."""
     prims = prims if prims is not None else primitives(res)
     cache = cache if cache is not None else EdgeCache()
     checked0, expanded = cache.poses_checked, 0
     for k in range(max_searches):
         r = _search_once(start, start_heading, goal, bounds, edge_check, res, prims, weight, batch, judge_every,
-                         max_expansions, cache)
+                         max_expansions - expanded, cache)
         expanded += r.expanded
         if r.path is None or judge_every == 1:
             return SearchResult(r.path, r.reason, expanded, cache.poses_checked - checked0, k + 1)
