@@ -242,53 +242,6 @@ def _search_once(start: tuple[float, float], start_heading: float, goal: tuple[f
     closed: dict[tuple[int, int, int], tuple[tuple[int, int, int] | None, int, float]] = {}
     expanded = 0
 
-    def judge(entries: list[tuple]) -> list[bool]:
-        """Verdicts of the entries' motions: first their end states' poses not yet judged, then the
-        motions whose end state is safe, all in as few calls as possible."""
-        todo_states = []
-        for e in entries:
-            st = e[3]
-            if st not in cache.states and st not in todo_states:
-                todo_states.append(st)
-        if todo_states:
-            poses = np.array([(sx + i * res, sy + j * res, ang[k]) for i, j, k in todo_states])
-            ok = np.asarray(edge_check(poses), bool)
-            cache.poses_checked += len(poses)
-            for st, v in zip(todo_states, ok, strict=True):
-                cache.states[st] = bool(v)
-        verdict: list[bool | None] = []
-        todo_edges: list[tuple[int, int, int, int]] = []
-        chunks: list[np.ndarray] = []
-        for e in entries:
-            st, parent, pi = e[3], e[4], e[5]
-            if not cache.states[st]:
-                verdict.append(False)
-                continue
-            if parent is None:
-                verdict.append(True)
-                continue
-            key = (*parent, pi)
-            if key in cache.edges:
-                verdict.append(cache.edges[key])
-                continue
-            verdict.append(None)
-            if key not in todo_edges:
-                todo_edges.append(key)
-                # the end pose is the state's, judged above; of the rest every judge_every-th from the end
-                p = prims[parent[2]][pi].poses[:-1][::-1][judge_every - 1::judge_every]
-                chunks.append(p + np.array([sx + parent[0] * res, sy + parent[1] * res, 0.0]))
-        if todo_edges:
-            poses = np.concatenate(chunks)
-            ok = np.asarray(edge_check(poses), bool) if len(poses) else np.zeros(0, bool)
-            cache.poses_checked += len(poses)
-            at = 0
-            for key, c in zip(todo_edges, chunks, strict=True):
-                cache.edges[key] = bool(ok[at:at + len(c)].all())
-                if judge_every == 1:
-                    cache.full.add(key)
-                at += len(c)
-        return [v if v is not None else cache.edges[(*e[4], e[5])] for v, e in zip(verdict, entries, strict=True)]
-
     while heap:
         entry = heapq.heappop(heap)
         f, neg_g, _, st, parent, pi, judged = entry
@@ -302,7 +255,8 @@ def _search_once(start: tuple[float, float], start_heading: float, goal: tuple[f
                 if nxt[3] in closed:
                     continue
                 (held if nxt[6] else group).append(nxt)
-            for e, ok in zip(group, judge(group), strict=True):
+            for e, ok in zip(group, _judge(group, edge_check, cache, prims, start, res, ang, judge_every),
+                             strict=True):
                 if ok:
                     heapq.heappush(heap, (*e[:6], True))
             for e in held:
@@ -330,6 +284,56 @@ def _search_once(start: tuple[float, float], start_heading: float, goal: tuple[f
             known = cache.edges.get((i, j, k, q)) is True and cache.states.get(nst) is True
             heapq.heappush(heap, (g2 + h(ni, nj), -g2, tie, nst, st, q, known))
     return SearchResult(None, "exhausted", expanded, cache.poses_checked - checked0)
+
+
+def _judge(entries: list[tuple], edge_check: EdgeCheck, cache: EdgeCache, prims: list[list[Primitive]],
+           origin: tuple[float, float], res: float, ang: np.ndarray, judge_every: int) -> list[bool]:
+    """Verdicts of the entries' motions: first their end states' poses not yet judged, then the
+    motions whose end state is safe, all in as few calls as possible."""
+    sx, sy = origin
+    todo_states = []
+    for e in entries:
+        st = e[3]
+        if st not in cache.states and st not in todo_states:
+            todo_states.append(st)
+    if todo_states:
+        poses = np.array([(sx + i * res, sy + j * res, ang[k]) for i, j, k in todo_states])
+        ok = np.asarray(edge_check(poses), bool)
+        cache.poses_checked += len(poses)
+        for st, v in zip(todo_states, ok, strict=True):
+            cache.states[st] = bool(v)
+    verdict: list[bool | None] = []
+    todo_edges: list[tuple[int, int, int, int]] = []
+    chunks: list[np.ndarray] = []
+    for e in entries:
+        st, parent, pi = e[3], e[4], e[5]
+        if not cache.states[st]:
+            verdict.append(False)
+            continue
+        if parent is None:
+            verdict.append(True)
+            continue
+        key = (*parent, pi)
+        if key in cache.edges:
+            verdict.append(cache.edges[key])
+            continue
+        verdict.append(None)
+        if key not in todo_edges:
+            todo_edges.append(key)
+            # the end pose is the state's, judged above; of the rest every judge_every-th from the end
+            p = prims[parent[2]][pi].poses[:-1][::-1][judge_every - 1::judge_every]
+            chunks.append(p + np.array([sx + parent[0] * res, sy + parent[1] * res, 0.0]))
+    if todo_edges:
+        poses = np.concatenate(chunks)
+        ok = np.asarray(edge_check(poses), bool) if len(poses) else np.zeros(0, bool)
+        cache.poses_checked += len(poses)
+        at = 0
+        for key, c in zip(todo_edges, chunks, strict=True):
+            cache.edges[key] = bool(ok[at:at + len(c)].all())
+            if judge_every == 1:
+                cache.full.add(key)
+            at += len(c)
+    return [v if v is not None else cache.edges[(*e[4], e[5])] for v, e in zip(verdict, entries, strict=True)]
 
 
 def _path(closed: dict, goal: tuple[int, int, int], prims: list[list[Primitive]], origin: tuple[float, float],
