@@ -39,6 +39,7 @@ from prox_workflows.algorithms.lattice import EdgeCache, primitives, search
 from prox_workflows.algorithms.vehicle import VehicleBody, check_poses
 from prox_workflows.grid import GridGeometry
 
+from . import vehicle as truth_vehicle
 from .vehicle import TRACK_STEP, vehicle_check
 
 RES = 0.05  # m: the lattice's cell
@@ -74,8 +75,10 @@ def oracle(surface: tuple[np.ndarray, GridGeometry, GridGeometry], body: Vehicle
     def edge_check(poses: np.ndarray) -> np.ndarray:
         return check_poses(fine, g, poses, body).safe
 
-    # the body stays on the surface: the check takes ground off it as a drop, not as ground
-    bounds = (g.xmin + reach, g.ymin + reach, g.xmax - reach, g.ymax - reach)
+    # the body stays on the surface (the check takes ground off it as a drop, not as ground), but
+    # a start or goal nearer its edge than the reach is searched from or to all the same
+    bounds = (min(g.xmin + reach, start[0], goal[0]), min(g.ymin + reach, start[1], goal[1]),
+              max(g.xmax - reach, start[0], goal[0]), max(g.ymax - reach, start[1], goal[1]))
     heading = math.degrees(math.atan2(goal[1] - start[1], goal[0] - start[0]))
     prims = primitives(RES, HEADINGS, TRACK_STEP, reach)
     r = search(start, heading, goal, bounds, edge_check, res=RES, prims=prims, judge_every=JUDGE_EVERY,
@@ -96,9 +99,10 @@ def oracle(surface: tuple[np.ndarray, GridGeometry, GridGeometry], body: Vehicle
 
 
 def code_version() -> str:
-    """A hash of the source that decides a verdict: the vehicle check, the lattice, this module."""
+    """A hash of the source that decides a verdict: the vehicle check, the lattice, the truth check
+    and this module."""
     h = hashlib.sha256()
-    for module in (vehicle, lattice):
+    for module in (vehicle, lattice, truth_vehicle):
         h.update(Path(module.__file__).read_bytes())
     h.update(Path(__file__).read_bytes())
     return h.hexdigest()[:16]
