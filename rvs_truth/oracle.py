@@ -87,11 +87,13 @@ def oracle(surface: tuple[np.ndarray, GridGeometry, GridGeometry], body: Vehicle
                            "expanded": r.expanded, "searches": r.searches, "poses_judged": r.poses_checked,
                            "events": []}
     if r.path is not None:
-        events, checked = vehicle_check(r.path.poses, surface, body)
+        # the rover starts facing the goal: its turn on the spot to the lattice's heading is driven too
+        poses = np.vstack([[start[0], start[1], heading], r.path.poses])
+        events, checked = vehicle_check(poses, surface, body)
         dist = math.hypot(goal[0] - start[0], goal[1] - start[1])
         out.update(feasible=not events, length=round(r.path.length, 3), poses_verified=checked,
                    efficiency=round(dist / r.path.length, 3) if not events and r.path.length > 0 else 0.0,
-                   events=[e.describe() for e in events], path=r.path.poses.tolist())
+                   events=[e.describe() for e in events], path=poses.tolist())
         if events:
             out["reason"] = "refused by the truth check"
     out["seconds"] = round(time.perf_counter() - t0, 1)

@@ -43,7 +43,7 @@ def test_a_path_round_a_rock_passes_the_truth_check() -> None:
     out = oracle(surface, BODY, start, goal)
     assert out["feasible"] and out["reason"] == "found" and out["events"] == []
     path = np.array(out["path"])  # x, y, heading of every pose the rover drives
-    assert path[0].tolist() == [*start, 0.0]
+    assert path[0].tolist() == [*start, 0.0]  # facing the goal, as a mission starts
     assert np.hypot(*(path[-1, :2] - goal)) <= 0.05 / np.sqrt(2) + 1e-9
     assert 0.5 < out["efficiency"] < 1.0  # round the rock, not through it
     assert np.min(np.hypot(path[:, 0] - 1.2, path[:, 1] - 1.0)) > 0.25  # the rock passes outside the body's middle
@@ -86,3 +86,17 @@ def test_a_verdict_is_cached_by_mission_body_and_code(tmp_path: Path, monkeypatc
     assert not other["cached"] and other["reason"] == "exhausted" and len(calls) == 2  # computed on the cliff
     monkeypatch.setattr(oracle_module, "code_version", lambda: "changed")
     assert mission_oracle("quarry", 0, (0.6, 0.7), (1.4, 0.7), BODY, tmp_path)["cached"] is False
+
+
+def test_the_bench_counts_the_oracles_feasible_missions_beside_the_window_steps() -> None:
+    from tools.bench.navigate import summarise
+
+    def row(feasible: bool, window: bool, reached: bool) -> dict:
+        return {"scene": "hirise", "mode": "see", "start": (0.0, 0.0), "distance": 16.0, "true_miss": 15.0,
+                "reached": reached, "feasible": feasible, "perfect_efficiency": 0.95 if feasible else 0.0,
+                "window_feasible": window, "window_efficiency": 0.7 if window else 0.0, "efficiency": 0.5 * reached,
+                "events": [], "crossed_cells": 0, "today_plan": {"events": []}, "sim_s": 100.0, "wall_s": 10.0}
+
+    s = summarise([row(True, False, True), row(True, False, False), row(False, False, False)])[0]
+    assert (s["feasible"], s["window_feasible"], s["reached_of_feasible"]) == (2, 0, 1)
+    assert s["perfect_efficiency_feasible"] == pytest.approx(0.95)
