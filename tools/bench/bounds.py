@@ -31,7 +31,16 @@ the ToF frames were drawn with, so this measures the map, not a mis-stated senso
 errors are real stereo errors against the sigmas its device declares, as are those of the
 real-data row (Middlebury Motorcycle, against its ground-truth disparity).
 
+``--poses`` states the vehicle check's safety as p-ACE (Ghosh, Otsu, Ono 2018) does, as a
+measured probability: on world draws no setting was tuned on (:data:`POSE_DRAWS`), poses every
+2 cm along straight paths over the judged ground (:func:`path_lines`), per scene and look the
+judged poses, the false safe (the check on the bounds calls safe, the check on the true 1 cm
+surface unsafe), the one-sided 95 % Clopper-Pearson bound on their rate per judged pose, the
+truly safe kept, how many consecutive poses make one independent trial (the verdicts' integrated
+autocorrelation along the paths) and the unsafe events per 100 m driven the bound allows.
+
     python -m tools.bench.bounds                       # marsyard, hirise, dense; all looks
+    python -m tools.bench.bounds --poses --looks approach approach+hazcam approach+stereo --jobs 2
     python -m tools.bench.bounds --scenes hirise --looks approach --k 2.5 3
 """
 
@@ -39,9 +48,10 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import sys
 import time
 from collections.abc import Iterator
-from concurrent.futures import ProcessPoolExecutor
+from concurrent.futures import ProcessPoolExecutor, as_completed
 from typing import Any
 
 import cv2
@@ -256,6 +266,13 @@ def pose_row(scene: str, look: str, k: float, world_seed: int, body: RoverBody |
     truly_safe = judged & ~on_truth.unsafe
     false_safe = on_truth.unsafe & on_bounds.safe
     cuts = np.cumsum([len(p) for p in paths])[:-1]
+    # what the truth holds against each false-safe pose: its worst excess over a limit
+    limits, misses = np.array([body.climb, body.clearance, body.tilt]), []
+    for i in np.flatnonzero(false_safe):
+        kind = int(np.argmax(on_truth.excess[i] / limits))
+        value = on_truth.excess[i, kind] * (1 if kind == 2 else 100)
+        misses.append(f"{('wheel', 'belly', 'tilt')[kind]} +{value:.1f} {('cm', 'cm', 'deg')[kind]} at "
+                      f"({poses[i, 0]:.2f}, {poses[i, 1]:.2f}, {poses[i, 2]:.0f})")
     # one false-safe event per run of consecutive false-safe poses along a path
     events = sum(int(np.count_nonzero(np.diff(np.concatenate([[0], f.astype(np.int8), [0]])) == 1))
                  for f in np.split(false_safe, cuts))
@@ -263,6 +280,7 @@ def pose_row(scene: str, look: str, k: float, world_seed: int, body: RoverBody |
         "scene": scene, "look": look, "world_seed": world_seed, "poses": len(poses), "judged": int(judged.sum()),
         "truly_safe": int(truly_safe.sum()), "false_safe": int(false_safe.sum()), "events": events,
         "safe_kept": int(on_bounds.safe[truly_safe].sum()),
+        "misses": misses,
         "truth_paths": np.split(np.where(judged, on_truth.unsafe, np.nan), cuts),
         "live_paths": np.split(np.where(judged, ~on_bounds.safe, np.nan), cuts),
         "seconds": time.perf_counter() - t0,
@@ -389,7 +407,13 @@ def main(argv: list[str] | None = None) -> None:
     if args.poses:
         todo = [(s, look, k, d, body) for k in args.k for s in args.scenes for look in args.looks for d in args.draws]
         with ProcessPoolExecutor(args.jobs) as pool:
-            prows = list(pool.map(pose_row, *zip(*todo, strict=True)))
+            futures = [pool.submit(pose_row, *t) for t in todo]
+            for f in as_completed(futures):
+                r = f.result()
+                print(f"{r['scene']} {r['look']} draw {r['world_seed']}: {r['judged']} judged, "
+                      f"{r['false_safe']} false safe, {r['seconds']:.0f} s", *r["misses"], sep="; ", file=sys.stderr,
+                      flush=True)
+            prows = [f.result() for f in futures]
         print(f"world draws {args.draws}, k {args.k}, a pose every {100 * PATH_STEP:.0f} cm along paths "
               f"{100 * PATH_LATERAL:.0f} cm apart at 4 headings")
         print_pose_table(pose_table(prows))
