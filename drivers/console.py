@@ -93,7 +93,18 @@ def load_section(section: str, defaults: dict[str, Any], path: str | Path | None
 
 
 class DeviceConsole(cmd.Cmd):
-    """A bench session must outlive whatever a command raises: errors are printed, never fatal."""
+    """A bench session must outlive whatever a command raises: errors are printed, never fatal.
+
+    A one-shot run's lines are checked before anything runs, as a program's options are: a
+    command that does not exist, or arguments its ``check_<command>`` refuses, is one ``tool:
+    message`` line and exit status 2, with the device untouched (half a script run against the
+    hardware, then a typo, helps nobody)."""
+
+    #: The program's name, which starts its one-line usage errors.
+    tool = "rvs-console"
+    #: Commands that answer without an open device: a one-shot run of only these goes on when the
+    #: start-up command fails (what is on the bus, what the driver state is), any other stops there.
+    offline: frozenset[str] = frozenset({"help", "status", "quit", "exit"})
 
     #: Errors the message of which is self-explanatory; anything else is printed with its type.
     plain_errors: tuple[type[Exception], ...] = (DeviceError, ValueError)
@@ -169,16 +180,44 @@ class DeviceConsole(cmd.Cmd):
         self.fail(f"error: unknown command {line.split()[0]!r}; {self.unknown_hint}")
         return False
 
-    def run_line(self, line: str) -> bool:
-        """One ``-c`` argument; ``;`` separates commands so a script needs one argument per step.
+    def commands_in(self, line: str) -> list[str]:
+        """The commands of one ``-c`` argument: ``;`` separates them, so a script needs one
+        argument per step."""
+        return [c for c in (part.strip() for part in line.split(";")) if c]
 
-        True once a command asks to leave, like ``cmdloop`` would stop.
-        """
-        for part in line.split(";"):
-            command = part.strip()
-            if command and self.onecmd(self.precmd(command)):
-                return True
-        return False
+    def run_line(self, line: str) -> bool:
+        """One ``-c`` argument; True once a command asks to leave, like ``cmdloop`` would stop."""
+        return any(self.onecmd(self.precmd(command)) for command in self.commands_in(line))
+
+    def usage_problem(self, lines: Sequence[str]) -> str | None:
+        """What is wrong with a one-shot run's commands as typed, before any runs: an unknown
+        command, or arguments its ``check_<command>(arg)`` refuses (ValueError); None if nothing."""
+        for line in lines:
+            for command in self.commands_in(line):
+                name, arg, _ = self.parseline(self.precmd(command))
+                if not name or not hasattr(self, f"do_{name}"):
+                    return f"unknown command {command.split()[0]!r}; {self.unknown_hint}"
+                check = getattr(self, f"check_{name}", None)
+                if check is not None:
+                    try:
+                        check(arg or "")
+                    except ValueError as exc:
+                        return f"{name}: {exc}"
+        return None
+
+    def all_offline(self, lines: Sequence[str]) -> bool:
+        """Whether every command of a one-shot run answers without an open device."""
+        return all((self.parseline(self.precmd(c))[0] or "") in self.offline
+                   for line in lines for c in self.commands_in(line))
+
+    def start_up(self, line: str) -> str | None:
+        """A one-shot run's start-up command (``open``): None once it ran, else why it failed, as
+        one line (a device that cannot be opened is the run's set-up failing, like a bad option)."""
+        try:
+            super().onecmd(self.precmd(line))
+        except Exception as exc:  # noqa: BLE001 - whatever the device says, said once
+            return one_line(exc)
+        return None
 
     def do_quit(self, arg: str) -> bool:
         """quit: leave the console."""
@@ -203,17 +242,27 @@ def run(
     """The console's session: ``lines`` one-shot if any, else the interactive prompt.
 
     ``start`` (e.g. ``open``) runs first so the device is ready; ``close`` runs however the session
-    ends and its errors are swallowed, since leaving must never trace back. One-shot runs exit 1
-    if any command failed; the prompt exits 0 unless ``prompt_status``, as a person saw the errors.
+    ends and its errors are swallowed, since leaving must never trace back. One-shot runs exit 2
+    when a line does not parse or ``start`` fails (one line on ``notes``), 1 if any command failed; the prompt exits 0 unless ``prompt_status``, as a person saw the errors.
     One-shot, notes (``start``'s output among them) go to ``notes``, by default stderr.
     """
     if lines:
         console.notes = notes or sys.stderr
+        problem = console.usage_problem(lines)
+        if problem is not None:
+            console.notes.write(f"{console.tool}: {problem}\n")
+            return 2
     try:
         if start is not None:
-            if lines:
+            if lines and console.all_offline(lines):
                 with console.results_as_notes():
-                    console.onecmd(start)
+                    console.onecmd(start)  # a failure is reported and the commands still answer
+            elif lines:
+                with console.results_as_notes():
+                    failure = console.start_up(start)
+                if failure is not None:
+                    console.notes.write(f"{console.tool}: {failure}\n")
+                    return 2
             else:
                 console.onecmd(start)
         if lines:

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import copy
 import dataclasses
+import keyword
 import math
 import re
 import types
@@ -23,7 +24,35 @@ from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field, fields
 from typing import Any, TypeVar
 
+from .numbers import (  # noqa: F401 - the wire's number rule, also for the server's own parsers
+    INTEGER_FORM,
+    NUMBER_FORM,
+    is_number,
+    load_wire_yaml,
+    parse_integer,
+    parse_number,
+)
+
 STEM_RE = re.compile(r"[A-Za-z0-9_\-][A-Za-z0-9_.\-]{0,63}")
+
+
+def wire_key(name: str) -> str:
+    """The name a field goes by on the wire, in YAML keys shown and in replies: a trailing
+    underscore is Python's escape of a keyword (the field ``global_`` is the key ``global``, the
+    option ``-global``), and reply keys are lower_snake_case without it."""
+    bare = name[:-1]
+    return bare if name.endswith("_") and keyword.iskeyword(bare) else name
+
+
+def wire_flag(name: str) -> str:
+    """The option a field is given by: ``-`` and its :func:`wire_key`, words joined by ``-``."""
+    return "-" + wire_key(name).replace("_", "-")
+
+
+# How a value says "not set" for a setting that can be unset (:attr:`ParamSpec.optional`): the
+# word text replies show for it, and YAML's null spellings. Not an empty value: an empty output
+# name is a mistake to refuse (tests/reliability/test_security.py), not a wish for the default.
+NOT_SET = ("none", "null", "~")
 
 
 def valid_stem(name: str) -> bool:
@@ -55,6 +84,7 @@ def param(
     live: bool = False,
     ordered: bool = False,
     flat: str | None = None,
+    at_most: str | None = None,
 ) -> Any:
     """Declare a settings field with what a checker and a help text need to know about it.
 
@@ -65,6 +95,9 @@ def param(
     A nested settings section (``default`` a :class:`Settings`) declared ``flat`` (a prefix, ""
     for none) also lends its keys to this class under that prefix: the request's options, ``-set``
     and YAML take them by those names as well as by ``section.key`` (:meth:`Settings.keys`).
+    ``at_most`` names another key of the class this value must not exceed (a stop distance within
+    the warning distance): both keys' help states it, and :meth:`Settings.check` refuses a pair
+    that breaks it, whichever of the two was given.
     """
     meta = {
         "help": help,
@@ -80,6 +113,7 @@ def param(
         "live": live,
         "ordered": ordered,
         "flat": flat,
+        "at_most": at_most,
     }
     if isinstance(default, list | dict | Settings):
         return field(default_factory=lambda d=default: copy.deepcopy(d), metadata=meta)
@@ -103,17 +137,24 @@ class ParamSpec:
     required: bool
     protected: bool
     default: Any
-    optional: bool = False  # None (YAML null) is a value: "not set, use the backend's own"
+    optional: bool = False  # can be put back to "not set" (NOT_SET words): its value is then ``unset``
     live: bool = False
     section: type[Settings] | None = None  # kind "section": the nested settings class
     ordered: bool = False  # floats: min,max pairs, each min <= max
     flat: str | None = None  # section: the prefix its keys take among this class's keys (None: not lent)
     path: tuple[str, ...] = ()  # a section's key lent to this class (Settings.keys): the fields to its value
+    unset: Any = None  # an optional setting's "not set" value: None, or the declared default NaN / ""
+    at_most: str | None = None  # another key of the class this value must not exceed
+    at_least: str | None = None  # the key that declared at_most this one (the same rule, seen from here)
+
+    @property
+    def key(self) -> str:
+        """The name on the wire and in replies (:func:`wire_key`)."""
+        return wire_key(self.name)
 
     @property
     def flag(self) -> str:
-        # a trailing underscore is Python's escape of a keyword (global_ is the option -global)
-        return "-" + self.name.rstrip("_").replace("_", "-")
+        return wire_flag(self.name)
 
     def describe(self) -> str:
         """One phrase for help and error messages: type, range, unit, default."""
@@ -131,15 +172,25 @@ class ParamSpec:
             what += f" in [{_num(self.min)}, {_num(self.max)}]"
         if self.unit:
             what += f" {self.unit}"
+        if self.at_most:
+            what += f", at most {wire_flag(self.at_most)}"
+        if self.at_least:
+            what += f", at least {wire_flag(self.at_least)}"
         if self.optional:
-            what += " or null"
+            what += " or none"
         return what
 
-    def parse(self, raw: str | bool) -> Any:  # noqa: C901 - one branch per kind of value, read in order
-        """Convert and validate one value from a request or a ``-set``; the error names the option."""
-        name = self.flag
-        if self.optional and isinstance(raw, str) and raw.lower() in ("null", "none", "~"):
-            return None
+    @property
+    def cli_flag(self) -> str:
+        """The option as a program's command line spells it (``--cell``; the wire's is ``-cell``)."""
+        return "-" + self.flag
+
+    def parse(self, raw: str | bool, flag: str | None = None) -> Any:  # noqa: C901 - one branch per kind, in order
+        """Convert and validate one value from a request or a ``-set``; the error names the option
+        as ``flag`` (default: the wire's spelling; a program's command line passes ``cli_flag``)."""
+        name = flag or self.flag
+        if self.optional and isinstance(raw, str) and raw.strip().lower() in NOT_SET:
+            return copy.copy(self.unset)
         if self.kind == "any":
             if raw is True:
                 raise SettingError(f"{name} needs a value: {self.describe()}")
@@ -149,9 +200,11 @@ class ParamSpec:
             if isinstance(self.default, list) and not text.lstrip().startswith("["):
                 text = f"[{text}]"  # a list typed as on the wire: a,b,c
             try:
-                return yaml.safe_load(text)
+                return load_wire_yaml(text)
             except yaml.YAMLError:
                 raise SettingError(f"{name} takes {self.describe()}, not '{str(raw)[:40]}'") from None
+            except ValueError as exc:
+                raise SettingError(f"{name}: {exc}") from None
         if self.kind == "bool":
             if isinstance(raw, bool):
                 return raw
@@ -167,12 +220,15 @@ class ParamSpec:
         if self.kind in ("floats", "ints"):
             parts = [p for p in raw.split(",")] if raw else []
             try:
-                values = [float(p) for p in parts]
+                values = [parse_number(p, NUMBER_FORM) for p in parts]
             except ValueError:
-                raise SettingError(f"{name} takes {self.describe()}, not '{raw[:40]}'") from None
+                raise SettingError(f"{name} takes {self.describe()}, not '{raw[:40]}' "
+                                   f"(write each in {NUMBER_FORM})") from None
             lo, hi = self.length or (1, 99)
-            if not lo <= len(values) <= hi or not all(math.isfinite(v) for v in values):
+            if not lo <= len(values) <= hi:
                 raise SettingError(f"{name} takes {self.describe()}, not '{raw[:40]}'")
+            if not all(math.isfinite(v) for v in values):
+                raise SettingError(f"{name} takes {self.describe()}, each finite, not '{raw[:40]}'")
             for v in values:
                 self._check_range(v)
             for i in range(0, len(values) - 1, 2) if self.ordered else ():
@@ -186,18 +242,20 @@ class ParamSpec:
             return values
         if self.kind == "float":
             try:
-                value = float(raw)
+                value = parse_number(raw, NUMBER_FORM)
             except ValueError:
-                raise SettingError(f"{name} takes a {self.describe()}, not '{raw[:40]}'") from None
+                raise SettingError(f"{name} takes a {self.describe()}, not '{raw[:40]}' "
+                                   f"(write it in {NUMBER_FORM})") from None
             if not math.isfinite(value):
                 raise SettingError(f"{name} must be a finite {self.describe()}")
             self._check_range(value)
             return value
         if self.kind == "int":
             try:
-                value = int(raw, 10)
+                value = parse_integer(raw)
             except ValueError:
-                raise SettingError(f"{name} takes an {self.describe()}, not '{raw[:40]}'") from None
+                raise SettingError(f"{name} takes an {self.describe()}, not '{raw[:40]}' "
+                                   f"(write it in {INTEGER_FORM})") from None
             self._check_range(value)
             return value
         if self.choices:
@@ -208,13 +266,14 @@ class ParamSpec:
         if self.stem and not valid_stem(raw):
             raise SettingError(
                 f"{name} must be a file stem of 1-64 letters, digits, '_', '.', '-' not starting with '.'"
+                + ("; none for the default" if self.optional else "")
             )
         return raw
 
     def coerce(self, value: Any, where: str) -> Any:
         """A value that is already typed (YAML, a Python caller): checked with the wire's rules."""
         if value is None and self.optional:
-            return None
+            return copy.copy(self.unset)
         if self.kind == "any":
             return copy.deepcopy(value)
         if self.kind == "section":
@@ -255,6 +314,18 @@ def _num(v: float | None) -> str:
 
 
 _KIND = {float: "float", int: "int", str: "str", bool: "bool"}
+
+
+def _unset_default(kind: str, default: Any, meta: Mapping[str, Any]) -> Any:
+    """The "not set" value a declaration gives by its default, for a type without None: a number
+    declared NaN (a PTU axis that keeps its position) or a free text or file stem declared ""
+    (an output named by the time). None when the default is a value like any other (a required
+    option has none: it is always given)."""
+    if kind == "float" and isinstance(default, float) and math.isnan(default):
+        return default
+    if kind == "str" and default == "" and not meta.get("choices") and not meta.get("required"):
+        return default
+    return None
 
 S = TypeVar("S", bound="Settings")
 
@@ -300,6 +371,9 @@ class Settings:
             length = meta.get("length")
             if isinstance(length, int):
                 length = (length, length)
+            unset = None if optional else _unset_default(kind, default, meta)
+            if unset is not None:
+                optional = True
             out[f.name] = ParamSpec(
                 name=f.name,
                 kind=kind,
@@ -319,7 +393,14 @@ class Settings:
                 section=section,
                 ordered=meta.get("ordered", False),
                 flat=meta.get("flat"),
+                unset=unset,
+                at_most=meta.get("at_most"),
             )
+        for spec in list(out.values()):
+            if spec.at_most is not None:
+                if spec.at_most not in out:
+                    raise TypeError(f"{cls.__name__}.{spec.name}: at_most names no field {spec.at_most!r}")
+                out[spec.at_most] = dataclasses.replace(out[spec.at_most], at_least=spec.name)
         cls._specs = out  # type: ignore[attr-defined]
         return out
 
@@ -382,7 +463,12 @@ class Settings:
                 kwargs[spec.name] = merged
             else:
                 kwargs[spec.name] = spec.coerce(value, where)
-        return cls(**kwargs)
+        made = cls(**kwargs)
+        try:
+            made.check()
+        except SettingError as exc:
+            raise SettingError(f"{where}: {exc.message}") from None
+        return made
 
     @classmethod
     def picked_from(cls: type[S], source: Mapping[str, Any] | Settings) -> S:
@@ -403,6 +489,25 @@ class Settings:
                 raise SettingError(f"{flag} {key}: unknown key; known: {', '.join(specs)}")
             out[key] = spec.parse(raw)
         return out
+
+    def check(self) -> None:
+        """The rules between keys (``at_most``), in this class and its sections: SettingError
+        naming both keys and what to give when a pair breaks one."""
+        for spec in self.specs().values():
+            value = getattr(self, spec.name)
+            if isinstance(value, Settings):
+                value.check()
+            if spec.at_most is None:
+                continue
+            limit = getattr(self, spec.at_most)
+            if value is not None and limit is not None and value > limit:
+                hi = wire_flag(spec.at_most)
+                raise SettingError(f"{spec.flag} {_num(value)} must not exceed {hi} {_num(limit)}: give {hi} "
+                                   f"at least {_num(value)} or {spec.flag} at most {_num(limit)}")
+
+    def wire_dict(self) -> dict[str, Any]:
+        """:meth:`as_dict` with every key as the wire names it (:func:`wire_key`), for replies."""
+        return _wire_keys(self.as_dict())
 
     def as_dict(self) -> dict[str, Any]:
         """Plain values (nested settings as mappings), for replies, sidecars and YAML."""
@@ -452,6 +557,10 @@ def _nest_lent(keys: dict[str, ParamSpec], data: Mapping[str, Any]) -> dict[str,
             node = node[section]
         node[name] = out.pop(key)
     return out
+
+
+def _wire_keys(values: dict[str, Any]) -> dict[str, Any]:
+    return {wire_key(k): _wire_keys(v) if isinstance(v, dict) else v for k, v in values.items()}
 
 
 def merge(base: dict[str, Any], over: Mapping[str, Any]) -> None:

@@ -31,10 +31,11 @@ from .bus import Bus
 from .config import ConfigStore, ServerConfig
 from .devices import DeviceRegistry, stereo_points
 from .jobs import Job, JobRunner, error_fields
-from .maps import CurrentMaps, RecoverySets
+from .maps import CurrentMaps, RecoverySets, ground_height
 from .monitors import Monitors
 from .protocol import ProtocolError, Reply, Request, TooLong, is_silent, parse_request, tag_of
 from .table import ALWAYS, CONTROL, HARDWARE, Command, bind_options, check_positional, lookup
+from .travel import Travel
 
 if TYPE_CHECKING:
     from drivers.sim.world import World
@@ -163,6 +164,7 @@ class App:
     maps: CurrentMaps  # the current DEM's layers, their files and views kept for an update
     odometry: Shared[OrientReference | None]  # orient's reference acquisition
     track_target: Shared[Detection | None]  # what track3d-detect found, where track3d-start begins
+    travel: Travel  # the driven track (fed by every pose change) and the last navigate's goal
     monitors: Monitors  # hazard monitor, target tracker (event loop only)
     recovery: RecoverySets  # break's recovery sets and the newest of them
     console: WebConsole | None  # the operator web console, when server.web_port is set (event loop)
@@ -213,6 +215,8 @@ class App:
         self.maps = CurrentMaps(self.bus)
         self.odometry = Shared(None)
         self.track_target = Shared(None)
+        self.travel = Travel()
+        self._travelled(self._pose.x, self._pose.y)  # the track starts where the rover stands
         self.monitors = Monitors(loop)
         self.recovery = RecoverySets(self.data_dir, self.rel)
 
@@ -285,6 +289,14 @@ class App:
             if conn.events:
                 conn.send(reply)
 
+    def sent(self, conn: Connection, reply: Reply, *, job: bool = False) -> None:
+        """Publish a line sent to ``conn`` (its ``send`` calls this first, whether or not it is
+        still open: a job's final line is part of the record when its client left before it);
+        an EVENT is published once, by :meth:`broadcast`. ``job``: a line of a job (its ACK,
+        PROGRESS, OK or ERROR), not an immediate reply."""
+        if reply.status != "EVENT":
+            self.bus.publish("reply", conn=conn.id, reply=reply, job=job)
+
     def job_reply(self, conn: Connection, reply: Reply) -> None:
         """A line of a job: to the connection that started it, and to every connection that
         watches all jobs (the web console's pages; loop only)."""
@@ -326,6 +338,14 @@ class App:
                               sigma_heading=sigma_heading)
             self._pose_version += 1
             self.pose_changed.notify_all()
+        self._travelled(x, y)
+
+    def _travelled(self, x: float, y: float) -> None:
+        """The track follows the simulated rover where there is one (it shows where the rover
+        really went, slip and all), else the pose the GNC reports."""
+        if self.world is not None:
+            x, y, _ = self.world.rover_pose()
+        self.travel.moved(x, y, lambda x, y: ground_height(self.maps.layers, x, y))
 
     def ptu_position(self) -> tuple[float, float] | None:
         """The PTU's last reported position, without touching the serial line."""
@@ -417,7 +437,7 @@ class App:
             return None
         cmd = lookup(req.command)
         if cmd is None or (cmd.sim_only and self.world is None):
-            conn.send(Reply("RVS", "ERROR", {"code": "E_UNKNOWN", "message": self._unknown(req.command)}, req.tag))
+            conn.send(Reply("RVS", "ERROR", {"code": "E_UNKNOWN", "message": self._unknown(req.sent)}, req.tag))
             return None
         try:
             if self.server_cfg.token and not conn.authenticated and not cmd.open:

@@ -22,10 +22,12 @@ from typing import Any
 #            line but EVENTs, to the connection it was sent to (a TCP client or a console page)
 #   event    reply (protocol.Reply): an EVENT, once however many connections get it
 #   maps     layers (grid.Layers), name: the current DEM was replaced or restored
+#   calling  device, call: a driver call is about to be made (published in the calling thread, which
+#            waits for the subscribers: the hub samples the state the call starts from)
 #   frame    device, call (the driver method's name), args, result: a driver grab returned
 #   bounds   bounds (the see loop's BoundsMap itself, which it goes on fusing into), replan (bool): a
 #            frame was fused into it, or a plan is made on it
-KINDS = ("request", "reply", "event", "maps", "frame", "bounds")
+KINDS = ("request", "reply", "event", "maps", "calling", "frame", "bounds")
 
 
 @dataclass(frozen=True)
@@ -71,12 +73,14 @@ class Bus:
 
 def tapped_call(bus: Bus, fn: Any, *args: Any, **kwargs: Any) -> Any:
     """Call a driver method and publish what it returned as a ``frame`` (the device is the
-    method's owner's ``name``); the time is the call's start, when a camera exposes."""
+    method's owner's ``name``); the time is the call's start, when a camera exposes. A
+    ``calling`` item goes first, so that the state the call starts from is recorded before it."""
     if not bus.watched:
         return fn(*args, **kwargs)
+    owner = getattr(fn, "__self__", None)
+    device, call = getattr(owner, "name", "?"), getattr(fn, "__name__", "?")
+    bus.publish("calling", device=device, call=call)
     t = time.time_ns()
     result = fn(*args, **kwargs)
-    owner = getattr(fn, "__self__", None)
-    bus.publish("frame", t, device=getattr(owner, "name", "?"), call=getattr(fn, "__name__", "?"), args=args,
-                result=result)
+    bus.publish("frame", t, device=device, call=call, args=args, result=result)
     return result

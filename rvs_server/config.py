@@ -19,7 +19,19 @@ from typing import Any, ClassVar
 import yaml
 
 from drivers.registry import DEVICE_KINDS, registry
-from rvs_params import ParamSpec, SettingError, Settings, assignment, merge, param
+from rvs_params import (
+    INTEGER_FORM,
+    NUMBER_FORM,
+    ParamSpec,
+    SettingError,
+    Settings,
+    assignment,
+    load_wire_yaml,
+    merge,
+    param,
+    parse_integer,
+    parse_number,
+)
 
 from .protocol import ProtocolError
 
@@ -51,6 +63,8 @@ def _set_in(cfg: Settings, path: list[str], raw: str, where: str, *, runtime: bo
     if lent is not None:  # a key a flat section lends: set it in the section
         _set_in(cfg, [*lent.path, *path[1:]], raw, where, runtime=runtime)
         return
+    if spec is None:  # a key as the wire names it (global for the field global_)
+        spec = next((s for s in specs.values() if s.key == path[0]), None)
     if spec is None:
         raise ProtocolError("E_ARG", f"{where} has no key '{path[0]}'; keys: {', '.join(type(cfg).keys())}")
     if runtime and spec.protected:
@@ -96,17 +110,20 @@ def _set_nested(target: dict[str, Any], path: list[str], raw: str, where: str) -
                 raise ValueError
             node[key] = low in ("true", "1", "yes", "on")
         elif isinstance(old, int):
-            node[key] = int(raw)
+            node[key] = parse_integer(raw)
         elif isinstance(old, float):
-            node[key] = float(raw)
+            node[key] = parse_number(raw, NUMBER_FORM)
         elif isinstance(old, list):
-            node[key] = yaml.safe_load(f"[{raw}]")
+            node[key] = load_wire_yaml(f"[{raw}]")
         elif old is None:
-            node[key] = yaml.safe_load(raw)
+            node[key] = load_wire_yaml(raw)
         else:
             node[key] = raw
-    except ValueError:
-        raise ProtocolError("E_ARG", f"{where}: '{raw}' is not a {type(old).__name__}") from None
+    except ValueError as exc:
+        if "is not a number" in str(exc):
+            raise ProtocolError("E_ARG", f"{where}: {exc}") from None
+        form = f" (write it in {INTEGER_FORM if type(old) is int else NUMBER_FORM})" if type(old) in (int, float) else ""
+        raise ProtocolError("E_ARG", f"{where}: '{raw}' is not a {type(old).__name__}{form}") from None
 
 
 class ConfigStore:
@@ -119,6 +136,10 @@ class ConfigStore:
     def __init__(self, classes: list[type[ModuleConfig]], config_dir: Path | None = None) -> None:
         self.classes = {c.module: c for c in classes}
         self.values: dict[str, ModuleConfig] = {}
+        if config_dir is not None and not Path(config_dir).is_dir():
+            # a mistyped folder would otherwise start the server on the built-in defaults, silently
+            raise ValueError(f"--config {config_dir}: no such folder (want a folder of <module>.yaml files "
+                             "overriding config/)")
         dirs = [DEFAULT_CONFIG_DIR] + ([Path(config_dir)] if config_dir else [])
         for name, cls in self.classes.items():
             data: dict[str, Any] = {}
@@ -126,7 +147,15 @@ class ConfigStore:
             for d in dirs:
                 path = d / f"{name}.yaml"
                 if path.is_file():
-                    loaded = yaml.safe_load(path.read_text()) or {}
+                    try:
+                        loaded = yaml.safe_load(path.read_text()) or {}
+                    except yaml.YAMLError as exc:
+                        mark = getattr(exc, "problem_mark", None)
+                        where = f" (line {mark.line + 1}, column {mark.column + 1})" if mark is not None else ""
+                        raise ValueError(f"{path}: not valid YAML: {getattr(exc, 'problem', None) or exc}"
+                                         f"{where}") from None
+                    except OSError as exc:
+                        raise ValueError(f"{path}: cannot read it: {exc.strerror or exc}") from None
                     if not isinstance(loaded, dict):
                         raise ValueError(f"{path}: expected a mapping of key: value")
                     merge(data, loaded)
@@ -171,6 +200,11 @@ class ConfigStore:
                 self.set(module, key, raw, runtime=False)
             except ProtocolError as exc:
                 raise ValueError(f"--set {item!r}: {exc.message}") from None
+        for name, values in self.values.items():
+            try:
+                values.check()
+            except SettingError as exc:
+                raise ValueError(f"--set {name}: {exc.message}") from None
 
 
 # ------------------------------------------------------------------------------------------

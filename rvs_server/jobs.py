@@ -63,6 +63,9 @@ class Job:
     progress_dropped: int = 0  # lines a handler reported against the progress contract (a bug)
     uses_hardware: bool = False
     connection: int = 0  # id of the connection that started it (telnet's interrupt stops only its own)
+    # Set when that connection closed: its lines go nowhere, and a wait for what it would have
+    # sent (navigate's wait for the GNC's pose) may give up
+    requester_gone: threading.Event = field(default_factory=threading.Event)
     finished: threading.Event = field(default_factory=threading.Event)
     succeeded: bool | None = None  # set when it finished: True if its final line is OK
     _reported: bool = False

@@ -14,7 +14,7 @@ from collections.abc import Iterator
 from dataclasses import dataclass, field
 from typing import Any, ClassVar
 
-from rvs_params import STEM_RE, valid_stem  # noqa: F401 - the one file-stem rule, shared with settings
+from rvs_params import STEM_RE, is_number, valid_stem  # noqa: F401 - the one file-stem rule, shared with settings
 
 MAX_LINE = 4096
 DASHES = ("--", "-", "\u2013")  # longest first; the en dash is how the thesis prints "-output"
@@ -41,13 +41,18 @@ class Request:
     ``options`` keeps the order and repeats of the line (``config -set a=1 -set b=2``); option
     names are lower case with ``-`` folded to ``_`` so they match config field names. A flag's
     value is ``True``. ``positional`` holds bare words that follow the command before any option
-    (``help grab-tof``, ``events off``).
+    (``help grab-tof``, ``events off``). ``sent`` is the command word as the client wrote it
+    (``command`` is its lower-case lookup key), for replies that quote it back.
     """
 
     command: str
     tag: str | None = None
     options: list[tuple[str, str | bool]] = field(default_factory=list)
     positional: list[str] = field(default_factory=list)
+    sent: str = ""
+
+    def __post_init__(self) -> None:
+        self.sent = self.sent or self.command
 
 
 @dataclass
@@ -199,7 +204,7 @@ def parse_request(line: str) -> Request | None:
     text, quoted, _ = tokens[0]
     if quoted or not text or _option_name(text, quoted) is not None:
         raise _tagged_error(tag, "E_SYNTAX", "a request starts with a command name; try help")
-    req = Request(command=text.lower(), tag=tag)
+    req = Request(command=text.lower(), tag=tag, sent=text)
     i = 1
     while i < len(tokens):
         text, quoted, eq = tokens[i]
@@ -217,7 +222,7 @@ def parse_request(line: str) -> Request | None:
             # eq counts characters of the token's text; the dash prefix is part of it
             dash_len = len(text) - len(name)
             name, value = text[dash_len:eq], text[eq + 1 :]
-        elif i + 1 < len(tokens) and _option_name(tokens[i + 1][0], tokens[i + 1][1]) is None:
+        elif i + 1 < len(tokens) and _is_value(*tokens[i + 1][:2]):
             value = tokens[i + 1][0]
             i += 1
         else:
@@ -227,6 +232,13 @@ def parse_request(line: str) -> Request | None:
         req.options.append((name.lower().replace("-", "_"), value))
         i += 1
     return req
+
+
+def _is_value(text: str, quoted: bool) -> bool:
+    """Whether a token after an option is its value: anything but an option, and a number or a
+    list of them even where a letter follows the dash (``-tilt -inf``, ``-range -Infinity,0,1,2``),
+    so that the option's own check judges it; no option is named like a number."""
+    return _option_name(text, quoted) is None or all(is_number(part) for part in text.split(","))
 
 
 def _tagged_error(tag: str | None, code: str, message: str) -> ProtocolError:

@@ -16,6 +16,7 @@ import os
 import signal
 import socket
 import threading
+import time
 from collections import deque
 from typing import Any
 
@@ -141,6 +142,9 @@ class Connection(asyncio.Protocol):
     def connection_lost(self, exc: Exception | None) -> None:
         self.closed = True
         self.app.connections.discard(self)
+        job = self.app.jobs.current
+        if job is not None and job.connection == self.id:
+            job.requester_gone.set()
         self.log.info("client_disconnected", clients=len(self.app.connections))
 
     # ------------------------------------------------------------ lines in
@@ -193,10 +197,9 @@ class Connection(asyncio.Protocol):
 
     def send(self, reply: Reply, *, job: bool = False) -> None:
         """``job``: a line of a job this connection started (App.job_reply), not an immediate reply."""
+        self.app.sent(self, reply, job=job)  # also once the client is gone: a recording keeps every line
         if self.closed or self.transport is None or self.transport.is_closing():
             return
-        if reply.status != "EVENT":  # an EVENT is published once, by App.broadcast
-            self.app.bus.publish("reply", conn=self.id, reply=reply, job=job)
         line = format_reply_json(reply) + "\n" if self.json else format_reply(reply) + "\r\n"
         self.transport.write(line.encode("utf-8"))
         if self.transport.get_write_buffer_size() > MAX_OUTPUT_BYTES:
@@ -268,12 +271,6 @@ def start_warm_up(stopping: asyncio.Event | None = None) -> None:
     threading.Thread(target=work, name=WARM_UP_THREAD, daemon=True).start()
 
 
-def kernels_warming() -> bool:
-    """Whether the warm-up still compiles: the process then exits without finalising the
-    interpreter under it (``rvs_server.main``)."""
-    return any(t.name == WARM_UP_THREAD and t.is_alive() for t in threading.enumerate())
-
-
 def _on_signal(app: App, sig: signal.Signals) -> None:
     """SIGINT/SIGTERM: say so, then shut down as quit does; a second one ends the process at
     once (a device that does not answer its close may hold the first one up)."""
@@ -330,6 +327,7 @@ async def serve(app: App, sock: socket.socket, *, ready: Any = None, handle_sign
         await app.stopping.wait()
     finally:
         log.info("shutting_down")
+        began = time.monotonic()
         await app.interrupt()
         if app.console is not None:
             await app.console.close()
@@ -344,6 +342,9 @@ async def serve(app: App, sock: socket.socket, *, ready: Any = None, handle_sign
         await loop.run_in_executor(None, app.stop_monitors)
         await loop.run_in_executor(None, app.devices.close)
         gc.unfreeze()  # what freeze_start_heap kept from the collector goes back to it: this server is let go
+        # the last line: every job, connection, recording and device is closed (the process then
+        # ends without finalising the interpreter, rvs_server.main)
+        log.info("stopped", seconds=round(time.monotonic() - began, 3))
         if handle_signals:
             for sig in (signal.SIGINT, signal.SIGTERM):
                 try:

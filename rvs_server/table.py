@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import copy
 import dataclasses
-import keyword
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
@@ -122,7 +121,7 @@ def apply_options(name: str, base: ModuleConfig, options: list[tuple[str, str | 
     specs = cfg.keys()
     seen: set[str] = set()
     for opt, raw in options:
-        spec = specs.get(opt) or (specs.get(opt + "_") if keyword.iskeyword(opt) else None)  # -global: global_
+        spec = specs.get(opt) or next((s for s in specs.values() if s.key == opt), None)  # -global: global_
         if spec is None or not spec.option:
             accepted = " ".join(s.flag for s in specs.values() if s.option) or "none"
             raise ProtocolError(
@@ -138,6 +137,10 @@ def apply_options(name: str, base: ModuleConfig, options: list[tuple[str, str | 
     for spec in specs.values():
         if spec.required and spec.name not in seen:
             raise ProtocolError("E_ARG", f"{name} needs {spec.flag} ({spec.describe()})")
+    try:
+        cfg.check()
+    except SettingError as exc:
+        raise ProtocolError("E_ARG", exc.message) from None
     return cfg
 
 

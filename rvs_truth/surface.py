@@ -59,8 +59,8 @@ def missions(scene: str, count: int, seed: int = 0) -> list[tuple[tuple[float, f
 
 def set_down_safe(world: World, scene: str, xy: tuple[float, float]) -> bool:
     """Whether the rover set down at ``xy`` can stand there at every heading, turning on the spot
-    (the first thing a mission does), without a wheel, its belly or its tilt past the body's
-    limits on the true 1 cm surface."""
+    (the first thing a mission does), within the body's four limits (step, belly, stability,
+    grade) on the true 1 cm surface."""
     fine, g, _ = truth_surface(world, scene)
     turn = densify(np.array([(xy[0], xy[1], h) for h in (0.0, 90.0, 180.0, 270.0, 360.0)]), 0.02, world.body)
     return not unsafe_events(check_poses(fine, g, turn, world.body), turn, world.body)

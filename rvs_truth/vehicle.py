@@ -86,8 +86,8 @@ def plan_poses(xy: np.ndarray, start_heading: float) -> np.ndarray:
 def capability_hazard(body: RoverBody) -> dict[str, float]:
     """Dem2Hazard thresholds at the body's own limits: a step no higher than both the climb and
     the belly (a rock under the box must pass beneath it, one under a wheel must be climbed; the
-    planner's footprint keeps a hazard from either), a slope no steeper than the tilt."""
-    return {"step_max": min(body.climb, body.clearance), "slope_max": body.tilt}
+    planner's footprint keeps a hazard from either), a slope no steeper than the grade."""
+    return {"step_max": min(body.climb, body.clearance), "slope_max": body.grade}
 
 
 def perfect_plan(surface: tuple[np.ndarray, GridGeometry, GridGeometry], body: RoverBody,
@@ -122,7 +122,7 @@ _HAZARD: dict[tuple[Any, ...], tuple[np.ndarray, np.ndarray]] = {}
 
 
 # m: the step thresholds a perfect-knowledge plan is tried at, the body's step capability first.
-# A window's step (max - min over 30 cm, slopes included) is not a wheel's relief nor the ground
+# A window's step (max - min over 30 cm, slopes included) is not a wheel's step edge nor the ground
 # under the belly: a plan at a looser threshold that passes the vehicle check proves the mission
 # feasible as well, and at the capability itself most missions find no plan (docs/NAVIGATE_BENCH.md).
 FEASIBLE_STEPS = (0.08, 0.09, 0.10, 0.11, 0.12, 0.13, 0.14, 0.15)
@@ -132,7 +132,7 @@ def feasibility(surface: tuple[np.ndarray, GridGeometry, GridGeometry], body: Ro
                 start: tuple[float, float], goal: tuple[float, float], footprint: str) -> dict[str, Any]:
     """Whether a perfect-knowledge plan reaches the goal and passes the vehicle check: the plan at
     each of :data:`FEASIBLE_STEPS` (at most the body's step capability to begin with, the slope at its
-    tilt) until one passes. The first passing plan's efficiency and threshold (None: infeasible)."""
+    grade) until one passes. The first passing plan's efficiency and threshold (None: infeasible)."""
     cap = capability_hazard(body)
     for step in sorted({min(cap["step_max"], FEASIBLE_STEPS[0]), *FEASIBLE_STEPS}):
         hazard = {**cap, "step_max": step}

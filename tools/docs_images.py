@@ -46,12 +46,11 @@ def main() -> None:
                 page.wait_for_function("S.layers.dem && S.layers.dem.ready && S.layers.hazard && S.layers.hazard.ready")
                 page.screenshot(path=str(out / "console_dem.png"))
                 # the camera panel: the scan's last ToF frames and the stereo pair's left image
-                page.click("#cameras summary")
+                page.click("#tab-cameras")
                 page.wait_for_function("['tof_amplitude', 'tof_depth', 'stereo_left'].every(n => "
                                        "document.querySelector(`figure[data-camera=${n}] img[data-v]`))")
-                page.eval_on_selector("#cameras", "e => e.scrollIntoView()")
                 page.screenshot(path=str(out / "console_cameras.png"))
-                page.click("#cameras summary")
+                page.click("#tab-layers")
                 box = page.eval_on_selector("#map", "c => c.getBoundingClientRect().toJSON()")
                 gx, gy = page.evaluate("toScreen(1.5, -1.2)")
                 page.mouse.click(box["x"] + gx, box["y"] + gy)

@@ -9,7 +9,6 @@ results; errors go to stderr.
 
 from __future__ import annotations
 
-import argparse
 import shlex
 import sys
 from pathlib import Path
@@ -25,6 +24,7 @@ from drivers.console import (
     split_words,
 )
 from drivers.ptu import BACKENDS, Ptu, create
+from rvs_params.cli import ToolParser
 
 
 def _floats(arg: str, n_min: int, n_max: int, usage: str) -> list[float]:
@@ -40,6 +40,7 @@ def _fmt_pos(pan: float, tilt: float) -> str:
 
 
 class PtuConsole(DeviceConsole):
+    tool = "rvs-ptu"
     intro = "rvs-ptu: PTU-D46 console; 'help' lists the commands, 'quit' leaves."
     prompt = "ptu> "
 
@@ -171,7 +172,7 @@ class PtuConsole(DeviceConsole):
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="rvs-ptu", description="PTU-D46 console (sim or serial backend)")
+    parser = ToolParser(prog="rvs-ptu", description="PTU-D46 console (sim or serial backend)")
     parser.add_argument("--backend", choices=BACKENDS.names(), help="default: drivers.yaml ptu.backend")
     parser.add_argument("--port", help="serial port or pyserial URL (serial backend)")
     parser.add_argument("--baudrate", type=int)
@@ -193,8 +194,9 @@ def main(argv: list[str] | None = None) -> int:
     except SETUP_ERRORS as exc:  # a config that cannot be read, a value out of range, an unknown backend
         print(f"rvs-ptu: {one_line(exc)}", file=sys.stderr)
         return 2
-    # One-shot lines open the port on first use; opening up front would add a line to their output.
-    return run(PtuConsole(ptu), args.command, start=None if args.command else "open", close=ptu.close)
+    # One-shot too the port opens first: a port that cannot be opened is the run's set-up failing
+    # (one line, exit 2), not each command's; what open says is a note (stderr), not a result.
+    return run(PtuConsole(ptu), args.command, start="open", close=ptu.close)
 
 
 if __name__ == "__main__":

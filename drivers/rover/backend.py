@@ -62,12 +62,15 @@ class Motion:
 class Settle:
     """When a drive the GNC makes is over: a report with ``stopped``, or reports that hold within
     ``distance`` (m) and ``degrees`` of the first of them for ``seconds``, reported again or
-    not. ``timeout`` (s, 0: never) bounds the wait for a report that moved."""
+    not. With ``start`` (where the leg starts), the hold counts only once a report has left it:
+    a GNC that reports its standing pose while it gets ready to drive has not driven the leg
+    yet. ``timeout`` (s, 0: never) bounds the wait for the first report that left the start."""
 
     seconds: float = 2.0
     distance: float = 0.01
     degrees: float = 1.0
     timeout: float = 0.0
+    start: Pose | None = None
 
 
 class Pilot(Protocol):
@@ -109,6 +112,7 @@ class RoverBackend(Protocol):
     capabilities: ClassVar[frozenset[Capability]]
     faults: ClassVar[tuple[str, ...]]
     steers: ClassVar[bool]  # whether the server's motions are executed (else the GNC steers itself)
+    drives_auto: ClassVar[bool]  # whether it drives a navigate -auto leg (the simulator; a replay of one)
 
     def open(self) -> None: ...
 

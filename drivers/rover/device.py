@@ -77,6 +77,11 @@ class Rover:
         """Whether the motions a pilot answers are executed (the simulator), or the GNC steers."""
         return self.port.steers
 
+    @property
+    def drives_auto(self) -> bool:
+        """Whether it drives a navigate -auto leg itself (else -auto takes the simulator)."""
+        return self.port.drives_auto
+
     def pose(self) -> Pose:
         """Where the rover believes it is."""
         return self.port.pose()

@@ -4,7 +4,8 @@ The GNC gets the leg's waypoints from navigate's ``EVENT kind=waiting`` and repo
 rover is with ``pose`` (into the server's pose, the :class:`~drivers.rover.backend.PoseFeed`).
 A drive here is the wait for those reports: each one that moved is a cycle of the pilot (the
 see loop's check), and the drive ends when the rover has stopped: a report with ``-stopped
-true``, or reports that hold still for the settle time, reported again or not. Where it stopped
+true``, or reports that hold still for the settle time, reported again or not, once one has
+left the leg's start (a GNC may report its standing pose while it gets ready). Where it stopped
 does not matter: a GNC streaming its pose passes the leg's end, or comes within the tolerance of
 it, while still moving, and a scan started then would start on a moving rover.
 """
@@ -26,6 +27,7 @@ class GncRover:
     """Waits for the GNC's pose reports."""
 
     steers = False
+    drives_auto = False  # the GNC drives its own legs; -auto asks for the simulator
 
     def __init__(self, settings: RoverSettings, world: Any = None, poses: PoseFeed | None = None) -> None:
         self.poses = poses
@@ -52,12 +54,16 @@ class GncRover:
     def drive(self, pilot: Pilot, stop: Callable[[], bool], settle: Settle, since: int) -> Pose:
         """Each report that moved goes to the pilot outside the pose lock, so the pose command is
         never kept waiting by it; the hold is timed from the end of that cycle, so a cycle slower
-        than the GNC's reports does not pass for a standing rover. The pilot's motions are not
-        sent (the GNC steers by the waypoints): it stops the rover by its own EVENT."""
+        than the GNC's reports does not pass for a standing rover. Reports that hold at
+        ``settle.start`` start no hold (the rover has not left yet), and the timeout runs only
+        until a report leaves it: once the rover has moved, a GNC gone quiet is a rover that
+        stands. The pilot's motions are not sent (the GNC steers by the waypoints): it stops
+        the rover by its own EVENT."""
         feed = self.poses
         deadline = time.monotonic() + settle.timeout if settle.timeout > 0 else math.inf
         version = since
-        anchor: Any = None  # the first report of the run of reports that hold still
+        anchor: Pose | None = settle.start  # the first report of the run of reports that hold still
+        left = anchor is None  # whether a report has left the leg's start (only then may a hold end it)
         anchor_at = 0.0
         latest: Any = None
         while True:
@@ -68,7 +74,7 @@ class GncRover:
                     now = time.monotonic()
                     if latest is not None and now - anchor_at >= settle.seconds:
                         return self._ended(pilot, latest)
-                    if now >= deadline:
+                    if latest is None and now >= deadline:
                         raise Silent(f"no pose within {settle.timeout:g} s")
                     wake = anchor_at + settle.seconds - now if latest is not None else 0.1
                     feed.pose_changed.wait(min(0.1, max(wake, 0.001)))
@@ -77,15 +83,16 @@ class GncRover:
                 p = feed.pose
             if p.stopped:
                 return self._ended(pilot, p)
-            latest = p
-            turned = abs((p.heading - anchor.heading + 180.0) % 360.0 - 180.0) if anchor is not None else 0.0
-            if anchor is None or math.hypot(p.x - anchor.x, p.y - anchor.y) > settle.distance or \
+            turned = abs((p.heading - anchor[2] + 180.0) % 360.0 - 180.0) if anchor is not None else 0.0
+            if anchor is None or math.hypot(p.x - anchor[0], p.y - anchor[1]) > settle.distance or \
                     turned > settle.degrees:
-                anchor = p
-                pose = (p.x, p.y, p.heading)
-                pilot.moved(pose, False)
-                pilot.next(pose)  # a report that holds still shows nothing new: no cycle for it
+                anchor = (p.x, p.y, p.heading)
+                left = True
+                pilot.moved(anchor, False)
+                pilot.next(anchor)  # a report that holds still shows nothing new: no cycle for it
                 anchor_at = time.monotonic()  # the hold counts from when the server took the report in
+            if left:
+                latest = p
 
     @staticmethod
     def _ended(pilot: Pilot, p: Any) -> Pose:

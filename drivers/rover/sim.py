@@ -22,6 +22,7 @@ class SimRover:
     """Drives the shared simulated world's rover."""
 
     steers = True
+    drives_auto = True
 
     def __init__(self, settings: RoverSettings, world: Any = None, poses: PoseFeed | None = None) -> None:
         self.world = world

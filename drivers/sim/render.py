@@ -16,6 +16,7 @@ from collections.abc import Callable
 from concurrent.futures import Future, ThreadPoolExecutor
 from concurrent.futures import TimeoutError as FutureTimeout
 from dataclasses import dataclass
+from typing import Any
 
 import cv2
 import numpy as np
@@ -191,9 +192,15 @@ def render(hf: Heightfield, objects: list[SceneObject], detail: Detail, K: np.nd
         Kp[0, 2] -= c0  # the strip's own principal point: same rays as in the full image
         futures.append(_pool().submit(strip, Kp, int(c1 - c0)))
     strips = [_wait(f, futures, cancel) for f in futures]
-    return Render(**{name: (None if getattr(strips[0], name) is None
-                             else np.concatenate([getattr(r, name) for r in strips], axis=1))
-                     for name in Render.__dataclass_fields__})
+    out: dict[str, Any] = {}
+    for name in Render.__dataclass_fields__:
+        # joining a 2-megapixel view's ~100 MB of layers takes a good share of a second on a busy
+        # machine: a cancel is looked at between layers, as between strips
+        if cancel is not None and cancel():
+            raise RenderCancelled("render cancelled")
+        out[name] = (None if getattr(strips[0], name) is None
+                     else np.concatenate([getattr(r, name) for r in strips], axis=1))
+    return Render(**out)
 
 
 def _wait(future: Future[Render | None], futures: list[Future[Render | None]],

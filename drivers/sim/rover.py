@@ -57,12 +57,25 @@ class RoverBody:
     - ``wheelbase`` 0.29 m, ``track`` 0.49 m: hub to hub, front to back and side to side; the wheels
       sit at the box's corners (0.51 m long box: hubs one radius in from its ends, 0.255 - 0.11).
     - ``clearance`` 0.08 m: the underside of the box over the plane through the wheel contacts.
-    - ``climb`` 0.10 m: the greatest step one wheel climbs, the traversable step quoted for the
-      P3-AT (its datasheet was not at hand to confirm it); it is also what a rigid four-wheel skid
-      steer with pneumatic tyres climbs at most: about half its 21.5 cm wheel, a step whose edge
-      still lies below the hub with margin.
-    - ``tilt`` 19.3 deg: the greatest tilt of the plane through the wheel contacts, the P3-AT's
-      35 % grade (atan 0.35). Dem2Hazard's 20 deg slope limit sits just above it.
+    - ``climb`` 0.10 m: the greatest step edge one wheel climbs, the traversable step quoted for
+      the P3-AT (its datasheet was not at hand to confirm it); it is also what a rigid four-wheel
+      skid steer with pneumatic tyres climbs at most: about half its 21.5 cm wheel, a step whose
+      edge still lies below the hub with margin.
+    - ``grade`` 19.3 deg: the steepest sustained slope, the P3-AT's "max. traversable grade 35 %"
+      (atan 0.35): a traction figure, judged on the plane fitted under the whole body, not on a
+      momentary tilt. Dem2Hazard's 20 deg slope limit sits just above it.
+    - ``cog_height`` 0.163 m: the centre of gravity over the plane through the wheel contacts, over
+      the middle of the hubs. The P3-AT's: MobileRobots' own ROS model
+      (github.com/MobileRobots/amr-ros-config, ``description/urdf/pioneer3at.urdf.xacro``) puts
+      the chassis with three batteries (21.5 kg) at 0.177 m over the ground and the four wheels
+      with axles and hubs (4 x 1.4 kg) at their 0.111 m axles: (21.5 x 0.177 + 5.6 x 0.111) / 27.1
+      = 0.163 m. It puts the chassis' mass at x 0; its -0.1 m lateral offset is not taken, the
+      P3-AT's chassis being symmetric side to side. The simulated body has no mass
+      of its own; its box (0.08-0.28 m) centres at 0.18 m, so it takes the P3-AT's figure.
+    - ``safety`` 1.5: the static tip-over angle (from ``cog_height`` and the support polygon, the
+      rectangle of the hubs) is divided by it before the resting plane's tilt is judged against
+      it: the margin for what a static figure leaves out (dynamics, a wheel sinking, the CoG's
+      uncertainty).
     """
 
     length: float = 0.51  # m, the box (P3-AT: 0.508)
@@ -73,8 +86,10 @@ class RoverBody:
     wheel_width: float = 0.09  # m
     wheelbase: float = 0.29  # m, front to rear hub
     track: float = 0.49  # m, left to right hub
-    climb: float = 0.10  # m, greatest step a wheel climbs (P3-AT: 10 cm)
-    tilt: float = 19.3  # deg, greatest tilt (P3-AT: 35 % grade)
+    climb: float = 0.10  # m, greatest step edge a wheel climbs (P3-AT: 10 cm)
+    grade: float = 19.3  # deg, steepest sustained slope (P3-AT: 35 % grade)
+    cog_height: float = 0.163  # m, centre of gravity over the contact plane (P3-AT's ROS model)
+    safety: float = 1.5  # the static tip-over angle is divided by it
 
     @classmethod
     def from_spec(cls, spec: dict | None) -> RoverBody:
@@ -90,6 +105,8 @@ class RoverBody:
             raise ValueError(f"rover body figures must be > 0: {out}")
         if out.clearance >= out.height or out.wheelbase / 2 + out.wheel_radius > out.length / 2 + 1e-9:
             raise ValueError("rover body: the belly must lie under the top, and the wheels within the box's length")
+        if out.safety < 1.0:
+            raise ValueError(f"rover body: safety {out.safety:g} must be >= 1 (it divides the tip-over angle)")
         return out
 
     @property

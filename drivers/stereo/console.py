@@ -35,6 +35,7 @@ from drivers.console import (
 from drivers.stereo import BACKENDS, create
 from drivers.stereo.modes import PIXEL_FORMATS, RESOLUTIONS, SIDES
 from rvs_params import assignments
+from rvs_params.cli import ToolParser
 from rvs_params.plain import plain
 
 
@@ -56,6 +57,7 @@ def save_image(path: str | Path, image: np.ndarray) -> Path:
 
 
 class CamShell(DeviceConsole):
+    tool = "rvs-cam"
     intro = "rvs-cam: PIKE stereo pair console. 'help' lists commands, 'quit' leaves."
     prompt = "rvs-cam> "
     # rvs-cam's contract, which scripts driving it rely on: every error names its type, and Ctrl-C
@@ -80,6 +82,10 @@ class CamShell(DeviceConsole):
     def precmd(self, line: str) -> str:
         head, _, rest = line.strip().partition(" ")
         return f"{head.replace('-', '_')} {rest}".strip()
+
+    def commands_in(self, line: str) -> list[str]:
+        """Each ``-c`` is one command (``;`` may be in a file name)."""
+        return [line.strip()] if line.strip() else []
 
     def run_line(self, line: str) -> bool:
         """Each ``-c`` is one command, echoed after the prompt (a note) so the two streams read as a
@@ -277,7 +283,7 @@ def load_config(path: str | Path | None) -> dict[str, Any]:
 
 
 def parse_args(argv: list[str] | None) -> argparse.Namespace:
-    p = argparse.ArgumentParser(prog="rvs-cam", description=__doc__)
+    p = ToolParser(prog="rvs-cam", description=__doc__)
     p.add_argument("--config", help=f"drivers.yaml to read (default {DEFAULT_CONFIG})")
     p.add_argument("--backend", choices=BACKENDS.names(), help="camera backend (default: from the config)")
     p.add_argument("--left-id", help="left camera GUID (hex) or bus index")

@@ -9,8 +9,9 @@ gain and 8-bit quantisation with saturation at 255.
 
 from __future__ import annotations
 
-import functools
 import math
+import threading
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
@@ -70,23 +71,47 @@ class DistortionMap:
     map_y: np.ndarray | None
 
 
-def distortion_map(K: np.ndarray, D: np.ndarray, size: tuple[int, int]) -> DistortionMap:
-    """Cached per (K, D, size): the inverse of OpenCV's distortion for every output pixel."""
+_MAPS: dict[tuple[bytes, bytes, tuple[int, int]], DistortionMap] = {}
+_MAPS_KEPT = 16
+_MAPS_LOCK = threading.Lock()
+MAP_BAND_PIXELS = 100_000  # pixels undistorted between two looks at ``check``: some 0.1-0.2 s
+
+
+def distortion_map(K: np.ndarray, D: np.ndarray, size: tuple[int, int],
+                   check: Callable[[], None] | None = None) -> DistortionMap:
+    """Cached per (K, D, size): the inverse of OpenCV's distortion for every output pixel.
+
+    Made once per camera model and resolution, in seconds at the highest one: ``check`` (which
+    raises to stop) is called between bands of rows, so a grab that makes it can be stopped;
+    only a complete map is kept."""
     K = np.asarray(K, dtype=np.float64)
     D = np.asarray(D, dtype=np.float64).ravel()
-    return _distortion_map(K.tobytes(), D.tobytes(), (int(size[0]), int(size[1])))
+    key = (K.tobytes(), D.tobytes(), (int(size[0]), int(size[1])))
+    with _MAPS_LOCK:
+        made = _MAPS.get(key)
+    if made is None:
+        made = _distortion_map(K, D, key[2], check)
+        with _MAPS_LOCK:
+            while len(_MAPS) >= _MAPS_KEPT:
+                _MAPS.pop(next(iter(_MAPS)))
+            _MAPS[key] = made
+    return made
 
 
-@functools.lru_cache(maxsize=16)
-def _distortion_map(K_bytes: bytes, D_bytes: bytes, size: tuple[int, int]) -> DistortionMap:
-    K = np.frombuffer(K_bytes, dtype=np.float64).reshape(3, 3).copy()
-    D = np.frombuffer(D_bytes, dtype=np.float64).copy()
+def _distortion_map(K: np.ndarray, D: np.ndarray, size: tuple[int, int],
+                    check: Callable[[], None] | None) -> DistortionMap:
     w, h = size
     if not np.any(D):
-        return DistortionMap(K, size, None, None)
+        return DistortionMap(K.copy(), size, None, None)
     us, vs = np.meshgrid(np.arange(w, dtype=np.float64), np.arange(h, dtype=np.float64))
     pts = np.stack([us.ravel(), vs.ravel()], axis=1).reshape(-1, 1, 2)
-    und = _undistort_pixels(pts, K, D).reshape(h, w, 2)
+    rows = max(1, MAP_BAND_PIXELS // w)
+    und = np.empty((h * w, 1, 2), dtype=np.float64)
+    for r0 in range(0, h, rows):
+        if check is not None:
+            check()
+        und[r0 * w:(r0 + rows) * w] = _undistort_pixels(pts[r0 * w:(r0 + rows) * w], K, D)
+    und = und.reshape(h, w, 2)
     ux, uy = und[..., 0], und[..., 1]
     # Margins so every sample (plus the bilinear neighbour) falls inside the undistorted render.
     left = max(0, math.ceil(-ux.min()) + 2)

@@ -255,7 +255,7 @@ class SimCameras:
 
         settings = self._settings_of(guid)
         K = self.intrinsics(self._mount[guid], size)
-        dmap = imaging.distortion_map(K, self.distortion, size)
+        dmap = imaging.distortion_map(K, self.distortion, size, check)
         w, h = dmap.render_size
         try:  # (no cancel, no keyword: a stand-in world of the tests need not take one)
             r = (self.world.render(dmap.K_render, w, h, pose) if cancel is None
@@ -267,6 +267,7 @@ class SimCameras:
         optics = self.world.optics
         rad = imaging.radiance(r.albedo, r.normal, hit, imaging.lighting_from_config(self._config, self.world.sun),
                                r.sunlit)
+        check()  # each stage takes a tenth of a second or more at the highest resolution
         if channels(pixel_format) == 3:
             rad = rad[..., None] * imaging.white_balance_gains(settings.white_balance)
         rad = imaging.lens_blur(rad, optics.blur_sigma_px)
@@ -280,7 +281,9 @@ class SimCameras:
         with self._lock:
             self._effective_shutter[guid] = shutter
             rng = self._rngs.get(guid)
-        return imaging.jpeg(imaging.expose(rad, shutter, settings.gain_db, self.sensor, rng), optics.jpeg_quality)
+        exposed = imaging.expose(rad, shutter, settings.gain_db, self.sensor, rng)
+        check()
+        return imaging.jpeg(exposed, optics.jpeg_quality)
 
     def calibration(self, left: str, right: str, size: tuple[int, int]) -> dict[str, Any]:
         """Ground truth: the world's intrinsics, the configured distortion, the mounts' relative pose."""

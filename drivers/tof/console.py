@@ -36,6 +36,7 @@ from drivers.console import (
     split_words,
 )
 from rvs_params import assignments
+from rvs_params.cli import ToolParser
 
 from . import constants as k
 from .backend import BACKENDS
@@ -47,7 +48,8 @@ class _ArgParser(argparse.ArgumentParser):
     """argparse for a prompt command: errors become ValueError instead of exiting."""
 
     def error(self, message: str) -> None:  # type: ignore[override]
-        raise ValueError(f"{message}; usage: {self.format_usage().strip().removeprefix('usage: ')}")
+        usage = " ".join(self.format_usage().split()).removeprefix("usage: ")  # one line, however wide
+        raise ValueError(f"{message}; usage: {usage}")
 
     def exit(self, status: int = 0, message: str | None = None) -> None:  # type: ignore[override]
         raise ValueError(message or "bad arguments")
@@ -76,6 +78,8 @@ def _stats(image: np.ndarray) -> str:
 
 
 class TofConsole(DeviceConsole):
+    tool = "rvs-tof"
+    offline = DeviceConsole.offline | {"usb"}
     intro = "rvs-tof: SR4000 console; 'help' lists the commands, 'quit' leaves."
     prompt = "tof> "
     # As before: file errors and cancelled grabs print their message alone, like device errors.
@@ -231,10 +235,8 @@ class TofConsole(DeviceConsole):
         self.say(f"default settings written to {self.cam.create_default_settings_file(arg.strip() or None)}")
 
     # -- images --------------------------------------------------------------------------------
-    def do_grab(self, arg: str) -> None:
-        """grab TYPE FILE.tif [-n N] [-c CONF] [--raw] [--preview FILE.png] [--grey]
-        TYPE: distance amplitude confidence z xyz. Saves a float32 TIFF (FILE relative to DATA/tof,
-        .tif added if missing); --raw skips undistortion."""
+    def check_grab(self, arg: str) -> argparse.Namespace:
+        """grab's arguments, checked (ValueError) before a one-shot run touches the camera."""
         p = _ArgParser(prog="grab", add_help=False)
         p.add_argument("type", choices=k.IMAGE_TYPES)
         p.add_argument("file", type=Path)
@@ -246,6 +248,22 @@ class TofConsole(DeviceConsole):
         a = p.parse_args(shlex.split(arg))
         if a.preview is not None and a.type == "xyz":
             raise ValueError("previews are for 2-D images, not xyz")
+        return a
+
+    def check_xyz(self, arg: str) -> argparse.Namespace:
+        """xyz's arguments, checked as grab's are."""
+        p = _ArgParser(prog="xyz", add_help=False)
+        p.add_argument("file", type=Path)
+        p.add_argument("-n", "--integrate", type=int, default=1)
+        p.add_argument("-c", "--confidence", type=float, default=0.0)
+        p.add_argument("--amplitude", type=Path)
+        return p.parse_args(shlex.split(arg))
+
+    def do_grab(self, arg: str) -> None:
+        """grab TYPE FILE.tif [-n N] [-c CONF] [--raw] [--preview FILE.png] [--grey]
+        TYPE: distance amplitude confidence z xyz. Saves a float32 TIFF (FILE relative to DATA/tof,
+        .tif added if missing); --raw skips undistortion."""
+        a = self.check_grab(arg)
         file = self._image_path(a.file)
         preview = self._image_path(a.preview, (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff")) if a.preview else None
         image = self.cam.grab(a.type, a.integrate, a.confidence, undistort=False if a.raw else None)
@@ -262,12 +280,7 @@ class TofConsole(DeviceConsole):
 
     def do_xyz(self, arg: str) -> None:
         """xyz FILE.tif [-n N] [-c CONF] [--amplitude FILE.tif]: XYZ image (m, -1 undefined), under DATA/tof."""
-        p = _ArgParser(prog="xyz", add_help=False)
-        p.add_argument("file", type=Path)
-        p.add_argument("-n", "--integrate", type=int, default=1)
-        p.add_argument("-c", "--confidence", type=float, default=0.0)
-        p.add_argument("--amplitude", type=Path)
-        a = p.parse_args(shlex.split(arg))
+        a = self.check_xyz(arg)
         file = self._image_path(a.file)
         amplitude_file = self._image_path(a.amplitude) if a.amplitude is not None else None
         xyz, amplitude = self.cam.grab_xyz(a.integrate, a.confidence)
@@ -300,7 +313,7 @@ class TofConsole(DeviceConsole):
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="rvs-tof", description="SR4000 time-of-flight camera console (sim or mesasr)")
+    parser = ToolParser(prog="rvs-tof", description="SR4000 time-of-flight camera console (sim or mesasr)")
     parser.add_argument("--backend", choices=BACKENDS.names(), help="default: drivers.yaml tof.backend")
     parser.add_argument("--serial", help="camera serial (hex, as printed on the camera); 0 = first found")
     parser.add_argument("--library", help="mesasr: path of libmesasr.so")

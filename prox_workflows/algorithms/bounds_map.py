@@ -207,7 +207,8 @@ class BoundsMap:
         from .vehicle import _pattern
 
         g, k = self.geometry, self.params.k
-        pts, wheel_of, belly, _ = _pattern(body, g.cell / 2)
+        pat = _pattern(body, g.cell / 2)
+        pts, wheel_of, belly = pat.pts, pat.wheel_of, pat.belly
         c, s = math.cos(math.radians(pose[2])), math.sin(math.radians(pose[2]))
         wx = pose[0] + c * pts[:, 0] - s * pts[:, 1]
         wy = pose[1] + s * pts[:, 0] + c * pts[:, 1]

@@ -1,21 +1,36 @@
 """The vehicle check: whether the rover's own body, standing at a pose on a height grid, is safe.
 
-A rover fails on ground in three ways, each checked against the body's declared limits
-(:class:`VehicleBody`, e.g. ``drivers.sim.rover.RoverBody``):
+A rover fails on ground in four ways, each a physical limit of the declared body
+(:class:`VehicleBody`, e.g. ``drivers.sim.rover.RoverBody``, which says where each figure comes from):
 
-- **wheel**: a wheel meets a step it cannot climb. A wheel's *relief* is the highest minus the
-  lowest ground under its footprint (``2 * wheel_radius`` along the heading, ``wheel_width``
-  across), both taken over the ground plane fitted to everything under the rover, so a steady
-  slope adds nothing and a rock or a ledge under the wheel counts in full. Against ``climb``.
+- **step**: a wheel meets an edge it cannot climb. Along the wheel's rolling direction (the
+  heading), the greatest rise between two ground samples at most two samples apart (2 cm on the
+  1 cm truth) anywhere under its footprint (``2 * wheel_radius`` along, ``wheel_width`` across),
+  in either direction of travel (a drop driven forward is a rise reversing). Ground rising that
+  much over so short a run meets the wheel's circle as an edge; ground the circle follows (a
+  slope, a smooth dome) rises little over it: a 9 cm dome 30 cm wide rises at most 2 cm, a
+  35 % grade 0.7 cm, a vertical 9 cm edge 9 cm. The footprint is the wheel's contact length
+  forward and back of its hub, so every edge a track passes shows at a dozen poses 2 cm apart.
+  On a turn on the spot a skid-steer wheel still rolls along the heading while it scrubs
+  sideways; an edge swept in from the side enters its footprint's lanes and is caught there.
+  Against ``climb``.
 - **belly**: the ground under the box between the wheels rises above the belly. The body stands
   on its wheels: each wheel rests on the highest ground its circle touches, and a rigid body on
   four wheels rests on three of them with the fourth at or below that plane (it rocks between two
   such planes). Intrusion = the highest ground under the box over the worse of those planes,
   minus ``clearance``. Against 0.
-- **tilt**: the angle of that plane from the horizontal (the worse of the two), against ``tilt``.
+- **stability**: the resting plane's tilt against the static tip-over angle in the direction it
+  leans (:func:`tip_angle`: the centre of gravity ``cog_height`` over the plane, the support
+  polygon the rectangle of the hubs), divided by ``safety``. A momentary pitch while a wheel
+  climbs a rock it can climb is judged here, against what tips the body over, not against a grade.
+- **grade**: the slope of the plane fitted to all the ground under the body, against ``grade``
+  (a traction figure for a sustained slope: a rock under one wheel barely moves that plane).
 
 ACE (Otsu et al. 2020) makes the same wheel-and-belly check on a rover's own geometry; this one
 has no suspension to model (the P3-AT is a rigid skid steer).
+
+Every excess is reported with a severity band (:data:`BANDS`: up to 0.5 cm or deg, up to 2,
+beyond); one event of any band still fails a mission.
 
 Everything is vectorised over poses: :func:`check_poses` takes N poses and returns per-pose
 arrays, :func:`densify` turns a track (or a plan) into poses no more than a given distance apart,
@@ -34,13 +49,18 @@ import numpy as np
 from ..grid import GridGeometry
 
 __all__ = ["VehicleBody", "PoseChecks", "Event", "Margins", "Gate", "check_poses", "densify", "gate_poses",
-           "unsafe_events", "track_poses", "WHEELS"]
+           "unsafe_events", "track_poses", "tip_angle", "severity", "WHEELS", "LIMITS", "BANDS"]
 
 READ_LOW_P99 = 0.051  # m: the ToF's DEM at 5 cm, marsyard (docs/NAVIGATE_BENCH.md, Error budget)
 TRACKING_P99 = 0.03  # m: the see loop's true track from its planned legs, worst mission p99
 WHEELS = ("front-left", "front-right", "rear-left", "rear-right")
+LIMITS = ("step", "belly", "stability", "grade")  # the excess columns, in order
+# Severity bands of an excess (cm for step and belly, deg for stability and grade): upper edges.
+BANDS = ((0.5, "slight"), (2.0, "moderate"), (math.inf, "severe"))
 # The four planes a rigid body may rest on: three wheels each, the fourth named last.
 _TRIPLETS = ((0, 1, 2, 3), (0, 1, 3, 2), (0, 2, 3, 1), (1, 2, 3, 0))
+_EDGE_SAMPLES = 2  # a step is a rise within this many sample intervals along the rolling direction
+_GRADE_DIRECTIONS = 32  # on bounds, the worst fitted plane is sought at twice this many zonotope vertices
 
 
 class VehicleBody(Protocol):
@@ -52,10 +72,49 @@ class VehicleBody(Protocol):
     wheel_radius: float
     wheel_width: float
     climb: float
-    tilt: float
+    grade: float
+    cog_height: float
+    safety: float
 
     @property
     def wheels(self) -> np.ndarray: ...  # (4, 2) hubs: front-left, front-right, rear-left, rear-right
+
+
+def tip_angle(body: VehicleBody, direction: np.ndarray | float) -> np.ndarray:
+    """The static tip-over angle (deg) of ``body`` leaning toward ``direction`` (deg, rover frame:
+    0 nose down, 90 left side down): the tilt at which the centre of gravity, ``cog_height`` over
+    the resting plane, stands over the edge of the support polygon (the rectangle of the hubs)
+    along that direction: atan(distance to that edge / cog_height). Pure pitch gives
+    atan(half-wheelbase / h), pure roll atan(half-track / h)."""
+    d = np.radians(np.asarray(direction, float))
+    return _tip(body, -np.cos(d), -np.sin(d))
+
+
+def _tip(body: VehicleBody, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """:func:`tip_angle` of a plane z = a x + b y (rover frame), which leans toward -(a, b): the
+    centre of gravity's foot moves that way, and reaches the polygon's edge along it after
+    min(fore / |cos|, side / |sin|) = |(a, b)| min(fore / |a|, side / |b|)."""
+    hubs = np.abs(np.asarray(body.wheels, float))
+    fore, side = float(hubs[:, 0].min()), float(hubs[:, 1].min())
+    with np.errstate(divide="ignore", invalid="ignore"):
+        reach = np.hypot(a, b) * np.minimum(fore / np.abs(a), side / np.abs(b))
+    return np.degrees(np.arctan(np.nan_to_num(reach, nan=np.inf) / body.cog_height))
+
+
+def severity(kind: str, excess: float) -> str:
+    """The band of an ``excess`` over the limit ``kind`` names (m for step and belly, judged in
+    cm; deg for stability and grade)."""
+    value = excess * 100 if _in_cm(kind) else excess
+    return next(name for edge, name in BANDS if value <= edge)
+
+
+def _in_cm(kind: str) -> bool:
+    return kind.startswith("step") or kind == "belly"
+
+
+def _shown(kind: str, excess: float) -> str:
+    value, unit = (excess * 100, "cm") if _in_cm(kind) else (excess, "deg")
+    return f"{kind} +{value:.1f} {unit} ({severity(kind, excess)})"
 
 
 @dataclass(frozen=True)
@@ -78,24 +137,27 @@ class Margins:
     def thresholds(self, body: VehicleBody) -> dict[str, float]:
         """Dem2Hazard's step and slope limits and the planner's lateral margin for ``body``: its
         step capability (the lower of its climb and its belly: a rock under the box must pass
-        beneath it) less the read-low error; its tilt; the tracking error. A ValueError when the
-        read-low error leaves no step at all."""
+        beneath it) less the read-low error; its grade (Dem2Hazard's slope is a plane fitted over
+        its window, as the grade limit's is over the body); the tracking error. A ValueError when
+        the read-low error leaves no step at all."""
         cap = min(body.climb, body.clearance)
         if self.read_low >= cap:
             raise ValueError(f"a {self.read_low * 100:.1f} cm read-low budget leaves no step below the body's "
                              f"{cap * 100:.1f} cm capability: the maps must read rocks closer to their tops")
-        return {"step_max": round(cap - self.read_low, 3), "slope_max": body.tilt, "margin": self.tracking}
+        return {"step_max": round(cap - self.read_low, 3), "slope_max": body.grade, "margin": self.tracking}
 
 
 @dataclass
 class PoseChecks:
     """Per-pose results of :func:`check_poses` (N poses)."""
 
-    relief: np.ndarray  # (N, 4) m, per wheel (WHEELS order)
+    step: np.ndarray  # (N, 4) m, the greatest edge under each wheel (WHEELS order)
     intrusion: np.ndarray  # (N,) m, ground over the belly (> 0: touches)
-    tilt: np.ndarray  # (N,) deg, the worse resting plane
-    excess: np.ndarray  # (N, 3) over the limits: wheel (m), belly (m), tilt (deg); <= 0 safe
-    wheel: np.ndarray  # (N,) int, the wheel with the greatest relief
+    tilt: np.ndarray  # (N,) deg, the resting plane's tilt (the plane worst for stability)
+    tip: np.ndarray  # (N,) deg, the tip-over angle in the direction that plane leans (before safety)
+    grade: np.ndarray  # (N,) deg, the slope of the plane fitted under the whole body
+    excess: np.ndarray  # (N, 4) over the limits (LIMITS order): step (m), belly (m), stability, grade (deg); <= 0 safe
+    wheel: np.ndarray  # (N,) int, the wheel with the greatest step
     unknown: np.ndarray  # (N,) bool: on bounds, ground under the body no bound covers (never safe)
 
     @property
@@ -107,12 +169,32 @@ class PoseChecks:
         """Judged and within every limit: what a rover may drive on."""
         return ~self.unsafe & ~self.unknown
 
+    def relative(self, body: VehicleBody) -> np.ndarray:
+        """(N, 4) each excess over its own limit (stability's: the tip-over angle in the direction
+        the body leans, over the safety factor), so that limits in m and deg compare; NaN (no
+        ground judged) as -inf."""
+        n = len(self.tip)
+        limits = np.column_stack([np.full(n, body.climb), np.full(n, body.clearance), self.tip / body.safety,
+                                  np.full(n, body.grade)])
+        return np.nan_to_num(self.excess / limits, nan=-np.inf)
+
+    def worst(self, body: VehicleBody) -> tuple[np.ndarray, np.ndarray]:
+        """Per pose, the limit with the greatest relative excess (LIMITS index) and that excess
+        (m or deg)."""
+        k = np.argmax(self.relative(body), axis=1)
+        return k, self.excess[np.arange(len(k)), k]
+
+    def kind(self, i: int, k: int) -> str:
+        """The name of limit ``k`` at pose ``i``: ``step front-left``..., ``belly``, ``stability``,
+        ``grade``."""
+        return f"step {WHEELS[self.wheel[i]]}" if k == 0 else LIMITS[k]
+
 
 @dataclass(frozen=True)
 class Event:
     """A run of consecutive unsafe poses: where it starts and ends (pose indices, inclusive), the
-    kind of the worst excess (``wheel front-left``..., ``belly``, ``tilt``), that excess (m, or deg
-    for tilt) and the pose where it is worst."""
+    kind of the worst excess (``step front-left``..., ``belly``, ``stability``, ``grade``), that
+    excess (m, or deg for stability and grade) and the pose where it is worst."""
 
     first: int
     last: int
@@ -122,22 +204,36 @@ class Event:
     y: float
     heading: float
 
+    @property
+    def band(self) -> str:
+        """The excess's severity band (:data:`BANDS`)."""
+        return severity(self.kind, self.excess)
+
     def describe(self) -> str:
-        unit = "deg" if self.kind == "tilt" else "cm"
-        value = self.excess if self.kind == "tilt" else self.excess * 100
-        return f"{self.kind} +{value:.1f} {unit} at ({self.x:.2f}, {self.y:.2f}, {self.heading:.0f} deg)"
+        return f"{_shown(self.kind, self.excess)} at ({self.x:.2f}, {self.y:.2f}, {self.heading:.0f} deg)"
 
 
-def _pattern(body: VehicleBody, step: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Sample offsets in the rover frame every ``step``: (points (S, 2), wheel index per point or
-    -1, belly mask, the along-heading offset from the point's wheel hub)."""
+@dataclass(frozen=True)
+class _Pattern:
+    """Sample offsets in the rover frame every ``step``: the points (S, 2), each one's wheel (or
+    -1), the belly mask, the along-heading offset from its wheel's hub, and per wheel its samples
+    as lanes along the heading ((W, L) indices into the points, W lanes across, L along)."""
+
+    pts: np.ndarray
+    wheel_of: np.ndarray
+    belly: np.ndarray
+    dx: np.ndarray
+    lanes: tuple[np.ndarray, ...]
+
+
+def _pattern(body: VehicleBody, step: float) -> _Pattern:
     hubs = np.asarray(body.wheels, float)
     r, half_w = body.wheel_radius, body.wheel_width / 2
     xmax = max(body.length / 2, float(np.abs(hubs[:, 0]).max()) + r)
     ymax = max(body.width / 2, float(np.abs(hubs[:, 1]).max()) + half_w)
     xs = np.arange(-xmax, xmax + step / 2, step)
     ys = np.arange(-ymax, ymax + step / 2, step)
-    X, Y = (a.ravel() for a in np.meshgrid(xs, ys))
+    X, Y = np.meshgrid(xs, ys)  # (rows across, columns along the heading)
     wheel = np.full(X.shape, -1)
     dx = np.zeros(X.shape)
     for i, (hx, hy) in enumerate(hubs):
@@ -146,7 +242,13 @@ def _pattern(body: VehicleBody, step: float) -> tuple[np.ndarray, np.ndarray, np
         dx[on] = X[on] - hx
     belly = (np.abs(X) <= body.length / 2 + 1e-9) & (np.abs(Y) <= body.width / 2 + 1e-9) & (wheel < 0)
     keep = (wheel >= 0) | belly
-    return np.stack([X, Y], axis=1)[keep], wheel[keep], belly[keep], dx[keep]
+    index = np.full(X.shape, -1)
+    index[keep] = np.arange(int(keep.sum()))
+    lanes = []
+    for i in range(len(hubs)):
+        rows, cols = np.nonzero(wheel == i)
+        lanes.append(index[rows.min():rows.max() + 1, cols.min():cols.max() + 1])  # a rectangle of samples
+    return _Pattern(np.stack([X[keep], Y[keep]], axis=1), wheel[keep], belly[keep], dx[keep], tuple(lanes))
 
 
 def _sample(heights: np.ndarray, geom: GridGeometry, x: np.ndarray, y: np.ndarray) -> np.ndarray:
@@ -163,42 +265,77 @@ def _sample(heights: np.ndarray, geom: GridGeometry, x: np.ndarray, y: np.ndarra
     return np.where(inside, out, np.nan)
 
 
+def _edges(lo: np.ndarray, hi: np.ndarray, lanes: np.ndarray) -> np.ndarray:
+    """The greatest rise (m) along ``lanes`` within :data:`_EDGE_SAMPLES` samples, either way, at
+    its worst over the bounds: from a sample's lower bound to another's upper bound (on one grid,
+    the rise itself). NaN lower bounds take no part."""
+    out = np.full(len(lo), -np.inf)
+    with np.errstate(invalid="ignore"):
+        for k in range(1, min(_EDGE_SAMPLES, lanes.shape[1] - 1) + 1):
+            a, b = lanes[:, :-k], lanes[:, k:]
+            if hi is lo:
+                up = np.abs(lo[:, b] - lo[:, a])  # (m, W, L - k)
+            else:
+                up = np.fmax(hi[:, b] - lo[:, a], hi[:, a] - lo[:, b])
+            out = np.fmax(out, np.fmax.reduce(up.reshape(len(lo), -1), axis=1))
+    return np.where(np.isinf(out), np.nan, out)
+
+
 def check_poses(heights: np.ndarray | tuple[np.ndarray, np.ndarray], geom: GridGeometry, poses: np.ndarray,
                 body: VehicleBody, step: float | None = None, chunk: int = 256) -> PoseChecks:
-    """Wheel relief, belly intrusion and tilt of ``body`` at each of ``poses`` ((N, 3): x, y,
+    """Step, belly intrusion, stability and grade of ``body`` at each of ``poses`` ((N, 3): x, y,
     heading in degrees) on ``heights`` over ``geom``: one height grid (the truth; the finer the
     truer: 1-2 cm), or a ``(lower, upper)`` pair of bound grids (a bounds map, as ACE checks).
 
-    On bounds every measure is its worst case over the ground they allow: the relief from the
-    highest upper to the lowest lower bound under a wheel, the belly's ground at its upper bound
-    over the lowest plane the wheels may rest on, the tilt over every plane their contacts allow.
-    A pose whose body covers ground with no upper bound, or a wheel with no lower bound under it,
+    On bounds every measure is its worst case over the ground they allow: a wheel's step from one
+    sample's lower bound to a neighbour's upper bound, the belly's ground at its upper bound over
+    the lowest plane the wheels may rest on, the resting plane's lean toward its tip-over edge
+    over every plane their contacts allow, the fitted plane's steepest slope over the bounds. A
+    pose whose body covers ground with no upper bound, or a wheel with no lower bound under it,
     is ``unknown``: never safe. On one grid, ground off it takes the lowest height the pose sees
     (an edge is judged as a drop, not as a wall). The body is sampled every ``step`` (default: the
     grid's cell)."""
     lower, upper = heights if isinstance(heights, tuple) else (heights, heights)
     bounded = lower is not upper
     poses = np.atleast_2d(np.asarray(poses, float))
-    pts, wheel_of, belly, dx = _pattern(body, step or geom.cell)
+    pat = _pattern(body, step or geom.cell)
+    pts, wheel_of, belly = pat.pts, pat.wheel_of, pat.belly
     hubs = np.asarray(body.wheels, float)
     r = body.wheel_radius
     design = np.column_stack([pts, np.ones(len(pts))])
     # the ground plane z = a x + b y + c over all samples, as one pseudo-inverse for every pose
     ground_pinv = np.linalg.pinv(design)  # (3, S)
+    # on bounds the fitted slope (a, b) is linear in the ground, so over the box of grounds it
+    # ranges over a zonotope; its steepest point is a vertex, the one each direction u picks by
+    # taking every sample at the bound u's sign asks for; u and -u pick the two vertices
+    # mid +- pull(u), so a half circle of directions gives 64 (within 0.1 % of the steepest)
+    u = np.linspace(0.0, np.pi, _GRADE_DIRECTIONS, endpoint=False)
+    signs = np.sign(np.cos(u)[:, None] * ground_pinv[0] + np.sin(u)[:, None] * ground_pinv[1])  # (D, S)
+    d = _GRADE_DIRECTIONS
+    # one product gives the fitted slope (from the middle) and every vertex's pull (from the half
+    # spread): [mid half] @ [[G.T 0] [0 Pa Pb]]
+    slopes = np.zeros((2 * len(pts), 2 + 2 * d))
+    slopes[:len(pts), :2] = ground_pinv[:2].T
+    slopes[len(pts):, 2:2 + d] = (signs * ground_pinv[0]).T
+    slopes[len(pts):, 2 + d:] = (signs * ground_pinv[1]).T
     # the wheel's circle: a point dx from the hub lifts the wheel's bottom by its height minus
     # the circle's rise there (the wheel rests on whatever touches it first)
-    sag = r - np.sqrt(np.maximum(r * r - dx * dx, 0.0))
+    sag = r - np.sqrt(np.maximum(r * r - pat.dx * pat.dx, 0.0))
     # each resting plane through three hubs: z = [x y 1] @ inv(A) @ z3; on bounds, each of the
     # three at its lowest or highest contact (the worst plane is at a corner of that box)
     planes = [(t, np.linalg.inv(np.column_stack([hubs[list(t[:3])], np.ones(3)]))) for t in _TRIPLETS]
     corners = [(0, 0, 0)] if not bounded else [(a, b, c) for a in (0, 1) for b in (0, 1) for c in (0, 1)]
     n = len(poses)
-    relief = np.zeros((n, 4))
+    edge = np.zeros((n, 4))
     intrusion = np.zeros(n)
     tilt = np.zeros(n)
+    tip = np.full(n, 90.0)
+    grade = np.zeros(n)
+    stability = np.zeros(n)
     unknown = np.zeros(n, bool)
     for s in range(0, n, chunk):
         p = poses[s:s + chunk]
+        m = len(p)
         c, si = np.cos(np.radians(p[:, 2]))[:, None], np.sin(np.radians(p[:, 2]))[:, None]
         wx = p[:, 0:1] + c * pts[:, 0] - si * pts[:, 1]
         wy = p[:, 1:2] + si * pts[:, 0] + c * pts[:, 1]
@@ -212,29 +349,37 @@ def check_poses(heights: np.ndarray | tuple[np.ndarray, np.ndarray], geom: GridG
             unseen = np.isnan(hi).any(axis=1)
             for w in range(4):
                 unseen |= np.isnan(lo[:, wheel_of == w]).mean(axis=1) > 0.5
-            unknown[s:s + len(p)] = unseen
+            unknown[s:s + m] = unseen
             hi = np.where(np.isnan(hi), np.nanmax(np.where(np.isnan(hi).all(axis=1, keepdims=True), 0.0, hi),
                                                   axis=1, keepdims=True), hi)
-            # an unbounded low takes no part in the wheel's lowest point or contact (the NaN
-            # extremes below skip it), and stands in by its high in the plane fitted under the body
+            # an unbounded low takes no part in a wheel's edges or contact (the NaN extremes below
+            # skip it), and stands in by its high in the plane fitted under the body
             mid = (np.where(np.isnan(lo), hi, lo) + hi) / 2
+            half = np.where(np.isnan(lo), 0.0, (hi - lo) / 2)
         else:
             if np.isnan(lo).any():
                 low = np.nanmin(np.where(np.isnan(lo).all(axis=1, keepdims=True), 0.0, lo), axis=1, keepdims=True)
                 lo = hi = np.where(np.isnan(lo), low, lo)
             mid = lo
-        plane = (mid @ ground_pinv.T) @ design.T
-        contact = np.empty((2, len(p), 4))  # the wheel's lowest and highest resting height
+        if bounded:
+            ab = np.concatenate([mid, half], axis=1) @ slopes  # (m, 2 + 2D)
+            grade_t = np.maximum(np.hypot(ab[:, :1] + ab[:, 2:2 + d], ab[:, 1:2] + ab[:, 2 + d:]).max(axis=1),
+                                 np.hypot(ab[:, :1] - ab[:, 2:2 + d], ab[:, 1:2] - ab[:, 2 + d:]).max(axis=1))
+        else:
+            ab = mid @ slopes[:len(pts), :2]  # (m, 2): the fitted plane's a, b
+            grade_t = np.hypot(ab[:, 0], ab[:, 1])
+        grade[s:s + m] = np.degrees(np.arctan(grade_t))
+        contact = np.empty((2, m, 4))  # the wheel's lowest and highest resting height
         with np.errstate(invalid="ignore"):  # an unknown pose's wheel may have no low at all
             for w in range(4):
                 on = wheel_of == w
-                relief[s:s + len(p), w] = ((hi[:, on] - plane[:, on]).max(axis=1)
-                                           - np.fmin.reduce(lo[:, on] - plane[:, on], axis=1))
+                edge[s:s + m, w] = _edges(lo, hi, pat.lanes[w])
                 contact[0, :, w] = np.fmax.reduce(lo[:, on] - sag[on], axis=1)
                 contact[1, :, w] = (hi[:, on] - sag[on]).max(axis=1) if bounded else contact[0, :, w]
         open_box = (contact[1] - contact[0] > 1e-12).any(axis=1)  # where the contacts are not pinned down
-        worst_in = np.full(len(p), -np.inf)
-        worst_tilt = np.zeros(len(p))
+        worst_in = np.full(m, -np.inf)
+        worst_st = np.full(m, -np.inf)
+        worst_tilt, worst_tip = np.zeros(m), np.full(m, 90.0)
         for t, inv in planes:
             fourth = hubs[t[3]]
             for corner in corners:
@@ -243,15 +388,22 @@ def check_poses(heights: np.ndarray | tuple[np.ndarray, np.ndarray], geom: GridG
                 rests = contact[0, :, t[3]] <= abc[:, 0] * fourth[0] + abc[:, 1] * fourth[1] + abc[:, 2] + 1e-9
                 under = (hi[:, belly] - (abc[:, :2] @ pts[belly].T + abc[:, 2:3])).max(axis=1)
                 angle = np.degrees(np.arctan(np.hypot(abc[:, 0], abc[:, 1])))
+                limit = _tip(body, abc[:, 0], abc[:, 1])
+                margin = angle - limit / body.safety
                 worst_in = np.where(rests, np.maximum(worst_in, under), worst_in)
-                # the tilt is convex in the contacts, so its worst over the bounds is at a corner
-                # of their box; which plane the body rests on there is not known, so every one counts
-                worst_tilt = np.where(rests | open_box, np.maximum(worst_tilt, angle), worst_tilt)
-        intrusion[s:s + len(p)] = worst_in - body.clearance
-        tilt[s:s + len(p)] = worst_tilt
-    excess = np.column_stack([relief.max(axis=1) - body.climb, intrusion, tilt - body.tilt])
-    return PoseChecks(relief=relief, intrusion=intrusion, tilt=tilt, excess=excess, wheel=relief.argmax(axis=1),
-                      unknown=unknown)
+                # the lean is worst at a corner of the contacts' box; which plane the body rests
+                # on there is not known, so every one counts
+                counts = (rests | open_box) & (margin > worst_st)
+                worst_st = np.where(counts, margin, worst_st)
+                worst_tilt = np.where(counts, angle, worst_tilt)
+                worst_tip = np.where(counts, limit, worst_tip)
+        intrusion[s:s + m] = worst_in - body.clearance
+        # no plane judged (an unknown pose's wheel with no ground): no stability figure
+        stability[s:s + m] = np.where(np.isneginf(worst_st), np.nan, worst_st)
+        tilt[s:s + m], tip[s:s + m] = worst_tilt, worst_tip
+    excess = np.column_stack([edge.max(axis=1) - body.climb, intrusion, stability, grade - body.grade])
+    return PoseChecks(step=edge, intrusion=intrusion, tilt=tilt, tip=tip, grade=grade, excess=excess,
+                      wheel=np.nan_to_num(edge, nan=-np.inf).argmax(axis=1), unknown=unknown)
 
 
 @dataclass(frozen=True)
@@ -259,8 +411,8 @@ class Gate:
     """The verdict on a motion before the rover executes it (:func:`gate_poses`): ``safe``, or the
     first pose that is not, why (``unsafe``: judged and over a limit; ``unknown``: ground under it
     no bound covers) and the ground to blame: the highest upper bound under the body over its
-    lowest wheel ground (a rock's top; the body's middle for a tilt), or the middle of the unseen
-    ground under it. ``kind`` names the worst excess as :class:`Event` does."""
+    lowest wheel ground (a rock's top; the body's middle for stability or grade), or the middle
+    of the unseen ground under it. ``kind`` names the worst excess as :class:`Event` does."""
 
     verdict: str
     index: int = -1
@@ -272,8 +424,7 @@ class Gate:
     def describe(self) -> str:
         if self.verdict == "unknown":
             return f"unseen ground at ({self.x:.2f}, {self.y:.2f})"
-        unit, value = ("deg", self.excess) if self.kind == "tilt" else ("cm", self.excess * 100)
-        return f"{self.kind} +{value:.1f} {unit} at ({self.x:.2f}, {self.y:.2f})"
+        return f"{_shown(self.kind, self.excess)} at ({self.x:.2f}, {self.y:.2f})"
 
 
 def gate_poses(lower: np.ndarray, upper: np.ndarray, geom: GridGeometry, poses: np.ndarray,
@@ -287,7 +438,7 @@ def gate_poses(lower: np.ndarray, upper: np.ndarray, geom: GridGeometry, poses: 
     if not len(bad):
         return Gate("safe")
     i = int(bad[0])
-    pts, _, _, _ = _pattern(body, geom.cell)
+    pts = _pattern(body, geom.cell).pts
     x, y, heading = poses[i]
     c, s = math.cos(math.radians(heading)), math.sin(math.radians(heading))
     wx, wy = x + c * pts[:, 0] - s * pts[:, 1], y + s * pts[:, 0] + c * pts[:, 1]
@@ -295,17 +446,17 @@ def gate_poses(lower: np.ndarray, upper: np.ndarray, geom: GridGeometry, poses: 
     if checks.unknown[i]:
         at = np.isnan(hi) | np.isnan(_sample(lower, geom, wx, wy))
         return Gate("unknown", i, float(wx[at].mean()), float(wy[at].mean()), "unknown")
-    excess = checks.excess[i] / np.array([body.climb, body.clearance, body.tilt])
-    worst = int(np.argmax(excess))
-    kind = (f"wheel {WHEELS[checks.wheel[i]]}", "belly", "tilt")[worst]
-    if worst == 2 or np.isnan(hi).all():
-        return Gate("unsafe", i, float(x), float(y), kind, float(checks.excess[i, worst]))
+    ks, values = checks.worst(body)
+    worst, value = int(ks[i]), float(values[i])
+    kind = checks.kind(i, worst)
+    if worst >= 2 or np.isnan(hi).all():
+        return Gate("unsafe", i, float(x), float(y), kind, value)
     top = int(np.nanargmax(hi))
     # a top bounded only by a ray that passed over it (no return there) is ground not yet seen,
     # which a look may clear: unknown, not a rock
     seen = np.isfinite(_sample(lower, geom, wx[top:top + 1], wy[top:top + 1]))[0]
     return Gate("unsafe" if seen else "unknown", i, float(wx[top]), float(wy[top]), kind if seen else "unknown",
-                float(checks.excess[i, worst]))
+                value)
 
 
 def unsafe_events(checks: PoseChecks, poses: np.ndarray, body: VehicleBody) -> list[Event]:
@@ -316,15 +467,14 @@ def unsafe_events(checks: PoseChecks, poses: np.ndarray, body: VehicleBody) -> l
     if not bad.any():
         return []
     edges = np.flatnonzero(np.diff(np.concatenate([[0], bad.astype(np.int8), [0]])))
-    limits = np.array([body.climb, body.clearance, body.tilt])
+    rel_all = checks.relative(body)
     out = []
     for first, end in zip(edges[::2], edges[1::2], strict=True):
-        rel = checks.excess[first:end] / limits
-        k, kind = np.unravel_index(int(np.argmax(rel)), rel.shape)
+        k, kind = np.unravel_index(int(np.argmax(rel_all[first:end])), (end - first, 4))
         i = first + int(k)
-        name = f"wheel {WHEELS[checks.wheel[i]]}" if kind == 0 else ("belly", "tilt")[kind - 1]
-        out.append(Event(int(first), int(end - 1), name, round(float(checks.excess[i, kind]), 4),
-                         float(poses[i, 0]), float(poses[i, 1]), float(poses[i, 2])))
+        out.append(Event(int(first), int(end - 1), checks.kind(i, int(kind)),
+                         round(float(checks.excess[i, kind]), 4), float(poses[i, 0]), float(poses[i, 1]),
+                         float(poses[i, 2])))
     return out
 
 

@@ -14,6 +14,8 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+from rvs_params.cli import ToolParser
+
 from ..batch import (
     TILE,
     SchedulerError,
@@ -84,7 +86,7 @@ def main(argv: list[str]) -> int:
     """``rvs-prox batch ...`` and ``rvs-prox mosaic-campaign ...`` (``argv[0]`` names which)."""
     if argv[0] == "mosaic-campaign":
         return _main_mosaic(argv[1:])
-    ap = argparse.ArgumentParser(prog="rvs-prox batch", description="Re-run recorded DEM jobs on Dask.")
+    ap = ToolParser(prog="rvs-prox batch", description="Re-run recorded DEM jobs on Dask.")
     ap.add_argument("script", help="the script to run on each job (dem: its offline form dem_views)")
     ap.add_argument("--inputs", action="append", required=True, metavar="GLOB",
                     help="recorded jobs: 'campaign/*/dem/*' (views folders, stems or DEMs; each job once)")
@@ -131,7 +133,7 @@ def main(argv: list[str]) -> int:
 
 
 def _main_mosaic(argv: list[str]) -> int:
-    ap = argparse.ArgumentParser(
+    ap = ToolParser(
         prog="rvs-prox mosaic-campaign",
         description="Fuse site DEMs into one campaign mosaic, tile by tile. -o is a folder, as for "
                     "'rvs-prox dem --from': the mosaic is OUT/NAME_dem.tif (its YAML sidecar beside it), "

@@ -36,6 +36,8 @@ from typing import Any
 import numpy as np
 import yaml
 
+from rvs_params.cli import ToolParser
+
 from ..algorithms.calibration import (
     TofStereoView,
     calibrate_control_points,
@@ -45,7 +47,6 @@ from ..algorithms.calibration import (
 from ..algorithms.stereo import load_calibration, save_calibration
 from ..algorithms.transforms import write_cal
 from ..products import write_yaml_atomic
-from .parser import ToolParser
 from .stereo import read_image
 
 IMAGE_EXT = (".tif", ".tiff", ".png", ".pgm", ".ppm", ".bmp", ".jpg", ".jpeg", ".npy")

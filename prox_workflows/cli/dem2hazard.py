@@ -17,12 +17,12 @@ from typing import Any
 import yaml
 
 from rvs_params import SettingError
+from rvs_params.cli import ToolParser
 
 from ..algorithms.dem2hazard import HazardParams, load_params
 from ..engine import WorkflowError, run_workflow
 from ..grid import GridGeometry, parse_crs
 from ..steps.read import read_dem as _read_dem
-from .parser import ToolParser
 
 MADE_BY = "rvs-dem2hazard (prox_workflows.algorithms.dem2hazard)"
 

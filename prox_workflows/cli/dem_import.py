@@ -29,6 +29,7 @@ from pathlib import Path
 import numpy as np
 
 from rvs_params import SettingError
+from rvs_params.cli import ToolParser
 
 from ..algorithms.dem_import import cells_from_bounds
 from ..engine import WorkflowError, run_workflow
@@ -36,7 +37,6 @@ from ..grid import parse_crs
 from ..layers import layer_path as _layer_path
 from ..layers import prefix_of, read_layers, write_layers  # noqa: F401 - the readers and writers of DEM files
 from ..parameters import DemImportParams
-from .parser import ToolParser
 
 MADE_BY = "rvs-dem-import (prox_workflows.algorithms.dem_import)"
 # What prox_workflows.pointcloud.read_points reads, by extension: the --help names every one.
@@ -108,7 +108,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--preview", action="store_true", help="also write the PNG previews")
     args = ap.parse_args(argv)
     try:
-        params = {"cell": specs["cell"].parse(args.cell), "height": specs["height"].parse(args.height)}
+        params = {n: specs[n].parse(getattr(args, n), specs[n].cli_flag) for n in ("cell", "height")}
         bounds = list(cells_from_bounds(args.bounds)) if args.bounds else None
         sensor = [float(v) for v in _parse_triplet(args.sensor, "--sensor")] if args.sensor else None
         mask = _rover_mask(args.rover_mask)

@@ -24,12 +24,12 @@ from pathlib import Path
 import numpy as np
 
 from rvs_params import SettingError
+from rvs_params.cli import ToolParser
 
 from ..algorithms.dem_import import cells_from_bounds
 from ..engine import WorkflowError, parameters_of, run_workflow
 from ..grid import parse_crs
 from ..layers import prefix_of
-from .parser import ToolParser
 
 MADE_BY = "rvs-dem-mosaik (prox_workflows.algorithms.dem_mosaik)"
 
@@ -48,7 +48,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--preview", action="store_true", help="also write the PNG previews")
     args = ap.parse_args(argv)
     try:
-        params = {n: specs[n].parse(str(getattr(args, n))) for n in specs if getattr(args, n) is not None}
+        params = {n: specs[n].parse(str(getattr(args, n)), specs[n].cli_flag) for n in specs
+                  if getattr(args, n) is not None}
         bounds = list(cells_from_bounds(args.bounds)) if args.bounds else None
         out = Path(args.output)
         t0 = time.perf_counter()

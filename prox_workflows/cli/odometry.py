@@ -21,10 +21,11 @@ from typing import Any
 
 import yaml
 
+from rvs_params.cli import ToolParser
+
 from ..algorithms.odometry import OdometryError
 from ..products import write_yaml_atomic
 from ..steps.stereo import stereo_odometry_files
-from .parser import ToolParser
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -26,12 +26,12 @@ import time
 from pathlib import Path
 
 from rvs_params import SettingError
+from rvs_params.cli import ToolParser
 from rvs_params.hazard import UNDEFINED
 
 from ..algorithms.planner import PlannerParams, PlanningError
 from ..engine import WorkflowError, parameters_of, run_workflow
 from ..params import show_value
-from .parser import ToolParser
 
 MADE_BY = "rvs-path-planner (prox_workflows.algorithms.planner)"
 SCRIPT = "path_planner"
@@ -109,7 +109,7 @@ def main(argv: list[str] | None = None) -> int:
             return 2
     specs = parameters_of(SCRIPT).specs()
     try:
-        params = {name: spec.parse(str(getattr(args, name))) for name, spec in specs.items()}
+        params = {name: spec.parse(str(getattr(args, name)), spec.cli_flag) for name, spec in specs.items()}
     except SettingError as exc:
         print(f"rvs-path-planner: {exc}", file=sys.stderr)
         return 2

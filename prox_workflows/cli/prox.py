@@ -13,6 +13,7 @@ from typing import Any
 import yaml
 
 from rvs_params import SettingError, Settings, assignments
+from rvs_params.cli import ToolParser
 
 from ..engine import ScriptError, WorkflowError, load_script, param_class, run_workflow, script_path, validate
 from ..params import show_value
@@ -31,12 +32,19 @@ def params_help(cls: type[Settings] | None) -> str:
     return "\n".join(lines)
 
 
-def _run(work: Callable[[], Any], failures: tuple[type[Exception], ...],
+def _run(work: Callable[[Callable[..., None]], Any], failures: tuple[type[Exception], ...],
          refused: tuple[type[Exception], ...] = ()) -> tuple[Any, int | None]:
-    """``work()`` under the progress bar: its result, or the exit code of why it stopped (2 the
-    command line's fault, 1 the run's, 130 Ctrl-C), said on a line of its own."""
+    """``work(progress)`` under the progress bar: its result, or the exit code of why it stopped
+    (2 the command line's fault, 1 the run's, 130 Ctrl-C), said on a line of its own (after the
+    bar's line, when one was drawn)."""
+    drawn: list[bool] = []
+
+    def progress(*args: Any, **kwargs: Any) -> None:
+        drawn[:] = [True]
+        show_progress(*args, **kwargs)
+
     try:
-        result = work()
+        result = work(progress)
     except refused as exc:
         code, text = 2, str(exc)
     except failures as exc:
@@ -44,9 +52,10 @@ def _run(work: Callable[[], Any], failures: tuple[type[Exception], ...],
     except KeyboardInterrupt:
         code, text = 130, "interrupted"
     else:
-        sys.stderr.write("\n")
+        if drawn:
+            sys.stderr.write("\n")
         return result, None
-    sys.stderr.write(f"\nrvs-prox: {text}\n")
+    sys.stderr.write(f"{chr(10) if drawn else ''}rvs-prox: {text}\n")
     return None, code
 
 
@@ -55,7 +64,7 @@ def _main_from(script: str, source: str, sets: list[str], out: str | None) -> in
     from ..reprocess import ReprocessError, parse_overrides, reprocess
 
     # a ReprocessError is the command line's fault: no such job, a parameter it refuses
-    result, code = _run(lambda: reprocess(source, parse_overrides(sets), out, script=script, progress=show_progress),
+    result, code = _run(lambda progress: reprocess(source, parse_overrides(sets), out, script=script, progress=progress),
                         (WorkflowError, FileNotFoundError), refused=(ReprocessError,))
     if code is not None:
         return code
@@ -86,9 +95,8 @@ def main(argv: list[str] | None = None) -> int:
         from . import batch
 
         return batch.main(argv)
-    ap = argparse.ArgumentParser(prog="rvs-prox", description="Validate or run a PROX-like workflow script.",
-                                 formatter_class=argparse.RawDescriptionHelpFormatter, add_help=False,
-                                 epilog=CAMPAIGN_HELP)
+    ap = ToolParser(prog="rvs-prox", description="Validate or run a PROX-like workflow script.",
+                    formatter_class=argparse.RawDescriptionHelpFormatter, add_help=False, epilog=CAMPAIGN_HELP)
     ap.add_argument("script", nargs="?", help="script name (in prox_workflows/scripts) or path; or one of the "
                                               "campaign commands below")
     ap.add_argument("-h", "--help", action="store_true", help="show this help (and the script's parameters)")
@@ -104,7 +112,7 @@ def main(argv: list[str] | None = None) -> int:
                     help="with --from: the folder the products go in (default <job dir>/reprocessed)")
     args = ap.parse_args(argv)
     if not args.help and not args.script:
-        ap.error("name a script to run (or batch, mosaic-campaign); --help lists the options")
+        ap.error("name a script to run (or batch, mosaic-campaign)")
     if args.log and not Path(args.log).absolute().parent.is_dir():  # found out before the run, not after it
         ap.error(f"--log {args.log}: no folder {Path(args.log).absolute().parent}")
     if args.help:
@@ -134,19 +142,20 @@ def main(argv: list[str] | None = None) -> int:
         typed: dict[str, Any] = {}
         for key, raw in params.items():
             spec = cls.specs().get(key) if cls is not None else None
-            typed[key] = spec.parse(str(raw)) if spec is not None else _parse_value(raw)
+            typed[key] = spec.parse(str(raw), f"--set {key}") if spec is not None else _parse_value(raw)
         if args.validate:
             validate(script, typed, list(inputs) + list(script.get("inputs") or {}))
             print(f"{script['name']}: valid ({len(script['steps'])} steps)")
             return 0
-    except ScriptError as exc:  # the script's own mistakes, each with its line: the validator's verdict
-        sys.stderr.write(f"rvs-prox: {exc}\n")
-        return 1
+    except ScriptError as exc:  # the script's own mistakes, each with its line: --validate's verdict (1), or a
+        # script the run was given that cannot run (2, as any bad input); one mistake is one line
+        sys.stderr.write(f"rvs-prox: {exc.problems[0] if len(exc.problems) == 1 else exc}\n")
+        return 1 if args.validate else 2
     except (WorkflowError, SettingError) as exc:  # no such script, a --set value its parameter refuses
         sys.stderr.write(f"rvs-prox: {exc}\n")
         return 2
 
-    done, code = _run(lambda: run_workflow(script, typed, inputs, progress=show_progress),
+    done, code = _run(lambda progress: run_workflow(script, typed, inputs, progress=progress),
                       (WorkflowError, FileNotFoundError, ValueError))
     if code is not None:
         return code

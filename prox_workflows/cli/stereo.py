@@ -29,6 +29,7 @@ import numpy as np
 import yaml
 
 from rvs_params import SettingError, assignments
+from rvs_params.cli import ToolParser
 
 from ..algorithms.stereo import (
     DEFAULT_SIGMA_D,
@@ -36,7 +37,6 @@ from ..algorithms.stereo import (
     read_image,  # noqa: F401 - the reader tests and tools use
 )
 from ..engine import WorkflowError, run_workflow
-from .parser import ToolParser
 
 MADE_BY = "rvs-stereo (prox_workflows.algorithms.stereo)"
 

@@ -49,7 +49,10 @@ def _load(path: Path, stack: list[Path]) -> dict[str, Any]:
     try:
         script = yaml.load(path.read_text(), Loader=_LineLoader) or {}  # noqa: S506 - a SafeLoader
     except yaml.YAMLError as exc:
-        raise ScriptError(path.name, [f"{path.name}: not YAML ({exc}); fix the syntax"]) from None
+        mark = getattr(exc, "problem_mark", None)
+        where = f"{path.name}:{mark.line + 1}" if mark is not None else path.name
+        problem = getattr(exc, "problem", None) or " ".join(str(exc).split())
+        raise ScriptError(path.name, [f"{where}: not YAML ({problem}); fix the syntax"]) from None
     if not isinstance(script, dict) or not isinstance(script.get("steps"), list):
         raise ScriptError(path.name, [f"{path.name}:1: a script needs 'steps:', a list of steps; add one"])
     script.setdefault("name", path.stem)

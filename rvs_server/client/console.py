@@ -16,6 +16,7 @@ from collections.abc import Callable, Iterable, Iterator
 from pathlib import Path
 from typing import Any, TextIO
 
+from rvs_params.cli import ToolParser
 from rvs_server.protocol import render_value
 
 from .session import DEFAULT_HOST, DEFAULT_PORT, Line, Result, Session, SessionError, is_request, port_number
@@ -26,7 +27,7 @@ HISTORY_FILE = ".rvs_client_history"
 
 
 def parse_args(argv: list[str] | None) -> argparse.Namespace:
-    p = argparse.ArgumentParser(
+    p = ToolParser(
         prog="rvs-client",
         description="Send requests to an RVS server and print its replies. Without -c, reads requests "
         "from stdin when it is piped, otherwise starts an interactive session (Ctrl-D leaves; "
@@ -99,7 +100,12 @@ class Printer:
             self.out.flush()
 
     def reply(self, line: Line) -> None:
-        if self.bar and line.status == "PROGRESS" and not self.at_prompt:
+        if line.status == "PROGRESS" and self.at_prompt:
+            # a job whose wait Ctrl-C stopped: its progress scrolling past the prompt (redrawn
+            # under each line) would bury what is typed; its final line still prints, status
+            # shows how far it is
+            return
+        if self.bar and line.status == "PROGRESS":
             text = progress_bar(line.reply)
             if text:
                 with self.lock:
@@ -207,7 +213,8 @@ def run_interactive(session: Session, printer: Printer, timeout: float | None) -
                 try:
                     result = session.request(request, timeout=timeout, on_line=printer.reply)
                 except KeyboardInterrupt:
-                    printer.line("(stopped waiting; its remaining lines print when they come, 'break' stops a job)")
+                    printer.line("(stopped waiting; its final line prints when it comes, 'status' shows its progress, "
+                                 "'break' stops it)")
                     continue
                 _report(result, timeout)
                 failed |= not result.ok

@@ -29,6 +29,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from rvs_params.cli import ToolParser
 from rvs_server.protocol import render_value
 
 from .session import (
@@ -308,7 +309,7 @@ def report_failure(outcome: Outcome, out: Any) -> None:
 
 
 def parse_args(argv: list[str] | None) -> argparse.Namespace:
-    p = argparse.ArgumentParser(
+    p = ToolParser(
         prog="rvs-replay",
         description="Replay scripts of '> request' / '< regex' lines against an RVS server and check its replies. "
                     "rvs-replay --mcap FILE [--products] replays a recording instead (rvs-replay --mcap X --help).",

@@ -64,7 +64,7 @@ class HazardStartConfig(ModuleConfig):
                          unit="m", min=0.0, max=10.0)
     lookahead: float = param(2.0, "corridor length past the rover's front", unit="m", min=0.2, max=10.0)
     stop_distance: float = param(0.5, "level stop when a hazard is this close to the rover's front", unit="m",
-                                 min=0.0, max=10.0)
+                                 min=0.0, max=10.0, at_most="warn_distance")
     warn_distance: float = param(1.0, "level warning when a hazard is this close", unit="m", min=0.0, max=10.0)
     cell: float = param(0.05, "coarse DEM cell", unit="m", min=0.01, max=0.5, option=False)
     subsample: int = param(2, "use every n-th ToF pixel in both directions", min=1, max=8, option=False)
@@ -173,9 +173,6 @@ class HazardMonitor(Monitor):
               "-heading, -lookahead) every -period; EVENT kind=hazard level=warning|stop|clear on changes")
 async def hazard_start(ctx: Context, cfg: HazardStartConfig) -> dict[str, Any]:
     app = ctx.app
-    if cfg.stop_distance > cfg.warn_distance:
-        raise ProtocolError("E_ARG", f"-stop-distance {cfg.stop_distance:g} must not exceed -warn-distance "
-                                     f"{cfg.warn_distance:g}")
     app.monitors.refuse_other_holder("hazard")
     for dev in ("ptu", "tof"):
         app.devices.get(dev)  # E_DEVICE now rather than a failing thread

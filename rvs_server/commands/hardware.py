@@ -84,10 +84,9 @@ def _axes(cfg: MovePtuConfig) -> tuple[float | None, float | None]:
 
 
 def _check_move_ptu(app: App, cfg: MovePtuConfig) -> None:
-    pan, tilt = _axes(cfg)
-    if pan is None and tilt is None:
-        raise ProtocolError("E_ARG", "move-ptu needs -pan and/or -tilt (degrees)")
-    check_ptu_angles(app, pan, tilt)
+    # neither axis given is no move: the job answers where the PTU stands, as an axis not given
+    # keeps its position
+    check_ptu_angles(app, *_axes(cfg))
 
 
 @command("move-ptu", job=True, klass=HARDWARE, config=MovePtuConfig, check=_check_move_ptu, ranges=ptu_ranges,
@@ -183,7 +182,11 @@ def grab_stereo(job: Job, cfg: GrabStereoConfig) -> dict[str, Any]:
     with product_set(app.data_path("stereo")):  # a pair is never one new image beside an old one
         for side, image in (("left", left), ("right", right)):
             path: Path = app.data_path("stereo", f"{stem}_{side}.tif")
+            # each write of a 2-megapixel image takes a good share of a second on a busy machine: a
+            # break between them ends the job and keeps none of them (the set is all or nothing)
+            job.check()
             write_tiff(path, image)
+            job.check()
             write_png(path.with_suffix(".png"), image)
             write_sidecar(path, "grab-stereo", cfg.as_dict(), side=side, device=_device_info(cams),
                           **acquisition_context(app))

@@ -19,6 +19,7 @@ from ..navigation.planning import validate_scripts
 from ..navigation.track import Track
 from ..protocol import Fixed, ProtocolError
 from ..table import HARDWARE, command
+from ..travel import Goal
 
 __all__ = ["CheckMoveConfig", "NavigateConfig", "check_move_cmd", "navigate", "validate_scripts"]
 
@@ -92,6 +93,17 @@ def navigate(job: Job, cfg: NavigateConfig) -> dict[str, Any]:
     """The mission (:class:`~rvs_server.navigation.mission.Mission`); a navigate that fails part
     way still leaves the track the rover drove (the operator's first question: where did it go,
     and what did it cross)."""
+    travel = job.app.travel
+    if len(cfg.goal) == 2:  # the console's map shows it, whoever sent the navigate
+        travel.aim(Goal(cfg.goal[0], cfg.goal[1], cfg.tolerance, job.id))
+    try:
+        return _mission(job, cfg)
+    except BaseException:
+        travel.aim(None)  # an error or a break: no goal is driven to any more
+        raise
+
+
+def _mission(job: Job, cfg: NavigateConfig) -> dict[str, Any]:
     name = cfg.name or default_stem("nav")
     track = Track()
     try:

@@ -419,6 +419,7 @@ def config(ctx: Context, cfg: None) -> dict[str, Any]:
         try:
             for item in sets:
                 store.set(name, *assignment(item, flag="-set"))
+            current.check()  # the rules between keys, on the values all the -set gave together
             if name == "drivers":
                 ctx.app.devices.reconfigure()
         except (ProtocolError, ValueError) as exc:
@@ -426,10 +427,11 @@ def config(ctx: Context, cfg: None) -> dict[str, Any]:
             if isinstance(exc, ValueError):
                 raise ProtocolError("E_ARG", f"{exc}; nothing was changed") from None
             raise
-    settings = store.values[name].as_dict()
+    settings = store.values[name].wire_dict()
     if settings.get("token"):
         settings["token"] = "***"
-    out: dict[str, Any] = {"name": name}
+    # module_name, not name: a module's settings may have a name of their own (dem_full's -name)
+    out: dict[str, Any] = {"module_name": name}
     if name == "drivers":
         out["pending"] = ctx.app.devices.pending() or None
     out["settings"] = Group(settings)

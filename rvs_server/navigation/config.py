@@ -114,11 +114,13 @@ class NavigateConfig(ModuleConfig):
     range: list[float] = param([-180.0, 180.0, -50.0, -10.0], "view range of each leg's DEM", unit="deg",
                                length=4, min=-360.0, max=360.0, option=False, ordered=True)
     overlap: float = param(0.3, "view overlap of each leg's DEM", min=0.0, max=0.9, option=False)
-    wait_timeout: float = param(0.0, "seconds to wait for the GNC's pose after a leg (0: forever)", unit="s",
-                                min=0.0, max=86400.0, option=False)
-    pose_settle: float = param(2.0, "a leg's wait for the GNC ends when its pose holds still this long (reported "
-                               "again or not), or at pose -stopped true; a pose near the leg's end while moving "
-                               "does not end it", unit="s", min=0.05, max=600.0, option=False)
+    wait_timeout: float = param(60.0, "a leg's wait for the GNC ends E_DATA when no pose report leaves the leg's "
+                                "start within this time (a GNC gone, or one that never drives; 0: wait forever)",
+                                unit="s", min=0.0, max=86400.0, option=False)
+    pose_settle: float = param(2.0, "a leg's wait for the GNC ends when its pose, once it left the leg's start, "
+                               "holds still this long (reported again or not), or at pose -stopped true; a pose "
+                               "near the leg's end while moving does not end it; also how long a navigate whose "
+                               "connection closed waits for a pose from another", unit="s", min=0.05, max=600.0, option=False)
     pose_still: list[float] = param([0.01, 1.0], "pose reports within this distance and heading of the first of "
                                     "them hold still", unit="m,deg", length=2, min=0.0, max=10.0, option=False)
     judge_range: float = param(3.0, "a goal judged unreachable (goal_in_hazard, enclosed) from farther than this "

@@ -10,13 +10,15 @@ from __future__ import annotations
 
 import copy
 import math
+import time
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from drivers.base import DeviceInterrupted
 from drivers.rover import Settle, Silent
 
-from ..jobs import device_call
+from ..jobs import Interrupted
 from ..protocol import Fixed, ProtocolError, Reply, Rows
 from .localiser import Localiser, pose_fields
 from .planning import load_global_maps, planner_params
@@ -35,11 +37,12 @@ if TYPE_CHECKING:
 
 def rover_for(app: App, auto: bool) -> Rover:
     """The rover that drives this navigate: the configured one (drivers.rover), or with
-    ``-auto`` the simulated one (the configured one if it is simulated)."""
+    ``-auto`` the simulated one (the configured one if it drives -auto legs itself: the
+    simulated one, or a replay of a recorded -auto leg)."""
     import drivers.rover
 
     rover = app.devices.get("rover")
-    if not auto or rover.steers:
+    if not auto or rover.drives_auto:
         return rover
     sim = drivers.rover.create({"backend": "sim"}, app.world, app)
     sim.open()
@@ -50,7 +53,7 @@ def check_request(app: App, cfg: NavigateConfig) -> None:
     """Refusals before the ACK."""
     from .planning import check_plan_size
 
-    if cfg.auto and app.world is None:
+    if cfg.auto and app.world is None and not app.devices.get("rover").drives_auto:
         raise ProtocolError("E_ARG", "-auto drives the simulated rover; with real hardware the GNC sends pose")
     check_plan_size(app, cfg)
 
@@ -72,6 +75,7 @@ class Mission:
         self.scans = 0
         self.leg_starts: list[tuple[float, float]] = []
         self.stalled = 0  # legs in a row that started where the previous one did
+        self.announced_at: tuple[float, float, float] | None = None  # the pose the last waiting EVENT left from
         self._place()
         # made where the rover starts: the see strategy's maps cover the start and the goal
         self.strategy: Strategy = SeeStrategy(self) if cfg.loop == "see" else ScanStrategy(self)
@@ -97,6 +101,8 @@ class Mission:
         """``EVENT kind=waiting`` with the leg's waypoints (the GNC drives them); returns the mark
         of the pose reports before it (a GNC may answer it at once)."""
         since = self.rover.mark()
+        pose = self.app.pose
+        self.announced_at = (pose.x, pose.y, pose.heading)
         rows = Rows((Fixed(x, 3), Fixed(y, 3), Fixed(h, 2)) for x, y, h in waypoints.table()[:, :3])
         self.app.broadcast_threadsafe(Reply("RVS", "EVENT", {
             "kind": "waiting", "job": self.job.id, "leg": leg, "waypoints": rows, "file": file,
@@ -105,15 +111,44 @@ class Mission:
 
     def drive(self, pilot: Pilot, since: int, end: tuple[float, float]) -> tuple[float, float, float]:
         """One leg driven by the rover with ``pilot``; a break stops it (E_INTERRUPTED). Returns
-        where the rover believes it stopped."""
-        cfg = self.cfg
-        settle = Settle(cfg.pose_settle, cfg.pose_still[0], cfg.pose_still[1], cfg.wait_timeout)
+        where the rover believes it stopped.
+
+        The GNC's wait ends with E_DATA when nothing will drive the leg: no report leaves the
+        leg's start within ``wait_timeout``, or the connection that started navigate closed and
+        no pose came from anywhere for ``pose_settle`` after (a GNC that reconnects and goes on
+        reporting keeps the job)."""
+        from ..bus import tapped_call
+
+        cfg, job, app = self.cfg, self.job, self.app
+        settle = Settle(cfg.pose_settle, cfg.pose_still[0], cfg.pose_still[1], cfg.wait_timeout,
+                        start=self.announced_at)
+        gone: list[float] = []  # when this thread first saw the requester's connection closed
+
+        def orphaned() -> bool:
+            if not job.requester_gone.is_set():
+                return False
+            if not gone:
+                gone.append(time.time())
+            return time.time() - max(gone[0], app.pose.time) >= cfg.pose_settle
+
         try:
-            return device_call(self.job, self.rover.drive, pilot, settle=settle, since=since)
+            return tapped_call(app.bus, self.rover.drive, pilot, settle=settle, since=since,
+                               cancel=lambda: job.cancelled or orphaned())
         except Silent:
-            raise ProtocolError("E_DATA", f"no pose at the leg's end ({end[0]:.2f}, {end[1]:.2f}) within "
-                                          f"{cfg.wait_timeout:g} s; send pose -x -y -heading (with -stopped true "
-                                          "once the rover stands)") from None
+            x, y = self.announced_at[:2] if self.announced_at else (app.pose.x, app.pose.y)
+            raise ProtocolError("E_DATA", f"the rover did not leave the leg's start ({x:.2f}, {y:.2f}) within "
+                                          f"{cfg.wait_timeout:g} s (navigate.wait_timeout): the GNC drives the "
+                                          f"waypoints to ({end[0]:.2f}, {end[1]:.2f}) reporting pose -x -y -heading "
+                                          "as it goes, or sends pose -stopped true where the rover stands") from None
+        except Exception as exc:
+            if job.cancelled:
+                raise Interrupted(f"{job.command} job {job.id} was interrupted") from None
+            if isinstance(exc, DeviceInterrupted) and job.requester_gone.is_set():
+                raise ProtocolError("E_DATA", f"the connection that started navigate closed and no pose came for "
+                                              f"{cfg.pose_settle:g} s (navigate.pose_settle) while the leg to "
+                                              f"({end[0]:.2f}, {end[1]:.2f}) waited: nothing drives it; start "
+                                              "navigate again from the GNC's connection") from None
+            raise
 
     # -- the legs ----------------------------------------------------------------------------
     def run(self) -> dict[str, Any]:
@@ -174,6 +209,24 @@ class Mission:
         maps = app.maps.layers
         return NavMaps(maps["hazard"], maps["slope"], maps.geometry)
 
+    def _ortho(self, maps: Any, path: np.ndarray, wps: np.ndarray, rover: tuple[float, float],
+               size: float) -> tuple[np.ndarray, Any]:
+        """The ortho-image the traverse is drawn on, and its grid. A mission that scanned nothing
+        (the goal was within tolerance at the start) may have no map at all: the figure is then
+        drawn on an unknown (NaN) ground that covers the rover, the goal and the track, so the OK
+        line names a traverse figure as it always does."""
+        from prox_workflows.grid import GridGeometry
+
+        if maps is not None and "ortho" in maps:
+            return maps["ortho"], maps.geometry
+        xy = np.concatenate([np.asarray([rover, self.goal], dtype=np.float64), path.reshape(-1, 2),
+                             wps.reshape(-1, 2), self.track.xy()])
+        margin = size + 1.0  # m: the rover's outline and some ground round it
+        lo, hi = xy.min(axis=0) - margin, xy.max(axis=0) + margin
+        cell = max(float((hi - lo).max()) / 400.0, 0.01)  # a figure of about 400 cells a side
+        geometry = GridGeometry.covering(float(lo[0]), float(lo[1]), float(hi[0]), float(hi[1]), cell)
+        return np.full(geometry.shape, np.nan, dtype=np.float32), geometry
+
     def products(self) -> dict[str, Any]:
         """The traverse figure, the waypoints and the track; the OK line."""
         from prox_workflows.algorithms.planner import ortho_figure
@@ -187,7 +240,8 @@ class Mission:
         wps = np.concatenate(self.waypoints) if self.waypoints else np.zeros((0, 2))
         traverse = app.data_path("nav", f"{self.name}_traverse.png")
         head = app.config.get("head")
-        write_png(traverse, ortho_figure(maps["ortho"], maps.geometry, f"traverse to ({goal[0]:g}, {goal[1]:g})",
+        ortho, geometry = self._ortho(maps, path, wps, (pose.x, pose.y), max(head.rover_length, head.rover_width))
+        write_png(traverse, ortho_figure(ortho, geometry, f"traverse to ({goal[0]:g}, {goal[1]:g})",
                                          Marks(rover=(pose.x, pose.y, pose.heading),
                                                rover_size=(head.rover_length, head.rover_width), path=path,
                                                waypoints=wps, track=self.track.xy(), goal=goal)))

@@ -40,8 +40,6 @@ log = structlog.get_logger("rvs.telemetry")
 
 TICK = 0.1  # s between samples of the frame tree and poses (10 Hz: a PTU sweep looks smooth)
 TRACK_EVERY = 1.0  # s between track updates (it grows to thousands of points)
-TRACK_POINTS = 5000
-TRACK_STEP = 0.02  # m the rover moves before the track gets a point
 MAX_QUEUED = 512  # items the thread may lag behind (a 24-view scan queues about 50)
 BOUNDS_TOPIC = "/nav/bounds"
 BOUNDS_EVERY = 10  # see-loop frames between two sends of the bounds map (a replan sends it too)
@@ -49,8 +47,9 @@ BOUNDS_EVERY = 10  # see-loop frames between two sends of the bounds map (a repl
 
 class Telemetry:
     """The hub: one thread, and the link to the telemetry process once there is one
-    (:meth:`attach`). The state the thread keeps (the last maps, plan, check-move, track) is its
-    own; the process gets it all when it is attached, and each change after."""
+    (:meth:`attach`). The state the thread keeps (the last maps, plan, check-move) is its own, the
+    track the server's (``App.travel``); the process gets it all when it is attached, and each
+    change after."""
 
     def __init__(self, app: App) -> None:
         self.app = app
@@ -62,12 +61,13 @@ class Telemetry:
         self._maps: tuple[int, Layers] | None = None
         self._latched: dict[str, tuple[int, Any, tuple[Any, ...]]] = {}  # plan, check-move: their last message
         self._sent: dict[str, int] = {}  # latched topic -> the time of the message the process holds
-        self._track: deque[tuple[float, float, float]] = deque(maxlen=TRACK_POINTS)
-        self._track_sent = 0.0
-        self._track_dirty = False
+        self._track_sent = 0.0  # monotonic time of the last send
+        self._track_version = -1  # App.travel's version the process holds
+        self._state_lock = threading.Lock()  # a state is sampled, stamped and queued in one go: in time order
         self._requests: dict[int, tuple[float, float, float]] = {}  # conn -> pose at its last check-move
         self._bounds: tuple[int, BoundsMap] | None = None  # the see loop's bounds map as last published (live)
         self._bounds_items = 0
+        self._offered_calls: set[tuple[str, ...]] = set()  # kinds of call passed on while nobody listened
         self._thread = threading.Thread(target=self._run, name="rvs-telemetry", daemon=True)
         self._thread.start()
         app.bus.subscribe(self.accept)
@@ -81,12 +81,24 @@ class Telemetry:
         The bounds map goes on as its lower and upper bounds, read in the see loop's thread (it
         fuses the next frame into the same arrays), every :data:`BOUNDS_EVERY` frames and at
         each replan, and only when someone listens; otherwise the hub keeps the map itself."""
+        if item.kind == "calling":
+            link = self._link
+            if link is not None and (link.wants_any() if carries_images(item.data["device"], item.data["call"])
+                                     else link.recording):
+                self._log_state()  # here, before the call: the frame tree of its start, stamped before it
+            return
         if item.kind == "frame":
             link = self._link
             # a call that returns no image (a PTU move) is only for a recording's /raw/calls
             frame = carries_images(item.data["device"], item.data["call"])
-            if link is None or not (link.wants_any() if frame else link.recording):
+            if link is None:
                 return
+            if not (link.wants_any() if frame else link.recording):
+                # nobody listens: the first of its kind still goes, so its topics are offered
+                kind = (item.data["device"], item.data["call"], *map(str, item.data["args"][:1]))
+                if not frame or kind in self._offered_calls:
+                    return
+                self._offered_calls.add(kind)
             copied = _copied(item.data["result"])
             item = Item(item.kind, item.time_ns, {**item.data, "result": copied, "state": self._state()})
         elif item.kind == "bounds":
@@ -94,6 +106,8 @@ class Telemetry:
             self._bounds = (item.time_ns, bounds)
             self._bounds_items += 1
             link = self._link
+            if link is not None and not link.wants(BOUNDS_TOPIC):
+                link.offer(BOUNDS_TOPIC)
             if not (item.data.get("replan") or self._bounds_items % BOUNDS_EVERY == 0) or link is None \
                     or not link.wants(BOUNDS_TOPIC):
                 return
@@ -180,12 +194,17 @@ class Telemetry:
             handler(entry)
 
     def _log(self, topic: str, t_ns: int, encode: Any, *args: Any) -> None:
-        """Send ``encode(*args)`` to the process (which encodes it) if ``topic`` is wanted there."""
+        """Send ``encode(*args)`` to the process (which encodes it) if ``topic`` is wanted there,
+        else offer the topic (the live server advertises it: it has something to say)."""
         link = self._link
-        if link is not None and link.wants(topic):
+        if link is None:
+            return
+        if link.wants(topic):
             link.log(topic, t_ns, encode, *args)
             if topic_spec(topic).latched:
                 self._sent[topic] = t_ns
+        else:
+            link.offer(topic)
 
     def _latch(self, topic: str, t_ns: int, encode: Any, *args: Any) -> None:
         self._latched[topic] = (t_ns, encode, args)
@@ -214,9 +233,8 @@ class Telemetry:
         for topic, (t_ns, encode, args) in self._latched.items():
             if wanted(topic, t_ns):
                 self._log(topic, t_ns, encode, *args)
-        if self._track and wanted("/nav/track", None):
-            t = time.time_ns()
-            self._log("/nav/track", t, m.track, t, np.array(self._track))
+        if wanted("/nav/track", None):
+            self._send_track()
 
     def resend(self) -> None:
         """Send what is latched and not yet with the process (a recording starts: it takes all)."""
@@ -235,7 +253,6 @@ class Telemetry:
 
     def _on_frame(self, item: Item) -> None:
         t, device, result = item.time_ns, item.data["device"], item.data["result"]
-        self._log_state(t, item.data["state"])
         self._log_call(item)
         images = images_of(device, item.data["call"], item.data["args"], result)
         if device == "tof":
@@ -305,7 +322,8 @@ class Telemetry:
         reply = item.data["reply"]
         self._wire(item, "reply", item.data["conn"], format_reply(reply), reply)
         fields = reply.fields
-        if isinstance(fields.get("job"), int) and reply.status in ("ACK", "PROGRESS", "OK", "ERROR"):
+        # a job's own lines only: ``status -job N`` names job N too, but is no line of it
+        if item.data.get("job") and isinstance(fields.get("job"), int):
             done, total = int(fields.get("done", 0)), int(fields.get("total", 0))
             progress = {"job": int(fields["job"]), "command": reply.module, "status": reply.status,
                         "phase": str(fields.get("phase", "")), "done": done, "total": total,
@@ -342,13 +360,20 @@ class Telemetry:
             truth = (float(tr["x"]), float(tr["y"]), float(tr["heading"]))
         return (pose.x, pose.y, pose.heading, ground_height(app.maps.layers, pose.x, pose.y)), app.ptu_position(), truth
 
-    def _log_state(self, t: int, state: Any) -> None:
-        pose, ptu, truth = state
+    def _log_state(self) -> None:
+        """The frame tree and the poses as they are now, stamped now: from the hub's thread every
+        tick and from a device call's thread as it starts (the tree a frame is seen through).
+        Sampled, stamped and queued under one lock, so the pose channels never step back in time
+        and each pose is stamped with the time it describes (a player would show the rover
+        jumping)."""
         head = HeadCalibration.from_dict(self.app.config.get("head").as_dict())
-        self._log("/tf", t, m.frame_tree, t, head, pose, ptu, truth, self._body_frames())
-        self._log("/rover/pose", t, m.pose_in_world, t, *pose)
-        if truth is not None:
-            self._log("/rover/truth", t, m.pose_in_world, t, *truth, pose[3])
+        body = self._body_frames()
+        with self._state_lock:
+            t, (pose, ptu, truth) = time.time_ns(), self._state()
+            self._log("/tf", t, m.frame_tree, t, head, pose, ptu, truth, body)
+            self._log("/rover/pose", t, m.pose_in_world, t, *pose)
+            if truth is not None:
+                self._log("/rover/truth", t, m.pose_in_world, t, *truth, pose[3])
 
     def _body_frames(self) -> list[tuple[str, np.ndarray]]:
         """The optical frames of the hazard camera pairs switched on, in the rover frame, where
@@ -367,17 +392,18 @@ class Telemetry:
     def _sample(self, track_now: bool = False) -> None:
         if self._link is None:
             return
-        t, state = time.time_ns(), self._state()
-        self._log_state(t, state)
-        pose, _, truth = state
-        z = pose[3]
-        here = truth or pose[:3]
-        if not self._track or abs(self._track[-1][0] - here[0]) + abs(self._track[-1][1] - here[1]) > TRACK_STEP:
-            self._track.append((here[0], here[1], z + 0.02))
-            self._track_dirty = True
-        if self._track_dirty and (track_now or time.monotonic() - self._track_sent >= TRACK_EVERY):
-            self._track_sent, self._track_dirty = time.monotonic(), False
-            self._log("/nav/track", t, m.track, t, np.array(self._track))
+        self._log_state()
+        if self.app.travel.version != self._track_version and (
+                track_now or time.monotonic() - self._track_sent >= TRACK_EVERY):
+            self._send_track()
+
+    def _send_track(self) -> None:
+        """The server's track (``App.travel``), a little above the ground it was driven on."""
+        self._track_version, self._track_sent = self.app.travel.version, time.monotonic()
+        points = np.array(self.app.travel.track(), float).reshape(-1, 3)
+        points[:, 2] += 0.02
+        t = time.time_ns()
+        self._log("/nav/track", t, m.track, t, points)
 
 
 def bounds_window(bounds: BoundsMap) -> tuple[GridGeometry, dict[str, np.ndarray]] | None:

@@ -101,6 +101,7 @@ class Link:
         self.live_dropped = 0
         self.dropped = 0
         self.logged: Counter[str] = Counter()  # messages handed to the process, by topic
+        self._offered: set[str] = set()  # live topics the process was told exist (offer)
         self._queue: deque[tuple[Any, int]] = deque()
         self._queued = 0  # bytes in the queue
         self._wake = threading.Condition()
@@ -152,6 +153,16 @@ class Link:
             self._queue.append((("log", topic, t_ns, encode, args), size))
             self._queued += size
             self.logged[topic] += 1
+            self._wake.notify()
+
+    def offer(self, topic: str) -> None:
+        """``topic`` has something to say, though nobody listens: the live server advertises it
+        from now on (once), so a client can subscribe. Never waits."""
+        if topic in self._offered or self.url is None or not topic_spec(topic).live:
+            return
+        with self._wake:
+            self._offered.add(topic)
+            self._queue.append((("offer", topic), 0))
             self._wake.notify()
 
     def call(self, op: str, *args: Any, timeout: float = CALL_S) -> Any:

@@ -121,8 +121,8 @@ class Outlet:
         return encode(*args)
 
     def declare(self) -> None:
-        """Advertise every topic at once (a map layer's of every registered layer), so that a
-        client sees and can subscribe to them all before data flows."""
+        """Open every topic's channel at once (a map layer's of every registered layer): a
+        recording lists them all, its statistics saying which carried messages."""
         for topic in [*TOPICS, *(MAP_PREFIX + name for name in LAYERS)]:
             self.channel(topic)
 

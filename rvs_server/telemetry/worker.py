@@ -68,6 +68,10 @@ class Worker:
             except Exception as exc:  # noqa: BLE001 - a bad message costs only itself
                 self.send("error", topic, f"{type(exc).__name__}: {exc}")
             return True
+        if entry[0] == "offer":
+            if self.live is not None:
+                self.live.channel(entry[1])  # advertised to every client from now on
+            return True
         _, call_id, op, args = entry
         try:
             result = getattr(self, f"call_{op}")(*args)
@@ -156,6 +160,11 @@ def main(argv: list[str]) -> None:
             worker.tick()
     finally:
         worker.call_close()
+    # The recording is finished and Foxglove's server stopped: the interpreter's teardown would
+    # only free memory, which this niced process takes seconds for on a busy machine while the
+    # server's shutdown waits for it to exit.
+    sys.stdout.flush()
+    os._exit(0)
 
 
 if __name__ == "__main__":

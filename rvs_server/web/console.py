@@ -30,6 +30,7 @@ from drivers.tof.constants import FOV_H_DEG as TOF_HFOV_DEG
 from prox_workflows.grid import read_geotiff_geometry
 
 from ..protocol import Reply, TooLong, format_reply, format_reply_json
+from ..table import COMMANDS
 from .cameras import CameraFrames
 from .tiles import LayerCache, ValueCache, unit_of, version_of
 
@@ -41,9 +42,9 @@ log = structlog.get_logger("rvs.web")
 
 TICK = 0.2  # seconds between state snapshots (pose, PTU, progress): 5 Hz is smooth enough to watch
 MAX_QUEUED = 2000  # messages a page may lag behind before it is dropped (it reloads and catches up)
-TRACK_POINTS = 5000  # rover positions kept for the driven track
 SNAPSHOT_TRACK = 1000  # of which each state snapshot carries the newest (5 per second to every page)
 HISTORY = 500  # event and job lines a page is shown when it opens (a reload keeps its history)
+MAX_CHECKS_ASKED = 256  # check-moves asked and not answered yet (each connection's last)
 PRODUCTS_EVERY = 2.0  # seconds between two listings of the current map's products
 DOWNLOADS = (".tif", ".png", ".ply", ".csv", ".yaml")  # what a page may download of the current map
 STATIC = {"index.html": "text/html", "console.js": "text/javascript", "console.css": "text/css"}
@@ -104,14 +105,16 @@ class WebPeer:
     def send(self, reply: Reply, *, own: bool = True, job: bool = False) -> None:
         """Queue a reply line for the page (event loop only); ``own``: an answer to this page's
         request, ``job``: a line of a job (see Connection.send)."""
+        if own:  # also once the page is gone (another line's: its own connection publishes it)
+            self.app.sent(self, reply, job=job)
         if self.closed:
             return
         if self.queue.qsize() > MAX_QUEUED:
             self.log.warning("client_dropped", reason="page not reading its messages")
             self.close()
             return
-        if own and reply.status != "EVENT":  # as a TCP connection's (an EVENT: App.broadcast's)
-            self.app.bus.publish("reply", conn=self.id, reply=reply, job=job)
+        if reply.status == "EVENT":  # every page's (App.broadcast publishes it): no page's answer
+            own = False
         self.queue.put_nowait(_encode(reply, own))
 
     def observe(self, reply: Reply) -> None:
@@ -152,7 +155,7 @@ class WebPeer:
 
 
 class WebConsole:
-    """The console's HTTP routes, its open pages and what only the console keeps (the track)."""
+    """The console's HTTP routes, its open pages and what they are shown."""
 
     def __init__(self, app: App) -> None:
         self.app = app
@@ -161,9 +164,9 @@ class WebConsole:
         self.values = ValueCache()
         self.cameras = CameraFrames()
         self.history: deque[str] = deque(maxlen=HISTORY)
+        self.check: dict[str, Any] | None = None  # the last check-move's answer, whoever asked
+        self._check_from: dict[int, tuple[float, float]] = {}  # conn -> pose when it asked for a check-move
         self._products: tuple[float, dict[str, Path]] = (0.0, {})
-        self.goal: dict[str, Any] | None = None  # the last navigate's goal, whoever sent it
-        self.track: deque[tuple[float, float]] = deque(maxlen=TRACK_POINTS)
         self.snapshot = ""  # the last state message sent to the pages
         self.bounds: dict[tuple[str, str], list[float]] = {}  # (path, version) -> layer bounds
         self.runner: web.AppRunner | None = None
@@ -221,10 +224,26 @@ class WebConsole:
 
     def remember(self, item: Item) -> None:
         """Keep each event and job line the server sends (the bus, on the event loop) for the
-        pages that open later; PROGRESS is left out, the state carries the running job's progress."""
+        pages that open later; PROGRESS is left out, the state carries the running job's progress.
+        A check-move's answer, whoever asked, is kept for the state: every page draws it."""
+        if item.kind == "request":
+            words = item.data["line"].decode("utf-8", "replace").split(None, 2)
+            if words and words[0].startswith("@"):
+                words = words[1:]
+            if words and words[0].lower() == "check-move":  # the move starts where the rover is now
+                if len(self._check_from) > MAX_CHECKS_ASKED:  # lines refused before check-move's reply
+                    self._check_from.clear()
+                self._check_from[item.data["conn"]] = (self.app.pose.x, self.app.pose.y)
+            return
         reply = item.data.get("reply")
         if reply is None or reply.status == "PROGRESS":
             return
+        if reply.module == "EGP-RVS-CHECK-MOVE" and item.kind == "reply":
+            start = self._check_from.pop(item.data["conn"], (self.app.pose.x, self.app.pose.y))
+            to = reply.fields.get("to")
+            if reply.status == "OK" and to is not None:
+                self.check = {"from": [round(start[0], 3), round(start[1], 3)], "to": [float(to[0]), float(to[1])],
+                              "verdict": str(reply.fields.get("verdict")), "t": round(item.time_ns / 1e9, 3)}
         if item.kind == "event" or item.data.get("job"):
             self.history.append(_encode(reply, False))
 
@@ -283,6 +302,8 @@ class WebConsole:
             "ptu": app.ptu_position(),
             "devices": app.devices.summary(),
             "token": bool(app.server_cfg.token),
+            # what a page without the token may send: the command table's answer, not the page's
+            "open_commands": [name for name, cmd in COMMANDS.items() if cmd.open],
         }
         if app.world is not None:
             t = app.world.truth()
@@ -291,10 +312,8 @@ class WebConsole:
             out["scene"] = app.world.scene_name
         head = app.config.get("head")
         out["rover"] = {"length": head.rover_length, "width": head.rover_width}
-        if job is not None and job.command == "navigate" and len(job.params.get("goal") or ()) == 2:
-            self.goal = {"x": job.params["goal"][0], "y": job.params["goal"][1],
-                         "tolerance": job.params.get("tolerance"), "job": job.id}
-        out["goal"] = self.goal
+        goal = app.travel.goal
+        out["goal"] = None if goal is None else {"x": goal.x, "y": goal.y, "tolerance": goal.tolerance, "job": goal.job}
         out["tof_hfov"] = TOF_HFOV_DEG  # drawn as the ToF's wedge
         maps: dict[str, Any] = {}
         for name, path in self.layer_paths().items():
@@ -312,12 +331,10 @@ class WebConsole:
         out["products"] = [{"name": n, "url": f"/products/{n}"} for n in self.products()]
         hazcam = app.devices.devices.get("hazcam")
         out["cameras"] = self.cameras.listing(hazcam.cameras() if hazcam is not None else [])
+        out["check"] = self.check
         monitors = json.loads(format_reply_json(Reply("RVS", "OK", app.monitors.status_fields())))
         out["monitors"] = {k: v for k, v in monitors.items() if k not in ("module", "status")}
-        here = out.get("truth") or out["pose"]
-        if not self.track or (abs(self.track[-1][0] - here["x"]) + abs(self.track[-1][1] - here["y"])) > 0.02:
-            self.track.append((round(here["x"], 3), round(here["y"], 3)))
-        out["track"] = list(self.track)[-SNAPSHOT_TRACK:]
+        out["track"] = [(round(x, 3), round(y, 3)) for x, y, _ in app.travel.track()[-SNAPSHOT_TRACK:]]
         return out
 
     async def _prerender(self) -> None:

@@ -18,20 +18,27 @@ def test_one_shot_move_prints_the_position(capsys: pytest.CaptureFixture[str]) -
 
 
 def test_errors_are_printed_and_the_console_carries_on(capsys: pytest.CaptureFixture[str]) -> None:
-    rc = main(["--backend", "sim", "--time-scale", "0", "-c", "move 200 0; pan 10; speed 9000; frobnicate"])
+    rc = main(["--backend", "sim", "--time-scale", "0", "-c", "move 200 0; pan 10; speed 9000"])
     captured = capsys.readouterr()
     out, err = captured.out.splitlines(), captured.err.splitlines()
     assert rc == 1
     assert out == ["pan 9.977 deg, tilt 0.000 deg"]  # 194 positions; one-shot stdout holds only results
-    assert err[0].startswith("error: ptu: pan 200 deg is beyond the pan maximum 158.91 deg")
-    assert err[1] == "error: ptu: the PTU refused PS9000: Pan speed cannot exceed 2902 positions/sec"
-    assert err[2].startswith("error: unknown command 'frobnicate'")
+    assert err[0].startswith("open on ")  # start-up's open is a note
+    assert err[1].startswith("error: ptu: pan 200 deg is beyond the pan maximum 158.91 deg")
+    assert err[2] == "error: ptu: the PTU refused PS9000: Pan speed cannot exceed 2902 positions/sec"
+
+
+def test_an_unknown_command_is_refused_before_anything_runs(capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["--backend", "sim", "--time-scale", "0", "-c", "move 20 0; frobnicate", "-c", "position"]) == 2
+    out, err = capsys.readouterr()
+    assert out == "" and err == "rvs-ptu: unknown command 'frobnicate'; 'help' lists the commands\n"
 
 
 def test_serial_backend_missing_port(capsys: pytest.CaptureFixture[str]) -> None:
     rc = main(["--backend", "serial", "--port", "/dev/does-not-exist-ptu", "-c", "position"])
-    assert rc == 1
-    assert "cannot open serial port /dev/does-not-exist-ptu" in capsys.readouterr().err
+    assert rc == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and err.startswith("rvs-ptu: ptu: cannot open serial port /dev/does-not-exist-ptu")
 
 
 @pytest.mark.parametrize(("argv", "message"), [

@@ -240,3 +240,35 @@ def test_a_cancellable_render_gives_the_same_image_and_stops_when_cancelled(monk
         w.render(K, 1600, 900, T, cancel=lambda: bool(rendered))
     time.sleep(0.5)  # strips already running end on their own; no new one starts
     assert len(rendered) <= R._THREADS + 1 < -(-1600 * 900 // R.CANCEL_STRIP_PIXELS)
+
+
+def test_a_render_cancelled_once_every_strip_is_done_joins_none_of_them(monkeypatch) -> None:
+    """Joining the strips of a large view is itself long: a cancel that comes after the last
+    strip still stops the render before the layers are joined."""
+    from drivers.sim import render as R
+
+    w = World.from_scene("office")
+    K = w.camera_intrinsics("left", 1600, 900)
+    T = w.sensor_pose("left")
+    parts = -(-1600 * 900 // R.CANCEL_STRIP_PIXELS)
+    rendered: list[int] = []
+    real = R._render
+
+    def counted(*args):
+        out = real(*args)
+        rendered.append(1)
+        return out
+
+    joined: list[int] = []
+    real_concatenate = np.concatenate
+
+    def concatenate(arrays, *args, **kw):  # numpy's own: count only the joins of the strips
+        if isinstance(arrays, list) and len(arrays) == parts:
+            joined.append(1)
+        return real_concatenate(arrays, *args, **kw)
+
+    monkeypatch.setattr(R, "_render", counted)
+    monkeypatch.setattr(R.np, "concatenate", concatenate)
+    with pytest.raises(R.RenderCancelled):
+        w.render(K, 1600, 900, T, cancel=lambda: len(rendered) == parts)
+    assert len(rendered) == parts and joined == []

@@ -104,7 +104,6 @@ def test_errors_are_printed_and_the_session_goes_on(tmp_path: Path) -> None:
         "mode yuv422",
         "set left bogus=1",
         "set left shutter_us=100000000",
-        "frobnicate",
         "fault no_trigger",
         "grab-stereo",
         "fault none",
@@ -116,10 +115,16 @@ def test_errors_are_printed_and_the_session_goes_on(tmp_path: Path) -> None:
     assert "error: ValueError: invalid pixel format 'yuv422'; accepted: mono8, rgb8" in err
     assert "unknown camera setting(s) bogus" in err
     assert "-shutter-us is 100000000, out of range" in err
-    assert "unknown command 'frobnicate'" in err
     assert "error: DeviceError: stereo: camera" in err and "missed its trigger" in err
     assert "error:" not in out  # one-shot: errors are not results
     assert (tmp_path / "ok_left.tif").exists()  # the session survived every error
+
+
+def test_an_unknown_command_is_refused_before_anything_runs(tmp_path: Path) -> None:
+    rc, out, err = run(f"grab-stereo {tmp_path}/no.tif", "frobnicate", extra=("--data", str(tmp_path)))
+    assert rc == 2 and out == ""
+    assert err == "rvs-cam: unknown command 'frobnicate'; 'help' lists commands\n"
+    assert not list(tmp_path.iterdir())
 
 
 def test_ids_settings_and_files(tmp_path: Path) -> None:

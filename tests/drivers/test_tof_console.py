@@ -97,15 +97,22 @@ def test_xyz_and_settings_commands(tmp_path, capsys):
 
 def test_errors_are_printed_and_the_console_carries_on(capsys, tmp_path):
     tif = tmp_path / "d.tif"
-    rc = main(["-c", "modulation 20; integration 999; grab colour x.tif; fault unplug; status", "-c", f"fault none; reinit; grab distance {tif}"])
+    rc = main(["-c", "modulation 20; integration 999; fault unplug; status", "-c", f"fault none; reinit; grab distance {tif}"])
     out, err = capsys.readouterr()
     assert rc == 1
     assert "error: modulation frequency 20" in err  # one-shot: errors on stderr, results on stdout
     assert "error: integration register 999" in err
-    assert "error: argument type: invalid choice" in err
     assert '"fault": "unplug"' in out  # status still answers while unplugged
     assert "error:" not in out and "open:" not in out
     assert tif.exists()  # reinit recovered and the last grab worked
+
+
+def test_arguments_a_command_refuses_stop_the_run_before_the_camera_opens(capsys, tmp_path):
+    assert main(["-c", f"grab distance {tmp_path / 'a.tif'}; grab colour x.tif"]) == 2
+    out, err = capsys.readouterr()
+    assert out == "" and err.count("\n") == 1, err
+    assert err.startswith("rvs-tof: grab: argument type: invalid choice: 'colour'") and "usage: grab" in err
+    assert not (tmp_path / "a.tif").exists()
 
 
 def test_disconnect_is_reported_with_the_device_name():

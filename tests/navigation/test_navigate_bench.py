@@ -54,7 +54,7 @@ def test_a_turn_in_a_plan_over_a_rock_is_an_event_the_straight_leg_is_not() -> N
     assert events == []  # standing at 90 deg, clear
     events, checked = vehicle_check(plan_poses(leg, 90.0), surface, body)
     assert checked > 51
-    assert [e.kind for e in events] == ["wheel rear-right"]
+    assert [e.kind for e in events] == ["step rear-right"]
     assert events[0].excess == pytest.approx(0.03, abs=0.005) and (events[0].x, events[0].y) == (0.0, 0.0)
 
 

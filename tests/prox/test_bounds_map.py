@@ -197,7 +197,7 @@ def test_the_vehicle_check_on_equal_bounds_is_the_check_on_the_surface() -> None
     poses = np.array([[0.0, 0.0, 0.0], [0.3, -0.2, 40.0], [-0.3, 0.3, 200.0]])
     one = check_poses(h, g, poses, RoverBody())
     pair = check_poses((h, h.copy()), g, poses, RoverBody())
-    for name in ("relief", "intrusion", "tilt", "excess"):
+    for name in ("step", "intrusion", "tilt", "tip", "grade", "excess"):
         np.testing.assert_allclose(getattr(pair, name), getattr(one, name), atol=1e-9, err_msg=name)
     assert one.unsafe[0] and not pair.unknown.any()
 
@@ -209,11 +209,16 @@ def test_the_vehicle_check_on_bounds_takes_the_worst_and_never_calls_unseen_grou
     body = RoverBody()
     h, g = _flat()
     pose = np.array([[0.0, 0.0, 0.0]])
-    # flat ground known to +-2 cm: the worst a wheel may meet is 4 cm, the belly may find the
-    # ground 2 cm up over wheels resting 2 cm down, the body may lean by the wheels' spread
+    # flat ground known to +-2 cm: the worst edge a wheel may meet is 4 cm, the belly may find the
+    # ground 2 cm up over wheels resting 2 cm down, the body may lean by the wheels' spread, and
+    # the ground under it may slope as steeply as any ground within the bounds does
     lower, upper = h - 0.02, h + 0.02
     worst = check_poses((lower, upper), g, pose, body)
-    np.testing.assert_allclose(worst.relief[0], 0.04, atol=1e-6)
+    np.testing.assert_allclose(worst.step[0], 0.04, atol=1e-6)
+    xs, ys = g.centers()
+    X, _ = np.meshgrid(xs, ys)
+    halves = np.where(X > 0, 0.02, -0.02).astype(np.float32)  # one ground the bounds allow
+    assert worst.grade[0] >= check_poses(halves, g, pose, body).grade[0] > 1.0
     # the belly: 4 cm over the level plane, more where the worst plane leans away under it
     assert 0.04 - body.clearance - 1e-6 <= worst.intrusion[0] < 0.0
     assert worst.tilt[0] > 0.0 and worst.safe[0]
@@ -222,6 +227,36 @@ def test_the_vehicle_check_on_bounds_takes_the_worst_and_never_calls_unseen_grou
     hidden = check_poses((lower, upper), g, pose, body)
     assert hidden.unknown[0] and not hidden.safe[0]
     assert not check_poses(h, g, pose, body).unknown[0]  # a surface has no unseen ground
+
+
+def test_the_four_limits_on_bounds_that_pin_the_ground_within_3mm() -> None:
+    """The synthetic answers of tests/prox/test_vehicle.py on bounds +-3 mm round the ground: a
+    9 cm step edge is climbed and an 11 cm one is not, a 20 deg plane fails the grade, and the
+    23 deg pitch with both front wheels on smooth mounds is no unsafe pose."""
+    from drivers.sim.rover import RoverBody
+    from prox_workflows.algorithms.vehicle import check_poses
+
+    body = RoverBody()
+    pose = np.array([[0.0, 0.0, 0.0]])
+    for height, bad in ((0.09, False), (0.11, True)):
+        h, g = _flat(1.0, 0.01)
+        xs, ys = g.centers()
+        X, Y = np.meshgrid(xs, ys)
+        h[(X >= 0.175) & (Y <= -0.205) & (Y >= -0.35)] = height  # an edge 3 cm ahead of the front-right hub
+        checks = check_poses((h - 0.003, h + 0.003), g, pose, body)
+        assert checks.step[0, 1] == pytest.approx(height + 0.006, abs=0.002)
+        assert bool(checks.unsafe[0]) is bad and checks.excess[0, 0] > 0 if bad else not checks.unsafe[0]
+    h, g = _flat(1.0, 0.01)
+    xs, ys = g.centers()
+    X, Y = np.meshgrid(xs, ys)
+    plane = (np.tan(np.radians(20.0)) * X).astype(np.float32)
+    checks = check_poses((plane - 0.003, plane + 0.003), g, pose, body)
+    assert checks.grade[0] >= 20.0 - 1e-6 and checks.unsafe[0] and checks.excess[0, 3] > 0
+    for side in (1, -1):
+        d = np.hypot(X - 0.145, Y - side * 0.245)
+        h += np.where(d < 0.25, 0.0615 * (1 + np.cos(np.pi * d / 0.25)), 0.0).astype(np.float32)
+    checks = check_poses((h - 0.003, h + 0.003), g, pose, body)
+    assert 23.0 <= checks.tilt[0] < 25.0 and not checks.unsafe[0] and not checks.unknown[0]
 
 
 def test_bounds_from_simulated_tof_looks_never_call_an_unsafe_pose_safe() -> None:

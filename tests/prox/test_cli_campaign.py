@@ -57,7 +57,7 @@ def test_help_lists_the_campaign_commands(capsys: pytest.CaptureFixture[str]) ->
 def test_a_malformed_scheduler_is_one_error_line(recorded_job: Path, tmp_path: Path, address: str) -> None:
     r = run_prox(tmp_path, "batch", "dem", "--inputs", str(recorded_job), "--scheduler", address)
     assert r.returncode == 2, r.stderr
-    line = one_error_line(r.stderr, "rvs-prox batch: error: argument --scheduler:")
+    line = one_error_line(r.stderr, "rvs-prox batch: argument --scheduler:")
     assert repr(address) in line and "tcp://HOST:PORT" in line
 
 
@@ -68,7 +68,7 @@ def test_bad_batch_and_mosaic_values_are_one_error_line(tmp_path: Path) -> None:
                        (["mosaic-campaign", "--inputs", "x", "-o", "m", "--name", "a/b"], "--name")):
         r = run_prox(tmp_path, *args)
         assert r.returncode == 2, (args, r.stderr)
-        one_error_line(r.stderr, f"rvs-prox {args[0]}: error: argument {what}:")
+        one_error_line(r.stderr, f"rvs-prox {args[0]}: argument {what}:")
 
 
 def _site(path: Path, x0: float, height: float) -> Path:
@@ -115,13 +115,13 @@ def test_a_missing_script_or_bad_value_exits_2(tmp_path: Path) -> None:
     r = run_prox(tmp_path, "nosuch")
     assert r.returncode == 2 and one_error_line(r.stderr, "rvs-prox: no workflow script nosuch")
     r = run_prox(tmp_path, "dem", "--validate", "--set", "cell=abc")
-    assert r.returncode == 2 and one_error_line(r.stderr, "rvs-prox: -cell takes a number")
+    assert r.returncode == 2 and one_error_line(r.stderr, "rvs-prox: --set cell takes a number")
 
 
 def test_no_script_or_a_log_in_no_folder_is_one_error_line(tmp_path: Path) -> None:
     r = run_prox(tmp_path)
     assert r.returncode == 2 and r.stdout == ""
-    one_error_line(r.stderr, "rvs-prox: error: name a script to run (or batch, mosaic-campaign)")
+    one_error_line(r.stderr, "rvs-prox: name a script to run (or batch, mosaic-campaign)")
     r = run_prox(tmp_path, "dem", "--validate", "--log", str(tmp_path / "no" / "run.yaml"))
     assert r.returncode == 2
-    one_error_line(r.stderr, f"rvs-prox: error: --log {tmp_path / 'no' / 'run.yaml'}: no folder")
+    one_error_line(r.stderr, f"rvs-prox: --log {tmp_path / 'no' / 'run.yaml'}: no folder")

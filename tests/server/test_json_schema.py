@@ -138,8 +138,8 @@ GOOD_AND_BAD = [
                  {"module": "RVS", "status": "ERROR", "message": "m"}, id="error-without-code"),
     pytest.param({"module": "EGP-RVS-VERSION", "status": "OK", "protocol": 1},
                  {"module": "EGP-RVS-VERSION", "status": "OK", "protocol": 1, "protocl": 1}, id="undeclared-key"),
-    pytest.param({"module": "EGP-RVS-CONFIG", "status": "OK", "name": "ground_align", "settings": {"height": False}},
-                 {"module": "EGP-RVS-CONFIG", "status": "OK", "name": "ground_align", "height": False},
+    pytest.param({"module": "EGP-RVS-CONFIG", "status": "OK", "module_name": "ground_align", "settings": {"height": False}},
+                 {"module": "EGP-RVS-CONFIG", "status": "OK", "module_name": "ground_align", "height": False},
                  id="setting-as-reply-key"),
 ]
 
@@ -237,7 +237,7 @@ def test_lists_are_arrays_and_config_settings_one_object(server: ServerThread, j
     assert reset["checked"] == [f"{d.split(':')[0]}:ok" for d in status["devices"]]
     # a module's settings keep the module's types (ground-align's height is a flag, a reply's a length)
     cfg = jclient.request("config -module ground_align")
-    assert cfg["name"] == "ground_align" and cfg["settings"]["height"] is False
+    assert cfg["module_name"] == "ground_align" and cfg["settings"]["height"] is False
     cfg = jclient.request("config -module drivers")
     assert cfg["settings"]["ptu"]["backend"] == "sim"
     assert text.request("config -module drivers").fields["ptu_backend"] == "sim"  # text spreads them

@@ -34,6 +34,15 @@ def test_greeting_help_and_typo(client: LineClient) -> None:
     assert "did you mean status" in r.fields["message"]
 
 
+def test_unknown_command_is_quoted_as_sent(client: LineClient) -> None:
+    """The echo is what the client wrote, case and all (names are looked up case-insensitively)."""
+    r = client.request("FOO -x 1")
+    assert (r.fields["code"], r.fields["message"]) == ("E_UNKNOWN", "unknown command 'FOO'; try help")
+    r = client.request("@t3 STAUTS")
+    assert r.tag == "t3" and r.fields["message"] == "unknown command 'STAUTS'; did you mean status?"
+    assert client.request("STATUS").module == "EGP-RVS-STATUS"
+
+
 def test_help_for_a_command_comes_from_its_declaration(client: LineClient) -> None:
     r = client.request("help EGP-RVS-SLEEP")
     assert r.fields["command"] == "sleep" and r.fields["kind"] == "job"
@@ -231,7 +240,7 @@ def test_auth_token(server_factory) -> None:
 
 def test_config_show_set_and_protected(client: LineClient) -> None:
     r = client.request("config -module EGP-RVS-SLEEP")
-    assert r.fields == {"name": "sleep", "seconds": "10"}
+    assert r.fields == {"module_name": "sleep", "seconds": "10"}
     assert client.request("config -module sleep -set seconds=0.25").fields["seconds"] == "0.25"
     ok = client.request("sleep")
     assert 0.2 <= float(ok.fields["slept"]) < 5

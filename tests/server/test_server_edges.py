@@ -168,6 +168,40 @@ def test_ctrl_c_stops_the_server_at_once_while_the_kernels_compile(tmp_path: Pat
     assert "stopping" in err and "SIGINT" in err, err  # the operator is told
 
 
+def test_ctrl_c_with_foxglove_and_a_recording_shuts_down_cleanly_and_ends_the_process(tmp_path: Path) -> None:
+    """The server as an operator runs it (Foxglove on, a recording going): Ctrl-C finishes the
+    recording, closes everything, says so in its last log line and ends the process, status 0.
+    (What it costs is measured in the commit: 1.7-2.7 s at load 14 before, 0.16-0.36 s after.)"""
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "rvs_server", "--port", "0", "--data", str(tmp_path / "d"), "--web-port", "0",
+         "--foxglove-port", str(free_port())],
+        stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, cwd=ROOT,
+    )
+    try:
+        assert proc.stderr is not None
+        first = proc.stderr.readline()
+        assert "listening" in first, first
+        with LineClient(int(first.split("port=")[1].split()[0])) as c:
+            assert c.request("status").fields["foxglove"] == "on"
+            r = c.request("record -start -name run", timeout=60)
+            assert r.status == "OK", r.fields
+            assert c.request("sim truth").status == "OK"
+            proc.send_signal(signal.SIGINT)
+            status = proc.wait(60)  # a safety net, not a speed bound
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    err = proc.stderr.read()
+    assert status == 0, err
+    assert "Traceback" not in err, err
+    lines = [line for line in err.splitlines() if line.strip()]
+    assert any("recording_stopped" in line and "run" in line for line in lines), err
+    assert "stopped " in lines[-1] and "[rvs.server]" in lines[-1] and "seconds=" in lines[-1], lines[-3:]
+    recordings = list((tmp_path / "d").rglob("run*.mcap"))
+    assert len(recordings) == 1 and recordings[0].stat().st_size > 1000, recordings
+
+
 # ---------------------------------------------------------------------- protocol corners
 
 
@@ -201,7 +235,7 @@ def test_control_characters_from_the_client_are_shown_not_sent(client: LineClien
     line = client.raw_line()
     assert not any(b < 0x20 for b in line.rstrip(b"\r\n")), line
     r = parse_reply(line.decode())
-    assert r.fields["code"] == "E_UNKNOWN" and "'^L^G^@^[[2j'" in r.fields["message"], r
+    assert r.fields["code"] == "E_UNKNOWN" and "'^L^G^@^[[2J'" in r.fields["message"], r
     client.send(b"sleep -seconds 1\x07\x7f")  # a bad option value, quoted back
     r = parse_reply(client.raw_line().decode())
     assert r.fields["code"] == "E_ARG" and "1^G^?" in r.fields["message"], r

@@ -11,7 +11,7 @@ are tight. Per scene and per way of looking, this prints:
 - **fuse ms** p50: one ToF frame into the bounds map, against the rolling map's fuse of the same
   frame (ratio);
 - **bounded**: cells with an upper bound, and how many of them only by a ray passing over;
-- **vehicle check**: the worst-case wheel, belly and tilt check on the bounds at poses over the
+- **vehicle check**: the worst-case check of the four limits on the bounds at poses over the
   ground ahead, against the same check on the true 1 cm surface: poses it can judge (the others
   cover unseen ground), poses it calls safe that are not (must be 0), and the share of truly safe
   judged poses it still calls safe (what the rover may plan through).
@@ -220,7 +220,8 @@ def sim_row(scene: str, look: str, k: float, seed: int = 0, body: RoverBody | No
         "bounded": int(seen.sum() + ceiling_only.sum()), "ceiling_only": int(ceiling_only.sum()),
         "poses": len(poses), "judged": int(judged.sum()), "false_safe": int((on_truth.unsafe & on_bounds.safe).sum()),
         "safe_kept": float(on_bounds.safe[truly_safe].mean()) if truly_safe.any() else float("nan"),
-        # why the truly safe poses the bounds refuse are refused: wheel, belly, tilt (a pose may have several)
+        "truly_safe": int(truly_safe.sum()),
+        # why the truly safe poses the bounds refuse are refused: step, belly, stability, grade (a pose may have several)
         "refused_by": [int(n) for n in (on_bounds.excess[truly_safe & on_bounds.unsafe] > 0).sum(axis=0)],
     }
 
@@ -371,13 +372,13 @@ def motorcycle_row(k: float) -> dict[str, Any] | None:
             "over_p99": float(np.percentile(upper[seen] - top[seen], 99)),
             "mean_low_p99": float("nan"), "fuse_ms": fuse_ms, "rolling_ms": float("nan"),
             "bounded": int(seen.sum()), "ceiling_only": 0, "poses": 0, "judged": 0, "false_safe": 0,
-            "safe_kept": float("nan"), "refused_by": None}
+            "safe_kept": float("nan"), "truly_safe": 0, "refused_by": None}
 
 
 def print_rows(rows: list[dict[str, Any]]) -> None:
     print("| scene | look | k | frames | held | held (ray only) | upper - top p50 / p99 (cm) | 5 cm mean read low p99 (cm) "
           "| fuse ms (rolling map; ratio) | bounded (ray only) | vehicle check: judged / false safe / truly safe kept "
-          "| truly safe refused by wheel / belly / tilt |")
+          "(of) | truly safe refused by step / belly / stability / grade |")
     print("|---|---|---|---|---|---|---|---|---|---|---|---|")
     for r in rows:
         ratio = r["fuse_ms"] / r["rolling_ms"] if r["rolling_ms"] == r["rolling_ms"] else float("nan")
@@ -385,7 +386,7 @@ def print_rows(rows: list[dict[str, Any]]) -> None:
               f"| {100 * r['held_ceiling']:.2f} % | {100 * r['over_p50']:.1f} / {100 * r['over_p99']:.1f} "
               f"| {100 * r['mean_low_p99']:.1f} | {r['fuse_ms']:.1f} ({r['rolling_ms']:.1f}; {ratio:.2f}) "
               f"| {r['bounded']} ({r['ceiling_only']}) | {r['judged']}/{r['poses']} / {r['false_safe']} "
-              f"/ {100 * r['safe_kept']:.1f} % | {' / '.join(map(str, r['refused_by'] or ['-']))} |")
+              f"/ {100 * r['safe_kept']:.1f} % ({r['truly_safe']}) | {' / '.join(map(str, r['refused_by'] or ['-']))} |")
 
 
 def main(argv: list[str] | None = None) -> None:

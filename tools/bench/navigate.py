@@ -5,10 +5,11 @@ judged by the vehicle itself (docs/NAVIGATE_BENCH.md).
 The yardstick is the rover's own body (``drivers.sim.rover.RoverBody``, declared in the scene's
 ``rover: body:`` block): at every true pose of the track (the simulator's truth, interpolated to
 2 cm, turns on the spot included, headings from the track's ``heading`` column), on the
-simulator's 1 cm surface, :mod:`prox_workflows.algorithms.vehicle` checks each wheel's relief against
-the climb limit, the ground under the belly against its clearance and the tilt against its limit.
-Consecutive unsafe poses are one **event**, with its kind and worst excess; one event fails the
-mission. A mission is **feasible** when a perfect-knowledge plan (navigate's planner and
+simulator's 1 cm surface, :mod:`prox_workflows.algorithms.vehicle` checks the four physical limits:
+each wheel's step edge against the climb, the ground under the belly against its clearance, the
+resting plane's tilt against the tip-over angle over the safety factor (stability) and the plane
+fitted under the body against the grade. Consecutive unsafe poses are one **event**, with its kind,
+worst excess and severity band; one event fails the mission. A mission is **feasible** when a perfect-knowledge plan (navigate's planner and
 footprint, on the true 1 cm surface's hazard map, thresholds at the body's capability) reaches the
 goal and passes the same check. Per mission: events, reached, the stop's reason when the rover
 halted by itself (a **safe stop**: not reached, no event), efficiency beside the perfect-knowledge
@@ -146,7 +147,7 @@ def run_mission(scene: str, mode: str, start: tuple[float, float], goal: tuple[f
             body = world.body
             surface = truth_surface(world, scene)
             events, checked = vehicle_check(poses, surface, body)
-            out["events"] = [{"kind": e.kind, "excess": e.excess, "x": round(e.x, 2), "y": round(e.y, 2),
+            out["events"] = [{"kind": e.kind, "excess": e.excess, "band": e.band, "x": round(e.x, 2), "y": round(e.y, 2),
                               "heading": round(e.heading, 1)} for e in events]
             out["poses_checked"] = checked
             if not out["reached"] and not events:
@@ -207,6 +208,7 @@ def summarise(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
                  "progress_best": round(float(max(r["distance"] - r["true_miss"] for r in sel)), 2),
                  "events_per_kind": {k: sum(1 for e in events if e["kind"].split()[0] == k) for k in worst},
                  "worst_excess": worst,
+                 "events_per_band": dict(Counter(e.get("band", "?") for e in events)),
                  "safe_stops": sum(1 for r in sel if "safe_stop" in r),
                  "stop_reasons": dict(Counter(r["safe_stop"] for r in sel if "safe_stop" in r)),
                  "efficiency_reached": round(float(np.mean([r["efficiency"] for r in ok])), 3) if ok else None,
@@ -376,7 +378,7 @@ def margin_table(budget: list[dict[str, Any]], rows: list[dict[str, Any]], body:
             left = cap["step_max"] - b["read_low_p99"]
             lines.append(f"  {b['scene']}: ToF read-low p99 at 5 cm {b['read_low_p99']:.3f} m -> step threshold "
                          + (f"{left:.3f} m" if left > 0 else "none left"))
-    lines.append(f"tilt capability {body.tilt:.1f} deg -> slope threshold {body.tilt:.1f} deg (today 20.0; the slope's "
+    lines.append(f"grade capability {body.grade:.1f} deg -> slope threshold {body.grade:.1f} deg (today 20.0; the slope's "
                  "read error is not measured)")
     track = [r["cross_track_p99"] for r in rows if "cross_track_p99" in r]
     lines.append(f"path tracking p99 (worst of {len(track)} missions) "
@@ -398,7 +400,7 @@ def print_summary(summary: list[dict[str, Any]]) -> None:
     print("\nscene     mode missions feasible reached(of feasible) failed events(worst excess)              safe stops "
           "efficiency(reached/perfect same) crossing(old, missions/cells) tracking_p99 scans sim_s wall_s cycle_ms")
     for s in summary:
-        worst = ", ".join(f"{k} {v * 100:.1f} cm" if k != "tilt" else f"tilt {v:.1f} deg"
+        worst = ", ".join(f"{k} {v * 100:.1f} cm" if k in ("step", "belly") else f"{k} {v:.1f} deg"
                           for k, v in s["worst_excess"].items()) or "-"
         eff = (f"{s['efficiency_reached']:.3f}/{s['perfect_efficiency_same']:.3f}"
                if s["efficiency_reached"] is not None else "-")

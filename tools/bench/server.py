@@ -16,6 +16,9 @@ job kinds, with the simulated devices at time_scale 0 so that they compute rathe
   rolling, D* Lite replans and repairs, the rolling map).
 - ``check-move``: the help's extremes (``-dx 50 -dy 50`` ...) back to back on 1000 x 1000
   maps of 2 and 5 cm cells.
+- ``sim-drive``: a 10 s ``sim drive`` in real time (sim.time_scale 1 for it): the rover a GNC
+  polls status about, driving.
+- ``grab-stereo``: three stereo pairs grabbed back to back (renders, trigger, TIFFs).
 
 Each kind runs with the machine as it is (``quiet``: note the load average printed with each
 run) and with a busy-loop process keeping one core busy (``busy``); ``--repeat`` runs every row
@@ -318,6 +321,26 @@ def _job(line: str) -> Callable[[Control, Any], str]:
     return run
 
 
+def _jobs(line: str, times: int) -> Callable[[Control, Any], str]:
+    """``line`` ``times`` times back to back (a job too short to poll through alone)."""
+    def run(ctl: Control, app: Any) -> str:
+        t0, statuses = time.perf_counter(), []
+        for i in range(times):
+            statuses.append(ctl.request(line.format(i=i)).status)
+        return f"{times} x {' '.join(sorted(set(statuses)))} in {time.perf_counter() - t0:.1f} s"
+    return run
+
+
+def _drive(ctl: Control, app: Any) -> str:
+    """``sim drive`` in real time (time_scale 1: the drive model stepping and the pose published
+    as a rover's drive takes, not computed at once as at time_scale 0), then time_scale 0 again."""
+    ctl.request("config -module sim -set time_scale=1")
+    try:
+        return _job("sim drive -v 0.2 -w 3 -seconds 10")(ctl, app)
+    finally:
+        ctl.request("config -module sim -set time_scale=0")
+
+
 CHECK_MOVE_EXTREMES = ("-dx 50 -dy 50", "-dx -50 -dy 50 -dyaw 360", "-dyaw 360", "-to 150,150")
 
 
@@ -355,6 +378,10 @@ def kinds(seconds: float) -> dict[str, Kind]:
                               f"-goal {NAV_GOAL[0]},{NAV_GOAL[1]} -auto -loop see -name bench_nav -max-legs 30"),
              setup=["sim scene marsyard"]),
         Kind("check-move", lambda c, a: _check_move(c, a, seconds)),
+        # what a GNC polls status through: its rover driving (the simulated drive model, in real
+        # time) and the mast's stereo pair grabbed (two 1920 x 1080 renders, the trigger, the TIFFs)
+        Kind("sim-drive", _drive, setup=office),
+        Kind("grab-stereo", _jobs("grab-stereo -output bench_pair_{i}", 3), setup=office),
     ]}
 
 

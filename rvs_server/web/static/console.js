@@ -19,6 +19,13 @@ const COLOUR = {
 };
 const HISTORY_KEY = "rvs.commands";
 const HISTORY_MAX = 100;
+// The token a page was unlocked with, kept for its reloads and reconnects (each new WebSocket is
+// a new connection the server asks it of). sessionStorage, not localStorage: it stays with this
+// tab and goes when the tab closes, so the key to driving the rover is not left on the disk
+// for whoever opens the browser next, nor given to every tab opened later.
+const TOKEN_KEY = "rvs.token";
+// A request line's own tag: "@tag command ...", as the server parses it.
+const TAGGED = /^@(\S+)\s/;
 
 const S = {
   state: null,          // the last state snapshot
@@ -29,12 +36,14 @@ const S = {
   opacity: {},          // name -> 0..1
   plan: [],             // waypoints [[x, y, heading], ...] of the last navigate leg
   hazards: [],          // hazard events with a position
-  check: null,          // the last check-move: {from, to, verdict}
+  labels: [],           // the map's mark labels as placed: [{text, x, y, w, h}] (screen px)
   authed: false,
+  authing: false,       // the stored token is being sent again (no unlock panel meanwhile)
   tagN: 0,
   pending: {},          // tag -> {onFinal}
   progress: null,       // the last PROGRESS fields
-  phase: null,          // {key, t, done}: when the current phase was first seen (server time)
+  bar: null,            // the running job's progress as a whole (jobBar)
+  resultJob: null,      // the job whose final line the result box shows
   clock: 0,             // server time minus this page's time, seconds
   view: { cx: 0, cy: 0, scale: 60 },
   fitted: false,
@@ -63,6 +72,8 @@ function connect() {
     S.authed = false;
     $("layers").dataset.names = "(reconnected)";
     setLink(true);
+    const token = storedToken();
+    if (token) authenticate(token);
   };
   ws.onclose = () => { setLink(false); setTimeout(connect, 1500); };
   ws.onmessage = (ev) => {
@@ -87,11 +98,32 @@ function setLink(up) {
   draw();
 }
 
+// A line the operator tagged keeps that tag (the server answers under it, and only this page
+// gets the answer); any other line gets one of the page's own.
 function send(line, handlers) {
   if (!ws || ws.readyState !== WebSocket.OPEN) { showResult("not connected: the server is offline", true); return; }
-  const tag = `w${PAGE}-${++S.tagN}`;
+  const own = TAGGED.exec(line);
+  const tag = own ? own[1] : `w${PAGE}-${++S.tagN}`;
   S.pending[tag] = handlers || {};
-  ws.send(JSON.stringify({ line: "@" + tag + " " + line }));
+  ws.send(JSON.stringify({ line: own ? line : "@" + tag + " " + line }));
+}
+
+function storedToken() {
+  try { return sessionStorage.getItem(TOKEN_KEY) || ""; } catch (e) { return ""; }
+}
+
+function authenticate(token) {
+  S.authing = true;
+  send(`auth -token ${token}`, { onFinal: (r) => {
+    S.authing = false;
+    S.authed = r.status === "OK";
+    try {
+      if (S.authed) sessionStorage.setItem(TOKEN_KEY, token);
+      else sessionStorage.removeItem(TOKEN_KEY);  // refused (the server's token changed): ask again
+    } catch (e) { /* storage off: unlocked until the page reloads */ }
+    if (S.authed) $("token").value = "";
+    if (S.state) onState(S.state);
+  } });
 }
 
 function canAct() {
@@ -103,34 +135,51 @@ function canAct() {
 function onReply(m, past) {
   const r = m.reply;
   if (!past && typeof m.t === "number") S.clock = m.t - Date.now() / 1000;
-  logLine(m.text, r.status, m.own, m.t, past);
+  // the greeting and PROGRESS (the bar shows it) are no news to count on the Events tab
+  logLine(m.text, r.status, m.own, m.t, past, !past && r.status !== "PROGRESS" && r.kind !== "hello");
   if (r.status === "PROGRESS") {
     S.progress = r;
-    const key = `${r.job}/${r.leg || ""}/${r.phase || ""}`;
-    if (!S.phase || S.phase.key !== key) S.phase = { key, t: m.t, done: r.done };
+    jobBar(r);
     showProgress();
-  } else if (r.status === "ACK" && r.module === "EGP-RVS-NAVIGATE" && !past) {
-    S.plan = [];  // a new navigate, whoever sent it: the old plan goes once the server took it
-    draw();
+  } else if (r.status === "ACK" && !past) {
+    // a new job, whoever started it: the result box's last job line is the previous job's
+    if (S.resultJob !== null && S.resultJob !== r.job) markPrevious();
+    if (m.own && r.tag in S.pending) {
+      S.pending[r.tag].job = r.job;  // its final line is that job's result
+      showResult(m.text, false);
+    }
+    if (r.module === "EGP-RVS-NAVIGATE") {
+      S.plan = [];  // the old plan goes once the server took the new goal
+      draw();
+    }
   } else if (r.status === "EVENT") {
     if (r.kind === "mode" && !past) setMode(r.mode);
     if (r.kind === "waiting" && Array.isArray(r.waypoints)) S.plan = r.waypoints;
     if (r.kind === "hazard" && typeof r.x === "number") S.hazards.push({ x: r.x, y: r.y, level: r.level });
     draw();
-  } else if (!past && m.own && r.tag !== undefined && r.tag in S.pending) {
-    // only this page's own lines answer its requests (m.own): another's job may use any tag
-    const handlers = S.pending[r.tag];
-    if (r.status === "OK" || r.status === "ERROR") {
-      delete S.pending[r.tag];
+  } else if (!past && m.own && (r.status === "OK" || r.status === "ERROR")) {
+    // only this page's own lines answer its requests (m.own): another's job may use any tag;
+    // an answer with no tag (a line whose tag the server could not read) is this page's too
+    const handlers = r.tag !== undefined ? S.pending[r.tag] : {};
+    if (handlers) {
+      if (r.tag !== undefined) delete S.pending[r.tag];
       showResult(m.text, r.status === "ERROR");
+      S.resultJob = handlers.job !== undefined ? handlers.job : null;
       if (handlers.onFinal) handlers.onFinal(r);
     }
   }
   if ((r.status === "OK" || r.status === "ERROR") && r.job !== undefined && r.module !== "EGP-RVS-STATUS" && !past) {
     S.progress = null;
-    S.phase = null;
+    S.bar = null;
   }
   showProgress();
+}
+
+function markPrevious() {
+  const el = $("result");
+  if (!el.textContent || el.classList.contains("previous")) return;
+  el.classList.add("previous");
+  el.dataset.previous = `previous job ${S.resultJob}:`;
 }
 
 function onHistory(lines) {
@@ -146,7 +195,7 @@ function clockText(t) {
   return d.toTimeString().slice(0, 8);
 }
 
-function logLine(text, status, own, t, past) {
+function logLine(text, status, own, t, past, news) {
   const li = document.createElement("li");
   const time = document.createElement("time");
   time.textContent = clockText(t);
@@ -158,12 +207,20 @@ function logLine(text, status, own, t, past) {
   log.appendChild(li);
   while (log.children.length > 600) log.removeChild(log.firstChild);
   if (atEnd || past) log.scrollTop = log.scrollHeight;
+  if (news && $("pane-events").hidden) {  // lines not seen yet: counted on the tab
+    const unread = $("tab-events").querySelector(".unread");
+    unread.textContent = String((+unread.textContent || 0) + 1);
+    unread.hidden = false;
+    if (status === "ERROR") unread.classList.add("error");
+  }
 }
 
 function showResult(text, error) {
   const el = $("result");
   el.textContent = text;
   el.className = error ? "error" : "";
+  delete el.dataset.previous;
+  S.resultJob = null;
 }
 
 function setMode(mode) {
@@ -178,6 +235,38 @@ function seconds(s) {
   return s >= 60 ? `${Math.floor(s / 60)} min ${String(s % 60).padStart(2, "0")} s` : `${s} s`;
 }
 
+// The bar is the job's, not its phase's: a job reports a count per phase (docs/PROTOCOL.md), so
+// each phase gets a share of what is left of the bar when it starts, its weight against the
+// phases that follow it in its job, and fills that share as its count grows. The bar never goes
+// back; a phase that ends early leaves its share filled. Weights: the share of a DEM's time
+// each phase took (dem-full-tof of 18 views, drivers.ptu.time_scale=0.5: pointing 0.06 s,
+// acquire 8.8 s, process 8.7 s, write 1.2 s); a navigate leg scans as a DEM, then plans and
+// drives (its drive lasts as long as the GNC takes: a guess), and keeps a leg's weight in
+// reserve for the next leg. A job of one count (move-ptu) or of phases not listed fills the
+// whole bar with its count.
+const DEM_PHASES = [["pointing", 0.3], ["acquire", 47], ["process", 46], ["write", 6]];
+const LEG_PHASES = [...DEM_PHASES, ["plan", 5], ["drive", 40], ["stop", 1]];
+
+function jobBar(r) {
+  let b = S.bar;
+  if (!b || b.job !== r.job) b = S.bar = { job: r.job, key: null, f0: 0, span: 1, fraction: 0 };
+  const key = `${r.leg || ""}/${r.phase || ""}`;
+  if (b.key !== key) {
+    if (b.key !== null) b.f0 += b.span;  // the phase before is over
+    b.key = key;
+    const order = r.leg !== undefined ? LEG_PHASES : DEM_PHASES;
+    const at = order.findIndex(([name]) => name === (r.phase || ""));
+    if (at < 0) b.span = 1 - b.f0;
+    else {
+      const after = order.slice(at + 1).reduce((sum, [, w]) => sum + w, 0);
+      const reserve = r.leg !== undefined ? LEG_PHASES.reduce((sum, [, w]) => sum + w, 0) : 0;
+      b.span = ((1 - b.f0) * order[at][1]) / (order[at][1] + after + reserve);
+    }
+  }
+  const within = r.total > 0 ? Math.min(1, r.done / r.total) : 0;
+  b.fraction = Math.max(b.fraction, Math.min(1, b.f0 + b.span * within));
+}
+
 function showProgress() {
   const job = S.online && S.state && S.state.job;
   const p = S.progress;
@@ -186,21 +275,23 @@ function showProgress() {
     done = p.done; total = p.total; phase = p.phase || ""; message = p.message || "";
   } else if (job) {
     done = job.done; total = job.total; phase = job.phase || "";
+    if (total > 0) jobBar({ job: job.id, phase, done, total });  // a page opened while the job ran
   }
+  const fraction = job && S.bar && S.bar.job === job.id ? S.bar.fraction : null;
   $("job").textContent = job ? `${job.command} (job ${job.id})` : "none";
-  $("bar-fill").style.width = total > 0 ? `${Math.min(100, (100 * done) / total).toFixed(1)}%` : (job ? "3%" : "0");
+  $("bar-fill").style.width = fraction !== null ? `${(100 * fraction).toFixed(1)}%` : (job ? "3%" : "0");
+  $("bar-fill").dataset.fraction = fraction !== null ? fraction.toFixed(4) : "";
   $("phase").textContent = job ? `${phase ? phase + " " : ""}${done}/${total} ${message}` : "";
-  $("times").textContent = job ? jobTimes(job, done, total, phase) : "";
+  $("times").textContent = job ? jobTimes(job, fraction) : "";
 }
 
-function jobTimes(job, done, total, phase) {
+// The estimate is the job's: the time it has taken so far against how much of the bar it filled.
+function jobTimes(job, fraction) {
   // the server's clock for both ends: the page's clock may be off
-  const now = Date.now() / 1000 + S.clock;
-  let text = `elapsed ${seconds(now - job.started)}`;
-  const ph = S.phase;
-  if (ph && total > 0 && done > ph.done && done < total) {
-    const rate = (now - ph.t) / (done - ph.done);
-    text += ` · ${phase || "this phase"}: about ${seconds(rate * (total - done))} left`;
+  const elapsed = Date.now() / 1000 + S.clock - job.started;
+  let text = `elapsed ${seconds(elapsed)}`;
+  if (fraction !== null && fraction >= 0.02 && fraction < 1 && elapsed >= 1) {
+    text += ` · about ${seconds((elapsed * (1 - fraction)) / fraction)} left`;
   }
   return text;
 }
@@ -214,7 +305,8 @@ function onState(st) {
   $("server").textContent = st.server + (st.scene ? ` · scene ${st.scene}` : "");
   setMode(st.mode);
   $("devices").textContent = Object.entries(st.devices).map(([k, v]) => `${k}:${v}`).join(" ");
-  $("auth").hidden = !st.token || S.authed;
+  $("auth").hidden = !st.token || S.authed || S.authing;
+  $("open-commands").textContent = (st.open_commands || []).join(", ");
   document.querySelectorAll(".simonly").forEach((el) => { el.hidden = !st.truth; });
   const p = st.pose;
   let pose = `pose x ${p.x.toFixed(2)} y ${p.y.toFixed(2)} heading ${p.heading.toFixed(1)}°`;
@@ -243,7 +335,7 @@ function updateButtons() {
   set("btn-reset", can && !job, lock || "a job runs: break it first");
   set("go-nav", can && mode === "ready", lock || `mode ${mode}: navigate needs ready`);
   set("go-check", can && !!(st && st.maps && st.maps.traversability), lock || "no traversability map yet");
-  // the command line stays open while locked: help, status and auth need no token
+  // the command line stays open while locked: the server answers its open commands (auth among them)
   set("cmd-go", S.online, "the server is offline");
   set("auth-go", S.online, "the server is offline");
   $("cmd").disabled = !S.online;
@@ -330,7 +422,7 @@ function loadLayer(name) {
       drawLegend();
     };
     img.src = URL.createObjectURL(blob);
-  }).catch((err) => { l.loading = null; logLine(`layer ${name}: ${err}`, "ERROR", false); });
+  }).catch((err) => { l.loading = null; logLine(`layer ${name}: ${err}`, "ERROR", false, undefined, false, true); });
 }
 
 function updateProducts(products) {
@@ -384,7 +476,7 @@ function updateCameras() {
       setCaption(fig, c.label, `no frame yet: ${c.hint}`);
       continue;
     }
-    if (!$("cameras").open || !S.online || cam.v === c.v || cam.loading || Date.now() - cam.at < CAMERA_EVERY_MS) continue;
+    if (!camerasShown() || !S.online || cam.v === c.v || cam.loading || Date.now() - cam.at < CAMERA_EVERY_MS) continue;
     loadCamera(c, cam, fig);
   }
 }
@@ -420,20 +512,45 @@ function loadCamera(c, cam, fig) {
   }).catch((err) => { cam.loading = false; setCaption(fig, c.label, `unavailable: ${err.message}`); });
 }
 
-$("cameras").addEventListener("toggle", updateCameras);
+function camerasShown() {
+  return !$("pane-cameras").hidden;
+}
+
 // a frame newer than the one shown may have come within the last second: look again
-setInterval(() => { if ($("cameras").open) updateCameras(); }, CAMERA_EVERY_MS);
+setInterval(() => { if (camerasShown()) updateCameras(); }, CAMERA_EVERY_MS);
+
+// ------------------------------------------------------------------------------ tabs
+
+// Job and Actions stay in sight; the rest is one tab at a time, each a click away.
+function showTab(name) {
+  for (const tab of document.querySelectorAll("#tabs [role=tab]")) {
+    const on = tab.dataset.tab === name;
+    tab.setAttribute("aria-selected", String(on));
+    $(`pane-${tab.dataset.tab}`).hidden = !on;
+  }
+  if (name === "events") {
+    const unread = $("tab-events").querySelector(".unread");
+    unread.hidden = true;
+    unread.textContent = "";
+    unread.classList.remove("error");
+    $("log").scrollTop = $("log").scrollHeight;
+  }
+  if (name === "cameras") updateCameras();
+}
+for (const tab of document.querySelectorAll("#tabs [role=tab]")) tab.onclick = () => showTab(tab.dataset.tab);
 
 // One legend per visible layer, top first, as the layers list.
 function drawLegend() {
   const el = $("legend");
   const names = Object.keys(S.layers).filter((n) => S.visible[n] && S.layers[n].legend).reverse();
-  el.hidden = !S.online || !names.length;
+  const hidden = !S.online || !names.length;
   const key = names.map((n) => `${n}@${S.layers[n].url}`).join(",");
-  if (el.dataset.key === key) return;  // the state comes 5 times a second: rebuild only on change
+  if (el.dataset.key === key && el.hidden === hidden) return;  // the state comes 5 times a second: rebuild only on change
+  el.hidden = hidden;
   el.dataset.key = key;
   el.textContent = "";
   for (const name of names) el.appendChild(legendOf(name, S.layers[name]));
+  draw();  // the legend's strip took its height from the map's (a resized canvas is blank)
 }
 
 function legendOf(name, layer) {
@@ -592,13 +709,15 @@ function draw() {
   drawLayers();
   drawGrid(w, h);
   const st = S.state;
+  marks = [];
   if (st) {
-    if (S.check && $("show-check").checked) {
-      const colour = COLOUR.check[S.check.verdict] || COLOUR.checkOther;
-      polyline([S.check.from, S.check.to], colour, 2, [2, 4]);
-      dot(S.check.to[0], S.check.to[1], 4, colour);
-      const [px, py] = toScreen(S.check.to[0], S.check.to[1]);
-      label(`check: ${S.check.verdict}`, px + 8, py + 16, colour);
+    const check = st.check;  // the last check-move, whoever asked: every page draws it
+    if (check && $("show-check").checked) {
+      const colour = COLOUR.check[check.verdict] || COLOUR.checkOther;
+      polyline([check.from, check.to], colour, 2, [2, 4]);
+      dot(check.to[0], check.to[1], 4, colour);
+      const [px, py] = toScreen(check.to[0], check.to[1]);
+      mark(`check: ${check.verdict}`, px, py, colour);
     }
     if ($("show-plan").checked && S.plan.length) {
       polyline(S.plan, COLOUR.plan, 2.5, [8, 4]);
@@ -610,6 +729,7 @@ function draw() {
     if (st.truth && Math.hypot(st.truth.x - st.pose.x, st.truth.y - st.pose.y) > 0.05) rover(st.truth, st, true);
     rover(st.pose, st, false);
   }
+  placeMarks(st, w, h);
   if (S.click) dot(S.click[0], S.click[1], 5, "#7d3cff");
   drawMeasure();
   drawScale(w, h);
@@ -635,7 +755,7 @@ function drawGoal() {
   ctx.arc(px, py, Math.max(3, g.tolerance * S.view.scale), 0, 2 * Math.PI);
   ctx.stroke();
   ctx.restore();
-  label("goal", px + 10, py - 8, COLOUR.goal);
+  mark("goal", px, py, COLOUR.goal);
   const end = S.plan.length ? S.plan[S.plan.length - 1] : null;
   if (end && Math.hypot(end[0] - g.x, end[1] - g.y) > 0.05) {
     const [ex, ey] = toScreen(end[0], end[1]);
@@ -646,7 +766,7 @@ function drawGoal() {
     ctx.arc(ex, ey, 7, 0, 2 * Math.PI);
     ctx.stroke();
     ctx.restore();
-    label("planned end", ex + 10, ey + 4, COLOUR.plan);
+    mark("planned end", ex, ey, COLOUR.plan);
   }
 }
 
@@ -730,7 +850,72 @@ function rover(pose, st, ghost) {
     ctx.stroke();
   }
   ctx.restore();
-  if (ghost) label("simulator truth", px + 10, py + 16, "#555");
+  if (ghost) mark("simulator truth", px, py, "#555");
+}
+
+// The labels of the map's marks (goal, check-move, planned end, simulator truth) are placed
+// after everything is drawn, each where it covers neither the rover nor another label: the
+// first free place on rings round the point it names, nearest first.
+let marks = [];
+const LABEL_H = 14;
+
+function mark(text, px, py, colour) {
+  marks.push({ text, px, py, colour });
+}
+
+// The screen box of the rover's body and forward arrow.
+function roverBox(pose, st) {
+  const hd = (pose.heading * Math.PI) / 180, [px, py] = toScreen(pose.x, pose.y);
+  const L = st.rover.length * S.view.scale, W = st.rover.width * S.view.scale;
+  const c = Math.cos(hd), s = Math.sin(hd);
+  const pts = [[-L / 2, -W / 2], [L / 2, -W / 2], [L / 2, W / 2], [-L / 2, W / 2], [L / 2 + 14, 0]]
+    .map(([u, v]) => [px + u * c - v * s, py - (u * s + v * c)]);
+  const xs = pts.map((p) => p[0]), ys = pts.map((p) => p[1]);
+  return { x: Math.min(...xs) - 2, y: Math.min(...ys) - 2, w: Math.max(...xs) - Math.min(...xs) + 4,
+           h: Math.max(...ys) - Math.min(...ys) + 4 };
+}
+
+function overlaps(a, b) {
+  return a.x < b.x + b.w && b.x < a.x + a.w && a.y < b.y + b.h && b.y < a.y + a.h;
+}
+
+function placeMarks(st, w, h) {
+  const taken = [];
+  if (st) {
+    taken.push(roverBox(st.pose, st));
+    if (st.truth) taken.push(roverBox(st.truth, st));
+  }
+  ctx.save();
+  ctx.font = "12px system-ui, sans-serif";
+  S.labels = [];
+  for (const m of marks) {
+    const tw = ctx.measureText(m.text).width + 4;
+    let best = null;
+    for (const r of [10, 24, 44, 70, 100, 140, 190]) {
+      for (const [dx, dy] of [[1, -1], [1, 1], [-1, -1], [-1, 1], [0, -1], [0, 1], [1, 0], [-1, 0]]) {
+        const cx = m.px + dx * r, cy = m.py + dy * r;  // the label's nearest corner or edge there
+        const box = { x: dx > 0 ? cx : dx < 0 ? cx - tw : cx - tw / 2,
+                      y: dy > 0 ? cy : dy < 0 ? cy - LABEL_H : cy - LABEL_H / 2, w: tw, h: LABEL_H };
+        const inside = box.x >= 0 && box.y >= 0 && box.x + box.w <= w && box.y + box.h <= h;
+        if (inside && !taken.some((t) => overlaps(t, box))) { best = box; break; }
+        if (!best) best = { ...box, blocked: true };
+      }
+      if (best && !best.blocked) break;
+    }
+    taken.push(best);
+    S.labels.push({ text: m.text, x: best.x, y: best.y, w: best.w, h: best.h });
+    const nx = Math.max(best.x, Math.min(m.px, best.x + best.w)), ny = Math.max(best.y, Math.min(m.py, best.y + best.h));
+    if (Math.hypot(nx - m.px, ny - m.py) > 16) {  // pushed away: a thin line says what it names
+      ctx.strokeStyle = m.colour;
+      ctx.lineWidth = 1;
+      ctx.beginPath();
+      ctx.moveTo(m.px, m.py);
+      ctx.lineTo(nx, ny);
+      ctx.stroke();
+    }
+    label(m.text, best.x + 2, best.y + LABEL_H - 3, m.colour);
+  }
+  ctx.restore();
 }
 
 // Grid lines every nice step; the labels inside the map with a halo, clear of the buttons (left)
@@ -955,11 +1140,16 @@ function openMenu(point, px, py) {
   S.click = point;
   const menu = $("clickmenu");
   menu.hidden = false;
-  menu.style.left = `${Math.max(0, Math.min(px + 12, canvas.clientWidth - 270))}px`;
-  menu.style.top = `${Math.max(0, Math.min(py + 12, canvas.clientHeight - 200))}px`;
   menu.querySelector(".where").textContent = `x ${point[0].toFixed(2)} m, y ${point[1].toFixed(2)} m`;
   menu.querySelector(".cmdline").textContent = navLine();
   updateButtons();
+  // beside the point, but inside the map whatever its size (measured as it is now filled in);
+  // on the far side of the point where there is no room on the near one
+  const mw = menu.offsetWidth, mh = menu.offsetHeight, W = canvas.clientWidth, H = canvas.clientHeight;
+  const left = px + 12 + mw <= W ? px + 12 : px - 12 - mw;
+  const top = py + 12 + mh <= H ? py + 12 : py - 12 - mh;
+  menu.style.left = `${Math.max(0, Math.min(left, W - mw))}px`;
+  menu.style.top = `${Math.max(0, Math.min(top, H - mh))}px`;
   draw();
 }
 
@@ -978,8 +1168,7 @@ $("go-nav").onclick = () => {
   closeMenu();
 };
 $("go-check").onclick = () => {
-  const to = S.click.slice(), st = S.state, from = st ? [st.pose.x, st.pose.y] : [0, 0];
-  send(checkLine(), { onFinal: (r) => { if (r.status === "OK") { S.check = { from, to, verdict: r.verdict }; draw(); } } });
+  send(checkLine());  // its answer comes back in the state, as every other page's check-moves
   closeMenu();
 };
 $("go-cancel").onclick = closeMenu;
@@ -1032,9 +1221,7 @@ $("cmd").addEventListener("keydown", (e) => {
 });
 $("authform").onsubmit = (e) => {
   e.preventDefault();
-  send(`auth -token ${$("token").value}`, { onFinal: (r) => {
-    if (r.status === "OK") { S.authed = true; $("token").value = ""; onState(S.state); }
-  } });
+  authenticate($("token").value);
 };
 window.addEventListener("resize", draw);
 window.addEventListener("keydown", (e) => {

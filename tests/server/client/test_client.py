@@ -306,4 +306,30 @@ def test_a_port_out_of_range_is_one_error_line_not_another_port(port: str, capsy
         with pytest.raises(SystemExit) as exc:
             tool(["--port", port, "-c", "status"] if tool is client.main else ["--port", port, "x.rvs"])
         err = capsys.readouterr().err
-        assert exc.value.code == 2 and "error: argument --port: " in err and "Traceback" not in err
+        assert exc.value.code == 2 and ": argument --port: " in err and "Traceback" not in err and err.count("\n") == 1
+
+
+class _Typed:
+    """readline as the Printer sees it: what the user has typed at the prompt so far."""
+
+    @staticmethod
+    def get_line_buffer() -> str:
+        return "stat"
+
+
+def test_after_ctrl_c_a_jobs_progress_does_not_redraw_the_prompt_under_every_line() -> None:
+    """Ctrl-C stopped the wait for a job and the user is back at the prompt, typing: the job's
+    PROGRESS lines go by without printing (each would redraw ``rvs> `` under it), its final line
+    prints above the prompt once, with what was typed kept."""
+    for bar in (False, True):
+        out = io.StringIO()
+        printer = client.Printer(out, _Typed(), bar=bar)
+        printer.at_prompt = True
+        for done in range(1, 6):
+            printer.reply(Line(f"EGP-RVS-DEM-FULL-TOF PROGRESS job=3 phase=acquire done={done} total=24 "
+                               f"message=\"view {done}/24\""))
+        printer.reply(Line("EGP-RVS-DEM-FULL-TOF OK job=3 dem=dem/x_dem.tif"))
+        text = out.getvalue()
+        assert "PROGRESS" not in text and "view " not in text, text
+        assert text.count(client.PROMPT) == 1, text
+        assert text == f"\r\x1b[2KEGP-RVS-DEM-FULL-TOF OK job=3 dem=dem/x_dem.tif\n{client.PROMPT}stat", text

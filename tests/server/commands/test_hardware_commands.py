@@ -39,7 +39,7 @@ def test_move_ptu_moves_the_sensor_head_in_the_world(hw) -> None:
 def test_move_ptu_arguments(hw) -> None:
     r = hw.request("move-ptu -pan 170")
     assert r.fields["code"] == "E_ARG" and "limits" in r.fields["message"]
-    assert hw.request("move-ptu").fields["code"] == "E_ARG"
+    assert hw.request("move-ptu").status == "OK"  # no axis given: no move (tests/server/test_declared_rules.py)
     assert hw.request("move-ptu -pan east").fields["code"] == "E_ARG"
     assert hw.request("status").fields["mode"] == "ready"  # an argument error is no fault
 

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import asyncio
 import base64
+import contextlib
 import json
 import os
 import socket
@@ -83,6 +84,14 @@ class FoxgloveClient:
             for ch in obj["channels"]:
                 self.channels[ch["topic"]] = ch
 
+    async def advertised(self, *topics: str, timeout: float = 30.0) -> None:
+        """Until every one of ``topics`` is advertised (a channel is, once it has said something)."""
+        async with asyncio.timeout(timeout):
+            while not set(topics) <= set(self.channels):
+                msg = await self.ws.receive()
+                assert msg.type == aiohttp.WSMsgType.TEXT, msg
+                self._text(json.loads(msg.data))
+
     async def subscribe(self, *topics: str) -> None:
         subs = []
         for topic in topics:
@@ -145,9 +154,10 @@ def grid_values(grid: Any) -> np.ndarray:
     return np.flipud(rows)
 
 
-async def connect(port: int) -> tuple[aiohttp.ClientSession, FoxgloveClient]:
+async def connect(port: int, protocols: tuple[str, ...] = (SUBPROTOCOL,)) -> tuple[aiohttp.ClientSession,
+                                                                                 FoxgloveClient]:
     session = aiohttp.ClientSession()
-    ws = await session.ws_connect(f"ws://127.0.0.1:{port}", protocols=[SUBPROTOCOL])
+    ws = await session.ws_connect(f"ws://127.0.0.1:{port}", protocols=protocols)
     client = FoxgloveClient(ws)
     await client.hello()
     return session, client
@@ -159,14 +169,15 @@ def test_foxglove_client_decodes_grid_cloud_and_frames(server_factory: Any) -> N
     c = srv.client()
     status = c.request("status").fields
     assert status["foxglove"] == "on" and status["foxglove_url"] == f"ws://127.0.0.1:{port}", status
+    assert c.request(DEM, timeout=120).status == "OK"  # a channel is advertised once it has said something
 
     async def live() -> dict[str, Any]:
         session, fx = await connect(port)
         try:
             # read-only whoever connects: nothing a client could publish, call or set
             assert not set(fx.info["capabilities"]) & {"clientPublish", "services", "parameters"}, fx.info
-            assert {"/tf", "/rover/pose", "/rover/truth", "/tof/points", "/tof/depth", "/tof/amplitude",
-                    "/stereo/left/compressed", "/nav/plan", "/nav/check_move", "/rvs/log", "/rvs/job"} <= set(fx.channels)
+            await fx.advertised("/tf", "/rover/pose", "/rover/truth", "/tof/points", "/tof/depth", "/tof/amplitude",
+                                "/rvs/log", "/rvs/job", "/map/dem")
             assert not [t for t in fx.channels if t.startswith("/raw/") or t == "/rvs/wire"]  # recordings only
             assert fx.channels["/tof/points"]["schemaName"] == "foxglove.PointCloud"
             await fx.subscribe("/tf", "/tof/points", "/rvs/log")
@@ -177,7 +188,8 @@ def test_foxglove_client_decodes_grid_cloud_and_frames(server_factory: Any) -> N
             assert reply.status == "OK", reply
             st = c.request("status").fields
             await fx.subscribe(*[t for t in fx.channels if t.startswith("/map/")] or ["/map/dem"])
-            return {"cloud": cloud, "tree": fx.trees[t_cloud], "status": st,  # the tree of the cloud's time
+            # the tree of the cloud's time: the newest at its start (the call's state, stamped before it)
+            return {"cloud": cloud, "tree": fx.trees[max(t for t in fx.trees if t <= t_cloud)], "status": st,
                     "dem": (await fx.until("/map/dem"))[1], "latest": (await fx.until("/tf"))[1]}
         finally:
             await fx.ws.close()
@@ -265,10 +277,12 @@ def test_foxglove_client_sees_the_hazcam_frames_and_decodes_their_image_and_poin
     srv = server_factory([f"server.foxglove_port={port}", "drivers.hazcam.cameras=front"])
     hazcam = srv.app.devices.get("hazcam")
     image_topic, points_topic = "/hazcam/front/left/compressed", "/hazcam/front/points"
+    tapped_call(srv.app.bus, hazcam.grab, "front")  # its channels are advertised once it has grabbed
 
     async def live() -> tuple[Any, Any, dict[str, Any]]:
         session, fx = await connect(port)
         try:
+            await fx.advertised(image_topic, points_topic)
             assert fx.channels[image_topic]["schemaName"] == "foxglove.CompressedImage"
             assert fx.channels[points_topic]["schemaName"] == "foxglove.PointCloud"
             await fx.subscribe("/tf", image_topic, points_topic)
@@ -307,3 +321,92 @@ def test_foxglove_client_sees_the_hazcam_frames_and_decodes_their_image_and_poin
     assert len(packed) == len(frame.points) > 10000
     np.testing.assert_array_equal(packed[:, :3], frame.points.astype(np.float32))
     np.testing.assert_array_equal(packed[:, 3], frame.sigma_range.astype(np.float32))
+
+
+def test_a_channel_is_advertised_once_it_has_something_to_say_and_every_one_advertised_carries_messages(
+        server_factory: Any) -> None:
+    port = free_port()
+    srv = server_factory([f"server.foxglove_port={port}"])
+    c = srv.client()
+
+    async def watch() -> tuple[set[str], dict[str, int]]:
+        session, fx = await connect(port)
+        got: dict[str, int] = {}
+        subscribed: set[str] = set()
+
+        async def pump() -> None:  # subscribe to every channel as it is advertised, count its messages
+            while True:
+                new = [t for t in fx.channels if t not in subscribed]
+                if new:
+                    subscribed.update(new)
+                    await fx.subscribe(*new)
+                topic, _, _ = await fx.next(60)
+                got[topic] = got.get(topic, 0) + 1
+
+        task = asyncio.create_task(pump())
+        try:
+            loop = asyncio.get_running_loop()
+            for _ in range(2):  # the second round speaks on the channels the first one had advertised
+                for line in ("grab-tof -output adv -type amplitude", DEM, "check-move -dx 0.5"):
+                    reply = await loop.run_in_executor(None, c.request, line, 120.0)
+                    assert reply.status == "OK", reply
+            with contextlib.suppress(TimeoutError):  # a safety net: the assertion below says what stayed empty
+                async with asyncio.timeout(30):
+                    while not set(fx.channels) <= set(got):
+                        await asyncio.sleep(0.05)
+            return set(fx.channels), got
+        finally:
+            task.cancel()
+            await fx.ws.close()
+            await session.close()
+
+    channels, got = asyncio.run(watch())
+    assert channels <= set(got), channels - set(got)  # nothing advertised stays empty
+    assert {"/tf", "/rover/pose", "/tof/amplitude", "/tof/points", "/map/dem", "/map/hazard", "/nav/check_move",
+            "/nav/track", "/rvs/log", "/rvs/job"} <= channels, channels
+    # what these commands never make is not advertised: the hazard cameras (none fitted), the
+    # layers a ToF DEM has none of, the see loop's bounds, a plan
+    never = {"/hazcam/front/points", "/hazcam/front/left/compressed", "/hazcam/rear/points", "/map/intensity",
+             "/map/min", "/map/max", "/map/mean", "/map/wmean", "/map/measurement_variance", "/nav/bounds",
+             "/nav/plan", "/stereo/left/compressed"}
+    assert not channels & never, channels & never
+
+
+@pytest.mark.parametrize("offered", [("foxglove.websocket.v1",), ("foxglove.websocket.v1", "foxglove.sdk.v1")])
+def test_a_client_offering_the_old_subprotocol_name_connects_lists_and_decodes(server_factory: Any,
+                                                                               offered: tuple[str, ...]) -> None:
+    """@foxglove/ws-protocol's FoxgloveClient (Lichtblick, foxglove_bridge's users) offers
+    foxglove.websocket.v1 alone: the same protocol, under the name it had before the SDK's."""
+    port = free_port()
+    srv = server_factory([f"server.foxglove_port={port}"])
+
+    async def live() -> tuple[str | None, Any]:
+        session, fx = await connect(port, offered)
+        try:
+            await fx.advertised("/tf", "/rover/pose")
+            await fx.subscribe("/rover/pose")
+            return fx.ws.protocol, (await fx.until("/rover/pose"))[1]
+        finally:
+            await fx.ws.close()
+            await session.close()
+
+    protocol, pose = asyncio.run(live())
+    # the name the client offered, the SDK's when it offered both
+    assert protocol == ("foxglove.sdk.v1" if "foxglove.sdk.v1" in offered else "foxglove.websocket.v1")
+    assert pose.frame_id == "world"
+    p = srv.app.pose
+    assert (pose.pose.position.x, pose.pose.position.y) == pytest.approx((p.x, p.y), abs=1e-6)
+
+
+def test_the_relay_renames_an_offer_of_the_old_name_alone_and_the_answer_back() -> None:
+    from rvs_server.telemetry.subprotocol import renamed_answer, renamed_offer
+
+    head = b"GET / HTTP/1.1\r\nHost: x\r\nsec-websocket-protocol: foxglove.websocket.v1\r\n\r\n"
+    new, renamed = renamed_offer(head)
+    assert renamed and b"Sec-WebSocket-Protocol: foxglove.sdk.v1\r\n" in new and b"websocket.v1" not in new
+    both = b"GET / HTTP/1.1\r\nSec-WebSocket-Protocol: foxglove.websocket.v1, foxglove.sdk.v1\r\n\r\n"
+    assert renamed_offer(both) == (both, False)  # the SDK picks its own name, which the client offered
+    other = b"GET / HTTP/1.1\r\nSec-WebSocket-Protocol: chat\r\n\r\n"
+    assert renamed_offer(other) == (other, False)  # the SDK refuses it, as it would
+    answer = b"HTTP/1.1 101 Switching Protocols\r\nSec-WebSocket-Protocol: foxglove.sdk.v1\r\n\r\n"
+    assert renamed_answer(answer) == answer.replace(b"foxglove.sdk.v1", b"foxglove.websocket.v1")

@@ -373,3 +373,36 @@ def test_rvs_server_help_names_the_console_and_its_port() -> None:
     out = subprocess.run([sys.executable, "-m", "rvs_server", "--help"], capture_output=True, text=True, timeout=60)
     assert out.returncode == 0
     assert "--web-port N" in out.stdout and "console" in out.stdout and "7071" in out.stdout
+
+
+def test_the_state_names_the_open_commands_and_keeps_any_clients_check_move_and_no_event_is_a_pages_own(
+        web: Any) -> None:
+    srv, base = web("server.token=s3cret")
+    with srv.client() as gnc:  # no page open: the console keeps the check-move all the same
+        assert gnc.request("status").fields["code"] == "E_AUTH"
+        assert gnc.request("auth -token s3cret").status == "OK"
+        assert gnc.request(DEM).status == "OK"
+        assert gnc.request("pose -x 0.2 -y 0.1 -heading 0").status == "OK"
+        check = gnc.request("@c1 check-move -to 0.9,-0.3")
+        assert check.status == "OK"
+
+    async def body(page: Page, http: aiohttp.ClientSession) -> None:
+        async with http.get(base + "/api/state") as resp:
+            state = await resp.json()
+        assert sorted(state["open_commands"]) == ["auth", "exit", "help", "version"]
+        assert state["check"]["from"] == [0.2, 0.1] and state["check"]["to"] == [0.9, -0.3]
+        assert state["check"]["verdict"] == check.fields["verdict"]
+        await page.next()  # the greeting
+        await page.send("@h1 help")
+        assert (await page.final("h1"))["status"] == "OK"
+        assert [m["own"] for m in page.replies if m["reply"].get("tag") == "h1"] == [True]
+        with srv.client() as gnc:  # a mode EVENT is every page's, none's answer
+            gnc.request("auth -token s3cret")
+            gnc.start_job("sleep -seconds 0.1")
+            event = await page.until(lambda m: m["type"] == "reply" and m["reply"]["status"] == "EVENT"
+                                     and m["reply"].get("kind") == "mode")
+            gnc.until_final(60)
+        assert event["own"] is False
+        assert all(not m["own"] for m in page.replies if m["reply"]["status"] == "EVENT")
+
+    run_page(base, body)

@@ -260,20 +260,87 @@ def test_two_pages_never_take_each_others_lines_for_their_own(console: Any, brow
     assert tags_a and tags_b and not tags_a & tags_b, (sent_a, sent_b)
 
 
-def test_the_side_column_scrolls_and_a_long_reply_keeps_the_events_in_reach(mapped: Console, browser: Any) -> None:
-    page = mapped.open(browser, 1280, 720)
-    page.fill("#cmd", "status")
-    page.press("#cmd", "Enter")
-    page.wait_for_function("document.getElementById('result').textContent.includes('EGP-RVS-STATUS OK')")
-    result = page.eval_on_selector("#result", "e => e.getBoundingClientRect().height")
-    assert result < 140  # a long reply scrolls in its own box
-    aside = page.eval_on_selector("aside", """e => ({overflow: getComputedStyle(e).overflowY,
-                                                       scroll: e.scrollHeight, client: e.clientHeight})""")
-    assert aside["overflow"] in ("auto", "scroll"), aside
-    page.eval_on_selector("aside", "e => { e.scrollTop = e.scrollHeight; }")
-    log = page.eval_on_selector("#log", "e => e.getBoundingClientRect().toJSON()")
-    assert log["top"] < 720 - 60 and log["bottom"] <= 720 + 1 and log["height"] >= 100, log
-    page.screenshot(path=str(ARTIFACTS / "console_1280x720.png"))
+def rect(page: Any, selector: str) -> dict[str, float]:
+    return page.eval_on_selector(selector, "e => e.getBoundingClientRect().toJSON()")
+
+
+def overlap(a: dict[str, float], b: dict[str, float]) -> bool:
+    return a["x"] < b["x"] + b["width"] and b["x"] < a["x"] + a["width"] and \
+        a["y"] < b["y"] + b["height"] and b["y"] < a["y"] + a["height"]
+
+
+def inside(a: dict[str, float], b: dict[str, float]) -> bool:
+    return a["x"] >= b["x"] - 0.5 and a["y"] >= b["y"] - 0.5 and a["x"] + a["width"] <= b["x"] + b["width"] + 0.5 \
+        and a["y"] + a["height"] <= b["y"] + b["height"] + 0.5
+
+
+@pytest.mark.parametrize("width, height", [(1280, 720), (768, 1024), (390, 844)])
+def test_the_layout_hides_nothing_on_a_laptop_a_tablet_and_a_phone(mapped: Console, browser: Any,
+                                                                    width: int, height: int) -> None:
+    page = mapped.open(browser, width, height, has_touch=width < 900, is_mobile=width < 900)
+    wait_ready(page, "dem", "hazard")
+    page.wait_for_selector("#legend:not([hidden])")
+    canvas = rect(page, "#map")
+    # the legend lies beside the map, not on its data or its axis labels (drawn inside the canvas)
+    assert not overlap(rect(page, "#legend"), canvas), (rect(page, "#legend"), canvas)
+
+    # a tap where the legend used to be (the map's bottom right) opens the click menu, and the
+    # menu opened near any edge lies inside the map
+    for fx, fy in ((0.97, 0.97), (0.5, 0.98), (0.3, 0.02), (0.97, 0.5)):
+        page.mouse.click(canvas["x"] + fx * canvas["width"], canvas["y"] + fy * canvas["height"])
+        assert page.is_visible("#clickmenu"), (fx, fy)
+        assert inside(rect(page, "#clickmenu"), canvas), (fx, fy, rect(page, "#clickmenu"), canvas)
+        page.click("#go-cancel")
+
+    # a disabled button is grey, the red break too (no job: it cannot be pressed)
+    colours = page.evaluate("""['btn-break', 'btn-continue', 'btn-dem'].map(id => {
+        const b = document.getElementById(id); return [b.disabled, getComputedStyle(b).color]; })""")
+    (brk_off, brk), (cont_off, cont), (dem_off, dem) = colours
+    assert brk_off and cont_off and not dem_off, colours
+    rgb = [int(v) for v in brk[brk.index("(") + 1:brk.index(")")].split(",")[:3]]
+    assert max(rgb) - min(rgb) < 30 and brk == cont and brk != dem, colours
+
+    # the labels of the goal and of a check-move at the rover's place cover neither each other
+    # nor the rover
+    placed = page.evaluate("""(() => {
+        S.state = {...S.state, pose: {x: 0.5, y: 0.2, heading: 30, stopped: true}, truth: undefined,
+                   goal: {x: 0.55, y: 0.2, tolerance: 0.3}, check: {from: [0, 0], to: [0.5, 0.25], verdict: "ok"}};
+        draw(); return {labels: S.labels, at: toScreen(0.5, 0.2), scale: S.view.scale, rover: S.state.rover}; })()""")
+    labels = [{"x": b["x"], "y": b["y"], "width": b["w"], "height": b["h"], "text": b["text"]} for b in placed["labels"]]
+    assert sorted(b["text"] for b in labels) == ["check: ok", "goal"], labels
+    (px, py), k = placed["at"], placed["scale"]
+    h, half_l, half_w = math.radians(30), placed["rover"]["length"] / 2 * k, placed["rover"]["width"] / 2 * k
+    corners = [(px + u * math.cos(h) - v * math.sin(h), py - (u * math.sin(h) + v * math.cos(h)))
+               for u in (-half_l, half_l) for v in (-half_w, half_w)]
+    xs, ys = [c[0] for c in corners], [c[1] for c in corners]
+    body = {"x": min(xs), "y": min(ys), "width": max(xs) - min(xs), "height": max(ys) - min(ys)}
+    assert not overlap(labels[0], labels[1]), labels
+    assert not any(overlap(b, body) for b in labels), (labels, body)
+
+    if width >= 900:
+        # every panel of the side column is in sight without scrolling the page or the column:
+        # Job and Actions always, the others one tab (one click) away, each with room to read
+        for tab in ("events", "rover", "cameras", "layers"):
+            page.click(f"#tab-{tab}")
+            pane = rect(page, f"#pane-{tab}")
+            assert pane["y"] >= 0 and pane["y"] + pane["height"] <= height + 1 and pane["height"] >= 150, (tab, pane)
+            for panel in ("#job", "#cmd", "#btn-break"):
+                box = rect(page, panel)
+                assert box["y"] >= 0 and box["y"] + box["height"] <= height, (tab, panel, box)
+        assert page.evaluate("document.documentElement.scrollHeight") <= height
+        aside = page.eval_on_selector("aside", "e => [e.scrollHeight, e.clientHeight]")
+        assert aside[0] <= aside[1] + 1, aside
+        # a long reply scrolls in its own box
+        page.fill("#cmd", "status")
+        page.press("#cmd", "Enter")
+        page.wait_for_function("document.getElementById('result').textContent.includes('EGP-RVS-STATUS OK')")
+        assert rect(page, "#result")["height"] < 140
+        page.click("#tab-events")
+        log = rect(page, "#log")
+        assert log["y"] + log["height"] <= height + 1 and log["height"] >= 120, log
+        page.click("#tab-layers")
+    page.evaluate("draw()")
+    page.screenshot(path=str(ARTIFACTS / f"console_layout_{width}x{height}.png"))
     assert not page.errors, page.errors
 
 
@@ -382,7 +449,7 @@ def test_overlays_stack_track_over_plan_over_check_move_in_distinct_colours(mapp
     gx, gy = page.evaluate("toScreen(1.6, 0)")
     page.mouse.click(box["x"] + gx, box["y"] + gy)
     page.click("#go-check")  # a real check-move along y = 0, from the rover to x = 1.6
-    page.wait_for_function("S.check !== null")
+    page.wait_for_function("S.state.check && Math.abs(S.state.check.to[0] - 1.6) < 0.02")
     # the plan and the track along the same line (the track as the state would bring it); at
     # each place the colour most of a 16 px stretch of the line shows (dashes leave gaps)
     shown = page.evaluate("""(() => { S.plan = [[0.2, 0, 0], [1.4, 0, 0]]; S.state.track = [[0.6, 0], [1.0, 0]];
@@ -465,11 +532,15 @@ def test_the_rover_icon_follows_the_pose_and_heading_the_gnc_sends(mapped: Conso
         mapped.request("pose -x 0 -y 0 -heading 0")
 
 
-def test_the_locked_command_line_still_sends_and_the_server_answers(console: Any, browser: Any) -> None:
+def test_the_locked_page_names_what_the_server_answers_and_an_unlock_outlives_a_reload(
+        console: Any, browser: Any) -> None:
     c = console("server.token=s3cret")
     page = c.open(browser)
     assert page.is_visible("#auth") and page.eval_on_selector("#btn-dem", "e => e.disabled")
-    # the server's token rule decides (help, version and auth are open), and its answer shows
+    # the panel names the commands the server answers without the token, and they are those
+    named = page.text_content("#open-commands").split(", ")
+    assert sorted(named) == ["auth", "exit", "help", "version"], named
+    assert "status" not in page.text_content("#auth")
     for line, expect in (("help", "EGP-RVS-HELP OK"), ("version", "EGP-RVS-VERSION OK"),
                          ("status", "E_AUTH"), ("dem-full-tof", "E_AUTH")):
         page.fill("#cmd", line)
@@ -478,6 +549,136 @@ def test_the_locked_command_line_still_sends_and_the_server_answers(console: Any
     page.fill("#token", "s3cret")
     page.click("#auth-go")
     page.wait_for_function("!document.getElementById('btn-dem').disabled")
+
+    # a reload (a new WebSocket, a new connection to the server) stays unlocked
+    page.reload()
+    page.wait_for_selector("#link.up")
+    page.wait_for_function("S.authed && !document.getElementById('btn-dem').disabled")
+    assert not page.is_visible("#auth")
+    page.fill("#cmd", "status")
+    page.press("#cmd", "Enter")
+    page.wait_for_function("document.getElementById('result').textContent.includes('EGP-RVS-STATUS OK')")
+    # another tab of the same browser is not: the token stays with the tab it was given to
+    other = page.context.new_page()
+    other.errors = []
+    other.on("pageerror", lambda exc: other.errors.append(str(exc)))
+    other.goto(c.url)
+    other.wait_for_selector("#link.up")
+    other.wait_for_function("S.state !== null")
+    other.wait_for_timeout(300)
+    assert other.is_visible("#auth") and other.eval_on_selector("#btn-dem", "e => e.disabled")
+    assert not page.errors and not other.errors, (page.errors, other.errors)
+
+
+def test_a_line_with_its_own_tag_keeps_it_and_its_answer_comes_to_this_page(mapped: Console, browser: Any) -> None:
+    page = mapped.open(browser)
+    sent = sent_lines(page)
+    page.reload()  # its WebSocket, recorded from the start
+    page.wait_for_selector("#link.up")
+    page.fill("#cmd", "@wxyz-1 status")
+    page.press("#cmd", "Enter")
+    page.wait_for_function("document.getElementById('result').textContent.includes('EGP-RVS-STATUS OK')")
+    assert "tag=wxyz-1" in page.text_content("#result")
+    assert sent == ["@wxyz-1 status"], sent
+    page.fill("#cmd", "@bad! version")  # a tag the server cannot read: its error still shows
+    page.press("#cmd", "Enter")
+    page.wait_for_function("document.getElementById('result').textContent.includes('bad tag')")
+    assert page.eval_on_selector("#result", "e => e.className") == "error"
+    page.fill("#cmd", "version")  # an untagged line gets the page's own tag
+    page.press("#cmd", "Enter")
+    page.wait_for_function("document.getElementById('result').textContent.includes('EGP-RVS-VERSION OK')")
+    assert sent[-1].startswith("@w") and sent[-1].endswith(" version"), sent
+
+
+def test_events_are_no_pages_own_and_every_page_draws_every_check_move(mapped: Console, browser: Any) -> None:
+    a, b = mapped.open(browser), mapped.open(browser)
+    for page in (a, b):
+        wait_ready(page, "dem", "hazard")
+    a.fill("#cmd", "sleep -seconds 0.1")  # its mode EVENTs go to every page
+    a.press("#cmd", "Enter")
+    a.wait_for_function("document.getElementById('result').textContent.includes('EGP-RVS-SLEEP OK')")
+    b.wait_for_function("[...document.querySelectorAll('#log li')].some(li => li.textContent.includes('slept='))")
+    for page in (a, b):
+        rows = page.eval_on_selector_all("#log li:not(.past)", "els => els.map(e => [e.className, e.textContent])")
+        events = [cls for cls, text in rows if "EVENT" in cls and "kind=mode" in text]
+        assert events and not any("mine" in cls for cls in events), rows
+    mine = a.eval_on_selector_all("#log li.mine", "els => els.map(e => e.textContent)")
+    assert any("EGP-RVS-SLEEP ACK" in t for t in mine) and any("EGP-RVS-SLEEP OK" in t for t in mine), mine
+    assert not b.eval_on_selector_all("#log li.mine:not(.past)", "els => els.map(e => e.textContent)")
+
+    # a check-move from page a is drawn on page b, and one from a GNC on both
+    for page in (a, b):
+        page.uncheck("#layers input[data-layer=dem]")
+        page.uncheck("#layers input[data-layer=hazard]")
+        page.uncheck("#show-fov")
+    box = rect(a, "#map")
+    gx, gy = a.evaluate("toScreen(1.2, -0.4)")
+    a.mouse.click(box["x"] + gx, box["y"] + gy)
+    a.click("#go-check")
+    for x, y in ((1.2, -0.4), (0.8, 0.5)):
+        if x == 0.8:
+            assert mapped.request(f"check-move -to {x},{y}").status == "OK"
+        for page in (a, b):
+            page.wait_for_function(f"S.state.check && Math.abs(S.state.check.to[0] - {x}) < 0.02 "
+                                   f"&& Math.abs(S.state.check.to[1] - {y}) < 0.02")
+            check = page.evaluate("S.state.check")
+            page.evaluate("draw()")
+            r, g, bl, _ = pixel(page, x, y)  # the check's end, in its verdict's colour
+            colour = {"ok": (0x15, 0x80, 0x3D), "not_traversable": (0xDC, 0x26, 0x26)}.get(check["verdict"],
+                                                                                       (0xD9, 0x77, 0x06))
+            assert abs(r - colour[0]) + abs(g - colour[1]) + abs(bl - colour[2]) < 60, (check, (r, g, bl))
+            assert check["from"] == pytest.approx([0.0, 0.0], abs=0.01)
+    assert not a.errors and not b.errors, (a.errors, b.errors)
+
+
+def test_the_progress_bar_is_the_jobs_and_the_result_box_says_whose_result_it_shows(
+        console: Any, browser: Any) -> None:
+    c = console()
+    page = c.open(browser)
+    # the bar after each PROGRESS line, as the page drew it
+    page.evaluate("""window.bars = []; const onReplyWas = onReply;
+        onReply = (m, past) => { onReplyWas(m, past); if (m.reply.status === "PROGRESS") bars.push([m.reply.phase,
+            m.reply.done, m.reply.total, parseFloat(document.getElementById('bar-fill').style.width)]); }; 0""")
+    page.fill("#cmd", DEM)
+    page.press("#cmd", "Enter")
+    page.wait_for_function("document.getElementById('result').textContent.includes('EGP-RVS-DEM-FULL-TOF OK')",
+                           timeout=300_000)
+    bars = page.evaluate("bars")
+    phases = list(dict.fromkeys(p for p, _, _, _ in bars))
+    assert phases == ["pointing", "acquire", "process", "write"], bars
+    widths = [w for _, _, _, w in bars]
+    assert all(b >= a for a, b in zip(widths, widths[1:], strict=False)), bars  # it never goes back
+    assert widths[-1] >= 99 and widths[0] < 5, bars
+    # each phase fills its share: the acquisition ends near half way, the processing near the end
+    acquired = max(w for p, _, _, w in bars if p == "acquire")
+    processed = max(w for p, _, _, w in bars if p == "process")
+    assert 35 < acquired < 60 and 85 < processed < 99, bars
+    # the estimate is the job's: a quarter of the bar in 10 s leaves 30 s
+    assert page.evaluate("jobTimes({started: Date.now() / 1000 + S.clock - 10}, 0.25)") == \
+        "elapsed 10 s · about 30 s left"
+    first = page.text_content("#result")
+    job = int(first.split("job=")[1].split()[0])
+
+    # a job another client starts: the result box marks the last result as the previous job's
+    with c.srv.client() as gnc:
+        gnc.start_job("sleep -seconds 30")
+        page.wait_for_function("document.getElementById('result').classList.contains('previous')")
+        shown = page.evaluate("""(() => { const e = document.getElementById('result');
+            return [getComputedStyle(e, '::before').content, e.textContent]; })()""")
+        assert shown == [f'"previous job {job}: "', first], shown
+        page.wait_for_function("document.getElementById('times').textContent.includes('elapsed')")
+        assert gnc.request("break").status == "OK"
+        gnc.until_final(60)
+    page.wait_for_function("S.state.mode === 'break' && !S.state.job")
+    assert page.text_content("#result") == first and page.text_content("#job") == "none"
+    # the page's own next job replaces the result with its ACK
+    assert c.request("continue").status == "OK"
+    page.wait_for_function("S.state.mode === 'ready'")
+    page.fill("#cmd", "sleep -seconds 0.2")
+    page.press("#cmd", "Enter")
+    page.wait_for_function("document.getElementById('result').textContent.includes('EGP-RVS-SLEEP')")
+    assert not page.eval_on_selector("#result", "e => e.classList.contains('previous')")
+    assert not page.errors, page.errors
 
 
 # ------------------------------------------------------------------------------ what the map says
@@ -722,7 +923,7 @@ def test_the_camera_panel_shows_the_tof_frames_the_server_grabbed_once_opened(co
     page.wait_for_timeout(1200)  # a tick of the panel's clock: closed, it fetches nothing
     assert not page.is_visible("#camera-list") and asked == []
     assert page.evaluate("S.state.cameras.map(c => c.name)") == ["tof_amplitude", "tof_depth", "stereo_left"]
-    page.click("#cameras summary")
+    page.click("#tab-cameras")
     for name in ("tof_amplitude", "tof_depth"):
         page.wait_for_selector(f"figure[data-camera={name}] img[data-v]")
     assert "no frame yet: grab-stereo" in page.text_content("figure[data-camera=stereo_left] figcaption")
@@ -756,7 +957,7 @@ def test_the_camera_panel_shows_stereo_and_hazcam_frames_and_fetches_only_new_on
     page, asked = open_cameras(c, browser)
     assert page.evaluate("S.state.cameras.map(c => c.name)") == ["tof_amplitude", "tof_depth", "stereo_left",
                                                                  "hazcam_front_left"]
-    page.click("#cameras summary")
+    page.click("#tab-cameras")
     assert "no frame yet" in page.text_content("figure[data-camera=hazcam_front_left] figcaption")
     assert c.request("grab-stereo -resolution low -output pair").status == "OK"
     page.wait_for_selector("figure[data-camera=stereo_left] img[data-v]")
@@ -775,7 +976,7 @@ def test_the_camera_panel_shows_stereo_and_hazcam_frames_and_fetches_only_new_on
     page.wait_for_selector("figure[data-camera=tof_amplitude] img[data-v]")
     assert len(asked) == 3, asked
     # closed again: new frames are not fetched
-    page.click("#cameras summary")
+    page.click("#tab-layers")
     assert c.request("grab-tof -type z").status == "OK"
     page.wait_for_timeout(1500)
     assert len(asked) == 3, asked

@@ -1,0 +1,72 @@
+"""Every installed program, run as the user runs it (its console script, in a subprocess): a bad
+option, command or input is one ``tool: message`` line on stderr and exit status 2, never a
+usage block, a traceback or a blank line first (docs/TOOLS.md), and a message names options as
+that command line spells them (``--cell``), not as the wire does (``-cell``)."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+import tomllib
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+SCRIPTS = sorted(tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]["scripts"])
+BIN = Path(sys.executable).parent
+
+
+def _run(args: list[str], cwd: Path, stdin: str = "") -> tuple[int, str, str]:
+    script = BIN / args[0]
+    assert script.is_file(), f"{args[0]} is not installed beside {sys.executable}"
+    p = subprocess.run([str(script), *args[1:]], cwd=cwd, input=stdin, capture_output=True, text=True, timeout=120)
+    return p.returncode, p.stdout, p.stderr
+
+
+def _one_line(rc: int, err: str, prog: str) -> str:
+    assert rc == 2, (rc, err)
+    assert err.count("\n") == 1 and err.startswith(f"{prog}: "), err
+    return err
+
+
+def test_every_console_script_is_covered() -> None:
+    assert len(SCRIPTS) >= 14 and {"rvs-server", "rvs-client", "rvs-ptu", "rvs-prox"} <= set(SCRIPTS)
+
+
+@pytest.mark.parametrize("script", SCRIPTS)
+def test_an_unknown_option_is_one_line_and_exit_2(script: str, tmp_path: Path) -> None:
+    rc, out, err = _run([script, "--no-such-option"], tmp_path)
+    msg = _one_line(rc, err, script.split()[0])
+    assert "--help lists the options" in msg, msg  # (a missing required argument may be named first)
+
+
+# a bad command, value or input for each program: what a user mistypes in the third hour
+BAD = [
+    (["rvs-server", "--config", "/nonexistent_dir", "--port", "0"], "rvs-server: --config /nonexistent_dir: no such folder"),
+    (["rvs-server", "--config", "{broken}", "--port", "0"], "rvs-server: {broken}/server.yaml: not valid YAML"),
+    (["rvs-server", "--set", "bogus.key=1"], "rvs-server: --set 'bogus.key=1'"),
+    (["rvs-ptu", "--backend", "serial", "--port", "/dev/nonexistent", "-c", "position"],
+     "rvs-ptu: ptu: cannot open serial port /dev/nonexistent"),
+    (["rvs-ptu", "--backend", "sim", "-c", "nosuchcmd"], "rvs-ptu: unknown command 'nosuchcmd'"),
+    (["rvs-tof", "-c", "grab nosuch"], "rvs-tof: grab: argument type: invalid choice: 'nosuch'"),
+    (["rvs-cam", "-c", "nosuchcmd"], "rvs-cam: unknown command 'nosuchcmd'"),
+    (["rvs-prox", "{broken}/server.yaml"], "rvs-prox: server.yaml:2: not YAML"),
+    (["rvs-prox", "dem", "--from", "/nonexistent"], "rvs-prox: /nonexistent: not a DEM job's folder"),
+    (["rvs-prox", "dem", "--set", "cell=abc", "--validate"], "rvs-prox: --set cell takes a number"),
+    (["rvs-dem-import", "{broken}/server.yaml", "--cell", "abc", "-o", "x_dem.tif"],
+     "rvs-dem-import: --cell takes a number"),
+    (["rvs-dem2hazard", "missing_dem.tif"], "rvs-dem2hazard: the following arguments are required: -o/--output"),
+    (["rvs-client", "--host", "127.0.0.1"], "rvs-client: "),
+]
+
+
+@pytest.mark.parametrize(("argv", "message"), BAD, ids=[" ".join(a[:3]) for a, _ in BAD])
+def test_a_bad_command_or_input_is_one_line_and_exit_2(argv: list[str], message: str, tmp_path: Path) -> None:
+    broken = tmp_path / "broken"
+    broken.mkdir()
+    (broken / "server.yaml").write_text("port: [1,\n")
+    rc, out, err = _run([a.format(broken=broken) for a in argv], tmp_path)
+    msg = _one_line(rc, err, argv[0])
+    assert msg.startswith(message.format(broken=broken)), msg
+    assert " -cell " not in msg  # the wire's spelling
