@@ -68,7 +68,7 @@ from prox_workflows.algorithms.dem2hazard import HazardParams
 from prox_workflows.algorithms.noise import pair_sigmas, tof_height_variance, tof_horizontal_sigma, tof_sigma
 from prox_workflows.algorithms.rolling_map import RollingMap, RollingParams
 from prox_workflows.algorithms.stereo import disparity
-from prox_workflows.algorithms.vehicle import check_poses
+from prox_workflows.algorithms.vehicle import LIMITS, check_poses, severity
 from prox_workflows.grid import GridGeometry
 from rvs_server.devices import stereo_points
 from rvs_truth.stats import clopper_pearson_upper, events_per_distance_upper, poses_per_trial
@@ -267,13 +267,11 @@ def pose_row(scene: str, look: str, k: float, world_seed: int, body: RoverBody |
     truly_safe = judged & ~on_truth.unsafe
     false_safe = on_truth.unsafe & on_bounds.safe
     cuts = np.cumsum([len(p) for p in paths])[:-1]
-    # what the truth holds against each false-safe pose: its worst excess over a limit
-    limits, misses = np.array([body.climb, body.clearance, body.tilt]), []
-    for i in np.flatnonzero(false_safe):
-        kind = int(np.argmax(on_truth.excess[i] / limits))
-        value = on_truth.excess[i, kind] * (1 if kind == 2 else 100)
-        misses.append(f"{('wheel', 'belly', 'tilt')[kind]} +{value:.1f} {('cm', 'cm', 'deg')[kind]} at "
-                      f"({poses[i, 0]:.2f}, {poses[i, 1]:.2f}, {poses[i, 2]:.0f})")
+    # what the truth holds against each false-safe pose: each limit it passes, by how much (m for
+    # step and belly, deg for the angles) and how badly
+    misses = [", ".join(f"{name} {e:+.3g} ({severity(name, e)})" for name, e in zip(LIMITS, on_truth.excess[i], strict=True)
+                        if e > 0) + f" at ({poses[i, 0]:.2f}, {poses[i, 1]:.2f}, {poses[i, 2]:.0f})"
+              for i in np.flatnonzero(false_safe)]
     # one false-safe event per run of consecutive false-safe poses along a path
     events = sum(int(np.count_nonzero(np.diff(np.concatenate([[0], f.astype(np.int8), [0]])) == 1))
                  for f in np.split(false_safe, cuts))
