@@ -112,6 +112,8 @@ class CandidateParams(Settings):
                                   "for a look", unit="m", min=0.0, max=100.0)
     batch: int = param(4, "candidates in the first batch sent to the check; each later batch doubles, up to 64",
                        min=1, max=1024)
+    max_poses: int = param(0, "the most poses one call sends to the check before it gives up with 'blocked' "
+                              "(0: no limit, every candidate is checked if need be)", min=0, max=10_000_000)
     goal_tolerance: float = param(0.1, "a section passing this close to the goal stops there", unit="m",
                                   min=0.0, max=5.0)
 
@@ -474,6 +476,14 @@ def choose(pose: tuple[float, float, float], heights: np.ndarray | tuple[np.ndar
     size = params.batch
     i = 0
     while i < len(order):
+        if look is not None and keys[order[i]] >= look[0]:
+            break  # nothing left can rank before the look
+        if params.max_poses and poses_checked >= params.max_poses:
+            choice = _none("blocked", f"no candidate passes among the best {checked} of {len(order)}: the check's "
+                                      f"budget of {params.max_poses} poses is spent", len(order))
+            choice.checked, choice.poses_checked, choice.failures = checked, poses_checked, failures
+            choice.reasons = _reasons(failures)
+            return choice
         group = order[i:i + size]
         judge([n for c in group for n in tree.paths[c][:2]])
         sections_ok = [c for c in group if first_bad(tree.paths[c][0], False) is None

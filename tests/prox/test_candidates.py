@@ -219,3 +219,12 @@ def test_the_check_wrapper_names_unknown_and_limits() -> None:
     check = bounds_check(w.bounds(), w.g, BODY)
     codes = check(np.array([[0.0, 0.0, 0.0], [2.0, 0.0, 0.0], [0.0, 2.9, 0.0]]))
     assert codes[0] == SAFE and codes[1] > 0 and codes[2] == -1
+
+
+def test_a_pose_budget_stops_the_search_and_says_so() -> None:
+    w = World()
+    ring = (np.hypot(w.X, w.Y) > 0.75) & (np.hypot(w.X, w.Y) < 0.95)
+    w.truth[ring] = 0.3
+    c = w.choose((0.0, 0.0, 0.0), (5.0, 0.0), max_poses=300)
+    assert c.status == "blocked" and "budget of 300 poses" in c.reason
+    assert 0 < c.checked < c.total and c.poses_checked >= 300
