@@ -32,7 +32,7 @@ What this module holds (plain functions on arrays; the loops that call them live
       prefix not yet judged in one call of the pluggable ``check``, the sections before the
       look-aheads so that a failed section spares its nine leaves.
 
-The rules on unseen ground (issue: "unknown is a cost, a reason to look, never driven on")
+The rules on unseen ground (a cost and a reason to look, never driven on)
     - A section (the turn and the first arc) is driven only if every pose of it is judged safe.
       One whose ground is unseen fails as ``unknown``.
     - Beyond the section, unseen ground adds ``unknown_cost`` per metre to the estimate, and
@@ -431,12 +431,6 @@ def choose(pose: tuple[float, float, float], heights: np.ndarray | tuple[np.ndar
     terrain, unknown = _terrain(tree, pose, heights, geom, body, params)
     t_i, s_i, b_i = tree.paths.T
     ends = _to_world(np.asarray(tree.poses[tree.start[b_i + 1] - 1]), pose)
-    world_of: dict[int, np.ndarray] = {}
-
-    def node_world(k: int) -> np.ndarray:
-        if k not in world_of:
-            world_of[k] = _to_world(np.asarray(tree.node(k)), pose)
-        return world_of[k]
     togo = ctg.at(ends[:, 0], ends[:, 1])
     section_unseen = (unknown[t_i] + unknown[s_i]) > 0
     keys = (tree.base + terrain[t_i] + terrain[s_i] + terrain[b_i] + params.unknown_cost * unknown[b_i]
@@ -447,6 +441,12 @@ def choose(pose: tuple[float, float, float], heights: np.ndarray | tuple[np.ndar
         return _none("blocked", "the goal has no way to it over the ground the map shows", len(keys))
     node_codes: dict[int, np.ndarray] = {}
     poses_checked = 0
+    world_of: dict[int, np.ndarray] = {}
+
+    def node_world(k: int) -> np.ndarray:
+        if k not in world_of:
+            world_of[k] = _to_world(np.asarray(tree.node(k)), pose)
+        return world_of[k]
 
     def judge(nodes: list[int]) -> None:
         nonlocal poses_checked
@@ -485,9 +485,13 @@ def choose(pose: tuple[float, float, float], heights: np.ndarray | tuple[np.ndar
             choice.reasons = _reasons(failures)
             return choice
         group = order[i:i + size]
-        judge([n for c in group for n in tree.paths[c][:2]])
+        # the turns and sections first (a section after a turn already refused is not sent), then
+        # the look-aheads of the sections that pass: a refused prefix spares what hangs from it
+        judge([n for c in group for n in tree.paths[c][:2]
+               if not (n == tree.paths[c][1] and tree.paths[c][0] in node_codes
+                       and first_bad(tree.paths[c][0], False) is not None)])
         sections_ok = [c for c in group if first_bad(tree.paths[c][0], False) is None
-                       and first_bad(tree.paths[c][1], False) is None]
+                       and tree.paths[c][1] in node_codes and first_bad(tree.paths[c][1], False) is None]
         judge([tree.paths[c][2] for c in sections_ok])
         checked += len(group)
         for rank, c in enumerate(group, start=i):

@@ -8,7 +8,7 @@ makes the bounds a map would hold of the window: each 5 cm cell's lowest and hig
 (1 cm surface) ``spread`` out, spread over ``dilate`` neighbouring cells (as the bounds map spreads
 a return over the cells its horizontal error may reach). Two maps: ``tight`` (0.5 cm, not spread:
 about what a many-frame look gives on open ground) and ``wide`` (2 cm, one cell: about what the
-bounds map holds today, issue 43's (e)). The ground within 0.5 m of the rover is known to 3 mm (its
+bounds map holds today, with its worst cases stacked). The ground within 0.5 m of the rover is known to 3 mm (its
 own pose and attitude: proprioceptive set-down); ground the mast has not seen is unknown:
 everything outside the wedge +-``--fov`` deg about the heading to ``--range`` m, except the disc
 of 1 m the rover stands on. Timed per trial: the coarse cost and the cost to go (once per
