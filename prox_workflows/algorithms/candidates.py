@@ -465,10 +465,16 @@ def choose(pose: tuple[float, float, float], heights: np.ndarray | tuple[np.ndar
             node_codes[k] = codes[at:at + m]
             at += m
 
+    bad_of: dict[tuple[int, bool], tuple[int, int] | None] = {}
+
     def first_bad(k: int, allow_unknown: bool) -> tuple[int, int] | None:
-        codes = node_codes[k]
-        bad = np.flatnonzero((codes > 0) if allow_unknown else (codes != SAFE))
-        return (int(codes[bad[0]]), int(bad[0])) if len(bad) else None
+        """The first pose of node ``k`` that fails it (its verdict and index), or None."""
+        key = (int(k), allow_unknown)
+        if key not in bad_of:
+            codes = node_codes[int(k)]
+            bad = np.flatnonzero((codes > 0) if allow_unknown else (codes != SAFE))
+            bad_of[key] = (int(codes[bad[0]]), int(bad[0])) if len(bad) else None
+        return bad_of[key]
 
     failures: list[Failure] = []
     look: tuple[float, Failure] | None = None
