@@ -137,6 +137,7 @@ class ArcTree:
     probe: np.ndarray  # (Q,) indices into poses where the map's terrain and unseen ground are read
     probe_node: np.ndarray  # (Q,) the node of each probe
     probe_ds: np.ndarray  # (Q,) the metres each probe stands for (a turn's: its swept arc at the reach)
+    probe_s: np.ndarray  # (Q,) metres driven along its node to the probe (0 on a turn)
 
     def node(self, k: int) -> np.ndarray:
         return self.poses[self.start[k]:self.start[k + 1]]
@@ -193,7 +194,7 @@ def _tree(headings: int, n_arcs: int, kmax: float, section: float, beyond: float
     # the map is read for ranking about every PROBE metres (of arc at the reach, on a turn): the
     # ranking is an estimate, and reading it at every checked pose of 1,300 paths would cost more
     # than the checks it saves
-    probe, probe_node, probe_ds = [], [], []
+    probe, probe_node, probe_ds, probe_s = [], [], [], []
     for k, chunk in enumerate(chunks):
         m = len(chunk)
         if not m:
@@ -204,8 +205,9 @@ def _tree(headings: int, n_arcs: int, kmax: float, section: float, beyond: float
         probe.append(at)
         probe_node.append(np.full(len(at), k))
         probe_ds.append(np.full(len(at), metres / len(at)))
+        probe_s.append((at - start[k] + 1) / m * length[k])
     arrays = (poses, start, np.array(part), np.array(parent), np.array(length), np.array(paths), np.array(base),
-              np.concatenate(probe), np.concatenate(probe_node), np.concatenate(probe_ds))
+              np.concatenate(probe), np.concatenate(probe_node), np.concatenate(probe_ds), np.concatenate(probe_s))
     for a in arrays:
         a.setflags(write=False)
     return ArcTree(*arrays)
@@ -391,10 +393,12 @@ def _to_world(local: np.ndarray, pose: tuple[float, float, float]) -> np.ndarray
 
 
 def _terrain(tree: ArcTree, pose: tuple[float, float, float], heights: np.ndarray | tuple[np.ndarray, np.ndarray],
-             geom: GridGeometry, body: VehicleBody, params: CandidateParams) -> tuple[np.ndarray, np.ndarray]:
+             geom: GridGeometry, body: VehicleBody, params: CandidateParams
+             ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Per node: the terrain cost (m) from the mean surface's relief under the wheels and the
     body's middle, and the metres of it over unseen ground (a pose whose body's inscribed disc
-    reaches an unseen cell, or off the map), both read at the tree's probes."""
+    reaches an unseen cell, or off the map), both read at the tree's probes; and the probes' poses in
+    the world."""
     mean, unseen = _mean(heights)
     with np.errstate(invalid="ignore"):
         filled = np.where(unseen | np.isnan(mean), 0.0, mean)
@@ -416,7 +420,7 @@ def _terrain(tree: ArcTree, pose: tuple[float, float, float], heights: np.ndarra
     n = len(tree.part)
     terrain = np.bincount(tree.probe_node, per_pose * tree.probe_ds, n) * params.terrain_cost
     unknown = np.bincount(tree.probe_node, blind * tree.probe_ds, n)
-    return terrain, unknown
+    return terrain, unknown, world
 
 
 def choose(pose: tuple[float, float, float], heights: np.ndarray | tuple[np.ndarray, np.ndarray],
@@ -428,13 +432,14 @@ def choose(pose: tuple[float, float, float], heights: np.ndarray | tuple[np.ndar
     unknown cost), checked lazily in rank order with ``check`` (see the module's docstring)."""
     params = params or CandidateParams()
     tree = arc_tree(params, body)
-    terrain, unknown = _terrain(tree, pose, heights, geom, body, params)
+    terrain, unknown, probes = _terrain(tree, pose, heights, geom, body, params)
     t_i, s_i, b_i = tree.paths.T
     ends = _to_world(np.asarray(tree.poses[tree.start[b_i + 1] - 1]), pose)
     togo = ctg.at(ends[:, 0], ends[:, 1])
     section_unseen = (unknown[t_i] + unknown[s_i]) > 0
     keys = (tree.base + terrain[t_i] + terrain[s_i] + terrain[b_i] + params.unknown_cost * unknown[b_i]
             + params.look_cost * section_unseen + togo)
+    keys = np.minimum(keys, _to_goal(tree, probes, ctg.goal, terrain, params))
     order = np.argsort(keys, kind="stable")
     order = order[np.isfinite(keys[order])]
     if not len(order):
@@ -527,6 +532,25 @@ def choose(pose: tuple[float, float, float], heights: np.ndarray | tuple[np.ndar
     choice.checked, choice.poses_checked, choice.failures = checked, poses_checked, failures
     choice.reasons = _reasons(failures)
     return choice
+
+
+def _to_goal(tree: ArcTree, probes: np.ndarray, goal: tuple[float, float], terrain: np.ndarray,
+             params: CandidateParams) -> np.ndarray:
+    """Per candidate, its cost if it passes the goal (within the tolerance, read at its probes):
+    the turn's and the terrain's costs and the metres driven to the goal, the cost to go then 0;
+    inf for a candidate that does not pass it. Without this a path ending past a near goal loses
+    to one that loops round to end on it."""
+    out = np.full(len(tree.paths), np.inf)
+    near = np.hypot(probes[:, 0] - goal[0], probes[:, 1] - goal[1]) <= params.goal_tolerance + PROBE / 2
+    if not near.any():
+        return out
+    first = np.full(len(tree.part), np.inf)
+    np.minimum.at(first, tree.probe_node[near], tree.probe_s[near])
+    t, s, b = tree.paths.T
+    turn = tree.base - tree.length[s] - tree.length[b]  # the turn's and the arcs' curvature costs
+    via_section = turn + first[s] + terrain[t] + terrain[s]
+    via_beyond = turn + tree.length[s] + first[b] + terrain[t] + terrain[s] + terrain[b]
+    return np.where(np.isfinite(first[s]), via_section, via_beyond)
 
 
 def _reasons(failures: list[Failure]) -> dict[str, int]:

@@ -228,3 +228,12 @@ def test_a_pose_budget_stops_the_search_and_says_so() -> None:
     c = w.choose((0.0, 0.0, 0.0), (5.0, 0.0), max_poses=300)
     assert c.status == "blocked" and "budget of 300 poses" in c.reason
     assert 0 < c.checked < c.total and c.poses_checked >= 300
+
+
+def test_a_section_passing_the_goal_stops_at_it() -> None:
+    w = World()
+    c = w.choose((0.0, 0.0, 0.0), (0.6, 0.02))
+    assert c.status == "drive", c.reason
+    end = c.poses[-1]
+    assert math.hypot(end[0] - 0.6, end[1] - 0.02) <= 0.1
+    assert len(c.poses) < len(c.path) - 20  # cut short of its 1 m section
