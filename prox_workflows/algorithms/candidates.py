@@ -114,8 +114,9 @@ class CandidateParams(Settings):
                        min=1, max=1024)
     max_poses: int = param(0, "the most poses one call sends to the check before it gives up with 'blocked' "
                               "(0: no limit, every candidate is checked if need be)", min=0, max=10_000_000)
-    goal_tolerance: float = param(0.1, "a section passing this close to the goal stops there", unit="m",
-                                  min=0.0, max=5.0)
+    goal_tolerance: float = param(0.1, "a path passing this close to the goal (and half the ranking's probe "
+                                       "spacing) ranks by its cost to the goal, and its section stops at its "
+                                       "pose nearest the goal", unit="m", min=0.0, max=5.0)
 
 
 @dataclass(frozen=True)
@@ -580,7 +581,7 @@ def _drive(tree: ArcTree, node_world: Callable[[int], np.ndarray], pose: tuple[f
     path = np.vstack([section, node_world(int(b))])
     near = np.hypot(section[:, 0] - goal[0], section[:, 1] - goal[1])
     n_turn = len(node_world(int(t)))
-    at_goal = np.flatnonzero(near[1 + n_turn:] <= params.goal_tolerance)
+    at_goal = np.flatnonzero(near[1 + n_turn:] <= params.goal_tolerance + PROBE / 2)  # as :func:`_to_goal` reads it
     if len(at_goal):  # stop where the section comes closest to the goal
         j = 1 + n_turn + at_goal[0]
         j += int(np.argmin(near[j:])) if j < len(near) else 0
