@@ -28,9 +28,11 @@ What this module holds (plain functions on arrays; the loops that call them live
       grid with scipy's compiled Dijkstra); an incremental D* Lite repair
       (:class:`.replan.IncrementalPlanner`) would only pay on grids far larger than this.
     - :func:`choose`: the ranking and the lazy check. Candidates are checked in rank order in
-      batches (the top few first, the batch doubling as they fail), the dense poses of every
-      prefix not yet judged in one call of the pluggable ``check``, the sections before the
-      look-aheads so that a failed section spares its nine leaves.
+      batches (the top four first, the batch doubling as they fail), the dense poses of every
+      prefix not yet judged sent to the pluggable ``check`` in at most two calls a batch: the
+      turns and sections first, then the look-aheads of the sections that passed, so that a
+      failed section spares its nine leaves and no pose is judged twice. Nothing is remembered
+      between calls: a refusal concerns the map it was made on, and expires with it.
 
 The rules on unseen ground (a cost and a reason to look, never driven on)
     - A section (the turn and the first arc) is driven only if every pose of it is judged safe.
@@ -46,7 +48,10 @@ The rules on unseen ground (a cost and a reason to look, never driven on)
 Costs are metres: the path's length, ``turn_cost`` per radian turned on the spot,
 ``curve_cost`` per radian of arc (a gentle preference for straight), ``terrain_cost`` times the
 relief under the wheels relative to the body's climb (mean heights, a 15 cm window, capped) per
-metre, plus the cost to go from the path's end.
+metre, plus the cost to go from the path's end (or, for a path passing the goal, none after it).
+
+Time: the vehicle check is most of a call (``python -m tools.bench.candidates``; figures in
+docs/BENCHMARKS.md); the ranking itself reads the map at a probe every 20 cm of the tree.
 """
 
 from __future__ import annotations
