@@ -29,9 +29,10 @@ What this module holds (plain functions on arrays; the loops that call them live
       (:class:`.replan.IncrementalPlanner`) would only pay on grids far larger than this.
     - :func:`choose`: the ranking and the lazy check. Candidates are checked in rank order in
       batches (the top four first, the batch doubling as they fail), the dense poses of every
-      prefix not yet judged sent to the pluggable ``check`` in at most two calls a batch: the
-      turns and sections first, then the look-aheads of the sections that passed, so that a
-      failed section spares its nine leaves and no pose is judged twice. Nothing is remembered
+      prefix not yet judged sent to the pluggable ``check``: the first batch whole in one call
+      (on open ground it passes, and a call costs as much as a hundred poses), each later one
+      in two, the turns and sections first, then the look-aheads of the sections that passed,
+      so that a refused section spares its nine leaves. No pose is judged twice. Nothing is remembered
       between calls: a refusal concerns the map it was made on, and expires with it.
 
 The rules on unseen ground (a cost and a reason to look, never driven on)
@@ -502,6 +503,10 @@ def choose(pose: tuple[float, float, float], heights: np.ndarray | tuple[np.ndar
             choice.reasons = _reasons(failures)
             return choice
         group = order[i:i + size]
+        if i == 0:
+            # the first batch whole in one call: on open ground its sections pass, and a call of
+            # the check has a fixed cost of the order of a hundred poses
+            judge([n for c in group for n in tree.paths[c]])
         # the turns and sections first (a section after a turn already refused is not sent), then
         # the look-aheads of the sections that pass: a refused prefix spares what hangs from it
         judge([n for c in group for n in tree.paths[c][:2]
