@@ -1,9 +1,9 @@
 """The terrain walk: the compiled kernel gives the numpy walk's bits, and runs without the GIL.
 
-A render thread in the server walks rays for seconds a grab; a walk that took the GIL between
-its steps kept the event loop's ``status`` waiting whenever the OS took the core from that
-thread while it held it (the latency itself is measured by ``python -m tools.bench.server
---kinds grab-stereo``, not here)."""
+A render thread in the server walks rays for seconds a grab; a walk that takes the GIL between
+its steps holds the event loop's ``status`` up whenever the OS takes the core from that thread
+while it holds it (the latency itself is measured by ``python -m tools.bench.server --kinds
+grab-stereo``, not here)."""
 
 from __future__ import annotations
 
