@@ -320,3 +320,48 @@ def test_rocks_on_the_bounds_stand_out_of_a_slope_which_alone_flags_nothing() ->
     found = m.rocks((0.0, 0.0), 1.0, 0.08)
     assert len(found) and np.hypot(found[:, 0] - 0.5, found[:, 1] - 0.2).max() <= 0.08
     assert len(m.rocks((0.0, 0.0), 0.2, 0.08)) == 0  # outside the radius asked
+
+
+@pytest.mark.parametrize("grade", [(0.0, 0.0), (0.08, -0.05)])
+def test_a_rover_set_down_knows_the_ground_under_its_wheels_from_its_attitude(grade: tuple[float, float]) -> None:
+    """Set down on a plane, the rover's IMU (roll and pitch, 0.1 deg) puts its four wheels' ground
+    on the plane to a few millimetres: the worst-case check of the pose it stands at reads the
+    tilt the truth has (within 2 deg) and its belly clear, where the set-down's 1 cm prior alone
+    allows 11.4 deg on level ground. Under the box nothing is felt: the prior stays, capped by
+    the belly's ceiling."""
+    from drivers.sim.rover import RoverBody, resting_attitude
+    from prox_workflows.algorithms.bounds_map import contact_plane
+    from prox_workflows.algorithms.vehicle import check_poses
+
+    body = RoverBody()
+    pose = (0.3, -0.2, 30.0)
+    gx, gy = grade
+
+    def ground(x: np.ndarray, y: np.ndarray) -> np.ndarray:
+        return gx * (np.asarray(x) - pose[0]) + gy * (np.asarray(y) - pose[1])
+
+    fine = GridGeometry(0.01, -1.0, 1.0, 200, 200)
+    xs, ys = fine.centers()
+    truth = check_poses(ground(xs[None, :], ys[:, None]).astype(np.float32), fine, np.array([pose]), body)
+    roll, pitch = resting_attitude(body, ground, pose)
+    assert contact_plane(pose[2], roll, pitch) == pytest.approx(grade, abs=1e-6)
+
+    def set_down(attitude: tuple[float, float, float] | None) -> BoundsMap:
+        m = BoundsMap.covering([[-1.0, -1.0], [1.0, 1.0]], 0.0)
+        plane = None if attitude is None else (pose[0], pose[1], *contact_plane(pose[2], *attitude[:2]))
+        m.set_down(pose[:2], 0.82, 0.0, plane=plane)
+        m.stood(pose, 0.0, body, attitude)
+        return m
+
+    m = set_down((roll + 0.1, pitch - 0.1, 0.1))  # the IMU's error, one sigma each way
+    felt = check_poses((m.lower, m.upper), m.geometry, np.array([pose]), body)
+    assert felt.safe[0]
+    assert truth.tilt[0] <= felt.tilt[0] < truth.tilt[0] + 2.0
+    assert felt.intrusion[0] < -0.04  # the belly's 8 cm: nothing under the box reaches it
+    if grade == (0.0, 0.0):
+        prior = set_down(None)  # no attitude: the 1 cm prior under the wheels too
+        old = check_poses((prior.lower, prior.upper), prior.geometry, np.array([pose]), body)
+        assert old.tilt[0] > 11.0 and old.intrusion[0] > -0.015
+    # the ground under the box between the wheels keeps the set-down's prior (and no frame)
+    r, c = m.geometry.cell_of(np.array([pose[0]]), np.array([pose[1]]))
+    assert m.stamp[r[0], c[0]] == 0 and m.upper[r[0], c[0]] == pytest.approx(0.025, abs=1e-3)
