@@ -113,7 +113,8 @@ def resting_attitude(body: RoverBody, heights: Callable[[np.ndarray, np.ndarray]
     """Roll (left side up) and pitch (nose up), deg, of ``body`` standing at ``pose`` on the
     surface ``heights(x, y)``, as its IMU would read them at rest: each wheel rests on the
     highest ground its circle touches under its footprint, the rigid body on three wheels with
-    the fourth at or below their plane (it rocks between two such planes: their mean)."""
+    the fourth at or below their plane; of the two planes it may rock between, it settles on the
+    one that puts its centre lower. The fourth wheel's ground below that plane no IMU shows."""
     r, half_w = body.wheel_radius, body.wheel_width / 2
     dx, dy = (a.ravel() for a in np.meshgrid(np.arange(-r, r + step / 2, step),
                                              np.arange(-half_w, half_w + step / 2, step)))
@@ -125,13 +126,12 @@ def resting_attitude(body: RoverBody, heights: Callable[[np.ndarray, np.ndarray]
         px, py = hx + dx, hy + dy
         z = np.asarray(heights(pose[0] + c * px - s * py, pose[1] + s * px + c * py), float) - sag
         contact[w] = float(np.nanmax(z)) if np.isfinite(z).any() else 0.0
-    slopes = []
+    rests = []
     for t in _TRIPLETS:
         a, b, k = np.linalg.solve(np.column_stack([hubs[list(t[:3])], np.ones(3)]), contact[list(t[:3])])
         if contact[t[3]] <= a * hubs[t[3], 0] + b * hubs[t[3], 1] + k + 1e-9:
-            slopes.append((a, b))
-    a, b = np.mean(slopes, axis=0) if slopes else np.linalg.lstsq(np.column_stack([hubs, np.ones(4)]), contact,
-                                                                    rcond=None)[0][:2]
+            rests.append((k, a, b))
+    _, a, b = min(rests)  # of the two planes it rocks between, it settles on the lower
     pitch = math.atan(a)
     return math.degrees(math.atan(b * math.cos(pitch))), math.degrees(pitch)
 

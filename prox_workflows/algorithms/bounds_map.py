@@ -77,6 +77,9 @@ class BoundsParams(Settings):
     stereo_first: bool = param(True, "where a stereo frame bounded a cell, its bounds stand alone: ToF frames no "
                                      "longer fuse into the cell (fused, a mean better than either sensor's "
                                      "shrinks the bounds below what each holds alone)")
+    hang: float = param(0.025, "how far below the plane its attitude gives the ground under a standing wheel may "
+                               "lie: a rigid body on four wheels rests on three, and the IMU does not tell which "
+                               "one hangs, nor by how much, over lower ground", unit="m", min=0.0, max=0.5)
     contact_sigma: float = param(0.001, "the ground under a standing wheel off the plane its pose and attitude put "
                                         "the four contacts on: the tyre's give and the grain it rests on (the "
                                         "attitude's own error is added to it)", unit="m", min=0.0, max=0.05)
@@ -223,12 +226,15 @@ class BoundsMap:
         about 0.7 m of its foot). Frames outrank it: a cell a frame bounded keeps its bounds.
 
         - Under each wheel the ground is at the wheel's contact. With ``attitude`` (roll, pitch and
-          their 1-sigma, deg, as the rover's IMU gives them: :func:`contact_plane`) the four
-          contacts lie on the plane through ``z`` tipped by it, each within ``contact_sigma`` and
-          the attitude's error over its lever from the centre: a few millimetres, so the check of
-          the pose the rover stands at reads the tilt it has, not the worst a prior allows, and
-          this overrides the set-down's prior there. Without one the contacts are taken level at
-          ``z`` within ``sigma``, where nothing else bounds them.
+          their 1-sigma, deg, as the rover's IMU gives them: :func:`contact_plane`) the body's
+          plane runs through ``z`` tipped by it, and no wheel's ground stands above it by more
+          than ``contact_sigma`` and the attitude's error over its lever from the centre (a few
+          millimetres: the wheel's circle rests on the highest ground under it). A rigid body
+          on four wheels rests on three: the fourth may hang over lower ground, which the IMU
+          does not show (4.4 cm at marsyard mission 0's start), so the ground under each wheel
+          reaches ``hang`` below the plane. This overrides the set-down's prior there; without
+          an attitude the contacts are taken level at ``z`` within ``sigma``, where nothing else
+          bounds them.
         - Under the box between the wheels proprioception says only that nothing reaches the
           belly: the ground there is bounded from above (a ceiling) at the belly over that plane,
           drawn ``3 k`` contact sigmas lower so that the worst-case check of this very pose, its
@@ -266,10 +272,14 @@ class BoundsMap:
             lever = np.hypot(xs - pose[0], ys - pose[1])
             spread = self.params.contact_sigma
             var = spread ** 2 + (lever * math.tan(math.radians(attitude[2]))) ** 2
-        self.mean.flat[wheels] = height
+        # with the attitude: no higher than the plane (the wheel's circle rests on the highest ground
+        # under it), down to ``hang`` below it (the wheel the body does not rest on)
+        sag = 0.0 if attitude is None else self.params.hang / 2
+        self.mean.flat[wheels] = height - sag
         self.mean_var.flat[wheels] = var
-        for layer in (self.rise, self.drop, self.shift):
-            layer.flat[wheels] = 0.0
+        self.rise.flat[wheels] = sag
+        self.drop.flat[wheels] = sag
+        self.shift.flat[wheels] = 0.0
         under = np.setdiff1d(np.unique(flat[inside & belly]), wheels)
         under = under[self.stamp.flat[under] == 0]
         ux = g.xmin + (under % g.width + 0.5) * g.cell

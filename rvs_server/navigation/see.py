@@ -593,10 +593,11 @@ class SeeStrategy:
         self.driver = SeeingDriver(self.job, mission.rover, self.p, self.stats, memory, bounds)
         if bounds is not None:
             # the rover was set down here: the ground round the mast's foot, which no tilt shows,
-            # and the disc its body turns in are taken as clear, on the plane the rover's attitude
-            # says it stands on (level without one), the one place the gate assumes what it has not
-            # seen; under the box the same assumption holds (a rock there is not felt, and the
-            # operators set the rover down where it can stand and turn), under the wheels none
+            # and the disc its body turns in are taken as clear, within 1 cm of the plane the
+            # rover's attitude says it stands on (level without one): the one place the gate
+            # assumes what it has not seen. Under the box the same assumption holds (a rock there
+            # is not felt; the operators set the rover down where it can stand and turn); under
+            # the wheels the attitude says more (BoundsMap.stood)
             x, y, heading = self.app.pose.x, self.app.pose.y, self.app.pose.heading
             z = ground_height(self.app.maps.layers, x, y)
             fx, fy, radius = self.driver.blind_disc()
