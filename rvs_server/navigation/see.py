@@ -284,9 +284,10 @@ class SeeingDriver:
         return (np.abs(pts[:, 0]) <= half_x) & (np.abs(pts[:, 1]) <= half_y)
 
     def attitude(self) -> tuple[float, float, float] | None:
-        """Roll, pitch and their sigma (deg) from the rover's IMU where it stands, or None."""
+        """Roll, pitch and their sigma (deg) from the rover's IMU where it stands, or None (none, or
+        ``see_set_down level``)."""
         attitude = getattr(self.rover, "attitude", None)
-        return attitude() if attitude is not None else None
+        return attitude() if attitude is not None and self.p.set_down == "attitude" else None
 
     def gate(self, pose: tuple[float, float, float], remaining: np.ndarray,
              motion: np.ndarray | None = None) -> Gate:
@@ -593,8 +594,8 @@ class SeeStrategy:
         self.driver = SeeingDriver(self.job, mission.rover, self.p, self.stats, memory, bounds)
         if bounds is not None:
             # the rover was set down here: the ground round the mast's foot, which no tilt shows,
-            # and the disc its body turns in are taken as clear, within 1 cm of the plane the
-            # rover's attitude says it stands on (level without one): the one place the gate
+            # and the disc its body turns in are taken as clear, within 1 cm of level or (see_set_down
+            # attitude) of the plane the rover's attitude says it stands on: the one place the gate
             # assumes what it has not seen. Under the box the same assumption holds (a rock there
             # is not felt; the operators set the rover down where it can stand and turn); under
             # the wheels the attitude says more (BoundsMap.stood)
