@@ -5,8 +5,8 @@ the simulator's true 1 cm surface (:mod:`rvs_truth.vehicle`): was it truly unsaf
 did the bounds put the tilt, the belly and the wheel relief from the true values.
 
     python -m tools.bench.gate_trace --scene marsyard --mission 0 --out m0.json
-    python -m tools.bench.gate_trace --mission 0 --no-attitude   # the set-down without the IMU
-    python -m tools.bench.gate_trace --mission 0 --hang 0        # the wheels' ground tight both ways
+    python -m tools.bench.gate_trace --mission 0 --set navigate.see_set_down=attitude   # the IMU's set-down
+    python -m tools.bench.gate_trace --mission 0 --set navigate.see_set_down=attitude --hang 0
 
 It hooks the see loop's own functions (the gate, the replan's gated tries, the drive's stop, the
 re-judging of standing refusals), so it measures the loop as it runs; docs/NAVIGATE_BENCH.md has
@@ -35,7 +35,7 @@ def main() -> None:
     ap.add_argument("--scene", default="marsyard")
     ap.add_argument("--mission", type=int, default=0, help="index in the bench's seeded draws (seed 0)")
     ap.add_argument("--out", default="", help="also write the mission's row and every refusal as JSON here")
-    ap.add_argument("--no-attitude", action="store_true", help="the loop gets no attitude from the rover")
+    ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="a server setting")
     ap.add_argument("--hang", type=float, default=None, help="bounds_map hang (m) instead of its default")
     args = ap.parse_args()
 
@@ -81,8 +81,6 @@ def main() -> None:
 
     see.gate_poses, see.SeeStrategy._gated, see.SeeingDriver.gate_stop, see.SeeingDriver.refused = \
         traced, in_replan, stopped, rejudged
-    if args.no_attitude:
-        see.SeeingDriver.attitude = lambda self: None
     if args.hang is not None:
         init = bounds_map.BoundsMap.__init__
 
@@ -94,7 +92,7 @@ def main() -> None:
 
     start, goal = missions(args.scene, args.mission + 1, 0)[args.mission]
     t0 = time.monotonic()
-    row = bench.run_mission(args.scene, "see", start, goal, [], ())
+    row = bench.run_mission(args.scene, "see", start, goal, [], tuple(args.set))
     world = World.from_scene(args.scene)
     fine, g, _ = bench.truth_surface(world, args.scene)
     for r in refusals:
