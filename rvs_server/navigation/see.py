@@ -316,9 +316,10 @@ class SeeingDriver:
         """The ground each standing refusal blames, for a plan to keep round. A refusal is of one
         pose on the bounds of the moment: once a later frame has been fused, the pose is judged
         again on the bounds as they are, and a refusal whose pose now passes is dropped (the
-        frame showed its ground); one still refused blames the ground it is refused for now. Kept
-        for good, every refusal round the rover closed every way on (0.5-0.7 m round it, in a
-        marsyard trace), though no refused pose was unsafe on the true ground."""
+        frame showed its ground); one still refused blames the ground it is refused for at this
+        judging. Kept for good, the refusals round a rover close every way on (0.5-0.7 m round it
+        in a marsyard trace, docs/NAVIGATE_BENCH.md), though none of them was unsafe on the true
+        ground."""
         if self.bounds is None:
             return []
         frames = self.bounds.frames
