@@ -156,7 +156,7 @@ def test_status_reports_the_pose_source_and_sigma_and_navigate_takes_global(serv
     r = c.request(f"navigate -goal 2,2 -auto -global {geo} -localise map")
     assert r.status == "ERROR" and "degrees" in r.fields["message"], r
     h = c.request("help navigate").fields
-    assert "[-global text]" in h["usage"] and "opt_global" in h and "-localise none|vo|map|both" in h["usage"]
+    assert "[-global text or none]" in h["usage"] and "opt_global" in h and "-localise none|vo|map|both" in h["usage"]
     r = c.request("navigate -goal 2,2 -auto -localise sideways")
     assert r.status == "ERROR" and r.fields["code"] == "E_ARG"
     c.close()

@@ -281,8 +281,7 @@ def test_rvs_client_draws_a_progress_bar(server, capsys) -> None:
 
 
 def test_ptu_limits_are_e_arg_before_any_ack(client: LineClient) -> None:
-    for request in ("move-ptu -pan 200", "move-ptu -tilt -80", "orient -pan 170", "ground-align -tilt 60",
-                    "move-ptu"):
+    for request in ("move-ptu -pan 200", "move-ptu -tilt -80", "orient -pan 170", "ground-align -tilt 60"):
         client.send(request)
         r = client.reply()
         assert r.status == "ERROR" and r.fields["code"] == "E_ARG", (request, r)
