@@ -72,10 +72,10 @@ class ChanceParams(Settings):
                              "their excesses reaches probabilities below 1 / samples)", min=8, max=4096)
     seed: int = param(0, "seed of the drawn surfaces: the same map and poses give the same verdict",
                       min=0, max=2**31 - 1)
-    edge_bias: float = param(0.2, "a cell's top reads low by this share of the height jump within its 3 x 3 "
+    edge_bias: float = param(0.08, "a cell's top reads low by this share of the height jump within its 3 x 3 "
                                   "neighbourhood (a rock edge; calibrated on marsyard's true surface: "
                                   "python -m tools.bench.chance --calibrate)", min=0.0, max=1.0)
-    edge_sigma: float = param(0.15, "a rock edge's further uncertainty (1 sigma), as a share of the same jump "
+    edge_sigma: float = param(0.35, "a rock edge's further uncertainty (1 sigma), as a share of the same jump "
                                     "(calibrated alike)", min=0.0, max=1.0)
 
 

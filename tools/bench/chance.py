@@ -1,0 +1,168 @@
+"""Benchmark: the chance-constrained vehicle check (prox_workflows.algorithms.chance) on a look's
+bounds map, against the worst-case check on its bounds, with the check on the true 1 cm surface as
+the reference; and the calibration of its rock-edge error model.
+
+A look's frames are fused into a bounds map as ``tools.bench.bounds`` fuses them (the ToF's noise
+model, one draw). Then:
+
+- ``--calibrate``: per band of the height jump J within a cell's 3 x 3 neighbourhood, how far the
+  true top (the simulator's 0.5 cm surface, highest in the cell) stands over the posterior's top
+  without the edge terms, and how that spreads beyond the variance the posterior gives; fitted as
+  a bias ``edge_bias * J`` and a sigma ``edge_sigma * J`` (least squares over the bands, weighted
+  by their cells), and the standardised residual's tail with the fit;
+- otherwise, at poses over the ground 1.6-4.0 m ahead (4 headings, as the bounds bench): judged
+  poses, truly safe kept and false safes of the worst-case check and of the chance check at each
+  epsilon, and the chance check's time per 1,000 poses.
+
+    python -m tools.bench.chance --calibrate                 # marsyard, sweep, cell 2.5 cm
+    python -m tools.bench.chance --epsilon 1e-2 1e-3 1e-4     # the table
+    python -m tools.bench.chance --cell 0.05 --world-seed 2   # a 5 cm map, another rock draw
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import time
+from typing import Any
+
+import numpy as np
+from scipy.ndimage import maximum_filter, minimum_filter
+
+from drivers.sim.rover import RoverBody
+from drivers.sim.world import World
+from prox_workflows.algorithms.bounds_map import BoundsMap, BoundsParams
+from prox_workflows.algorithms.chance import ChanceParams, chance_check, posterior
+from prox_workflows.algorithms.vehicle import check_poses
+from prox_workflows.grid import GridGeometry
+from tools.bench.bounds import LOOKS, TRUE_CELL, frames, pooled
+
+JUMP_BANDS = (0.0, 0.01, 0.02, 0.04, 0.08, 0.16, np.inf)  # m
+
+
+def fused(scene: str, look: str, cell: float, world_seed: int, seed: int
+          ) -> tuple[World, BoundsMap, np.ndarray]:
+    """The bounds map of one look, as the bounds bench makes it, and the sensor's mean position."""
+    world = World.from_scene(scene, seed=world_seed)
+    x0, y0, _ = world.rover_pose()
+    box = [[x0 - 1.0, y0 - 3.0], [x0 + 6.5, y0 + 3.0]]
+    bounds = BoundsMap.covering(box, 0.0, BoundsParams(cell=cell))
+    origins = []
+    for pts, sigma, origin, sigma_xy, cut, sensor in frames(world, look, np.random.default_rng(seed)):
+        bounds.fuse(pts, sigma, origin, cut, sigma_xy, sensor)
+        origins.append(origin)
+    return world, bounds, np.mean(origins, axis=0)
+
+
+def whole(bounds: BoundsMap) -> tuple[dict[str, np.ndarray], GridGeometry]:
+    g = bounds.geometry
+    return bounds.statistics(g.xmin, g.ymin, g.xmin + g.width * g.cell, g.ymax)
+
+
+def calibrate(scene: str, look: str, cell: float, world_seed: int, seed: int) -> dict[str, Any]:
+    world, bounds, viewpoint = fused(scene, look, cell, world_seed, seed)
+    stats, g = whole(bounds)
+    base = posterior(stats, g, bounds.params.k, ChanceParams(edge_bias=0.0, edge_sigma=0.0), viewpoint)
+    fine = world.true_dem(TRUE_CELL, (g.xmin, g.ymin, g.xmin + g.width * g.cell, g.ymax))
+    top = pooled(fine, g, np.max)
+    seen = np.isfinite(base.mean)
+    est = np.where(seen, base.mean, np.nan)
+    jump = maximum_filter(np.where(seen, est, -np.inf), size=3, mode="nearest") - \
+        minimum_filter(np.where(seen, est, np.inf), size=3, mode="nearest")
+    r, j, v = (top - est)[seen], jump[seen], base.var[seen]
+    rows = []
+    for lo, hi in zip(JUMP_BANDS[:-1], JUMP_BANDS[1:], strict=True):
+        at = (j >= lo) & (j < hi)
+        if at.sum() < 20:
+            continue
+        rows.append({"band": (lo, hi), "cells": int(at.sum()), "J": float(j[at].mean()), "bias": float(r[at].mean()),
+                     "sd": float(r[at].std()), "model_sd": float(np.sqrt(v[at].mean())),
+                     "z99": float(np.percentile(r[at] / np.sqrt(v[at]), 99))})
+    n = np.array([row["cells"] for row in rows], float)
+    J = np.array([row["J"] for row in rows])
+    bias = np.array([row["bias"] for row in rows])
+    extra = np.maximum(np.array([row["sd"] ** 2 - row["model_sd"] ** 2 for row in rows]), 0.0)
+    # least squares through the origin, each band weighted by its cells: bias = a J, extra variance = (b J)^2
+    a = float(max(np.sum(n * J * bias) / np.sum(n * J * J), 0.0))
+    b = float(np.sqrt(np.sum(n * J * J * extra) / np.sum(n * J**4)))
+    fitted = posterior(stats, g, bounds.params.k, ChanceParams(edge_bias=a, edge_sigma=b), viewpoint)
+    z = ((top - fitted.mean) / np.sqrt(fitted.var))[seen]
+    for row in rows:
+        lo, hi = row["band"]
+        at = (j >= lo) & (j < hi)
+        row["z99_fit"] = float(np.percentile(z[at], 99))
+        row["over_fit"] = float(np.mean(z[at] > 3.09))  # a normal's 0.1 % tail
+    return {"rows": rows, "edge_bias": a, "edge_sigma": b, "cells": int(seen.sum())}
+
+
+def evaluate(scene: str, look: str, cell: float, world_seed: int, seed: int, epsilons: list[float],
+             samples: int, body: RoverBody) -> dict[str, Any]:
+    world, bounds, viewpoint = fused(scene, look, cell, world_seed, seed)
+    stats, g = whole(bounds)
+    x0, y0, _ = world.rover_pose()
+    truth = world.true_dem(0.01, (g.xmin, g.ymin, g.xmin + g.width * g.cell, g.ymax))
+    tg = GridGeometry(0.01, g.xmin, g.ymax, truth.shape[1], truth.shape[0])
+    px, py = np.meshgrid(x0 + np.arange(1.6, 4.0, 0.1), y0 + np.arange(-1.2, 1.25, 0.1))
+    poses = np.column_stack([np.repeat(px.ravel(), 4), np.repeat(py.ravel(), 4),
+                             np.tile([0.0, 45.0, 90.0, 135.0], px.size)])
+    on_truth = check_poses(truth, tg, poses, body)
+    t0 = time.perf_counter()
+    worst = check_poses((bounds.lower, bounds.upper), g, poses, body)
+    t_worst = time.perf_counter() - t0
+    rows = [{"check": f"worst case (k {bounds.params.k:g})", "safe": worst.safe, "unknown": worst.unknown,
+             "ms": 1000 * t_worst}]
+    for eps in epsilons:
+        params = ChanceParams(epsilon=eps, samples=samples)
+        t0 = time.perf_counter()
+        post = posterior(stats, g, bounds.params.k, params, viewpoint)
+        c = chance_check(post, g, poses, body, params)
+        rows.append({"check": f"chance, epsilon {eps:g}", "safe": c.safe, "unknown": c.unknown,
+                     "ms": 1000 * (time.perf_counter() - t0), "screened": int(c.screened.sum())})
+    truly_safe = ~on_truth.unsafe
+    for row in rows:
+        judged = ~row["unknown"]
+        row["judged"] = int(judged.sum())
+        row["false_safe"] = int((row["safe"] & on_truth.unsafe).sum())
+        row["kept"] = float(row["safe"][truly_safe & judged].mean())
+        row["of"] = int((truly_safe & judged).sum())
+    return {"poses": len(poses), "rows": rows, "truly_unsafe": int(on_truth.unsafe.sum())}
+
+
+def main(argv: list[str] | None = None) -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--scene", default="marsyard")
+    ap.add_argument("--look", default="sweep", choices=LOOKS)
+    ap.add_argument("--cell", type=float, default=BoundsParams().cell)
+    ap.add_argument("--world-seed", type=int, default=1, help="the scene's rock draw (the bounds bench's: 1)")
+    ap.add_argument("--seed", type=int, default=0, help="the ToF noise draw")
+    ap.add_argument("--calibrate", action="store_true", help="fit the rock-edge error model instead")
+    ap.add_argument("--epsilon", nargs="+", type=float, default=[1e-2, 1e-3, 1e-4])
+    ap.add_argument("--samples", type=int, default=ChanceParams().samples)
+    args = ap.parse_args(argv)
+    head = f"{args.scene}, {args.look}, cell {args.cell * 100:g} cm, rock draw {args.world_seed}, noise draw {args.seed}"
+    if args.calibrate:
+        out = calibrate(args.scene, args.look, args.cell, args.world_seed, args.seed)
+        print(f"{head}: {out['cells']} cells with returns")
+        print("| jump J (cm) | cells | mean J (cm) | true top - estimate: mean / sd (cm) | posterior sd without edge "
+              "terms (cm) | z p99 without / with the fit | share with z > 3.09 with the fit |")
+        print("|---|---|---|---|---|---|---|")
+        for r in out["rows"]:
+            lo, hi = r["band"]
+            print(f"| {lo * 100:g}-{hi * 100:g} | {r['cells']} | {100 * r['J']:.1f} | {100 * r['bias']:.2f} / "
+                  f"{100 * r['sd']:.2f} | {100 * r['model_sd']:.2f} | {r['z99']:.2f} / {r['z99_fit']:.2f} "
+                  f"| {100 * r['over_fit']:.2f} % |")
+        print(f"edge_bias {out['edge_bias']:.3f}, edge_sigma {out['edge_sigma']:.3f}")
+        return
+    body = RoverBody()
+    out = evaluate(args.scene, args.look, args.cell, args.world_seed, args.seed, args.epsilon, args.samples,
+                   dataclasses.replace(body))
+    print(f"{head}: {out['poses']} poses, {out['truly_unsafe']} truly unsafe")
+    print("| check | judged | false safe | truly safe kept (of) | poses screened | ms per 1,000 poses |")
+    print("|---|---|---|---|---|---|")
+    for r in out["rows"]:
+        print(f"| {r['check']} | {r['judged']} | {r['false_safe']} | {100 * r['kept']:.1f} % ({r['of']}) "
+              f"| {r.get('screened', '-')} | {1000 * r['ms'] / out['poses']:.0f} |")
+
+
+if __name__ == "__main__":
+    main()
