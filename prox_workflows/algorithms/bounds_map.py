@@ -371,12 +371,15 @@ class BoundsMap:
         """What the bounds are drawn from over a box (copies, clipped to the map), with its grid:
         ``mean``, ``mean_var`` (the fused mean's variance), ``rise``, ``drop``, ``shift`` and
         ``ceiling`` per cell. A check that weighs how likely the ground is rather than its
-        extremes reads these (``chance.posterior``)."""
+        extremes reads these (``chance.posterior``), and the bounds drawn from them (``lower``,
+        ``upper``)."""
         sl, sub = self._box(xmin, ymin, xmax, ymax)
         names = ("mean", "mean_var", "rise", "drop", "shift", "ceiling")
         if sl is None:
-            return {name: np.full((0, 0), np.nan, np.float32) for name in names}, sub
-        return {name: getattr(self, name)[sl].copy() for name in names}, sub
+            return {name: np.full((0, 0), np.nan, np.float32) for name in (*names, "lower", "upper")}, sub
+        out = {name: getattr(self, name)[sl].copy() for name in names}
+        out["lower"], out["upper"] = self.bounds(sl)
+        return out, sub
 
     def _box(self, xmin: float, ymin: float, xmax: float, ymax: float
              ) -> tuple[tuple[slice, slice] | None, GridGeometry]:

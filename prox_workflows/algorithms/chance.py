@@ -9,7 +9,7 @@ tilts the resting plane past 11 deg and refuses. Here each cell's ground is a di
 (:func:`posterior`), and a pose is safe when P(any limit exceeded) <= epsilon.
 
 **The cell's posterior** (:func:`posterior`, from :meth:`BoundsMap.statistics`): the cell's top,
-mean + rise, with three variances:
+mean + rise, with four variances:
 
 - the fused mean's variance (``mean_var``: the returns' height variance over their number, fused
   over frames, so averaging frames narrows it);
@@ -18,20 +18,31 @@ mean + rise, with three variances:
   shift's sigma is the mean's own range error, horizontally: its height sigma over the tangent of
   the ray's elevation, seen from ``viewpoint`` (averaged, as the height is; never more than one
   return's horizontal sigma, ``shift / k``). Across the ray, and on flat ground, it adds nothing;
-- the rock edge: a cell where the tops within its 3 x 3 neighbourhood differ by J reads its top
-  ``edge_bias * J`` low, with a further sigma ``edge_sigma * J`` (returns from a rock's flank, the
-  edge inside the cell): calibrated on the simulator's true surface
-  (``python -m tools.bench.chance --calibrate``, docs/BENCHMARKS.md).
+- the relief no return met: the true top of a cell stands over the highest of its returns
+  now and then by a few millimetres (``top_sigma``, on every cell);
+- the rock edge: where the map's worst case allows ground J higher than the cell's top within
+  its 3 x 3 neighbourhood (:func:`headroom`: a rock's edge, its bounds spread along the returns'
+  horizontal errors, or ground behind it only a ray bounds), the cell reads its top
+  ``edge_bias * J`` low, with a further sigma ``edge_sigma * J`` that is one error for every
+  cell under the body (``Posterior.common``: drawn once per surface): a rock's top read low is
+  read low in each of its cells, and the wheel resting on it, the step up to it and the belly over
+  it move together. Drawn independently per cell, the max over a wheel's cells averaged it away
+  and put rocks under a wheel or the belly at P < 1e-6 where the truth was over the limit. Calibrated on the simulator's
+  true surface so that the 99.9th percentile of the truth over the top is 3.09 sigmas in each
+  band of J (``python -m tools.bench.chance --calibrate``, docs/BENCHMARKS.md): the cells' errors
+  there have tails far heavier than a normal's (a rock top no return met), and a sigma fitted to
+  their spread alone put the truth 10-20 sigmas out in 1 cell in 1,000.
 
 **The probability** (:func:`chance_check`): surfaces are drawn from the cells' posteriors (seeded,
-every cell independently; ``samples`` of them) and each is judged by :func:`vehicle.check_poses`,
+every cell's own error independently, the common one once per surface; ``samples`` of them) and each is judged by :func:`vehicle.check_poses`,
 the one definition of the limits: per pose and limit, the samples' excesses give the share over
 the limit and a normal tail from their mean and spread, whichever is higher (``samples`` draws
 alone cannot show a probability below about 1 / samples; the tail reaches epsilon, and it is
 measured against the truth by the pose-level statistics). P(any) is the share of samples over
 any limit or the sum of the four tails (the union bound), whichever is higher.
 
-Poses are first screened by the worst-case check on bounds ``SCREEN_K`` sigmas out, where
+Poses are first screened by the worst-case check on bounds ``SCREEN_K`` sigmas out (of both
+errors), where
 ``SCREEN_K`` makes the chance that any cell under the body lies outside them at most
 ``SCREEN * epsilon`` (a union bound over the cells): a pose safe there is safe with P below that,
 and is not sampled. That check also says which poses are ``unknown``: ground under the body with no
@@ -48,7 +59,7 @@ from statistics import NormalDist
 from typing import Any
 
 import numpy as np
-from scipy.ndimage import maximum_filter, minimum_filter
+from scipy.ndimage import maximum_filter
 from scipy.special import ndtr
 
 from rvs_params import Settings, param
@@ -72,21 +83,28 @@ class ChanceParams(Settings):
                              "their excesses reaches probabilities below 1 / samples)", min=8, max=4096)
     seed: int = param(0, "seed of the drawn surfaces: the same map and poses give the same verdict",
                       min=0, max=2**31 - 1)
-    edge_bias: float = param(0.08, "a cell's top reads low by this share of the height jump within its 3 x 3 "
-                                  "neighbourhood (a rock edge; calibrated on marsyard's true surface: "
-                                  "python -m tools.bench.chance --calibrate)", min=0.0, max=1.0)
-    edge_sigma: float = param(0.35, "a rock edge's further uncertainty (1 sigma), as a share of the same jump "
-                                    "(calibrated alike)", min=0.0, max=1.0)
+    edge_bias: float = param(0.045, "a cell's top reads low by this share of how much higher the map's upper "
+                                   "bound allows the ground within its 3 x 3 neighbourhood (a rock edge; "
+                                   "calibrated on marsyard's true surface: python -m tools.bench.chance "
+                                   "--calibrate)", min=0.0, max=1.0)
+    top_sigma: float = param(0.005, "the true top of a cell stands over its returns' estimate by the relief no "
+                                    "return met: this sigma on every cell (calibrated alike)", unit="m",
+                             min=0.0, max=0.1)
+    edge_sigma: float = param(0.17, "a rock edge's further uncertainty (1 sigma), as a share of the same height "
+                                    "(calibrated alike, on the 99.9th percentile)", min=0.0, max=2.0)
 
 
 @dataclass(frozen=True)
 class Posterior:
     """Per cell of one grid: the ground's top (m; its best estimate, NaN where no return bounds it),
-    its variance (m^2) and the lowest ray that passed over it (m; inf: none)."""
+    the variance of its error of its own (m^2), the sigma of its share of an error common to the
+    cells under a body (m; the rock edge's: a rock's top read low is read low in each of its cells),
+    and the lowest ray that passed over it (m; inf: none). The top's variance is var + common^2."""
 
     mean: np.ndarray
     var: np.ndarray
     ceiling: np.ndarray
+    common: np.ndarray | float = 0.0
 
 
 @dataclass
@@ -125,7 +143,7 @@ def posterior(stats: dict[str, np.ndarray], geom: GridGeometry, k: float, params
     """Each cell's ground from a bounds map's statistics over ``geom`` (:meth:`BoundsMap.statistics`;
     ``k`` the map's, by which its ``shift`` is drawn), seen from ``viewpoint`` (x, y, z of the
     sensor; None: the ray's direction unknown, so the slope's steepest direction and one return's
-    horizontal sigma stand in). See the module's docstring for the three variances."""
+    horizontal sigma stand in). See the module's docstring for the four variances."""
     p = params or ChanceParams()
     mean = np.asarray(stats["mean"], np.float64)
     top = mean + np.asarray(stats["rise"], np.float64)
@@ -151,19 +169,30 @@ def posterior(stats: dict[str, np.ndarray], geom: GridGeometry, k: float, params
         gy, gx = np.gradient(np.where(seen, top, np.nan), c)
         slope = np.hypot(gx, gy)
     slope = np.nan_to_num(slope, nan=0.0)
-    lo = minimum_filter(np.where(seen, top, np.inf), size=3, mode="nearest")
-    hi = maximum_filter(np.where(seen, top, -np.inf), size=3, mode="nearest")
-    jump = np.where(seen, hi - lo, 0.0)
-    var = var0 + (slope * along) ** 2 + (p.edge_sigma * jump) ** 2
+    jump = headroom(stats, top)
+    var = var0 + p.top_sigma**2 + (slope * along) ** 2
     mu = top + p.edge_bias * jump
     ceiling = np.asarray(stats.get("ceiling", np.full(mean.shape, np.inf)), np.float64)
-    return Posterior(np.where(seen, mu, np.nan), np.where(seen, var, np.nan), ceiling)
+    return Posterior(np.where(seen, mu, np.nan), np.where(seen, var, np.nan), ceiling,
+                     np.where(seen, p.edge_sigma * jump, 0.0))
+
+
+def headroom(stats: dict[str, np.ndarray], top: np.ndarray) -> np.ndarray:
+    """J per cell: how much higher than the cell's ``top`` the worst case allows the ground within
+    its 3 x 3 neighbourhood (the map's ``upper`` bound there, 0 where the cell has no top). A rock
+    edge beside the cell shows in it (its bounds spread along the returns' horizontal errors), and
+    so does ground behind the cell that only a ray bounds: where the truth differs from the cell's
+    top by many sigmas, this is where (``python -m tools.bench.chance --calibrate``)."""
+    upper = np.asarray(stats["upper"], np.float64)
+    near = maximum_filter(np.where(np.isfinite(upper), upper, -np.inf), size=3, mode="nearest")
+    with np.errstate(invalid="ignore"):
+        return np.where(np.isfinite(top), np.maximum(near - top, 0.0), 0.0)
 
 
 def screen_k(body: VehicleBody, cell: float, epsilon: float) -> float:
     """How many sigmas out the screen's bounds lie: the chance that any of the cells a pose reads
     (four per body sample, a generous count) lies beyond them is at most SCREEN * epsilon."""
-    cells = 4 * len(_pattern(body, cell).pts)
+    cells = 4 * len(_pattern(body, cell).pts) + 1  # and the common error
     return NormalDist().inv_cdf(1.0 - SCREEN * epsilon / (2 * cells))
 
 
@@ -179,11 +208,12 @@ def chance_check(post: Posterior, geom: GridGeometry, poses: np.ndarray, body: V
     mu, var = post.mean, post.var
     seen = np.isfinite(mu)
     sd = np.sqrt(np.where(seen, var, 0.0))
+    common = np.where(seen, post.common, 0.0)
     roof = np.where(np.isfinite(post.ceiling), post.ceiling, np.nan)
     best = np.where(seen, mu, roof)
     ks = screen_k(body, step or geom.cell, p.epsilon)
-    lower = np.where(seen, mu - ks * sd, np.nan).astype(np.float32)
-    upper = np.where(seen, mu + ks * sd, roof).astype(np.float32)
+    lower = np.where(seen, mu - ks * (sd + common), np.nan).astype(np.float32)
+    upper = np.where(seen, mu + ks * (sd + common), roof).astype(np.float32)
     wide = check_poses((lower, upper), geom, poses, body, step)
     unknown = wide.unknown
     screened = wide.safe
@@ -196,7 +226,8 @@ def chance_check(post: Posterior, geom: GridGeometry, poses: np.ndarray, body: V
         excess = np.empty((p.samples, len(rest), 4))
         for s in range(p.samples):
             z = rng.standard_normal(mu.shape)
-            surface = np.where(seen, mu + sd * z, roof).astype(np.float32)
+            shared = rng.standard_normal()
+            surface = np.where(seen, mu + sd * z + common * shared, roof).astype(np.float32)
             excess[s] = check_poses(surface, geom, poses[rest], body, step).excess
         excess = np.nan_to_num(excess, nan=-np.inf)  # no resting plane judged: nothing to exceed
         over = excess > 0

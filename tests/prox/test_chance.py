@@ -120,14 +120,17 @@ def test_a_ray_ceiling_with_no_return_stands_as_the_ground_at_its_height() -> No
 
 
 def stats(top: np.ndarray, sigma: float, shift: float) -> dict[str, np.ndarray]:
+    """A bounds map's statistics with the ground's tops known to ``sigma``; its upper bound the tops
+    themselves (no headroom but a rock's own beside it)."""
     return {"mean": top.copy(), "mean_var": np.full(top.shape, sigma * sigma), "rise": np.zeros(top.shape),
-            "drop": np.zeros(top.shape), "shift": np.full(top.shape, shift), "ceiling": np.full(top.shape, np.inf)}
+            "drop": np.zeros(top.shape), "shift": np.full(top.shape, shift), "ceiling": np.full(top.shape, np.inf),
+            "upper": top.copy(), "lower": top.copy()}
 
 
 def test_the_range_error_lies_along_the_ray() -> None:
     g, X, Y = grid()
     top = np.where(X >= 0.0, 0.10, 0.0)  # an edge across x: seen along the ray from -x, along it from -y
-    no_edge = ChanceParams(edge_bias=0.0, edge_sigma=0.0)
+    no_edge = ChanceParams(edge_bias=0.0, edge_sigma=0.0, top_sigma=0.0)
     k = 2.5
     along = posterior(stats(top, 0.004, k * 0.02), g, k, no_edge, viewpoint=(-3.0, 0.0, 1.0))
     across = posterior(stats(top, 0.004, k * 0.02), g, k, no_edge, viewpoint=(0.0, -30.0, 1.0))
@@ -141,17 +144,33 @@ def test_the_range_error_lies_along_the_ray() -> None:
     assert along.var[at][0] <= 0.004**2 + (0.10 / CELL * 0.02) ** 2 + 1e-12
 
 
-def test_a_rock_edge_reads_low_and_uncertain_by_its_jump() -> None:
+def test_beside_a_rock_the_top_reads_low_by_one_error_for_all_its_cells() -> None:
     g, X, Y = grid()
     top = np.where(np.hypot(X, Y) < 0.2, 0.10, 0.0)
-    p = ChanceParams(edge_bias=0.2, edge_sigma=0.15)
+    p = ChanceParams(edge_bias=0.05, edge_sigma=0.2, top_sigma=0.003)
     post = posterior(stats(top, 0.004, 0.0), g, 2.5, p, viewpoint=(-3.0, 0.0, 1.0))
-    rim = (np.abs(X - 0.175) < 1e-6) & (np.abs(Y - 0.025) < 1e-6)
+    rim = (np.abs(X - 0.225) < 1e-6) & (np.abs(Y - 0.025) < 1e-6)  # outside the rock, beside its 10 cm top
     middle = (np.abs(X - 0.025) < 1e-6) & (np.abs(Y - 0.025) < 1e-6)
-    assert post.mean[rim][0] == pytest.approx(0.10 + 0.2 * 0.10)
-    assert post.var[rim][0] == pytest.approx(0.004**2 + (0.15 * 0.10) ** 2)
+    assert post.mean[rim][0] == pytest.approx(0.05 * 0.10)
+    assert post.common[rim][0] == pytest.approx(0.2 * 0.10)
+    assert post.var[rim][0] == pytest.approx(0.004**2 + 0.003**2)
     assert post.mean[middle][0] == pytest.approx(0.10)
-    assert post.var[middle][0] == pytest.approx(0.004**2)
+    assert post.common[middle][0] == 0.0
+    assert post.var[middle][0] == pytest.approx(0.004**2 + 0.003**2)
+
+
+def test_a_common_error_moves_a_wheel_and_the_ground_beside_it_together() -> None:
+    h, g = ledge(0.09)
+    g_, X, Y = grid()
+    own = known(h, 0.004)
+    # the same spread, all of it one error of the raised ground: the edge's height itself varies,
+    # where errors of each cell apart partly cancel between the cells a sample reads
+    common = Posterior(h, np.full(h.shape, 1e-12), own.ceiling, np.where(h > 0, 0.004 * np.sqrt(2.0), 0.0))
+    p_own = chance_check(own, g, AT_ORIGIN, BODY, ChanceParams(samples=256)).prob[0, STEP]
+    p_common = chance_check(common, g, AT_ORIGIN, BODY, ChanceParams(samples=256)).prob[0, STEP]
+    # one error of sqrt(2) x 4 mm on the 1 cm to spare: P = 1 - Phi(1 / 0.566) = 0.039
+    assert p_common == pytest.approx(0.039, abs=0.02)
+    assert p_common > 10 * p_own
 
 
 def test_the_bounds_map_gives_its_statistics_over_a_box() -> None:

@@ -5,16 +5,18 @@ the reference; and the calibration of its rock-edge error model.
 A look's frames are fused into a bounds map as ``tools.bench.bounds`` fuses them (the ToF's noise
 model, one draw). Then:
 
-- ``--calibrate``: per band of the height jump J within a cell's 3 x 3 neighbourhood, how far the
-  true top (the simulator's 0.5 cm surface, highest in the cell) stands over the posterior's top
-  without the edge terms, and how that spreads beyond the variance the posterior gives; fitted as
-  a bias ``edge_bias * J`` and a sigma ``edge_sigma * J`` (least squares over the bands, weighted
-  by their cells), and the standardised residual's tail with the fit;
+- ``--calibrate``: per band of the headroom J (``chance.headroom``: how much higher the map's
+  upper bound allows the ground within a cell's 3 x 3 neighbourhood), how far the true top (the
+  simulator's 0.5 cm surface, highest in the cell) stands over the posterior's top without the
+  edge terms: its median and 99.9th percentile. Fitted as a bias ``edge_bias * J`` (the medians,
+  least squares weighted by cells), a floor ``top_sigma`` (the bands under 2 cm) and a sigma
+  ``edge_sigma * J`` over it, each the least that puts every band's 99.9th percentile within 3.09
+  sigmas; and the standardised residual's tail with the fit;
 - otherwise, at poses over the ground 1.6-4.0 m ahead (4 headings, as the bounds bench): judged
   poses, truly safe kept and false safes of the worst-case check and of the chance check at each
   epsilon, and the chance check's time per 1,000 poses.
 
-    python -m tools.bench.chance --calibrate                 # marsyard, sweep, cell 2.5 cm
+    python -m tools.bench.chance --calibrate --look approach # marsyard, cell 2.5 cm
     python -m tools.bench.chance --epsilon 1e-2 1e-3 1e-4     # the table
     python -m tools.bench.chance --cell 0.05 --world-seed 2   # a 5 cm map, another rock draw
 """
@@ -27,17 +29,18 @@ import time
 from typing import Any
 
 import numpy as np
-from scipy.ndimage import maximum_filter, minimum_filter
 
 from drivers.sim.rover import RoverBody
 from drivers.sim.world import World
 from prox_workflows.algorithms.bounds_map import BoundsMap, BoundsParams
-from prox_workflows.algorithms.chance import ChanceParams, chance_check, posterior
+from prox_workflows.algorithms.chance import ChanceParams, chance_check, headroom, posterior
 from prox_workflows.algorithms.vehicle import check_poses
 from prox_workflows.grid import GridGeometry
 from tools.bench.bounds import LOOKS, TRUE_CELL, frames, pooled
 
 JUMP_BANDS = (0.0, 0.01, 0.02, 0.04, 0.08, 0.16, np.inf)  # m
+Z999 = 3.09  # a normal's 99.9th percentile
+FLAT = 0.02  # m: bands of less headroom fit the floor (top_sigma), the others the share of J (edge_sigma)
 
 
 def fused(scene: str, look: str, cell: float, world_seed: int, seed: int
@@ -62,37 +65,39 @@ def whole(bounds: BoundsMap) -> tuple[dict[str, np.ndarray], GridGeometry]:
 def calibrate(scene: str, look: str, cell: float, world_seed: int, seed: int) -> dict[str, Any]:
     world, bounds, viewpoint = fused(scene, look, cell, world_seed, seed)
     stats, g = whole(bounds)
-    base = posterior(stats, g, bounds.params.k, ChanceParams(edge_bias=0.0, edge_sigma=0.0), viewpoint)
+    base = posterior(stats, g, bounds.params.k, ChanceParams(edge_bias=0.0, edge_sigma=0.0, top_sigma=0.0), viewpoint)
     fine = world.true_dem(TRUE_CELL, (g.xmin, g.ymin, g.xmin + g.width * g.cell, g.ymax))
     top = pooled(fine, g, np.max)
     seen = np.isfinite(base.mean)
-    est = np.where(seen, base.mean, np.nan)
-    jump = maximum_filter(np.where(seen, est, -np.inf), size=3, mode="nearest") - \
-        minimum_filter(np.where(seen, est, np.inf), size=3, mode="nearest")
-    r, j, v = (top - est)[seen], jump[seen], base.var[seen]
+    jump = headroom(stats, base.mean)
+    r, j, v = (top - base.mean)[seen], jump[seen], base.var[seen]
     rows = []
     for lo, hi in zip(JUMP_BANDS[:-1], JUMP_BANDS[1:], strict=True):
         at = (j >= lo) & (j < hi)
         if at.sum() < 20:
             continue
-        rows.append({"band": (lo, hi), "cells": int(at.sum()), "J": float(j[at].mean()), "bias": float(r[at].mean()),
-                     "sd": float(r[at].std()), "model_sd": float(np.sqrt(v[at].mean())),
-                     "z99": float(np.percentile(r[at] / np.sqrt(v[at]), 99))})
+        rows.append({"band": (lo, hi), "cells": int(at.sum()), "J": float(j[at].mean()),
+                     "median": float(np.median(r[at])), "q999": float(np.percentile(r[at], 99.9)),
+                     "model_sd": float(np.sqrt(v[at].mean())),
+                     "z999": float(np.percentile(r[at] / np.sqrt(v[at]), 99.9)), "at": at})
     n = np.array([row["cells"] for row in rows], float)
     J = np.array([row["J"] for row in rows])
-    bias = np.array([row["bias"] for row in rows])
-    extra = np.maximum(np.array([row["sd"] ** 2 - row["model_sd"] ** 2 for row in rows]), 0.0)
-    # least squares through the origin, each band weighted by its cells: bias = a J, extra variance = (b J)^2
-    a = float(max(np.sum(n * J * bias) / np.sum(n * J * J), 0.0))
-    b = float(np.sqrt(np.sum(n * J * J * extra) / np.sum(n * J**4)))
-    fitted = posterior(stats, g, bounds.params.k, ChanceParams(edge_bias=a, edge_sigma=b), viewpoint)
+    # the bias: the bands' medians over J, least squares through the origin weighted by cells; the
+    # sigma: the least share of J that puts every band's 99.9th percentile (bands of 1,000 cells
+    # and more: fewer cannot show it) within 3.09 sigmas (a normal's 0.1 % tail)
+    a = float(max(np.sum(n * J * np.array([row["median"] for row in rows])) / np.sum(n * J * J), 0.0))
+    # the floor first, from the flat bands (J under FLAT), then the share of J over it
+    extra = {id(row): ((row["q999"] - a * row["J"]) / Z999) ** 2 - row["model_sd"] ** 2 for row in rows}
+    big = [row for row in rows if row["cells"] >= 1000]
+    c = float(np.sqrt(max([extra[id(row)] for row in big if row["J"] < FLAT] + [0.0])))
+    b = float(max(np.sqrt(max(extra[id(row)] - c * c, 0.0)) / row["J"] for row in big if row["J"] >= FLAT))
+    fitted = posterior(stats, g, bounds.params.k, ChanceParams(edge_bias=a, edge_sigma=b, top_sigma=c), viewpoint)
     z = ((top - fitted.mean) / np.sqrt(fitted.var))[seen]
     for row in rows:
-        lo, hi = row["band"]
-        at = (j >= lo) & (j < hi)
-        row["z99_fit"] = float(np.percentile(z[at], 99))
-        row["over_fit"] = float(np.mean(z[at] > 3.09))  # a normal's 0.1 % tail
-    return {"rows": rows, "edge_bias": a, "edge_sigma": b, "cells": int(seen.sum())}
+        at = row.pop("at")
+        row["z999_fit"] = float(np.percentile(z[at], 99.9))
+        row["over_fit"] = float(np.mean(z[at] > Z999))
+    return {"rows": rows, "edge_bias": a, "edge_sigma": b, "top_sigma": c, "cells": int(seen.sum())}
 
 
 def evaluate(scene: str, look: str, cell: float, world_seed: int, seed: int, epsilons: list[float],
@@ -143,15 +148,15 @@ def main(argv: list[str] | None = None) -> None:
     if args.calibrate:
         out = calibrate(args.scene, args.look, args.cell, args.world_seed, args.seed)
         print(f"{head}: {out['cells']} cells with returns")
-        print("| jump J (cm) | cells | mean J (cm) | true top - estimate: mean / sd (cm) | posterior sd without edge "
-              "terms (cm) | z p99 without / with the fit | share with z > 3.09 with the fit |")
+        print("| headroom J (cm) | cells | mean J (cm) | true top - estimate: median / p99.9 (cm) | posterior sd "
+              "without edge terms (cm) | z p99.9 without / with the fit | share with z > 3.09 with the fit |")
         print("|---|---|---|---|---|---|---|")
         for r in out["rows"]:
             lo, hi = r["band"]
-            print(f"| {lo * 100:g}-{hi * 100:g} | {r['cells']} | {100 * r['J']:.1f} | {100 * r['bias']:.2f} / "
-                  f"{100 * r['sd']:.2f} | {100 * r['model_sd']:.2f} | {r['z99']:.2f} / {r['z99_fit']:.2f} "
+            print(f"| {lo * 100:g}-{hi * 100:g} | {r['cells']} | {100 * r['J']:.1f} | {100 * r['median']:.2f} / "
+                  f"{100 * r['q999']:.2f} | {100 * r['model_sd']:.2f} | {r['z999']:.1f} / {r['z999_fit']:.2f} "
                   f"| {100 * r['over_fit']:.2f} % |")
-        print(f"edge_bias {out['edge_bias']:.3f}, edge_sigma {out['edge_sigma']:.3f}")
+        print(f"edge_bias {out['edge_bias']:.3f}, edge_sigma {out['edge_sigma']:.3f}, top_sigma {out['top_sigma']:.4f} m")
         return
     body = RoverBody()
     out = evaluate(args.scene, args.look, args.cell, args.world_seed, args.seed, args.epsilon, args.samples,
