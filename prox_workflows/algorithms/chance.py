@@ -4,8 +4,8 @@ Ono 2018, in place of ACE's hard bounds).
 
 The worst-case check on a bounds map (:func:`vehicle.check_poses` on ``(lower, upper)``) puts every
 one of the 100-500 cells under the body at its extreme at once, each ``k`` sigmas out and dilated
-by the largest horizontal error in every direction: on flat ground known to +-2 cm that alone
-tilts the resting plane past 11 deg and refuses. Here each cell's ground is a distribution
+by the largest horizontal error in every direction: on flat ground known to +-3 cm it already
+lifts the ground under the box into the belly over wheels resting 3 cm low, and refuses. Here each cell's ground is a distribution
 (:func:`posterior`), and a pose is safe when P(any limit exceeded) <= epsilon.
 
 **The cell's posterior** (:func:`posterior`, from :meth:`BoundsMap.statistics`): the cell's top,
@@ -26,24 +26,25 @@ mean + rise, with four variances:
   ``edge_bias * J`` low, with a further sigma ``edge_sigma * J`` that is one error for every
   cell under the body (``Posterior.common``: drawn once per surface): a rock's top read low is
   read low in each of its cells, and the wheel resting on it, the step up to it and the belly over
-  it move together. Drawn independently per cell, the max over a wheel's cells averaged it away
-  and put rocks under a wheel or the belly at P < 1e-6 where the truth was over the limit. Calibrated on the simulator's
-  true surface so that the 99.9th percentile of the truth over the top is 3.09 sigmas in each
+  it move together (drawn apart per cell, the errors partly cancel between the cells a body
+  sample reads and in the highest of a wheel's samples). Calibrated on the simulator's true
+  surface so that the 99.9th percentile of the truth over the top is 3.09 sigmas in each
   band of J (``python -m tools.bench.chance --calibrate``, docs/BENCHMARKS.md): the cells' errors
   there have tails far heavier than a normal's (a rock top no return met), and a sigma fitted to
-  their spread alone put the truth 10-20 sigmas out in 1 cell in 1,000.
+  their spread alone put the truth 10-20 sigmas out in 1 cell in 1,000. What the cells' errors
+  share beyond this (a rock's flat top read low as a whole, where J is small) the model does
+  not carry; docs/BENCHMARKS.md gives the false safes it leaves against the truth.
 
 **The probability** (:func:`chance_check`): surfaces are drawn from the cells' posteriors (seeded,
-every cell's own error independently, the common one once per surface; ``samples`` of them) and each is judged by :func:`vehicle.check_poses`,
-the one definition of the limits: per pose and limit, the samples' excesses give the share over
+every cell's own error independently, the common one once per surface; ``samples`` of them)
+and each is judged by :func:`vehicle.check_poses`, the one definition of the limits: per pose and limit, the samples' excesses give the share over
 the limit and a normal tail from their mean and spread, whichever is higher (``samples`` draws
 alone cannot show a probability below about 1 / samples; the tail reaches epsilon, and it is
 measured against the truth by the pose-level statistics). P(any) is the share of samples over
 any limit or the sum of the four tails (the union bound), whichever is higher.
 
-Poses are first screened by the worst-case check on bounds ``SCREEN_K`` sigmas out (of both
-errors), where
-``SCREEN_K`` makes the chance that any cell under the body lies outside them at most
+Poses are first screened by the worst-case check on bounds :func:`screen_k` sigmas out (of both
+errors), which makes the chance that any cell under the body lies outside them at most
 ``SCREEN * epsilon`` (a union bound over the cells): a pose safe there is safe with P below that,
 and is not sampled. That check also says which poses are ``unknown``: ground under the body with no
 upper bound (no return, no ray over it), or a wheel mostly over ground with no return, by the same
@@ -115,7 +116,7 @@ class ChanceChecks:
     prob: np.ndarray  # (N, 4) P(exceeding) per limit (LIMITS order); 0 where screened, NaN where unknown
     p_any: np.ndarray  # (N,) P(exceeding any limit); 0 where screened, NaN where unknown
     unknown: np.ndarray  # (N,) bool: ground under the body the map does not cover (never safe)
-    screened: np.ndarray  # (N,) bool: cleared by the worst case SCREEN_K sigmas out (P(any) < SCREEN * epsilon)
+    screened: np.ndarray  # (N,) bool: cleared by the worst case screen_k sigmas out (P(any) < SCREEN * epsilon)
     nominal: PoseChecks  # the check on the posterior's best estimate (which limit is closest, by how much)
     epsilon: float
 
