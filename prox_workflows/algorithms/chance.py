@@ -9,7 +9,7 @@ lifts the ground under the box into the belly over wheels resting 3 cm low, and 
 (:func:`posterior`), and a pose is safe when P(any limit exceeded) <= epsilon.
 
 **The cell's posterior** (:func:`posterior`, from :meth:`BoundsMap.statistics`): the cell's top,
-mean + rise, with four variances:
+mean + rise, with five variances:
 
 - the fused mean's variance (``mean_var``: the returns' height variance over their number, fused
   over frames, so averaging frames narrows it);
@@ -31,9 +31,13 @@ mean + rise, with four variances:
   surface so that the 99.9th percentile of the truth over the top is 3.09 sigmas in each
   band of J (``python -m tools.bench.chance --calibrate``, docs/BENCHMARKS.md): the cells' errors
   there have tails far heavier than a normal's (a rock top no return met), and a sigma fitted to
-  their spread alone put the truth 10-20 sigmas out in 1 cell in 1,000. What the cells' errors
-  share beyond this (a rock's flat top read low as a whole, where J is small) the model does
-  not carry; docs/BENCHMARKS.md gives the false safes it leaves against the truth.
+  their spread alone put the truth 10-20 sigmas out in 1 cell in 1,000;
+- the rock's top: a rock's flat top, where J is small, is read low as a whole (the cells of an
+  18 cm rock under a wheel 1-2 cm each), which no per-cell sigma carries: drawn apart, the cells'
+  errors cancel in the contact and the belly's highest ground. A further common sigma
+  ``rock_sigma * H``, H the cell's height over the lowest top within ``ROCK_WINDOW``
+  (:func:`relief`). Its share is chosen at the pose level, on the false safes against the truth
+  (docs/BENCHMARKS.md), not per cell: per cell the marginals above already hold.
 
 **The probability** (:func:`chance_check`): surfaces are drawn from the cells' posteriors (seeded,
 every cell's own error independently, the common one once per surface; ``samples`` of them)
@@ -60,7 +64,7 @@ from statistics import NormalDist
 from typing import Any
 
 import numpy as np
-from scipy.ndimage import maximum_filter
+from scipy.ndimage import maximum_filter, minimum_filter
 from scipy.special import ndtr
 
 from rvs_params import Settings, param
@@ -71,6 +75,7 @@ from .vehicle import LIMITS, PoseChecks, VehicleBody, _pattern, _sample, check_p
 __all__ = ["ChanceParams", "ChanceChecks", "Posterior", "posterior", "chance_check", "SCREEN"]
 
 SCREEN = 0.1  # the share of epsilon the screen may spend: a pose it clears has P(any) below this times epsilon
+ROCK_WINDOW = 0.2  # m: the ground round a cell its rock stands on
 _MIN_ELEVATION = 0.05  # tan: a ray grazing flatter than this is taken at it (its horizontal error is bounded by shift)
 
 
@@ -91,6 +96,10 @@ class ChanceParams(Settings):
     top_sigma: float = param(0.005, "the true top of a cell stands over its returns' estimate by the relief no "
                                     "return met: this sigma on every cell (calibrated alike)", unit="m",
                              min=0.0, max=0.1)
+    rock_sigma: float = param(0.2, "a rock's top is read low as a whole: a sigma common to the cells under a body, "
+                                   "as a share of the cell's height over the lowest top within 0.2 m (chosen on "
+                                   "the false safes against the truth of two marsyard draws: python -m "
+                                   "tools.bench.chance --rock-sigma)", min=0.0, max=1.0)
     edge_sigma: float = param(0.17, "a rock edge's further uncertainty (1 sigma), as a share of the same height "
                                     "(calibrated alike, on the 99.9th percentile)", min=0.0, max=2.0)
 
@@ -99,7 +108,8 @@ class ChanceParams(Settings):
 class Posterior:
     """Per cell of one grid: the ground's top (m; its best estimate, NaN where no return bounds it),
     the variance of its error of its own (m^2), the sigma of its share of an error common to the
-    cells under a body (m; the rock edge's: a rock's top read low is read low in each of its cells),
+    cells under a body (m; the rock edge's and the rock top's: a rock read low is read low in each
+    of its cells),
     and the lowest ray that passed over it (m; inf: none). The top's variance is var + common^2."""
 
     mean: np.ndarray
@@ -144,7 +154,7 @@ def posterior(stats: dict[str, np.ndarray], geom: GridGeometry, k: float, params
     """Each cell's ground from a bounds map's statistics over ``geom`` (:meth:`BoundsMap.statistics`;
     ``k`` the map's, by which its ``shift`` is drawn), seen from ``viewpoint`` (x, y, z of the
     sensor; None: the ray's direction unknown, so the slope's steepest direction and one return's
-    horizontal sigma stand in). See the module's docstring for the four variances."""
+    horizontal sigma stand in). See the module's docstring for the five variances."""
     p = params or ChanceParams()
     mean = np.asarray(stats["mean"], np.float64)
     top = mean + np.asarray(stats["rise"], np.float64)
@@ -175,7 +185,16 @@ def posterior(stats: dict[str, np.ndarray], geom: GridGeometry, k: float, params
     mu = top + p.edge_bias * jump
     ceiling = np.asarray(stats.get("ceiling", np.full(mean.shape, np.inf)), np.float64)
     return Posterior(np.where(seen, mu, np.nan), np.where(seen, var, np.nan), ceiling,
-                     np.where(seen, p.edge_sigma * jump, 0.0))
+                     np.where(seen, np.hypot(p.edge_sigma * jump, p.rock_sigma * relief(top, geom)), 0.0))
+
+
+def relief(top: np.ndarray, geom: GridGeometry) -> np.ndarray:
+    """H per cell: how far its ``top`` stands over the lowest top within ROCK_WINDOW (0 where no
+    top): a rock's height over the ground it stands on, or a slope's rise over the window."""
+    size = 2 * max(1, int(round(ROCK_WINDOW / 2 / geom.cell))) + 1
+    low = minimum_filter(np.where(np.isfinite(top), top, np.inf), size=size, mode="nearest")
+    with np.errstate(invalid="ignore"):
+        return np.where(np.isfinite(top), np.maximum(top - low, 0.0), 0.0)
 
 
 def headroom(stats: dict[str, np.ndarray], top: np.ndarray) -> np.ndarray:

@@ -130,7 +130,7 @@ def stats(top: np.ndarray, sigma: float, shift: float) -> dict[str, np.ndarray]:
 def test_the_range_error_lies_along_the_ray() -> None:
     g, X, Y = grid()
     top = np.where(X >= 0.0, 0.10, 0.0)  # an edge across x: seen along the ray from -x, along it from -y
-    no_edge = ChanceParams(edge_bias=0.0, edge_sigma=0.0, top_sigma=0.0)
+    no_edge = ChanceParams(edge_bias=0.0, edge_sigma=0.0, top_sigma=0.0, rock_sigma=0.0)
     k = 2.5
     along = posterior(stats(top, 0.004, k * 0.02), g, k, no_edge, viewpoint=(-3.0, 0.0, 1.0))
     across = posterior(stats(top, 0.004, k * 0.02), g, k, no_edge, viewpoint=(0.0, -30.0, 1.0))
@@ -147,7 +147,7 @@ def test_the_range_error_lies_along_the_ray() -> None:
 def test_beside_a_rock_the_top_reads_low_by_one_error_for_all_its_cells() -> None:
     g, X, Y = grid()
     top = np.where(np.hypot(X, Y) < 0.2, 0.10, 0.0)
-    p = ChanceParams(edge_bias=0.05, edge_sigma=0.2, top_sigma=0.003)
+    p = ChanceParams(edge_bias=0.05, edge_sigma=0.2, top_sigma=0.003, rock_sigma=0.0)
     post = posterior(stats(top, 0.004, 0.0), g, 2.5, p, viewpoint=(-3.0, 0.0, 1.0))
     rim = (np.abs(X - 0.225) < 1e-6) & (np.abs(Y - 0.025) < 1e-6)  # outside the rock, beside its 10 cm top
     middle = (np.abs(X - 0.025) < 1e-6) & (np.abs(Y - 0.025) < 1e-6)
@@ -157,6 +157,21 @@ def test_beside_a_rock_the_top_reads_low_by_one_error_for_all_its_cells() -> Non
     assert post.mean[middle][0] == pytest.approx(0.10)
     assert post.common[middle][0] == 0.0
     assert post.var[middle][0] == pytest.approx(0.004**2 + 0.003**2)
+
+
+def test_a_rock_top_shares_one_error_by_its_height_over_the_ground_round_it() -> None:
+    g, X, Y = grid()
+    top = np.where(np.hypot(X, Y) < 0.2, 0.10, 0.0) + 0.02 * X  # on a gentle slope
+    p = ChanceParams(edge_bias=0.0, edge_sigma=0.0, top_sigma=0.0, rock_sigma=0.2)
+    post = posterior(stats(top, 0.004, 0.0), g, 2.5, p)
+    middle = (np.abs(X - 0.025) < 1e-6) & (np.abs(Y - 0.025) < 1e-6)
+    # the lowest top within 0.2 m (+-0.1 m: two cells) is the rock's own, 0.1 m down the slope
+    assert post.common[middle][0] == pytest.approx(0.2 * 0.02 * 0.1, rel=1e-6)
+    # inside by its rim; the ground beside the rock at the same x (0.175, 0.125) is the lowest
+    rim = (np.abs(X - 0.175) < 1e-6) & (np.abs(Y - 0.025) < 1e-6)
+    assert post.common[rim][0] == pytest.approx(0.2 * 0.10, rel=1e-6)
+    flat = (np.abs(X + 0.7) < 0.05) & (np.abs(Y) < 0.5)
+    np.testing.assert_allclose(post.common[flat], 0.2 * 0.02 * 0.1, rtol=1e-6)  # the slope over 0.1 m: 0.4 mm
 
 
 def test_a_common_error_moves_a_wheel_and_the_ground_beside_it_together() -> None:

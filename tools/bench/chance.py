@@ -102,7 +102,7 @@ def calibrate(scene: str, look: str, cell: float, world_seed: int, seed: int) ->
 
 
 def evaluate(scene: str, look: str, cell: float, world_seed: int, seed: int, epsilons: list[float],
-             samples: int, body: RoverBody) -> dict[str, Any]:
+             samples: int, body: RoverBody, rock_sigma: float = ChanceParams().rock_sigma) -> dict[str, Any]:
     world, bounds, viewpoint = fused(scene, look, cell, world_seed, seed)
     stats, g = whole(bounds)
     x0, y0, _ = world.rover_pose()
@@ -118,7 +118,7 @@ def evaluate(scene: str, look: str, cell: float, world_seed: int, seed: int, eps
     rows = [{"check": f"worst case (k {bounds.params.k:g})", "safe": worst.safe, "unknown": worst.unknown,
              "ms": 1000 * t_worst}]
     for eps in epsilons:
-        params = ChanceParams(epsilon=eps, samples=samples)
+        params = ChanceParams(epsilon=eps, samples=samples, rock_sigma=rock_sigma)
         t0 = time.perf_counter()
         post = posterior(stats, g, bounds.params.k, params, viewpoint)
         c = chance_check(post, g, poses, body, params)
@@ -170,6 +170,8 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--calibrate", action="store_true", help="fit the rock-edge error model instead")
     ap.add_argument("--epsilon", nargs="+", type=float, default=[1e-2, 1e-3, 1e-4])
     ap.add_argument("--samples", type=int, default=ChanceParams().samples)
+    ap.add_argument("--rock-sigma", type=float, default=ChanceParams().rock_sigma,
+                    help="ChanceParams.rock_sigma for the table (what the declared value is weighed against)")
     ap.add_argument("--time", action="store_true", help="time 1,000 poses on a synthetic 5 cm window instead")
     args = ap.parse_args(argv)
     if args.time:
@@ -192,7 +194,7 @@ def main(argv: list[str] | None = None) -> None:
         return
     body = RoverBody()
     out = evaluate(args.scene, args.look, args.cell, args.world_seed, args.seed, args.epsilon, args.samples,
-                   dataclasses.replace(body))
+                   dataclasses.replace(body), args.rock_sigma)
     print(f"{head}: {out['poses']} poses, {out['truly_unsafe']} truly unsafe")
     print("| check | judged | false safe | truly safe kept (of) | poses screened | ms per 1,000 poses |")
     print("|---|---|---|---|---|---|")
