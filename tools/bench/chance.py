@@ -66,7 +66,8 @@ def whole(bounds: BoundsMap) -> tuple[dict[str, np.ndarray], GridGeometry]:
 def calibrate(scene: str, look: str, cell: float, world_seed: int, seed: int) -> dict[str, Any]:
     world, bounds, viewpoint = fused(scene, look, cell, world_seed, seed)
     stats, g = whole(bounds)
-    base = posterior(stats, g, bounds.params.k, ChanceParams(edge_bias=0.0, edge_sigma=0.0, top_sigma=0.0), viewpoint)
+    bare = ChanceParams(edge_bias=0.0, edge_sigma=0.0, top_sigma=0.0, rock_sigma=0.0)
+    base = posterior(stats, g, bounds.params.k, bare, viewpoint)
     fine = world.true_dem(TRUE_CELL, (g.xmin, g.ymin, g.xmin + g.width * g.cell, g.ymax))
     top = pooled(fine, g, np.max)
     seen = np.isfinite(base.mean)
@@ -92,7 +93,9 @@ def calibrate(scene: str, look: str, cell: float, world_seed: int, seed: int) ->
     big = [row for row in rows if row["cells"] >= 1000]
     c = float(np.sqrt(max([extra[id(row)] for row in big if row["J"] < FLAT] + [0.0])))
     b = float(max(np.sqrt(max(extra[id(row)] - c * c, 0.0)) / row["J"] for row in big if row["J"] >= FLAT))
-    fitted = posterior(stats, g, bounds.params.k, ChanceParams(edge_bias=a, edge_sigma=b, top_sigma=c), viewpoint)
+    # per cell, without the rock-top term (chosen at the pose level, on false safes: it only widens)
+    fitted = posterior(stats, g, bounds.params.k, dataclasses.replace(bare, edge_bias=a, edge_sigma=b, top_sigma=c),
+                       viewpoint)
     z = ((top - fitted.mean) / np.sqrt(fitted.var + fitted.common**2))[seen]
     for row in rows:
         at = row.pop("at")
