@@ -9,12 +9,17 @@ config). A real backend whose hardware or library is missing raises :class:`Devi
 
 from __future__ import annotations
 
+import contextvars
 import threading
 from collections.abc import Callable
 from typing import Any, Protocol, runtime_checkable
 
 # What a long device operation looks at to stop early: a job's threading.Event or a callable.
 Cancel = Callable[[], bool] | threading.Event | None
+# The cancel of the device call this thread is making, for a backend that may wait deep below
+# the front end's checks (a replay holding a frame back until its recorded turn): set by the
+# caller around the call (a monitor's stop).
+CALL_CANCEL: contextvars.ContextVar[threading.Event | None] = contextvars.ContextVar("call_cancel", default=None)
 
 
 class DeviceError(Exception):

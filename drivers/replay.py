@@ -25,12 +25,13 @@ import time
 import weakref
 from collections.abc import Generator, Iterator
 from dataclasses import dataclass, field
+from datetime import datetime
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from drivers.base import DeviceError
+from drivers.base import CALL_CANCEL, DeviceError, DeviceInterrupted
 from rvs_params import Settings, param
 
 TIMINGS = ("fast", "recorded")
@@ -74,12 +75,15 @@ class Recording:
         self.path = path
         self.calls: dict[str, list[Call]] = {}
         self.poses: list[tuple[int, float, float, float]] = []  # (t_ns, x, y, heading): the believed pose
+        self.requests: list[str] = []  # the request lines received, in order
         self.start_ns: int | None = None
         self.metadata: dict[str, Any] = {}
         self.torn = False
         decoders: dict[int, Any] = {}
         last: Call | None = None
         for schema, channel, message in self._records():
+            if channel.message_encoding == "cdr":
+                raise DeviceError("replay", not_replayable_ros2(path))
             self.start_ns = message.log_time if self.start_ns is None else min(self.start_ns, message.log_time)
             topic = channel.topic
             if topic == "/raw/calls":
@@ -90,12 +94,19 @@ class Recording:
                             None if ptu is None else (float(ptu[0]), float(ptu[1])))
                 calls.append(last)
             elif topic.startswith("/raw/") and last is not None and message.log_time == last.t_ns:
-                last.images[topic.removeprefix(f"/raw/{last.device}/")] = _image(_decoder(decoders, schema)(message.data))
+                last.images[topic.removeprefix(f"/raw/{last.device}/")] = _image(decoder(decoders, schema)(message.data))
+            elif topic == "/rvs/wire":
+                wire = json.loads(message.data)
+                if wire.get("dir") == "request":
+                    self.requests.append(str(wire.get("line", "")))
             elif topic == "/rover/pose":
-                pose = _decoder(decoders, schema)(message.data).pose
+                pose = decoder(decoders, schema)(message.data).pose
                 q = pose.orientation
                 heading = float(np.degrees(np.arctan2(2 * (q.w * q.z + q.x * q.y), 1 - 2 * (q.y ** 2 + q.z ** 2))))
                 self.poses.append((message.log_time, pose.position.x, pose.position.y, heading))
+        started = self.metadata.get("started")
+        if isinstance(started, str):  # record -start's time: the latched maps it begins with are older
+            self.start_ns = round(datetime.fromisoformat(started).timestamp() * 1e9)
 
     def _records(self) -> Iterator[tuple[Any, Any, Any]]:
         try:
@@ -119,9 +130,17 @@ def _load(path: Path, mtime_ns: int, size: int) -> Recording:
     return Recording(path)
 
 
+def not_replayable_ros2(path: str | Path) -> str:
+    """Why a ``ros2``-profile recording does not replay (one line, what to do)."""
+    return (f"{path} is a ros2-profile recording (record -profile ros2), for ROS 2's tools; a replay reads "
+            "the foxglove profile: record the run again with record -start -profile foxglove")
+
+
 def load(path: str | Path) -> Recording:
     """The recording at ``path``, read once while the file stays the same."""
     p = Path(path).expanduser().resolve()
+    if (p / "metadata.yaml").is_file():  # a rosbag2 directory: what record -profile ros2 writes
+        raise DeviceError("replay", not_replayable_ros2(path))
     try:
         st = p.stat()
     except OSError as exc:
@@ -141,6 +160,10 @@ class Replay:
         self.placed = False  # the replayed rover was set down where the recorded one started
         self.last_ns = recording.start_ns or 0
         self._wall0: float | None = None
+        # rvs-replay --mcap's gate: only calls recorded before this time are served (the requests
+        # recorded before them were sent); None: no gate, every call as it comes
+        self.allowed_ns: int | None = None
+        self.turn = threading.Condition(self.lock)
 
     def next(self, device: str, calls: tuple[str, ...], timing: str) -> Call:
         """The device's next recorded call among ``calls``, paced by ``timing``; DeviceError
@@ -151,6 +174,7 @@ class Replay:
             i = self.cursors.get(device, 0)
             while i < len(mine) and mine[i].call not in calls:
                 i += 1
+            self._await_turn(device, mine[i].t_ns if i < len(mine) else None)
             if i >= len(mine):
                 self.cursors[device] = i
                 served = sum(1 for c in mine if c.call in calls)
@@ -162,6 +186,37 @@ class Replay:
             self.last_ns = max(self.last_ns, call.t_ns)
         self.pace(call.t_ns, timing)
         return call
+
+    def allow(self, t_ns: int | None) -> None:
+        """Serve the calls recorded before ``t_ns`` (None: every call, and say past the end)."""
+        with self.turn:
+            self.allowed_ns = t_ns
+            self.turn.notify_all()
+
+    def _await_turn(self, device: str, t_ns: int | None) -> None:
+        """Hold a monitor's call back (lock held) while the gate is shut for it: a call the
+        recorded run made after a request the replay has not sent yet, or one it never made
+        while requests are still to come (a cycle the recorded stop cut short). Its stop (the
+        caller's CALL_CANCEL) ends the wait as an interruption. A job's calls are not held: the
+        replay sends the requests after a job as the recorded run did (on its final line or
+        ACK), and a job that asks for more than was recorded hears so at once."""
+        cancel = CALL_CANCEL.get()
+        if cancel is None:
+            return
+        while self.allowed_ns is not None and (t_ns is None or t_ns >= self.allowed_ns):
+            if cancel is not None and cancel.is_set():
+                raise DeviceInterrupted(device, "stopped while its frame waited for its recorded turn")
+            self.turn.wait(0.01)
+
+    def behind(self, t_ns: int) -> bool:
+        """Whether a frame call recorded before ``t_ns`` is still to be served: a request recorded
+        after a monitor's cycles waits for the replay's monitor to have made them."""
+        with self.lock:
+            for device, calls in self.recording.calls.items():
+                due = [c.index for c in calls if c.images and c.t_ns < t_ns]
+                if due and self.cursors.get(device, 0) <= due[-1]:
+                    return True
+        return False
 
     def check_pointing(self, call: Call) -> None:
         """DeviceError unless the replayed PTU points where the recorded frame was taken."""
@@ -215,6 +270,12 @@ def open_replay(device: str, path: str | None) -> Replay:
         return run
 
 
+def running(path: str | Path) -> Replay | None:
+    """The run through the recording at ``path`` that this process's replay backends share, if any."""
+    with _RUNS_LOCK:
+        return _RUNS.get(Path(path).expanduser().resolve())
+
+
 def mcap_messages(f: Any, metadata: Any = None) -> Generator[tuple[Any, Any, Any], None, bool]:
     """(schema, channel, message) of every message of an open MCAP file, front to back, also of one
     whose writer was killed (no summary, a torn last record): up to the first torn record. Metadata
@@ -247,8 +308,8 @@ def _json(text: str) -> Any:
         return text
 
 
-def _decoder(cache: dict[int, Any], schema: Any) -> Any:
-    """The protobuf class of a foxglove schema, from the file's own FileDescriptorSet."""
+def decoder(cache: dict[int, Any], schema: Any) -> Any:
+    """The protobuf parser of a foxglove schema, from the file's own FileDescriptorSet."""
     if schema.id not in cache:
         from google.protobuf import descriptor_pb2, descriptor_pool, message_factory
 

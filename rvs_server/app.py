@@ -99,6 +99,11 @@ class Pose:
     # the distance driven on dead reckoning, shrinks with a VO or map fix (rvs_server.navigation.localiser).
     sigma: float = 0.0
     sigma_heading: float = 0.0
+    # The body's roll (left side up) and pitch (nose up), deg, where the GNC reports them with its
+    # pose (its IMU); None when it does not: the see loop then knows no more of the ground under
+    # the wheels than the set-down assumes (drivers.rover attitude).
+    roll: float | None = None
+    pitch: float | None = None
 
     def __post_init__(self) -> None:
         self.x, self.y, self.heading = float(self.x), float(self.y), float(self.heading)
@@ -331,11 +336,12 @@ class App:
         return self._pose_version
 
     def set_pose(self, x: float, y: float, heading: float, *, stopped: bool = False, source: str = "gnc",
-                 sigma: float = 0.0, sigma_heading: float = 0.0) -> None:
+                 sigma: float = 0.0, sigma_heading: float = 0.0, roll: float | None = None,
+                 pitch: float | None = None) -> None:
         """Thread-safe; wakes a navigation job waiting for the rover to move."""
         with self.pose_changed:
             self._pose = Pose(x, y, heading, stopped=stopped, source=source, sigma=sigma,
-                              sigma_heading=sigma_heading)
+                              sigma_heading=sigma_heading, roll=roll, pitch=pitch)
             self._pose_version += 1
             self.pose_changed.notify_all()
         self._travelled(x, y)

@@ -32,7 +32,7 @@ from typing import TYPE_CHECKING, Any, ClassVar
 import numpy as np
 import structlog
 
-from drivers.base import DeviceError
+from drivers.base import CALL_CANCEL, DeviceError
 from prox_workflows.algorithms.transforms import HeadCalibration
 
 from .bus import tapped_call
@@ -162,6 +162,7 @@ class Monitor:
     def call(self, fn: Any, *args: Any, **kwargs: Any) -> Any:
         """A driver call that a stop interrupts (the cancel event of a job, for a monitor)."""
         t0 = time.monotonic()
+        token = CALL_CANCEL.set(self.stop_event)
         try:
             return tapped_call(self.app.bus, fn, *args, cancel=self.stop_event, **kwargs)
         except Exception:
@@ -169,6 +170,7 @@ class Monitor:
                 raise Stopped() from None
             raise
         finally:
+            CALL_CANCEL.reset(token)
             self._io_s += time.monotonic() - t0
 
     def point(self, pan: float, tilt: float, tolerance: float = 0.05) -> tuple[float, float]:

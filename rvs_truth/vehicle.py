@@ -1,7 +1,8 @@
 """The vehicle's own yardstick of a driven track: its true poses densified and checked wheel by
 wheel on the true 1 cm surface (:mod:`prox_workflows.algorithms.vehicle`), perfect-knowledge plans
-judged the same way (is a mission feasible at all?), the old score (true hazard cells under the
-swept box), the tracking error and a stop's reason."""
+on the window-step hazard map judged the same way (a lower bound on what the body can do; whether
+it can at all is :mod:`rvs_truth.oracle`'s search with the body), the old score (true hazard cells
+under the swept box), the tracking error and a stop's reason."""
 
 from __future__ import annotations
 
@@ -130,9 +131,11 @@ FEASIBLE_STEPS = (0.08, 0.09, 0.10, 0.11, 0.12, 0.13, 0.14, 0.15)
 
 def feasibility(surface: tuple[np.ndarray, GridGeometry, GridGeometry], body: RoverBody,
                 start: tuple[float, float], goal: tuple[float, float], footprint: str) -> dict[str, Any]:
-    """Whether a perfect-knowledge plan reaches the goal and passes the vehicle check: the plan at
-    each of :data:`FEASIBLE_STEPS` (at most the body's step capability to begin with, the slope at its
-    grade) until one passes. The first passing plan's efficiency and threshold (None: infeasible)."""
+    """Whether a perfect-knowledge plan on the window-step map reaches the goal and passes the
+    vehicle check: the plan at each of :data:`FEASIBLE_STEPS` (at most the body's step capability to
+    begin with, the slope at its grade) until one passes. The first passing plan's efficiency and
+    threshold (None: none passed). A window's step is not what the body meets, so this is a lower
+    bound on feasibility; the benchmark's verdict is :func:`rvs_truth.oracle.mission_oracle`."""
     cap = capability_hazard(body)
     for step in sorted({min(cap["step_max"], FEASIBLE_STEPS[0]), *FEASIBLE_STEPS}):
         hazard = {**cap, "step_max": step}

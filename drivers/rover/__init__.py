@@ -14,7 +14,18 @@ from typing import Any
 from rvs_params import Settings
 
 from . import gnc, replay, sim  # noqa: F401 - registers the backends
-from .backend import BACKENDS, Motion, Pilot, Pose, PoseFeed, RoverBackend, RoverSettings, Settle, Silent
+from .backend import (
+    BACKENDS,
+    Attitude,
+    Motion,
+    Pilot,
+    Pose,
+    PoseFeed,
+    RoverBackend,
+    RoverSettings,
+    Settle,
+    Silent,
+)
 from .device import Rover
 
 PEERS: tuple[str, ...] = ()  # built after, and given to create() as, these device kinds
@@ -26,5 +37,5 @@ def create(settings: Mapping[str, Any] | Settings | None, world: Any = None, pos
     return Rover(settings, world, poses)
 
 
-__all__ = ["BACKENDS", "INPUTS", "PEERS", "Motion", "Pilot", "Pose", "PoseFeed", "Rover", "RoverBackend",
+__all__ = ["BACKENDS", "INPUTS", "PEERS", "Attitude", "Motion", "Pilot", "Pose", "PoseFeed", "Rover", "RoverBackend",
            "RoverSettings", "Settle", "Silent", "create"]

@@ -21,6 +21,8 @@ from drivers.sim.rover import RoverBody
 from rvs_params import Settings, param
 
 Pose = tuple[float, float, float]  # x, y (m) and heading (deg, counter-clockwise from x) in the global frame
+# roll (left side up), pitch (nose up) and their 1-sigma, deg: the body's attitude from its IMU
+Attitude = tuple[float, float, float]
 
 
 @dataclass
@@ -99,7 +101,8 @@ class PoseFeed(Protocol):
         """Counts pose changes."""
 
     def set_pose(self, x: float, y: float, heading: float, *, stopped: bool = False, source: str = "gnc",
-                 sigma: float = 0.0, sigma_heading: float = 0.0) -> None: ...
+                 sigma: float = 0.0, sigma_heading: float = 0.0, roll: float | None = None,
+                 pitch: float | None = None) -> None: ...
 
 
 class Silent(Exception):
@@ -112,6 +115,7 @@ class RoverBackend(Protocol):
     capabilities: ClassVar[frozenset[Capability]]
     faults: ClassVar[tuple[str, ...]]
     steers: ClassVar[bool]  # whether the server's motions are executed (else the GNC steers itself)
+    drives_auto: ClassVar[bool]  # whether it drives a navigate -auto leg (the simulator; a replay of one)
 
     def open(self) -> None: ...
 
@@ -125,6 +129,10 @@ class RoverBackend(Protocol):
 
     def speeds(self) -> tuple[float, float]:
         """Forward speed (m/s) and turn rate (deg/s) the server's motions run at."""
+
+    def attitude(self) -> Attitude | None:
+        """The body's roll and pitch where it stands, as its IMU reads them (the simulator's from
+        the true ground under its wheels; the GNC's from its pose reports), or None: not known."""
 
     def body(self) -> RoverBody:
         """What the rover is and drives over: the wheels, the belly's clearance, the climb and tilt

@@ -14,7 +14,7 @@ from typing import Any
 from drivers.base import Cancel, DeviceError
 from rvs_params import Settings
 
-from .backend import BACKENDS, Pilot, Pose, PoseFeed, RoverBackend, Settle
+from .backend import BACKENDS, Attitude, Pilot, Pose, PoseFeed, RoverBackend, Settle
 
 
 class Rover:
@@ -77,6 +77,11 @@ class Rover:
         """Whether the motions a pilot answers are executed (the simulator), or the GNC steers."""
         return self.port.steers
 
+    @property
+    def drives_auto(self) -> bool:
+        """Whether it drives a navigate -auto leg itself (else -auto takes the simulator)."""
+        return self.port.drives_auto
+
     def pose(self) -> Pose:
         """Where the rover believes it is."""
         return self.port.pose()
@@ -88,6 +93,11 @@ class Rover:
     def speeds(self) -> tuple[float, float]:
         """Forward speed (m/s) and turn rate (deg/s) of the motions the server runs (sim only)."""
         return self.port.speeds()
+
+    def attitude(self) -> Attitude | None:
+        """Roll, pitch and their 1-sigma (deg) where the rover stands, from its IMU (the simulator's
+        true ground under its wheels; the GNC's pose reports), or None: the backend has none."""
+        return self.port.attitude()
 
     def body(self) -> Any:
         """The rover's body (:class:`drivers.sim.rover.RoverBody`): what its motions are checked

@@ -19,7 +19,11 @@ from typing import Any
 
 from drivers.base import DeviceError, DeviceInterrupted
 
-from .backend import BACKENDS, Pilot, Pose, PoseFeed, RoverBody, RoverSettings, Settle, Silent
+from .backend import BACKENDS, Attitude, Pilot, Pose, PoseFeed, RoverBody, RoverSettings, Settle, Silent
+
+# deg, 1-sigma taken for the roll and pitch a GNC reports (docs/PROTOCOL.md, pose): a rover's IMU
+# levels to about 0.1 deg at rest; twice that covers one that reports while rolling
+GNC_ATTITUDE_SIGMA = 0.2
 
 
 @BACKENDS.backend("gnc")
@@ -27,6 +31,7 @@ class GncRover:
     """Waits for the GNC's pose reports."""
 
     steers = False
+    drives_auto = False  # the GNC drives its own legs; -auto asks for the simulator
 
     def __init__(self, settings: RoverSettings, world: Any = None, poses: PoseFeed | None = None) -> None:
         self.poses = poses
@@ -43,6 +48,15 @@ class GncRover:
         return p.x, p.y, p.heading
 
     truth = pose  # the GNC's report is all the server knows of where the rover is
+
+    def attitude(self) -> Attitude | None:
+        """Roll and pitch where the GNC's last pose report gave them (``pose -roll -pitch``), good
+        to :data:`GNC_ATTITUDE_SIGMA`; None when it gave none."""
+        p = self.poses.pose
+        roll, pitch = getattr(p, "roll", None), getattr(p, "pitch", None)
+        if roll is None or pitch is None:
+            return None
+        return float(roll), float(pitch), GNC_ATTITUDE_SIGMA
 
     def body(self) -> RoverBody:
         return RoverBody()  # the rover the server is built for; a scene's body is the simulator's

@@ -10,6 +10,7 @@ at that resolution, and a drive the recording does not hold is a DeviceError say
 from __future__ import annotations
 
 import math
+import re
 from collections.abc import Callable
 from typing import Any
 
@@ -21,6 +22,11 @@ from .gnc import GncRover
 
 STAND_S = 1.0  # recorded seconds without motion that end a drive
 STILL_M, STILL_DEG = 0.001, 0.1
+# A drive the server ran (the simulator's, a navigate -auto leg's) was reported from the rover's
+# odometry, which a navigate's localiser takes as dead reckoning; a GNC's own reports are pose
+# requests, which rvs-replay --mcap sends as recorded.
+DRIVE_SOURCE = "odometry"
+AUTO = re.compile(r"^(@\S+\s+)?navigate\b.*\s-auto(=|\s+)(true|1|yes|on)\b", re.IGNORECASE)  # an -auto leg's request
 
 
 @BACKENDS.backend("replay")
@@ -28,6 +34,8 @@ class ReplayRover(GncRover):
     """A GNC whose pose reports come from a recording."""
 
     settings = ReplaySettings
+    # a recorded -auto leg is a recorded drive like any other: the replay drives it, with no world
+    drives_auto = True
 
     def __init__(self, settings: Any, world: Any = None, poses: PoseFeed | None = None) -> None:
         super().__init__(settings, world, poses)
@@ -38,10 +46,16 @@ class ReplayRover(GncRover):
     def open(self) -> None:
         super().open()
         run = self._replay = open_replay("rover", self._file)
+        # the navigation takes the path it took in the recorded run: the server steered the
+        # simulator through its -auto legs, else a GNC steered itself
+        self.steers = any(AUTO.search(line) for line in run.recording.requests)
         start = run.recording.metadata.get("pose")
         if start is not None and not run.placed:
             run.placed = True
-            self.poses.set_pose(*map(float, start), source="replay")
+            # the estimate as it stood, its accuracy too: a navigate's localiser grows it from there
+            source, sigma, sigma_heading = run.recording.metadata.get("pose_estimate") or ("replay", 0.0, 0.0)
+            self.poses.set_pose(*map(float, start), source=str(source), sigma=float(sigma),
+                                sigma_heading=float(sigma_heading))
 
     def drive(self, pilot: Pilot, stop: Callable[[], bool], settle: Settle, since: int) -> Pose:
         run = self._replay
@@ -57,11 +71,11 @@ class ReplayRover(GncRover):
                 raise DeviceInterrupted("rover", "the replayed drive was stopped")
             run.pace(t_ns, self._timing)
             run.last_ns = max(run.last_ns, t_ns)
-            self.poses.set_pose(x, y, heading, source="replay")
+            self.poses.set_pose(x, y, heading, source=DRIVE_SOURCE)
             pose = (x, y, heading)
             pilot.moved(pose, False)
             pilot.next(pose)
-        self.poses.set_pose(*pose, stopped=True, source="replay")
+        self.poses.set_pose(*pose, stopped=True, source=DRIVE_SOURCE)
         pilot.moved(pose, True)
         return pose
 

@@ -10,11 +10,16 @@ can be run on the believed one (as the GNC would) and scored against the true on
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, field, fields
 
 import numpy as np
 
-__all__ = ["RoverBody", "RoverDrive", "Slip", "step_pose"]
+__all__ = ["IMU_SIGMA_DEG", "RoverBody", "RoverDrive", "Slip", "resting_attitude", "step_pose"]
+
+# deg, 1-sigma: the simulated IMU's roll and pitch at rest (an industrial MEMS IMU levels to about
+# 0.05-0.1 deg from gravity); the sim rover's attitude carries this noise and says so
+IMU_SIGMA_DEG = 0.1
 
 
 @dataclass(frozen=True)
@@ -115,6 +120,37 @@ class RoverBody:
         rear-right."""
         a, b = self.wheelbase / 2, self.track / 2
         return np.array([(a, b), (a, -b), (-a, b), (-a, -b)])
+
+
+_TRIPLETS = ((0, 1, 2, 3), (0, 1, 3, 2), (0, 2, 3, 1), (1, 2, 3, 0))  # three wheels a body rests on, the fourth
+
+
+def resting_attitude(body: RoverBody, heights: Callable[[np.ndarray, np.ndarray], np.ndarray],
+                     pose: tuple[float, float, float], step: float = 0.01) -> tuple[float, float]:
+    """Roll (left side up) and pitch (nose up), deg, of ``body`` standing at ``pose`` on the
+    surface ``heights(x, y)``, as its IMU would read them at rest: each wheel rests on the
+    highest ground its circle touches under its footprint, the rigid body on three wheels with
+    the fourth at or below their plane; of the two planes it may rock between, it settles on the
+    one that puts its centre lower. The fourth wheel's ground below that plane no IMU shows."""
+    r, half_w = body.wheel_radius, body.wheel_width / 2
+    dx, dy = (a.ravel() for a in np.meshgrid(np.arange(-r, r + step / 2, step),
+                                             np.arange(-half_w, half_w + step / 2, step)))
+    sag = r - np.sqrt(np.maximum(r * r - dx * dx, 0.0))
+    c, s = math.cos(math.radians(pose[2])), math.sin(math.radians(pose[2]))
+    hubs = body.wheels
+    contact = np.zeros(4)
+    for w, (hx, hy) in enumerate(hubs):
+        px, py = hx + dx, hy + dy
+        z = np.asarray(heights(pose[0] + c * px - s * py, pose[1] + s * px + c * py), float) - sag
+        contact[w] = float(np.nanmax(z)) if np.isfinite(z).any() else 0.0
+    rests = []
+    for t in _TRIPLETS:
+        a, b, k = np.linalg.solve(np.column_stack([hubs[list(t[:3])], np.ones(3)]), contact[list(t[:3])])
+        if contact[t[3]] <= a * hubs[t[3], 0] + b * hubs[t[3], 1] + k + 1e-9:
+            rests.append((k, a, b))
+    _, a, b = min(rests)  # of the two planes it rocks between, it settles on the lower
+    pitch = math.atan(a)
+    return math.degrees(math.atan(b * math.cos(pitch))), math.degrees(pitch)
 
 
 @dataclass

@@ -25,7 +25,7 @@ from drivers.sim.heightfield import Heightfield
 from drivers.sim.noise import periodic_tile
 from drivers.sim.objects import Rect, SceneObject, checker_albedo
 from drivers.sim.render import Detail, Render, render
-from drivers.sim.rover import RoverBody, RoverDrive, Slip, step_pose
+from drivers.sim.rover import RoverBody, RoverDrive, Slip, resting_attitude, step_pose
 from drivers.sim.scene import (
     CHECKERBOARD_ID,
     FIRST_OBJECT_ID,
@@ -220,6 +220,14 @@ class World:
         x, y, _ = self.rover_pose()
         z = float(self.terrain.sample(x, y))
         return z if np.isfinite(z) else 0.0
+
+    def rover_attitude(self) -> tuple[float, float]:
+        """Roll (left side up) and pitch (nose up), deg, of the rover's body resting on the terrain
+        under its wheels where it truly stands (the rendered rover is kept level; this is what
+        its IMU would read)."""
+        with self._lock:
+            pose, body, terrain = self._rover, self.body, self.terrain
+        return resting_attitude(body, terrain.sample, pose)
 
     def set_rover_pose(self, x: float, y: float, heading_deg: float) -> None:
         """Put the rover there, and its odometry with it (a placement, not a drive)."""

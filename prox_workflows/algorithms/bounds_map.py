@@ -45,7 +45,7 @@ from rvs_params import Settings, param
 
 from ..grid import GridGeometry
 
-__all__ = ["BoundsMap", "BoundsParams", "SENSORS"]
+__all__ = ["BoundsMap", "BoundsParams", "SENSORS", "contact_plane"]
 
 # the kinds of frame the map fuses, in rising precedence (``stereo_first``)
 SENSORS = ("tof", "stereo")
@@ -77,6 +77,22 @@ class BoundsParams(Settings):
     stereo_first: bool = param(True, "where a stereo frame bounded a cell, its bounds stand alone: ToF frames no "
                                      "longer fuse into the cell (fused, a mean better than either sensor's "
                                      "shrinks the bounds below what each holds alone)")
+    hang: float = param(0.025, "how far below the plane its attitude gives the ground under a standing wheel may "
+                               "lie: a rigid body on four wheels rests on three, and the IMU does not tell which "
+                               "one hangs, nor by how much, over lower ground", unit="m", min=0.0, max=0.5)
+    contact_sigma: float = param(0.001, "the ground under a standing wheel off the plane its pose and attitude put "
+                                        "the four contacts on: the tyre's give and the grain it rests on (the "
+                                        "attitude's own error is added to it)", unit="m", min=0.0, max=0.05)
+
+
+def contact_plane(heading: float, roll: float, pitch: float) -> tuple[float, float]:
+    """The rise per metre along global x and y of the plane a rover's wheels stand on, from its
+    heading and the roll (left side up, deg) and pitch (nose up, deg) its IMU gives (yaw, then
+    pitch, then roll): along the body's x it rises tan(pitch), along its y tan(roll) / cos(pitch)."""
+    a = math.tan(math.radians(pitch))
+    b = math.tan(math.radians(roll)) / math.cos(math.radians(pitch))
+    c, s = math.cos(math.radians(heading)), math.sin(math.radians(heading))
+    return a * c - b * s, a * s + b * c
 
 
 class BoundsMap:
@@ -140,12 +156,18 @@ class BoundsMap:
         top = self.mean[big] + self.rise[big] + sd
         bottom = self.mean[big] - self.drop[big] - sd
         seen = np.isfinite(top)
-        reach = np.clip(np.ceil(self.shift[big] / g.cell), 1, p.max_shift).astype(np.int32)
+        # a cell no frame gave bounds to (the set-down, the wheels' contacts) holds no return that a
+        # range error could have moved: it spreads to no neighbour
+        reach = np.where(self.stamp[big] > 0, np.clip(np.ceil(self.shift[big] / g.cell), 1, p.max_shift),
+                         0).astype(np.int32)
         up = np.full(top.shape, -np.inf, np.float32)
         lo = np.full(top.shape, np.inf, np.float32)
         for r in np.unique(reach[seen]):
-            disc = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * int(r) + 1, 2 * int(r) + 1))
             at = seen & (reach == r)
+            if r == 0:
+                up, lo = np.where(at, np.maximum(up, top), up), np.where(at, np.minimum(lo, bottom), lo)
+                continue
+            disc = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * int(r) + 1, 2 * int(r) + 1))
             up = np.maximum(up, cv2.dilate(np.where(at, top, -np.inf).astype(np.float32), disc))
             lo = np.minimum(lo, cv2.erode(np.where(at, bottom, np.inf).astype(np.float32), disc))
         inner = (slice(sl[0].start - r0, sl[0].stop - r0), slice(sl[1].start - c0, sl[1].stop - c0))
@@ -197,13 +219,28 @@ class BoundsMap:
 
     # ------------------------------------------------------------------ what the rover's body says
 
-    def stood(self, pose: tuple[float, float, float], z: float, body: Any, sigma: float = 0.005) -> None:
-        """The rover stands at ``pose`` (x, y, heading deg) on ground at height ``z``: its body is a
-        sensor too. Under each wheel the ground is at the contact (``z``, within ``sigma``); under
-        the box it is no higher than the belly, drawn low enough that the worst-case check of this
-        very pose passes (its contacts ``k sigma`` low, the plane tipped through them). Only ground no frame bounded takes this: the mast
-        never sees within about 0.6 m of its foot, so without it the rover could not judge the
-        ground it stands on, nor move off it."""
+    def stood(self, pose: tuple[float, float, float], z: float, body: Any,
+              attitude: tuple[float, float, float] | None = None, sigma: float = 0.005) -> None:
+        """The rover stands at ``pose`` (x, y, heading deg) with its centre's ground at height ``z``:
+        its body is a sensor too, for the ground no frame bounded (the mast never sees within
+        about 0.7 m of its foot). Frames outrank it: a cell a frame bounded keeps its bounds.
+
+        - Under each wheel the ground is at the wheel's contact. With ``attitude`` (roll, pitch and
+          their 1-sigma, deg, as the rover's IMU gives them: :func:`contact_plane`) the body's
+          plane runs through ``z`` tipped by it, and no wheel's ground stands above it by more
+          than ``contact_sigma`` and the attitude's error over its lever from the centre (a few
+          millimetres: the wheel's circle rests on the highest ground under it). A rigid body
+          on four wheels rests on three: the fourth may hang over lower ground, which the IMU
+          does not show (4.4 cm at marsyard mission 0's start), so the ground under each wheel
+          reaches ``hang`` below the plane. This overrides the set-down's prior there; without
+          an attitude the contacts are taken level at ``z`` within ``sigma``, where nothing else
+          bounds them.
+        - Under the box between the wheels proprioception says only that nothing reaches the
+          belly: the ground there is bounded from above (a ceiling) at the belly over that plane,
+          drawn ``3 k`` contact sigmas lower so that the worst-case check of this very pose, its
+          contacts at their extremes, passes. It gives no lower bound (a hole under the box is
+          not felt), and it does not replace what the set-down assumed there
+          (:meth:`set_down`)."""
         from .vehicle import _pattern
 
         g, k = self.geometry, self.params.k
@@ -221,23 +258,53 @@ class BoundsMap:
         inside = g.inside(r, col)
         flat = r * g.width + col
         wheels = np.unique(flat[inside & (wheel_of >= 0)])
-        wheels = wheels[~np.isfinite(self.mean.flat[wheels])]
-        self.mean.flat[wheels] = z
-        self.mean_var.flat[wheels] = sigma * sigma
+        xs = g.xmin + (wheels % g.width + 0.5) * g.cell
+        ys = g.ymax - (wheels // g.width + 0.5) * g.cell
+        if attitude is None:
+            wheels = wheels[~np.isfinite(self.mean.flat[wheels])]
+            height, var = np.full(len(wheels), z), np.full(len(wheels), sigma * sigma)
+            gx = gy = 0.0
+            spread = sigma
+        else:
+            keep = self.stamp.flat[wheels] == 0  # no frame bounded it
+            wheels, xs, ys = wheels[keep], xs[keep], ys[keep]
+            gx, gy = contact_plane(pose[2], attitude[0], attitude[1])
+            height = z + gx * (xs - pose[0]) + gy * (ys - pose[1])
+            lever = np.hypot(xs - pose[0], ys - pose[1])
+            spread = self.params.contact_sigma
+            var = spread ** 2 + (lever * math.tan(math.radians(attitude[2]))) ** 2
+        # with the attitude: no higher than the plane (the wheel's circle rests on the highest ground
+        # under it), down to ``hang`` below it (the wheel the body does not rest on)
+        sag = 0.0 if attitude is None else self.params.hang / 2
+        self.mean.flat[wheels] = height - sag
+        self.mean_var.flat[wheels] = var
+        self.rise.flat[wheels] = sag
+        self.drop.flat[wheels] = sag
+        self.shift.flat[wheels] = 0.0
         under = np.setdiff1d(np.unique(flat[inside & belly]), wheels)
-        roof = np.float32(z + body.clearance - 3 * k * sigma)
+        under = under[self.stamp.flat[under] == 0]
+        ux = g.xmin + (under % g.width + 0.5) * g.cell
+        uy = g.ymax - (under // g.width + 0.5) * g.cell
+        roof = (z + gx * (ux - pose[0]) + gy * (uy - pose[1]) + body.clearance - 3 * k * spread).astype(np.float32)
         self.ceiling.flat[under] = np.minimum(self.ceiling.flat[under], roof)
 
-    def set_down(self, centre: tuple[float, float], radius: float, z: float, sigma: float = 0.01) -> None:
+    def set_down(self, centre: tuple[float, float], radius: float, z: float, sigma: float = 0.01,
+                 plane: tuple[float, float, float, float] | None = None) -> None:
         """The ground within ``radius`` of ``centre`` that no frame bounded is taken as level at
-        ``z`` (within ``sigma``): where the rover was set down, or stands for a 360-degree scan,
-        the ground round the mast's foot that no tilt shows is assumed clear, as the rover's
-        operators placed it or it drove there. Never assumed while driving."""
+        ``z`` (within ``sigma``), or on ``plane`` (x0, y0 where it is at ``z``, and its rise per
+        metre along x and y: the plane the rover's attitude says it stands on): where the rover
+        was set down, or stands for a 360-degree scan, the ground round the mast's foot that no
+        tilt shows is assumed clear, as the rover's operators placed it or it drove there. Never
+        assumed while driving. The wheels' own ground is then known better (:meth:`stood`)."""
         g = self.geometry
         xs, ys = g.centers()
         near = np.hypot(xs[None, :] - centre[0], ys[:, None] - centre[1]) <= radius
         blank = near & ~np.isfinite(self.mean)
-        self.mean[blank] = z
+        if plane is None:
+            height = np.full(self.mean.shape, z)
+        else:
+            height = z + plane[2] * (xs[None, :] - plane[0]) + plane[3] * (ys[:, None] - plane[1])
+        self.mean[blank] = height[blank]
         self.mean_var[blank] = sigma * sigma
         self.rise[blank] = 0.0
         self.drop[blank] = 0.0

@@ -49,7 +49,7 @@ import numpy as np
 from ..grid import GridGeometry
 
 __all__ = ["VehicleBody", "PoseChecks", "Event", "Margins", "Gate", "check_poses", "densify", "gate_poses",
-           "unsafe_events", "track_poses", "tip_angle", "severity", "WHEELS", "LIMITS", "BANDS"]
+           "unsafe_events", "track_poses", "tip_angle", "reach", "severity", "WHEELS", "LIMITS", "BANDS"]
 
 READ_LOW_P99 = 0.051  # m: the ToF's DEM at 5 cm, marsyard (docs/NAVIGATE_BENCH.md, Error budget)
 TRACKING_P99 = 0.03  # m: the see loop's true track from its planned legs, worst mission p99
@@ -478,6 +478,14 @@ def unsafe_events(checks: PoseChecks, poses: np.ndarray, body: VehicleBody) -> l
     return out
 
 
+def reach(body: VehicleBody) -> float:
+    """How far the body's farthest point (a corner of the box or of a wheel) lies from its centre:
+    what sweeps furthest when it turns on the spot."""
+    hubs = np.abs(np.asarray(body.wheels, float))
+    return math.hypot(max(body.length / 2, float(hubs[:, 0].max()) + body.wheel_radius),
+                      max(body.width / 2, float(hubs[:, 1].max()) + body.wheel_width / 2))
+
+
 def densify(poses: np.ndarray, step: float = 0.02, body: VehicleBody | None = None) -> np.ndarray:
     """Poses between consecutive ``poses`` ((N, 3): x, y, heading deg) so that no point of the body
     moves more than ``step`` from one to the next: along a move every ``step``, through a turn on
@@ -486,14 +494,10 @@ def densify(poses: np.ndarray, step: float = 0.02, body: VehicleBody | None = No
     poses = np.atleast_2d(np.asarray(poses, float))
     if len(poses) < 2:
         return poses.copy()
-    reach = 0.4
-    if body is not None:
-        hubs = np.abs(np.asarray(body.wheels, float))
-        reach = math.hypot(max(body.length / 2, float(hubs[:, 0].max()) + body.wheel_radius),
-                           max(body.width / 2, float(hubs[:, 1].max()) + body.wheel_width / 2))
+    far = 0.4 if body is None else reach(body)
     d = np.hypot(*np.diff(poses[:, :2], axis=0).T)
     turn = (np.diff(poses[:, 2]) + 180.0) % 360.0 - 180.0
-    n = np.maximum(1, np.ceil(np.maximum(d, np.radians(np.abs(turn)) * reach) / step - 1e-9)).astype(int)
+    n = np.maximum(1, np.ceil(np.maximum(d, np.radians(np.abs(turn)) * far) / step - 1e-9)).astype(int)
     out = [poses[:1]]
     for k in range(len(d)):
         t = (np.arange(1, n[k] + 1) / n[k])[:, None]

@@ -3,10 +3,15 @@ replay backends, its replies compared with the recorded ones.
 
 The server starts in this process on a free port (the same code path as rvs-server), with the
 configuration the recorded run had and every device on its ``replay`` backend reading the file
-(drivers/replay.py), recording the replay itself to ``<data>/recordings/replay.mcap``. The
-recorded requests are sent over TCP in their recorded order, each on a connection of its own
-recorded connection, and each waits for what the recorded run had seen of the request before
-it (its final line, its ACK, or nothing: a ``break`` sent during a job is sent during it).
+(drivers/replay.py), recording the replay itself to ``<data>/recordings/replay.mcap``. It
+starts from the state the recorded server had at ``record -start``: the current maps (their
+cells the latched Grids the recording begins with, their grid the metadata's), the pose and
+its estimate (the replayed rover). The recorded requests are sent over TCP in their recorded
+order, each on a connection of its own recorded connection, and each waits for what the
+recorded run had seen of the request before it (its final line, its ACK, or nothing: a
+``break`` sent during a job is sent during it), for the frames recorded before it while a job
+or a monitor runs (a monitor's calls are served in their recorded turn, so it stops after as
+many cycles as it made), and with ``--timing recorded`` for its recorded time.
 
 Each request's ACK and final line (OK or ERROR) must equal the recorded ones, but for the
 fields that legitimately differ (:data:`IGNORED_FIELDS`: job numbers, times) and product names
@@ -15,7 +20,8 @@ itself (:data:`STATUS_ONLY`: status, version, config, logbook, events) are compa
 status word only. Requests that manage the run rather than belong to it (:data:`SKIPPED`:
 record, quit, sim, auth) are not sent. ``--products``: every map layer the replay published
 (the /map/* Grids of both recordings, those made after the first request) equal, cell for
-cell.
+cell; a run that made none compares none. A ``ros2``-profile recording (a rosbag2 directory or
+its MCAP file) does not replay: one line says so, exit status 2.
 
     rvs-replay --mcap data/recordings/run1.mcap [--products] [--timing recorded] [--data DIR]
 """
@@ -36,13 +42,18 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import yaml
 
+from drivers.base import DeviceError
 from drivers.registry import DEVICE_KINDS, registry
-from drivers.replay import TIMINGS, load
+from drivers.replay import TIMINGS, Replay, decoder, load, running
+from prox_workflows.grid import GridGeometry, Layers
 from rvs_params.cli import ToolParser
 
 from ..protocol import Reply, parse_reply
+from ..telemetry.messages import DTYPES
+from ..telemetry.outlet import MAP_PREFIX
 from ..telemetry.recording import read_messages
 from .session import ServerThread
 
@@ -50,6 +61,7 @@ IGNORED_FIELDS = frozenset({"job", "seconds", "elapsed", "duration", "time", "st
 STATUS_ONLY = frozenset({"status", "version", "config", "logbook", "events"})
 SKIPPED = frozenset({"record", "quit", "sim", "auth", "exit", "bye"})
 FINAL = ("OK", "ERROR")
+DURATION = re.compile(r"_m?s(_|$)")  # a time it took (cycle_ms, cycle_ms_max, drive_s): the machine's, not the run's
 WALL_STAMP = re.compile(r"\d{8}T\d{6}(_\d{3})?")  # default product names: the UTC time of day
 NOT_REPLAYED_CONFIG = ("server",)  # where it listens and keeps its data is the replay's own
 DEFAULT_TIMEOUT = 600.0
@@ -165,7 +177,7 @@ def normalised(reply: Reply, command: str) -> tuple[Any, ...]:
     if command in STATUS_ONLY:
         return reply.module, reply.status
     fields = {k: WALL_STAMP.sub("<time>", str(v)) for k, v in reply.fields.items()
-              if k not in IGNORED_FIELDS and not k.endswith(("_s", "_ms"))}
+              if k not in IGNORED_FIELDS and not DURATION.search(k)}
     return reply.module, reply.status, reply.tag, fields
 
 
@@ -229,9 +241,34 @@ def compare_products(recorded: Path, replayed: Path, rec_start: int, rep_start: 
         if len(a) != len(b):
             problems.append(f"{topic}: {len(a)} maps recorded, {len(b)} replayed")
         problems += [f"{topic}: map {i + 1} differs" for i, (x, y) in enumerate(zip(a, b, strict=False)) if x != y]
-    if not want:
-        problems.append("the recording holds no map made after its first request to compare")
     return problems, sum(min(len(want.get(t, [])), len(got.get(t, []))) for t in want)
+
+
+def start_maps(path: Path, metadata: dict[str, Any], before_ns: int) -> tuple[Layers, str | None, dict[str, str]] | None:
+    """The maps the server had when the recording started (a recording started after a DEM):
+    their grid, name and files from the metadata, their cells from the latched /map/* Grids the
+    recording begins with (the last of each layer before the first request), as they were."""
+    info = metadata.get("maps")
+    if not isinstance(info, dict):
+        return None
+    cell, xmin, ymax, width, height, crs = info["geometry"]
+    geometry = GridGeometry(float(cell), float(xmin), float(ymax), int(width), int(height), crs)
+    layers = Layers(geometry)
+    parsers: dict[int, Any] = {}
+    for schema, channel, message in read_messages(path):
+        if not channel.topic.startswith(MAP_PREFIX) or message.log_time >= before_ns:
+            continue
+        grid = decoder(parsers, schema)(message.data)
+        if grid.column_count != width or len(grid.data) != height * grid.row_stride:
+            continue  # another grid than the current maps'
+        cells = np.frombuffer(grid.data, np.uint8).reshape(height, width, grid.cell_stride)
+        for f in grid.fields:
+            dtype = np.dtype(DTYPES[f.type])
+            column = cells[..., f.offset:f.offset + dtype.itemsize].copy().view(dtype)
+            layers[f.name] = np.flipud(column.reshape(height, width))  # the Grid's rows run south first
+    if "dem" not in layers:
+        return None
+    return layers, info.get("name"), {str(k): str(v) for k, v in (info.get("files") or {}).items()}
 
 
 def config_dir(metadata: dict[str, Any], where: Path) -> Path | None:
@@ -293,6 +330,13 @@ def replay(path: Path, data: Path, *, products: bool = False, timing: str = "fas
     replayed: list[Exchange] = []
     maps = 0
     try:
+        first_ns = chosen[0].t_ns if chosen else recording.start_ns or 0
+        start = start_maps(path, recording.metadata, first_ns)
+        if start is not None:  # the state the recorded run started from
+            server.app.maps.replace(*start)
+        run = running(path)
+        if run is not None:
+            run.allow(chosen[0].t_ns if chosen else None)
         client = Connection(server.port)
         ok = _request(client, "record -start -name replay", timeout)
         if ok.status != "OK":
@@ -302,8 +346,13 @@ def replay(path: Path, data: Path, *, products: bool = False, timing: str = "fas
             conn = conns.get(ex.conn) or conns.setdefault(ex.conn, Connection(server.port))
             mine = Exchange(ex.conn, ex.request)
             replayed.append(mine)
+            _hold(server.app, run, ex.t_ns, timing, timeout)
+            if run is not None:  # the calls the recorded run made before its next request
+                run.allow(chosen[i + 1].t_ns if i + 1 < len(chosen) else None)
             conn.send(mine)
             _await(ex, mine, chosen[i + 1].t_ns if i + 1 < len(chosen) else None, timeout)
+        if run is not None:
+            run.allow(None)
         for mine in replayed:
             mine.done.wait(timeout)
         _request(client, "record -stop", timeout)
@@ -317,6 +366,21 @@ def replay(path: Path, data: Path, *, products: bool = False, timing: str = "fas
             conn.close()
         server.stop()
     return Outcome(len(replayed), skipped, problems, data / "recordings" / "replay.mcap", maps)
+
+
+def _hold(app: Any, run: Replay | None, t_ns: int, timing: str, timeout: float) -> None:
+    """Send a request no earlier than the recorded run did: with recorded timing at its recorded
+    time after the start; always not before the replay served the frames recorded before it
+    while a job or a monitor (hazard-start, track3d-start) may still ask for them. With the
+    gate of :meth:`Replay.allow` (no call the recorded run made after the next request is
+    served before it is sent), a hazard-stop ends a monitor that made as many cycles as the
+    recorded one, however slow this machine is."""
+    if run is None:
+        return
+    run.pace(t_ns, timing)
+    deadline = time.monotonic() + timeout
+    while run.behind(t_ns) and (app.jobs.current is not None or len(app.monitors)) and time.monotonic() < deadline:
+        time.sleep(0.01)
 
 
 def _await(rec: Exchange, mine: Exchange, next_ns: int | None, timeout: float) -> None:
@@ -354,14 +418,14 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
 
 def main(argv: list[str]) -> int:
     args = parse_args(argv)
-    if not args.mcap.is_file():
+    if not args.mcap.exists():
         print(f"rvs-replay: --mcap {args.mcap}: no such file", file=sys.stderr)
         return 2
     with _data_dir(args.data) as data:
         try:
             outcome = replay(args.mcap, data, products=args.products, timing=args.timing, timeout=args.timeout)
-        except (OSError, RuntimeError, ValueError) as exc:
-            print(f"rvs-replay: {exc}", file=sys.stderr)
+        except (OSError, RuntimeError, ValueError, DeviceError) as exc:
+            print(f"rvs-replay: {exc.message if isinstance(exc, DeviceError) else exc}", file=sys.stderr)
             return 2
     for problem in outcome.problems:
         print(f"MISMATCH {problem}")

@@ -16,11 +16,12 @@ from ..telemetry.recording import PROFILES
 @dataclass
 class RecordConfig(ModuleConfig):
     module: ClassVar[str] = "record"
-    start: bool = param(False, f"start recording to {RECORDINGS}/<name>.mcap under the data directory")
+    start: bool = param(False, f"start recording to {RECORDINGS}/<name>.mcap under the data directory (ros2: "
+                        f"the rosbag2 directory {RECORDINGS}/<name>/)")
     stop: bool = param(False, "stop recording and finish the file")
     name: str = param("", "stem of the recording (default rvs_<UTC time>)", stem=True)
     profile: str = param("foxglove", "what the messages are: Foxglove's schemas, or ROS 2 messages (CDR) that "
-                         "ros2 bag reads; also the profile server.record records in", choices=tuple(PROFILES))
+                         "ros2 bag plays (a rosbag2 directory); also the profile server.record records in", choices=tuple(PROFILES))
 
 
 @command("record", klass=ALWAYS, config=RecordConfig,

@@ -59,6 +59,11 @@ class PoseConfig(ModuleConfig):
     y: float = param(float("nan"), "rover y in the global frame", unit="m", min=-1e6, max=1e6)
     heading: float = param(float("nan"), "rover heading, counter-clockwise from +x", unit="deg", min=-360.0, max=360.0)
     stopped: bool = param(False, "the rover stands still here: ends a navigate wait short of the leg's end")
+    roll: float = param(float("nan"), "body roll from the rover's IMU, left side up (optional, with -pitch: "
+                                      "navigate.see_set_down attitude bounds the ground under the wheels by it)",
+                        unit="deg", min=-90.0, max=90.0)
+    pitch: float = param(float("nan"), "body pitch from the rover's IMU, nose up (optional; with -roll)", unit="deg",
+                         min=-90.0, max=90.0)
 
 
 @dataclass
@@ -448,9 +453,15 @@ def pose(ctx: Context, cfg: PoseConfig) -> dict[str, Any]:
         y = cfg.y if "y" in given else cur.y
         heading = cfg.heading if "heading" in given else cur.heading
         heading = (heading + 180.0) % 360.0 - 180.0
-        app.set_pose(x, y, heading, stopped=cfg.stopped)
+        if ("roll" in given) != ("pitch" in given):
+            raise ProtocolError("E_ARG", "pose: give -roll and -pitch together (the IMU's attitude), or neither")
+        attitude = (cfg.roll, cfg.pitch) if "roll" in given else (None, None)
+        app.set_pose(x, y, heading, stopped=cfg.stopped, roll=attitude[0], pitch=attitude[1])
     p = app.pose
-    return {"x": Fixed(p.x, 3), "y": Fixed(p.y, 3), "heading": Fixed(p.heading, 2), "stopped": p.stopped}
+    out = {"x": Fixed(p.x, 3), "y": Fixed(p.y, 3), "heading": Fixed(p.heading, 2), "stopped": p.stopped}
+    if p.roll is not None and p.pitch is not None:
+        out.update(roll=Fixed(p.roll, 2), pitch=Fixed(p.pitch, 2))
+    return out
 
 
 def _auth_wait(server: ServerConfig, failures: int) -> float:

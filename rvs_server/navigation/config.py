@@ -72,6 +72,13 @@ class SeeConfig(Settings):
                       "height bounds (never moving onto ground no frame bounded: it looks there first, then stops "
                       "and plans round it); off trusts the 5 cm maps' hazard check alone", choices=("bounds", "off"),
                       option=False)
+    set_down: str = param("level", "see loop with the gate: the ground where the rover is set down that no frame "
+                          "shows (the mast's blind disc, under the body): level takes it within 1 cm of level; "
+                          "attitude takes it within 1 cm of the plane the rover's IMU gives (drivers.rover attitude: "
+                          "the simulator's, the GNC's pose -roll -pitch) and the ground under the wheels no higher "
+                          "than that plane, down to 2.5 cm below it (a rigid body rests on three wheels), where the "
+                          "rover stands throughout the drive; without an attitude, level",
+                          choices=("level", "attitude"), option=False)
     gaze: str = param("path", "see loop with the gate: where the ToF looks while driving: path pans along the path "
                       "(the ground a turn will put under the wheels) and every other frame looks at the path just "
                       "ahead at the lowest tilt (where the gate judges next); off, or see_gate off, holds pan 0 and "

@@ -37,11 +37,12 @@ if TYPE_CHECKING:
 
 def rover_for(app: App, auto: bool) -> Rover:
     """The rover that drives this navigate: the configured one (drivers.rover), or with
-    ``-auto`` the simulated one (the configured one if it is simulated)."""
+    ``-auto`` the simulated one (the configured one if it drives -auto legs itself: the
+    simulated one, or a replay of a recorded -auto leg)."""
     import drivers.rover
 
     rover = app.devices.get("rover")
-    if not auto or rover.steers:
+    if not auto or rover.drives_auto:
         return rover
     sim = drivers.rover.create({"backend": "sim"}, app.world, app)
     sim.open()
@@ -52,7 +53,7 @@ def check_request(app: App, cfg: NavigateConfig) -> None:
     """Refusals before the ACK."""
     from .planning import check_plan_size
 
-    if cfg.auto and app.world is None:
+    if cfg.auto and app.world is None and not app.devices.get("rover").drives_auto:
         raise ProtocolError("E_ARG", "-auto drives the simulated rover; with real hardware the GNC sends pose")
     check_plan_size(app, cfg)
 

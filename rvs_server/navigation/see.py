@@ -39,7 +39,7 @@ import numpy as np
 
 from drivers.rover import Motion
 from drivers.tof.constants import FOV_V_DEG
-from prox_workflows.algorithms.bounds_map import BoundsMap
+from prox_workflows.algorithms.bounds_map import BoundsMap, contact_plane
 from prox_workflows.algorithms.hazard_monitor import rover_points
 from prox_workflows.algorithms.noise import pair_sigmas, tof_height_variance, tof_horizontal_sigma
 from prox_workflows.algorithms.planner import NavMaps
@@ -119,6 +119,17 @@ class DriveOutcome:
     hazard: dict[str, Any] | None = None
 
 
+@dataclass(frozen=True)
+class Refusal:
+    """A pose the gate refused, the ground it blamed (x, y) and the bounds map's frame count
+    when it was judged."""
+
+    pose: tuple[float, float, float]
+    x: float
+    y: float
+    frames: int
+
+
 class SeeingDriver:
     """One navigate's see loop: the rolling map lives for the whole mission."""
 
@@ -130,7 +141,8 @@ class SeeingDriver:
         self.body = rover.body()
         # the vehicle gate's map (see_gate bounds): every frame's bounds over the whole mission
         self.bounds = bounds
-        self.vetoed: list[tuple[float, float]] = []  # ground the gate stopped the rover at: rocks to plan round
+        self.refusals: list[Refusal] = []  # poses the gate refused, while the bounds still refuse them
+        self.judged = np.zeros((0, 3))  # the poses of the gate's last check, in the order the rover passes them
         # the body's hazard cameras switched on (drivers.hazcam.cameras): each frame feeds the gate
         self.hazcams: list[str] = []
         if bounds is not None and "hazcam" in self.app.devices.devices:
@@ -214,7 +226,7 @@ class SeeingDriver:
                              tof_horizontal_sigma(full, origin))
             for camera in (c for c in self.hazcams if c in cameras):
                 self._fuse_hazcam(camera, T)
-            self.bounds.stood((x, y, heading), float(T[2, 3]), self.body)
+            self.bounds.stood((x, y, heading), float(T[2, 3]), self.body, self.attitude())
             app.bus.publish("bounds", bounds=self.bounds)  # Foxglove and recordings (their hub throttles)
         self.stats.frame_ms.append((t1 - t0) * 1000)
         return (x, y, heading), t1
@@ -271,18 +283,56 @@ class SeeingDriver:
         half_y = max(b.width / 2, b.track / 2 + b.wheel_width / 2) + BODY_MARGIN
         return (np.abs(pts[:, 0]) <= half_x) & (np.abs(pts[:, 1]) <= half_y)
 
+    def attitude(self) -> tuple[float, float, float] | None:
+        """Roll, pitch and their sigma (deg) from the rover's IMU where it stands, or None (none, or
+        ``see_set_down level``)."""
+        attitude = getattr(self.rover, "attitude", None)
+        return attitude() if attitude is not None and self.p.set_down == "attitude" else None
+
     def gate(self, pose: tuple[float, float, float], remaining: np.ndarray,
              motion: np.ndarray | None = None) -> Gate:
         """The vehicle gate: the body's worst-case check on the bounds map along the motion the
         rover executes next (``motion``; by default from ``pose`` on along the path) and the next
         ``gate_ahead`` metres of the path, every 2 cm of the body's travel, turns included."""
         lead = np.asarray([pose] if motion is None else motion, dtype=np.float64).reshape(-1, 3)
-        poses = densify(np.vstack([lead, path_poses(tuple(lead[-1]), remaining, self.p.gate_ahead)]), 0.02,
-                        self.body)
+        self.judged = densify(np.vstack([lead, path_poses(tuple(lead[-1]), remaining, self.p.gate_ahead)]), 0.02,
+                              self.body)
+        return self._gate_poses(self.judged)
+
+    def _gate_poses(self, poses: np.ndarray) -> Gate:
         reach = math.hypot(self.body.length, self.body.track + self.body.wheel_width) / 2 + 0.1
         lower, upper, g = self.bounds.window(poses[:, 0].min() - reach, poses[:, 1].min() - reach,
                                              poses[:, 0].max() + reach, poses[:, 1].max() + reach)
         return gate_poses(lower, upper, g, poses, self.body)
+
+    def refuse(self, gate: Gate) -> None:
+        """The gate's last check refused ``gate``'s pose: its ground is planned round while the
+        bounds refuse that pose (:meth:`refused`)."""
+        pose = self.judged[gate.index]
+        self.refusals.append(Refusal((float(pose[0]), float(pose[1]), float(pose[2])), gate.x, gate.y,
+                                     self.bounds.frames))
+
+    def refused(self) -> list[tuple[float, float]]:
+        """The ground each standing refusal blames, for a plan to keep round. A refusal is of one
+        pose on the bounds of the moment: once a later frame has been fused, the pose is judged
+        again on the bounds as they are, and a refusal whose pose now passes is dropped (the
+        frame showed its ground); one still refused blames the ground it is refused for at this
+        judging. Kept for good, the refusals round a rover close every way on (0.5-0.7 m round it
+        in a marsyard trace, docs/NAVIGATE_BENCH.md), though none of them was unsafe on the true
+        ground."""
+        if self.bounds is None:
+            return []
+        frames = self.bounds.frames
+        standing = []
+        for r in self.refusals:
+            if r.frames != frames:
+                gate = self._gate_poses(np.array([r.pose]))
+                if gate.verdict == "safe":
+                    continue
+                r = Refusal(r.pose, gate.x, gate.y, frames)
+            standing.append(r)
+        self.refusals = standing
+        return [(r.x, r.y) for r in standing]
 
     def _check_layer(self, pose: tuple[float, float, float]) -> np.ndarray:
         """The traversability the check sweeps: the rolling map's, lowered to 0 where the maps the
@@ -385,7 +435,7 @@ class SeeingDriver:
     def gate_stop(self, gate: Gate, pose: tuple[float, float, float]) -> dict[str, Any]:
         """The gate stopped the rover: the EVENT, and the ground it blamed kept out of every later
         plan (the 5 cm maps may call it safe; the next plan would drive there again)."""
-        self.vetoed.append((gate.x, gate.y))
+        self.refuse(gate)
         self.job.progress(0, 1, f"stopped: {gate.describe()}", phase="drive")
         return self._stop_event(gate.x, gate.y, pose, "unknown" if gate.verdict == "unknown" else "vehicle")
 
@@ -545,13 +595,20 @@ class SeeStrategy:
         self.driver = SeeingDriver(self.job, mission.rover, self.p, self.stats, memory, bounds)
         if bounds is not None:
             # the rover was set down here: the ground round the mast's foot, which no tilt shows,
-            # and the disc its body turns in are taken as clear (the one place the gate assumes
-            # what it has not seen)
-            x, y = self.app.pose.x, self.app.pose.y
+            # and the disc its body turns in are taken as clear, within 1 cm of level or (see_set_down
+            # attitude) of the plane the rover's attitude says it stands on: the one place the gate
+            # assumes what it has not seen. Under the box the same assumption holds (a rock there
+            # is not felt; the operators set the rover down where it can stand and turn); under
+            # the wheels the attitude says more (BoundsMap.stood)
+            x, y, heading = self.app.pose.x, self.app.pose.y, self.app.pose.heading
             z = ground_height(self.app.maps.layers, x, y)
             fx, fy, radius = self.driver.blind_disc()
-            bounds.set_down((fx, fy), radius + BLIND_EDGE, z)
-            bounds.set_down((x, y), self.driver.radius, z)
+            attitude = self.driver.attitude()
+            plane = None if attitude is None else (x, y, *contact_plane(heading, attitude[0], attitude[1]))
+            bounds.set_down((fx, fy), radius + BLIND_EDGE, z, plane=plane)
+            bounds.set_down((x, y), self.driver.radius, z, plane=plane)
+            # the wheels' own ground is known from the pose and the attitude, not assumed
+            bounds.stood((x, y, heading), z, self.driver.body, attitude)
         head = self.app.config.get("head")
         # how far round the rover unseen ground cannot be seen before the body is on it: the
         # checked stretch plus the half body ahead of the rover's centre
@@ -666,7 +723,7 @@ class SeeStrategy:
             # and the ground the gate stopped the rover at
             body = self.driver.body
             rocks = self.driver.bounds.rocks(here, ROCK_RADIUS, min(body.climb, body.clearance))
-            merged = mark_points(merged, [*map(tuple, rocks), *self.driver.vetoed], HAZARDOUS)
+            merged = mark_points(merged, [*map(tuple, rocks), *self.driver.refused()], HAZARDOUS)
             self.app.bus.publish("bounds", bounds=self.driver.bounds, replan=True)  # what this plan read
         self.driver.known = merged
 
@@ -722,7 +779,7 @@ class SeeStrategy:
             gate = self.driver.gate(pose, plan.waypoints.xy[1:])
             if gate.verdict == "safe":
                 break
-            self.driver.vetoed.append((gate.x, gate.y))
+            self.driver.refuse(gate)
             maps = mark_points(maps, [(gate.x, gate.y)], HAZARDOUS)
             plan = attempt(maps)
         return plan

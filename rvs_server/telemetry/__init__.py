@@ -81,9 +81,11 @@ class Station:
             where = self.app.rel(self.recording) if self.recording is not None else "a file"
             raise ProtocolError("E_STATE", f"already recording to {where}; send record -stop first")
         name = name or "rvs_" + datetime.now(UTC).strftime("%Y%m%dT%H%M%S")
-        path = self.app.data_path(RECORDINGS, f"{name}.mcap")
-        if path.exists():
-            raise ProtocolError("E_ARG", f"{self.app.rel(path)} exists; choose another -name")
+        # ros2: a rosbag2 directory (the bag, named by the directory) holding <name>_0.mcap
+        shown = self.app.data_path(RECORDINGS, name if profile == "ros2" else f"{name}.mcap")
+        if shown.exists():
+            raise ProtocolError("E_ARG", f"{self.app.rel(shown)} exists; choose another -name")
+        path = self.app.data_path(RECORDINGS, name, f"{name}_0.mcap") if profile == "ros2" else shown
         metadata = {"server": self.app.name, "started": datetime.now(UTC).isoformat(),
                     "scene": self.app.world.scene_name if self.app.world is not None else ""}
         self._busy = True
@@ -100,10 +102,10 @@ class Station:
             raise ProtocolError("E_IO", f"{self.app.rel(path)} could not be recorded: {exc}") from None
         finally:
             self._busy = False
-        self.recording = path
+        self.recording = shown
         self._dropped_at_start = self.dropped()
-        log.info("recording_started", file=self.app.rel(path))
-        return {"recording": self.app.rel(path)}
+        log.info("recording_started", file=self.app.rel(shown))
+        return {"recording": self.app.rel(shown)}
 
     async def stop_recording(self) -> dict[str, Any]:
         path, link = self.recording, self.link

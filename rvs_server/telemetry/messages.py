@@ -65,6 +65,7 @@ _NUMERIC = {
     np.dtype(np.float32): PackedElementFieldNumericType.Float32,
     np.dtype(np.float64): PackedElementFieldNumericType.Float64,
 }
+DTYPES = {int(v): k for k, v in _NUMERIC.items()}  # a Grid field's numeric type -> the layer's dtype
 
 PLAN_COLOUR = Color(r=1.0, g=0.55, b=0.0, a=1.0)
 TRACK_COLOUR = Color(r=0.1, g=0.5, b=1.0, a=1.0)

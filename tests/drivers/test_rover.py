@@ -192,3 +192,32 @@ def test_the_rover_is_a_device_like_the_others(server) -> None:
     assert rover.backend == "sim" and rover.steers
     assert c.request("config -module drivers -set rover.backend=wheels").fields["code"] == "E_ARG"
     c.close()
+
+
+def test_the_rovers_attitude_is_its_imus_the_sims_from_the_ground_the_gncs_from_its_pose(server) -> None:
+    """The sim rover's IMU reads the tilt of the plane its wheels rest on (within its declared
+    noise); the GNC's roll and pitch come with its pose reports (both or neither), and a GNC
+    that sends none leaves the attitude unknown."""
+    from drivers.sim.rover import IMU_SIGMA_DEG, RoverBody, resting_attitude
+
+    world = World.from_scene("office", clock_scale=0.0)
+    rover = create({"backend": "sim"}, world, None)
+    rover.open()
+    roll, pitch, sigma = rover.attitude()
+    true_roll, true_pitch = world.rover_attitude()
+    assert sigma == IMU_SIGMA_DEG and abs(roll - true_roll) < 5 * sigma and abs(pitch - true_pitch) < 5 * sigma
+    # on a plane rising 10 % along x and falling 5 % along y, heading 90 deg (the nose along +y)
+    roll, pitch = resting_attitude(RoverBody(), lambda x, y: 0.1 * x - 0.05 * y, (1.0, 2.0, 90.0))
+    assert pitch == pytest.approx(math.degrees(math.atan(-0.05)), abs=1e-6)  # the nose goes downhill
+    assert math.tan(math.radians(roll)) / math.cos(math.radians(pitch)) == pytest.approx(-0.1, abs=1e-6)
+
+    gnc_rover = server.app.devices.get("rover")
+    gnc = server.client()
+    assert gnc.request("pose -x 0.3 -y -0.1 -heading 10").status == "OK"
+    assert gnc_rover.attitude() is None  # this GNC says nothing of its attitude
+    r = gnc.request("pose -x 0.3 -y -0.1 -heading 10 -roll 2.5 -pitch -4")
+    assert r.status == "OK" and (r.fields["roll"], r.fields["pitch"]) == ("2.50", "-4.00")
+    assert gnc_rover.attitude()[:2] == (2.5, -4.0)
+    bad = gnc.request("pose -x 0.3 -roll 2")
+    assert bad.status == "ERROR" and bad.fields["code"] == "E_ARG" and "-roll and -pitch" in bad.fields["message"]
+    gnc.close()

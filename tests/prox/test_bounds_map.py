@@ -355,3 +355,61 @@ def test_rocks_on_the_bounds_stand_out_of_a_slope_which_alone_flags_nothing() ->
     found = m.rocks((0.0, 0.0), 1.0, 0.08)
     assert len(found) and np.hypot(found[:, 0] - 0.5, found[:, 1] - 0.2).max() <= 0.08
     assert len(m.rocks((0.0, 0.0), 0.2, 0.08)) == 0  # outside the radius asked
+
+
+@pytest.mark.parametrize("ground", ["level", "graded", "rocking"])
+def test_a_rover_set_down_knows_the_ground_under_its_wheels_from_its_attitude(ground: str) -> None:
+    """Set down, the rover's IMU (roll and pitch, 0.1 deg) puts the plane its wheels rest on to a
+    few millimetres: no wheel's ground stands above it, and one may hang up to 2.5 cm below (a
+    rigid body on four wheels rests on three). On level ground the worst-case check of the pose
+    it stands at then reads 7.1 deg, not the 11.4 deg the set-down's 1 cm prior alone allows, and
+    its belly clear by 1.5 cm, not 1.0; on a 9 % grade, and with the rear-right wheel over a 2 cm
+    dip, the bounds still hold the true tilt."""
+    from drivers.sim.rover import RoverBody, resting_attitude
+    from prox_workflows.algorithms.bounds_map import contact_plane
+    from prox_workflows.algorithms.vehicle import check_poses
+
+    body = RoverBody()
+    pose = (0.3, -0.2, 30.0)
+    gx, gy = (0.08, -0.05) if ground == "graded" else (0.0, 0.0)
+    c, s = np.cos(np.radians(pose[2])), np.sin(np.radians(pose[2]))
+
+    def surface(x: np.ndarray, y: np.ndarray) -> np.ndarray:
+        dx, dy = np.asarray(x) - pose[0], np.asarray(y) - pose[1]
+        z = gx * dx + gy * dy
+        if ground == "rocking":  # a dip under the rear-right wheel
+            fx, fy = c * dx + s * dy, -s * dx + c * dy
+            z = z - 0.02 * ((np.abs(fx + 0.145) < 0.12) & (np.abs(fy + 0.245) < 0.06))
+        return z
+
+    fine = GridGeometry(0.01, -1.0, 1.0, 200, 200)
+    xs, ys = fine.centers()
+    truth = check_poses(surface(xs[None, :], ys[:, None]).astype(np.float32), fine, np.array([pose]), body)
+    roll, pitch = resting_attitude(body, surface, pose)
+    if ground != "rocking":
+        assert contact_plane(pose[2], roll, pitch) == pytest.approx((gx, gy), abs=1e-6)
+
+    def set_down(attitude: tuple[float, float, float] | None) -> BoundsMap:
+        m = BoundsMap.covering([[-1.0, -1.0], [1.0, 1.0]], 0.0)
+        plane = None if attitude is None else (pose[0], pose[1], *contact_plane(pose[2], *attitude[:2]))
+        m.set_down(pose[:2], 0.82, 0.0, plane=plane)
+        m.stood(pose, 0.0, body, attitude)
+        return m
+
+    m = set_down((roll + 0.1, pitch - 0.1, 0.1))  # the IMU's error, one sigma each way
+    felt = check_poses((m.lower, m.upper), m.geometry, np.array([pose]), body)
+    assert felt.safe[0] and truth.tilt[0] <= felt.tilt[0] + 0.2
+    if ground == "level":
+        prior = set_down(None)  # no attitude: the 1 cm prior under the wheels too
+        old = check_poses((prior.lower, prior.upper), prior.geometry, np.array([pose]), body)
+        assert old.tilt[0] > 11.0 and old.intrusion[0] > -0.011
+        assert felt.tilt[0] < 7.5 and felt.intrusion[0] < -0.014
+    # no wheel's ground above the plane: the upper bound under the front-left hub is the plane's
+    hub = (pose[0] + c * 0.145 - s * 0.245, pose[1] + s * 0.145 + c * 0.245)
+    r, col = m.geometry.cell_of(np.array([hub[0]]), np.array([hub[1]]))
+    plane = contact_plane(pose[2], roll, pitch)
+    at = plane[0] * (hub[0] - pose[0]) + plane[1] * (hub[1] - pose[1])
+    assert at < m.upper[r[0], col[0]] < at + 0.008 and m.lower[r[0], col[0]] < at - 0.025
+    # the ground under the box between the wheels keeps the set-down's prior, on that plane
+    r, col = m.geometry.cell_of(np.array([pose[0]]), np.array([pose[1]]))
+    assert m.stamp[r[0], col[0]] == 0 and m.upper[r[0], col[0]] == pytest.approx(0.025, abs=2e-3)

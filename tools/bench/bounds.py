@@ -31,7 +31,16 @@ the ToF frames were drawn with, so this measures the map, not a mis-stated senso
 errors are real stereo errors against the sigmas its device declares, as are those of the
 real-data row (Middlebury Motorcycle, against its ground-truth disparity).
 
+``--poses`` states the vehicle check's safety as p-ACE (Ghosh, Otsu, Ono 2018) does, as a
+measured probability: on world draws no setting was tuned on (:data:`POSE_DRAWS`), poses every
+2 cm along straight paths over the judged ground (:func:`path_lines`), per scene and look the
+judged poses, the false safe (the check on the bounds calls safe, the check on the true 1 cm
+surface unsafe), the one-sided 95 % Clopper-Pearson bound on their rate per judged pose, the
+truly safe kept, how many consecutive poses make one independent trial (the verdicts' integrated
+autocorrelation along the paths) and the unsafe events per 100 m driven the bound allows.
+
     python -m tools.bench.bounds                       # marsyard, hirise, dense; all looks
+    python -m tools.bench.bounds --poses --looks approach approach+hazcam approach+stereo --jobs 2
     python -m tools.bench.bounds --scenes hirise --looks approach --k 2.5 3
 """
 
@@ -39,8 +48,10 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import sys
 import time
 from collections.abc import Iterator
+from concurrent.futures import ProcessPoolExecutor, as_completed
 from typing import Any
 
 import cv2
@@ -57,9 +68,10 @@ from prox_workflows.algorithms.dem2hazard import HazardParams
 from prox_workflows.algorithms.noise import pair_sigmas, tof_height_variance, tof_horizontal_sigma, tof_sigma
 from prox_workflows.algorithms.rolling_map import RollingMap, RollingParams
 from prox_workflows.algorithms.stereo import disparity
-from prox_workflows.algorithms.vehicle import check_poses
+from prox_workflows.algorithms.vehicle import LIMITS, check_poses, severity
 from prox_workflows.grid import GridGeometry
 from rvs_server.devices import stereo_points
+from rvs_truth.stats import clopper_pearson_upper, events_per_distance_upper, poses_per_trial
 
 LOOKS = ("one", "sweep", "approach", "approach+hazcam", "approach+stereo")
 MAST_STEREO = "high"  # the PIKE pair's mode for the near ground: 1280 x 960, 0.2 m baseline
@@ -72,6 +84,11 @@ MAST_STEREO_NEAR = 1.0
 # kind of sensor (bounds_map.SENSORS)
 Frame = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, float, str]
 TRUE_CELL = 0.005  # m: the truth's surface, pooled to the map's cells
+PATH_STEP = 0.02  # m: poses along a path, as the live check judges one (vehicle.densify)
+PATH_LATERAL = 0.08  # m: between the paths of the pose statistics (20,000 judged poses a scene in 3 draws)
+# world draws for the pose statistics: no setting was tuned on them (the bench's own draws are
+# seeds 1 and 2, the scenes' own seeds 3 / 15 / 20 are the navigate bench's and the limits')
+POSE_DRAWS = (101, 102, 103)
 
 
 def frames(world: World, look: str, rng: np.random.Generator) -> Iterator[Frame]:
@@ -144,8 +161,9 @@ def pooled(fine: np.ndarray, g: GridGeometry, how: Any) -> np.ndarray:
     return how(fine[:g.height * f, :g.width * f].reshape(g.height, f, g.width, f), axis=(1, 3))
 
 
-def sim_row(scene: str, look: str, k: float, seed: int = 0, body: RoverBody | None = None) -> dict[str, Any]:
-    world = World.from_scene(scene, seed=1)
+def looked(world: World, look: str, k: float, seed: int) -> tuple[BoundsMap, RollingMap, list[float], list[float]]:
+    """The bounds map and the rolling map after a way of looking from the world's rover start
+    (ToF noise drawn from ``seed``), with each frame's fuse time in each."""
     x0, y0, _ = world.rover_pose()
     box = [[x0 - 1.0, y0 - 3.0], [x0 + 6.5, y0 + 3.0]]
     bounds = BoundsMap.covering(box, 0.0, BoundsParams(k=k))
@@ -159,6 +177,13 @@ def sim_row(scene: str, look: str, k: float, seed: int = 0, body: RoverBody | No
         t2 = time.perf_counter()
         t_bounds.append(t1 - t0)
         t_rolling.append(t2 - t1)
+    return bounds, rolling, t_bounds, t_rolling
+
+
+def sim_row(scene: str, look: str, k: float, seed: int = 0, body: RoverBody | None = None) -> dict[str, Any]:
+    world = World.from_scene(scene, seed=1)
+    x0, y0, _ = world.rover_pose()
+    bounds, rolling, t_bounds, t_rolling = looked(world, look, k, seed)
     g = bounds.geometry
     fine = world.true_dem(TRUE_CELL, (g.xmin, g.ymin, g.xmin + g.width * g.cell, g.ymax))
     top = pooled(fine, g, np.max)
@@ -199,6 +224,98 @@ def sim_row(scene: str, look: str, k: float, seed: int = 0, body: RoverBody | No
         # why the truly safe poses the bounds refuse are refused: step, belly, stability, grade (a pose may have several)
         "refused_by": [int(n) for n in (on_bounds.excess[truly_safe & on_bounds.unsafe] > 0).sum(axis=0)],
     }
+
+
+def path_lines(x0: float, y0: float, spacing: float = PATH_STEP, lateral: float = PATH_LATERAL,
+               headings: tuple[float, ...] = (0.0, 45.0, 90.0, 135.0)) -> list[np.ndarray]:
+    """Straight paths across the judged ground ahead (x0 + 1.6..4.0, y0 - 1.2..1.2, as the pose
+    grid of :func:`sim_row`), at each of ``headings``, ``lateral`` apart, a pose every
+    ``spacing`` along each, as the live check judges a path (``vehicle.densify``'s 2 cm)."""
+    lo, hi = np.array([x0 + 1.6, y0 - 1.2]), np.array([x0 + 4.0, y0 + 1.2])
+    centre, half = (lo + hi) / 2, float(np.hypot(*(hi - lo))) / 2
+    out = []
+    for h in headings:
+        u = np.array([np.cos(np.radians(h)), np.sin(np.radians(h))])
+        nrm = np.array([-u[1], u[0]])
+        along = np.arange(-half, half + 1e-9, spacing)
+        for off in np.arange(-half, half + 1e-9, lateral):
+            xy = centre + off * nrm + along[:, None] * u
+            xy = xy[((xy >= lo) & (xy <= hi)).all(axis=1)]
+            if len(xy) >= 2:
+                out.append(np.column_stack([xy, np.full(len(xy), h)]))
+    return out
+
+
+def pose_row(scene: str, look: str, k: float, world_seed: int, body: RoverBody | None = None) -> dict[str, Any]:
+    """The live check's verdicts on one world draw, per pose along :func:`path_lines`: the check
+    on the bounds map after ``look`` (ToF noise drawn from ``world_seed`` too) against the check on
+    the true 1 cm surface. Per path, each judged pose's verdicts (1 unsafe, 0 safe, NaN unjudged)
+    for the correlation length."""
+    t0 = time.perf_counter()
+    world = World.from_scene(scene, seed=world_seed)
+    x0, y0, _ = world.rover_pose()
+    bounds, _, _, _ = looked(world, look, k, world_seed)
+    g = bounds.geometry
+    truth = world.true_dem(0.01, (g.xmin, g.ymin, g.xmin + g.width * g.cell, g.ymax))
+    tg = GridGeometry(0.01, g.xmin, g.ymax, truth.shape[1], truth.shape[0])
+    paths = path_lines(x0, y0)
+    poses = np.concatenate(paths)
+    body = body or RoverBody()
+    on_truth = check_poses(truth, tg, poses, body)
+    on_bounds = check_poses((bounds.lower, bounds.upper), g, poses, body)
+    judged = ~on_bounds.unknown
+    truly_safe = judged & ~on_truth.unsafe
+    false_safe = on_truth.unsafe & on_bounds.safe
+    cuts = np.cumsum([len(p) for p in paths])[:-1]
+    # what the truth holds against each false-safe pose: each limit it passes, by how much (m for
+    # step and belly, deg for the angles) and how badly
+    misses = [", ".join(f"{name} {e:+.3g} ({severity(name, e)})" for name, e in zip(LIMITS, on_truth.excess[i], strict=True)
+                        if e > 0) + f" at ({poses[i, 0]:.2f}, {poses[i, 1]:.2f}, {poses[i, 2]:.0f})"
+              for i in np.flatnonzero(false_safe)]
+    # one false-safe event per run of consecutive false-safe poses along a path
+    events = sum(int(np.count_nonzero(np.diff(np.concatenate([[0], f.astype(np.int8), [0]])) == 1))
+                 for f in np.split(false_safe, cuts))
+    return {
+        "scene": scene, "look": look, "world_seed": world_seed, "poses": len(poses), "judged": int(judged.sum()),
+        "truly_safe": int(truly_safe.sum()), "false_safe": int(false_safe.sum()), "events": events,
+        "safe_kept": int(on_bounds.safe[truly_safe].sum()),
+        "misses": misses,
+        "truth_paths": np.split(np.where(judged, on_truth.unsafe, np.nan), cuts),
+        "live_paths": np.split(np.where(judged, ~on_bounds.safe, np.nan), cuts),
+        "seconds": time.perf_counter() - t0,
+    }
+
+
+def pose_table(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """Per scene and look, over its world draws: judged poses, false safe, the one-sided 95 %
+    Clopper-Pearson bound on the false-safe rate per judged pose, the truly safe kept, the poses a
+    trial (the longer correlation of the truth's and the live check's verdicts along the paths;
+    one body length where the verdicts never vary) and the unsafe events per 100 m it allows."""
+    out = []
+    for key in dict.fromkeys((r["scene"], r["look"]) for r in rows):
+        rs = [r for r in rows if (r["scene"], r["look"]) == key]
+        n, fs = sum(r["judged"] for r in rs), sum(r["false_safe"] for r in rs)
+        taus = [poses_per_trial([p for r in rs for p in r[which]]) for which in ("truth_paths", "live_paths")]
+        taus = [t for t in taus if t == t]
+        per_trial = max(taus) if taus else RoverBody().length / PATH_STEP
+        out.append({"scene": key[0], "look": key[1], "draws": [r["world_seed"] for r in rs],
+                    "poses": sum(r["poses"] for r in rs), "judged": n, "false_safe": fs,
+                    "events": sum(r["events"] for r in rs), "rate_upper": clopper_pearson_upper(fs, n) if n else float("nan"),
+                    "kept": sum(r["safe_kept"] for r in rs) / max(1, sum(r["truly_safe"] for r in rs)),
+                    "per_trial": per_trial, "per_100m": events_per_distance_upper(sum(r["events"] for r in rs), n,
+                                                                                  per_trial, PATH_STEP) if n else float("nan"),
+                    "seconds": sum(r["seconds"] for r in rs)})
+    return out
+
+
+def print_pose_table(table: list[dict[str, Any]]) -> None:
+    print("| scene | look | world draws | judged / poses | false safe (events) | rate per judged pose, 95 % upper "
+          "| truly safe kept | poses a trial (cm) | unsafe events per 100 m, 95 % upper | s |")
+    print("|---|---|---|---|---|---|---|---|---|---|")
+    for t in table:
+        print(f"| {t['scene']} | {t['look']} | {' '.join(map(str, t['draws']))} | {t['judged']} / {t['poses']} "
+              f"| {t['false_safe']} ({t['events']}) | {t['rate_upper']:.2e} | {100 * t['kept']:.1f} % "
+              f"| {t['per_trial']:.1f} ({100 * PATH_STEP * t['per_trial']:.0f}) | {t['per_100m']:.2f} | {t['seconds']:.0f} |")
 
 
 def motorcycle_row(k: float) -> dict[str, Any] | None:
@@ -279,8 +396,27 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--body", action="append", default=[], metavar="KEY=VALUE",
                     help="a RoverBody field for the vehicle check (e.g. clearance=0.16): what a body with other "
                          "margins would keep")
+    ap.add_argument("--poses", action="store_true",
+                    help="the pose-level statistics instead: the live check's false-safe rate per judged pose along "
+                         "paths over world draws no setting was tuned on, with its 95 %% bound")
+    ap.add_argument("--draws", nargs="+", type=int, default=list(POSE_DRAWS), help="world seeds for --poses")
+    ap.add_argument("--jobs", type=int, default=1, help="processes for --poses (one row each)")
     args = ap.parse_args(argv)
     body = dataclasses.replace(RoverBody(), **{key: float(v) for key, v in (a.split("=", 1) for a in args.body)})
+    if args.poses:
+        todo = [(s, look, k, d, body) for k in args.k for s in args.scenes for look in args.looks for d in args.draws]
+        with ProcessPoolExecutor(args.jobs) as pool:
+            futures = [pool.submit(pose_row, *t) for t in todo]
+            for f in as_completed(futures):
+                r = f.result()
+                print(f"{r['scene']} {r['look']} draw {r['world_seed']}: {r['judged']} judged, "
+                      f"{r['false_safe']} false safe, {r['seconds']:.0f} s", *r["misses"], sep="; ", file=sys.stderr,
+                      flush=True)
+            prows = [f.result() for f in futures]
+        print(f"world draws {args.draws}, k {args.k}, a pose every {100 * PATH_STEP:.0f} cm along paths "
+              f"{100 * PATH_LATERAL:.0f} cm apart at 4 headings")
+        print_pose_table(pose_table(prows))
+        return
     rows = [sim_row(s, look, k, body=body) for k in args.k for s in args.scenes for look in args.looks]
     if not args.no_real:
         rows += [r for k in args.k if (r := motorcycle_row(k)) is not None]

@@ -9,9 +9,13 @@ simulator's 1 cm surface, :mod:`prox_workflows.algorithms.vehicle` checks the fo
 each wheel's step edge against the climb, the ground under the belly against its clearance, the
 resting plane's tilt against the tip-over angle over the safety factor (stability) and the plane
 fitted under the body against the grade. Consecutive unsafe poses are one **event**, with its kind,
-worst excess and severity band; one event fails the mission. A mission is **feasible** when a perfect-knowledge plan (navigate's planner and
-footprint, on the true 1 cm surface's hazard map, thresholds at the body's capability) reaches the
-goal and passes the same check. Per mission: events, reached, the stop's reason when the rover
+worst excess and severity band; one event fails the mission. A mission is **feasible** when a search with the body finds a way
+(:mod:`rvs_truth.oracle`: a lattice over x, y and heading on the true 1 cm surface, every motion
+judged by the same check, its path verified by the truth check; cached per mission under
+``--oracle-cache``); its efficiency there is the **oracle efficiency**. The window-step
+feasibility (navigate's planner on the true surface's hazard map, thresholds at the body's
+capability and looser, a plan that passes the check) stays beside it once, for comparison: it
+is a lower bound on what the body can do. Per mission: events, reached, the stop's reason when the rover
 halted by itself (a **safe stop**: not reached, no event), efficiency beside the perfect-knowledge
 efficiency, and the old score: true hazard cells (Dem2Hazard of the true DEM at 5 cm) under the
 0.51 x 0.40 m box swept along the track, counted once per 5 cm chord.
@@ -29,6 +33,7 @@ distance from the planned waypoint legs) it prints the margin table.
     python -m tools.bench.navigate --missions 4 --modes scan --jobs 2
     python -m tools.bench.navigate --budget --scenes marsyard hirise
     python -m tools.bench.navigate --ceiling --footprint body --scenes hirise   # perfect maps, 35 s
+    python -m tools.bench.navigate --oracle --missions 5 --scenes marsyard hirise dense --jobs 2
 """
 
 from __future__ import annotations
@@ -54,6 +59,7 @@ from prox_workflows.grid import GridGeometry
 from rvs_server.client.session import ServerThread
 from rvs_server.protocol import Reply, parse_reply
 from rvs_truth.ceiling import perception_ceiling
+from rvs_truth.oracle import default_cache_dir, mission_oracle
 from rvs_truth.orbital import write_global_maps
 from rvs_truth.surface import AREA, CEILING_MAPS, missions, true_maps, truth_surface
 from rvs_truth.vehicle import (
@@ -105,7 +111,8 @@ class _Server(ServerThread):
 
 
 def run_mission(scene: str, mode: str, start: tuple[float, float], goal: tuple[float, float],
-                extra: list[str], sets: tuple[str, ...] = ()) -> dict[str, Any]:
+                extra: list[str], sets: tuple[str, ...] = (), seed: int = 0,
+                oracle_cache: Path | None = None) -> dict[str, Any]:
     """One navigate -auto in a fresh server, judged by the vehicle check. A scene built on an
     orbital DTM gets it as navigate's global maps, as a rover team would load its orbital map."""
     with tempfile.TemporaryDirectory() as tmp:
@@ -165,9 +172,12 @@ def run_mission(scene: str, mode: str, start: tuple[float, float], goal: tuple[f
             out["crossed_cells"], worst_step, worst_slope = crossed(poses[:, :2], maps, g)
             if out["crossed_cells"]:
                 out["crossed_step_m"], out["crossed_slope_deg"] = round(worst_step, 3), round(worst_slope, 1)
+            found = mission_oracle(scene, seed, start, goal, body, oracle_cache)
+            out["feasible"], out["perfect_efficiency"] = found["feasible"], found["efficiency"]
+            out["oracle_reason"] = found["reason"]
             feas = feasibility(surface, body, start, goal, FOOTPRINT[mode])
-            out["feasible"], out["perfect_efficiency"] = feas["feasible"], feas["efficiency"]
-            out["perfect_step_max"] = feas["step_max"]
+            out["window_feasible"], out["window_efficiency"] = feas["feasible"], feas["efficiency"]
+            out["window_step_max"] = feas["step_max"]
             today = perfect_plan(surface, body, start, goal, FOOTPRINT[mode], mission_hazard(sets))
             out["today_plan"] = {"reached": today["reached"], "efficiency": today["efficiency"],
                                  "events": [f"{e.kind} +{e.excess:.3f}" for e in today["events"]]}
@@ -200,6 +210,7 @@ def summarise(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
             ok = [r for r in reached if r["feasible"]]
             track = [r["cross_track_p99"] for r in sel if "cross_track_p99" in r]
             s = {"scene": scene, "mode": mode, "missions": len(sel), "feasible": len(feasible),
+                 "window_feasible": sum(1 for r in sel if r.get("window_feasible")),
                  "reached": len(reached), "reached_of_feasible": sum(1 for r in feasible if r["reached"]),
                  "failed": sum(1 for r in sel if r["events"]), "events": len(events),
                  "failed_at_set_down": sum(1 for r in sel if r["events"] and all(
@@ -387,24 +398,25 @@ def margin_table(budget: list[dict[str, Any]], rows: list[dict[str, Any]], body:
     return lines
 
 
-def _run(job: tuple[str, str, tuple[float, float], tuple[float, float], tuple[str, ...], int, str]) -> dict[str, Any]:
+def _run(job: tuple[str, str, tuple[float, float], tuple[float, float], tuple[str, ...], int, str, int, str]
+         ) -> dict[str, Any]:
     """One mission (in a pool's process: the see loop's footprint comes along)."""
-    scene, mode, start, goal, sets, i, footprint = job
+    scene, mode, start, goal, sets, i, footprint, seed, cache = job
     FOOTPRINT["see"] = footprint
-    row = run_mission(scene, mode, start, goal, [], sets)
+    row = run_mission(scene, mode, start, goal, [], sets, seed, Path(cache))
     row["mission"] = i
     return row
 
 
 def print_summary(summary: list[dict[str, Any]]) -> None:
-    print("\nscene     mode missions feasible reached(of feasible) failed events(worst excess)              safe stops "
+    print("\nscene     mode missions feasible(window) reached(of feasible) failed events(worst excess)              safe stops "
           "efficiency(reached/perfect same) crossing(old, missions/cells) tracking_p99 scans sim_s wall_s cycle_ms")
     for s in summary:
         worst = ", ".join(f"{k} {v * 100:.1f} cm" if k in ("step", "belly") else f"{k} {v:.1f} deg"
                           for k, v in s["worst_excess"].items()) or "-"
         eff = (f"{s['efficiency_reached']:.3f}/{s['perfect_efficiency_same']:.3f}"
                if s["efficiency_reached"] is not None else "-")
-        print(f"{s['scene']:9} {s['mode']:4} {s['missions']:8} {s['feasible']:8} {s['reached']:3} ({s['reached_of_feasible']}/"
+        print(f"{s['scene']:9} {s['mode']:4} {s['missions']:8} {s['feasible']:8}({s['window_feasible']}) {s['reached']:3} ({s['reached_of_feasible']}/"
               f"{s['feasible']})  {s['failed']:6} {s['events']:3} ({worst:30}) {s['safe_stops']:4} {eff:>16} "
               f"{s['crossing_missions']:3}/{s['crossed_cells']:<5} {s['cross_track_p99_max']} {s['scans_per_mission']} "
               f"{s['sim_s_mean']} {s['wall_s_mean']} "
@@ -419,6 +431,55 @@ def print_summary(summary: list[dict[str, Any]]) -> None:
         else:
             print(f"    perfect-knowledge efficiency over all feasible {s['perfect_efficiency_feasible']}; "
                   f"today's-threshold perfect plans with events: {s['today_plans_with_events']}/{s['missions']}")
+
+
+def _oracle_job(job: tuple[str, int, int, tuple[float, float], tuple[float, float], str]) -> dict[str, Any]:
+    """One mission's oracle and, for comparison, its window-step feasibility (in a pool's process)."""
+    scene, seed, i, start, goal, cache = job
+    world = World.from_scene(scene)
+    row = mission_oracle(scene, seed, start, goal, world.body, Path(cache))
+    row.pop("path", None)
+    t0 = time.perf_counter()
+    feas = feasibility(truth_surface(world, scene), world.body, start, goal, "circle")
+    row.update(mission=i, window_feasible=feas["feasible"], window_efficiency=feas["efficiency"],
+               window_seconds=round(time.perf_counter() - t0, 1))
+    return row
+
+
+def oracle_table(scenes: list[str], count: int, seed: int, jobs: int, cache: Path, out: str) -> list[dict[str, Any]]:
+    """The oracle's table: per scene, feasible missions (and why not: no way, or the budget met),
+    the oracle efficiency of the feasible ones, the time per mission (computed, not read from the
+    cache), beside the window-step feasibility (navigate's circle planner)."""
+    todo = [(scene, seed, i, *m, str(cache)) for scene in scenes for i, m in enumerate(missions(scene, count, seed))]
+    rows: list[dict[str, Any]] = []
+    if jobs > 1:
+        import multiprocessing
+
+        with multiprocessing.get_context("spawn").Pool(jobs) as pool:
+            for row in pool.imap_unordered(_oracle_job, todo):
+                rows.append(row)
+                print(json.dumps(row), flush=True)
+    else:
+        for job in todo:
+            rows.append(_oracle_job(job))
+            print(json.dumps(rows[-1]), flush=True)
+    print("\nscene     missions feasible (no way / budget / refused)  oracle efficiency mean (per mission)   "
+          "s/mission mean max  window-step feasible, efficiency")
+    for scene in scenes:
+        sel = sorted((r for r in rows if r["scene"] == scene), key=lambda r: r["mission"])
+        ok = [r for r in sel if r["feasible"]]
+        why = Counter(r["reason"] for r in sel if not r["feasible"])
+        fresh = [r["seconds"] for r in sel if not r["cached"]] or [r["seconds"] for r in sel]
+        win = [r for r in sel if r["window_feasible"]]
+        per = " ".join(f"{r['efficiency']:.3f}" if r["feasible"] else "x" for r in sel)
+        eff = f"{np.mean([r['efficiency'] for r in ok]):.3f}" if ok else "-"
+        weff = f"{np.mean([r['window_efficiency'] for r in win]):.3f}" if win else "-"
+        print(f"{scene:9} {len(sel):8} {len(ok):8} ({why['exhausted']} / {why['budget']} / "
+              f"{why['refused by the truth check']})  {eff:>8} ({per})  {np.mean(fresh):7.1f} {max(fresh):6.1f}  "
+              f"{len(win)}, {weff}", flush=True)
+    if out:
+        Path(out).write_text(json.dumps({"oracle": rows}, indent=1))
+    return rows
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -442,6 +503,12 @@ def main(argv: list[str] | None = None) -> None:
                          "and the margin table (the tracking error from --tracking-from)")
     ap.add_argument("--tracking-from", nargs="*", default=[], metavar="JSON",
                     help="with --budget: earlier runs' --out files, whose missions give the path-tracking error")
+    ap.add_argument("--oracle", action="store_true",
+                    help="only the feasibility oracle: per scene, the missions the body can drive (a lattice search "
+                         "with the vehicle check on the true 1 cm surface), their oracle efficiency and its time per "
+                         "mission, beside the window-step feasibility")
+    ap.add_argument("--oracle-cache", default=str(default_cache_dir()),
+                    help="where the oracle keeps its verdicts per mission, body and code (default: %(default)s)")
     ap.add_argument("--derived", action="store_true",
                     help="run with the thresholds the error budget gives (vehicle.Margins): dem2hazard.step_max, "
                          "dem2hazard.slope_max and navigate.margin")
@@ -469,6 +536,9 @@ def main(argv: list[str] | None = None) -> None:
                 print(f"{kind:12} {limit:8.3f} {sum(r['reached'] for r in sel):8} "
                       f"{sum(r['crossed_cells'] > 0 for r in sel):9}  {per}", flush=True)
         return
+    if args.oracle:
+        oracle_table(args.scenes, args.missions, args.seed, args.jobs, Path(args.oracle_cache), args.out)
+        return
     if args.budget:
         budget = [b for scene in args.scenes for b in read_low_budget(scene, args.missions, args.seed)]
         print("\nscene     sensor cell   rock cells  read-low p50  p99 (m)   ground bias p50 (m)  height shift max (m)")
@@ -487,7 +557,8 @@ def main(argv: list[str] | None = None) -> None:
         return
     # scenes and modes interleaved mission by mission: a run cut short still compares them
     todo = {scene: missions(scene, args.missions, args.seed) for scene in args.scenes}
-    jobs = [(scene, mode, *todo[scene][i], tuple(args.set), i, args.footprint) for i in range(args.missions)
+    jobs = [(scene, mode, *todo[scene][i], tuple(args.set), i, args.footprint, args.seed, args.oracle_cache)
+            for i in range(args.missions)
             for scene in args.scenes for mode in args.modes]
     rows: list[dict[str, Any]] = []
     if args.jobs > 1:

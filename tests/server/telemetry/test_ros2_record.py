@@ -13,10 +13,12 @@ from typing import Any
 
 import numpy as np
 import pytest
+import yaml
 from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
 from support.marks import long_test
 from support.mcap import transform_matrix
+from support.server import wait_for
 
 from prox_workflows.grid import read_geotiff
 
@@ -57,7 +59,8 @@ def test_a_dem_recorded_as_ros2_reads_back_as_ros2_messages(server: Any) -> None
     stop = c.request("record -stop")
     assert stop.status == "OK" and stop.fields["dropped"] == "0", stop
 
-    header, channels, messages = read_ros2(server.data / "recordings" / "r2.mcap")
+    assert stop.fields["file"] == "recordings/r2"  # a rosbag2 directory
+    header, channels, messages = read_ros2(server.data / "recordings" / "r2" / "r2_0.mcap")
     assert header.profile == "ros2"
     assert sum(len(v) for v in messages.values()) == int(stop.fields["messages"])
     assert {(enc, msg_enc) for _, enc, msg_enc, _ in channels.values()} == {("ros2msg", "cdr")}
@@ -132,6 +135,46 @@ def test_a_dem_recorded_as_ros2_reads_back_as_ros2_messages(server: Any) -> None
     assert json.loads(answer.data)["verdict"] == move.fields["verdict"]
 
 
+def test_a_ros2_recording_is_a_rosbag2_directory_that_rosbags_reads_with_latched_maps(server: Any) -> None:
+    """rosbags, an independent ROS 2 implementation, opens the bag by its metadata.yaml as
+    ros2 bag play does: the topics, their types and counts, the offered QoS (the maps latched).
+    The metadata names each topic from its first message on, so a killed writer's bag has it."""
+    from rosbags.highlevel import AnyReader
+    from rosbags.interfaces import QosDurability as Durability
+    from rosbags.rosbag2 import Reader
+
+    c = server.client()
+    assert c.request("record -start -name bag -profile ros2").fields["recording"] == "recordings/bag"
+    assert c.request(DEM.replace("-name r2", "-name bagdem"), timeout=120).status == "OK"
+    bag = server.data / "recordings" / "bag"
+
+    def topics() -> set[str]:
+        meta = yaml.safe_load((bag / "metadata.yaml").read_text())["rosbag2_bagfile_information"]
+        return {t["topic_metadata"]["name"] for t in meta["topics_with_message_count"]}
+
+    # while recording (what a killed writer leaves): the metadata already names every topic written
+    assert wait_for(lambda: {"/map/dem", "/tf", "/raw/tof/xyz"} <= topics())
+    stop = c.request("record -stop")
+    assert stop.status == "OK" and stop.fields["file"] == "recordings/bag", stop
+    assert sorted(p.name for p in bag.iterdir()) == ["bag_0.mcap", "metadata.yaml"]
+    meta = yaml.safe_load((bag / "metadata.yaml").read_text())["rosbag2_bagfile_information"]
+    assert meta["version"] == 8 and meta["storage_identifier"] == "mcap" and meta["relative_file_paths"] == ["bag_0.mcap"]
+    _, _, messages = read_ros2(bag / "bag_0.mcap")
+    with Reader(bag) as reader:
+        assert reader.message_count == sum(len(v) for v in messages.values()) == int(stop.fields["messages"])
+        conns = {c.topic: c for c in reader.connections}
+        assert conns["/map/dem"].msgtype == "grid_map_msgs/msg/GridMap"
+        assert conns["/tf"].msgtype == "tf2_msgs/msg/TFMessage"
+        assert {t: conns[t].msgcount for t in conns} == {t: len(v) for t, v in messages.items()}
+        (dem_qos,) = conns["/map/dem"].ext.offered_qos_profiles
+        (tf_qos,) = conns["/tf"].ext.offered_qos_profiles
+        assert dem_qos.durability == Durability.TRANSIENT_LOCAL and tf_qos.durability == Durability.VOLATILE
+    with AnyReader([bag]) as reader:  # the messages decode with the bag's own definitions
+        dem = [reader.deserialize(raw, conn.msgtype) for conn, _, raw in reader.messages()
+               if conn.topic == "/map/dem"]
+        assert len(dem) == 1 and dem[0].layers == ["dem"]
+
+
 def test_the_profile_is_checked_and_server_record_takes_it(server_factory: Any) -> None:
     srv = server_factory(["server.record=true", "record.profile=ros2"])
     c = srv.client()
@@ -142,9 +185,10 @@ def test_the_profile_is_checked_and_server_record_takes_it(server_factory: Any) 
     assert c.request("grab-tof -output k -type amplitude").status == "OK"
     st = c.request("status").fields
     srv.stop()
-    (path,) = (srv.data / "recordings").glob("rvs_*.mcap")
+    (path,) = (srv.data / "recordings").glob("rvs_*/rvs_*_0.mcap")
     header, channels, messages = read_ros2(path)
-    assert header.profile == "ros2" and st["recording"] == f"recordings/{path.name}"
+    assert header.profile == "ros2" and st["recording"] == f"recordings/{path.parent.name}"
+    assert path.name == f"{path.parent.name}_0.mcap" and (path.parent / "metadata.yaml").is_file()
     assert channels["/tof/amplitude"][0] == "sensor_msgs/msg/Image" and len(messages["/tof/amplitude"]) == 1
     (_, image), = messages["/tof/amplitude"]
     assert (image.encoding, image.height, image.width) == ("32FC1", 144, 176)  # the SR4000's
@@ -159,7 +203,7 @@ def test_a_navigate_recorded_as_ros2_has_its_plan_and_track_as_paths(server_fact
     assert final.status == "OK", final
     st = c.request("status").fields
     assert c.request("record -stop").fields["dropped"] == "0"
-    _, channels, messages = read_ros2(srv.data / "recordings" / "nav.mcap")
+    _, channels, messages = read_ros2(srv.data / "recordings" / "nav" / "nav_0.mcap")
     assert channels["/nav/plan"][0] == channels["/nav/track"][0] == "nav_msgs/msg/Path"
     _, plan = messages["/nav/plan"][-1]
     assert plan.header.frame_id == "world" and len(plan.poses) >= 2

@@ -1,0 +1,600 @@
+"""Choosing the next drive the way Perseverance's ENav does: rank a tree of candidate paths by
+what they are estimated to cost, then run the vehicle check down that list until one passes.
+
+Why this shape
+    A planner that searches a hazard map and a gate that can only say no afterwards disagree:
+    the map's thresholds are not the body's limits, so the plan runs where the gate refuses, or
+    the map closes gaps the body fits through. ENav (Toupet et al. 2020, "Enhanced AutoNav" on
+    Mars 2020) makes the safety check itself the search's last word: it builds about 1,700
+    paths from the rover's pose (turns on the spot, then arcs), sorts them by a cheap estimate
+    (driving cost, a terrain cost from the height map, and the cost to go from the global
+    planner at the path's end), and runs ACE (Otsu et al. 2020: the wheel-and-belly check on
+    the rover's own geometry, on worst-case bounds) down the sorted list; the first path that
+    passes is driven. Most paths are never checked: on easy ground the first few pass, and the
+    check, the costly part, runs on a few hundred poses instead of tens of thousands.
+
+What this module holds (plain functions on arrays; the loops that call them live in
+``rvs_server.navigation``)
+    - :func:`arc_tree`: the candidates in the rover's frame, built once per parameter set: a
+      turn on the spot to one of ``headings`` headings, then a first arc (the *section*, the
+      most a cycle commits to), then a second arc (the look-ahead to the horizon), each arc one
+      of ``arcs`` curvatures. 16 x 9 x 9 = 1,296 paths by default, 2.5 m deep. The tree shares
+      prefixes: 16 turns, 144 sections, 1,296 leaves, and a verdict on a prefix is a verdict on
+      every path through it.
+    - :func:`coarse_costs` and :func:`cost_to_go`: the global guidance. A coarse grid (25 cm)
+      from the map: ground the map proves impassable is a wall, unseen ground a cost (a reason
+      to go and look, never a wall), and Dijkstra from the goal over it gives every cell its
+      cost to go. It is recomputed whole once per replan (a few milliseconds on a mission's
+      grid with scipy's compiled Dijkstra); an incremental D* Lite repair
+      (:class:`.replan.IncrementalPlanner`) would only pay on grids far larger than this.
+    - :func:`choose`: the ranking and the lazy check. Candidates are checked in rank order in
+      batches (the top four first, the batch doubling as they fail), the dense poses of every
+      prefix not yet judged sent to the pluggable ``check``: the first batch whole in one call
+      (on open ground it passes, and a call costs as much as a hundred poses), each later one
+      in two, the turns and sections first, then the look-aheads of the sections that passed,
+      so that a refused section spares its nine leaves. No pose is judged twice. Nothing is remembered
+      between calls: a refusal concerns the map it was made on, and expires with it.
+
+The rules on unseen ground (a cost and a reason to look, never driven on)
+    - A section (the turn and the first arc) is driven only if every pose of it is judged safe.
+      One whose ground is unseen fails as ``unknown``.
+    - Beyond the section, unseen ground adds ``unknown_cost`` per metre to the estimate, and
+      only a pose judged unsafe fails the path: the rover will look there before it gets there.
+    - Looking has a price, ``look_cost`` (in metres of driving): a path whose section crosses
+      unseen ground ranks with that price added, and if it still ranks before every path that
+      passes, the answer is *look* (at the first unseen pose of it), not a worse drive. With no
+      path passing, the answer is *look* if any failed on unseen ground, *blocked* if all failed
+      on the body's limits.
+
+Costs are metres: the path's length, ``turn_cost`` per radian turned on the spot,
+``curve_cost`` per radian of arc (a gentle preference for straight), ``terrain_cost`` times the
+relief under the wheels relative to the body's climb (mean heights, a 15 cm window, capped) per
+metre, plus the cost to go from the path's end (or, for a path passing the goal, none after it).
+
+Time: the vehicle check is most of a call (``python -m tools.bench.candidates``; figures in
+docs/BENCHMARKS.md); the ranking itself reads the map at a probe every 20 cm of the tree.
+"""
+
+from __future__ import annotations
+
+import math
+import warnings
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from functools import lru_cache
+
+import numpy as np
+from scipy import ndimage
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import dijkstra
+
+from rvs_params import Settings, param
+
+from ..grid import GridGeometry
+from .arcs import arc_poses, default_curvatures
+from .vehicle import LIMITS, VehicleBody, check_poses, reach
+
+__all__ = ["CandidateParams", "ArcTree", "CostToGo", "Choice", "Failure", "Check", "arc_tree", "coarse_costs",
+           "cost_to_go", "bounds_check", "choose", "SAFE", "UNKNOWN", "verdict_name"]
+
+# A check's per-pose verdicts: SAFE, UNKNOWN, or 1 + the index in LIMITS of the limit exceeded worst.
+SAFE = 0
+UNKNOWN = -1
+Check = Callable[[np.ndarray], np.ndarray]  # (N, 3) poses x, y, heading deg -> (N,) int verdicts
+_PARTS = ("turn", "section", "beyond")
+PROBE = 0.2  # m between the poses where the ranking reads the map
+
+
+def verdict_name(code: int) -> str:
+    """``safe``, ``unknown`` or the limit's name (``step``, ``belly``, ``stability``, ``grade``)."""
+    return "safe" if code == SAFE else "unknown" if code == UNKNOWN else LIMITS[code - 1]
+
+
+@dataclass
+class CandidateParams(Settings):
+    """The candidate tree and the costs that rank it."""
+
+    headings: int = param(16, "headings the rover may turn to on the spot before it drives (evenly spaced, "
+                              "straight ahead among them)", min=1, max=72)
+    arcs: int = param(9, "curvatures of each arc, evenly spaced from the tightest left to the tightest right",
+                      min=1, max=31)
+    max_curvature: float = param(2.4, "the tightest arc's curvature (1 / radius)", unit="1/m", min=0.0, max=10.0)
+    section: float = param(1.0, "length of the first arc: the most one cycle commits to driving", unit="m",
+                           min=0.1, max=5.0)
+    beyond: float = param(1.5, "length of the second arc, the look-ahead to the horizon", unit="m", min=0.0,
+                          max=10.0)
+    step: float = param(0.05, "the section's poses are this far apart at the body's farthest point", unit="m",
+                        min=0.005, max=0.5)
+    beyond_step: float = param(0.10, "the look-ahead's poses are this far apart (it is judged again, closer, "
+                                     "before it is driven)", unit="m", min=0.005, max=1.0)
+    turn_cost: float = param(0.15, "cost of a turn on the spot per radian", unit="m", min=0.0, max=10.0)
+    curve_cost: float = param(0.05, "cost per radian of heading an arc turns through", unit="m", min=0.0, max=10.0)
+    terrain_cost: float = param(2.0, "cost per metre of ground whose relief under a wheel reaches the body's "
+                                     "climb (less in proportion; capped at twice)", unit="m", min=0.0, max=100.0)
+    unknown_cost: float = param(1.0, "extra cost per metre of unseen ground beyond the section", unit="m",
+                                min=0.0, max=100.0)
+    look_cost: float = param(1.5, "the price of stopping to look, in metres of driving: a path through unseen "
+                                  "ground that ranks better than every passing path by more than this asks "
+                                  "for a look", unit="m", min=0.0, max=100.0)
+    batch: int = param(4, "candidates in the first batch sent to the check; each later batch doubles, up to 64",
+                       min=1, max=1024)
+    max_poses: int = param(0, "the most poses one call sends to the check before it gives up with 'blocked' "
+                              "(0: no limit, every candidate is checked if need be)", min=0, max=10_000_000)
+    goal_tolerance: float = param(0.1, "a path passing this close to the goal (and half the ranking's probe "
+                                       "spacing) ranks by its cost to the goal, and its section stops at its "
+                                       "pose nearest the goal", unit="m", min=0.0, max=5.0)
+
+
+@dataclass(frozen=True)
+class ArcTree:
+    """The candidates in the rover's frame (the rover at the origin, heading 0 deg).
+
+    Nodes are the tree's segments: ``nodes[k]`` poses are ``poses[start[k]:start[k + 1]]`` (the
+    segment's poses after its first, which is its parent's last), ``part[k]`` 0 turn, 1 section
+    arc, 2 look-ahead arc, ``parent[k]`` (-1 for a turn). ``paths[c]`` are candidate c's three
+    nodes; ``base[c]`` its cost that does not depend on the map (length, turning)."""
+
+    poses: np.ndarray  # (P, 3)
+    start: np.ndarray  # (K + 1,)
+    part: np.ndarray  # (K,)
+    parent: np.ndarray  # (K,)
+    length: np.ndarray  # (K,) m driven (0 for a turn)
+    paths: np.ndarray  # (C, 3) node indices: turn, section, beyond
+    base: np.ndarray  # (C,)
+    probe: np.ndarray  # (Q,) indices into poses where the map's terrain and unseen ground are read
+    probe_node: np.ndarray  # (Q,) the node of each probe
+    probe_ds: np.ndarray  # (Q,) the metres each probe stands for (a turn's: its swept arc at the reach)
+    probe_s: np.ndarray  # (Q,) metres driven along its node to the probe (0 on a turn)
+
+    def node(self, k: int) -> np.ndarray:
+        return self.poses[self.start[k]:self.start[k + 1]]
+
+
+def arc_tree(params: CandidateParams, body: VehicleBody) -> ArcTree:
+    """The candidate tree for ``params`` and ``body`` (cached: the same arguments give the same
+    tree object)."""
+    return _tree(params.headings, params.arcs, params.max_curvature, params.section, params.beyond, params.step,
+                 params.beyond_step, params.turn_cost, params.curve_cost, round(reach(body), 6))
+
+
+@lru_cache(maxsize=8)
+def _tree(headings: int, n_arcs: int, kmax: float, section: float, beyond: float, step: float, beyond_step: float,
+          turn_cost: float, curve_cost: float, body_reach: float) -> ArcTree:
+    turns = (np.arange(headings) * 360.0 / headings + 180.0) % 360.0 - 180.0  # 0 first, 180 last when even
+    ks = default_curvatures(1.0 / kmax, n_arcs) if kmax > 0 and n_arcs > 1 else np.zeros(1)
+    chunks: list[np.ndarray] = []
+    part: list[int] = []
+    parent: list[int] = []
+    length: list[float] = []
+    paths: list[tuple[int, int, int]] = []
+    base: list[float] = []
+
+    def add(poses: np.ndarray, p: int, up: int, metres: float) -> int:
+        chunks.append(poses)
+        part.append(p)
+        parent.append(up)
+        length.append(metres)
+        return len(part) - 1
+
+    def arc(pose: np.ndarray, k: float, metres: float, spacing: float) -> np.ndarray:
+        # spaced so that the body's farthest point, not its centre, moves at most ``spacing``
+        return arc_poses(pose, k, metres, spacing / (1.0 + body_reach * abs(k)))[1:]
+
+    for h in turns:
+        # a turn on the spot spaced as :func:`.vehicle.densify` spaces it: ``step`` of arc at the reach
+        n = max(1, math.ceil(math.radians(abs(h)) * body_reach / step - 1e-9)) if h != 0 else 0
+        turn = np.column_stack([np.zeros(n), np.zeros(n), h * np.arange(1, n + 1) / max(n, 1)])
+        t = add(turn, 0, -1, 0.0)
+        after_turn = np.array([0.0, 0.0, h])
+        for k1 in ks:
+            a1 = arc(after_turn, float(k1), section, step)
+            s = add(a1, 1, t, section)
+            for k2 in ks:
+                a2 = arc(a1[-1], float(k2), beyond, beyond_step) if beyond > 0 else np.zeros((0, 3))
+                b = add(a2, 2, s, beyond)
+                paths.append((t, s, b))
+                base.append(section + beyond + turn_cost * math.radians(abs(h))
+                            + curve_cost * (abs(k1) * section + abs(k2) * beyond))
+    start = np.concatenate([[0], np.cumsum([len(c) for c in chunks])])
+    poses = np.concatenate(chunks)
+    poses[:, 2] = (poses[:, 2] + 180.0) % 360.0 - 180.0
+    # the map is read for ranking about every PROBE metres (of arc at the reach, on a turn): the
+    # ranking is an estimate, and reading it at every checked pose of 1,300 paths would cost more
+    # than the checks it saves
+    probe, probe_node, probe_ds, probe_s = [], [], [], []
+    for k, chunk in enumerate(chunks):
+        m = len(chunk)
+        if not m:
+            continue
+        metres = length[k] if part[k] else math.radians(abs(float(chunk[-1, 2]))) * body_reach
+        q = max(1, min(m, round(metres / PROBE)))
+        at = start[k] + np.unique(np.round(np.linspace(m - 1, 0, q, endpoint=False)[::-1]).astype(int))
+        probe.append(at)
+        probe_node.append(np.full(len(at), k))
+        probe_ds.append(np.full(len(at), metres / len(at)))
+        probe_s.append((at - start[k] + 1) / m * length[k])
+    arrays = (poses, start, np.array(part), np.array(parent), np.array(length), np.array(paths), np.array(base),
+              np.concatenate(probe), np.concatenate(probe_node), np.concatenate(probe_ds), np.concatenate(probe_s))
+    for a in arrays:
+        a.setflags(write=False)
+    return ArcTree(*arrays)
+
+
+@dataclass(frozen=True)
+class CostToGo:
+    """The cost to go to the goal (m) from each cell of a coarse grid (inf: no way there)."""
+
+    field: np.ndarray
+    geometry: GridGeometry
+    goal: tuple[float, float]
+
+    def at(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+        """The cost to go from points: the cheapest of the four nearest cell centres' costs plus
+        the way to that centre (a point beside a wall cell is not blocked by it); off the grid,
+        the straight line to the goal."""
+        g = self.geometry
+        x, y = np.asarray(x, float), np.asarray(y, float)
+        fc = (x - g.xmin) / g.cell - 0.5
+        fr = (g.ymax - y) / g.cell - 0.5
+        c0, r0 = np.floor(fc).astype(np.int64), np.floor(fr).astype(np.int64)
+        best = np.full(x.shape, np.inf)
+        for dr in (0, 1):
+            for dc in (0, 1):
+                r, c = r0 + dr, c0 + dc
+                ok = (r >= 0) & (r < g.height) & (c >= 0) & (c < g.width)
+                v = self.field[np.clip(r, 0, g.height - 1), np.clip(c, 0, g.width - 1)]
+                cx, cy = g.xmin + (c + 0.5) * g.cell, g.ymax - (r + 0.5) * g.cell
+                best = np.where(ok, np.minimum(best, v + np.hypot(x - cx, y - cy)), best)
+        inside = (x >= g.xmin) & (x <= g.xmax) & (y >= g.ymin) & (y <= g.ymax)
+        return np.where(inside, best, np.hypot(x - self.goal[0], y - self.goal[1]))
+
+
+def _mean(heights: np.ndarray | tuple[np.ndarray, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+    """The mean surface and the mask of unseen cells (no upper bound)."""
+    if isinstance(heights, tuple):
+        lower, upper = heights
+        mean = (np.where(np.isnan(lower), upper, lower) + upper) / 2
+        return mean, np.isnan(upper)
+    return heights, np.isnan(heights)
+
+
+def coarse_costs(heights: np.ndarray | tuple[np.ndarray, np.ndarray], geom: GridGeometry, body: VehicleBody,
+                 cell: float = 0.25, unknown_cost: float = 2.0, rough_cost: float = 1.0
+                 ) -> tuple[np.ndarray, GridGeometry]:
+    """A coarse cost grid (per metre) over ``geom``'s area for :func:`cost_to_go`, from a height
+    grid or a ``(lower, upper)`` bounds pair: a coarse cell mostly unseen costs ``unknown_cost``
+    (a cost, never a wall: the rover may look there); one whose ground certainly rises more than
+    the body can pass (its highest lower bound over its lowest upper bound above both the climb
+    and the clearance: neither a wheel nor the belly gets over it) is a wall (inf); the rest cost
+    1 plus ``rough_cost`` times the mean surface's relief in it over the climb (capped at 1)."""
+    lower, upper = heights if isinstance(heights, tuple) else (heights, heights)
+    f = max(1, round(cell / geom.cell))
+    cg = GridGeometry(geom.cell * f, geom.xmin, geom.ymax, -(-geom.width // f), -(-geom.height // f))
+    ph, pw = cg.height * f - geom.height, cg.width * f - geom.width
+
+    def blocks(a: np.ndarray) -> np.ndarray:
+        a = np.pad(np.asarray(a, float), ((0, ph), (0, pw)), constant_values=np.nan)
+        return a.reshape(cg.height, f, cg.width, f).transpose(0, 2, 1, 3).reshape(cg.height, cg.width, f * f)
+
+    lo, hi = blocks(lower), blocks(upper)
+    mean, _ = _mean((lo, hi))
+    seen = np.isfinite(hi).mean(axis=2) >= 0.5
+    with np.errstate(invalid="ignore"), warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # all-NaN blocks: unseen, handled below
+        rise = np.nanmax(lo, axis=2) - np.nanmin(hi, axis=2)
+        relief = np.nanmax(mean, axis=2) - np.nanmin(mean, axis=2)
+    wall = seen & (np.nan_to_num(rise, nan=0.0) > max(body.climb, body.clearance))
+    out = np.where(seen, 1.0 + rough_cost * np.clip(np.nan_to_num(relief, nan=0.0) / body.climb, 0.0, 1.0),
+                   unknown_cost)
+    out[wall] = np.inf
+    return out, cg
+
+
+def cost_to_go(cost: np.ndarray, geom: GridGeometry, goal: tuple[float, float]) -> CostToGo:
+    """Dijkstra from ``goal`` over the 8-connected ``cost`` grid (per metre, inf = wall; a step
+    costs its length times the mean of its two cells, a diagonal is refused past a wall corner).
+    A goal off the grid is reached through the grid's border cells at the straight-line distance
+    from them; a goal on a wall cell is treated as free (the local check judges it)."""
+    cost = np.asarray(cost, float).copy()
+    h, w = cost.shape
+    gr, gc = geom.cell_of(goal[0], goal[1])
+    gr, gc = int(gr), int(gc)
+    inside = 0 <= gr < h and 0 <= gc < w
+    if inside and not np.isfinite(cost[gr, gc]):
+        cost[gr, gc] = 1.0
+    idx = np.arange(h * w).reshape(h, w)
+    rows, cols, vals = [], [], []
+    for dr, dc in ((0, 1), (1, 0), (1, 1), (1, -1)):
+        c0, c1 = max(0, -dc), w - max(0, dc)
+        a = idx[0:h - dr, c0:c1]
+        b = idx[dr:h, c0 + dc:c1 + dc]
+        ka, kb = cost.ravel()[a], cost.ravel()[b]
+        weight = math.hypot(dr, dc) * geom.cell * (ka + kb) / 2
+        ok = np.isfinite(weight)
+        if dr and dc:  # no diagonal past a wall corner
+            ra, ca = np.divmod(a, w)
+            ok &= np.isfinite(cost[ra + dr, ca]) & np.isfinite(cost[ra, ca + dc])
+        rows.append(a[ok])
+        cols.append(b[ok])
+        vals.append(np.maximum(weight[ok], 1e-12))
+    n = h * w
+    if inside:
+        source = int(idx[gr, gc])
+    else:  # a virtual node off the grid, joined to the border at the straight-line distance
+        border = np.unique(np.concatenate([idx[0], idx[-1], idx[:, 0], idx[:, -1]]))
+        border = border[np.isfinite(cost.ravel()[border])]
+        br, bc = np.divmod(border, w)
+        xs, ys = geom.xmin + (bc + 0.5) * geom.cell, geom.ymax - (br + 0.5) * geom.cell
+        rows.append(np.full(len(border), n))
+        cols.append(border)
+        vals.append(np.maximum(np.hypot(xs - goal[0], ys - goal[1]), 1e-12))
+        source = n
+        n += 1
+    graph = coo_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=(n, n)).tocsr()
+    dist = dijkstra(graph, directed=False, indices=source)
+    return CostToGo(dist[:h * w].reshape(h, w), geom, (float(goal[0]), float(goal[1])))
+
+
+def bounds_check(heights: np.ndarray | tuple[np.ndarray, np.ndarray], geom: GridGeometry,
+                 body: VehicleBody) -> Check:
+    """The vehicle check (:func:`.vehicle.check_poses`) on a bounds pair or one height grid as a
+    :data:`Check`: per pose SAFE, UNKNOWN (ground under the body no bound covers) or 1 + the
+    index of the limit exceeded worst (relative to its own limit)."""
+
+    def check(poses: np.ndarray) -> np.ndarray:
+        c = check_poses(heights, geom, poses, body)
+        k, _ = c.worst(body)
+        out = np.where(c.unsafe, k + 1, SAFE)
+        out[c.unknown] = UNKNOWN
+        return out
+
+    return check
+
+
+@dataclass(frozen=True)
+class Failure:
+    """Why a candidate ranked before the chosen one failed: its ``rank``, which ``part`` (turn,
+    section, beyond), the ``verdict`` (``unknown`` or the limit's name) at its first failing pose
+    ``x``, ``y`` (world frame)."""
+
+    rank: int
+    candidate: int
+    part: str
+    verdict: str
+    x: float
+    y: float
+
+
+@dataclass
+class Choice:
+    """What :func:`choose` decided.
+
+    ``status``: ``drive`` (``poses``: the section to drive, from the rover's pose, turn on the
+    spot first where there is one), ``look`` (``look_at``: the first unseen ground on the best
+    path, worth a look before anything is driven) or ``blocked`` (every candidate fails on the
+    body's limits, or the goal has no way to it). ``reason`` says which, in a sentence."""
+
+    status: str
+    reason: str
+    poses: np.ndarray
+    path: np.ndarray  # the chosen candidate's poses to the horizon (empty if none)
+    candidate: int = -1
+    rank: int = -1
+    cost: float = math.inf
+    checked: int = 0  # candidates whose poses went to the check
+    poses_checked: int = 0
+    total: int = 0  # candidates ranked
+    failures: list[Failure] = field(default_factory=list)
+    reasons: dict[str, int] = field(default_factory=dict)  # failures by (part, verdict): "section unknown"...
+    look_at: tuple[float, float] | None = None
+
+
+def _to_world(local: np.ndarray, pose: tuple[float, float, float]) -> np.ndarray:
+    x, y, h = pose
+    c, s = math.cos(math.radians(h)), math.sin(math.radians(h))
+    out = np.empty_like(local)
+    out[:, 0] = x + c * local[:, 0] - s * local[:, 1]
+    out[:, 1] = y + s * local[:, 0] + c * local[:, 1]
+    out[:, 2] = (local[:, 2] + h + 180.0) % 360.0 - 180.0
+    return out
+
+
+def _terrain(tree: ArcTree, pose: tuple[float, float, float], heights: np.ndarray | tuple[np.ndarray, np.ndarray],
+             geom: GridGeometry, body: VehicleBody, params: CandidateParams
+             ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Per node: the terrain cost (m) from the mean surface's relief under the wheels and the
+    body's middle, and the metres of it over unseen ground (a pose whose body's inscribed disc
+    reaches an unseen cell, or off the map), both read at the tree's probes; and the probes' poses in
+    the world."""
+    mean, unseen = _mean(heights)
+    with np.errstate(invalid="ignore"):
+        filled = np.where(unseen | np.isnan(mean), 0.0, mean)
+    # a wheel-sized window (15 cm): the relief a wheel meets there, over what it climbs
+    relief = ndimage.maximum_filter(filled, 3) - ndimage.minimum_filter(filled, 3)
+    rough = np.minimum(relief / body.climb, 2.0)
+    rough[ndimage.maximum_filter(unseen, 3)] = 0.0  # unseen ground is the unknown cost's, not a relief
+    inscribed = min(body.length / 2, body.width / 2 + body.wheel_width)
+    near_unseen = (ndimage.distance_transform_edt(~unseen) * geom.cell < inscribed) if unseen.any() else unseen
+    world = _to_world(np.asarray(tree.poses[tree.probe]), pose)
+    pts = np.vstack([np.asarray(body.wheels, float), [(0.0, 0.0)]])  # (5, 2): the hubs and the middle
+    c, s = np.cos(np.radians(world[:, 2]))[:, None], np.sin(np.radians(world[:, 2]))[:, None]
+    col = np.floor((world[:, 0:1] + c * pts[:, 0] - s * pts[:, 1] - geom.xmin) / geom.cell).astype(np.int64)
+    row = np.floor((geom.ymax - (world[:, 1:2] + s * pts[:, 0] + c * pts[:, 1])) / geom.cell).astype(np.int64)
+    ok = (row >= 0) & (row < geom.height) & (col >= 0) & (col < geom.width)
+    per_pose = np.where(ok, rough[np.clip(row, 0, geom.height - 1), np.clip(col, 0, geom.width - 1)], 0.0).mean(axis=1)
+    centre_ok = ok[:, -1]
+    blind = ~centre_ok | near_unseen[np.clip(row[:, -1], 0, geom.height - 1), np.clip(col[:, -1], 0, geom.width - 1)]
+    n = len(tree.part)
+    terrain = np.bincount(tree.probe_node, per_pose * tree.probe_ds, n) * params.terrain_cost
+    unknown = np.bincount(tree.probe_node, blind * tree.probe_ds, n)
+    return terrain, unknown, world
+
+
+def choose(pose: tuple[float, float, float], heights: np.ndarray | tuple[np.ndarray, np.ndarray],
+           geom: GridGeometry, body: VehicleBody, ctg: CostToGo, check: Check,
+           params: CandidateParams | None = None) -> Choice:
+    """The section to drive next from ``pose`` (x, y, heading deg) toward ``ctg``'s goal: the
+    candidates of :func:`arc_tree` ranked on the map ``heights`` (one grid or a ``(lower,
+    upper)`` pair over ``geom``: its mean surface for the terrain cost, its unseen cells for the
+    unknown cost), checked lazily in rank order with ``check`` (see the module's docstring)."""
+    params = params or CandidateParams()
+    tree = arc_tree(params, body)
+    terrain, unknown, probes = _terrain(tree, pose, heights, geom, body, params)
+    t_i, s_i, b_i = tree.paths.T
+    ends = _to_world(np.asarray(tree.poses[tree.start[b_i + 1] - 1]), pose)
+    togo = ctg.at(ends[:, 0], ends[:, 1])
+    section_unseen = (unknown[t_i] + unknown[s_i]) > 0
+    keys = (tree.base + terrain[t_i] + terrain[s_i] + terrain[b_i] + params.unknown_cost * unknown[b_i]
+            + params.look_cost * section_unseen + togo)
+    keys = np.minimum(keys, _to_goal(tree, probes, ctg.goal, terrain, params))
+    order = np.argsort(keys, kind="stable")
+    order = order[np.isfinite(keys[order])]
+    if not len(order):
+        return _none("blocked", "the goal has no way to it over the ground the map shows", len(keys))
+    node_codes: dict[int, np.ndarray] = {}
+    poses_checked = 0
+    world_of: dict[int, np.ndarray] = {}
+
+    def node_world(k: int) -> np.ndarray:
+        if k not in world_of:
+            world_of[k] = _to_world(np.asarray(tree.node(k)), pose)
+        return world_of[k]
+
+    def judge(nodes: list[int]) -> None:
+        nonlocal poses_checked
+        todo = [k for k in dict.fromkeys(nodes) if k not in node_codes and tree.start[k + 1] > tree.start[k]]
+        for k in dict.fromkeys(nodes):
+            if tree.start[k + 1] == tree.start[k]:
+                node_codes[k] = np.zeros(0, int)
+        if not todo:
+            return
+        batch = np.concatenate([node_world(k) for k in todo])
+        codes = np.asarray(check(batch), int)
+        poses_checked += len(batch)
+        at = 0
+        for k in todo:
+            m = tree.start[k + 1] - tree.start[k]
+            node_codes[k] = codes[at:at + m]
+            at += m
+
+    bad_of: dict[tuple[int, bool], tuple[int, int] | None] = {}
+
+    def first_bad(k: int, allow_unknown: bool) -> tuple[int, int] | None:
+        """The first pose of node ``k`` that fails it (its verdict and index), or None."""
+        key = (int(k), allow_unknown)
+        if key not in bad_of:
+            codes = node_codes[int(k)]
+            bad = np.flatnonzero((codes > 0) if allow_unknown else (codes != SAFE))
+            bad_of[key] = (int(codes[bad[0]]), int(bad[0])) if len(bad) else None
+        return bad_of[key]
+
+    failures: list[Failure] = []
+    look: tuple[float, Failure] | None = None
+    checked = 0
+    size = params.batch
+    i = 0
+    while i < len(order):
+        if look is not None and keys[order[i]] >= look[0]:
+            break  # nothing left can rank before the look
+        if params.max_poses and poses_checked >= params.max_poses:
+            choice = _none("blocked", f"no candidate passes among the best {checked} of {len(order)}: the check's "
+                                      f"budget of {params.max_poses} poses is spent", len(order))
+            choice.checked, choice.poses_checked, choice.failures = checked, poses_checked, failures
+            choice.reasons = _reasons(failures)
+            return choice
+        group = order[i:i + size]
+        if i == 0:
+            # the first batch whole in one call: on open ground its sections pass, and a call of
+            # the check has a fixed cost of the order of a hundred poses
+            judge([n for c in group for n in tree.paths[c]])
+        # the turns and sections first (a section after a turn already refused is not sent), then
+        # the look-aheads of the sections that pass: a refused prefix spares what hangs from it
+        judge([n for c in group for n in tree.paths[c][:2]
+               if not (n == tree.paths[c][1] and tree.paths[c][0] in node_codes
+                       and first_bad(tree.paths[c][0], False) is not None)])
+        sections_ok = [c for c in group if first_bad(tree.paths[c][0], False) is None
+                       and tree.paths[c][1] in node_codes and first_bad(tree.paths[c][1], False) is None]
+        judge([tree.paths[c][2] for c in sections_ok])
+        checked += len(group)
+        for rank, c in enumerate(group, start=i):
+            fail = None
+            for part, k in enumerate(tree.paths[c]):
+                bad = first_bad(int(k), part == 2)
+                if bad is not None:
+                    p = node_world(int(k))[bad[1]]
+                    fail = Failure(rank, int(c), _PARTS[part], verdict_name(bad[0]), float(p[0]), float(p[1]))
+                    break
+            if fail is None:
+                if look is not None and look[0] < keys[c]:
+                    return _look(look[1], checked, poses_checked, len(order), failures)
+                return _drive(tree, node_world, pose, int(c), rank, float(keys[c]), ctg.goal, params, checked,
+                              poses_checked, len(order), failures)
+            failures.append(fail)
+            if fail.verdict == "unknown" and fail.part != "beyond":
+                cost = float(keys[c]) + (0.0 if section_unseen[c] else params.look_cost)
+                if look is None or cost < look[0]:
+                    look = (cost, fail)
+        i += len(group)
+        size = min(size * 2, 64)
+    if look is not None:
+        return _look(look[1], checked, poses_checked, len(order), failures)
+    choice = _none("blocked", f"all {len(order)} candidates fail on the body's limits over ground the map shows",
+                   len(order))
+    choice.checked, choice.poses_checked, choice.failures = checked, poses_checked, failures
+    choice.reasons = _reasons(failures)
+    return choice
+
+
+def _to_goal(tree: ArcTree, probes: np.ndarray, goal: tuple[float, float], terrain: np.ndarray,
+             params: CandidateParams) -> np.ndarray:
+    """Per candidate, its cost if it passes the goal (within the tolerance, read at its probes):
+    the turn's and the terrain's costs and the metres driven to the goal, the cost to go then 0;
+    inf for a candidate that does not pass it. Without this a path ending past a near goal loses
+    to one that loops round to end on it."""
+    out = np.full(len(tree.paths), np.inf)
+    near = np.hypot(probes[:, 0] - goal[0], probes[:, 1] - goal[1]) <= params.goal_tolerance + PROBE / 2
+    if not near.any():
+        return out
+    first = np.full(len(tree.part), np.inf)
+    np.minimum.at(first, tree.probe_node[near], tree.probe_s[near])
+    t, s, b = tree.paths.T
+    turn = tree.base - tree.length[s] - tree.length[b]  # the turn's and the arcs' curvature costs
+    via_section = turn + first[s] + terrain[t] + terrain[s]
+    via_beyond = turn + tree.length[s] + first[b] + terrain[t] + terrain[s] + terrain[b]
+    return np.where(np.isfinite(first[s]), via_section, via_beyond)
+
+
+def _reasons(failures: list[Failure]) -> dict[str, int]:
+    out: dict[str, int] = {}
+    for f in failures:
+        key = f"{f.part} {f.verdict}"
+        out[key] = out.get(key, 0) + 1
+    return out
+
+
+def _none(status: str, reason: str, total: int) -> Choice:
+    return Choice(status, reason, np.zeros((0, 3)), np.zeros((0, 3)), total=total)
+
+
+def _look(fail: Failure, checked: int, poses_checked: int, total: int, failures: list[Failure]) -> Choice:
+    return Choice("look", f"the best way runs over unseen ground at ({fail.x:.2f}, {fail.y:.2f}): look there",
+                  np.zeros((0, 3)), np.zeros((0, 3)), checked=checked, poses_checked=poses_checked, total=total,
+                  failures=failures, reasons=_reasons(failures), look_at=(fail.x, fail.y))
+
+
+def _drive(tree: ArcTree, node_world: Callable[[int], np.ndarray], pose: tuple[float, float, float], c: int, rank: int, cost: float,
+           goal: tuple[float, float], params: CandidateParams, checked: int, poses_checked: int, total: int,
+           failures: list[Failure]) -> Choice:
+    t, s, b = tree.paths[c]
+    start = np.array([pose], float)
+    section = np.vstack([start, node_world(int(t)), node_world(int(s))])
+    path = np.vstack([section, node_world(int(b))])
+    near = np.hypot(section[:, 0] - goal[0], section[:, 1] - goal[1])
+    n_turn = len(node_world(int(t)))
+    at_goal = np.flatnonzero(near[1 + n_turn:] <= params.goal_tolerance + PROBE / 2)  # as :func:`_to_goal` reads it
+    if len(at_goal):  # stop where the section comes closest to the goal
+        j = 1 + n_turn + at_goal[0]
+        j += int(np.argmin(near[j:])) if j < len(near) else 0
+        section = section[:j + 1]
+    return Choice("drive", f"candidate {c} (rank {rank} of {total}) passes", section, path, c, rank, cost,
+                  checked, poses_checked, total, failures, _reasons(failures))

@@ -1,0 +1,70 @@
+"""The pose-level safety statistics (rvs_truth.stats): the exact binomial bound a false-safe rate
+is stated with, and the correlation length that says how many judged poses make one trial."""
+
+import math
+
+import numpy as np
+import pytest
+from scipy.stats import binom
+
+from rvs_truth.stats import clopper_pearson_upper, events_per_distance_upper, poses_per_trial
+
+
+@pytest.mark.parametrize("n", [1, 30, 1000, 20000])
+def test_zero_failures_bound_is_the_closed_form(n: int) -> None:
+    assert clopper_pearson_upper(0, n) == pytest.approx(1 - 0.05 ** (1 / n), rel=1e-9)
+    # the two-sided 95 % interval's upper end is the one-sided 97.5 % bound
+    assert clopper_pearson_upper(0, n, 0.975) == pytest.approx(1 - 0.025 ** (1 / n), rel=1e-9)
+
+
+def test_rule_of_three() -> None:
+    # 30 clean missions say "at most 10 %"; 20,000 clean poses about 1.5e-4
+    assert clopper_pearson_upper(0, 30) == pytest.approx(0.0950, abs=1e-4)
+    assert clopper_pearson_upper(0, 20000) == pytest.approx(3 / 20000, rel=0.01)
+
+
+@pytest.mark.parametrize("k,n", [(1, 10), (3, 200), (12, 20000)])
+def test_bound_is_where_k_or_fewer_failures_become_5_percent_likely(k: int, n: int) -> None:
+    p = clopper_pearson_upper(k, n)
+    assert binom.cdf(k, n, p) == pytest.approx(0.05, abs=1e-9)
+    assert p > k / n
+    if (k, n) == (1, 10):
+        assert p == pytest.approx(0.3942, abs=1e-4)  # the tabulated exact one-sided bound
+
+
+def test_bad_counts_are_refused() -> None:
+    with pytest.raises(ValueError):
+        clopper_pearson_upper(5, 3)
+    with pytest.raises(ValueError):
+        clopper_pearson_upper(0, 0)
+    assert clopper_pearson_upper(4, 4) == 1.0
+
+
+def blocks(rng: np.random.Generator, m: int, count: int, length: int) -> list[np.ndarray]:
+    """Paths of 0/1 verdicts constant over runs of ``m`` poses, each run drawn at random."""
+    return [np.repeat(rng.integers(0, 2, length // m), m).astype(float) for _ in range(count)]
+
+
+def test_poses_per_trial_is_the_run_length_of_a_block_process() -> None:
+    rng = np.random.default_rng(7)
+    assert poses_per_trial(blocks(rng, 1, 200, 500)) == pytest.approx(1.0, abs=0.15)
+    assert poses_per_trial(blocks(rng, 5, 200, 500)) == pytest.approx(5.0, rel=0.1)
+    assert poses_per_trial(blocks(rng, 20, 400, 500)) == pytest.approx(20.0, rel=0.1)
+
+
+def test_unjudged_poses_break_pairs_but_not_the_measure() -> None:
+    rng = np.random.default_rng(8)
+    paths = blocks(rng, 10, 400, 500)
+    for p in paths:
+        p[rng.random(len(p)) < 0.2] = np.nan
+    assert poses_per_trial(paths) == pytest.approx(10.0, rel=0.1)
+    assert math.isnan(poses_per_trial([np.ones(50), np.array([1.0, np.nan])]))
+
+
+def test_events_per_distance() -> None:
+    # 20,000 clean poses 2 cm apart: about 3 / 400 m whatever the correlation length
+    for per_trial in (1.0, 10.0, 25.0):
+        e = events_per_distance_upper(0, 20000, per_trial, 0.02)
+        assert e == pytest.approx(100 * 3 / (20000 * 0.02), rel=0.02)
+    # one event in 20,000 poses, one trial per 25 poses: the bound over 800 trials, 200 trials per 100 m
+    assert events_per_distance_upper(1, 20000, 25.0, 0.02) == pytest.approx(clopper_pearson_upper(1, 800) * 200)

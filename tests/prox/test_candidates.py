@@ -1,0 +1,240 @@
+"""The ENav-style candidate search (prox_workflows.algorithms.candidates) on synthetic surfaces:
+a 1 cm truth, and the 5 cm bounds a perfect map of it would hold, with the vehicle check of the
+declared body on those bounds.
+
+The bounds are each cell's lowest and highest true height half a centimetre out, spread over the
+neighbouring cells as the bounds map spreads a return over the cells its horizontal error may
+move it to: the check samples bounds bilinearly between cell centres, which holds the truth only
+where a cell's bound also covers its neighbours' half (a rock whose edge lies on a cell's edge is
+read up to 15 cm low a centimetre inside it without the spread).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from scipy import ndimage
+
+from drivers.sim.rover import RoverBody
+from prox_workflows.algorithms.candidates import (
+    SAFE,
+    CandidateParams,
+    arc_tree,
+    bounds_check,
+    choose,
+    coarse_costs,
+    cost_to_go,
+)
+from prox_workflows.algorithms.vehicle import check_poses, densify, reach
+from prox_workflows.grid import GridGeometry
+
+BODY = RoverBody()
+AREA = (-3.0, -3.0, 7.0, 3.0)  # xmin, ymin, xmax, ymax
+
+
+class World:
+    """A 1 cm true surface over AREA and its 5 cm bounds; ``unseen`` cells (5 cm) have none."""
+
+    def __init__(self) -> None:
+        self.tg = GridGeometry.covering(*AREA, 0.01)
+        xs, ys = self.tg.centers()
+        self.X, self.Y = np.meshgrid(xs, ys)
+        self.truth = np.zeros(self.X.shape)
+        self.g = GridGeometry.covering(*AREA, 0.05)
+        self.unseen = np.zeros(self.g.shape, bool)
+
+    def box(self, x0: float, x1: float, y0: float, y1: float, height: float) -> None:
+        on = (self.X >= x0) & (self.X <= x1) & (self.Y >= y0) & (self.Y <= y1)
+        self.truth[on] = np.maximum(self.truth[on], height)
+
+    def bounds(self) -> tuple[np.ndarray, np.ndarray]:
+        blocks = self.truth.reshape(self.g.height, 5, self.g.width, 5)
+        lower = ndimage.minimum_filter(blocks.min(axis=(1, 3)), 3) - 0.005
+        upper = ndimage.maximum_filter(blocks.max(axis=(1, 3)), 3) + 0.005
+        lower[self.unseen], upper[self.unseen] = np.nan, np.nan
+        return lower, upper
+
+    def choose(self, pose: tuple[float, float, float], goal: tuple[float, float], check=None, **kw):
+        heights = self.bounds()
+        cost, cg = coarse_costs(heights, self.g, BODY)
+        ctg = cost_to_go(cost, cg, goal)
+        return choose(pose, heights, self.g, BODY, ctg, check or bounds_check(heights, self.g, BODY),
+                      CandidateParams(**kw))
+
+    def truly_safe(self, poses: np.ndarray) -> bool:
+        dense = densify(poses, 0.02, BODY)
+        return bool(check_poses(self.truth, self.tg, dense, BODY).safe.all())
+
+
+def test_the_tree_holds_turns_sections_and_look_aheads_from_the_rover() -> None:
+    tree = arc_tree(CandidateParams(), BODY)
+    assert len(tree.paths) == 16 * 9 * 9
+    assert (tree.part == 0).sum() == 16 and (tree.part == 1).sum() == 144
+    # every section is 1 m of arc after its turn, every candidate 2.5 m deep; a candidate's nodes chain
+    for t, s, b in tree.paths[::97]:
+        assert tree.parent[s] == t and tree.parent[b] == s
+        end = tree.node(s)[-1]
+        assert math.hypot(end[0], end[1]) <= 1.0 + 1e-9
+        assert tree.length[s] == pytest.approx(1.0) and tree.length[b] == pytest.approx(1.5)
+    # poses no more than 5 cm apart at the body's farthest point through the sections
+    seg = np.vstack([[0, 0, 0], tree.node(tree.paths[5][0]), tree.node(tree.paths[5][1])])
+    moved = np.hypot(*np.diff(seg[:, :2], axis=0).T) + np.radians(np.abs(np.diff(seg[:, 2]))) * reach(BODY)
+    assert moved.max() <= 0.05 + 1e-6
+
+
+def test_on_flat_ground_it_commits_a_section_straight_to_the_goal_after_few_checks() -> None:
+    w = World()
+    sent: list[int] = []
+    check = bounds_check(w.bounds(), w.g, BODY)
+
+    def counting(poses: np.ndarray) -> np.ndarray:
+        sent.append(len(poses))
+        return check(poses)
+
+    c = w.choose((0.0, 0.0, 0.0), (6.0, 0.0), counting)
+    assert c.status == "drive", c.reason
+    assert c.poses[0].tolist() == [0.0, 0.0, 0.0]
+    end = c.poses[-1]
+    assert end[0] == pytest.approx(1.0, abs=1e-6) and abs(end[1]) < 1e-6 and abs(end[2]) < 1e-6
+    assert c.rank == 0 and not c.failures
+    # lazy: one batch of four, against 1,296 candidates ranked
+    assert c.total == 1296 and c.checked <= 4 and sum(sent) == c.poses_checked < 400
+    assert w.truly_safe(c.poses)
+
+
+def test_it_threads_the_gap_in_a_wall_of_rocks() -> None:
+    w = World()
+    w.box(1.5, 1.7, -3.0, 0.05, 0.25)  # a 25 cm ridge across the way: no wheel climbs it, no belly clears it
+    w.box(1.5, 1.7, 1.15, 3.0, 0.25)  # ... with a 1.1 m gap from y 0.05 to 1.15
+    c = w.choose((0.0, 0.0, 0.0), (5.0, 0.0))
+    assert c.status == "drive", c.reason
+    # any candidate ranked before it failed at the ridge
+    assert all(f.part == "beyond" and 1.0 < f.x < 1.8 for f in c.failures if f.verdict != "unknown")
+    # it heads for the gap: the section bends left, and the whole path crosses the ridge inside the gap
+    assert c.poses[-1][1] > 0.1
+    crossing = c.path[(c.path[:, 0] > 1.45) & (c.path[:, 0] < 1.75)]
+    assert len(crossing) and (crossing[:, 1] > 0.05 + 0.29).all() and (crossing[:, 1] < 1.15 - 0.29).all()
+    # what it commits passes the vehicle check on the true 1 cm surface, and so does the rest of its way
+    assert w.truly_safe(c.poses)
+    assert w.truly_safe(c.path)
+
+
+def test_with_unseen_ground_ahead_it_commits_nothing_and_asks_to_look_there() -> None:
+    w = World()
+    xs, ys = w.g.centers()
+    X, Y = np.meshgrid(xs, ys)
+    w.unseen = np.hypot(X, Y) > 0.9  # only the ground under and beside the rover is known
+    c = w.choose((0.0, 0.0, 0.0), (5.0, 0.0))
+    assert c.status == "look" and len(c.poses) == 0, c.reason
+    assert "look there" in c.reason
+    x, y = c.look_at
+    assert 0.3 < x < 1.5 and abs(y) < 0.5  # ahead, toward the goal
+    assert c.failures and all(f.verdict == "unknown" for f in c.failures)
+    # the same ground seen: it drives
+    w.unseen[:] = False
+    assert w.choose((0.0, 0.0, 0.0), (5.0, 0.0)).status == "drive"
+
+
+def test_unseen_ground_beyond_the_section_is_a_cost_not_a_refusal() -> None:
+    w = World()
+    xs, ys = w.g.centers()
+    X, _ = np.meshgrid(xs, ys)
+    w.unseen = X > 1.6  # the section's band is seen, the look-ahead's is not
+    c = w.choose((0.0, 0.0, 0.0), (5.0, 0.0))
+    assert c.status == "drive", c.reason
+    assert c.poses[-1][0] == pytest.approx(1.0, abs=1e-6)
+    assert w.truly_safe(c.poses)
+
+
+def test_with_the_goal_behind_it_turns_on_the_spot_first() -> None:
+    w = World()
+    c = w.choose((1.0, 0.0, 0.0), (-2.5, 0.0))
+    assert c.status == "drive", c.reason
+    turning = c.poses[1:][np.hypot(c.poses[1:, 0] - 1.0, c.poses[1:, 1]) < 1e-9]
+    assert len(turning) > 5  # the first poses turn on the spot
+    assert abs(turning[-1, 2]) >= 135.0
+    assert c.poses[-1][0] < 0.2 and abs(c.poses[-1][2]) > 150.0  # then it drives toward the goal
+    assert w.truly_safe(c.poses)
+
+
+def test_walled_in_it_says_blocked_with_each_candidates_limit() -> None:
+    w = World()
+    X, Y = w.X, w.Y
+    ring = (np.hypot(X, Y) > 0.75) & (np.hypot(X, Y) < 0.95)
+    w.truth[ring] = 0.3
+    c = w.choose((0.0, 0.0, 0.0), (5.0, 0.0))
+    assert c.status == "blocked" and len(c.poses) == 0
+    assert "limits" in c.reason
+    assert c.checked == c.total
+    assert c.reasons and not any("unknown" in k for k in c.reasons)
+
+
+def test_a_prefix_is_judged_once_and_a_refused_section_spares_its_look_aheads() -> None:
+    w = World()
+    w.box(0.7, 0.9, -0.6, 0.6, 0.25)  # a rock in the way of the straight sections
+    heights = w.bounds()
+    check = bounds_check(heights, w.g, BODY)
+    sent: list[np.ndarray] = []
+
+    def recording(poses: np.ndarray) -> np.ndarray:
+        sent.append(poses.copy())
+        return check(poses)
+
+    c = w.choose((0.0, 0.0, 0.0), (5.0, 0.0), recording)
+    assert c.status == "drive" and c.rank > 0
+    allp = np.vstack(sent)
+    assert len(np.unique(np.round(allp, 9), axis=0)) == len(allp)  # no pose sent twice
+    # past the first batch (sent whole, in one call), a refused section's look-aheads are never sent
+    failed_sections = {f.candidate for f in c.failures if f.part == "section" and f.rank >= CandidateParams().batch}
+    assert failed_sections
+    tree = arc_tree(CandidateParams(), BODY)
+    seen = {tuple(np.round(p, 6)) for p in allp}
+    for cand in failed_sections:
+        leaf = tree.node(int(tree.paths[cand][2]))
+        # the look-ahead's poses, in the world (the rover at the origin, heading 0: the same)
+        assert not any(tuple(np.round(p, 6)) in seen for p in leaf)
+    assert w.truly_safe(c.poses)
+
+
+def test_the_cost_to_go_takes_unseen_ground_as_a_cost_and_known_walls_as_walls() -> None:
+    g = GridGeometry(0.25, 0.0, 5.0, 20, 20)
+    cost = np.ones(g.shape)
+    cost[10, :16] = np.inf  # a wall across, open at its east end
+    cost[:5, :] = 2.0  # unseen ground to the north
+    ctg = cost_to_go(cost, g, (2.5, 0.5))
+    assert ctg.at(np.array([2.5]), np.array([0.5]))[0] == pytest.approx(0.0, abs=0.2)
+    behind = float(ctg.at(np.array([0.5]), np.array([3.5]))[0])
+    assert behind > 2 * math.hypot(3.5 - 0.5, 2.0) * 0.9  # around the wall's end, not through it
+    assert np.isfinite(ctg.field[:5]).all()  # unseen ground is not a wall
+    # a goal off the grid is reached over the border
+    far = cost_to_go(np.ones(g.shape), g, (20.0, 2.5))
+    assert far.at(np.array([4.9]), np.array([2.5]))[0] == pytest.approx(15.1, abs=0.2)
+
+
+def test_the_check_wrapper_names_unknown_and_limits() -> None:
+    w = World()
+    w.box(1.9, 2.1, -0.1, 0.1, 0.3)
+    w.unseen[:, w.g.cell_of(np.array([0.0]), np.array([-2.5]))[1][0]:][:5] = True
+    check = bounds_check(w.bounds(), w.g, BODY)
+    codes = check(np.array([[0.0, 0.0, 0.0], [2.0, 0.0, 0.0], [0.0, 2.9, 0.0]]))
+    assert codes[0] == SAFE and codes[1] > 0 and codes[2] == -1
+
+
+def test_a_pose_budget_stops_the_search_and_says_so() -> None:
+    w = World()
+    ring = (np.hypot(w.X, w.Y) > 0.75) & (np.hypot(w.X, w.Y) < 0.95)
+    w.truth[ring] = 0.3
+    c = w.choose((0.0, 0.0, 0.0), (5.0, 0.0), max_poses=300)
+    assert c.status == "blocked" and "budget of 300 poses" in c.reason
+    assert 0 < c.checked < c.total and c.poses_checked >= 300
+
+
+def test_a_section_passing_the_goal_stops_at_it() -> None:
+    w = World()
+    c = w.choose((0.0, 0.0, 0.0), (0.6, 0.02))
+    assert c.status == "drive", c.reason
+    end = c.poses[-1]
+    assert math.hypot(end[0] - 0.6, end[1] - 0.02) <= 0.1
+    assert len(c.poses) < len(c.path) - 20  # cut short of its 1 m section
