@@ -426,15 +426,38 @@ class BoundsMap:
                ) -> tuple[np.ndarray, np.ndarray, GridGeometry]:
         """The lower and upper bounds over a box (clipped to the map), with its grid: what a
         check of the motions inside the box reads."""
+        sl, sub = self._box(xmin, ymin, xmax, ymax)
+        if sl is None:
+            empty = np.full((0, 0), np.nan, np.float32)
+            return empty, empty, sub
+        lower, upper = self.bounds(sl)
+        return lower, upper, sub
+
+    def statistics(self, xmin: float, ymin: float, xmax: float, ymax: float
+                   ) -> tuple[dict[str, np.ndarray], GridGeometry]:
+        """What the bounds are drawn from over a box (copies, clipped to the map), with its grid:
+        ``mean``, ``mean_var`` (the fused mean's variance), ``rise``, ``drop``, ``shift`` and
+        ``ceiling`` per cell. A check that weighs how likely the ground is rather than its
+        extremes reads these (``chance.posterior``), and the bounds drawn from them (``lower``,
+        ``upper``)."""
+        sl, sub = self._box(xmin, ymin, xmax, ymax)
+        names = ("mean", "mean_var", "rise", "drop", "shift", "ceiling")
+        if sl is None:
+            return {name: np.full((0, 0), np.nan, np.float32) for name in (*names, "lower", "upper")}, sub
+        out = {name: getattr(self, name)[sl].copy() for name in names}
+        out["lower"], out["upper"] = self.bounds(sl)
+        return out, sub
+
+    def _box(self, xmin: float, ymin: float, xmax: float, ymax: float
+             ) -> tuple[tuple[slice, slice] | None, GridGeometry]:
+        """The rows and columns of the map over a box and their grid (None and a 1-cell grid
+        where the box misses the map)."""
         g = self.geometry
         c0 = max(0, int(math.floor((xmin - g.xmin) / g.cell)))
         c1 = min(g.width, int(math.ceil((xmax - g.xmin) / g.cell)))
         r0 = max(0, int(math.floor((g.ymax - ymax) / g.cell)))
         r1 = min(g.height, int(math.ceil((g.ymax - ymin) / g.cell)))
         if r1 <= r0 or c1 <= c0:
-            empty = np.full((0, 0), np.nan, np.float32)
-            return empty, empty, GridGeometry(g.cell, g.xmin, g.ymax, 1, 1, g.crs)
+            return None, GridGeometry(g.cell, g.xmin, g.ymax, 1, 1, g.crs)
         sub = GridGeometry(g.cell, g.xmin + c0 * g.cell, g.ymax - r0 * g.cell, c1 - c0, r1 - r0, g.crs)
-        sl = (slice(r0, r1), slice(c0, c1))
-        lower, upper = self.bounds(sl)
-        return lower, upper, sub
+        return (slice(r0, r1), slice(c0, c1)), sub

@@ -1,0 +1,265 @@
+"""The vehicle check as a chance constraint: the probability, given the map, that the body at a pose
+exceeds each of its physical limits, against a declared risk ``epsilon`` (p-ACE, Ghosh, Otsu and
+Ono 2018, in place of ACE's hard bounds).
+
+The worst-case check on a bounds map (:func:`vehicle.check_poses` on ``(lower, upper)``) puts every
+one of the 100-500 cells under the body at its extreme at once, each ``k`` sigmas out and dilated
+by the largest horizontal error in every direction: on flat ground known to +-3 cm it already
+lifts the ground under the box into the belly over wheels resting 3 cm low, and refuses. Here each cell's ground is a distribution
+(:func:`posterior`), and a pose is safe when P(any limit exceeded) <= epsilon.
+
+**The cell's posterior** (:func:`posterior`, from :meth:`BoundsMap.statistics`): the cell's top,
+mean + rise, with five variances:
+
+- the fused mean's variance (``mean_var``: the returns' height variance over their number, fused
+  over frames, so averaging frames narrows it);
+- the range error along the ray: a mean read long or short stands for ground a little further or
+  nearer along the ray, a height error of the ground's slope *along the ray* times that shift. The
+  shift's sigma is the mean's own range error, horizontally: its height sigma over the tangent of
+  the ray's elevation, seen from ``viewpoint`` (averaged, as the height is; never more than one
+  return's horizontal sigma, ``shift / k``). Across the ray, and on flat ground, it adds nothing;
+- the relief no return met: the true top of a cell stands over the highest of its returns
+  now and then by a few millimetres (``top_sigma``, on every cell);
+- the rock edge: where the map's worst case allows ground J higher than the cell's top within
+  its 3 x 3 neighbourhood (:func:`headroom`: a rock's edge, its bounds spread along the returns'
+  horizontal errors, or ground behind it only a ray bounds), the cell reads its top
+  ``edge_bias * J`` low, with a further sigma ``edge_sigma * J`` that is one error for every
+  cell under the body (``Posterior.common``: drawn once per surface): a rock's top read low is
+  read low in each of its cells, and the wheel resting on it, the step up to it and the belly over
+  it move together (drawn apart per cell, the errors partly cancel between the cells a body
+  sample reads and in the highest of a wheel's samples). Calibrated on the simulator's true
+  surface so that the 99.9th percentile of the truth over the top is 3.09 sigmas in each
+  band of J (``python -m tools.bench.chance --calibrate``, docs/BENCHMARKS.md): the cells' errors
+  there have tails far heavier than a normal's (a rock top no return met), and a sigma fitted to
+  their spread alone put the truth 10-20 sigmas out in 1 cell in 1,000;
+- the rock's top: a rock's flat top, where J is small, is read low as a whole (the cells of an
+  18 cm rock under a wheel 1-2 cm each), which no per-cell sigma carries: drawn apart, the cells'
+  errors cancel in the contact and the belly's highest ground. A further common sigma
+  ``rock_sigma * H``, H the cell's height over the lowest top within ``ROCK_WINDOW``
+  (:func:`relief`). Its share is chosen at the pose level, on the false safes against the truth
+  (docs/BENCHMARKS.md), not per cell: per cell the marginals above already hold.
+
+**The probability** (:func:`chance_check`): surfaces are drawn from the cells' posteriors (seeded,
+every cell's own error independently, the common one once per surface; ``samples`` of them)
+and each is judged by :func:`vehicle.check_poses`, the one definition of the limits: per pose and limit, the samples' excesses give the share over
+the limit and a normal tail from their mean and spread, whichever is higher (``samples`` draws
+alone cannot show a probability below about 1 / samples; the tail reaches epsilon, and it is
+measured against the truth by the pose-level statistics). P(any) is the share of samples over
+any limit or the sum of the four tails (the union bound), whichever is higher.
+
+Poses are first screened by the worst-case check on bounds :func:`screen_k` sigmas out (of both
+errors), which makes the chance that any cell under the body lies outside them at most
+``SCREEN * epsilon`` (a union bound over the cells): a pose safe there is safe with P below that,
+and is not sampled. That check also says which poses are ``unknown``: ground under the body with no
+upper bound (no return, no ray over it), or a wheel mostly over ground with no return, by the same
+rule as the worst-case check. A ray's ceiling with no return stands in as the ground's height in
+the samples: the highest it may be.
+"""
+
+from __future__ import annotations
+
+import warnings
+from dataclasses import dataclass
+from statistics import NormalDist
+from typing import Any
+
+import numpy as np
+from scipy.ndimage import maximum_filter, minimum_filter
+from scipy.special import ndtr
+
+from rvs_params import Settings, param
+
+from ..grid import GridGeometry
+from .vehicle import LIMITS, PoseChecks, VehicleBody, _pattern, _sample, check_poses
+
+__all__ = ["ChanceParams", "ChanceChecks", "Posterior", "posterior", "chance_check", "SCREEN"]
+
+SCREEN = 0.1  # the share of epsilon the screen may spend: a pose it clears has P(any) below this times epsilon
+ROCK_WINDOW = 0.2  # m: the ground round a cell its rock stands on
+_MIN_ELEVATION = 0.05  # tan: a ray grazing flatter than this is taken at it (its horizontal error is bounded by shift)
+
+
+@dataclass
+class ChanceParams(Settings):
+    """The chance-constrained vehicle check: the risk it accepts and how its probabilities are made."""
+
+    epsilon: float = param(1e-3, "a pose is safe when the probability that it exceeds any physical limit, "
+                                 "given the map, is at most this", min=1e-9, max=0.5)
+    samples: int = param(64, "surfaces drawn from the cells' posteriors for each check (a normal tail over "
+                             "their excesses reaches probabilities below 1 / samples)", min=8, max=4096)
+    seed: int = param(0, "seed of the drawn surfaces: the same map and poses give the same verdict",
+                      min=0, max=2**31 - 1)
+    edge_bias: float = param(0.045, "a cell's top reads low by this share of how much higher the map's upper "
+                                   "bound allows the ground within its 3 x 3 neighbourhood (a rock edge; "
+                                   "calibrated on marsyard's true surface: python -m tools.bench.chance "
+                                   "--calibrate)", min=0.0, max=1.0)
+    top_sigma: float = param(0.005, "the true top of a cell stands over its returns' estimate by the relief no "
+                                    "return met: this sigma on every cell (calibrated alike)", unit="m",
+                             min=0.0, max=0.1)
+    rock_sigma: float = param(0.2, "a rock's top is read low as a whole: a sigma common to the cells under a body, "
+                                   "as a share of the cell's height over the lowest top within 0.2 m (chosen on "
+                                   "the false safes against the truth of two marsyard draws: python -m "
+                                   "tools.bench.chance --rock-sigma)", min=0.0, max=1.0)
+    edge_sigma: float = param(0.17, "a rock edge's further uncertainty (1 sigma), as a share of the same height "
+                                    "(calibrated alike, on the 99.9th percentile)", min=0.0, max=2.0)
+
+
+@dataclass(frozen=True)
+class Posterior:
+    """Per cell of one grid: the ground's top (m; its best estimate, NaN where no return bounds it),
+    the variance of its error of its own (m^2), the sigma of its share of an error common to the
+    cells under a body (m; the rock edge's and the rock top's: a rock read low is read low in each
+    of its cells),
+    and the lowest ray that passed over it (m; inf: none). The top's variance is var + common^2."""
+
+    mean: np.ndarray
+    var: np.ndarray
+    ceiling: np.ndarray
+    common: np.ndarray | float = 0.0
+
+
+@dataclass
+class ChanceChecks:
+    """Per-pose results of :func:`chance_check` (N poses), shaped as :class:`vehicle.PoseChecks` is
+    (``safe``, ``unsafe``, ``unknown``) so that a gate or a search takes either check."""
+
+    prob: np.ndarray  # (N, 4) P(exceeding) per limit (LIMITS order); 0 where screened, NaN where unknown
+    p_any: np.ndarray  # (N,) P(exceeding any limit); 0 where screened, NaN where unknown
+    unknown: np.ndarray  # (N,) bool: ground under the body the map does not cover (never safe)
+    screened: np.ndarray  # (N,) bool: cleared by the worst case screen_k sigmas out (P(any) < SCREEN * epsilon)
+    nominal: PoseChecks  # the check on the posterior's best estimate (which limit is closest, by how much)
+    epsilon: float
+
+    @property
+    def unsafe(self) -> np.ndarray:
+        return self.p_any > self.epsilon
+
+    @property
+    def safe(self) -> np.ndarray:
+        """Judged, and within every limit with probability at least 1 - epsilon."""
+        return ~self.unsafe & ~self.unknown
+
+    def worst(self) -> tuple[np.ndarray, np.ndarray]:
+        """Per pose, the limit most likely exceeded (LIMITS index) and that probability."""
+        p = np.nan_to_num(self.prob, nan=-1.0)
+        k = np.argmax(p, axis=1)
+        return k, self.prob[np.arange(len(k)), k]
+
+    def kind(self, i: int, k: int) -> str:
+        return self.nominal.kind(i, k) if k == 0 else LIMITS[k]
+
+
+def posterior(stats: dict[str, np.ndarray], geom: GridGeometry, k: float, params: ChanceParams | None = None,
+              viewpoint: Any = None) -> Posterior:
+    """Each cell's ground from a bounds map's statistics over ``geom`` (:meth:`BoundsMap.statistics`;
+    ``k`` the map's, by which its ``shift`` is drawn), seen from ``viewpoint`` (x, y, z of the
+    sensor; None: the ray's direction unknown, so the slope's steepest direction and one return's
+    horizontal sigma stand in). See the module's docstring for the five variances."""
+    p = params or ChanceParams()
+    mean = np.asarray(stats["mean"], np.float64)
+    top = mean + np.asarray(stats["rise"], np.float64)
+    var0 = np.asarray(stats["mean_var"], np.float64)
+    per_return = np.asarray(stats["shift"], np.float64) / max(k, 1e-9)  # one return's horizontal sigma
+    seen = np.isfinite(top)
+    xs, ys = geom.centers()
+    X, Y = np.meshgrid(xs, ys)
+    c = geom.cell
+    filled = np.where(seen, top, np.nan)
+    if viewpoint is not None:
+        v = np.asarray(viewpoint, np.float64)
+        d = np.maximum(np.hypot(X - v[0], Y - v[1]), 1e-6)
+        ux, uy = (X - v[0]) / d, (Y - v[1]) / d
+        tan_elev = np.maximum((v[2] - np.where(seen, top, 0.0)) / d, _MIN_ELEVATION)
+        along = np.minimum(np.sqrt(np.maximum(var0, 0.0)) / tan_elev, per_return)
+        ahead = _sample(filled, geom, X + c * ux, Y + c * uy)
+        behind = _sample(filled, geom, X - c * ux, Y - c * uy)
+        with np.errstate(invalid="ignore"):
+            slope = np.fmax(np.abs(ahead - top), np.abs(top - behind)) / c
+    else:
+        along = per_return
+        gy, gx = np.gradient(np.where(seen, top, np.nan), c)
+        slope = np.hypot(gx, gy)
+    slope = np.nan_to_num(slope, nan=0.0)
+    jump = headroom(stats, top)
+    var = var0 + p.top_sigma**2 + (slope * along) ** 2
+    mu = top + p.edge_bias * jump
+    ceiling = np.asarray(stats.get("ceiling", np.full(mean.shape, np.inf)), np.float64)
+    return Posterior(np.where(seen, mu, np.nan), np.where(seen, var, np.nan), ceiling,
+                     np.where(seen, np.hypot(p.edge_sigma * jump, p.rock_sigma * relief(top, geom)), 0.0))
+
+
+def relief(top: np.ndarray, geom: GridGeometry) -> np.ndarray:
+    """H per cell: how far its ``top`` stands over the lowest top within ROCK_WINDOW (0 where no
+    top): a rock's height over the ground it stands on, or a slope's rise over the window."""
+    size = 2 * max(1, int(round(ROCK_WINDOW / 2 / geom.cell))) + 1
+    low = minimum_filter(np.where(np.isfinite(top), top, np.inf), size=size, mode="nearest")
+    with np.errstate(invalid="ignore"):
+        return np.where(np.isfinite(top), np.maximum(top - low, 0.0), 0.0)
+
+
+def headroom(stats: dict[str, np.ndarray], top: np.ndarray) -> np.ndarray:
+    """J per cell: how much higher than the cell's ``top`` the worst case allows the ground within
+    its 3 x 3 neighbourhood (the map's ``upper`` bound there, 0 where the cell has no top). A rock
+    edge beside the cell shows in it (its bounds spread along the returns' horizontal errors), and
+    so does ground behind the cell that only a ray bounds: where the truth differs from the cell's
+    top by many sigmas, this is where (``python -m tools.bench.chance --calibrate``)."""
+    upper = np.asarray(stats["upper"], np.float64)
+    near = maximum_filter(np.where(np.isfinite(upper), upper, -np.inf), size=3, mode="nearest")
+    with np.errstate(invalid="ignore"):
+        return np.where(np.isfinite(top), np.maximum(near - top, 0.0), 0.0)
+
+
+def screen_k(body: VehicleBody, cell: float, epsilon: float) -> float:
+    """How many sigmas out the screen's bounds lie: the chance that any of the cells a pose reads
+    (four per body sample, a generous count) lies beyond them is at most SCREEN * epsilon."""
+    cells = 4 * len(_pattern(body, cell).pts) + 1  # and the common error
+    return NormalDist().inv_cdf(1.0 - SCREEN * epsilon / (2 * cells))
+
+
+def chance_check(post: Posterior, geom: GridGeometry, poses: np.ndarray, body: VehicleBody,
+                 params: ChanceParams | None = None, step: float | None = None) -> ChanceChecks:
+    """The probability that ``body`` exceeds each physical limit at each of ``poses`` ((N, 3): x, y,
+    heading deg) on the ground ``post`` gives over ``geom``, and the verdict against epsilon (see
+    the module's docstring). ``step``: the body's sample spacing (default the grid's cell), as
+    :func:`vehicle.check_poses` takes it."""
+    p = params or ChanceParams()
+    poses = np.atleast_2d(np.asarray(poses, float))
+    n = len(poses)
+    mu, var = post.mean, post.var
+    seen = np.isfinite(mu)
+    sd = np.sqrt(np.where(seen, var, 0.0))
+    common = np.where(seen, post.common, 0.0)
+    roof = np.where(np.isfinite(post.ceiling), post.ceiling, np.nan)
+    best = np.where(seen, mu, roof)
+    ks = screen_k(body, step or geom.cell, p.epsilon)
+    lower = np.where(seen, mu - ks * (sd + common), np.nan).astype(np.float32)
+    upper = np.where(seen, mu + ks * (sd + common), roof).astype(np.float32)
+    wide = check_poses((lower, upper), geom, poses, body, step)
+    unknown = wide.unknown
+    screened = wide.safe
+    nominal = check_poses(best.astype(np.float32), geom, poses, body, step)
+    prob = np.where(unknown[:, None], np.nan, np.zeros((n, 4)))
+    p_any = np.where(unknown, np.nan, 0.0)
+    rest = np.flatnonzero(~unknown & ~screened)
+    if len(rest):
+        rng = np.random.default_rng(p.seed)
+        excess = np.empty((p.samples, len(rest), 4))
+        for s in range(p.samples):
+            z = rng.standard_normal(mu.shape)
+            shared = rng.standard_normal()
+            surface = np.where(seen, mu + sd * z + common * shared, roof).astype(np.float32)
+            excess[s] = check_poses(surface, geom, poses[rest], body, step).excess
+        excess = np.nan_to_num(excess, nan=-np.inf)  # no resting plane judged: nothing to exceed
+        over = excess > 0
+        finite = np.where(np.isfinite(excess), excess, np.nan)
+        with np.errstate(invalid="ignore", divide="ignore"), warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)  # a limit with no finite sample: no tail
+            m = np.nanmean(finite, axis=0)
+            spread = np.nanstd(finite, axis=0, ddof=1)
+            z = np.where(spread > 0, m / spread, np.where(m > 0, np.inf, -np.inf))
+        tail = np.nan_to_num(ndtr(z), nan=0.0)
+        per_limit = np.maximum(over.mean(axis=0), tail)
+        prob[rest] = per_limit
+        p_any[rest] = np.maximum(over.any(axis=2).mean(axis=0), np.minimum(tail.sum(axis=1), 1.0))
+    return ChanceChecks(prob=prob, p_any=p_any, unknown=unknown, screened=screened, nominal=nominal,
+                        epsilon=p.epsilon)

@@ -1,0 +1,203 @@
+"""The chance-constrained vehicle check (prox_workflows.algorithms.chance) on synthetic 5 cm grids
+with the declared body: probabilities per limit from the cells' posteriors, the verdict against
+epsilon, beside the worst-case check on bounds; and the posterior's ray and rock-edge variances."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from drivers.sim.rover import RoverBody
+from prox_workflows.algorithms.bounds_map import BoundsMap, BoundsParams
+from prox_workflows.algorithms.chance import ChanceParams, Posterior, chance_check, posterior
+from prox_workflows.algorithms.vehicle import LIMITS, check_poses
+from prox_workflows.grid import GridGeometry
+
+BODY = RoverBody()
+CELL = 0.05
+STEP = LIMITS.index("step")
+AT_ORIGIN = np.array([[0.0, 0.0, 0.0]])
+
+
+def grid() -> tuple[GridGeometry, np.ndarray, np.ndarray]:
+    g = GridGeometry.covering(-1.0, -1.0, 1.0, 1.0, CELL)
+    xs, ys = g.centers()
+    X, Y = np.meshgrid(xs, ys)
+    return g, X, Y
+
+
+def ledge(height: float) -> tuple[np.ndarray, GridGeometry]:
+    """Raised ground beyond an edge 3 cm ahead of the front-right hub, under that wheel's track
+    only (outside the box, which ends at y = -0.20): a step edge of ``height`` and nothing else."""
+    g, X, Y = grid()
+    h = np.zeros(g.shape)
+    h[(X >= 0.175) & (Y <= -0.2) & (Y >= -0.35)] = height
+    return h, g
+
+
+def known(h: np.ndarray, sigma: float) -> Posterior:
+    return Posterior(h, np.full(h.shape, sigma * sigma), np.full(h.shape, np.inf))
+
+
+def test_flat_ground_known_to_millimetres_is_safe_with_no_chance_of_any_limit() -> None:
+    h, g = ledge(0.0)
+    c = chance_check(known(h, 0.003), g, AT_ORIGIN, BODY)
+    assert c.safe.tolist() == [True]
+    assert c.p_any[0] < 1e-6
+    assert (c.prob[0] < 1e-6).all()
+
+
+def test_a_step_edge_below_the_climb_is_unlikely_over_it_and_one_at_the_climb_is_a_coin_toss() -> None:
+    h9, g = ledge(0.09)
+    p9 = chance_check(known(h9, 0.005), g, AT_ORIGIN, BODY).prob[0]
+    assert 1e-4 < p9[STEP] < 0.1  # 1 cm below the 10 cm climb, 5 mm per cell: small, not nil
+    assert (p9[1:] < 1e-6).all()  # the edge is outside the box: no other limit is near
+    p9_wide = chance_check(known(h9, 0.01), g, AT_ORIGIN, BODY).prob[0, STEP]
+    assert p9[STEP] < p9_wide < 0.5
+    h10, _ = ledge(0.10)
+    p10 = chance_check(known(h10, 0.01), g, AT_ORIGIN, BODY).prob[0, STEP]
+    # exactly at the limit, half the draws of each pair of samples across the edge are over it;
+    # the wheel meets a few such pairs, so somewhat more than half
+    assert 0.45 < p10 < 0.8
+
+
+def test_more_variance_means_more_chance_of_an_edge_below_the_limit() -> None:
+    h, g = ledge(0.09)
+    probs = [chance_check(known(h, s), g, AT_ORIGIN, BODY).prob[0, STEP] for s in (0.002, 0.004, 0.006, 0.008, 0.012)]
+    assert all(b > a for a, b in zip(probs, probs[1:], strict=False)), probs
+
+
+def test_the_draws_are_seeded() -> None:
+    h, g = ledge(0.095)
+    poses = np.array([[0.0, 0.0, 0.0], [0.02, 0.01, 3.0], [-0.03, 0.0, -2.0]])
+    a = chance_check(known(h, 0.01), g, poses, BODY, ChanceParams(seed=7))
+    b = chance_check(known(h, 0.01), g, poses, BODY, ChanceParams(seed=7))
+    c = chance_check(known(h, 0.01), g, poses, BODY, ChanceParams(seed=8))
+    np.testing.assert_array_equal(a.prob, b.prob)
+    assert not np.array_equal(a.prob, c.prob)
+    np.testing.assert_allclose(a.prob, c.prob, atol=0.15)  # another seed, the same answer within its noise
+
+
+def test_a_pose_over_cells_with_no_data_is_unknown_and_never_safe() -> None:
+    h, g = ledge(0.0)
+    g_, X, Y = grid()
+    h[(np.abs(X - 0.145) < 0.06) & (np.abs(Y - 0.245) < 0.05)] = np.nan  # under the front-left wheel
+    c = chance_check(known(h, 0.003), g, np.array([[0.0, 0.0, 0.0], [0.0, -0.6, 0.0]]), BODY)
+    assert c.unknown.tolist() == [True, False]
+    assert c.safe.tolist() == [False, True]
+    assert np.isnan(c.prob[0]).all()
+
+
+def test_it_passes_flat_ground_the_worst_case_refuses_yet_refuses_a_real_edge() -> None:
+    # flat ground known to +-3 cm (the bounds map's k of 2.5 times a 1.2 cm sigma): the worst case
+    # puts the ground under the box 3 cm up over wheels resting 3 cm down, into the belly (at +-2 cm
+    # it still passes; the stability limit is the tip-over angle, far beyond the tilt it makes)
+    sigma = 0.03 / 2.5
+    h, g = ledge(0.0)
+    worst = check_poses(((h - 0.03).astype(np.float32), (h + 0.03).astype(np.float32)), g, AT_ORIGIN, BODY)
+    assert worst.safe.tolist() == [False] and worst.excess[0, LIMITS.index("belly")] > 0
+    flat = chance_check(known(h, sigma), g, AT_ORIGIN, BODY, ChanceParams(epsilon=1e-4))
+    assert flat.safe.tolist() == [True]
+    h11, _ = ledge(0.11)
+    edge = chance_check(known(h11, sigma), g, AT_ORIGIN, BODY, ChanceParams(epsilon=1e-4))
+    assert edge.safe.tolist() == [False]
+    assert edge.prob[0, STEP] > 0.9
+
+
+def test_a_ray_ceiling_with_no_return_stands_as_the_ground_at_its_height() -> None:
+    h, g = ledge(0.0)
+    g_, X, Y = grid()
+    ceiling = np.full(h.shape, np.inf)
+    under_box = (np.abs(X) < 0.06) & (np.abs(Y) < 0.06)
+    h[under_box] = np.nan
+    low, high = ceiling.copy(), ceiling.copy()
+    low[under_box], high[under_box] = 0.02, 0.12  # a ray 2 cm over the ground, or 12 cm (over the belly)
+    var = np.full(h.shape, 0.003**2)
+    assert chance_check(Posterior(h, var, low), g, AT_ORIGIN, BODY).safe.tolist() == [True]
+    over = chance_check(Posterior(h, var, high), g, AT_ORIGIN, BODY)
+    assert over.safe.tolist() == [False] and not over.unknown[0]
+    assert over.prob[0, LIMITS.index("belly")] == pytest.approx(1.0)
+
+
+def stats(top: np.ndarray, sigma: float, shift: float) -> dict[str, np.ndarray]:
+    """A bounds map's statistics with the ground's tops known to ``sigma``; its upper bound the tops
+    themselves (no headroom but a rock's own beside it)."""
+    return {"mean": top.copy(), "mean_var": np.full(top.shape, sigma * sigma), "rise": np.zeros(top.shape),
+            "drop": np.zeros(top.shape), "shift": np.full(top.shape, shift), "ceiling": np.full(top.shape, np.inf),
+            "upper": top.copy(), "lower": top.copy()}
+
+
+def test_the_range_error_lies_along_the_ray() -> None:
+    g, X, Y = grid()
+    top = np.where(X >= 0.0, 0.10, 0.0)  # an edge across x: seen along the ray from -x, along it from -y
+    no_edge = ChanceParams(edge_bias=0.0, edge_sigma=0.0, top_sigma=0.0, rock_sigma=0.0)
+    k = 2.5
+    along = posterior(stats(top, 0.004, k * 0.02), g, k, no_edge, viewpoint=(-3.0, 0.0, 1.0))
+    across = posterior(stats(top, 0.004, k * 0.02), g, k, no_edge, viewpoint=(0.0, -30.0, 1.0))
+    at = (np.abs(X - 0.025) < 1e-6) & (np.abs(Y - 0.025) < 1e-6)  # the edge's upper cell, on the ray y = 0
+    assert along.var[at][0] > 10 * 0.004**2  # a shift along the ray moves it onto the 10 cm edge
+    # seen along the edge (rays 30 m off, nearly parallel to it) the shift moves it along flat tops
+    assert across.var[at][0] == pytest.approx(0.004**2, rel=0.1)
+    flat = np.abs(X + 0.5) < 0.1
+    np.testing.assert_allclose(along.var[flat], 0.004**2)  # on flat ground nothing is added
+    # the mean's horizontal error is its height error over the ray's elevation, never more than one return's
+    assert along.var[at][0] <= 0.004**2 + (0.10 / CELL * 0.02) ** 2 + 1e-12
+
+
+def test_beside_a_rock_the_top_reads_low_by_one_error_for_all_its_cells() -> None:
+    g, X, Y = grid()
+    top = np.where(np.hypot(X, Y) < 0.2, 0.10, 0.0)
+    p = ChanceParams(edge_bias=0.05, edge_sigma=0.2, top_sigma=0.003, rock_sigma=0.0)
+    post = posterior(stats(top, 0.004, 0.0), g, 2.5, p, viewpoint=(-3.0, 0.0, 1.0))
+    rim = (np.abs(X - 0.225) < 1e-6) & (np.abs(Y - 0.025) < 1e-6)  # outside the rock, beside its 10 cm top
+    middle = (np.abs(X - 0.025) < 1e-6) & (np.abs(Y - 0.025) < 1e-6)
+    assert post.mean[rim][0] == pytest.approx(0.05 * 0.10)
+    assert post.common[rim][0] == pytest.approx(0.2 * 0.10)
+    assert post.var[rim][0] == pytest.approx(0.004**2 + 0.003**2)
+    assert post.mean[middle][0] == pytest.approx(0.10)
+    assert post.common[middle][0] == 0.0
+    assert post.var[middle][0] == pytest.approx(0.004**2 + 0.003**2)
+
+
+def test_a_rock_top_shares_one_error_by_its_height_over_the_ground_round_it() -> None:
+    g, X, Y = grid()
+    top = np.where(np.hypot(X, Y) < 0.2, 0.10, 0.0) + 0.02 * X  # on a gentle slope
+    p = ChanceParams(edge_bias=0.0, edge_sigma=0.0, top_sigma=0.0, rock_sigma=0.2)
+    post = posterior(stats(top, 0.004, 0.0), g, 2.5, p)
+    middle = (np.abs(X - 0.025) < 1e-6) & (np.abs(Y - 0.025) < 1e-6)
+    # the lowest top within 0.2 m (+-0.1 m: two cells) is the rock's own, 0.1 m down the slope
+    assert post.common[middle][0] == pytest.approx(0.2 * 0.02 * 0.1, rel=1e-6)
+    # inside by its rim; the ground beside the rock at the same x (0.175, 0.125) is the lowest
+    rim = (np.abs(X - 0.175) < 1e-6) & (np.abs(Y - 0.025) < 1e-6)
+    assert post.common[rim][0] == pytest.approx(0.2 * 0.10, rel=1e-6)
+    flat = (np.abs(X + 0.7) < 0.05) & (np.abs(Y) < 0.5)
+    np.testing.assert_allclose(post.common[flat], 0.2 * 0.02 * 0.1, rtol=1e-6)  # the slope over 0.1 m: 0.4 mm
+
+
+def test_a_common_error_moves_a_wheel_and_the_ground_beside_it_together() -> None:
+    h, g = ledge(0.09)
+    g_, X, Y = grid()
+    own = known(h, 0.004)
+    # the same spread, all of it one error of the raised ground: the edge's height itself varies,
+    # where errors of each cell apart partly cancel between the cells a sample reads
+    common = Posterior(h, np.full(h.shape, 1e-12), own.ceiling, np.where(h > 0, 0.004 * np.sqrt(2.0), 0.0))
+    p_own = chance_check(own, g, AT_ORIGIN, BODY, ChanceParams(samples=256)).prob[0, STEP]
+    p_common = chance_check(common, g, AT_ORIGIN, BODY, ChanceParams(samples=256)).prob[0, STEP]
+    # one error of sqrt(2) x 4 mm on the 1 cm to spare: P = 1 - Phi(1 / 0.566) = 0.039
+    assert p_common == pytest.approx(0.039, abs=0.02)
+    assert p_common > 10 * p_own
+
+
+def test_the_bounds_map_gives_its_statistics_over_a_box() -> None:
+    m = BoundsMap(GridGeometry.covering(0.0, 0.0, 1.0, 1.0, 0.05), BoundsParams())
+    rng = np.random.default_rng(0)
+    pts = np.column_stack([rng.uniform(0.3, 0.5, 400), rng.uniform(0.3, 0.5, 400), 0.02 + 0.002 * rng.standard_normal(400)])
+    m.fuse(pts, 0.002)
+    s, sub = m.statistics(0.26, 0.26, 0.54, 0.54)
+    assert s["mean"].shape == sub.shape == (6, 6)
+    inner = s["mean"][1:5, 1:5]
+    assert np.isfinite(inner).all() and np.abs(inner - 0.02).max() < 0.002
+    assert np.all(s["mean_var"][1:5, 1:5] < 0.002**2)  # averaged returns: the mean is better than one
+    assert np.isnan(s["mean"][0]).all()
+    s["mean"][:] = 5.0
+    assert np.nanmax(m.mean) < 1.0  # a copy: a posterior made from it leaves the map alone

@@ -1,0 +1,210 @@
+"""Benchmark: the chance-constrained vehicle check (prox_workflows.algorithms.chance) on a look's
+bounds map, against the worst-case check on its bounds, with the check on the true 1 cm surface as
+the reference; and the calibration of its rock-edge error model.
+
+A look's frames are fused into a bounds map as ``tools.bench.bounds`` fuses them (the ToF's noise
+model, one draw). Then:
+
+- ``--calibrate``: per band of the headroom J (``chance.headroom``: how much higher the map's
+  upper bound allows the ground within a cell's 3 x 3 neighbourhood), how far the true top (the
+  simulator's 0.5 cm surface, highest in the cell) stands over the posterior's top without the
+  edge terms: its median and 99.9th percentile. Fitted as a bias ``edge_bias * J`` (the medians,
+  least squares weighted by cells), a floor ``top_sigma`` (the bands under 2 cm) and a sigma
+  ``edge_sigma * J`` over it, each the least that puts every band's 99.9th percentile within 3.09
+  sigmas; and the standardised residual's tail with the fit;
+- otherwise, at poses over the ground 1.6-4.0 m ahead (4 headings, as the bounds bench): judged
+  poses, truly safe kept and false safes of the worst-case check and of the chance check at each
+  epsilon, and the chance check's time per 1,000 poses.
+
+    python -m tools.bench.chance --calibrate --look approach # marsyard, cell 2.5 cm
+    python -m tools.bench.chance --epsilon 1e-2 1e-3 1e-4     # the table
+    python -m tools.bench.chance --cell 0.05 --world-seed 2   # a 5 cm map, another rock draw
+    python -m tools.bench.chance --time                       # 1,000 poses on a 5 cm window
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import time
+from typing import Any
+
+import numpy as np
+
+from drivers.sim.rover import RoverBody
+from drivers.sim.world import World
+from prox_workflows.algorithms.bounds_map import BoundsMap, BoundsParams
+from prox_workflows.algorithms.chance import ChanceParams, Posterior, chance_check, headroom, posterior
+from prox_workflows.algorithms.vehicle import check_poses
+from prox_workflows.grid import GridGeometry
+from tools.bench.bounds import LOOKS, TRUE_CELL, frames, pooled
+
+JUMP_BANDS = (0.0, 0.01, 0.02, 0.04, 0.08, 0.16, np.inf)  # m
+Z999 = 3.09  # a normal's 99.9th percentile
+FLAT = 0.02  # m: bands of less headroom fit the floor (top_sigma), the others the share of J (edge_sigma)
+
+
+def fused(scene: str, look: str, cell: float, world_seed: int, seed: int
+          ) -> tuple[World, BoundsMap, np.ndarray]:
+    """The bounds map of one look, as the bounds bench makes it, and the sensor's mean position."""
+    world = World.from_scene(scene, seed=world_seed)
+    x0, y0, _ = world.rover_pose()
+    box = [[x0 - 1.0, y0 - 3.0], [x0 + 6.5, y0 + 3.0]]
+    bounds = BoundsMap.covering(box, 0.0, BoundsParams(cell=cell))
+    origins = []
+    for pts, sigma, origin, sigma_xy, cut, sensor in frames(world, look, np.random.default_rng(seed)):
+        bounds.fuse(pts, sigma, origin, cut, sigma_xy, sensor)
+        origins.append(origin)
+    return world, bounds, np.mean(origins, axis=0)
+
+
+def whole(bounds: BoundsMap) -> tuple[dict[str, np.ndarray], GridGeometry]:
+    g = bounds.geometry
+    return bounds.statistics(g.xmin, g.ymin, g.xmin + g.width * g.cell, g.ymax)
+
+
+def calibrate(scene: str, look: str, cell: float, world_seed: int, seed: int) -> dict[str, Any]:
+    world, bounds, viewpoint = fused(scene, look, cell, world_seed, seed)
+    stats, g = whole(bounds)
+    bare = ChanceParams(edge_bias=0.0, edge_sigma=0.0, top_sigma=0.0, rock_sigma=0.0)
+    base = posterior(stats, g, bounds.params.k, bare, viewpoint)
+    fine = world.true_dem(TRUE_CELL, (g.xmin, g.ymin, g.xmin + g.width * g.cell, g.ymax))
+    top = pooled(fine, g, np.max)
+    seen = np.isfinite(base.mean)
+    jump = headroom(stats, base.mean)
+    r, j, v = (top - base.mean)[seen], jump[seen], base.var[seen]
+    rows = []
+    for lo, hi in zip(JUMP_BANDS[:-1], JUMP_BANDS[1:], strict=True):
+        at = (j >= lo) & (j < hi)
+        if at.sum() < 20:
+            continue
+        rows.append({"band": (lo, hi), "cells": int(at.sum()), "J": float(j[at].mean()),
+                     "median": float(np.median(r[at])), "q999": float(np.percentile(r[at], 99.9)),
+                     "model_sd": float(np.sqrt(v[at].mean())),
+                     "z999": float(np.percentile(r[at] / np.sqrt(v[at]), 99.9)), "at": at})
+    n = np.array([row["cells"] for row in rows], float)
+    J = np.array([row["J"] for row in rows])
+    # the bias: the bands' medians over J, least squares through the origin weighted by cells; the
+    # sigma: the least share of J that puts every band's 99.9th percentile (bands of 1,000 cells
+    # and more: fewer cannot show it) within 3.09 sigmas (a normal's 0.1 % tail)
+    a = float(max(np.sum(n * J * np.array([row["median"] for row in rows])) / np.sum(n * J * J), 0.0))
+    # the floor first, from the flat bands (J under FLAT), then the share of J over it
+    extra = {id(row): ((row["q999"] - a * row["J"]) / Z999) ** 2 - row["model_sd"] ** 2 for row in rows}
+    big = [row for row in rows if row["cells"] >= 1000]
+    c = float(np.sqrt(max([extra[id(row)] for row in big if row["J"] < FLAT] + [0.0])))
+    b = float(max(np.sqrt(max(extra[id(row)] - c * c, 0.0)) / row["J"] for row in big if row["J"] >= FLAT))
+    # per cell, without the rock-top term (chosen at the pose level, on false safes: it only widens)
+    fitted = posterior(stats, g, bounds.params.k, dataclasses.replace(bare, edge_bias=a, edge_sigma=b, top_sigma=c),
+                       viewpoint)
+    z = ((top - fitted.mean) / np.sqrt(fitted.var + fitted.common**2))[seen]
+    for row in rows:
+        at = row.pop("at")
+        row["z999_fit"] = float(np.percentile(z[at], 99.9))
+        row["over_fit"] = float(np.mean(z[at] > Z999))
+    return {"rows": rows, "edge_bias": a, "edge_sigma": b, "top_sigma": c, "cells": int(seen.sum())}
+
+
+def evaluate(scene: str, look: str, cell: float, world_seed: int, seed: int, epsilons: list[float],
+             samples: int, body: RoverBody, rock_sigma: float = ChanceParams().rock_sigma) -> dict[str, Any]:
+    world, bounds, viewpoint = fused(scene, look, cell, world_seed, seed)
+    stats, g = whole(bounds)
+    x0, y0, _ = world.rover_pose()
+    truth = world.true_dem(0.01, (g.xmin, g.ymin, g.xmin + g.width * g.cell, g.ymax))
+    tg = GridGeometry(0.01, g.xmin, g.ymax, truth.shape[1], truth.shape[0])
+    px, py = np.meshgrid(x0 + np.arange(1.6, 4.0, 0.1), y0 + np.arange(-1.2, 1.25, 0.1))
+    poses = np.column_stack([np.repeat(px.ravel(), 4), np.repeat(py.ravel(), 4),
+                             np.tile([0.0, 45.0, 90.0, 135.0], px.size)])
+    on_truth = check_poses(truth, tg, poses, body)
+    t0 = time.perf_counter()
+    worst = check_poses((bounds.lower, bounds.upper), g, poses, body)
+    t_worst = time.perf_counter() - t0
+    rows = [{"check": f"worst case (k {bounds.params.k:g})", "safe": worst.safe, "unknown": worst.unknown,
+             "ms": 1000 * t_worst}]
+    for eps in epsilons:
+        params = ChanceParams(epsilon=eps, samples=samples, rock_sigma=rock_sigma)
+        t0 = time.perf_counter()
+        post = posterior(stats, g, bounds.params.k, params, viewpoint)
+        c = chance_check(post, g, poses, body, params)
+        rows.append({"check": f"chance, epsilon {eps:g}", "safe": c.safe, "unknown": c.unknown,
+                     "ms": 1000 * (time.perf_counter() - t0), "screened": int(c.screened.sum())})
+    truly_safe = ~on_truth.unsafe
+    for row in rows:
+        judged = ~row["unknown"]
+        row["judged"] = int(judged.sum())
+        row["false_safe"] = int((row["safe"] & on_truth.unsafe).sum())
+        row["kept"] = float(row["safe"][truly_safe & judged].mean())
+        row["of"] = int((truly_safe & judged).sum())
+    return {"poses": len(poses), "rows": rows, "truly_unsafe": int(on_truth.unsafe.sum())}
+
+
+def timing(body: RoverBody, samples: int, poses: int = 1000) -> list[tuple[str, float]]:
+    """Seconds per ``poses`` poses on a 4 x 4 m window of 5 cm cells: the worst-case check on bounds
+    +-2.5 sigma, and the chance check where every pose is sampled (ground with 10 cm rocks, cells
+    known to 1 cm) and where the screen clears every pose (flat ground known to 2 mm)."""
+    g = GridGeometry.covering(-2.0, -2.0, 2.0, 2.0, 0.05)
+    rng = np.random.default_rng(0)
+    xs, ys = g.centers()
+    X, Y = np.meshgrid(xs, ys)
+    rocky = np.zeros(g.shape)
+    for x, y in rng.uniform(-1.8, 1.8, (40, 2)):
+        rocky[np.hypot(X - x, Y - y) < 0.08] = 0.10
+    at = np.column_stack([rng.uniform(-1.0, 1.0, poses), rng.uniform(-1.0, 1.0, poses), rng.uniform(-180, 180, poses)])
+    out = []
+    sd = 0.01
+    t0 = time.perf_counter()
+    check_poses(((rocky - 2.5 * sd).astype(np.float32), (rocky + 2.5 * sd).astype(np.float32)), g, at, body)
+    out.append(("worst case on bounds", time.perf_counter() - t0))
+    params = ChanceParams(samples=samples)
+    for name, h, sigma in (("chance, every pose sampled", rocky, sd), ("chance, every pose screened", rocky * 0, 0.002)):
+        post = Posterior(h, np.full(g.shape, sigma * sigma), np.full(g.shape, np.inf))
+        t0 = time.perf_counter()
+        c = chance_check(post, g, at, body, params)
+        out.append((f"{name} ({int(c.screened.sum())} screened)", time.perf_counter() - t0))
+    return out
+
+
+def main(argv: list[str] | None = None) -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--scene", default="marsyard")
+    ap.add_argument("--look", default="sweep", choices=LOOKS)
+    ap.add_argument("--cell", type=float, default=BoundsParams().cell)
+    ap.add_argument("--world-seed", type=int, default=1, help="the scene's rock draw (the bounds bench's: 1)")
+    ap.add_argument("--seed", type=int, default=0, help="the ToF noise draw")
+    ap.add_argument("--calibrate", action="store_true", help="fit the rock-edge error model instead")
+    ap.add_argument("--epsilon", nargs="+", type=float, default=[1e-2, 1e-3, 1e-4])
+    ap.add_argument("--samples", type=int, default=ChanceParams().samples)
+    ap.add_argument("--rock-sigma", type=float, default=ChanceParams().rock_sigma,
+                    help="ChanceParams.rock_sigma for the table (what the declared value is weighed against)")
+    ap.add_argument("--time", action="store_true", help="time 1,000 poses on a synthetic 5 cm window instead")
+    args = ap.parse_args(argv)
+    if args.time:
+        for name, seconds in timing(RoverBody(), args.samples):
+            print(f"{name}: {seconds:.2f} s per 1,000 poses ({args.samples} samples)")
+        return
+    head = f"{args.scene}, {args.look}, cell {args.cell * 100:g} cm, rock draw {args.world_seed}, noise draw {args.seed}"
+    if args.calibrate:
+        out = calibrate(args.scene, args.look, args.cell, args.world_seed, args.seed)
+        print(f"{head}: {out['cells']} cells with returns")
+        print("| headroom J (cm) | cells | mean J (cm) | true top - estimate: median / p99.9 (cm) | posterior sd "
+              "without edge terms (cm) | z p99.9 without / with the fit | share with z > 3.09 with the fit |")
+        print("|---|---|---|---|---|---|---|")
+        for r in out["rows"]:
+            lo, hi = r["band"]
+            print(f"| {lo * 100:g}-{hi * 100:g} | {r['cells']} | {100 * r['J']:.1f} | {100 * r['median']:.2f} / "
+                  f"{100 * r['q999']:.2f} | {100 * r['model_sd']:.2f} | {r['z999']:.1f} / {r['z999_fit']:.2f} "
+                  f"| {100 * r['over_fit']:.2f} % |")
+        print(f"edge_bias {out['edge_bias']:.3f}, edge_sigma {out['edge_sigma']:.3f}, top_sigma {out['top_sigma']:.4f} m")
+        return
+    body = RoverBody()
+    out = evaluate(args.scene, args.look, args.cell, args.world_seed, args.seed, args.epsilon, args.samples,
+                   dataclasses.replace(body), args.rock_sigma)
+    print(f"{head}: {out['poses']} poses, {out['truly_unsafe']} truly unsafe")
+    print("| check | judged | false safe | truly safe kept (of) | poses screened | ms per 1,000 poses |")
+    print("|---|---|---|---|---|---|")
+    for r in out["rows"]:
+        print(f"| {r['check']} | {r['judged']} | {r['false_safe']} | {100 * r['kept']:.1f} % ({r['of']}) "
+              f"| {r.get('screened', '-')} | {1000 * r['ms'] / out['poses']:.0f} |")
+
+
+if __name__ == "__main__":
+    main()
