@@ -9,6 +9,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+from support.marks import long_test
 from support.mcap import decoded
 from support.server import ServerThread, wait_for
 
@@ -66,6 +67,7 @@ def test_a_console_click_navigate_with_auto_replays(tmp_path: Path) -> None:
     assert_matches(out, 2, layers=12)  # the scan's DEM, every layer, cell for cell
 
 
+@long_test  # 15-25 s of monitor cycles recorded and replayed twice: CI's long suite runs it
 def test_monitor_summaries_replay_as_recorded_and_recorded_timing_takes_the_recorded_time(tmp_path: Path) -> None:
     steps = ["hazard-start", "wait:hazard_cycles>=2", "hazard-stop",  # their default periods: 0.3 s, none
              "track3d-start", "wait:track_cycles>=2", "track3d-stop"]
