@@ -7,7 +7,7 @@ from __future__ import annotations
 import time
 
 from support.marks import long_test
-from support.server import LineClient, wait_for
+from support.server import LineClient, wait_for, waiting_event
 
 from rvs_server.navigation.config import NavigateConfig
 from rvs_server.protocol import Reply
@@ -16,22 +16,13 @@ from rvs_server.protocol import Reply
 NARROW = "navigate.range=-90,30,-50,-10"
 
 
-def _waiting_event(c: LineClient, timeout: float = 120) -> Reply:
-    while True:
-        r = c.reply(timeout)
-        if r.status == "EVENT" and r.fields.get("kind") == "waiting":
-            return r
-        if r.status in ("OK", "ERROR") and r.module == "EGP-RVS-NAVIGATE":
-            raise AssertionError(f"navigate ended before waiting: {r}")
-
-
 def test_a_gnc_that_reports_its_start_pose_before_driving_keeps_its_leg(server_factory) -> None:
     """Ten unchanged reports of the start at 4 Hz (2.5 s, longer than pose_settle) are a GNC
     getting ready: the leg waits for it to drive, and the navigate ends in that one leg."""
     srv = server_factory(["server.scene=office", NARROW])
     c, gnc = srv.client(), srv.client()
     job = c.start_job("navigate -goal 1.5,-1.2 -name slow")
-    event = _waiting_event(gnc)
+    event = waiting_event(gnc)
     assert event.fields["leg"] == "1"
     wps = [float(v) for v in event.fields["waypoints"].split(",")]
     start, end = wps[0:2], wps[-3:-1]
@@ -58,9 +49,9 @@ def test_stopped_at_the_start_still_ends_the_leg_at_once(server_factory) -> None
     srv = server_factory(["server.scene=office", NARROW])
     c, gnc = srv.client(), srv.client()
     job = c.start_job("navigate -goal 1.5,-1.2 -name givesup")
-    assert _waiting_event(gnc).fields["leg"] == "1"
+    assert waiting_event(gnc).fields["leg"] == "1"
     assert gnc.request("pose -stopped true").fields["stopped"] == "true"
-    assert _waiting_event(gnc).fields["leg"] == "2"
+    assert waiting_event(gnc).fields["leg"] == "2"
     assert c.request("break").status == "OK"
     assert c.until_final(job=job)[-1].fields["code"] == "E_INTERRUPTED"
 
@@ -73,7 +64,7 @@ def test_a_gnc_that_never_leaves_the_start_ends_navigate_with_what_to_do(server_
     srv = server_factory(["server.scene=office", NARROW, "navigate.wait_timeout=3"])
     c, gnc = srv.client(), srv.client()
     job = c.start_job("navigate -goal 1.5,-1.2 -name stays")
-    _waiting_event(gnc)
+    waiting_event(gnc)
     for _ in range(16):  # 4 s of the standing pose at 4 Hz: alive, but not driving
         assert gnc.request("pose -x 0 -y 0 -heading 0").status == "OK"
         time.sleep(0.25)
@@ -105,7 +96,7 @@ def test_a_navigate_whose_connection_closed_ends_once_no_pose_comes(server_facto
     srv = server_factory(["server.scene=office", NARROW, "navigate.wait_timeout=0"])
     c, gnc = srv.client(), srv.client()
     job = c.start_job("navigate -goal 1.5,-1.2 -name orphan")
-    _waiting_event(gnc)
+    waiting_event(gnc)
     c.close()
     for i in range(12):  # 3 s of a GNC on another connection driving at 4 Hz
         assert gnc.request(f"pose -x {0.02 * i:.3f} -y 0 -heading 0").status == "OK"

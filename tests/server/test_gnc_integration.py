@@ -11,7 +11,7 @@ from pathlib import Path
 
 import pytest
 import yaml
-from support.server import LineClient, ServerThread
+from support.server import LineClient, ServerThread, waiting_event
 
 from rvs_server.protocol import Reply
 
@@ -93,22 +93,13 @@ def test_a_temp_folder_a_crash_left_is_removed_at_start(server_factory, tmp_path
 # ------------------------------------------------------------------ 2. pose reports during navigate
 
 
-def _waiting_event(c: LineClient, timeout: float = 120) -> Reply:
-    while True:
-        r = c.reply(timeout)
-        if r.status == "EVENT" and r.fields.get("kind") == "waiting":
-            return r
-        if r.status in ("OK", "ERROR") and r.module == "EGP-RVS-NAVIGATE":
-            raise AssertionError(f"navigate ended before waiting: {r}")
-
-
 def test_a_streamed_pose_ends_the_wait_only_once_it_holds_still(server_factory) -> None:
     """A GNC streams its pose while it drives: passing the leg's end, or coming within the goal's
     tolerance of it, while moving does not end the wait; the pose holding still does."""
     srv = server_factory(["server.scene=office", NARROW, "navigate.pose_settle=0.5"])
     c, gnc = srv.client(), srv.client()
     job = c.start_job("navigate -goal 1.5,-1.2 -name stream")
-    event = _waiting_event(gnc)
+    event = waiting_event(gnc)
     assert event.fields["job"] == job and event.fields["leg"] == "1"
     wps = [float(v) for v in event.fields["waypoints"].split(",")]
     end = wps[-3:-1]  # x,y,heading triples
@@ -139,7 +130,7 @@ def test_stopped_ends_the_wait_and_two_rescans_from_one_spot_are_e_data(server_f
     job = c.start_job("navigate -goal 1.5,-1.2 -name stuck")
     legs = []
     for _ in range(3):  # the GNC gives up at once, three times, without moving
-        legs.append(_waiting_event(gnc).fields["leg"])
+        legs.append(waiting_event(gnc).fields["leg"])
         assert gnc.request("pose -stopped true").fields["stopped"] == "true"
         if len(legs) == 2:
             break

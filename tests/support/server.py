@@ -124,3 +124,14 @@ def wait_for(predicate: Any, timeout: float = 60.0, interval: float = 0.01) -> b
             return True
         time.sleep(interval)
     return predicate()
+
+
+def waiting_event(c: LineClient, timeout: float = 120) -> Reply:
+    """The next ``EVENT kind=waiting`` (navigate waits for the GNC to drive a leg) on ``c``; an
+    AssertionError when navigate ends first."""
+    while True:
+        r = c.reply(timeout)
+        if r.status == "EVENT" and r.fields.get("kind") == "waiting":
+            return r
+        if r.status in ("OK", "ERROR") and r.module == "EGP-RVS-NAVIGATE":
+            raise AssertionError(f"navigate ended before waiting: {r}")
