@@ -13,7 +13,7 @@ from typing import Any
 
 import numpy as np
 import pytest
-from support.marks import long_only
+from support.marks import long_only, long_test
 from support.server import wait_for
 
 from prox_workflows.algorithms.dem2hazard import HazardParams, dem2hazard
@@ -371,6 +371,7 @@ def test_break_stops_the_see_loop_within_one_cycle(server_factory) -> None:
     assert not world.driving  # the rover stands
 
 
+@long_test  # a stalled leg driven out in full: CI's long suite runs it
 def test_a_leg_the_rover_gets_no_closer_on_is_ended_and_replanned(server_factory, monkeypatch) -> None:
     """Steering that swings about a point it cannot settle on (10 cm forward, a turn on the spot,
     10 cm back: a marsyard mission did so for 5 simulated hours) ends the leg after 20 cycles
@@ -401,6 +402,7 @@ def test_a_leg_the_rover_gets_no_closer_on_is_ended_and_replanned(server_factory
     assert srv.app.world.clock.now() - t0 < 3600  # simulated: bounded, not hours
 
 
+@long_test  # a GNC-driven see leg in real time: CI's long suite runs it
 def test_the_gnc_drives_and_each_pose_report_is_a_cycle(server_factory, monkeypatch) -> None:
     """navigate -loop see without -auto: the GNC drives the waypoints and streams its pose; each
     report is a cycle. A rock added 3 m ahead after the scan gets a stop EVENT (source navigate,

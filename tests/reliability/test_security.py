@@ -18,7 +18,7 @@ from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
-from support.marks import LONG, long
+from support.marks import LONG, long, long_test
 from support.proc_probes import fd_count, listening_addresses, rss_kb
 from support.reliability_figures import percentile, record
 from support.server import FAST, LineClient, wait_for
@@ -333,6 +333,7 @@ def test_replies_are_not_held_back_while_jobs_start_and_end(child: ServerProcess
     record("latency_during_jobs", p50_ms=round(p50, 2), p99_ms=round(p99, 2), requests=len(measured))
 
 
+@long_test  # 30 s of slowloris and flooding: CI's long suite runs it
 def test_slow_and_silent_clients_do_not_slow_the_others(child: ServerProcess) -> None:
     """Five clients trickle one byte per second (slowloris), one floods requests and never reads
     its replies; five others are answered meanwhile, the flooder is dropped and its memory
