@@ -199,14 +199,9 @@ def search(start: tuple[float, float], start_heading: float, goal: tuple[float, 
         chunks = [prims[key[2]][key[3]].poses[:-1] + origin + np.array([key[0] * res, key[1] * res, 0.0])
                   for key in todo]
         if chunks:
-            poses = np.concatenate(chunks)
-            ok = np.asarray(edge_check(poses), bool) if len(poses) else np.zeros(0, bool)
-            cache.poses_checked += len(poses)
-            at = 0
-            for key, c in zip(todo, chunks, strict=True):
-                cache.edges[key] = bool(ok[at:at + len(c)].all())
+            for key, safe in zip(todo, _verdicts(chunks, edge_check, cache), strict=True):
+                cache.edges[key] = safe
                 cache.full.add(key)
-                at += len(c)
         if all(cache.edges[key] for key in todo):
             return SearchResult(r.path, r.reason, expanded, cache.poses_checked - checked0, k + 1)
     return SearchResult(None, "budget", expanded, cache.poses_checked - checked0, max_searches)
@@ -324,16 +319,22 @@ def _judge(entries: list[tuple], edge_check: EdgeCheck, cache: EdgeCache, prims:
             p = prims[parent[2]][pi].poses[:-1][::-1][judge_every - 1::judge_every]
             chunks.append(p + np.array([sx + parent[0] * res, sy + parent[1] * res, 0.0]))
     if todo_edges:
-        poses = np.concatenate(chunks)
-        ok = np.asarray(edge_check(poses), bool) if len(poses) else np.zeros(0, bool)
-        cache.poses_checked += len(poses)
-        at = 0
-        for key, c in zip(todo_edges, chunks, strict=True):
-            cache.edges[key] = bool(ok[at:at + len(c)].all())
+        for key, safe in zip(todo_edges, _verdicts(chunks, edge_check, cache), strict=True):
+            cache.edges[key] = safe
             if judge_every == 1:
                 cache.full.add(key)
-            at += len(c)
     return [v if v is not None else cache.edges[(*e[4], e[5])] for v, e in zip(verdict, entries, strict=True)]
+
+
+def _verdicts(chunks: list[np.ndarray], edge_check: EdgeCheck, cache: EdgeCache) -> list[bool]:
+    """Each motion's verdict (all its poses safe), its poses judged in one call of ``edge_check``
+    with every other motion's: the check's fixed cost is paid once a batch."""
+    poses = np.concatenate(chunks)
+    ok = np.asarray(edge_check(poses), bool) if len(poses) else np.zeros(0, bool)
+    cache.poses_checked += len(poses)
+    ends = np.cumsum([len(c) for c in chunks])
+    return [bool(ok[e - len(c):e].all()) for c, e in zip(chunks, ends, strict=True)]
+
 
 
 def _path(closed: dict, goal: tuple[int, int, int], prims: list[list[Primitive]], origin: tuple[float, float],
