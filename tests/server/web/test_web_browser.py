@@ -803,7 +803,9 @@ def test_the_hover_readout_gives_every_visible_layer_with_its_unit(mapped: Conso
     page.mouse.move(box["x"] + px, box["y"] + py)
     page.wait_for_function("document.getElementById('cursor').textContent.includes('dem ')")
     text = page.text_content("#cursor")
-    x_at, y_at = page.evaluate(f"toWorld({px}, {py})")
+    # where the page asked: the browser reports the pointer in whole pixels, which near a cell's
+    # edge can be the next cell from the fractional point the test aimed at
+    x_at, y_at = page.evaluate("hoverAt")
     values, g = read_geotiff(mapped.data / "dem" / "web_dem.tif")
     row, col = g.cell_of(np.array([x_at]), np.array([y_at]))
     z = float(values[row[0], col[0]])
