@@ -4,14 +4,24 @@ What they are built on lives in ``tests/support``."""
 
 from __future__ import annotations
 
-from collections.abc import Iterator
-from pathlib import Path
-from typing import Any
+import os
+import sys
 
-import pytest
-from hypothesis import HealthCheck, settings
-from support.server import LineClient, ServerThread
-from support.simtime import SimTime
+# Bytecode is cached for the suite even where the environment says not to (PYTHONDONTWRITEBYTECODE,
+# as on this project's CI machines): each of the workers, and every CLI and server the tests start, imports
+# about 200 of the project's modules, and without the cache each recompiles them and re-rewrites
+# the tests' asserts, 11 s of CPU a worker before its first test.
+sys.dont_write_bytecode = False
+os.environ.pop("PYTHONDONTWRITEBYTECODE", None)
+
+from collections.abc import Iterator  # noqa: E402
+from pathlib import Path  # noqa: E402
+from typing import Any  # noqa: E402
+
+import pytest  # noqa: E402
+from hypothesis import HealthCheck, settings  # noqa: E402
+from support.server import LineClient, ServerThread  # noqa: E402
+from support.simtime import SimTime  # noqa: E402
 
 # Hypothesis times its examples (a 200 ms deadline, the too_slow health check): that is the
 # machine's speed, which no test may depend on. Tests that set their own settings keep them.
