@@ -77,9 +77,13 @@ class BoundsParams(Settings):
     stereo_first: bool = param(True, "where a stereo frame bounded a cell, its bounds stand alone: ToF frames no "
                                      "longer fuse into the cell (fused, a mean better than either sensor's "
                                      "shrinks the bounds below what each holds alone)")
-    edge: float = param(0.0, "a cell's top is raised by this share of the relief its 3 x 3 neighbourhood "
+    edge: float = param(0.1, "a cell's top is raised by this share of the relief its 3 x 3 neighbourhood "
                              "spans: a rock's rim and peak that few returns met, and mixed pixels at its edge "
-                             "(what averaging frames does not narrow)", min=0.0, max=2.0)
+                             "(what averaging frames does not narrow; fitted with grain on the truth, "
+                             "docs/BENCHMARKS.md)", min=0.0, max=2.0)
+    grain: float = param(0.003, "and by this on every cell a frame bounded: the relief within a cell no return "
+                                "met, which the k sigmas of frames averaged no longer cover", unit="m",
+                         min=0.0, max=0.05)
     hang: float = param(0.025, "how far below the plane its attitude gives the ground under a standing wheel may "
                                "lie: a rigid body on four wheels rests on three, and the IMU does not tell which "
                                "one hangs, nor by how much, over lower ground", unit="m", min=0.0, max=0.5)
@@ -229,21 +233,25 @@ class BoundsMap:
         return lower.astype(np.float32), upper.astype(np.float32)
 
     def edge_allowance(self, sl: tuple[slice, slice]) -> np.ndarray:
-        """How far a cell's true top may stand over its returns' highest at a rock's edge, over the
-        rows and columns ``sl``: ``edge`` times the relief the cell and its 8 neighbours span (the
-        highest top less the lowest bottom of their best estimates). A rock's rim and its peak are
-        met by few returns, and a return that meets the rim half on it reads a mix of the rim and
-        the ground behind (a mixed pixel); averaging frames narrows the noise but not this, so it
-        is what is left when the frames' sigma is small. Calibrated on the simulator's truth
-        (``python -m tools.bench.bounds --calibrate-edge``, docs/BENCHMARKS.md)."""
-        if self.params.edge <= 0:
-            return np.zeros(self.mean[sl].shape, np.float32)
+        """How far a cell's true top may stand over its returns' highest, over the rows and columns
+        ``sl``, where a frame bounded it: ``grain`` (the relief within the cell no return met), and
+        at a rock's edge ``edge`` times the relief the cell and its 8 neighbours span (the highest
+        top less the lowest bottom of their best estimates): a rock's rim and its peak are met by
+        few returns, and a return that meets the rim half on it reads a mix of the rim and the
+        ground behind (a mixed pixel). Averaging frames narrows the noise but not these, so they
+        are what is left when the frames' sigma is small. Fitted on the simulator's truth
+        (``python -m tools.bench.bounds --calibrate-edge``, docs/BENCHMARKS.md). The ground the
+        body or the set-down bounds has none: no return was drawn there."""
+        p = self.params
+        framed = self.stamp[sl] > 0
+        if p.edge <= 0:
+            return np.where(framed, p.grain, 0.0).astype(np.float32)
         from scipy.ndimage import maximum_filter, minimum_filter
 
         top = np.where(np.isfinite(self.mean[sl]), self.mean[sl] + self.rise[sl], -np.inf)
         bottom = np.where(np.isfinite(self.mean[sl]), self.mean[sl] - self.drop[sl], np.inf)
         span = maximum_filter(top, 3, mode="nearest") - minimum_filter(bottom, 3, mode="nearest")
-        return np.where(np.isfinite(span), self.params.edge * span, 0.0).astype(np.float32)
+        return np.where(framed, p.grain + np.where(np.isfinite(span), p.edge * span, 0.0), 0.0).astype(np.float32)
 
     def bounded(self) -> np.ndarray:
         """Cells with an upper bound: ground the belly may pass over."""
