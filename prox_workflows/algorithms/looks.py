@@ -34,11 +34,13 @@ BODY_MARGIN = 0.06  # m round the rover's box and wheels whose returns are its o
 
 @dataclass(frozen=True)
 class View:
-    """What a PTU-mounted camera shows: its field of view (deg) and the PTU's tilt range (deg)."""
+    """What a PTU-mounted camera shows: its field of view (deg), the PTU's lowest tilt and the
+    farthest it pans either way (deg)."""
 
     fov_h: float
     fov_v: float
     lowest_tilt: float
+    pan_limit: float = 180.0
     sensor: str = "tof"
     margin: float = 2.0  # deg inside the image's edge a point must lie to count as shown
 
@@ -96,8 +98,8 @@ def standing_look(pose: tuple[float, float, float], head: HeadCalibration, view:
                   width: float, distance: float = 1.0, beyond: float | None = None,
                   bearings: np.ndarray | list[float] | None = None,
                   tilts: tuple[float, ...] | None = None, far_tilt: float = -35.0, ground: float = 0.0,
-                  judged: tuple[np.ndarray, GridGeometry] | None = None, max_pans: int = 5,
-                  overlap: float = 0.15) -> list[tuple[float, float]]:
+                  judged: tuple[np.ndarray, GridGeometry] | None = None, overlap: float = 0.15
+                  ) -> list[tuple[float, float]]:
     """PTU positions (pan, tilt deg) for a standing look at ``pose`` that shows the ground the
     body covers over the next drive (:func:`drive_band`: at most ``distance`` m along each of
     ``bearings``, deg from the heading; default a fan of -60..60 deg) and the ``beyond`` m after
@@ -108,10 +110,11 @@ def standing_look(pose: tuple[float, float, float], head: HeadCalibration, view:
     ``ground`` is the ground's height under the rover's wheels (m, rover frame: 0 on level
     ground); ``judged`` a boolean grid of cells the map has already judged (bounded) and its
     geometry: ground there needs no frame. At each tilt the band's points that tilt shows when
-    panned to them are covered by pans ``fov_h (1 - overlap)`` apart from the leftmost, at most
-    ``max_pans`` (spread evenly over the span when it needs more); a pan whose frame would show
-    none of them is left out. Ordered as a serpentine (the lowest tilt left to right, the next
-    right to left), so the PTU travels least."""
+    panned to them (and that an earlier tilt's frames do not) are covered by pans ``fov_h (1 -
+    overlap)`` apart, centred on the span of their bearings (3-5 for the default fan; a ring all
+    round takes 9-10), within the PTU's ``pan_limit``; a pan whose frame would show none of them
+    is left out. Ordered as a serpentine (the lowest tilt left to right, the next right to left),
+    so the PTU travels least."""
     if bearings is None:
         bearings = np.arange(-60.0, 60.0 + 1e-9, 15.0)
     if tilts is None:
@@ -154,15 +157,13 @@ def standing_look(pose: tuple[float, float, float], head: HeadCalibration, view:
         todo = todo[own]
         if not len(todo):
             continue
+        # bearings about the PTU's zero, where its pan range is centred: a band behind the rover
+        # spans +-180 deg, and is panned to from either end of the range
         lo, hi = float(azimuth[todo].min()), float(azimuth[todo].max())
         count = max(1, int(math.ceil((hi - lo) / step + 1e-9)))
-        if count > max_pans:
-            pans = np.linspace(lo, hi, max_pans)
-        else:
-            centre = (lo + hi) / 2
-            pans = centre + (np.arange(count) - (count - 1) / 2) * step
+        pans = (lo + hi) / 2 + (np.arange(count) - (count - 1) / 2) * step
         chosen = []
-        for pan in pans:
+        for pan in np.clip(pans, -view.pan_limit, view.pan_limit):
             shown = _shown(head, view, float(pan), tilt, pts[todo])
             if shown.any():
                 chosen.append((round(float(pan), 1), float(tilt)))

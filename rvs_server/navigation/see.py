@@ -373,8 +373,10 @@ class SeeingDriver:
         return x + bx * c - by * s, y + bx * s + by * c, blind_radius(self.head, self.view())
 
     def view(self) -> View:
-        """The ToF's field of view and the PTU's lowest tilt, for the look planner."""
-        return View(FOV_H_DEG, FOV_V_DEG, self._lowest_tilt())
+        """The ToF's field of view and the PTU's reach, for the look planner."""
+        limits = self.app.devices.get("ptu").limits()
+        pan = min(-float(limits["pan"]["min_deg"]), float(limits["pan"]["max_deg"]))
+        return View(FOV_H_DEG, FOV_V_DEG, float(limits["tilt"]["min_deg"]), pan)
 
     def look_at(self, x: float, y: float, pose: tuple[float, float, float]) -> bool:
         """One frame, standing, toward ground point (x, y), tilted to it but no lower than the PTU
@@ -395,10 +397,11 @@ class SeeingDriver:
         self.job.check()
         return True
 
-    def look_round(self, bearings: np.ndarray | list[float] | None = None) -> None:
+    def look_round(self, toward: float | None = None) -> None:
         """A standing look (:func:`looks.standing_look`): frames at the PTU's lowest tilt and at
         ``see_tilt`` over the pans that show the ground the body covers driving ``see_look_drive``
-        toward ``bearings`` (deg from the heading; default a fan of +-60 deg) and as far again,
+        in a fan of +-60 deg about ``toward`` (deg from the heading; None: all round, as a turn on
+        the spot may face any way) and as far again,
         from the mast's blind disc out, leaving out ground the bounds map already holds within half
         the lower of the body's climb and clearance (wider bounds are what refuse a safe pose);
         each position ``see_look_frames`` frames averaged. After a scan: the scan's views make
@@ -410,8 +413,9 @@ class SeeingDriver:
             lower, upper, g = self.bounds.window(pose[0] - reach, pose[1] - reach, pose[0] + reach, pose[1] + reach)
             with np.errstate(invalid="ignore"):
                 judged = (upper - lower <= min(self.body.climb, self.body.clearance) / 2, g)
+        fan = np.arange(-60.0, 60.1, 15.0) + toward if toward is not None else np.arange(-180.0, 180.0, 15.0)
         positions = standing_look(pose, self.head, self.view(), self.body.length, self.body.width, self.p.look_drive,
-                                  bearings=bearings, far_tilt=self.p.tilt, judged=judged)
+                                  bearings=fan, far_tilt=self.p.tilt, judged=judged)
         if not positions:
             return
         self.stats.looks += 1
@@ -678,8 +682,9 @@ class SeeStrategy:
         made from them and what the rover sees next."""
         self.need_scan = False
         self.scan = local
-        if self.driver.bounds is not None:
-            self.driver.look_round()
+        if self.driver.bounds is not None:  # the look shows the ground toward the goal
+            pose, goal = self.app.pose, self.mission.goal
+            self.driver.look_round(math.degrees(math.atan2(goal[1] - pose.y, goal[0] - pose.x)) - pose.heading)
         self.mast_foot = self.driver.blind_disc()
         self.scan_frame = self.driver.map.frames
         self.stats.scans += 1
