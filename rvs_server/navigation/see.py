@@ -379,8 +379,8 @@ class SeeingDriver:
         return View(FOV_H_DEG, FOV_V_DEG, float(limits["tilt"]["min_deg"]), pan)
 
     def look_at(self, x: float, y: float, pose: tuple[float, float, float]) -> bool:
-        """One frame, standing, toward ground point (x, y), tilted to it but no lower than the PTU
-        goes: the frame then shows the ground along that bearing from the mast's blind disc out
+        """One frame (``see_look_frames`` averaged), standing, toward ground point (x, y), tilted to
+        it but no lower than the PTU goes: the frame then shows the ground along that bearing from the mast's blind disc out
         (:meth:`blind_disc`), which holds the point unless it lies inside that disc. False (no
         frame) when the rover looked from about here already: what that look did not show,
         another from the same place will not."""
@@ -431,7 +431,8 @@ class SeeingDriver:
 
     def look(self, bearing: float, spread: float = 40.0) -> None:
         """Frames panned to ``bearing`` (deg from the rover's heading) and ``spread`` either side,
-        the rover standing: the rolling map's view round the forward one."""
+        the rover standing (each ``see_look_frames`` averaged): the rolling map's view round the
+        forward one."""
         cameras = tuple(self.hazcams)
         for pan in (bearing - spread, bearing, bearing + spread):
             self._point(max(-150.0, min(150.0, pan)))
