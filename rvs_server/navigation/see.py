@@ -380,10 +380,10 @@ class SeeingDriver:
 
     def look_at(self, x: float, y: float, pose: tuple[float, float, float]) -> bool:
         """One frame (``see_look_frames`` averaged), standing, toward ground point (x, y), tilted to
-        it but no lower than the PTU goes: the frame then shows the ground along that bearing from the mast's blind disc out
-        (:meth:`blind_disc`), which holds the point unless it lies inside that disc. False (no
-        frame) when the rover looked from about here already: what that look did not show,
-        another from the same place will not."""
+        it but no lower than the PTU goes: the frame then shows the ground along that bearing from
+        the mast's blind disc out (:meth:`blind_disc`), which holds the point unless it lies inside
+        that disc. False (no frame) when the rover looked from about here already: what that look
+        did not show, another from the same place will not."""
         last = self.looked_from
         if last is not None and math.hypot(pose[0] - last[0], pose[1] - last[1]) < 0.3 and \
                 abs((pose[2] - last[2] + 180.0) % 360.0 - 180.0) < 20.0:
