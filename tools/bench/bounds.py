@@ -215,12 +215,12 @@ def looked(world: World, look: str, k: float, seed: int, n: int = 1, model: str 
     """The bounds map and the rolling map after a way of looking from the world's rover start
     (ToF noise drawn from ``seed``), with each frame's fuse time in each. The standing look
     averages ``n`` frames a position and is fused with ``model`` (:data:`MODELS`; ``main`` draws
-    no rock-edge allowance, ``edge`` overrides the declared one)."""
+    no grain or rock-edge allowance, ``edge`` overrides the declared one)."""
     x0, y0, _ = world.rover_pose()
     box = [[x0 - 1.0, y0 - 3.0], [x0 + 6.5, y0 + 3.0]]
     params = BoundsParams(k=k)
     if model == "main":
-        params.edge = 0.0
+        params.edge = params.grain = 0.0
     elif edge is not None:
         params.edge = edge
     bounds = BoundsMap.covering(box, 0.0, params)
