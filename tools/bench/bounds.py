@@ -42,6 +42,13 @@ autocorrelation along the paths) and the unsafe events per 100 m driven the boun
     python -m tools.bench.bounds                       # marsyard, hirise, dense; all looks
     python -m tools.bench.bounds --poses --looks approach approach+hazcam approach+stereo --jobs 2
     python -m tools.bench.bounds --scenes hirise --looks approach --k 2.5 3
+    python -m tools.bench.bounds --poses --looks standing --frames 1 8 --models main ray --jobs 2
+    python -m tools.bench.bounds --calibrate-edge --draws 1 2 --frames 8
+
+``standing`` is the see loop's standing look (:func:`standing`): the look planner's PTU positions,
+the simulated SR4000's own frames averaging ``--frames``, fused with each of ``--models``
+(:data:`MODELS`), judged over :data:`STANDING_BAND`. ``--calibrate-edge`` fits the grain and
+rock-edge allowances on the truth (:func:`edge_calibration`).
 """
 
 from __future__ import annotations
