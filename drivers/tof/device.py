@@ -448,6 +448,23 @@ class Tof:
             amplitude = sums.amplitude_all / sums.frames
             return xyz.astype(np.float32), amplitude.astype(np.float32)
 
+    def noise_amplitude(self, amplitude: np.ndarray, ranges: np.ndarray) -> tuple[np.ndarray, float]:
+        """(amplitude, modulation MHz) the range noise goes with, from an image's ``amplitude`` and
+        its pixels' ``ranges`` (m): the phase noise falls as 1 / the returned amplitude, which
+        AM_CONV_GRAY hides by scaling the image by (range / reference)^2 (the reference is the
+        simulated camera's model's; a real camera's is taken to be the same). The ToF's noise model
+        (prox_workflows.algorithms.noise.tof_sigma) takes both."""
+        with self._lock:
+            gray = bool(self._settings.corrections.get("conv_gray"))
+            mhz = float(self._settings.modulation_mhz)
+        a = np.asarray(amplitude, dtype=np.float64)
+        if gray:
+            from .physics import SignalModel
+
+            reference = getattr(self._cam, "model", SignalModel()).conv_gray_reference_m
+            a = a / np.maximum(np.asarray(ranges, dtype=np.float64) / reference, 1e-3) ** 2
+        return a, mhz
+
     def _wrapped(self, ranges: np.ndarray, rmax: float, cancel: Any) -> np.ndarray:
         """Pixels whose range ``ranges`` (at the set frequency, unambiguous up to ``rmax``) a
         frame at the check frequency contradicts: the surface lies beyond ``rmax``."""

@@ -77,6 +77,13 @@ class BoundsParams(Settings):
     stereo_first: bool = param(True, "where a stereo frame bounded a cell, its bounds stand alone: ToF frames no "
                                      "longer fuse into the cell (fused, a mean better than either sensor's "
                                      "shrinks the bounds below what each holds alone)")
+    edge: float = param(0.1, "a cell's top is raised by this share of the relief its 3 x 3 neighbourhood "
+                             "spans: a rock's rim and peak that few returns met, and mixed pixels at its edge "
+                             "(what averaging frames does not narrow; fitted with grain on the truth, "
+                             "docs/BENCHMARKS.md)", min=0.0, max=2.0)
+    grain: float = param(0.003, "and by this on every cell a frame bounded: the relief within a cell no return "
+                                "met, which the k sigmas of frames averaged no longer cover", unit="m",
+                         min=0.0, max=0.05)
     hang: float = param(0.025, "how far below the plane its attitude gives the ground under a standing wheel may "
                                "lie: a rigid body on four wheels rests on three, and the IMU does not tell which "
                                "one hangs, nor by how much, over lower ground", unit="m", min=0.0, max=0.5)
@@ -95,6 +102,48 @@ def contact_plane(heading: float, roll: float, pitch: float) -> tuple[float, flo
     return a * c - b * s, a * s + b * c
 
 
+ANGLE_BINS = 24  # bearings of a spread's ellipse, 7.5 deg apart: at 4 cells its end is off by at most 0.26 cell
+_KERNELS: dict[int, np.ndarray] = {}
+
+
+def _spread_shapes(spread: np.ndarray, k: float, cell: float, max_shift: int) -> np.ndarray:
+    """Per cell the code of the ellipse its bounds spread over (:func:`_kernel`): ``k`` sigmas of
+    the covariance ``spread`` (3 x H x W: xx, xy, yy, m^2) along its axes, in whole cells (at least
+    one, at most ``max_shift``), and its bearing in :data:`ANGLE_BINS` steps (0 for a disc)."""
+    xx, xy, yy = (np.asarray(a, np.float64) for a in spread)
+    half = (xx + yy) / 2
+    root = np.sqrt(((xx - yy) / 2) ** 2 + xy**2)
+    major = np.sqrt(np.maximum(half + root, 0.0))
+    minor = np.sqrt(np.maximum(half - root, 0.0))
+    ra = np.clip(np.ceil(k * major / cell), 1, max_shift).astype(np.int64)
+    rb = np.minimum(np.clip(np.ceil(k * minor / cell), 1, max_shift).astype(np.int64), ra)
+    angle = np.mod(0.5 * np.arctan2(2 * xy, xx - yy), np.pi)
+    bins = np.where(ra == rb, 0, np.rint(angle / np.pi * ANGLE_BINS).astype(np.int64) % ANGLE_BINS)
+    return ((bins * 17 + rb) * 17 + ra).astype(np.int64)
+
+
+def _kernel(code: int) -> np.ndarray:
+    """The structuring element of a spread's code (:func:`_spread_shapes`): for a disc OpenCV's
+    ellipse of that radius, else the cells within the ellipse of half-axes ``ra`` along the
+    bearing and ``rb`` across it (rows run south, as the map's)."""
+    kernel = _KERNELS.get(code)
+    if kernel is not None:
+        return kernel
+    import cv2
+
+    ra, rb, bins = code % 17, (code // 17) % 17, code // (17 * 17)
+    if ra == rb:
+        kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * ra + 1, 2 * ra + 1))
+    else:
+        theta = bins * math.pi / ANGLE_BINS
+        ux, uy = math.cos(theta), math.sin(theta)
+        dr, dc = np.mgrid[-ra:ra + 1, -ra:ra + 1]
+        x, y = dc.astype(np.float64), -dr.astype(np.float64)
+        kernel = (((x * ux + y * uy) / ra) ** 2 + ((-x * uy + y * ux) / rb) ** 2 <= 1.0 + 1e-9).astype(np.uint8)
+    _KERNELS[code] = kernel
+    return kernel
+
+
 class BoundsMap:
     """Lower and upper ground-height bounds on a fixed grid, fused frame by frame."""
 
@@ -107,6 +156,9 @@ class BoundsMap:
         self.rise = np.zeros(shape, np.float32)  # ground above the mean within the cell (m)
         self.drop = np.zeros(shape, np.float32)  # ground below it (m)
         self.shift = np.zeros(shape, np.float32)  # how far (m) the cell's returns may lie from their ground
+        # one return's horizontal error covariance (m^2: xx, xy, yy): an ellipse along the rays that
+        # gave the cell its returns, which the bounds spread over (see bounds)
+        self.spread = np.zeros((3, *shape), np.float32)
         self.ceiling = np.full(shape, np.inf, np.float32)  # lowest ray that passed over (m)
         self.stamp = np.zeros(shape, np.int32)  # the frame (1, 2, ...) that last touched the cell
         self.source = np.zeros(shape, np.int8)  # the sensor (index in SENSORS) whose frames bound the cell
@@ -143,8 +195,11 @@ class BoundsMap:
         A return's range error moves it along its ray, so across cells: the ground before a rock,
         read a few centimetres long, lands on the rock's flank and reads it low; the rock's own
         returns land on the ground around it. So a cell's bounds are the extremes of its own and
-        of every cell whose returns may have moved to it, each cell spreading by its ``shift``
-        (at least one cell: a rock's flank inside a cell shows in its neighbour)."""
+        of every cell whose returns may have moved to it, each cell spreading ``k`` sigmas of its
+        returns' horizontal error (``spread``) over an ellipse: long along the rays that gave it its
+        returns (the range error), narrow across them (the lateral error), a disc where frames
+        from other bearings blended it round; at least one cell each way (a rock's flank inside a
+        cell shows in its neighbour), at most ``max_shift``."""
         import cv2
 
         g, p = self.geometry, self.params
@@ -153,29 +208,50 @@ class BoundsMap:
         c0, c1 = max(0, sl[1].start - pad), min(g.width, sl[1].stop + pad)
         big = (slice(r0, r1), slice(c0, c1))
         sd = p.k * np.sqrt(self.mean_var[big])
-        top = self.mean[big] + self.rise[big] + sd
+        top = self.mean[big] + self.rise[big] + sd + self.edge_allowance(big)
         bottom = self.mean[big] - self.drop[big] - sd
         seen = np.isfinite(top)
+        shape = _spread_shapes(self.spread[:, big[0], big[1]], p.k, g.cell, p.max_shift)
         # a cell no frame gave bounds to (the set-down, the wheels' contacts) holds no return that a
         # range error could have moved: it spreads to no neighbour
-        reach = np.where(self.stamp[big] > 0, np.clip(np.ceil(self.shift[big] / g.cell), 1, p.max_shift),
-                         0).astype(np.int32)
+        shape = np.where(self.stamp[big] > 0, shape, 0)
         up = np.full(top.shape, -np.inf, np.float32)
         lo = np.full(top.shape, np.inf, np.float32)
-        for r in np.unique(reach[seen]):
-            at = seen & (reach == r)
-            if r == 0:
+        for code in np.unique(shape[seen]):
+            at = seen & (shape == code)
+            if code == 0:
                 up, lo = np.where(at, np.maximum(up, top), up), np.where(at, np.minimum(lo, bottom), lo)
                 continue
-            disc = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * int(r) + 1, 2 * int(r) + 1))
-            up = np.maximum(up, cv2.dilate(np.where(at, top, -np.inf).astype(np.float32), disc))
-            lo = np.minimum(lo, cv2.erode(np.where(at, bottom, np.inf).astype(np.float32), disc))
+            kernel = _kernel(int(code))
+            up = np.maximum(up, cv2.dilate(np.where(at, top, -np.inf).astype(np.float32), kernel))
+            lo = np.minimum(lo, cv2.erode(np.where(at, bottom, np.inf).astype(np.float32), kernel))
         inner = (slice(sl[0].start - r0, sl[0].stop - r0), slice(sl[1].start - c0, sl[1].stop - c0))
         up, lo, seen = up[inner], lo[inner], seen[inner]
         ceiling = self.ceiling[sl]
         upper = np.where(seen, up, np.where(np.isfinite(ceiling), ceiling, np.nan))
         lower = np.where(seen, lo, np.nan)
         return lower.astype(np.float32), upper.astype(np.float32)
+
+    def edge_allowance(self, sl: tuple[slice, slice]) -> np.ndarray:
+        """How far a cell's true top may stand over its returns' highest, over the rows and columns
+        ``sl``, where a frame bounded it: ``grain`` (the relief within the cell no return met), and
+        at a rock's edge ``edge`` times the relief the cell and its 8 neighbours span (the highest
+        top less the lowest bottom of their best estimates): a rock's rim and its peak are met by
+        few returns, and a return that meets the rim half on it reads a mix of the rim and the
+        ground behind (a mixed pixel). Averaging frames narrows the noise but not these, so they
+        are what is left when the frames' sigma is small. Fitted on the simulator's truth
+        (``python -m tools.bench.bounds --calibrate-edge``, docs/BENCHMARKS.md). The ground the
+        body or the set-down bounds has none: no return was drawn there."""
+        p = self.params
+        framed = self.stamp[sl] > 0
+        if p.edge <= 0:
+            return np.where(framed, p.grain, 0.0).astype(np.float32)
+        from scipy.ndimage import maximum_filter, minimum_filter
+
+        top = np.where(np.isfinite(self.mean[sl]), self.mean[sl] + self.rise[sl], -np.inf)
+        bottom = np.where(np.isfinite(self.mean[sl]), self.mean[sl] - self.drop[sl], np.inf)
+        span = maximum_filter(top, 3, mode="nearest") - minimum_filter(bottom, 3, mode="nearest")
+        return np.where(framed, p.grain + np.where(np.isfinite(span), p.edge * span, 0.0), 0.0).astype(np.float32)
 
     def bounded(self) -> np.ndarray:
         """Cells with an upper bound: ground the belly may pass over."""
@@ -312,10 +388,14 @@ class BoundsMap:
     # ------------------------------------------------------------------ fusion
 
     def fuse(self, points: np.ndarray, sigma: np.ndarray | float, origin: np.ndarray | None = None,
-             max_range: float | None = None, sigma_xy: np.ndarray | float = 0.0, sensor: str = "tof") -> int:
+             max_range: float | None = None, sigma_xy: np.ndarray | float = 0.0, sensor: str = "tof",
+             sigma_across: np.ndarray | float | None = None) -> int:
         """One frame: global-frame returns ``points`` (N x 3) with their height sigmas ``sigma`` and
         horizontal sigmas ``sigma_xy`` (m; the range error's share along the ground), and the
         sensor's position ``origin`` (3,) for the rays' ceilings (None: returns only). With
+        ``sigma_across`` (and ``origin``), ``sigma_xy`` is the horizontal error along each return's
+        ray and ``sigma_across`` the error across it (``noise.ray_spread``): the cell's bounds
+        spread along the rays; without, ``sigma_xy`` either way (a disc). With
         ``max_range`` (the range the frame was cut at; needs ``origin``), a cell the cut crosses
         takes no bounds from the frame: its returns come from its near part only, and the rest
         (a rock's top beyond the cut) is unseen; their rays still bound the cells they crossed.
@@ -328,8 +408,10 @@ class BoundsMap:
         pts = np.asarray(points, dtype=np.float64).reshape(-1, 3)
         sig = np.broadcast_to(np.asarray(sigma, dtype=np.float64), (len(pts),))
         sig_xy = np.broadcast_to(np.asarray(sigma_xy, dtype=np.float64), (len(pts),))
-        keep = np.isfinite(pts).all(axis=1) & np.isfinite(sig) & np.isfinite(sig_xy)
-        pts, sig, sig_xy = pts[keep], sig[keep], sig_xy[keep]
+        across = sig_xy if sigma_across is None or origin is None else \
+            np.broadcast_to(np.asarray(sigma_across, dtype=np.float64), (len(pts),))
+        keep = np.isfinite(pts).all(axis=1) & np.isfinite(sig) & np.isfinite(sig_xy) & np.isfinite(across)
+        pts, sig, sig_xy, across = pts[keep], sig[keep], sig_xy[keep], across[keep]
         self.frames += 1
         if origin is not None and len(pts):
             o = np.asarray(origin, dtype=np.float64)
@@ -338,13 +420,25 @@ class BoundsMap:
                 # the cell's far corner from the sensor, at the return's height, within the cut
                 far = np.hypot(np.abs(pts[:, 0] - o[0]) + g.cell, np.abs(pts[:, 1] - o[1]) + g.cell)
                 whole = np.hypot(far, pts[:, 2] - o[2]) <= max_range
-                pts, sig, sig_xy = pts[whole], sig[whole], sig_xy[whole]
+                pts, sig, sig_xy, across = pts[whole], sig[whole], sig_xy[whole], across[whole]
+        # each return's horizontal error as a covariance: sig_xy along its ray's bearing, across
+        # at right angles (the same both ways: a disc)
+        if sigma_across is None or origin is None:
+            ux, uy = np.ones(len(pts)), np.zeros(len(pts))
+        else:
+            dx, dy = pts[:, 0] - origin[0], pts[:, 1] - origin[1]
+            norm = np.maximum(np.hypot(dx, dy), 1e-9)
+            ux, uy = dx / norm, dy / norm
+        a2, b2 = sig_xy**2, across**2
+        cov = np.stack([a2 * ux * ux + b2 * uy * uy, (a2 - b2) * ux * uy, a2 * uy * uy + b2 * ux * ux])
         r, c = g.cell_of(pts[:, 0], pts[:, 1])
         inside = g.inside(r, c)
         flat = (r[inside] * g.width + c[inside]).astype(np.int64)
         order = np.argsort(flat, kind="stable")
         flat = flat[order]
-        z, var, var_xy = pts[inside, 2][order], sig[inside][order] ** 2, sig_xy[inside][order] ** 2
+        z, var = pts[inside, 2][order], sig[inside][order] ** 2
+        cov = cov[:, inside][:, order]
+        var_xy = cov[0] + cov[2] - np.minimum(a2, b2)[inside][order]  # the larger axis
         starts = np.flatnonzero(np.r_[True, flat[1:] != flat[:-1]]) if len(flat) else np.zeros(0, np.int64)
         n = np.diff(np.r_[starts, len(flat)]).astype(np.float64)
         enough = n >= self.params.min_returns
@@ -361,6 +455,7 @@ class BoundsMap:
         rise = np.maximum(np.maximum.reduceat(z, starts) - mean - allowance, 0.0)
         drop = np.maximum(mean - np.minimum.reduceat(z, starts) - allowance, 0.0)
         shift = self.params.k * np.sqrt(np.add.reduceat(var_xy, starts) / n)
+        spread = np.add.reduceat(cov, starts, axis=1) / n
         cells = flat[starts]
         if self.params.stereo_first:
             rank, held = SENSORS.index(sensor), self.source.flat[cells]
@@ -368,7 +463,8 @@ class BoundsMap:
             self._forget(cells[enough & (held < rank)])
             self.source.flat[cells[enough]] = rank
         cells = cells[enough]
-        self._fuse_cells(cells, mean[enough], mean_var[enough], rise[enough], drop[enough], shift[enough])
+        self._fuse_cells(cells, mean[enough], mean_var[enough], rise[enough], drop[enough], shift[enough],
+                         spread[:, enough])
         self.stamp.flat[cells] = self.frames
         return int(len(cells))
 
@@ -376,11 +472,11 @@ class BoundsMap:
         """Drop what the frames gave ``cells`` (a sensor of higher precedence takes them over)."""
         self.mean.flat[cells] = np.nan
         self.mean_var.flat[cells] = np.nan
-        for layer in (self.rise, self.drop, self.shift):
+        for layer in (self.rise, self.drop, self.shift, *self.spread):
             layer.flat[cells] = 0.0
 
     def _fuse_cells(self, cells: np.ndarray, mean: np.ndarray, var: np.ndarray, rise: np.ndarray,
-                    drop: np.ndarray, shift: np.ndarray) -> None:
+                    drop: np.ndarray, shift: np.ndarray, spread: np.ndarray) -> None:
         """One frame's per-cell mean, its variance, rise, drop and shift into the map."""
         k = self.params.k
         old = self.mean.flat[cells].astype(np.float64)
@@ -411,6 +507,11 @@ class BoundsMap:
         self.rise.flat[cells] = np.where(agree, blended["rise"], np.maximum(up - fused - k * sd, 0.0))
         self.drop.flat[cells] = np.where(agree, blended["drop"], np.maximum(fused - lo - k * sd, 0.0))
         self.shift.flat[cells] = np.where(agree, blended["shift"], np.maximum(self.shift.flat[cells], shift))
+        # the error ellipse is blended as the shift is (frames from other bearings round it); where
+        # the frame disagrees, both ellipses' extents are kept (their sum holds each)
+        for i in range(3):
+            before = self.spread[i].flat[cells].astype(np.float64)
+            self.spread[i].flat[cells] = np.where(agree, before + share * (spread[i] - before), before + spread[i])
 
     def _pass_over(self, origin: np.ndarray, pts: np.ndarray, sig: np.ndarray) -> None:
         from ._bounds_kernels import lower_ceiling

@@ -113,6 +113,18 @@ def rover_points(xyz_cam: np.ndarray, T_rover_cam: np.ndarray, subsample: int = 
     """
     k = max(1, int(subsample))
     xyz = np.asarray(xyz_cam, dtype=np.float32)[::k, ::k]
+    ok = ground_pixels(xyz_cam, subsample, max_range, amplitude, min_reflectivity, max_jump)
+    p = xyz[ok].astype(np.float64)
+    return (p @ T_rover_cam[:3, :3].T + T_rover_cam[:3, 3]).astype(np.float32)
+
+
+def ground_pixels(xyz_cam: np.ndarray, subsample: int = 1, max_range: float = 4.5,
+                  amplitude: np.ndarray | None = None, min_reflectivity: float = 0.0,
+                  max_jump: float | None = None) -> np.ndarray:
+    """The pixels (of the image subsampled by ``subsample``) :func:`rover_points` keeps, as a
+    mask: a caller that weighs each point by its own pixel's amplitude reads it there."""
+    k = max(1, int(subsample))
+    xyz = np.asarray(xyz_cam, dtype=np.float32)[::k, ::k]
     z = xyz[..., 2]
     rng = np.linalg.norm(xyz, axis=2)
     ok = np.isfinite(z) & (z > 0) & (rng <= max_range)
@@ -130,8 +142,7 @@ def rover_points(xyz_cam: np.ndarray, T_rover_cam: np.ndarray, subsample: int = 
     if amplitude is not None and min_reflectivity > 0 and ok.any():
         refl = np.asarray(amplitude, dtype=np.float64)[::k, ::k] * rng.astype(np.float64) ** 2
         ok &= refl >= min_reflectivity * float(np.median(refl[ok]))
-    p = xyz[ok].astype(np.float64)
-    return (p @ T_rover_cam[:3, :3].T + T_rover_cam[:3, 3]).astype(np.float32)
+    return ok
 
 
 def _to_corridor(xy: np.ndarray, heading: float) -> np.ndarray:

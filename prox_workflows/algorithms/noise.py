@@ -85,6 +85,37 @@ def ray_sigmas(points: np.ndarray, sensor: np.ndarray, sigma_range: np.ndarray |
     return np.sqrt((s_r * cz) ** 2 + s_l**2 * sz2), np.sqrt(s_r**2 * sz2 + s_l**2)
 
 
+def ray_spread(points: np.ndarray, sensor: np.ndarray, sigma_range: np.ndarray | float,
+               sigma_lateral: np.ndarray | float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`ray_sigmas` with the horizontal error split by direction: (height, along the ray's
+    horizontal direction, across it) sigmas (m). A range error moves a return along its ray, so
+    on the ground it moves it toward or away from the sensor only; across the ray only the
+    lateral error (pixel footprint, angular calibration) moves it. A bounds map spreads a cell's
+    bounds by these two, an ellipse along the ray, not a disc of the larger."""
+    p = np.asarray(points, dtype=np.float64)[:, :3]
+    d = p - np.asarray(sensor, dtype=np.float64)[None, :3]
+    cz = np.abs(d[:, 2]) / np.maximum(np.linalg.norm(d, axis=1), 1e-9)
+    s_r = np.asarray(sigma_range, dtype=np.float64)
+    s_l = np.broadcast_to(np.asarray(sigma_lateral, dtype=np.float64), cz.shape)
+    sz2 = 1.0 - cz * cz
+    return (np.sqrt((s_r * cz) ** 2 + s_l**2 * sz2), np.sqrt(s_r**2 * sz2 + (s_l * cz) ** 2), s_l.copy())
+
+
+def tof_spread(points: np.ndarray, sensor: np.ndarray, amplitude: np.ndarray | None = None, *,
+               frames: int = 1, frequency_mhz: float = 30.0, lateral_sigma_per_m: float = 0.0015
+               ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`ray_spread` of ToF returns: the range sigma from :func:`tof_sigma` with each
+    return's own (raw) ``amplitude`` (the shot noise falls as 1 / A) and the ``frames`` the
+    camera averaged (the shot noise falls as 1 / sqrt(frames); the range term, calibration and
+    scattering, is the same in every frame and does not); across the ray ``lateral_sigma_per_m``
+    of the range, which averaging does not narrow either."""
+    r = np.linalg.norm(np.asarray(points, dtype=np.float64)[:, :3] - np.asarray(sensor, dtype=np.float64)[None, :3],
+                       axis=1)
+    sigma_range = tof_sigma(r, amplitude, frequency_mhz=frequency_mhz, frames=frames).astype(np.float64)
+    sigma_z, along, across = ray_spread(points, sensor, sigma_range, lateral_sigma_per_m * r)
+    return np.maximum(sigma_z, NOISE_FLOOR), along, across
+
+
 def pair_sigmas(points: np.ndarray, sensor: np.ndarray, sigma_range: np.ndarray, focal: float
                 ) -> tuple[np.ndarray, np.ndarray]:
     """:func:`ray_sigmas` of a stereo pair's points: its range sigma from the disparity noise, half

@@ -84,6 +84,14 @@ class SeeConfig(Settings):
                       "ahead at the lowest tilt (where the gate judges next); off, or see_gate off, holds pan 0 and "
                       "see_tilt (each PTU move costs the drive its time)",
                       choices=("path", "off"), option=False)
+    look_frames: int = param(8, "see loop with the gate: frames the ToF averages (grab-tof -integrate) at each "
+                             "position of a look taken standing: its range noise falls as 1 / sqrt(frames), each "
+                             "frame costs its exposure on the clock (a frame taken while driving is one)",
+                             min=1, max=100, option=False)
+    look_drive: float = param(1.0, "see loop with the gate: a look taken standing shows the ground the body covers "
+                              "driving this far in a fan of +-60 deg ahead, and as far again beyond, from the mast's "
+                              "blind disc out (prox_workflows.algorithms.looks: the lowest tilt and see_tilt)",
+                              unit="m", min=0.1, max=3.0, option=False)
     gate_ahead: float = param(0.5, "see loop: the gate also holds this much of the path past the next motion to "
                               "assessed ground, so the rover stops and replans before it stands at the problem",
                               unit="m", min=0.0, max=3.0, option=False)

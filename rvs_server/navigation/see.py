@@ -38,10 +38,11 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from drivers.rover import Motion
-from drivers.tof.constants import FOV_V_DEG
+from drivers.tof.constants import FOV_H_DEG, FOV_V_DEG
 from prox_workflows.algorithms.bounds_map import BoundsMap, contact_plane
-from prox_workflows.algorithms.hazard_monitor import rover_points
-from prox_workflows.algorithms.noise import pair_sigmas, tof_height_variance, tof_horizontal_sigma
+from prox_workflows.algorithms.hazard_monitor import ground_pixels, rover_points
+from prox_workflows.algorithms.looks import View, blind_radius, on_body, standing_look
+from prox_workflows.algorithms.noise import pair_sigmas, tof_spread
 from prox_workflows.algorithms.planner import NavMaps
 from prox_workflows.algorithms.replan import Replanner
 from prox_workflows.algorithms.rolling_map import (
@@ -198,15 +199,18 @@ class SeeingDriver:
         """The rover's belief: the simulated rover's odometry, the GNC's last pose report."""
         return self.rover.pose()
 
-    def see(self, pan_tilt: tuple[float, float], cameras: tuple[str, ...] = ("front",)
+    def see(self, pan_tilt: tuple[float, float], cameras: tuple[str, ...] = ("front",), frames: int = 1
             ) -> tuple[tuple[float, float, float], float]:
-        """One ToF frame into the rolling map, and with the gate into the bounds map with a frame of
-        each of the hazard ``cameras`` switched on (driving: the front pair, which sees the ground
-        the wheels meet next); returns the rover's pose and the wall time (monotonic) the fusion
-        started."""
+        """One ToF frame (the camera's average of ``frames``) into the rolling map, and with the gate
+        into the bounds map with a frame of each of the hazard ``cameras`` switched on (driving:
+        the front pair, which sees the ground the wheels meet next); returns the rover's pose and
+        the wall time (monotonic) the fusion started. Each return's sigma is the ToF's noise
+        model's at its own amplitude (as the device says the noise goes with it) over the frames
+        averaged, its horizontal error along its ray."""
         job, app = self.job, self.app
         t0 = time.monotonic()
-        xyz, amplitude = device_call(job, app.devices.get("tof").grab_xyz, 1, 0.0)
+        tof = app.devices.get("tof")
+        xyz, amplitude = device_call(job, tof.grab_xyz, frames, 0.0)
         t1 = time.monotonic()
         x, y, heading = self.pose()
         T_rc = self.head.T_rover_from_sensor("tof", *pan_tilt)
@@ -219,11 +223,15 @@ class SeeingDriver:
         self.map.fuse(world_pts, ranges)
         if self.bounds is not None:
             # every pixel: a rock's top is read by the few returns on it, which a subsample drops
-            full = rover_points(xyz, T_rc, 1, self.p.max_range, amplitude, 0.1, EDGE_JUMP).astype(np.float64)
-            full = full[~self.on_body(full)] @ T[:3, :3].T + T[:3, 3]
+            keep = ground_pixels(xyz, 1, self.p.max_range, amplitude, 0.1, EDGE_JUMP)
+            cam = xyz[keep].astype(np.float64)
+            full = cam @ T_rc[:3, :3].T + T_rc[:3, 3]
+            ground = ~self.on_body(full)
+            full = full[ground] @ T[:3, :3].T + T[:3, 3]
             origin = T[:3, :3] @ T_rc[:3, 3] + T[:3, 3]
-            self.bounds.fuse(full, np.sqrt(tof_height_variance(full, origin)), origin, self.p.max_range,
-                             tof_horizontal_sigma(full, origin))
+            raw, mhz = tof.noise_amplitude(amplitude[keep][ground], np.linalg.norm(cam[ground], axis=1))
+            sigma, along, across = tof_spread(full, origin, raw, frames=frames, frequency_mhz=mhz)
+            self.bounds.fuse(full, sigma, origin, self.p.max_range, along, sigma_across=across)
             for camera in (c for c in self.hazcams if c in cameras):
                 self._fuse_hazcam(camera, T)
             self.bounds.stood((x, y, heading), float(T[2, 3]), self.body, self.attitude())
@@ -278,10 +286,7 @@ class SeeingDriver:
     def on_body(self, pts: np.ndarray) -> np.ndarray:
         """Rover-frame points on the rover itself (its box and wheels, a few centimetres grown):
         the mast looking down and back sees its own deck and wheels, which are not ground."""
-        b = self.body
-        half_x = max(b.length / 2, b.wheelbase / 2 + b.wheel_radius) + BODY_MARGIN
-        half_y = max(b.width / 2, b.track / 2 + b.wheel_width / 2) + BODY_MARGIN
-        return (np.abs(pts[:, 0]) <= half_x) & (np.abs(pts[:, 1]) <= half_y)
+        return on_body(pts, self.body, BODY_MARGIN)
 
     def attitude(self) -> tuple[float, float, float] | None:
         """Roll, pitch and their sigma (deg) from the rover's IMU where it stands, or None (none, or
@@ -363,17 +368,22 @@ class SeeingDriver:
         """The ground round the mast's foot that no frame shows, even at the PTU's lowest tilt:
         (x, y) of the pan axis's foot and the radius, by the head's calibration."""
         x, y, heading = self.pose()
-        bx, by, bz = self.head.ptu_base
-        radius = (bz + self.head.tilt_offset) / math.tan(math.radians(FOV_V_DEG / 2 - self._lowest_tilt()))
+        bx, by, _ = self.head.ptu_base
         c, s = math.cos(math.radians(heading)), math.sin(math.radians(heading))
-        return x + bx * c - by * s, y + bx * s + by * c, radius
+        return x + bx * c - by * s, y + bx * s + by * c, blind_radius(self.head, self.view())
+
+    def view(self) -> View:
+        """The ToF's field of view and the PTU's reach, for the look planner."""
+        limits = self.app.devices.get("ptu").limits()
+        pan = min(-float(limits["pan"]["min_deg"]), float(limits["pan"]["max_deg"]))
+        return View(FOV_H_DEG, FOV_V_DEG, float(limits["tilt"]["min_deg"]), pan)
 
     def look_at(self, x: float, y: float, pose: tuple[float, float, float]) -> bool:
-        """One frame, standing, toward ground point (x, y), tilted to it but no lower than the PTU
-        goes: the frame then shows the ground along that bearing from the mast's blind disc out
-        (:meth:`blind_disc`), which holds the point unless it lies inside that disc. False (no
-        frame) when the rover looked from about here already: what that look did not show,
-        another from the same place will not."""
+        """One frame (``see_look_frames`` averaged), standing, toward ground point (x, y), tilted to
+        it but no lower than the PTU goes: the frame then shows the ground along that bearing from
+        the mast's blind disc out (:meth:`blind_disc`), which holds the point unless it lies inside
+        that disc. False (no frame) when the rover looked from about here already: what that look
+        did not show, another from the same place will not."""
         last = self.looked_from
         if last is not None and math.hypot(pose[0] - last[0], pose[1] - last[1]) < 0.3 and \
                 abs((pose[2] - last[2] + 180.0) % 360.0 - 180.0) < 20.0:
@@ -383,34 +393,50 @@ class SeeingDriver:
         self.job.progress(0, 1, f"looking at unseen ground ({x:.2f}, {y:.2f}) before driving onto it", phase="drive")
         pan, tilt = self.head.look_at(np.array([*in_rover_frame(pose, x, y), 0.0]))
         self._point(max(-150.0, min(150.0, pan)), max(self._lowest_tilt(), min(self.p.tilt, tilt)))
-        self.see(self.pan_tilt, ())  # the body's cameras saw this cycle's ground already
+        self.see(self.pan_tilt, (), self.p.look_frames)  # the body's cameras saw this cycle's ground already
         self.job.check()
         return True
 
-    def look_round(self) -> None:
-        """Frames all round at the PTU's lowest tilt, the rover standing: the ground from the mast's
-        blind disc out to about 1.5 m, which the forward view at ``see_tilt`` starts beyond and
-        which a turn on the spot sweeps (the gate's bounds of it). After a scan: the scan's
-        views make the 5 cm maps only."""
-        tilt = self._lowest_tilt()
+    def look_round(self, toward: float | None = None) -> None:
+        """A standing look (:func:`looks.standing_look`): frames at the PTU's lowest tilt and at
+        ``see_tilt`` over the pans that show the ground the body covers driving ``see_look_drive``
+        in a fan of +-60 deg about ``toward`` (deg from the heading; None: all round, as a turn on
+        the spot may face any way) and as far again,
+        from the mast's blind disc out, leaving out ground the bounds map already holds within half
+        the lower of the body's climb and clearance (wider bounds are what refuse a safe pose);
+        each position ``see_look_frames`` frames averaged. After a scan: the scan's views make
+        the 5 cm maps only."""
+        pose = self.pose()
+        judged = None
+        if self.bounds is not None:
+            reach = 2 * self.p.look_drive + self.body.length
+            lower, upper, g = self.bounds.window(pose[0] - reach, pose[1] - reach, pose[0] + reach, pose[1] + reach)
+            with np.errstate(invalid="ignore"):
+                judged = (upper - lower <= min(self.body.climb, self.body.clearance) / 2, g)
+        fan = np.arange(-60.0, 60.1, 15.0) + toward if toward is not None else np.arange(-180.0, 180.0, 15.0)
+        positions = standing_look(pose, self.head, self.view(), self.body.length, self.body.width, self.p.look_drive,
+                                  bearings=fan, far_tilt=self.p.tilt, judged=judged)
+        if not positions:
+            return
         self.stats.looks += 1
-        self.job.progress(0, 1, f"looking round at tilt {tilt:.0f} deg: the ground the forward view starts beyond",
-                          phase="drive")
+        self.job.progress(0, 1, f"looking standing: {len(positions)} positions of {self.p.look_frames} frames, the "
+                                f"ground the next {self.p.look_drive:g} m need", phase="drive")
         cameras = tuple(self.hazcams)  # the body's cameras do not pan: one frame of each
-        for pan in np.linspace(-150.0, 150.0, 9):  # 37.5 deg apart: the ToF spans 43.6 deg
+        for pan, tilt in positions:
             self._point(pan, tilt)
-            self.see(self.pan_tilt, cameras)
+            self.see(self.pan_tilt, cameras, self.p.look_frames)
             cameras = ()
             self.job.check()
         self.point_forward()
 
     def look(self, bearing: float, spread: float = 40.0) -> None:
         """Frames panned to ``bearing`` (deg from the rover's heading) and ``spread`` either side,
-        the rover standing: the rolling map's view round the forward one."""
+        the rover standing (each ``see_look_frames`` averaged): the rolling map's view round the
+        forward one."""
         cameras = tuple(self.hazcams)
         for pan in (bearing - spread, bearing, bearing + spread):
             self._point(max(-150.0, min(150.0, pan)))
-            self.see(self.pan_tilt, cameras)
+            self.see(self.pan_tilt, cameras, self.p.look_frames)
             cameras = ()
             self.job.check()
 
@@ -657,8 +683,9 @@ class SeeStrategy:
         made from them and what the rover sees next."""
         self.need_scan = False
         self.scan = local
-        if self.driver.bounds is not None:
-            self.driver.look_round()
+        if self.driver.bounds is not None:  # the look shows the ground toward the goal
+            pose, goal = self.app.pose, self.mission.goal
+            self.driver.look_round(math.degrees(math.atan2(goal[1] - pose.y, goal[0] - pose.x)) - pose.heading)
         self.mast_foot = self.driver.blind_disc()
         self.scan_frame = self.driver.map.frames
         self.stats.scans += 1

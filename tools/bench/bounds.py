@@ -42,6 +42,13 @@ autocorrelation along the paths) and the unsafe events per 100 m driven the boun
     python -m tools.bench.bounds                       # marsyard, hirise, dense; all looks
     python -m tools.bench.bounds --poses --looks approach approach+hazcam approach+stereo --jobs 2
     python -m tools.bench.bounds --scenes hirise --looks approach --k 2.5 3
+    python -m tools.bench.bounds --poses --looks standing --frames 1 8 --models main ray --jobs 2
+    python -m tools.bench.bounds --calibrate-edge --draws 1 2 --frames 8
+
+``standing`` is the see loop's standing look (:func:`standing`): the look planner's PTU positions,
+the simulated SR4000's own frames averaging ``--frames``, fused with each of ``--models``
+(:data:`MODELS`), judged over :data:`STANDING_BAND`. ``--calibrate-edge`` fits the grain and
+rock-edge allowances on the truth (:func:`edge_calibration`).
 """
 
 from __future__ import annotations
@@ -62,7 +69,7 @@ import drivers.stereo as stereo_device
 from drivers.ptu.protocol import D46_LIMITS, D46_RESOLUTION_ARCSEC, pos_to_deg
 from drivers.sim.rover import RoverBody
 from drivers.sim.world import World
-from drivers.tof.constants import HEIGHT, USABLE_RANGE, WIDTH
+from drivers.tof.constants import FOV_H_DEG, FOV_V_DEG, HEIGHT, USABLE_RANGE, WIDTH
 from prox_workflows.algorithms.bounds_map import BoundsMap, BoundsParams
 from prox_workflows.algorithms.dem2hazard import HazardParams
 from prox_workflows.algorithms.noise import pair_sigmas, tof_height_variance, tof_horizontal_sigma, tof_sigma
@@ -73,7 +80,14 @@ from prox_workflows.grid import GridGeometry
 from rvs_server.devices import stereo_points
 from rvs_truth.stats import clopper_pearson_upper, events_per_distance_upper, poses_per_trial
 
-LOOKS = ("one", "sweep", "approach", "approach+hazcam", "approach+stereo")
+LOOKS = ("one", "sweep", "approach", "approach+hazcam", "approach+stereo", "standing")
+# the noise models the standing look's frames are fused with: ``main`` a return's sigma from its range
+# alone, one frame's, spread over a disc; ``ray`` the amplitude and the frames averaged in the
+# sigma, spread along the ray, with the rock-edge allowance (BoundsParams.edge)
+MODELS = ("main", "ray")
+# the ground a standing look's pose statistics judge, ahead of the rover's centre (m): the next drive
+# and the one after it, past the mast's blind disc
+STANDING_BAND = (1.0, 2.2)
 MAST_STEREO = "high"  # the PIKE pair's mode for the near ground: 1280 x 960, 0.2 m baseline
 MAST_STEREO_RANGE = 3.0  # m: the pair's points kept (the lowest tilt sees the ground to about 2.5 m)
 # m: the matcher's nearest depth for the lowest tilt, whose nearest ground lies 1.15 m along the
@@ -89,6 +103,48 @@ PATH_LATERAL = 0.08  # m: between the paths of the pose statistics (20,000 judge
 # world draws for the pose statistics: no setting was tuned on them (the bench's own draws are
 # seeds 1 and 2, the scenes' own seeds 3 / 15 / 20 are the navigate bench's and the limits')
 POSE_DRAWS = (101, 102, 103)
+
+
+def standing(world: World, n: int, model: str, seed: int) -> Iterator[tuple[Any, ...]]:
+    """A standing look from the rover's pose at the PTU positions ``looks.standing_look`` plans
+    (the lowest tilt and -35 deg over the pans the next drives' band needs), each frame the
+    simulated SR4000's (drivers.tof on the world: its amplitude, mixed pixels at depth edges,
+    multipath, on-chip filter) averaging ``n`` frames, its pixels kept as the see loop keeps them
+    (``hazard_monitor.ground_pixels``, not the rover's own body), fused with ``model``'s sigmas."""
+    import drivers.tof as tof_device
+    from prox_workflows.algorithms.hazard_monitor import ground_pixels
+    from prox_workflows.algorithms.looks import View, on_body, standing_look
+    from prox_workflows.algorithms.noise import tof_spread
+    from prox_workflows.algorithms.transforms import HeadCalibration
+    from rvs_server.navigation.see import EDGE_JUMP
+
+    device = tof_device.create({"backend": "sim", "seed": seed, "time_scale": 0}, world)
+    device.open()
+    body = RoverBody()
+    lowest = pos_to_deg(D46_LIMITS["tilt"][0], D46_RESOLUTION_ARCSEC)
+    view = View(FOV_H_DEG, FOV_V_DEG, lowest)
+    pose = world.rover_pose()
+    T_rw = np.linalg.inv(world.T_world_rover())
+    try:
+        for pan, tilt in standing_look(pose, HeadCalibration(), view, body.length, body.width):
+            world.set_ptu(pan, tilt)
+            T = np.asarray(world.sensor_pose("tof"), dtype=np.float64)
+            xyz, amplitude = device.grab_xyz(n, 0.0)
+            keep = ground_pixels(xyz, 1, USABLE_RANGE, amplitude, 0.1, EDGE_JUMP)
+            cam = xyz[keep].astype(np.float64)
+            pts = cam @ T[:3, :3].T + T[:3, 3]
+            own = on_body(pts @ T_rw[:3, :3].T + T_rw[:3, 3], body)
+            pts, cam, amp = pts[~own], cam[~own], amplitude[keep][~own]
+            origin = T[:3, 3]
+            if model == "main":
+                yield (pts, np.sqrt(tof_height_variance(pts, origin)).astype(np.float64), origin,
+                       tof_horizontal_sigma(pts, origin).astype(np.float64), USABLE_RANGE, "tof")
+                continue
+            raw, mhz = device.noise_amplitude(amp, np.linalg.norm(cam, axis=1))
+            sigma, along, across = tof_spread(pts, origin, raw, frames=n, frequency_mhz=mhz)
+            yield pts, sigma, origin, along, USABLE_RANGE, "tof", across
+    finally:
+        device.close()
 
 
 def frames(world: World, look: str, rng: np.random.Generator) -> Iterator[Frame]:
@@ -161,17 +217,26 @@ def pooled(fine: np.ndarray, g: GridGeometry, how: Any) -> np.ndarray:
     return how(fine[:g.height * f, :g.width * f].reshape(g.height, f, g.width, f), axis=(1, 3))
 
 
-def looked(world: World, look: str, k: float, seed: int) -> tuple[BoundsMap, RollingMap, list[float], list[float]]:
+def looked(world: World, look: str, k: float, seed: int, n: int = 1, model: str = "ray",
+           edge: float | None = None) -> tuple[BoundsMap, RollingMap, list[float], list[float]]:
     """The bounds map and the rolling map after a way of looking from the world's rover start
-    (ToF noise drawn from ``seed``), with each frame's fuse time in each."""
+    (ToF noise drawn from ``seed``), with each frame's fuse time in each. The standing look
+    averages ``n`` frames a position and is fused with ``model`` (:data:`MODELS`; ``main`` draws
+    no grain or rock-edge allowance, ``edge`` overrides the declared one)."""
     x0, y0, _ = world.rover_pose()
     box = [[x0 - 1.0, y0 - 3.0], [x0 + 6.5, y0 + 3.0]]
-    bounds = BoundsMap.covering(box, 0.0, BoundsParams(k=k))
+    params = BoundsParams(k=k)
+    if model == "main":
+        params.edge = params.grain = 0.0
+    elif edge is not None:
+        params.edge = edge
+    bounds = BoundsMap.covering(box, 0.0, params)
     rolling = RollingMap(RollingParams(size=12.0), HazardParams(), (x0 + 2.5, y0))
     t_bounds, t_rolling = [], []
-    for pts, sigma, origin, sigma_xy, cut, sensor in frames(world, look, np.random.default_rng(seed)):
+    source = standing(world, n, model, seed) if look == "standing" else frames(world, look, np.random.default_rng(seed))
+    for pts, sigma, origin, sigma_xy, cut, sensor, *across in source:
         t0 = time.perf_counter()
-        bounds.fuse(pts, sigma, origin, cut, sigma_xy, sensor)
+        bounds.fuse(pts, sigma, origin, cut, sigma_xy, sensor, across[0] if across else None)
         t1 = time.perf_counter()
         rolling.fuse(pts, np.linalg.norm(pts - origin, axis=1))
         t2 = time.perf_counter()
@@ -227,11 +292,12 @@ def sim_row(scene: str, look: str, k: float, seed: int = 0, body: RoverBody | No
 
 
 def path_lines(x0: float, y0: float, spacing: float = PATH_STEP, lateral: float = PATH_LATERAL,
-               headings: tuple[float, ...] = (0.0, 45.0, 90.0, 135.0)) -> list[np.ndarray]:
-    """Straight paths across the judged ground ahead (x0 + 1.6..4.0, y0 - 1.2..1.2, as the pose
-    grid of :func:`sim_row`), at each of ``headings``, ``lateral`` apart, a pose every
+               headings: tuple[float, ...] = (0.0, 45.0, 90.0, 135.0), band: tuple[float, float] = (1.6, 4.0)
+               ) -> list[np.ndarray]:
+    """Straight paths across the judged ground ahead (x0 + ``band`` (1.6..4.0), y0 - 1.2..1.2, as
+    the pose grid of :func:`sim_row`), at each of ``headings``, ``lateral`` apart, a pose every
     ``spacing`` along each, as the live check judges a path (``vehicle.densify``'s 2 cm)."""
-    lo, hi = np.array([x0 + 1.6, y0 - 1.2]), np.array([x0 + 4.0, y0 + 1.2])
+    lo, hi = np.array([x0 + band[0], y0 - 1.2]), np.array([x0 + band[1], y0 + 1.2])
     centre, half = (lo + hi) / 2, float(np.hypot(*(hi - lo))) / 2
     out = []
     for h in headings:
@@ -246,19 +312,21 @@ def path_lines(x0: float, y0: float, spacing: float = PATH_STEP, lateral: float 
     return out
 
 
-def pose_row(scene: str, look: str, k: float, world_seed: int, body: RoverBody | None = None) -> dict[str, Any]:
+def pose_row(scene: str, look: str, k: float, world_seed: int, body: RoverBody | None = None, n: int = 1,
+             model: str = "ray", edge: float | None = None) -> dict[str, Any]:
     """The live check's verdicts on one world draw, per pose along :func:`path_lines`: the check
-    on the bounds map after ``look`` (ToF noise drawn from ``world_seed`` too) against the check on
-    the true 1 cm surface. Per path, each judged pose's verdicts (1 unsafe, 0 safe, NaN unjudged)
-    for the correlation length."""
+    on the bounds map after ``look`` (ToF noise drawn from ``world_seed`` too; the standing look
+    with ``n`` frames a position and noise ``model``, judged over :data:`STANDING_BAND`) against
+    the check on the true 1 cm surface. Per path, each judged pose's verdicts (1 unsafe, 0 safe,
+    NaN unjudged) for the correlation length."""
     t0 = time.perf_counter()
     world = World.from_scene(scene, seed=world_seed)
     x0, y0, _ = world.rover_pose()
-    bounds, _, _, _ = looked(world, look, k, world_seed)
+    bounds, _, _, _ = looked(world, look, k, world_seed, n, model, edge)
     g = bounds.geometry
     truth = world.true_dem(0.01, (g.xmin, g.ymin, g.xmin + g.width * g.cell, g.ymax))
     tg = GridGeometry(0.01, g.xmin, g.ymax, truth.shape[1], truth.shape[0])
-    paths = path_lines(x0, y0)
+    paths = path_lines(x0, y0, band=STANDING_BAND if look == "standing" else (1.6, 4.0))
     poses = np.concatenate(paths)
     body = body or RoverBody()
     on_truth = check_poses(truth, tg, poses, body)
@@ -275,6 +343,8 @@ def pose_row(scene: str, look: str, k: float, world_seed: int, body: RoverBody |
     # one false-safe event per run of consecutive false-safe poses along a path
     events = sum(int(np.count_nonzero(np.diff(np.concatenate([[0], f.astype(np.int8), [0]])) == 1))
                  for f in np.split(false_safe, cuts))
+    if look == "standing":
+        look = f"standing {n} frame{'s' if n > 1 else ''}, {model}"
     return {
         "scene": scene, "look": look, "world_seed": world_seed, "poses": len(poses), "judged": int(judged.sum()),
         "truly_safe": int(truly_safe.sum()), "false_safe": int(false_safe.sum()), "events": events,
@@ -373,6 +443,45 @@ def motorcycle_row(k: float) -> dict[str, Any] | None:
             "safe_kept": float("nan"), "truly_safe": 0, "refused_by": None}
 
 
+def edge_calibration(scenes: list[str], draws: list[int], n: int, k: float) -> None:
+    """The rock-edge and grain allowances (``BoundsParams.edge``, ``grain``) fitted on the truth:
+    after the standing look with ``n`` frames and the ``ray`` model without them, on world draws
+    no pose statistics are taken on, per cell with returns the true top (the 0.5 cm surface's
+    highest in the cell) over its upper bound, against the relief its 3 x 3 neighbourhood spans
+    (``BoundsMap.edge_allowance`` at edge 1, grain 0). Prints the share of cells held per grain
+    and edge, and per band of relief at the declared pair."""
+    misses, spans = [], []
+    for scene in scenes:
+        for draw in draws:
+            world = World.from_scene(scene, seed=draw)
+            bounds, _, _, _ = looked(world, "standing", k, draw, n, "ray", 0.0)
+            bounds.params.grain = 0.0
+            g = bounds.geometry
+            fine = world.true_dem(TRUE_CELL, (g.xmin, g.ymin, g.xmin + g.width * g.cell, g.ymax))
+            top = pooled(fine, g, np.max)
+            seen = np.isfinite(bounds.mean)
+            whole = (slice(0, g.height), slice(0, g.width))
+            misses.append((top - bounds.upper)[seen])
+            bounds.params.edge = 1.0
+            spans.append(bounds.edge_allowance(whole)[seen])
+            print(f"{scene} draw {draw}: {int(seen.sum())} cells, held {100 * np.mean(misses[-1] <= 0):.2f} %",
+                  file=sys.stderr, flush=True)
+    miss, span = np.concatenate(misses), np.concatenate(spans)
+    grains, edges = [0.0, 0.002, 0.003, 0.005, 0.008], [0.0, 0.05, 0.1, 0.2, 0.3]
+    print(f"world draws {draws}, {n} frames a position, k {k}, {len(miss)} cells: the share whose true top the "
+          "upper bound holds")
+    print("| grain (mm) | " + " | ".join(f"edge {e:g}" for e in edges) + " |")
+    print("|---|" + "---|" * len(edges))
+    for a in grains:
+        print(f"| {1000 * a:g} | " + " | ".join(f"{100 * np.mean(miss <= a + e * span):.2f} %" for e in edges) + " |")
+    p = BoundsParams()
+    bands = [0.0, 0.02, 0.05, 0.1, 0.2, np.inf]
+    print(f"at the declared grain {1000 * p.grain:g} mm and edge {p.edge:g}, per band of relief (cm): " + ", ".join(
+        f"{100 * lo:g}-{100 * hi:g} {100 * np.mean((miss <= p.grain + p.edge * span)[(span >= lo) & (span < hi)]):.2f} %"
+        f" of {int(((span >= lo) & (span < hi)).sum())}" for lo, hi in zip(bands[:-1], bands[1:], strict=True)
+        if ((span >= lo) & (span < hi)).any()))
+
+
 def print_rows(rows: list[dict[str, Any]]) -> None:
     print("| scene | look | k | frames | held | held (ray only) | upper - top p50 / p99 (cm) | 5 cm mean read low p99 (cm) "
           "| fuse ms (rolling map; ratio) | bounded (ray only) | vehicle check: judged / false safe / truly safe kept "
@@ -401,10 +510,23 @@ def main(argv: list[str] | None = None) -> None:
                          "paths over world draws no setting was tuned on, with its 95 %% bound")
     ap.add_argument("--draws", nargs="+", type=int, default=list(POSE_DRAWS), help="world seeds for --poses")
     ap.add_argument("--jobs", type=int, default=1, help="processes for --poses (one row each)")
+    ap.add_argument("--frames", nargs="+", type=int, default=[1, 8],
+                    help="frames the standing look's camera averages a position (each a row)")
+    ap.add_argument("--models", nargs="+", choices=MODELS, default=list(MODELS),
+                    help="noise models the standing look's frames are fused with (each a row)")
+    ap.add_argument("--edge", type=float, default=None, help="the rock-edge allowance (BoundsParams.edge) for --poses")
+    ap.add_argument("--calibrate-edge", action="store_true",
+                    help="fit the rock-edge allowance (BoundsParams.edge) on the truth instead, on --draws "
+                         "(use draws the pose statistics do not: 1 2)")
     args = ap.parse_args(argv)
+    if args.calibrate_edge:
+        edge_calibration(args.scenes, args.draws, max(args.frames), args.k[0])
+        return
     body = dataclasses.replace(RoverBody(), **{key: float(v) for key, v in (a.split("=", 1) for a in args.body)})
     if args.poses:
-        todo = [(s, look, k, d, body) for k in args.k for s in args.scenes for look in args.looks for d in args.draws]
+        todo = [(s, look, k, d, body, n, m, args.edge) for k in args.k for s in args.scenes for look in args.looks
+                for n, m in ([(n, m) for m in args.models for n in args.frames] if look == "standing" else [(1, "ray")])
+                for d in args.draws]
         with ProcessPoolExecutor(args.jobs) as pool:
             futures = [pool.submit(pose_row, *t) for t in todo]
             for f in as_completed(futures):
