@@ -34,24 +34,20 @@ def _read(h: np.ndarray, xmin: float, ymax: float, cell: float, x: float, y: flo
     """The height at (x, y): the bound of the cell that holds the point (``cellwise``: a bounds
     map's cell bounds every point in it), or bilinear between the cell centres (a height grid).
     NaN off the grid."""
+    # the tests on the fractional indices (floor(f) < n iff f < n for f >= 0) keep NaN and far
+    # coordinates out of the integer conversion (which truncates: the floor of f >= 0)
     if cellwise:
         fc = (x - xmin) / cell
         fr = (ymax - y) / cell
-        if not (fc >= 0.0 and fr >= 0.0):  # NaN coordinates too
+        if not (fc >= 0.0 and fr >= 0.0 and fc < h.shape[1] and fr < h.shape[0]):
             return np.nan
-        c0, r0 = int(math.floor(fc)), int(math.floor(fr))
-        if r0 >= h.shape[0] or c0 >= h.shape[1]:
-            return np.nan
-        return np.float64(h[r0, c0])
+        return np.float64(h[int(fr), int(fc)])
     fc = (x - xmin) / cell - 0.5
     fr = (ymax - y) / cell - 0.5
-    if not (fc >= 0.0 and fr >= 0.0):
+    if not (fc >= 0.0 and fr >= 0.0 and fc < h.shape[1] - 1 and fr < h.shape[0] - 1):
         return np.nan
-    fc0, fr0 = math.floor(fc), math.floor(fr)
-    c0, r0 = int(fc0), int(fr0)
-    if r0 >= h.shape[0] - 1 or c0 >= h.shape[1] - 1:
-        return np.nan
-    tc, tr = fc - fc0, fr - fr0
+    c0, r0 = int(fc), int(fr)
+    tc, tr = fc - c0, fr - r0
     return ((h[r0, c0] * (1 - tc) + h[r0, c0 + 1] * tc) * (1 - tr)
             + (h[r0 + 1, c0] * (1 - tc) + h[r0 + 1, c0 + 1] * tc) * tr)
 
