@@ -75,6 +75,147 @@ def _tip(a: float, b: float, fore: float, side: float, cog: float) -> float:
     return math.atan(reach / cog) * _DEG
 
 
+@_inline
+def _fill(lo: np.ndarray, hi: np.ndarray, mid: np.ndarray, half: np.ndarray, bounded: bool, wheel_of: np.ndarray,
+          on_wheel: np.ndarray, nan_lo: np.ndarray) -> bool:
+    """Fill the holes of one pose's samples as ``vehicle.check_poses`` says, and the middle and
+    half spread the grade fits; whether the pose is unknown (on bounds)."""
+    s = lo.shape[0]
+    if not bounded:
+        low = np.inf  # ground off the grid takes the lowest height the pose sees
+        holes = False
+        for j in range(s):
+            if math.isnan(lo[j]):
+                holes = True
+            elif lo[j] < low:
+                low = lo[j]
+        if holes:
+            if low == np.inf:
+                low = 0.0
+            for j in range(s):
+                if math.isnan(lo[j]):
+                    lo[j] = low
+        for j in range(s):
+            hi[j] = lo[j]
+            mid[j] = lo[j]
+        return False
+    unseen = False
+    top = -np.inf
+    nan_lo[:] = 0.0
+    for j in range(s):
+        if math.isnan(hi[j]):
+            unseen = True
+        elif hi[j] > top:
+            top = hi[j]
+        if wheel_of[j] >= 0 and math.isnan(lo[j]):
+            nan_lo[wheel_of[j]] += 1
+    for w in range(4):
+        if nan_lo[w] / on_wheel[w] > 0.5:
+            unseen = True
+    if top == -np.inf:
+        top = 0.0
+    for j in range(s):
+        if math.isnan(hi[j]):
+            hi[j] = top
+        if math.isnan(lo[j]):  # stands in by its high in the fitted plane
+            mid[j] = (hi[j] + hi[j]) / 2
+            half[j] = 0.0
+        else:
+            mid[j] = (lo[j] + hi[j]) / 2
+            half[j] = (hi[j] - lo[j]) / 2
+    return unseen
+
+
+@_inline
+def _grade(mid: np.ndarray, half: np.ndarray, bounded: bool, g0: np.ndarray, g1: np.ndarray, pull_a: np.ndarray,
+           pull_b: np.ndarray, pulls_a: np.ndarray, pulls_b: np.ndarray) -> float:
+    """The fitted plane's slope (deg), on bounds its steepest over the zonotope's vertices."""
+    a, b = 0.0, 0.0
+    for j in range(mid.shape[0]):
+        a += mid[j] * g0[j]
+        b += mid[j] * g1[j]
+    if not bounded:
+        return math.atan(math.hypot(a, b)) * _DEG
+    # every direction's pull accumulates at once (the inner loop runs across directions, each a
+    # sum over the samples in order: a loop the compiler vectorises)
+    pulls_a[:] = 0.0
+    pulls_b[:] = 0.0
+    for j in range(mid.shape[0]):
+        hj = half[j]
+        for k in range(pulls_a.shape[0]):
+            pulls_a[k] += hj * pull_a[j, k]
+            pulls_b[k] += hj * pull_b[j, k]
+    steep = -np.inf
+    for k in range(pulls_a.shape[0]):
+        pa, pb = pulls_a[k], pulls_b[k]
+        steep = max(steep, math.hypot(a + pa, b + pb), math.hypot(a - pa, b - pb))
+    return math.atan(steep) * _DEG
+
+
+@_inline
+def _edges(lo: np.ndarray, hi: np.ndarray, bounded: bool, pair_a: np.ndarray, pair_b: np.ndarray,
+           pair_wheel: np.ndarray, out: np.ndarray) -> None:
+    """Each wheel's greatest rise between paired samples, either way (NaN lows take no part;
+    NaN: no pair judged)."""
+    out[:] = -np.inf
+    for q in range(pair_a.shape[0]):
+        ia, ib = pair_a[q], pair_b[q]
+        if bounded:
+            up = hi[ib] - lo[ia]
+            down = hi[ia] - lo[ib]
+            if math.isnan(up) or down > up:  # fmax: the larger, a NaN skipped
+                up = down
+        else:
+            up = abs(lo[ib] - lo[ia])
+        w = pair_wheel[q]
+        if up > out[w]:
+            out[w] = up
+    for w in range(4):
+        if math.isinf(out[w]):
+            out[w] = np.nan
+
+
+@_inline
+def _contacts(lo: np.ndarray, hi: np.ndarray, bounded: bool, wheel_of: np.ndarray, sag: np.ndarray,
+              contact: np.ndarray) -> bool:
+    """Each wheel's lowest and highest resting height (NaN: no ground under it); whether they are
+    not pinned down (the contacts' box is open)."""
+    contact[:, :] = -np.inf
+    for j in range(lo.shape[0]):
+        w = wheel_of[j]
+        if w >= 0:
+            v = lo[j] - sag[j]
+            if v > contact[0, w]:
+                contact[0, w] = v
+            v = hi[j] - sag[j]
+            if v > contact[1, w]:
+                contact[1, w] = v
+    open_box = False
+    for w in range(4):
+        if contact[0, w] == -np.inf:
+            contact[0, w] = np.nan
+        if not bounded:
+            contact[1, w] = contact[0, w]
+        if contact[1, w] - contact[0, w] > 1e-12:
+            open_box = True
+    return open_box
+
+
+@_inline
+def _under(hi: np.ndarray, px: np.ndarray, py: np.ndarray, belly: np.ndarray, a: float, b: float, c: float
+           ) -> float:
+    """The highest ground under the box over the plane z = a x + b y + c (NaN propagates)."""
+    under = -np.inf
+    for i in range(belly.shape[0]):
+        j = belly[i]
+        v = hi[j] - (a * px[j] + b * py[j] + c)
+        if v > under or math.isnan(v):
+            under = v
+            if math.isnan(v):
+                break
+    return under
+
+
 @_jit
 def check(lower: np.ndarray, upper: np.ndarray, bounded: bool, xmin: float, ymax: float, cell: float,
           poses: np.ndarray, px: np.ndarray, py: np.ndarray, wheel_of: np.ndarray, belly: np.ndarray,
@@ -88,129 +229,30 @@ def check(lower: np.ndarray, upper: np.ndarray, bounded: bool, xmin: float, ymax
     one's wheel (-1: none), the belly's samples (indices), each wheel sample's ``sag`` (the
     circle's rise there); the step's sample pairs (indices, and the wheel of each); the ground
     plane's pseudo-inverse rows ``g0``, ``g1`` (S,) and on bounds the zonotope's signed pulls
-    ``pull_a``, ``pull_b`` (D, S); the resting planes' inverses (P, 3, 3) and their ``triplets``
+    ``pull_a``, ``pull_b`` (S, D); the resting planes' inverses (P, 3, 3) and their ``triplets``
     (P, 4: three wheels, the fourth last); the contacts' ``corners`` (C, 3: 0 lowest, 1 highest)."""
-    n, s = poses.shape[0], px.shape[0]
-    lo = np.empty(s)
-    hi = np.empty(s)
-    mid = np.empty(s)
-    half = np.empty(s)
+    s = px.shape[0]
+    lo, hi, mid, half = np.empty(s), np.empty(s), np.empty(s), np.empty(s)
+    pulls_a, pulls_b = np.empty(pull_a.shape[1]), np.empty(pull_a.shape[1])
     contact = np.empty((2, 4))
     nan_lo = np.zeros(4)
     on_wheel = np.zeros(4)
-    for w in range(s):
-        if wheel_of[w] >= 0:
-            on_wheel[wheel_of[w]] += 1
-    for p in range(n):
+    for j in range(s):
+        if wheel_of[j] >= 0:
+            on_wheel[wheel_of[j]] += 1
+    for p in range(poses.shape[0]):
         rad = math.radians(poses[p, 2])
         c, si = math.cos(rad), math.sin(rad)
-        x0, y0 = poses[p, 0], poses[p, 1]
-        # the samples, in the order numpy's broadcast forms them: (x0 + c px) - s py
-        any_nan = False
-        for j in range(s):
-            wx = x0 + c * px[j] - si * py[j]
-            wy = y0 + si * px[j] + c * py[j]
+        for j in range(s):  # in the order numpy's broadcast forms them: (x0 + c px) - s py
+            wx = poses[p, 0] + c * px[j] - si * py[j]
+            wy = poses[p, 1] + si * px[j] + c * py[j]
             lo[j] = _read(lower, xmin, ymax, cell, wx, wy, bounded)
             if bounded:
                 hi[j] = _read(upper, xmin, ymax, cell, wx, wy, True)
-            if math.isnan(lo[j]):
-                any_nan = True
-        if bounded:
-            unseen = False
-            top = -np.inf
-            for w in range(4):
-                nan_lo[w] = 0.0
-            for j in range(s):
-                if math.isnan(hi[j]):
-                    unseen = True
-                elif hi[j] > top:
-                    top = hi[j]
-                if wheel_of[j] >= 0 and math.isnan(lo[j]):
-                    nan_lo[wheel_of[j]] += 1
-            for w in range(4):
-                if nan_lo[w] / on_wheel[w] > 0.5:
-                    unseen = True
-            unknown[p] = unseen
-            if top == -np.inf:
-                top = 0.0
-            for j in range(s):
-                if math.isnan(hi[j]):
-                    hi[j] = top
-                if math.isnan(lo[j]):
-                    mid[j] = (hi[j] + hi[j]) / 2
-                    half[j] = 0.0
-                else:
-                    mid[j] = (lo[j] + hi[j]) / 2
-                    half[j] = (hi[j] - lo[j]) / 2
-        else:
-            if any_nan:  # ground off the grid takes the lowest height the pose sees
-                low = np.inf
-                for j in range(s):
-                    if lo[j] < low:
-                        low = lo[j]
-                if low == np.inf:
-                    low = 0.0
-                for j in range(s):
-                    if math.isnan(lo[j]):
-                        lo[j] = low
-            for j in range(s):
-                hi[j] = lo[j]
-                mid[j] = lo[j]
-        # grade: the fitted plane's slope, on bounds its steepest over the zonotope's vertices
-        a, b = 0.0, 0.0
-        for j in range(s):
-            a += mid[j] * g0[j]
-            b += mid[j] * g1[j]
-        if bounded:
-            steep = -np.inf
-            for k in range(pull_a.shape[0]):
-                pa, pb = 0.0, 0.0
-                for j in range(s):
-                    pa += half[j] * pull_a[k, j]
-                    pb += half[j] * pull_b[k, j]
-                steep = max(steep, math.hypot(a + pa, b + pb), math.hypot(a - pa, b - pb))
-        else:
-            steep = math.hypot(a, b)
-        grade[p] = math.atan(steep) * _DEG
-        # step: the greatest rise between paired samples, either way; NaN lows take no part
-        for w in range(4):
-            edge[p, w] = -np.inf
-        for q in range(pair_a.shape[0]):
-            ia, ib = pair_a[q], pair_b[q]
-            if bounded:
-                up = hi[ib] - lo[ia]
-                down = hi[ia] - lo[ib]
-                if math.isnan(up) or down > up:  # fmax: the larger, a NaN skipped
-                    up = down
-            else:
-                up = abs(lo[ib] - lo[ia])
-            w = pair_wheel[q]
-            if up > edge[p, w]:
-                edge[p, w] = up
-        for w in range(4):
-            if math.isinf(edge[p, w]):
-                edge[p, w] = np.nan
-        # each wheel's lowest and highest resting height (NaN: no ground under it)
-        for w in range(4):
-            contact[0, w] = -np.inf
-            contact[1, w] = -np.inf
-        for j in range(s):
-            w = wheel_of[j]
-            if w >= 0:
-                v = lo[j] - sag[j]
-                if v > contact[0, w]:
-                    contact[0, w] = v
-                v = hi[j] - sag[j]
-                if v > contact[1, w]:
-                    contact[1, w] = v
-        open_box = False
-        for w in range(4):
-            if contact[0, w] == -np.inf:
-                contact[0, w] = np.nan
-            if not bounded:
-                contact[1, w] = contact[0, w]
-            if contact[1, w] - contact[0, w] > 1e-12:
-                open_box = True
+        unknown[p] = _fill(lo, hi, mid, half, bounded, wheel_of, on_wheel, nan_lo)
+        grade[p] = _grade(mid, half, bounded, g0, g1, pull_a, pull_b, pulls_a, pulls_b)
+        _edges(lo, hi, bounded, pair_a, pair_b, pair_wheel, edge[p])
+        open_box = _contacts(lo, hi, bounded, wheel_of, sag, contact)
         worst_in, worst_st, worst_tilt, worst_tip = -np.inf, -np.inf, 0.0, 90.0
         for t in range(triplets.shape[0]):
             fx, fy = hubs[triplets[t, 3], 0], hubs[triplets[t, 3], 1]
@@ -223,14 +265,7 @@ def check(lower: np.ndarray, upper: np.ndarray, bounded: bool, xmin: float, ymax
                 pc = z0 * inv[t, 2, 0] + z1 * inv[t, 2, 1] + z2 * inv[t, 2, 2]
                 rests = contact[0, triplets[t, 3]] <= pa * fx + pb * fy + pc + 1e-9
                 if rests:  # the belly's ground counts only over a plane the body may rest on
-                    under = -np.inf
-                    for i in range(belly.shape[0]):
-                        j = belly[i]
-                        v = hi[j] - (pa * px[j] + pb * py[j] + pc)
-                        if v > under or math.isnan(v):
-                            under = v
-                            if math.isnan(v):
-                                break
+                    under = _under(hi, px, py, belly, pa, pb, pc)
                     if under > worst_in or math.isnan(under):
                         worst_in = under
                 angle = math.atan(math.hypot(pa, pb)) * _DEG

@@ -49,7 +49,8 @@ import numpy as np
 from ..grid import GridGeometry
 
 __all__ = ["VehicleBody", "PoseChecks", "Event", "Margins", "Gate", "check_poses", "densify", "gate_poses",
-           "unsafe_events", "track_poses", "tip_angle", "reach", "severity", "WHEELS", "LIMITS", "BANDS"]
+           "unsafe_events", "track_poses", "tip_angle", "reach", "severity", "WHEELS", "LIMITS", "BANDS",
+           "BOUNDS_STEP"]
 
 READ_LOW_P99 = 0.051  # m: the ToF's DEM at 5 cm, marsyard (docs/NAVIGATE_BENCH.md, Error budget)
 TRACKING_P99 = 0.03  # m: the see loop's true track from its planned legs, worst mission p99
@@ -61,6 +62,12 @@ BANDS = ((0.5, "slight"), (2.0, "moderate"), (math.inf, "severe"))
 _TRIPLETS = ((0, 1, 2, 3), (0, 1, 3, 2), (0, 2, 3, 1), (1, 2, 3, 0))
 _EDGE_SAMPLES = 2  # a step is a rise within this many sample intervals along the rolling direction
 _GRADE_DIRECTIONS = 32  # on bounds, the worst fitted plane is sought at twice this many zonotope vertices
+# On bounds the body is sampled this many cells apart by default. A sample reads the one cell that
+# holds it, so every cell under the body must hold one: a square lattice of spacing s, at any
+# heading, leaves no disc wider than s * sqrt(2) empty, and a cell holds a disc one cell wide, so
+# s < 1 / sqrt(2) puts a sample in every cell wholly under the body (at one cell apart, 5-12 of the
+# 60 cells under the box at oblique headings hold none, and a rock there goes unseen).
+BOUNDS_STEP = 0.7
 
 
 class VehicleBody(Protocol):
@@ -280,7 +287,7 @@ class _Plan:
     pair_b: np.ndarray
     pair_wheel: np.ndarray
     ground: np.ndarray  # (2, S): the fitted plane's slope rows of the pseudo-inverse
-    pulls: np.ndarray  # (2, D, S): the zonotope's signed pulls along each direction
+    pulls: np.ndarray  # (2, S, D): the zonotope's signed pulls along each direction
     inv: np.ndarray  # (P, 3, 3) the resting planes through three hubs, and their wheels (P, 4)
     triplets: np.ndarray
     sag: np.ndarray  # (S,) the wheel circle's rise over each wheel sample
@@ -315,7 +322,7 @@ def _plan(body: VehicleBody, step: float) -> _Plan:
     # mid +- pull(u), so a half circle of directions gives 64 (within 0.1 % of the steepest)
     u = np.linspace(0.0, np.pi, _GRADE_DIRECTIONS, endpoint=False)
     signs = np.sign(np.cos(u)[:, None] * ground_pinv[0] + np.sin(u)[:, None] * ground_pinv[1])  # (D, S)
-    pulls = np.stack([signs * ground_pinv[0], signs * ground_pinv[1]])
+    pulls = np.stack([(signs * ground_pinv[0]).T, (signs * ground_pinv[1]).T]).copy()  # (2, S, D)
     # the wheel's circle: a point dx from the hub lifts the wheel's bottom by its height minus
     # the circle's rise there (the wheel rests on whatever touches it first)
     sag = r - np.sqrt(np.maximum(r * r - pat.dx * pat.dx, 0.0))
@@ -325,6 +332,10 @@ def _plan(body: VehicleBody, step: float) -> _Plan:
                  np.asarray(_TRIPLETS, np.int64), sag, np.flatnonzero(pat.belly))
     _PLANS[key] = plan
     return plan
+
+
+def _default_step(geom: GridGeometry, bounded: bool) -> float:
+    return geom.cell * BOUNDS_STEP if bounded else geom.cell
 
 
 def check_poses(heights: np.ndarray | tuple[np.ndarray, np.ndarray], geom: GridGeometry, poses: np.ndarray,
@@ -346,13 +357,13 @@ def check_poses(heights: np.ndarray | tuple[np.ndarray, np.ndarray], geom: GridG
     an unbounded low takes no part in a wheel's edges or contact, and stands in by its high in
     the plane fitted under the body. On one grid, ground off it takes the lowest height the pose
     sees (an edge is judged as a drop, not as a wall). The body is sampled every ``step``
-    (default: the grid's cell).
+    (default: the grid's cell on one grid, :data:`BOUNDS_STEP` of it on bounds).
 
     The per-pose work is one compiled pass (:mod:`._vehicle_kernel`)."""
     lower, upper = heights if isinstance(heights, tuple) else (heights, heights)
     bounded = lower is not upper
     poses = np.ascontiguousarray(np.atleast_2d(np.asarray(poses, float)))
-    plan = _plan(body, step or geom.cell)
+    plan = _plan(body, step or _default_step(geom, bounded))
     pat = plan.pat
     hubs = np.abs(np.asarray(body.wheels, float))
     n = len(poses)
@@ -409,7 +420,7 @@ def gate_poses(lower: np.ndarray, upper: np.ndarray, geom: GridGeometry, poses: 
     if not len(bad):
         return Gate("safe")
     i = int(bad[0])
-    pts = _pattern(body, geom.cell).pts
+    pts = _pattern(body, _default_step(geom, True)).pts
     x, y, heading = poses[i]
     c, s = math.cos(math.radians(heading)), math.sin(math.radians(heading))
     wx, wy = x + c * pts[:, 0] - s * pts[:, 1], y + s * pts[:, 0] + c * pts[:, 1]

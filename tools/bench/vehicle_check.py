@@ -11,8 +11,9 @@ to agree: margins within 1e-6 m and 1e-4 deg, the same safe and unknown flags an
 limit per pose.
 
 Timing: best of ``--rounds`` interleaved rounds (ours, then the peer; a busy moment on a shared
-machine hits both alike), the median beside it, and the load average. The first call (compiling
-or loading the kernel) is not timed.
+machine hits both alike), the median beside it, as wall time and as the calling thread's CPU time
+(steadier where other jobs share the cores), and the load average. The first call (compiling or
+loading the kernel) is not timed.
 
     python -m tools.bench.vehicle_check [--scenes marsyard hirise dense] [--rounds 5]
 """
@@ -32,6 +33,7 @@ from prox_workflows.algorithms.vehicle import (
     _EDGE_SAMPLES,
     _GRADE_DIRECTIONS,
     _TRIPLETS,
+    BOUNDS_STEP,
     PoseChecks,
     VehicleBody,
     _pattern,
@@ -82,11 +84,11 @@ def reference(heights: np.ndarray | tuple[np.ndarray, np.ndarray], geom: GridGeo
               body: VehicleBody, step: float | None = None, chunk: int = 256) -> PoseChecks:
     """:func:`check_poses`'s definitions as numpy over chunks of poses ((chunk, samples) arrays),
     line for line the formulation the compiled check replaced, reading a bounds pair by the cell
-    that holds each sample as ``check_poses`` does (``vehicle._sample``'s ``cellwise``)."""
+    that holds each sample and sampling it every ``BOUNDS_STEP`` cells as ``check_poses`` does."""
     lower, upper = heights if isinstance(heights, tuple) else (heights, heights)
     bounded = lower is not upper
     poses = np.atleast_2d(np.asarray(poses, float))
-    pat = _pattern(body, step or geom.cell)
+    pat = _pattern(body, step or (geom.cell * BOUNDS_STEP if bounded else geom.cell))
     pts, wheel_of, belly = pat.pts, pat.wheel_of, pat.belly
     hubs = np.asarray(body.wheels, float)
     r = body.wheel_radius
@@ -210,14 +212,19 @@ def bounds_of(fine: np.ndarray, g: GridGeometry, coarse: GridGeometry, spread: f
 
 
 def race(contenders: dict[str, Callable[[], object]], rounds: int) -> dict[str, tuple[float, float]]:
-    """Best and median ms of each contender over interleaved rounds."""
-    times: dict[str, list[float]] = {k: [] for k in contenders}
+    """Best and median ms of each contender over interleaved rounds: wall time and this thread's
+    CPU time (on a machine shared with other jobs the wall time counts their share too)."""
+    times: dict[str, list[tuple[float, float]]] = {k: [] for k in contenders}
     for _ in range(rounds):
         for name, fn in contenders.items():
-            t = time.perf_counter()
+            t, c = time.perf_counter(), time.thread_time()
             fn()
-            times[name].append((time.perf_counter() - t) * 1e3)
-    return {k: (min(v), float(np.median(v))) for k, v in times.items()}
+            times[name].append(((time.perf_counter() - t) * 1e3, (time.thread_time() - c) * 1e3))
+    out = {}
+    for k, v in times.items():
+        wall, cpu = np.array(v).T
+        out[k], out[k + " cpu"] = (float(wall.min()), float(np.median(wall))), (float(cpu.min()), float(np.median(cpu)))
+    return out
 
 
 def load_average() -> float:
@@ -248,13 +255,17 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--rounds", type=int, default=5)
     args = ap.parse_args(argv)
     print(f"vehicle check (compiled) vs the numpy reference; load average {load_average():.2f}")
-    print("  ms per call: best of the interleaved rounds (median); ratio: reference / ours, best against best")
-    print(f"  {'scene':<9} {'map':<12} {'poses':>6} {'safe':>6} {'ours ms':>16} {'reference ms':>18} {'ratio':>6}")
+    print("  ms per call: best of the interleaved rounds (median), wall and CPU (this thread); ratio: reference "
+          "/ ours, best against best")
+    print(f"  {'scene':<9} {'map':<12} {'poses':>6} {'safe':>5} {'ours wall':>16} {'reference wall':>18} "
+          f"{'ratio':>5} {'ours cpu':>16} {'reference cpu':>18} {'ratio':>5}")
     for scene in args.scenes:
         for row in run(scene, args.rounds):
-            o, p = row["ours"], row["peer"]
-            print(f"  {row['scene']:<9} {row['map']:<12} {row['poses']:>6} {row['safe']:>6.2f} "
-                  f"{o[0]:>7.1f} ({o[1]:>6.1f}) {p[0]:>9.1f} ({p[1]:>6.1f}) {p[0] / o[0]:>6.1f}")
+            cols = []
+            for kind in ("", " cpu"):
+                o, p = row["ours" + kind], row["peer" + kind]
+                cols.append(f"{o[0]:>7.1f} ({o[1]:>6.1f}) {p[0]:>9.1f} ({p[1]:>6.1f}) {p[0] / o[0]:>5.1f}")
+            print(f"  {row['scene']:<9} {row['map']:<12} {row['poses']:>6} {row['safe']:>5.2f} {cols[0]} {cols[1]}")
     print(f"  agreement: margins within {TOL_M:g} m / {TOL_DEG:g} deg, same safe / unknown flags and worst "
           f"limits at every pose; load average after {load_average():.2f}")
     return 0
