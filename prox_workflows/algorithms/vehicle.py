@@ -388,6 +388,22 @@ def check_poses(heights: np.ndarray | tuple[np.ndarray, np.ndarray], geom: GridG
                       wheel=np.nan_to_num(edge, nan=-np.inf).argmax(axis=1), unknown=unknown)
 
 
+def warm_up() -> None:
+    """Compile (first run after installing) or load the check's kernel now, for float32 and float64
+    grids and bounds, rather than in the first check."""
+    from types import SimpleNamespace
+
+    body = SimpleNamespace(length=0.5, width=0.4, clearance=0.08, wheel_radius=0.1, wheel_width=0.1, climb=0.1,
+                           grade=20.0, cog_height=0.2, safety=1.5,
+                           wheels=np.array([[0.15, 0.25], [0.15, -0.25], [-0.15, 0.25], [-0.15, -0.25]]))
+    g = GridGeometry(0.05, -1.0, 1.0, 40, 40)
+    for dtype in (np.float32, np.float64):
+        ground = np.zeros((40, 40), dtype)
+        check_poses(ground, g, np.zeros((1, 3)), body)
+        check_poses((ground, ground.copy()), g, np.zeros((1, 3)), body)
+        _sample(ground, g, np.zeros(1), np.zeros(1))
+
+
 @dataclass(frozen=True)
 class Gate:
     """The verdict on a motion before the rover executes it (:func:`gate_poses`): ``safe``, or the

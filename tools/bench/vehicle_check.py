@@ -11,7 +11,7 @@ to agree: margins within 1e-6 m and 1e-4 deg, the same safe and unknown flags an
 limit per pose.
 
 Timing: best of ``--rounds`` interleaved rounds (ours, then the peer; a busy moment on a shared
-machine hits both alike), the median beside it, as wall time and as the calling thread's CPU time
+machine hits both alike), the median beside it, as wall time and as the process's CPU time
 (steadier where other jobs share the cores), and the load average. The first call (compiling or
 loading the kernel) is not timed.
 
@@ -225,14 +225,14 @@ def bounds_of(fine: np.ndarray, g: GridGeometry, coarse: GridGeometry, spread: f
 
 
 def race(contenders: dict[str, Callable[[], object]], rounds: int) -> dict[str, tuple[float, float]]:
-    """Best and median ms of each contender over interleaved rounds: wall time and this thread's
+    """Best and median ms of each contender over interleaved rounds: wall time and the process's
     CPU time (on a machine shared with other jobs the wall time counts their share too)."""
     times: dict[str, list[tuple[float, float]]] = {k: [] for k in contenders}
     for _ in range(rounds):
         for name, fn in contenders.items():
-            t, c = time.perf_counter(), time.thread_time()
+            t, c = time.perf_counter(), time.process_time()
             fn()
-            times[name].append(((time.perf_counter() - t) * 1e3, (time.thread_time() - c) * 1e3))
+            times[name].append(((time.perf_counter() - t) * 1e3, (time.process_time() - c) * 1e3))
     out = {}
     for k, v in times.items():
         wall, cpu = np.array(v).T
@@ -268,8 +268,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--rounds", type=int, default=5)
     args = ap.parse_args(argv)
     print(f"vehicle check (compiled) vs the numpy reference; load average {load_average():.2f}")
-    print("  ms per call: best of the interleaved rounds (median), wall and CPU (this thread); ratio: reference "
-          "/ ours, best against best")
+    print("  ms per call: best of the interleaved rounds (median), wall and the process's CPU; ratio: reference / "
+          "ours, best against best")
     print(f"  {'scene':<9} {'map':<12} {'poses':>6} {'safe':>5} {'ours wall':>16} {'reference wall':>18} "
           f"{'ratio':>5} {'ours cpu':>16} {'reference cpu':>18} {'ratio':>5}")
     for scene in args.scenes:
