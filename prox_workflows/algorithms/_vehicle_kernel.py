@@ -201,18 +201,15 @@ def _contacts(lo: np.ndarray, hi: np.ndarray, bounded: bool, wheel_of: np.ndarra
     return open_box
 
 
-@_inline
-def _under(hi: np.ndarray, px: np.ndarray, py: np.ndarray, belly: np.ndarray, a: float, b: float, c: float
-           ) -> float:
-    """The highest ground under the box over the plane z = a x + b y + c (NaN propagates)."""
+@jit(error_model="numpy", fastmath={"nnan", "ninf"})
+def _under(hb: np.ndarray, bx: np.ndarray, by: np.ndarray, a: float, b: float, c: float) -> float:
+    """The highest ground under the box over the plane z = a x + b y + c: ``hb`` the ground's
+    (upper) heights at the belly's samples ``bx``, ``by``. Everything here is finite (the holes
+    are filled and a plane the body rests on has finite contacts), which lets the compiler
+    vectorise the maximum; the maximum is exact in any order."""
     under = -np.inf
-    for i in range(belly.shape[0]):
-        j = belly[i]
-        v = hi[j] - (a * px[j] + b * py[j] + c)
-        if v > under or math.isnan(v):
-            under = v
-            if math.isnan(v):
-                break
+    for i in range(hb.shape[0]):
+        under = max(under, hb[i] - (a * bx[i] + b * by[i] + c))
     return under
 
 
@@ -235,6 +232,7 @@ def check(lower: np.ndarray, upper: np.ndarray, bounded: bool, xmin: float, ymax
     lo, hi, mid, half = np.empty(s), np.empty(s), np.empty(s), np.empty(s)
     pulls_a, pulls_b = np.empty(pull_a.shape[1]), np.empty(pull_a.shape[1])
     contact = np.empty((2, 4))
+    hb, bx, by = np.empty(belly.shape[0]), px[belly], py[belly]
     nan_lo = np.zeros(4)
     on_wheel = np.zeros(4)
     for j in range(s):
@@ -253,6 +251,8 @@ def check(lower: np.ndarray, upper: np.ndarray, bounded: bool, xmin: float, ymax
         grade[p] = _grade(mid, half, bounded, g0, g1, pull_a, pull_b, pulls_a, pulls_b)
         _edges(lo, hi, bounded, pair_a, pair_b, pair_wheel, edge[p])
         open_box = _contacts(lo, hi, bounded, wheel_of, sag, contact)
+        for i in range(belly.shape[0]):
+            hb[i] = hi[belly[i]]
         worst_in, worst_st, worst_tilt, worst_tip = -np.inf, -np.inf, 0.0, 90.0
         for t in range(triplets.shape[0]):
             fx, fy = hubs[triplets[t, 3], 0], hubs[triplets[t, 3], 1]
@@ -265,9 +265,7 @@ def check(lower: np.ndarray, upper: np.ndarray, bounded: bool, xmin: float, ymax
                 pc = z0 * inv[t, 2, 0] + z1 * inv[t, 2, 1] + z2 * inv[t, 2, 2]
                 rests = contact[0, triplets[t, 3]] <= pa * fx + pb * fy + pc + 1e-9
                 if rests:  # the belly's ground counts only over a plane the body may rest on
-                    under = _under(hi, px, py, belly, pa, pb, pc)
-                    if under > worst_in or math.isnan(under):
-                        worst_in = under
+                    worst_in = max(worst_in, _under(hb, bx, by, pa, pb, pc))
                 angle = math.atan(math.hypot(pa, pb)) * _DEG
                 limit = _tip(pa, pb, fore, side, cog)
                 margin = angle - limit / safety
