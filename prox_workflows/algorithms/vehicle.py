@@ -298,6 +298,8 @@ _PLANS: dict[tuple, _Plan] = {}
 
 
 def _plan(body: VehicleBody, step: float) -> _Plan:
+    """The plan for ``body`` sampled every ``step``, made once per body geometry and spacing (a
+    process meets a few)."""
     key = (body.length, body.width, body.wheel_radius, body.wheel_width, np.asarray(body.wheels, float).tobytes(),
            float(step))
     plan = _PLANS.get(key)
@@ -372,9 +374,7 @@ def check_poses(heights: np.ndarray | tuple[np.ndarray, np.ndarray], geom: GridG
     unknown = np.zeros(n, bool)
     corners = np.array([(a, b, c) for a in (0, 1) for b in (0, 1) for c in (0, 1)] if bounded else [(0, 0, 0)],
                        np.int64)
-    if n:
-        lower = np.ascontiguousarray(lower)
-        upper = np.ascontiguousarray(upper) if bounded else lower
+    if n:  # the grids as they are (a window of a larger map is read in place, not copied)
         _kernel().check(lower, upper, bounded, float(geom.xmin), float(geom.ymax), float(geom.cell), poses,
                         np.ascontiguousarray(pat.pts[:, 0]), np.ascontiguousarray(pat.pts[:, 1]),
                         pat.wheel_of.astype(np.int64), plan.belly, plan.sag, plan.pair_a, plan.pair_b,
