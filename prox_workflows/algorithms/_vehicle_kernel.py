@@ -7,11 +7,11 @@ Why a kernel and not whole-array numpy: a pose reads a few thousand samples on t
 (2,888 for the P3-AT), and each limit is a handful of operations on them. As numpy over a batch of
 poses that is some twenty passes over (poses, samples) float64 temporaries (the four gathers of
 the bilinear read alone write six), and memory traffic, not arithmetic, is what they cost. Here a
-pose's samples live in two buffers that stay in cache, each limit is a loop over them, and work
+pose's samples live in a few buffers that stay in cache, each limit is a loop over them, and work
 whose result is not used is skipped (the ground under the belly over a plane the body does not
 rest on). Every figure is computed in float64 in the order the numpy formulation computes it, so
-the results are that formulation's to within rounding (``tools.bench.vehicle_check`` and
-``tests/navigation/test_vehicle_kernel.py`` hold it as the reference).
+the results are that formulation's to within rounding (``tools.bench.vehicle_check`` keeps it as
+the reference; ``tests/prox/test_vehicle_check.py`` holds the two together).
 """
 
 from __future__ import annotations
@@ -62,8 +62,10 @@ def sample(h: np.ndarray, xmin: float, ymax: float, cell: float, x: np.ndarray, 
 
 @_inline
 def _tip(a: float, b: float, fore: float, side: float, cog: float) -> float:
-    """The tip-over angle (deg) of the plane z = a x + b y: ``vehicle._tip`` for one plane (a zero
-    slope's reach is inf; NaN's is inf, as ``nan_to_num`` makes it)."""
+    """The static tip-over angle (deg) of the plane z = a x + b y, which leans toward -(a, b): the
+    centre of gravity ``cog`` over it reaches the edge of the hubs' rectangle (``fore``, ``side``
+    from the middle) after |(a, b)| min(fore / |a|, side / |b|). A level plane leans nowhere:
+    its reach is inf (90 deg), as is a NaN plane's."""
     ra = fore / abs(a)
     rb = side / abs(b)
     m = ra if ra < rb else rb
@@ -73,6 +75,13 @@ def _tip(a: float, b: float, fore: float, side: float, cog: float) -> float:
     if math.isnan(reach):
         reach = np.inf
     return math.atan(reach / cog) * _DEG
+
+
+@_jit
+def tips(a: np.ndarray, b: np.ndarray, fore: float, side: float, cog: float, out: np.ndarray) -> None:
+    """:func:`_tip` of every plane (``a``, ``b`` flat) into ``out``."""
+    for i in range(a.shape[0]):
+        out[i] = _tip(a[i], b[i], fore, side, cog)
 
 
 @_inline

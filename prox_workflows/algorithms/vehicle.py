@@ -98,14 +98,21 @@ def tip_angle(body: VehicleBody, direction: np.ndarray | float) -> np.ndarray:
 
 
 def _tip(body: VehicleBody, a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """:func:`tip_angle` of a plane z = a x + b y (rover frame), which leans toward -(a, b): the
-    centre of gravity's foot moves that way, and reaches the polygon's edge along it after
-    min(fore / |cos|, side / |sin|) = |(a, b)| min(fore / |a|, side / |b|)."""
+    """:func:`tip_angle` of planes z = a x + b y (rover frame), each leaning toward -(a, b): the
+    check's own formula (``_vehicle_kernel._tip``: the centre of gravity's foot moves that way,
+    and reaches the polygon's edge along it after min(fore / |cos|, side / |sin|) = |(a, b)|
+    min(fore / |a|, side / |b|); a level plane's is 90)."""
+    a, b = np.broadcast_arrays(np.asarray(a, np.float64), np.asarray(b, np.float64))
+    out = np.empty(a.shape)
+    _kernel().tips(np.ascontiguousarray(a).ravel(), np.ascontiguousarray(b).ravel(), *_support(body),
+                   float(body.cog_height), out.reshape(-1))
+    return out[()]
+
+
+def _support(body: VehicleBody) -> tuple[float, float]:
+    """How far the support polygon (the rectangle of the hubs) reaches fore and to the side."""
     hubs = np.abs(np.asarray(body.wheels, float))
-    fore, side = float(hubs[:, 0].min()), float(hubs[:, 1].min())
-    with np.errstate(divide="ignore", invalid="ignore"):
-        reach = np.hypot(a, b) * np.minimum(fore / np.abs(a), side / np.abs(b))
-    return np.degrees(np.arctan(np.nan_to_num(reach, nan=np.inf) / body.cog_height))
+    return float(hubs[:, 0].min()), float(hubs[:, 1].min())
 
 
 def severity(kind: str, excess: float) -> str:
@@ -367,7 +374,6 @@ def check_poses(heights: np.ndarray | tuple[np.ndarray, np.ndarray], geom: GridG
     poses = np.ascontiguousarray(np.atleast_2d(np.asarray(poses, float)))
     plan = _plan(body, step or _default_step(geom, bounded))
     pat = plan.pat
-    hubs = np.abs(np.asarray(body.wheels, float))
     n = len(poses)
     edge = np.empty((n, 4))
     intrusion, tilt, tip, grade, stability = (np.empty(n) for _ in range(5))
@@ -379,8 +385,7 @@ def check_poses(heights: np.ndarray | tuple[np.ndarray, np.ndarray], geom: GridG
                         np.ascontiguousarray(pat.pts[:, 0]), np.ascontiguousarray(pat.pts[:, 1]),
                         pat.wheel_of.astype(np.int64), plan.belly, plan.sag, plan.pair_a, plan.pair_b,
                         plan.pair_wheel, plan.ground[0], plan.ground[1], plan.pulls[0], plan.pulls[1], plan.inv,
-                        plan.triplets, corners, np.asarray(body.wheels, float), float(hubs[:, 0].min()),
-                        float(hubs[:, 1].min()), float(body.cog_height), float(body.safety), edge, intrusion,
+                        plan.triplets, corners, np.asarray(body.wheels, float), *_support(body), float(body.cog_height), float(body.safety), edge, intrusion,
                         tilt, tip, grade, stability, unknown)
     intrusion -= body.clearance
     excess = np.column_stack([edge.max(axis=1) - body.climb, intrusion, stability, grade - body.grade])
@@ -402,6 +407,7 @@ def warm_up() -> None:
         check_poses(ground, g, np.zeros((1, 3)), body)
         check_poses((ground, ground.copy()), g, np.zeros((1, 3)), body)
         _sample(ground, g, np.zeros(1), np.zeros(1))
+    tip_angle(body, 0.0)
 
 
 @dataclass(frozen=True)

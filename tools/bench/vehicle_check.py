@@ -37,7 +37,6 @@ from prox_workflows.algorithms.vehicle import (
     PoseChecks,
     VehicleBody,
     _pattern,
-    _tip,
     check_poses,
 )
 from prox_workflows.grid import GridGeometry
@@ -65,6 +64,14 @@ def _reference_sample(heights: np.ndarray, geom: GridGeometry, x: np.ndarray, y:
     out = ((h[r0c, c0c] * (1 - tc) + h[r0c, c0c + 1] * tc) * (1 - tr)
            + (h[r0c + 1, c0c] * (1 - tc) + h[r0c + 1, c0c + 1] * tc) * tr)
     return np.where(inside, out, np.nan)
+
+
+def _reference_tip(body: VehicleBody, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    hubs = np.abs(np.asarray(body.wheels, float))
+    fore, side = float(hubs[:, 0].min()), float(hubs[:, 1].min())
+    with np.errstate(divide="ignore", invalid="ignore"):
+        reach = np.hypot(a, b) * np.minimum(fore / np.abs(a), side / np.abs(b))
+    return np.degrees(np.arctan(np.nan_to_num(reach, nan=np.inf) / body.cog_height))
 
 
 def _reference_edges(lo: np.ndarray, hi: np.ndarray, lanes: np.ndarray) -> np.ndarray:
@@ -161,7 +168,7 @@ def reference(heights: np.ndarray | tuple[np.ndarray, np.ndarray], geom: GridGeo
                 rests = contact[0, :, t[3]] <= abc[:, 0] * fourth[0] + abc[:, 1] * fourth[1] + abc[:, 2] + 1e-9
                 under = (hi[:, belly] - (abc[:, :2] @ pts[belly].T + abc[:, 2:3])).max(axis=1)
                 angle = np.degrees(np.arctan(np.hypot(abc[:, 0], abc[:, 1])))
-                limit = _tip(body, abc[:, 0], abc[:, 1])
+                limit = _reference_tip(body, abc[:, 0], abc[:, 1])
                 margin = angle - limit / body.safety
                 worst_in = np.where(rests, np.maximum(worst_in, under), worst_in)
                 counts = (rests | open_box) & (margin > worst_st)
