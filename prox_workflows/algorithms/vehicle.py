@@ -287,9 +287,8 @@ def _sample(heights: np.ndarray, geom: GridGeometry, x: np.ndarray, y: np.ndarra
 @dataclass(frozen=True)
 class _Plan:
     """What :func:`check_poses` derives from the body and the sample spacing alone, once: the
-    pattern and the linear maps each limit applies to the samples (see there)."""
+    sample pattern (:func:`_pattern`) and the linear maps each limit applies to the samples."""
 
-    pat: _Pattern
     pair_a: np.ndarray  # the step's sample pairs along each wheel's lanes, and the wheel of each
     pair_b: np.ndarray
     pair_wheel: np.ndarray
@@ -299,6 +298,12 @@ class _Plan:
     triplets: np.ndarray
     sag: np.ndarray  # (S,) the wheel circle's rise over each wheel sample
     belly: np.ndarray  # (B,) indices of the samples under the box
+    px: np.ndarray  # (S,) the samples' offsets, and the wheel of each (-1: none)
+    py: np.ndarray
+    wheel_of: np.ndarray
+    hubs: np.ndarray  # (4, 2)
+    support: tuple[float, float]  # how far the hubs' rectangle reaches fore and to the side
+    corners: tuple[np.ndarray, np.ndarray]  # the contacts' corners (lowest 0, highest 1): one grid, bounds
 
 
 _PLANS: dict[tuple, _Plan] = {}
@@ -337,8 +342,11 @@ def _plan(body: VehicleBody, step: float) -> _Plan:
     sag = r - np.sqrt(np.maximum(r * r - pat.dx * pat.dx, 0.0))
     # each resting plane through three hubs: z = [x y 1] @ inv(A) @ z3
     inv = np.stack([np.linalg.inv(np.column_stack([hubs[list(t[:3])], np.ones(3)])) for t in _TRIPLETS])
-    plan = _Plan(pat, pair_a, pair_b, pair_wheel, np.ascontiguousarray(ground_pinv[:2]), pulls, inv,
-                 np.asarray(_TRIPLETS, np.int64), sag, np.flatnonzero(pat.belly))
+    corners = np.array([(a, b, c) for a in (0, 1) for b in (0, 1) for c in (0, 1)], np.int64)
+    plan = _Plan(pair_a, pair_b, pair_wheel, np.ascontiguousarray(ground_pinv[:2]), pulls, inv,
+                 np.asarray(_TRIPLETS, np.int64), sag, np.flatnonzero(pat.belly), np.ascontiguousarray(pts[:, 0]),
+                 np.ascontiguousarray(pts[:, 1]), pat.wheel_of.astype(np.int64), hubs, _support(body),
+                 (corners[:1].copy(), corners))
     _PLANS[key] = plan
     return plan
 
@@ -373,20 +381,16 @@ def check_poses(heights: np.ndarray | tuple[np.ndarray, np.ndarray], geom: GridG
     bounded = lower is not upper
     poses = np.ascontiguousarray(np.atleast_2d(np.asarray(poses, float)))
     plan = _plan(body, step or _default_step(geom, bounded))
-    pat = plan.pat
     n = len(poses)
     edge = np.empty((n, 4))
     intrusion, tilt, tip, grade, stability = (np.empty(n) for _ in range(5))
     unknown = np.zeros(n, bool)
-    corners = np.array([(a, b, c) for a in (0, 1) for b in (0, 1) for c in (0, 1)] if bounded else [(0, 0, 0)],
-                       np.int64)
     if n:  # the grids as they are (a window of a larger map is read in place, not copied)
-        _kernel().check(lower, upper, bounded, float(geom.xmin), float(geom.ymax), float(geom.cell), poses,
-                        np.ascontiguousarray(pat.pts[:, 0]), np.ascontiguousarray(pat.pts[:, 1]),
-                        pat.wheel_of.astype(np.int64), plan.belly, plan.sag, plan.pair_a, plan.pair_b,
-                        plan.pair_wheel, plan.ground[0], plan.ground[1], plan.pulls[0], plan.pulls[1], plan.inv,
-                        plan.triplets, corners, np.asarray(body.wheels, float), *_support(body), float(body.cog_height), float(body.safety), edge, intrusion,
-                        tilt, tip, grade, stability, unknown)
+        _kernel().check(lower, upper, bounded, float(geom.xmin), float(geom.ymax), float(geom.cell), poses, plan.px,
+                        plan.py, plan.wheel_of, plan.belly, plan.sag, plan.pair_a, plan.pair_b, plan.pair_wheel,
+                        plan.ground[0], plan.ground[1], plan.pulls[0], plan.pulls[1], plan.inv, plan.triplets,
+                        plan.corners[bounded], plan.hubs, *plan.support, float(body.cog_height),
+                        float(body.safety), edge, intrusion, tilt, tip, grade, stability, unknown)
     intrusion -= body.clearance
     excess = np.column_stack([edge.max(axis=1) - body.climb, intrusion, stability, grade - body.grade])
     return PoseChecks(step=edge, intrusion=intrusion, tilt=tilt, tip=tip, grade=grade, excess=excess,
