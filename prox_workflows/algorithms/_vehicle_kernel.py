@@ -35,21 +35,23 @@ def _read(h: np.ndarray, xmin: float, ymax: float, cell: float, x: float, y: flo
     map's cell bounds every point in it), or bilinear between the cell centres (a height grid).
     NaN off the grid."""
     # the tests on the fractional indices (floor(f) < n iff f < n for f >= 0) keep NaN and far
-    # coordinates out of the integer conversion (which truncates: the floor of f >= 0)
+    # coordinates out of the integer conversion (which truncates: the floor of f >= 0); unsigned
+    # indices spare each read numba's wraparound of negative ones (a quarter of the read's time)
     if cellwise:
         fc = (x - xmin) / cell
         fr = (ymax - y) / cell
         if not (fc >= 0.0 and fr >= 0.0 and fc < h.shape[1] and fr < h.shape[0]):
             return np.nan
-        return np.float64(h[int(fr), int(fc)])
+        return np.float64(h[np.uint64(fr), np.uint64(fc)])
     fc = (x - xmin) / cell - 0.5
     fr = (ymax - y) / cell - 0.5
     if not (fc >= 0.0 and fr >= 0.0 and fc < h.shape[1] - 1 and fr < h.shape[0] - 1):
         return np.nan
-    c0, r0 = int(fc), int(fr)
+    c0, r0 = np.uint64(fc), np.uint64(fr)
+    c1, r1 = c0 + np.uint64(1), r0 + np.uint64(1)
     tc, tr = fc - c0, fr - r0
-    return ((h[r0, c0] * (1 - tc) + h[r0, c0 + 1] * tc) * (1 - tr)
-            + (h[r0 + 1, c0] * (1 - tc) + h[r0 + 1, c0 + 1] * tc) * tr)
+    return ((h[r0, c0] * (1 - tc) + h[r0, c1] * tc) * (1 - tr)
+            + (h[r1, c0] * (1 - tc) + h[r1, c1] * tc) * tr)
 
 
 @_jit
@@ -85,28 +87,23 @@ def tips(a: np.ndarray, b: np.ndarray, fore: float, side: float, cog: float, out
 
 
 @_inline
-def _fill(lo: np.ndarray, hi: np.ndarray, mid: np.ndarray, half: np.ndarray, bounded: bool, wheel_of: np.ndarray,
-          on_wheel: np.ndarray, nan_lo: np.ndarray) -> bool:
-    """Fill the holes of one pose's samples as ``vehicle.check_poses`` says, and the middle and
-    half spread the grade fits; whether the pose is unknown (on bounds)."""
+def _fill(lo: np.ndarray, hi: np.ndarray, mid: np.ndarray, half: np.ndarray, bounded: bool, holes: bool,
+          wheel_of: np.ndarray, on_wheel: np.ndarray, nan_lo: np.ndarray) -> bool:
+    """Fill the holes of one pose's samples as ``vehicle.check_poses`` says, and on bounds the
+    middle and half spread the grade fits (one grid's are its heights); whether the pose is
+    unknown (on bounds). ``holes``: whether any low is NaN."""
     s = lo.shape[0]
     if not bounded:
-        low = np.inf  # ground off the grid takes the lowest height the pose sees
-        holes = False
-        for j in range(s):
-            if math.isnan(lo[j]):
-                holes = True
-            elif lo[j] < low:
-                low = lo[j]
-        if holes:
+        if holes:  # ground off the grid takes the lowest height the pose sees
+            low = np.inf
+            for j in range(s):
+                if lo[j] < low:
+                    low = lo[j]
             if low == np.inf:
                 low = 0.0
             for j in range(s):
                 if math.isnan(lo[j]):
                     lo[j] = low
-        for j in range(s):
-            hi[j] = lo[j]
-            mid[j] = lo[j]
         return False
     unseen = False
     top = -np.inf
@@ -250,18 +247,21 @@ def check(lower: np.ndarray, upper: np.ndarray, bounded: bool, xmin: float, ymax
     for p in range(poses.shape[0]):
         rad = math.radians(poses[p, 2])
         c, si = math.cos(rad), math.sin(rad)
+        holes = False
         for j in range(s):  # in the order numpy's broadcast forms them: (x0 + c px) - s py
             wx = poses[p, 0] + c * px[j] - si * py[j]
             wy = poses[p, 1] + si * px[j] + c * py[j]
             lo[j] = _read(lower, xmin, ymax, cell, wx, wy, bounded)
+            holes |= math.isnan(lo[j])
             if bounded:
                 hi[j] = _read(upper, xmin, ymax, cell, wx, wy, True)
-        unknown[p] = _fill(lo, hi, mid, half, bounded, wheel_of, on_wheel, nan_lo)
-        grade[p] = _grade(mid, half, bounded, g0, g1, pull_a, pull_b, pulls_a, pulls_b)
-        _edges(lo, hi, bounded, pair_a, pair_b, pair_wheel, edge[p])
-        open_box = _contacts(lo, hi, bounded, wheel_of, sag, contact)
+        unknown[p] = _fill(lo, hi, mid, half, bounded, holes, wheel_of, on_wheel, nan_lo)
+        highs, middles = (hi, mid) if bounded else (lo, lo)  # one grid: the heights are all three
+        grade[p] = _grade(middles, half, bounded, g0, g1, pull_a, pull_b, pulls_a, pulls_b)
+        _edges(lo, highs, bounded, pair_a, pair_b, pair_wheel, edge[p])
+        open_box = _contacts(lo, highs, bounded, wheel_of, sag, contact)
         for i in range(belly.shape[0]):
-            hb[i] = hi[belly[i]]
+            hb[i] = highs[belly[i]]
         worst_in, worst_st, worst_tilt, worst_tip = -np.inf, -np.inf, 0.0, 90.0
         for t in range(triplets.shape[0]):
             fx, fy = hubs[triplets[t, 3], 0], hubs[triplets[t, 3], 1]
