@@ -1,6 +1,6 @@
 """Benchmark: the vehicle check (:func:`prox_workflows.algorithms.vehicle.check_poses`, one
-compiled pass per pose) against :func:`reference`, the same definitions as whole-batch numpy (the
-formulation it replaced, kept here as the peer and as the tests' reference), on each scene's true
+compiled pass per pose) against :func:`reference`, the same definitions as whole-batch numpy over
+(poses, samples) arrays (the peer, and the tests' reference), on each scene's true
 1 cm surface (256 and 4,096 poses) and on 5 cm bounds of it (256 poses).
 
 Poses are seeded uniform draws over the scene's mission area (``rvs_truth.surface.AREA``, 1 m in
@@ -90,8 +90,8 @@ def _reference_edges(lo: np.ndarray, hi: np.ndarray, lanes: np.ndarray) -> np.nd
 def reference(heights: np.ndarray | tuple[np.ndarray, np.ndarray], geom: GridGeometry, poses: np.ndarray,
               body: VehicleBody, step: float | None = None, chunk: int = 256) -> PoseChecks:
     """:func:`check_poses`'s definitions as numpy over chunks of poses ((chunk, samples) arrays),
-    line for line the formulation the compiled check replaced, reading a bounds pair by the cell
-    that holds each sample and sampling it every ``BOUNDS_STEP`` cells as ``check_poses`` does."""
+    each limit as a few whole-array expressions, reading a bounds pair by the cell that holds each
+    sample and sampling it every ``BOUNDS_STEP`` cells as ``check_poses`` does."""
     lower, upper = heights if isinstance(heights, tuple) else (heights, heights)
     bounded = lower is not upper
     poses = np.atleast_2d(np.asarray(poses, float))
