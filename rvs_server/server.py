@@ -233,12 +233,13 @@ def give_back_memory() -> None:
 def warm_up_kernels() -> None:
     """Compile (first run after installing) or load from cache the numba kernels."""
     from drivers.sim import raycast
-    from prox_workflows.algorithms import dem2hazard, dem_import, planner
+    from prox_workflows.algorithms import dem2hazard, dem_import, planner, vehicle
 
     try:
         dem_import.warm_up()
         dem2hazard.warm_up()
         planner.warm_up()
+        vehicle.warm_up()
         raycast.warm_up()
         log.info("kernels_ready")
     except Exception as exc:  # noqa: BLE001 - the plain-Python paths still work

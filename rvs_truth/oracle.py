@@ -17,8 +17,8 @@ that are unsafe, so ``exhausted`` proves there is no way on the lattice. A searc
 expansion budget proves nothing: the mission is then reported ``budget``, not feasible.
 
 Results are cached per mission in a file under a cache directory, keyed by a hash of the scene,
-the seed, the start and goal, every field of the body and the source of the check, the lattice
-and this module, so a changed limit or search is never answered from an old result.
+the seed, the start and goal, every field of the body and the source of the check (its kernel too),
+the lattice and this module, so a changed limit or search is never answered from an old result.
 """
 
 from __future__ import annotations
@@ -101,11 +101,12 @@ def oracle(surface: tuple[np.ndarray, GridGeometry, GridGeometry], body: Vehicle
 
 
 def code_version() -> str:
-    """A hash of the source that decides a verdict: the vehicle check, the lattice, the truth check
-    and this module."""
+    """A hash of the source that decides a verdict: the vehicle check and its compiled kernel, the
+    lattice, the truth check and this module."""
     h = hashlib.sha256()
     for module in (vehicle, lattice, truth_vehicle):
         h.update(Path(module.__file__).read_bytes())
+    h.update(Path(vehicle.__file__).with_name("_vehicle_kernel.py").read_bytes())  # read, not imported (numba)
     h.update(Path(__file__).read_bytes())
     return h.hexdigest()[:16]
 

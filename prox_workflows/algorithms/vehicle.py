@@ -49,7 +49,8 @@ import numpy as np
 from ..grid import GridGeometry
 
 __all__ = ["VehicleBody", "PoseChecks", "Event", "Margins", "Gate", "check_poses", "densify", "gate_poses",
-           "unsafe_events", "track_poses", "tip_angle", "reach", "severity", "WHEELS", "LIMITS", "BANDS"]
+           "unsafe_events", "track_poses", "tip_angle", "reach", "severity", "WHEELS", "LIMITS", "BANDS",
+           "BOUNDS_STEP"]
 
 READ_LOW_P99 = 0.051  # m: the ToF's DEM at 5 cm, marsyard (docs/NAVIGATE_BENCH.md, Error budget)
 TRACKING_P99 = 0.03  # m: the see loop's true track from its planned legs, worst mission p99
@@ -61,6 +62,12 @@ BANDS = ((0.5, "slight"), (2.0, "moderate"), (math.inf, "severe"))
 _TRIPLETS = ((0, 1, 2, 3), (0, 1, 3, 2), (0, 2, 3, 1), (1, 2, 3, 0))
 _EDGE_SAMPLES = 2  # a step is a rise within this many sample intervals along the rolling direction
 _GRADE_DIRECTIONS = 32  # on bounds, the worst fitted plane is sought at twice this many zonotope vertices
+# On bounds the body is sampled this many cells apart by default. A sample reads the one cell that
+# holds it, so every cell under the body must hold one: a square lattice of spacing s, at any
+# heading, leaves no disc wider than s * sqrt(2) empty, and a cell holds a disc one cell wide, so
+# s < 1 / sqrt(2) puts a sample in every cell wholly under the body (at one cell apart, 5-12 of the
+# 60 cells under the box at oblique headings hold none, and a rock there goes unseen).
+BOUNDS_STEP = 0.7
 
 
 class VehicleBody(Protocol):
@@ -91,14 +98,21 @@ def tip_angle(body: VehicleBody, direction: np.ndarray | float) -> np.ndarray:
 
 
 def _tip(body: VehicleBody, a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """:func:`tip_angle` of a plane z = a x + b y (rover frame), which leans toward -(a, b): the
-    centre of gravity's foot moves that way, and reaches the polygon's edge along it after
-    min(fore / |cos|, side / |sin|) = |(a, b)| min(fore / |a|, side / |b|)."""
+    """:func:`tip_angle` of planes z = a x + b y (rover frame), each leaning toward -(a, b): the
+    check's own formula (``_vehicle_kernel._tip``: the centre of gravity's foot moves that way,
+    and reaches the polygon's edge along it after min(fore / |cos|, side / |sin|) = |(a, b)|
+    min(fore / |a|, side / |b|); a level plane's is 90)."""
+    a, b = np.broadcast_arrays(np.asarray(a, np.float64), np.asarray(b, np.float64))
+    out = np.empty(a.shape)
+    _kernel().tips(np.ascontiguousarray(a).ravel(), np.ascontiguousarray(b).ravel(), *_support(body),
+                   float(body.cog_height), out.reshape(-1))
+    return out[()]
+
+
+def _support(body: VehicleBody) -> tuple[float, float]:
+    """How far the support polygon (the rectangle of the hubs) reaches fore and to the side."""
     hubs = np.abs(np.asarray(body.wheels, float))
-    fore, side = float(hubs[:, 0].min()), float(hubs[:, 1].min())
-    with np.errstate(divide="ignore", invalid="ignore"):
-        reach = np.hypot(a, b) * np.minimum(fore / np.abs(a), side / np.abs(b))
-    return np.degrees(np.arctan(np.nan_to_num(reach, nan=np.inf) / body.cog_height))
+    return float(hubs[:, 0].min()), float(hubs[:, 1].min())
 
 
 def severity(kind: str, excess: float) -> str:
@@ -251,159 +265,153 @@ def _pattern(body: VehicleBody, step: float) -> _Pattern:
     return _Pattern(np.stack([X[keep], Y[keep]], axis=1), wheel[keep], belly[keep], dx[keep], tuple(lanes))
 
 
-def _sample(heights: np.ndarray, geom: GridGeometry, x: np.ndarray, y: np.ndarray) -> np.ndarray:
-    """Bilinear heights between the cell centres (NaN off the grid)."""
-    fc = (x - geom.xmin) / geom.cell - 0.5
-    fr = (geom.ymax - y) / geom.cell - 0.5
-    c0, r0 = np.floor(fc).astype(np.int64), np.floor(fr).astype(np.int64)
-    tc, tr = fc - c0, fr - r0
-    inside = (r0 >= 0) & (r0 < geom.height - 1) & (c0 >= 0) & (c0 < geom.width - 1)
-    r0c, c0c = np.clip(r0, 0, geom.height - 2), np.clip(c0, 0, geom.width - 2)
-    h = heights
-    out = ((h[r0c, c0c] * (1 - tc) + h[r0c, c0c + 1] * tc) * (1 - tr)
-           + (h[r0c + 1, c0c] * (1 - tc) + h[r0c + 1, c0c + 1] * tc) * tr)
-    return np.where(inside, out, np.nan)
+def _kernel():  # noqa: ANN202 - the compiled module, imported on first use (numba costs ~0.3 s)
+    from . import _vehicle_kernel
+
+    return _vehicle_kernel
 
 
-def _edges(lo: np.ndarray, hi: np.ndarray, lanes: np.ndarray) -> np.ndarray:
-    """The greatest rise (m) along ``lanes`` within :data:`_EDGE_SAMPLES` samples, either way, at
-    its worst over the bounds: from a sample's lower bound to another's upper bound (on one grid,
-    the rise itself). NaN lower bounds take no part."""
-    out = np.full(len(lo), -np.inf)
-    with np.errstate(invalid="ignore"):
-        for k in range(1, min(_EDGE_SAMPLES, lanes.shape[1] - 1) + 1):
-            a, b = lanes[:, :-k], lanes[:, k:]
-            if hi is lo:
-                up = np.abs(lo[:, b] - lo[:, a])  # (m, W, L - k)
-            else:
-                up = np.fmax(hi[:, b] - lo[:, a], hi[:, a] - lo[:, b])
-            out = np.fmax(out, np.fmax.reduce(up.reshape(len(lo), -1), axis=1))
-    return np.where(np.isinf(out), np.nan, out)
+def _sample(heights: np.ndarray, geom: GridGeometry, x: np.ndarray, y: np.ndarray, cellwise: bool = False
+            ) -> np.ndarray:
+    """Heights at the points (x, y) (NaN off the grid): bilinear between the cell centres on a
+    height grid (the surface between its samples); ``cellwise``, the value of the cell that holds
+    each point (a bounds map: a cell's bound holds for every point in it, so a point near a rock
+    cell's edge reads the rock's bound, not a share of it). What :func:`check_poses` reads."""
+    x, y = np.broadcast_arrays(np.asarray(x, np.float64), np.asarray(y, np.float64))
+    out = np.empty(x.shape)
+    _kernel().sample(heights, float(geom.xmin), float(geom.ymax), float(geom.cell), np.ascontiguousarray(x).ravel(),
+                     np.ascontiguousarray(y).ravel(), cellwise, out.reshape(-1))
+    return out
 
 
-def check_poses(heights: np.ndarray | tuple[np.ndarray, np.ndarray], geom: GridGeometry, poses: np.ndarray,
-                body: VehicleBody, step: float | None = None, chunk: int = 256) -> PoseChecks:
-    """Step, belly intrusion, stability and grade of ``body`` at each of ``poses`` ((N, 3): x, y,
-    heading in degrees) on ``heights`` over ``geom``: one height grid (the truth; the finer the
-    truer: 1-2 cm), or a ``(lower, upper)`` pair of bound grids (a bounds map, as ACE checks).
+@dataclass(frozen=True)
+class _Plan:
+    """What :func:`check_poses` derives from the body and the sample spacing alone, once: the
+    sample pattern (:func:`_pattern`) and the linear maps each limit applies to the samples."""
 
-    On bounds every measure is its worst case over the ground they allow: a wheel's step from one
-    sample's lower bound to a neighbour's upper bound, the belly's ground at its upper bound over
-    the lowest plane the wheels may rest on, the resting plane's lean toward its tip-over edge
-    over every plane their contacts allow, the fitted plane's steepest slope over the bounds. A
-    pose whose body covers ground with no upper bound, or a wheel with no lower bound under it,
-    is ``unknown``: never safe. On one grid, ground off it takes the lowest height the pose sees
-    (an edge is judged as a drop, not as a wall). The body is sampled every ``step`` (default: the
-    grid's cell)."""
-    lower, upper = heights if isinstance(heights, tuple) else (heights, heights)
-    bounded = lower is not upper
-    poses = np.atleast_2d(np.asarray(poses, float))
-    pat = _pattern(body, step or geom.cell)
-    pts, wheel_of, belly = pat.pts, pat.wheel_of, pat.belly
+    pair_a: np.ndarray  # the step's sample pairs along each wheel's lanes, and the wheel of each
+    pair_b: np.ndarray
+    pair_wheel: np.ndarray
+    ground: np.ndarray  # (2, S): the fitted plane's slope rows of the pseudo-inverse
+    pulls: np.ndarray  # (2, S, D): the zonotope's signed pulls along each direction
+    inv: np.ndarray  # (P, 3, 3) the resting planes through three hubs, and their wheels (P, 4)
+    triplets: np.ndarray
+    sag: np.ndarray  # (S,) the wheel circle's rise over each wheel sample
+    belly: np.ndarray  # (B,) indices of the samples under the box
+    px: np.ndarray  # (S,) the samples' offsets, and the wheel of each (-1: none)
+    py: np.ndarray
+    wheel_of: np.ndarray
+    hubs: np.ndarray  # (4, 2)
+    support: tuple[float, float]  # how far the hubs' rectangle reaches fore and to the side
+    corners: tuple[np.ndarray, np.ndarray]  # the contacts' corners (lowest 0, highest 1): one grid, bounds
+
+
+_PLANS: dict[tuple, _Plan] = {}
+
+
+def _plan(body: VehicleBody, step: float) -> _Plan:
+    """The plan for ``body`` sampled every ``step``, made once per body geometry and spacing (a
+    process meets a few)."""
+    key = (body.length, body.width, body.wheel_radius, body.wheel_width, np.asarray(body.wheels, float).tobytes(),
+           float(step))
+    plan = _PLANS.get(key)
+    if plan is not None:
+        return plan
+    pat = _pattern(body, step)
+    pts = pat.pts
     hubs = np.asarray(body.wheels, float)
     r = body.wheel_radius
-    design = np.column_stack([pts, np.ones(len(pts))])
+    # a step: a rise within _EDGE_SAMPLES samples along a lane, either way
+    pairs = []
+    for w, lanes in enumerate(pat.lanes):
+        for k in range(1, min(_EDGE_SAMPLES, lanes.shape[1] - 1) + 1):
+            a, b = lanes[:, :-k].ravel(), lanes[:, k:].ravel()
+            pairs.append((a, b, np.full(len(a), w)))
+    pair_a, pair_b, pair_wheel = (np.concatenate(col).astype(np.int64) for col in zip(*pairs, strict=True))
     # the ground plane z = a x + b y + c over all samples, as one pseudo-inverse for every pose
-    ground_pinv = np.linalg.pinv(design)  # (3, S)
+    ground_pinv = np.linalg.pinv(np.column_stack([pts, np.ones(len(pts))]))  # (3, S)
     # on bounds the fitted slope (a, b) is linear in the ground, so over the box of grounds it
     # ranges over a zonotope; its steepest point is a vertex, the one each direction u picks by
     # taking every sample at the bound u's sign asks for; u and -u pick the two vertices
     # mid +- pull(u), so a half circle of directions gives 64 (within 0.1 % of the steepest)
     u = np.linspace(0.0, np.pi, _GRADE_DIRECTIONS, endpoint=False)
     signs = np.sign(np.cos(u)[:, None] * ground_pinv[0] + np.sin(u)[:, None] * ground_pinv[1])  # (D, S)
-    d = _GRADE_DIRECTIONS
-    # one product gives the fitted slope (from the middle) and every vertex's pull (from the half
-    # spread): [mid half] @ [[G.T 0] [0 Pa Pb]]
-    slopes = np.zeros((2 * len(pts), 2 + 2 * d))
-    slopes[:len(pts), :2] = ground_pinv[:2].T
-    slopes[len(pts):, 2:2 + d] = (signs * ground_pinv[0]).T
-    slopes[len(pts):, 2 + d:] = (signs * ground_pinv[1]).T
+    pulls = np.stack([(signs * ground_pinv[0]).T, (signs * ground_pinv[1]).T]).copy()  # (2, S, D)
     # the wheel's circle: a point dx from the hub lifts the wheel's bottom by its height minus
     # the circle's rise there (the wheel rests on whatever touches it first)
     sag = r - np.sqrt(np.maximum(r * r - pat.dx * pat.dx, 0.0))
-    # each resting plane through three hubs: z = [x y 1] @ inv(A) @ z3; on bounds, each of the
-    # three at its lowest or highest contact (the worst plane is at a corner of that box)
-    planes = [(t, np.linalg.inv(np.column_stack([hubs[list(t[:3])], np.ones(3)]))) for t in _TRIPLETS]
-    corners = [(0, 0, 0)] if not bounded else [(a, b, c) for a in (0, 1) for b in (0, 1) for c in (0, 1)]
+    # each resting plane through three hubs: z = [x y 1] @ inv(A) @ z3
+    inv = np.stack([np.linalg.inv(np.column_stack([hubs[list(t[:3])], np.ones(3)])) for t in _TRIPLETS])
+    corners = np.array([(a, b, c) for a in (0, 1) for b in (0, 1) for c in (0, 1)], np.int64)
+    plan = _Plan(pair_a, pair_b, pair_wheel, np.ascontiguousarray(ground_pinv[:2]), pulls, inv,
+                 np.asarray(_TRIPLETS, np.int64), sag, np.flatnonzero(pat.belly), np.ascontiguousarray(pts[:, 0]),
+                 np.ascontiguousarray(pts[:, 1]), pat.wheel_of.astype(np.int64), hubs, _support(body),
+                 (corners[:1].copy(), corners))
+    _PLANS[key] = plan
+    return plan
+
+
+def _default_step(geom: GridGeometry, bounded: bool) -> float:
+    return geom.cell * BOUNDS_STEP if bounded else geom.cell
+
+
+def check_poses(heights: np.ndarray | tuple[np.ndarray, np.ndarray], geom: GridGeometry, poses: np.ndarray,
+                body: VehicleBody, step: float | None = None) -> PoseChecks:
+    """Step, belly intrusion, stability and grade of ``body`` at each of ``poses`` ((N, 3): x, y,
+    heading in degrees) on ``heights`` over ``geom``: one height grid (the truth; the finer the
+    truer: 1-2 cm), read bilinearly between its cell centres, or a ``(lower, upper)`` pair of bound
+    grids (a bounds map, as ACE checks), each sample reading the bounds of the cell that holds it.
+
+    On bounds every measure is its worst case over the ground they allow: a wheel's step from one
+    sample's lower bound to a neighbour's upper bound, the belly's ground at its upper bound over
+    the lowest plane the wheels may rest on, the resting plane's lean toward its tip-over edge
+    over every plane their contacts allow (each of the three contacts at its lowest or highest:
+    the worst plane is at a corner of that box), the fitted plane's steepest slope over the
+    bounds. A pose whose body covers ground with no upper bound, or a wheel with no lower bound
+    under more than half of it, is ``unknown``: never safe. Ground a ray passed over but no
+    return met has no lower bound: a hole narrower than a wheel's reach there is bridged (the
+    wheel rests on the ground around it), so the wheel is judged on the ground its bounds cover;
+    an unbounded low takes no part in a wheel's edges or contact, and stands in by its high in
+    the plane fitted under the body. On one grid, ground off it takes the lowest height the pose
+    sees (an edge is judged as a drop, not as a wall). The body is sampled every ``step``
+    (default: the grid's cell on one grid, :data:`BOUNDS_STEP` of it on bounds).
+
+    The per-pose work is one compiled pass (:mod:`._vehicle_kernel`)."""
+    lower, upper = heights if isinstance(heights, tuple) else (heights, heights)
+    bounded = lower is not upper
+    poses = np.ascontiguousarray(np.atleast_2d(np.asarray(poses, float)))
+    plan = _plan(body, step or _default_step(geom, bounded))
     n = len(poses)
-    edge = np.zeros((n, 4))
-    intrusion = np.zeros(n)
-    tilt = np.zeros(n)
-    tip = np.full(n, 90.0)
-    grade = np.zeros(n)
-    stability = np.zeros(n)
+    edge = np.empty((n, 4))
+    intrusion, tilt, tip, grade, stability = (np.empty(n) for _ in range(5))
     unknown = np.zeros(n, bool)
-    for s in range(0, n, chunk):
-        p = poses[s:s + chunk]
-        m = len(p)
-        c, si = np.cos(np.radians(p[:, 2]))[:, None], np.sin(np.radians(p[:, 2]))[:, None]
-        wx = p[:, 0:1] + c * pts[:, 0] - si * pts[:, 1]
-        wy = p[:, 1:2] + si * pts[:, 0] + c * pts[:, 1]
-        lo = _sample(lower, geom, wx, wy)
-        hi = _sample(upper, geom, wx, wy) if bounded else lo
-        if bounded:
-            # judged: an upper bound everywhere under the body, a lower one under half of each
-            # wheel at least. Ground a ray passed over but no return met has no lower bound: a
-            # hole narrower than a wheel's reach there is bridged (the wheel rests on the ground
-            # around it), so the wheel is judged on the ground its bounds cover
-            unseen = np.isnan(hi).any(axis=1)
-            for w in range(4):
-                unseen |= np.isnan(lo[:, wheel_of == w]).mean(axis=1) > 0.5
-            unknown[s:s + m] = unseen
-            hi = np.where(np.isnan(hi), np.nanmax(np.where(np.isnan(hi).all(axis=1, keepdims=True), 0.0, hi),
-                                                  axis=1, keepdims=True), hi)
-            # an unbounded low takes no part in a wheel's edges or contact (the NaN extremes below
-            # skip it), and stands in by its high in the plane fitted under the body
-            mid = (np.where(np.isnan(lo), hi, lo) + hi) / 2
-            half = np.where(np.isnan(lo), 0.0, (hi - lo) / 2)
-        else:
-            if np.isnan(lo).any():
-                low = np.nanmin(np.where(np.isnan(lo).all(axis=1, keepdims=True), 0.0, lo), axis=1, keepdims=True)
-                lo = hi = np.where(np.isnan(lo), low, lo)
-            mid = lo
-        if bounded:
-            ab = np.concatenate([mid, half], axis=1) @ slopes  # (m, 2 + 2D)
-            grade_t = np.maximum(np.hypot(ab[:, :1] + ab[:, 2:2 + d], ab[:, 1:2] + ab[:, 2 + d:]).max(axis=1),
-                                 np.hypot(ab[:, :1] - ab[:, 2:2 + d], ab[:, 1:2] - ab[:, 2 + d:]).max(axis=1))
-        else:
-            ab = mid @ slopes[:len(pts), :2]  # (m, 2): the fitted plane's a, b
-            grade_t = np.hypot(ab[:, 0], ab[:, 1])
-        grade[s:s + m] = np.degrees(np.arctan(grade_t))
-        contact = np.empty((2, m, 4))  # the wheel's lowest and highest resting height
-        with np.errstate(invalid="ignore"):  # an unknown pose's wheel may have no low at all
-            for w in range(4):
-                on = wheel_of == w
-                edge[s:s + m, w] = _edges(lo, hi, pat.lanes[w])
-                contact[0, :, w] = np.fmax.reduce(lo[:, on] - sag[on], axis=1)
-                contact[1, :, w] = (hi[:, on] - sag[on]).max(axis=1) if bounded else contact[0, :, w]
-        open_box = (contact[1] - contact[0] > 1e-12).any(axis=1)  # where the contacts are not pinned down
-        worst_in = np.full(m, -np.inf)
-        worst_st = np.full(m, -np.inf)
-        worst_tilt, worst_tip = np.zeros(m), np.full(m, 90.0)
-        for t, inv in planes:
-            fourth = hubs[t[3]]
-            for corner in corners:
-                z3 = np.column_stack([contact[k, :, wheel] for k, wheel in zip(corner, t[:3], strict=True)])
-                abc = z3 @ inv.T  # (m, 3): z = a x + b y + c
-                rests = contact[0, :, t[3]] <= abc[:, 0] * fourth[0] + abc[:, 1] * fourth[1] + abc[:, 2] + 1e-9
-                under = (hi[:, belly] - (abc[:, :2] @ pts[belly].T + abc[:, 2:3])).max(axis=1)
-                angle = np.degrees(np.arctan(np.hypot(abc[:, 0], abc[:, 1])))
-                limit = _tip(body, abc[:, 0], abc[:, 1])
-                margin = angle - limit / body.safety
-                worst_in = np.where(rests, np.maximum(worst_in, under), worst_in)
-                # the lean is worst at a corner of the contacts' box; which plane the body rests
-                # on there is not known, so every one counts
-                counts = (rests | open_box) & (margin > worst_st)
-                worst_st = np.where(counts, margin, worst_st)
-                worst_tilt = np.where(counts, angle, worst_tilt)
-                worst_tip = np.where(counts, limit, worst_tip)
-        intrusion[s:s + m] = worst_in - body.clearance
-        # no plane judged (an unknown pose's wheel with no ground): no stability figure
-        stability[s:s + m] = np.where(np.isneginf(worst_st), np.nan, worst_st)
-        tilt[s:s + m], tip[s:s + m] = worst_tilt, worst_tip
+    if n:  # the grids as they are (a window of a larger map is read in place, not copied)
+        _kernel().check(lower, upper, bounded, float(geom.xmin), float(geom.ymax), float(geom.cell), poses, plan.px,
+                        plan.py, plan.wheel_of, plan.belly, plan.sag, plan.pair_a, plan.pair_b, plan.pair_wheel,
+                        plan.ground[0], plan.ground[1], plan.pulls[0], plan.pulls[1], plan.inv, plan.triplets,
+                        plan.corners[bounded], plan.hubs, *plan.support, float(body.cog_height),
+                        float(body.safety), edge, intrusion, tilt, tip, grade, stability, unknown)
+    intrusion -= body.clearance
     excess = np.column_stack([edge.max(axis=1) - body.climb, intrusion, stability, grade - body.grade])
     return PoseChecks(step=edge, intrusion=intrusion, tilt=tilt, tip=tip, grade=grade, excess=excess,
                       wheel=np.nan_to_num(edge, nan=-np.inf).argmax(axis=1), unknown=unknown)
+
+
+def warm_up() -> None:
+    """Compile (first run after installing) or load the check's kernel now, for float32 and float64
+    grids and bounds, rather than in the first check."""
+    from types import SimpleNamespace
+
+    body = SimpleNamespace(length=0.5, width=0.4, clearance=0.08, wheel_radius=0.1, wheel_width=0.1, climb=0.1,
+                           grade=20.0, cog_height=0.2, safety=1.5,
+                           wheels=np.array([[0.15, 0.25], [0.15, -0.25], [-0.15, 0.25], [-0.15, -0.25]]))
+    g = GridGeometry(0.05, -1.0, 1.0, 40, 40)
+    for dtype in (np.float32, np.float64):
+        ground = np.zeros((40, 40), dtype)
+        check_poses(ground, g, np.zeros((1, 3)), body)
+        check_poses((ground, ground.copy()), g, np.zeros((1, 3)), body)
+        _sample(ground, g, np.zeros(1), np.zeros(1))
+    tip_angle(body, 0.0)
 
 
 @dataclass(frozen=True)
@@ -438,13 +446,13 @@ def gate_poses(lower: np.ndarray, upper: np.ndarray, geom: GridGeometry, poses: 
     if not len(bad):
         return Gate("safe")
     i = int(bad[0])
-    pts = _pattern(body, geom.cell).pts
+    pts = _pattern(body, _default_step(geom, True)).pts
     x, y, heading = poses[i]
     c, s = math.cos(math.radians(heading)), math.sin(math.radians(heading))
     wx, wy = x + c * pts[:, 0] - s * pts[:, 1], y + s * pts[:, 0] + c * pts[:, 1]
-    hi = _sample(upper, geom, wx, wy)
+    hi = _sample(upper, geom, wx, wy, cellwise=True)
     if checks.unknown[i]:
-        at = np.isnan(hi) | np.isnan(_sample(lower, geom, wx, wy))
+        at = np.isnan(hi) | np.isnan(_sample(lower, geom, wx, wy, cellwise=True))
         return Gate("unknown", i, float(wx[at].mean()), float(wy[at].mean()), "unknown")
     ks, values = checks.worst(body)
     worst, value = int(ks[i]), float(values[i])
@@ -454,7 +462,7 @@ def gate_poses(lower: np.ndarray, upper: np.ndarray, geom: GridGeometry, poses: 
     top = int(np.nanargmax(hi))
     # a top bounded only by a ray that passed over it (no return there) is ground not yet seen,
     # which a look may clear: unknown, not a rock
-    seen = np.isfinite(_sample(lower, geom, wx[top:top + 1], wy[top:top + 1]))[0]
+    seen = np.isfinite(_sample(lower, geom, wx[top:top + 1], wy[top:top + 1], cellwise=True))[0]
     return Gate("unsafe" if seen else "unknown", i, float(wx[top]), float(wy[top]), kind if seen else "unknown",
                 value)
 

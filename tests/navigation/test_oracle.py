@@ -88,6 +88,15 @@ def test_a_verdict_is_cached_by_mission_body_and_code(tmp_path: Path, monkeypatc
     assert mission_oracle("quarry", 0, (0.6, 0.7), (1.4, 0.7), BODY, tmp_path)["cached"] is False
 
 
+def test_the_cache_key_follows_the_vehicle_checks_compiled_kernel(monkeypatch: pytest.MonkeyPatch) -> None:
+    """The check's per-pose work is in its kernel module: a change there changes the verdicts."""
+    kernel = Path(oracle_module.vehicle.__file__).with_name("_vehicle_kernel.py")
+    before = oracle_module.code_version()
+    read = Path.read_bytes
+    monkeypatch.setattr(Path, "read_bytes", lambda self: read(self) + (b"# edited" if self == kernel else b""))
+    assert oracle_module.code_version() != before
+
+
 def test_the_bench_counts_the_oracles_feasible_missions_beside_the_window_steps() -> None:
     from tools.bench.navigate import summarise
 

@@ -186,7 +186,10 @@ def _flat(half: float = 1.0, cell: float = 0.02) -> tuple[np.ndarray, GridGeomet
 
 
 def test_the_vehicle_check_on_equal_bounds_is_the_check_on_the_surface() -> None:
-    """One code path: bounds that pin the ground give what the ground itself gives."""
+    """One code path: bounds that pin the ground give what the ground itself gives where both are
+    read alike. A bounds cell bounds every point in it, so a sample reads the cell that holds it;
+    a height grid is read between its cell centres: at poses whose samples fall on the centres
+    (the body sampled every cell, square to the grid) the two reads are one."""
     from drivers.sim.rover import RoverBody
     from prox_workflows.algorithms.vehicle import check_poses
 
@@ -195,9 +198,10 @@ def test_the_vehicle_check_on_equal_bounds_is_the_check_on_the_surface() -> None
     X, Y = np.meshgrid(xs, ys)
     h += np.where(np.hypot(X - 0.15, Y - 0.25) < 0.06, 0.12, 0.0).astype(np.float32)  # under a wheel
     h += np.where(np.hypot(X + 0.05, Y) < 0.08, 0.1, 0.0).astype(np.float32)  # under the belly
-    poses = np.array([[0.0, 0.0, 0.0], [0.3, -0.2, 40.0], [-0.3, 0.3, 200.0]])
+    # the body's samples lie every 2 cm from (-0.255, -0.29): these put them on the 2 cm centres
+    poses = np.array([[0.005, 0.0, 0.0], [0.3, -0.195, 90.0], [-0.305, 0.3, 180.0]])
     one = check_poses(h, g, poses, RoverBody())
-    pair = check_poses((h, h.copy()), g, poses, RoverBody())
+    pair = check_poses((h, h.copy()), g, poses, RoverBody(), step=g.cell)
     for name in ("step", "intrusion", "tilt", "tip", "grade", "excess"):
         np.testing.assert_allclose(getattr(pair, name), getattr(one, name), atol=1e-9, err_msg=name)
     assert one.unsafe[0] and not pair.unknown.any()
@@ -302,7 +306,12 @@ def test_the_gate_stops_at_the_first_pose_over_a_rock_and_blames_its_top() -> No
     assert np.hypot(gate.x - 0.4, gate.y) <= 0.05  # the rock's top
     # the first pose whose box reaches the rock: its front edge is at the rock's near side
     assert poses[gate.index, 0] + body.length / 2 == pytest.approx(0.36, abs=0.03)
-    assert 0.0 < gate.excess <= 0.095 + 0.005 - body.clearance + 1e-6  # the rock's edge first meets the box
+    # the rock's edge first meets the box: a sample in a rock cell reads its whole upper bound, over
+    # the lowest plane the wheels may rest on, the front pair at their lowest (-0.5 cm) and the rear
+    # at their highest (+0.5 cm), which at the box's front edge (11 cm before the front hubs) is
+    # another 1 cm * 11 / 29 lower: 2.38 cm at most (and a wheel's circle sampled off its hub, a
+    # fraction of a millimetre lower)
+    assert 0.0 < gate.excess <= 0.095 + 0.005 + 0.01 * 0.11 / 0.29 - body.clearance + 1e-4
     # ground beside the path that no frame saw: the gate does not guess
     lower[on], upper[on] = h[on] - 0.005, h[on] + 0.005
     hole = (np.abs(X - 0.2) <= 0.05) & (np.abs(Y) <= 0.05)
