@@ -67,11 +67,15 @@ class SeeConfig(Settings):
                                   "standing (three ToF frames, this far either side of ahead: the ground behind "
                                   "too, which a goal near the map's edge needs) and matches what they saw on the "
                                   "global DEM", unit="deg", min=0.0, max=150.0, option=False)
-    gate: str = param("bounds", "see loop: the last check before every motion the rover makes: bounds runs the "
-                      "body's wheel, belly and tilt check worst case on a map of each cell's lower and upper "
-                      "height bounds (never moving onto ground no frame bounded: it looks there first, then stops "
-                      "and plans round it); off trusts the 5 cm maps' hazard check alone", choices=("bounds", "off"),
-                      option=False)
+    gate: str = param("bounds", "see loop: bounds plans every section with the vehicle check on a map of each "
+                      "cell's height bounds and statistics (ENav's choice: candidate arcs ranked by cost and the "
+                      "cost to go, checked in that order, the first section that passes driven; ground no frame "
+                      "bounded is looked at, never driven on); off plans on the 5 cm maps and trusts their hazard "
+                      "check alone", choices=("bounds", "off"), option=False)
+    vehicle: str = param("chance", "see loop with see_gate bounds: the vehicle check the sections are chosen and "
+                       "driven by: chance, the probability that the body exceeds a limit given each cell's "
+                       "posterior, at most epsilon 1e-3; bounds, the worst case on the bounds",
+                       choices=("chance", "bounds"), option=False)
     set_down: str = param("level", "see loop with the gate: the ground where the rover is set down that no frame "
                           "shows (the mast's blind disc, under the body): level takes it within 1 cm of level; "
                           "attitude takes it within 1 cm of the plane the rover's IMU gives (drivers.rover attitude: "
