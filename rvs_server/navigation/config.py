@@ -88,9 +88,6 @@ class SeeConfig(Settings):
                       "ahead at the lowest tilt (where the gate judges next); off, or see_gate off, holds pan 0 and "
                       "see_tilt (each PTU move costs the drive its time)",
                       choices=("path", "off"), option=False)
-    gate_ahead: float = param(0.5, "see loop: the gate also holds this much of the path past the next motion to "
-                              "assessed ground, so the rover stops and replans before it stands at the problem",
-                              unit="m", min=0.0, max=3.0, option=False)
     max_replans: int = param(100, "see loop: give up after this many plans in all", min=1, max=10000, option=False)
 
 

@@ -142,6 +142,7 @@ class Chooser:
 
     def _choose(self, pose: tuple[float, float, float], look_cost: float | None) -> tuple[Choice, float]:
         params = self.params if look_cost is None else dataclasses.replace(self.params, look_cost=look_cost)
+        self.d.app.bus.publish("bounds", bounds=self.d.bounds, replan=True)  # what this choice reads
         t0 = time.monotonic()
         try:
             return choose_from(self.d.bounds, pose, self.s.mission.goal, self.d.body, self.d.p.vehicle, params,

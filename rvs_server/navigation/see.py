@@ -1,4 +1,9 @@
-"""The see strategy (``navigate -loop see``), drive while seeing: the rover drives a leg in
+"""The see strategy (``navigate -loop see``), drive while seeing.
+
+With its bounds map (``see_gate bounds``, the default) every section is chosen by the vehicle
+check itself, ENav's way (:mod:`.sections`); this module keeps what that shares with the plan on
+the 5 cm maps (``see_gate off``): the frames, their fusion, the looks, the stop EVENT, the
+set-down and the localiser's fixes. On the 5 cm maps the rover drives a leg in
 cycles (the simulated rover: every ``see_period`` of driving; the GNC: each pose it reports
 while driving); each cycle
 one forward ToF frame feeds the rolling local elevation map, Dem2Hazard updates the window the
@@ -163,10 +168,10 @@ class SeeingDriver:
         """Where the ToF looks for this cycle's frame (``see_gaze path``): the mast pans along the
         path, not the heading, so the ground a turn will put under the wheels is seen before the
         turn; every other frame it looks at the path ``GAZE_NEAR`` m ahead at the PTU's lowest
-        tilt, where the gate judges next (closer, so with a third of the range noise), and
-        otherwise at the point ``GAZE_FAR`` m ahead at ``see_tilt``, as the 5 cm maps' check
-        needs. Off, or without the gate (which the near frames feed): pan 0, ``see_tilt``, and no
-        PTU move between frames (each move costs the drive its time)."""
+        tilt, where the next section is judged (closer, so with a third of the range noise), and
+        otherwise at the point ``GAZE_FAR`` m ahead at ``see_tilt``. Off, or without the bounds
+        map (which the near frames feed): pan 0, ``see_tilt``, and no PTU move between frames
+        (each move costs the drive its time)."""
         if self.p.gaze == "off" or self.bounds is None:
             return
         self.frame_no += 1
@@ -184,7 +189,7 @@ class SeeingDriver:
 
     def see(self, pan_tilt: tuple[float, float], cameras: tuple[str, ...] = ("front",)
             ) -> tuple[tuple[float, float, float], float]:
-        """One ToF frame into the rolling map, and with the gate into the bounds map with a frame of
+        """One ToF frame into the rolling map, and into the bounds map (if kept) with a frame of
         each of the hazard ``cameras`` switched on (driving: the front pair, which sees the ground
         the wheels meet next); returns the rover's pose and the wall time (monotonic) the fusion
         started."""
@@ -357,9 +362,9 @@ class SeeingDriver:
                     reason: str = "hazard") -> dict[str, Any]:
         """The stop EVENT, shaped as the hazard monitor's (distance from the rover's front to the
         hazard at global (x, y), bearing CCW from the heading, x and y in the rover frame), with
-        why: ``hazard`` (the 5 cm maps' hazard), ``vehicle`` (the gate: the body would exceed a
-        limit on the worst ground the bounds allow), ``unknown`` (the gate: ground no frame
-        bounded, which a look did not show)."""
+        why: ``hazard`` (the 5 cm maps' hazard), ``vehicle`` (the vehicle check on the bounds map:
+        the body would exceed a limit at a pose ahead), ``unknown`` (ground no frame bounded
+        under a pose ahead)."""
         rx, ry = in_rover_frame(pose, x, y)
         distance = max(0.0, rx - self.app.config.get("head").rover_length / 2 - self.map.params.cell / 2)
         self.stats.stops += 1
@@ -515,7 +520,7 @@ class SeeStrategy:
         if bounds is not None:
             # the rover was set down here: the ground round the mast's foot, which no tilt shows,
             # and the disc its body turns in are taken as clear, within 1 cm of level or (see_set_down
-            # attitude) of the plane the rover's attitude says it stands on: the one place the gate
+            # attitude) of the plane the rover's attitude says it stands on: the one place the chooser
             # assumes what it has not seen. Under the box the same assumption holds (a rock there
             # is not felt; the operators set the rover down where it can stand and turn); under
             # the wheels the attitude says more (BoundsMap.stood)

@@ -648,35 +648,3 @@ def test_the_live_check_sweeps_the_turn_on_the_spot_and_the_arc_the_rover_execut
     start = (0.8, 0.0, 0.0)
     assert sweep_check(layer, g, path_poses(start, corner, 1.5), driver.length, driver.width).verdict == "ok"
     assert driver.judge(start, corner, arc)[0].verdict == "not_traversable"
-
-
-def _flat_frame(x0: float, x1: float, rock: float = 0.0) -> np.ndarray:
-    """Returns every centimetre of level ground at z 0 over x0..x1, y -0.6..0.6 m, with a
-    ``rock`` high 0.2 m block at x 0.75..0.95 m, y -0.1..0.1 m."""
-    x, y = (a.ravel() for a in np.meshgrid(np.arange(x0, x1, 0.01) + 0.005, np.arange(-0.6, 0.6, 0.01) + 0.005))
-    z = np.where((np.abs(x - 0.85) < 0.1) & (np.abs(y) < 0.1), rock, 0.0)
-    return np.column_stack([x, y, z])
-
-
-@pytest.mark.parametrize("rock", [0.0, 0.15])
-def test_a_refusal_stands_only_until_a_later_frame_shows_its_ground(rock: float) -> None:
-    """The gate refuses a pose whose ground no frame showed (a stretch 0.75-1.15 m ahead). The
-    ground it blamed is kept out of the next plans only while the bounds still refuse that pose:
-    a later frame that shows level ground there drops it, one that shows a rock there keeps it.
-    Kept for good, such refusals closed every way round the rover in a marsyard trace."""
-    from prox_workflows.algorithms.bounds_map import BoundsMap
-
-    bounds = BoundsMap.covering([[-1.0, -1.0], [2.5, 1.0]], 0.0)
-    driver = _standing_driver("off", bounds)
-    for x0, x1 in ((-0.6, 0.75), (1.15, 2.5)):
-        bounds.fuse(_flat_frame(x0, x1), 0.002)
-    gate = driver.gate((0.0, 0.0, 0.0), np.array([[2.0, 0.0]]))
-    assert gate.verdict == "unknown" and 0.6 < gate.x < 1.3
-    driver.refuse(gate)
-    assert driver.refused() == [(gate.x, gate.y)]  # no new frame: it stands
-    bounds.fuse(_flat_frame(0.75, 1.15, rock), 0.002)  # a later frame shows that ground
-    held = driver.refused()
-    if rock:
-        assert len(held) == 1 and 0.7 < held[0][0] < 1.0  # the rock under its body's front is blamed now
-    else:
-        assert held == [] and driver.gate((0.0, 0.0, 0.0), np.array([[2.0, 0.0]])).verdict == "safe"
