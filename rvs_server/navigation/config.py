@@ -81,8 +81,10 @@ class SeeConfig(Settings):
                           "attitude takes it within 1 cm of the plane the rover's IMU gives (drivers.rover attitude: "
                           "the simulator's, the GNC's pose -roll -pitch) and the ground under the wheels no higher "
                           "than that plane, down to 2.5 cm below it (a rigid body rests on three wheels), where the "
-                          "rover stands throughout the drive; without an attitude, level",
-                          choices=("level", "attitude"), option=False)
+                          "rover stands throughout the drive; without an attitude, level; ring (with the chooser) "
+                          "takes the blind disc and the wheels' ground on the plane fitted to the seen ground just "
+                          "outside the disc after the first look round", choices=("level", "attitude", "ring"),
+                          option=False)
     gaze: str = param("path", "see loop with the gate: where the ToF looks while driving: path pans along the path "
                       "(the ground a turn will put under the wheels) and every other frame looks at the path just "
                       "ahead at the lowest tilt (where the gate judges next); off, or see_gate off, holds pan 0 and "

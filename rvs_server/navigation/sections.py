@@ -157,6 +157,9 @@ class Chooser:
         pose = d.pose()
         if not self.rounds:  # the set-down: the ground round the rover from the blind disc out
             self._look_round(pose)
+        if d.set_down_pending:
+            m = self.s.set_down_on_ring()
+            self.s.mission.progress(leg, 1, 1, f"set down on {m}", "plan")
         look_cost: float | None = None
         for _ in range(LOOKS + 2):
             job.check()

@@ -58,6 +58,7 @@ from prox_workflows.algorithms.rolling_map import (
     sweep_check,
 )
 from prox_workflows.algorithms.safety import in_footprint
+from prox_workflows.algorithms.set_down import ring_plane
 from prox_workflows.algorithms.transforms import HeadCalibration, T_global_from_rover
 from rvs_params.hazard import HAZARDOUS, SAFE
 
@@ -81,6 +82,7 @@ EDGE_JUMP = 0.02  # share of the range: a bigger jump to a neighbouring pixel ma
 BODY_MARGIN = 0.06  # m round the rover's box and wheels whose returns are its own
 BLIND_EDGE = 0.1  # m past the mast's blind disc that its rays only graze (bounded by a ray, seldom by returns)
 GATE_PAD = 4.0  # m round the mission's start and goal that the gate's bounds map covers (past it: unknown)
+RING_WIDTH = 0.5  # m past the blind disc: the seen ground whose plane see_set_down ring takes
 STALL_CYCLES = 20  # a leg driven this many cycles without getting STALL_PROGRESS closer to its end is stalled
 STALL_PROGRESS = 0.05  # m
 
@@ -132,6 +134,7 @@ class SeeingDriver:
         self.body = rover.body()
         # the chooser's map (see_gate bounds): every frame's bounds over the whole mission
         self.bounds = bounds
+        self.set_down_pending = False  # see_set_down ring: the set-down waits for the first look round
         # the body's hazard cameras switched on (drivers.hazcam.cameras): each frame feeds the bounds
         self.hazcams: list[str] = []
         if bounds is not None and "hazcam" in self.app.devices.devices:
@@ -215,7 +218,8 @@ class SeeingDriver:
                              tof_horizontal_sigma(full, origin))
             for camera in (c for c in self.hazcams if c in cameras):
                 self._fuse_hazcam(camera, T)
-            self.bounds.stood((x, y, heading), float(T[2, 3]), self.body, self.attitude())
+            if not self.set_down_pending:
+                self.bounds.stood((x, y, heading), float(T[2, 3]), self.body, self.attitude())
             app.bus.publish("bounds", bounds=self.bounds)  # Foxglove and recordings (their hub throttles)
         self.stats.frame_ms.append((t1 - t0) * 1000)
         return (x, y, heading), t1
@@ -517,7 +521,9 @@ class SeeStrategy:
         memory = MapMemory.covering(self.cover, self.p.memory, RollingParams().cell) if self.p.memory > 0 else None
         bounds = BoundsMap.covering(self.cover, GATE_PAD) if self.p.gate == "bounds" else None
         self.driver = SeeingDriver(self.job, mission.rover, self.p, self.stats, memory, bounds)
-        if bounds is not None:
+        if bounds is not None and self.p.set_down == "ring":
+            self.driver.set_down_pending = True  # (Chooser.drive_on: after the first look round)
+        elif bounds is not None:
             # the rover was set down here: the ground round the mast's foot, which no tilt shows,
             # and the disc its body turns in are taken as clear, within 1 cm of level or (see_set_down
             # attitude) of the plane the rover's attitude says it stands on: the one place the chooser
@@ -552,6 +558,25 @@ class SeeStrategy:
         self.chooser = Chooser(self) if bounds is not None else None
         if self.chooser is not None and not self.localiser.active:
             self.need_scan = False
+
+    def set_down_on_ring(self) -> str:
+        """``see_set_down ring``, after the first look round: the ground the rover stands on and the
+        mast's blind disc round it are taken on the plane fitted to the ring of seen ground just
+        outside that disc (within 1 cm of it), the wheels' contacts and the box's ceiling on it.
+        On a slope a level prior meets the seen ground in a step at the disc's edge (12 cm on a
+        10 deg slope), which the vehicle check refuses; the IMU's plane is the wheels', which a
+        rock under one wheel tips away from the ground round them. Returns what it took."""
+        d = self.driver
+        x, y, heading = d.pose()
+        fx, fy, radius = d.blind_disc()
+        plane, shown = ring_plane(d.bounds, (fx, fy), radius + BLIND_EDGE, radius + RING_WIDTH, (x, y))
+        z = plane[0]
+        tipped = (x, y, plane[1], plane[2])
+        d.bounds.set_down((fx, fy), radius + BLIND_EDGE, z, plane=tipped)
+        d.bounds.set_down((x, y), d.radius, z, plane=tipped)
+        d.bounds.stood((x, y, heading), z, d.body, d.attitude())
+        d.set_down_pending = False
+        return shown
 
     def arrived(self, left: float) -> bool:
         """The goal is within the tolerance by the believed pose: an arrival on dead reckoning
