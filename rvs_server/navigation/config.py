@@ -76,8 +76,8 @@ class SeeConfig(Settings):
                        "driven by: chance, the probability that the body exceeds a limit given each cell's "
                        "posterior, at most epsilon 1e-3; bounds, the worst case on the bounds",
                        choices=("chance", "bounds"), option=False)
-    set_down: str = param("level", "see loop with the gate: the ground where the rover is set down that no frame "
-                          "shows (the mast's blind disc, under the body): level takes it within 1 cm of level; "
+    set_down: str = param("ring", "see loop with the bounds map: the ground where the rover is set down that no "
+                          "frame shows (the mast's blind disc, under the body): level takes it within 1 cm of level; "
                           "attitude takes it within 1 cm of the plane the rover's IMU gives (drivers.rover attitude: "
                           "the simulator's, the GNC's pose -roll -pitch) and the ground under the wheels no higher "
                           "than that plane, down to 2.5 cm below it (a rigid body rests on three wheels), where the "

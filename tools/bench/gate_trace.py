@@ -5,7 +5,7 @@ again at that pose on the simulator's true 1 cm surface (:mod:`rvs_truth.vehicle
 unsafe, and by which limit.
 
     python -m tools.bench.gate_trace --scene marsyard --mission 0 --out m0.json
-    python -m tools.bench.gate_trace --mission 0 --set navigate.see_set_down=attitude   # the IMU's set-down
+    python -m tools.bench.gate_trace --mission 0 --set navigate.see_set_down=attitude [--hang 0]  # the IMU's
     python -m tools.bench.gate_trace --mission 0 --set navigate.see_vehicle=bounds      # the worst case
 
 It hooks the checks the chooser builds (:mod:`rvs_server.navigation.sections`), so it measures the
@@ -26,7 +26,7 @@ import numpy as np
 
 import rvs_server.navigation.sections as sections
 from drivers.sim.world import World
-from prox_workflows.algorithms import vehicle
+from prox_workflows.algorithms import bounds_map, vehicle
 from prox_workflows.algorithms.candidates import verdict_name
 from rvs_truth.surface import missions
 from tools.bench import navigate as bench
@@ -38,7 +38,16 @@ def main() -> None:
     ap.add_argument("--mission", type=int, default=0, help="index in the bench's seeded draws (seed 0)")
     ap.add_argument("--out", default="", help="also write the mission's row and every refusal as JSON here")
     ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="a server setting")
+    ap.add_argument("--hang", type=float, default=None, help="bounds_map hang (m) instead of its default")
     args = ap.parse_args()
+    if args.hang is not None:
+        init = bounds_map.BoundsMap.__init__
+
+        def with_hang(self: Any, geometry: Any, params: Any = None) -> None:
+            init(self, geometry, params)
+            self.params.hang = args.hang
+
+        bounds_map.BoundsMap.__init__ = with_hang
 
     refusals: list[dict[str, Any]] = []
     where = {"now": "choose"}
