@@ -34,6 +34,11 @@ What this module holds (plain functions on arrays; the loops that call them live
       in two, the turns and sections first, then the look-aheads of the sections that passed,
       so that a refused section spares its nine leaves. No pose is judged twice. Nothing is remembered
       between calls: a refusal concerns the map it was made on, and expires with it.
+    - The checks it takes (:data:`Check`): :func:`bounds_check` (the worst case on bounds, or the
+      check on one height grid), :func:`posterior_check` (the chance constraint on the cells'
+      posteriors, :mod:`.chance`, each call drawing only the cells round its poses) and
+      :func:`best_check` (the posterior's best estimate, one check per pose: for the look-aheads,
+      which only rank).
 
 The rules on unseen ground (a cost and a reason to look, never driven on)
     - A section (the turn and the first arc) is driven only if every pose of it is judged safe.
