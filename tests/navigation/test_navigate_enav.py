@@ -109,3 +109,31 @@ def test_a_refusal_does_not_outlive_the_frames_of_its_ground() -> None:
         assert straight == straight_after, (after.turn, after.curvature, after.reason)
         if straight_after:
             assert after.poses[-1][0] > 0.95  # the whole metre of the section, toward the goal
+
+
+def test_the_gnc_drives_each_chosen_section_as_waypoints(server_factory) -> None:
+    """Without -auto the GNC drives: each section the chooser picks (at most 1 m, a turn on the
+    spot first where there is one) is sent as a waiting EVENT's waypoints, every pose the GNC
+    reports while driving is a cycle, and the goal is reached without a 360-degree scan."""
+    srv = server_factory(["server.scene=quarry", "navigate.pose_settle=0.5"])
+    world = srv.app.world
+    world.set_target_visible(False)
+    c, gnc = srv.client(), srv.client()
+    job = c.start_job("navigate -start 0,0,0 -goal 2.0,0 -loop see -name gnc")
+    sections = []
+    while True:
+        r = c.reply(timeout=300)
+        if r.status == "EVENT" and r.fields.get("kind") == "waiting":
+            wps = np.array([float(v) for v in r.fields["waypoints"].split(",")]).reshape(-1, 3)
+            sections.append(wps)
+            for x, y, h in wps:
+                world.set_rover_pose(x, y, h)
+                assert gnc.request(f"pose -x {x:.3f} -y {y:.3f} -heading {h:.2f}").status == "OK"
+            assert gnc.request(f"pose -x {x:.3f} -y {y:.3f} -heading {h:.2f} -stopped true").status == "OK"
+        elif r.status in ("OK", "ERROR") and r.fields.get("job") == job:
+            final = r
+            break
+    assert final.status == "OK" and final.fields["reached"] == "true", final.fields
+    assert int(final.fields["scans"]) == 0 and len(sections) == int(final.fields["legs"]) >= 2
+    for wps in sections:  # a section: at most a metre of arc from where the rover stands
+        assert float(np.hypot(*(wps[-1, :2] - wps[0, :2]))) <= 1.0 + 1e-6, wps
