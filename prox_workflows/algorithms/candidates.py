@@ -34,6 +34,11 @@ What this module holds (plain functions on arrays; the loops that call them live
       in two, the turns and sections first, then the look-aheads of the sections that passed,
       so that a refused section spares its nine leaves. No pose is judged twice. Nothing is remembered
       between calls: a refusal concerns the map it was made on, and expires with it.
+    - The checks it takes (:data:`Check`): :func:`bounds_check` (the worst case on bounds, or the
+      check on one height grid), :func:`posterior_check` (the chance constraint on the cells'
+      posteriors, :mod:`.chance`, each call drawing only the cells round its poses) and
+      :func:`best_check` (the posterior's best estimate, one check per pose: for the look-aheads,
+      which only rank).
 
 The rules on unseen ground (a cost and a reason to look, never driven on)
     - A section (the turn and the first arc) is driven only if every pose of it is judged safe.
@@ -72,10 +77,11 @@ from rvs_params import Settings, param
 
 from ..grid import GridGeometry
 from .arcs import arc_poses, default_curvatures
+from .chance import ChanceParams, Posterior, chance_check
 from .vehicle import LIMITS, VehicleBody, check_poses, reach
 
 __all__ = ["CandidateParams", "ArcTree", "CostToGo", "Choice", "Failure", "Check", "arc_tree", "coarse_costs",
-           "cost_to_go", "bounds_check", "choose", "SAFE", "UNKNOWN", "verdict_name"]
+           "cost_to_go", "bounds_check", "posterior_check", "best_check", "crop", "choose", "SAFE", "UNKNOWN", "verdict_name"]
 
 # A check's per-pose verdicts: SAFE, UNKNOWN, or 1 + the index in LIMITS of the limit exceeded worst.
 SAFE = 0
@@ -351,6 +357,52 @@ def bounds_check(heights: np.ndarray | tuple[np.ndarray, np.ndarray], geom: Grid
     return check
 
 
+def posterior_check(post: Posterior, geom: GridGeometry, body: VehicleBody,
+                    params: ChanceParams | None = None) -> Check:
+    """The chance-constrained vehicle check (:func:`.chance.chance_check`) on the cells'
+    posteriors ``post`` over ``geom`` as a :data:`Check`: per pose SAFE (P(any limit exceeded)
+    at most epsilon), UNKNOWN, or 1 + the index of the limit most likely exceeded. Each call
+    reads only the cells round its poses: the surfaces it draws are as large as what it reads."""
+    pad = reach(body) + 2 * geom.cell
+
+    def check(poses: np.ndarray) -> np.ndarray:
+        poses = np.atleast_2d(np.asarray(poses, float))
+        sub, sl = crop(geom, poses[:, 0].min() - pad, poses[:, 1].min() - pad, poses[:, 0].max() + pad,
+                        poses[:, 1].max() + pad)
+        if sl is None:
+            return np.full(len(poses), UNKNOWN)
+        common = post.common if np.ndim(post.common) == 0 else post.common[sl]
+        c = chance_check(Posterior(post.mean[sl], post.var[sl], post.ceiling[sl], common), sub, poses, body, params,
+                         verdict_only=True)
+        k, _ = c.worst()
+        out = np.where(c.unsafe, k + 1, SAFE)
+        out[c.unknown] = UNKNOWN
+        return out
+
+    return check
+
+
+def best_check(post: Posterior, geom: GridGeometry, body: VehicleBody) -> Check:
+    """The vehicle check on the posterior's best estimate of the ground (a ray's ceiling where no
+    return bounds a cell; unknown where neither) as a :data:`Check`: one check per pose, no draws."""
+    surface = np.where(np.isfinite(post.mean), post.mean,
+                       np.where(np.isfinite(post.ceiling), post.ceiling, np.nan)).astype(np.float32)
+    return bounds_check(surface, geom, body)
+
+
+def crop(geom: GridGeometry, xmin: float, ymin: float, xmax: float, ymax: float
+          ) -> tuple[GridGeometry, tuple[slice, slice] | None]:
+    """The part of ``geom`` over a box: its grid and its rows and columns (None: it misses)."""
+    c0 = max(0, int(math.floor((xmin - geom.xmin) / geom.cell)))
+    c1 = min(geom.width, int(math.ceil((xmax - geom.xmin) / geom.cell)))
+    r0 = max(0, int(math.floor((geom.ymax - ymax) / geom.cell)))
+    r1 = min(geom.height, int(math.ceil((geom.ymax - ymin) / geom.cell)))
+    if r1 <= r0 or c1 <= c0:
+        return geom, None
+    sub = GridGeometry(geom.cell, geom.xmin + c0 * geom.cell, geom.ymax - r0 * geom.cell, c1 - c0, r1 - r0, geom.crs)
+    return sub, (slice(r0, r1), slice(c0, c1))
+
+
 @dataclass(frozen=True)
 class Failure:
     """Why a candidate ranked before the chosen one failed: its ``rank``, which ``part`` (turn,
@@ -387,6 +439,9 @@ class Choice:
     failures: list[Failure] = field(default_factory=list)
     reasons: dict[str, int] = field(default_factory=dict)  # failures by (part, verdict): "section unknown"...
     look_at: tuple[float, float] | None = None
+    turn: float = 0.0  # deg: the section's turn on the spot (counter-clockwise), before its arc
+    curvature: float = 0.0  # 1/m: the section's arc (counter-clockwise positive)
+    length: float = 0.0  # m: the arc driven (the section's, or to its pose nearest the goal)
 
 
 def _to_world(local: np.ndarray, pose: tuple[float, float, float]) -> np.ndarray:
@@ -432,11 +487,13 @@ def _terrain(tree: ArcTree, pose: tuple[float, float, float], heights: np.ndarra
 
 def choose(pose: tuple[float, float, float], heights: np.ndarray | tuple[np.ndarray, np.ndarray],
            geom: GridGeometry, body: VehicleBody, ctg: CostToGo, check: Check,
-           params: CandidateParams | None = None) -> Choice:
+           params: CandidateParams | None = None, lookahead: Check | None = None) -> Choice:
     """The section to drive next from ``pose`` (x, y, heading deg) toward ``ctg``'s goal: the
     candidates of :func:`arc_tree` ranked on the map ``heights`` (one grid or a ``(lower,
     upper)`` pair over ``geom``: its mean surface for the terrain cost, its unseen cells for the
-    unknown cost), checked lazily in rank order with ``check`` (see the module's docstring)."""
+    unknown cost), checked lazily in rank order with ``check`` (see the module's docstring).
+    ``lookahead``: the check of the look-aheads beyond the sections, where it differs (a cheaper
+    one: a look-ahead only ranks, and is judged again with ``check`` before it is driven)."""
     params = params or CandidateParams()
     tree = arc_tree(params, body)
     terrain, unknown, probes = _terrain(tree, pose, heights, geom, body, params)
@@ -466,16 +523,18 @@ def choose(pose: tuple[float, float, float], heights: np.ndarray | tuple[np.ndar
         for k in dict.fromkeys(nodes):
             if tree.start[k + 1] == tree.start[k]:
                 node_codes[k] = np.zeros(0, int)
-        if not todo:
-            return
-        batch = np.concatenate([node_world(k) for k in todo])
-        codes = np.asarray(check(batch), int)
-        poses_checked += len(batch)
-        at = 0
-        for k in todo:
-            m = tree.start[k + 1] - tree.start[k]
-            node_codes[k] = codes[at:at + m]
-            at += m
+        ahead = [k for k in todo if tree.part[k] == 2] if lookahead is not None else []
+        for group, fn in ((ahead, lookahead), ([k for k in todo if k not in set(ahead)], check)):
+            if not group or fn is None:
+                continue
+            batch = np.concatenate([node_world(k) for k in group])
+            codes = np.asarray(fn(batch), int)
+            poses_checked += len(batch)
+            at = 0
+            for k in group:
+                m = tree.start[k + 1] - tree.start[k]
+                node_codes[k] = codes[at:at + m]
+                at += m
 
     bad_of: dict[tuple[int, bool], tuple[int, int] | None] = {}
 
@@ -596,5 +655,11 @@ def _drive(tree: ArcTree, node_world: Callable[[int], np.ndarray], pose: tuple[f
         j = 1 + n_turn + at_goal[0]
         j += int(np.argmin(near[j:])) if j < len(near) else 0
         section = section[:j + 1]
+    arc = section[n_turn:]  # from the pose after the turn
+    length = float(np.hypot(*np.diff(arc[:, :2], axis=0).T).sum()) if len(arc) > 1 else 0.0
+    local = np.vstack([tree.node(int(t))[-1:] if n_turn else np.zeros((1, 3)), tree.node(int(s))])
+    bend = math.radians((float(local[-1, 2]) - float(local[0, 2]) + 180.0) % 360.0 - 180.0)
     return Choice("drive", f"candidate {c} (rank {rank} of {total}) passes", section, path, c, rank, cost,
-                  checked, poses_checked, total, failures, _reasons(failures))
+                  checked, poses_checked, total, failures, _reasons(failures),
+                  turn=float(local[0, 2]), curvature=bend / tree.length[int(s)] if tree.length[int(s)] else 0.0,
+                  length=length)

@@ -74,6 +74,7 @@ from .vehicle import LIMITS, PoseChecks, VehicleBody, _pattern, _sample, check_p
 
 __all__ = ["ChanceParams", "ChanceChecks", "Posterior", "posterior", "chance_check", "SCREEN"]
 
+EARLY = 8  # draws between the checks for a pose already refused (``verdict_only``)
 SCREEN = 0.1  # the share of epsilon the screen may spend: a pose it clears has P(any) below this times epsilon
 ROCK_WINDOW = 0.2  # m: the ground round a cell its rock stands on
 _MIN_ELEVATION = 0.05  # tan: a ray grazing flatter than this is taken at it (its horizontal error is bounded by shift)
@@ -217,11 +218,17 @@ def screen_k(body: VehicleBody, cell: float, epsilon: float) -> float:
 
 
 def chance_check(post: Posterior, geom: GridGeometry, poses: np.ndarray, body: VehicleBody,
-                 params: ChanceParams | None = None, step: float | None = None) -> ChanceChecks:
+                 params: ChanceParams | None = None, step: float | None = None,
+                 verdict_only: bool = False) -> ChanceChecks:
     """The probability that ``body`` exceeds each physical limit at each of ``poses`` ((N, 3): x, y,
     heading deg) on the ground ``post`` gives over ``geom``, and the verdict against epsilon (see
     the module's docstring). ``step``: the body's sample spacing (default the grid's cell), as
-    :func:`vehicle.check_poses` takes it."""
+    :func:`vehicle.check_poses` takes it.
+
+    ``verdict_only``: a pose whose best estimate already exceeds a limit is refused without
+    sampling, its probability for each limit so exceeded put at 0.5 (at least about even: the
+    draws scatter round that estimate) and 0 for the others. A planner's check wants the verdict
+    alone, and near rocks most of its poses are such: the draws cost 64 checks of each."""
     p = params or ChanceParams()
     poses = np.atleast_2d(np.asarray(poses, float))
     n = len(poses)
@@ -240,15 +247,29 @@ def chance_check(post: Posterior, geom: GridGeometry, poses: np.ndarray, body: V
     nominal = check_poses(best.astype(np.float32), geom, poses, body, step)
     prob = np.where(unknown[:, None], np.nan, np.zeros((n, 4)))
     p_any = np.where(unknown, np.nan, 0.0)
-    rest = np.flatnonzero(~unknown & ~screened)
+    todo = ~unknown & ~screened
+    if verdict_only:
+        over_best = todo & nominal.unsafe
+        prob[over_best] = np.where(nominal.excess[over_best] > 0, 0.5, 0.0)
+        p_any[over_best] = 0.5
+        todo &= ~over_best
+    rest = np.flatnonzero(todo)
     if len(rest):
         rng = np.random.default_rng(p.seed)
-        excess = np.empty((p.samples, len(rest), 4))
+        excess = np.full((p.samples, len(rest), 4), -np.inf)
+        live = np.ones(len(rest), bool)  # poses still drawn for
+        early = verdict_only and 1.0 / p.samples > p.epsilon
         for s in range(p.samples):
             z = rng.standard_normal(mu.shape)
             shared = rng.standard_normal()
+            if not live.any():
+                continue  # (the draws still advance: a pose's verdict does not depend on its company)
             surface = np.where(seen, mu + sd * z + common * shared, roof).astype(np.float32)
-            excess[s] = check_poses(surface, geom, poses[rest], body, step).excess
+            excess[s, live] = check_poses(surface, geom, poses[rest[live]], body, step).excess
+            if early and s % EARLY == EARLY - 1:
+                # one draw over a limit in ``samples`` is a share of at least 1 / samples, above
+                # epsilon: that pose is refused whatever the later draws say
+                live &= ~(np.nan_to_num(excess[s - EARLY + 1:s + 1], nan=-np.inf) > 0).any(axis=(0, 2))
         excess = np.nan_to_num(excess, nan=-np.inf)  # no resting plane judged: nothing to exceed
         over = excess > 0
         finite = np.where(np.isfinite(excess), excess, np.nan)

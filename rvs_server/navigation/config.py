@@ -67,18 +67,24 @@ class SeeConfig(Settings):
                                   "standing (three ToF frames, this far either side of ahead: the ground behind "
                                   "too, which a goal near the map's edge needs) and matches what they saw on the "
                                   "global DEM", unit="deg", min=0.0, max=150.0, option=False)
-    gate: str = param("bounds", "see loop: the last check before every motion the rover makes: bounds runs the "
-                      "body's wheel, belly and tilt check worst case on a map of each cell's lower and upper "
-                      "height bounds (never moving onto ground no frame bounded: it looks there first, then stops "
-                      "and plans round it); off trusts the 5 cm maps' hazard check alone", choices=("bounds", "off"),
-                      option=False)
-    set_down: str = param("level", "see loop with the gate: the ground where the rover is set down that no frame "
-                          "shows (the mast's blind disc, under the body): level takes it within 1 cm of level; "
+    gate: str = param("bounds", "see loop: bounds plans every section with the vehicle check on a map of each "
+                      "cell's height bounds and statistics (ENav's choice: candidate arcs ranked by cost and the "
+                      "cost to go, checked in that order, the first section that passes driven; ground no frame "
+                      "bounded is looked at, never driven on); off plans on the 5 cm maps and trusts their hazard "
+                      "check alone", choices=("bounds", "off"), option=False)
+    vehicle: str = param("chance", "see loop with see_gate bounds: the vehicle check the sections are chosen and "
+                       "driven by: chance, the probability that the body exceeds a limit given each cell's "
+                       "posterior, at most epsilon 1e-3; bounds, the worst case on the bounds",
+                       choices=("chance", "bounds"), option=False)
+    set_down: str = param("ring", "see loop with the bounds map: the ground where the rover is set down that no "
+                          "frame shows (the mast's blind disc, under the body): level takes it within 1 cm of level; "
                           "attitude takes it within 1 cm of the plane the rover's IMU gives (drivers.rover attitude: "
                           "the simulator's, the GNC's pose -roll -pitch) and the ground under the wheels no higher "
                           "than that plane, down to 2.5 cm below it (a rigid body rests on three wheels), where the "
-                          "rover stands throughout the drive; without an attitude, level",
-                          choices=("level", "attitude"), option=False)
+                          "rover stands throughout the drive; without an attitude, level; ring (with the chooser) "
+                          "takes the blind disc and the wheels' ground on the plane fitted to the seen ground just "
+                          "outside the disc after the first look round", choices=("level", "attitude", "ring"),
+                          option=False)
     gaze: str = param("path", "see loop with the gate: where the ToF looks while driving: path pans along the path "
                       "(the ground a turn will put under the wheels) and every other frame looks at the path just "
                       "ahead at the lowest tilt (where the gate judges next); off, or see_gate off, holds pan 0 and "
@@ -92,9 +98,6 @@ class SeeConfig(Settings):
                               "driving this far in a fan of +-60 deg ahead, and as far again beyond, from the mast's "
                               "blind disc out (prox_workflows.algorithms.looks: the lowest tilt and see_tilt)",
                               unit="m", min=0.1, max=3.0, option=False)
-    gate_ahead: float = param(0.5, "see loop: the gate also holds this much of the path past the next motion to "
-                              "assessed ground, so the rover stops and replans before it stands at the problem",
-                              unit="m", min=0.0, max=3.0, option=False)
     max_replans: int = param(100, "see loop: give up after this many plans in all", min=1, max=10000, option=False)
 
 

@@ -92,10 +92,11 @@ class Mission:
     def progress(self, leg: int, done: int, total: int, message: str, phase: str = "") -> None:
         self.job.progress(done, total, message, phase=phase, leg=leg)
 
-    def record(self, plan: Any) -> None:
-        """A plan about to be driven: its path and waypoints go into the mission's products."""
-        self.paths.append(plan.path[: plan.cut])
-        self.waypoints.append(plan.waypoints.xy)
+    def record(self, path: np.ndarray, waypoints: np.ndarray) -> None:
+        """A plan about to be driven: its path (as it will be driven) and its waypoints (x, y) go
+        into the mission's products."""
+        self.paths.append(path)
+        self.waypoints.append(waypoints)
 
     def announce(self, leg: int, waypoints: Any, file: str) -> int:
         """``EVENT kind=waiting`` with the leg's waypoints (the GNC drives them); returns the mark

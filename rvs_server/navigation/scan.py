@@ -118,7 +118,7 @@ class ScanStrategy:
         segments = len(plan.waypoints) - 1
         end = (float(plan.waypoints.xy[-1][0]), float(plan.waypoints.xy[-1][1]))
         progress(1, 1, f"{segments} segments to ({end[0]:.2f}, {end[1]:.2f})", "plan")
-        m.record(plan)
+        m.record(plan.path[: plan.cut], plan.waypoints.xy)
         since = m.announce(leg, plan.waypoints, app.rel(prefix.with_name(prefix.name + "_waypoints.csv")))
         progress(0, segments, f"waiting for the rover to drive {segments} segments to ({end[0]:.2f}, {end[1]:.2f})",
                  "drive")

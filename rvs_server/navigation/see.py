@@ -1,4 +1,9 @@
-"""The see strategy (``navigate -loop see``), drive while seeing: the rover drives a leg in
+"""The see strategy (``navigate -loop see``), drive while seeing.
+
+With its bounds map (``see_gate bounds``, the default) every section is chosen by the vehicle
+check itself, ENav's way (:mod:`.sections`); this module keeps what that shares with the plan on
+the 5 cm maps (``see_gate off``): the frames, their fusion, the looks, the stop EVENT, the
+set-down and the localiser's fixes. On the 5 cm maps the rover drives a leg in
 cycles (the simulated rover: every ``see_period`` of driving; the GNC: each pose it reports
 while driving); each cycle
 one forward ToF frame feeds the rolling local elevation map, Dem2Hazard updates the window the
@@ -49,14 +54,13 @@ from prox_workflows.algorithms.rolling_map import (
     MapMemory,
     RollingMap,
     RollingParams,
-    mark_points,
     mark_unseen,
     path_poses,
     sweep_check,
 )
 from prox_workflows.algorithms.safety import in_footprint
+from prox_workflows.algorithms.set_down import ring_plane
 from prox_workflows.algorithms.transforms import HeadCalibration, T_global_from_rover
-from prox_workflows.algorithms.vehicle import Gate, densify, gate_poses
 from rvs_params.hazard import HAZARDOUS, SAFE
 
 from ..jobs import device_call
@@ -64,6 +68,7 @@ from ..maps import ground_height
 from ..protocol import Fixed, ProtocolError, Reply
 from .planning import goal_stand_in
 from .pursuit import arc_rate, in_rover_frame, motion_poses, nearest_stretch, passed, pursuit_point
+from .sections import Chooser
 
 if TYPE_CHECKING:
     from ..app import App
@@ -77,9 +82,8 @@ GAZE_PAN = 60.0  # deg: the gaze pans along the path at most this far off the he
 EDGE_JUMP = 0.02  # share of the range: a bigger jump to a neighbouring pixel marks a depth edge's mixed pixel
 BODY_MARGIN = 0.06  # m round the rover's box and wheels whose returns are its own
 BLIND_EDGE = 0.1  # m past the mast's blind disc that its rays only graze (bounded by a ray, seldom by returns)
-ROCK_RADIUS = 3.0  # m round the rover within which a replan reads rocks off the bounds map (the ToF's 3 m)
-GATE_TRIES = 8  # plans a replan checks against the gate before the rover drives one (see SeeStrategy._gated)
 GATE_PAD = 4.0  # m round the mission's start and goal that the gate's bounds map covers (past it: unknown)
+RING_WIDTH = 0.5  # m past the blind disc: the seen ground whose plane see_set_down ring takes
 STALL_CYCLES = 20  # a leg driven this many cycles without getting STALL_PROGRESS closer to its end is stalled
 STALL_PROGRESS = 0.05  # m
 
@@ -120,17 +124,6 @@ class DriveOutcome:
     hazard: dict[str, Any] | None = None
 
 
-@dataclass(frozen=True)
-class Refusal:
-    """A pose the gate refused, the ground it blamed (x, y) and the bounds map's frame count
-    when it was judged."""
-
-    pose: tuple[float, float, float]
-    x: float
-    y: float
-    frames: int
-
-
 class SeeingDriver:
     """One navigate's see loop: the rolling map lives for the whole mission."""
 
@@ -140,11 +133,10 @@ class SeeingDriver:
         self.app: App = job.app
         self.rover = rover
         self.body = rover.body()
-        # the vehicle gate's map (see_gate bounds): every frame's bounds over the whole mission
+        # the chooser's map (see_gate bounds): every frame's bounds over the whole mission
         self.bounds = bounds
-        self.refusals: list[Refusal] = []  # poses the gate refused, while the bounds still refuse them
-        self.judged = np.zeros((0, 3))  # the poses of the gate's last check, in the order the rover passes them
-        # the body's hazard cameras switched on (drivers.hazcam.cameras): each frame feeds the gate
+        self.set_down_pending = False  # see_set_down ring: the set-down waits for the first look round
+        # the body's hazard cameras switched on (drivers.hazcam.cameras): each frame feeds the bounds
         self.hazcams: list[str] = []
         if bounds is not None and "hazcam" in self.app.devices.devices:
             self.hazcams = list(self.app.devices.get("hazcam").cameras())
@@ -180,10 +172,10 @@ class SeeingDriver:
         """Where the ToF looks for this cycle's frame (``see_gaze path``): the mast pans along the
         path, not the heading, so the ground a turn will put under the wheels is seen before the
         turn; every other frame it looks at the path ``GAZE_NEAR`` m ahead at the PTU's lowest
-        tilt, where the gate judges next (closer, so with a third of the range noise), and
-        otherwise at the point ``GAZE_FAR`` m ahead at ``see_tilt``, as the 5 cm maps' check
-        needs. Off, or without the gate (which the near frames feed): pan 0, ``see_tilt``, and no
-        PTU move between frames (each move costs the drive its time)."""
+        tilt, where the next section is judged (closer, so with a third of the range noise), and
+        otherwise at the point ``GAZE_FAR`` m ahead at ``see_tilt``. Off, or without the bounds
+        map (which the near frames feed): pan 0, ``see_tilt``, and no PTU move between frames
+        (each move costs the drive its time)."""
         if self.p.gaze == "off" or self.bounds is None:
             return
         self.frame_no += 1
@@ -201,8 +193,8 @@ class SeeingDriver:
 
     def see(self, pan_tilt: tuple[float, float], cameras: tuple[str, ...] = ("front",), frames: int = 1
             ) -> tuple[tuple[float, float, float], float]:
-        """One ToF frame (the camera's average of ``frames``) into the rolling map, and with the gate
-        into the bounds map with a frame of each of the hazard ``cameras`` switched on (driving:
+        """One ToF frame (the camera's average of ``frames``) into the rolling map, and into the
+        bounds map (if kept) with a frame of each of the hazard ``cameras`` switched on (driving:
         the front pair, which sees the ground the wheels meet next); returns the rover's pose and
         the wall time (monotonic) the fusion started. Each return's sigma is the ToF's noise
         model's at its own amplitude (as the device says the noise goes with it) over the frames
@@ -234,7 +226,8 @@ class SeeingDriver:
             self.bounds.fuse(full, sigma, origin, self.p.max_range, along, sigma_across=across)
             for camera in (c for c in self.hazcams if c in cameras):
                 self._fuse_hazcam(camera, T)
-            self.bounds.stood((x, y, heading), float(T[2, 3]), self.body, self.attitude())
+            if not self.set_down_pending:
+                self.bounds.stood((x, y, heading), float(T[2, 3]), self.body, self.attitude())
             app.bus.publish("bounds", bounds=self.bounds)  # Foxglove and recordings (their hub throttles)
         self.stats.frame_ms.append((t1 - t0) * 1000)
         return (x, y, heading), t1
@@ -293,51 +286,6 @@ class SeeingDriver:
         ``see_set_down level``)."""
         attitude = getattr(self.rover, "attitude", None)
         return attitude() if attitude is not None and self.p.set_down == "attitude" else None
-
-    def gate(self, pose: tuple[float, float, float], remaining: np.ndarray,
-             motion: np.ndarray | None = None) -> Gate:
-        """The vehicle gate: the body's worst-case check on the bounds map along the motion the
-        rover executes next (``motion``; by default from ``pose`` on along the path) and the next
-        ``gate_ahead`` metres of the path, every 2 cm of the body's travel, turns included."""
-        lead = np.asarray([pose] if motion is None else motion, dtype=np.float64).reshape(-1, 3)
-        self.judged = densify(np.vstack([lead, path_poses(tuple(lead[-1]), remaining, self.p.gate_ahead)]), 0.02,
-                              self.body)
-        return self._gate_poses(self.judged)
-
-    def _gate_poses(self, poses: np.ndarray) -> Gate:
-        reach = math.hypot(self.body.length, self.body.track + self.body.wheel_width) / 2 + 0.1
-        lower, upper, g = self.bounds.window(poses[:, 0].min() - reach, poses[:, 1].min() - reach,
-                                             poses[:, 0].max() + reach, poses[:, 1].max() + reach)
-        return gate_poses(lower, upper, g, poses, self.body)
-
-    def refuse(self, gate: Gate) -> None:
-        """The gate's last check refused ``gate``'s pose: its ground is planned round while the
-        bounds refuse that pose (:meth:`refused`)."""
-        pose = self.judged[gate.index]
-        self.refusals.append(Refusal((float(pose[0]), float(pose[1]), float(pose[2])), gate.x, gate.y,
-                                     self.bounds.frames))
-
-    def refused(self) -> list[tuple[float, float]]:
-        """The ground each standing refusal blames, for a plan to keep round. A refusal is of one
-        pose on the bounds of the moment: once a later frame has been fused, the pose is judged
-        again on the bounds as they are, and a refusal whose pose now passes is dropped (the
-        frame showed its ground); one still refused blames the ground it is refused for at this
-        judging. Kept for good, the refusals round a rover close every way on (0.5-0.7 m round it
-        in a marsyard trace, docs/NAVIGATE_BENCH.md), though none of them was unsafe on the true
-        ground."""
-        if self.bounds is None:
-            return []
-        frames = self.bounds.frames
-        standing = []
-        for r in self.refusals:
-            if r.frames != frames:
-                gate = self._gate_poses(np.array([r.pose]))
-                if gate.verdict == "safe":
-                    continue
-                r = Refusal(r.pose, gate.x, gate.y, frames)
-            standing.append(r)
-        self.refusals = standing
-        return [(r.x, r.y) for r in standing]
 
     def _check_layer(self, pose: tuple[float, float, float]) -> np.ndarray:
         """The traversability the check sweeps: the rolling map's, lowered to 0 where the maps the
@@ -444,9 +392,9 @@ class SeeingDriver:
                     reason: str = "hazard") -> dict[str, Any]:
         """The stop EVENT, shaped as the hazard monitor's (distance from the rover's front to the
         hazard at global (x, y), bearing CCW from the heading, x and y in the rover frame), with
-        why: ``hazard`` (the 5 cm maps' hazard), ``vehicle`` (the gate: the body would exceed a
-        limit on the worst ground the bounds allow), ``unknown`` (the gate: ground no frame
-        bounded, which a look did not show)."""
+        why: ``hazard`` (the 5 cm maps' hazard), ``vehicle`` (the vehicle check on the bounds map:
+        the body would exceed a limit at a pose ahead), ``unknown`` (ground no frame bounded
+        under a pose ahead)."""
         rx, ry = in_rover_frame(pose, x, y)
         distance = max(0.0, rx - self.app.config.get("head").rover_length / 2 - self.map.params.cell / 2)
         self.stats.stops += 1
@@ -457,13 +405,6 @@ class SeeingDriver:
         self.level = "stop"
         self.app.broadcast_threadsafe(Reply("RVS", "EVENT", fields))
         return {"distance": distance, "x": rx, "y": ry, "reason": reason}
-
-    def gate_stop(self, gate: Gate, pose: tuple[float, float, float]) -> dict[str, Any]:
-        """The gate stopped the rover: the EVENT, and the ground it blamed kept out of every later
-        plan (the 5 cm maps may call it safe; the next plan would drive there again)."""
-        self.refuse(gate)
-        self.job.progress(0, 1, f"stopped: {gate.describe()}", phase="drive")
-        return self._stop_event(gate.x, gate.y, pose, "unknown" if gate.verdict == "unknown" else "vehicle")
 
     def _clear(self) -> None:
         if self.level != "clear":
@@ -520,11 +461,8 @@ class SeePilot:
         check, _, seen_at = self.d.cycle(self.wps[self.k:])
         if self.hazard is not None:  # once per leg: the GNC is stopping
             return
-        gate = self.d.gate(seen_at, self.wps[self.k:]) if self.d.bounds is not None else Gate("safe")
         if check.verdict == "not_traversable":
             self.hazard = self.d._stop_event(check.worst_x, check.worst_y, seen_at)
-        elif gate.verdict != "safe":
-            self.hazard = self.d.gate_stop(gate, seen_at)
         else:
             self.d._clear()
 
@@ -580,16 +518,6 @@ class SeePilot:
             self.progress(1, 1, f"stopped: ground {unseen.unknown_cells} cells under the next {p.blind:g} m unseen",
                           "stop")
             return self._end("unseen", k - 1)
-        if d.bounds is not None:
-            gate = d.gate(pose, wps[k:], motion)
-            # ground no frame bounded, or a rock at the edge of what the body passes: one look at
-            # it (tilted down, panned to it, from closer than the forward view saw it) before the
-            # stop; the bounds narrow with every frame of it
-            if gate.verdict != "safe" and d.look_at(gate.x, gate.y, pose):
-                gate = d.gate(pose, wps[k:], motion)
-                d.point_forward()
-            if gate.verdict != "safe":
-                return self._end("hazard", k - 1, d.gate_stop(gate, pose))
         d._clear()
         return Motion.face(tx, ty) if w is None else Motion.arc(speed, w, dt)
 
@@ -619,10 +547,12 @@ class SeeStrategy:
         memory = MapMemory.covering(self.cover, self.p.memory, RollingParams().cell) if self.p.memory > 0 else None
         bounds = BoundsMap.covering(self.cover, GATE_PAD) if self.p.gate == "bounds" else None
         self.driver = SeeingDriver(self.job, mission.rover, self.p, self.stats, memory, bounds)
-        if bounds is not None:
+        if bounds is not None and self.p.set_down == "ring":
+            self.driver.set_down_pending = True  # (Chooser.drive_on: after the first look round)
+        elif bounds is not None:
             # the rover was set down here: the ground round the mast's foot, which no tilt shows,
             # and the disc its body turns in are taken as clear, within 1 cm of level or (see_set_down
-            # attitude) of the plane the rover's attitude says it stands on: the one place the gate
+            # attitude) of the plane the rover's attitude says it stands on: the one place the chooser
             # assumes what it has not seen. Under the box the same assumption holds (a rock there
             # is not felt; the operators set the rover down where it can stand and turn); under
             # the wheels the attitude says more (BoundsMap.stood)
@@ -648,6 +578,31 @@ class SeeStrategy:
         self.why = ""  # why the last replan found no way
         self.last_end: tuple[float, float] | None = None
         self.search: Replanner | None = None  # D* Lite across replans (see_search dstar)
+        # with the bounds map, the candidates' chooser plans every section (sections.py); it needs
+        # no 360-degree scan (its map is what the ToF shows at the PTU's lowest tilt and while
+        # driving), unless the localiser matches the scans
+        self.chooser = Chooser(self) if bounds is not None else None
+        if self.chooser is not None and not self.localiser.active:
+            self.need_scan = False
+
+    def set_down_on_ring(self) -> str:
+        """``see_set_down ring``, after the first look round: the ground the rover stands on and the
+        mast's blind disc round it are taken on the plane fitted to the ring of seen ground just
+        outside that disc (within 1 cm of it), the wheels' contacts and the box's ceiling on it.
+        On a slope a level prior meets the seen ground in a step at the disc's edge (12 cm on a
+        10 deg slope), which the vehicle check refuses; the IMU's plane is the wheels', which a
+        rock under one wheel tips away from the ground round them. Returns what it took."""
+        d = self.driver
+        x, y, heading = d.pose()
+        fx, fy, radius = d.blind_disc()
+        plane, shown = ring_plane(d.bounds, (fx, fy), radius + BLIND_EDGE, radius + RING_WIDTH, (x, y))
+        z = plane[0]
+        tipped = (x, y, plane[1], plane[2])
+        d.bounds.set_down((fx, fy), radius + BLIND_EDGE, z, plane=tipped)
+        d.bounds.set_down((x, y), d.radius, z, plane=tipped)
+        d.bounds.stood((x, y, heading), z, d.body, d.attitude())
+        d.set_down_pending = False
+        return shown
 
     def arrived(self, left: float) -> bool:
         """The goal is within the tolerance by the believed pose: an arrival on dead reckoning
@@ -660,10 +615,12 @@ class SeeStrategy:
         """Replan from the scans and the rolling map and drive; False: a 360-degree scan first."""
         if self.need_scan:
             return False
+        if self.chooser is not None:
+            return self.chooser.drive_on(leg)
         pose = self.app.pose
         plan = self.replan(leg)
         if plan is not None:
-            self.mission.record(plan)
+            self.mission.record(plan.path[: plan.cut], plan.waypoints.xy)
             before = (pose.x, pose.y)
             self.drive_leg(leg, plan)
             moved = math.hypot(self.app.pose.x - before[0], self.app.pose.y - before[1]) >= self.cfg.min_progress
@@ -683,9 +640,8 @@ class SeeStrategy:
         made from them and what the rover sees next."""
         self.need_scan = False
         self.scan = local
-        if self.driver.bounds is not None:  # the look shows the ground toward the goal
-            pose, goal = self.app.pose, self.mission.goal
-            self.driver.look_round(math.degrees(math.atan2(goal[1] - pose.y, goal[0] - pose.x)) - pose.heading)
+        if self.chooser is not None:
+            self.chooser.scanned()
         self.mast_foot = self.driver.blind_disc()
         self.scan_frame = self.driver.map.frames
         self.stats.scans += 1
@@ -745,13 +701,6 @@ class SeeStrategy:
         merged = self.merged()
         if self.mast_foot is not None and self.p.unseen != "off":
             merged = mark_unseen(merged, self.mast_foot[:2], 0.0, self.mast_foot[2], SAFE)
-        if self.driver.bounds is not None:
-            # the gate's own view for the plan: rocks on the bounds (the 5 cm means read them low)
-            # and the ground the gate stopped the rover at
-            body = self.driver.body
-            rocks = self.driver.bounds.rocks(here, ROCK_RADIUS, min(body.climb, body.clearance))
-            merged = mark_points(merged, [*map(tuple, rocks), *self.driver.refused()], HAZARDOUS)
-            self.app.bus.publish("bounds", bounds=self.driver.bounds, replan=True)  # what this plan read
         self.driver.known = merged
 
         def attempt(maps: NavMaps) -> Any:
@@ -779,7 +728,7 @@ class SeeStrategy:
             for strict in tries:
                 maps = mark_unseen(merged, here, self.driver.radius, self.reach, HAZARDOUS) if strict else merged
                 try:
-                    plan = self._gated(attempt, maps, (pose.x, pose.y, pose.heading))
+                    plan = attempt(maps)
                 except PlanningError as exc:
                     why = f"replan from the rolling map: {exc.reason}"
                     continue
@@ -792,24 +741,6 @@ class SeeStrategy:
             return None, why
         finally:
             self.stats.replan_ms.append((time.monotonic() - t0) * 1000)
-
-    def _gated(self, attempt: Any, maps: NavMaps, pose: tuple[float, float, float]) -> Any:
-        """A plan whose start the gate passes: the first ``see_gate_ahead`` of each plan (its turn
-        on the spot included) is checked before the rover moves, and the ground the gate blames
-        is planned round, up to ``GATE_TRIES`` times: the rover stands while the planner learns
-        what the gate will refuse, instead of driving each refused plan to its first stop. The
-        last plan goes out whatever its check (the drive's own gate stops it, and says why)."""
-        plan = attempt(maps)
-        if self.driver.bounds is None:
-            return plan
-        for _ in range(GATE_TRIES):
-            gate = self.driver.gate(pose, plan.waypoints.xy[1:])
-            if gate.verdict == "safe":
-                break
-            self.driver.refuse(gate)
-            maps = mark_points(maps, [(gate.x, gate.y)], HAZARDOUS)
-            plan = attempt(maps)
-        return plan
 
     def drive_leg(self, leg: int, plan: Any) -> None:
         """Drive one leg's waypoints while seeing (the simulated rover steers by its odometry,

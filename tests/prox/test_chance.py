@@ -201,3 +201,17 @@ def test_the_bounds_map_gives_its_statistics_over_a_box() -> None:
     assert np.isnan(s["mean"][0]).all()
     s["mean"][:] = 5.0
     assert np.nanmax(m.mean) < 1.0  # a copy: a posterior made from it leaves the map alone
+
+
+def test_a_planner_s_verdict_only_check_gives_the_full_check_s_verdicts() -> None:
+    """``verdict_only`` refuses a pose on its best estimate's excess, or as soon as one draw in a
+    batch is over a limit, without the rest of the draws: over ledges from far below to above the
+    climb, seen at three noise levels, its verdicts are the full check's, pose for pose."""
+    poses = np.column_stack([np.linspace(-0.3, 0.1, 9), np.zeros(9), np.zeros(9)])
+    for height in (0.05, 0.085, 0.095, 0.1, 0.12):
+        h, g = ledge(height)
+        for sigma in (0.002, 0.005, 0.01):
+            full = chance_check(known(h, sigma), g, poses, BODY)
+            quick = chance_check(known(h, sigma), g, poses, BODY, verdict_only=True)
+            assert quick.unsafe.tolist() == full.unsafe.tolist(), (height, sigma)
+            assert quick.safe.tolist() == full.safe.tolist()

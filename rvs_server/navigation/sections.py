@@ -1,0 +1,323 @@
+"""The see loop's planner on its bounds map (``navigate.see_gate bounds``): Perseverance's ENav
+choice, one section at a time.
+
+Each step the rover stands (or has just driven a section) and
+:func:`prox_workflows.algorithms.candidates.choose` ranks the arc tree from its pose by cost and
+the cost to go (Dijkstra over the bounds map's 25 cm coarse grid, from the goal), then runs the
+vehicle check down that list until a candidate passes; the rover drives that candidate's first
+section only (a turn on the spot and an arc of at most ``CandidateParams.section``), seeing as it
+goes, and chooses again. The check is the chance constraint on the map's per-cell statistics
+(``see_check chance``: :func:`.candidates.posterior_check`) or the worst case on its bounds
+(``bounds``). What the chooser answers decides what the rover does:
+
+- *drive*: the section, every pose of it judged safe on the map of that moment. While it drives,
+  each cycle's frame goes into the map, and the poses of the section still ahead are judged again
+  where a frame touched their ground since; one that fails stops the rover (an ``EVENT
+  kind=hazard level=stop`` with ``reason vehicle`` or ``unknown``) and the next choice is made from
+  where it stands.
+- *look*: the best way runs over ground no frame has bounded: the rover looks there (one frame
+  tilted to it), then round at the PTU's lowest tilt, before any worse way is driven. A look that
+  shows nothing new is not repeated from the same place; the choice is then made with looking
+  priced out, and ground still unseen is a failure like any other.
+- *blocked*: every candidate fails on the body's limits (or the goal has no way to it on the
+  coarse grid). Once the rover has looked round where it stands, this is a safe stop: the job ends
+  ``E_DATA`` with the reason and the count of failures by limit.
+
+No Dem2Hazard threshold decides where the wheels go, and no verdict is kept: a refusal concerns
+the map it was made on, and the next choice judges the pose again on the map as it then is.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import time
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from drivers.rover import Motion
+from prox_workflows.algorithms.candidates import (
+    SAFE,
+    UNKNOWN,
+    CandidateParams,
+    Check,
+    Choice,
+    best_check,
+    bounds_check,
+    choose,
+    coarse_costs,
+    cost_to_go,
+    crop,
+    posterior_check,
+    verdict_name,
+)
+from prox_workflows.algorithms.chance import ChanceParams, posterior
+from prox_workflows.algorithms.vehicle import reach
+from prox_workflows.algorithms.waypoints import make_waypoints
+
+from ..protocol import ProtocolError
+
+if TYPE_CHECKING:
+    from prox_workflows.algorithms.bounds_map import BoundsMap
+
+    from .see import SeeingDriver, SeeStrategy
+
+LOOKS = 6  # looks before one drive at most: past them the choice is made with looking priced out
+PRICED_OUT = 1e6  # m: the look cost that makes a look the answer only when no candidate passes
+STALL_SECTIONS = 12  # sections in a row that bring the rover no STALL_GAIN closer by the cost to go
+STALL_GAIN = 0.1  # m
+WAYPOINT_STEP = 0.2  # m between the waypoints a GNC is sent for a section
+
+
+def map_check(bounds: BoundsMap, box: tuple[float, float, float, float], body: Any, how: str,
+              chance: ChanceParams) -> Check:
+    """The vehicle check over ``box`` (xmin, ymin, xmax, ymax) of the bounds map as a
+    :data:`~prox_workflows.algorithms.candidates.Check`: ``chance`` on the cells' posteriors (the
+    map's per-cell statistics; the rays' directions are not kept per cell, so the slope's
+    steepest direction stands in for the ray's), ``bounds`` the worst case on its bounds."""
+    stats, g = bounds.statistics(*box)
+    if how == "chance":
+        return posterior_check(posterior(stats, g, bounds.params.k, chance), g, body, chance)
+    return bounds_check((stats["lower"], stats["upper"]), g, body)
+
+
+def choose_from(bounds: BoundsMap, pose: tuple[float, float, float], goal: tuple[float, float], body: Any,
+                how: str, params: CandidateParams, chance: ChanceParams) -> tuple[Choice, float]:
+    """The chooser's answer from ``pose`` toward ``goal`` on the bounds map as it is now, and the
+    cost to go from ``pose``: the cost to go over the whole map's coarse grid, the candidates
+    ranked and checked on the window they reach."""
+    lower, upper, g = bounds.window(*_whole(bounds))
+    ctg = cost_to_go(*coarse_costs((lower, upper), g, body), goal)
+    r = params.section + params.beyond + reach(body) + 0.1
+    box = (pose[0] - r, pose[1] - r, pose[0] + r, pose[1] + r)
+    stats, wg = bounds.statistics(*box)
+    lookahead = None
+    if how == "chance":
+        post = posterior(stats, wg, bounds.params.k, chance)
+        check = posterior_check(post, wg, body, chance)
+        # the look-aheads only rank (a section is judged with the chance constraint before it is
+        # driven): the posterior's best estimate judges them, one check instead of 64 draws
+        lookahead = best_check(post, wg, body)
+    else:
+        check = bounds_check((stats["lower"], stats["upper"]), wg, body)
+    choice = choose(pose, (stats["lower"], stats["upper"]), wg, body, ctg, check, params, lookahead)
+    return choice, float(ctg.at(np.array([pose[0]]), np.array([pose[1]]))[0])
+
+
+def _whole(bounds: BoundsMap) -> tuple[float, float, float, float]:
+    g = bounds.geometry
+    return g.xmin, g.ymax - g.height * g.cell, g.xmin + g.width * g.cell, g.ymax
+
+
+def reasons(choice: Choice) -> str:
+    """The failures of the candidates checked, by part and limit, most first."""
+    parts = sorted(choice.reasons.items(), key=lambda kv: -kv[1])
+    return ", ".join(f"{n} {k}" for k, n in parts) or "none checked"
+
+
+class Chooser:
+    """The see strategy's legs on the bounds map: one choice, then its section driven."""
+
+    def __init__(self, strategy: SeeStrategy) -> None:
+        self.s = strategy
+        self.d: SeeingDriver = strategy.driver
+        self.params = CandidateParams()
+        self.chance = ChanceParams()
+        self.rounds: list[tuple[float, float]] = []  # where the rover looked round
+        self.best = math.inf  # the least cost to go the rover stood at
+        self.since_best = 0  # sections driven since
+
+    def scanned(self) -> None:
+        """A 360-degree scan was made where the rover stands (the localiser's): its views make the
+        5 cm maps only, so the rover looks round for the bounds map too."""
+        self._look_round(self.d.pose())
+
+    def _looked_round_here(self, pose: tuple[float, float, float]) -> bool:
+        return any(math.hypot(pose[0] - x, pose[1] - y) < 0.3 for x, y in self.rounds)
+
+    def _look_round(self, pose: tuple[float, float, float], all_round: bool = False) -> None:
+        """A standing look toward the goal; ``all_round`` where every way toward it failed, since a
+        turn on the spot may then face any way."""
+        self.rounds.append((pose[0], pose[1]))
+        goal = self.s.mission.goal
+        bearing = math.degrees(math.atan2(goal[1] - pose[1], goal[0] - pose[0])) - pose[2]
+        self.d.look_round(None if all_round else bearing)
+
+    def _choose(self, pose: tuple[float, float, float], look_cost: float | None) -> tuple[Choice, float]:
+        params = self.params if look_cost is None else dataclasses.replace(self.params, look_cost=look_cost)
+        self.d.app.bus.publish("bounds", bounds=self.d.bounds, replan=True)  # what this choice reads
+        t0 = time.monotonic()
+        try:
+            return choose_from(self.d.bounds, pose, self.s.mission.goal, self.d.body, self.d.p.vehicle, params,
+                               self.chance)
+        finally:
+            self.s.stats.replan_ms.append((time.monotonic() - t0) * 1000)
+
+    def drive_on(self, leg: int) -> bool:
+        """Choose and drive one section (looking first where the choice asks); a blocked choice
+        after a look round here is a safe stop (E_DATA with its reason)."""
+        d, job = self.d, self.s.job
+        pose = d.pose()
+        if not self.rounds:  # the set-down: the ground round the rover from the blind disc out
+            self._look_round(pose)
+        if d.set_down_pending:
+            m = self.s.set_down_on_ring()
+            self.s.mission.progress(leg, 1, 1, f"set down on {m}", "plan")
+        look_cost: float | None = None
+        for _ in range(LOOKS + 2):
+            job.check()
+            choice, togo = self._choose(pose, look_cost)
+            if choice.status == "drive":
+                break
+            if choice.status == "look":
+                x, y = choice.look_at or (pose[0], pose[1])
+                if look_cost is None and d.look_at(x, y, pose):
+                    continue
+                if not self._looked_round_here(pose):
+                    self._look_round(pose)
+                    continue
+                if look_cost is None:  # looking from here shows no more: choose among what it shows
+                    look_cost = PRICED_OUT
+                    continue
+                raise ProtocolError("E_DATA", f"unseen ground ahead that no look from here shows: the best way "
+                                              f"on runs over ({x:.2f}, {y:.2f}), no frame bounds it after a look "
+                                              f"round from ({pose[0]:.2f}, {pose[1]:.2f}); failures: "
+                                              f"{reasons(choice)}")
+            if not self._looked_round_here(pose):  # blocked: look round before giving up
+                self._look_round(pose, all_round=True)
+                continue
+            raise ProtocolError("E_DATA", f"no way on within the body's limits: {choice.reason} from "
+                                          f"({pose[0]:.2f}, {pose[1]:.2f}) after a look round; failures: "
+                                          f"{reasons(choice)}")
+        else:
+            raise ProtocolError("E_DATA", f"no way on: {LOOKS} looks from ({pose[0]:.2f}, {pose[1]:.2f}) show no "
+                                          "section that passes")
+        if togo < self.best - STALL_GAIN:
+            self.best, self.since_best = togo, 0
+        else:
+            self.since_best += 1
+            if self.since_best >= STALL_SECTIONS:
+                raise ProtocolError("E_DATA", f"no progress: {STALL_SECTIONS} sections from ({pose[0]:.2f}, "
+                                              f"{pose[1]:.2f}) brought the rover no {STALL_GAIN:g} m closer by "
+                                              f"the cost to go ({togo:.2f} m)")
+        self.drive(leg, choice)
+        self.s.stats.replans += 1
+        return True
+
+    def drive(self, leg: int, choice: Choice) -> None:
+        """Drive ``choice``'s section while seeing (the simulated rover steers it; a GNC is sent
+        its waypoints and each pose report is a cycle)."""
+        m, d = self.s.mission, self.d
+        xy = choice.poses[:, :2]
+        step = max(1, int(round(WAYPOINT_STEP / max(self.params.step, 1e-3))))
+        keep = np.unique(np.r_[np.arange(0, len(xy), step), len(xy) - 1])
+        wps = make_waypoints(_dedup(xy[keep]), start_heading=float(choice.poses[0, 2]))
+        m.record(xy, wps.xy)
+        end = (float(xy[-1, 0]), float(xy[-1, 1]))
+        m.progress(leg, 1, 1, f"chose candidate {choice.candidate} (rank {choice.rank + 1} of {choice.total}, "
+                              f"{choice.checked} checked): turn {choice.turn:.0f} deg, {choice.length:.2f} m to "
+                              f"({end[0]:.2f}, {end[1]:.2f})", "plan")
+        since = m.announce(leg, wps, "none")
+        pilot = SectionPilot(self, choice, m.track)
+        start_of_leg = len(m.track)
+        d.point_forward()
+        m.drive(pilot, since, end)
+        if pilot.stopped is not None:
+            m.progress(leg, 1, 1, f"stopped: {pilot.stopped}", "drive")
+        self.s.localise(leg, m.track.xy(start_of_leg))
+
+
+def _dedup(xy: np.ndarray) -> np.ndarray:
+    """Waypoints without repeats (a turn on the spot stands at one point)."""
+    keep = np.r_[True, np.hypot(*np.diff(xy, axis=0).T) > 1e-6]
+    out = xy[keep]
+    return out if len(out) > 1 else np.vstack([out, out[-1:]])
+
+
+class SectionPilot:
+    """One section for :meth:`drivers.rover.Rover.drive`: the turn on the spot, then the arc in
+    cycles of ``see_period``, a frame and the check of the section's rest every cycle."""
+
+    def __init__(self, chooser: Chooser, choice: Choice, track: Any) -> None:
+        self.c = chooser
+        self.d = chooser.d
+        self.track = track
+        self.poses = choice.poses  # from the rover's pose: the turn's poses, then the arc's
+        n_turn = int(np.count_nonzero(np.hypot(*(choice.poses[:, :2] - choice.poses[0, :2]).T) < 1e-9)) - 1
+        self.n_turn = max(0, n_turn)
+        start = choice.poses[0]
+        self.heading = float(start[2] + choice.turn)
+        self.turned = abs(choice.turn) < 0.5
+        self.curvature = choice.curvature
+        self.length = choice.length
+        self.s = np.r_[np.zeros(self.n_turn + 1),
+                       np.cumsum(np.hypot(*np.diff(choice.poses[self.n_turn:, :2], axis=0).T))]
+        self.driven = 0.0
+        self.path = choice.path
+        self.frames = self.d.bounds.frames  # the map the section was judged on
+        self.stopped: str | None = None
+        self.hazard: dict[str, Any] | None = None
+
+    def moved(self, truth: tuple[float, float, float], end: bool) -> None:
+        self.track.add(truth, end)
+
+    def _ahead(self) -> np.ndarray:
+        """The section's poses still to drive."""
+        if not self.turned:
+            return self.poses
+        return self.poses[self.n_turn:][self.s[self.n_turn:] >= self.driven - 1e-6]
+
+    def _recheck(self, pose: tuple[float, float, float]) -> tuple[int, np.ndarray] | None:
+        """The first pose of the section's rest that fails on the map as it is now (its verdict and
+        the pose), where a frame touched the ground under that rest since it was judged; None: all
+        pass, or nothing there changed."""
+        ahead = np.vstack([np.array([pose]), self._ahead()])
+        d = self.d
+        pad = reach(d.body) + 0.05
+        box = (ahead[:, 0].min() - pad, ahead[:, 1].min() - pad, ahead[:, 0].max() + pad, ahead[:, 1].max() + pad)
+        bounds = d.bounds
+        _, sl = crop(bounds.geometry, *box)
+        if sl is None or not (bounds.stamp[sl] > self.frames).any():
+            return None
+        self.frames = bounds.frames
+        codes = np.asarray(map_check(bounds, box, d.body, d.p.vehicle, self.c.chance)(ahead[1:]))
+        bad = np.flatnonzero(codes != SAFE)
+        return None if not len(bad) else (int(codes[bad[0]]), ahead[1 + bad[0]])
+
+    def _stop(self, verdict: int, at: np.ndarray, pose: tuple[float, float, float]) -> None:
+        reason = "unknown" if verdict == UNKNOWN else "vehicle"
+        self.stopped = (f"the pose ({at[0]:.2f}, {at[1]:.2f}, {at[2]:.0f} deg) of the section ahead fails "
+                        f"({verdict_name(verdict)}) on the frames since it was chosen")
+        self.hazard = self.d._stop_event(float(at[0]), float(at[1]), pose, reason)
+
+    def next(self, pose: tuple[float, float, float]) -> Motion | None:
+        d = self.d
+        if d.rover.steers:
+            d.gaze(pose, self.path[:, :2])
+        seen, t1 = d.see(d.pan_tilt)
+        d.job.check()
+        bad = self._recheck(seen)
+        d.stats.cycles += 1
+        d.stats.cycle_ms.append((time.monotonic() - t1) * 1000)
+        if not d.rover.steers:  # the GNC drives: a failing pose ahead is a stop EVENT, once
+            if bad is not None and self.hazard is None:
+                self._stop(*bad, seen)
+            return None
+        if bad is not None:
+            self._stop(*bad, seen)
+            return None
+        d._clear()
+        if not self.turned:
+            self.turned = True
+            h = math.radians(self.heading)
+            return Motion.face(seen[0] + math.cos(h), seen[1] + math.sin(h))
+        left = self.length - self.driven
+        if left <= 1e-3:
+            return None
+        speed, turn_rate = d.rover.speeds()
+        if self.curvature:  # no faster than the turn rate drives the arc's curvature
+            speed = min(speed, math.radians(turn_rate) / abs(self.curvature))
+        dt = min(d.p.period, left / speed)
+        self.driven += speed * dt
+        return Motion.arc(speed, math.degrees(self.curvature * speed), dt)

@@ -1,0 +1,139 @@
+"""navigate -loop see with its bounds map (see_gate bounds, the default): ENav's chooser plans every
+section (rvs_server/navigation/sections.py). Judged by the vehicle on the simulator's true
+surface (rvs_truth.vehicle), through the real server."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from support.marks import long_test
+
+from prox_workflows.algorithms.bounds_map import BoundsMap
+from prox_workflows.algorithms.candidates import CandidateParams
+from prox_workflows.algorithms.chance import ChanceParams
+from prox_workflows.grid import GridGeometry
+from rvs_truth.surface import fine_surface
+from rvs_truth.vehicle import read_track, vehicle_check
+
+
+def _events(srv, world, name: str, box: tuple[float, float, float, float]) -> tuple[list, int]:
+    fine, g = fine_surface(world, box)
+    surface = (fine, GridGeometry(0.01, g.xmin, g.ymax, g.width * 5, g.height * 5), g)
+    return vehicle_check(read_track(srv.data / "nav" / f"{name}_track.csv"), surface, world.body)
+
+
+@long_test  # 2.5 m among marsyard's rocks, every section chosen with the chance check: about a minute of CPU
+def test_the_see_loop_gets_out_where_the_gated_planner_stopped_at_its_start(server_factory) -> None:
+    """Marsyard mission 0 of the benchmark (tools.bench.navigate): the gated see loop made a safe
+    stop 0.1 m from its start there ("no way on ... enclosed": its circle planner on the window
+    step and the refusals kept as hazard points closed every way). The chooser drives the first
+    2.5 m of that mission to its goal, without one unsafe pose on the true surface."""
+    srv = server_factory(["server.scene=marsyard"])
+    world = srv.app.world
+    world.set_target_visible(False)
+    start, heading = (11.68, 6.88), -128.96  # toward the mission's goal (1.12, -6.18)
+    goal = (start[0] + 2.5 * math.cos(math.radians(heading)), start[1] + 2.5 * math.sin(math.radians(heading)))
+    c = srv.client()
+    job = c.start_job(f"navigate -start {start[0]},{start[1]},{heading} -goal {goal[0]:.2f},{goal[1]:.2f} -auto "
+                      "-loop see -name out")
+    final = c.until_final(job=job, timeout=1800)[-1]
+    assert final.status == "OK" and final.fields["reached"] == "true", final.fields
+    assert int(final.fields["scans"]) == 0  # the chooser needs no 360-degree scan
+    truth = world.truth()
+    assert math.hypot(truth["x"] - goal[0], truth["y"] - goal[1]) <= 0.3
+    events, checked = _events(srv, world, "out", (8.5, 3.5, 12.5, 7.5))
+    assert checked > 100
+    assert events == [], [e.describe() for e in events]
+
+
+def test_a_blocked_mission_is_a_safe_stop_with_its_reason(server_factory) -> None:
+    """A ring of 20 cm rocks round the rover, no gap the body fits through: after a look round
+    the chooser finds every candidate failing on the body's limits and the job ends E_DATA with
+    that reason and the failures by limit, having driven nowhere near a rock."""
+    srv = server_factory(["server.scene=quarry"])
+    world = srv.app.world
+    world.set_target_visible(False)
+    c = srv.client()
+    for k in range(12):
+        a = 2 * math.pi * k / 12
+        r = c.request(f"sim add-rock -x {0.62 * math.cos(a):.3f} -y {0.62 * math.sin(a):.3f} -radius 0.16 "
+                      "-height 0.2")
+        assert r.status == "OK", r.fields
+    job = c.start_job("navigate -start 0,0,0 -goal 3,0 -auto -loop see -name ring")
+    lines = c.until_final(job=job, timeout=900)
+    final = lines[-1]
+    assert final.status == "ERROR" and final.fields["code"] == "E_DATA", final.fields
+    message = final.fields["message"]
+    assert message.startswith("no way on within the body's limits"), message
+    assert any(limit in message for limit in ("belly", "step", "stability", "grade")), message
+    assert not any("360" in r.fields.get("message", "") for r in lines if r.status == "PROGRESS")
+    truth = world.truth()
+    assert math.hypot(truth["x"], truth["y"]) < 0.2  # it stood
+    track = srv.data / "nav" / "ring_track.csv"
+    if track.exists():
+        events, _ = _events(srv, world, "ring", (-1.5, -1.5, 1.5, 1.5))
+        assert events == [], [e.describe() for e in events]
+
+
+def _flat(x0: float, x1: float, rock: float = 0.0) -> np.ndarray:
+    """Returns every centimetre of level ground at z 0 over x0..x1, y -1..1 m, with a ``rock``
+    high block at x 1.2..1.5 m, |y| < 0.15 m."""
+    x, y = (a.ravel() for a in np.meshgrid(np.arange(x0, x1, 0.01) + 0.005, np.arange(-1.0, 1.0, 0.01) + 0.005))
+    z = np.where((x > 1.2) & (x < 1.5) & (np.abs(y) < 0.15), rock, 0.0)
+    return np.column_stack([x, y, z])
+
+
+def test_a_refusal_does_not_outlive_the_frames_of_its_ground() -> None:
+    """The way straight ahead to the goal crosses a strip no frame has shown (1.0-1.7 m ahead):
+    the chooser does not drive it (it asks to look there first, or drives round). A frame that
+    then shows level ground there makes the straight section pass at once: nothing of the first
+    verdict is kept. A frame that shows a rock there refuses the straight way again."""
+    from drivers.sim.rover import RoverBody
+    from rvs_server.navigation.sections import choose_from
+
+    params, chance = CandidateParams(), ChanceParams()
+    for rock, straight_after in ((0.0, True), (0.2, False)):
+        bounds = BoundsMap.covering([[-1.0, -1.0], [4.0, 1.0]], 0.0)
+        origin = np.array([0.0, 0.0, 0.8])
+        for x0, x1 in ((-0.6, 1.0), (1.7, 3.2)):
+            bounds.fuse(_flat(x0, x1), 0.002, origin)
+        before, _ = choose_from(bounds, (0.0, 0.0, 0.0), (3.0, 0.0), RoverBody(), "chance", params, chance)
+        assert not (before.status == "drive" and before.turn == 0.0 and before.curvature == 0.0), before.reason
+        if before.status == "look":
+            assert 0.9 < before.look_at[0] < 1.8, before.look_at
+        bounds.fuse(_flat(1.0, 1.7, rock), 0.002, origin)  # a later frame shows that ground
+        after, _ = choose_from(bounds, (0.0, 0.0, 0.0), (3.0, 0.0), RoverBody(), "chance", params, chance)
+        assert after.status == "drive", after.reason
+        straight = after.turn == 0.0 and abs(after.curvature) < 1e-9
+        assert straight == straight_after, (after.turn, after.curvature, after.reason)
+        if straight_after:
+            assert after.poses[-1][0] > 0.95  # the whole metre of the section, toward the goal
+
+
+def test_the_gnc_drives_each_chosen_section_as_waypoints(server_factory) -> None:
+    """Without -auto the GNC drives: each section the chooser picks (at most 1 m, a turn on the
+    spot first where there is one) is sent as a waiting EVENT's waypoints, every pose the GNC
+    reports while driving is a cycle, and the goal is reached without a 360-degree scan."""
+    srv = server_factory(["server.scene=quarry", "navigate.pose_settle=0.5"])
+    world = srv.app.world
+    world.set_target_visible(False)
+    c, gnc = srv.client(), srv.client()
+    job = c.start_job("navigate -start 0,0,0 -goal 2.0,0 -loop see -name gnc")
+    sections = []
+    while True:
+        r = c.reply(timeout=300)
+        if r.status == "EVENT" and r.fields.get("kind") == "waiting":
+            wps = np.array([float(v) for v in r.fields["waypoints"].split(",")]).reshape(-1, 3)
+            sections.append(wps)
+            for x, y, h in wps:
+                world.set_rover_pose(x, y, h)
+                assert gnc.request(f"pose -x {x:.3f} -y {y:.3f} -heading {h:.2f}").status == "OK"
+            assert gnc.request(f"pose -x {x:.3f} -y {y:.3f} -heading {h:.2f} -stopped true").status == "OK"
+        elif r.status in ("OK", "ERROR") and r.fields.get("job") == job:
+            final = r
+            break
+    assert final.status == "OK" and final.fields["reached"] == "true", final.fields
+    assert int(final.fields["scans"]) == 0 and len(sections) == int(final.fields["legs"]) >= 2
+    for wps in sections:  # a section: at most a metre of arc from where the rover stands
+        assert float(np.hypot(*(wps[-1, :2] - wps[0, :2]))) <= 1.0 + 1e-6, wps
