@@ -219,9 +219,13 @@ def _search_once(start: tuple[float, float], start_heading: float, goal: tuple[f
     sx, sy = start
     lo_i, hi_i = math.ceil((bounds[0] - sx) / res - 1e-9), math.floor((bounds[2] - sx) / res + 1e-9)
     lo_j, hi_j = math.ceil((bounds[1] - sy) / res - 1e-9), math.floor((bounds[3] - sy) / res + 1e-9)
-    gi, gj = round((goal[0] - sx) / res), round((goal[1] - sy) / res)
-    if not (lo_i <= 0 <= hi_i and lo_j <= 0 <= hi_j and lo_i <= gi <= hi_i and lo_j <= gj <= hi_j):
+    inside = bounds[0] <= goal[0] <= bounds[2] and bounds[1] <= goal[1] <= bounds[3]
+    if not (lo_i <= 0 <= hi_i and lo_j <= 0 <= hi_j and inside):
         raise ValueError("start and goal must lie inside the search bounds")
+    # a goal on the bounds' edge may sit in a cell whose centre lies outside them: its nearest state
+    # inside stands for it (less than a cell away)
+    gi = min(max(round((goal[0] - sx) / res), lo_i), hi_i)
+    gj = min(max(round((goal[1] - sy) / res), lo_j), hi_j)
     cost_of = [[p.cost for p in row] for row in prims]
     cells_of = [[p.cells for p in row] for row in prims]
     end_of = [[p.end for p in row] for row in prims]

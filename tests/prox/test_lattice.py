@@ -109,6 +109,12 @@ def test_a_weighted_search_is_within_its_weight_of_the_shortest() -> None:
     assert fast.expanded < exact.expanded
 
 
+def test_a_goal_on_the_edge_of_the_bounds_is_searched_to_its_nearest_state_inside() -> None:
+    # 0.99 m is nearest the state at 1.0 m, whose centre lies past the bounds' 0.99
+    r = search((0.0, 0.0), 0.0, (0.99, 0.0), (-0.5, -0.5, 0.99, 0.5), wall(9, 9, 9, 9))
+    assert r.reason == "found" and r.path.poses[-1][0] == pytest.approx(0.95)
+
+
 def test_bad_input_is_refused() -> None:
     with pytest.raises(ValueError, match="8 or 16"):
         directions(12)
