@@ -8,6 +8,7 @@ import math
 import numpy as np
 import pytest
 from scipy import ndimage
+from support.marks import long_test
 
 from drivers.sim.world import World
 from prox_workflows.algorithms.dem2hazard import HazardParams, dem2hazard
@@ -50,6 +51,7 @@ def test_the_office_floor_is_safe() -> None:
     assert safe >= 0.95, safe
 
 
+@long_test  # ten plans on perfect maps of hirise, ~8 s of CPU: what the window step's margins give
 def test_hirise_passages_leave_a_perfect_5cm_map_a_window_of_a_centimetre() -> None:
     """The dense scene is at the edge of closing: mission 1's way leads over a cell whose true
     step (the cell centre's samples) is 15.1 cm and whose cell-mean step is 13.9 cm. A perfect
