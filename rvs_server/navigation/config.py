@@ -11,6 +11,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import ClassVar
 
+from prox_workflows.algorithms.candidates import CandidateParams
+from prox_workflows.algorithms.chance import ChanceParams
 from prox_workflows.algorithms.planner import PlanParams
 from rvs_params import Settings
 
@@ -99,6 +101,11 @@ class SeeConfig(Settings):
                               "blind disc out (prox_workflows.algorithms.looks: the lowest tilt and see_tilt)",
                               unit="m", min=0.1, max=3.0, option=False)
     max_replans: int = param(100, "see loop: give up after this many plans in all", min=1, max=10000, option=False)
+    # declared where they are used (prox_workflows.algorithms), set here: navigate.see.chooser.section=0.8
+    chooser: CandidateParams = param(CandidateParams(), "see loop with the gate: the candidate paths and the "
+                                     "costs that rank them (prox_workflows.algorithms.candidates)")
+    chance: ChanceParams = param(ChanceParams(), "see loop with the gate, see_vehicle chance: the risk a section "
+                                 "may carry (epsilon) and how its probability is drawn")
 
 
 @dataclass

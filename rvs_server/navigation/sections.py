@@ -122,8 +122,8 @@ class Chooser:
     def __init__(self, strategy: SeeStrategy) -> None:
         self.s = strategy
         self.d: SeeingDriver = strategy.driver
-        self.params = CandidateParams()
-        self.chance = ChanceParams()
+        self.params = self.d.p.chooser
+        self.chance = self.d.p.chance
         self.rounds: list[tuple[float, float, bool]] = []  # where the rover looked round, and whether all round
         self.best = math.inf  # the least cost to go the rover stood at
         self.since_best = 0  # sections driven since
