@@ -165,8 +165,9 @@ class NavigateConfig(ModuleConfig):
     localisation: LocaliseConfig = param(LocaliseConfig(), "knowing where the rover is", flat="")
     # scan stays the default: in the benchmark's dense hirise scene the see loop's rover body crossed
     # true hazards the rolling map had left unseen (tools.bench.navigate; docs/PROTOCOL.md)
-    loop: str = param("scan", "scan stops for a 360-degree scan at every leg's end; see checks the next metres "
-                      "with the forward ToF while the rover drives (-auto: every cycle; the GNC: at every pose "
-                      "report) and replans from what it sees (a 360-degree scan first and when that shows no "
-                      "way)", choices=("see", "scan"))
+    loop: str = param("scan", "scan stops for a 360-degree scan at every leg's end and plans on its hazard map; "
+                      "see looks standing with the forward ToF, chooses each section (at most 1 m) ENav's way, "
+                      "checked by the rover's own body on a map of height bounds, and checks it again while it "
+                      "drives (-auto: every cycle; the GNC: at every pose report); no 360-degree scan unless "
+                      "-localise matches scans", choices=("see", "scan"))
     see: SeeConfig = param(SeeConfig(), "the see loop", flat="see_")
