@@ -5,6 +5,7 @@ What they are built on lives in ``tests/support``."""
 from __future__ import annotations
 
 import os
+import subprocess
 import sys
 
 # Bytecode is cached for the suite even where the environment says not to (PYTHONDONTWRITEBYTECODE,
@@ -22,6 +23,23 @@ import pytest  # noqa: E402
 from hypothesis import HealthCheck, settings  # noqa: E402
 from support.server import LineClient, ServerThread  # noqa: E402
 from support.simtime import SimTime  # noqa: E402
+
+# The numba kernels a fresh clone has never compiled, compiled once, by two processes side by side,
+# before the workers start: each worker would otherwise compile every kernel its tests meet (some
+# 30 s of CPU a worker on a fresh clone; once cached, this costs the 2 s of loading them).
+KERNELS = (("prox_workflows.algorithms.dem_import", "prox_workflows.algorithms.vehicle", "prox_workflows.algorithms.replan"),
+           ("prox_workflows.algorithms.dem2hazard", "prox_workflows.algorithms.planner", "drivers.sim.raycast"))
+
+
+def pytest_configure(config: pytest.Config) -> None:
+    if hasattr(config, "workerinput") or not getattr(config.option, "numprocesses", None):
+        return  # a worker, or a run without workers: the kernels compile where first used
+    code = "import importlib, sys\nfor m in sys.argv[1:]: importlib.import_module(m).warm_up()"
+    warming = [subprocess.Popen([sys.executable, "-c", code, *group], stdout=subprocess.DEVNULL,
+                                stderr=subprocess.DEVNULL) for group in KERNELS]
+    for proc in warming:
+        proc.wait()  # a kernel that fails to compile here fails in the test that uses it, saying why
+
 
 # Hypothesis times its examples (a 200 ms deadline, the too_slow health check): that is the
 # machine's speed, which no test may depend on. Tests that set their own settings keep them.
