@@ -26,7 +26,7 @@ map's spread over 2.5, the rock-top error common to the body (``rock_sigma`` x t
 the status, candidate, rank and poses checked: the verdicts, to compare two versions of the check.
 
     python -m tools.bench.candidates [--scenes marsyard dense] [--maps tight wide] [--trials 40] [--max-poses N]
-    python -m tools.bench.candidates --check chance --trials 10 [--digest]
+    python -m tools.bench.candidates --check chance --trials 10 [--digest] [--every-pose]
 """
 
 from __future__ import annotations
@@ -117,12 +117,15 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--range", type=float, default=4.5, help="how far the seen wedge reaches (m)")
     ap.add_argument("--check", choices=["bounds", "chance"], default="bounds",
                     help="the sections' check: the worst case on bounds, or the chance constraint (as the see loop)")
+    ap.add_argument("--every-pose", action="store_true",
+                    help="with --check chance: draw for every pose sent (no runs: a section is not read to its first "
+                         "refusal only), for comparison")
     ap.add_argument("--digest", action="store_true", help="print each trial's verdict (status, candidate, rank, poses)")
     args = ap.parse_args(argv)
     params = CandidateParams(max_poses=args.max_poses)
     chance = ChanceParams()
     digests: list[str] = []
-    print(f"check: {args.check}")
+    print(f"check: {args.check}{' (every pose drawn)' if args.every_pose else ''}")
     print("| scene | map | trials | field ms p50 / p95 | choose ms p50 / p95 | total ms p50 / p95 | drive / look / blocked "
           "| candidates checked p50 / max | poses checked p50 / p95 | choose less the check ms p50 / p95 |")
     print("|---|---|---|---|---|---|---|---|---|---|")
@@ -139,16 +142,21 @@ def main(argv: list[str] | None = None) -> None:
             if args.check == "chance":
                 post = window_posterior(heights, g, MAPS[kind][0], chance)
                 vehicle = posterior_check(post, g, body, chance)
+                if args.every_pose:
+                    vehicle = (lambda f: lambda poses: f(poses))(vehicle)
                 lookahead = best_check(post, g, body)
             else:
                 vehicle = bounds_check(heights, g, body)
             in_check = [0.0]
 
-            def check(poses: np.ndarray, vehicle=vehicle, in_check=in_check) -> np.ndarray:
+            def check(poses: np.ndarray, runs: np.ndarray | None = None, vehicle=vehicle,
+                      in_check=in_check) -> np.ndarray:
                 t = time.perf_counter()
-                out = vehicle(poses)
+                out = vehicle(poses) if runs is None else vehicle(poses, runs)
                 in_check[0] += time.perf_counter() - t
                 return out
+
+            check.by_runs = getattr(vehicle, "by_runs", False)  # type: ignore[attr-defined]
 
             t0 = time.perf_counter()
             cost, cg = coarse_costs(heights, g, body)
