@@ -139,6 +139,7 @@ def test_the_gnc_drives_each_chosen_section_as_waypoints(server_factory) -> None
         assert float(np.hypot(*(wps[-1, :2] - wps[0, :2]))) <= 1.0 + 1e-6, wps
 
 
+@long_test  # 2 m on quarry with every section chosen with the chance check: about 6 s of CPU
 def test_the_gaze_holds_the_mast_over_several_frames_while_driving(server_factory, monkeypatch) -> None:
     """A PTU move stops the drive for most of a cycle: the gaze holds its near and its far look
     for several frames each, so between two frames taken while driving the mast's tilt changes
@@ -161,7 +162,7 @@ def test_the_gaze_holds_the_mast_over_several_frames_while_driving(server_factor
 
     monkeypatch.setattr(ptu, "move", logged_move)
     monkeypatch.setattr(tof, "grab_xyz", logged_grab)
-    final = srv.client().request("navigate -start 0,0,0 -goal 3.0,0 -auto -loop see -name hold", timeout=600)
+    final = srv.client().request("navigate -start 0,0,0 -goal 2.0,0 -auto -loop see -name hold", timeout=600)
     assert final.status == "OK" and final.fields["reached"] == "true", final.fields
     tilt, tilts = None, []  # the tilt each frame was taken at
     for kind, t in log:
@@ -171,5 +172,5 @@ def test_the_gaze_holds_the_mast_over_several_frames_while_driving(server_factor
             tilts.append((kind, tilt))
     pairs = [(a, b) for a, b in zip(tilts, tilts[1:], strict=False) if a[0] == b[0] == "drive"]
     changed = sum(a[1] != b[1] for a, b in pairs)
-    assert len(pairs) >= 20
+    assert len(pairs) >= 15
     assert changed <= 0.45 * len(pairs), (changed, len(pairs))
