@@ -365,7 +365,7 @@ def posterior_check(post: Posterior, geom: GridGeometry, body: VehicleBody,
     reads only the cells round its poses: the surfaces it draws are as large as what it reads."""
     pad = reach(body) + 2 * geom.cell
 
-    def check(poses: np.ndarray) -> np.ndarray:
+    def check(poses: np.ndarray, runs: np.ndarray | None = None) -> np.ndarray:
         poses = np.atleast_2d(np.asarray(poses, float))
         sub, sl = crop(geom, poses[:, 0].min() - pad, poses[:, 1].min() - pad, poses[:, 0].max() + pad,
                         poses[:, 1].max() + pad)
@@ -373,12 +373,13 @@ def posterior_check(post: Posterior, geom: GridGeometry, body: VehicleBody,
             return np.full(len(poses), UNKNOWN)
         common = post.common if np.ndim(post.common) == 0 else post.common[sl]
         c = chance_check(Posterior(post.mean[sl], post.var[sl], post.ceiling[sl], common), sub, poses, body, params,
-                         verdict_only=True)
+                         verdict_only=True, runs=runs)
         k, _ = c.worst()
         out = np.where(c.unsafe, k + 1, SAFE)
         out[c.unknown] = UNKNOWN
         return out
 
+    check.by_runs = True  # type: ignore[attr-defined]
     return check
 
 
@@ -528,7 +529,16 @@ def choose(pose: tuple[float, float, float], heights: np.ndarray | tuple[np.ndar
             if not group or fn is None:
                 continue
             batch = np.concatenate([node_world(k) for k in group])
-            codes = np.asarray(fn(batch), int)
+            if getattr(fn, "by_runs", False):
+                # a turn or section is read to its first failing pose (:func:`first_bad`), so each
+                # is a run; a look-ahead's unknown poses do not fail it, so each of its poses is one
+                sizes = [int(tree.start[k + 1] - tree.start[k]) for k in group]
+                at = np.cumsum([0] + sizes[:-1])
+                runs = np.concatenate([[a] if tree.part[k] != 2 else a + np.arange(m)
+                                       for k, a, m in zip(group, at, sizes, strict=True)]).astype(np.int64)
+                codes = np.asarray(fn(batch, runs), int)
+            else:
+                codes = np.asarray(fn(batch), int)
             poses_checked += len(batch)
             at = 0
             for k in group:

@@ -219,7 +219,7 @@ def screen_k(body: VehicleBody, cell: float, epsilon: float) -> float:
 
 def chance_check(post: Posterior, geom: GridGeometry, poses: np.ndarray, body: VehicleBody,
                  params: ChanceParams | None = None, step: float | None = None,
-                 verdict_only: bool = False) -> ChanceChecks:
+                 verdict_only: bool = False, runs: np.ndarray | None = None) -> ChanceChecks:
     """The probability that ``body`` exceeds each physical limit at each of ``poses`` ((N, 3): x, y,
     heading deg) on the ground ``post`` gives over ``geom``, and the verdict against epsilon (see
     the module's docstring). ``step``: the body's sample spacing (default the grid's cell), as
@@ -228,7 +228,16 @@ def chance_check(post: Posterior, geom: GridGeometry, poses: np.ndarray, body: V
     ``verdict_only``: a pose whose best estimate already exceeds a limit is refused without
     sampling, its probability for each limit so exceeded put at 0.5 (at least about even: the
     draws scatter round that estimate) and 0 for the others. A planner's check wants the verdict
-    alone, and near rocks most of its poses are such: the draws cost 64 checks of each."""
+    alone, and near rocks most of its poses are such: the draws cost 64 checks of each.
+
+    ``runs`` (with ``verdict_only``): the indices where runs of consecutive poses start (a path's
+    poses in the order it is driven), of which only the first refused pose is wanted: a planner
+    reads no further along a path that fails. Poses of a run after one already refused (unknown,
+    over a limit on the best estimate, or over one in a draw so far) are drawn for no more and
+    reported ``unknown`` (not judged: never safe). The poses up to each run's first refusal get
+    the verdicts they get without ``runs`` (the same draws: a pose's draws do not depend on which
+    other poses are drawn for); the draws for a path that fails at its fifth pose are not spent
+    on its fiftieth."""
     p = params or ChanceParams()
     poses = np.atleast_2d(np.asarray(poses, float))
     n = len(poses)
@@ -242,7 +251,7 @@ def chance_check(post: Posterior, geom: GridGeometry, poses: np.ndarray, body: V
     lower = np.where(seen, mu - ks * (sd + common), np.nan).astype(np.float32)
     upper = np.where(seen, mu + ks * (sd + common), roof).astype(np.float32)
     wide = check_poses((lower, upper), geom, poses, body, step)
-    unknown = wide.unknown
+    unknown = wide.unknown.copy()
     screened = wide.safe
     nominal = check_poses(best.astype(np.float32), geom, poses, body, step)
     prob = np.where(unknown[:, None], np.nan, np.zeros((n, 4)))
@@ -253,6 +262,12 @@ def chance_check(post: Posterior, geom: GridGeometry, poses: np.ndarray, body: V
         prob[over_best] = np.where(nominal.excess[over_best] > 0, 0.5, 0.0)
         p_any[over_best] = 0.5
         todo &= ~over_best
+    run_of = _run_of(runs, n) if verdict_only and runs is not None and n else None
+    refused = unknown | over_best if verdict_only else unknown.copy()
+    cut = np.zeros(n, bool)  # poses past their run's first refusal: not judged
+    if run_of is not None:
+        cut = todo & _past_first(refused, run_of)
+        todo &= ~cut
     rest = np.flatnonzero(todo)
     if len(rest):
         rng = np.random.default_rng(p.seed)
@@ -269,7 +284,13 @@ def chance_check(post: Posterior, geom: GridGeometry, poses: np.ndarray, body: V
             if early and s % EARLY == EARLY - 1:
                 # one draw over a limit in ``samples`` is a share of at least 1 / samples, above
                 # epsilon: that pose is refused whatever the later draws say
-                live &= ~(np.nan_to_num(excess[s - EARLY + 1:s + 1], nan=-np.inf) > 0).any(axis=(0, 2))
+                hit = (np.nan_to_num(excess[s - EARLY + 1:s + 1], nan=-np.inf) > 0).any(axis=(0, 2))
+                live &= ~hit
+                if run_of is not None:
+                    refused[rest[hit]] = True
+                    past = live & _past_first(refused, run_of)[rest]
+                    cut[rest[past]] = True
+                    live &= ~past
         excess = np.nan_to_num(excess, nan=-np.inf)  # no resting plane judged: nothing to exceed
         over = excess > 0
         finite = np.where(np.isfinite(excess), excess, np.nan)
@@ -282,5 +303,24 @@ def chance_check(post: Posterior, geom: GridGeometry, poses: np.ndarray, body: V
         per_limit = np.maximum(over.mean(axis=0), tail)
         prob[rest] = per_limit
         p_any[rest] = np.maximum(over.any(axis=2).mean(axis=0), np.minimum(tail.sum(axis=1), 1.0))
+    if cut.any():
+        prob[cut], p_any[cut], unknown[cut] = np.nan, np.nan, True
     return ChanceChecks(prob=prob, p_any=p_any, unknown=unknown, screened=screened, nominal=nominal,
                         epsilon=p.epsilon)
+
+
+def _run_of(runs: np.ndarray, n: int) -> np.ndarray:
+    """Per pose, the index of the run it is in (``runs``: where runs start; poses before the first
+    start are a run of their own)."""
+    start = np.zeros(n, bool)
+    start[0] = True
+    start[np.asarray(runs, np.int64)[(np.asarray(runs) >= 0) & (np.asarray(runs) < n)]] = True
+    return np.cumsum(start) - 1
+
+
+def _past_first(refused: np.ndarray, run_of: np.ndarray) -> np.ndarray:
+    """Per pose, whether an earlier pose of its run is ``refused``."""
+    idx = np.arange(len(run_of))
+    first = np.full(int(run_of[-1]) + 1, len(run_of))
+    np.minimum.at(first, run_of[refused], idx[refused])
+    return idx > first[run_of]

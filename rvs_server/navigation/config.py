@@ -88,8 +88,8 @@ class SeeConfig(Settings):
                           "outside the disc after the first look round", choices=("level", "attitude", "ring"),
                           option=False)
     gaze: str = param("path", "see loop with the gate: where the ToF looks while driving: path pans along the path "
-                      "(the ground a turn will put under the wheels) and every other frame looks at the path just "
-                      "ahead at the lowest tilt (where the gate judges next); off, or see_gate off, holds pan 0 and "
+                      "(the ground a turn will put under the wheels), three frames in turn at the path just ahead at the "
+                      "lowest tilt (where the gate judges next) and three further on at see_tilt; off, or see_gate off, holds pan 0 and "
                       "see_tilt (each PTU move costs the drive its time)",
                       choices=("path", "off"), option=False)
     look_frames: int = param(8, "see loop with the gate: frames the ToF averages (grab-tof -integrate) at each "

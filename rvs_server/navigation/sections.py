@@ -271,6 +271,13 @@ class SectionPilot:
             return self.poses
         return self.poses[self.n_turn:][self.s[self.n_turn:] >= self.driven - 1e-6]
 
+    def _path_ahead(self, pose: tuple[float, float, float]) -> np.ndarray:
+        """The chosen path's points still ahead of ``pose`` (past the one nearest it): the gaze
+        measures along what is still to drive, and from the section's start it would look back."""
+        xy = self.path[:, :2]
+        i = int(np.argmin(np.hypot(xy[:, 0] - pose[0], xy[:, 1] - pose[1])))
+        return xy[i + 1:] if i + 1 < len(xy) else xy[-1:]
+
     def _recheck(self, pose: tuple[float, float, float]) -> tuple[int, np.ndarray] | None:
         """The first pose of the section's rest that fails on the map as it is now (its verdict and
         the pose), where a frame touched the ground under that rest since it was judged; None: all
@@ -297,7 +304,7 @@ class SectionPilot:
     def next(self, pose: tuple[float, float, float]) -> Motion | None:
         d = self.d
         if d.rover.steers:
-            d.gaze(pose, self.path[:, :2])
+            d.gaze(pose, self._path_ahead(pose))
         seen, t1 = d.see(d.pan_tilt)
         d.job.check()
         bad = self._recheck(seen)

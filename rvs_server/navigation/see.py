@@ -79,6 +79,11 @@ if TYPE_CHECKING:
 
 GAZE_NEAR, GAZE_FAR = 0.9, 1.8  # m along the path: where the near and the far frames of the gaze look
 GAZE_PAN = 60.0  # deg: the gaze pans along the path at most this far off the heading
+# a PTU move stops the drive for about 0.8 s of its 1 s cycle: the gaze holds where it points for
+# GAZE_HOLD frames (near, then far), and between re-aims pans again only where the path's bearing
+# has moved more than GAZE_SLACK off the pan (a turn), well inside the ToF's field of view
+GAZE_HOLD = 3
+GAZE_SLACK = 15.0  # deg
 EDGE_JUMP = 0.02  # share of the range: a bigger jump to a neighbouring pixel marks a depth edge's mixed pixel
 BODY_MARGIN = 0.06  # m round the rover's box and wheels whose returns are its own
 BLIND_EDGE = 0.1  # m past the mast's blind disc that its rays only graze (bounded by a ray, seldom by returns)
@@ -171,20 +176,22 @@ class SeeingDriver:
     def gaze(self, pose: tuple[float, float, float], remaining: np.ndarray) -> None:
         """Where the ToF looks for this cycle's frame (``see_gaze path``): the mast pans along the
         path, not the heading, so the ground a turn will put under the wheels is seen before the
-        turn; every other frame it looks at the path ``GAZE_NEAR`` m ahead at the PTU's lowest
-        tilt, where the next section is judged (closer, so with a third of the range noise), and
-        otherwise at the point ``GAZE_FAR`` m ahead at ``see_tilt``. Off, or without the bounds
+        turn; ``GAZE_HOLD`` frames in turn it looks at the path ``GAZE_NEAR`` m ahead at the PTU's
+        lowest tilt, where the next section is judged (closer, so with a third of the range noise),
+        and at the point ``GAZE_FAR`` m ahead at ``see_tilt``; within a hold the mast pans only
+        where the path's bearing has moved ``GAZE_SLACK`` off its pan. Off, or without the bounds
         map (which the near frames feed): pan 0, ``see_tilt``, and no PTU move between frames
         (each move costs the drive its time)."""
         if self.p.gaze == "off" or self.bounds is None:
             return
         self.frame_no += 1
-        near = self.frame_no % 2 == 0
+        near = (self.frame_no // GAZE_HOLD) % 2 == 1
         ahead = path_poses(pose, remaining, GAZE_NEAR if near else GAZE_FAR, step=0.05)[-1]
         pan, _ = self.head.look_at(np.array([*in_rover_frame(pose, ahead[0], ahead[1]), 0.0]))
         pan = max(-GAZE_PAN, min(GAZE_PAN, round(pan / 5.0) * 5.0))  # 5-degree steps: fewer moves
         tilt = self._lowest_tilt() if near else self.p.tilt
-        if (pan, tilt) != self.pan_tilt:
+        due = self.frame_no % GAZE_HOLD == 0 or abs(pan - self.pan_tilt[0]) > GAZE_SLACK
+        if due and (pan, tilt) != self.pan_tilt:
             self._point(pan, tilt)
 
     def pose(self) -> tuple[float, float, float]:

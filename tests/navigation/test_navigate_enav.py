@@ -138,3 +138,40 @@ def test_the_gnc_drives_each_chosen_section_as_waypoints(server_factory) -> None
     assert int(final.fields["scans"]) == 0 and len(sections) == int(final.fields["legs"]) >= 2
     for wps in sections:  # a section: at most 0.7 m of arc from where the rover stands
         assert float(np.hypot(*(wps[-1, :2] - wps[0, :2]))) <= 0.7 + 1e-6, wps
+
+
+@long_test  # 2 m on quarry with every section chosen with the chance check: about 6 s of CPU
+def test_the_gaze_holds_the_mast_over_several_frames_while_driving(server_factory, monkeypatch) -> None:
+    """A PTU move stops the drive for most of a cycle: the gaze holds its near and its far look
+    for several frames each, so between two frames taken while driving the mast's tilt changes
+    on about one cycle in three (a turn or a new section may still pan it), and the goal is
+    reached."""
+    srv = server_factory(["server.scene=quarry"])
+    world = srv.app.world
+    world.set_target_visible(False)
+    ptu, tof = srv.app.devices.get("ptu"), srv.app.devices.get("tof")
+    log: list[tuple[str, float]] = []
+    move, grab = ptu.move, tof.grab_xyz
+
+    def logged_move(pan, tilt, *a, **k):  # noqa: ANN001, ANN002, ANN003, ANN202
+        log.append(("move", float(tilt)))
+        return move(pan, tilt, *a, **k)
+
+    def logged_grab(integrate: int = 1, *a, **k):  # noqa: ANN002, ANN003, ANN202
+        log.append(("drive" if integrate == 1 else "look", 0.0))
+        return grab(integrate, *a, **k)
+
+    monkeypatch.setattr(ptu, "move", logged_move)
+    monkeypatch.setattr(tof, "grab_xyz", logged_grab)
+    final = srv.client().request("navigate -start 0,0,0 -goal 2.0,0 -auto -loop see -name hold", timeout=600)
+    assert final.status == "OK" and final.fields["reached"] == "true", final.fields
+    tilt, tilts = None, []  # the tilt each frame was taken at
+    for kind, t in log:
+        if kind == "move":
+            tilt = round(t, 3)
+        else:
+            tilts.append((kind, tilt))
+    pairs = [(a, b) for a, b in zip(tilts, tilts[1:], strict=False) if a[0] == b[0] == "drive"]
+    changed = sum(a[1] != b[1] for a, b in pairs)
+    assert len(pairs) >= 15
+    assert changed <= 0.45 * len(pairs), (changed, len(pairs))

@@ -26,7 +26,9 @@ from prox_workflows.algorithms.candidates import (
     choose,
     coarse_costs,
     cost_to_go,
+    posterior_check,
 )
+from prox_workflows.algorithms.chance import Posterior
 from prox_workflows.algorithms.vehicle import check_poses, densify, reach
 from prox_workflows.grid import GridGeometry
 
@@ -238,3 +240,37 @@ def test_a_section_passing_the_goal_stops_at_it() -> None:
     end = c.poses[-1]
     assert math.hypot(end[0] - 0.6, end[1] - 0.02) <= 0.1
     assert len(c.poses) < len(c.path) - 20  # cut short of its 1 m section
+
+
+def test_the_chance_check_draws_a_section_no_further_than_its_first_refusal_and_chooses_the_same(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """Sections are read to their first failing pose: the draws past it are not made, and the
+    choice and every failure (candidate, part, limit, place) are what judging every pose gives."""
+    import prox_workflows.algorithms.chance as chance
+
+    w = World()
+    w.box(0.6, 1.5, -0.35, 0.35, 0.085)  # a ledge 0.6 m ahead a wheel may just climb, on the best estimate
+    w.box(0.5, 0.7, 0.55, 0.8, 0.2)
+    blocks = w.truth.reshape(w.g.height, 5, w.g.width, 5).max(axis=(1, 3))
+    post = Posterior(blocks, np.full(blocks.shape, 0.006**2), np.full(blocks.shape, np.inf))
+    check = posterior_check(post, w.g, BODY)
+    drawn: list[int] = []
+    real = chance.check_poses
+
+    def counted(heights, geom, poses, body, step=None):  # noqa: ANN001, ANN202
+        if not isinstance(heights, tuple) and len(poses):
+            drawn.append(len(poses))
+        return real(heights, geom, poses, body, step)
+
+    monkeypatch.setattr(chance, "check_poses", counted)
+    by_runs = w.choose((0.0, 0.0, 0.0), (5.0, 0.0), check)
+    with_runs = sum(drawn)
+    drawn.clear()
+    every = w.choose((0.0, 0.0, 0.0), (5.0, 0.0), lambda poses: check(poses))  # no runs: every pose judged
+    assert by_runs.status == every.status == "drive" and by_runs.candidate != 0  # not straight on
+    assert (by_runs.candidate, by_runs.rank, by_runs.checked) == (every.candidate, every.rank, every.checked)
+    assert by_runs.failures == every.failures and len(every.failures) > 0
+    assert any(f.part == "section" for f in every.failures)
+    np.testing.assert_array_equal(by_runs.poses, every.poses)
+    # the draws: one check per pose and draw, fewer where sections stop at their first refusal
+    assert with_runs < 0.9 * sum(drawn)

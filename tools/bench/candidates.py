@@ -18,7 +18,15 @@ ranking and the bookkeeping).
 
 The cycle's other work (fusing frames, the gate) is not in these figures.
 
+``--check chance`` judges the sections as the see loop does (:func:`posterior_check`: the chance
+constraint, 64 draws, ``verdict_only``; the look-aheads on the posterior's best estimate), on a
+posterior made from the same window: each cell's top its highest true height, a sigma of the
+map's spread over 2.5, the rock-top error common to the body (``rock_sigma`` x the cell's relief);
+``--check bounds`` (the default) is the worst case on the bounds. ``--digest`` prints, per trial,
+the status, candidate, rank and poses checked: the verdicts, to compare two versions of the check.
+
     python -m tools.bench.candidates [--scenes marsyard dense] [--maps tight wide] [--trials 40] [--max-poses N]
+    python -m tools.bench.candidates --check chance --trials 10 [--digest] [--every-pose]
 """
 
 from __future__ import annotations
@@ -34,11 +42,14 @@ from scipy import ndimage
 from drivers.sim.world import World
 from prox_workflows.algorithms.candidates import (
     CandidateParams,
+    best_check,
     bounds_check,
     choose,
     coarse_costs,
     cost_to_go,
+    posterior_check,
 )
+from prox_workflows.algorithms.chance import ChanceParams, Posterior, relief
 from prox_workflows.algorithms.vehicle import check_poses
 from prox_workflows.grid import GridGeometry
 from rvs_truth.surface import AREA
@@ -69,6 +80,19 @@ def window(world: World, pose: tuple[float, float, float], spread: float, fov: f
     return (lower, upper), g, truth, tg
 
 
+def window_posterior(heights: tuple[np.ndarray, np.ndarray], g: GridGeometry, spread: float,
+                     chance: ChanceParams) -> Posterior:
+    """A posterior a map of the window might hold: the top at the cell's highest true height (the
+    upper bound less its spread), a sigma of the spread over 2.5, the rock-top error common to the
+    cells under a body; unseen where the window has no bound."""
+    lower, upper = heights
+    top = upper - spread
+    seen = np.isfinite(top)
+    var = np.where(seen, (spread / 2.5) ** 2 + chance.top_sigma**2, np.nan)
+    common = np.where(seen, chance.rock_sigma * relief(top, g), 0.0)
+    return Posterior(np.where(seen, top, np.nan), var, np.full(top.shape, np.inf), common)
+
+
 def trial_poses(world: World, scene: str, n: int, rng: np.random.Generator) -> list[tuple[float, float, float]]:
     xmin, ymin, xmax, ymax = AREA[scene]
     out: list[tuple[float, float, float]] = []
@@ -91,8 +115,17 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--max-poses", type=int, default=0, help="CandidateParams.max_poses (0: no budget)")
     ap.add_argument("--fov", type=float, default=60.0, help="half-width of the seen wedge (deg)")
     ap.add_argument("--range", type=float, default=4.5, help="how far the seen wedge reaches (m)")
+    ap.add_argument("--check", choices=["bounds", "chance"], default="bounds",
+                    help="the sections' check: the worst case on bounds, or the chance constraint (as the see loop)")
+    ap.add_argument("--every-pose", action="store_true",
+                    help="with --check chance: draw for every pose sent (no runs: a section is not read to its first "
+                         "refusal only), for comparison")
+    ap.add_argument("--digest", action="store_true", help="print each trial's verdict (status, candidate, rank, poses)")
     args = ap.parse_args(argv)
     params = CandidateParams(max_poses=args.max_poses)
+    chance = ChanceParams()
+    digests: list[str] = []
+    print(f"check: {args.check}{' (every pose drawn)' if args.every_pose else ''}")
     print("| scene | map | trials | field ms p50 / p95 | choose ms p50 / p95 | total ms p50 / p95 | drive / look / blocked "
           "| candidates checked p50 / max | poses checked p50 / p95 | choose less the check ms p50 / p95 |")
     print("|---|---|---|---|---|---|---|---|---|---|")
@@ -105,21 +138,34 @@ def main(argv: list[str] | None = None) -> None:
             heights, g, _, _ = window(world, pose, *MAPS[kind][:1], args.fov, args.range, MAPS[kind][1])
             b = math.radians(float(rng.uniform(-180, 180)))
             goal = (pose[0] + 15 * math.cos(b), pose[1] + 15 * math.sin(b))
-            vehicle = bounds_check(heights, g, body)
+            lookahead = None
+            if args.check == "chance":
+                post = window_posterior(heights, g, MAPS[kind][0], chance)
+                vehicle = posterior_check(post, g, body, chance)
+                if args.every_pose:
+                    vehicle = (lambda f: lambda poses: f(poses))(vehicle)
+                lookahead = best_check(post, g, body)
+            else:
+                vehicle = bounds_check(heights, g, body)
             in_check = [0.0]
 
-            def check(poses: np.ndarray, vehicle=vehicle, in_check=in_check) -> np.ndarray:
+            def check(poses: np.ndarray, runs: np.ndarray | None = None, vehicle=vehicle,
+                      in_check=in_check) -> np.ndarray:
                 t = time.perf_counter()
-                out = vehicle(poses)
+                out = vehicle(poses) if runs is None else vehicle(poses, runs)
                 in_check[0] += time.perf_counter() - t
                 return out
+
+            check.by_runs = getattr(vehicle, "by_runs", False)  # type: ignore[attr-defined]
 
             t0 = time.perf_counter()
             cost, cg = coarse_costs(heights, g, body)
             ctg = cost_to_go(cost, cg, goal)
             t1 = time.perf_counter()
-            c = choose(pose, heights, g, body, ctg, check, params)
+            c = choose(pose, heights, g, body, ctg, check, params, lookahead)
             t2 = time.perf_counter()
+            digests.append(f"{scene} {kind} {c.status} {c.candidate} {c.rank} {c.checked} {c.poses_checked} "
+                           f"{sorted(c.reasons.items())}")
             t_field.append(1000 * (t1 - t0))
             t_choose.append(1000 * (t2 - t1))
             t_rank.append(1000 * (t2 - t1 - in_check[0]))
@@ -134,6 +180,8 @@ def main(argv: list[str] | None = None) -> None:
         print(f"| {scene} | {kind} | {len(total)} | {pp(t_field)} | {pp(t_choose)} | {pp(total)} | "
               f"{statuses['drive']} / {statuses['look']} / {statuses['blocked']} | "
               f"{np.percentile(checked, 50):.0f} / {max(checked)} | {pp(poses)} | {pp(t_rank)} |")
+    if args.digest:
+        print("\n".join(digests))
 
 
 if __name__ == "__main__":
