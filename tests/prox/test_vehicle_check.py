@@ -19,7 +19,7 @@ BODY = RoverBody()
 ROCK = 0.25  # m: far over the belly's 8 cm and the wheel's 10 cm climb
 
 
-@pytest.mark.parametrize("scene", ["marsyard", "hirise", "dense"])
+@pytest.mark.parametrize("scene", ["marsyard", *(pytest.param(s, marks=long_only()) for s in ("hirise", "dense"))])
 def test_the_check_is_its_numpy_definition_on_the_true_surface_and_on_bounds(scene: str) -> None:
     world = World.from_scene(scene)
     fine, g, coarse = truth_surface(world, scene)
