@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from support.marks import long_only
 
 from drivers.sim.rover import RoverBody
 from drivers.sim.world import World
