@@ -486,6 +486,7 @@ def test_the_gnc_drives_and_each_pose_report_is_a_cycle(server_factory, monkeypa
     assert not (hazard[rr, cc] == 255).any(), "the rover's track crossed a true hazard"
 
 
+@long_test  # the 5 cm maps' see loop (see_gate off), ~6 s of CPU
 def test_a_goal_the_scan_shows_in_a_hazard_ends_after_one_scan(server_factory) -> None:
     """The see loop's first scan shows the goal on the tall rock (within judge_range): one look
     toward it, then E_DATA naming the reason, without a second scan from the same spot (the plan

@@ -9,6 +9,7 @@ import itertools
 import numpy as np
 import pytest
 import yaml
+from support.marks import long_test
 
 from drivers.ptu.protocol import pos_to_deg
 from prox_workflows.algorithms.ptu_positions import grid, path_time, plan, scan_limit
@@ -108,6 +109,7 @@ def scan_dem(server_factory, extra_sets: list[str], request_extra: str = "") -> 
     return srv, r
 
 
+@long_test  # two scans of the same view range, ~5 s of CPU
 def test_processing_while_the_ptu_moves_gives_the_same_dem(server_factory) -> None:
     srv_a, a = scan_dem(server_factory, ["dem_full_tof.overlap_processing=true"])
     srv_b, b = scan_dem(server_factory, ["dem_full_tof.overlap_processing=false"])

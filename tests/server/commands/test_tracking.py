@@ -11,6 +11,7 @@ from typing import Any
 
 import numpy as np
 import pytest
+from support.marks import long_test
 
 from drivers.sim.trajectory import Trajectory
 
@@ -46,6 +47,7 @@ def test_detect_finds_the_astronaut_or_says_it_is_not_there(server_factory: Any)
     assert abs(float(r.fields["height"]) - 1.8) < 0.2
 
 
+@long_test  # 20 s of a walk tracked frame by frame, ~9 s of CPU; detect runs in the default suite
 def test_tracking_follows_a_walk_at_1_m_s_and_reports_lost_and_reacquired(server_factory: Any, sim_time: Any) -> None:
     """In simulated time (tests/simtime.py), one ToF frame every FRAME seconds: the walk, the
     hiding and the frames the tracker gets are the same on any machine. (In real time a loaded
