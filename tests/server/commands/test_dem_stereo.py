@@ -29,9 +29,11 @@ def rmse(dem: np.ndarray, truth: np.ndarray, cells: np.ndarray) -> float:
     return float(np.sqrt(np.mean((dem[sel] - truth[sel]) ** 2)))
 
 
-# office in the long suite only (the default run's time: tests/prox/test_fusion_bands.py checks the
-# fused office DEM band by band there too)
-@pytest.fixture(scope="module", params=[pytest.param("office", marks=long_only()), "quarry"])
+# in the long suite only (the default run's time: three DEMs a scene, 12 s of CPU; there
+# tests/prox/test_fusion_bands.py checks the fused office DEM band by band, tests/prox/test_stereo.py
+# the quarry's disparities against the rendered truth)
+@pytest.fixture(scope="module", params=[pytest.param("office", marks=long_only()),
+                                        pytest.param("quarry", marks=long_only())])
 def three_dems(request, tmp_path_factory):
     """One scan each with stereo, ToF and both fused, from the same pose."""
     srv = ServerThread(tmp_path_factory.mktemp(request.param), [f"server.scene={request.param}"]).start()
