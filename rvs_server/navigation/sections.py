@@ -124,7 +124,7 @@ class Chooser:
         self.d: SeeingDriver = strategy.driver
         self.params = self.d.p.chooser
         self.chance = self.d.p.chance
-        self.rounds: list[tuple[float, float, bool]] = []  # where the rover looked round, and whether all round
+        self.rounds: list[tuple[float, float]] = []  # where the rover looked round
         self.best = math.inf  # the least cost to go the rover stood at
         self.since_best = 0  # sections driven since
 
@@ -133,16 +133,14 @@ class Chooser:
         5 cm maps only, so the rover looks round for the bounds map too."""
         self._look_round(self.d.pose())
 
-    def _looked_round_here(self, pose: tuple[float, float, float], all_round: bool = False) -> bool:
-        return any(math.hypot(pose[0] - x, pose[1] - y) < 0.3 and (a or not all_round) for x, y, a in self.rounds)
+    def _looked_round_here(self, pose: tuple[float, float, float]) -> bool:
+        return any(math.hypot(pose[0] - x, pose[1] - y) < 0.3 for x, y in self.rounds)
 
-    def _look_round(self, pose: tuple[float, float, float], all_round: bool = False) -> None:
-        """A standing look toward the goal; ``all_round`` where every way toward it failed, since a
-        turn on the spot may then face any way."""
-        self.rounds.append((pose[0], pose[1], all_round))
-        goal = self.s.mission.goal
-        bearing = math.degrees(math.atan2(goal[1] - pose[1], goal[0] - pose[0])) - pose[2]
-        self.d.look_round(None if all_round else bearing)
+    def _look_round(self, pose: tuple[float, float, float]) -> None:
+        """A standing look all round: a turn on the spot may face any way, and toward the goal
+        alone leaves the chooser's turns judged on unseen ground (marsyard mission 0's start)."""
+        self.rounds.append((pose[0], pose[1]))
+        self.d.look_round()
 
     def _choose(self, pose: tuple[float, float, float], look_cost: float | None) -> tuple[Choice, float]:
         params = self.params if look_cost is None else dataclasses.replace(self.params, look_cost=look_cost)
@@ -165,7 +163,7 @@ class Chooser:
             m = self.s.set_down_on_ring()
             self.s.mission.progress(leg, 1, 1, f"set down on {m}", "plan")
         look_cost: float | None = None
-        for _ in range(LOOKS + 3):
+        for _ in range(LOOKS + 2):
             job.check()
             choice, togo = self._choose(pose, look_cost)
             if choice.status == "drive":
@@ -177,9 +175,6 @@ class Chooser:
                 if not self._looked_round_here(pose):
                     self._look_round(pose)
                     continue
-                if not self._looked_round_here(pose, all_round=True):
-                    self._look_round(pose, all_round=True)
-                    continue
                 if look_cost is None:  # looking from here shows no more: choose among what it shows
                     look_cost = PRICED_OUT
                     continue
@@ -187,8 +182,8 @@ class Chooser:
                                               f"on runs over ({x:.2f}, {y:.2f}), no frame bounds it after a look "
                                               f"round from ({pose[0]:.2f}, {pose[1]:.2f}); failures: "
                                               f"{reasons(choice)}")
-            if not self._looked_round_here(pose, all_round=True):  # blocked: look all round before giving up
-                self._look_round(pose, all_round=True)
+            if not self._looked_round_here(pose):  # blocked: look round before giving up
+                self._look_round(pose)
                 continue
             raise ProtocolError("E_DATA", f"no way on within the body's limits: {choice.reason} from "
                                           f"({pose[0]:.2f}, {pose[1]:.2f}) after a look round; failures: "
