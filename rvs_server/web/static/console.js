@@ -19,13 +19,17 @@ const COLOUR = {
 };
 const HISTORY_KEY = "rvs.commands";
 const HISTORY_MAX = 100;
-// The token a page was unlocked with, kept for its reloads and reconnects (each new WebSocket is
-// a new connection the server asks it of). sessionStorage, not localStorage: it stays with this
-// tab and goes when the tab closes, so the key to driving the rover is not left on the disk
-// for whoever opens the browser next, nor given to every tab opened later.
-const TOKEN_KEY = "rvs.token";
+// The arguments of the auth line a page was unlocked with (`-token ...` as the wire reads them),
+// kept for its reloads and reconnects (each new WebSocket is a new connection the server asks
+// the token of). sessionStorage, not localStorage: it stays with this tab and goes when the tab
+// closes, so the key to driving the rover is not left on the disk for whoever opens the browser
+// next, nor given to every tab opened later. For the same reason an auth line typed on the
+// command line is kept out of the command history (localStorage).
+const AUTH_KEY = "rvs.auth";
 // A request line's own tag: "@tag command ...", as the server parses it.
 const TAGGED = /^@(\S+)\s/;
+// A request line's command word and the rest, after its tag if it has one.
+const COMMAND = /^(?:@\S+\s+)?(\S+)\s*(.*)$/s;
 
 const S = {
   state: null,          // the last state snapshot
@@ -70,10 +74,11 @@ function connect() {
     S.cameras = {};
     S.pending = {};
     S.authed = false;
+    S.authing = false;  // an auth the old connection did not answer is no one's now
     $("layers").dataset.names = "(reconnected)";
     setLink(true);
-    const token = storedToken();
-    if (token) authenticate(token);
+    const args = storedAuth();
+    if (args) authenticate(args);
   };
   ws.onclose = () => { setLink(false); setTimeout(connect, 1500); };
   ws.onmessage = (ev) => {
@@ -108,20 +113,35 @@ function send(line, handlers) {
   ws.send(JSON.stringify({ line: own ? line : "@" + tag + " " + line }));
 }
 
-function storedToken() {
-  try { return sessionStorage.getItem(TOKEN_KEY) || ""; } catch (e) { return ""; }
+function storedAuth() {
+  try { return sessionStorage.getItem(AUTH_KEY) || ""; } catch (e) { return ""; }
 }
 
-function authenticate(token) {
+function commandWord(line) {
+  const m = COMMAND.exec(line);
+  return m ? [m[1].toLowerCase(), m[2]] : ["", ""];
+}
+
+// A token as one quoted value of the wire: spaces, quotes and backslashes in it stay its own.
+function quoted(token) {
+  return `"${token.replace(/[\\"]/g, (c) => "\\" + c)}"`;
+}
+
+// An auth line, from the panel or typed on the command line (``line``: sent as typed, its tag
+// kept): the page unlocks when the server says OK, and keeps ``args`` for its reloads. A wrong
+// token leaves an unlocked connection unlocked (the server's rule), and the page with it.
+function authenticate(args, line) {
   S.authing = true;
-  send(`auth -token ${token}`, { onFinal: (r) => {
+  send(line || `auth ${args}`, { onFinal: (r) => {
     S.authing = false;
-    S.authed = r.status === "OK";
     try {
-      if (S.authed) sessionStorage.setItem(TOKEN_KEY, token);
-      else sessionStorage.removeItem(TOKEN_KEY);  // refused (the server's token changed): ask again
+      if (r.status === "OK") sessionStorage.setItem(AUTH_KEY, args);
+      else if (!S.authed) sessionStorage.removeItem(AUTH_KEY);  // refused (the server's token changed): ask again
     } catch (e) { /* storage off: unlocked until the page reloads */ }
-    if (S.authed) $("token").value = "";
+    if (r.status === "OK") {
+      S.authed = true;
+      $("token").value = "";
+    }
     if (S.state) onState(S.state);
   } });
 }
@@ -1187,7 +1207,7 @@ const CONFIRM = {
 };
 
 function confirmed(line) {
-  const word = line.replace(/^@\S+\s+/, "").split(/\s+/)[0];
+  const [word] = commandWord(line);
   return !(word in CONFIRM) || window.confirm(CONFIRM[word]);
 }
 
@@ -1203,12 +1223,14 @@ $("cmdform").onsubmit = (e) => {
   e.preventDefault();
   const line = $("cmd").value.trim();
   if (!line) return;
-  if (S.commands[S.commands.length - 1] !== line) S.commands.push(line);
+  const [word, args] = commandWord(line);
+  if (word !== "auth" && S.commands[S.commands.length - 1] !== line) S.commands.push(line);
   while (S.commands.length > HISTORY_MAX) S.commands.shift();
   try { localStorage.setItem(HISTORY_KEY, JSON.stringify(S.commands)); } catch (err) { /* private mode */ }
   S.commandAt = -1;
   $("cmd").value = "";
-  sendChecked(line);
+  if (word === "auth") authenticate(args, line);
+  else sendChecked(line);
 };
 $("cmd").addEventListener("keydown", (e) => {
   if (e.key !== "ArrowUp" && e.key !== "ArrowDown") return;
@@ -1221,7 +1243,7 @@ $("cmd").addEventListener("keydown", (e) => {
 });
 $("authform").onsubmit = (e) => {
   e.preventDefault();
-  authenticate($("token").value);
+  authenticate(`-token ${quoted($("token").value)}`);
 };
 window.addEventListener("resize", draw);
 window.addEventListener("keydown", (e) => {

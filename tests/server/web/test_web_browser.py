@@ -570,6 +570,44 @@ def test_the_locked_page_names_what_the_server_answers_and_an_unlock_outlives_a_
     assert not page.errors and not other.errors, (page.errors, other.errors)
 
 
+def test_an_auth_typed_on_the_command_line_unlocks_the_page_as_the_panel_does(console: Any, browser: Any) -> None:
+    token = 'two "words"'  # a space and quotes: the page must send it as one quoted value
+    c = console(f"server.token={token}")
+    page = c.open(browser)
+
+    def typed(line: str, expect: str) -> str:
+        page.fill("#cmd", line)
+        page.press("#cmd", "Enter")
+        page.wait_for_function(f"document.getElementById('result').textContent.includes({json.dumps(expect)})")
+        return page.text_content("#result")
+
+    def unlocked() -> bool:
+        return not page.is_visible("#auth") and not page.eval_on_selector("#btn-dem", "e => e.disabled")
+
+    assert "E_AUTH" in typed("auth -token wrong", "EGP-RVS-AUTH ERROR") and not unlocked()
+    # the server unlocks the connection, and the page knows it: panel gone, buttons on
+    assert "tag=mine-1" in typed('@mine-1 auth -token "two \\"words\\""', "EGP-RVS-AUTH OK")
+    page.wait_for_function("S.authed && !document.getElementById('btn-dem').disabled")
+    assert unlocked()
+    # the token stays out of the command history, which is kept on the disk
+    stored = page.evaluate("JSON.stringify(localStorage)")
+    assert "words" not in stored and "auth" not in stored, stored
+    page.reload()
+    page.wait_for_selector("#link.up")
+    page.wait_for_function("S.authed && !document.getElementById('btn-dem').disabled")
+    assert "EGP-RVS-STATUS OK" in typed("status", "EGP-RVS-STATUS")
+    # a wrong token on an unlocked connection leaves it unlocked (the server's rule), the page too
+    assert "E_AUTH" in typed("auth -token wrong", "EGP-RVS-AUTH ERROR") and unlocked()
+    assert "EGP-RVS-STATUS OK" in typed("status", "EGP-RVS-STATUS")
+
+    # the panel sends the same token, spaces and quotes included, in a tab of its own
+    other = c.open(browser)
+    other.fill("#token", token)
+    other.click("#auth-go")
+    other.wait_for_function("S.authed && !document.getElementById('btn-dem').disabled")
+    assert not page.errors and not other.errors, (page.errors, other.errors)
+
+
 def test_a_line_with_its_own_tag_keeps_it_and_its_answer_comes_to_this_page(mapped: Console, browser: Any) -> None:
     page = mapped.open(browser)
     sent = sent_lines(page)
