@@ -41,6 +41,7 @@ const S = {
   plan: [],             // waypoints [[x, y, heading], ...] of the last navigate leg
   hazards: [],          // hazard events with a position
   labels: [],           // the map's mark labels as placed: [{text, x, y, w, h}] (screen px)
+  ticks: [],            // the grid's axis labels as drawn: [{axis, text, x, y, w, h}] (screen px)
   authed: false,
   authing: false,       // the stored token is being sent again (no unlock panel meanwhile)
   tagN: 0,
@@ -823,7 +824,7 @@ function dot(x, y, r, colour) {
 
 function label(text, x, y, colour) {
   ctx.save();
-  ctx.font = "12px system-ui, sans-serif";
+  ctx.font = LABEL_FONT;
   ctx.lineWidth = 3;
   ctx.strokeStyle = "#fff";
   ctx.strokeText(text, x, y);
@@ -878,6 +879,7 @@ function rover(pose, st, ghost) {
 // first free place on rings round the point it names, nearest first.
 let marks = [];
 const LABEL_H = 14;
+const LABEL_FONT = "12px system-ui, sans-serif";
 
 function mark(text, px, py, colour) {
   marks.push({ text, px, py, colour });
@@ -906,7 +908,7 @@ function placeMarks(st, w, h) {
     if (st.truth) taken.push(roverBox(st.truth, st));
   }
   ctx.save();
-  ctx.font = "12px system-ui, sans-serif";
+  ctx.font = LABEL_FONT;
   S.labels = [];
   for (const m of marks) {
     const tw = ctx.measureText(m.text).width + 4;
@@ -938,11 +940,13 @@ function placeMarks(st, w, h) {
   ctx.restore();
 }
 
-// Grid lines every nice step; the labels inside the map with a halo, clear of the buttons (left)
-// and of the scale bar (bottom left), so none is hidden or cut off.
+// Grid lines every nice step, 60 to 150 px apart (the scale bar is one step long): on a phone's
+// map too each axis keeps at least two labels. The labels inside the map with a halo, clear of
+// the buttons (left) and of the scale bar (bottom left), so none is hidden or cut off.
+const STEP_PX = 60;
+
 function drawGrid(w, h) {
-  const scaleRight = scaleBox().right;
-  const step = niceStep(90 / S.view.scale);
+  const scale = scaleBox(h), scaleRight = scale.x + scale.w, step = scale.metres;
   const [x0, y1] = toWorld(0, 0), [x1, y0] = toWorld(w, h);
   ctx.save();
   ctx.strokeStyle = "rgba(80, 90, 100, 0.25)";
@@ -951,28 +955,35 @@ function drawGrid(w, h) {
   for (let x = Math.ceil(x0 / step) * step; x <= x1; x += step) {
     const [px] = toScreen(x, 0);
     ctx.beginPath(); ctx.moveTo(px, 0); ctx.lineTo(px, h); ctx.stroke();
-    lines.push([`${+x.toFixed(6)} m`, px + 3, h - 5, px > scaleRight + 4 && px < w - 40]);
+    lines.push(["x", `${+x.toFixed(6)} m`, px + 3, h - 5, px > scaleRight + 4 && px < w - 40]);
   }
   for (let y = Math.ceil(y0 / step) * step; y <= y1; y += step) {
     const [, py] = toScreen(0, y);
     ctx.beginPath(); ctx.moveTo(0, py); ctx.lineTo(w, py); ctx.stroke();
-    lines.push([`${+y.toFixed(6)} m`, 48, py - 3, py > 150 && py < h - 50]);  // below the buttons
+    lines.push(["y", `${+y.toFixed(6)} m`, 48, py - 3, py > 150 && py < h - 50]);  // below the buttons
+  }
+  ctx.font = LABEL_FONT;
+  S.ticks = [];
+  for (const [axis, text, x, y, clear] of lines) {
+    if (!clear) continue;
+    label(text, x, y, "#334");
+    S.ticks.push({ axis, text, x, y: y - LABEL_H + 3, w: ctx.measureText(text).width, h: LABEL_H });
   }
   ctx.restore();
-  for (const [text, x, y, clear] of lines) if (clear) label(text, x, y, "#334");
 }
 
-function scaleBox() {
-  const metres = niceStep(60 / S.view.scale), px = metres * S.view.scale;  // 60 to 150 px: clear of the legend
-  return { metres, px, right: 14 + px + 54 };
+// The scale bar, one grid step long, and its white box at the map's bottom left (screen px).
+function scaleBox(h) {
+  const metres = niceStep(STEP_PX / S.view.scale), px = metres * S.view.scale;
+  return { metres, px, x: 8, y: h - 44, w: px + 60, h: 30 };
 }
 
 function drawScale(w, h) {
-  const { metres, px } = scaleBox();
+  const box = scaleBox(h), { metres, px } = box;
   const x = 14, y = h - 26;
   ctx.save();
   ctx.fillStyle = "rgba(255,255,255,0.85)";
-  ctx.fillRect(x - 6, y - 18, px + 60, 30);
+  ctx.fillRect(box.x, box.y, box.w, box.h);
   ctx.strokeStyle = "#111";
   ctx.lineWidth = 2;
   ctx.beginPath();

@@ -292,6 +292,21 @@ def test_the_layout_hides_nothing_on_a_laptop_a_tablet_and_a_phone(mapped: Conso
         assert inside(rect(page, "#clickmenu"), canvas), (fx, fy, rect(page, "#clickmenu"), canvas)
         page.click("#go-cancel")
 
+    # the grid's axis labels: at least two an axis, inside the map, clear of its buttons, of its
+    # scale bar and of one another (canvas pixels, as the page drew them)
+    page.evaluate("draw()")
+    ticks = [{"x": t["x"], "y": t["y"], "width": t["w"], "height": t["h"], "axis": t["axis"], "text": t["text"]}
+             for t in page.evaluate("S.ticks")]
+    scale = page.evaluate("scaleBox(size().h)")
+    buttons = rect(page, "#mapctl")
+    taken = [{"x": scale["x"], "y": scale["y"], "width": scale["w"], "height": scale["h"]},
+             {**buttons, "x": buttons["x"] - canvas["x"], "y": buttons["y"] - canvas["y"]}]
+    whole = {"x": 0, "y": 0, "width": canvas["width"], "height": canvas["height"]}
+    for axis in ("x", "y"):
+        assert len([t for t in ticks if t["axis"] == axis]) >= 2, (axis, ticks)
+    for i, t in enumerate(ticks):
+        assert inside(t, whole) and not any(overlap(t, b) for b in taken + ticks[:i]), (t, taken, ticks)
+
     # a disabled button is grey, the red break too (no job: it cannot be pressed)
     colours = page.evaluate("""['btn-break', 'btn-continue', 'btn-dem'].map(id => {
         const b = document.getElementById(id); return [b.disabled, getComputedStyle(b).color]; })""")
