@@ -294,7 +294,9 @@ class WebConsole:
             "type": "state",
             "server": app.name,
             "mode": app.mode,
-            "job": None if job is None else {"id": job.id, "command": job.command, "phase": job.phase,
+            # the phase as its PROGRESS lines name it (a navigate's with its leg): a page that
+            # opens mid-job draws the bar of the whole job from it
+            "job": None if job is None else {"id": job.id, "command": job.command, "phase": job.phase, **job.context,
                                              "done": job.done, "total": job.total, "tag": job.tag,
                                              # on the server's clock (the page corrects for its own)
                                              "started": round(time.time() - (time.monotonic() - job.started), 1)},

@@ -192,6 +192,12 @@ function onReply(m, past) {
   if ((r.status === "OK" || r.status === "ERROR") && r.job !== undefined && r.module !== "EGP-RVS-STATUS" && !past) {
     S.progress = null;
     S.bar = null;
+    // its final line ends the job here at once: the state says so up to a tick later, and until
+    // then its job would come back as a bar begun again
+    if (S.state && S.state.job && S.state.job.id === r.job) {
+      S.state = { ...S.state, job: null };
+      updateButtons();
+    }
   }
   showProgress();
 }
@@ -270,7 +276,12 @@ const LEG_PHASES = [...DEM_PHASES, ["plan", 5], ["drive", 40], ["stop", 1]];
 
 function jobBar(r) {
   let b = S.bar;
-  if (!b || b.job !== r.job) b = S.bar = { job: r.job, key: null, f0: 0, span: 1, fraction: 0 };
+  if (!b || b.job !== r.job) {
+    b = S.bar = { job: r.job, key: null, f0: 0, span: 1, fraction: 0 };
+    // met mid-job (a page opened, reloaded or reconnected while it runs): the phases before
+    // this one as done, the bar where a page that watched them drew it
+    for (const [leg, phase] of phasesBefore(r)) jobBar({ job: r.job, leg, phase, done: 1, total: 1 });
+  }
   const key = `${r.leg || ""}/${r.phase || ""}`;
   if (b.key !== key) {
     if (b.key !== null) b.f0 += b.span;  // the phase before is over
@@ -288,6 +299,16 @@ function jobBar(r) {
   b.fraction = Math.max(b.fraction, Math.min(1, b.f0 + b.span * within));
 }
 
+// The phases a job went through before ``r``'s, as [leg, phase]: a navigate's earlier legs whole.
+function phasesBefore(r) {
+  const order = r.leg !== undefined ? LEG_PHASES : DEM_PHASES;
+  const at = order.findIndex(([name]) => name === (r.phase || ""));
+  const before = [];
+  for (let leg = 1; r.leg !== undefined && leg < r.leg; leg++) for (const [name] of order) before.push([leg, name]);
+  for (const [name] of order.slice(0, Math.max(0, at))) before.push([r.leg, name]);
+  return before;
+}
+
 function showProgress() {
   const job = S.online && S.state && S.state.job;
   const p = S.progress;
@@ -296,7 +317,7 @@ function showProgress() {
     done = p.done; total = p.total; phase = p.phase || ""; message = p.message || "";
   } else if (job) {
     done = job.done; total = job.total; phase = job.phase || "";
-    if (total > 0) jobBar({ job: job.id, phase, done, total });  // a page opened while the job ran
+    if (total > 0) jobBar({ job: job.id, leg: job.leg, phase, done, total });  // a page opened while the job ran
   }
   const fraction = job && S.bar && S.bar.job === job.id ? S.bar.fraction : null;
   $("job").textContent = job ? `${job.command} (job ${job.id})` : "none";

@@ -734,6 +734,35 @@ def test_the_progress_bar_is_the_jobs_and_the_result_box_says_whose_result_it_sh
     assert not page.errors, page.errors
 
 
+def test_a_page_opened_mid_job_draws_the_whole_jobs_bar_and_drops_the_job_at_its_final_line(
+        console: Any, browser: Any) -> None:
+    c = console("navigate.range=-20,20,-50,-35")
+    watching = c.open(browser)
+    watching.evaluate("""window.phases = []; const onReplyWas = onReply; onReply = (m, past) => { onReplyWas(m, past);
+        if (m.reply.status === "PROGRESS") phases.push(`${m.reply.leg}/${m.reply.phase}`); }; 0""")
+    with c.srv.client() as gnc:
+        gnc.start_job("navigate -goal 1.0,0.2 -auto false")  # leg 1 scans, plans, then waits for the GNC
+        watching.wait_for_function("S.state.job && S.state.job.phase === 'drive' && S.bar && S.bar.key === '1/drive'",
+                                   timeout=120_000)
+        late = c.open(browser)  # opened (as reloaded) while the job waits in its first leg's drive
+        late.wait_for_function("S.state.job && S.state.job.phase === 'drive' && S.bar")
+        bars = [page.evaluate("[S.bar.fraction, document.getElementById('bar-fill').style.width]")
+                for page in (watching, late)]
+        # the bar where the page that watched the scan and the plan drew it, not the drive's own
+        assert bars[0][0] > 0.3 and bars[1][0] == pytest.approx(bars[0][0], abs=1e-9), (bars, watching.evaluate("phases"))
+        assert bars[1][1] == bars[0][1], bars
+        late.evaluate("""window.after = []; const onReplyWas = onReply; onReply = (m, past) => { onReplyWas(m, past);
+            if (m.reply.status === "ERROR" && m.reply.job !== undefined) after.push(["job", "bar-fill", "btn-break"].map(
+                id => { const e = document.getElementById(id); return id === "job" ? e.textContent : id === "bar-fill"
+                        ? e.style.width : e.disabled; })); }; 0""")
+        assert gnc.request("break").status == "OK"
+        assert gnc.until_final(60)[-1].fields["code"] == "E_INTERRUPTED"
+    # the final line ends the job on the page at once: no bar begun again from the last state
+    late.wait_for_function("after.length > 0")
+    assert late.evaluate("after") == [["none", "0px", True]]
+    assert not watching.errors and not late.errors, (watching.errors, late.errors)
+
+
 # ------------------------------------------------------------------------------ what the map says
 
 
