@@ -383,10 +383,14 @@ def test_a_client_offering_the_old_subprotocol_name_connects_lists_and_decodes(s
     c = srv.client()
     assert c.request(DEM, timeout=120).status == "OK"
 
+    # what the scan has made (each advertised as it first spoke, in advertise messages of their own)
+    made = {"/tf", "/rover/pose", "/rover/truth", "/tof/points", "/tof/depth", "/tof/amplitude", "/map/dem",
+            "/map/hazard", "/map/traversability", "/nav/track", "/rvs/log", "/rvs/job"}
+
     async def live() -> tuple[str | None, set[str], dict[str, Any]]:
         session, fx = await connect(port, offered)
         try:
-            await fx.advertised("/tf", "/rover/pose", "/tof/points", "/map/dem", "/rvs/log")
+            await fx.advertised(*made)
             channels = set(fx.channels)
             await fx.subscribe(*channels)
             got: dict[str, Any] = {}
@@ -409,8 +413,7 @@ def test_a_client_offering_the_old_subprotocol_name_connects_lists_and_decodes(s
     protocol, channels, got = asyncio.run(live())
     # the name the client offered, the SDK's when it offered both
     assert protocol == ("foxglove.sdk.v1" if "foxglove.sdk.v1" in offered else "foxglove.websocket.v1")
-    assert {"/tf", "/rover/pose", "/rover/truth", "/tof/points", "/tof/depth", "/tof/amplitude", "/map/dem",
-            "/map/hazard", "/nav/track", "/rvs/log", "/rvs/job"} <= channels == set(got), channels
+    assert made <= channels == set(got), channels
     pose = got["/rover/pose"]
     assert pose.frame_id == "world"
     p = srv.app.pose
