@@ -9,9 +9,10 @@ cells the latched Grids the recording begins with, their grid the metadata's), t
 its estimate (the replayed rover). The recorded requests are sent over TCP in their recorded
 order, each on a connection of its own recorded connection, and each waits for what the
 recorded run had seen of the request before it (its final line, its ACK, or nothing: a
-``break`` sent during a job is sent during it), for the frames recorded before it while a job
-or a monitor runs (a monitor's calls are served in their recorded turn, so it stops after as
-many cycles as it made), and with ``--timing recorded`` for its recorded time.
+``break`` sent during a job is sent during it), for the frames recorded before the recorded
+server answered it while a job or a monitor runs (a monitor's calls are served in their
+recorded turn, so it stops after as many cycles as it made, those made while its stop was on
+its way included), and with ``--timing recorded`` for its recorded time.
 
 Each request's ACK and final line (OK or ERROR) must equal the recorded ones, but for the
 fields that legitimately differ (:data:`IGNORED_FIELDS`: job numbers, times) and product names
