@@ -9,9 +9,10 @@ cells the latched Grids the recording begins with, their grid the metadata's), t
 its estimate (the replayed rover). The recorded requests are sent over TCP in their recorded
 order, each on a connection of its own recorded connection, and each waits for what the
 recorded run had seen of the request before it (its final line, its ACK, or nothing: a
-``break`` sent during a job is sent during it), for the frames recorded before it while a job
-or a monitor runs (a monitor's calls are served in their recorded turn, so it stops after as
-many cycles as it made), and with ``--timing recorded`` for its recorded time.
+``break`` sent during a job is sent during it), for the frames recorded before the recorded
+server answered it while a job or a monitor runs (a monitor's calls are served in their
+recorded turn, so it stops after as many cycles as it made, those made while its stop was on
+its way included), and with ``--timing recorded`` for its recorded time.
 
 Each request's ACK and final line (OK or ERROR) must equal the recorded ones, but for the
 fields that legitimately differ (:data:`IGNORED_FIELDS`: job numbers, times) and product names
@@ -83,6 +84,14 @@ class Exchange:
         words = self.request.split()
         words = words[1:] if words and words[0].startswith("@") else words
         return words[0].lower() if words else ""
+
+    @property
+    def answered_ns(self) -> int:
+        """When the recorded server had acted on it: its first reply line, or the request's own
+        time when nothing came back. A monitor's stop answers once the monitor has ended, so
+        the frames recorded between the request and that answer are cycles the monitor made
+        before the stop reached it (on a loaded machine, a cycle or more)."""
+        return self.lines[0][0] if self.lines else self.t_ns
 
     def compared(self) -> list[Reply]:
         return [r for _, r in self.lines if r.status in ("ACK", *FINAL)]
@@ -336,7 +345,7 @@ def replay(path: Path, data: Path, *, products: bool = False, timing: str = "fas
             server.app.maps.replace(*start)
         run = running(path)
         if run is not None:
-            run.allow(chosen[0].t_ns if chosen else None)
+            run.allow(chosen[0].answered_ns if chosen else None)
         client = Connection(server.port)
         ok = _request(client, "record -start -name replay", timeout)
         if ok.status != "OK":
@@ -346,9 +355,9 @@ def replay(path: Path, data: Path, *, products: bool = False, timing: str = "fas
             conn = conns.get(ex.conn) or conns.setdefault(ex.conn, Connection(server.port))
             mine = Exchange(ex.conn, ex.request)
             replayed.append(mine)
-            _hold(server.app, run, ex.t_ns, timing, timeout)
-            if run is not None:  # the calls the recorded run made before its next request
-                run.allow(chosen[i + 1].t_ns if i + 1 < len(chosen) else None)
+            _hold(server.app, run, ex, timing, timeout)
+            if run is not None:  # the calls the recorded run made before its next request took effect
+                run.allow((chosen[i + 1] if i + 1 < len(chosen) else ex).answered_ns)
             conn.send(mine)
             _await(ex, mine, chosen[i + 1].t_ns if i + 1 < len(chosen) else None, timeout)
         if run is not None:
@@ -368,18 +377,20 @@ def replay(path: Path, data: Path, *, products: bool = False, timing: str = "fas
     return Outcome(len(replayed), skipped, problems, data / "recordings" / "replay.mcap", maps)
 
 
-def _hold(app: Any, run: Replay | None, t_ns: int, timing: str, timeout: float) -> None:
+def _hold(app: Any, run: Replay | None, ex: Exchange, timing: str, timeout: float) -> None:
     """Send a request no earlier than the recorded run did: with recorded timing at its recorded
-    time after the start; always not before the replay served the frames recorded before it
-    while a job or a monitor (hazard-start, track3d-start) may still ask for them. With the
-    gate of :meth:`Replay.allow` (no call the recorded run made after the next request is
-    served before it is sent), a hazard-stop ends a monitor that made as many cycles as the
-    recorded one, however slow this machine is."""
+    time after the start; always not before the replay served the frames recorded before it took
+    effect (:attr:`Exchange.answered_ns`) while a job or a monitor (hazard-start, track3d-start)
+    may still ask for them. With the gate of :meth:`Replay.allow` (no call the recorded run made
+    after that is served before the request is sent, nor after the last request before it is
+    answered), a hazard-stop ends a monitor that made as many cycles as the recorded one, however
+    slow either machine was."""
     if run is None:
         return
-    run.pace(t_ns, timing)
+    run.pace(ex.t_ns, timing)
     deadline = time.monotonic() + timeout
-    while run.behind(t_ns) and (app.jobs.current is not None or len(app.monitors)) and time.monotonic() < deadline:
+    due = ex.answered_ns
+    while run.behind(due) and (app.jobs.current is not None or len(app.monitors)) and time.monotonic() < deadline:
         time.sleep(0.01)
 
 

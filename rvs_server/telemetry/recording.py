@@ -51,10 +51,14 @@ class Recording(Outlet):
         self._flushed = time.monotonic()
 
     def log(self, topic: str, data: bytes, t_ns: int) -> None:
-        """A message from before the start (what is latched, sent again to the new file: a map,
-        the plan; one under way as the recording started) is logged at the start, so that the
-        file's time range is the recording's; its content keeps its own time."""
-        super().log(topic, data, max(t_ns, self.start_ns))
+        super().log(topic, data, self.log_time(t_ns))
+
+    def log_time(self, t_ns: int) -> int:
+        """The log time of a message stamped ``t_ns``: one from before the start (what is
+        latched, sent again to the new file: a map, the plan; one under way as the recording
+        started) is logged at the start, so that the file's time range is the recording's; its
+        content keeps its own time."""
+        return max(t_ns, self.start_ns)
 
     def tick(self, now: float) -> None:
         """Finish the open chunk if it is :data:`FLUSH_S` old (``now``: time.monotonic())."""
@@ -111,6 +115,7 @@ class Ros2Recording(Recording):
     def log(self, topic: str, data: bytes, t_ns: int) -> None:
         known = len(self.types)
         super().log(topic, data, t_ns)
+        t_ns = self.log_time(t_ns)  # the metadata's time range is the file's
         self.first_ns = t_ns if self.first_ns is None else min(self.first_ns, t_ns)
         self.last_ns = max(self.last_ns, t_ns)
         if len(self.types) != known:

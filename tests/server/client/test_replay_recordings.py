@@ -7,11 +7,15 @@ from __future__ import annotations
 
 import subprocess
 import sys
+import time
 from pathlib import Path
 
+import pytest
 from support.marks import long_test
 from support.mcap import decoded
 from support.server import ServerThread, wait_for
+
+from rvs_server.monitors import Monitor
 
 DEM = "dem-full-tof -range -30,30,-40,-20 -overlap 0.1 -name rec"  # two views
 
@@ -94,9 +98,35 @@ def test_monitor_summaries_replay_as_recorded_and_recorded_timing_takes_the_reco
     assert since_start(tmp_path / "replay" / "recordings" / "replay.mcap") >= since_start(path) > 1_000_000_000
 
 
+@long_test  # a recording and its replay, 13-28 s on a loaded machine: CI's long suite runs it
+def test_a_monitor_whose_stop_came_late_replays_the_cycles_it_made_meanwhile(tmp_path: Path,
+                                                                            monkeypatch: pytest.MonkeyPatch) -> None:
+    # as on a loaded machine: the stop reaches the monitor a while after the request came in, and
+    # the cycles the monitor makes meanwhile are in the count the stop answers
+    stop = Monitor.stop
+
+    def late(self: Monitor, timeout: float = 5.0) -> None:
+        time.sleep(0.4)
+        stop(self, timeout)
+
+    monkeypatch.setattr(Monitor, "stop", late)
+    got = record(tmp_path / "rec", ["track3d-start", "wait:track_cycles>=2", "track3d-stop"])
+    monkeypatch.undo()
+    path = tmp_path / "rec" / "recordings" / "run.mcap"
+    messages = decoded(path)
+    wire = [(t, m["line"]) for topic, t, m in messages if topic == "/rvs/wire"]
+    asked = next(t for t, line in wire if line == "track3d-stop")
+    answered = next(t for t, line in wire if line.startswith("EGP-RVS-TRACK3D-STOP OK"))
+    frames = [t for topic, t, m in messages if topic == "/raw/calls" and m["device"] == "tof"]
+    assert sum(asked < t < answered for t in frames) >= 2, (asked, answered, frames)  # the case in hand
+    out = rvs_replay("--mcap", path)  # its stop's reply, cycles and all, is compared
+    assert out.returncode == 0 and "replies match (0 mismatches)" in out.stdout, (got, out.stdout + out.stderr)
+
+
 def test_a_recording_started_after_a_dem_replays_from_that_dem(tmp_path: Path) -> None:
-    got = record(tmp_path / "rec", ["check-move -dx 0.5"], before=(DEM,))
-    assert got["check-move"]["verdict"] in ("safe", "unknown", "blocked")
+    # a move that reaches past the rover's unseen footprint into the map: the verdict reads its cells
+    got = record(tmp_path / "rec", ["check-move -dx 2"], before=(DEM,))
+    assert int(got["check-move"]["unknown_cells"]) < int(got["check-move"]["cells"]), got
     out = rvs_replay("--mcap", tmp_path / "rec" / "recordings" / "run.mcap", "--products")
     assert_matches(out, 1, layers=0)  # no map made during the recording: nothing to compare, no mismatch
 
@@ -112,8 +142,9 @@ def test_a_recording_away_from_the_origin_replays_bit_exact(tmp_path: Path) -> N
 def test_a_ros2_recording_is_refused_in_one_line(tmp_path: Path) -> None:
     record(tmp_path / "rec", ["status"], profile="ros2")
     bag = tmp_path / "rec" / "recordings" / "run"
-    out = rvs_replay("--mcap", bag)
-    assert out.returncode == 2, out.stdout + out.stderr
-    assert out.stdout == "" and len(out.stderr.strip().splitlines()) == 1, out.stderr
-    assert "ros2-profile recording" in out.stderr and "-profile foxglove" in out.stderr, out.stderr
+    for given in (bag, bag / "run_0.mcap"):  # the rosbag2 directory or the MCAP file in it
+        out = rvs_replay("--mcap", given)
+        assert out.returncode == 2, out.stdout + out.stderr
+        assert out.stdout == "" and len(out.stderr.strip().splitlines()) == 1, out.stderr
+        assert "ros2-profile recording" in out.stderr and "-profile foxglove" in out.stderr, out.stderr
 

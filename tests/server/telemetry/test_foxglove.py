@@ -376,26 +376,52 @@ def test_a_channel_is_advertised_once_it_has_something_to_say_and_every_one_adve
 def test_a_client_offering_the_old_subprotocol_name_connects_lists_and_decodes(server_factory: Any,
                                                                                offered: tuple[str, ...]) -> None:
     """@foxglove/ws-protocol's FoxgloveClient (Lichtblick, foxglove_bridge's users) offers
-    foxglove.websocket.v1 alone: the same protocol, under the name it had before the SDK's."""
+    foxglove.websocket.v1 alone: the same protocol, under the name it had before the SDK's. It
+    lists every channel, subscribes to them all and decodes a message of each."""
     port = free_port()
     srv = server_factory([f"server.foxglove_port={port}"])
+    c = srv.client()
+    assert c.request(DEM, timeout=120).status == "OK"
 
-    async def live() -> tuple[str | None, Any]:
+    # what the scan has made (each advertised as it first spoke, in advertise messages of their own)
+    made = {"/tf", "/rover/pose", "/rover/truth", "/tof/points", "/tof/depth", "/tof/amplitude", "/map/dem",
+            "/map/hazard", "/map/traversability", "/nav/track", "/rvs/log", "/rvs/job"}
+
+    async def live() -> tuple[str | None, set[str], dict[str, Any]]:
         session, fx = await connect(port, offered)
         try:
-            await fx.advertised("/tf", "/rover/pose")
-            await fx.subscribe("/rover/pose")
-            return fx.ws.protocol, (await fx.until("/rover/pose"))[1]
+            await fx.advertised(*made)
+            channels = set(fx.channels)
+            await fx.subscribe(*channels)
+            got: dict[str, Any] = {}
+            async with asyncio.timeout(60):
+                while not got.keys() >= {"/tf", "/rover/pose", "/map/dem"}:  # the latched and the periodic
+                    topic, _, message = await fx.next()
+                    got.setdefault(topic, message)
+                # what a job says (a scan's frames, the wire) comes with the next one
+                again = DEM.replace("-name fx", "-name fx2")  # the first map's files kept to compare with
+                job = asyncio.get_running_loop().run_in_executor(None, c.request, again, 120.0)
+                while not got.keys() >= channels:
+                    topic, _, message = await fx.next()
+                    got.setdefault(topic, message)
+                assert (await job).status == "OK"
+            return fx.ws.protocol, channels, got
         finally:
             await fx.ws.close()
             await session.close()
 
-    protocol, pose = asyncio.run(live())
+    protocol, channels, got = asyncio.run(live())
     # the name the client offered, the SDK's when it offered both
     assert protocol == ("foxglove.sdk.v1" if "foxglove.sdk.v1" in offered else "foxglove.websocket.v1")
+    assert made <= channels == set(got), channels
+    pose = got["/rover/pose"]
     assert pose.frame_id == "world"
     p = srv.app.pose
     assert (pose.pose.position.x, pose.pose.position.y) == pytest.approx((p.x, p.y), abs=1e-6)
+    dem, _ = read_geotiff(srv.data / "dem" / "fx_dem.tif")
+    np.testing.assert_array_equal(grid_values(got["/map/dem"]), dem)
+    assert got["/tof/points"].frame_id == "tof" and len(got["/tof/points"].data) > 16 * 5000
+    assert got["/rvs/job"]["command"] == "EGP-RVS-DEM-FULL-TOF"
 
 
 def test_the_relay_renames_an_offer_of_the_old_name_alone_and_the_answer_back() -> None:

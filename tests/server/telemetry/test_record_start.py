@@ -30,3 +30,23 @@ def test_what_a_new_recording_is_sent_again_is_stamped_at_its_start(server: Any)
         assert dem.timestamp.seconds * 10**9 + dem.timestamp.nanos < made  # the map's own time
         check = next(msg for topic, _, msg in messages if topic == "/nav/check_move").entities[0]
         assert check.timestamp.seconds * 10**9 + check.timestamp.nanos < made
+
+
+def test_a_ros2_bags_time_range_is_its_recordings(server: Any) -> None:
+    """rosbag2 tools take a bag's time range from its metadata.yaml (``ros2 bag info``, rosbags'
+    Reader): it starts at ``record -start`` too, not at the time of the oldest latched map."""
+    from rosbags.rosbag2 import Reader
+
+    c = server.client()
+    assert c.request(DEM, timeout=120).status == "OK"
+    assert c.request("check-move -dx 0.5").status == "OK"
+    for name in ("first2", "second2"):
+        started = time.time_ns()
+        assert c.request(f"record -start -name {name} -profile ros2").status == "OK"
+        assert c.request("record -stop").status == "OK"
+        stopped = time.time_ns()
+        with Reader(server.data / "recordings" / name) as bag:
+            assert {"/map/dem", "/nav/check_move", "/nav/track"} <= {conn.topic for conn in bag.connections}
+            first = min(t for _, t, _ in bag.messages())
+            assert started <= bag.start_time == first, (name, started, bag.start_time, first)
+            assert bag.end_time <= stopped, (name, bag.end_time, stopped)
