@@ -73,6 +73,7 @@ BAD = [
     (["rvs-tof", "--config", "{typo}/drivers.yaml", "-c", "help"], "rvs-tof: drivers.tof: integration is 999, out of range"),
     (["rvs-cam", "--config", "{typo}/drivers.yaml", "-c", "ids"], "rvs-cam: drivers.stereo: resolution takes low|"),
     (["rvs-dem-mosaik", "x.tif", "-o", "y.tif", "--cell", "200"], "rvs-dem-mosaik: --cell is 200, out of range"),
+    (["rvs-dem-mosaik", "x.tif", "-o", "y.tif", "--cell", "-Infinity"], "rvs-dem-mosaik: --cell must be a finite number"),
     (["rvs-dem2hazard", "x.tif", "-o", "y", "--set", "window=abc"], "rvs-dem2hazard: --set window takes a number"),
     (["rvs-path-planner", "--hazard", "x.tif", "--slope", "x.tif", "--start", "0,0", "--goal", "1,1", "-o", "y",
       "--weight", "5"], "rvs-path-planner: --weight is 5, out of range"),
