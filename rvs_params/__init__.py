@@ -20,7 +20,7 @@ import math
 import re
 import types
 import typing
-from collections.abc import Iterable, Mapping
+from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field, fields
 from typing import Any, TypeVar
 
@@ -186,8 +186,9 @@ class ParamSpec:
         return "-" + self.flag
 
     def parse(self, raw: str | bool, flag: str | None = None) -> Any:  # noqa: C901 - one branch per kind, in order
-        """Convert and validate one value from a request or a ``-set``; the error names the option
-        as ``flag`` (default: the wire's spelling; a program's command line passes ``cli_flag``)."""
+        """Convert and validate one value from a request or a ``-set``; every error names the value
+        as ``flag`` (default: the wire's spelling; a program's command line passes ``cli_flag``
+        or ``--set key``, a YAML file the key)."""
         name = flag or self.flag
         if self.optional and isinstance(raw, str) and raw.strip().lower() in NOT_SET:
             return copy.copy(self.unset)
@@ -230,7 +231,7 @@ class ParamSpec:
             if not all(math.isfinite(v) for v in values):
                 raise SettingError(f"{name} takes {self.describe()}, each finite, not '{raw[:40]}'")
             for v in values:
-                self._check_range(v)
+                self._check_range(v, name)
             for i in range(0, len(values) - 1, 2) if self.ordered else ():
                 if values[i] > values[i + 1]:
                     raise SettingError(f"{name} takes min,max pairs, and {_num(values[i])},{_num(values[i + 1])} "
@@ -248,7 +249,7 @@ class ParamSpec:
                                    f"(write it in {NUMBER_FORM})") from None
             if not math.isfinite(value):
                 raise SettingError(f"{name} must be a finite {self.describe()}")
-            self._check_range(value)
+            self._check_range(value, name)
             return value
         if self.kind == "int":
             try:
@@ -256,7 +257,7 @@ class ParamSpec:
             except ValueError:
                 raise SettingError(f"{name} takes an {self.describe()}, not '{raw[:40]}' "
                                    f"(write it in {INTEGER_FORM})") from None
-            self._check_range(value)
+            self._check_range(value, name)
             return value
         if self.choices:
             low = raw.lower()
@@ -271,7 +272,8 @@ class ParamSpec:
         return raw
 
     def coerce(self, value: Any, where: str) -> Any:
-        """A value that is already typed (YAML, a Python caller): checked with the wire's rules."""
+        """A value that is already typed (YAML, a Python caller): checked with the wire's rules,
+        an error named ``where`` and the key as a file writes it (``drivers.ptu: baudrate ...``)."""
         if value is None and self.optional:
             return copy.copy(self.unset)
         if self.kind == "any":
@@ -292,14 +294,14 @@ class ParamSpec:
         elif not isinstance(value, str | bool):
             value = str(value)
         try:
-            return self.parse(value)
+            return self.parse(value, self.key)
         except SettingError as exc:
             raise SettingError(f"{where}: {exc.message}") from None
 
-    def _check_range(self, value: float) -> None:
+    def _check_range(self, value: float, name: str) -> None:
         if (self.min is not None and value < self.min) or (self.max is not None and value > self.max):
             raise SettingError(
-                f"{self.flag} is {_num(value)}, out of range [{_num(self.min)}, {_num(self.max)}]"
+                f"{name} is {_num(value)}, out of range [{_num(self.min)}, {_num(self.max)}]"
                 + (f" {self.unit}" if self.unit else "")
             )
 
@@ -465,7 +467,7 @@ class Settings:
                 kwargs[spec.name] = spec.coerce(value, where)
         made = cls(**kwargs)
         try:
-            made.check()
+            made.check(wire_key)
         except SettingError as exc:
             raise SettingError(f"{where}: {exc.message}") from None
         return made
@@ -480,30 +482,32 @@ class Settings:
     @classmethod
     def parse_assignments(cls, items: Iterable[str] | str | None, *, flag: str = "--set") -> dict[str, Any]:
         """``key=value`` words (:func:`assignments`) typed and checked by each key's ParamSpec, as
-        the wire checks an option; an unknown key is refused with the known ones."""
+        the wire checks an option, an error naming it as typed (``--set window``); an unknown key
+        is refused with the known ones."""
         specs = cls.specs()
         out: dict[str, Any] = {}
         for key, raw in assignments(items, flag=flag).items():
             spec = specs.get(key)
             if spec is None:
                 raise SettingError(f"{flag} {key}: unknown key; known: {', '.join(specs)}")
-            out[key] = spec.parse(raw)
+            out[key] = spec.parse(raw, f"{flag} {key}")
         return out
 
-    def check(self) -> None:
+    def check(self, spell: Callable[[str], str] = wire_flag) -> None:
         """The rules between keys (``at_most``), in this class and its sections: SettingError
-        naming both keys and what to give when a pair breaks one."""
+        naming both keys and what to give when a pair breaks one, each key as ``spell`` writes a
+        field's name (the wire's option by default; a file or ``--set`` passes :func:`wire_key`)."""
         for spec in self.specs().values():
             value = getattr(self, spec.name)
             if isinstance(value, Settings):
-                value.check()
+                value.check(spell)
             if spec.at_most is None:
                 continue
             limit = getattr(self, spec.at_most)
             if value is not None and limit is not None and value > limit:
-                hi = wire_flag(spec.at_most)
-                raise SettingError(f"{spec.flag} {_num(value)} must not exceed {hi} {_num(limit)}: give {hi} "
-                                   f"at least {_num(value)} or {spec.flag} at most {_num(limit)}")
+                lo, hi = spell(spec.name), spell(spec.at_most)
+                raise SettingError(f"{lo} {_num(value)} must not exceed {hi} {_num(limit)}: give {hi} "
+                                   f"at least {_num(value)} or {lo} at most {_num(limit)}")
 
     def wire_dict(self) -> dict[str, Any]:
         """:meth:`as_dict` with every key as the wire names it (:func:`wire_key`), for replies."""

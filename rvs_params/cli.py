@@ -11,8 +11,10 @@ Option values may be negative numbers and lists: argparse takes any word that st
 and is not a plain negative number for an option, so ``--bounds -2,-3,4,5`` or ``--start -1.5,2``
 would fail with "expected one argument". A word that starts with '-' and a digit (or '-.' and a
 digit) and holds nothing but number and list characters is a value here, as Python 3.13's
-argparse does for any '-digit' word; no program here has an option that looks like a negative
-number, which is the one case where argparse would still read it as one.
+argparse does for any '-digit' word, and so are ``-inf``, ``-Infinity`` and ``-nan`` (as on the
+wire: the option's own check then says it wants a finite number), also leading a list; no
+program here has an option that looks like a negative number, which is the one case where
+argparse would still read it as one.
 """
 
 from __future__ import annotations
@@ -22,7 +24,7 @@ import re
 import sys
 from typing import Any, NoReturn
 
-NEGATIVE_VALUE = re.compile(r"^-\.?\d[\d.eE+,-]*$")
+NEGATIVE_VALUE = re.compile(r"^-(\.?\d[\d.eE+,-]*|(inf|infinity|nan)(,[\w.+-]*)*)$", re.IGNORECASE)
 
 
 class ToolParser(argparse.ArgumentParser):

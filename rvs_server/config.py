@@ -31,6 +31,7 @@ from rvs_params import (
     param,
     parse_integer,
     parse_number,
+    wire_key,
 )
 
 from .protocol import ProtocolError
@@ -51,8 +52,10 @@ class ModuleConfig(Settings):
     module: ClassVar[str] = ""
 
 
-def _set_in(cfg: Settings, path: list[str], raw: str, where: str, *, runtime: bool) -> None:
-    """Set ``path`` (``key`` or ``section.key``) in ``cfg`` with the wire's validation.
+def _set_in(cfg: Settings, path: list[str], raw: str, where: str, *, runtime: bool,
+            named: str | None = None) -> None:
+    """Set ``path`` (``key`` or ``section.key``) in ``cfg`` with the wire's validation; a bad value's
+    error calls it ``named`` (the server's ``--set navigate.tolerance``), by default its option.
 
     A nested settings section is replaced by a changed copy, never edited in place, so whoever
     holds the old object (a device built from it) keeps what it was built with.
@@ -61,7 +64,7 @@ def _set_in(cfg: Settings, path: list[str], raw: str, where: str, *, runtime: bo
     spec = specs.get(path[0])
     lent = type(cfg).keys().get(path[0]) if spec is None else None
     if lent is not None:  # a key a flat section lends: set it in the section
-        _set_in(cfg, [*lent.path, *path[1:]], raw, where, runtime=runtime)
+        _set_in(cfg, [*lent.path, *path[1:]], raw, where, runtime=runtime, named=named)
         return
     if spec is None:  # a key as the wire names it (global for the field global_)
         spec = next((s for s in specs.values() if s.key == path[0]), None)
@@ -74,7 +77,7 @@ def _set_in(cfg: Settings, path: list[str], raw: str, where: str, *, runtime: bo
             raise ProtocolError("E_ARG", f"{where}.{spec.name} is a section; set one of its keys "
                                          f"({where}.{spec.name}.KEY for KEY in {', '.join(spec.section.specs())})")
         section = copy.deepcopy(vars(cfg)[spec.name])
-        _set_in(section, path[1:], raw, f"{where}.{spec.name}", runtime=runtime)
+        _set_in(section, path[1:], raw, f"{where}.{spec.name}", runtime=runtime, named=named)
         setattr(cfg, spec.name, section)
         return
     if spec.kind == "dict":
@@ -87,7 +90,7 @@ def _set_in(cfg: Settings, path: list[str], raw: str, where: str, *, runtime: bo
     if len(path) > 1:
         raise ProtocolError("E_ARG", f"{where}.{spec.name} has no sub-keys")
     try:
-        setattr(cfg, spec.name, spec.parse(raw))
+        setattr(cfg, spec.name, spec.parse(raw, named))
     except SettingError as exc:
         raise ProtocolError("E_ARG", exc.message) from None
 
@@ -184,10 +187,11 @@ class ConfigStore:
     def get(self, module: str) -> Any:
         return self.values[self.resolve(module)]
 
-    def set(self, module: str, key: str, raw: str, *, runtime: bool = True) -> None:
-        """Change one value (``key`` may be dotted for nested sections) with the wire's validation."""
+    def set(self, module: str, key: str, raw: str, *, runtime: bool = True, named: str | None = None) -> None:
+        """Change one value (``key`` may be dotted for nested sections) with the wire's validation;
+        ``named``: what a bad value's error calls it (default: its option, as on the wire)."""
         name = self.resolve(module)
-        _set_in(self.values[name], key.replace("-", "_").split("."), raw, name, runtime=runtime)
+        _set_in(self.values[name], key.replace("-", "_").split("."), raw, name, runtime=runtime, named=named)
 
     def apply_overrides(self, items: list[str]) -> None:
         """``--set module.key=value`` at server start; errors are fatal there, so raise ValueError."""
@@ -196,13 +200,17 @@ class ConfigStore:
             if not dot or "=" in module:
                 raise ValueError(f"--set '{item[:40]}': write module.key=value")
             key, raw = assignment(rest, form="module.key=value")
+            if module.lower().replace("-", "_") not in self.classes:
+                raise ValueError(f"--set {item!r}: no module '{module}'; modules: {', '.join(self.module_names())}")
+            # a bad value is named as this command line types it, not as the wire's option
+            named = f"--set {module}.{rest.partition('=')[0].strip()}"
             try:
-                self.set(module, key, raw, runtime=False)
+                self.set(module, key, raw, runtime=False, named=named)
             except ProtocolError as exc:
-                raise ValueError(f"--set {item!r}: {exc.message}") from None
+                raise ValueError(exc.message if exc.message.startswith(named) else f"--set {item!r}: {exc.message}") from None
         for name, values in self.values.items():
             try:
-                values.check()
+                values.check(wire_key)
             except SettingError as exc:
                 raise ValueError(f"--set {name}: {exc.message}") from None
 

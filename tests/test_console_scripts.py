@@ -5,6 +5,7 @@ that command line spells them (``--cell``), not as the wire does (``-cell``)."""
 
 from __future__ import annotations
 
+import re
 import subprocess
 import sys
 import tomllib
@@ -58,7 +59,30 @@ BAD = [
      "rvs-dem-import: --cell takes a number"),
     (["rvs-dem2hazard", "missing_dem.tif"], "rvs-dem2hazard: the following arguments are required: -o/--output"),
     (["rvs-client", "--host", "127.0.0.1"], "rvs-client: "),
+    # a declared value is named as that command line or file spells it: the option, the --set
+    # key, the YAML key; never the wire's -option
+    (["rvs-server", "--set", "navigate.tolerance=abc"], "rvs-server: --set navigate.tolerance takes a number"),
+    (["rvs-server", "--set", "navigate.tolerance=500"], "rvs-server: --set navigate.tolerance is 500, out of range"),
+    (["rvs-server", "--set", "drivers.ptu.baudrate=abc"], "rvs-server: --set drivers.ptu.baudrate takes an integer"),
+    (["rvs-server", "--set", "hazard_start.warn_distance=0"],
+     "rvs-server: --set hazard_start: stop_distance 0.5 must not exceed warn_distance 0"),
+    (["rvs-server", "--config", "{typo}", "--port", "0"], "rvs-server: {typo}/drivers.yaml over config/drivers.yaml, section ptu: baudrate takes an integer"),
+    (["rvs-ptu", "--time-scale", "-1", "-c", "position"], "rvs-ptu: --time-scale is -1, out of range"),
+    (["rvs-ptu", "--config", "{typo}/drivers.yaml", "-c", "position"],
+     "rvs-ptu: drivers.ptu: baudrate takes an integer"),
+    (["rvs-tof", "--config", "{typo}/drivers.yaml", "-c", "help"], "rvs-tof: drivers.tof: integration is 999, out of range"),
+    (["rvs-cam", "--config", "{typo}/drivers.yaml", "-c", "ids"], "rvs-cam: drivers.stereo: resolution takes low|"),
+    (["rvs-dem-mosaik", "x.tif", "-o", "y.tif", "--cell", "200"], "rvs-dem-mosaik: --cell is 200, out of range"),
+    (["rvs-dem-mosaik", "x.tif", "-o", "y.tif", "--cell", "-Infinity"], "rvs-dem-mosaik: --cell must be a finite number"),
+    (["rvs-dem2hazard", "x.tif", "-o", "y", "--set", "window=abc"], "rvs-dem2hazard: --set window takes a number"),
+    (["rvs-path-planner", "--hazard", "x.tif", "--slope", "x.tif", "--start", "0,0", "--goal", "1,1", "-o", "y",
+      "--weight", "5"], "rvs-path-planner: --weight is 5, out of range"),
+    (["rvs-prox", "dem", "--set", "cell=5", "--validate"], "rvs-prox: --set cell is 5, out of range"),
+    (["rvs-stereo", "x.tif", "x.tif", "--calib", "c.yaml", "--set", "scale=abc"],
+     "rvs-stereo: stereo parameter scale takes a number, not 'abc'"),
 ]
+
+WIRE_FLAG = re.compile(r"(^|[\s:'])-[a-z][a-z-]* (takes|is|must)")
 
 
 @pytest.mark.parametrize(("argv", "message"), BAD, ids=[" ".join(a[:3]) for a, _ in BAD])
@@ -66,7 +90,12 @@ def test_a_bad_command_or_input_is_one_line_and_exit_2(argv: list[str], message:
     broken = tmp_path / "broken"
     broken.mkdir()
     (broken / "server.yaml").write_text("port: [1,\n")
-    rc, out, err = _run([a.format(broken=broken) for a in argv], tmp_path)
+    typo = tmp_path / "typo"  # well-formed YAML with a value its key refuses
+    typo.mkdir()
+    (typo / "navigate.yaml").write_text("tolerance: abc\n")
+    (typo / "drivers.yaml").write_text("ptu:\n  baudrate: abc\ntof:\n  integration: 999\nstereo:\n  resolution: huge\n")
+    paths = {"broken": broken, "typo": typo}
+    rc, out, err = _run([a.format(**paths) for a in argv], tmp_path)
     msg = _one_line(rc, err, argv[0])
-    assert msg.startswith(message.format(broken=broken)), msg
-    assert " -cell " not in msg  # the wire's spelling
+    assert msg.startswith(message.format(**paths)), msg
+    assert not WIRE_FLAG.search(msg), msg  # the wire's spelling of an option (-cell takes ...)

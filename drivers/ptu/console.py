@@ -175,10 +175,11 @@ def main(argv: list[str] | None = None) -> int:
     parser = ToolParser(prog="rvs-ptu", description="PTU-D46 console (sim or serial backend)")
     parser.add_argument("--backend", choices=BACKENDS.names(), help="default: drivers.yaml ptu.backend")
     parser.add_argument("--port", help="serial port or pyserial URL (serial backend)")
-    parser.add_argument("--baudrate", type=int)
-    parser.add_argument("--timeout", type=float, help="seconds to wait for a reply")
-    parser.add_argument("--move-timeout", type=float, help="seconds to wait for a move")
-    parser.add_argument("--time-scale", type=float, help="sim: 0 instant, 1 real time")
+    # the values are typed and checked by drivers.ptu's declarations (below), not by argparse
+    parser.add_argument("--baudrate")
+    parser.add_argument("--timeout", help="seconds to wait for a reply")
+    parser.add_argument("--move-timeout", help="seconds to wait for a move")
+    parser.add_argument("--time-scale", help="sim: 0 instant, 1 real time")
     parser.add_argument("--config", type=Path, help=f"drivers YAML (default {DEFAULT_CONFIG})")
     parser.add_argument("-c", "--command", action="append", default=[],
                         help="run this line (';' separates several) and exit; repeatable")
@@ -186,10 +187,11 @@ def main(argv: list[str] | None = None) -> int:
 
     try:
         config = load_section("ptu", {}, args.config)
+        specs = BACKENDS.settings_class().specs()
         for key in ("backend", "port", "baudrate", "timeout", "move_timeout", "time_scale"):
             value = getattr(args, key)
-            if value is not None:
-                config[key] = value
+            if value is not None:  # a bad value named as typed here (--time-scale), not as YAML's key
+                config[key] = specs[key].parse(value, specs[key].cli_flag)
         ptu = create(config)
     except SETUP_ERRORS as exc:  # a config that cannot be read, a value out of range, an unknown backend
         print(f"rvs-ptu: {one_line(exc)}", file=sys.stderr)

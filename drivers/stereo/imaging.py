@@ -103,14 +103,22 @@ def _distortion_map(K: np.ndarray, D: np.ndarray, size: tuple[int, int],
     w, h = size
     if not np.any(D):
         return DistortionMap(K.copy(), size, None, None)
-    us, vs = np.meshgrid(np.arange(w, dtype=np.float64), np.arange(h, dtype=np.float64))
-    pts = np.stack([us.ravel(), vs.ravel()], axis=1).reshape(-1, 1, 2)
     rows = max(1, MAP_BAND_PIXELS // w)
-    und = np.empty((h * w, 1, 2), dtype=np.float64)
+    und: np.ndarray | None = None
     for r0 in range(0, h, rows):
+        # looked at before each band's pixels are laid out, the first time before anything the
+        # size of the frame is (a 2-megapixel grid of coordinates is a good share of a second on
+        # a busy machine, and the band's own pixels are all a band needs)
         if check is not None:
             check()
-        und[r0 * w:(r0 + rows) * w] = _undistort_pixels(pts[r0 * w:(r0 + rows) * w], K, D)
+        if und is None:
+            und = np.empty((h * w, 1, 2), dtype=np.float64)
+        r1 = min(h, r0 + rows)
+        band = np.empty((r1 - r0, w, 2), dtype=np.float64)
+        band[..., 0] = np.arange(w, dtype=np.float64)
+        band[..., 1] = np.arange(r0, r1, dtype=np.float64)[:, None]
+        und[r0 * w:r1 * w] = _undistort_pixels(band.reshape(-1, 1, 2), K, D)
+    assert und is not None
     und = und.reshape(h, w, 2)
     ux, uy = und[..., 0], und[..., 1]
     # Margins so every sample (plus the bilinear neighbour) falls inside the undistorted render.

@@ -69,7 +69,7 @@ class CameraSettings:
         for key, raw in changes.items():
             if key == "white_balance" and isinstance(raw, str):
                 raw = ",".join(raw.replace(",", " ").split())  # "500 520" as the console splits it
-            value = specs[key].coerce(raw, f"camera setting {key}")
+            value = specs[key].coerce(raw, "camera setting")
             values[key] = tuple(value) if key == "white_balance" else value
         return CameraSettings(**values)
 

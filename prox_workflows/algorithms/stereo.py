@@ -404,6 +404,22 @@ class SgbmParams:
         unknown = sorted(set(values) - known)
         if unknown:
             raise ValueError(f"unknown stereo parameter(s) {', '.join(unknown)}; known: {', '.join(sorted(known))}")
+        # a value of the wrong type (a word where a number goes, from a --set or a YAML file) is
+        # refused by name here; check() compares numbers and would fail on it with a TypeError
+        defaults = cls()
+        for key, value in values.items():
+            default = getattr(defaults, key)
+            if isinstance(default, bool) or key == "mode":
+                ok = isinstance(value, type(default))
+            elif value is None:
+                ok = key in ("num_disparities", "texture_noise")
+            else:
+                ok = isinstance(value, int | float) and not isinstance(value, bool) and (
+                    not isinstance(default, int) or float(value).is_integer())
+            if not ok:
+                what = "true or false" if isinstance(default, bool) else "a word" if key == "mode" else (
+                    "an integer" if isinstance(default, int) else "a number")
+                raise ValueError(f"stereo parameter {key} takes {what}, not {value!r}")
         out = cls(**values)
         out.check()
         return out

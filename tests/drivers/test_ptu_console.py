@@ -42,7 +42,7 @@ def test_serial_backend_missing_port(capsys: pytest.CaptureFixture[str]) -> None
 
 
 @pytest.mark.parametrize(("argv", "message"), [
-    (["--time-scale", "-1"], "rvs-ptu: drivers.ptu: -time-scale is -1, out of range"),
+    (["--time-scale", "-1"], "rvs-ptu: --time-scale is -1, out of range"),
     (["--config", "{bad}"], "rvs-ptu: {bad}: not valid YAML: "),
     (["--config", "{missing}"], "rvs-ptu: {missing}: no such file"),
 ])

@@ -114,7 +114,7 @@ def test_errors_are_printed_and_the_session_goes_on(tmp_path: Path) -> None:
     assert rc == 1
     assert "error: ValueError: invalid pixel format 'yuv422'; accepted: mono8, rgb8" in err
     assert "unknown camera setting(s) bogus" in err
-    assert "-shutter-us is 100000000, out of range" in err
+    assert "camera setting: shutter_us is 100000000, out of range" in err
     assert "error: DeviceError: stereo: camera" in err and "missed its trigger" in err
     assert "error:" not in out  # one-shot: errors are not results
     assert (tmp_path / "ok_left.tif").exists()  # the session survived every error

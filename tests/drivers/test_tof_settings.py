@@ -131,7 +131,7 @@ def test_a_broken_settings_file_fails_open_with_the_reason(tmp_path):
     path = tmp_path / "bad.yaml"
     path.write_text("integration: 999\n")
     cam = tof.create({"backend": "sim", "settings_file": str(path)}, floor_world())
-    with pytest.raises(DeviceError, match="-integration is 999, out of range"):
+    with pytest.raises(DeviceError, match=": integration is 999, out of range"):
         cam.open()
     with pytest.raises(ValueError, match="unknown ToF setting"):
         TofSettings.from_dict({"shutter": 1})

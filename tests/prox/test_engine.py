@@ -68,7 +68,7 @@ def test_a_step_reads_its_own_settings_from_the_script_parameters_with_no_wiring
     assert np.isnan(ws["despiked"]["dem"][10, 10])  # 0.2 m > spike_jump 0.05: a spike
     ws, _ = run_workflow(SPIKES, {"spike_jump": 0.5}, {"layers": _spiked()})
     assert ws["despiked"]["dem"][10, 10] == pytest.approx(0.2)  # the caller's value reached the step
-    with pytest.raises(SettingError, match="spike-jump is 5, out of range"):
+    with pytest.raises(SettingError, match="spike_jump is 5, out of range"):
         run_workflow(SPIKES, {"spike_jump": 5.0}, {"layers": _spiked()})  # checked by its declaration (max 2)
 
 

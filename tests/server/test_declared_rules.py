@@ -40,5 +40,5 @@ def test_config_set_is_judged_on_the_pair_it_sets(client: LineClient) -> None:
 
 
 def test_a_start_override_that_breaks_the_rule_is_refused(server_factory) -> None:
-    with pytest.raises(ValueError, match="must not exceed -warn-distance 0.1"):
+    with pytest.raises(ValueError, match="^--set hazard_start: stop_distance 0.5 must not exceed warn_distance 0.1"):
         server_factory(["hazard_start.warn_distance=0.1"])

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import io
 import json
 import os
@@ -267,9 +268,10 @@ def test_interactive_prints_greeting_replies_and_events_at_the_prompt(server: Se
     assert "version" in history.read_text().splitlines()
 
 
-def test_after_ctrl_c_the_late_lines_carry_no_tag_the_user_never_typed(server: ServerProcess, tmp_path: Path) -> None:
-    """Ctrl-C stops the wait for a job, not the job: its OK prints when it comes, as its ACK
-    did, without the automatic ``tag=c<n>`` the client added."""
+@contextlib.contextmanager
+def _in_a_terminal(server: ServerProcess, tmp_path: Path) -> Iterator[tuple[subprocess.Popen[bytes], int]]:
+    """rvs-client at the prompt of a real pseudo-terminal (``--progress lines``): the process and
+    the terminal's master end, both ended on leaving."""
     master, slave = pty.openpty()
     env = dict(os.environ, RVS_CLIENT_HISTORY=str(tmp_path / "history"), TERM="dumb")
     # as a terminal starts it: with Ctrl-C's default action (a test worker may ignore SIGINT, and
@@ -278,8 +280,20 @@ def test_after_ctrl_c_the_late_lines_carry_no_tag_the_user_never_typed(server: S
                              "--progress", "lines"], stdin=slave, stdout=slave, stderr=slave, env=env, cwd=ROOT,
                             preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     os.close(slave)
-    buf = bytearray()
     try:
+        yield proc, master
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+        os.close(master)
+
+
+def test_after_ctrl_c_the_late_lines_carry_no_tag_the_user_never_typed(server: ServerProcess, tmp_path: Path) -> None:
+    """Ctrl-C stops the wait for a job, not the job: its OK prints when it comes, as its ACK
+    did, without the automatic ``tag=c<n>`` the client added."""
+    buf = bytearray()
+    with _in_a_terminal(server, tmp_path) as (proc, master):
         assert _read_until(master, buf, b"rvs> ")
         os.write(master, b"sleep -seconds 2\n")
         assert _read_until(master, buf, b"EGP-RVS-SLEEP ACK job="), buf.decode()
@@ -288,11 +302,6 @@ def test_after_ctrl_c_the_late_lines_carry_no_tag_the_user_never_typed(server: S
         assert _read_until(master, buf, b"EGP-RVS-SLEEP OK job="), buf.decode()
         os.write(master, b"@mine version\n")  # a tag the user typed stays
         assert _read_until(master, buf, b"EGP-RVS-VERSION OK tag=mine"), buf.decode()
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.wait()
-        os.close(master)
     text = buf.decode()
     assert "tag=c" not in text, text
 
@@ -333,3 +342,29 @@ def test_after_ctrl_c_a_jobs_progress_does_not_redraw_the_prompt_under_every_lin
         assert "PROGRESS" not in text and "view " not in text, text
         assert text.count(client.PROMPT) == 1, text
         assert text == f"\r\x1b[2KEGP-RVS-DEM-FULL-TOF OK job=3 dem=dem/x_dem.tif\n{client.PROMPT}stat", text
+
+
+def test_after_ctrl_c_the_prompt_is_not_redrawn_under_each_progress_line(server: ServerProcess, tmp_path: Path) -> None:
+    """rvs-client in a real terminal: Ctrl-C stops the wait for a job that goes on sending
+    PROGRESS lines (a two-view dem-full-tof: a dozen of them); none of them prints at the prompt,
+    each of which would redraw ``rvs> `` under it, and the job's final line prints once."""
+    buf = bytearray()
+    with _in_a_terminal(server, tmp_path) as (proc, master):
+        assert _read_until(master, buf, b"rvs> ")
+        os.write(master, b"dem-full-tof -range -30,30,-40,-20 -name ctrlc\n")
+        assert _read_until(master, buf, b"EGP-RVS-DEM-FULL-TOF ACK job="), buf.decode()
+        proc.send_signal(signal.SIGINT)
+        assert _read_until(master, buf, b"stopped waiting"), buf.decode()
+        stopped = buf.index(b"stopped waiting")
+        assert _read_until(master, buf, b"EGP-RVS-DEM-FULL-TOF OK job=", limit=120), buf.decode()
+        os.write(master, b"status\n")
+        assert _read_until(master, buf, b"EGP-RVS-STATUS OK"), buf.decode()
+    text = buf.decode()
+    after, before = text[stopped:], text[:stopped]
+    until_ok = after[:after.index("EGP-RVS-DEM-FULL-TOF OK")]
+    assert "PROGRESS" not in after, after
+    # the prompt after the stop, and again under each EVENT printed at it (mode busy), none per PROGRESS
+    assert until_ok.count("rvs> ") == 1 + until_ok.count("RVS EVENT"), until_ok
+    assert after.count("EGP-RVS-DEM-FULL-TOF OK") == 1, after
+    # the job's dozen PROGRESS lines came mostly after the stop: few are above it
+    assert before.count("PROGRESS") < 6, before
