@@ -320,12 +320,14 @@ _KIND = {float: "float", int: "int", str: "str", bool: "bool"}
 
 def _unset_default(kind: str, default: Any, meta: Mapping[str, Any]) -> Any:
     """The "not set" value a declaration gives by its default, for a type without None: a number
-    declared NaN (a PTU axis that keeps its position) or a free text or file stem declared ""
-    (an output named by the time). None when the default is a value like any other (a required
+    declared NaN (a PTU axis that keeps its position), a free text or file stem declared ""
+    (an output named by the time) or a list declared empty (navigate's goal not given). None when the default is a value like any other (a required
     option has none: it is always given)."""
     if kind == "float" and isinstance(default, float) and math.isnan(default):
         return default
     if kind == "str" and default == "" and not meta.get("choices") and not meta.get("required"):
+        return default
+    if kind in ("floats", "ints") and default == [] and not meta.get("required"):
         return default
     return None
 
@@ -510,8 +512,26 @@ class Settings:
                                    f"at least {_num(value)} or {lo} at most {_num(limit)}")
 
     def wire_dict(self) -> dict[str, Any]:
-        """:meth:`as_dict` with every key as the wire names it (:func:`wire_key`), for replies."""
-        return _wire_keys(self.as_dict())
+        """:meth:`as_dict` with every key as the wire names it (:func:`wire_key`), for replies,
+        without the options a request must give (they have no setting). A setting that can be
+        unset and is shows as None (``none`` on a text line, null in JSON), the word ``-set`` takes
+        back: its stored form ("" or NaN) is refused as a value."""
+        out: dict[str, Any] = {}
+        specs = self.specs()
+        for name, value in vars(self).items():
+            if name not in specs:
+                continue
+            spec = specs[name]
+            if spec.required:  # given with each request: there is no setting to show
+                continue
+            if isinstance(value, Settings):
+                value = value.wire_dict()
+            elif spec.optional and _is_unset(value, spec.unset):
+                value = None
+            else:
+                value = _wire_keys(value) if isinstance(value, dict) else copy.deepcopy(value)
+            out[wire_key(name)] = value
+        return out
 
     def as_dict(self) -> dict[str, Any]:
         """Plain values (nested settings as mappings), for replies, sidecars and YAML."""
@@ -563,8 +583,14 @@ def _nest_lent(keys: dict[str, ParamSpec], data: Mapping[str, Any]) -> dict[str,
     return out
 
 
+def _is_unset(value: Any, unset: Any) -> bool:
+    if isinstance(value, float) and isinstance(unset, float) and math.isnan(unset):
+        return math.isnan(value)
+    return value is None or (type(value) is type(unset) and value == unset)
+
+
 def _wire_keys(values: dict[str, Any]) -> dict[str, Any]:
-    return {wire_key(k): _wire_keys(v) if isinstance(v, dict) else v for k, v in values.items()}
+    return {wire_key(k): _wire_keys(v) if isinstance(v, dict) else copy.deepcopy(v) for k, v in values.items()}
 
 
 def merge(base: dict[str, Any], over: Mapping[str, Any]) -> None:

@@ -70,6 +70,9 @@ def _set_in(cfg: Settings, path: list[str], raw: str, where: str, *, runtime: bo
         spec = next((s for s in specs.values() if s.key == path[0]), None)
     if spec is None:
         raise ProtocolError("E_ARG", f"{where} has no key '{path[0]}'; keys: {', '.join(type(cfg).keys())}")
+    if spec.required:
+        raise ProtocolError("E_ARG", f"{where}.{spec.key} is given with each request ({spec.flag}); "
+                                     "it has no default to set")
     if runtime and spec.protected:
         raise ProtocolError("E_ARG", f"{where}.{spec.name} is protected; set it when starting the server")
     if spec.kind == "section":

@@ -3,6 +3,7 @@ grammar's lower_snake_case, and every setting that can be not set can be put bac
 
 from __future__ import annotations
 
+import json
 import re
 
 import pytest
@@ -39,7 +40,7 @@ def test_navigate_global_is_shown_and_set_by_its_wire_name(client: LineClient) -
     r = client.request("config -module navigate -set global=site.tif")
     assert r.status == "OK" and r.fields["global"] == "site.tif", r
     r = client.request("config -module navigate -set global=none")
-    assert r.status == "OK" and r.fields["global"] == "", r
+    assert r.status == "OK" and r.fields["global"] == "none", r
 
 
 @pytest.mark.parametrize("spelling", ["none", "NULL", "~"])
@@ -48,7 +49,41 @@ def test_a_name_is_put_back_to_not_set(client: LineClient, module: str, spelling
     r = client.request(f"config -module {module} -set name=site_7")
     assert r.status == "OK" and r.fields["name"] == "site_7", r
     r = client.request(f"config -module {module} -set name={spelling}")
-    assert r.status == "OK" and r.fields["name"] == "", r
+    assert r.status == "OK" and r.fields["name"] == "none", r
+
+
+def _sets(settings: dict, prefix: str = "") -> list[str]:
+    """-set words that give every setting the value a JSON reply shows (null as the word none)."""
+    out: list[str] = []
+    for key, value in settings.items():
+        if isinstance(value, dict):
+            out += _sets(value, f"{prefix}{key}.")
+        elif value is None:
+            out.append(f"-set {prefix}{key}=none")
+        elif isinstance(value, bool):
+            out.append(f"-set {prefix}{key}={str(value).lower()}")
+        elif isinstance(value, list):
+            out.append(f"-set {prefix}{key}=" + ",".join(str(v) for v in value))
+        else:
+            out.append(f"-set {prefix}{key}={value}")
+    return out
+
+
+@pytest.mark.parametrize("module", ["dem_full", "dem_update_tof", "navigate", "logbook", "move-ptu"])
+def test_what_config_shows_is_taken_back_as_it_is_shown(server, module: str) -> None:
+    c = server.client()
+    c.send(f"config -module {module}")
+    text = c.line()
+    assert " name=none" in text or " pan=none" in text, text  # not set, shown as the word -set takes
+    c.send("format json")
+    c.line()  # format's OK
+    c.line()  # the JSON greeting
+    c.send(f"config -module {module}")
+    shown = json.loads(c.line())["settings"]
+    sets = _sets(shown)
+    c.send(f"config -module {module} " + " ".join(sets))
+    back = json.loads(c.line())
+    assert back["status"] == "OK" and back["settings"] == shown, (sets, back)
 
 
 def test_an_empty_name_is_refused_saying_how_to_unset(client: LineClient) -> None:
@@ -72,3 +107,10 @@ def test_an_optional_driver_setting_is_put_back_to_not_set(client: LineClient) -
     assert r.status == "OK" and r.fields["stereo_sim_hfov_deg"] == "60", r
     r = client.request("config -module drivers -set stereo.sim_hfov_deg=null")
     assert r.status == "OK" and r.fields["stereo_sim_hfov_deg"] == "none", r
+
+
+def test_an_option_each_request_must_give_is_neither_shown_nor_set(client: LineClient) -> None:
+    client.send("config -module navigate")
+    assert "goal" not in keys_of(client.line())
+    r = client.request("config -module navigate -set goal=1,2")
+    assert r.fields["code"] == "E_ARG" and "given with each request (-goal)" in r.fields["message"], r
