@@ -66,6 +66,7 @@ from __future__ import annotations
 
 import warnings
 from dataclasses import dataclass
+from functools import lru_cache
 from statistics import NormalDist
 from typing import Any
 
@@ -83,6 +84,7 @@ __all__ = ["ChanceParams", "ChanceChecks", "Posterior", "posterior", "chance_che
 EARLY = 8  # draws between the checks for a pose already refused (``verdict_only``)
 SCREEN = 0.1  # the share of epsilon the screen may spend: a pose it clears has P(any) below this times epsilon
 ROCK_WINDOW = 0.2  # m: the ground round a cell its rock stands on
+TILE = 256  # cells: the drawn errors repeat this far apart (6.4 m at 2.5 cm; a body reads less than 1 m)
 _MIN_ELEVATION = 0.05  # tan: a ray grazing flatter than this is taken at it (its horizontal error is bounded by shift)
 
 
@@ -246,7 +248,15 @@ def chance_check(post: Posterior, geom: GridGeometry, poses: np.ndarray, body: V
     reported ``unknown`` (not judged: never safe). The poses up to each run's first refusal get
     the verdicts they get without ``runs`` (the same draws: a pose's draws do not depend on which
     other poses are drawn for); the draws for a path that fails at its fifth pose are not spent
-    on its fiftieth."""
+    on its fiftieth.
+
+    The draws are the map's, not the call's (:func:`_draw`): a cell's error in draw ``s`` is
+    keyed by its place on the grid of cell multiples, so a pose gets the same verdict on the same
+    map whatever window it is judged in and whatever else is judged with it. A planner judges a
+    batch of paths in one window and the drive judges the chosen section again in another: drawn
+    per window, a marginal pose passed in the one and failed in the other, and the rover chose
+    the same section over and over and stopped at its first cycle (dense mission 0, 12 sections
+    without moving)."""
     p = params or ChanceParams()
     poses = np.atleast_2d(np.asarray(poses, float))
     n = len(poses)
@@ -279,15 +289,13 @@ def chance_check(post: Posterior, geom: GridGeometry, poses: np.ndarray, body: V
         todo &= ~cut
     rest = np.flatnonzero(todo)
     if len(rest):
-        rng = np.random.default_rng(p.seed)
         excess = np.full((p.samples, len(rest), 4), -np.inf)
         live = np.ones(len(rest), bool)  # poses still drawn for
         early = verdict_only and 1.0 / p.samples > p.epsilon
         for s in range(p.samples):
-            z = rng.standard_normal(mu.shape)
-            shared = rng.standard_normal()
             if not live.any():
-                continue  # (the draws still advance: a pose's verdict does not depend on its company)
+                continue
+            z, shared = _draw(p.seed, s, geom)
             surface = np.where(seen, mu + sd * z + common * shared, roof).astype(np.float32)
             excess[s, live] = check_poses(surface, geom, poses[rest[live]], body, step).excess
             if early and s % EARLY == EARLY - 1:
@@ -316,6 +324,29 @@ def chance_check(post: Posterior, geom: GridGeometry, poses: np.ndarray, body: V
         prob[cut], p_any[cut], unknown[cut] = np.nan, np.nan, True
     return ChanceChecks(prob=prob, p_any=p_any, unknown=unknown, screened=screened, nominal=nominal,
                         epsilon=p.epsilon)
+
+
+def _draw(seed: int, s: int, geom: GridGeometry) -> tuple[np.ndarray, float]:
+    """Draw ``s``'s standard normal errors of the cells of ``geom`` (their own, and the one common
+    to a surface): read from a tile of :data:`TILE` x :data:`TILE` cells repeated over the plane,
+    indexed by each cell's row and column on the grid of cell multiples (``geom`` is aligned to
+    it, as :meth:`GridGeometry.covering` and the windows of a map are). Every window of a map
+    reads the same error at the same cell; cells a tile apart share one, and no body reads two
+    such cells."""
+    tile, shared = _tile(seed, s)
+    r0 = int(round(-geom.ymax / geom.cell))
+    c0 = int(round(geom.xmin / geom.cell))
+    rows = (r0 + np.arange(geom.height)) % TILE
+    cols = (c0 + np.arange(geom.width)) % TILE
+    return tile[np.ix_(rows, cols)].astype(np.float64), shared
+
+
+@lru_cache(maxsize=128)
+def _tile(seed: int, s: int) -> tuple[np.ndarray, float]:
+    rng = np.random.default_rng((seed, s))
+    tile = rng.standard_normal((TILE, TILE)).astype(np.float32)
+    tile.setflags(write=False)
+    return tile, float(rng.standard_normal())
 
 
 def _run_of(runs: np.ndarray, n: int) -> np.ndarray:

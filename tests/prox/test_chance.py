@@ -9,6 +9,7 @@ import pytest
 
 from drivers.sim.rover import RoverBody
 from prox_workflows.algorithms.bounds_map import BoundsMap, BoundsParams
+from prox_workflows.algorithms.candidates import crop
 from prox_workflows.algorithms.chance import ChanceParams, Posterior, chance_check, posterior
 from prox_workflows.algorithms.vehicle import LIMITS, check_poses
 from prox_workflows.grid import GridGeometry
@@ -102,6 +103,26 @@ def test_it_passes_flat_ground_the_worst_case_refuses_yet_refuses_a_real_edge() 
     edge = chance_check(known(h11, sigma), g, AT_ORIGIN, BODY, ChanceParams(epsilon=1e-4))
     assert edge.safe.tolist() == [False]
     assert edge.prob[0, STEP] > 0.9
+
+
+def test_a_pose_gets_the_same_draws_whatever_window_it_is_judged_in() -> None:
+    """The chooser judges a batch of paths in one window, the drive the chosen section again in a
+    smaller one: the same map must give the same verdict, or a pose near the limit passes in the
+    one and fails in the other."""
+    h, g = ledge(0.09)
+    post = Posterior(h, np.full(h.shape, 0.005**2), np.full(h.shape, np.inf), np.where(h > 0, 0.003, 0.0))
+    poses = np.array([[0.0, 0.0, 0.0], [0.01, 0.0, 2.0], [-0.01, 0.005, -2.0]])
+    whole = chance_check(post, g, poses, BODY)
+    assert (whole.prob[:, STEP] > 1e-4).all()  # near the limit: the draws decide
+    for box in ((-0.6, -0.7, 0.6, 0.5), (-0.45, -0.55, 0.65, 0.45)):
+        sub, sl = crop(g, *box)
+        part = chance_check(Posterior(post.mean[sl], post.var[sl], post.ceiling[sl], post.common[sl]), sub, poses,
+                            BODY)
+        np.testing.assert_allclose(part.prob, whole.prob, rtol=1e-9, atol=1e-300)  # (to the window's rounding)
+        assert part.safe.tolist() == whole.safe.tolist()
+    # and whatever is judged with it
+    alone = chance_check(post, g, poses[1:2], BODY)
+    np.testing.assert_allclose(alone.prob[0], whole.prob[1], rtol=1e-9, atol=1e-300)
 
 
 def test_a_ray_ceiling_with_no_return_stands_as_the_ground_at_its_height() -> None:

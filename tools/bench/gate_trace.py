@@ -89,18 +89,23 @@ def main() -> None:
 
     choose_from = sections.choose_from
 
-    def choosing(bounds: Any, pose: Any, goal: Any, body: Any, how: str, params: Any, chance: Any) -> Any:
+    def choosing(bounds: Any, pose: Any, goal: Any, body: Any, how: str, params: Any, chance_params: Any) -> Any:
         where["choice"] = len(choices)
         r = params.section + params.beyond + vehicle.reach(body) + 0.1
         stats, wg = bounds.statistics(pose[0] - r, pose[1] - r, pose[0] + r, pose[1] + r)
         entry: dict[str, Any] = {"pose": [round(float(v), 3) for v in pose], "map": (stats, wg, bounds.params.k),
-                                 "chance": chance}
+                                 "chance": chance_params}
         choices.append(entry)
         if len(choices) > args.detail:
             choices[-args.detail - 1].pop("map", None)
-        choice, togo = choose_from(bounds, pose, goal, body, how, params, chance)
+        choice, togo = choose_from(bounds, pose, goal, body, how, params, chance_params)
         entry.update(status=choice.status, turn=round(choice.turn, 1), length=round(choice.length, 3),
-                     togo=round(togo, 3), checked=choice.checked, reasons=dict(choice.reasons))
+                     togo=round(togo, 3), checked=choice.checked, reasons=dict(choice.reasons),
+                     section=np.round(choice.poses, 3).tolist())
+        if choice.status == "drive":  # what the check said of the section it passed
+            c = chance.chance_check(chance.posterior(stats, wg, bounds.params.k, chance_params), wg, choice.poses,
+                                    body, chance_params) if how == "chance" else None
+            entry["section_p_any"] = None if c is None else float(np.nanmax(c.p_any))
         return choice, togo
 
     sections.choose_from = choosing
@@ -119,6 +124,12 @@ def main() -> None:
             r["truth"] = {"unsafe": bool(c.unsafe[i]), "tilt": round(float(c.tilt[i]), 2),
                           "belly": round(float(c.intrusion[i]), 4)}
     detailed = detail(choices, refusals, fine, g, world.body) if args.detail else []
+    row["events_traced"] = trace_events(row["events"], choices, fine, g, world.body)
+    for e in row["events_traced"]:
+        print(f"event {e['kind']} +{e['excess'] * (100 if e['kind'][:4] in ('step', 'bell') else 1):.2f} at "
+              f"({e['x']}, {e['y']}, {e['heading']}): nearest chosen pose {e['nearest']} of choice {e['choice']} "
+              f"({e['off_m']:.3f} m, {e['off_deg']:.1f} deg off), truly unsafe there: {e['planned_truly_unsafe']} "
+              f"{e['planned_truth']}; the section's P(any) {e['section_p_any']}")
     if args.dump:
         dump(args.dump, choices, refusals, goal)
     row.update(refusals=refusals, trace_wall_s=round(time.monotonic() - t0, 1), detailed=detailed,
@@ -149,6 +160,32 @@ def main() -> None:
             true = np.array([d["truth"][k] for d in detailed])
             print(f"  {name}: {(best > 0).sum()} / {((best <= 0) & (dmax > 0)).sum()} / {(true > 0).sum()}; "
                   f"{np.median(best):+.4f} {np.median(dmean):+.4f} {np.median(dmax):+.4f} {np.median(true):+.4f}")
+
+
+def trace_events(events: list[dict[str, Any]], choices: list[dict[str, Any]], fine: np.ndarray, g: Any,
+                 body: Any) -> list[dict[str, Any]]:
+    """Per unsafe event on the true track: the nearest pose of a section the chooser passed (how far
+    off the true pose was, in metres and degrees), and the truth's verdict at that planned pose: a
+    truly unsafe planned pose is the check's false safe, a safe one the track's straying."""
+    planned = [(ci, np.asarray(c["section"], float)) for ci, c in enumerate(choices) if c.get("section")]
+    out = []
+    for e in events:
+        best = None
+        for ci, sec in planned:
+            dh = np.abs((sec[:, 2] - e["heading"] + 180.0) % 360.0 - 180.0)
+            d = np.hypot(sec[:, 0] - e["x"], sec[:, 1] - e["y"]) + 0.005 * dh  # 1 cm per 2 deg
+            i = int(np.argmin(d))
+            if best is None or d[i] < best[0]:
+                best = (float(d[i]), ci, sec[i], float(dh[i]))
+        if best is None:
+            continue
+        _, ci, pose, dh = best
+        t = vehicle.check_poses(fine, g, pose[None, :], body)
+        out.append({**e, "choice": ci, "nearest": [round(float(v), 3) for v in pose],
+                    "off_m": float(np.hypot(pose[0] - e["x"], pose[1] - e["y"])), "off_deg": dh,
+                    "planned_truly_unsafe": bool(t.unsafe[0]), "planned_truth": [round(float(v), 4) for v in t.excess[0]],
+                    "section_p_any": choices[ci].get("section_p_any")})
+    return out
 
 
 def dump(path: str, choices: list[dict[str, Any]], refusals: list[dict[str, Any]], goal: Any) -> None:
