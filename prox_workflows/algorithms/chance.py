@@ -96,7 +96,7 @@ class ChanceParams(Settings):
                                  "given the map, is at most this (chosen on the pose-level false safes against "
                                  "the truth, posteriors as the chooser makes them, 7 approach looks of marsyard, "
                                  "hirise and dense draws 1-5: 2 of 14,136 judged poses at 3e-4, a 95 % bound of "
-                                 "4.5e-4 a pose; 4 at 1e-3, 6.5e-4; docs/NAVIGATE_BENCH.md)", min=1e-9, max=0.5)
+                                 "4.5e-4 a pose; 5 at 1e-3, 7.4e-4; docs/NAVIGATE_BENCH.md)", min=1e-9, max=0.5)
     samples: int = param(64, "surfaces drawn from the cells' posteriors for each check (a normal tail over "
                              "their excesses reaches probabilities below 1 / samples)", min=8, max=4096)
     seed: int = param(0, "seed of the drawn surfaces: the same map and poses give the same verdict",
