@@ -550,8 +550,8 @@ class BoundsMap:
                    ) -> tuple[dict[str, np.ndarray], GridGeometry]:
         """What the bounds are drawn from over a box (copies, clipped to the map), with its grid:
         ``mean``, ``mean_var`` (the fused mean's variance), ``rise``, ``drop``, ``shift``,
-        ``along_var`` (the fused mean's horizontal variance along the rays) and ``ceiling`` per cell. A check that weighs how likely the ground is rather than its
-        extremes reads these (``chance.posterior``), and the bounds drawn from them (``lower``,
+        ``along_var`` (the fused mean's horizontal variance along the rays) and ``ceiling`` per
+        cell. A check that weighs how likely the ground is rather than its extremes reads these (``chance.posterior``), and the bounds drawn from them (``lower``,
         ``upper``)."""
         sl, sub = self._box(xmin, ymin, xmax, ymax)
         names = ("mean", "mean_var", "rise", "drop", "shift", "along_var", "ceiling")

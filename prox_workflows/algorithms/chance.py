@@ -20,10 +20,10 @@ mean + rise, with five variances:
   return's horizontal sigma, ``shift / k``). Without a viewpoint (a map fused from many places)
   the map's own ``along_var`` gives it: the returns' horizontal errors along their rays averaged
   over the returns and frames as their heights are; the slope is then the steepest. One return's
-  sigma in its place overstates it by the root of the returns fused: on hirise's 2.5 cm cells
-  that put 1 % of the cells under a standing rover at 2-3 cm sigma where the truth is smooth,
-  and the steps the draws make between such cells refused every turn on the spot
-  (docs/NAVIGATE_BENCH.md). Across the ray, and on flat ground, it adds nothing;
+  sigma would overstate it by the root of the returns fused: on hirise's 2.5 cm cells it puts
+  1 % of the cells under a standing rover at 2-3 cm sigma where the truth is smooth, and the
+  steps the draws make between such cells refuse turns on the spot the truth allows with 6 cm to
+  spare (docs/NAVIGATE_BENCH.md). Across the ray, and on flat ground, it adds nothing;
 - the relief no return met: the true top of a cell stands over the highest of its returns
   now and then by a few millimetres (``top_sigma``, on every cell);
 - the rock edge: where the map's worst case allows ground J higher than the cell's top within
@@ -257,9 +257,8 @@ def chance_check(post: Posterior, geom: GridGeometry, poses: np.ndarray, body: V
     keyed by its place on the grid of cell multiples, so a pose gets the same verdict on the same
     map whatever window it is judged in and whatever else is judged with it. A planner judges a
     batch of paths in one window and the drive judges the chosen section again in another: drawn
-    per window, a marginal pose passed in the one and failed in the other, and the rover chose
-    the same section over and over and stopped at its first cycle (dense mission 0, 12 sections
-    without moving)."""
+    per window, a pose near the limit may pass in the one and fail in the other, and the rover
+    would choose a section its drive refuses at once, again and again (docs/NAVIGATE_BENCH.md)."""
     p = params or ChanceParams()
     poses = np.atleast_2d(np.asarray(poses, float))
     n = len(poses)
