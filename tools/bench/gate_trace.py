@@ -15,6 +15,10 @@ draws), the chance check's probability, and the true surface's excess at the sam
 them is far from the truth says what refuses: a wide posterior (the draws), the best estimate
 itself (a step in the map that is not on the ground), or ground under the body not seen.
 
+Each unsafe event on the true track is traced to the nearest pose of a section the chooser
+passed (:func:`trace_events`): truly unsafe there is the check's false safe, safe there the
+track's straying from what was judged.
+
 It hooks the checks the chooser builds (:mod:`rvs_server.navigation.sections`), so it measures the
 loop as it runs; docs/NAVIGATE_BENCH.md has what it showed. A refused pose of a choice is one
 the chooser's check said no to, not necessarily one the rover would have driven: most candidates
