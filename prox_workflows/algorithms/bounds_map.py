@@ -156,6 +156,10 @@ class BoundsMap:
         self.rise = np.zeros(shape, np.float32)  # ground above the mean within the cell (m)
         self.drop = np.zeros(shape, np.float32)  # ground below it (m)
         self.shift = np.zeros(shape, np.float32)  # how far (m) the cell's returns may lie from their ground
+        # the fused mean's own horizontal error along the rays (m^2): one return's, averaged over the
+        # returns and frames as the mean's height error is (a check weighing the slope's share of
+        # the mean's error reads this, not one return's ``shift``)
+        self.along_var = np.zeros(shape, np.float32)
         # one return's horizontal error covariance (m^2: xx, xy, yy): an ellipse along the rays that
         # gave the cell its returns, which the bounds spread over (see bounds)
         self.spread = np.zeros((3, *shape), np.float32)
@@ -357,6 +361,7 @@ class BoundsMap:
         self.rise.flat[wheels] = sag
         self.drop.flat[wheels] = sag
         self.shift.flat[wheels] = 0.0
+        self.along_var.flat[wheels] = 0.0
         under = np.setdiff1d(np.unique(flat[inside & belly]), wheels)
         under = under[self.stamp.flat[under] == 0]
         ux = g.xmin + (under % g.width + 0.5) * g.cell
@@ -452,6 +457,8 @@ class BoundsMap:
         # variance of one times (1 + rho (n - 1)) / n
         allowance = np.sqrt(2.0 * np.log(n) * (1.0 - rho) * point_var)
         mean_var = point_var * (1.0 + rho * (n - 1.0)) / n
+        # the mean's horizontal error along the rays averages as its height error does
+        along_var = np.add.reduceat(a2[inside][order], starts) / n * (1.0 + rho * (n - 1.0)) / n
         rise = np.maximum(np.maximum.reduceat(z, starts) - mean - allowance, 0.0)
         drop = np.maximum(mean - np.minimum.reduceat(z, starts) - allowance, 0.0)
         shift = self.params.k * np.sqrt(np.add.reduceat(var_xy, starts) / n)
@@ -464,7 +471,7 @@ class BoundsMap:
             self.source.flat[cells[enough]] = rank
         cells = cells[enough]
         self._fuse_cells(cells, mean[enough], mean_var[enough], rise[enough], drop[enough], shift[enough],
-                         spread[:, enough])
+                         spread[:, enough], along_var[enough])
         self.stamp.flat[cells] = self.frames
         return int(len(cells))
 
@@ -472,12 +479,13 @@ class BoundsMap:
         """Drop what the frames gave ``cells`` (a sensor of higher precedence takes them over)."""
         self.mean.flat[cells] = np.nan
         self.mean_var.flat[cells] = np.nan
-        for layer in (self.rise, self.drop, self.shift, *self.spread):
+        for layer in (self.rise, self.drop, self.shift, self.along_var, *self.spread):
             layer.flat[cells] = 0.0
 
     def _fuse_cells(self, cells: np.ndarray, mean: np.ndarray, var: np.ndarray, rise: np.ndarray,
-                    drop: np.ndarray, shift: np.ndarray, spread: np.ndarray) -> None:
-        """One frame's per-cell mean, its variance, rise, drop and shift into the map."""
+                    drop: np.ndarray, shift: np.ndarray, spread: np.ndarray, along_var: np.ndarray) -> None:
+        """One frame's per-cell mean, its variance, rise, drop, shift, error ellipse and the mean's
+        horizontal variance along the rays into the map."""
         k = self.params.k
         old = self.mean.flat[cells].astype(np.float64)
         old_var = self.mean_var.flat[cells].astype(np.float64)
@@ -489,6 +497,10 @@ class BoundsMap:
         # rise, drop and shift are averaged as the mean is: a frame's noise lifts its own highest
         # return past the allowance now and then, and a running maximum would keep every such lift
         share = np.where(first, 1.0, fused_var / var)
+        # the fused mean is the map's and the frame's weighted by their height variances: its
+        # horizontal error is theirs in those weights (independent frames)
+        old_along = self.along_var.flat[cells].astype(np.float64)
+        self.along_var.flat[cells] = share**2 * along_var + np.where(first, 0.0, (1.0 - share) ** 2 * old_along)
         blended = {}
         for name, new in (("rise", rise), ("drop", drop), ("shift", shift)):
             before = getattr(self, name).flat[cells].astype(np.float64)
@@ -537,12 +549,12 @@ class BoundsMap:
     def statistics(self, xmin: float, ymin: float, xmax: float, ymax: float
                    ) -> tuple[dict[str, np.ndarray], GridGeometry]:
         """What the bounds are drawn from over a box (copies, clipped to the map), with its grid:
-        ``mean``, ``mean_var`` (the fused mean's variance), ``rise``, ``drop``, ``shift`` and
-        ``ceiling`` per cell. A check that weighs how likely the ground is rather than its
-        extremes reads these (``chance.posterior``), and the bounds drawn from them (``lower``,
+        ``mean``, ``mean_var`` (the fused mean's variance), ``rise``, ``drop``, ``shift``,
+        ``along_var`` (the fused mean's horizontal variance along the rays) and ``ceiling`` per
+        cell. A check that weighs how likely the ground is rather than its extremes reads these (``chance.posterior``), and the bounds drawn from them (``lower``,
         ``upper``)."""
         sl, sub = self._box(xmin, ymin, xmax, ymax)
-        names = ("mean", "mean_var", "rise", "drop", "shift", "ceiling")
+        names = ("mean", "mean_var", "rise", "drop", "shift", "along_var", "ceiling")
         if sl is None:
             return {name: np.full((0, 0), np.nan, np.float32) for name in (*names, "lower", "upper")}, sub
         out = {name: getattr(self, name)[sl].copy() for name in names}

@@ -17,7 +17,13 @@ mean + rise, with five variances:
   nearer along the ray, a height error of the ground's slope *along the ray* times that shift. The
   shift's sigma is the mean's own range error, horizontally: its height sigma over the tangent of
   the ray's elevation, seen from ``viewpoint`` (averaged, as the height is; never more than one
-  return's horizontal sigma, ``shift / k``). Across the ray, and on flat ground, it adds nothing;
+  return's horizontal sigma, ``shift / k``). Without a viewpoint (a map fused from many places)
+  the map's own ``along_var`` gives it: the returns' horizontal errors along their rays averaged
+  over the returns and frames as their heights are; the slope is then the steepest. One return's
+  sigma would overstate it by the root of the returns fused: on hirise's 2.5 cm cells it puts
+  1 % of the cells under a standing rover at 2-3 cm sigma where the truth is smooth, and the
+  steps the draws make between such cells refuse turns on the spot the truth allows with 6 cm to
+  spare (docs/NAVIGATE_BENCH.md). Across the ray, and on flat ground, it adds nothing;
 - the relief no return met: the true top of a cell stands over the highest of its returns
   now and then by a few millimetres (``top_sigma``, on every cell);
 - the rock edge: where the map's worst case allows ground J higher than the cell's top within
@@ -60,6 +66,7 @@ from __future__ import annotations
 
 import warnings
 from dataclasses import dataclass
+from functools import lru_cache
 from statistics import NormalDist
 from typing import Any
 
@@ -77,6 +84,7 @@ __all__ = ["ChanceParams", "ChanceChecks", "Posterior", "posterior", "chance_che
 EARLY = 8  # draws between the checks for a pose already refused (``verdict_only``)
 SCREEN = 0.1  # the share of epsilon the screen may spend: a pose it clears has P(any) below this times epsilon
 ROCK_WINDOW = 0.2  # m: the ground round a cell its rock stands on
+TILE = 256  # cells: the drawn errors repeat this far apart (6.4 m at 2.5 cm; a body reads less than 1 m)
 _MIN_ELEVATION = 0.05  # tan: a ray grazing flatter than this is taken at it (its horizontal error is bounded by shift)
 
 
@@ -84,8 +92,11 @@ _MIN_ELEVATION = 0.05  # tan: a ray grazing flatter than this is taken at it (it
 class ChanceParams(Settings):
     """The chance-constrained vehicle check: the risk it accepts and how its probabilities are made."""
 
-    epsilon: float = param(1e-3, "a pose is safe when the probability that it exceeds any physical limit, "
-                                 "given the map, is at most this", min=1e-9, max=0.5)
+    epsilon: float = param(3e-4, "a pose is safe when the probability that it exceeds any physical limit, "
+                                 "given the map, is at most this (chosen on the pose-level false safes against "
+                                 "the truth, posteriors as the chooser makes them, 7 approach looks of marsyard, "
+                                 "hirise and dense draws 1-5: 2 of 14,136 judged poses at 3e-4, a 95 % bound of "
+                                 "4.5e-4 a pose; 5 at 1e-3, 7.4e-4; docs/NAVIGATE_BENCH.md)", min=1e-9, max=0.5)
     samples: int = param(64, "surfaces drawn from the cells' posteriors for each check (a normal tail over "
                              "their excesses reaches probabilities below 1 / samples)", min=8, max=4096)
     seed: int = param(0, "seed of the drawn surfaces: the same map and poses give the same verdict",
@@ -155,7 +166,8 @@ def posterior(stats: dict[str, np.ndarray], geom: GridGeometry, k: float, params
     """Each cell's ground from a bounds map's statistics over ``geom`` (:meth:`BoundsMap.statistics`;
     ``k`` the map's, by which its ``shift`` is drawn), seen from ``viewpoint`` (x, y, z of the
     sensor; None: the ray's direction unknown, so the slope's steepest direction and one return's
-    horizontal sigma stand in). See the module's docstring for the five variances."""
+    horizontal sigma stand in, averaged as the mean is where ``stats`` has ``along_var``). See the
+    module's docstring for the five variances."""
     p = params or ChanceParams()
     mean = np.asarray(stats["mean"], np.float64)
     top = mean + np.asarray(stats["rise"], np.float64)
@@ -177,7 +189,9 @@ def posterior(stats: dict[str, np.ndarray], geom: GridGeometry, k: float, params
         with np.errstate(invalid="ignore"):
             slope = np.fmax(np.abs(ahead - top), np.abs(top - behind)) / c
     else:
-        along = per_return
+        averaged = stats.get("along_var")
+        along = per_return if averaged is None else \
+            np.minimum(np.sqrt(np.maximum(np.asarray(averaged, np.float64), 0.0)), per_return)
         gy, gx = np.gradient(np.where(seen, top, np.nan), c)
         slope = np.hypot(gx, gy)
     slope = np.nan_to_num(slope, nan=0.0)
@@ -237,7 +251,14 @@ def chance_check(post: Posterior, geom: GridGeometry, poses: np.ndarray, body: V
     reported ``unknown`` (not judged: never safe). The poses up to each run's first refusal get
     the verdicts they get without ``runs`` (the same draws: a pose's draws do not depend on which
     other poses are drawn for); the draws for a path that fails at its fifth pose are not spent
-    on its fiftieth."""
+    on its fiftieth.
+
+    The draws are the map's, not the call's (:func:`_draw`): a cell's error in draw ``s`` is
+    keyed by its place on the grid of cell multiples, so a pose gets the same verdict on the same
+    map whatever window it is judged in and whatever else is judged with it. A planner judges a
+    batch of paths in one window and the drive judges the chosen section again in another: drawn
+    per window, a pose near the limit may pass in the one and fail in the other, and the rover
+    would choose a section its drive refuses at once, again and again (docs/NAVIGATE_BENCH.md)."""
     p = params or ChanceParams()
     poses = np.atleast_2d(np.asarray(poses, float))
     n = len(poses)
@@ -270,15 +291,13 @@ def chance_check(post: Posterior, geom: GridGeometry, poses: np.ndarray, body: V
         todo &= ~cut
     rest = np.flatnonzero(todo)
     if len(rest):
-        rng = np.random.default_rng(p.seed)
         excess = np.full((p.samples, len(rest), 4), -np.inf)
         live = np.ones(len(rest), bool)  # poses still drawn for
         early = verdict_only and 1.0 / p.samples > p.epsilon
         for s in range(p.samples):
-            z = rng.standard_normal(mu.shape)
-            shared = rng.standard_normal()
             if not live.any():
-                continue  # (the draws still advance: a pose's verdict does not depend on its company)
+                continue
+            z, shared = _draw(p.seed, s, geom)
             surface = np.where(seen, mu + sd * z + common * shared, roof).astype(np.float32)
             excess[s, live] = check_poses(surface, geom, poses[rest[live]], body, step).excess
             if early and s % EARLY == EARLY - 1:
@@ -307,6 +326,29 @@ def chance_check(post: Posterior, geom: GridGeometry, poses: np.ndarray, body: V
         prob[cut], p_any[cut], unknown[cut] = np.nan, np.nan, True
     return ChanceChecks(prob=prob, p_any=p_any, unknown=unknown, screened=screened, nominal=nominal,
                         epsilon=p.epsilon)
+
+
+def _draw(seed: int, s: int, geom: GridGeometry) -> tuple[np.ndarray, float]:
+    """Draw ``s``'s standard normal errors of the cells of ``geom`` (their own, and the one common
+    to a surface): read from a tile of :data:`TILE` x :data:`TILE` cells repeated over the plane,
+    indexed by each cell's row and column on the grid of cell multiples (``geom`` is aligned to
+    it, as :meth:`GridGeometry.covering` and the windows of a map are). Every window of a map
+    reads the same error at the same cell; cells a tile apart share one, and no body reads two
+    such cells."""
+    tile, shared = _tile(seed, s)
+    r0 = int(round(-geom.ymax / geom.cell))
+    c0 = int(round(geom.xmin / geom.cell))
+    rows = (r0 + np.arange(geom.height)) % TILE
+    cols = (c0 + np.arange(geom.width)) % TILE
+    return tile[np.ix_(rows, cols)].astype(np.float64), shared
+
+
+@lru_cache(maxsize=128)
+def _tile(seed: int, s: int) -> tuple[np.ndarray, float]:
+    rng = np.random.default_rng((seed, s))
+    tile = rng.standard_normal((TILE, TILE)).astype(np.float32)
+    tile.setflags(write=False)
+    return tile, float(rng.standard_normal())
 
 
 def _run_of(runs: np.ndarray, n: int) -> np.ndarray:

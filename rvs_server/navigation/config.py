@@ -76,7 +76,7 @@ class SeeConfig(Settings):
                       "check alone", choices=("bounds", "off"), option=False)
     vehicle: str = param("chance", "see loop with see_gate bounds: the vehicle check the sections are chosen and "
                        "driven by: chance, the probability that the body exceeds a limit given each cell's "
-                       "posterior, at most epsilon 1e-3; bounds, the worst case on the bounds",
+                       "posterior, at most epsilon (see_chance.epsilon); bounds, the worst case on the bounds",
                        choices=("chance", "bounds"), option=False)
     set_down: str = param("ring", "see loop with the bounds map: the ground where the rover is set down that no "
                           "frame shows (the mast's blind disc, under the body): level takes it within 1 cm of level; "

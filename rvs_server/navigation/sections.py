@@ -74,8 +74,9 @@ def map_check(bounds: BoundsMap, box: tuple[float, float, float, float], body: A
               chance: ChanceParams) -> Check:
     """The vehicle check over ``box`` (xmin, ymin, xmax, ymax) of the bounds map as a
     :data:`~prox_workflows.algorithms.candidates.Check`: ``chance`` on the cells' posteriors (the
-    map's per-cell statistics; the rays' directions are not kept per cell, so the slope's
-    steepest direction stands in for the ray's), ``bounds`` the worst case on its bounds."""
+    map's per-cell statistics: the mean's horizontal error along its rays averaged as its height
+    is, and the slope's steepest direction for the rays'), ``bounds`` the worst case on its
+    bounds."""
     stats, g = bounds.statistics(*box)
     if how == "chance":
         return posterior_check(posterior(stats, g, bounds.params.k, chance), g, body, chance)

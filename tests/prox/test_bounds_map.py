@@ -78,6 +78,25 @@ def test_returns_bound_the_ground_both_ways_and_more_looks_tighten_the_bounds() 
     assert width_nine < 0.02
 
 
+def test_the_mean_s_horizontal_error_along_its_rays_averages_as_its_height_does() -> None:
+    """One return's horizontal error along its ray is 2 cm; a cell's mean of n returns is off along
+    the ray by 2 cm / sqrt(n), and two frames of equal weight halve that variance again: what the
+    chance check weighs the slope with (``along_var``), where ``shift`` keeps one return's."""
+    m = BoundsMap(GridGeometry(0.05, 0.0, 1.0, 20, 20), BoundsParams())
+    xs = np.repeat(0.525 + 0.05 * np.arange(4), 16)  # 16 returns in each of 4 cells along a row
+    pts = np.column_stack([xs + np.tile(np.linspace(-0.02, 0.02, 16), 4), np.full(64, 0.525), np.zeros(64)])
+    origin = np.array([-1.0, 0.525, 1.0])
+    m.fuse(pts, 0.01, origin, sigma_xy=0.02, sigma_across=0.005)
+    stats, _ = m.statistics(0.51, 0.51, 0.69, 0.54)  # the row of 4 cells
+    np.testing.assert_allclose(stats["along_var"], np.full((1, 4), 0.02**2 / 16), rtol=1e-5)
+    np.testing.assert_allclose(stats["shift"], np.full((1, 4), m.params.k * 0.02), rtol=1e-5)  # one return's, as before
+    m.fuse(pts, 0.01, origin, sigma_xy=0.02, sigma_across=0.005)
+    stats, _ = m.statistics(0.51, 0.51, 0.69, 0.54)
+    np.testing.assert_allclose(stats["along_var"], np.full((1, 4), 0.02**2 / 32), rtol=1e-5)
+    beside, _ = m.statistics(0.51, 0.56, 0.69, 0.59)  # the row north of it: no return there
+    assert np.isnan(beside["mean"]).all() and (beside["along_var"] == 0).all()
+
+
 def test_a_rock_reads_at_its_top_and_a_later_look_at_a_new_rock_widens_the_cell() -> None:
     rng = np.random.default_rng(2)
     m = _map()

@@ -9,6 +9,7 @@ import pytest
 
 from drivers.sim.rover import RoverBody
 from prox_workflows.algorithms.bounds_map import BoundsMap, BoundsParams
+from prox_workflows.algorithms.candidates import crop
 from prox_workflows.algorithms.chance import ChanceParams, Posterior, chance_check, posterior
 from prox_workflows.algorithms.vehicle import LIMITS, check_poses
 from prox_workflows.grid import GridGeometry
@@ -104,6 +105,26 @@ def test_it_passes_flat_ground_the_worst_case_refuses_yet_refuses_a_real_edge() 
     assert edge.prob[0, STEP] > 0.9
 
 
+def test_a_pose_gets_the_same_draws_whatever_window_it_is_judged_in() -> None:
+    """The chooser judges a batch of paths in one window, the drive the chosen section again in a
+    smaller one: the same map must give the same verdict, or a pose near the limit passes in the
+    one and fails in the other."""
+    h, g = ledge(0.09)
+    post = Posterior(h, np.full(h.shape, 0.005**2), np.full(h.shape, np.inf), np.where(h > 0, 0.003, 0.0))
+    poses = np.array([[0.0, 0.0, 0.0], [0.01, 0.0, 2.0], [-0.01, 0.005, -2.0]])
+    whole = chance_check(post, g, poses, BODY)
+    assert (whole.prob[:, STEP] > 1e-4).all()  # near the limit: the draws decide
+    for box in ((-0.6, -0.7, 0.6, 0.5), (-0.45, -0.55, 0.65, 0.45)):
+        sub, sl = crop(g, *box)
+        part = chance_check(Posterior(post.mean[sl], post.var[sl], post.ceiling[sl], post.common[sl]), sub, poses,
+                            BODY)
+        np.testing.assert_allclose(part.prob, whole.prob, rtol=1e-9, atol=1e-300)  # (to the window's rounding)
+        assert part.safe.tolist() == whole.safe.tolist()
+    # and whatever is judged with it
+    alone = chance_check(post, g, poses[1:2], BODY)
+    np.testing.assert_allclose(alone.prob[0], whole.prob[1], rtol=1e-9, atol=1e-300)
+
+
 def test_a_ray_ceiling_with_no_return_stands_as_the_ground_at_its_height() -> None:
     h, g = ledge(0.0)
     g_, X, Y = grid()
@@ -142,6 +163,56 @@ def test_the_range_error_lies_along_the_ray() -> None:
     np.testing.assert_allclose(along.var[flat], 0.004**2)  # on flat ground nothing is added
     # the mean's horizontal error is its height error over the ray's elevation, never more than one return's
     assert along.var[at][0] <= 0.004**2 + (0.10 / CELL * 0.02) ** 2 + 1e-12
+
+
+def pebbles(height: float) -> tuple[np.ndarray, GridGeometry]:
+    """2.5 cm tops of ground rising 10 % along x, strewn with 40 round pebbles ``height`` tall
+    (a normal bump of 2.5 cm sigma): steep where a pebble's flank is, a step nowhere near the climb."""
+    g = GridGeometry.covering(-1.0, -1.0, 1.0, 1.0, 0.025)
+    xs, ys = g.centers()
+    X, Y = np.meshgrid(xs, ys)
+    rng = np.random.default_rng(0)
+    top = 0.1 * X + 0.002 * rng.standard_normal(X.shape)
+    for x, y in rng.uniform(-0.6, 0.6, (40, 2)):
+        top += height * np.exp(-((X - x) ** 2 + (Y - y) ** 2) / (2 * 0.025**2))
+    return top, g
+
+
+def test_without_a_viewpoint_the_slope_takes_the_mean_s_averaged_horizontal_error() -> None:
+    top, g = pebbles(0.05)
+    k, one = 2.5, 0.02  # one return's horizontal sigma along its ray: 2 cm
+    no_edge = ChanceParams(edge_bias=0.0, edge_sigma=0.0, top_sigma=0.0, rock_sigma=0.0)
+    bare = stats(top, 0.001, k * one)
+    averaged = dict(bare, along_var=np.full(top.shape, one**2 / 16))  # 16 returns fused
+    single = dict(bare, along_var=np.full(top.shape, one**2))  # one return: no better than it
+    gy, gx = np.gradient(top, g.cell)
+    slope = np.hypot(gx, gy)
+    np.testing.assert_allclose(posterior(averaged, g, k, no_edge).var, 0.001**2 + (slope * one / 4) ** 2)
+    np.testing.assert_allclose(posterior(single, g, k, no_edge).var, 0.001**2 + (slope * one) ** 2)
+    # a map without the averaged error (a replayed map) keeps one return's
+    np.testing.assert_allclose(posterior(bare, g, k, no_edge).var, posterior(single, g, k, no_edge).var)
+
+
+def test_a_turn_on_the_spot_among_pebbles_seen_by_many_returns_passes() -> None:
+    """The wheels' steps on 5 cm pebbles reach 4.7 cm on the tops themselves (the climb is 10 cm):
+    with one return's horizontal error on the pebbles' steep flanks the draws make steps of 10 cm
+    between neighbouring cells and refuse a fifth of the turn; with the mean's own (16 returns)
+    every pose passes. The same map with a 11 cm edge under the turn still refuses it."""
+    top, g = pebbles(0.05)
+    k, one = 2.5, 0.02
+    p = ChanceParams(edge_bias=0.0, edge_sigma=0.0, top_sigma=0.005, rock_sigma=0.0)
+    turn = np.column_stack([np.zeros(37), np.zeros(37), np.arange(0.0, 181.0, 5.0)])
+    assert check_poses(top.astype(np.float32), g, turn, BODY).step.max() < 0.05
+    bare = stats(top, 0.001, k * one)
+    single = chance_check(posterior(bare, g, k, p), g, turn, BODY, p)
+    assert (~single.safe).sum() >= 3  # what the chooser made of such ground
+    averaged = dict(bare, along_var=np.full(top.shape, one**2 / 16))
+    assert chance_check(posterior(averaged, g, k, p), g, turn, BODY, p).safe.all()
+    xs, ys = g.centers()
+    X, Y = np.meshgrid(xs, ys)
+    ledge = top + np.where((np.hypot(X, Y) > 0.33) & (np.hypot(X, Y) < 0.5), 0.11, 0.0)
+    edged = dict(stats(ledge, 0.001, k * one), along_var=np.full(top.shape, one**2 / 16))
+    assert not chance_check(posterior(edged, g, k, p), g, turn, BODY, p).safe.any()
 
 
 def test_beside_a_rock_the_top_reads_low_by_one_error_for_all_its_cells() -> None:

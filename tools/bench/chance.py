@@ -20,6 +20,12 @@ model, one draw). Then:
     python -m tools.bench.chance --epsilon 1e-2 1e-3 1e-4     # the table
     python -m tools.bench.chance --cell 0.05 --world-seed 2   # a 5 cm map, another rock draw
     python -m tools.bench.chance --time                       # 1,000 poses on a 5 cm window
+    python -m tools.bench.chance --look approach --world-seed 3 --posterior map   # as the chooser judges
+
+``--posterior``: ``look`` (default) makes the posterior seen from the look's mean sensor position;
+``map`` as the see loop's chooser makes it, with no viewpoint (the slope's steepest direction and
+the map's ``along_var``, the mean's horizontal error averaged over its returns); ``one`` the
+same with one return's horizontal error in its place (``along_var`` left out).
 """
 
 from __future__ import annotations
@@ -105,9 +111,14 @@ def calibrate(scene: str, look: str, cell: float, world_seed: int, seed: int) ->
 
 
 def evaluate(scene: str, look: str, cell: float, world_seed: int, seed: int, epsilons: list[float],
-             samples: int, body: RoverBody, rock_sigma: float = ChanceParams().rock_sigma) -> dict[str, Any]:
+             samples: int, body: RoverBody, rock_sigma: float = ChanceParams().rock_sigma,
+             made: str = "look") -> dict[str, Any]:
     world, bounds, viewpoint = fused(scene, look, cell, world_seed, seed)
     stats, g = whole(bounds)
+    if made != "look":  # as the chooser makes it: no viewpoint
+        viewpoint = None
+        if made == "one":
+            stats.pop("along_var")
     x0, y0, _ = world.rover_pose()
     truth = world.true_dem(0.01, (g.xmin, g.ymin, g.xmin + g.width * g.cell, g.ymax))
     tg = GridGeometry(0.01, g.xmin, g.ymax, truth.shape[1], truth.shape[0])
@@ -175,13 +186,16 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--samples", type=int, default=ChanceParams().samples)
     ap.add_argument("--rock-sigma", type=float, default=ChanceParams().rock_sigma,
                     help="ChanceParams.rock_sigma for the table (what the declared value is weighed against)")
+    ap.add_argument("--posterior", choices=["look", "map", "one"], default="look",
+                    help="seen from the look's sensor (look), as the chooser makes it (map), or that with one "
+                         "return's horizontal error (one)")
     ap.add_argument("--time", action="store_true", help="time 1,000 poses on a synthetic 5 cm window instead")
     args = ap.parse_args(argv)
     if args.time:
         for name, seconds in timing(RoverBody(), args.samples):
             print(f"{name}: {seconds:.2f} s per 1,000 poses ({args.samples} samples)")
         return
-    head = f"{args.scene}, {args.look}, cell {args.cell * 100:g} cm, rock draw {args.world_seed}, noise draw {args.seed}"
+    head = f"{args.scene}, {args.look} ({args.posterior} posterior), cell {args.cell * 100:g} cm, rock draw {args.world_seed}, noise draw {args.seed}"
     if args.calibrate:
         out = calibrate(args.scene, args.look, args.cell, args.world_seed, args.seed)
         print(f"{head}: {out['cells']} cells with returns")
@@ -197,7 +211,7 @@ def main(argv: list[str] | None = None) -> None:
         return
     body = RoverBody()
     out = evaluate(args.scene, args.look, args.cell, args.world_seed, args.seed, args.epsilon, args.samples,
-                   dataclasses.replace(body), args.rock_sigma)
+                   dataclasses.replace(body), args.rock_sigma, args.posterior)
     print(f"{head}: {out['poses']} poses, {out['truly_unsafe']} truly unsafe")
     print("| check | judged | false safe | truly safe kept (of) | poses screened | ms per 1,000 poses |")
     print("|---|---|---|---|---|---|")

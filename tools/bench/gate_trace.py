@@ -7,6 +7,17 @@ unsafe, and by which limit.
     python -m tools.bench.gate_trace --scene marsyard --mission 0 --out m0.json
     python -m tools.bench.gate_trace --mission 0 --set navigate.see_set_down=attitude [--hang 0]  # the IMU's
     python -m tools.bench.gate_trace --mission 0 --set navigate.see_vehicle=bounds      # the worst case
+    python -m tools.bench.gate_trace --scene hirise --mission 1 --detail 12           # the stop, per limit
+
+``--detail N``: the refusals of the mission's last N choices (where it stopped) judged again, per
+limit: the posterior's best estimate, the drawn surfaces' excess (mean and the worst of the
+draws), the chance check's probability, and the true surface's excess at the same pose. Which of
+them is far from the truth says what refuses: a wide posterior (the draws), the best estimate
+itself (a step in the map that is not on the ground), or ground under the body not seen.
+
+Each unsafe event on the true track is traced to the nearest pose of a section the chooser
+passed (:func:`trace_events`): truly unsafe there is the check's false safe, safe there the
+track's straying from what was judged.
 
 It hooks the checks the chooser builds (:mod:`rvs_server.navigation.sections`), so it measures the
 loop as it runs; docs/NAVIGATE_BENCH.md has what it showed. A refused pose of a choice is one
@@ -26,7 +37,7 @@ import numpy as np
 
 import rvs_server.navigation.sections as sections
 from drivers.sim.world import World
-from prox_workflows.algorithms import bounds_map, vehicle
+from prox_workflows.algorithms import bounds_map, chance, vehicle
 from prox_workflows.algorithms.candidates import verdict_name
 from rvs_truth.surface import missions
 from tools.bench import navigate as bench
@@ -38,6 +49,9 @@ def main() -> None:
     ap.add_argument("--mission", type=int, default=0, help="index in the bench's seeded draws (seed 0)")
     ap.add_argument("--out", default="", help="also write the mission's row and every refusal as JSON here")
     ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="a server setting")
+    ap.add_argument("--dump", default="", help="with --detail: also save those choices' maps and poses here (.npz), "
+                                               "to judge them again offline")
+    ap.add_argument("--detail", type=int, default=0, help="judge the refusals of the last N choices per limit")
     ap.add_argument("--hang", type=float, default=None, help="bounds_map hang (m) instead of its default")
     args = ap.parse_args()
     if args.hang is not None:
@@ -50,7 +64,8 @@ def main() -> None:
         bounds_map.BoundsMap.__init__ = with_hang
 
     refusals: list[dict[str, Any]] = []
-    where = {"now": "choose"}
+    where: dict[str, Any] = {"now": "choose", "choice": -1}
+    choices: list[dict[str, Any]] = []  # every choice: the pose, its answer; the last ``detail`` keep their map
 
     def traced(make: Any) -> Any:
         def build(*a: Any, **k: Any) -> Any:
@@ -60,7 +75,7 @@ def main() -> None:
                 codes = np.asarray(check(poses))
                 for p, code in zip(np.atleast_2d(poses)[codes > 0], codes[codes > 0], strict=True):
                     refusals.append({"pose": [round(float(v), 3) for v in p], "verdict": verdict_name(int(code)),
-                                     "where": where["now"]})
+                                     "where": where["now"], "choice": where["choice"]})
                 return codes
 
             return run
@@ -76,6 +91,28 @@ def main() -> None:
         finally:
             where["now"] = "choose"
 
+    choose_from = sections.choose_from
+
+    def choosing(bounds: Any, pose: Any, goal: Any, body: Any, how: str, params: Any, chance_params: Any) -> Any:
+        where["choice"] = len(choices)
+        r = params.section + params.beyond + vehicle.reach(body) + 0.1
+        stats, wg = bounds.statistics(pose[0] - r, pose[1] - r, pose[0] + r, pose[1] + r)
+        entry: dict[str, Any] = {"pose": [round(float(v), 3) for v in pose], "map": (stats, wg, bounds.params.k),
+                                 "chance": chance_params}
+        choices.append(entry)
+        if len(choices) > args.detail:
+            choices[-args.detail - 1].pop("map", None)
+        choice, togo = choose_from(bounds, pose, goal, body, how, params, chance_params)
+        entry.update(status=choice.status, turn=round(choice.turn, 1), length=round(choice.length, 3),
+                     togo=round(togo, 3), checked=choice.checked, reasons=dict(choice.reasons),
+                     section=np.round(choice.poses, 3).tolist())
+        if choice.status == "drive":  # what the check said of the section it passed
+            c = chance.chance_check(chance.posterior(stats, wg, bounds.params.k, chance_params), wg, choice.poses,
+                                    body, chance_params) if how == "chance" else None
+            entry["section_p_any"] = None if c is None else float(np.nanmax(c.p_any))
+        return choice, togo
+
+    sections.choose_from = choosing
     sections.posterior_check = traced(sections.posterior_check)
     sections.bounds_check = traced(sections.bounds_check)
     sections.SectionPilot._recheck = driving
@@ -90,7 +127,17 @@ def main() -> None:
         for i, r in enumerate(refusals):
             r["truth"] = {"unsafe": bool(c.unsafe[i]), "tilt": round(float(c.tilt[i]), 2),
                           "belly": round(float(c.intrusion[i]), 4)}
-    row.update(refusals=refusals, trace_wall_s=round(time.monotonic() - t0, 1))
+    detailed = detail(choices, refusals, fine, g, world.body) if args.detail else []
+    row["events_traced"] = trace_events(row["events"], choices, fine, g, world.body)
+    for e in row["events_traced"]:
+        print(f"event {e['kind']} +{e['excess'] * (100 if e['kind'][:4] in ('step', 'bell') else 1):.2f} at "
+              f"({e['x']}, {e['y']}, {e['heading']}): nearest chosen pose {e['nearest']} of choice {e['choice']} "
+              f"({e['off_m']:.3f} m, {e['off_deg']:.1f} deg off), truly unsafe there: {e['planned_truly_unsafe']} "
+              f"{e['planned_truth']}; the section's P(any) {e['section_p_any']}")
+    if args.dump:
+        dump(args.dump, choices, refusals, goal)
+    row.update(refusals=refusals, trace_wall_s=round(time.monotonic() - t0, 1), detailed=detailed,
+               choices=[{k: v for k, v in c.items() if k not in ("map", "chance")} for c in choices])
     if args.out:
         with open(args.out, "w") as fh:
             json.dump(row, fh, indent=1, default=str)
@@ -107,6 +154,99 @@ def main() -> None:
         truly = Counter(r["verdict"] for r in rs if r["truth"]["unsafe"])
         print(f"{part}: {len(rs)} refused poses, truly unsafe {unsafe} ({100 * unsafe / len(rs):.0f} %); by limit "
               + ", ".join(f"{k} {n} (truly {truly.get(k, 0)})" for k, n in by.most_common()))
+    if detailed:
+        print(f"the last {args.detail} choices' {len(detailed)} refused poses, per limit: over on the best estimate "
+              "/ over only in the draws / truly over; median excess best, draw mean, draw max, truth")
+        for k, name in enumerate(vehicle.LIMITS):
+            best = np.array([d["best"][k] for d in detailed])
+            dmax = np.array([d["draw_max"][k] for d in detailed])
+            dmean = np.array([d["draw_mean"][k] for d in detailed])
+            true = np.array([d["truth"][k] for d in detailed])
+            print(f"  {name}: {(best > 0).sum()} / {((best <= 0) & (dmax > 0)).sum()} / {(true > 0).sum()}; "
+                  f"{np.median(best):+.4f} {np.median(dmean):+.4f} {np.median(dmax):+.4f} {np.median(true):+.4f}")
+
+
+def trace_events(events: list[dict[str, Any]], choices: list[dict[str, Any]], fine: np.ndarray, g: Any,
+                 body: Any) -> list[dict[str, Any]]:
+    """Per unsafe event on the true track: the nearest pose of a section the chooser passed (how far
+    off the true pose was, in metres and degrees), and the truth's verdict at that planned pose: a
+    truly unsafe planned pose is the check's false safe, a safe one the track's straying."""
+    planned = [(ci, np.asarray(c["section"], float)) for ci, c in enumerate(choices) if c.get("section")]
+    out = []
+    for e in events:
+        best = None
+        for ci, sec in planned:
+            dh = np.abs((sec[:, 2] - e["heading"] + 180.0) % 360.0 - 180.0)
+            d = np.hypot(sec[:, 0] - e["x"], sec[:, 1] - e["y"]) + 0.005 * dh  # 1 cm per 2 deg
+            i = int(np.argmin(d))
+            if best is None or d[i] < best[0]:
+                best = (float(d[i]), ci, sec[i], float(dh[i]))
+        if best is None:
+            continue
+        _, ci, pose, dh = best
+        t = vehicle.check_poses(fine, g, pose[None, :], body)
+        out.append({**e, "choice": ci, "nearest": [round(float(v), 3) for v in pose],
+                    "off_m": float(np.hypot(pose[0] - e["x"], pose[1] - e["y"])), "off_deg": dh,
+                    "planned_truly_unsafe": bool(t.unsafe[0]), "planned_truth": [round(float(v), 4) for v in t.excess[0]],
+                    "section_p_any": choices[ci].get("section_p_any")})
+    return out
+
+
+def dump(path: str, choices: list[dict[str, Any]], refusals: list[dict[str, Any]], goal: Any) -> None:
+    """The choices that kept their map, as arrays: ``c<i>_<stat>`` per statistic, ``c<i>_geom``
+    (cell, xmin, ymax, width, height), ``c<i>_k``, ``c<i>_pose`` and ``c<i>_refused`` (poses)."""
+    out: dict[str, np.ndarray] = {"goal": np.asarray(goal, float)}
+    for ci, c in enumerate(choices):
+        if "map" not in c:
+            continue
+        stats, wg, k = c["map"]
+        for name, a in stats.items():
+            out[f"c{ci}_{name}"] = np.asarray(a)
+        out[f"c{ci}_geom"] = np.array([wg.cell, wg.xmin, wg.ymax, wg.width, wg.height], float)
+        out[f"c{ci}_k"] = np.array(k, float)
+        out[f"c{ci}_pose"] = np.asarray(c["pose"], float)
+        out[f"c{ci}_refused"] = np.array([r["pose"] for r in refusals if r["choice"] == ci] or np.zeros((0, 3)))
+    np.savez_compressed(path, **out)
+
+
+def detail(choices: list[dict[str, Any]], refusals: list[dict[str, Any]], fine: np.ndarray, g: Any, body: Any,
+           draws: int = 64, per_choice: int = 400) -> list[dict[str, Any]]:
+    """Per refused pose of the choices that kept their map: per limit (LIMITS order) the excess on
+    the posterior's best estimate, the mean and the worst of ``draws`` drawn surfaces' excesses,
+    the chance check's probability, and the true excess; and which wheel's step it was."""
+    out = []
+    for ci, c in enumerate(choices):
+        if "map" not in c:
+            continue
+        stats, wg, k = c["map"]
+        post = chance.posterior(stats, wg, k, c["chance"])
+        poses = np.array([r["pose"] for r in refusals if r["choice"] == ci and r["where"] == "choose"])[:per_choice]
+        if not len(poses):
+            continue
+        full = chance.chance_check(post, wg, poses, body, c["chance"])
+        seen = np.isfinite(post.mean)
+        sd = np.sqrt(np.where(seen, post.var, 0.0))
+        common = np.where(seen, post.common, 0.0)
+        roof = np.where(np.isfinite(post.ceiling), post.ceiling, np.nan)
+        rng = np.random.default_rng(1)
+        ex = []
+        for _ in range(draws):
+            surface = np.where(seen, post.mean + sd * rng.standard_normal(post.mean.shape)
+                               + common * rng.standard_normal(), roof).astype(np.float32)
+            ex.append(vehicle.check_poses(surface, wg, poses, body).excess)
+        ex = np.nan_to_num(np.array(ex), nan=-np.inf)
+        truth = vehicle.check_poses(fine, g, poses, body)
+        for i, p in enumerate(poses):
+            out.append({"choice": ci, "pose": [round(float(v), 3) for v in p],
+                        "from_rover": round(float(np.hypot(*(p[:2] - np.array(c["pose"][:2])))), 3),
+                        "prob": [round(float(v), 4) for v in full.prob[i]],
+                        "best": [round(float(v), 4) for v in full.nominal.excess[i]],
+                        "best_wheel": int(full.nominal.wheel[i]),
+                        "draw_mean": [round(float(v), 4) for v in ex[:, i].mean(axis=0)],
+                        "draw_max": [round(float(v), 4) for v in ex[:, i].max(axis=0)],
+                        "truth": [round(float(v), 4) for v in truth.excess[i]], "truth_wheel": int(truth.wheel[i]),
+                        "truth_unsafe": bool(truth.unsafe[i])})
+    return out
 
 
 if __name__ == "__main__":

@@ -1,0 +1,51 @@
+"""tools.bench.gate_trace's judgements of a stop and of an unsafe event, as plain functions on a
+synthetic ground: a 12 cm ledge under the rover's turn, known to the map to 5 mm."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from drivers.sim.rover import RoverBody
+from prox_workflows.algorithms.bounds_map import BoundsParams
+from prox_workflows.algorithms.chance import ChanceParams
+from prox_workflows.grid import GridGeometry
+from tools.bench.gate_trace import detail, trace_events
+
+BODY = RoverBody()
+
+
+def ground() -> tuple[np.ndarray, GridGeometry]:
+    g = GridGeometry.covering(-1.0, -1.0, 1.0, 1.0, 0.025)
+    xs, ys = g.centers()
+    X, _ = np.meshgrid(xs, ys)
+    return np.where(X > 0.2, 0.12, 0.0).astype(np.float32), g
+
+
+def test_a_refusal_is_judged_per_limit_on_the_map_the_draws_and_the_truth() -> None:
+    h, g = ground()
+    z = np.zeros(h.shape, np.float32)
+    stats = {"mean": h, "mean_var": np.full(h.shape, 0.005**2, np.float32), "rise": z, "drop": z, "shift": z,
+             "along_var": z, "ceiling": np.full(h.shape, np.inf, np.float32), "lower": h, "upper": h}
+    choices = [{"pose": [0.0, 0.0, 0.0], "map": (stats, g, BoundsParams().k), "chance": ChanceParams()}]
+    refusals = [{"pose": [0.0, 0.0, 0.0], "choice": 0, "where": "choose"},  # the ledge under the front wheels
+                {"pose": [-0.5, 0.0, 0.0], "choice": 0, "where": "choose"}]  # flat ground behind it
+    out = detail(choices, refusals, h, g, BODY, draws=16)
+    assert len(out) == 2
+    ledge, flat = out
+    assert ledge["truth_unsafe"] and not flat["truth_unsafe"]
+    assert ledge["best"][0] > 0.0 and ledge["truth"][0] > 0.0 and ledge["prob"][0] > 0.5  # the step, all three
+    assert flat["best"][0] < -0.05 and flat["draw_max"][0] < 0.0 and flat["prob"][0] < 1e-3
+    assert ledge["from_rover"] == 0.0 and flat["from_rover"] == 0.5
+
+
+def test_an_event_is_traced_to_the_nearest_chosen_pose_and_the_truth_there() -> None:
+    h, g = ground()
+    section = [[-0.5, 0.0, 0.0], [-0.3, 0.0, 0.0], [0.0, 0.0, 0.0]]
+    choices = [{"pose": [-0.5, 0.0, 0.0], "section": section, "section_p_any": 1e-6}]
+    events = [{"kind": "step front-left", "excess": 0.02, "x": 0.01, "y": 0.005, "heading": 2.0},
+              {"kind": "belly", "excess": 0.001, "x": -0.29, "y": 0.01, "heading": 0.0}]
+    chosen_unsafe, strayed = trace_events(events, choices, h, g, BODY)
+    assert chosen_unsafe["nearest"] == [0.0, 0.0, 0.0] and chosen_unsafe["planned_truly_unsafe"]
+    assert abs(chosen_unsafe["off_m"] - np.hypot(0.01, 0.005)) < 1e-9 and chosen_unsafe["off_deg"] == 2.0
+    assert strayed["nearest"] == [-0.3, 0.0, 0.0] and not strayed["planned_truly_unsafe"]
+    assert strayed["section_p_any"] == 1e-6 and strayed["choice"] == 0
