@@ -111,11 +111,16 @@ class LoopStats:
         def mean(v: list[float]) -> float:
             return float(np.mean(v)) if v else 0.0
 
+        def p95(v: list[float]) -> float:
+            return float(np.percentile(v, 95)) if v else 0.0
+
         return {"scans": self.scans, "replans": self.replans, "stops": self.stops, "looks": self.looks,
                 "cycles": self.cycles,
                 "cycle_ms": Fixed(mean(self.cycle_ms), 1),
                 "cycle_ms_max": Fixed(max(self.cycle_ms, default=0.0), 1),
-                "frame_ms": Fixed(mean(self.frame_ms), 1), "replan_ms": Fixed(mean(self.replan_ms), 1)}
+                "cycle_ms_p95": Fixed(p95(self.cycle_ms), 1),
+                "frame_ms": Fixed(mean(self.frame_ms), 1), "replan_ms": Fixed(mean(self.replan_ms), 1),
+                "replan_ms_p95": Fixed(p95(self.replan_ms), 1)}
 
 
 @dataclass

@@ -140,8 +140,8 @@ def run_mission(scene: str, mode: str, start: tuple[float, float], goal: tuple[f
                                    "true_miss": round(math.hypot(truth["x"] - goal[0], truth["y"] - goal[1]), 3)}
             out["reached"] = r.status == "OK" and r.fields.get("reached") == "true"
             out["efficiency"] = round(dist / (sim_s * TOP_SPEED), 3) if out["reached"] else 0.0
-            for key in ("legs", "scans", "replans", "stops", "looks", "cycles", "cycle_ms", "cycle_ms_max", "frame_ms",
-                        "replan_ms", "searches", "repairs"):
+            for key in ("legs", "scans", "replans", "stops", "looks", "cycles", "cycle_ms", "cycle_ms_max", "cycle_ms_p95",
+                        "frame_ms", "replan_ms", "replan_ms_p95", "searches", "repairs"):
                 if key in r.fields:
                     out[key] = float(r.fields[key])
             if r.status != "OK":
