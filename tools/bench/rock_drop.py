@@ -97,6 +97,13 @@ def clearance(poses: np.ndarray, rock: tuple[float, float, float], body: Any) ->
     return float(gap.min() - rock[2])
 
 
+def _blocks(at: tuple[float, float], goal: tuple[float, float], rock: tuple[float, float, float], body: Any) -> bool:
+    """Whether the straight way from ``at`` to ``goal`` would put the body's half width on the rock."""
+    a, b, p = np.asarray(at), np.asarray(goal), np.asarray(rock[:2])
+    u = float(np.clip(np.dot(p - a, b - a) / max(float(np.dot(b - a, b - a)), 1e-9), 0.0, 1.0))
+    return bool(np.hypot(*(p - (a + u * (b - a)))) < rock[2] + _outline(body)[1])
+
+
 def trial(scene: str, i: int, seed: int, timeout: float, settle: float) -> dict[str, Any]:
     """One seeded trial (see the module's docstring)."""
     rng = np.random.default_rng([seed, i])
@@ -149,6 +156,7 @@ def trial(scene: str, i: int, seed: int, timeout: float, settle: float) -> dict[
                                                               round(t["heading"], 1))
                     out["ahead"] = round(math.hypot(rock[0] - t["x"], rock[1] - t["y"]), 2)
                     out["dir"], out["rock"] = d, rock
+                    out["blocks_goal"] = _blocks((t["x"], t["y"]), goal, rock, world.body)
                     continue
                 along = (xy[0] - rock[0]) * math.cos(out["dir"]) + (xy[1] - rock[1]) * math.sin(out["dir"])
                 if along > radius + 0.6 and math.hypot(xy[0] - rock[0], xy[1] - rock[1]) > radius + 0.6:
@@ -210,7 +218,8 @@ def _trial(job: tuple[str, int, int, float, float]) -> dict[str, Any]:
 
 def table(rows: list[dict[str, Any]]) -> None:
     """One line per trial, then the ratio of passes per scene."""
-    print("\nscene     trial after ahead radius height end        reaction (s)       stops sections clearance events  pass")
+    print("\nscene     trial after ahead radius height blocks end        reaction (s)       stops sections clearance events  "
+          "pass")
     for r in rows:
         if "rock" not in r:
             print(f"{r['scene']:9} {r['trial']:5} {r['after']:5.2f}     -  no drop: {r.get('end')} {r.get('message', '')}")
@@ -218,11 +227,13 @@ def table(rows: list[dict[str, Any]]) -> None:
         ev = ", ".join(f"{e['kind']} +{e['excess']:.3f}{' at rock' if e['at_rock'] else ''}" for e in r["events"]) or "-"
         react = f"{r['reaction']} ({r['reaction_s']})"
         print(f"{r['scene']:9} {r['trial']:5} {r['after']:5.2f} {r['ahead']:5.2f} {r['radius']:6.3f} {r['height']:6.3f} "
-              f"{r['end']:10} {react:18} {r['stops']:5} {r['sections']:8} {r['clearance']:9.3f} {ev:7} "
+              f"{'yes' if r['blocks_goal'] else 'no':6} {r['end']:10} {react:18} {r['stops']:5} {r['sections']:8} {r['clearance']:9.3f} {ev:7} "
               f"{'pass' if r['passed'] else 'FAIL'}", flush=True)
     for scene in dict.fromkeys(r["scene"] for r in rows):
         sel = [r for r in rows if r["scene"] == scene and "rock" in r]
         print(f"{scene}: {sum(r['passed'] for r in sel)}/{len(sel)} trials passed (no contact, no event); "
+              f"{sum(r['passed'] for r in sel if r['blocks_goal'])}/{sum(r['blocks_goal'] for r in sel)} of those with "
+              "the rock on the straight way to the goal; "
               f"{sum(1 for r in rows if r['scene'] == scene and 'rock' not in r)} ended before the drop", flush=True)
 
 
