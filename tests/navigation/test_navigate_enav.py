@@ -178,6 +178,7 @@ def test_the_gaze_holds_the_mast_over_several_frames_while_driving(server_factor
     assert changed <= 0.45 * len(pairs), (changed, len(pairs))
 
 
+@long_test  # a 3.5 m mission round the rock on rendered frames: 20-25 s of CPU
 def test_a_rock_dropped_ahead_of_the_driving_chooser_is_not_driven_into(server_factory) -> None:
     """A rock the body can neither climb nor clear (20 cm radius, 25 cm high) is added 1 m ahead
     of the rover while it drives a section on the quarry's floor: the section's recheck on the
