@@ -187,9 +187,10 @@ def trial(scene: str, i: int, seed: int, timeout: float, settle: float) -> dict[
                 out.setdefault("end", "no drop")
                 return out
             later = [(ts, r) for ts, r in job.lines if ts >= drop_t]
-            stops = [ts for ts, r in later if r.status == "EVENT" and r.fields.get("kind") == "hazard"
-                     and r.fields.get("level") == "stop"]
-            stops += [ts for ts, r in later if r.status == "PROGRESS" and r.fields.get("message", "").startswith("stopped")]
+            events = [(ts, r) for ts, r in later if r.status == "EVENT" and r.fields.get("kind") == "hazard"
+                      and r.fields.get("level") == "stop"]
+            stops = [ts for ts, _ in events]
+            out["stop_reasons"] = sorted({r.fields.get("reason", "") for _, r in events})
             chosen = [ts for ts, r in later if r.status == "PROGRESS"
                       and r.fields.get("message", "").startswith("chose candidate")]
             first = min([*stops, *chosen], default=None)
@@ -202,11 +203,11 @@ def trial(scene: str, i: int, seed: int, timeout: float, settle: float) -> dict[
             pad = 1.0
             box = (float(poses[:, 0].min()) - pad, float(poses[:, 1].min()) - pad,
                    float(poses[:, 0].max()) + pad, float(poses[:, 1].max()) + pad)
-            events, checked = vehicle_check(poses, surface_over(world, box), world.body)
+            unsafe, checked = vehicle_check(poses, surface_over(world, box), world.body)
             out["events"] = [{"kind": e.kind, "excess": round(e.excess, 3), "x": round(e.x, 2), "y": round(e.y, 2),
-                              "at_rock": math.hypot(e.x - rock[0], e.y - rock[1]) < radius + 0.6} for e in events]
+                              "at_rock": math.hypot(e.x - rock[0], e.y - rock[1]) < radius + 0.6} for e in unsafe]
             out["poses_checked"] = checked
-            out["passed"] = out["clearance"] > 0.0 and not events
+            out["passed"] = out["clearance"] > 0.0 and not unsafe
             return out
         finally:
             srv.stop()
