@@ -141,7 +141,8 @@ def run_mission(scene: str, mode: str, start: tuple[float, float], goal: tuple[f
             out["reached"] = r.status == "OK" and r.fields.get("reached") == "true"
             out["efficiency"] = round(dist / (sim_s * TOP_SPEED), 3) if out["reached"] else 0.0
             for key in ("legs", "scans", "replans", "stops", "looks", "cycles", "cycle_ms", "cycle_ms_max", "cycle_ms_p95",
-                        "frame_ms", "replan_ms", "replan_ms_p95", "searches", "repairs"):
+                        "cycle_cpu_ms_p95", "frame_ms", "replan_ms", "replan_ms_p95", "replan_cpu_ms_p95", "searches",
+                        "repairs"):
                 if key in r.fields:
                     out[key] = float(r.fields[key])
             if r.status != "OK":

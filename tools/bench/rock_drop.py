@@ -179,7 +179,7 @@ def trial(scene: str, i: int, seed: int, timeout: float, settle: float) -> dict[
                 out["message"] = final.fields.get("message", "")[:200]
             if final is not None and final.status == "OK":
                 out["reached"] = final.fields.get("reached") == "true"
-                for key in ("cycles", "cycle_ms_p95", "replan_ms_p95"):
+                for key in ("cycles", "cycle_ms_p95", "cycle_cpu_ms_p95", "replan_ms_p95", "replan_cpu_ms_p95"):
                     if key in final.fields:
                         out[key] = float(final.fields[key])
             job.close()
