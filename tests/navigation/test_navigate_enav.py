@@ -188,7 +188,9 @@ def test_a_rock_dropped_ahead_of_the_driving_chooser_is_not_driven_into(server_f
     ground puts the body on the rock."""
     from tools.bench.rock_drop import clearance
 
-    srv = server_factory(["server.scene=quarry"])
+    # the simulated PTU answers over a pseudo-terminal: on a loaded machine its 2 s reply wait can
+    # run out, which is the machine's, not the loop's
+    srv = server_factory(["server.scene=quarry", "drivers.ptu.timeout=30"])
     world = srv.app.world
     world.set_target_visible(False)
     c, op = srv.client(), srv.client()
@@ -206,7 +208,8 @@ def test_a_rock_dropped_ahead_of_the_driving_chooser_is_not_driven_into(server_f
     track = read_track(srv.data / "nav" / "drop_track.csv")
     assert clearance(track, rock, world.body) > 0.0, (final.fields, rock)
     events, checked = _events(srv, world, "drop", (-1.0, -1.5, 4.5, 1.5))
-    assert checked > 50
+    assert checked >= 25, final.fields  # the 0.5 m it drove, every 2 cm
     assert events == [], [e.describe() for e in events]
     # it went on afterwards: round the rock to the goal, or a safe stop with its reason
     assert final.status == "OK" or final.fields["code"] == "E_DATA", final.fields
+    assert final.status == "OK", final.fields

@@ -114,7 +114,9 @@ def trial(scene: str, i: int, seed: int, timeout: float, settle: float) -> dict[
     out: dict[str, Any] = {"scene": scene, "trial": i, "start": start, "goal": goal, "after": round(after, 2),
                            "radius": round(radius, 3), "height": round(height, 3)}
     with tempfile.TemporaryDirectory() as tmp:
-        sets = []
+        # the simulated PTU answers over a pseudo-terminal: on a loaded machine its 2 s reply wait
+        # can run out, which is the machine's, not the loop's
+        sets = ["drivers.ptu.timeout=30"]
         if scene in ORBITAL:
             write_global_maps(scene, Path(tmp) / "global")
             sets.append(f"navigate.global_maps={Path(tmp) / 'global'}")
