@@ -37,10 +37,9 @@ import numpy as np
 
 from prox_workflows.algorithms.vehicle import densify
 from rvs_server.protocol import Reply, parse_reply
-from rvs_truth.orbital import write_global_maps
 from rvs_truth.surface import missions, surface_over
 from rvs_truth.vehicle import read_track, vehicle_check
-from tools.bench.navigate import ORBITAL, _rows, _Server
+from tools.bench.navigate import _rows, scene_server
 
 RADIUS = (0.15, 0.25)  # m: the rock's base radius
 HEIGHT = (0.15, 0.30)  # m: above both the climb (0.10) and the belly's clearance (0.08)
@@ -116,14 +115,9 @@ def trial(scene: str, i: int, seed: int, timeout: float, settle: float) -> dict[
     with tempfile.TemporaryDirectory() as tmp:
         # the simulated PTU answers over a pseudo-terminal: on a loaded machine its 2 s reply wait
         # can run out, which is the machine's, not the loop's
-        sets = ["drivers.ptu.timeout=30"]
-        if scene in ORBITAL:
-            write_global_maps(scene, Path(tmp) / "global")
-            sets.append(f"navigate.global_maps={Path(tmp) / 'global'}")
-        srv = _Server(Path(tmp), scene, sets)
+        srv = scene_server(Path(tmp), scene, ["drivers.ptu.timeout=30"])
         try:
             world = srv.app.world
-            world.set_target_visible(False)
             job = _Job(srv.port, f"navigate -start {start[0]},{start[1]},{heading:.1f} -goal {goal[0]},{goal[1]} "
                                  "-auto -loop see -name drop -max-legs 200", world)
             t_wall = time.monotonic()
