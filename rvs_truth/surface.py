@@ -125,6 +125,13 @@ def truth_surface(world: World, scene: str) -> tuple[np.ndarray, GridGeometry, G
     """The scene's true 1 cm surface over its mission area, its grid, and the 5 cm grid it
     refines (computed once per process and scene)."""
     if scene not in _TRUTH:
-        fine, g = fine_surface(world, AREA[scene])
-        _TRUTH[scene] = (fine, GridGeometry(0.01, g.xmin, g.ymax, g.width * 5, g.height * 5), g)
+        _TRUTH[scene] = surface_over(world, AREA[scene])
     return _TRUTH[scene]
+
+
+def surface_over(world: World, bounds: tuple[float, float, float, float]
+                 ) -> tuple[np.ndarray, GridGeometry, GridGeometry]:
+    """The true 1 cm surface over ``bounds`` as the world is now (a rock added at run time
+    included), its grid and the 5 cm grid it refines: what the vehicle check reads."""
+    fine, g = fine_surface(world, bounds)
+    return fine, GridGeometry(0.01, g.xmin, g.ymax, g.width * 5, g.height * 5), g

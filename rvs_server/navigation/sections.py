@@ -146,12 +146,12 @@ class Chooser:
     def _choose(self, pose: tuple[float, float, float], look_cost: float | None) -> tuple[Choice, float]:
         params = self.params if look_cost is None else dataclasses.replace(self.params, look_cost=look_cost)
         self.d.app.bus.publish("bounds", bounds=self.d.bounds, replan=True)  # what this choice reads
-        t0 = time.monotonic()
+        t0, c0 = time.monotonic(), time.process_time()
         try:
             return choose_from(self.d.bounds, pose, self.s.mission.goal, self.d.body, self.d.p.vehicle, params,
                                self.chance)
         finally:
-            self.s.stats.replan_ms.append((time.monotonic() - t0) * 1000)
+            self.s.stats.replanned(t0, c0)
 
     def drive_on(self, leg: int) -> bool:
         """Choose and drive one section (looking first where the choice asks); a blocked choice
@@ -304,8 +304,7 @@ class SectionPilot:
         seen, t1 = d.see(d.pan_tilt)
         d.job.check()
         bad = self._recheck(seen)
-        d.stats.cycles += 1
-        d.stats.cycle_ms.append((time.monotonic() - t1) * 1000)
+        d.stats.cycle(t1, d.cpu1)
         if not d.rover.steers:  # the GNC drives: a failing pose ahead is a stop EVENT, once
             if bad is not None and self.hazard is None:
                 self._stop(*bad, seen)

@@ -8,6 +8,7 @@ import math
 
 import numpy as np
 from support.marks import long_test
+from support.server import wait_for
 
 from prox_workflows.algorithms.bounds_map import BoundsMap
 from prox_workflows.algorithms.candidates import CandidateParams
@@ -175,3 +176,39 @@ def test_the_gaze_holds_the_mast_over_several_frames_while_driving(server_factor
     changed = sum(a[1] != b[1] for a, b in pairs)
     assert len(pairs) >= 15
     assert changed <= 0.45 * len(pairs), (changed, len(pairs))
+
+
+@long_test  # a 3.5 m mission round the rock on rendered frames: 20-25 s of CPU
+def test_a_rock_dropped_ahead_of_the_driving_chooser_is_not_driven_into(server_factory) -> None:
+    """A rock the body can neither climb nor clear (20 cm radius, 25 cm high) is added 1 m ahead
+    of the rover while it drives a section on the quarry's floor: the section's recheck on the
+    new frames stops it, or the next choice steers round, before the body touches it. The true
+    track keeps the body's outline off the rock's base and the vehicle check on the true surface
+    (the rock included) finds no event. A loop that drove its section on regardless of the new
+    ground puts the body on the rock."""
+    from tools.bench.rock_drop import clearance
+
+    # the simulated PTU answers over a pseudo-terminal: on a loaded machine its 2 s reply wait can
+    # run out, which is the machine's, not the loop's
+    srv = server_factory(["server.scene=quarry", "drivers.ptu.timeout=30"])
+    world = srv.app.world
+    world.set_target_visible(False)
+    c, op = srv.client(), srv.client()
+    job = c.start_job("navigate -start 0,0,0 -goal 3.5,0 -auto -loop see -name drop")
+    radius = 0.2
+    # once it has driven 0.5 m: a rock 1 m ahead along its heading
+    assert wait_for(lambda: world.truth()["x"] >= 0.5, timeout=600, interval=0.01), "the rover never drove 0.5 m"
+    t = world.truth()
+    h = math.radians(t["heading"])
+    rock = (t["x"] + math.cos(h), t["y"] + math.sin(h), radius)
+    r = op.request(f"sim add-rock -x {rock[0]:.3f} -y {rock[1]:.3f} -radius {radius} -height 0.25")
+    assert r.status == "OK", r.fields
+    lines = c.until_final(job=job, timeout=900)
+    final = lines[-1]
+    track = read_track(srv.data / "nav" / "drop_track.csv")
+    assert clearance(track, rock, world.body) > 0.0, (final.fields, rock)
+    events, checked = _events(srv, world, "drop", (-1.0, -1.5, 4.5, 1.5))
+    assert checked >= 25, final.fields  # the 0.5 m it drove, every 2 cm
+    assert events == [], [e.describe() for e in events]
+    # it went on afterwards: round the rock to the goal, or a safe stop with its reason
+    assert final.status == "OK" or final.fields["code"] == "E_DATA", final.fields

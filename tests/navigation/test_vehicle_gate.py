@@ -32,6 +32,11 @@ def test_the_gate_keeps_the_belly_off_a_rock_the_5cm_maps_call_safe(server_facto
     lines = c.until_final(job=job, timeout=900)
     final = lines[-1]
     assert final.status == "OK" and final.fields["reached"] == "true", final.fields
+    # the loop's latency: the cycle's and the plan's (a choice's) 95th percentile, wall and CPU ms
+    f = {k: float(final.fields[k]) for k in ("cycle_ms", "cycle_ms_p95", "cycle_ms_max", "cycle_cpu_ms_p95",
+                                             "replan_ms", "replan_ms_p95", "replan_cpu_ms_p95")}
+    assert 0 < f["cycle_ms_p95"] <= f["cycle_ms_max"] and f["cycle_cpu_ms_p95"] > 0, f
+    assert f["replan_ms_p95"] > 0 and f["replan_cpu_ms_p95"] > 0, f
     if gate != "off":
         # the rover looks standing, all round: the look planner's positions (the lowest tilt and
         # see_tilt over the pans the next drives need), each the ToF's average of see_look_frames

@@ -110,20 +110,27 @@ class _Server(ServerThread):
                     return r
 
 
+def scene_server(data: Path, scene: str, sets: tuple[str, ...] | list[str] = ()) -> _Server:
+    """The server for a mission in ``scene`` with its data in ``data``, the target hidden. A scene
+    built on an orbital DTM gets it as navigate's global maps, as a rover team would load its
+    orbital map."""
+    sets = list(sets)
+    if scene in ORBITAL:
+        write_global_maps(scene, data / "global")
+        sets.append(f"navigate.global_maps={data / 'global'}")
+    srv = _Server(data, scene, sets)
+    srv.app.world.set_target_visible(False)
+    return srv
+
+
 def run_mission(scene: str, mode: str, start: tuple[float, float], goal: tuple[float, float],
                 extra: list[str], sets: tuple[str, ...] = (), seed: int = 0,
                 oracle_cache: Path | None = None) -> dict[str, Any]:
-    """One navigate -auto in a fresh server, judged by the vehicle check. A scene built on an
-    orbital DTM gets it as navigate's global maps, as a rover team would load its orbital map."""
+    """One navigate -auto in a fresh server (:func:`scene_server`), judged by the vehicle check."""
     with tempfile.TemporaryDirectory() as tmp:
-        sets = list(sets)
-        if scene in ORBITAL:
-            write_global_maps(scene, Path(tmp) / "global")
-            sets.append(f"navigate.global_maps={Path(tmp) / 'global'}")
-        srv = _Server(Path(tmp), scene, sets)
+        srv = scene_server(Path(tmp), scene, sets)
         try:
             world = srv.app.world
-            world.set_target_visible(False)
             for line in extra:
                 srv.request(line)
             heading = math.degrees(math.atan2(goal[1] - start[1], goal[0] - start[0]))
@@ -140,8 +147,9 @@ def run_mission(scene: str, mode: str, start: tuple[float, float], goal: tuple[f
                                    "true_miss": round(math.hypot(truth["x"] - goal[0], truth["y"] - goal[1]), 3)}
             out["reached"] = r.status == "OK" and r.fields.get("reached") == "true"
             out["efficiency"] = round(dist / (sim_s * TOP_SPEED), 3) if out["reached"] else 0.0
-            for key in ("legs", "scans", "replans", "stops", "looks", "cycles", "cycle_ms", "cycle_ms_max", "frame_ms",
-                        "replan_ms", "searches", "repairs"):
+            for key in ("legs", "scans", "replans", "stops", "looks", "cycles", "cycle_ms", "cycle_ms_max", "cycle_ms_p95",
+                        "cycle_cpu_ms_p95", "frame_ms", "replan_ms", "replan_ms_p95", "replan_cpu_ms_p95", "searches",
+                        "repairs"):
                 if key in r.fields:
                     out[key] = float(r.fields[key])
             if r.status != "OK":

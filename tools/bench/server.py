@@ -315,7 +315,9 @@ def _job(line: str) -> Callable[[Control, Any], str]:
         t0 = time.perf_counter()
         r = ctl.request(line)
         wall = time.perf_counter() - t0
-        extra = "".join(f" {k}={r.fields[k]}" for k in ("views", "legs", "replans", "searches", "repairs", "reached")
+        extra = "".join(f" {k}={r.fields[k]}" for k in ("views", "legs", "replans", "searches", "repairs", "reached",
+                                                          "cycles", "cycle_ms_p95", "cycle_cpu_ms_p95", "cycle_ms_max",
+                                                          "replan_ms_p95", "replan_cpu_ms_p95")
                         if k in r.fields)
         return f"{r.status} in {wall:.1f} s{extra}" + ("" if r.status == "OK" else f" {r.fields}")
     return run

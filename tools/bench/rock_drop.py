@@ -1,0 +1,258 @@
+"""Benchmark: a rock dropped in front of navigate -auto's see loop while it drives
+(docs/NAVIGATE_BENCH.md, "A rock dropped ahead").
+
+Each trial is one of the navigate benchmark's seeded missions (:func:`rvs_truth.surface.missions`)
+driven by ``navigate -auto -loop see`` through a real server (simulated time). Once the rover has
+driven ``--after`` metres (drawn per trial) and is rolling forward, ``sim add-rock`` (a second
+connection, as an operator would) puts a rock it can neither climb nor clear with its belly
+(radius 0.15-0.25 m, height 0.15-0.30 m) on its way, 1-3 m ahead of its true pose along the
+direction it is driving. The trial ends when the rover has passed the rock (farther along than the
+rock and clear of it), or has stopped short of it for ``--settle`` simulated seconds, or the job
+ended; a running job is interrupted with ``break`` (the track so far is written).
+
+Judged on the truth: the true track (``nav/<name>_track.csv``) with the vehicle check of the
+navigate benchmark (:func:`rvs_truth.vehicle.vehicle_check`) on the true 1 cm surface as it is
+after the drop (the rock included), and the least clearance between the body's outline (box and
+wheels) and the rock's base circle over that track. A trial **passes** when the clearance stayed
+above 0 and the truth check finds no event. The reaction is the first of the loop's answers after
+the drop: a stop (``EVENT kind=hazard level=stop``, the section's recheck refused a pose) or a new
+section chosen.
+
+    nice python -m tools.bench.rock_drop --trials 20 --scenes marsyard --jobs 2 --out rock.json
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import socket
+import tempfile
+import threading
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from prox_workflows.algorithms.vehicle import densify
+from rvs_server.protocol import Reply, parse_reply
+from rvs_truth.surface import missions, surface_over
+from rvs_truth.vehicle import read_track, vehicle_check
+from tools.bench.navigate import _rows, scene_server
+
+RADIUS = (0.15, 0.25)  # m: the rock's base radius
+HEIGHT = (0.15, 0.30)  # m: above both the climb (0.10) and the belly's clearance (0.08)
+AHEAD = (1.0, 3.0)  # m from the rover's centre along its direction of travel
+AFTER = (1.0, 3.0)  # m driven before the drop
+POLL = 0.01  # s of wall time between two reads of the truth
+
+
+class _Job:
+    """The navigate job's own connection: every line, read in a thread, with the simulated time it came."""
+
+    def __init__(self, port: int, line: str, world: Any) -> None:
+        self.sock = socket.create_connection(("127.0.0.1", port), timeout=7200.0)
+        self.file = self.sock.makefile("rb")
+        self.file.readline()  # greeting
+        self.world = world
+        self.lines: list[tuple[float, Reply]] = []
+        self.final: Reply | None = None
+        self.sock.sendall(line.encode() + b"\n")
+        self.thread = threading.Thread(target=self._read, daemon=True)
+        self.thread.start()
+
+    def _read(self) -> None:
+        job = None
+        for raw in self.file:
+            r = parse_reply(raw.decode().rstrip("\r\n"))
+            self.lines.append((self.world.clock.now(), r))
+            if r.status == "ACK":
+                job = r.fields["job"]
+            elif r.status in ("OK", "ERROR") and (job is None or r.fields.get("job") == job):
+                self.final = r
+                return
+
+    def close(self) -> None:
+        self.sock.close()
+
+
+def _outline(body: Any) -> tuple[float, float]:
+    """Half length and half width of the body's outline: the box or the wheels, whichever reach further."""
+    hubs = np.abs(np.asarray(body.wheels, float))
+    return (max(body.length / 2, float(hubs[:, 0].max()) + body.wheel_radius),
+            max(body.width / 2, float(hubs[:, 1].max()) + body.wheel_width / 2))
+
+
+def clearance(poses: np.ndarray, rock: tuple[float, float, float], body: Any) -> float:
+    """The least distance between the body's outline at ``poses`` (x, y, heading deg; densified
+    to 2 cm) and the rock's base circle (x, y, radius); 0 or less: the body was over the rock."""
+    dense = densify(poses, 0.02, body)
+    hx, hy = _outline(body)
+    h = np.radians(dense[:, 2])
+    dx, dy = rock[0] - dense[:, 0], rock[1] - dense[:, 1]
+    u, v = dx * np.cos(h) + dy * np.sin(h), -dx * np.sin(h) + dy * np.cos(h)
+    gap = np.hypot(np.maximum(np.abs(u) - hx, 0.0), np.maximum(np.abs(v) - hy, 0.0))
+    return float(gap.min() - rock[2])
+
+
+def _blocks(at: tuple[float, float], goal: tuple[float, float], rock: tuple[float, float, float], body: Any) -> bool:
+    """Whether the straight way from ``at`` to ``goal`` would put the body's half width on the rock."""
+    a, b, p = np.asarray(at), np.asarray(goal), np.asarray(rock[:2])
+    u = float(np.clip(np.dot(p - a, b - a) / max(float(np.dot(b - a, b - a)), 1e-9), 0.0, 1.0))
+    return bool(np.hypot(*(p - (a + u * (b - a)))) < rock[2] + _outline(body)[1])
+
+
+def trial(scene: str, i: int, seed: int, timeout: float, settle: float) -> dict[str, Any]:
+    """One seeded trial (see the module's docstring)."""
+    rng = np.random.default_rng([seed, i])
+    start, goal = missions(scene, 30, seed)[i % 30]
+    after, ahead = float(rng.uniform(*AFTER)), float(rng.uniform(*AHEAD))
+    radius, height = float(rng.uniform(*RADIUS)), float(rng.uniform(*HEIGHT))
+    heading = math.degrees(math.atan2(goal[1] - start[1], goal[0] - start[0]))
+    out: dict[str, Any] = {"scene": scene, "trial": i, "start": start, "goal": goal, "after": round(after, 2),
+                           "radius": round(radius, 3), "height": round(height, 3)}
+    with tempfile.TemporaryDirectory() as tmp:
+        # the simulated PTU answers over a pseudo-terminal: on a loaded machine its 2 s reply wait
+        # can run out, which is the machine's, not the loop's
+        srv = scene_server(Path(tmp), scene, ["drivers.ptu.timeout=30"])
+        try:
+            world = srv.app.world
+            job = _Job(srv.port, f"navigate -start {start[0]},{start[1]},{heading:.1f} -goal {goal[0]},{goal[1]} "
+                                 "-auto -loop see -name drop -max-legs 200", world)
+            t_wall = time.monotonic()
+            driven, last, rock, drop_t, still = 0.0, None, None, 0.0, None
+            recent: list[tuple[float, float]] = []
+            while job.final is None and time.monotonic() - t_wall < timeout:
+                time.sleep(POLL)
+                t = world.truth()
+                xy = (t["x"], t["y"])
+                if last is not None:
+                    driven += math.hypot(xy[0] - last[0], xy[1] - last[1])
+                last = xy
+                recent = [*recent, xy][-40:]
+                if rock is None:
+                    if driven < after:
+                        continue
+                    # rolling forward: the last 15 cm of the track run along the heading
+                    back = next((p for p in reversed(recent) if math.hypot(xy[0] - p[0], xy[1] - p[1]) >= 0.15), None)
+                    if back is None:
+                        continue
+                    d = math.atan2(xy[1] - back[1], xy[0] - back[0])
+                    if abs((math.degrees(d) - t["heading"] + 180.0) % 360.0 - 180.0) > 10.0:
+                        continue
+                    rock = (xy[0] + ahead * math.cos(d), xy[1] + ahead * math.sin(d), radius)
+                    r = srv.request(f"sim add-rock -x {rock[0]:.3f} -y {rock[1]:.3f} -radius {radius:.3f} "
+                                    f"-height {height:.3f}")
+                    if r.status != "OK":
+                        out["error"] = f"sim add-rock: {r.fields}"
+                        break
+                    t = world.truth()
+                    drop_t, out["drop_pose"] = t["sim_time"], (round(t["x"], 3), round(t["y"], 3),
+                                                              round(t["heading"], 1))
+                    out["ahead"] = round(math.hypot(rock[0] - t["x"], rock[1] - t["y"]), 2)
+                    out["dir"], out["rock"] = d, rock
+                    out["blocks_goal"] = _blocks((t["x"], t["y"]), goal, rock, world.body)
+                    continue
+                along = (xy[0] - rock[0]) * math.cos(out["dir"]) + (xy[1] - rock[1]) * math.sin(out["dir"])
+                if along > radius + 0.6 and math.hypot(xy[0] - rock[0], xy[1] - rock[1]) > radius + 0.6:
+                    out["end"] = "passed"
+                    break
+                if still is None or math.hypot(xy[0] - still[0], xy[1] - still[1]) > 0.05:
+                    still = (xy[0], xy[1], t["sim_time"])
+                elif t["sim_time"] - still[2] > settle:
+                    out["end"] = "stood"
+                    break
+            else:
+                out["end"] = "job ended" if job.final is not None else "timeout"
+            if job.final is None:
+                srv.request("break")
+                job.thread.join(120)
+            out["wall_s"] = round(time.monotonic() - t_wall, 1)
+            final = job.final
+            out["status"] = final.status if final else "none"
+            if final is not None and final.status == "ERROR" and final.fields.get("code") != "E_INTERRUPTED":
+                out["message"] = final.fields.get("message", "")[:200]
+            if final is not None and final.status == "OK":
+                out["reached"] = final.fields.get("reached") == "true"
+                for key in ("cycles", "cycle_ms_p95", "cycle_cpu_ms_p95", "replan_ms_p95", "replan_cpu_ms_p95"):
+                    if key in final.fields:
+                        out[key] = float(final.fields[key])
+            job.close()
+            if rock is None:
+                out.setdefault("end", "no drop")
+                return out
+            later = [(ts, r) for ts, r in job.lines if ts >= drop_t]
+            events = [(ts, r) for ts, r in later if r.status == "EVENT" and r.fields.get("kind") == "hazard"
+                      and r.fields.get("level") == "stop"]
+            stops = [ts for ts, _ in events]
+            out["stop_reasons"] = sorted({r.fields.get("reason", "") for _, r in events})
+            chosen = [ts for ts, r in later if r.status == "PROGRESS"
+                      and r.fields.get("message", "").startswith("chose candidate")]
+            first = min([*stops, *chosen], default=None)
+            out["reaction"] = ("none" if first is None else "stop" if stops and min(stops) == first else "section")
+            out["reaction_s"] = None if first is None else round(first - drop_t, 1)
+            out["stops"], out["sections"] = len(stops), len(chosen)
+            track_file = Path(tmp) / "nav" / "drop_track.csv"
+            poses = read_track(track_file)
+            out["clearance"] = round(clearance(poses, rock, world.body), 3)
+            pad = 1.0
+            box = (float(poses[:, 0].min()) - pad, float(poses[:, 1].min()) - pad,
+                   float(poses[:, 0].max()) + pad, float(poses[:, 1].max()) + pad)
+            unsafe, checked = vehicle_check(poses, surface_over(world, box), world.body)
+            out["events"] = [{"kind": e.kind, "excess": round(e.excess, 3), "x": round(e.x, 2), "y": round(e.y, 2),
+                              "at_rock": math.hypot(e.x - rock[0], e.y - rock[1]) < radius + 0.6} for e in unsafe]
+            out["poses_checked"] = checked
+            out["passed"] = out["clearance"] > 0.0 and not unsafe
+            return out
+        finally:
+            srv.stop()
+
+
+def _trial(job: tuple[str, int, int, float, float]) -> dict[str, Any]:
+    return trial(*job)
+
+
+def table(rows: list[dict[str, Any]]) -> None:
+    """One line per trial, then the ratio of passes per scene."""
+    print("\nscene     trial after ahead radius height blocks end        reaction (s)       stops sections clearance events  "
+          "pass")
+    for r in rows:
+        if "rock" not in r:
+            print(f"{r['scene']:9} {r['trial']:5} {r['after']:5.2f}     -  no drop: {r.get('end')} {r.get('message', '')}")
+            continue
+        ev = ", ".join(f"{e['kind']} +{e['excess']:.3f}{' at rock' if e['at_rock'] else ''}" for e in r["events"]) or "-"
+        react = f"{r['reaction']} ({r['reaction_s']})"
+        print(f"{r['scene']:9} {r['trial']:5} {r['after']:5.2f} {r['ahead']:5.2f} {r['radius']:6.3f} {r['height']:6.3f} "
+              f"{'yes' if r['blocks_goal'] else 'no':6} {r['end']:10} {react:18} {r['stops']:5} {r['sections']:8} {r['clearance']:9.3f} {ev:7} "
+              f"{'pass' if r['passed'] else 'FAIL'}", flush=True)
+    for scene in dict.fromkeys(r["scene"] for r in rows):
+        sel = [r for r in rows if r["scene"] == scene and "rock" in r]
+        print(f"{scene}: {sum(r['passed'] for r in sel)}/{len(sel)} trials passed (no contact, no event); "
+              f"{sum(r['passed'] for r in sel if r['blocks_goal'])}/{sum(r['blocks_goal'] for r in sel)} of those with "
+              "the rock on the straight way to the goal; "
+              f"{sum(1 for r in rows if r['scene'] == scene and 'rock' not in r)} ended before the drop", flush=True)
+
+
+def main(argv: list[str] | None = None) -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--trials", type=int, default=20, help="trials per scene")
+    ap.add_argument("--first", type=int, default=0, help="the first trial's number (a run split in parts)")
+    ap.add_argument("--scenes", nargs="+", default=["marsyard"])
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--jobs", type=int, default=1, choices=[1, 2], help="trials run in this many processes")
+    ap.add_argument("--timeout", type=float, default=1800.0, help="wall seconds a trial may take")
+    ap.add_argument("--settle", type=float, default=120.0,
+                    help="simulated seconds the rover may stand within 5 cm after the drop before the trial ends")
+    ap.add_argument("--out", default="", help="also write the rows as JSON here")
+    args = ap.parse_args(argv)
+    todo = [(scene, i, args.seed, args.timeout, args.settle) for i in range(args.first, args.first + args.trials)
+            for scene in args.scenes]
+    rows = _rows(_trial, todo, args.jobs)
+    table(rows)
+    if args.out:
+        Path(args.out).write_text(json.dumps({"rows": rows}, indent=1))
+
+
+if __name__ == "__main__":
+    main()
