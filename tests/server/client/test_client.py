@@ -289,16 +289,21 @@ def _in_a_terminal(server: ServerProcess, tmp_path: Path) -> Iterator[tuple[subp
         os.close(master)
 
 
+def _ctrl_c_after_ack(proc: subprocess.Popen, master: int, buf: bytearray, line: bytes, module: bytes) -> None:
+    """Type a job at the prompt and press Ctrl-C once its ACK is shown."""
+    assert _read_until(master, buf, b"rvs> ")
+    os.write(master, line + b"\n")
+    assert _read_until(master, buf, module + b" ACK job="), buf.decode()
+    proc.send_signal(signal.SIGINT)
+    assert _read_until(master, buf, b"stopped waiting"), buf.decode()
+
+
 def test_after_ctrl_c_the_late_lines_carry_no_tag_the_user_never_typed(server: ServerProcess, tmp_path: Path) -> None:
     """Ctrl-C stops the wait for a job, not the job: its OK prints when it comes, as its ACK
     did, without the automatic ``tag=c<n>`` the client added."""
     buf = bytearray()
     with _in_a_terminal(server, tmp_path) as (proc, master):
-        assert _read_until(master, buf, b"rvs> ")
-        os.write(master, b"sleep -seconds 2\n")
-        assert _read_until(master, buf, b"EGP-RVS-SLEEP ACK job="), buf.decode()
-        proc.send_signal(signal.SIGINT)
-        assert _read_until(master, buf, b"stopped waiting"), buf.decode()
+        _ctrl_c_after_ack(proc, master, buf, b"sleep -seconds 2", b"EGP-RVS-SLEEP")
         assert _read_until(master, buf, b"EGP-RVS-SLEEP OK job="), buf.decode()
         os.write(master, b"@mine version\n")  # a tag the user typed stays
         assert _read_until(master, buf, b"EGP-RVS-VERSION OK tag=mine"), buf.decode()
@@ -350,11 +355,7 @@ def test_after_ctrl_c_the_prompt_is_not_redrawn_under_each_progress_line(server:
     each of which would redraw ``rvs> `` under it, and the job's final line prints once."""
     buf = bytearray()
     with _in_a_terminal(server, tmp_path) as (proc, master):
-        assert _read_until(master, buf, b"rvs> ")
-        os.write(master, b"dem-full-tof -range -30,30,-40,-20 -name ctrlc\n")
-        assert _read_until(master, buf, b"EGP-RVS-DEM-FULL-TOF ACK job="), buf.decode()
-        proc.send_signal(signal.SIGINT)
-        assert _read_until(master, buf, b"stopped waiting"), buf.decode()
+        _ctrl_c_after_ack(proc, master, buf, b"dem-full-tof -range -30,30,-40,-20 -name ctrlc", b"EGP-RVS-DEM-FULL-TOF")
         stopped = buf.index(b"stopped waiting")
         assert _read_until(master, buf, b"EGP-RVS-DEM-FULL-TOF OK job=", limit=120), buf.decode()
         os.write(master, b"status\n")
