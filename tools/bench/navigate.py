@@ -500,6 +500,9 @@ def oracle_table(scenes: list[str], count: int, seed: int, jobs: int, cache: Pat
 def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--missions", type=int, default=10, help="missions per scene (10 in the issue)")
+    ap.add_argument("--first", type=int, default=0,
+                    help="the first mission to run: a long run split across processes or resumed runs "
+                         "missions --first to --missions - 1 of the same draw")
     ap.add_argument("--scenes", nargs="+", default=["marsyard", "hirise"])
     ap.add_argument("--modes", nargs="+", default=["scan", "see"], choices=["scan", "see"])
     ap.add_argument("--seed", type=int, default=0)
@@ -573,7 +576,7 @@ def main(argv: list[str] | None = None) -> None:
     # scenes and modes interleaved mission by mission: a run cut short still compares them
     todo = {scene: missions(scene, args.missions, args.seed) for scene in args.scenes}
     jobs = [(scene, mode, *todo[scene][i], tuple(args.set), i, args.footprint, args.seed, args.oracle_cache)
-            for i in range(args.missions)
+            for i in range(args.first, args.missions)
             for scene in args.scenes for mode in args.modes]
     rows = _rows(_run, jobs, args.jobs)
     summary = summarise(rows)
