@@ -21,6 +21,12 @@ model, one draw). Then:
     python -m tools.bench.chance --cell 0.05 --world-seed 2   # a 5 cm map, another rock draw
     python -m tools.bench.chance --time                       # 1,000 poses on a 5 cm window
     python -m tools.bench.chance --look approach --world-seed 3 --posterior map   # as the chooser judges
+    python -m tools.bench.chance --risk --scenes marsyard hirise dense --world-seeds 20 21 22 23 24 25 26 27 28 29 --jobs 2
+
+``--risk``: the stated risk, as the issue asks it: the chance check at the declared epsilon, with
+the posterior as the chooser makes it, over many looks (``--look``) on rock draws no setting was
+tuned on (``--world-seeds``; the noise draw is the rock draw's), summed per scene: judged poses,
+false safes and their one-sided 95 % Clopper-Pearson bound, truly safe kept.
 
 ``--posterior``: ``look`` (default) makes the posterior seen from the look's mean sensor position;
 ``map`` as the see loop's chooser makes it, with no viewpoint (the slope's steepest direction and
@@ -32,6 +38,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import json
 import time
 from typing import Any
 
@@ -43,6 +50,7 @@ from prox_workflows.algorithms.bounds_map import BoundsMap, BoundsParams
 from prox_workflows.algorithms.chance import ChanceParams, Posterior, chance_check, headroom, posterior
 from prox_workflows.algorithms.vehicle import check_poses
 from prox_workflows.grid import GridGeometry
+from rvs_truth.stats import clopper_pearson_upper
 from tools.bench.bounds import LOOKS, TRUE_CELL, frames, pooled
 
 JUMP_BANDS = (0.0, 0.01, 0.02, 0.04, 0.08, 0.16, np.inf)  # m
@@ -148,6 +156,50 @@ def evaluate(scene: str, look: str, cell: float, world_seed: int, seed: int, eps
     return {"poses": len(poses), "rows": rows, "truly_unsafe": int(on_truth.unsafe.sum())}
 
 
+def _risk_row(job: tuple[str, str, float, int, int]) -> dict[str, Any]:
+    """One look's counts at the declared epsilon (in a pool's process)."""
+    scene, look, cell, world_seed, samples = job
+    params = ChanceParams()
+    out = evaluate(scene, look, cell, world_seed, world_seed, [params.epsilon], samples, RoverBody(),
+                   params.rock_sigma, "map")
+    row = out["rows"][-1]
+    return {"scene": scene, "look": look, "world_seed": world_seed, "judged": row["judged"],
+            "false_safe": row["false_safe"], "kept": round(row["kept"], 4), "of": row["of"],
+            "truly_unsafe": out["truly_unsafe"]}
+
+
+def risk(scenes: list[str], looks: list[str], world_seeds: list[int], cell: float, samples: int,
+         jobs: int) -> list[dict[str, Any]]:
+    """Per scene, the looks' counts summed: the false-safe rate per judged pose and its bound.
+    Each look's row is printed as it comes, so a run cut short keeps what it measured."""
+    todo = [(scene, look, cell, ws, samples) for ws in world_seeds for scene in scenes for look in looks]
+    rows: list[dict[str, Any]] = []
+    if jobs > 1:
+        import multiprocessing
+
+        with multiprocessing.get_context("spawn").Pool(jobs) as pool:
+            for row in pool.imap_unordered(_risk_row, todo):
+                rows.append(row)
+                print(json.dumps(row), flush=True)
+    else:
+        for job in todo:
+            rows.append(_risk_row(job))
+            print(json.dumps(rows[-1]), flush=True)
+    return rows
+
+
+def risk_table(rows: list[dict[str, Any]]) -> list[str]:
+    lines = ["| scene | looks | judged poses | false safe | rate | 95 % upper bound | truly safe kept |",
+             "|---|---|---|---|---|---|---|"]
+    for scene in dict.fromkeys(r["scene"] for r in rows):
+        sel = [r for r in rows if r["scene"] == scene]
+        n, k = sum(r["judged"] for r in sel), sum(r["false_safe"] for r in sel)
+        kept = sum(r["kept"] * r["of"] for r in sel) / max(1, sum(r["of"] for r in sel))
+        lines.append(f"| {scene} | {len(sel)} | {n:,} | {k} | {k / max(n, 1):.1e} | "
+                     f"{clopper_pearson_upper(k, n) if n else float('nan'):.1e} | {100 * kept:.1f} % |")
+    return lines
+
+
 def timing(body: RoverBody, samples: int, poses: int = 1000) -> list[tuple[str, float]]:
     """Seconds per ``poses`` poses on a 4 x 4 m window of 5 cm cells: the worst-case check on bounds
     +-2.5 sigma, and the chance check where every pose is sampled (ground with 10 cm rocks, cells
@@ -189,11 +241,22 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--posterior", choices=["look", "map", "one"], default="look",
                     help="seen from the look's sensor (look), as the chooser makes it (map), or that with one "
                          "return's horizontal error (one)")
+    ap.add_argument("--risk", action="store_true",
+                    help="the stated risk: the chance check at the declared epsilon over --world-seeds, per scene")
+    ap.add_argument("--scenes", nargs="+", default=["marsyard", "hirise", "dense"], help="with --risk")
+    ap.add_argument("--world-seeds", nargs="+", type=int, default=[20, 21, 22],
+                    help="with --risk: rock draws no setting was tuned on")
+    ap.add_argument("--jobs", type=int, default=1, help="with --risk: looks run in this many processes")
     ap.add_argument("--time", action="store_true", help="time 1,000 poses on a synthetic 5 cm window instead")
     args = ap.parse_args(argv)
     if args.time:
         for name, seconds in timing(RoverBody(), args.samples):
             print(f"{name}: {seconds:.2f} s per 1,000 poses ({args.samples} samples)")
+        return
+    if args.risk:
+        rows = risk(args.scenes, [args.look], args.world_seeds, args.cell, args.samples, args.jobs)
+        print(f"\nthe chance check at epsilon {ChanceParams().epsilon:g}, the chooser's posterior, {args.look} looks")
+        print("\n".join(risk_table(rows)))
         return
     head = f"{args.scene}, {args.look} ({args.posterior} posterior), cell {args.cell * 100:g} cm, rock draw {args.world_seed}, noise draw {args.seed}"
     if args.calibrate:
