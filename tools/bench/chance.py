@@ -40,6 +40,7 @@ import argparse
 import dataclasses
 import json
 import time
+from collections import Counter
 from typing import Any
 
 import numpy as np
@@ -48,7 +49,7 @@ from drivers.sim.rover import RoverBody
 from drivers.sim.world import World
 from prox_workflows.algorithms.bounds_map import BoundsMap, BoundsParams
 from prox_workflows.algorithms.chance import ChanceParams, Posterior, chance_check, headroom, posterior
-from prox_workflows.algorithms.vehicle import check_poses
+from prox_workflows.algorithms.vehicle import LIMITS, check_poses
 from prox_workflows.grid import GridGeometry
 from rvs_truth.stats import clopper_pearson_upper
 from tools.bench.bounds import LOOKS, TRUE_CELL, frames, pooled
@@ -145,7 +146,9 @@ def evaluate(scene: str, look: str, cell: float, world_seed: int, seed: int, eps
         post = posterior(stats, g, bounds.params.k, params, viewpoint)
         c = chance_check(post, g, poses, body, params)
         rows.append({"check": f"chance, epsilon {eps:g}", "safe": c.safe, "unknown": c.unknown,
-                     "ms": 1000 * (time.perf_counter() - t0), "screened": int(c.screened.sum())})
+                     "ms": 1000 * (time.perf_counter() - t0), "screened": int(c.screened.sum()),
+                     "misses": [_miss(poses[i], on_truth.excess[i], c.nominal.excess[i], float(c.p_any[i]))
+                                for i in np.flatnonzero(c.safe & on_truth.unsafe)]})
     truly_safe = ~on_truth.unsafe
     for row in rows:
         judged = ~row["unknown"]
@@ -154,6 +157,15 @@ def evaluate(scene: str, look: str, cell: float, world_seed: int, seed: int, eps
         row["kept"] = float(row["safe"][truly_safe & judged].mean())
         row["of"] = int((truly_safe & judged).sum())
     return {"poses": len(poses), "rows": rows, "truly_unsafe": int(on_truth.unsafe.sum())}
+
+
+def _miss(pose: np.ndarray, truth: np.ndarray, nominal: np.ndarray, p_any: float) -> dict[str, Any]:
+    """A false safe traced: the limits the truth exceeds there and by how much, what the
+    posterior's best estimate left, and the probability the check gave."""
+    over = {name: round(float(truth[k]), 4) for k, name in enumerate(LIMITS) if truth[k] > 0}
+    return {"pose": [round(float(v), 2) for v in pose], "truth_excess": over,
+            "nominal_excess": {name: round(float(nominal[k]), 4) for k, name in enumerate(LIMITS) if name in over},
+            "p_any": p_any}
 
 
 def _risk_row(job: tuple[str, str, float, int, int]) -> dict[str, Any]:
@@ -165,7 +177,7 @@ def _risk_row(job: tuple[str, str, float, int, int]) -> dict[str, Any]:
     row = out["rows"][-1]
     return {"scene": scene, "look": look, "world_seed": world_seed, "judged": row["judged"],
             "false_safe": row["false_safe"], "kept": round(row["kept"], 4), "of": row["of"],
-            "truly_unsafe": out["truly_unsafe"]}
+            "truly_unsafe": out["truly_unsafe"], "misses": row["misses"]}
 
 
 def risk(scenes: list[str], looks: list[str], world_seeds: list[int], cell: float, samples: int,
@@ -197,6 +209,13 @@ def risk_table(rows: list[dict[str, Any]]) -> list[str]:
         kept = sum(r["kept"] * r["of"] for r in sel) / max(1, sum(r["of"] for r in sel))
         lines.append(f"| {scene} | {len(sel)} | {n:,} | {k} | {k / max(n, 1):.1e} | "
                      f"{clopper_pearson_upper(k, n) if n else float('nan'):.1e} | {100 * kept:.1f} % |")
+    misses = [(r["scene"], m) for r in rows for m in r.get("misses", [])]
+    for scene in dict.fromkeys(sc for sc, _ in misses):
+        mine = [m for sc, m in misses if sc == scene]
+        by = Counter(k for m in mine for k in m["truth_excess"])
+        worst = max(v for m in mine for v in m["truth_excess"].values())
+        lines.append(f"{scene}: false safes over {dict(by)} on the truth (worst excess {worst:g}), "
+                     f"P(any) median {float(np.median([m['p_any'] for m in mine])):.1e}")
     return lines
 
 
