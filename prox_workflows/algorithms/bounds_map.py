@@ -550,14 +550,17 @@ class BoundsMap:
                    ) -> tuple[dict[str, np.ndarray], GridGeometry]:
         """What the bounds are drawn from over a box (copies, clipped to the map), with its grid:
         ``mean``, ``mean_var`` (the fused mean's variance), ``rise``, ``drop``, ``shift``,
-        ``along_var`` (the fused mean's horizontal variance along the rays) and ``ceiling`` per
-        cell. A check that weighs how likely the ground is rather than its extremes reads these (``chance.posterior``), and the bounds drawn from them (``lower``,
-        ``upper``)."""
+        ``along_var`` (the fused mean's horizontal variance along the rays), ``ceiling`` and
+        ``framed`` (a frame bounded it; else its mean is a prior's: the set-down's, the wheels'
+        contacts) per cell. A check that weighs how likely the ground is rather than its extremes
+        reads these (``chance.posterior``), and the bounds drawn from them (``lower``, ``upper``)."""
         sl, sub = self._box(xmin, ymin, xmax, ymax)
         names = ("mean", "mean_var", "rise", "drop", "shift", "along_var", "ceiling")
         if sl is None:
-            return {name: np.full((0, 0), np.nan, np.float32) for name in (*names, "lower", "upper")}, sub
+            return {name: np.full((0, 0), np.nan, np.float32) for name in (*names, "lower", "upper")} | \
+                {"framed": np.zeros((0, 0), bool)}, sub
         out = {name: getattr(self, name)[sl].copy() for name in names}
+        out["framed"] = self.stamp[sl] > 0
         out["lower"], out["upper"] = self.bounds(sl)
         return out, sub
 

@@ -148,6 +148,62 @@ def evaluate(scene: str, look: str, cell: float, world_seed: int, seed: int, eps
     return {"poses": len(poses), "rows": rows, "truly_unsafe": int(on_truth.unsafe.sum())}
 
 
+LAGS = (1, 2, 3, 4, 6, 8)  # cells: the lags the spatial correlation is measured at
+BLIND = 0.72  # m: the mast's blind disc round its foot (looks.blind_radius of the default head)
+
+
+def lag_correlation(e: np.ndarray, ok: np.ndarray, lag: int) -> float:
+    """The correlation of ``e`` between cells ``lag`` apart along the rows and the columns (both
+    ``ok``), averaged over the two directions."""
+    out = []
+    for axis in (0, 1):
+        a, b = e, np.roll(e, -lag, axis=axis)
+        m = ok & np.roll(ok, -lag, axis=axis)
+        if axis == 0:
+            m[-lag:, :] = False
+        else:
+            m[:, -lag:] = False
+        x, y = a[m] - a[m].mean(), b[m] - b[m].mean()
+        out.append(float((x * y).mean() / np.sqrt((x * x).mean() * (y * y).mean())))
+    return float(np.mean(out))
+
+
+def correlation(scene: str, look: str, cell: float, world_seed: int, seed: int) -> dict[str, Any]:
+    """How the errors the chance check draws are correlated between neighbouring cells, on the
+    truth: (a) the map's means against the true ground's mean over each cell (cells a frame bounded;
+    all, off rock edges (J under 2 cm), near the look's mean sensor position and far from it), their spread
+    against the map's own sigma and their correlation at :data:`LAGS`; (b) the true ground off the
+    plane fitted to it over the blind disc round the rover's start (what the set-down's prior there
+    is wrong by), its spread and correlation alike, on the map's cells."""
+    world, bounds, viewpoint = fused(scene, look, cell, world_seed, seed)
+    stats, g = whole(bounds)
+    fine = world.true_dem(TRUE_CELL, (g.xmin, g.ymin, g.xmin + g.width * g.cell, g.ymax))
+    truth = pooled(fine, g, np.mean)
+    mean = np.asarray(stats["mean"], np.float64)
+    seen = np.isfinite(mean)
+    jump = headroom(stats, mean + stats["rise"])
+    e = np.where(seen, truth - mean, 0.0)
+    own = np.sqrt(np.asarray(stats["mean_var"], np.float64))
+    xs, ys = g.centers()
+    X, Y = np.meshgrid(xs, ys)
+    far = np.hypot(X - viewpoint[0], Y - viewpoint[1])
+    rows = []
+    for name, ok in (("map means, all", seen), ("map means, off rock edges", seen & (jump < FLAT)),
+                     ("map means, under 2 m from the sensor", seen & (far < 2.0)),
+                     ("map means, over 3 m from the sensor (grazing)", seen & (far > 3.0))):
+        rows.append({"what": name, "cells": int(ok.sum()), "sd": float(e[ok].std()),
+                     "own": float(np.median(own[ok])), "corr": [lag_correlation(e, ok, lag) for lag in LAGS]})
+    x0, y0, _ = world.rover_pose()
+    disc = np.hypot(X - x0, Y - y0) <= BLIND
+    a = np.column_stack([np.ones(int(disc.sum())), X[disc] - x0, Y[disc] - y0])
+    coef = np.linalg.lstsq(a, truth[disc], rcond=None)[0]
+    off = np.zeros(g.shape)
+    off[disc] = truth[disc] - a @ coef
+    rows.append({"what": "true ground off its plane, blind disc", "cells": int(disc.sum()), "sd": float(off[disc].std()),
+                 "own": float("nan"), "corr": [lag_correlation(off, disc, lag) for lag in LAGS]})
+    return {"rows": rows}
+
+
 def timing(body: RoverBody, samples: int, poses: int = 1000) -> list[tuple[str, float]]:
     """Seconds per ``poses`` poses on a 4 x 4 m window of 5 cm cells: the worst-case check on bounds
     +-2.5 sigma, and the chance check where every pose is sampled (ground with 10 cm rocks, cells
@@ -189,6 +245,9 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--posterior", choices=["look", "map", "one"], default="look",
                     help="seen from the look's sensor (look), as the chooser makes it (map), or that with one "
                          "return's horizontal error (one)")
+    ap.add_argument("--correlation", action="store_true",
+                    help="the spatial correlation of the map means' errors and of the blind disc's ground off its "
+                         "plane, on the truth")
     ap.add_argument("--time", action="store_true", help="time 1,000 poses on a synthetic 5 cm window instead")
     args = ap.parse_args(argv)
     if args.time:
@@ -196,6 +255,16 @@ def main(argv: list[str] | None = None) -> None:
             print(f"{name}: {seconds:.2f} s per 1,000 poses ({args.samples} samples)")
         return
     head = f"{args.scene}, {args.look} ({args.posterior} posterior), cell {args.cell * 100:g} cm, rock draw {args.world_seed}, noise draw {args.seed}"
+    if args.correlation:
+        out = correlation(args.scene, args.look, args.cell, args.world_seed, args.seed)
+        print(head)
+        print("| error | cells | sd (cm) | own sd, median (cm) | correlation at " +
+              ", ".join(f"{lag * args.cell * 100:g}" for lag in LAGS) + " cm |")
+        print("|---|---|---|---|---|")
+        for r in out["rows"]:
+            print(f"| {r['what']} | {r['cells']} | {100 * r['sd']:.2f} | {100 * r['own']:.2f} | "
+                  + " / ".join(f"{c:.2f}" for c in r["corr"]) + " |")
+        return
     if args.calibrate:
         out = calibrate(args.scene, args.look, args.cell, args.world_seed, args.seed)
         print(f"{head}: {out['cells']} cells with returns")
