@@ -31,14 +31,15 @@ def test_the_ring_round_the_blind_disc_gives_the_slope_the_rover_stands_on() -> 
     for rock in (False, True):
         bounds = BoundsMap.covering([[-1.6, -1.6], [1.6, 1.6]], 0.0)
         _slope_frame(bounds, 12.0, rock)
-        (z0, gx, gy), said = ring_plane(bounds, (0.0, 0.0), 0.8, 1.2, (0.0, 0.0))
-        assert abs(math.degrees(math.atan(gx)) - 12.0) < 0.3 and abs(gy) < 0.005, (gx, gy, rock)
-        assert abs(z0) < 0.005, z0
-        assert said.startswith("the plane of"), said
+        ring = ring_plane(bounds, (0.0, 0.0), 0.8, 1.2, (0.0, 0.0))
+        assert abs(math.degrees(math.atan(ring.gx)) - 12.0) < 0.3 and abs(ring.gy) < 0.005, (ring, rock)
+        assert abs(ring.z0) < 0.005, ring.z0
+        assert ring.said.startswith("the plane of"), ring.said
 
 
 def test_with_too_little_seen_round_the_disc_it_is_level() -> None:
     bounds = BoundsMap.covering([[-1.6, -1.6], [1.6, 1.6]], 0.0)
     bounds.fuse(np.array([[0.9, 0.0, 0.1], [0.9, 0.001, 0.1]]), 0.003)  # one cell
-    plane, said = ring_plane(bounds, (0.0, 0.0), 0.8, 1.2, (0.0, 0.0))
-    assert plane == (0.0, 0.0, 0.0) and said.startswith("level ground"), said
+    ring = ring_plane(bounds, (0.0, 0.0), 0.8, 1.2, (0.0, 0.0))
+    assert (ring.z0, ring.gx, ring.gy) == (0.0, 0.0, 0.0) and ring.said.startswith("level ground"), ring.said
+    assert not ring.known  # nothing said of the disc's ground: it stays unseen
