@@ -24,10 +24,14 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["RingPlane", "ring_plane", "MIN_CELLS"]
+from .bounds_map import contact_plane
+
+__all__ = ["RingPlane", "ring_plane", "set_down", "FLOOR", "MIN_CELLS"]
 
 MIN_CELLS = 50  # seen cells in the ring below which the plane is not fitted (level instead)
 OUTLIER = 0.02  # m: cells further than this (or twice the residuals' sd) from the first fit are rocks
+FLOOR = 0.01  # m: the least sigma unseen ground is taken within, however smooth the ring: a hollow or a
+# rock wholly inside the disc leaves no trace in the ring
 
 
 @dataclass(frozen=True)
@@ -55,12 +59,13 @@ class RingPlane:
     def sigma(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
         """How far the unseen ground at (x, y) may stand off the plane (1 sd): the ring's spread
         (what the ground round the rover does about its plane, rocks and dips alike) and the fit's
-        own error there (it grows with the distance from the ring's centroid)."""
+        own error there (it grows with the distance from the ring's centroid), never below
+        :data:`FLOOR`."""
         dx, dy = np.asarray(x, np.float64) - self.at[0], np.asarray(y, np.float64) - self.at[1]
         c = self.cov
         fit = (c[0, 0] + 2 * c[0, 1] * dx + 2 * c[0, 2] * dy + c[1, 1] * dx * dx + 2 * c[1, 2] * dx * dy
                + c[2, 2] * dy * dy)
-        return np.sqrt(self.spread**2 + np.maximum(fit, 0.0))
+        return np.maximum(np.sqrt(self.spread**2 + np.maximum(fit, 0.0)), FLOOR)
 
 
 def _level(said: str) -> RingPlane:
@@ -107,3 +112,32 @@ def ring_plane(bounds: Any, centre: tuple[float, float], inner: float, outer: fl
     said = (f"the plane of {int(keep.sum())} seen cells round the blind disc ({tilt:.1f} deg), "
             f"the ground off it by {spread * 100:.1f} cm (sd)")
     return RingPlane(z0, gx, gy, (float(at[0]), float(at[1])), spread, said, cov)
+
+
+def set_down(bounds: Any, pose: tuple[float, float, float], datum: float, body: Any,
+             attitude: tuple[float, float, float] | None, disc: tuple[float, float, float], turn: float,
+             ring_edge: float, ring_width: float) -> str:
+    """What a rover set down at ``pose`` (x, y, heading deg) knows of the ground round it that no
+    frame of ``bounds`` shows, each part from what shows it; returns what it took.
+
+    - Under the wheels: their contacts from the pose and the IMU's ``attitude`` (roll, pitch and
+      their sigma, deg; None: the GNC gives none), on the plane through ``datum`` (the frames'
+      height of the rover's own ground at its centre), to a few millimetres; under the box, a
+      ceiling at the belly (:meth:`BoundsMap.stood`). On the ring's plane instead, the wheels
+      stood 4.5-5.7 cm off the truth at dense mission 0's start.
+    - The disc of radius ``turn`` the body turns in: that plane within 1 cm, as the operators set
+      a rover down where it can stand and turn.
+    - The rest of the mast's blind ``disc`` (x, y of the mast's foot, radius): the plane of the
+      ring of seen ground from ``ring_edge`` to ``ring_width`` past it (:func:`ring_plane`), within
+      the ring's own spread about it (:meth:`RingPlane.sigma`). With too little of the ring seen,
+      it stays unknown."""
+    x, y, heading = pose
+    fx, fy, radius = disc
+    ring = ring_plane(bounds, (fx, fy), radius + ring_edge, radius + ring_width, (x, y))
+    tilt = (ring.gx, ring.gy) if attitude is None else contact_plane(heading, attitude[0], attitude[1])
+    bounds.set_down((x, y), turn, datum, plane=(x, y, *tilt))
+    if ring.known:
+        bounds.set_down((fx, fy), radius + ring_edge, ring.z0, sigma=ring.sigma, plane=(x, y, ring.gx, ring.gy))
+    bounds.stood(pose, datum, body, attitude)
+    wheels = "the IMU's attitude" if attitude is not None else "the ring's tilt (no attitude)"
+    return f"{ring.said}; the wheels' ground from the pose and {wheels}"

@@ -59,7 +59,7 @@ from prox_workflows.algorithms.rolling_map import (
     sweep_check,
 )
 from prox_workflows.algorithms.safety import in_footprint
-from prox_workflows.algorithms.set_down import ring_plane
+from prox_workflows.algorithms.set_down import set_down
 from prox_workflows.algorithms.transforms import HeadCalibration, T_global_from_rover
 from rvs_params.hazard import HAZARDOUS, SAFE
 
@@ -605,33 +605,16 @@ class SeeStrategy:
 
     def set_down_on_ring(self) -> str:
         """``see_set_down ring``, after the first look round: what the rover knows of the ground it
-        was set down on that no frame shows, each part from what shows it. Returns what it took.
-
-        - Under the wheels: their contacts, from the pose and the IMU's attitude (the plane
-          through the frames' datum at the rover's centre, :meth:`SeeingDriver.datum`), to a few
-          millimetres; under the box, a ceiling at the belly (:meth:`BoundsMap.stood`). On the
-          ring's plane instead, the wheels stood 4.5-5.7 cm off the truth at dense mission 0's
-          start, and the check passed a pose whose belly the truth touches.
-        - The disc the body turns in: on that same plane within 1 cm, as the operators set the
-          rover down where it can stand and turn (the bench's starts are drawn so, on the truth).
-        - The rest of the mast's blind disc: the ring's plane, within the ring's own spread about
-          it (:meth:`RingPlane.sigma`; 2-3.7 cm on the simulated scenes): the check weighs a wheel
-          there as what the ground round the rover may do, not as known. With too little of the
-          ring seen to say, it stays unknown and the chooser looks or goes round it."""
+        was set down on that no frame shows, each part from what shows it
+        (:func:`prox_workflows.algorithms.set_down.set_down`): the wheels' contacts from the pose
+        and the IMU, the disc the body turns in on their plane, the rest of the mast's blind disc
+        on the ring's plane within the ring's own spread. Returns what it took."""
         d = self.driver
         x, y, heading = d.pose()
-        fx, fy, radius = d.blind_disc()
-        ring = ring_plane(d.bounds, (fx, fy), radius + BLIND_EDGE, radius + RING_WIDTH, (x, y))
-        z = d.datum(x, y)
-        attitude = d.imu()
-        tilt = (ring.gx, ring.gy) if attitude is None else contact_plane(heading, attitude[0], attitude[1])
-        d.bounds.set_down((x, y), d.radius, z, plane=(x, y, *tilt))
-        if ring.known:
-            d.bounds.set_down((fx, fy), radius + BLIND_EDGE, ring.z0, sigma=ring.sigma, plane=(x, y, ring.gx, ring.gy))
-        d.bounds.stood((x, y, heading), z, d.body, attitude)
+        said = set_down(d.bounds, (x, y, heading), d.datum(x, y), d.body, d.imu(), d.blind_disc(), d.radius,
+                        BLIND_EDGE, RING_WIDTH)
         d.set_down_pending = False
-        wheels = "the IMU's attitude" if attitude is not None else "the ring's tilt (no attitude)"
-        return f"{ring.said}; the wheels' ground from the pose and {wheels}"
+        return said
 
     def arrived(self, left: float) -> bool:
         """The goal is within the tolerance by the believed pose: an arrival on dead reckoning
