@@ -25,6 +25,7 @@ from typing import Any
 import numpy as np
 
 from .bounds_map import contact_plane
+from .vehicle import reach
 
 __all__ = ["RingPlane", "ring_plane", "set_down", "FLOOR", "MIN_CELLS"]
 
@@ -125,14 +126,17 @@ def set_down(bounds: Any, pose: tuple[float, float, float], datum: float, body: 
       height of the rover's own ground at its centre), to a few millimetres; under the box, a
       ceiling at the belly (:meth:`BoundsMap.stood`). On the ring's plane instead, the wheels
       stood 4.5-5.7 cm off the truth at dense mission 0's start.
-    - The disc of radius ``turn`` the body turns in: that plane within 1 cm, as the operators set
-      a rover down where it can stand and turn.
+    - The disc of radius ``turn`` the body turns in (at least to its wheels' outer corners,
+      :func:`vehicle.reach`): that plane within 1 cm, as the operators set a rover down where it
+      can stand and turn.
     - The rest of the mast's blind ``disc`` (x, y of the mast's foot, radius): the plane of the
       ring of seen ground from ``ring_edge`` to ``ring_width`` past it (:func:`ring_plane`), within
       the ring's own spread about it (:meth:`RingPlane.sigma`). With too little of the ring seen,
       it stays unknown."""
     x, y, heading = pose
     fx, fy, radius = disc
+    # the turn's disc reaches the wheels' outer corners and the cells round them a sample reads
+    turn = max(turn, reach(body) + 2 * bounds.geometry.cell)
     ring = ring_plane(bounds, (fx, fy), radius + ring_edge, radius + ring_width, (x, y))
     tilt = (ring.gx, ring.gy) if attitude is None else contact_plane(heading, attitude[0], attitude[1])
     bounds.set_down((x, y), turn, datum, plane=(x, y, *tilt))

@@ -48,7 +48,8 @@ def test_with_too_little_seen_round_the_disc_it_is_level() -> None:
 
 
 FOOT = (0.1, 0.0, 0.72)  # the mast's foot and its blind disc's radius, the rover at the origin facing +x
-TURN = 0.35  # m: the disc the body turns in
+TURN = 0.35  # m: the disc the body turns in, as the see loop gives it (set_down widens it to the wheels' corners)
+TURNED = 0.385 + 0.05  # m: that disc as set_down takes it (vehicle.reach of the rover and two cells)
 
 
 def _ground(bounds: BoundsMap, z: Any, seen_from: float = 0.72) -> None:
@@ -73,7 +74,7 @@ def _bumps(seed: int) -> Any:
 
 def _disc(x: np.ndarray, y: np.ndarray) -> np.ndarray:
     """The blind disc's unseen ground past the turn's and the wheels' (a cell's width clear of each)."""
-    return (np.hypot(x - FOOT[0], y - FOOT[1]) <= FOOT[2] - 0.02) & (np.hypot(x, y) > TURN + 0.02) & \
+    return (np.hypot(x - FOOT[0], y - FOOT[1]) <= FOOT[2] - 0.02) & (np.hypot(x, y) > TURNED + 0.02) & \
         ((np.abs(x) > 0.29) | (np.abs(y) > 0.33))
 
 
@@ -107,7 +108,7 @@ def test_a_dip_in_the_blind_disc_off_the_wheels_is_not_claimed_known_within_a_ce
                     0.1, 0.5)
     assert "off it by" in said, said
     x, y, top, sd = _cells(bounds, _disc)
-    assert len(x) > 1500 and sd.min() > 0.015, sd.min()
+    assert len(x) > 1200 and sd.min() > 0.015, sd.min()
     inside = np.hypot(x - dip[0], y - dip[1]) < dip[2] - 0.02
     assert inside.sum() > 20
     off = (top - truth(x, y)) / sd
