@@ -36,6 +36,7 @@ so ground the rover saw and turned away from keeps its bounds.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
@@ -369,26 +370,33 @@ class BoundsMap:
         roof = (z + gx * (ux - pose[0]) + gy * (uy - pose[1]) + body.clearance - 3 * k * spread).astype(np.float32)
         self.ceiling.flat[under] = np.minimum(self.ceiling.flat[under], roof)
 
-    def set_down(self, centre: tuple[float, float], radius: float, z: float, sigma: float = 0.01,
+    def set_down(self, centre: tuple[float, float], radius: float, z: float,
+                 sigma: float | Callable[[np.ndarray, np.ndarray], np.ndarray] = 0.01,
                  plane: tuple[float, float, float, float] | None = None) -> None:
         """The ground within ``radius`` of ``centre`` that no frame bounded is taken as level at
         ``z`` (within ``sigma``), or on ``plane`` (x0, y0 where it is at ``z``, and its rise per
-        metre along x and y: the plane the rover's attitude says it stands on): where the rover
-        was set down, or stands for a 360-degree scan, the ground round the mast's foot that no
-        tilt shows is assumed clear, as the rover's operators placed it or it drove there. Never
-        assumed while driving. The wheels' own ground is then known better (:meth:`stood`)."""
+        metre along x and y: the plane the rover's attitude says it stands on, or the seen ring's
+        round the blind disc): where the rover was set down, or stands for a 360-degree scan, the
+        ground round the mast's foot that no tilt shows. ``sigma`` is a height sigma (m) or, per
+        cell, a function of the cells' x and y (the ring's spread: :meth:`RingPlane.sigma
+        <prox_workflows.algorithms.set_down.RingPlane.sigma>`): how far the ground may stand off
+        that plane is what the seen ground round it shows, not what is hoped. Never assumed while
+        driving. The wheels' own ground is then known better (:meth:`stood`)."""
         g = self.geometry
         xs, ys = g.centers()
         near = np.hypot(xs[None, :] - centre[0], ys[:, None] - centre[1]) <= radius
         blank = near & ~np.isfinite(self.mean)
+        rows, cols = np.nonzero(blank)
+        bx, by = xs[cols], ys[rows]
         if plane is None:
-            height = np.full(self.mean.shape, z)
+            height = np.full(len(rows), z)
         else:
-            height = z + plane[2] * (xs[None, :] - plane[0]) + plane[3] * (ys[:, None] - plane[1])
-        self.mean[blank] = height[blank]
-        self.mean_var[blank] = sigma * sigma
-        self.rise[blank] = 0.0
-        self.drop[blank] = 0.0
+            height = z + plane[2] * (bx - plane[0]) + plane[3] * (by - plane[1])
+        sd = np.broadcast_to(np.asarray(sigma(bx, by) if callable(sigma) else sigma, np.float64), (len(rows),))
+        self.mean[rows, cols] = height
+        self.mean_var[rows, cols] = sd * sd
+        self.rise[rows, cols] = 0.0
+        self.drop[rows, cols] = 0.0
 
     # ------------------------------------------------------------------ fusion
 

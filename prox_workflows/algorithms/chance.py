@@ -65,8 +65,8 @@ the samples: the highest it may be.
 from __future__ import annotations
 
 import warnings
-from dataclasses import dataclass
 from collections.abc import Iterator
+from dataclasses import dataclass
 from functools import lru_cache
 from statistics import NormalDist
 from typing import Any
@@ -289,7 +289,7 @@ def chance_check(post: Posterior, geom: GridGeometry, poses: np.ndarray, body: V
     p = params or ChanceParams()
     poses = np.atleast_2d(np.asarray(poses, float))
     n = len(poses)
-    mu, var = post.mean, post.var
+    mu = post.mean
     seen = np.isfinite(mu)
     sd, shared, common, roof = _spreads(post)
     best = np.where(seen, mu, roof)
