@@ -369,3 +369,23 @@ def test_a_planner_s_verdict_only_check_gives_the_full_check_s_verdicts() -> Non
             quick = chance_check(known(h, sigma), g, poses, BODY, verdict_only=True)
             assert quick.unsafe.tolist() == full.unsafe.tolist(), (height, sigma)
             assert quick.safe.tolist() == full.safe.tolist()
+
+
+def test_the_shared_field_is_correlated_by_1_over_e_at_its_length_as_the_bench_measures_it() -> None:
+    """The draws' shared field, measured as ``tools.bench.chance --correlation`` measures the truth's:
+    1/e at ``shared_length`` (20 cm: 8 cells of 2.5 cm), near 1 between neighbours; white noise
+    (the cells' own errors) not correlated at all."""
+    from tools.bench.chance import lag_correlation
+
+    p = ChanceParams()
+    post, g, X, Y = prior_plane(0.03, shared=True)
+    field = [(s - post.mean) for s in surfaces(Posterior(post.mean, np.zeros(g.shape), post.ceiling, 0.0, 1.0), g,
+                                                         ChanceParams(samples=8))]
+    ok = np.ones(g.shape, bool)
+    at = {lag: np.mean([lag_correlation(f, ok, lag) for f in field]) for lag in (1, 2, 4, 8)}
+    assert at[8] == pytest.approx(np.exp(-1.0), abs=0.08)  # 8 cells = p.shared_length
+    assert p.shared_length == pytest.approx(8 * g.cell)
+    assert at[1] > 0.95 and at[1] > at[2] > at[4] > at[8]
+    own = [s - post.mean for s in surfaces(Posterior(post.mean, np.ones(g.shape), post.ceiling), g,
+                                           ChanceParams(samples=8))]
+    assert abs(np.mean([lag_correlation(f, ok, 1) for f in own])) < 0.02

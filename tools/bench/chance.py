@@ -32,18 +32,21 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import math
 import time
 from typing import Any
 
 import numpy as np
 
-from drivers.sim.rover import RoverBody
+from drivers.sim.rover import IMU_SIGMA_DEG, RoverBody
 from drivers.sim.world import World
 from prox_workflows.algorithms.bounds_map import BoundsMap, BoundsParams
 from prox_workflows.algorithms.chance import ChanceParams, Posterior, chance_check, headroom, posterior
+from prox_workflows.algorithms.set_down import set_down
 from prox_workflows.algorithms.vehicle import check_poses
 from prox_workflows.grid import GridGeometry
 from tools.bench.bounds import LOOKS, TRUE_CELL, frames, pooled
+from tools.bench.set_down import BLIND, EDGE, FOOT, WIDTH
 
 JUMP_BANDS = (0.0, 0.01, 0.02, 0.04, 0.08, 0.16, np.inf)  # m
 Z999 = 3.09  # a normal's 99.9th percentile
@@ -110,10 +113,28 @@ def calibrate(scene: str, look: str, cell: float, world_seed: int, seed: int) ->
     return {"rows": rows, "edge_bias": a, "edge_sigma": b, "top_sigma": c, "cells": int(seen.sum())}
 
 
+def set_down_at_start(world: World, bounds: BoundsMap, body: RoverBody) -> str:
+    """The see loop's ring set-down at the rover's start (``see_set_down ring``,
+    :func:`prox_workflows.algorithms.set_down.set_down`): the wheels' ground from the pose and the
+    true attitude (the IMU's sigma), the disc the body turns in within 1 cm of that plane, the rest
+    of the mast's blind disc on the ring's plane within the ring's own spread."""
+    x0, y0, h0 = world.rover_pose()
+    roll, pitch = world.rover_attitude()
+    h = math.radians(h0)
+    disc = (x0 + FOOT * math.cos(h), y0 + FOOT * math.sin(h), BLIND)
+    datum = float(world.true_dem(0.01, (x0 - 0.005, y0 - 0.005, x0 + 0.005, y0 + 0.005))[0, 0])
+    return set_down(bounds, (x0, y0, h0), datum, body, (roll, pitch, IMU_SIGMA_DEG), disc, 0.0, EDGE, WIDTH)
+
+
 def evaluate(scene: str, look: str, cell: float, world_seed: int, seed: int, epsilons: list[float],
              samples: int, body: RoverBody, rock_sigma: float = ChanceParams().rock_sigma,
-             made: str = "look") -> dict[str, Any]:
+             made: str = "look", start: bool = False, **model: float) -> dict[str, Any]:
+    """The pose-level table (see the module's docstring); ``start``: the ring set-down at the
+    rover's start and the poses round it (0.5 m behind it to 1.6 m ahead, 1.2 m either side: the
+    ground a rover leaving its start drives) instead of those 1.6-4.0 m ahead; ``model``: further
+    :class:`ChanceParams` for the chance check (e.g. ``prior_own=1.0``: a prior drawn cell by cell)."""
     world, bounds, viewpoint = fused(scene, look, cell, world_seed, seed)
+    said = set_down_at_start(world, bounds, body) if start else ""
     stats, g = whole(bounds)
     if made != "look":  # as the chooser makes it: no viewpoint
         viewpoint = None
@@ -122,7 +143,8 @@ def evaluate(scene: str, look: str, cell: float, world_seed: int, seed: int, eps
     x0, y0, _ = world.rover_pose()
     truth = world.true_dem(0.01, (g.xmin, g.ymin, g.xmin + g.width * g.cell, g.ymax))
     tg = GridGeometry(0.01, g.xmin, g.ymax, truth.shape[1], truth.shape[0])
-    px, py = np.meshgrid(x0 + np.arange(1.6, 4.0, 0.1), y0 + np.arange(-1.2, 1.25, 0.1))
+    ahead = np.arange(-0.5, 1.65, 0.1) if start else np.arange(1.6, 4.0, 0.1)
+    px, py = np.meshgrid(x0 + ahead, y0 + np.arange(-1.2, 1.25, 0.1))
     poses = np.column_stack([np.repeat(px.ravel(), 4), np.repeat(py.ravel(), 4),
                              np.tile([0.0, 45.0, 90.0, 135.0], px.size)])
     on_truth = check_poses(truth, tg, poses, body)
@@ -132,7 +154,7 @@ def evaluate(scene: str, look: str, cell: float, world_seed: int, seed: int, eps
     rows = [{"check": f"worst case (k {bounds.params.k:g})", "safe": worst.safe, "unknown": worst.unknown,
              "ms": 1000 * t_worst}]
     for eps in epsilons:
-        params = ChanceParams(epsilon=eps, samples=samples, rock_sigma=rock_sigma)
+        params = ChanceParams(epsilon=eps, samples=samples, rock_sigma=rock_sigma, **model)
         t0 = time.perf_counter()
         post = posterior(stats, g, bounds.params.k, params, viewpoint)
         c = chance_check(post, g, poses, body, params)
@@ -145,11 +167,10 @@ def evaluate(scene: str, look: str, cell: float, world_seed: int, seed: int, eps
         row["false_safe"] = int((row["safe"] & on_truth.unsafe).sum())
         row["kept"] = float(row["safe"][truly_safe & judged].mean())
         row["of"] = int((truly_safe & judged).sum())
-    return {"poses": len(poses), "rows": rows, "truly_unsafe": int(on_truth.unsafe.sum())}
+    return {"poses": len(poses), "rows": rows, "truly_unsafe": int(on_truth.unsafe.sum()), "set_down": said}
 
 
 LAGS = (1, 2, 3, 4, 6, 8)  # cells: the lags the spatial correlation is measured at
-BLIND = 0.72  # m: the mast's blind disc round its foot (looks.blind_radius of the default head)
 
 
 def lag_correlation(e: np.ndarray, ok: np.ndarray, lag: int) -> float:
@@ -245,6 +266,13 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--posterior", choices=["look", "map", "one"], default="look",
                     help="seen from the look's sensor (look), as the chooser makes it (map), or that with one "
                          "return's horizontal error (one)")
+    ap.add_argument("--set-down", action="store_true",
+                    help="the ring set-down at the rover's start and the poses round it (the blind disc's prior "
+                         "judged) instead of the poses 1.6-4.0 m ahead")
+    ap.add_argument("--prior-own", type=float, default=ChanceParams().prior_own,
+                    help="ChanceParams.prior_own (1: a prior's error drawn cell by cell)")
+    ap.add_argument("--shared-length", type=float, default=ChanceParams().shared_length,
+                    help="ChanceParams.shared_length (m)")
     ap.add_argument("--correlation", action="store_true",
                     help="the spatial correlation of the map means' errors and of the blind disc's ground off its "
                          "plane, on the truth")
@@ -280,7 +308,10 @@ def main(argv: list[str] | None = None) -> None:
         return
     body = RoverBody()
     out = evaluate(args.scene, args.look, args.cell, args.world_seed, args.seed, args.epsilon, args.samples,
-                   dataclasses.replace(body), args.rock_sigma, args.posterior)
+                   dataclasses.replace(body), args.rock_sigma, args.posterior, args.set_down,
+                   prior_own=args.prior_own, shared_length=args.shared_length)
+    if args.set_down:
+        head += f"; set down at the start: {out['set_down']}; prior_own {args.prior_own:g}, shared_length {args.shared_length:g} m"
     print(f"{head}: {out['poses']} poses, {out['truly_unsafe']} truly unsafe")
     print("| check | judged | false safe | truly safe kept (of) | poses screened | ms per 1,000 poses |")
     print("|---|---|---|---|---|---|")
