@@ -370,7 +370,8 @@ class BoundsMap:
         roof = (z + gx * (ux - pose[0]) + gy * (uy - pose[1]) + body.clearance - 3 * k * spread).astype(np.float32)
         self.ceiling.flat[under] = np.minimum(self.ceiling.flat[under], roof)
 
-    def set_down(self, centre: tuple[float, float], radius: float, z: float,
+    def set_down(self, centre: tuple[float, float], radius: float,
+                 z: float | Callable[[np.ndarray, np.ndarray], np.ndarray],
                  sigma: float | Callable[[np.ndarray, np.ndarray], np.ndarray] = 0.01,
                  plane: tuple[float, float, float, float] | None = None) -> None:
         """The ground within ``radius`` of ``centre`` that no frame bounded is taken as level at
@@ -381,14 +382,18 @@ class BoundsMap:
         cell, a function of the cells' x and y (the ring's spread: :meth:`RingPlane.sigma
         <prox_workflows.algorithms.set_down.RingPlane.sigma>`): how far the ground may stand off
         that plane is what the seen ground round it shows, not what is hoped. Never assumed while
-        driving. The wheels' own ground is then known better (:meth:`stood`)."""
+        driving. The wheels' own ground is then known better (:meth:`stood`). ``z`` may also be a
+        function of the cells' x and y (``plane`` then unused): the plane conditioned on the ground
+        seen beside the cell (:func:`prox_workflows.algorithms.set_down.set_down`)."""
         g = self.geometry
         xs, ys = g.centers()
         near = np.hypot(xs[None, :] - centre[0], ys[:, None] - centre[1]) <= radius
         blank = near & ~np.isfinite(self.mean)
         rows, cols = np.nonzero(blank)
         bx, by = xs[cols], ys[rows]
-        if plane is None:
+        if callable(z):
+            height = np.asarray(z(bx, by), np.float64)
+        elif plane is None:
             height = np.full(len(rows), z)
         else:
             height = z + plane[2] * (bx - plane[0]) + plane[3] * (by - plane[1])

@@ -64,7 +64,6 @@ the samples: the highest it may be.
 
 from __future__ import annotations
 
-import math
 import warnings
 from collections.abc import Iterator
 from dataclasses import dataclass
@@ -228,22 +227,17 @@ def posterior(stats: dict[str, np.ndarray], geom: GridGeometry, k: float, params
     ceiling = np.asarray(stats.get("ceiling", np.full(mean.shape, np.inf)), np.float64)
     return Posterior(np.where(seen, mu, np.nan), np.where(seen, var, np.nan), ceiling,
                      np.where(seen, np.hypot(p.edge_sigma * jump, p.rock_sigma * relief(top, geom)), 0.0),
-                     _ramped(np.where(prior, np.sqrt(np.maximum((1.0 - p.prior_own) * var0, 0.0)), 0.0),
-                             _smoothing(p.shared_length, c)))
+                     np.where(prior, np.sqrt(np.maximum((1.0 - p.prior_own) * var0, 0.0)), 0.0))
 
 
-def _ramped(shared: np.ndarray, sigma: float) -> np.ndarray:
-    """The shared errors' sigmas never lower, and ramped over the field's own kernel where they
-    jump (where two priors meet, the turn's disc at 1 cm and the blind disc at the ring's spread,
-    or a prior meets seen ground): one field times a sigma that jumps is a step of the jump times
-    the field between neighbours, which the ground under two priors does not have."""
-    if sigma <= 0 or not np.any(shared > 0):
-        return shared
-    reach = max(1, int(math.ceil(sigma)))  # the ramp's width: a prior's sigma reaches no further than twice it
-    grown = gaussian_filter(maximum_filter(shared, size=2 * reach + 1, mode="nearest"), reach / 3, mode="nearest",
-                            truncate=3.0)
-    return np.maximum(shared, grown)
 
+def prior_correlation(d: np.ndarray | float, params: ChanceParams | None = None) -> np.ndarray:
+    """How the draws correlate a prior's errors at two cells ``d`` m apart (0 < d): the shared
+    field's Gaussian correlation times its share of the variance. What a prior conditioned on the
+    ground seen beside it takes (:func:`prox_workflows.algorithms.set_down.set_down`)."""
+    p = params or ChanceParams()
+    length = max(p.shared_length, 1e-9)
+    return (1.0 - p.prior_own) * np.exp(-(np.asarray(d, np.float64) / length) ** 2)
 
 def relief(top: np.ndarray, geom: GridGeometry) -> np.ndarray:
     """H per cell: how far its ``top`` stands over the lowest top within ROCK_WINDOW (0 where no

@@ -390,27 +390,3 @@ def test_the_shared_field_is_correlated_by_1_over_e_at_its_length_as_the_bench_m
                                            ChanceParams(samples=8))]
     assert abs(np.mean([lag_correlation(f, ok, 1) for f in own])) < 0.02
 
-
-def test_where_two_priors_meet_their_shared_sigma_ramps_and_draws_no_step() -> None:
-    """The turn's disc at 1 cm meets the blind disc at the ring's 3 cm: one field times a sigma that
-    jumps steps by the jump times the field (2 cm sd) at the seam, and refused turns at marsyard 0's
-    start on a step the truth does not have. The sigma ramps over the field's kernel instead,
-    never below the prior's own, and no pose across the seam is near the climb."""
-    g = GridGeometry.covering(-1.0, -1.0, 1.0, 1.0, 0.025)
-    xs, ys = g.centers()
-    X, Y = np.meshgrid(xs, ys)
-    seam = X >= 0.1
-    var = np.where(seam, 0.03, 0.01) ** 2
-    stats_ = {"mean": np.zeros(g.shape), "mean_var": var, "rise": np.zeros(g.shape), "drop": np.zeros(g.shape),
-              "shift": np.zeros(g.shape), "ceiling": np.full(g.shape, np.inf), "upper": np.zeros(g.shape),
-              "lower": np.zeros(g.shape), "framed": np.zeros(g.shape, bool)}
-    p = ChanceParams()
-    post = posterior(stats_, g, 2.5, p)
-    prior = np.sqrt((1 - p.prior_own) * var)
-    assert (post.shared >= prior - 1e-12).all()
-    row = post.shared[g.height // 2]
-    assert np.abs(np.diff(row)).max() < 0.006  # the 2 cm jump spread over the kernel
-    np.testing.assert_allclose(post.shared[np.abs(X - 0.1) > 0.3], prior[np.abs(X - 0.1) > 0.3])  # away from it, its own
-    across = np.array([[0.1, y, 0.0] for y in (-0.3, 0.0, 0.3)])
-    c = chance_check(post, g, across, BODY, p)
-    assert (c.prob[:, STEP] < 1e-6).all(), c.prob[:, STEP]

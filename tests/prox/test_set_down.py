@@ -108,11 +108,11 @@ def test_a_dip_in_the_blind_disc_off_the_wheels_is_not_claimed_known_within_a_ce
                     0.1, 0.5)
     assert "off it by" in said, said
     x, y, top, sd = _cells(bounds, _disc)
-    assert len(x) > 1200 and sd.min() > 0.015, sd.min()
+    assert len(x) > 1200 and sd.max() > 0.015, sd.max()  # nearer known ground it is known better
     inside = np.hypot(x - dip[0], y - dip[1]) < dip[2] - 0.02
     assert inside.sum() > 20
     off = (top - truth(x, y)) / sd
-    assert off[inside].max() < 4.0 and (top[inside] - truth(x[inside], y[inside])).max() > 0.05, off[inside].max()
+    assert off[inside].max() < 4.0 and (top[inside] - truth(x[inside], y[inside])).max() > 0.04, off[inside].max()
     assert np.percentile(np.abs(off), 98) < 3.0
     smooth = BoundsMap.covering([[-1.7, -1.7], [1.7, 1.7]], 0.0)
     _ground(smooth, lambda x, y: 0.05 * np.asarray(x) + 0.002 * np.sin(20 * np.asarray(y)))
@@ -155,3 +155,35 @@ def test_the_wheels_at_the_start_are_known_to_a_few_millimetres_from_the_attitud
     set_down(no_imu, pose, datum, body, None, FOOT, TURN, 0.1, 0.5)
     x, y, top, sd = _cells(no_imu, lambda X, Y: (np.abs(X - 0.145) < 0.03) & (np.abs(Y - 0.245) < 0.03))
     assert np.abs(top - truth(x, y)).max() < 0.01 and sd.max() == pytest.approx(0.01, abs=1e-4)
+
+
+def test_the_blind_disc_meets_the_seen_ground_and_the_turn_s_disc_without_a_step() -> None:
+    """Seen ground rough about a plane 4 cm over the wheels' (the simulator's frames' datum lies
+    -1 to +3 cm off the wheels' plane): the ring's plane alone meets the turn's disc in a 4 cm
+    step, and the seen ground in steps of its own roughness, which the chance check's draws then
+    push over the climb (marsyard mission 0's start: every section refused on a step the truth
+    does not have). Conditioned on the ground known beside it, the disc's mean steps no more than
+    1.5 cm between neighbouring cells anywhere (the wheels' own cells sit 1.25 cm under their
+    plane), its sigma no more than its floor (1 cm, beside seen ground known to a millimetre), and
+    far from known ground it keeps the ring's spread."""
+    from drivers.sim.rover import RoverBody
+
+    rough = _bumps(5)
+
+    def truth(x: np.ndarray, y: np.ndarray) -> np.ndarray:
+        return 0.04 + rough(x, y)
+
+    bounds = BoundsMap.covering([[-1.7, -1.7], [1.7, 1.7]], 0.0)
+    _ground(bounds, truth)
+    set_down(bounds, (0.0, 0.0, 0.0), 0.0, RoverBody(), (0.0, 0.0, 0.05), FOOT, TURN, 0.1, 0.5)
+    g = bounds.geometry
+    xs, ys = g.centers()
+    X, Y = np.meshgrid(xs, ys)
+    band = np.hypot(X - FOOT[0], Y - FOOT[1]) <= FOOT[2] + 0.1
+    mean, sd = np.where(band, bounds.mean, np.nan), np.where(band, np.sqrt(bounds.mean_var), np.nan)
+    steps = np.concatenate([np.abs(np.diff(mean, axis=a)).ravel() for a in (0, 1)])
+    sd_steps = np.concatenate([np.abs(np.diff(sd, axis=a)).ravel() for a in (0, 1)])
+    assert np.nanmax(steps) < 0.015, np.nanmax(steps)
+    assert np.nanmax(sd_steps) <= FLOOR, np.nanmax(sd_steps)
+    ring = ring_plane(bounds, FOOT[:2], FOOT[2] + 0.1, FOOT[2] + 0.5, (0.0, 0.0))
+    assert ring.spread > 0.012 and np.nanmax(sd) > 0.8 * ring.spread
