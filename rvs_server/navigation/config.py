@@ -86,8 +86,9 @@ class SeeConfig(Settings):
                           "rover stands throughout the drive; without an attitude, level; ring (with the chooser), after "
                           "the first look round, takes the wheels' ground from the pose and the IMU's attitude, the "
                           "disc the body turns in within 1 cm of that plane, and the rest of the blind disc on the "
-                          "plane fitted to the seen ground just outside it within that ground's own spread about the "
-                          "plane (at least 1 cm; prox_workflows.algorithms.set_down)", choices=("level", "attitude", "ring"),
+                          "plane fitted to the seen ground just outside it, carried continuously into the ground known "
+                          "beside it, within that ground's own spread about the plane, less near known ground (at least "
+                          "1 cm; prox_workflows.algorithms.set_down)", choices=("level", "attitude", "ring"),
                           option=False)
     gaze: str = param("path", "see loop with the gate: where the ToF looks while driving: path pans along the path "
                       "(the ground a turn will put under the wheels), three frames in turn at the path just ahead at the "
