@@ -45,8 +45,18 @@ mean + rise, with five variances:
   (:func:`relief`). Its share is chosen at the pose level, on the false safes against the truth
   (docs/BENCHMARKS.md), not per cell: per cell the marginals above already hold.
 
+**A prior's error** (a cell no frame bounded: the set-down's blind disc, the wheels' contacts) is
+the ground's off the prior's plane, which the true ground shares with its neighbours (correlated
+0.95-0.98 between neighbouring 2.5 cm cells, 1/e at 20-30 cm); the frames' averaged noise is each
+cell's own (0.1-0.2 between neighbours near the sensor, gone by 7.5-10 cm far; ``python -m
+tools.bench.chance --correlation``). So a prior's variance goes ``1 - prior_own`` into a field
+shared by neighbouring cells (``Posterior.shared``: smoothed white noise, correlated 1/e at
+``shared_length``), the rest its own: drawn apart, a prior known to 3 cm steps 4.3 cm (sd) between
+neighbours and refuses every wheel on it.
+
 **The probability** (:func:`chance_check`): surfaces are drawn from the cells' posteriors (seeded,
-every cell's own error independently, the common one once per surface; ``samples`` of them)
+every cell's own error independently, the shared field, the common one once per surface;
+``samples`` of them)
 and each is judged by :func:`vehicle.check_poses`, the one definition of the limits: per pose and limit, the samples' excesses give the share over
 the limit and a normal tail from their mean and spread, whichever is higher (``samples`` draws
 alone cannot show a probability below about 1 / samples; the tail reaches epsilon, and it is
