@@ -36,6 +36,7 @@ so ground the rover saw and turned away from keeps its bounds.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
@@ -369,26 +370,38 @@ class BoundsMap:
         roof = (z + gx * (ux - pose[0]) + gy * (uy - pose[1]) + body.clearance - 3 * k * spread).astype(np.float32)
         self.ceiling.flat[under] = np.minimum(self.ceiling.flat[under], roof)
 
-    def set_down(self, centre: tuple[float, float], radius: float, z: float, sigma: float = 0.01,
+    def set_down(self, centre: tuple[float, float], radius: float,
+                 z: float | Callable[[np.ndarray, np.ndarray], np.ndarray],
+                 sigma: float | Callable[[np.ndarray, np.ndarray], np.ndarray] = 0.01,
                  plane: tuple[float, float, float, float] | None = None) -> None:
         """The ground within ``radius`` of ``centre`` that no frame bounded is taken as level at
         ``z`` (within ``sigma``), or on ``plane`` (x0, y0 where it is at ``z``, and its rise per
-        metre along x and y: the plane the rover's attitude says it stands on): where the rover
-        was set down, or stands for a 360-degree scan, the ground round the mast's foot that no
-        tilt shows is assumed clear, as the rover's operators placed it or it drove there. Never
-        assumed while driving. The wheels' own ground is then known better (:meth:`stood`)."""
+        metre along x and y: the plane the rover's attitude says it stands on, or the seen ring's
+        round the blind disc): where the rover was set down, or stands for a 360-degree scan, the
+        ground round the mast's foot that no tilt shows. ``sigma`` is a height sigma (m) or, per
+        cell, a function of the cells' x and y (the ring's spread: :meth:`RingPlane.sigma
+        <prox_workflows.algorithms.set_down.RingPlane.sigma>`): how far the ground may stand off
+        that plane is what the seen ground round it shows, not what is hoped. Never assumed while
+        driving. The wheels' own ground is then known better (:meth:`stood`). ``z`` may also be a
+        function of the cells' x and y (``plane`` then unused): the plane conditioned on the ground
+        seen beside the cell (:func:`prox_workflows.algorithms.set_down.set_down`)."""
         g = self.geometry
         xs, ys = g.centers()
         near = np.hypot(xs[None, :] - centre[0], ys[:, None] - centre[1]) <= radius
         blank = near & ~np.isfinite(self.mean)
-        if plane is None:
-            height = np.full(self.mean.shape, z)
+        rows, cols = np.nonzero(blank)
+        bx, by = xs[cols], ys[rows]
+        if callable(z):
+            height = np.asarray(z(bx, by), np.float64)
+        elif plane is None:
+            height = np.full(len(rows), z)
         else:
-            height = z + plane[2] * (xs[None, :] - plane[0]) + plane[3] * (ys[:, None] - plane[1])
-        self.mean[blank] = height[blank]
-        self.mean_var[blank] = sigma * sigma
-        self.rise[blank] = 0.0
-        self.drop[blank] = 0.0
+            height = z + plane[2] * (bx - plane[0]) + plane[3] * (by - plane[1])
+        sd = np.broadcast_to(np.asarray(sigma(bx, by) if callable(sigma) else sigma, np.float64), (len(rows),))
+        self.mean[rows, cols] = height
+        self.mean_var[rows, cols] = sd * sd
+        self.rise[rows, cols] = 0.0
+        self.drop[rows, cols] = 0.0
 
     # ------------------------------------------------------------------ fusion
 
@@ -550,14 +563,17 @@ class BoundsMap:
                    ) -> tuple[dict[str, np.ndarray], GridGeometry]:
         """What the bounds are drawn from over a box (copies, clipped to the map), with its grid:
         ``mean``, ``mean_var`` (the fused mean's variance), ``rise``, ``drop``, ``shift``,
-        ``along_var`` (the fused mean's horizontal variance along the rays) and ``ceiling`` per
-        cell. A check that weighs how likely the ground is rather than its extremes reads these (``chance.posterior``), and the bounds drawn from them (``lower``,
-        ``upper``)."""
+        ``along_var`` (the fused mean's horizontal variance along the rays), ``ceiling`` and
+        ``framed`` (a frame bounded it; else its mean is a prior's: the set-down's, the wheels'
+        contacts) per cell. A check that weighs how likely the ground is rather than its extremes
+        reads these (``chance.posterior``), and the bounds drawn from them (``lower``, ``upper``)."""
         sl, sub = self._box(xmin, ymin, xmax, ymax)
         names = ("mean", "mean_var", "rise", "drop", "shift", "along_var", "ceiling")
         if sl is None:
-            return {name: np.full((0, 0), np.nan, np.float32) for name in (*names, "lower", "upper")}, sub
+            return {name: np.full((0, 0), np.nan, np.float32) for name in (*names, "lower", "upper")} | \
+                {"framed": np.zeros((0, 0), bool)}, sub
         out = {name: getattr(self, name)[sl].copy() for name in names}
+        out["framed"] = self.stamp[sl] > 0
         out["lower"], out["upper"] = self.bounds(sl)
         return out, sub
 
