@@ -43,8 +43,6 @@ import numpy as np
 
 import rvs_server.navigation.sections as sections
 from prox_workflows.algorithms import bounds_map
-from prox_workflows.algorithms.candidates import CandidateParams
-from prox_workflows.algorithms.chance import ChanceParams
 
 
 def reference_spread(top: np.ndarray, bottom: np.ndarray, seen: np.ndarray, shape: np.ndarray
