@@ -38,24 +38,32 @@ def _cells(m: BoundsMap, x0: float, x1: float, y0: float, y1: float) -> tuple[sl
             slice(int(round((x0 - g.xmin) / g.cell)), int(round((x1 - g.xmin) / g.cell))))
 
 
+def _look(m: BoundsMap, world: World, rng: np.random.Generator, pan: float, across: bool = True) -> None:
+    """One ToF frame of ``world`` at ``pan`` (tilt -35 deg) into ``m`` with the range noise it is
+    told of; ``across``: each return's horizontal error an ellipse along its ray (a quarter of it
+    across), as the see loop fuses its frames, else a disc."""
+    from drivers.tof.constants import HEIGHT, USABLE_RANGE, WIDTH
+
+    world.set_ptu(pan, -35.0)
+    origin = world.sensor_pose("tof")[:3, 3]
+    view = world.render_sensor("tof", WIDTH, HEIGHT)
+    ranges = view.range.reshape(-1)
+    keep = np.isfinite(ranges) & (ranges < USABLE_RANGE) & (view.object_id.reshape(-1) != 1)
+    pts, r = view.points.reshape(-1, 3)[keep].astype(np.float64), ranges[keep].astype(np.float64)
+    noisy = pts + (pts - origin) / r[:, None] * (tof_sigma(r) * rng.standard_normal(len(r)))[:, None]
+    along = tof_horizontal_sigma(noisy, origin)
+    m.fuse(noisy, np.sqrt(tof_height_variance(noisy, origin)), origin, USABLE_RANGE, along,
+           sigma_across=along / 4 if across else None)
+
+
 def _hirise_looks(reach: float) -> tuple[World, BoundsMap]:
     """The hirise world and a bounds map of three ToF looks (pans -40 / 0 / +40, tilt -35) over
     the ground out to ``reach`` metres ahead, each frame with the range noise it is told of."""
-    from drivers.tof.constants import HEIGHT, USABLE_RANGE, WIDTH
-
     world = World.from_scene("hirise", seed=1)
     rng = np.random.default_rng(0)
     m = BoundsMap.covering([[-1.0, -3.0], [reach, 3.0]], 0.0)
     for pan in (-40.0, 0.0, 40.0):
-        world.set_ptu(pan, -35.0)
-        origin = world.sensor_pose("tof")[:3, 3]
-        view = world.render_sensor("tof", WIDTH, HEIGHT)
-        ranges = view.range.reshape(-1)
-        keep = np.isfinite(ranges) & (ranges < USABLE_RANGE) & (view.object_id.reshape(-1) != 1)
-        pts, r = view.points.reshape(-1, 3)[keep].astype(np.float64), ranges[keep].astype(np.float64)
-        noisy = pts + (pts - origin) / r[:, None] * (tof_sigma(r) * rng.standard_normal(len(r)))[:, None]
-        m.fuse(noisy, np.sqrt(tof_height_variance(noisy, origin)), origin, USABLE_RANGE,
-               tof_horizontal_sigma(noisy, origin))
+        _look(m, world, rng, pan, across=False)
     return world, m
 
 
@@ -446,23 +454,6 @@ def test_a_rover_set_down_knows_the_ground_under_its_wheels_from_its_attitude(gr
 
 def _bits_equal(a: np.ndarray, b: np.ndarray) -> bool:
     return a.dtype == b.dtype and a.shape == b.shape and bool((a.view(np.uint32) == b.view(np.uint32)).all())
-
-
-def _look(m: BoundsMap, world: World, rng: np.random.Generator, pan: float) -> None:
-    """One ToF frame of ``world`` at ``pan`` (tilt -35 deg) into ``m``, each return's horizontal
-    error an ellipse along its ray (a quarter of it across), as the see loop fuses its frames."""
-    from drivers.tof.constants import HEIGHT, USABLE_RANGE, WIDTH
-
-    world.set_ptu(pan, -35.0)
-    origin = world.sensor_pose("tof")[:3, 3]
-    view = world.render_sensor("tof", WIDTH, HEIGHT)
-    ranges = view.range.reshape(-1)
-    keep = np.isfinite(ranges) & (ranges < USABLE_RANGE) & (view.object_id.reshape(-1) != 1)
-    pts, r = view.points.reshape(-1, 3)[keep].astype(np.float64), ranges[keep].astype(np.float64)
-    noisy = pts + (pts - origin) / r[:, None] * (tof_sigma(r) * rng.standard_normal(len(r)))[:, None]
-    along = tof_horizontal_sigma(noisy, origin)
-    m.fuse(noisy, np.sqrt(tof_height_variance(noisy, origin)), origin, USABLE_RANGE, along,
-           sigma_across=along / 4)
 
 
 def test_the_compiled_spread_gives_the_bits_of_the_image_morphology() -> None:
