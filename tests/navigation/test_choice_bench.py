@@ -9,30 +9,14 @@ import sys
 from pathlib import Path
 
 import numpy as np
+from support.tof_looks import tof_frame
 
 from drivers.sim.world import World
 from prox_workflows.algorithms.bounds_map import BoundsMap
 from prox_workflows.algorithms.candidates import CandidateParams
 from prox_workflows.algorithms.chance import ChanceParams
-from prox_workflows.algorithms.noise import tof_height_variance, tof_horizontal_sigma, tof_sigma
 
 ROOT = Path(__file__).resolve().parents[2]
-
-
-def _frame(world: World, rng: np.random.Generator, pan: float) -> dict:
-    """One ToF frame's arguments to :meth:`BoundsMap.fuse`, as the capture records them."""
-    from drivers.tof.constants import HEIGHT, USABLE_RANGE, WIDTH
-
-    world.set_ptu(pan, -35.0)
-    origin = world.sensor_pose("tof")[:3, 3]
-    view = world.render_sensor("tof", WIDTH, HEIGHT)
-    ranges = view.range.reshape(-1)
-    keep = np.isfinite(ranges) & (ranges < USABLE_RANGE) & (view.object_id.reshape(-1) != 1)
-    pts, r = view.points.reshape(-1, 3)[keep].astype(np.float64), ranges[keep].astype(np.float64)
-    noisy = pts + (pts - origin) / r[:, None] * (tof_sigma(r) * rng.standard_normal(len(r)))[:, None]
-    along = tof_horizontal_sigma(noisy, origin)
-    return {"points": noisy, "sigma": np.sqrt(tof_height_variance(noisy, origin)), "origin": origin,
-            "args": (USABLE_RANGE, along), "kwargs": {"sigma_across": along / 4}}
 
 
 def test_a_dumped_choice_is_timed_on_both_paths_which_agree(tmp_path: Path) -> None:
@@ -40,18 +24,18 @@ def test_a_dumped_choice_is_timed_on_both_paths_which_agree(tmp_path: Path) -> N
     rng = np.random.default_rng(0)
     m = BoundsMap.covering([[-1.0, -3.0], [4.0, 3.0]], 1.0)
     for pan in (-40.0, 0.0):
-        f = _frame(world, rng, pan)
+        f = tof_frame(world, rng, pan)
         m.fuse(f["points"], f["sigma"], f["origin"], *f["args"], **f["kwargs"])
     # the ground round the mast's foot, which no tilt shows, as the see loop's set-down takes it
     z = float(world.true_dem(0.05, (-0.1, -0.1, 0.1, 0.1)).mean())
     m.set_down((0.0, 0.0), 1.3, z)
     m.stood((0.0, 0.0, 0.0), z, world.body)
     m.whole()  # the whole bounds as a choice before left them
-    f = _frame(world, rng, 40.0)
+    f = tof_frame(world, rng, 40.0)
     m.fuse(f["points"], f["sigma"], f["origin"], *f["args"], **f["kwargs"])
     entry = {"bounds": m, "pose": (0.0, 0.0, 0.0), "goal": (4.0, 1.0), "body": world.body, "how": "chance",
              "params": CandidateParams(), "chance": ChanceParams(), "section": np.zeros((0, 3)), "status": "",
-             "scene": "hirise", "mission": 0, "choice": 0, "frame": _frame(world, rng, 0.0)}
+             "scene": "hirise", "mission": 0, "choice": 0, "frame": tof_frame(world, rng, 0.0)}
     from rvs_server.navigation.sections import choose_from
 
     choice, _ = choose_from(m, entry["pose"], entry["goal"], world.body, "chance", CandidateParams(), ChanceParams())

@@ -7,10 +7,11 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from support.tof_looks import tof_frame
 
 from drivers.sim.world import World
 from prox_workflows.algorithms.bounds_map import BoundsMap, BoundsParams
-from prox_workflows.algorithms.noise import tof_height_variance, tof_horizontal_sigma, tof_sigma
+from prox_workflows.algorithms.noise import tof_height_variance, tof_sigma
 from prox_workflows.grid import GridGeometry
 
 SENSOR = np.array([0.0, 0.0, 1.2])
@@ -39,21 +40,9 @@ def _cells(m: BoundsMap, x0: float, x1: float, y0: float, y1: float) -> tuple[sl
 
 
 def _look(m: BoundsMap, world: World, rng: np.random.Generator, pan: float, across: bool = True) -> None:
-    """One ToF frame of ``world`` at ``pan`` (tilt -35 deg) into ``m`` with the range noise it is
-    told of; ``across``: each return's horizontal error an ellipse along its ray (a quarter of it
-    across), as the see loop fuses its frames, else a disc."""
-    from drivers.tof.constants import HEIGHT, USABLE_RANGE, WIDTH
-
-    world.set_ptu(pan, -35.0)
-    origin = world.sensor_pose("tof")[:3, 3]
-    view = world.render_sensor("tof", WIDTH, HEIGHT)
-    ranges = view.range.reshape(-1)
-    keep = np.isfinite(ranges) & (ranges < USABLE_RANGE) & (view.object_id.reshape(-1) != 1)
-    pts, r = view.points.reshape(-1, 3)[keep].astype(np.float64), ranges[keep].astype(np.float64)
-    noisy = pts + (pts - origin) / r[:, None] * (tof_sigma(r) * rng.standard_normal(len(r)))[:, None]
-    along = tof_horizontal_sigma(noisy, origin)
-    m.fuse(noisy, np.sqrt(tof_height_variance(noisy, origin)), origin, USABLE_RANGE, along,
-           sigma_across=along / 4 if across else None)
+    """One ToF frame of ``world`` at ``pan`` into ``m`` (:func:`support.tof_looks.tof_frame`)."""
+    f = tof_frame(world, rng, pan, across)
+    m.fuse(f["points"], f["sigma"], f["origin"], *f["args"], **f["kwargs"])
 
 
 def _hirise_looks(reach: float) -> tuple[World, BoundsMap]:
