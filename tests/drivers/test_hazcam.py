@@ -137,3 +137,19 @@ def test_the_server_builds_the_hazcams_and_config_set_switches_them(server_facto
         assert r.fields["code"] == "E_ARG" and "front,rear" in r.fields["message"]
     finally:
         c.close()
+
+
+def test_a_pair_grabbed_standing_takes_its_exposure_and_readout_on_the_simulated_clock() -> None:
+    """The rover's time is the simulated clock's: a pair exposed while the rover stands costs its
+    shutter and its readout (drivers.hazcam.sim_readout) there; one exposed while it rolls
+    overlaps the drive and costs nothing more."""
+    world = World.from_scene("quarry", seed=1, clock_scale=0.0)
+    dev = opened(world, "front", sim_readout=0.25)
+    t0 = world.clock.now()
+    dev.images("front")
+    standing = world.clock.now() - t0
+    assert 0.25 < standing < 0.25 + 0.1, standing  # the readout, and a shutter of at most 0.1 s
+    with world.under_way():
+        t1 = world.clock.now()
+        dev.images("front")
+        assert world.clock.now() == t1
