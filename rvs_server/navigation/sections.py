@@ -213,12 +213,13 @@ class Chooser:
         """With the body's hazard cameras on, the start's turn on the spot: ``see_start_turn`` at a
         time until the pairs have looked all round, a frame of every pair at each heading (and
         the front pair's every cycle of the turn). Between the body and the mast's blind disc no
-        tilt of the mast shows the ground; the pairs do, from 0.1 m off the body out, and where
+        tilt of the mast shows the ground; the pairs do, from about 0.1 m past the body out, and where
         they bound a cell the set-down's prior yields to them: the prior is left on the ground no
         camera saw (under the body, and a band of about 0.1 m round it). Each step is judged first
         on the map as it is, prior included (the start is where the rover was set down to turn:
         the missions' starts are drawn so); a step that fails ends the turn, and the prior stays
-        where it was not seen. Only a rover the server steers turns: a GNC drives its own start."""
+        where it was not seen. Only a rover the server steers is turned: the server sends a GNC no
+        motion of its own choosing at the start."""
         d = self.d
         step = d.p.start_turn
         if not d.hazcams or step <= 0.0 or not d.rover.steers:

@@ -296,7 +296,7 @@ class SeeingDriver:
 
     def _fuse_hazcam(self, camera: str, T: np.ndarray) -> None:
         """One body hazard camera's pair into the bounds map (with the rover at ``T``): the ground
-        from 0.1 m off the body, where the mast never sees. Each point's range sigma is the
+        from about 0.1 m past the body's end, where the mast never sees. Each point's range sigma is the
         disparity noise's (it grows with the range squared), and the frame is fused as a stereo
         frame: a cell's pixels share the matcher's window, so their errors are one error. Fused as
         independent returns, the cells' means round the body at mission starts came out with 60 %
