@@ -296,14 +296,14 @@ class SeeingDriver:
 
     def _fuse_hazcam(self, camera: str, T: np.ndarray) -> None:
         """One body hazard camera's pair into the bounds map (with the rover at ``T``): the ground
-        from about 0.1 m past the body's end, where the mast never sees. Each point's range sigma is the
-        disparity noise's (it grows with the range squared), and the frame is fused as a stereo
-        frame: a cell's pixels share the matcher's window, so their errors are one error. Fused as
-        independent returns, the cells' means round the body at mission starts came out with 60 %
-        of them more than 3 sigma off the true surface (hirise) and the truth under the lower
-        bound in 8 % of them; as stereo 1 % and 0.2 %. Where a pair bounded a cell its bounds
-        stand alone (``stereo_first``): they replace the set-down's prior there (:meth:`SeeStrategy.
-        set_down_on_ring`)."""
+        from about 0.1 m past the body's end, where the mast never sees. Each point's range sigma
+        is the disparity noise's (it grows with the range squared), and the frame is fused as a
+        stereo frame: a cell's pixels share the matcher's window, so their errors are one error.
+        Fused as independent returns, 60 % of the cells' means round the body at mission starts
+        lay more than 3 sigma off the true surface and 8-16 % of the cells had the truth under
+        their lower bound; as stereo 1 % and 0.1-0.2 % (``python -m tools.bench.hazcam --ring``).
+        Where a pair bounded a cell its bounds stand alone (``stereo_first``): they replace the
+        set-down's prior there."""
         device = self.app.devices.get("hazcam")
         frame = device_call(self.job, device.grab, camera)
         ground = ~self.on_body(frame.points)
