@@ -61,6 +61,7 @@ def _start(server_factory: Any, monkeypatch: pytest.MonkeyPatch, hazcams: str) -
     return seen
 
 
+@pytest.mark.timeout(900)  # the start renders some 40 ToF and 20 hazcam frames: minutes on a loaded machine
 def test_with_the_hazcams_on_the_start_s_turn_shows_the_ring_round_the_body(server_factory, monkeypatch) -> None:
     """Both pairs look ahead and behind, 90 deg across each: two turns of 60 deg on the spot at
     the start put the ground all round before them. At the first choice nearly the whole ring
@@ -72,6 +73,7 @@ def test_with_the_hazcams_on_the_start_s_turn_shows_the_ring_round_the_body(serv
     assert seen["prior"] <= seen["body"] + 0.1 * seen["ring"], seen
 
 
+@pytest.mark.timeout(900)
 def test_with_the_hazcams_off_the_start_is_unchanged(server_factory, monkeypatch) -> None:
     """Without the body's cameras the start does not turn, and the mast's blind disc is the
     set-down's prior: only its edge, which the mast's rays graze, has a frame's bounds."""
