@@ -300,8 +300,9 @@ class SeeingDriver:
         is the disparity noise's (it grows with the range squared), and the frame is fused as a
         stereo frame: a cell's pixels share the matcher's window, so their errors are one error.
         Fused as independent returns, 60 % of the cells' means round the body at mission starts
-        lay more than 3 sigma off the true surface and 8-16 % of the cells had the truth under
-        their lower bound; as stereo 1 % and 0.1-0.2 % (``python -m tools.bench.hazcam --ring``).
+        lay more than 3 sigma off the true surface and 7-16 % of the cells had the truth under
+        their lower bound; as stereo about 1 % and at most 0.2 % (``python -m tools.bench.hazcam
+        --ring``).
         Where a pair bounded a cell its bounds stand alone (``stereo_first``): they replace the
         set-down's prior there."""
         device = self.app.devices.get("hazcam")
