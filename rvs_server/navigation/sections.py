@@ -236,7 +236,7 @@ class Chooser:
                 at = poses[bad[0]]
                 self.s.mission.progress(leg, 1, 1, f"the start's turn ends: {step:g} deg more fails "
                                                    f"({verdict_name(int(codes[bad[0]]))}) at heading {at[2]:.0f} deg",
-                                        "plan")
+                                        "drive")  # (a second "plan" line after the set-down's is not sent)
                 return
             turn = Choice("drive", "the start's turn", poses, poses, turn=step)
             if self.drive(leg, turn, f"turning {step:g} deg on the spot: the hazard cameras see round the body"):
