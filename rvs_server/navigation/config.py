@@ -103,6 +103,12 @@ class SeeConfig(Settings):
                               "driving this far in a fan of +-60 deg ahead, and as far again beyond, from the mast's "
                               "blind disc out (prox_workflows.algorithms.looks: the lowest tilt and see_tilt)",
                               unit="m", min=0.1, max=3.0, option=False)
+    start_turn: float = param(60.0, "see loop with the gate and the body's hazard cameras on (drivers.hazcam.cameras): "
+                              "at the start, after the first look round, the rover turns on the spot in steps of "
+                              "this, each judged safe first, a frame of every pair at each heading, until the pairs "
+                              "have looked all round (both pairs: 3 headings; one pair: 6): they show the ground "
+                              "between the body and the mast's blind disc, which the set-down then need not assume; "
+                              "0: no turn", unit="deg", min=0.0, max=180.0, option=False)
     max_replans: int = param(100, "see loop: give up after this many plans in all", min=1, max=10000, option=False)
     # declared where they are used (prox_workflows.algorithms), set here: navigate.see.chooser.section=0.8
     chooser: CandidateParams = param(CandidateParams(), "see loop with the gate: the candidate paths and the "

@@ -295,14 +295,22 @@ class SeeingDriver:
 
     def _fuse_hazcam(self, camera: str, T: np.ndarray) -> None:
         """One body hazard camera's pair into the bounds map (with the rover at ``T``): the ground
-        from 0.2 m ahead of the nose, where the mast never sees."""
+        from about 0.1 m past the body's end, where the mast never sees. Each point's range sigma
+        is the disparity noise's (it grows with the range squared), and the frame is fused as a
+        stereo frame: a cell's pixels share the matcher's window, so their errors are one error.
+        Fused as independent returns, 60 % of the cells' means round the body at mission starts
+        lay more than 3 sigma off the true surface and 7-16 % of the cells had the truth under
+        their lower bound; as stereo about 1 % and at most 0.2 % (``python -m tools.bench.hazcam
+        --ring``).
+        Where a pair bounded a cell its bounds stand alone (``stereo_first``): they replace the
+        set-down's prior there."""
         device = self.app.devices.get("hazcam")
         frame = device_call(self.job, device.grab, camera)
         ground = ~self.on_body(frame.points)
         pts = frame.points[ground] @ T[:3, :3].T + T[:3, 3]
         origin = T[:3, :3] @ frame.origin + T[:3, 3]
         sigma, sigma_xy = pair_sigmas(pts, origin, frame.sigma_range[ground], device.rig(camera).focal)
-        self.bounds.fuse(pts, sigma, origin, device.config.max_range, sigma_xy)
+        self.bounds.fuse(pts, sigma, origin, device.config.max_range, sigma_xy, sensor="stereo")
 
     def on_body(self, pts: np.ndarray) -> np.ndarray:
         """Rover-frame points on the rover itself (its box and wheels, a few centimetres grown):

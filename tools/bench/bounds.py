@@ -20,8 +20,8 @@ Looks: ``one`` (one frame, pan 0, tilt -35), ``sweep`` (pans -40 / 0 / +40), ``a
 sweep, then a frame every 0.1 m over 2 m of straight drive, as the see loop sees the ground it
 comes to), ``approach+hazcam`` (the same with the front hazard camera pair's frame at every step:
 the simulated ``drivers.hazcam`` device as declared, its pair rendered and matched by the
-server's stereo matcher, see :func:`hazcam`; fused as the see loop fuses them, as independent
-returns), ``approach+stereo`` (the approach with the mast's own stereo pair every 0.4 m, at the
+server's stereo matcher, see :func:`hazcam`; fused as the see loop fuses them, as a stereo
+frame), ``approach+stereo`` (the approach with the mast's own stereo pair every 0.4 m, at the
 PTU's lowest tilt where it sees the ground 0.9-2.5 m ahead: the simulated PIKE pair at ``high``,
 matched by the workflows' matcher with its declared noise over a search range that reaches the
 nearest ground, every matched pixel fused as a stereo frame, see :func:`mast_stereo` and
@@ -191,7 +191,7 @@ def hazcam(world: World, device: hazcam_device.Hazcam) -> Frame:
     pts = frame.points @ T[:3, :3].T + T[:3, 3]
     origin = T[:3, :3] @ frame.origin + T[:3, 3]
     sigma, sigma_xy = pair_sigmas(pts, origin, frame.sigma_range, device.rig("front").focal)
-    return pts, sigma, origin, sigma_xy, device.config.max_range, "tof"  # as the see loop fuses it
+    return pts, sigma, origin, sigma_xy, device.config.max_range, "stereo"  # as the see loop fuses it
 
 
 def mast_stereo(world: World, pair: stereo_device.StereoPair) -> Frame:
