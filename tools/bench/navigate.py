@@ -34,6 +34,15 @@ distance from the planned waypoint legs) it prints the margin table.
     python -m tools.bench.navigate --budget --scenes marsyard hirise
     python -m tools.bench.navigate --ceiling --footprint body --scenes hirise   # perfect maps, 35 s
     python -m tools.bench.navigate --oracle --missions 5 --scenes marsyard hirise dense --jobs 2
+    python -m tools.bench.navigate --missions 3 --scenes marsyard --modes see --jobs 1 --slip 0.05,2
+
+``--slip SHARE,DEG_PER_M`` runs every mission with the simulated rover's wheels slipping
+(``sim slip``: it covers 1 - SHARE of what its odometry counts and its heading drifts DEG_PER_M
+per metre to one side, seeded per mission) and no GNC pose: navigate -auto's pose is the
+rover's dead reckoning, so the loop steers, places its frames and judges its arrival by a
+pose that parts from the truth. The row then holds, beside ``true_miss`` (the true distance
+from the goal where the rover stopped: the simulator's pose, never the loop's), the loop's own
+``believed_miss`` and ``true_reached`` (the true distance within navigate's tolerance).
 """
 
 from __future__ import annotations
@@ -123,6 +132,40 @@ def scene_server(data: Path, scene: str, sets: tuple[str, ...] | list[str] = ())
     return srv
 
 
+def slip_lines(slip: tuple[float, float] | None, seed: int, mission: int) -> list[str]:
+    """The requests that make a mission's wheels slip (``sim slip``), seeded by the draw and the
+    mission so a rerun slips the same way; none without ``slip`` (share, deg per m)."""
+    if slip is None:
+        return []
+    return [f"sim slip -distance {slip[0]:g} -heading {slip[1]:g} -seed {seed * 1000 + mission}"]
+
+
+def parse_slip(text: str) -> tuple[float, float]:
+    """``--slip``'s SHARE,DEG_PER_M (0.05,2: 5 % short, 2 deg per metre): ValueError that says
+    what to give otherwise."""
+    parts = text.split(",")
+    try:
+        share, drift = (float(v) for v in parts)
+    except ValueError:
+        raise ValueError(f"--slip {text!r}: give SHARE,DEG_PER_M, e.g. 0.05,2 (5 % slip, 2 deg per metre)") from None
+    if not (0.0 <= share <= 0.9 and 0.0 <= drift <= 90.0):
+        raise ValueError(f"--slip {text!r}: the share is 0 to 0.9 and the drift 0 to 90 deg per metre (sim slip's "
+                         "ranges)")
+    return share, drift
+
+
+def arrival(world: World, believed: tuple[float, float], goal: tuple[float, float], tolerance: float
+            ) -> dict[str, Any]:
+    """Where a mission ended against its goal: the true distance (the simulator's pose), the
+    distance the loop believes (its pose: dead reckoning without a GNC) and whether the true
+    one is within navigate's ``tolerance``."""
+    truth = world.truth()
+    miss = math.hypot(truth["x"] - goal[0], truth["y"] - goal[1])
+    return {"true_miss": round(miss, 3),
+            "believed_miss": round(math.hypot(believed[0] - goal[0], believed[1] - goal[1]), 3),
+            "true_reached": bool(miss <= tolerance)}
+
+
 def run_mission(scene: str, mode: str, start: tuple[float, float], goal: tuple[float, float],
                 extra: list[str], sets: tuple[str, ...] = (), seed: int = 0,
                 oracle_cache: Path | None = None) -> dict[str, Any]:
@@ -139,12 +182,14 @@ def run_mission(scene: str, mode: str, start: tuple[float, float], goal: tuple[f
                             f"-auto -loop {mode} -footprint {FOOTPRINT[mode]} -name bench -max-legs 30")
             sim_s = world.clock.now() - t_sim0
             wall_s = time.monotonic() - t_wall0
-            truth = world.truth()
             dist = math.hypot(goal[0] - start[0], goal[1] - start[1])
             out: dict[str, Any] = {"scene": scene, "mode": mode, "start": start, "goal": goal,
                                    "distance": round(dist, 2), "status": r.status, "sim_s": round(sim_s, 1),
                                    "wall_s": round(wall_s, 1),
-                                   "true_miss": round(math.hypot(truth["x"] - goal[0], truth["y"] - goal[1]), 3)}
+                                   **arrival(world, (srv.app.pose.x, srv.app.pose.y), goal,
+                                             srv.app.config.get("navigate").tolerance)}
+            if world.slip.active:
+                out["slip"] = [world.slip.distance, world.slip.heading]
             out["reached"] = r.status == "OK" and r.fields.get("reached") == "true"
             out["efficiency"] = round(dist / (sim_s * TOP_SPEED), 3) if out["reached"] else 0.0
             for key in ("legs", "scans", "replans", "stops", "looks", "cycles", "cycle_ms", "cycle_ms_max", "cycle_ms_p95",
@@ -220,6 +265,10 @@ def summarise(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
             s = {"scene": scene, "mode": mode, "missions": len(sel), "feasible": len(feasible),
                  "window_feasible": sum(1 for r in sel if r.get("window_feasible")),
                  "reached": len(reached), "reached_of_feasible": sum(1 for r in feasible if r["reached"]),
+                 "true_reached": sum(1 for r in sel if r.get("true_reached")),
+                 "true_miss_median": round(float(np.median([r["true_miss"] for r in sel])), 3),
+                 "believed_miss_median": round(float(np.median([r.get("believed_miss", r["true_miss"])
+                                                                for r in sel])), 3),
                  "failed": sum(1 for r in sel if r["events"]), "events": len(events),
                  "failed_at_set_down": sum(1 for r in sel if r["events"] and all(
                      math.hypot(e["x"] - r["start"][0], e["y"] - r["start"][1]) <= SET_DOWN_REACH for e in r["events"])),
@@ -406,12 +455,12 @@ def margin_table(budget: list[dict[str, Any]], rows: list[dict[str, Any]], body:
     return lines
 
 
-def _run(job: tuple[str, str, tuple[float, float], tuple[float, float], tuple[str, ...], int, str, int, str]
-         ) -> dict[str, Any]:
+def _run(job: tuple[str, str, tuple[float, float], tuple[float, float], tuple[str, ...], int, str, int, str,
+               tuple[float, float] | None]) -> dict[str, Any]:
     """One mission (in a pool's process: the see loop's footprint comes along)."""
-    scene, mode, start, goal, sets, i, footprint, seed, cache = job
+    scene, mode, start, goal, sets, i, footprint, seed, cache, slip = job
     FOOTPRINT["see"] = footprint
-    row = run_mission(scene, mode, start, goal, [], sets, seed, Path(cache))
+    row = run_mission(scene, mode, start, goal, slip_lines(slip, seed, i), sets, seed, Path(cache))
     row["mission"] = i
     return row
 
@@ -450,6 +499,9 @@ def print_summary(summary: list[dict[str, Any]]) -> None:
         print(f"    failed with every event within {SET_DOWN_REACH} m of the start: "
               f"{s['failed_at_set_down']}/{s['failed']}; progress toward the goal median "
               f"{s['progress_median']} m, best {s['progress_best']} m")
+        print(f"    truly within the tolerance at the end: {s['true_reached']}/{s['missions']} (reached by its own "
+              f"pose: {s['reached']}); miss median true {s['true_miss_median']} m, believed "
+              f"{s['believed_miss_median']} m")
         if s["stop_reasons"]:
             print(f"    safe stops: {s['stop_reasons']}; perfect-knowledge efficiency over all feasible "
                   f"{s['perfect_efficiency_feasible']}; today's-threshold perfect plans with events: "
@@ -527,10 +579,18 @@ def main(argv: list[str] | None = None) -> None:
                          "mission, beside the window-step feasibility")
     ap.add_argument("--oracle-cache", default=str(default_cache_dir()),
                     help="where the oracle keeps its verdicts per mission, body and code (default: %(default)s)")
+    ap.add_argument("--slip", default="", metavar="SHARE,DEG_PER_M",
+                    help="every mission with the wheels slipping (sim slip, seeded per mission) and no GNC pose: "
+                         "0.05,2 is 5 %% slip and 2 deg of heading drift per metre; the rows add the loop's "
+                         "believed_miss and true_reached (the true distance within navigate's tolerance)")
     ap.add_argument("--derived", action="store_true",
                     help="run with the thresholds the error budget gives (vehicle.Margins): dem2hazard.step_max, "
                          "dem2hazard.slope_max and navigate.margin")
     args = ap.parse_args(argv)
+    try:
+        slip = parse_slip(args.slip) if args.slip else None
+    except ValueError as e:
+        ap.error(str(e))
     missing = [f for f in args.tracking_from if not Path(f).is_file()]
     if missing:
         ap.error(f"--tracking-from: no such file {missing[0]} (a run's --out JSON)")
@@ -575,7 +635,7 @@ def main(argv: list[str] | None = None) -> None:
         return
     # scenes and modes interleaved mission by mission: a run cut short still compares them
     todo = {scene: missions(scene, args.missions, args.seed) for scene in args.scenes}
-    jobs = [(scene, mode, *todo[scene][i], tuple(args.set), i, args.footprint, args.seed, args.oracle_cache)
+    jobs = [(scene, mode, *todo[scene][i], tuple(args.set), i, args.footprint, args.seed, args.oracle_cache, slip)
             for i in range(args.first, args.missions)
             for scene in args.scenes for mode in args.modes]
     rows = _rows(_run, jobs, args.jobs)
