@@ -137,10 +137,11 @@ def _find(cls: type) -> Any:
 class Sampler(threading.Thread):
     """Reads the running see loop every ``every`` wall seconds: its cycles and choices since the
     last read, the true distance driven, the memory; hands each stretch to ``done`` (its row)
-    once the rover has driven past it."""
+    once the rover has driven past it, and a progress line every ``beat`` metres driven (or 10
+    minutes of wall time): so a mission too slow to finish a stretch still shows where it got."""
 
     def __init__(self, world: Any, scene: str, stretch: float, every: float,
-                 done: Callable[[dict[str, Any]], None]) -> None:
+                 done: Callable[[dict[str, Any]], None], beat: float = 5.0) -> None:
         super().__init__(daemon=True, name="scale-sampler")
         self.world, self.scene, self.stretch, self.every, self.done = world, scene, stretch, every, done
         self.timings: list[tuple[float, str, float, float]] = []
@@ -154,6 +155,8 @@ class Sampler(threading.Thread):
         self._seen = (0, 0)
         self._rows = 0  # track rows counted into ``driven``
         self._judged = 0  # track rows judged (the stretches reported)
+        self.beat = beat
+        self._mark, self._beat_at, self._t0 = 0.0, time.monotonic(), time.monotonic()
 
     def run(self) -> None:
         from rvs_server.navigation.see import SeeingDriver
@@ -166,6 +169,8 @@ class Sampler(threading.Thread):
             self.sample()
             if int(self.driven // self.stretch) > len(self.rows):
                 self._close(len(self.rows))
+            if self.driven >= self._mark + self.beat or time.monotonic() >= self._beat_at + 600.0:
+                self._heartbeat()
 
     def sample(self) -> None:
         """One read: the distance driven since the last (along the true track navigate records),
@@ -184,6 +189,18 @@ class Sampler(threading.Thread):
                                                                           stats.replan_cpu_ms[r0:nr], strict=False)]
         self._seen = (nc, nr)
         self.memory.append((self.driven, resident_mb(), arrays_mb(self.driver.bounds, self.driver.map)))
+
+    def _heartbeat(self) -> None:
+        since = [(w, c) for at, kind, w, c in self.timings if kind == "choice" and at >= self._mark]
+        self.done({"progress_m": round(self.driven, 2), "wall_s": round(time.monotonic() - self._t0, 1),
+                   "sim_s": round(self.world.clock.now(), 1),
+                   "cycles": sum(1 for t in self.timings if t[1] == "cycle"),
+                   "choices": sum(1 for t in self.timings if t[1] == "choice"),
+                   "choice_ms_p95_since": _p95([w for w, _ in since]),
+                   "choice_cpu_ms_p95_since": _p95([c for _, c in since]),
+                   "rss_mb": round(self.memory[-1][1], 1) if self.memory else None,
+                   "maps_mb": round(self.memory[-1][2], 1) if self.memory else None})
+        self._mark, self._beat_at = self.driven, time.monotonic()
 
     def _judge_to_here(self) -> None:
         """Judge the track rows recorded since the last stretch (from the last judged row on)."""
@@ -214,7 +231,7 @@ class Sampler(threading.Thread):
 
 
 def run(scene: str, mission: int, seed: int, sets: list[str], stretch: float, every: float,
-        out: Path | None) -> dict[str, Any]:
+        out: Path | None, beat: float = 5.0) -> dict[str, Any]:
     """The mission, its stretches reported as they are driven past, and its row."""
     from tools.bench.navigate import scene_server
 
@@ -236,7 +253,7 @@ def run(scene: str, mission: int, seed: int, sets: list[str], stretch: float, ev
         try:
             world = srv.app.world
             heading = math.degrees(math.atan2(goal[1] - start[1], goal[0] - start[0]))
-            sampler = Sampler(world, scene, stretch, every, emit)
+            sampler = Sampler(world, scene, stretch, every, emit, beat)
             t_sim0, t_wall0 = world.clock.now(), time.monotonic()
             sampler.start()
             r = srv.request(f"navigate -start {start[0]},{start[1]},{heading:.1f} -goal {goal[0]},{goal[1]} "
@@ -282,14 +299,16 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--stretch", type=float, default=STRETCH, help="metres driven a row covers (%(default)s)")
     ap.add_argument("--every", type=float, default=EVERY, help="wall seconds between two samples (%(default)s)")
+    ap.add_argument("--beat", type=float, default=5.0,
+                    help="a progress line every this many metres driven (and every 10 min of wall time)")
     ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                     help="a server setting for the mission (e.g. navigate.see_margin=0)")
     ap.add_argument("--out", default="", help="append each stretch's row and the mission's as JSON lines here")
     args = ap.parse_args(argv)
-    if args.stretch <= 0 or args.every <= 0:
-        ap.error("--stretch and --every must be > 0")
+    if args.stretch <= 0 or args.every <= 0 or args.beat <= 0:
+        ap.error("--stretch, --every and --beat must be > 0")
     row = run(args.scene, args.mission, args.seed, args.set, args.stretch, args.every,
-              Path(args.out) if args.out else None)
+              Path(args.out) if args.out else None, args.beat)
     print_table(row["stretches"])
     print(f"\n{args.scene} mission {args.mission}: {row['status']}, reached {row['reached']}, driven {row['driven_m']} m, "
           f"true miss {row['true_miss']} m, events {row['events']}, sim {row['sim_s']} s, wall {row['wall_s']} s"
