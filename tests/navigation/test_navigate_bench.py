@@ -133,3 +133,19 @@ def test_the_arrival_is_judged_by_the_truth_beside_the_loops_belief() -> None:
     w.drive(0.1, 0.0, 50.0)
     assert arrival(w, w.odometry()[:2], (5.0, 0.0), 0.3) == {"true_miss": 0.0, "believed_miss": 0.0,
                                                               "true_reached": True}
+
+
+def test_a_localised_run_matches_on_the_scenes_true_dem_from_orbit(tmp_path: Path) -> None:
+    from prox_workflows.grid import read_geotiff
+    from tools.bench.navigate import localise_options
+
+    world = World.from_scene("marsyard")
+    assert localise_options(world, tmp_path, "none") == ""
+    opts = localise_options(world, tmp_path, "map")
+    assert opts == f"-localise map -global {tmp_path / 'orbit.tif'} -global-origin 500000.0,4000000.0"
+    dem, g = read_geotiff(tmp_path / "orbit.tif")
+    assert g.cell == 0.5 and (g.xmin, g.ymax) == (500000.0 - 6.0, 4000000.0 + 10.0)  # marsyard's terrain bounds
+    # the cell (4.0-4.5, 1.0-1.5) on the big rock at (4, 1), 0.4 m high: its true height at the centre
+    r, c = int(round((g.ymax - 4000001.5) / 0.5)), int(round((500004.0 - g.xmin) / 0.5))
+    top = world.true_dem(0.5, (4.0, 1.0, 4.5, 1.5), include_target=False)[0, 0]
+    assert top > 0.2 and dem[r, c] == pytest.approx(top, abs=1e-4)

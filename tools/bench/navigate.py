@@ -43,6 +43,9 @@ rover's dead reckoning, so the loop steers, places its frames and judges its arr
 pose that parts from the truth. The row then holds, beside ``true_miss`` (the true distance
 from the goal where the rover stopped: the simulator's pose, never the loop's), the loop's own
 ``believed_miss`` and ``true_reached`` (the true distance within navigate's tolerance).
+``--localise MODE`` gives navigate ``-localise MODE`` with the scene's true DEM at 0.5 m as its
+orbital map (``-global``, a UTM GeoTIFF, as ``tools.bench.localise`` gives it): the fixes that
+can bring the true pose back within the tolerance.
 """
 
 from __future__ import annotations
@@ -69,7 +72,7 @@ from rvs_server.client.session import ServerThread
 from rvs_server.protocol import Reply, parse_reply
 from rvs_truth.ceiling import perception_ceiling
 from rvs_truth.oracle import default_cache_dir, mission_oracle
-from rvs_truth.orbital import write_global_maps
+from rvs_truth.orbital import ORIGIN, orbital_geotiff, write_global_maps
 from rvs_truth.surface import AREA, CEILING_MAPS, missions, true_maps, truth_surface
 from rvs_truth.vehicle import (
     ROVER,
@@ -166,10 +169,21 @@ def arrival(world: World, believed: tuple[float, float], goal: tuple[float, floa
             "true_reached": bool(miss <= tolerance)}
 
 
+def localise_options(world: World, folder: Path, mode: str) -> str:
+    """navigate's options for ``-localise mode``: the world's true DEM at 0.5 m written into
+    ``folder`` as the orbital map it matches on (``-global``, placed by ``-global-origin``); ""
+    for none."""
+    if mode == "none":
+        return ""
+    orbit = orbital_geotiff(world, folder / "orbit.tif")
+    return f"-localise {mode} -global {orbit} -global-origin {ORIGIN[0]},{ORIGIN[1]}"
+
+
 def run_mission(scene: str, mode: str, start: tuple[float, float], goal: tuple[float, float],
                 extra: list[str], sets: tuple[str, ...] = (), seed: int = 0,
-                oracle_cache: Path | None = None) -> dict[str, Any]:
-    """One navigate -auto in a fresh server (:func:`scene_server`), judged by the vehicle check."""
+                oracle_cache: Path | None = None, localise: str = "none") -> dict[str, Any]:
+    """One navigate -auto in a fresh server (:func:`scene_server`), judged by the vehicle check;
+    with ``localise`` other than none, navigate matches on the scene's true DEM at 0.5 m."""
     with tempfile.TemporaryDirectory() as tmp:
         srv = scene_server(Path(tmp), scene, sets)
         try:
@@ -177,9 +191,10 @@ def run_mission(scene: str, mode: str, start: tuple[float, float], goal: tuple[f
             for line in extra:
                 srv.request(line)
             heading = math.degrees(math.atan2(goal[1] - start[1], goal[0] - start[0]))
+            fixes = localise_options(world, Path(tmp), localise)
             t_sim0, t_wall0 = world.clock.now(), time.monotonic()
             r = srv.request(f"navigate -start {start[0]},{start[1]},{heading:.1f} -goal {goal[0]},{goal[1]} "
-                            f"-auto -loop {mode} -footprint {FOOTPRINT[mode]} -name bench -max-legs 30")
+                            f"-auto -loop {mode} -footprint {FOOTPRINT[mode]} -name bench -max-legs 30 {fixes}".rstrip())
             sim_s = world.clock.now() - t_sim0
             wall_s = time.monotonic() - t_wall0
             dist = math.hypot(goal[0] - start[0], goal[1] - start[1])
@@ -190,6 +205,8 @@ def run_mission(scene: str, mode: str, start: tuple[float, float], goal: tuple[f
                                              srv.app.config.get("navigate").tolerance)}
             if world.slip.active:
                 out["slip"] = [world.slip.distance, world.slip.heading]
+            if localise != "none":
+                out["localise"] = localise
             out["reached"] = r.status == "OK" and r.fields.get("reached") == "true"
             out["efficiency"] = round(dist / (sim_s * TOP_SPEED), 3) if out["reached"] else 0.0
             for key in ("legs", "scans", "replans", "stops", "looks", "cycles", "cycle_ms", "cycle_ms_max", "cycle_ms_p95",
@@ -456,11 +473,11 @@ def margin_table(budget: list[dict[str, Any]], rows: list[dict[str, Any]], body:
 
 
 def _run(job: tuple[str, str, tuple[float, float], tuple[float, float], tuple[str, ...], int, str, int, str,
-               tuple[float, float] | None]) -> dict[str, Any]:
+               tuple[float, float] | None, str]) -> dict[str, Any]:
     """One mission (in a pool's process: the see loop's footprint comes along)."""
-    scene, mode, start, goal, sets, i, footprint, seed, cache, slip = job
+    scene, mode, start, goal, sets, i, footprint, seed, cache, slip, localise = job
     FOOTPRINT["see"] = footprint
-    row = run_mission(scene, mode, start, goal, slip_lines(slip, seed, i), sets, seed, Path(cache))
+    row = run_mission(scene, mode, start, goal, slip_lines(slip, seed, i), sets, seed, Path(cache), localise)
     row["mission"] = i
     return row
 
@@ -583,6 +600,9 @@ def main(argv: list[str] | None = None) -> None:
                     help="every mission with the wheels slipping (sim slip, seeded per mission) and no GNC pose: "
                          "0.05,2 is 5 %% slip and 2 deg of heading drift per metre; the rows add the loop's "
                          "believed_miss and true_reached (the true distance within navigate's tolerance)")
+    ap.add_argument("--localise", default="none", choices=["none", "vo", "map", "both"],
+                    help="navigate -localise for every mission, the scene's true DEM at 0.5 m as its orbital map "
+                         "(-global): with --slip, what brings the true pose back")
     ap.add_argument("--derived", action="store_true",
                     help="run with the thresholds the error budget gives (vehicle.Margins): dem2hazard.step_max, "
                          "dem2hazard.slope_max and navigate.margin")
@@ -635,7 +655,8 @@ def main(argv: list[str] | None = None) -> None:
         return
     # scenes and modes interleaved mission by mission: a run cut short still compares them
     todo = {scene: missions(scene, args.missions, args.seed) for scene in args.scenes}
-    jobs = [(scene, mode, *todo[scene][i], tuple(args.set), i, args.footprint, args.seed, args.oracle_cache, slip)
+    jobs = [(scene, mode, *todo[scene][i], tuple(args.set), i, args.footprint, args.seed, args.oracle_cache, slip,
+             args.localise)
             for i in range(args.first, args.missions)
             for scene in args.scenes for mode in args.modes]
     rows = _rows(_run, jobs, args.jobs)
