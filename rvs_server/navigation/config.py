@@ -83,9 +83,12 @@ class SeeConfig(Settings):
                           "attitude takes it within 1 cm of the plane the rover's IMU gives (drivers.rover attitude: "
                           "the simulator's, the GNC's pose -roll -pitch) and the ground under the wheels no higher "
                           "than that plane, down to 2.5 cm below it (a rigid body rests on three wheels), where the "
-                          "rover stands throughout the drive; without an attitude, level; ring (with the chooser) "
-                          "takes the blind disc and the wheels' ground on the plane fitted to the seen ground just "
-                          "outside the disc after the first look round", choices=("level", "attitude", "ring"),
+                          "rover stands throughout the drive; without an attitude, level; ring (with the chooser), after "
+                          "the first look round, takes the wheels' ground from the pose and the IMU's attitude, the "
+                          "disc the body turns in within 1 cm of that plane, and the rest of the blind disc on the "
+                          "plane fitted to the seen ground just outside it, carried continuously into the ground known "
+                          "beside it, within that ground's own spread about the plane, less near known ground (at least "
+                          "1 cm; prox_workflows.algorithms.set_down)", choices=("level", "attitude", "ring"),
                           option=False)
     gaze: str = param("path", "see loop with the gate: where the ToF looks while driving: path pans along the path "
                       "(the ground a turn will put under the wheels), three frames in turn at the path just ahead at the "

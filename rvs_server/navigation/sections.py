@@ -88,8 +88,7 @@ def choose_from(bounds: BoundsMap, pose: tuple[float, float, float], goal: tuple
     """The chooser's answer from ``pose`` toward ``goal`` on the bounds map as it is now, and the
     cost to go from ``pose``: the cost to go over the whole map's coarse grid, the candidates
     ranked and checked on the window they reach."""
-    lower, upper, g = bounds.window(*_whole(bounds))
-    ctg = cost_to_go(*coarse_costs((lower, upper), g, body), goal)
+    ctg = cost_to_go(*coarse_costs(bounds.whole(), bounds.geometry, body), goal)
     r = params.section + params.beyond + reach(body) + 0.1
     box = (pose[0] - r, pose[1] - r, pose[0] + r, pose[1] + r)
     stats, wg = bounds.statistics(*box)
@@ -104,11 +103,6 @@ def choose_from(bounds: BoundsMap, pose: tuple[float, float, float], goal: tuple
         check = bounds_check((stats["lower"], stats["upper"]), wg, body)
     choice = choose(pose, (stats["lower"], stats["upper"]), wg, body, ctg, check, params, lookahead)
     return choice, float(ctg.at(np.array([pose[0]]), np.array([pose[1]]))[0])
-
-
-def _whole(bounds: BoundsMap) -> tuple[float, float, float, float]:
-    g = bounds.geometry
-    return g.xmin, g.ymax - g.height * g.cell, g.xmin + g.width * g.cell, g.ymax
 
 
 def reasons(choice: Choice) -> str:

@@ -87,7 +87,17 @@ from rvs_truth.vehicle import (
     vehicle_check,
 )
 
-TOP_SPEED = 0.1  # m/s: the scenes' rover speed
+
+def drive_time(poses: np.ndarray, speed: float, turn_rate: float) -> float:
+    """The least time (s) the rover takes along ``poses`` (x, y, heading in deg) as the simulated
+    rover drives: each step at ``speed``, or slower where its heading change needs it at
+    ``turn_rate`` (deg/s: an arc no faster than the turn rate drives its curvature, a turn on the
+    spot at the turn rate). A path's own time, without looks or stops: the oracle's path timed so
+    that its efficiency and a mission's are the same measure."""
+    p = np.asarray(poses, float).reshape(-1, 3)
+    ds = np.hypot(np.diff(p[:, 0]), np.diff(p[:, 1]))
+    dh = np.abs((np.diff(p[:, 2]) + 180.0) % 360.0 - 180.0)
+    return float(np.maximum(ds / speed, dh / turn_rate).sum())
 ORBITAL = {"hirise", "dense"}  # scenes built on an orbital DTM (rvs_truth.orbital writes it)
 # m: where the see loop is set down it takes the ground round the mast's foot that no tilt shows
 # (0.72 m) as clear; a body at its edge reaches a little further. Events only there come from that
@@ -208,7 +218,8 @@ def run_mission(scene: str, mode: str, start: tuple[float, float], goal: tuple[f
             if localise != "none":
                 out["localise"] = localise
             out["reached"] = r.status == "OK" and r.fields.get("reached") == "true"
-            out["efficiency"] = round(dist / (sim_s * TOP_SPEED), 3) if out["reached"] else 0.0
+            speed, turn_rate = world.drive_model.speed, world.drive_model.turn_rate
+            out["efficiency"] = round(dist / (sim_s * speed), 3) if out["reached"] else 0.0
             for key in ("legs", "scans", "replans", "stops", "looks", "cycles", "cycle_ms", "cycle_ms_max", "cycle_ms_p95",
                         "cycle_cpu_ms_p95", "frame_ms", "replan_ms", "replan_ms_p95", "replan_cpu_ms_p95", "searches",
                         "repairs"):
@@ -227,6 +238,8 @@ def run_mission(scene: str, mode: str, start: tuple[float, float], goal: tuple[f
             out["events"] = [{"kind": e.kind, "excess": e.excess, "band": e.band, "x": round(e.x, 2), "y": round(e.y, 2),
                               "heading": round(e.heading, 1)} for e in events]
             out["poses_checked"] = checked
+            driven = float(np.hypot(*np.diff(poses[:, :2], axis=0).T).sum())
+            out["path_efficiency"] = round(dist / driven, 3) if out["reached"] and driven > 0 else 0.0
             if not out["reached"] and not events:
                 out["safe_stop"] = stop_reason(out.get("message", "stopped"))
             wfile = nav / "bench_waypoints.csv"
@@ -245,6 +258,8 @@ def run_mission(scene: str, mode: str, start: tuple[float, float], goal: tuple[f
             found = mission_oracle(scene, seed, start, goal, body, oracle_cache)
             out["feasible"], out["perfect_efficiency"] = found["feasible"], found["efficiency"]
             out["oracle_reason"] = found["reason"]
+            out["oracle_time_efficiency"] = (round(dist / (speed * drive_time(np.array(found["path"]), speed, turn_rate)), 3)
+                                             if found["feasible"] else 0.0)
             feas = feasibility(surface, body, start, goal, FOOTPRINT[mode])
             out["window_feasible"], out["window_efficiency"] = feas["feasible"], feas["efficiency"]
             out["window_step_max"] = feas["step_max"]
@@ -258,6 +273,12 @@ def run_mission(scene: str, mode: str, start: tuple[float, float], goal: tuple[f
 
 def _pct(values: list[float], q: float) -> float | None:
     return round(float(np.percentile(values, q)), 3) if values else None
+
+
+def _mean(values: list[float | None]) -> float | None:
+    """The mean of the values a row has (rows from before a field was measured lack it)."""
+    known = [v for v in values if v is not None]
+    return round(float(np.mean(known)), 3) if known else None
 
 
 def summarise(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
@@ -299,6 +320,8 @@ def summarise(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
                  "efficiency_reached": round(float(np.mean([r["efficiency"] for r in ok])), 3) if ok else None,
                  "perfect_efficiency_same": round(float(np.mean([r["perfect_efficiency"] for r in ok])), 3) if ok
                  else None,
+                 "path_efficiency_reached": _mean([r.get("path_efficiency") for r in ok]),
+                 "oracle_time_efficiency_same": _mean([r.get("oracle_time_efficiency") for r in ok]),
                  "perfect_efficiency_feasible": round(float(np.mean([r["perfect_efficiency"] for r in feasible])), 3)
                  if feasible else None,
                  "crossing_missions": sum(1 for r in sel if r["crossed_cells"] > 0),
@@ -515,7 +538,9 @@ def print_summary(summary: list[dict[str, Any]]) -> None:
               + (f"{s['cycle_ms_mean']}/{s['cycle_ms_max']}" if s["mode"] == "see" else ""), flush=True)
         print(f"    failed with every event within {SET_DOWN_REACH} m of the start: "
               f"{s['failed_at_set_down']}/{s['failed']}; progress toward the goal median "
-              f"{s['progress_median']} m, best {s['progress_best']} m")
+              f"{s['progress_median']} m, best {s['progress_best']} m; reached by path length "
+              f"{s['path_efficiency_reached']} (the oracle's above), by time {s['efficiency_reached']} against the "
+              f"oracle's path timed {s['oracle_time_efficiency_same']}")
         print(f"    truly within the tolerance at the end: {s['true_reached']}/{s['missions']} (reached by its own "
               f"pose: {s['reached']}); miss median true {s['true_miss_median']} m, believed "
               f"{s['believed_miss_median']} m")
