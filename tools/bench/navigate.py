@@ -34,6 +34,18 @@ distance from the planned waypoint legs) it prints the margin table.
     python -m tools.bench.navigate --budget --scenes marsyard hirise
     python -m tools.bench.navigate --ceiling --footprint body --scenes hirise   # perfect maps, 35 s
     python -m tools.bench.navigate --oracle --missions 5 --scenes marsyard hirise dense --jobs 2
+    python -m tools.bench.navigate --missions 3 --scenes marsyard --modes see --jobs 1 --slip 0.05,2
+
+``--slip SHARE,DEG_PER_M`` runs every mission with the simulated rover's wheels slipping
+(``sim slip``: it covers 1 - SHARE of what its odometry counts and its heading drifts DEG_PER_M
+per metre to one side, seeded per mission) and no GNC pose: navigate -auto's pose is the
+rover's dead reckoning, so the loop steers, places its frames and judges its arrival by a
+pose that parts from the truth. The row then holds, beside ``true_miss`` (the true distance
+from the goal where the rover stopped: the simulator's pose, never the loop's), the loop's own
+``believed_miss`` and ``true_reached`` (the true distance within navigate's tolerance).
+``--localise MODE`` gives navigate ``-localise MODE`` with the scene's true DEM at 0.5 m as its
+orbital map (``-global``, a UTM GeoTIFF, as ``tools.bench.localise`` gives it): the fixes that
+can bring the true pose back within the tolerance.
 """
 
 from __future__ import annotations
@@ -60,7 +72,7 @@ from rvs_server.client.session import ServerThread
 from rvs_server.protocol import Reply, parse_reply
 from rvs_truth.ceiling import perception_ceiling
 from rvs_truth.oracle import default_cache_dir, mission_oracle
-from rvs_truth.orbital import write_global_maps
+from rvs_truth.orbital import ORIGIN, orbital_geotiff, write_global_maps
 from rvs_truth.surface import AREA, CEILING_MAPS, missions, true_maps, truth_surface
 from rvs_truth.vehicle import (
     ROVER,
@@ -133,10 +145,55 @@ def scene_server(data: Path, scene: str, sets: tuple[str, ...] | list[str] = ())
     return srv
 
 
+def slip_lines(slip: tuple[float, float] | None, seed: int, mission: int) -> list[str]:
+    """The requests that make a mission's wheels slip (``sim slip``), seeded by the draw and the
+    mission so a rerun slips the same way; none without ``slip`` (share, deg per m)."""
+    if slip is None:
+        return []
+    return [f"sim slip -distance {slip[0]:g} -heading {slip[1]:g} -seed {seed * 1000 + mission}"]
+
+
+def parse_slip(text: str) -> tuple[float, float]:
+    """``--slip``'s SHARE,DEG_PER_M (0.05,2: 5 % short, 2 deg per metre): ValueError that says
+    what to give otherwise."""
+    parts = text.split(",")
+    try:
+        share, drift = (float(v) for v in parts)
+    except ValueError:
+        raise ValueError(f"--slip {text!r}: give SHARE,DEG_PER_M, e.g. 0.05,2 (5 % slip, 2 deg per metre)") from None
+    if not (0.0 <= share <= 0.9 and 0.0 <= drift <= 90.0):
+        raise ValueError(f"--slip {text!r}: the share is 0 to 0.9 and the drift 0 to 90 deg per metre (sim slip's "
+                         "ranges)")
+    return share, drift
+
+
+def arrival(world: World, believed: tuple[float, float], goal: tuple[float, float], tolerance: float
+            ) -> dict[str, Any]:
+    """Where a mission ended against its goal: the true distance (the simulator's pose), the
+    distance the loop believes (its pose: dead reckoning without a GNC) and whether the true
+    one is within navigate's ``tolerance``."""
+    truth = world.truth()
+    miss = math.hypot(truth["x"] - goal[0], truth["y"] - goal[1])
+    return {"true_miss": round(miss, 3),
+            "believed_miss": round(math.hypot(believed[0] - goal[0], believed[1] - goal[1]), 3),
+            "true_reached": bool(miss <= tolerance)}
+
+
+def localise_options(world: World, folder: Path, mode: str) -> str:
+    """navigate's options for ``-localise mode``: the world's true DEM at 0.5 m written into
+    ``folder`` as the orbital map it matches on (``-global``, placed by ``-global-origin``); ""
+    for none."""
+    if mode == "none":
+        return ""
+    orbit = orbital_geotiff(world, folder / "orbit.tif")
+    return f"-localise {mode} -global {orbit} -global-origin {ORIGIN[0]},{ORIGIN[1]}"
+
+
 def run_mission(scene: str, mode: str, start: tuple[float, float], goal: tuple[float, float],
                 extra: list[str], sets: tuple[str, ...] = (), seed: int = 0,
-                oracle_cache: Path | None = None) -> dict[str, Any]:
-    """One navigate -auto in a fresh server (:func:`scene_server`), judged by the vehicle check."""
+                oracle_cache: Path | None = None, localise: str = "none") -> dict[str, Any]:
+    """One navigate -auto in a fresh server (:func:`scene_server`), judged by the vehicle check;
+    with ``localise`` other than none, navigate matches on the scene's true DEM at 0.5 m."""
     with tempfile.TemporaryDirectory() as tmp:
         srv = scene_server(Path(tmp), scene, sets)
         try:
@@ -144,17 +201,22 @@ def run_mission(scene: str, mode: str, start: tuple[float, float], goal: tuple[f
             for line in extra:
                 srv.request(line)
             heading = math.degrees(math.atan2(goal[1] - start[1], goal[0] - start[0]))
+            fixes = localise_options(world, Path(tmp), localise)
             t_sim0, t_wall0 = world.clock.now(), time.monotonic()
             r = srv.request(f"navigate -start {start[0]},{start[1]},{heading:.1f} -goal {goal[0]},{goal[1]} "
-                            f"-auto -loop {mode} -footprint {FOOTPRINT[mode]} -name bench -max-legs 30")
+                            f"-auto -loop {mode} -footprint {FOOTPRINT[mode]} -name bench -max-legs 30 {fixes}".rstrip())
             sim_s = world.clock.now() - t_sim0
             wall_s = time.monotonic() - t_wall0
-            truth = world.truth()
             dist = math.hypot(goal[0] - start[0], goal[1] - start[1])
             out: dict[str, Any] = {"scene": scene, "mode": mode, "start": start, "goal": goal,
                                    "distance": round(dist, 2), "status": r.status, "sim_s": round(sim_s, 1),
                                    "wall_s": round(wall_s, 1),
-                                   "true_miss": round(math.hypot(truth["x"] - goal[0], truth["y"] - goal[1]), 3)}
+                                   **arrival(world, (srv.app.pose.x, srv.app.pose.y), goal,
+                                             srv.app.config.get("navigate").tolerance)}
+            if world.slip.active:
+                out["slip"] = [world.slip.distance, world.slip.heading]
+            if localise != "none":
+                out["localise"] = localise
             out["reached"] = r.status == "OK" and r.fields.get("reached") == "true"
             speed, turn_rate = world.drive_model.speed, world.drive_model.turn_rate
             out["efficiency"] = round(dist / (sim_s * speed), 3) if out["reached"] else 0.0
@@ -241,6 +303,10 @@ def summarise(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
             s = {"scene": scene, "mode": mode, "missions": len(sel), "feasible": len(feasible),
                  "window_feasible": sum(1 for r in sel if r.get("window_feasible")),
                  "reached": len(reached), "reached_of_feasible": sum(1 for r in feasible if r["reached"]),
+                 "true_reached": sum(1 for r in sel if r.get("true_reached")),
+                 "true_miss_median": round(float(np.median([r["true_miss"] for r in sel])), 3),
+                 "believed_miss_median": round(float(np.median([r.get("believed_miss", r["true_miss"])
+                                                                for r in sel])), 3),
                  "failed": sum(1 for r in sel if r["events"]), "events": len(events),
                  "failed_at_set_down": sum(1 for r in sel if r["events"] and all(
                      math.hypot(e["x"] - r["start"][0], e["y"] - r["start"][1]) <= SET_DOWN_REACH for e in r["events"])),
@@ -429,12 +495,12 @@ def margin_table(budget: list[dict[str, Any]], rows: list[dict[str, Any]], body:
     return lines
 
 
-def _run(job: tuple[str, str, tuple[float, float], tuple[float, float], tuple[str, ...], int, str, int, str]
-         ) -> dict[str, Any]:
+def _run(job: tuple[str, str, tuple[float, float], tuple[float, float], tuple[str, ...], int, str, int, str,
+               tuple[float, float] | None, str]) -> dict[str, Any]:
     """One mission (in a pool's process: the see loop's footprint comes along)."""
-    scene, mode, start, goal, sets, i, footprint, seed, cache = job
+    scene, mode, start, goal, sets, i, footprint, seed, cache, slip, localise = job
     FOOTPRINT["see"] = footprint
-    row = run_mission(scene, mode, start, goal, [], sets, seed, Path(cache))
+    row = run_mission(scene, mode, start, goal, slip_lines(slip, seed, i), sets, seed, Path(cache), localise)
     row["mission"] = i
     return row
 
@@ -475,6 +541,9 @@ def print_summary(summary: list[dict[str, Any]]) -> None:
               f"{s['progress_median']} m, best {s['progress_best']} m; reached by path length "
               f"{s['path_efficiency_reached']} (the oracle's above), by time {s['efficiency_reached']} against the "
               f"oracle's path timed {s['oracle_time_efficiency_same']}")
+        print(f"    truly within the tolerance at the end: {s['true_reached']}/{s['missions']} (reached by its own "
+              f"pose: {s['reached']}); miss median true {s['true_miss_median']} m, believed "
+              f"{s['believed_miss_median']} m")
         if s["stop_reasons"]:
             print(f"    safe stops: {s['stop_reasons']}; perfect-knowledge efficiency over all feasible "
                   f"{s['perfect_efficiency_feasible']}; today's-threshold perfect plans with events: "
@@ -552,10 +621,21 @@ def main(argv: list[str] | None = None) -> None:
                          "mission, beside the window-step feasibility")
     ap.add_argument("--oracle-cache", default=str(default_cache_dir()),
                     help="where the oracle keeps its verdicts per mission, body and code (default: %(default)s)")
+    ap.add_argument("--slip", default="", metavar="SHARE,DEG_PER_M",
+                    help="every mission with the wheels slipping (sim slip, seeded per mission) and no GNC pose: "
+                         "0.05,2 is 5 %% slip and 2 deg of heading drift per metre; the rows add the loop's "
+                         "believed_miss and true_reached (the true distance within navigate's tolerance)")
+    ap.add_argument("--localise", default="none", choices=["none", "vo", "map", "both"],
+                    help="navigate -localise for every mission, the scene's true DEM at 0.5 m as its orbital map "
+                         "(-global): with --slip, what brings the true pose back")
     ap.add_argument("--derived", action="store_true",
                     help="run with the thresholds the error budget gives (vehicle.Margins): dem2hazard.step_max, "
                          "dem2hazard.slope_max and navigate.margin")
     args = ap.parse_args(argv)
+    try:
+        slip = parse_slip(args.slip) if args.slip else None
+    except ValueError as e:
+        ap.error(str(e))
     missing = [f for f in args.tracking_from if not Path(f).is_file()]
     if missing:
         ap.error(f"--tracking-from: no such file {missing[0]} (a run's --out JSON)")
@@ -600,7 +680,8 @@ def main(argv: list[str] | None = None) -> None:
         return
     # scenes and modes interleaved mission by mission: a run cut short still compares them
     todo = {scene: missions(scene, args.missions, args.seed) for scene in args.scenes}
-    jobs = [(scene, mode, *todo[scene][i], tuple(args.set), i, args.footprint, args.seed, args.oracle_cache)
+    jobs = [(scene, mode, *todo[scene][i], tuple(args.set), i, args.footprint, args.seed, args.oracle_cache, slip,
+             args.localise)
             for i in range(args.first, args.missions)
             for scene in args.scenes for mode in args.modes]
     rows = _rows(_run, jobs, args.jobs)
