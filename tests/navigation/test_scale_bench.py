@@ -7,6 +7,7 @@ import math
 
 import numpy as np
 import pytest
+from support.marks import long_test
 
 import rvs_truth.surface as surface
 from drivers.sim.world import World
@@ -21,6 +22,7 @@ def _cover(world: World, bounds: tuple[float, float, float, float]) -> float:
     return sum(math.pi * r["a"] * r["b"] for r in rocks) / ((x1 - x0) * (y1 - y0))
 
 
+@long_test  # builds the 212 m scene twice: a minute and 1.4 GB
 def test_the_long_yard_has_the_yards_rock_cover_and_missions_200_m_apart() -> None:
     long = World.from_scene("marsyard_long")
     yard = World.from_scene("marsyard")
