@@ -114,6 +114,13 @@ class ChanceParams(Settings):
                                    "tools.bench.chance --rock-sigma)", min=0.0, max=1.0)
     edge_sigma: float = param(0.17, "a rock edge's further uncertainty (1 sigma), as a share of the same height "
                                     "(calibrated alike, on the 99.9th percentile)", min=0.0, max=2.0)
+    within: float = param(0.0, "a cell's top holds somewhere in the cell, not all over it: above 0, a drawn surface "
+                               "is judged as bounds, a wheel resting anywhere from the top down to this share of "
+                               "the cell's relief within it (its returns' rise over their mean and drop under "
+                               "it), and on nothing where only a ray bounds the ground; 0: one surface, the top "
+                               "and the ray's height read as the ground all over each cell, which lifts the "
+                               "wheels' resting plane over rock edges and unseen ground (measured, not the "
+                               "default: docs/NAVIGATE_BENCH.md, The stated risk)", min=0.0, max=1.0)
 
 
 @dataclass(frozen=True)
@@ -122,12 +129,16 @@ class Posterior:
     the variance of its error of its own (m^2), the sigma of its share of an error common to the
     cells under a body (m; the rock edge's and the rock top's: a rock read low is read low in each
     of its cells),
-    and the lowest ray that passed over it (m; inf: none). The top's variance is var + common^2."""
+    and the lowest ray that passed over it (m; inf: none). The top's variance is var + common^2.
+    ``span`` (None: one surface): a drawn surface is then a pair of bounds, the top and ``span``
+    under it (none where only a ray bounds the ground), judged as :func:`vehicle.check_poses`
+    judges bounds: the belly over the tops, each wheel resting anywhere its cells allow."""
 
     mean: np.ndarray
     var: np.ndarray
     ceiling: np.ndarray
     common: np.ndarray | float = 0.0
+    span: np.ndarray | None = None  # m: how far under its top the cell's ground may lie where a wheel rests
 
 
 @dataclass
@@ -199,8 +210,10 @@ def posterior(stats: dict[str, np.ndarray], geom: GridGeometry, k: float, params
     var = var0 + p.top_sigma**2 + (slope * along) ** 2
     mu = top + p.edge_bias * jump
     ceiling = np.asarray(stats.get("ceiling", np.full(mean.shape, np.inf)), np.float64)
+    within = np.asarray(stats["rise"], np.float64) + np.asarray(stats["drop"], np.float64)
     return Posterior(np.where(seen, mu, np.nan), np.where(seen, var, np.nan), ceiling,
-                     np.where(seen, np.hypot(p.edge_sigma * jump, p.rock_sigma * relief(top, geom)), 0.0))
+                     np.where(seen, np.hypot(p.edge_sigma * jump, p.rock_sigma * relief(top, geom)), 0.0),
+                     np.where(seen, p.within * within, 0.0) if p.within > 0 else None)
 
 
 def relief(top: np.ndarray, geom: GridGeometry) -> np.ndarray:
@@ -268,13 +281,14 @@ def chance_check(post: Posterior, geom: GridGeometry, poses: np.ndarray, body: V
     common = np.where(seen, post.common, 0.0)
     roof = np.where(np.isfinite(post.ceiling), post.ceiling, np.nan)
     best = np.where(seen, mu, roof)
+    span = None if post.span is None else np.where(seen, post.span, 0.0)
     ks = screen_k(body, step or geom.cell, p.epsilon)
-    lower = np.where(seen, mu - ks * (sd + common), np.nan).astype(np.float32)
+    lower = np.where(seen, mu - ks * (sd + common) - (0.0 if span is None else span), np.nan).astype(np.float32)
     upper = np.where(seen, mu + ks * (sd + common), roof).astype(np.float32)
     wide = check_poses((lower, upper), geom, poses, body, step)
     unknown = wide.unknown.copy()
     screened = wide.safe
-    nominal = check_poses(best.astype(np.float32), geom, poses, body, step)
+    nominal = check_poses(_ground(best, seen, span), geom, poses, body, step)
     prob = np.where(unknown[:, None], np.nan, np.zeros((n, 4)))
     p_any = np.where(unknown, np.nan, 0.0)
     todo = ~unknown & ~screened
@@ -298,8 +312,8 @@ def chance_check(post: Posterior, geom: GridGeometry, poses: np.ndarray, body: V
             if not live.any():
                 continue
             z, shared = _draw(p.seed, s, geom)
-            surface = np.where(seen, mu + sd * z + common * shared, roof).astype(np.float32)
-            excess[s, live] = check_poses(surface, geom, poses[rest[live]], body, step).excess
+            surface = np.where(seen, mu + sd * z + common * shared, roof)
+            excess[s, live] = check_poses(_ground(surface, seen, span), geom, poses[rest[live]], body, step).excess
             if early and s % EARLY == EARLY - 1:
                 # one draw over a limit in ``samples`` is a share of at least 1 / samples, above
                 # epsilon: that pose is refused whatever the later draws say
@@ -326,6 +340,20 @@ def chance_check(post: Posterior, geom: GridGeometry, poses: np.ndarray, body: V
         prob[cut], p_any[cut], unknown[cut] = np.nan, np.nan, True
     return ChanceChecks(prob=prob, p_any=p_any, unknown=unknown, screened=screened, nominal=nominal,
                         epsilon=p.epsilon)
+
+
+def _ground(top: np.ndarray, seen: np.ndarray, span: np.ndarray | None
+            ) -> np.ndarray | tuple[np.ndarray, np.ndarray]:
+    """What :func:`vehicle.check_poses` judges for a surface of cell tops (the ray's height where
+    ``seen`` is False): the tops alone, or with ``span`` the pair (tops less span, tops), the low
+    NaN where only a ray bounds the ground. A cell's top is its highest ground: read as the ground
+    all over the cell, a wheel whose footprint's end meets a rock's edge cell, or a ray's height
+    over ground no return met, rests on it and lifts the resting plane over a belly whose ground
+    is read at its top (the misses traced in docs/NAVIGATE_BENCH.md, The stated risk)."""
+    high = top.astype(np.float32)
+    if span is None:
+        return high
+    return np.where(seen, top - span, np.nan).astype(np.float32), high
 
 
 def _draw(seed: int, s: int, geom: GridGeometry) -> tuple[np.ndarray, float]:
