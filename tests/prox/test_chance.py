@@ -332,3 +332,19 @@ def test_a_wheel_meeting_a_rock_edge_cell_may_rest_below_its_top() -> None:
     assert post.span[edge] == pytest.approx(0.15) and post.span[~edge].max() == 0.0
     c = chance_check(post, g, AT_ORIGIN, BODY)
     assert c.safe.tolist() == [False] and c.prob[0, LIMITS.index("belly")] == pytest.approx(1.0)
+
+
+def test_the_miss_trace_stands_the_body_as_the_vehicle_check_does() -> None:
+    # tools.bench.chance_trace: a rock under the box and one wheel on a 3 cm slab; the trace's
+    # contacts, resting plane and belly point give the check's own intrusion
+    from tools.bench.chance_trace import stand
+
+    g, X, Y = grid()
+    h = np.zeros(g.shape)
+    h[(np.abs(X) < 0.05) & (np.abs(Y) < 0.05)] = 0.07
+    h[(X > 0.05) & (Y < -0.2)] = 0.03  # under the front-right wheel
+    body = stand(h.astype(np.float32), g, np.array([0.0, 0.0, 0.0]), BODY, CELL)
+    check = check_poses(h.astype(np.float32), g, AT_ORIGIN, BODY)
+    assert body["intrusion"] == pytest.approx(check.intrusion[0], abs=1e-6)
+    assert [round(c[0], 3) for c in body["contacts"]][1] == pytest.approx(0.03, abs=0.002)
+    assert np.hypot(*body["belly_xy"]) < 0.08
