@@ -288,7 +288,7 @@ def chance_check(post: Posterior, geom: GridGeometry, poses: np.ndarray, body: V
     wide = check_poses((lower, upper), geom, poses, body, step)
     unknown = wide.unknown.copy()
     screened = wide.safe
-    nominal = check_poses(_ground(best, seen, span), geom, poses, body, step)
+    nominal = _judge(best, seen, span, geom, poses, body, step)
     prob = np.where(unknown[:, None], np.nan, np.zeros((n, 4)))
     p_any = np.where(unknown, np.nan, 0.0)
     todo = ~unknown & ~screened
@@ -313,7 +313,7 @@ def chance_check(post: Posterior, geom: GridGeometry, poses: np.ndarray, body: V
                 continue
             z, shared = _draw(p.seed, s, geom)
             surface = np.where(seen, mu + sd * z + common * shared, roof)
-            excess[s, live] = check_poses(_ground(surface, seen, span), geom, poses[rest[live]], body, step).excess
+            excess[s, live] = _judge(surface, seen, span, geom, poses[rest[live]], body, step).excess
             if early and s % EARLY == EARLY - 1:
                 # one draw over a limit in ``samples`` is a share of at least 1 / samples, above
                 # epsilon: that pose is refused whatever the later draws say
@@ -342,18 +342,20 @@ def chance_check(post: Posterior, geom: GridGeometry, poses: np.ndarray, body: V
                         epsilon=p.epsilon)
 
 
-def _ground(top: np.ndarray, seen: np.ndarray, span: np.ndarray | None
-            ) -> np.ndarray | tuple[np.ndarray, np.ndarray]:
-    """What :func:`vehicle.check_poses` judges for a surface of cell tops (the ray's height where
-    ``seen`` is False): the tops alone, or with ``span`` the pair (tops less span, tops), the low
-    NaN where only a ray bounds the ground. A cell's top is its highest ground: read as the ground
-    all over the cell, a wheel whose footprint's end meets a rock's edge cell, or a ray's height
-    over ground no return met, rests on it and lifts the resting plane over a belly whose ground
-    is read at its top (the misses traced in docs/NAVIGATE_BENCH.md, The stated risk)."""
+def _judge(top: np.ndarray, seen: np.ndarray, span: np.ndarray | None, geom: GridGeometry, poses: np.ndarray,
+           body: VehicleBody, step: float | None) -> PoseChecks:
+    """:func:`vehicle.check_poses` on a surface of cell tops (the ray's height where ``seen`` is
+    False): the tops alone, or with ``span`` the pair (tops less span, tops), the low NaN where
+    only a ray bounds the ground, each read between the cell centres as one surface is. A cell's
+    top is its highest ground: read as the ground all over the cell, a wheel whose footprint's end
+    meets a rock's edge cell, or a ray's height over ground no return met, rests on it and lifts
+    the resting plane over a belly whose ground is read at its top (the misses traced in
+    docs/NAVIGATE_BENCH.md, The stated risk on untuned draws)."""
     high = top.astype(np.float32)
     if span is None:
-        return high
-    return np.where(seen, top - span, np.nan).astype(np.float32), high
+        return check_poses(high, geom, poses, body, step)
+    low = np.where(seen, top - span, np.nan).astype(np.float32)
+    return check_poses((low, high), geom, poses, body, step or geom.cell, cellwise=False)
 
 
 def _draw(seed: int, s: int, geom: GridGeometry) -> tuple[np.ndarray, float]:
