@@ -53,6 +53,15 @@ alone cannot show a probability below about 1 / samples; the tail reaches epsilo
 measured against the truth by the pose-level statistics). P(any) is the share of samples over
 any limit or the sum of the four tails (the union bound), whichever is higher.
 
+**Where a wheel rests** (``ChanceParams.within``, measured and not the default): a cell's top is
+its highest ground, the right ground for the belly and the wrong one for a wheel whose footprint's
+end meets a rock's edge cell, and a ray's height is no ground for a wheel at all. Read as one
+surface, both lift the wheels' resting plane over the belly's contact: the false safes on rock
+draws no setting was tuned on are that (the trace in docs/NAVIGATE_BENCH.md, "The stated risk on
+untuned draws"), not an overconfident sigma. Above 0, each drawn surface is judged as a pair
+(:func:`_judge`): the tops, and lows ``within`` times the cell's relief within it under them (none
+where only a ray bounds the ground), read between the cell centres as one surface is.
+
 Poses are first screened by the worst-case check on bounds :func:`screen_k` sigmas out (of both
 errors), which makes the chance that any cell under the body lies outside them at most
 ``SCREEN * epsilon`` (a union bound over the cells): a pose safe there is safe with P below that,
