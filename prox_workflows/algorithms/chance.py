@@ -63,6 +63,15 @@ alone cannot show a probability below about 1 / samples; the tail reaches epsilo
 measured against the truth by the pose-level statistics). P(any) is the share of samples over
 any limit or the sum of the four tails (the union bound), whichever is higher.
 
+**Where a wheel rests** (``ChanceParams.within``, measured and not the default): a cell's top is
+its highest ground, the right ground for the belly and the wrong one for a wheel whose footprint's
+end meets a rock's edge cell, and a ray's height is no ground for a wheel at all. Read as one
+surface, both lift the wheels' resting plane over the belly's contact: the false safes on rock
+draws no setting was tuned on are that (the trace in docs/NAVIGATE_BENCH.md, "The stated risk on
+untuned draws"), not an overconfident sigma. Above 0, each drawn surface is judged as a pair
+(:func:`_judge`): the tops, and lows ``within`` times the cell's relief within it under them (none
+where only a ray bounds the ground), read between the cell centres as one surface is.
+
 Poses are first screened by the worst-case check on bounds :func:`screen_k` sigmas out (of both
 errors), which makes the chance that any cell under the body lies outside them at most
 ``SCREEN * epsilon`` (a union bound over the cells): a pose safe there is safe with P below that,
@@ -137,6 +146,13 @@ class ChanceParams(Settings):
                              min=0.0, max=1.0)
     edge_sigma: float = param(0.17, "a rock edge's further uncertainty (1 sigma), as a share of the same height "
                                     "(calibrated alike, on the 99.9th percentile)", min=0.0, max=2.0)
+    within: float = param(0.0, "a cell's top holds somewhere in the cell, not all over it: above 0, a drawn surface "
+                               "is judged as bounds, a wheel resting anywhere from the top down to this share of "
+                               "the cell's relief within it (its returns' rise over their mean and drop under "
+                               "it), and on nothing where only a ray bounds the ground; 0: one surface, the top "
+                               "and the ray's height read as the ground all over each cell, which lifts the "
+                               "wheels' resting plane over rock edges and unseen ground (measured, not the "
+                               "default: docs/NAVIGATE_BENCH.md, The stated risk)", min=0.0, max=1.0)
 
 
 @dataclass(frozen=True)
@@ -147,19 +163,24 @@ class Posterior:
     rock read low is read low in each of its cells), the lowest ray that passed over it (m; inf:
     none), and the sigma of its share of an error it shares with its neighbours (m; a prior's:
     drawn as a field correlated over ``ChanceParams.shared_length``). The top's variance is
-    var + shared^2 + common^2."""
+    var + shared^2 + common^2. ``span`` (None: one surface): a drawn surface is then a pair of
+    bounds, the top and ``span`` under it (none where only a ray bounds the ground), judged as
+    :func:`vehicle.check_poses` judges bounds: the belly over the tops, each wheel resting anywhere
+    its cells allow."""
 
     mean: np.ndarray
     var: np.ndarray
     ceiling: np.ndarray
     common: np.ndarray | float = 0.0
     shared: np.ndarray | float = 0.0
+    span: np.ndarray | None = None  # m: how far under its top the cell's ground may lie where a wheel rests
 
     def window(self, sl: tuple[slice, slice]) -> Posterior:
         """The posterior over the rows and columns ``sl`` (a window of its grid)."""
         def cut(a: np.ndarray | float) -> np.ndarray | float:
             return a if np.ndim(a) == 0 else a[sl]
-        return Posterior(self.mean[sl], self.var[sl], self.ceiling[sl], cut(self.common), cut(self.shared))
+        return Posterior(self.mean[sl], self.var[sl], self.ceiling[sl], cut(self.common), cut(self.shared),
+                         None if self.span is None else self.span[sl])
 
 
 @dataclass
@@ -235,9 +256,11 @@ def posterior(stats: dict[str, np.ndarray], geom: GridGeometry, k: float, params
     var = np.where(prior, p.prior_own, 1.0) * var0 + p.top_sigma**2 + (slope * along) ** 2
     mu = top + p.edge_bias * jump
     ceiling = np.asarray(stats.get("ceiling", np.full(mean.shape, np.inf)), np.float64)
+    within = np.asarray(stats["rise"], np.float64) + np.asarray(stats["drop"], np.float64)
     return Posterior(np.where(seen, mu, np.nan), np.where(seen, var, np.nan), ceiling,
                      np.where(seen, np.hypot(p.edge_sigma * jump, p.rock_sigma * relief(top, geom)), 0.0),
-                     np.where(prior, np.sqrt(np.maximum((1.0 - p.prior_own) * var0, 0.0)), 0.0))
+                     np.where(prior, np.sqrt(np.maximum((1.0 - p.prior_own) * var0, 0.0)), 0.0),
+                     np.where(seen, p.within * within, 0.0) if p.within > 0 else None)
 
 
 
@@ -312,14 +335,15 @@ def chance_check(post: Posterior, geom: GridGeometry, poses: np.ndarray, body: V
     seen = np.isfinite(mu)
     sd, shared, common, roof = _spreads(post)
     best = np.where(seen, mu, roof)
+    span = None if post.span is None else np.where(seen, post.span, 0.0)
     ks = screen_k(body, step or geom.cell, p.epsilon)
     cell_sd = np.hypot(sd, shared) + common  # each cell's own and its neighbours' errors are one normal
-    lower = np.where(seen, mu - ks * cell_sd, np.nan).astype(np.float32)
+    lower = np.where(seen, mu - ks * cell_sd - (0.0 if span is None else span), np.nan).astype(np.float32)
     upper = np.where(seen, mu + ks * cell_sd, roof).astype(np.float32)
     wide = check_poses((lower, upper), geom, poses, body, step)
     unknown = wide.unknown.copy()
     screened = wide.safe
-    nominal = check_poses(best.astype(np.float32), geom, poses, body, step)
+    nominal = _judge(best, seen, span, geom, poses, body, step)
     prob = np.where(unknown[:, None], np.nan, np.zeros((n, 4)))
     p_any = np.where(unknown, np.nan, 0.0)
     todo = ~unknown & ~screened
@@ -343,7 +367,7 @@ def chance_check(post: Posterior, geom: GridGeometry, poses: np.ndarray, body: V
             if not live.any():
                 continue
             surface = _surface(mu, sd, shared, common, roof, _draw(p.seed, s, geom, p.shared_length))
-            excess[s, live] = check_poses(surface, geom, poses[rest[live]], body, step).excess
+            excess[s, live] = _judge(surface, seen, span, geom, poses[rest[live]], body, step).excess
             if early and s % EARLY == EARLY - 1:
                 # one draw over a limit in ``samples`` is a share of at least 1 / samples, above
                 # epsilon: that pose is refused whatever the later draws say
@@ -370,6 +394,22 @@ def chance_check(post: Posterior, geom: GridGeometry, poses: np.ndarray, body: V
         prob[cut], p_any[cut], unknown[cut] = np.nan, np.nan, True
     return ChanceChecks(prob=prob, p_any=p_any, unknown=unknown, screened=screened, nominal=nominal,
                         epsilon=p.epsilon)
+
+
+def _judge(top: np.ndarray, seen: np.ndarray, span: np.ndarray | None, geom: GridGeometry, poses: np.ndarray,
+           body: VehicleBody, step: float | None) -> PoseChecks:
+    """:func:`vehicle.check_poses` on a surface of cell tops (the ray's height where ``seen`` is
+    False): the tops alone, or with ``span`` the pair (tops less span, tops), the low NaN where
+    only a ray bounds the ground, each read between the cell centres as one surface is. A cell's
+    top is its highest ground: read as the ground all over the cell, a wheel whose footprint's end
+    meets a rock's edge cell, or a ray's height over ground no return met, rests on it and lifts
+    the resting plane over a belly whose ground is read at its top (the misses traced in
+    docs/NAVIGATE_BENCH.md, The stated risk on untuned draws)."""
+    high = top.astype(np.float32)
+    if span is None:
+        return check_poses(high, geom, poses, body, step)
+    low = np.where(seen, top - span, np.nan).astype(np.float32)
+    return check_poses((low, high), geom, poses, body, step or geom.cell, cellwise=False)
 
 
 def _spreads(post: Posterior) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:

@@ -390,3 +390,64 @@ def test_the_shared_field_is_correlated_by_1_over_e_at_its_length_as_the_bench_m
                                            ChanceParams(samples=8))]
     assert abs(np.mean([lag_correlation(f, ok, 1) for f in own])) < 0.02
 
+
+def wheel_edge_over_unseen_ground() -> tuple[Posterior, GridGeometry, np.ndarray, np.ndarray]:
+    """Flat ground known to 3 mm with a rock under the box 1 cm over the belly's clearance (the
+    truth: unsafe), and under both front wheels' footprint ends (x 0.20-0.25 m) no return, only a
+    ray 15 cm up: the ground's top there, the highest it may be."""
+    g, X, Y = grid()
+    h = np.zeros(g.shape)
+    h[(np.abs(X) < 0.05) & (np.abs(Y) < 0.05)] = BODY.clearance + 0.01
+    ceiling = np.full(h.shape, np.inf)
+    unseen = (X > 0.2) & (X < 0.25) & (np.abs(Y) > 0.2) & (np.abs(Y) < 0.3)
+    h[unseen], ceiling[unseen] = np.nan, 0.15
+    return Posterior(h, np.full(h.shape, 0.003**2), ceiling), g, X, Y
+
+
+def test_a_wheel_does_not_rest_on_a_ray_s_height_over_ground_no_return_met() -> None:
+    # one surface: the front wheels rest 4 cm up on the ray's height, the plane lifts the belly
+    # clear of the rock; judged as bounds, the wheels rest on the ground their returns show
+    post, g, _, _ = wheel_edge_over_unseen_ground()
+    lifted = chance_check(post, g, AT_ORIGIN, BODY)
+    assert lifted.safe.tolist() == [True] and lifted.nominal.excess[0, LIMITS.index("belly")] < -0.005
+    within = chance_check(Posterior(post.mean, post.var, post.ceiling, span=np.zeros(post.mean.shape)), g,
+                          AT_ORIGIN, BODY)
+    assert within.safe.tolist() == [False] and not within.unknown[0]
+    assert within.prob[0, LIMITS.index("belly")] == pytest.approx(1.0)
+    assert within.nominal.excess[0, LIMITS.index("belly")] == pytest.approx(0.01, abs=0.002)
+
+
+def test_a_wheel_meeting_a_rock_edge_cell_may_rest_below_its_top() -> None:
+    # the front wheels' footprint ends over cells whose returns rise 7.5 cm over their mean and drop
+    # 7.5 cm under it (a rock's edge in the cell): their top, read all over the cell, lifts the wheels
+    g, X, Y = grid()
+    top = np.zeros(g.shape)
+    top[(np.abs(X) < 0.05) & (np.abs(Y) < 0.05)] = BODY.clearance + 0.01
+    edge = (X > 0.2) & (X < 0.25) & (np.abs(Y) > 0.2) & (np.abs(Y) < 0.3)
+    top[edge] = 0.15
+    st = stats(top, 0.002, 0.0)
+    st["mean"][edge] -= 0.075
+    st["rise"][edge], st["drop"][edge] = 0.075, 0.075
+    bare = {"edge_bias": 0.0, "edge_sigma": 0.0, "rock_sigma": 0.0, "top_sigma": 0.002}
+    one = posterior(st, g, 2.5, ChanceParams(within=0.0, **bare))
+    assert one.span is None and chance_check(one, g, AT_ORIGIN, BODY).safe.tolist() == [True]
+    post = posterior(st, g, 2.5, ChanceParams(within=1.0, **bare))
+    assert post.span[edge] == pytest.approx(0.15) and post.span[~edge].max() == 0.0
+    c = chance_check(post, g, AT_ORIGIN, BODY)
+    assert c.safe.tolist() == [False] and c.prob[0, LIMITS.index("belly")] == pytest.approx(1.0)
+
+
+def test_the_miss_trace_stands_the_body_as_the_vehicle_check_does() -> None:
+    # tools.bench.chance_trace: a rock under the box and one wheel on a 3 cm slab; the trace's
+    # contacts, resting plane and belly point give the check's own intrusion
+    from tools.bench.chance_trace import stand
+
+    g, X, Y = grid()
+    h = np.zeros(g.shape)
+    h[(np.abs(X) < 0.05) & (np.abs(Y) < 0.05)] = 0.07
+    h[(X > 0.05) & (Y < -0.2)] = 0.03  # under the front-right wheel
+    body = stand(h.astype(np.float32), g, np.array([0.0, 0.0, 0.0]), BODY, CELL)
+    check = check_poses(h.astype(np.float32), g, AT_ORIGIN, BODY)
+    assert body["intrusion"] == pytest.approx(check.intrusion[0], abs=1e-6)
+    assert [round(c[0], 3) for c in body["contacts"]][1] == pytest.approx(0.03, abs=0.002)
+    assert np.hypot(*body["belly_xy"]) < 0.08

@@ -137,10 +137,12 @@ def set_down_at_start(world: World, bounds: BoundsMap, body: RoverBody) -> str:
 
 def evaluate(scene: str, look: str, cell: float, world_seed: int, seed: int, epsilons: list[float],
              samples: int, body: RoverBody, rock_sigma: float = ChanceParams().rock_sigma,
-             made: str = "look", start: bool = False, **model: float) -> dict[str, Any]:
+             made: str = "look", start: bool = False, models: list[ChanceParams] | None = None,
+             **model: float) -> dict[str, Any]:
     """The pose-level table (see the module's docstring); ``start``: the ring set-down at the
     rover's start and the poses round it (0.5 m behind it to 1.6 m ahead, 1.2 m either side: the
-    ground a rover leaving its start drives) instead of those 1.6-4.0 m ahead; ``model``: further
+    ground a rover leaving its start drives) instead of those 1.6-4.0 m ahead; ``models``: whole
+    parameter sets, each judging the same map and poses (else one per epsilon); ``model``: further
     :class:`ChanceParams` for the chance check (e.g. ``prior_own=1.0``: a prior drawn cell by cell)."""
     world, bounds, viewpoint = fused(scene, look, cell, world_seed, seed)
     said = set_down_at_start(world, bounds, body) if start else ""
@@ -162,8 +164,9 @@ def evaluate(scene: str, look: str, cell: float, world_seed: int, seed: int, eps
     t_worst = time.perf_counter() - t0
     rows = [{"check": f"worst case (k {bounds.params.k:g})", "safe": worst.safe, "unknown": worst.unknown,
              "ms": 1000 * t_worst}]
-    for eps in epsilons:
-        params = ChanceParams(epsilon=eps, samples=samples, rock_sigma=rock_sigma, **model)
+    for params in models or [ChanceParams(epsilon=eps, samples=samples, rock_sigma=rock_sigma, **model)
+                             for eps in epsilons]:
+        eps = params.epsilon
         t0 = time.perf_counter()
         post = posterior(stats, g, bounds.params.k, params, viewpoint)
         c = chance_check(post, g, poses, body, params)
@@ -245,23 +248,26 @@ def _miss(pose: np.ndarray, truth: np.ndarray, nominal: np.ndarray, p_any: float
             "p_any": p_any}
 
 
-def _risk_row(job: tuple[str, str, float, int, int]) -> dict[str, Any]:
-    """One look's counts at the declared epsilon (in a pool's process)."""
-    scene, look, cell, world_seed, samples = job
-    params = ChanceParams()
-    out = evaluate(scene, look, cell, world_seed, world_seed, [params.epsilon], samples, RoverBody(),
-                   params.rock_sigma, "map")
-    row = out["rows"][-1]
-    return {"scene": scene, "look": look, "world_seed": world_seed, "judged": row["judged"],
-            "false_safe": row["false_safe"], "kept": round(row["kept"], 4), "of": row["of"],
-            "truly_unsafe": out["truly_unsafe"], "misses": row["misses"]}
+def _risk_row(job: tuple[str, str, float, int, int, dict[str, float]]) -> dict[str, Any]:
+    """One look's counts with the declared parameters, and with them changed by ``against`` where
+    it is given (the ``against`` key: the same map, poses and draws), in a pool's process."""
+    scene, look, cell, world_seed, samples, against = job
+    models = [ChanceParams(samples=samples)]
+    if against:
+        models.append(dataclasses.replace(models[0], **against))
+    out = evaluate(scene, look, cell, world_seed, world_seed, [], samples, RoverBody(), made="map", models=models)
+    rows = [{"judged": row["judged"], "false_safe": row["false_safe"], "kept": round(row["kept"], 4),
+             "of": row["of"], "misses": row["misses"]} for row in out["rows"][1:]]
+    head = {"scene": scene, "look": look, "world_seed": world_seed, "truly_unsafe": out["truly_unsafe"]}
+    return {**head, **rows[0], **({"against": rows[1]} if against else {})}
 
 
 def risk(scenes: list[str], looks: list[str], world_seeds: list[int], cell: float, samples: int,
-         jobs: int) -> list[dict[str, Any]]:
+         jobs: int, against: dict[str, float] | None = None) -> list[dict[str, Any]]:
     """Per scene, the looks' counts summed: the false-safe rate per judged pose and its bound.
     Each look's row is printed as it comes, so a run cut short keeps what it measured."""
-    todo = [(scene, look, cell, ws, samples) for ws in world_seeds for scene in scenes for look in looks]
+    todo = [(scene, look, cell, ws, samples, against or {}) for ws in world_seeds for scene in scenes
+            for look in looks]
     rows: list[dict[str, Any]] = []
     if jobs > 1:
         import multiprocessing
@@ -353,6 +359,9 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--correlation", action="store_true",
                     help="the spatial correlation of the map means' errors and of the blind disc's ground off its "
                          "plane, on the truth")
+    ap.add_argument("--against", nargs="+", default=[], metavar="NAME=VALUE",
+                    help="with --risk: also judge each look with these ChanceParams changed (e.g. a term "
+                         "at 0: the model without it), on the same map and draws, and tabulate both")
     ap.add_argument("--time", action="store_true", help="time 1,000 poses on a synthetic 5 cm window instead")
     args = ap.parse_args(argv)
     if args.time:
@@ -360,9 +369,13 @@ def main(argv: list[str] | None = None) -> None:
             print(f"{name}: {seconds:.2f} s per 1,000 poses ({args.samples} samples)")
         return
     if args.risk:
-        rows = risk(args.scenes, [args.look], args.world_seeds, args.cell, args.samples, args.jobs)
+        against = {k: float(v) for k, v in (a.split("=", 1) for a in args.against)}
+        rows = risk(args.scenes, [args.look], args.world_seeds, args.cell, args.samples, args.jobs, against)
         print(f"\nthe chance check at epsilon {ChanceParams().epsilon:g}, the chooser's posterior, {args.look} looks")
         print("\n".join(risk_table(rows)))
+        if against:
+            print(f"\nthe same with {' '.join(args.against)}")
+            print("\n".join(risk_table([{**r, **r["against"]} for r in rows])))
         return
     head = f"{args.scene}, {args.look} ({args.posterior} posterior), cell {args.cell * 100:g} cm, rock draw {args.world_seed}, noise draw {args.seed}"
     if args.correlation:
