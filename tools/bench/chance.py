@@ -38,7 +38,6 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import json
 import math
 import time
 from collections import Counter
@@ -55,6 +54,7 @@ from prox_workflows.algorithms.vehicle import LIMITS, check_poses
 from prox_workflows.grid import GridGeometry
 from rvs_truth.stats import clopper_pearson_upper
 from tools.bench.bounds import LOOKS, TRUE_CELL, frames, pooled
+from tools.bench.rows import streamed
 from tools.bench.set_down import BLIND, EDGE, FOOT, WIDTH
 
 JUMP_BANDS = (0.0, 0.01, 0.02, 0.04, 0.08, 0.16, np.inf)  # m
@@ -268,19 +268,7 @@ def risk(scenes: list[str], looks: list[str], world_seeds: list[int], cell: floa
     Each look's row is printed as it comes, so a run cut short keeps what it measured."""
     todo = [(scene, look, cell, ws, samples, against or {}) for ws in world_seeds for scene in scenes
             for look in looks]
-    rows: list[dict[str, Any]] = []
-    if jobs > 1:
-        import multiprocessing
-
-        with multiprocessing.get_context("spawn").Pool(jobs) as pool:
-            for row in pool.imap_unordered(_risk_row, todo):
-                rows.append(row)
-                print(json.dumps(row), flush=True)
-    else:
-        for job in todo:
-            rows.append(_risk_row(job))
-            print(json.dumps(rows[-1]), flush=True)
-    return rows
+    return streamed(_risk_row, todo, jobs)
 
 
 def risk_table(rows: list[dict[str, Any]]) -> list[str]:

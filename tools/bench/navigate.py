@@ -86,6 +86,7 @@ from rvs_truth.vehicle import (
     stop_reason,
     vehicle_check,
 )
+from tools.bench.rows import streamed
 
 
 def drive_time(poses: np.ndarray, speed: float, turn_rate: float) -> float:
@@ -506,23 +507,6 @@ def _run(job: tuple[str, str, tuple[float, float], tuple[float, float], tuple[st
 
 
 
-def _rows(fn: Any, todo: list[Any], jobs: int) -> list[dict[str, Any]]:
-    """``fn`` of every item of ``todo``, in order, in ``jobs`` processes; each row printed as JSON
-    as it comes, so a run cut short keeps what it measured."""
-    rows: list[dict[str, Any]] = []
-    if jobs > 1:
-        import multiprocessing
-
-        with multiprocessing.get_context("spawn").Pool(jobs) as pool:
-            for row in pool.imap(fn, todo):
-                rows.append(row)
-                print(json.dumps(row), flush=True)
-    else:
-        for item in todo:
-            rows.append(fn(item))
-            print(json.dumps(rows[-1]), flush=True)
-    return rows
-
 def print_summary(summary: list[dict[str, Any]]) -> None:
     print("\nscene     mode missions feasible(window) reached(of feasible) failed events(worst excess)              safe stops "
           "efficiency(reached/perfect same) crossing(old, missions/cells) tracking_p99 scans sim_s wall_s cycle_ms")
@@ -571,7 +555,7 @@ def oracle_table(scenes: list[str], count: int, seed: int, jobs: int, cache: Pat
     the oracle efficiency of the feasible ones, the time per mission (computed, not read from the
     cache), beside the window-step feasibility (navigate's circle planner)."""
     todo = [(scene, seed, i, *m, str(cache)) for scene in scenes for i, m in enumerate(missions(scene, count, seed))]
-    rows = _rows(_oracle_job, todo, jobs)
+    rows = streamed(_oracle_job, todo, jobs)
     print("\nscene     missions feasible (no way / budget / refused)  oracle efficiency mean (per mission)   "
           "s/mission mean max  window-step feasible, efficiency")
     for scene in scenes:
@@ -684,7 +668,7 @@ def main(argv: list[str] | None = None) -> None:
              args.localise)
             for i in range(args.first, args.missions)
             for scene in args.scenes for mode in args.modes]
-    rows = _rows(_run, jobs, args.jobs)
+    rows = streamed(_run, jobs, args.jobs)
     summary = summarise(rows)
     print_summary(summary)
     rep = replan_vs_astar(args.replan_trials, args.seed) if args.replan_trials > 0 else {}
