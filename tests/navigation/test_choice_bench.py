@@ -9,12 +9,12 @@ import sys
 from pathlib import Path
 
 import numpy as np
-from support.tof_looks import tof_frame
 
 from drivers.sim.world import World
 from prox_workflows.algorithms.bounds_map import BoundsMap
 from prox_workflows.algorithms.candidates import CandidateParams
 from prox_workflows.algorithms.chance import ChanceParams
+from tools.bench.bounds import tof_frame
 
 ROOT = Path(__file__).resolve().parents[2]
 

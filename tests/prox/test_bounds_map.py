@@ -7,12 +7,12 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from support.tof_looks import tof_frame
 
 from drivers.sim.world import World
 from prox_workflows.algorithms.bounds_map import BoundsMap, BoundsParams
 from prox_workflows.algorithms.noise import tof_height_variance, tof_sigma
 from prox_workflows.grid import GridGeometry
+from tools.bench.bounds import tof_frame
 
 SENSOR = np.array([0.0, 0.0, 1.2])
 
