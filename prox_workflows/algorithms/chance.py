@@ -409,7 +409,7 @@ def _judge(top: np.ndarray, seen: np.ndarray, span: np.ndarray | None, geom: Gri
     if span is None:
         return check_poses(high, geom, poses, body, step)
     low = np.where(seen, top - span, np.nan).astype(np.float32)
-    return check_poses((low, high), geom, poses, body, step or geom.cell, cellwise=False)
+    return check_poses((low, high), geom, poses, body, step or geom.cell, cellwise=False, rest_low=True)
 
 
 def _spreads(post: Posterior) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
