@@ -437,6 +437,33 @@ def test_a_wheel_meeting_a_rock_edge_cell_may_rest_below_its_top() -> None:
     assert c.safe.tolist() == [False] and c.prob[0, LIMITS.index("belly")] == pytest.approx(1.0)
 
 
+def test_a_drawn_pair_rests_its_wheels_on_the_lows_not_on_the_worst_corner_of_their_box() -> None:
+    # a rock under the box's front-left corner 1 cm under the clearance over flat ground, and the
+    # rear-left wheel over cells whose returns rise and drop 3 cm about their mean (its top 6 cm
+    # over its low, 0: the floor the wheel stands on). Resting anywhere in that box, the worst
+    # corner stands the rear-left wheel at its top and the others at their lows, a plane that
+    # leans the front-left corner 2 cm down into the rock; on the lows the body is level
+    g, X, Y = grid()
+    top = np.zeros(g.shape)
+    rock = (X > 0.2) & (X < 0.3) & (Y > 0.05) & (Y < 0.2)
+    top[rock] = BODY.clearance - 0.01
+    wheel = (X > -0.26) & (X < -0.03) & (Y > 0.2) & (Y < 0.3)
+    top[wheel] = 0.06
+    st = stats(top, 0.002, 0.0)
+    st["mean"][wheel] -= 0.03
+    st["rise"][wheel], st["drop"][wheel] = 0.03, 0.03
+    bare = {"edge_bias": 0.0, "edge_sigma": 0.0, "rock_sigma": 0.0, "top_sigma": 0.002}
+    post = posterior(st, g, 2.5, ChanceParams(within=1.0, **bare))
+    c = chance_check(post, g, AT_ORIGIN, BODY)
+    assert c.safe.tolist() == [True]
+    assert c.nominal.excess[0, LIMITS.index("belly")] == pytest.approx(-0.01, abs=0.002)
+    assert c.nominal.tilt[0] == pytest.approx(0.0, abs=0.2)
+    # the same pair judged as bounds (each wheel anywhere between its low and its top)
+    low = np.where(np.isfinite(post.mean), post.mean - post.span, np.nan).astype(np.float32)
+    box = check_poses((low, post.mean.astype(np.float32)), g, AT_ORIGIN, BODY, CELL, cellwise=False)
+    assert box.excess[0, LIMITS.index("belly")] == pytest.approx(0.0107, abs=0.002)
+
+
 def test_the_miss_trace_stands_the_body_as_the_vehicle_check_does() -> None:
     # tools.bench.chance_trace: a rock under the box and one wheel on a 3 cm slab; the trace's
     # contacts, resting plane and belly point give the check's own intrusion
