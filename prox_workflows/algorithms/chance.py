@@ -341,9 +341,11 @@ def chance_check(post: Posterior, geom: GridGeometry, poses: np.ndarray, body: V
     lower = np.where(seen, mu - ks * cell_sd - (0.0 if span is None else span), np.nan).astype(np.float32)
     upper = np.where(seen, mu + ks * cell_sd, roof).astype(np.float32)
     wide = check_poses((lower, upper), geom, poses, body, step)
-    unknown = wide.unknown.copy()
-    screened = wide.safe
     nominal = _judge(best, seen, span, geom, poses, body, step)
+    # a pair read between the cell centres leaves a wheel over ground only a ray bounds nothing to
+    # rest on: no plane, no belly judged in any draw, so such a pose is unknown, not safe
+    unknown = wide.unknown | nominal.unknown
+    screened = wide.safe & ~unknown
     prob = np.where(unknown[:, None], np.nan, np.zeros((n, 4)))
     p_any = np.where(unknown, np.nan, 0.0)
     todo = ~unknown & ~screened

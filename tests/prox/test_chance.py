@@ -417,6 +417,19 @@ def test_a_wheel_does_not_rest_on_a_ray_s_height_over_ground_no_return_met() -> 
     assert within.nominal.excess[0, LIMITS.index("belly")] == pytest.approx(0.01, abs=0.002)
 
 
+def test_a_pair_s_wheel_over_ground_only_a_ray_bounds_is_unknown_not_safe() -> None:
+    # the front half of the front-left wheel over cells no return met (a ray 15 cm up), a rock
+    # under the box: read between the cell centres, most of that wheel rests on nothing and no
+    # plane is judged in any draw (read cellwise, as the screen reads bounds, less than half);
+    # that is ground not seen, never a safe pose
+    post, g, X, Y = wheel_edge_over_unseen_ground()
+    mean, ceiling = post.mean.copy(), post.ceiling.copy()
+    under = (X > 0.15) & (X < 0.3) & (Y > 0.15) & (Y < 0.35)
+    mean[under], ceiling[under] = np.nan, 0.15
+    pair = chance_check(Posterior(mean, post.var, ceiling, span=np.zeros(mean.shape)), g, AT_ORIGIN, BODY)
+    assert pair.unknown.tolist() == [True] and pair.safe.tolist() == [False]
+
+
 def test_a_wheel_meeting_a_rock_edge_cell_may_rest_below_its_top() -> None:
     # the front wheels' footprint ends over cells whose returns rise 7.5 cm over their mean and drop
     # 7.5 cm under it (a rock's edge in the cell): their top, read all over the cell, lifts the wheels

@@ -101,8 +101,10 @@ def _at(plane: tuple[float, float, float], local: tuple[float, float]) -> float:
     return plane[0] * local[0] + plane[1] * local[1] + plane[2]
 
 
-def trace(scene: str, dump: str, params: chance.ChanceParams, limit: int = 0) -> list[dict[str, Any]]:
-    """Every refused pose of the dump's choices, stood on the best estimate and on the truth."""
+def trace(scene: str, dump: str, params: chance.ChanceParams, limit: int = 0, box: bool = False
+          ) -> list[dict[str, Any]]:
+    """Every refused pose of the dump's choices, stood on the best estimate and on the truth
+    (``box``: each wheel anywhere between its low and its top, the worst corner judged)."""
     d = np.load(dump)
     world = World.from_scene(scene)
     fine, tg, _ = truth_surface(world, scene)
@@ -130,7 +132,7 @@ def trace(scene: str, dump: str, params: chance.ChanceParams, limit: int = 0) ->
         rover = d[f"c{ci}_pose"]
         datum = _datum(stats, g, fine, tg)
         for n, p in enumerate(poses):
-            e = stand_pair(low, high, g, p, body, g.cell)
+            e = stand_pair(low, high, g, p, body, g.cell, rest_low=not box)
             t = stand(fine, tg, p, body, 0.01)
             row: dict[str, Any] = {"choice": ci, "pose": [round(float(v), 3) for v in p],
                                    "from_rover": round(float(np.hypot(*(p[:2] - rover[:2]))), 3),
@@ -182,19 +184,27 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--dump", required=True, help="a gate_trace --dump file")
     ap.add_argument("--set", action="append", default=[], metavar="FIELD=VALUE", help="a ChanceParams field")
     ap.add_argument("--limit", type=int, default=0, help="at most this many refused poses a choice (0: all)")
+    ap.add_argument("--box", action="store_true", help="stand each wheel anywhere between its low and its top "
+                                                       "(the worst corner), not on its low")
     ap.add_argument("--out", required=True)
     args = ap.parse_args(argv)
     params = chance.ChanceParams()
     for kv in args.set:
         key, value = kv.split("=", 1)
         params = dataclasses.replace(params, **{key: type(getattr(params, key))(value)})
-    rows = trace(args.scene, args.dump, params, args.limit)
+    rows = trace(args.scene, args.dump, params, args.limit, args.box)
     with open(args.out, "w") as f:
         json.dump(rows, f, indent=1, default=float)
-    belly = [r for r in rows if r["best"][1] > 0]
-    print(f"{len(rows)} refused poses, {len(belly)} over the belly on the best estimate, "
+    belly = [r for r in rows if r["est_intrusion"] > 0]
+    print(f"{len(rows)} refused poses, {len(belly)} over the belly on the best estimate stood so, "
           f"{sum(r['truth'][1] > 0 for r in belly)} of them truly")
     if belly:
+        mixed = [r for r in belly if r.get("triplet") and any(r["triplet"][1])]
+        print(f"  worst plane with a wheel at its top: {len(mixed)} of {len(belly)}")
+        lo = np.array([[w["low"] - w["true"] for w in r["wheels"]] for r in belly], float)
+        hi = np.array([[w["high"] - w["true"] for w in r["wheels"]] for r in belly], float)
+        print(f"  a wheel's low over its true contact: median {np.nanmedian(lo) * 100:+.2f} cm, under it by more than "
+              f"2 mm {np.mean(lo < -0.002) * 100:.0f} %, over it {np.mean(lo > 0.002) * 100:.0f} %; its top over it: median {np.nanmedian(hi) * 100:+.2f} cm")
         for name in ("est_intrusion", "true_intrusion", "belly_high", "plane_low"):
             v = np.array([r[name] for r in belly if r.get(name) is not None], float)
             print(f"  {name}: median {np.median(v) * 100:+.2f} cm (p10 {np.percentile(v, 10) * 100:+.2f}, "
