@@ -491,3 +491,25 @@ def test_the_miss_trace_stands_the_body_as_the_vehicle_check_does() -> None:
     assert body["intrusion"] == pytest.approx(check.intrusion[0], abs=1e-6)
     assert [round(c[0], 3) for c in body["contacts"]][1] == pytest.approx(0.03, abs=0.002)
     assert np.hypot(*body["belly_xy"]) < 0.08
+
+
+def test_the_rest_trace_stands_a_pair_as_the_vehicle_check_does() -> None:
+    # tools.bench.rest_trace: a rock under the box, the rear-left wheel over cells whose lows lie
+    # 6 cm under their tops; its contacts and plane give the check's own belly figure, on the lows
+    # and over the worst corner of the box of rests alike
+    from tools.bench.rest_trace import stand_pair
+
+    g, X, Y = grid()
+    high = np.zeros(g.shape)
+    high[(X > 0.2) & (X < 0.3) & (Y > 0.05) & (Y < 0.2)] = 0.07
+    wheel = (X > -0.26) & (X < -0.03) & (Y > 0.2) & (Y < 0.3)
+    high[wheel] = 0.06
+    low = np.where(wheel, 0.0, high).astype(np.float32)
+    high = high.astype(np.float32)
+    for rest_low in (True, False):
+        body = stand_pair(low, high, g, np.array([0.0, 0.0, 0.0]), BODY, CELL, rest_low=rest_low)
+        check = check_poses((low, high), g, AT_ORIGIN, BODY, CELL, cellwise=False, rest_low=rest_low)
+        assert body["intrusion"] == pytest.approx(check.intrusion[0], abs=1e-6)
+        assert body["contact_low"][2] == pytest.approx(0.0, abs=0.002)
+        assert body["contact_high"][2] == pytest.approx(0.06, abs=0.005)
+    assert stand_pair(low, high, g, np.array([0.0, 0.0, 0.0]), BODY, CELL, rest_low=False)["triplet"][1] != [0, 0, 0]
