@@ -417,6 +417,18 @@ def test_a_wheel_does_not_rest_on_a_ray_s_height_over_ground_no_return_met() -> 
     assert within.nominal.excess[0, LIMITS.index("belly")] == pytest.approx(0.01, abs=0.002)
 
 
+BARE = {"edge_bias": 0.0, "edge_sigma": 0.0, "rock_sigma": 0.0, "top_sigma": 0.002}  # the top's own sigma alone
+
+
+def spread(top: np.ndarray, cells: np.ndarray, relief: float) -> dict[str, np.ndarray]:
+    """:func:`stats` of ``top`` known to 2 mm, where ``cells`` hold returns that rise and drop
+    ``relief`` about their mean (a rock's edge in the cell: its top ``2 relief`` over its low)."""
+    st = stats(top, 0.002, 0.0)
+    st["mean"][cells] -= relief
+    st["rise"][cells], st["drop"][cells] = relief, relief
+    return st
+
+
 def test_a_pair_s_wheel_over_ground_only_a_ray_bounds_is_unknown_not_safe() -> None:
     # the front half of the front-left wheel over cells no return met (a ray 15 cm up), a rock
     # under the box: read between the cell centres, most of that wheel rests on nothing and no
@@ -438,13 +450,10 @@ def test_a_wheel_meeting_a_rock_edge_cell_may_rest_below_its_top() -> None:
     top[(np.abs(X) < 0.05) & (np.abs(Y) < 0.05)] = BODY.clearance + 0.01
     edge = (X > 0.2) & (X < 0.25) & (np.abs(Y) > 0.2) & (np.abs(Y) < 0.3)
     top[edge] = 0.15
-    st = stats(top, 0.002, 0.0)
-    st["mean"][edge] -= 0.075
-    st["rise"][edge], st["drop"][edge] = 0.075, 0.075
-    bare = {"edge_bias": 0.0, "edge_sigma": 0.0, "rock_sigma": 0.0, "top_sigma": 0.002}
-    one = posterior(st, g, 2.5, ChanceParams(within=0.0, **bare))
+    st = spread(top, edge, 0.075)
+    one = posterior(st, g, 2.5, ChanceParams(within=0.0, **BARE))
     assert one.span is None and chance_check(one, g, AT_ORIGIN, BODY).safe.tolist() == [True]
-    post = posterior(st, g, 2.5, ChanceParams(within=1.0, **bare))
+    post = posterior(st, g, 2.5, ChanceParams(within=1.0, **BARE))
     assert post.span[edge] == pytest.approx(0.15) and post.span[~edge].max() == 0.0
     c = chance_check(post, g, AT_ORIGIN, BODY)
     assert c.safe.tolist() == [False] and c.prob[0, LIMITS.index("belly")] == pytest.approx(1.0)
@@ -462,11 +471,7 @@ def test_a_drawn_pair_rests_its_wheels_on_the_lows_not_on_the_worst_corner_of_th
     top[rock] = BODY.clearance - 0.01
     wheel = (X > -0.26) & (X < -0.03) & (Y > 0.2) & (Y < 0.3)
     top[wheel] = 0.06
-    st = stats(top, 0.002, 0.0)
-    st["mean"][wheel] -= 0.03
-    st["rise"][wheel], st["drop"][wheel] = 0.03, 0.03
-    bare = {"edge_bias": 0.0, "edge_sigma": 0.0, "rock_sigma": 0.0, "top_sigma": 0.002}
-    post = posterior(st, g, 2.5, ChanceParams(within=1.0, **bare))
+    post = posterior(spread(top, wheel, 0.03), g, 2.5, ChanceParams(within=1.0, **BARE))
     c = chance_check(post, g, AT_ORIGIN, BODY)
     assert c.safe.tolist() == [True]
     assert c.nominal.excess[0, LIMITS.index("belly")] == pytest.approx(-0.01, abs=0.002)
