@@ -12,6 +12,11 @@ point over the true ground's highest within that cell), or the resting plane rea
 (``plane_low``: the truth's plane under the estimate's belly point over the estimate's).
 
     python -m tools.bench.rest_trace --scene marsyard --dump m0.npz --set within=1 --out rest_m0.json
+
+``--cells``: instead, every cell a frame bounded in the dump's last choice's map against the
+truth inside it, by the map's spread in the cell (rise + drop, what ``ChanceParams.within`` takes
+for the cell's relief): the map's top over the true highest ground, its low (mean less drop) over
+the true lowest, and the true relief (highest less lowest), medians and p10 / p90.
 """
 
 from __future__ import annotations
@@ -95,6 +100,47 @@ def _cell_of(fine: np.ndarray, tg: GridGeometry, x0: float, y1: float, cell: flo
     c0, c1 = int(np.floor((x0 - tg.xmin) / tg.cell)), int(np.ceil((x0 + cell - tg.xmin) / tg.cell))
     r0, r1 = int(np.floor((tg.ymax - y1) / tg.cell)), int(np.ceil((tg.ymax - y1 + cell) / tg.cell))
     return fine[max(r0, 0):r1, max(c0, 0):c1]
+
+
+def true_cells(fine: np.ndarray, tg: GridGeometry, g: GridGeometry, datum: float) -> tuple[np.ndarray, ...]:
+    """Per cell of ``g``: the truth's highest, lowest (its 1 cm samples meeting the cell) and their
+    mean, in the map's datum (NaN off the truth)."""
+    out = [np.full(g.shape, np.nan) for _ in range(3)]
+    for r in range(g.height):
+        for c in range(g.width):
+            cell = _cell_of(fine, tg, g.xmin + c * g.cell, g.ymax - r * g.cell, g.cell)
+            if cell.size:
+                out[0][r, c], out[1][r, c], out[2][r, c] = cell.max(), cell.min(), cell.mean()
+    return tuple(a + datum for a in out)
+
+
+BANDS = (0.0, 0.01, 0.03, 0.06, np.inf)  # m: the map's spread in a cell
+
+
+def cells(scene: str, dump: str) -> list[dict[str, Any]]:
+    """The last choice's map of the dump, cell by cell against the truth, per band of spread."""
+    d = np.load(dump)
+    ci = max(int(k[1:].split("_")[0]) for k in d.files if k.startswith("c") and k.endswith("_geom"))
+    cell, xmin, ymax, width, height = d[f"c{ci}_geom"]
+    g = GridGeometry(float(cell), float(xmin), float(ymax), int(width), int(height))
+    st = {n: d[f"c{ci}_{n}"] for n in ("mean", "rise", "drop", "framed")}
+    world = World.from_scene(scene)
+    fine, tg, _ = truth_surface(world, scene)
+    high, low, _mean = true_cells(fine, tg, g, _datum(st, g, fine, tg))
+    top, floor, spread = st["mean"] + st["rise"], st["mean"] - st["drop"], st["rise"] + st["drop"]
+    ok = np.isfinite(top) & st["framed"].astype(bool) & np.isfinite(high)
+    rows = []
+    for lo, hi in zip(BANDS[:-1], BANDS[1:], strict=True):
+        m = ok & (spread >= lo) & (spread < hi)
+        if m.sum() < 20:
+            continue
+
+        def q(a: np.ndarray, m: np.ndarray = m) -> list[float]:
+            return [round(float(v) * 100, 2) for v in np.percentile(a[m], [10, 50, 90])]
+
+        rows.append({"spread_cm": [lo * 100, hi * 100], "cells": int(m.sum()), "top_over_true_highest_cm": q(top - high),
+                     "low_over_true_lowest_cm": q(floor - low), "true_relief_cm": q(high - low)})
+    return rows
 
 
 def _at(plane: tuple[float, float, float], local: tuple[float, float]) -> float:
@@ -186,8 +232,17 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--limit", type=int, default=0, help="at most this many refused poses a choice (0: all)")
     ap.add_argument("--box", action="store_true", help="stand each wheel anywhere between its low and its top "
                                                        "(the worst corner), not on its low")
+    ap.add_argument("--cells", action="store_true", help="the last choice's cells against the truth, by the map's "
+                                                         "spread in the cell")
     ap.add_argument("--out", required=True)
     args = ap.parse_args(argv)
+    if args.cells:
+        rows = cells(args.scene, args.dump)
+        with open(args.out, "w") as f:
+            json.dump(rows, f, indent=1)
+        for r in rows:
+            print(json.dumps(r))
+        return
     params = chance.ChanceParams()
     for kv in args.set:
         key, value = kv.split("=", 1)
