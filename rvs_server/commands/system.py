@@ -59,8 +59,9 @@ class PoseConfig(ModuleConfig):
     y: float = param(float("nan"), "rover y in the global frame", unit="m", min=-1e6, max=1e6)
     heading: float = param(float("nan"), "rover heading, counter-clockwise from +x", unit="deg", min=-360.0, max=360.0)
     stopped: bool = param(False, "the rover stands still here: ends a navigate wait short of the leg's end")
-    roll: float = param(float("nan"), "body roll from the rover's IMU, left side up (optional, with -pitch: "
-                                      "navigate.see_set_down attitude bounds the ground under the wheels by it)",
+    roll: float = param(float("nan"), "body roll from the rover's IMU, left side up (optional, with -pitch: the "
+                                      "see loop sets the rover down on it at navigate's start, the ground under the "
+                                      "wheels on the plane it gives; navigate.see_set_down attitude at every frame)",
                         unit="deg", min=-90.0, max=90.0)
     pitch: float = param(float("nan"), "body pitch from the rover's IMU, nose up (optional; with -roll)", unit="deg",
                          min=-90.0, max=90.0)
