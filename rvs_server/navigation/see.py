@@ -158,7 +158,7 @@ class SeeingDriver:
         self.app: App = job.app
         self.rover = rover
         self.body = rover.body()
-        # the chooser's map (see_gate bounds): every frame's bounds over the whole mission
+        # the chooser's map (see_gate bounds): every frame's bounds over a window that follows the rover
         self.bounds = bounds
         self.set_down_pending = False  # see_set_down ring: the set-down waits for the first look round
         # the body's hazard cameras switched on (drivers.hazcam.cameras): each frame feeds the bounds
