@@ -253,9 +253,11 @@ class BoundsMap:
 
     @staticmethod
     def _origin(centre: tuple[float, float], n: int, k: int, cell: float) -> tuple[float, float]:
-        """(xmin, ymax) of an ``n``-cell square window nearest centred on ``centre``, on multiples of ``k`` cells."""
+        """(xmin, ymax) of an ``n``-cell square window nearest centred on ``centre``, on multiples
+        of ``k`` cells."""
         step = k * cell
-        return (round((centre[0] - n * cell / 2) / step) * step, round((centre[1] + n * cell / 2) / step) * step)
+        return (round((centre[0] - n * cell / 2) / step) * step,
+                round((centre[1] + n * cell / 2) / step) * step)
 
     def follow(self, x: float, y: float, slack: float) -> bool:
         """Recentre the window on (x, y) once the rover is more than ``slack`` metres from its

@@ -69,10 +69,10 @@ PRICED_OUT = 1e6  # m: the look cost that makes a look the answer only when no c
 STALL_SECTIONS = 12  # sections in a row that bring the rover no STALL_GAIN closer by the cost to go
 STALL_GAIN = 0.1  # m
 WAYPOINT_STEP = 0.2  # m between the waypoints a GNC is sent for a section
-GUIDE_PAD = 4.0  # m round the mission's start and goal that the coarse guidance covers (past it: the straight line)
+GUIDE_PAD = 4.0  # m round the mission's start and goal the coarse guidance covers (past it: the straight line)
 GUIDE_CELL = 0.25  # m: the coarse grid the cost to go runs on (coarse_costs'), kept over the whole mission
 WINDOW_SLACK = 1.0  # m the rover strays from the bounds window's centre before the window recentres
-WINDOW_MARGIN = 0.5  # m past the farthest a choice or a frame reaches: the spread of a cell's bounds, a coarse cell
+WINDOW_MARGIN = 0.5  # m past the farthest a choice or a frame reaches: a cell's spread, a coarse cell
 
 
 def judged_reach(params: CandidateParams, body: Any) -> float:

@@ -595,7 +595,8 @@ class SeeStrategy:
         memory = MapMemory.covering(self.cover, self.p.memory, RollingParams().cell) if self.p.memory > 0 else None
         bounds = None
         if self.p.gate == "bounds":
-            half = window_half(self.p, mission.rover.body(), HeadCalibration.from_dict(self.app.config.get("head").as_dict()))
+            head = HeadCalibration.from_dict(self.app.config.get("head").as_dict())
+            half = window_half(self.p, mission.rover.body(), head)
             bounds = BoundsMap.around(self.cover[0], half, GUIDE_CELL)
         self.driver = SeeingDriver(self.job, mission.rover, self.p, self.stats, memory, bounds)
         if bounds is not None and self.p.set_down == "ring":

@@ -18,7 +18,8 @@ SENSOR_Z = 1.2
 def _rock_frame(x: float, y: float, rock: float = 0.2, half: float = 1.0) -> np.ndarray:
     """Every centimetre of level ground (z 0) within ``half`` m of (x, y), with a 0.2 x 0.2 m
     block ``rock`` high at its centre."""
-    gx, gy = np.meshgrid(np.arange(x - half, x + half, 0.01) + 0.005, np.arange(y - half, y + half, 0.01) + 0.005)
+    gx, gy = np.meshgrid(np.arange(x - half, x + half, 0.01) + 0.005,
+                         np.arange(y - half, y + half, 0.01) + 0.005)
     gx, gy = gx.ravel(), gy.ravel()
     z = np.where((np.abs(gx - x) < 0.1) & (np.abs(gy - y) < 0.1), rock, 0.0)
     return np.column_stack([gx, gy, z])

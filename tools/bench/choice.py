@@ -149,7 +149,8 @@ def _timed(fn: Callable[[], Any]) -> tuple[Any, float, float]:
 
 
 def _choice(e: dict[str, Any]) -> Any:
-    """The dumped choice made again (with the coarse guidance as it stood, on a copy: the choice writes into it)."""
+    """The dumped choice made again, with the coarse guidance as it stood (a copy: a choice
+    writes into it)."""
     guide = copy.deepcopy(e.get("guide"))
     return sections.choose_from(e["bounds"], e["pose"], e["goal"], e["body"], e["how"], e["params"], e["chance"],
                                 guide)
