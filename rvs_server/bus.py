@@ -27,7 +27,9 @@ from typing import Any
 #   frame    device, call (the driver method's name), args, result: a driver grab returned
 #   bounds   bounds (the see loop's BoundsMap itself, which it goes on fusing into), replan (bool): a
 #            frame was fused into it, or a plan is made on it
-KINDS = ("request", "reply", "event", "maps", "calling", "frame", "bounds")
+#   mission  mission (the navigation.mission.Mission itself: its strategy, its loop's maps and timings,
+#            its track): a navigate's mission is under way, for what watches it run (tools.bench.scale)
+KINDS = ("request", "reply", "event", "maps", "calling", "frame", "bounds", "mission")
 
 
 @dataclass(frozen=True)

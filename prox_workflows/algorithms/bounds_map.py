@@ -29,8 +29,14 @@ What each observation says, and so what the map keeps:
 - A cell nothing saw has neither: no upper bound means nothing may be assumed about it; the
   check treats it as unknown, never as safe.
 
-Memory is the whole mission: the grid is fixed (it covers the mission, as the planner's does),
-so ground the rover saw and turned away from keeps its bounds.
+Memory: the see loop keeps a window that follows the rover (:meth:`BoundsMap.around`,
+:meth:`BoundsMap.follow`), as wide as what its chooser judges and its frames reach: a map over a
+whole 200 m mission's box would be 267 MB, and a choice reading it all 6x the work of a 20 m one.
+Cells the window leaves are dropped, and what they held is lost: ground the rover comes back to
+is unknown again until a frame shows it again (the chooser's coarse guidance keeps what it said
+of them: :mod:`.coarse_memory`). A map made with :meth:`BoundsMap.covering` is fixed and keeps all.
+A pose fix moves what the frames since the last fix placed (:meth:`BoundsMap.move`), as the
+rolling map's.
 """
 
 from __future__ import annotations
@@ -102,6 +108,13 @@ def contact_plane(heading: float, roll: float, pitch: float) -> tuple[float, flo
     c, s = math.cos(math.radians(heading)), math.sin(math.radians(heading))
     return a * c - b * s, a * s + b * c
 
+
+# what a cell nothing has bounded holds, per layer (0 where not named)
+_FILLS = {"mean": np.nan, "mean_var": np.nan, "ceiling": np.inf}
+# the layers a frame's bounds are held in (moved by a fix with the cell's ``stamp``)
+_BOUND_LAYERS = ("mean", "mean_var", "rise", "drop", "shift", "along_var", "spread", "source")
+# every per-cell layer, with its fill (a window's recentring moves them all)
+_LAYERS = tuple((name, _FILLS.get(name, 0)) for name in (*_BOUND_LAYERS, "ceiling", "stamp", "lowered"))
 
 ANGLE_BINS = 24  # bearings of a spread's ellipse, 7.5 deg apart: at 4 cells its end is off by at most 0.26 cell
 _KERNELS: dict[int, np.ndarray] = {}
@@ -201,8 +214,12 @@ class BoundsMap:
         self.spread = np.zeros((3, *shape), np.float32)
         self.ceiling = np.full(shape, np.inf, np.float32)  # lowest ray that passed over (m)
         self.stamp = np.zeros(shape, np.int32)  # the frame (1, 2, ...) that last touched the cell
+        self.lowered = np.zeros(shape, np.int32)  # the frame that last lowered the cell's ceiling
         self.source = np.zeros(shape, np.int8)  # the sensor (index in SENSORS) whose frames bound the cell
         self.frames = 0
+        # a window's grid moves in whole multiples of this many cells (:meth:`follow`): its
+        # origin stays on the coarse grid the chooser's guidance is kept on
+        self.align = 1
         # the whole map's bounds as :meth:`whole` last gave them, with the parameters and the
         # inputs they were computed from
         self._whole: tuple[tuple, tuple[np.ndarray, ...], np.ndarray, np.ndarray] | None = None
@@ -219,6 +236,88 @@ class BoundsMap:
                                   xy[:, 1].max() + pad, p.cell)
         check_plan_size(g, "bounds map")
         return cls(g, p)
+
+    @classmethod
+    def around(cls, centre: tuple[float, float], half: float, align: float, params: BoundsParams | None = None
+               ) -> BoundsMap:
+        """A window of side ``2 * half`` (grown to whole multiples of ``align`` metres) round
+        ``centre``, its origin on multiples of ``align`` from the frame's origin: it follows the
+        rover (:meth:`follow`), so its size and a choice's work do not grow with the mission."""
+        p = params or BoundsParams()
+        k = max(1, round(align / p.cell))
+        step = k * p.cell
+        n = k * math.ceil(2 * half / step - 1e-9)
+        m = cls(GridGeometry(p.cell, *cls._origin(centre, n, k, p.cell), n, n), p)
+        m.align = k
+        return m
+
+    @staticmethod
+    def _origin(centre: tuple[float, float], n: int, k: int, cell: float) -> tuple[float, float]:
+        """(xmin, ymax) of an ``n``-cell square window nearest centred on ``centre``, on multiples
+        of ``k`` cells."""
+        step = k * cell
+        return (round((centre[0] - n * cell / 2) / step) * step,
+                round((centre[1] + n * cell / 2) / step) * step)
+
+    def follow(self, x: float, y: float, slack: float) -> bool:
+        """Recentre the window on (x, y) once the rover is more than ``slack`` metres from its
+        centre either way: the cells that stay inside keep what they hold, the rest are dropped
+        and the ground newly inside is unknown. Returns whether the window moved."""
+        g = self.geometry
+        cx, cy = g.xmin + g.width * g.cell / 2, g.ymax - g.height * g.cell / 2
+        if abs(x - cx) <= slack and abs(y - cy) <= slack:
+            return False
+        xmin, ymax = self._origin((x, y), g.width, self.align, g.cell)
+        dc, dr = round((xmin - g.xmin) / g.cell), round((g.ymax - ymax) / g.cell)
+        if dc == 0 and dr == 0:
+            return False
+        self.geometry = GridGeometry(g.cell, xmin, ymax, g.width, g.height, g.crs)
+        for name, fill in _LAYERS:
+            a = getattr(self, name)
+            out = np.full_like(a, fill)
+            h, w = a.shape[-2:]
+            # the new cell (r, c) is the old (r + dr, c + dc)
+            src = (slice(max(0, dr), min(h, h + dr)), slice(max(0, dc), min(w, w + dc)))
+            dst = (slice(max(0, -dr), min(h, h - dr)), slice(max(0, -dc), min(w, w - dc)))
+            if src[0].start < src[0].stop and src[1].start < src[1].stop:
+                out[..., dst[0], dst[1]] = a[..., src[0], src[1]]
+            setattr(self, name, out)
+        self._whole = None
+        return True
+
+    def move(self, pivot: tuple[float, float], dx: float, dy: float, dyaw: float, since: int) -> None:
+        """Move what frames after ``since`` (a frame count) placed by a pose fix (rotation ``dyaw``
+        degrees about ``pivot``, then ``dx, dy``; nearest cell), as the rolling map's frames move:
+        they were placed with the pose the fix corrects. A cell's bounds move where a later frame
+        bounded it (``stamp``), its ray ceiling where a later frame's ray lowered it (``lowered``);
+        where they land they replace what earlier frames left, and where they leave nothing is
+        known (what the later frame's fusion overwrote there is gone). The error ellipses turn
+        with the fix."""
+        g = self.geometry
+        xs, ys = g.centers()
+        X, Y = np.meshgrid(xs, ys)
+        c, s = math.cos(math.radians(-dyaw)), math.sin(math.radians(-dyaw))
+        ux, uy = X - pivot[0] - dx, Y - pivot[1] - dy
+        row, col = g.cell_of(c * ux - s * uy + pivot[0], s * ux + c * uy + pivot[1])
+        inside = g.inside(row, col)
+        rr, cc = np.clip(row, 0, g.height - 1), np.clip(col, 0, g.width - 1)
+        for mark, names in (("stamp", _BOUND_LAYERS), ("lowered", ("ceiling",))):
+            recent = getattr(self, mark) > since
+            lands = inside & recent[rr, cc]
+            for name in (mark, *names):
+                a = getattr(self, name)
+                fill = _FILLS.get(name, 0)
+                out = np.where(recent, np.asarray(fill, a.dtype), a)  # what leaves: unknown
+                out[..., lands] = a[..., rr[lands], cc[lands]]
+                setattr(self, name, out)
+        if dyaw:
+            # the ellipses (xx, xy, yy) of the moved cells turn by dyaw: R S R^T
+            moved = self.stamp > since
+            xx, xy, yy = (self.spread[i][moved].astype(np.float64) for i in range(3))
+            c, s = math.cos(math.radians(dyaw)), math.sin(math.radians(dyaw))
+            self.spread[0][moved] = c * c * xx - 2 * c * s * xy + s * s * yy
+            self.spread[1][moved] = c * s * (xx - yy) + (c * c - s * s) * xy
+            self.spread[2][moved] = s * s * xx + 2 * c * s * xy + c * c * yy
 
     # ------------------------------------------------------------------ what the map says
 
@@ -582,10 +681,12 @@ class BoundsMap:
 
         g = self.geometry
         heights = pts[:, 2] + self.params.k * sig  # the ray's height may be off as its return's is
+        before = self.ceiling.copy()
         lower_ceiling(float(origin[0]), float(origin[1]), float(origin[2]),
                       np.ascontiguousarray(pts[:, 0]), np.ascontiguousarray(pts[:, 1]),
                       np.ascontiguousarray(heights), float(g.xmin), float(g.ymax), float(g.cell),
                       float(max(self.params.near, g.cell)), float(self.params.reach), self.ceiling)
+        self.lowered[self.ceiling < before] = self.frames
 
     def whole(self) -> tuple[np.ndarray, np.ndarray]:
         """The lower and upper bounds over the whole map (read-only), as :meth:`bounds` over it
@@ -595,7 +696,7 @@ class BoundsMap:
         it: this is a tenth of the work of the whole map (``python -m tools.bench.choice``)."""
         g, p = self.geometry, self.params
         inputs = self._bound_inputs()
-        key = (p.k, p.max_shift, p.edge, p.grain, g.cell, g.shape)
+        key = (p.k, p.max_shift, p.edge, p.grain, g.cell, g.shape, g.xmin, g.ymax)
         held = getattr(self, "_whole", None)  # (none on a map unpickled from a dump without the field)
         if held is None or held[0] != key:
             lower, upper = self.bounds((slice(0, g.height), slice(0, g.width)))

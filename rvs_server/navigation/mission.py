@@ -79,6 +79,7 @@ class Mission:
         self._place()
         # made where the rover starts: the see strategy's maps cover the start and the goal
         self.strategy: Strategy = SeeStrategy(self) if cfg.loop == "see" else ScanStrategy(self)
+        self.app.bus.publish("mission", mission=self)
 
     def _place(self) -> None:
         """navigate -start: the rover is set down there."""

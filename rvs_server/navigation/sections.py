@@ -53,6 +53,7 @@ from prox_workflows.algorithms.candidates import (
     verdict_name,
 )
 from prox_workflows.algorithms.chance import ChanceParams, posterior
+from prox_workflows.algorithms.coarse_memory import CoarseMemory
 from prox_workflows.algorithms.vehicle import densify, reach
 from prox_workflows.algorithms.waypoints import make_waypoints
 
@@ -68,6 +69,27 @@ PRICED_OUT = 1e6  # m: the look cost that makes a look the answer only when no c
 STALL_SECTIONS = 12  # sections in a row that bring the rover no STALL_GAIN closer by the cost to go
 STALL_GAIN = 0.1  # m
 WAYPOINT_STEP = 0.2  # m between the waypoints a GNC is sent for a section
+GUIDE_PAD = 4.0  # m round the mission's start and goal the coarse guidance covers (past it: the straight line)
+GUIDE_CELL = 0.25  # m: the coarse grid the cost to go runs on (coarse_costs'), kept over the whole mission
+WINDOW_SLACK = 1.0  # m the rover strays from the bounds window's centre before the window recentres
+WINDOW_MARGIN = 0.5  # m past the farthest a choice or a frame reaches: a cell's spread, a coarse cell
+
+
+def judged_reach(params: CandidateParams, body: Any) -> float:
+    """How far from the rover's pose a choice reads the bounds map: the candidates' section and
+    look-ahead, the body's reach round their poses, and a cell's spread."""
+    return params.section + params.beyond + reach(body) + 0.1
+
+
+def window_half(see: Any, body: Any, head: Any) -> float:
+    """Half the side of the bounds window that follows the rover (``see``: the see loop's config,
+    ``head``: the head's calibration): the farthest a choice reads (:func:`judged_reach`), a
+    standing look reaches (the ground the body covers driving ``see_look_drive`` and as far again)
+    or a frame lands (``see_max_range`` from the mast), plus the slack the rover strays from its
+    centre and a margin. Within it, every cell the chooser judges and every frame bounds is held."""
+    mast = math.hypot(head.ptu_base[0], head.ptu_base[1])
+    looks = 2 * see.look_drive + body.length
+    return max(judged_reach(see.chooser, body), looks, see.max_range + mast) + WINDOW_SLACK + WINDOW_MARGIN
 
 
 def map_check(bounds: BoundsMap, box: tuple[float, float, float, float], body: Any, how: str,
@@ -84,12 +106,18 @@ def map_check(bounds: BoundsMap, box: tuple[float, float, float, float], body: A
 
 
 def choose_from(bounds: BoundsMap, pose: tuple[float, float, float], goal: tuple[float, float], body: Any,
-                how: str, params: CandidateParams, chance: ChanceParams) -> tuple[Choice, float]:
+                how: str, params: CandidateParams, chance: ChanceParams, guide: CoarseMemory | None = None
+                ) -> tuple[Choice, float]:
     """The chooser's answer from ``pose`` toward ``goal`` on the bounds map as it is now, and the
-    cost to go from ``pose``: the cost to go over the whole map's coarse grid, the candidates
-    ranked and checked on the window they reach."""
-    ctg = cost_to_go(*coarse_costs(bounds.whole(), bounds.geometry, body), goal)
-    r = params.section + params.beyond + reach(body) + 0.1
+    cost to go from ``pose``: the cost to go over the coarse grid (``guide``'s, the whole mission
+    with what the map now says written in; None: the map's own), the candidates ranked and
+    checked on the window they reach."""
+    if guide is None:
+        ctg = cost_to_go(*coarse_costs(bounds.whole(), bounds.geometry, body), goal)
+    else:
+        guide.update(bounds.whole(), bounds.geometry, body)
+        ctg = guide.cost_to_go(goal)
+    r = judged_reach(params, body)
     box = (pose[0] - r, pose[1] - r, pose[0] + r, pose[1] + r)
     stats, wg = bounds.statistics(*box)
     lookahead = None
@@ -123,6 +151,8 @@ class Chooser:
         self.best = math.inf  # the least cost to go the rover stood at
         self.since_best = 0  # sections driven since
         self.started = False  # the start's turn (the hazard cameras' look round the body) is behind
+        # the cost to go's coarse grid over the whole mission: the bounds map is a window round the rover
+        self.guide = CoarseMemory.covering(strategy.cover, GUIDE_PAD, GUIDE_CELL)
 
     def scanned(self) -> None:
         """A 360-degree scan was made where the rover stands (the localiser's): its views make the
@@ -144,7 +174,7 @@ class Chooser:
         t0, c0 = time.monotonic(), time.process_time()
         try:
             return choose_from(self.d.bounds, pose, self.s.mission.goal, self.d.body, self.d.p.vehicle, params,
-                               self.chance)
+                               self.chance, guide=self.guide)
         finally:
             self.s.stats.replanned(t0, c0)
 

@@ -68,7 +68,7 @@ from ..maps import ground_height
 from ..protocol import Fixed, ProtocolError, Reply
 from .planning import goal_stand_in
 from .pursuit import arc_rate, in_rover_frame, motion_poses, nearest_stretch, passed, pursuit_point
-from .sections import Chooser
+from .sections import GUIDE_CELL, WINDOW_SLACK, Chooser, window_half
 
 if TYPE_CHECKING:
     from ..app import App
@@ -87,7 +87,6 @@ GAZE_SLACK = 15.0  # deg
 EDGE_JUMP = 0.02  # share of the range: a bigger jump to a neighbouring pixel marks a depth edge's mixed pixel
 BODY_MARGIN = 0.06  # m round the rover's box and wheels whose returns are its own
 BLIND_EDGE = 0.1  # m past the mast's blind disc that its rays only graze (bounded by a ray, seldom by returns)
-GATE_PAD = 4.0  # m round the mission's start and goal that the gate's bounds map covers (past it: unknown)
 RING_WIDTH = 0.5  # m past the blind disc: the seen ground whose plane see_set_down ring takes
 STALL_CYCLES = 20  # a leg driven this many cycles without getting STALL_PROGRESS closer to its end is stalled
 STALL_PROGRESS = 0.05  # m
@@ -159,7 +158,7 @@ class SeeingDriver:
         self.app: App = job.app
         self.rover = rover
         self.body = rover.body()
-        # the chooser's map (see_gate bounds): every frame's bounds over the whole mission
+        # the chooser's map (see_gate bounds): every frame's bounds over a window that follows the rover
         self.bounds = bounds
         self.set_down_pending = False  # see_set_down ring: the set-down waits for the first look round
         # the body's hazard cameras switched on (drivers.hazcam.cameras): each frame feeds the bounds
@@ -243,6 +242,7 @@ class SeeingDriver:
         self.map.follow(x, y)
         self.map.fuse(world_pts, ranges)
         if self.bounds is not None:
+            self.bounds.follow(x, y, WINDOW_SLACK)
             # every pixel: a rock's top is read by the few returns on it, which a subsample drops
             keep = ground_pixels(xyz, 1, self.p.max_range, amplitude, 0.1, EDGE_JUMP)
             cam = xyz[keep].astype(np.float64)
@@ -586,13 +586,18 @@ class SeeStrategy:
         self.stalled = 0  # replans in a row after which the rover had not moved
         self.since_fix = 0.0  # metres driven since the rolling map was last matched on the global DEM
         self.fixed_at = 0  # the rolling map's frame count then: a fix matches and moves what came after
+        self.bounds_fixed_at = 0  # the bounds map's frame count then: a fix moves what came after
         self.reapproached = False  # drove on once after a fix near the goal (closer)
         self.stats = LoopStats()
         # the mission's start and goal: the planning grid keeps them (and the blank ground between,
         # as a plan from the start would have it) so that it changes only where the maps grow
         self.cover = [(self.app.pose.x, self.app.pose.y), mission.goal]
         memory = MapMemory.covering(self.cover, self.p.memory, RollingParams().cell) if self.p.memory > 0 else None
-        bounds = BoundsMap.covering(self.cover, GATE_PAD) if self.p.gate == "bounds" else None
+        bounds = None
+        if self.p.gate == "bounds":
+            head = HeadCalibration.from_dict(self.app.config.get("head").as_dict())
+            half = window_half(self.p, mission.rover.body(), head)
+            bounds = BoundsMap.around(self.cover[0], half, GUIDE_CELL)
         self.driver = SeeingDriver(self.job, mission.rover, self.p, self.stats, memory, bounds)
         if bounds is not None and self.p.set_down == "ring":
             self.driver.set_down_pending = True  # (Chooser.drive_on: after the first look round)
@@ -819,7 +824,8 @@ class SeeStrategy:
         ``both``, every ``see_localise_every`` metres and after every leg closer than that to the
         goal, what the rolling map saw since the last fix is matched on the global DEM, and a
         fix moves the pose and that part of the map with it (those frames were placed with the
-        pose that drifted; earlier ones with a pose the last fix already corrected). The see
+        pose that drifted; earlier ones with a pose the last fix already corrected), and the
+        same part of the bounds map the chooser decides on. The see
         loop's scans are matched as the scan loop's legs are.
 
         On arriving (the goal within the tolerance by the believed pose) the rover first looks
@@ -851,6 +857,10 @@ class SeeStrategy:
         if fix is not None:
             m.move((p.x, p.y), *fix, since=self.fixed_at)
             self.since_fix, self.fixed_at = 0.0, m.frames
+            bounds = self.driver.bounds
+            if bounds is not None:  # the chooser's map: its frames were placed with the same pose
+                bounds.move((p.x, p.y), *fix, since=self.bounds_fixed_at)
+                self.bounds_fixed_at = bounds.frames
 
     def closer(self, left: float) -> bool:
         """Whether to drive on although the goal is ``left`` metres away, within the tolerance:

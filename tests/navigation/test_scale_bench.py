@@ -101,3 +101,37 @@ def test_the_stretch_table_of_a_synthetic_series() -> None:
     assert len(stretch_table(timings, memory, events, driven=100.0)) == 2
     only = stretch_table([], [(0.0, 300.0, 1.0)], [], driven=0.0)
     assert [(r["from_m"], r["to_m"], r["cycles"], r["rss_mb_max"]) for r in only] == [(0.0, 0.0, 0, 300.0)]
+
+
+def test_the_sampler_reads_the_mission_the_bus_hands_over() -> None:
+    """The sampler takes the running loop from the server bus's ``mission`` item (its
+    strategy's driver, its track), and reads their timings and maps from then on."""
+    import time
+    from types import SimpleNamespace
+
+    from rvs_server.bus import Bus
+    from rvs_server.navigation.see import LoopStats
+    from tools.bench.scale import Sampler
+
+    stats = LoopStats(cycle_ms=[10.0, 20.0], cycle_cpu_ms=[5.0, 6.0], replan_ms=[300.0], replan_cpu_ms=[100.0])
+    driver = SimpleNamespace(stats=stats, bounds=None, map=None)
+    track = SimpleNamespace(rows=[(0.0, 0.0, 0.0), (3.0, 4.0, 0.0)])
+    mission = SimpleNamespace(strategy=SimpleNamespace(driver=driver), track=track)
+    bus = Bus()
+    world = SimpleNamespace(clock=SimpleNamespace(now=lambda: 0.0))
+    sampler = Sampler(world, "marsyard", 50.0, 0.01, lambda row: None)
+    bus.subscribe(sampler.on_bus)
+    bus.publish("reply", conn=1, reply=None, job=False)
+    assert sampler.mission is None
+    bus.publish("mission", mission=mission)
+    assert sampler.mission is mission
+    sampler.start()
+    deadline = time.monotonic() + 30.0
+    while sampler.driven < 5.0 and time.monotonic() < deadline:
+        time.sleep(0.02)
+    sampler.halt.set()
+    sampler.join()
+    assert sampler.driver is driver and sampler.track is track
+    assert sampler.driven == pytest.approx(5.0)
+    assert [t[1:] for t in sampler.timings[:3]] == [("cycle", 10.0, 5.0), ("cycle", 20.0, 6.0),
+                                                    ("choice", 300.0, 100.0)]

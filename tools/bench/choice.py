@@ -91,12 +91,15 @@ def capture(scene: str, mission: int, every: int, most: int, out: Path) -> int:
     state: dict[str, Any] = {"n": 0, "pending": None, "saved": 0}
     choose_from = sections.choose_from
 
-    def choosing(bounds: Any, pose: Any, goal: Any, body: Any, how: str, params: Any, chance: Any) -> Any:
+    def choosing(bounds: Any, pose: Any, goal: Any, body: Any, how: str, params: Any, chance: Any,
+                 guide: Any = None) -> Any:
         keep = state["n"] % every == 0 and state["saved"] < most
-        snapshot = copy.deepcopy(bounds) if keep else None
-        choice, togo = choose_from(bounds, pose, goal, body, how, params, chance)
+        snapshot = copy.deepcopy((bounds, guide)) if keep else None
+        choice, togo = choose_from(bounds, pose, goal, body, how, params, chance, guide)
         if keep:
-            state["pending"] = {"bounds": snapshot, "pose": tuple(map(float, pose)), "goal": tuple(map(float, goal)),
+            assert snapshot is not None
+            state["pending"] = {"bounds": snapshot[0], "guide": snapshot[1], "pose": tuple(map(float, pose)),
+                                "goal": tuple(map(float, goal)),
                                 "body": body, "how": how, "params": params, "chance": chance,
                                 "section": np.asarray(choice.poses), "status": choice.status, "scene": scene,
                                 "mission": mission, "choice": state["n"]}
@@ -146,7 +149,11 @@ def _timed(fn: Callable[[], Any]) -> tuple[Any, float, float]:
 
 
 def _choice(e: dict[str, Any]) -> Any:
-    return sections.choose_from(e["bounds"], e["pose"], e["goal"], e["body"], e["how"], e["params"], e["chance"])
+    """The dumped choice made again, with the coarse guidance as it stood (a copy: a choice
+    writes into it)."""
+    guide = copy.deepcopy(e.get("guide"))
+    return sections.choose_from(e["bounds"], e["pose"], e["goal"], e["body"], e["how"], e["params"], e["chance"],
+                                guide)
 
 
 def _cycle(e: dict[str, Any]) -> Any:

@@ -94,16 +94,17 @@ def main() -> None:
 
     choose_from = sections.choose_from
 
-    def choosing(bounds: Any, pose: Any, goal: Any, body: Any, how: str, params: Any, chance_params: Any) -> Any:
+    def choosing(bounds: Any, pose: Any, goal: Any, body: Any, how: str, params: Any, chance_params: Any,
+                 guide: Any = None) -> Any:
         where["choice"] = len(choices)
-        r = params.section + params.beyond + vehicle.reach(body) + 0.1
+        r = sections.judged_reach(params, body)
         stats, wg = bounds.statistics(pose[0] - r, pose[1] - r, pose[0] + r, pose[1] + r)
         entry: dict[str, Any] = {"pose": [round(float(v), 3) for v in pose], "map": (stats, wg, bounds.params.k),
                                  "chance": chance_params}
         choices.append(entry)
         if len(choices) > args.detail:
             choices[-args.detail - 1].pop("map", None)
-        choice, togo = choose_from(bounds, pose, goal, body, how, params, chance_params)
+        choice, togo = choose_from(bounds, pose, goal, body, how, params, chance_params, guide)
         entry.update(status=choice.status, turn=round(choice.turn, 1), length=round(choice.length, 3),
                      togo=round(togo, 3), checked=choice.checked, reasons=dict(choice.reasons),
                      section=np.round(choice.poses, 3).tolist())

@@ -11,7 +11,8 @@ true track judged by the rover's own body on the true 1 cm surface, built in til
 track (:func:`rvs_truth.surface.truth_checks`: the whole strip at 1 cm is several GB). The
 server runs in this process (as navigate's bench runs it); a sampler thread reads the loop's
 own timing lists (the running :class:`~rvs_server.navigation.see.SeeingDriver`'s
-:class:`~rvs_server.navigation.see.LoopStats`) and the true track navigate records (a row every
+:class:`~rvs_server.navigation.see.LoopStats`; the mission is handed over on the server's bus as
+it starts, its ``mission`` item) and the true track navigate records (a row every
 5 cm or 5 deg) every ``--every`` wall seconds, so each cycle and choice is put at the distance
 driven when it was read (within one poll, about 10-30 cm). Each stretch's row is printed (and appended to ``--out`` as a JSON line) once
 the rover has driven past it, so a run cut short keeps the stretches it covered; the mission's
@@ -26,7 +27,6 @@ so the bench sets it to 2000 unless ``--set`` names it.
 from __future__ import annotations
 
 import argparse
-import gc
 import json
 import math
 import os
@@ -129,11 +129,6 @@ def arrays_mb(*objects: Any) -> float:
     return total / 2**20
 
 
-def _find(cls: type) -> Any:
-    """The live instance of ``cls`` (the one navigate's job runs), or None."""
-    return next((o for o in gc.get_objects() if isinstance(o, cls)), None)
-
-
 class Sampler(threading.Thread):
     """Reads the running see loop every ``every`` wall seconds: its cycles and choices since the
     last read, the true distance driven, the memory; hands each stretch to ``done`` (its row)
@@ -152,19 +147,24 @@ class Sampler(threading.Thread):
         self.halt = threading.Event()
         self.driver: Any = None
         self.track: Any = None
+        self.mission: Any = None  # the running Mission, as the bus handed it over (:meth:`on_bus`)
         self._seen = (0, 0)
         self._rows = 0  # track rows counted into ``driven``
         self._judged = 0  # track rows judged (the stretches reported)
         self.beat = beat
         self._mark, self._beat_at, self._t0 = 0.0, time.monotonic(), time.monotonic()
 
-    def run(self) -> None:
-        from rvs_server.navigation.see import SeeingDriver
-        from rvs_server.navigation.track import Track
+    def on_bus(self, item: Any) -> None:
+        """The server bus's subscriber: keeps the mission its ``mission`` item hands over."""
+        if item.kind == "mission":
+            self.mission = item.data["mission"]
 
+    def run(self) -> None:
         while not self.halt.wait(self.every):
             if self.driver is None or self.track is None:
-                self.driver, self.track = _find(SeeingDriver), _find(Track)
+                mission = self.mission
+                if mission is not None:
+                    self.driver, self.track = getattr(mission.strategy, "driver", None), mission.track
                 continue
             self.sample()
             if int(self.driven // self.stretch) > len(self.rows):
@@ -254,6 +254,7 @@ def run(scene: str, mission: int, seed: int, sets: list[str], stretch: float, ev
             world = srv.app.world
             heading = math.degrees(math.atan2(goal[1] - start[1], goal[0] - start[0]))
             sampler = Sampler(world, scene, stretch, every, emit, beat)
+            srv.app.bus.subscribe(sampler.on_bus)
             t_sim0, t_wall0 = world.clock.now(), time.monotonic()
             sampler.start()
             r = srv.request(f"navigate -start {start[0]},{start[1]},{heading:.1f} -goal {goal[0]},{goal[1]} "
