@@ -423,7 +423,7 @@ class Choice:
     """What :func:`choose` decided.
 
     ``status``: ``drive`` (``poses``: the section to drive, from the rover's pose, turn on the
-    spot first where there is one), ``look`` (``look_at``: the first unseen ground on the best
+    spot first where there is one; driven backwards where ``backward`` says so), ``look`` (``look_at``: the first unseen ground on the best
     path, worth a look before anything is driven) or ``blocked`` (every candidate fails on the
     body's limits, or the goal has no way to it). ``reason`` says which, in a sentence."""
 
@@ -443,6 +443,8 @@ class Choice:
     turn: float = 0.0  # deg: the section's turn on the spot (counter-clockwise), before its arc
     curvature: float = 0.0  # 1/m: the section's arc (counter-clockwise positive)
     length: float = 0.0  # m: the arc driven (the section's, or to its pose nearest the goal)
+    # driven backwards: "track" the rover's own last arc reversed, "arc" a reverse arc (.retreat)
+    backward: str = ""
 
 
 def _to_world(local: np.ndarray, pose: tuple[float, float, float]) -> np.ndarray:

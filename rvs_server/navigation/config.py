@@ -14,6 +14,7 @@ from typing import ClassVar
 from prox_workflows.algorithms.candidates import CandidateParams
 from prox_workflows.algorithms.chance import ChanceParams
 from prox_workflows.algorithms.planner import PlanParams
+from prox_workflows.algorithms.retreat import RetreatParams
 from rvs_params import Settings
 
 from ..config import ModuleConfig, param
@@ -106,6 +107,14 @@ class SeeConfig(Settings):
                                      "costs that rank them (prox_workflows.algorithms.candidates)")
     chance: ChanceParams = param(ChanceParams(), "see loop with the gate, see_vehicle chance: the risk a section "
                                  "may carry (epsilon) and how its probability is drawn")
+    ahead: str = param("chance", "see loop with the gate: the check of each candidate's look-ahead beyond its "
+                       "section: chance, the section's own check (a section is chosen only with a continuation "
+                       "that passes it, so the rover does not commit into a pocket it cannot leave forward); "
+                       "best, the posterior's best estimate (cheaper: the look-ahead only ranks)",
+                       choices=("chance", "best"), option=False)
+    retreat: RetreatParams = param(RetreatParams(), "see loop with the gate: backing out of dead ends (no candidate "
+                                   "passes, or no progress) and the cost a dead end leaves on the cost to go "
+                                   "(prox_workflows.algorithms.retreat)")
 
 
 @dataclass

@@ -20,11 +20,21 @@ goes, and chooses again. The check is the chance constraint on the map's per-cel
   shows nothing new is not repeated from the same place; the choice is then made with looking
   priced out, and ground still unseen is a failure like any other.
 - *blocked*: every candidate fails on the body's limits (or the goal has no way to it on the
-  coarse grid). Once the rover has looked round where it stands, this is a safe stop: the job ends
-  ``E_DATA`` with the reason and the count of failures by limit.
+  coarse grid). Once the rover has looked round where it stands, it is a dead end, as are unseen
+  ground no look shows and ``STALL_SECTIONS`` sections without progress: the rover backs out
+  (:mod:`prox_workflows.algorithms.retreat`: along its last arc, whose ground it drove, or on a
+  reverse arc its check passes), leaves a cost on the dead end's ground for the cost to go, and
+  chooses again. Past ``see.retreat.retreats`` retreats, or with no reverse section that passes,
+  it is a safe stop: the job ends ``E_DATA`` with the reason, the count of failures by limit and
+  the retreats made.
+
+Each candidate's look-ahead beyond its section is judged with the section's own check
+(``see_ahead chance``): a section is chosen only with a continuation that passes, so the rover
+does not commit into a pocket the best estimate alone lets through.
 
 No Dem2Hazard threshold decides where the wheels go, and no verdict is kept: a refusal concerns
-the map it was made on, and the next choice judges the pose again on the map as it then is.
+the map it was made on, and the next choice judges the pose again on the map as it then is. A dead
+end is a cost, not a verdict, and it expires once frames from outside it cover its ground.
 """
 
 from __future__ import annotations
@@ -32,6 +42,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import time
+from collections.abc import Sequence
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -43,6 +54,7 @@ from prox_workflows.algorithms.candidates import (
     CandidateParams,
     Check,
     Choice,
+    CostToGo,
     best_check,
     bounds_check,
     choose,
@@ -53,8 +65,9 @@ from prox_workflows.algorithms.candidates import (
     verdict_name,
 )
 from prox_workflows.algorithms.chance import ChanceParams, posterior
+from prox_workflows.algorithms.retreat import DeadEnd, add_dead_ends, choose_reverse, reverse_options
 from prox_workflows.algorithms.vehicle import reach
-from prox_workflows.algorithms.waypoints import make_waypoints
+from prox_workflows.algorithms.waypoints import Waypoints, make_waypoints
 
 from ..protocol import ProtocolError
 
@@ -83,13 +96,23 @@ def map_check(bounds: BoundsMap, box: tuple[float, float, float, float], body: A
     return bounds_check((stats["lower"], stats["upper"]), g, body)
 
 
-def choose_from(bounds: BoundsMap, pose: tuple[float, float, float], goal: tuple[float, float], body: Any,
-                how: str, params: CandidateParams, chance: ChanceParams) -> tuple[Choice, float]:
-    """The chooser's answer from ``pose`` toward ``goal`` on the bounds map as it is now, and the
-    cost to go from ``pose``: the cost to go over the whole map's coarse grid, the candidates
-    ranked and checked on the window they reach."""
+def guidance(bounds: BoundsMap, goal: tuple[float, float], body: Any, dead_ends: Sequence[DeadEnd] = (),
+             dead_end_cost: float = 0.0) -> CostToGo:
+    """The cost to go over the whole map's coarse grid, a dead end's disc priced ``dead_end_cost``
+    per metre more."""
     lower, upper, g = bounds.window(*_whole(bounds))
-    ctg = cost_to_go(*coarse_costs((lower, upper), g, body), goal)
+    cost, cg = coarse_costs((lower, upper), g, body)
+    return cost_to_go(add_dead_ends(cost, cg, dead_ends, dead_end_cost), cg, goal)
+
+
+def choose_from(bounds: BoundsMap, pose: tuple[float, float, float], goal: tuple[float, float], body: Any,
+                how: str, params: CandidateParams, chance: ChanceParams, *, ahead: str = "chance",
+                dead_ends: Sequence[DeadEnd] = (), dead_end_cost: float = 0.0) -> tuple[Choice, float]:
+    """The chooser's answer from ``pose`` toward ``goal`` on the bounds map as it is now, and the
+    cost to go from ``pose``: the cost to go over the whole map's coarse grid (:func:`guidance`),
+    the candidates ranked and checked on the window they reach. ``ahead`` (``see_ahead``):
+    ``chance`` judges the look-aheads with the section's check, ``best`` on the best estimate."""
+    ctg = guidance(bounds, goal, body, dead_ends, dead_end_cost)
     r = params.section + params.beyond + reach(body) + 0.1
     box = (pose[0] - r, pose[1] - r, pose[0] + r, pose[1] + r)
     stats, wg = bounds.statistics(*box)
@@ -97,9 +120,8 @@ def choose_from(bounds: BoundsMap, pose: tuple[float, float, float], goal: tuple
     if how == "chance":
         post = posterior(stats, wg, bounds.params.k, chance)
         check = posterior_check(post, wg, body, chance)
-        # the look-aheads only rank (a section is judged with the chance constraint before it is
-        # driven): the posterior's best estimate judges them, one check instead of 64 draws
-        lookahead = best_check(post, wg, body)
+        if ahead == "best":  # the look-aheads only rank: one check on the best estimate, no draws
+            lookahead = best_check(post, wg, body)
     else:
         check = bounds_check((stats["lower"], stats["upper"]), wg, body)
     choice = choose(pose, (stats["lower"], stats["upper"]), wg, body, ctg, check, params, lookahead)
@@ -128,6 +150,9 @@ class Chooser:
         self.rounds: list[tuple[float, float]] = []  # where the rover looked round
         self.best = math.inf  # the least cost to go the rover stood at
         self.since_best = 0  # sections driven since
+        self.retreat = self.d.p.retreat
+        self.dead_ends: list[DeadEnd] = []  # where the rover found no way on, priced until seen from outside
+        self.arcs: list[tuple[float, float]] = []  # the arcs driven forward since the last reverse: curvature, m
 
     def scanned(self) -> None:
         """A 360-degree scan was made where the rover stands (the localiser's): its views make the
@@ -145,13 +170,50 @@ class Chooser:
 
     def _choose(self, pose: tuple[float, float, float], look_cost: float | None) -> tuple[Choice, float]:
         params = self.params if look_cost is None else dataclasses.replace(self.params, look_cost=look_cost)
-        self.d.app.bus.publish("bounds", bounds=self.d.bounds, replan=True)  # what this choice reads
+        bounds = self.d.bounds
+        self.d.app.bus.publish("bounds", bounds=bounds, replan=True)  # what this choice reads
+        self.dead_ends = [e for e in self.dead_ends
+                          if not e.expired(pose, bounds.stamp, bounds.geometry, bounds.frames, self.retreat.clear)]
         t0, c0 = time.monotonic(), time.process_time()
         try:
-            return choose_from(self.d.bounds, pose, self.s.mission.goal, self.d.body, self.d.p.vehicle, params,
-                               self.chance)
+            return choose_from(bounds, pose, self.s.mission.goal, self.d.body, self.d.p.vehicle, params,
+                               self.chance, ahead=self.d.p.ahead, dead_ends=self.dead_ends,
+                               dead_end_cost=self.retreat.cost)
         finally:
             self.s.stats.replanned(t0, c0)
+
+    def _back_out(self, leg: int, pose: tuple[float, float, float], why: str) -> None:
+        """A dead end at ``pose`` (``why``: the sentence the safe stop would have said): back out of
+        it on the cheapest reverse section that passes, its ground priced for the cost to go; a
+        safe stop (E_DATA) once ``see.retreat.retreats`` retreats are made or none passes."""
+        made, bound = self.s.stats.retreats, self.retreat.retreats
+        if made >= bound:
+            raise ProtocolError("E_DATA", f"{why}; {made} of {bound} retreats made (navigate.see.retreat.retreats)")
+        bounds = self.d.bounds
+        self.dead_ends.append(DeadEnd(pose[0], pose[1], self.retreat.radius, bounds.frames))
+        options = reverse_options(pose, self.arcs[-1] if self.arcs else None, self.retreat,
+                                  self.params.max_curvature, self.params.step)
+        t0, c0 = time.monotonic(), time.process_time()
+        try:
+            ctg = guidance(bounds, self.s.mission.goal, self.d.body, self.dead_ends, self.retreat.cost)
+            pts = np.concatenate([o.poses for o in options])
+            pad = reach(self.d.body) + 0.1
+            box = (pts[:, 0].min() - pad, pts[:, 1].min() - pad, pts[:, 0].max() + pad, pts[:, 1].max() + pad)
+            choice = choose_reverse(pose, options, map_check(bounds, box, self.d.body, self.d.p.vehicle,
+                                                             self.chance), ctg)
+        finally:
+            self.s.stats.replanned(t0, c0)
+        if choice.status != "drive":
+            raise ProtocolError("E_DATA", f"{why}; backing out: {choice.reason} ({made} of {bound} retreats made)")
+        self.s.stats.retreats += 1
+        self.s.mission.progress(leg, 1, 1, f"dead end at ({pose[0]:.2f}, {pose[1]:.2f}): backing out "
+                                           f"({made + 1} of {bound}) on {choice.reason}", "plan")
+        if choice.backward == "track":
+            self.arcs.pop()
+        else:  # off the track: the arcs before it no longer lead back from where it stands
+            self.arcs.clear()
+        self.best, self.since_best = math.inf, 0
+        self.drive(leg, choice)
 
     def drive_on(self, leg: int) -> bool:
         """Choose and drive one section (looking first where the choice asks); a blocked choice
@@ -179,27 +241,31 @@ class Chooser:
                 if look_cost is None:  # looking from here shows no more: choose among what it shows
                     look_cost = PRICED_OUT
                     continue
-                raise ProtocolError("E_DATA", f"unseen ground ahead that no look from here shows: the best way "
-                                              f"on runs over ({x:.2f}, {y:.2f}), no frame bounds it after a look "
-                                              f"round from ({pose[0]:.2f}, {pose[1]:.2f}); failures: "
-                                              f"{reasons(choice)}")
+                self._back_out(leg, pose, f"unseen ground ahead that no look from here shows: the best way "
+                                          f"on runs over ({x:.2f}, {y:.2f}), no frame bounds it after a look "
+                                          f"round from ({pose[0]:.2f}, {pose[1]:.2f}); failures: "
+                                          f"{reasons(choice)}")
+                return True
             if not self._looked_round_here(pose):  # blocked: look round before giving up
                 self._look_round(pose)
                 continue
-            raise ProtocolError("E_DATA", f"no way on within the body's limits: {choice.reason} from "
-                                          f"({pose[0]:.2f}, {pose[1]:.2f}) after a look round; failures: "
-                                          f"{reasons(choice)}")
+            self._back_out(leg, pose, f"no way on within the body's limits: {choice.reason} from "
+                                      f"({pose[0]:.2f}, {pose[1]:.2f}) after a look round; failures: "
+                                      f"{reasons(choice)}")
+            return True
         else:
-            raise ProtocolError("E_DATA", f"no way on: {LOOKS} looks from ({pose[0]:.2f}, {pose[1]:.2f}) show no "
-                                          "section that passes")
+            self._back_out(leg, pose, f"no way on: {LOOKS} looks from ({pose[0]:.2f}, {pose[1]:.2f}) show no "
+                                      "section that passes")
+            return True
         if togo < self.best - STALL_GAIN:
             self.best, self.since_best = togo, 0
         else:
             self.since_best += 1
             if self.since_best >= STALL_SECTIONS:
-                raise ProtocolError("E_DATA", f"no progress: {STALL_SECTIONS} sections from ({pose[0]:.2f}, "
-                                              f"{pose[1]:.2f}) brought the rover no {STALL_GAIN:g} m closer by "
-                                              f"the cost to go ({togo:.2f} m)")
+                self._back_out(leg, pose, f"no progress: {STALL_SECTIONS} sections from ({pose[0]:.2f}, "
+                                          f"{pose[1]:.2f}) brought the rover no {STALL_GAIN:g} m closer by "
+                                          f"the cost to go ({togo:.2f} m)")
+                return True
         self.drive(leg, choice)
         self.s.stats.replans += 1
         return True
@@ -211,20 +277,37 @@ class Chooser:
         xy = choice.poses[:, :2]
         step = max(1, int(round(WAYPOINT_STEP / max(self.params.step, 1e-3))))
         keep = np.unique(np.r_[np.arange(0, len(xy), step), len(xy) - 1])
-        wps = make_waypoints(_dedup(xy[keep]), start_heading=float(choice.poses[0, 2]))
+        if choice.backward:  # the body's headings: the GNC backs along them (drive=reverse)
+            wps = _reverse_waypoints(choice.poses[keep])
+        else:
+            wps = make_waypoints(_dedup(xy[keep]), start_heading=float(choice.poses[0, 2]))
         m.record(xy, wps.xy)
         end = (float(xy[-1, 0]), float(xy[-1, 1]))
-        m.progress(leg, 1, 1, f"chose candidate {choice.candidate} (rank {choice.rank + 1} of {choice.total}, "
-                              f"{choice.checked} checked): turn {choice.turn:.0f} deg, {choice.length:.2f} m to "
-                              f"({end[0]:.2f}, {end[1]:.2f})", "plan")
-        since = m.announce(leg, wps, "none")
+        if not choice.backward:
+            m.progress(leg, 1, 1, f"chose candidate {choice.candidate} (rank {choice.rank + 1} of {choice.total}, "
+                                  f"{choice.checked} checked): turn {choice.turn:.0f} deg, {choice.length:.2f} m to "
+                                  f"({end[0]:.2f}, {end[1]:.2f})", "plan")
+        since = m.announce(leg, wps, "none", reverse=bool(choice.backward))
         pilot = SectionPilot(self, choice, m.track)
         start_of_leg = len(m.track)
         d.point_forward()
         m.drive(pilot, since, end)
         if pilot.stopped is not None:
             m.progress(leg, 1, 1, f"stopped: {pilot.stopped}", "drive")
-        self.s.localise(leg, m.track.xy(start_of_leg))
+        driven = m.track.xy(start_of_leg)
+        if not choice.backward and len(driven) > 1:  # the arc's metres, for a track back out of a dead end
+            metres = float(np.hypot(*np.diff(driven, axis=0).T).sum())
+            if metres > 1e-3:
+                self.arcs.append((choice.curvature, metres))
+        self.s.localise(leg, driven)
+
+
+def _reverse_waypoints(poses: np.ndarray) -> Waypoints:
+    """A reverse section's waypoints: each with the body's heading there (opposite to the way it
+    moves), no turn on the spot, and the leg's length to the next."""
+    xy = poses[:, :2]
+    legs = np.hypot(*np.diff(xy, axis=0).T)
+    return Waypoints(xy, (poses[:, 2] + 180.0) % 360.0 - 180.0, np.zeros(len(xy)), np.r_[legs, 0.0])
 
 
 def _dedup(xy: np.ndarray) -> np.ndarray:
@@ -255,6 +338,7 @@ class SectionPilot:
         self.driven = 0.0
         self.path = choice.path
         self.frames = self.d.bounds.frames  # the map the section was judged on
+        self.backward = choice.backward
         self.stopped: str | None = None
         self.hazard: dict[str, Any] | None = None
 
@@ -288,7 +372,8 @@ class SectionPilot:
             return None
         self.frames = bounds.frames
         codes = np.asarray(map_check(bounds, box, d.body, d.p.vehicle, self.c.chance)(ahead[1:]))
-        bad = np.flatnonzero(codes != SAFE)
+        # the track back's ground was under the body: unknown to the map is no reason to stop there
+        bad = np.flatnonzero((codes > 0) if self.backward == "track" else (codes != SAFE))
         return None if not len(bad) else (int(codes[bad[0]]), ahead[1 + bad[0]])
 
     def _stop(self, verdict: int, at: np.ndarray, pose: tuple[float, float, float]) -> None:
@@ -299,7 +384,7 @@ class SectionPilot:
 
     def next(self, pose: tuple[float, float, float]) -> Motion | None:
         d = self.d
-        if d.rover.steers:
+        if d.rover.steers and not self.backward:  # backing out, the mast stays forward: it cannot pan behind
             d.gaze(pose, self._path_ahead(pose))
         seen, t1 = d.see(d.pan_tilt)
         d.job.check()
@@ -325,4 +410,6 @@ class SectionPilot:
             speed = min(speed, math.radians(turn_rate) / abs(self.curvature))
         dt = min(d.p.period, left / speed)
         self.driven += speed * dt
+        if self.backward:
+            speed = -speed
         return Motion.arc(speed, math.degrees(self.curvature * speed), dt)

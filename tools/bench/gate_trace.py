@@ -93,7 +93,8 @@ def main() -> None:
 
     choose_from = sections.choose_from
 
-    def choosing(bounds: Any, pose: Any, goal: Any, body: Any, how: str, params: Any, chance_params: Any) -> Any:
+    def choosing(bounds: Any, pose: Any, goal: Any, body: Any, how: str, params: Any, chance_params: Any,
+                 **kw: Any) -> Any:
         where["choice"] = len(choices)
         r = params.section + params.beyond + vehicle.reach(body) + 0.1
         stats, wg = bounds.statistics(pose[0] - r, pose[1] - r, pose[0] + r, pose[1] + r)
@@ -102,7 +103,7 @@ def main() -> None:
         choices.append(entry)
         if len(choices) > args.detail:
             choices[-args.detail - 1].pop("map", None)
-        choice, togo = choose_from(bounds, pose, goal, body, how, params, chance_params)
+        choice, togo = choose_from(bounds, pose, goal, body, how, params, chance_params, **kw)
         entry.update(status=choice.status, turn=round(choice.turn, 1), length=round(choice.length, 3),
                      togo=round(togo, 3), checked=choice.checked, reasons=dict(choice.reasons),
                      section=np.round(choice.poses, 3).tolist())
