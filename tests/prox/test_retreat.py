@@ -1,0 +1,102 @@
+"""Backing out of a dead end (prox_workflows.algorithms.retreat): the reverse sections and their
+check, and the dead end's cost on the cost to go."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from drivers.sim.rover import RoverBody
+from prox_workflows.algorithms.arcs import arc_poses
+from prox_workflows.algorithms.bounds_map import BoundsMap
+from prox_workflows.algorithms.candidates import coarse_costs, cost_to_go, posterior_check
+from prox_workflows.algorithms.chance import ChanceParams, posterior
+from prox_workflows.algorithms.retreat import DeadEnd, RetreatParams, add_dead_ends, choose_reverse, reverse_options
+from prox_workflows.grid import GridGeometry
+
+BODY = RoverBody()
+POSE = (0.0, 0.0, 0.0)
+
+
+def _ground(x0: float, x1: float, rock: tuple[float, float, float, float] | None = None) -> np.ndarray:
+    """Every centimetre of level ground at z 0 over x0..x1, y -1..1 m; ``rock`` (x0, x1, half width,
+    height) a block on it."""
+    x, y = (a.ravel() for a in np.meshgrid(np.arange(x0, x1, 0.01) + 0.005, np.arange(-1.0, 1.0, 0.01) + 0.005))
+    z = np.zeros_like(x)
+    if rock is not None:
+        z = np.where((x > rock[0]) & (x < rock[1]) & (np.abs(y) < rock[2]), rock[3], z)
+    return np.column_stack([x, y, z])
+
+
+def _choose(bounds: BoundsMap, track_back: tuple[float, float] | None):
+    chance = ChanceParams()
+    stats, g = bounds.statistics(-2.0, -1.0, 1.0, 1.0)
+    check = posterior_check(posterior(stats, g, bounds.params.k, chance), g, BODY, chance)
+    lower, upper, wg = bounds.window(-2.0, -1.0, 1.0, 1.0)
+    ctg = cost_to_go(*coarse_costs((lower, upper), wg, BODY), (3.0, 0.0))
+    options = reverse_options(POSE, track_back, RetreatParams(), 2.4, 0.05)
+    return choose_reverse(POSE, options, check, ctg)
+
+
+def _map(*grounds: np.ndarray) -> BoundsMap:
+    bounds = BoundsMap.covering([[-2.0, -1.0], [1.0, 1.0]], 0.0)
+    for ground in grounds:
+        bounds.fuse(ground, 0.002, np.array([0.0, 0.0, 0.8]))
+    return bounds
+
+
+def test_arc_poses_with_a_negative_length_run_backwards_with_the_body_s_heading() -> None:
+    back = arc_poses((1.0, 2.0, 90.0), 0.0, -0.6, 0.05)
+    assert len(back) == 13
+    np.testing.assert_allclose(back[-1], [1.0, 1.4, 90.0], atol=1e-9)
+    left = arc_poses((0.0, 0.0, 0.0), 1.0, -0.5, 0.05)  # backing on a left arc: the heading falls
+    assert left[-1, 0] < 0 and left[-1, 1] > 0 and left[-1, 2] == pytest.approx(-np.degrees(0.5))
+
+
+def test_a_reverse_arc_is_never_judged_on_unseen_ground() -> None:
+    """Level ground seen only ahead of the rover and under it (x from -0.35 m on): every reverse arc
+    puts the body's rear on ground no frame has bounded and fails as unknown; the same ground seen
+    behind lets a reverse arc pass."""
+    blind = _choose(_map(_ground(-0.35, 1.0)), None)
+    assert blind.status == "blocked", blind.reason
+    assert blind.reasons == {"reverse arc unknown": 5}, blind.reasons
+    seen = _choose(_map(_ground(-0.35, 1.0), _ground(-2.0, -0.35)), None)
+    assert seen.status == "drive" and seen.backward == "arc", seen.reason
+    assert seen.poses[-1, 0] < -0.3 and np.all(np.diff(seen.poses[:, 0]) < 0)  # backwards all the way
+    assert seen.poses[-1, 2] == pytest.approx(-np.degrees(seen.curvature * seen.length))  # the body's heading
+
+
+def test_the_track_back_passes_over_ground_the_body_drove_and_not_over_a_rock_seen_on_it() -> None:
+    """The track back (the last arc driven, reversed) runs over ground the body stood on: the map
+    not bounding it is no reason to refuse it, while the reverse arcs there fail as unknown. A rock
+    the map shows on that track refuses it on a limit."""
+    driven = _choose(_map(_ground(-0.35, 1.0)), (0.0, 0.6))
+    assert driven.status == "drive" and driven.backward == "track", driven.reason
+    assert driven.poses[-1, 0] == pytest.approx(-0.6) and driven.length == pytest.approx(0.6)
+    rock = _choose(_map(_ground(-0.35, 1.0), _ground(-2.0, -0.35, (-0.9, -0.6, 0.3, 0.2))), (0.0, 0.6))
+    assert not (rock.status == "drive" and rock.backward == "track"), rock.reason
+    assert any(k.startswith("track back ") and not k.endswith("unknown") for k in rock.reasons), rock.reasons
+
+
+def test_a_dead_end_prices_its_disc_until_frames_from_outside_cover_it() -> None:
+    """A dead end adds its cost per metre on the coarse cells of its disc, so the cost to go through
+    it rises and round it does not; walls stay walls. Frames the rover takes standing near it only
+    move its mark; once frames taken from farther away cover half its ground, it expires."""
+    g = GridGeometry(0.25, -2.0, 2.0, 16, 16)
+    cost = np.ones((16, 16))
+    cost[0, 0] = np.inf
+    end = DeadEnd(0.0, 0.0, 0.6, mark=10)
+    priced = add_dead_ends(cost, g, [end], 4.0)
+    assert priced[8, 8] == 5.0 and priced[7, 7] == 5.0 and priced[8, 11] == 1.0 and np.isinf(priced[0, 0])
+    before, after = cost_to_go(cost, g, (1.9, 0.0)), cost_to_go(priced, g, (1.9, 0.0))
+    x, y = np.array([0.0, -1.9]), np.array([0.0, 0.0])
+    inside, across = after.at(x, y) - before.at(x, y)
+    assert inside >= 2.0  # out of the disc at 5 a metre instead of 1
+    assert 0.1 < across < 4.0 * 1.2  # from beyond it, round it: dearer than straight, cheaper than through
+    fine = GridGeometry(0.05, -2.0, 2.0, 80, 80)
+    stamp = np.full((80, 80), 12, np.int32)  # frames 11 and 12 touched everything
+    assert not end.expired((0.8, 0.0, 0.0), stamp, fine, 12, 1.0)  # near: its own frames
+    assert end.mark == 12
+    assert not end.expired((3.0, 0.0, 0.0), stamp, fine, 12, 1.0)  # far, but nothing new on it
+    stamp[30:50, 30:50] = 13
+    assert end.expired((3.0, 0.0, 0.0), stamp, fine, 13, 1.0)
