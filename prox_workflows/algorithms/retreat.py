@@ -99,22 +99,30 @@ def _back(pose: Sequence[float], k: float, metres: float, step: float) -> np.nda
     return poses
 
 
-def choose_reverse(pose: Sequence[float], options: list[ReverseOption], check: Check, ctg: CostToGo) -> Choice:
-    """The cheapest reverse option by the cost to go at its end that ``check`` passes (all of them
-    judged in one call), as a ``drive`` :class:`~.candidates.Choice` with ``backward`` set; or
-    ``blocked`` with each option's failure."""
+def choose_reverse(pose: Sequence[float], options: list[ReverseOption], check: Check, ctg: CostToGo,
+                   track_check: Check | None = None) -> Choice:
+    """The cheapest reverse option by the cost to go at its end that passes, as a ``drive``
+    :class:`~.candidates.Choice` with ``backward`` set; or ``blocked`` with each option's failure.
+    The reverse arcs are judged with ``check`` (in one call); the track back with ``track_check``
+    where given: the body stood on every pose of it, so what can refuse it is ground that changed
+    since (a rock that fell there shows in the map's best estimate), not the draws of a map that
+    never bounded a wheel's patch as closely as the wheel itself did."""
     if not options:
         return Choice("blocked", "no reverse section to judge", np.zeros((0, 3)), np.zeros((0, 3)))
     ends = np.array([o.poses[-1, :2] for o in options])
     cost = ctg.at(ends[:, 0], ends[:, 1])
-    batch = np.concatenate([o.poses[1:] for o in options])
-    codes = np.asarray(check(batch), int)
+    track_check = track_check or check
+    batch = np.concatenate([o.poses[1:] for o in options if not o.track])
+    codes_arcs = np.asarray(check(batch), int) if len(batch) else np.zeros(0, int)
     reasons: dict[str, int] = {}
     verdicts: list[int | None] = []
     at = 0
     for o in options:
-        c = codes[at:at + len(o.poses) - 1]
-        at += len(o.poses) - 1
+        if o.track:
+            c = np.asarray(track_check(o.poses[1:]), int)
+        else:
+            c = codes_arcs[at:at + len(o.poses) - 1]
+            at += len(o.poses) - 1
         bad = np.flatnonzero((c > 0) if o.track else (c != SAFE))
         verdicts.append(int(c[bad[0]]) if len(bad) else None)
         if len(bad):

@@ -88,11 +88,13 @@ def map_check(bounds: BoundsMap, box: tuple[float, float, float, float], body: A
     """The vehicle check over ``box`` (xmin, ymin, xmax, ymax) of the bounds map as a
     :data:`~prox_workflows.algorithms.candidates.Check`: ``chance`` on the cells' posteriors (the
     map's per-cell statistics: the mean's horizontal error along its rays averaged as its height
-    is, and the slope's steepest direction for the rays'), ``bounds`` the worst case on its
-    bounds."""
+    is, and the slope's steepest direction for the rays'), ``best`` on their best estimate alone
+    (no draws), ``bounds`` the worst case on its bounds."""
     stats, g = bounds.statistics(*box)
     if how == "chance":
         return posterior_check(posterior(stats, g, bounds.params.k, chance), g, body, chance)
+    if how == "best":
+        return best_check(posterior(stats, g, bounds.params.k, chance), g, body)
     return bounds_check((stats["lower"], stats["upper"]), g, body)
 
 
@@ -199,8 +201,9 @@ class Chooser:
             pts = np.concatenate([o.poses for o in options])
             pad = reach(self.d.body) + 0.1
             box = (pts[:, 0].min() - pad, pts[:, 1].min() - pad, pts[:, 0].max() + pad, pts[:, 1].max() + pad)
-            choice = choose_reverse(pose, options, map_check(bounds, box, self.d.body, self.d.p.vehicle,
-                                                             self.chance), ctg)
+            check = map_check(bounds, box, self.d.body, self.d.p.vehicle, self.chance)
+            track = map_check(bounds, box, self.d.body, "best", self.chance) if self.d.p.vehicle == "chance" else None
+            choice = choose_reverse(pose, options, check, ctg, track)
         finally:
             self.s.stats.replanned(t0, c0)
         if choice.status != "drive":
@@ -294,12 +297,28 @@ class Chooser:
         m.drive(pilot, since, end)
         if pilot.stopped is not None:
             m.progress(leg, 1, 1, f"stopped: {pilot.stopped}", "drive")
-        driven = m.track.xy(start_of_leg)
-        if not choice.backward and len(driven) > 1:  # the arc's metres, for a track back out of a dead end
-            metres = float(np.hypot(*np.diff(driven, axis=0).T).sum())
-            if metres > 1e-3:
-                self.arcs.append((choice.curvature, metres))
-        self.s.localise(leg, driven)
+        if not choice.backward:
+            # from the row before the section's: where the rover stood when it set off
+            arc = _driven_arc(np.asarray(m.track.rows[max(0, start_of_leg - 1):], float).reshape(-1, 3))
+            if arc is not None:
+                self.arcs.append(arc)
+        self.s.localise(leg, m.track.xy(start_of_leg))
+
+
+def _driven_arc(rows: np.ndarray) -> tuple[float, float] | None:
+    """The arc the track rows of one section show driven (after its turn on the spot): its
+    curvature (1/m, the heading's change over the metres) and its metres; None if it did not
+    move. The track is where the body went (the simulator's truth, the GNC's reports), so the
+    track back follows it, not the section as chosen."""
+    if len(rows) < 2:
+        return None
+    steps = np.hypot(*np.diff(rows[:, :2], axis=0).T)
+    moved = np.flatnonzero(steps > 1e-4)
+    metres = float(steps.sum())
+    if not len(moved) or metres < 1e-3:
+        return None
+    turned = (rows[-1, 2] - rows[moved[0], 2] + 180.0) % 360.0 - 180.0
+    return math.radians(turned) / metres, metres
 
 
 def _reverse_waypoints(poses: np.ndarray) -> Waypoints:
@@ -371,7 +390,8 @@ class SectionPilot:
         if sl is None or not (bounds.stamp[sl] > self.frames).any():
             return None
         self.frames = bounds.frames
-        codes = np.asarray(map_check(bounds, box, d.body, d.p.vehicle, self.c.chance)(ahead[1:]))
+        how = "best" if self.backward == "track" and d.p.vehicle == "chance" else d.p.vehicle  # as it was chosen
+        codes = np.asarray(map_check(bounds, box, d.body, how, self.c.chance)(ahead[1:]))
         # the track back's ground was under the body: unknown to the map is no reason to stop there
         bad = np.flatnonzero((codes > 0) if self.backward == "track" else (codes != SAFE))
         return None if not len(bad) else (int(codes[bad[0]]), ahead[1 + bad[0]])

@@ -6,6 +6,8 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
+import pytest
 from support.marks import long_test
 from support.server import wait_for
 
@@ -85,3 +87,41 @@ def test_a_rover_in_a_cul_de_sac_backs_out_and_reaches_the_goal_round_it(server_
     events, checked = _events(srv, world, "pocket", (-3.0, -3.0, 3.5, 3.0))
     assert checked > 500
     assert events == [], [e.describe() for e in events]
+
+
+def test_the_gnc_is_sent_a_reverse_section_as_waypoints_with_the_body_s_heading(server_factory) -> None:
+    """Without -auto the GNC drives: it drives the rover straight into the corridor, whose far end
+    a rock closes, and stops there. The chooser finds no way on, backs out along the track the GNC
+    reported, and the GNC is sent that section as any other, a waiting EVENT's waypoints, with
+    ``drive=reverse``: the points run back along the track while each heading is the body's
+    (toward the rocks, not the way it moves). A forward section's event has no ``drive`` field."""
+    srv = server_factory(["server.scene=quarry", "navigate.pose_settle=0.5"])
+    world = srv.app.world
+    world.set_target_visible(False)
+    _pocket(srv)
+    c, gnc = srv.client(), srv.client()
+    assert c.request("sim add-rock -x 0.95 -y 0 -radius 0.24 -height 0.25").status == "OK"
+    world.set_rover_pose(-2.0, 0.0, 0.0)  # the GNC's rover stands where it says
+    job = c.start_job("navigate -start -2.0,0,0 -goal 2.5,0 -loop see -name gncback")
+    events, messages = [], []
+    while not any(e.get("drive") for e in events):
+        r = c.reply(timeout=600)
+        assert not (r.status in ("OK", "ERROR") and r.fields.get("job") == job), (r.fields, messages, events)
+        if r.status == "PROGRESS":
+            messages.append(r.fields.get("message", ""))
+        if r.status == "EVENT" and r.fields.get("kind") == "waiting":
+            events.append(r.fields)
+            if len(events) == 1:  # the GNC's own way: straight into the corridor, every 5 cm
+                for x in np.arange(-1.95, 0.301, 0.05):
+                    world.set_rover_pose(float(x), 0.0, 0.0)
+                    assert gnc.request(f"pose -x {x:.3f} -y 0 -heading 0").status == "OK"
+                assert gnc.request("pose -x 0.3 -y 0 -heading 0 -stopped true").status == "OK"
+    assert c.request("break").status == "OK"
+    assert len(events) == 2 and "drive" not in events[0], events
+    back = events[1]
+    assert back["drive"] == "reverse", back
+    wps = np.array([float(v) for v in back["waypoints"].split(",")]).reshape(-1, 3)
+    assert wps[0, 0] == pytest.approx(0.3, abs=1e-3) and np.all(np.diff(wps[:, 0]) < 0), wps  # backwards
+    assert wps[-1, 0] == pytest.approx(-2.0, abs=0.05) and np.abs(wps[:, 1]).max() < 0.01, wps  # along the track
+    assert np.abs(wps[:, 2]).max() < 1.0, wps  # the body still faces the rocks
+    assert any("backing out (1 of 4) on the track back" in m for m in messages), messages

@@ -11,7 +11,13 @@ from prox_workflows.algorithms.arcs import arc_poses
 from prox_workflows.algorithms.bounds_map import BoundsMap
 from prox_workflows.algorithms.candidates import coarse_costs, cost_to_go, posterior_check
 from prox_workflows.algorithms.chance import ChanceParams, posterior
-from prox_workflows.algorithms.retreat import DeadEnd, RetreatParams, add_dead_ends, choose_reverse, reverse_options
+from prox_workflows.algorithms.retreat import (
+    DeadEnd,
+    RetreatParams,
+    add_dead_ends,
+    choose_reverse,
+    reverse_options,
+)
 from prox_workflows.grid import GridGeometry
 
 BODY = RoverBody()
