@@ -57,6 +57,7 @@ def test_the_retreat_bound_ends_a_mission_in_a_dead_end_with_its_reason(server_f
 
 
 @long_test  # about 10 m through the gate, back out and round the fence: 4-8 min of wall time
+@pytest.mark.timeout(2400)  # pyproject's 300 s is for ordinary tests
 def test_a_rover_in_a_cul_de_sac_backs_out_and_reaches_the_goal_round_it(server_factory) -> None:
     """The rover drives into the gate's corridor toward the goal beyond the fence; once it is in, a
     rock dropped at the corridor's far end closes it (a cul-de-sac: rocks on three sides). Nothing
