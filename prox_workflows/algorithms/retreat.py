@@ -21,8 +21,10 @@ What this module holds (plain functions; the loop that drives them is
       body's rear fails it, as it fails a forward section); the track back also passes where a
       pose's ground is unknown to the map, since the body stood on every pose of it, but not
       where the map now shows a limit exceeded (a rock dropped on the track is seen there).
-    - :class:`DeadEnd` and :func:`add_dead_ends`: a dead end is a cost per metre on the coarse
-      grid's cells within its disc (a cost, never a wall: the map that refused may be wrong). It
+    - :class:`DeadEnd`, :func:`add_dead_ends` and :func:`dead_end_penalty`: a dead end is a cost
+      per metre on the coarse grid's cells within its disc, and on every candidate path over it
+      (the cost to go is read at a path's end, past the disc it crossed): a cost, never a wall,
+      since the map that refused may be wrong. It
       expires when frames taken from outside its neighbourhood cover its ground
       (:meth:`DeadEnd.expired`): the frames the rover takes from inside the pocket are what
       refused, and a look from elsewhere is new evidence.
@@ -31,7 +33,7 @@ What this module holds (plain functions; the loop that drives them is
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -42,7 +44,8 @@ from ..grid import GridGeometry
 from .arcs import arc_poses, default_curvatures
 from .candidates import SAFE, Check, Choice, CostToGo, verdict_name
 
-__all__ = ["RetreatParams", "ReverseOption", "DeadEnd", "reverse_options", "choose_reverse", "add_dead_ends"]
+__all__ = ["RetreatParams", "ReverseOption", "DeadEnd", "reverse_options", "choose_reverse", "add_dead_ends",
+           "dead_end_penalty"]
 
 
 @dataclass
@@ -178,6 +181,22 @@ def _disc(geom: GridGeometry, x: float, y: float, radius: float) -> tuple[np.nda
     cx, cy = geom.xmin + (cc + 0.5) * geom.cell, geom.ymax - (rr + 0.5) * geom.cell
     inside = np.hypot(cx - x, cy - y) <= radius
     return rr[inside], cc[inside]
+
+
+def dead_end_penalty(dead_ends: Sequence[DeadEnd], per_metre: float) -> Callable[[np.ndarray], np.ndarray] | None:
+    """The dead ends' cost per metre at points (N, 2), for a candidate path crossing them (each
+    dead end's disc adds ``per_metre``; None: no dead end)."""
+    if not dead_ends or per_metre <= 0:
+        return None
+    centres = np.array([(d.x, d.y) for d in dead_ends])
+    radii = np.array([d.radius for d in dead_ends])
+
+    def penalty(xy: np.ndarray) -> np.ndarray:
+        xy = np.asarray(xy, float).reshape(-1, 2)
+        inside = np.hypot(xy[:, None, 0] - centres[None, :, 0], xy[:, None, 1] - centres[None, :, 1]) <= radii
+        return per_metre * inside.sum(axis=1)
+
+    return penalty
 
 
 def add_dead_ends(cost: np.ndarray, geom: GridGeometry, dead_ends: Sequence[DeadEnd], per_metre: float

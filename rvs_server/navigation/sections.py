@@ -65,7 +65,13 @@ from prox_workflows.algorithms.candidates import (
     verdict_name,
 )
 from prox_workflows.algorithms.chance import ChanceParams, posterior
-from prox_workflows.algorithms.retreat import DeadEnd, add_dead_ends, choose_reverse, reverse_options
+from prox_workflows.algorithms.retreat import (
+    DeadEnd,
+    add_dead_ends,
+    choose_reverse,
+    dead_end_penalty,
+    reverse_options,
+)
 from prox_workflows.algorithms.vehicle import reach
 from prox_workflows.algorithms.waypoints import Waypoints, make_waypoints
 
@@ -126,7 +132,8 @@ def choose_from(bounds: BoundsMap, pose: tuple[float, float, float], goal: tuple
             lookahead = best_check(post, wg, body)
     else:
         check = bounds_check((stats["lower"], stats["upper"]), wg, body)
-    choice = choose(pose, (stats["lower"], stats["upper"]), wg, body, ctg, check, params, lookahead)
+    choice = choose(pose, (stats["lower"], stats["upper"]), wg, body, ctg, check, params, lookahead,
+                    dead_end_penalty(dead_ends, dead_end_cost))
     return choice, float(ctg.at(np.array([pose[0]]), np.array([pose[1]]))[0])
 
 

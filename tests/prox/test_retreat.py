@@ -106,3 +106,22 @@ def test_a_dead_end_prices_its_disc_until_frames_from_outside_cover_it() -> None
     assert not end.expired((3.0, 0.0, 0.0), stamp, fine, 12, 1.0)  # far, but nothing new on it
     stamp[30:50, 30:50] = 13
     assert end.expired((3.0, 0.0, 0.0), stamp, fine, 13, 1.0)
+
+
+def test_a_path_over_a_dead_end_pays_for_it_though_it_ends_beyond() -> None:
+    """Level ground seen all round, the goal 3 m straight ahead: the chooser drives straight. With
+    a dead end 1 m ahead (where the straight section ends; the look-ahead runs on past it, so the
+    cost to go at the path's end does not see it) the straight way pays the dead end's price and
+    another section is chosen."""
+    from prox_workflows.algorithms.candidates import CandidateParams
+    from rvs_server.navigation.sections import choose_from
+
+    bounds = BoundsMap.covering([[-1.0, -1.0], [4.0, 1.0]], 0.0)
+    bounds.fuse(_ground(-1.0, 4.0), 0.002, np.array([0.0, 0.0, 0.8]))
+    args = (bounds, POSE, (3.0, 0.0), BODY, "chance", CandidateParams(), ChanceParams())
+    free, _ = choose_from(*args)
+    assert free.status == "drive" and free.turn == 0.0 and abs(free.curvature) < 1e-9, free.reason
+    priced, _ = choose_from(*args, dead_ends=[DeadEnd(1.0, 0.0, 0.4, 0)], dead_end_cost=4.0)
+    assert priced.status == "drive", priced.reason
+    assert not (priced.turn == 0.0 and abs(priced.curvature) < 1e-9), (priced.turn, priced.curvature)
+    assert np.hypot(priced.path[:, 0] - 1.0, priced.path[:, 1]).min() > 0.3  # round it
