@@ -91,11 +91,14 @@ def test_a_rover_in_a_cul_de_sac_backs_out_and_reaches_the_goal_round_it(server_
 
 
 def test_the_gnc_is_sent_a_reverse_section_as_waypoints_with_the_body_s_heading(server_factory) -> None:
-    """Without -auto the GNC drives: it drives the rover straight into the corridor, whose far end
-    a rock closes, and stops there. The chooser finds no way on, backs out along the track the GNC
-    reported, and the GNC is sent that section as any other, a waiting EVENT's waypoints, with
-    ``drive=reverse``: the points run back along the track while each heading is the body's
-    (toward the rocks, not the way it moves). A forward section's event has no ``drive`` field."""
+    """Without -auto the GNC drives: it drives the rover its own way, straight on toward the
+    corridor whose far end a rock closes (to x -1.0 m, then into it), whatever sections it is
+    sent. Where the chooser finds a dead end (before the gate or in the corridor: where the map
+    is ambiguous enough to refuse, run to run) it backs out along the track the GNC reported, and
+    the GNC is sent that section as any other, a waiting EVENT's waypoints, with
+    ``drive=reverse``: the points run back along the track to where the last section set off while
+    each heading is the body's (toward the rocks, not the way it moves). A forward section's event
+    has no ``drive`` field."""
     srv = server_factory(["server.scene=quarry", "navigate.pose_settle=0.5"])
     world = srv.app.world
     world.set_target_visible(False)
@@ -112,17 +115,20 @@ def test_the_gnc_is_sent_a_reverse_section_as_waypoints_with_the_body_s_heading(
             messages.append(r.fields.get("message", ""))
         if r.status == "EVENT" and r.fields.get("kind") == "waiting":
             events.append(r.fields)
-            if len(events) == 1:  # the GNC's own way: straight into the corridor, every 5 cm
-                for x in np.arange(-1.95, 0.301, 0.05):
+            if not events[-1].get("drive"):  # the GNC's own way: to x -1.0, then into the corridor, every 5 cm
+                x0, x1 = (-2.0, -1.0) if len(events) == 1 else (-1.0, 0.3)
+                for x in np.arange(x0 + 0.05, x1 + 0.001, 0.05):
                     world.set_rover_pose(float(x), 0.0, 0.0)
                     assert gnc.request(f"pose -x {x:.3f} -y 0 -heading 0").status == "OK"
-                assert gnc.request("pose -x 0.3 -y 0 -heading 0 -stopped true").status == "OK"
+                assert gnc.request(f"pose -x {x1} -y 0 -heading 0 -stopped true").status == "OK"
     assert c.request("break").status == "OK"
-    assert len(events) == 2 and "drive" not in events[0], events
-    back = events[1]
+    assert len(events) in (2, 3) and not any(e.get("drive") for e in events[:-1]), events
+    back = events[-1]
     assert back["drive"] == "reverse", back
+    # from where the GNC stopped back to where its last section set off
+    stood, set_off = (-1.0, -2.0) if len(events) == 2 else (0.3, -1.0)
     wps = np.array([float(v) for v in back["waypoints"].split(",")]).reshape(-1, 3)
-    assert wps[0, 0] == pytest.approx(0.3, abs=1e-3) and np.all(np.diff(wps[:, 0]) < 0), wps  # backwards
-    assert wps[-1, 0] == pytest.approx(-2.0, abs=0.05) and np.abs(wps[:, 1]).max() < 0.01, wps  # along the track
+    assert wps[0, 0] == pytest.approx(stood, abs=1e-3) and np.all(np.diff(wps[:, 0]) < 0), wps  # backwards
+    assert wps[-1, 0] == pytest.approx(set_off, abs=0.05) and np.abs(wps[:, 1]).max() < 0.01, wps  # along the track
     assert np.abs(wps[:, 2]).max() < 1.0, wps  # the body still faces the rocks
     assert any("backing out (1 of 4) on the track back" in m for m in messages), messages
