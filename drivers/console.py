@@ -17,6 +17,7 @@ from __future__ import annotations
 import cmd
 import contextlib
 import json
+import math
 import shlex
 import sys
 from collections.abc import Callable, Iterator, Sequence
@@ -44,6 +45,19 @@ def split_words(arg: str, n_min: int, n_max: int, usage: str) -> list[str]:
     if not n_min <= len(words) <= n_max:
         raise ValueError(f"usage: {usage}")
     return words
+
+
+def numbers(arg: str, n_min: int, n_max: int, usage: str, kind: type = float) -> list[Any]:
+    """The command's words as numbers of ``kind``: a word that is not one answers with the usage
+    line, where Python's conversion message would not say which command or what to type."""
+    words = split_words(arg, n_min, n_max, usage)
+    try:
+        values = [kind(w) for w in words]
+    except ValueError:
+        raise ValueError(f"{'whole ' if kind is int else ''}numbers expected; usage: {usage}") from None
+    if not all(math.isfinite(v) for v in values):
+        raise ValueError(f"finite numbers expected; usage: {usage}")
+    return values
 
 
 def read_config(path: str | Path | None = None) -> dict[str, Any] | None:

@@ -12,6 +12,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+from drivers.sim.scene import SCENES_DIR, scene_path
 from rvs_params.cli import ToolParser
 
 from . import commands as _commands  # noqa: F401 - fills the command table
@@ -128,7 +129,8 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
                    help="Foxglove WebSocket port for a read-only live view in Foxglove Studio, on the same host "
                         "(default 8765; 0: off)")
     p.add_argument("--data", help="data directory (default ./data)")
-    p.add_argument("--scene", help="simulated scene: office, quarry, marsyard, hirise, or a scene .yaml path (default office)")
+    p.add_argument("--scene", help=f"simulated scene: {', '.join(sorted(q.stem for q in SCENES_DIR.glob('*.yaml')))}, "
+                                   "or a scene .yaml path (default office)")
     p.add_argument("--config", help="folder of YAML files overriding config/")
     p.add_argument("--set", action="append", default=[], metavar="MODULE.KEY=VALUE",
                    help="override one configuration value (repeatable)")
@@ -146,6 +148,8 @@ def main(argv: list[str] | None = None) -> int:
             overrides.append(f"server.{key}={value}")
     try:
         store = build_config(args.config, overrides)
+        # a misspelt scene is a usage error like a bad --set: said before anything starts, exit 2
+        scene_path(store.get("server").scene)
     except (ValueError, OSError) as exc:
         print(f"rvs-server: {exc}", file=sys.stderr)
         return 2

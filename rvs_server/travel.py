@@ -1,6 +1,7 @@
-"""Where the rover has been and where it was last sent: the driven track and the last navigate's
-goal, kept by the server whoever watches (the console's map and Foxglove's ``/nav/track`` both
-read them), so a page opened after a drive shows the whole of it."""
+"""Where the rover has been, where it was last sent and the last move checked: the driven track,
+the last navigate's goal and the last check-move's answer, kept by the server whoever watches (the
+console's map and Foxglove's ``/nav/track`` and ``/nav/check_move`` read them), so a page opened
+after a drive shows the whole of it."""
 
 from __future__ import annotations
 
@@ -8,6 +9,7 @@ import threading
 from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import Any
 
 TRACK_POINTS = 5000  # positions kept: at TRACK_STEP apart, 100 m of driving
 TRACK_STEP = 0.02  # m the rover moves (x + y) before the track gets a point
@@ -21,6 +23,18 @@ class Goal:
     job: int  # the navigate that was sent there
 
 
+@dataclass(frozen=True)
+class CheckedMove:
+    """A check-move's answer with the pose it was asked from: the reply names only where the move
+    ends, and by the time a watcher reads the reply the rover may have moved."""
+    start: tuple[float, float, float]  # x, y, heading where the rover stood when it was asked
+    fields: dict[str, Any]  # the reply's fields (verdict, worst, to, ...)
+
+    @property
+    def to(self) -> tuple[float, float]:
+        return float(self.fields["to"][0]), float(self.fields["to"][1])
+
+
 class Travel:
     """Thread-safe: the pose's writer (a rover's thread) feeds the track, a navigate job sets
     the goal, the console and the telemetry hub read both."""
@@ -29,6 +43,7 @@ class Travel:
         self._lock = threading.Lock()
         self._track: deque[tuple[float, float, float]] = deque(maxlen=TRACK_POINTS)
         self._goal: Goal | None = None
+        self._check: CheckedMove | None = None
         self._version = 0  # counts track points added: a reader tells a new track from the one it has
 
     def moved(self, x: float, y: float, ground: Callable[[float, float], float]) -> None:
@@ -57,3 +72,11 @@ class Travel:
 
     def aim(self, goal: Goal | None) -> None:
         self._goal = goal
+
+    @property
+    def check(self) -> CheckedMove | None:
+        """The last check-move's answer, whoever asked: every page and the live view draw it."""
+        return self._check
+
+    def checked(self, move: CheckedMove) -> None:
+        self._check = move

@@ -3,6 +3,7 @@ the 1 cm surface, and the maps a perfect sensor would make of it."""
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
@@ -10,14 +11,30 @@ from scipy import ndimage
 
 from drivers.sim.world import World
 from prox_workflows.algorithms.dem2hazard import HazardParams, dem2hazard
-from prox_workflows.algorithms.vehicle import check_poses, densify, unsafe_events
+from prox_workflows.algorithms.vehicle import (
+    PoseChecks,
+    VehicleBody,
+    check_poses,
+    densify,
+    reach,
+    unsafe_events,
+)
 from prox_workflows.grid import GridGeometry
 from rvs_params.hazard import HAZARDOUS, SAFE, UNDEFINED
 
-# m: each scene's area (xmin, ymin, xmax, ymax) in the world frame for the 15-20 m missions
+# m: each scene's area (xmin, ymin, xmax, ymax) in the world frame for its missions
 # (:func:`missions`) and for the 3.5-5 m ones (:func:`pick_start_goal`)
 NEAR_AREA = {"office": (-2.5, -3.0, 5.5, 3.0), "quarry": (-3.0, -4.0, 7.0, 4.0), "marsyard": (-4.0, -6.0, 8.0, 6.0)}
-AREA = {"marsyard": (-5.5, -9.5, 13.5, 9.5), "hirise": (-14.0, -14.0, 14.0, 14.0), "dense": (-14.0, -14.0, 14.0, 14.0)}
+AREA = {"marsyard": (-5.5, -9.5, 13.5, 9.5), "hirise": (-14.0, -14.0, 14.0, 14.0), "dense": (-14.0, -14.0, 14.0, 14.0),
+        "marsyard_long": (-5.5, -7.5, 205.5, 7.5)}
+# m: how far apart a scene's mission start and goal are (min, max); the others' 15-20 m
+SPAN = {"marsyard_long": (199.0, 201.0)}
+MISSION_SPAN = (15.0, 20.0)
+# 1 cm cells of a mission area's true surface built whole (marsyard 3.6 M, hirise and dense 7.8 M:
+# 0.5 GB at the peak of building one); a larger area (marsyard_long: 32 M, several GB) is judged
+# in tiles built along the poses (:func:`truth_checks`)
+WHOLE_TRUTH_CELLS = 16_000_000
+TILE = 10.0  # m: the most a tile's poses spread along x or y (a straight 10 m: 1,000 x 100 cells)
 
 
 def true_maps(world: World, bounds: tuple[float, float, float, float]) -> tuple[dict[str, np.ndarray],
@@ -35,7 +52,8 @@ def true_hazard(world: World, bounds: tuple[float, float, float, float]) -> tupl
 
 
 def missions(scene: str, count: int, seed: int = 0) -> list[tuple[tuple[float, float], tuple[float, float]]]:
-    """``count`` seeded (start, goal) pairs 15-20 m apart, both >= 1 m from every true hazard,
+    """``count`` seeded (start, goal) pairs the scene's :data:`SPAN` apart (15-20 m unless it
+    declares one), both >= 1 m from every true hazard,
     each start one the rover can be set down on and turn on the spot at (:func:`set_down_safe`).
 
     The hazard map's 15 cm step limit is above the body's own limits, so a start 1 m from its
@@ -47,12 +65,13 @@ def missions(scene: str, count: int, seed: int = 0) -> list[tuple[tuple[float, f
     rows, cols = np.nonzero(clear)
     xs, ys = g.centers()
     rng = np.random.default_rng(seed)
+    low, high = SPAN.get(scene, MISSION_SPAN)
     out = []
     while len(out) < count:
         i, j = rng.integers(len(rows), size=2)
         s = (round(float(xs[cols[i]]), 2), round(float(ys[rows[i]]), 2))
         e = (round(float(xs[cols[j]]), 2), round(float(ys[rows[j]]), 2))
-        if 15.0 <= math.hypot(e[0] - s[0], e[1] - s[1]) <= 20.0 and set_down_safe(world, scene, s):
+        if low <= math.hypot(e[0] - s[0], e[1] - s[1]) <= high and set_down_safe(world, scene, s):
             out.append((s, e))
     return out
 
@@ -61,9 +80,8 @@ def set_down_safe(world: World, scene: str, xy: tuple[float, float]) -> bool:
     """Whether the rover set down at ``xy`` can stand there at every heading, turning on the spot
     (the first thing a mission does), within the body's four limits (step, belly, stability,
     grade) on the true 1 cm surface."""
-    fine, g, _ = truth_surface(world, scene)
     turn = densify(np.array([(xy[0], xy[1], h) for h in (0.0, 90.0, 180.0, 270.0, 360.0)]), 0.02, world.body)
-    return not unsafe_events(check_poses(fine, g, turn, world.body), turn, world.body)
+    return not unsafe_events(truth_checks(world, scene, turn, world.body), turn, world.body)
 
 
 def pick_start_goal(world: World, scene: str, seed: int) -> tuple[tuple[float, float], tuple[float, float]]:
@@ -127,6 +145,42 @@ def truth_surface(world: World, scene: str) -> tuple[np.ndarray, GridGeometry, G
     if scene not in _TRUTH:
         _TRUTH[scene] = surface_over(world, AREA[scene])
     return _TRUTH[scene]
+
+
+def whole_truth(scene: str) -> bool:
+    """Whether the scene's true 1 cm surface over its mission area is built whole (else in tiles)."""
+    x0, y0, x1, y1 = AREA[scene]
+    return (x1 - x0) * (y1 - y0) * 1e4 <= WHOLE_TRUTH_CELLS
+
+
+def truth_checks(world: World, scene: str, poses: np.ndarray, body: VehicleBody) -> PoseChecks:
+    """The vehicle check of ``poses`` ((N, 3), in the order driven) on the true 1 cm surface: the
+    scene's whole surface (:func:`truth_surface`) when it is small enough (:func:`whole_truth`),
+    else a tile per run of poses that spreads at most :data:`TILE` along x and y, built over
+    that run's box grown by the body's reach (and a 5 cm cell). A tile is on the same 1 cm
+    lattice as the whole surface (both refine the 5 cm grid aligned to multiples of its cell),
+    so a pose reads the same samples either way; memory stays that of one tile, whatever the
+    distance driven."""
+    poses = np.atleast_2d(np.asarray(poses, float))
+    if whole_truth(scene) or not len(poses):
+        fine, g, _ = truth_surface(world, scene)
+        return check_poses(fine, g, poses, body)
+    grow = reach(body) + 0.05
+    parts = []
+    first = 0
+    while first < len(poses):
+        lo = hi = poses[first, :2]
+        end = first + 1
+        while end < len(poses):
+            nlo, nhi = np.minimum(lo, poses[end, :2]), np.maximum(hi, poses[end, :2])
+            if (nhi - nlo).max() > TILE:
+                break
+            lo, hi, end = nlo, nhi, end + 1
+        fine, g, _ = surface_over(world, (lo[0] - grow, lo[1] - grow, hi[0] + grow, hi[1] + grow))
+        parts.append(check_poses(fine, g, poses[first:end], body))
+        first = end
+    return PoseChecks(**{f.name: np.concatenate([getattr(c, f.name) for c in parts])
+                         for f in dataclasses.fields(PoseChecks)})
 
 
 def surface_over(world: World, bounds: tuple[float, float, float, float]

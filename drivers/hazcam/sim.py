@@ -31,6 +31,9 @@ class SimHazcamSettings(Settings):
     seed: int = param(0, "sim: sensor noise seed", min=0, max=2**63 - 1)
     sim_noise: bool = param(True, "sim: shot + read noise")
     sim_scene: str = param("marsyard", "sim: the scene of pairs used with no shared world (scripts)")
+    sim_readout: float = param(0.1, "sim: a pair's readout after its exposure, on the simulated clock, for a frame "
+                               "taken standing (one taken while the rover rolls overlaps the drive)", unit="s",
+                               min=0.0, max=10.0)
 
 
 @BACKENDS.backend("sim")
@@ -41,6 +44,7 @@ class SimHazcams:
         self.world = world
         self.scene = config.sim_scene
         self.seed = int(config.seed)
+        self.readout = float(config.sim_readout)
         self.sensor = imaging.SensorModel(noise=bool(config.sim_noise))
         self._lock = threading.Lock()  # the noise generators
         self._rngs: dict[str, np.random.Generator] = {}
@@ -84,4 +88,6 @@ class SimHazcams:
             rng = self._rngs.get(rig.camera)
             left, right = (imaging.jpeg(imaging.expose(rad, shutter, 0.0, self.sensor, rng), optics.jpeg_quality)
                            for rad in rads)
+        if not world.rolling:  # standing, the frame's exposure and readout are the rover's time
+            world.clock.sleep(shutter / 1e6 + self.readout)
         return left, right, stamp

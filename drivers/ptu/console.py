@@ -19,20 +19,12 @@ from drivers.console import (
     SETUP_ERRORS,
     DeviceConsole,
     load_section,
+    numbers,
     one_line,
     run,
-    split_words,
 )
 from drivers.ptu import BACKENDS, Ptu, create
 from rvs_params.cli import ToolParser
-
-
-def _floats(arg: str, n_min: int, n_max: int, usage: str) -> list[float]:
-    words = split_words(arg, n_min, n_max, usage)
-    try:
-        return [float(w) for w in words]
-    except ValueError:
-        raise ValueError(f"numbers expected; usage: {usage}") from None
 
 
 def _fmt_pos(pan: float, tilt: float) -> str:
@@ -67,17 +59,17 @@ class PtuConsole(DeviceConsole):
         wait = not (words and words[-1].lower() == "nowait")
         if not wait:
             words = words[:-1]
-        pan, tilt = _floats(" ".join(words), 2, 2, "move PAN TILT [nowait]")
+        pan, tilt = numbers(" ".join(words), 2, 2, "move PAN TILT [nowait]")
         self.say(_fmt_pos(*self.ptu.move(pan, tilt, wait=wait)))
 
     def do_pan(self, arg: str) -> None:
         """pan DEG: move the pan axis only."""
-        (pan,) = _floats(arg, 1, 1, "pan DEG")
+        (pan,) = numbers(arg, 1, 1, "pan DEG")
         self.say(_fmt_pos(*self.ptu.move(pan, None)))
 
     def do_tilt(self, arg: str) -> None:
         """tilt DEG: move the tilt axis only."""
-        (tilt,) = _floats(arg, 1, 1, "tilt DEG")
+        (tilt,) = numbers(arg, 1, 1, "tilt DEG")
         self.say(_fmt_pos(*self.ptu.move(None, tilt)))
 
     def do_wait(self, arg: str) -> None:
@@ -108,7 +100,7 @@ class PtuConsole(DeviceConsole):
 
     def do_speed(self, arg: str) -> None:
         """speed [PAN [TILT]]: query, or set the speeds in positions/s (one value sets both)."""
-        values = _floats(arg, 0, 2, "speed [PAN [TILT]]")
+        values = numbers(arg, 0, 2, "speed [PAN [TILT]]")
         if values:
             self.ptu.set_speed(values[0], values[-1])
         pan, tilt = self.ptu.speed()
@@ -116,7 +108,7 @@ class PtuConsole(DeviceConsole):
 
     def do_accel(self, arg: str) -> None:
         """accel [PAN [TILT]]: query, or set the accelerations in positions/s^2."""
-        values = _floats(arg, 0, 2, "accel [PAN [TILT]]")
+        values = numbers(arg, 0, 2, "accel [PAN [TILT]]")
         if values:
             self.ptu.set_acceleration(values[0], values[-1])
         pan, tilt = self.ptu.acceleration()

@@ -31,6 +31,7 @@ from drivers.console import (
     DeviceConsole,
     default_data_dir,
     load_section,
+    numbers,
     one_line,
     run,
     split_words,
@@ -151,38 +152,39 @@ class TofConsole(DeviceConsole):
 
     def do_threshold(self, arg: str) -> None:
         """threshold N: amplitude threshold 0..65535 (distances below it read 0)."""
-        (n,) = split_words(arg, 1, 1, "threshold N")
-        self.cam.set_amplitude_threshold(int(n))
-        self.say(f"amplitude threshold {int(n)}")
+        (n,) = numbers(arg, 1, 1, "threshold N", int)
+        self.cam.set_amplitude_threshold(n)
+        self.say(f"amplitude threshold {n}")
 
     def do_modulation(self, arg: str) -> None:
         """modulation MHZ: 29, 30, 31, 14.5, 15 or 15.5 MHz."""
-        (f,) = split_words(arg, 1, 1, "modulation MHZ")
-        self.cam.set_modulation(float(f))
-        self.say(f"modulation {float(f):g} MHz: unambiguous range {k.unambiguous_range(float(f)):.3f} m")
+        (f,) = numbers(arg, 1, 1, "modulation MHZ")
+        self.cam.set_modulation(f)
+        self.say(f"modulation {f:g} MHz: unambiguous range {k.unambiguous_range(f):.3f} m")
 
     def do_maxdist(self, arg: str) -> None:
         """maxdist METRES: choose the modulation frequency that measures up to this distance."""
-        (d,) = split_words(arg, 1, 1, "maxdist METRES")
-        f = self.cam.set_max_distance(float(d))
+        (d,) = numbers(arg, 1, 1, "maxdist METRES")
+        f = self.cam.set_max_distance(d)
         self.say(f"modulation {f:g} MHz: unambiguous range {k.unambiguous_range(f):.3f} m")
 
     def do_integration(self, arg: str) -> None:
         """integration REG: integration register 0..255 (0.3 ms + 0.1 ms per step)."""
-        (n,) = split_words(arg, 1, 1, "integration REG")
-        self.cam.set_integration(int(n))
-        self.say(f"integration {int(n)} = {k.integration_ms(int(n)):.1f} ms")
+        (n,) = numbers(arg, 1, 1, "integration REG", int)
+        self.cam.set_integration(n)
+        self.say(f"integration {n} = {k.integration_ms(n):.1f} ms")
 
     def do_intms(self, arg: str) -> None:
         """intms MS: integration time in ms (0.3 .. 25.8), rounded to a register step."""
-        (ms,) = split_words(arg, 1, 1, "intms MS")
-        reg = self.cam.set_integration_ms(float(ms))
+        (ms,) = numbers(arg, 1, 1, "intms MS")
+        reg = self.cam.set_integration_ms(ms)
         self.say(f"integration {reg} = {k.integration_ms(reg):.1f} ms")
 
     def do_autoexp(self, arg: str) -> None:
         """autoexp on|off [MIN MAX PERCENT DESIRED [ITERATIONS]]: auto exposure and its settling cap."""
-        words = split_words(arg, 1, 6, "autoexp on|off [MIN MAX PERCENT DESIRED [ITERATIONS]]")
-        nums = [int(w) for w in words[1:]]
+        usage = "autoexp on|off [MIN MAX PERCENT DESIRED [ITERATIONS]]"
+        words = split_words(arg, 1, 6, usage)
+        nums = numbers(" ".join(words[1:]), 0, 5, usage, int)
         if len(nums) not in (0, 4, 5):
             raise ValueError("usage: autoexp on|off [MIN MAX PERCENT DESIRED [ITERATIONS]]")
         params = dict(zip(("min_integration", "max_integration", "percent_over", "desired", "max_iterations"), nums, strict=False))
@@ -216,7 +218,8 @@ class TofConsole(DeviceConsole):
                 raise ValueError("usage: colourrange TYPE LOW HIGH | colourrange TYPE auto")
             self.cam.set_colour_range(None, None, words[0])
         else:
-            self.cam.set_colour_range(float(words[1]), float(words[2]), words[0])
+            low, high = numbers(" ".join(words[1:]), 2, 2, "colourrange TYPE LOW HIGH | colourrange TYPE auto")
+            self.cam.set_colour_range(low, high, words[0])
         self.say(f"colour range {words[0]}: {self.cam.get_colour_range(words[0]) or 'auto'}")
 
     do_colorrange = do_colourrange
@@ -300,12 +303,12 @@ class TofConsole(DeviceConsole):
         """fault KIND [AFTER]: sim only; unplug, timeout or none, optionally after AFTER frames."""
         words = split_words(arg, 1, 2, "fault unplug|timeout|none [AFTER]")
         kind = None if words[0] == "none" else words[0]
-        self.cam.inject_fault(kind, int(words[1]) if len(words) > 1 else 0)
+        self.cam.inject_fault(kind, *numbers(" ".join(words[1:]), 0, 1, "fault unplug|timeout|none [AFTER]", int))
         self.say(f"fault {words[0]}")
 
     def do_ptu(self, arg: str) -> None:
         """ptu PAN TILT: sim only; point the simulated sensor head (degrees)."""
-        pan, tilt = (float(w) for w in split_words(arg, 2, 2, "ptu PAN TILT"))
+        pan, tilt = numbers(arg, 2, 2, "ptu PAN TILT")
         if self.world is None:
             raise ValueError("ptu needs the simulated world (--backend sim)")
         self.world.set_ptu(pan, tilt)

@@ -38,3 +38,30 @@ def lower_ceiling(ox: float, oy: float, oz: float, px: np.ndarray, py: np.ndarra
                 z = oz + t * dz
                 if z < ceiling[r, c]:
                     ceiling[r, c] = z
+
+
+@jit
+def spread_extremes(top: np.ndarray, bottom: np.ndarray, index: np.ndarray, start: np.ndarray, dr: np.ndarray,
+                    dc: np.ndarray, up: np.ndarray, lo: np.ndarray) -> None:
+    """Raise ``up`` to each cell's ``top`` and lower ``lo`` to its ``bottom`` over the cells its
+    spread reaches: cell (r, c) of shape ``index[r, c]`` (-1: none) reaches (r + dr[j], c + dc[j])
+    for j in ``start[index]:start[index + 1]``. The scatter form of a dilation of the tops and an
+    erosion of the bottoms by each shape's structuring element: the cost is the cells spread times
+    their shapes' sizes, where the image form passes over the whole grid once per shape."""
+    h, w = top.shape
+    for r in range(h):
+        for c in range(w):
+            k = index[r, c]
+            if k < 0:
+                continue
+            t = top[r, c]
+            b = bottom[r, c]
+            for j in range(start[k], start[k + 1]):
+                rr = r + dr[j]
+                cc = c + dc[j]
+                if rr < 0 or rr >= h or cc < 0 or cc >= w:
+                    continue
+                if t > up[rr, cc]:
+                    up[rr, cc] = t
+                if b < lo[rr, cc]:
+                    lo[rr, cc] = b

@@ -220,7 +220,8 @@ def _under(hb: np.ndarray, bx: np.ndarray, by: np.ndarray, a: float, b: float, c
 
 
 @_jit
-def check(lower: np.ndarray, upper: np.ndarray, bounded: bool, xmin: float, ymax: float, cell: float,
+def check(lower: np.ndarray, upper: np.ndarray, bounded: bool, cellwise: bool, xmin: float, ymax: float,
+          cell: float,
           poses: np.ndarray, px: np.ndarray, py: np.ndarray, wheel_of: np.ndarray, belly: np.ndarray,
           sag: np.ndarray, pair_a: np.ndarray, pair_b: np.ndarray, pair_wheel: np.ndarray, g0: np.ndarray,
           g1: np.ndarray, pull_a: np.ndarray, pull_b: np.ndarray, inv: np.ndarray, triplets: np.ndarray,
@@ -251,10 +252,10 @@ def check(lower: np.ndarray, upper: np.ndarray, bounded: bool, xmin: float, ymax
         for j in range(s):  # in the order numpy's broadcast forms them: (x0 + c px) - s py
             wx = poses[p, 0] + c * px[j] - si * py[j]
             wy = poses[p, 1] + si * px[j] + c * py[j]
-            lo[j] = _read(lower, xmin, ymax, cell, wx, wy, bounded)
+            lo[j] = _read(lower, xmin, ymax, cell, wx, wy, cellwise)
             holes |= math.isnan(lo[j])
             if bounded:
-                hi[j] = _read(upper, xmin, ymax, cell, wx, wy, True)
+                hi[j] = _read(upper, xmin, ymax, cell, wx, wy, cellwise)
         unknown[p] = _fill(lo, hi, mid, half, bounded, holes, wheel_of, on_wheel, nan_lo)
         highs, middles = (hi, mid) if bounded else (lo, lo)  # one grid: the heights are all three
         grade[p] = _grade(middles, half, bounded, g0, g1, pull_a, pull_b, pulls_a, pulls_b)

@@ -36,6 +36,7 @@ so ground the rover saw and turned away from keeps its bounds.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
@@ -144,6 +145,41 @@ def _kernel(code: int) -> np.ndarray:
     return kernel
 
 
+def _spread(top: np.ndarray, bottom: np.ndarray, seen: np.ndarray, shape: np.ndarray
+            ) -> tuple[np.ndarray, np.ndarray]:
+    """The highest ``top`` and the lowest ``bottom`` (float32) that reach each cell: every ``seen``
+    cell's over the structuring element of its ``shape`` code (:func:`_kernel`; code 0 its own
+    cell only), -inf and inf where none reaches. One compiled pass over the seen cells
+    (:func:`._bounds_kernels.spread_extremes`): a map holds tens of shapes, each scattered over
+    the whole map, and as image morphology each shape would pass over the whole grid
+    (``tools.bench.choice`` keeps that form as the reference; the two give the same bits)."""
+    from ._bounds_kernels import spread_extremes
+
+    codes, inverse = np.unique(shape[seen], return_inverse=True)
+    index = np.full(top.shape, -1, np.int64)
+    index[seen] = inverse.ravel()
+    start, dr, dc = [0], [], []
+    for code in codes:
+        if code == 0:
+            rows, cols = np.zeros(1, np.int64), np.zeros(1, np.int64)
+        else:
+            kernel = _kernel(int(code))
+            # a dilation's output at (y, x) is the most over its element of the input at
+            # (y + i - a, x + j - a): the input at (r, c) reaches (r - i + a, c - j + a)
+            i, j = np.nonzero(kernel)
+            rows, cols = kernel.shape[0] // 2 - i, kernel.shape[1] // 2 - j
+        dr.append(rows)
+        dc.append(cols)
+        start.append(start[-1] + len(rows))
+    up = np.full(top.shape, -np.inf, np.float32)
+    lo = np.full(top.shape, np.inf, np.float32)
+    if len(codes):
+        spread_extremes(np.ascontiguousarray(top, np.float32), np.ascontiguousarray(bottom, np.float32), index,
+                        np.asarray(start, np.int64), np.concatenate(dr).astype(np.int64),
+                        np.concatenate(dc).astype(np.int64), up, lo)
+    return up, lo
+
+
 class BoundsMap:
     """Lower and upper ground-height bounds on a fixed grid, fused frame by frame."""
 
@@ -167,6 +203,9 @@ class BoundsMap:
         self.stamp = np.zeros(shape, np.int32)  # the frame (1, 2, ...) that last touched the cell
         self.source = np.zeros(shape, np.int8)  # the sensor (index in SENSORS) whose frames bound the cell
         self.frames = 0
+        # the whole map's bounds as :meth:`whole` last gave them, with the parameters and the
+        # inputs they were computed from
+        self._whole: tuple[tuple, tuple[np.ndarray, ...], np.ndarray, np.ndarray] | None = None
 
     @classmethod
     def covering(cls, points: Any, pad: float, params: BoundsParams | None = None) -> BoundsMap:
@@ -204,31 +243,32 @@ class BoundsMap:
         returns (the range error), narrow across them (the lateral error), a disc where frames
         from other bearings blended it round; at least one cell each way (a rock's flank inside a
         cell shows in its neighbour), at most ``max_shift``."""
-        import cv2
+        return self._bounds(sl, False)
 
+    def _bounds(self, sl: tuple[slice, slice], as_whole: bool) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`bounds`; ``as_whole``: each cell's edge allowance read from its neighbours on the
+        whole map, so that the result is bit for bit the whole map's bounds over ``sl`` (a window
+        reads the allowance of its outermost cells from the window alone)."""
         g, p = self.geometry, self.params
         pad = p.max_shift
         r0, r1 = max(0, sl[0].start - pad), min(g.height, sl[0].stop + pad)
         c0, c1 = max(0, sl[1].start - pad), min(g.width, sl[1].stop + pad)
         big = (slice(r0, r1), slice(c0, c1))
         sd = p.k * np.sqrt(self.mean_var[big])
-        top = self.mean[big] + self.rise[big] + sd + self.edge_allowance(big)
+        if as_whole:
+            e0, e1 = max(0, r0 - 1), min(g.height, r1 + 1)
+            f0, f1 = max(0, c0 - 1), min(g.width, c1 + 1)
+            allowance = self.edge_allowance((slice(e0, e1), slice(f0, f1)))[r0 - e0:r1 - e0, c0 - f0:c1 - f0]
+        else:
+            allowance = self.edge_allowance(big)
+        top = self.mean[big] + self.rise[big] + sd + allowance
         bottom = self.mean[big] - self.drop[big] - sd
         seen = np.isfinite(top)
         shape = _spread_shapes(self.spread[:, big[0], big[1]], p.k, g.cell, p.max_shift)
         # a cell no frame gave bounds to (the set-down, the wheels' contacts) holds no return that a
         # range error could have moved: it spreads to no neighbour
         shape = np.where(self.stamp[big] > 0, shape, 0)
-        up = np.full(top.shape, -np.inf, np.float32)
-        lo = np.full(top.shape, np.inf, np.float32)
-        for code in np.unique(shape[seen]):
-            at = seen & (shape == code)
-            if code == 0:
-                up, lo = np.where(at, np.maximum(up, top), up), np.where(at, np.minimum(lo, bottom), lo)
-                continue
-            kernel = _kernel(int(code))
-            up = np.maximum(up, cv2.dilate(np.where(at, top, -np.inf).astype(np.float32), kernel))
-            lo = np.minimum(lo, cv2.erode(np.where(at, bottom, np.inf).astype(np.float32), kernel))
+        up, lo = _spread(top.astype(np.float32), bottom.astype(np.float32), seen, shape)
         inner = (slice(sl[0].start - r0, sl[0].stop - r0), slice(sl[1].start - c0, sl[1].stop - c0))
         up, lo, seen = up[inner], lo[inner], seen[inner]
         ceiling = self.ceiling[sl]
@@ -369,26 +409,38 @@ class BoundsMap:
         roof = (z + gx * (ux - pose[0]) + gy * (uy - pose[1]) + body.clearance - 3 * k * spread).astype(np.float32)
         self.ceiling.flat[under] = np.minimum(self.ceiling.flat[under], roof)
 
-    def set_down(self, centre: tuple[float, float], radius: float, z: float, sigma: float = 0.01,
+    def set_down(self, centre: tuple[float, float], radius: float,
+                 z: float | Callable[[np.ndarray, np.ndarray], np.ndarray],
+                 sigma: float | Callable[[np.ndarray, np.ndarray], np.ndarray] = 0.01,
                  plane: tuple[float, float, float, float] | None = None) -> None:
         """The ground within ``radius`` of ``centre`` that no frame bounded is taken as level at
         ``z`` (within ``sigma``), or on ``plane`` (x0, y0 where it is at ``z``, and its rise per
-        metre along x and y: the plane the rover's attitude says it stands on): where the rover
-        was set down, or stands for a 360-degree scan, the ground round the mast's foot that no
-        tilt shows is assumed clear, as the rover's operators placed it or it drove there. Never
-        assumed while driving. The wheels' own ground is then known better (:meth:`stood`)."""
+        metre along x and y: the plane the rover's attitude says it stands on, or the seen ring's
+        round the blind disc): where the rover was set down, or stands for a 360-degree scan, the
+        ground round the mast's foot that no tilt shows. ``sigma`` is a height sigma (m) or, per
+        cell, a function of the cells' x and y (the ring's spread: :meth:`RingPlane.sigma
+        <prox_workflows.algorithms.set_down.RingPlane.sigma>`): how far the ground may stand off
+        that plane is what the seen ground round it shows, not what is hoped. Never assumed while
+        driving. The wheels' own ground is then known better (:meth:`stood`). ``z`` may also be a
+        function of the cells' x and y (``plane`` then unused): the plane conditioned on the ground
+        seen beside the cell (:func:`prox_workflows.algorithms.set_down.set_down`)."""
         g = self.geometry
         xs, ys = g.centers()
         near = np.hypot(xs[None, :] - centre[0], ys[:, None] - centre[1]) <= radius
         blank = near & ~np.isfinite(self.mean)
-        if plane is None:
-            height = np.full(self.mean.shape, z)
+        rows, cols = np.nonzero(blank)
+        bx, by = xs[cols], ys[rows]
+        if callable(z):
+            height = np.asarray(z(bx, by), np.float64)
+        elif plane is None:
+            height = np.full(len(rows), z)
         else:
-            height = z + plane[2] * (xs[None, :] - plane[0]) + plane[3] * (ys[:, None] - plane[1])
-        self.mean[blank] = height[blank]
-        self.mean_var[blank] = sigma * sigma
-        self.rise[blank] = 0.0
-        self.drop[blank] = 0.0
+            height = z + plane[2] * (bx - plane[0]) + plane[3] * (by - plane[1])
+        sd = np.broadcast_to(np.asarray(sigma(bx, by) if callable(sigma) else sigma, np.float64), (len(rows),))
+        self.mean[rows, cols] = height
+        self.mean_var[rows, cols] = sd * sd
+        self.rise[rows, cols] = 0.0
+        self.drop[rows, cols] = 0.0
 
     # ------------------------------------------------------------------ fusion
 
@@ -535,6 +587,43 @@ class BoundsMap:
                       np.ascontiguousarray(heights), float(g.xmin), float(g.ymax), float(g.cell),
                       float(max(self.params.near, g.cell)), float(self.params.reach), self.ceiling)
 
+    def whole(self) -> tuple[np.ndarray, np.ndarray]:
+        """The lower and upper bounds over the whole map (read-only), as :meth:`bounds` over it
+        gives them. Kept between calls (``_whole``): the inputs are compared with those of the last
+        call, and only the cells a changed cell's spread and edge allowance reach are computed again.
+        A choice reads the whole map (its cost to go) and a frame changes a few square metres of
+        it: this is a tenth of the work of the whole map (``python -m tools.bench.choice``)."""
+        g, p = self.geometry, self.params
+        inputs = self._bound_inputs()
+        key = (p.k, p.max_shift, p.edge, p.grain, g.cell, g.shape)
+        held = getattr(self, "_whole", None)  # (none on a map unpickled from a dump without the field)
+        if held is None or held[0] != key:
+            lower, upper = self.bounds((slice(0, g.height), slice(0, g.width)))
+        else:
+            _, before, lower, upper = held
+            changed = np.zeros(g.shape, bool)
+            for now, then in zip(inputs, before, strict=True):
+                diff = now.view(np.uint32) != then.view(np.uint32)
+                changed |= diff.any(axis=0) if diff.ndim == 3 else diff
+            rows, cols = np.flatnonzero(changed.any(axis=1)), np.flatnonzero(changed.any(axis=0))
+            if len(rows):
+                # a changed cell moves its own bounds, its neighbours' edge allowance (3 x 3) and
+                # the bounds of every cell their spread reaches (at most max_shift cells)
+                reach = p.max_shift + 1
+                sl = (slice(max(0, rows[0] - reach), min(g.height, rows[-1] + 1 + reach)),
+                      slice(max(0, cols[0] - reach), min(g.width, cols[-1] + 1 + reach)))
+                lower, upper = lower.copy(), upper.copy()
+                lower[sl], upper[sl] = self._bounds(sl, True)
+        lower.setflags(write=False)
+        upper.setflags(write=False)
+        self._whole = (key, inputs, lower, upper)
+        return lower, upper
+
+    def _bound_inputs(self) -> tuple[np.ndarray, ...]:
+        """Copies of every layer :meth:`bounds` reads (as 32-bit words: compared bit for bit)."""
+        return tuple(a.copy() for a in (self.mean, self.mean_var, self.rise, self.drop, self.spread, self.stamp,
+                                        self.ceiling))
+
     def window(self, xmin: float, ymin: float, xmax: float, ymax: float
                ) -> tuple[np.ndarray, np.ndarray, GridGeometry]:
         """The lower and upper bounds over a box (clipped to the map), with its grid: what a
@@ -550,14 +639,17 @@ class BoundsMap:
                    ) -> tuple[dict[str, np.ndarray], GridGeometry]:
         """What the bounds are drawn from over a box (copies, clipped to the map), with its grid:
         ``mean``, ``mean_var`` (the fused mean's variance), ``rise``, ``drop``, ``shift``,
-        ``along_var`` (the fused mean's horizontal variance along the rays) and ``ceiling`` per
-        cell. A check that weighs how likely the ground is rather than its extremes reads these (``chance.posterior``), and the bounds drawn from them (``lower``,
-        ``upper``)."""
+        ``along_var`` (the fused mean's horizontal variance along the rays), ``ceiling`` and
+        ``framed`` (a frame bounded it; else its mean is a prior's: the set-down's, the wheels'
+        contacts) per cell. A check that weighs how likely the ground is rather than its extremes
+        reads these (``chance.posterior``), and the bounds drawn from them (``lower``, ``upper``)."""
         sl, sub = self._box(xmin, ymin, xmax, ymax)
         names = ("mean", "mean_var", "rise", "drop", "shift", "along_var", "ceiling")
         if sl is None:
-            return {name: np.full((0, 0), np.nan, np.float32) for name in (*names, "lower", "upper")}, sub
+            return {name: np.full((0, 0), np.nan, np.float32) for name in (*names, "lower", "upper")} | \
+                {"framed": np.zeros((0, 0), bool)}, sub
         out = {name: getattr(self, name)[sl].copy() for name in names}
+        out["framed"] = self.stamp[sl] > 0
         out["lower"], out["upper"] = self.bounds(sl)
         return out, sub
 

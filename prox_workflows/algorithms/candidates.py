@@ -371,9 +371,7 @@ def posterior_check(post: Posterior, geom: GridGeometry, body: VehicleBody,
                         poses[:, 1].max() + pad)
         if sl is None:
             return np.full(len(poses), UNKNOWN)
-        common = post.common if np.ndim(post.common) == 0 else post.common[sl]
-        c = chance_check(Posterior(post.mean[sl], post.var[sl], post.ceiling[sl], common), sub, poses, body, params,
-                         verdict_only=True, runs=runs)
+        c = chance_check(post.window(sl), sub, poses, body, params, verdict_only=True, runs=runs)
         k, _ = c.worst()
         out = np.where(c.unsafe, k + 1, SAFE)
         out[c.unknown] = UNKNOWN

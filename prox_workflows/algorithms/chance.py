@@ -45,13 +45,32 @@ mean + rise, with five variances:
   (:func:`relief`). Its share is chosen at the pose level, on the false safes against the truth
   (docs/BENCHMARKS.md), not per cell: per cell the marginals above already hold.
 
+**A prior's error** (a cell no frame bounded: the set-down's blind disc, the wheels' contacts) is
+the ground's off the prior's plane, which the true ground shares with its neighbours (correlated
+0.95-0.98 between neighbouring 2.5 cm cells, 1/e at 20-30 cm); the frames' averaged noise is each
+cell's own (0.1-0.2 between neighbours near the sensor, gone by 7.5-10 cm far; ``python -m
+tools.bench.chance --correlation``). So a prior's variance goes ``1 - prior_own`` into a field
+shared by neighbouring cells (``Posterior.shared``: smoothed white noise, correlated 1/e at
+``shared_length``), the rest its own: drawn apart, a prior known to 3 cm steps 4.3 cm (sd) between
+neighbours and refuses every wheel on it.
+
 **The probability** (:func:`chance_check`): surfaces are drawn from the cells' posteriors (seeded,
-every cell's own error independently, the common one once per surface; ``samples`` of them)
+every cell's own error independently, the shared field, the common one once per surface;
+``samples`` of them)
 and each is judged by :func:`vehicle.check_poses`, the one definition of the limits: per pose and limit, the samples' excesses give the share over
 the limit and a normal tail from their mean and spread, whichever is higher (``samples`` draws
 alone cannot show a probability below about 1 / samples; the tail reaches epsilon, and it is
 measured against the truth by the pose-level statistics). P(any) is the share of samples over
 any limit or the sum of the four tails (the union bound), whichever is higher.
+
+**Where a wheel rests** (``ChanceParams.within``, measured and not the default): a cell's top is
+its highest ground, the right ground for the belly and the wrong one for a wheel whose footprint's
+end meets a rock's edge cell, and a ray's height is no ground for a wheel at all. Read as one
+surface, both lift the wheels' resting plane over the belly's contact: the false safes on rock
+draws no setting was tuned on are that (the trace in docs/NAVIGATE_BENCH.md, "The stated risk on
+untuned draws"), not an overconfident sigma. Above 0, each drawn surface is judged as a pair
+(:func:`_judge`): the tops, and lows ``within`` times the cell's relief within it under them (none
+where only a ray bounds the ground), read between the cell centres as one surface is.
 
 Poses are first screened by the worst-case check on bounds :func:`screen_k` sigmas out (of both
 errors), which makes the chance that any cell under the body lies outside them at most
@@ -65,13 +84,14 @@ the samples: the highest it may be.
 from __future__ import annotations
 
 import warnings
+from collections.abc import Iterator
 from dataclasses import dataclass
 from functools import lru_cache
 from statistics import NormalDist
 from typing import Any
 
 import numpy as np
-from scipy.ndimage import maximum_filter, minimum_filter
+from scipy.ndimage import gaussian_filter, maximum_filter, minimum_filter
 from scipy.special import ndtr
 
 from rvs_params import Settings, param
@@ -79,7 +99,7 @@ from rvs_params import Settings, param
 from ..grid import GridGeometry
 from .vehicle import LIMITS, PoseChecks, VehicleBody, _pattern, _sample, check_poses
 
-__all__ = ["ChanceParams", "ChanceChecks", "Posterior", "posterior", "chance_check", "SCREEN"]
+__all__ = ["ChanceParams", "ChanceChecks", "Posterior", "posterior", "chance_check", "surfaces", "SCREEN"]
 
 EARLY = 8  # draws between the checks for a pose already refused (``verdict_only``)
 SCREEN = 0.1  # the share of epsilon the screen may spend: a pose it clears has P(any) below this times epsilon
@@ -112,22 +132,55 @@ class ChanceParams(Settings):
                                    "as a share of the cell's height over the lowest top within 0.2 m (chosen on "
                                    "the false safes against the truth of two marsyard draws: python -m "
                                    "tools.bench.chance --rock-sigma)", min=0.0, max=1.0)
+    shared_length: float = param(0.2, "a prior's error (the set-down's blind disc, the wheels' contacts: ground no "
+                                      "frame bounded) is the ground's off the prior's plane, shared by neighbouring "
+                                      "cells: drawn as smoothed white noise whose correlation falls to 1/e at this "
+                                      "distance (m). The true ground off its plane over the blind disc is correlated "
+                                      "0.95-0.98 between neighbouring 2.5 cm cells, 0.69-0.82 at 10 cm and 0.38-0.59 "
+                                      "at 20 cm (python -m tools.bench.chance --correlation, 9 looks)", unit="m",
+                                 min=0.0, max=2.0)
+    prior_own: float = param(0.05, "the share of a prior's variance that each cell has of its own (drawn apart): "
+                                   "the true ground's roughness at the cell's scale, which the shared field, "
+                                   "smooth at a cell's scale, leaves out (with shared_length it puts the draws' "
+                                   "correlation at 0.94 / 0.89 / 0.74 / 0.35 at 2.5 / 5 / 10 / 20 cm)",
+                             min=0.0, max=1.0)
     edge_sigma: float = param(0.17, "a rock edge's further uncertainty (1 sigma), as a share of the same height "
                                     "(calibrated alike, on the 99.9th percentile)", min=0.0, max=2.0)
+    within: float = param(0.0, "a cell's top holds somewhere in the cell, not all over it: above 0, a drawn surface "
+                               "is judged as bounds, a wheel resting anywhere from the top down to this share of "
+                               "the cell's relief within it (its returns' rise over their mean and drop under "
+                               "it), and on nothing where only a ray bounds the ground; 0: one surface, the top "
+                               "and the ray's height read as the ground all over each cell, which lifts the "
+                               "wheels' resting plane over rock edges and unseen ground (measured, not the "
+                               "default: docs/NAVIGATE_BENCH.md, The stated risk)", min=0.0, max=1.0)
 
 
 @dataclass(frozen=True)
 class Posterior:
     """Per cell of one grid: the ground's top (m; its best estimate, NaN where no return bounds it),
-    the variance of its error of its own (m^2), the sigma of its share of an error common to the
-    cells under a body (m; the rock edge's and the rock top's: a rock read low is read low in each
-    of its cells),
-    and the lowest ray that passed over it (m; inf: none). The top's variance is var + common^2."""
+    the variance of its error of its own (m^2: independent of its neighbours'), the sigma of its
+    share of an error common to the cells under a body (m; the rock edge's and the rock top's: a
+    rock read low is read low in each of its cells), the lowest ray that passed over it (m; inf:
+    none), and the sigma of its share of an error it shares with its neighbours (m; a prior's:
+    drawn as a field correlated over ``ChanceParams.shared_length``). The top's variance is
+    var + shared^2 + common^2. ``span`` (None: one surface): a drawn surface is then a pair of
+    bounds, the top and ``span`` under it (none where only a ray bounds the ground), judged as
+    :func:`vehicle.check_poses` judges bounds: the belly over the tops, each wheel resting anywhere
+    its cells allow."""
 
     mean: np.ndarray
     var: np.ndarray
     ceiling: np.ndarray
     common: np.ndarray | float = 0.0
+    shared: np.ndarray | float = 0.0
+    span: np.ndarray | None = None  # m: how far under its top the cell's ground may lie where a wheel rests
+
+    def window(self, sl: tuple[slice, slice]) -> Posterior:
+        """The posterior over the rows and columns ``sl`` (a window of its grid)."""
+        def cut(a: np.ndarray | float) -> np.ndarray | float:
+            return a if np.ndim(a) == 0 else a[sl]
+        return Posterior(self.mean[sl], self.var[sl], self.ceiling[sl], cut(self.common), cut(self.shared),
+                         None if self.span is None else self.span[sl])
 
 
 @dataclass
@@ -196,12 +249,28 @@ def posterior(stats: dict[str, np.ndarray], geom: GridGeometry, k: float, params
         slope = np.hypot(gx, gy)
     slope = np.nan_to_num(slope, nan=0.0)
     jump = headroom(stats, top)
-    var = var0 + p.top_sigma**2 + (slope * along) ** 2
+    # a prior's error (no frame bounded the cell: the set-down's plane, the wheels' contacts) is the
+    # plane's and the ground's off it, shared with the cells round it; the frames' averaged noise
+    # is each cell's own
+    prior = seen & ~np.asarray(stats.get("framed", seen), bool)
+    var = np.where(prior, p.prior_own, 1.0) * var0 + p.top_sigma**2 + (slope * along) ** 2
     mu = top + p.edge_bias * jump
     ceiling = np.asarray(stats.get("ceiling", np.full(mean.shape, np.inf)), np.float64)
+    within = np.asarray(stats["rise"], np.float64) + np.asarray(stats["drop"], np.float64)
     return Posterior(np.where(seen, mu, np.nan), np.where(seen, var, np.nan), ceiling,
-                     np.where(seen, np.hypot(p.edge_sigma * jump, p.rock_sigma * relief(top, geom)), 0.0))
+                     np.where(seen, np.hypot(p.edge_sigma * jump, p.rock_sigma * relief(top, geom)), 0.0),
+                     np.where(prior, np.sqrt(np.maximum((1.0 - p.prior_own) * var0, 0.0)), 0.0),
+                     np.where(seen, p.within * within, 0.0) if p.within > 0 else None)
 
+
+
+def prior_correlation(d: np.ndarray | float, params: ChanceParams | None = None) -> np.ndarray:
+    """How the draws correlate a prior's errors at two cells ``d`` m apart (0 < d): the shared
+    field's Gaussian correlation times its share of the variance. What a prior conditioned on the
+    ground seen beside it takes (:func:`prox_workflows.algorithms.set_down.set_down`)."""
+    p = params or ChanceParams()
+    length = max(p.shared_length, 1e-9)
+    return (1.0 - p.prior_own) * np.exp(-(np.asarray(d, np.float64) / length) ** 2)
 
 def relief(top: np.ndarray, geom: GridGeometry) -> np.ndarray:
     """H per cell: how far its ``top`` stands over the lowest top within ROCK_WINDOW (0 where no
@@ -262,19 +331,19 @@ def chance_check(post: Posterior, geom: GridGeometry, poses: np.ndarray, body: V
     p = params or ChanceParams()
     poses = np.atleast_2d(np.asarray(poses, float))
     n = len(poses)
-    mu, var = post.mean, post.var
+    mu = post.mean
     seen = np.isfinite(mu)
-    sd = np.sqrt(np.where(seen, var, 0.0))
-    common = np.where(seen, post.common, 0.0)
-    roof = np.where(np.isfinite(post.ceiling), post.ceiling, np.nan)
+    sd, shared, common, roof = _spreads(post)
     best = np.where(seen, mu, roof)
+    span = None if post.span is None else np.where(seen, post.span, 0.0)
     ks = screen_k(body, step or geom.cell, p.epsilon)
-    lower = np.where(seen, mu - ks * (sd + common), np.nan).astype(np.float32)
-    upper = np.where(seen, mu + ks * (sd + common), roof).astype(np.float32)
+    cell_sd = np.hypot(sd, shared) + common  # each cell's own and its neighbours' errors are one normal
+    lower = np.where(seen, mu - ks * cell_sd - (0.0 if span is None else span), np.nan).astype(np.float32)
+    upper = np.where(seen, mu + ks * cell_sd, roof).astype(np.float32)
     wide = check_poses((lower, upper), geom, poses, body, step)
     unknown = wide.unknown.copy()
     screened = wide.safe
-    nominal = check_poses(best.astype(np.float32), geom, poses, body, step)
+    nominal = _judge(best, seen, span, geom, poses, body, step)
     prob = np.where(unknown[:, None], np.nan, np.zeros((n, 4)))
     p_any = np.where(unknown, np.nan, 0.0)
     todo = ~unknown & ~screened
@@ -297,9 +366,8 @@ def chance_check(post: Posterior, geom: GridGeometry, poses: np.ndarray, body: V
         for s in range(p.samples):
             if not live.any():
                 continue
-            z, shared = _draw(p.seed, s, geom)
-            surface = np.where(seen, mu + sd * z + common * shared, roof).astype(np.float32)
-            excess[s, live] = check_poses(surface, geom, poses[rest[live]], body, step).excess
+            surface = _surface(mu, sd, shared, common, roof, _draw(p.seed, s, geom, p.shared_length))
+            excess[s, live] = _judge(surface, seen, span, geom, poses[rest[live]], body, step).excess
             if early and s % EARLY == EARLY - 1:
                 # one draw over a limit in ``samples`` is a share of at least 1 / samples, above
                 # epsilon: that pose is refused whatever the later draws say
@@ -328,19 +396,68 @@ def chance_check(post: Posterior, geom: GridGeometry, poses: np.ndarray, body: V
                         epsilon=p.epsilon)
 
 
-def _draw(seed: int, s: int, geom: GridGeometry) -> tuple[np.ndarray, float]:
-    """Draw ``s``'s standard normal errors of the cells of ``geom`` (their own, and the one common
-    to a surface): read from a tile of :data:`TILE` x :data:`TILE` cells repeated over the plane,
-    indexed by each cell's row and column on the grid of cell multiples (``geom`` is aligned to
-    it, as :meth:`GridGeometry.covering` and the windows of a map are). Every window of a map
-    reads the same error at the same cell; cells a tile apart share one, and no body reads two
-    such cells."""
-    tile, shared = _tile(seed, s)
+def _judge(top: np.ndarray, seen: np.ndarray, span: np.ndarray | None, geom: GridGeometry, poses: np.ndarray,
+           body: VehicleBody, step: float | None) -> PoseChecks:
+    """:func:`vehicle.check_poses` on a surface of cell tops (the ray's height where ``seen`` is
+    False): the tops alone, or with ``span`` the pair (tops less span, tops), the low NaN where
+    only a ray bounds the ground, each read between the cell centres as one surface is. A cell's
+    top is its highest ground: read as the ground all over the cell, a wheel whose footprint's end
+    meets a rock's edge cell, or a ray's height over ground no return met, rests on it and lifts
+    the resting plane over a belly whose ground is read at its top (the misses traced in
+    docs/NAVIGATE_BENCH.md, The stated risk on untuned draws)."""
+    high = top.astype(np.float32)
+    if span is None:
+        return check_poses(high, geom, poses, body, step)
+    low = np.where(seen, top - span, np.nan).astype(np.float32)
+    return check_poses((low, high), geom, poses, body, step or geom.cell, cellwise=False)
+
+
+def _spreads(post: Posterior) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The sigmas a surface is drawn with per cell (its own, the shared field's, the common one's;
+    0 where no return) and the ray's ceiling where no return (NaN: none)."""
+    seen = np.isfinite(post.mean)
+    return (np.sqrt(np.where(seen, post.var, 0.0)), np.where(seen, post.shared, 0.0),
+            np.where(seen, post.common, 0.0), np.where(np.isfinite(post.ceiling), post.ceiling, np.nan))
+
+
+def _surface(mu: np.ndarray, sd: np.ndarray, shared: np.ndarray, common: np.ndarray, roof: np.ndarray,
+             drawn: tuple[np.ndarray, np.ndarray, float]) -> np.ndarray:
+    z, field, once = drawn
+    return np.where(np.isfinite(mu), mu + sd * z + shared * field + common * once, roof).astype(np.float32)
+
+
+def surfaces(post: Posterior, geom: GridGeometry, params: ChanceParams | None = None) -> Iterator[np.ndarray]:
+    """The surfaces :func:`chance_check` judges ``post`` on over ``geom``, one per sample, in order
+    (a trace reads the very draws the check refused on)."""
+    p = params or ChanceParams()
+    sd, shared, common, roof = _spreads(post)
+    for s in range(p.samples):
+        yield _surface(post.mean, sd, shared, common, roof, _draw(p.seed, s, geom, p.shared_length))
+
+
+def _draw(seed: int, s: int, geom: GridGeometry, length: float = 0.0) -> tuple[np.ndarray, np.ndarray, float]:
+    """Draw ``s``'s standard normal errors of the cells of ``geom``: their own, the shared field
+    (correlated over ``length`` m, :func:`_field`) and the one common to a surface. The first two
+    are read from tiles of :data:`TILE` x :data:`TILE` cells repeated over the plane, indexed by
+    each cell's row and column on the grid of cell multiples (``geom`` is aligned to it, as
+    :meth:`GridGeometry.covering` and the windows of a map are). Every window of a map reads the
+    same errors at the same cell; cells a tile apart share them, and no body reads two such
+    cells."""
+    tile, once = _tile(seed, s)
+    field = _field(seed, s, _smoothing(length, geom.cell))
     r0 = int(round(-geom.ymax / geom.cell))
     c0 = int(round(geom.xmin / geom.cell))
     rows = (r0 + np.arange(geom.height)) % TILE
     cols = (c0 + np.arange(geom.width)) % TILE
-    return tile[np.ix_(rows, cols)].astype(np.float64), shared
+    at = np.ix_(rows, cols)
+    return tile[at].astype(np.float64), field[at].astype(np.float64), once
+
+
+def _smoothing(length: float, cell: float) -> float:
+    """The Gaussian kernel's sigma in cells whose smoothed white noise is correlated by 1/e at
+    ``length`` m (its correlation falls as exp(-d^2 / 4 sigma^2)), to a tenth of a cell so that
+    the cache keys on it."""
+    return round(length / (2.0 * cell), 1)
 
 
 @lru_cache(maxsize=128)
@@ -349,6 +466,18 @@ def _tile(seed: int, s: int) -> tuple[np.ndarray, float]:
     tile = rng.standard_normal((TILE, TILE)).astype(np.float32)
     tile.setflags(write=False)
     return tile, float(rng.standard_normal())
+
+
+@lru_cache(maxsize=128)
+def _field(seed: int, s: int, sigma: float) -> np.ndarray:
+    """Draw ``s``'s field of errors shared by neighbouring cells: white noise of its own stream
+    smoothed by a Gaussian of ``sigma`` cells, wrapped round the tile so that it repeats without
+    a seam, and scaled to unit variance (each cell's marginal is the posterior's ``shared``)."""
+    noise = np.random.default_rng((seed, s, 1)).standard_normal((TILE, TILE))
+    field = gaussian_filter(noise, sigma, mode="wrap") if sigma > 0 else noise
+    field = (field / field.std()).astype(np.float32)
+    field.setflags(write=False)
+    return field
 
 
 def _run_of(runs: np.ndarray, n: int) -> np.ndarray:

@@ -356,7 +356,7 @@ def _default_step(geom: GridGeometry, bounded: bool) -> float:
 
 
 def check_poses(heights: np.ndarray | tuple[np.ndarray, np.ndarray], geom: GridGeometry, poses: np.ndarray,
-                body: VehicleBody, step: float | None = None) -> PoseChecks:
+                body: VehicleBody, step: float | None = None, cellwise: bool | None = None) -> PoseChecks:
     """Step, belly intrusion, stability and grade of ``body`` at each of ``poses`` ((N, 3): x, y,
     heading in degrees) on ``heights`` over ``geom``: one height grid (the truth; the finer the
     truer: 1-2 cm), read bilinearly between its cell centres, or a ``(lower, upper)`` pair of bound
@@ -374,7 +374,10 @@ def check_poses(heights: np.ndarray | tuple[np.ndarray, np.ndarray], geom: GridG
     an unbounded low takes no part in a wheel's edges or contact, and stands in by its high in
     the plane fitted under the body. On one grid, ground off it takes the lowest height the pose
     sees (an edge is judged as a drop, not as a wall). The body is sampled every ``step``
-    (default: the grid's cell on one grid, :data:`BOUNDS_STEP` of it on bounds).
+    (default: the grid's cell on one grid, :data:`BOUNDS_STEP` of it on bounds). ``cellwise``
+    (default: on bounds) reads each sample from the cell that holds it; False reads a pair
+    bilinearly as one grid is read (a pair of surfaces of cell tops and lows drawn from a
+    posterior, not a map's bounds: ``chance.chance_check``).
 
     The per-pose work is one compiled pass (:mod:`._vehicle_kernel`)."""
     lower, upper = heights if isinstance(heights, tuple) else (heights, heights)
@@ -386,8 +389,8 @@ def check_poses(heights: np.ndarray | tuple[np.ndarray, np.ndarray], geom: GridG
     intrusion, tilt, tip, grade, stability = (np.empty(n) for _ in range(5))
     unknown = np.zeros(n, bool)
     if n:  # the grids as they are (a window of a larger map is read in place, not copied)
-        _kernel().check(lower, upper, bounded, float(geom.xmin), float(geom.ymax), float(geom.cell), poses, plan.px,
-                        plan.py, plan.wheel_of, plan.belly, plan.sag, plan.pair_a, plan.pair_b, plan.pair_wheel,
+        _kernel().check(lower, upper, bounded, bounded if cellwise is None else cellwise, float(geom.xmin),
+                        float(geom.ymax), float(geom.cell), poses, plan.px, plan.py, plan.wheel_of, plan.belly, plan.sag, plan.pair_a, plan.pair_b, plan.pair_wheel,
                         plan.ground[0], plan.ground[1], plan.pulls[0], plan.pulls[1], plan.inv, plan.triplets,
                         plan.corners[bounded], plan.hubs, *plan.support, float(body.cog_height),
                         float(body.safety), edge, intrusion, tilt, tip, grade, stability, unknown)

@@ -52,11 +52,30 @@ def layer_path(dem_path: Path, layer: str) -> Path:
 # ------------------------------------------------------------------------- inputs
 
 
+def _numbers(text: str, what: str, shape: str, example: str) -> list[float]:
+    """A comma list of finite numbers, or the option and the shape it wants: an operator who typed
+    ``--range a,b`` learns which option and what to type, not Python's conversion message."""
+    try:
+        vals = [float(v) for v in text.split(",")]
+    except ValueError:
+        vals = []
+    if not vals or not all(np.isfinite(vals)):
+        raise ValueError(f"{what} {text!r}: give {shape} as numbers, e.g. {what} {example}")
+    return vals
+
+
 def _parse_triplet(text: str, what: str) -> np.ndarray:
-    vals = [float(v) for v in text.split(",")]
+    vals = _numbers(text, what, "x,y,z", "0,0,1.2")
     if len(vals) != 3:
         raise ValueError(f"{what}: need x,y,z")
     return np.array(vals)
+
+
+def _range(text: str) -> list[float]:
+    vals = _numbers(text, "--range", "min,max", "0.3,4")
+    if len(vals) != 2 or not 0 <= vals[0] < vals[1]:
+        raise ValueError(f"--range {text!r}: need min,max with 0 <= min < max (metres from the sensor)")
+    return vals
 
 
 def _rover_mask(text: str | None) -> np.ndarray | None:
@@ -65,7 +84,7 @@ def _rover_mask(text: str | None) -> np.ndarray | None:
         return None
     if Path(text).is_file():
         return np.loadtxt(Path(text).read_text().replace(",", " ").splitlines(), ndmin=2)[:, :2]
-    vals = [float(v) for v in text.split(",")]
+    vals = _numbers(text, "--rover-mask", "xmin,ymin,xmax,ymax", "-0.5,-0.4,0.5,0.4")
     if len(vals) == 4:
         return np.array(vals)
     if len(vals) >= 6 and len(vals) % 2 == 0:
@@ -113,7 +132,7 @@ def main(argv: list[str] | None = None) -> int:
         sensor = [float(v) for v in _parse_triplet(args.sensor, "--sensor")] if args.sensor else None
         mask = _rover_mask(args.rover_mask)
         classes = _classes(args.classes)
-        rng = [float(v) for v in args.range.split(",")] if args.range else None
+        rng = _range(args.range) if args.range else None
         out = Path(args.output)
         prefix = prefix_of(out)
         t0 = time.perf_counter()

@@ -19,7 +19,7 @@ from ..navigation.planning import validate_scripts
 from ..navigation.track import Track
 from ..protocol import Fixed, ProtocolError
 from ..table import HARDWARE, command
-from ..travel import Goal
+from ..travel import CheckedMove, Goal
 
 __all__ = ["CheckMoveConfig", "NavigateConfig", "check_move_cmd", "navigate", "validate_scripts"]
 
@@ -72,7 +72,7 @@ async def _check_move_off_loop(ctx: Context, maps: Any, start: tuple[float, floa
     status, break and the other connections must not wait for it."""
     result = await ctx.app.loop.run_in_executor(
         None, check_move, maps["traversability"], maps.geometry, start, end, length, width, min_score)
-    return {
+    fields = {
         "verdict": result.verdict,
         "worst": Fixed(result.worst_score, 3) if math.isfinite(result.worst_score) else "unknown",
         "worst_x": Fixed(result.worst_x, 3),
@@ -82,6 +82,8 @@ async def _check_move_off_loop(ctx: Context, maps: Any, start: tuple[float, floa
         "blocked_cells": result.blocked_cells,
         "to": [Fixed(end[0], 3), Fixed(end[1], 3), Fixed((end[2] + 180) % 360 - 180, 2)],
     }
+    ctx.app.travel.checked(CheckedMove(start, fields))
+    return fields
 
 
 # ------------------------------------------------------------------ navigate

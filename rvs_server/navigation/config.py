@@ -84,9 +84,12 @@ class SeeConfig(Settings):
                           "attitude takes it within 1 cm of the plane the rover's IMU gives (drivers.rover attitude: "
                           "the simulator's, the GNC's pose -roll -pitch) and the ground under the wheels no higher "
                           "than that plane, down to 2.5 cm below it (a rigid body rests on three wheels), where the "
-                          "rover stands throughout the drive; without an attitude, level; ring (with the chooser) "
-                          "takes the blind disc and the wheels' ground on the plane fitted to the seen ground just "
-                          "outside the disc after the first look round", choices=("level", "attitude", "ring"),
+                          "rover stands throughout the drive; without an attitude, level; ring (with the chooser), after "
+                          "the first look round, takes the wheels' ground from the pose and the IMU's attitude, the "
+                          "disc the body turns in within 1 cm of that plane, and the rest of the blind disc on the "
+                          "plane fitted to the seen ground just outside it, carried continuously into the ground known "
+                          "beside it, within that ground's own spread about the plane, less near known ground (at least "
+                          "1 cm; prox_workflows.algorithms.set_down)", choices=("level", "attitude", "ring"),
                           option=False)
     gaze: str = param("path", "see loop with the gate: where the ToF looks while driving: path pans along the path "
                       "(the ground a turn will put under the wheels), three frames in turn at the path just ahead at the "
@@ -101,16 +104,22 @@ class SeeConfig(Settings):
                               "driving this far in a fan of +-60 deg ahead, and as far again beyond, from the mast's "
                               "blind disc out (prox_workflows.algorithms.looks: the lowest tilt and see_tilt)",
                               unit="m", min=0.1, max=3.0, option=False)
+    start_turn: float = param(60.0, "see loop with the gate and the body's hazard cameras on (drivers.hazcam.cameras): "
+                              "at the start, after the first look round, the rover turns on the spot in steps of "
+                              "this, each judged safe first, a frame of every pair at each heading, until the pairs "
+                              "have looked all round (both pairs: 3 headings; one pair: 6): they show the ground "
+                              "between the body and the mast's blind disc, which the set-down then need not assume; "
+                              "0: no turn", unit="deg", min=0.0, max=180.0, option=False)
     max_replans: int = param(100, "see loop: give up after this many plans in all", min=1, max=10000, option=False)
     # declared where they are used (prox_workflows.algorithms), set here: navigate.see.chooser.section=0.8
     chooser: CandidateParams = param(CandidateParams(), "see loop with the gate: the candidate paths and the "
                                      "costs that rank them (prox_workflows.algorithms.candidates)")
     chance: ChanceParams = param(ChanceParams(), "see loop with the gate, see_vehicle chance: the risk a section "
                                  "may carry (epsilon) and how its probability is drawn")
-    ahead: str = param("chance", "see loop with the gate: the check of each candidate's look-ahead beyond its "
-                       "section: chance, the section's own check (a section is chosen only with a continuation "
-                       "that passes it, so the rover does not commit into a pocket it cannot leave forward); "
-                       "best, the posterior's best estimate (cheaper: the look-ahead only ranks)",
+    ahead: str = param("best", "see loop with the gate: the check of each candidate's look-ahead beyond its "
+                       "section: best, the posterior's best estimate (the look-ahead only ranks: the section is "
+                       "judged in full before it is driven); chance, the section's own check (a section is "
+                       "chosen only with a continuation that passes it, at about 1.4-2.3x a choice's CPU)",
                        choices=("chance", "best"), option=False)
     retreat: RetreatParams = param(RetreatParams(), "see loop with the gate: backing out of dead ends (no candidate "
                                    "passes, or no progress) and the cost a dead end leaves on the cost to go "

@@ -72,7 +72,7 @@ from prox_workflows.algorithms.retreat import (
     dead_end_penalty,
     reverse_options,
 )
-from prox_workflows.algorithms.vehicle import reach
+from prox_workflows.algorithms.vehicle import densify, reach
 from prox_workflows.algorithms.waypoints import Waypoints, make_waypoints
 
 from ..protocol import ProtocolError
@@ -108,13 +108,12 @@ def guidance(bounds: BoundsMap, goal: tuple[float, float], body: Any, dead_ends:
              dead_end_cost: float = 0.0) -> CostToGo:
     """The cost to go over the whole map's coarse grid, a dead end's disc priced ``dead_end_cost``
     per metre more."""
-    lower, upper, g = bounds.window(*_whole(bounds))
-    cost, cg = coarse_costs((lower, upper), g, body)
+    cost, cg = coarse_costs(bounds.whole(), bounds.geometry, body)
     return cost_to_go(add_dead_ends(cost, cg, dead_ends, dead_end_cost), cg, goal)
 
 
 def choose_from(bounds: BoundsMap, pose: tuple[float, float, float], goal: tuple[float, float], body: Any,
-                how: str, params: CandidateParams, chance: ChanceParams, *, ahead: str = "chance",
+                how: str, params: CandidateParams, chance: ChanceParams, *, ahead: str = "best",
                 dead_ends: Sequence[DeadEnd] = (), dead_end_cost: float = 0.0) -> tuple[Choice, float]:
     """The chooser's answer from ``pose`` toward ``goal`` on the bounds map as it is now, and the
     cost to go from ``pose``: the cost to go over the whole map's coarse grid (:func:`guidance`),
@@ -137,11 +136,6 @@ def choose_from(bounds: BoundsMap, pose: tuple[float, float, float], goal: tuple
     return choice, float(ctg.at(np.array([pose[0]]), np.array([pose[1]]))[0])
 
 
-def _whole(bounds: BoundsMap) -> tuple[float, float, float, float]:
-    g = bounds.geometry
-    return g.xmin, g.ymax - g.height * g.cell, g.xmin + g.width * g.cell, g.ymax
-
-
 def reasons(choice: Choice) -> str:
     """The failures of the candidates checked, by part and limit, most first."""
     parts = sorted(choice.reasons.items(), key=lambda kv: -kv[1])
@@ -162,6 +156,7 @@ class Chooser:
         self.retreat = self.d.p.retreat
         self.dead_ends: list[DeadEnd] = []  # where the rover found no way on, priced until seen from outside
         self.arcs: list[tuple[float, float]] = []  # the arcs driven forward since the last reverse: curvature, m
+        self.started = False  # the start's turn (the hazard cameras' look round the body) is behind
 
     def scanned(self) -> None:
         """A 360-degree scan was made where the rover stands (the localiser's): its views make the
@@ -235,6 +230,10 @@ class Chooser:
         if d.set_down_pending:
             m = self.s.set_down_on_ring()
             self.s.mission.progress(leg, 1, 1, f"set down on {m}", "plan")
+        if not self.started:  # after the set-down: its prior is what the turn is judged on
+            self.started = True
+            self._start_turn(leg)
+            pose = d.pose()
         look_cost: float | None = None
         for _ in range(LOOKS + 2):
             job.check()
@@ -280,9 +279,44 @@ class Chooser:
         self.s.stats.replans += 1
         return True
 
-    def drive(self, leg: int, choice: Choice) -> None:
+    def _start_turn(self, leg: int) -> None:
+        """With the body's hazard cameras on, the start's turn on the spot: ``see_start_turn`` at a
+        time until the pairs have looked all round, a frame of every pair at each heading (and
+        the front pair's every cycle of the turn). Between the body and the mast's blind disc no
+        tilt of the mast shows the ground; the pairs do, from about 0.1 m past the body out, and where
+        they bound a cell the set-down's prior yields to them: the prior is left on the ground no
+        camera saw (under the body, and a band of about 0.1 m round it). Each step is judged first
+        on the map as it is, prior included (the start is where the rover was set down to turn:
+        the missions' starts are drawn so); a step that fails ends the turn, and the prior stays
+        where it was not seen. Only a rover the server steers is turned: the server sends a GNC no
+        motion of its own choosing at the start."""
+        d = self.d
+        step = d.p.start_turn
+        if not d.hazcams or step <= 0.0 or not d.rover.steers:
+            return
+        headings = math.ceil(360.0 / (len(d.hazcams) * step) - 1e-9)
+        for _ in range(headings - 1):
+            pose = d.pose()
+            poses = densify(np.array([pose, (pose[0], pose[1], pose[2] + step)]), self.params.step, d.body)
+            r = reach(d.body) + 0.1
+            codes = np.asarray(map_check(d.bounds, (pose[0] - r, pose[1] - r, pose[0] + r, pose[1] + r), d.body,
+                                         d.p.vehicle, self.chance)(poses))
+            bad = np.flatnonzero(codes != SAFE)
+            if len(bad):
+                at = poses[bad[0]]
+                self.s.mission.progress(leg, 1, 1, f"the start's turn ends: {step:g} deg more fails "
+                                                   f"({verdict_name(int(codes[bad[0]]))}) at heading {at[2]:.0f} deg",
+                                        "drive")  # (a second "plan" line after the set-down's is not sent)
+                return
+            turn = Choice("drive", "the start's turn", poses, poses, turn=step)
+            if self.drive(leg, turn, f"turning {step:g} deg on the spot: the hazard cameras see round the body"):
+                return
+            d.see(d.pan_tilt, tuple(d.hazcams))  # every pair, standing at the new heading
+
+    def drive(self, leg: int, choice: Choice, what: str = "") -> str | None:
         """Drive ``choice``'s section while seeing (the simulated rover steers it; a GNC is sent
-        its waypoints and each pose report is a cycle)."""
+        its waypoints and each pose report is a cycle); ``what`` says what it is (default: the
+        chooser's candidate). Returns why it stopped short, or None."""
         m, d = self.s.mission, self.d
         xy = choice.poses[:, :2]
         step = max(1, int(round(WAYPOINT_STEP / max(self.params.step, 1e-3))))
@@ -294,9 +328,9 @@ class Chooser:
         m.record(xy, wps.xy)
         end = (float(xy[-1, 0]), float(xy[-1, 1]))
         if not choice.backward:
-            m.progress(leg, 1, 1, f"chose candidate {choice.candidate} (rank {choice.rank + 1} of {choice.total}, "
-                                  f"{choice.checked} checked): turn {choice.turn:.0f} deg, {choice.length:.2f} m to "
-                                  f"({end[0]:.2f}, {end[1]:.2f})", "plan")
+            m.progress(leg, 1, 1, what or f"chose candidate {choice.candidate} (rank {choice.rank + 1} of "
+                                          f"{choice.total}, {choice.checked} checked): turn {choice.turn:.0f} deg, "
+                                          f"{choice.length:.2f} m to ({end[0]:.2f}, {end[1]:.2f})", "plan")
         since = m.announce(leg, wps, "none", reverse=bool(choice.backward))
         pilot = SectionPilot(self, choice, m.track)
         start_of_leg = len(m.track)
@@ -310,6 +344,7 @@ class Chooser:
             if arc is not None:
                 self.arcs.append(arc)
         self.s.localise(leg, m.track.xy(start_of_leg))
+        return pilot.stopped
 
 
 def _driven_arc(rows: np.ndarray) -> tuple[float, float] | None:

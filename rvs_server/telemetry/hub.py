@@ -64,7 +64,6 @@ class Telemetry:
         self._track_sent = 0.0  # monotonic time of the last send
         self._track_version = -1  # App.travel's version the process holds
         self._state_lock = threading.Lock()  # a state is sampled, stamped and queued in one go: in time order
-        self._requests: dict[int, tuple[float, float, float]] = {}  # conn -> pose at its last check-move
         self._bounds: tuple[int, BoundsMap] | None = None  # the see loop's bounds map as last published (live)
         self._bounds_items = 0
         self._offered_calls: set[tuple[str, ...]] = set()  # kinds of call passed on while nobody listened
@@ -314,9 +313,6 @@ class Telemetry:
     def _on_request(self, item: Item) -> None:
         line = item.data["line"].decode("utf-8", "replace").rstrip("\r\n")
         self._wire(item, "request", item.data["conn"], line)
-        if _command(line) == "check-move":  # the move starts where the rover is now
-            p = self.app.pose
-            self._requests[item.data["conn"]] = (p.x, p.y, p.heading)
 
     def _on_reply(self, item: Item) -> None:
         reply = item.data["reply"]
@@ -330,13 +326,12 @@ class Telemetry:
                         "fraction": done / total if total else float(reply.status == "OK"),
                         "message": str(fields.get("message", ""))}
             self._log("/rvs/job", item.time_ns, m.json_bytes, progress)
-        if reply.module == "EGP-RVS-CHECK-MOVE" and reply.status == "OK" and "to" in fields:
-            p = self.app.pose
-            start = self._requests.pop(item.data["conn"], (p.x, p.y, p.heading))
+        check = self.app.travel.check
+        if reply.module == "EGP-RVS-CHECK-MOVE" and reply.status == "OK" and check is not None:
             head = self.app.config.get("head")
-            z = ground_height(self.app.maps.layers, start[0], start[1])
-            self._latch("/nav/check_move", item.time_ns, m.check_move, item.time_ns, start, dict(fields), z,
-                        (head.rover_length, head.rover_width))
+            z = ground_height(self.app.maps.layers, check.start[0], check.start[1])
+            self._latch("/nav/check_move", item.time_ns, m.check_move, item.time_ns, check.start, dict(check.fields),
+                        z, (head.rover_length, head.rover_width))
 
     def _on_event(self, item: Item) -> None:
         reply = item.data["reply"]
@@ -444,11 +439,3 @@ def _plain(value: Any) -> Any:
     if isinstance(value, np.ndarray | np.generic):
         return value.tolist()
     return value if value is None or isinstance(value, str | int | float | bool) else type(value).__name__
-
-
-def _command(line: str) -> str:
-    """A request line's command word (after its ``@tag``)."""
-    words = line.split(None, 2)
-    if words and words[0].startswith("@"):
-        words = words[1:]
-    return words[0].lower() if words else ""

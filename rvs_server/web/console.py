@@ -44,7 +44,6 @@ TICK = 0.2  # seconds between state snapshots (pose, PTU, progress): 5 Hz is smo
 MAX_QUEUED = 2000  # messages a page may lag behind before it is dropped (it reloads and catches up)
 SNAPSHOT_TRACK = 1000  # of which each state snapshot carries the newest (5 per second to every page)
 HISTORY = 500  # event and job lines a page is shown when it opens (a reload keeps its history)
-MAX_CHECKS_ASKED = 256  # check-moves asked and not answered yet (each connection's last)
 PRODUCTS_EVERY = 2.0  # seconds between two listings of the current map's products
 DOWNLOADS = (".tif", ".png", ".ply", ".csv", ".yaml")  # what a page may download of the current map
 STATIC = {"index.html": "text/html", "console.js": "text/javascript", "console.css": "text/css"}
@@ -164,8 +163,6 @@ class WebConsole:
         self.values = ValueCache()
         self.cameras = CameraFrames()
         self.history: deque[str] = deque(maxlen=HISTORY)
-        self.check: dict[str, Any] | None = None  # the last check-move's answer, whoever asked
-        self._check_from: dict[int, tuple[float, float]] = {}  # conn -> pose when it asked for a check-move
         self._products: tuple[float, dict[str, Path]] = (0.0, {})
         self.snapshot = ""  # the last state message sent to the pages
         self.bounds: dict[tuple[str, str], list[float]] = {}  # (path, version) -> layer bounds
@@ -224,26 +221,10 @@ class WebConsole:
 
     def remember(self, item: Item) -> None:
         """Keep each event and job line the server sends (the bus, on the event loop) for the
-        pages that open later; PROGRESS is left out, the state carries the running job's progress.
-        A check-move's answer, whoever asked, is kept for the state: every page draws it."""
-        if item.kind == "request":
-            words = item.data["line"].decode("utf-8", "replace").split(None, 2)
-            if words and words[0].startswith("@"):
-                words = words[1:]
-            if words and words[0].lower() == "check-move":  # the move starts where the rover is now
-                if len(self._check_from) > MAX_CHECKS_ASKED:  # lines refused before check-move's reply
-                    self._check_from.clear()
-                self._check_from[item.data["conn"]] = (self.app.pose.x, self.app.pose.y)
-            return
+        pages that open later; PROGRESS is left out, the state carries the running job's progress."""
         reply = item.data.get("reply")
         if reply is None or reply.status == "PROGRESS":
             return
-        if reply.module == "EGP-RVS-CHECK-MOVE" and item.kind == "reply":
-            start = self._check_from.pop(item.data["conn"], (self.app.pose.x, self.app.pose.y))
-            to = reply.fields.get("to")
-            if reply.status == "OK" and to is not None:
-                self.check = {"from": [round(start[0], 3), round(start[1], 3)], "to": [float(to[0]), float(to[1])],
-                              "verdict": str(reply.fields.get("verdict")), "t": round(item.time_ns / 1e9, 3)}
         if item.kind == "event" or item.data.get("job"):
             self.history.append(_encode(reply, False))
 
@@ -333,7 +314,10 @@ class WebConsole:
         out["products"] = [{"name": n, "url": f"/products/{n}"} for n in self.products()]
         hazcam = app.devices.devices.get("hazcam")
         out["cameras"] = self.cameras.listing(hazcam.cameras() if hazcam is not None else [])
-        out["check"] = self.check
+        check = app.travel.check
+        out["check"] = None if check is None else {
+            "from": [round(check.start[0], 3), round(check.start[1], 3)], "to": list(check.to),
+            "verdict": str(check.fields["verdict"])}
         monitors = json.loads(format_reply_json(Reply("RVS", "OK", app.monitors.status_fields())))
         out["monitors"] = {k: v for k, v in monitors.items() if k not in ("module", "status")}
         out["track"] = [(round(x, 3), round(y, 3)) for x, y, _ in app.travel.track()[-SNAPSHOT_TRACK:]]

@@ -1,6 +1,7 @@
 """The body hazard cameras: the simulated pairs' points against the world's true ground, the rear
 pair looking behind, the switch that keeps them off by default, and their settings through the
-device registry and a real server. ~10 s in all."""
+device registry and a real server (~10 s in all); the start's ring bench through its CLI (a few
+minutes)."""
 
 from __future__ import annotations
 
@@ -137,3 +138,41 @@ def test_the_server_builds_the_hazcams_and_config_set_switches_them(server_facto
         assert r.fields["code"] == "E_ARG" and "front,rear" in r.fields["message"]
     finally:
         c.close()
+
+
+def test_a_pair_grabbed_standing_takes_its_exposure_and_readout_on_the_simulated_clock() -> None:
+    """The rover's time is the simulated clock's: a pair exposed while the rover stands costs its
+    shutter and its readout (drivers.hazcam.sim_readout) there; one exposed while it rolls
+    overlaps the drive and costs nothing more."""
+    world = World.from_scene("quarry", seed=1, clock_scale=0.0)
+    dev = opened(world, "front", sim_readout=0.25)
+    t0 = world.clock.now()
+    dev.images("front")
+    standing = world.clock.now() - t0
+    assert 0.25 < standing < 0.25 + 0.1, standing  # the readout, and a shutter of at most 0.1 s
+    with world.under_way():
+        t1 = world.clock.now()
+        dev.images("front")
+        assert world.clock.now() == t1
+
+
+@pytest.mark.timeout(900)  # two starts' turns of both pairs rendered and matched: minutes on a loaded machine
+def test_the_ring_bench_holds_the_truth_fused_as_stereo_and_misses_it_as_independent_returns() -> None:
+    """``python -m tools.bench.hazcam --ring``: at marsyard's first mission start the pairs over the
+    start's turn bound nearly all the ring past the disc the body turns in; fused as a stereo frame
+    the bounds hold the true surface in all but a few cells, fused as independent returns the
+    true bottom lies under the lower bound in several per cent of them."""
+    import subprocess
+    import sys
+
+    rows = {}
+    for sensor in ("stereo", "tof"):
+        out = subprocess.run([sys.executable, "-m", "tools.bench.hazcam", "--ring", "--missions", "1", "--scenes",
+                              "marsyard", "--sensor", sensor], capture_output=True, text=True, check=True).stdout
+        line = next(row for row in out.splitlines() if row.startswith("| marsyard"))
+        cells = [c.strip() for c in line.strip("|").split("|")]
+        rows[sensor] = [float(c.rstrip(" %")) for c in cells[4:10]]  # seen .. over 3 sigma
+    seen, past, over, under, sd, over3 = rows["stereo"]
+    assert seen > 85.0 and past > 98.0, rows
+    assert over < 0.5 and under < 0.5 and sd < 1.0 and over3 < 3.0, rows
+    assert rows["tof"][3] > 3.0 and rows["tof"][4] > 3.0, rows  # under the lower bound; the mean's error sd

@@ -101,4 +101,6 @@ def test_faults_and_recovery_from_the_prompt(console: tuple[PtuConsole, io.Strin
     assert run(con, out, "position") == "pan 0.000 deg, tilt 0.000 deg\n"
     assert run(con, out, "move 1").startswith("error: usage: move PAN TILT")
     assert run(con, out, "raw").startswith("error: usage: raw CMD")
+    assert run(con, out, "pan nan").startswith("error: finite numbers expected; usage: pan DEG")
+    assert run(con, out, "move x 1").startswith("error: numbers expected; usage: move PAN TILT")
     assert con.onecmd("quit") is True

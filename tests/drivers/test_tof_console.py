@@ -188,3 +188,21 @@ def test_bad_setup_is_one_error_line_and_exit_2(tmp_path, capsys, argv, message)
     out, err = capsys.readouterr()
     assert out == "" and "Traceback" not in err
     assert err.count("\n") == 1 and err.startswith(message.format(**paths)), err
+
+
+@pytest.mark.parametrize(("line", "says"), [
+    ("integration x", "error: whole numbers expected; usage: integration REG"),
+    ("intms q", "error: numbers expected; usage: intms MS"),
+    ("maxdist abc", "error: numbers expected; usage: maxdist METRES"),
+    ("threshold 1.5", "error: whole numbers expected; usage: threshold N"),
+    ("modulation y", "error: numbers expected; usage: modulation MHZ"),
+    ("autoexp on 1 2 x 4", "error: whole numbers expected; usage: autoexp on|off [MIN MAX PERCENT DESIRED [ITERATIONS]]"),
+    ("colourrange distance 1 x", "error: numbers expected; usage: colourrange TYPE LOW HIGH | colourrange TYPE auto"),
+    ("fault timeout q", "error: whole numbers expected; usage: fault unplug|timeout|none [AFTER]"),
+    ("ptu 1 inf", "error: finite numbers expected; usage: ptu PAN TILT"),
+])
+def test_a_word_that_is_not_a_number_answers_with_the_command_s_usage(capsys, line, says):
+    assert main(["-c", f"{line}; integration 20"]) == 1
+    out, err = capsys.readouterr()
+    assert says in err and "convert" not in err and "literal" not in err, err
+    assert "integration 20 = 2.3 ms" in out  # the console carried on

@@ -3,6 +3,7 @@ the tracking error, stop reasons and the thresholds a mission runs with."""
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
 import numpy as np
@@ -89,3 +90,62 @@ def test_every_mission_start_is_one_the_rover_can_be_set_down_and_turn_at() -> N
     for start, _ in drawn:
         turn = densify(np.array([(*start, h) for h in (0.0, 120.0, 240.0, 360.0)]), 0.02, world.body)
         assert check_poses(fine, g, turn, world.body).safe.all(), start
+
+
+def test_a_slip_run_slips_each_mission_its_own_seeded_way() -> None:
+    from tools.bench.navigate import parse_slip, slip_lines
+
+    assert parse_slip("0.05,2") == (0.05, 2.0)
+    assert slip_lines((0.05, 2.0), 0, 2) == ["sim slip -distance 0.05 -heading 2 -seed 2"]
+    assert slip_lines((0.05, 2.0), 1, 0) == ["sim slip -distance 0.05 -heading 2 -seed 1000"]
+    assert slip_lines(None, 0, 2) == []
+    for bad in ("5%", "0.05", "0.95,2"):
+        with pytest.raises(ValueError, match="--slip"):
+            parse_slip(bad)
+
+
+def test_the_slip_option_refuses_a_bad_value_on_the_command_line() -> None:
+    import subprocess
+    import sys
+
+    r = subprocess.run([sys.executable, "-m", "tools.bench.navigate", "--slip", "5%"], capture_output=True,
+                       text=True, cwd=Path(__file__).resolve().parents[2], timeout=120)
+    assert r.returncode == 2
+    assert "--slip '5%': give SHARE,DEG_PER_M, e.g. 0.05,2" in r.stderr
+
+
+def test_the_arrival_is_judged_by_the_truth_beside_the_loops_belief() -> None:
+    """5 m commanded with 5 % slip and 2 deg/m: the odometry (the loop's pose without a GNC) says
+    the goal at (5, 0) is reached; the true rover stopped about 0.25 m short and to one side."""
+    from tools.bench.navigate import arrival
+
+    w = World.from_scene("marsyard", clock_scale=0.0)
+    w.set_slip(0.05, 2.0, 3)
+    w.drive(0.1, 0.0, 50.0)
+    ox, oy, _ = w.odometry()
+    got = arrival(w, (ox, oy), (5.0, 0.0), 0.3)
+    assert got["believed_miss"] < 1e-6
+    assert 0.2 < got["true_miss"] < 0.6 and got["true_reached"] == (got["true_miss"] <= 0.3)
+    t = w.truth()
+    assert got["true_miss"] == round(math.hypot(t["x"] - 5.0, t["y"]), 3)
+    w.set_slip(0.0, 0.0, 0)
+    w.set_rover_pose(0.0, 0.0, 0.0)
+    w.drive(0.1, 0.0, 50.0)
+    assert arrival(w, w.odometry()[:2], (5.0, 0.0), 0.3) == {"true_miss": 0.0, "believed_miss": 0.0,
+                                                              "true_reached": True}
+
+
+def test_a_localised_run_matches_on_the_scenes_true_dem_from_orbit(tmp_path: Path) -> None:
+    from prox_workflows.grid import read_geotiff
+    from tools.bench.navigate import localise_options
+
+    world = World.from_scene("marsyard")
+    assert localise_options(world, tmp_path, "none") == ""
+    opts = localise_options(world, tmp_path, "map")
+    assert opts == f"-localise map -global {tmp_path / 'orbit.tif'} -global-origin 500000.0,4000000.0"
+    dem, g = read_geotiff(tmp_path / "orbit.tif")
+    assert g.cell == 0.5 and (g.xmin, g.ymax) == (500000.0 - 6.0, 4000000.0 + 10.0)  # marsyard's terrain bounds
+    # the cell (4.0-4.5, 1.0-1.5) on the big rock at (4, 1), 0.4 m high: its true height at the centre
+    r, c = int(round((g.ymax - 4000001.5) / 0.5)), int(round((500004.0 - g.xmin) / 0.5))
+    top = world.true_dem(0.5, (4.0, 1.0, 4.5, 1.5), include_target=False)[0, 0]
+    assert top > 0.2 and dem[r, c] == pytest.approx(top, abs=1e-4)

@@ -64,7 +64,7 @@ def test_a_rover_in_a_cul_de_sac_backs_out_and_reaches_the_goal_round_it(server_
     forward passes there and no turn on the spot clears the walls, so it backs out along the track
     it drove in on, leaves the dead end priced, and goes round the fence to the goal, with no event
     on the true surface. A forward-only chooser ends in the corridor with a safe stop."""
-    srv = server_factory(["server.scene=quarry", "drivers.ptu.timeout=30"])
+    srv = server_factory(["server.scene=quarry", "drivers.ptu.timeout=30", "navigate.see.retreat.retreats=4"])
     world = srv.app.world
     world.set_target_visible(False)
     _pocket(srv)
@@ -99,7 +99,7 @@ def test_the_gnc_is_sent_a_reverse_section_as_waypoints_with_the_body_s_heading(
     ``drive=reverse``: the points run back along the track to where the last section set off while
     each heading is the body's (toward the rocks, not the way it moves). A forward section's event
     has no ``drive`` field."""
-    srv = server_factory(["server.scene=quarry", "navigate.pose_settle=0.5"])
+    srv = server_factory(["server.scene=quarry", "navigate.pose_settle=0.5", "navigate.see.retreat.retreats=4"])
     world = srv.app.world
     world.set_target_visible(False)
     _pocket(srv)

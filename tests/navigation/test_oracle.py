@@ -109,3 +109,37 @@ def test_the_bench_counts_the_oracles_feasible_missions_beside_the_window_steps(
     s = summarise([row(True, False, True), row(True, False, False), row(False, False, False)])[0]
     assert (s["feasible"], s["window_feasible"], s["reached_of_feasible"]) == (2, 0, 1)
     assert s["perfect_efficiency_feasible"] == pytest.approx(0.95)
+
+
+def test_a_path_is_timed_as_the_simulated_rover_drives_it() -> None:
+    """The oracle's path in the mission's own measure (time at the rover's speed and turn rate):
+    a straight at top speed, a turn on the spot at the turn rate, a tight arc no faster than the
+    turn rate turns it, a wide one at top speed."""
+    from tools.bench.navigate import drive_time
+
+    straight = np.array([(0.0, 0.0, 0.0), (0.5, 0.0, 0.0), (1.0, 0.0, 0.0)])
+    assert drive_time(straight, 0.1, 15.0) == pytest.approx(10.0)
+    spot = np.array([(0.0, 0.0, 170.0), (0.0, 0.0, -100.0)])  # 90 deg the short way, across +-180
+    assert drive_time(spot, 0.1, 15.0) == pytest.approx(6.0)
+    t = np.radians(np.linspace(0.0, 90.0, 10))  # a quarter circle in nine 10-degree steps
+
+    def arc(radius: float) -> np.ndarray:
+        return np.column_stack([radius * np.sin(t), radius * (1 - np.cos(t)), np.degrees(t)])
+
+    assert drive_time(arc(0.2), 0.1, 15.0) == pytest.approx(6.0)  # 90 deg at 15 deg/s: the turn rate rules
+    chords = 9 * 2 * 2.0 * np.sin(np.radians(5.0))  # 3.1 m of chords: top speed rules
+    assert drive_time(arc(2.0), 0.1, 15.0) == pytest.approx(chords / 0.1)
+
+def test_the_bench_sets_a_missions_efficiencies_beside_the_oracles_in_both_measures() -> None:
+    from tools.bench.navigate import summarise
+
+    base = {"scene": "marsyard", "mode": "see", "start": (0.0, 0.0), "distance": 16.0, "true_miss": 0.1,
+            "reached": True, "feasible": True, "perfect_efficiency": 0.95, "window_feasible": True,
+            "window_efficiency": 0.7, "events": [], "crossed_cells": 0, "today_plan": {"events": []},
+            "sim_s": 400.0, "wall_s": 10.0}
+    rows = [{**base, "efficiency": 0.4, "path_efficiency": 0.8, "oracle_time_efficiency": 0.7},
+            {**base, "efficiency": 0.2, "path_efficiency": 0.6, "oracle_time_efficiency": 0.9},
+            {**base, "efficiency": 0.3}]  # a row from before the two were measured
+    s = summarise(rows)[0]
+    assert s["efficiency_reached"] == pytest.approx(0.3)
+    assert (s["path_efficiency_reached"], s["oracle_time_efficiency_same"]) == (pytest.approx(0.7), pytest.approx(0.8))

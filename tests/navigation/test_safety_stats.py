@@ -68,3 +68,17 @@ def test_events_per_distance() -> None:
         assert e == pytest.approx(100 * 3 / (20000 * 0.02), rel=0.02)
     # one event in 20,000 poses, one trial per 25 poses: the bound over 800 trials, 200 trials per 100 m
     assert events_per_distance_upper(1, 20000, 25.0, 0.02) == pytest.approx(clopper_pearson_upper(1, 800) * 200)
+
+
+def test_the_stated_risk_sums_a_scenes_looks_before_bounding_the_rate() -> None:
+    """The bound is on the scene's pooled poses (1 false safe in 4,100), not each look's, and the
+    share kept is weighed by each look's truly safe poses."""
+    from tools.bench.chance import risk_table
+
+    rows = [{"scene": "marsyard", "judged": 2000, "false_safe": 0, "kept": 0.8, "of": 1500},
+            {"scene": "marsyard", "judged": 2100, "false_safe": 1, "kept": 0.9, "of": 500},
+            {"scene": "dense", "judged": 1900, "false_safe": 0, "kept": 0.5, "of": 1000}]
+    marsyard, dense = risk_table(rows)[2:]
+    assert marsyard.split(" | ")[1:4] == ["2", "4,100", "1"]
+    assert f"{clopper_pearson_upper(1, 4100):.1e}" in marsyard and "82.5 %" in marsyard
+    assert f"{1 - 0.05 ** (1 / 1900):.1e}" in dense and "50.0 %" in dense

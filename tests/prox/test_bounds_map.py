@@ -10,8 +10,9 @@ import pytest
 
 from drivers.sim.world import World
 from prox_workflows.algorithms.bounds_map import BoundsMap, BoundsParams
-from prox_workflows.algorithms.noise import tof_height_variance, tof_horizontal_sigma, tof_sigma
+from prox_workflows.algorithms.noise import tof_height_variance, tof_sigma
 from prox_workflows.grid import GridGeometry
+from tools.bench.bounds import tof_frame
 
 SENSOR = np.array([0.0, 0.0, 1.2])
 
@@ -38,24 +39,20 @@ def _cells(m: BoundsMap, x0: float, x1: float, y0: float, y1: float) -> tuple[sl
             slice(int(round((x0 - g.xmin) / g.cell)), int(round((x1 - g.xmin) / g.cell))))
 
 
+def _look(m: BoundsMap, world: World, rng: np.random.Generator, pan: float, across: bool = True) -> None:
+    """One ToF frame of ``world`` at ``pan`` into ``m`` (:func:`support.tof_looks.tof_frame`)."""
+    f = tof_frame(world, rng, pan, across)
+    m.fuse(f["points"], f["sigma"], f["origin"], *f["args"], **f["kwargs"])
+
+
 def _hirise_looks(reach: float) -> tuple[World, BoundsMap]:
     """The hirise world and a bounds map of three ToF looks (pans -40 / 0 / +40, tilt -35) over
     the ground out to ``reach`` metres ahead, each frame with the range noise it is told of."""
-    from drivers.tof.constants import HEIGHT, USABLE_RANGE, WIDTH
-
     world = World.from_scene("hirise", seed=1)
     rng = np.random.default_rng(0)
     m = BoundsMap.covering([[-1.0, -3.0], [reach, 3.0]], 0.0)
     for pan in (-40.0, 0.0, 40.0):
-        world.set_ptu(pan, -35.0)
-        origin = world.sensor_pose("tof")[:3, 3]
-        view = world.render_sensor("tof", WIDTH, HEIGHT)
-        ranges = view.range.reshape(-1)
-        keep = np.isfinite(ranges) & (ranges < USABLE_RANGE) & (view.object_id.reshape(-1) != 1)
-        pts, r = view.points.reshape(-1, 3)[keep].astype(np.float64), ranges[keep].astype(np.float64)
-        noisy = pts + (pts - origin) / r[:, None] * (tof_sigma(r) * rng.standard_normal(len(r)))[:, None]
-        m.fuse(noisy, np.sqrt(tof_height_variance(noisy, origin)), origin, USABLE_RANGE,
-               tof_horizontal_sigma(noisy, origin))
+        _look(m, world, rng, pan, across=False)
     return world, m
 
 
@@ -442,3 +439,68 @@ def test_a_rover_set_down_knows_the_ground_under_its_wheels_from_its_attitude(gr
     # the ground under the box between the wheels keeps the set-down's prior, on that plane
     r, col = m.geometry.cell_of(np.array([pose[0]]), np.array([pose[1]]))
     assert m.stamp[r[0], col[0]] == 0 and m.upper[r[0], col[0]] == pytest.approx(0.025, abs=2e-3)
+
+
+def _bits_equal(a: np.ndarray, b: np.ndarray) -> bool:
+    return a.dtype == b.dtype and a.shape == b.shape and bool((a.view(np.uint32) == b.view(np.uint32)).all())
+
+
+def test_the_compiled_spread_gives_the_bits_of_the_image_morphology() -> None:
+    """The bounds' spread (each cell's top dilated and its bottom eroded over its ellipse, one
+    compiled scatter over the seen cells) gives bit for bit what the straightforward form gives (an
+    OpenCV dilation and erosion of the whole window per shape of ellipse), on the ToF frames of
+    hirise with the rover's wheels and box as a sensor too (cells that spread to no neighbour),
+    over the whole map and over a window at its edge."""
+    from prox_workflows.algorithms.bounds_map import _spread_shapes
+    from tools.bench.choice import reference
+
+    world = World.from_scene("hirise", seed=1)
+    rng = np.random.default_rng(0)
+    m = BoundsMap.covering([[-1.0, -3.0], [5.0, 3.0]], 0.0)
+    for pan in (-40.0, 0.0, 40.0):
+        _look(m, world, rng, pan)
+    m.stood((0.5, 0.0, 20.0), 0.0, world.body, (1.0, -2.0, 0.5))
+    g = m.geometry
+    shapes = np.unique(np.where(m.stamp > 0, _spread_shapes(m.spread, m.params.k, g.cell, m.params.max_shift), 0)
+                       [np.isfinite(m.mean)])
+    assert len(shapes) > 20 and shapes[0] == 0  # many ellipses, and cells that spread to none
+    boxes = [(slice(0, g.height), slice(0, g.width)), (slice(g.height // 3, g.height // 2), slice(g.width // 2, g.width))]
+    for sl in boxes:
+        fast = m.bounds(sl)
+        with reference():
+            slow = m.bounds(sl)
+        assert all(_bits_equal(f, s) for f, s in zip(fast, slow, strict=True))
+        assert np.isfinite(fast[1]).sum() > 500
+
+
+def test_the_whole_maps_bounds_kept_between_frames_are_those_computed_whole() -> None:
+    """:meth:`BoundsMap.whole` recomputes only where the inputs changed since its last call (the
+    frames' cells, the rays' ceilings, the wheels' ground), and what it gives is bit for bit the
+    bounds computed over the whole map, after each frame of a look round and a stand."""
+    world = World.from_scene("hirise", seed=1)
+    rng = np.random.default_rng(0)
+    m = BoundsMap.covering([[-1.0, -3.0], [3.0, 3.0]], 3.0)
+    g = m.geometry
+    whole = (slice(0, g.height), slice(0, g.width))
+    computed: list[tuple[slice, slice]] = []
+    inner = m._bounds
+
+    def spy(sl: tuple[slice, slice], as_whole: bool) -> tuple[np.ndarray, np.ndarray]:
+        computed.append(sl)
+        return inner(sl, as_whole)
+
+    m._bounds = spy  # type: ignore[method-assign]
+    lower, upper = m.whole()
+    assert np.isnan(upper).all()
+    for step, pan in enumerate((-40.0, 0.0, 40.0)):
+        _look(m, world, rng, pan)
+        if step == 1:
+            m.stood((0.0, 0.0, 0.0), 0.0, world.body, (0.5, 0.5, 0.3))
+        computed.clear()
+        kept = m.whole()
+        assert len(computed) == 1 and computed[0] != whole  # a part, not the whole map
+        assert all(_bits_equal(k, f) for k, f in zip(kept, m.bounds(whole), strict=True))
+        assert not kept[1].flags.writeable
+    assert np.isfinite(kept[1]).sum() > 10_000
+    computed.clear()
+    assert m.whole()[1] is kept[1] and not computed  # nothing changed: nothing computed

@@ -10,7 +10,7 @@ import pytest
 from drivers.sim.rover import RoverBody
 from prox_workflows.algorithms.bounds_map import BoundsMap, BoundsParams
 from prox_workflows.algorithms.candidates import crop
-from prox_workflows.algorithms.chance import ChanceParams, Posterior, chance_check, posterior
+from prox_workflows.algorithms.chance import ChanceParams, Posterior, chance_check, posterior, surfaces
 from prox_workflows.algorithms.vehicle import LIMITS, check_poses
 from prox_workflows.grid import GridGeometry
 
@@ -110,19 +110,102 @@ def test_a_pose_gets_the_same_draws_whatever_window_it_is_judged_in() -> None:
     smaller one: the same map must give the same verdict, or a pose near the limit passes in the
     one and fails in the other."""
     h, g = ledge(0.09)
-    post = Posterior(h, np.full(h.shape, 0.005**2), np.full(h.shape, np.inf), np.where(h > 0, 0.003, 0.0))
+    g_, X, Y = grid()
+    # the ground off the ledge a prior's (its error shared with its neighbours), the ledge seen
+    post = Posterior(h, np.full(h.shape, 0.005**2), np.full(h.shape, np.inf), np.where(h > 0, 0.003, 0.0),
+                     np.where(h > 0, 0.0, 0.004))
     poses = np.array([[0.0, 0.0, 0.0], [0.01, 0.0, 2.0], [-0.01, 0.005, -2.0]])
     whole = chance_check(post, g, poses, BODY)
     assert (whole.prob[:, STEP] > 1e-4).all()  # near the limit: the draws decide
     for box in ((-0.6, -0.7, 0.6, 0.5), (-0.45, -0.55, 0.65, 0.45)):
         sub, sl = crop(g, *box)
-        part = chance_check(Posterior(post.mean[sl], post.var[sl], post.ceiling[sl], post.common[sl]), sub, poses,
-                            BODY)
+        part = chance_check(post.window(sl), sub, poses, BODY)
         np.testing.assert_allclose(part.prob, whole.prob, rtol=1e-9, atol=1e-300)  # (to the window's rounding)
         assert part.safe.tolist() == whole.safe.tolist()
     # and whatever is judged with it
     alone = chance_check(post, g, poses[1:2], BODY)
     np.testing.assert_allclose(alone.prob[0], whole.prob[1], rtol=1e-9, atol=1e-300)
+
+
+def prior_plane(sigma: float, shared: bool) -> tuple[Posterior, GridGeometry, np.ndarray, np.ndarray]:
+    """Ground rising 5 % along x on the map's 2.5 cm cells, known only to ``sigma`` as the set-down's
+    prior knows the blind disc: the error shared by neighbouring cells (``shared``) or each cell's
+    own, and 5 mm of each cell's own on top (``top_sigma``)."""
+    g = GridGeometry.covering(-1.0, -1.0, 1.0, 1.0, 0.025)
+    xs, ys = g.centers()
+    X, Y = np.meshgrid(xs, ys)
+    h = 0.05 * X
+    p = ChanceParams()
+    own = p.top_sigma**2 + (p.prior_own if shared else 1.0) * sigma**2
+    return (Posterior(h, np.full(h.shape, own), np.full(h.shape, np.inf), 0.0,
+                      np.sqrt(1.0 - p.prior_own) * sigma if shared else 0.0), g, X, Y)
+
+
+TURN = np.array([[0.0, 0.0, a] for a in range(0, 360, 15)])  # a turn on the spot
+
+
+def test_a_plane_known_to_a_few_centimetres_draws_no_wheel_step_between_neighbours() -> None:
+    """The set-down's prior over the blind disc: a plane the ground stands off by 3 cm (sd), as the
+    true ground there does, smoothly (its correlation 0.95-0.98 between neighbouring 2.5 cm cells,
+    python -m tools.bench.chance --correlation). Drawn cell by cell, neighbours step 4.3 cm (sd),
+    the wheels' steps reach 12 cm (p99) and every pose of a turn on the spot is refused on them;
+    drawn as a field shared by neighbours, they step 1.3 cm and no pose is near the climb (what
+    refuses is the belly, over ground that may stand 3 cm (sd) up under the box: the prior's own
+    verdict, not the draws')."""
+    def drawn(post: Posterior, g: GridGeometry) -> tuple[np.ndarray, float, float]:
+        """The wheels' steps at the turn's poses in every draw, the neighbours' steps' sd under
+        the body and the drawn errors' sd."""
+        ss = list(surfaces(post, g))
+        wheel = np.array([check_poses(s, g, TURN, BODY).excess[:, STEP] for s in ss]) + BODY.climb
+        under = (np.abs(X) < 0.6) & (np.abs(Y) < 0.6)
+        step = np.concatenate([np.diff(s, axis=1)[under[:, 1:]] for s in ss])
+        return wheel, float(step.std()), float(np.std([(s - post.mean)[under] for s in ss]))
+
+    post, g, X, Y = prior_plane(0.03, shared=True)
+    wheel, step, sd = drawn(post, g)
+    assert step < 0.015, step
+    assert np.percentile(wheel, 99) < 0.055 and wheel.max() < 0.07
+    assert sd == pytest.approx(np.hypot(0.03, 0.005), rel=0.15)  # each cell's error as large as before
+    shared = chance_check(post, g, TURN, BODY)
+    assert (shared.prob[:, STEP] < 1e-9).all()
+    apart, g, _, _ = prior_plane(0.03, shared=False)
+    wheel, step, sd = drawn(apart, g)
+    assert step == pytest.approx(np.sqrt(2) * np.hypot(0.03, 0.005), rel=0.1)
+    assert np.percentile(wheel, 99) > 0.11
+    cell_by_cell = chance_check(apart, g, TURN, BODY)
+    assert not cell_by_cell.safe.any()
+    assert (cell_by_cell.worst()[0] == STEP).all() and (cell_by_cell.prob[:, STEP] > 0.05).all()
+
+
+def test_a_real_step_edge_under_a_prior_known_to_a_few_centimetres_is_still_refused() -> None:
+    """An 11 cm edge (the climb is 10 cm) under the front-right wheel's track, on that prior: the
+    shared field moves the edge's two sides together, and the step is there in every draw."""
+    post, g, X, Y = prior_plane(0.03, shared=True)
+    h = post.mean + np.where((X >= 0.175) & (Y <= -0.2) & (Y >= -0.35), 0.11, 0.0)
+    edge = chance_check(Posterior(h, post.var, post.ceiling, 0.0, post.shared), g, AT_ORIGIN, BODY)
+    assert edge.safe.tolist() == [False]
+    assert edge.prob[0, STEP] > 0.9
+
+
+def test_the_set_down_s_prior_is_shared_by_neighbours_and_the_frames_noise_is_each_cell_s_own() -> None:
+    m = BoundsMap(GridGeometry.covering(0.0, 0.0, 1.0, 1.0, 0.025), BoundsParams())
+    rng = np.random.default_rng(0)
+    pts = np.column_stack([rng.uniform(0.6, 0.9, 2000), rng.uniform(0.6, 0.9, 2000), 0.002 * rng.standard_normal(2000)])
+    m.fuse(pts, 0.002)
+    m.set_down((0.3, 0.3), 0.2, 0.0, sigma=0.03)
+    s, g = m.statistics(0.0, 0.0, 1.0, 1.0)
+    post = posterior(s, g, m.params.k)
+    xs, ys = g.centers()
+    X, Y = np.meshgrid(xs, ys)
+    disc = np.hypot(X - 0.3, Y - 0.3) <= 0.2
+    seen = (X > 0.65) & (X < 0.85) & (Y > 0.65) & (Y < 0.85)
+    assert not s["framed"][disc].any() and s["framed"][seen].all()
+    p = ChanceParams()
+    np.testing.assert_allclose(post.shared[disc], np.sqrt(1 - p.prior_own) * 0.03, rtol=1e-6)
+    # of its own: the prior's roughness at a cell's scale and the relief no return met
+    np.testing.assert_allclose(post.var[disc], p.prior_own * 0.03**2 + p.top_sigma**2, rtol=1e-5)
+    assert (post.shared[seen] == 0).all()
+    np.testing.assert_allclose(post.var[seen], s["mean_var"][seen] + ChanceParams().top_sigma**2, rtol=1e-5)
 
 
 def test_a_ray_ceiling_with_no_return_stands_as_the_ground_at_its_height() -> None:
@@ -286,3 +369,85 @@ def test_a_planner_s_verdict_only_check_gives_the_full_check_s_verdicts() -> Non
             quick = chance_check(known(h, sigma), g, poses, BODY, verdict_only=True)
             assert quick.unsafe.tolist() == full.unsafe.tolist(), (height, sigma)
             assert quick.safe.tolist() == full.safe.tolist()
+
+
+def test_the_shared_field_is_correlated_by_1_over_e_at_its_length_as_the_bench_measures_it() -> None:
+    """The draws' shared field, measured as ``tools.bench.chance --correlation`` measures the truth's:
+    1/e at ``shared_length`` (20 cm: 8 cells of 2.5 cm), near 1 between neighbours; white noise
+    (the cells' own errors) not correlated at all."""
+    from tools.bench.chance import lag_correlation
+
+    p = ChanceParams()
+    post, g, X, Y = prior_plane(0.03, shared=True)
+    field = [(s - post.mean) for s in surfaces(Posterior(post.mean, np.zeros(g.shape), post.ceiling, 0.0, 1.0), g,
+                                                         ChanceParams(samples=8))]
+    ok = np.ones(g.shape, bool)
+    at = {lag: np.mean([lag_correlation(f, ok, lag) for f in field]) for lag in (1, 2, 4, 8)}
+    assert at[8] == pytest.approx(np.exp(-1.0), abs=0.08)  # 8 cells = p.shared_length
+    assert p.shared_length == pytest.approx(8 * g.cell)
+    assert at[1] > 0.95 and at[1] > at[2] > at[4] > at[8]
+    own = [s - post.mean for s in surfaces(Posterior(post.mean, np.ones(g.shape), post.ceiling), g,
+                                           ChanceParams(samples=8))]
+    assert abs(np.mean([lag_correlation(f, ok, 1) for f in own])) < 0.02
+
+
+def wheel_edge_over_unseen_ground() -> tuple[Posterior, GridGeometry, np.ndarray, np.ndarray]:
+    """Flat ground known to 3 mm with a rock under the box 1 cm over the belly's clearance (the
+    truth: unsafe), and under both front wheels' footprint ends (x 0.20-0.25 m) no return, only a
+    ray 15 cm up: the ground's top there, the highest it may be."""
+    g, X, Y = grid()
+    h = np.zeros(g.shape)
+    h[(np.abs(X) < 0.05) & (np.abs(Y) < 0.05)] = BODY.clearance + 0.01
+    ceiling = np.full(h.shape, np.inf)
+    unseen = (X > 0.2) & (X < 0.25) & (np.abs(Y) > 0.2) & (np.abs(Y) < 0.3)
+    h[unseen], ceiling[unseen] = np.nan, 0.15
+    return Posterior(h, np.full(h.shape, 0.003**2), ceiling), g, X, Y
+
+
+def test_a_wheel_does_not_rest_on_a_ray_s_height_over_ground_no_return_met() -> None:
+    # one surface: the front wheels rest 4 cm up on the ray's height, the plane lifts the belly
+    # clear of the rock; judged as bounds, the wheels rest on the ground their returns show
+    post, g, _, _ = wheel_edge_over_unseen_ground()
+    lifted = chance_check(post, g, AT_ORIGIN, BODY)
+    assert lifted.safe.tolist() == [True] and lifted.nominal.excess[0, LIMITS.index("belly")] < -0.005
+    within = chance_check(Posterior(post.mean, post.var, post.ceiling, span=np.zeros(post.mean.shape)), g,
+                          AT_ORIGIN, BODY)
+    assert within.safe.tolist() == [False] and not within.unknown[0]
+    assert within.prob[0, LIMITS.index("belly")] == pytest.approx(1.0)
+    assert within.nominal.excess[0, LIMITS.index("belly")] == pytest.approx(0.01, abs=0.002)
+
+
+def test_a_wheel_meeting_a_rock_edge_cell_may_rest_below_its_top() -> None:
+    # the front wheels' footprint ends over cells whose returns rise 7.5 cm over their mean and drop
+    # 7.5 cm under it (a rock's edge in the cell): their top, read all over the cell, lifts the wheels
+    g, X, Y = grid()
+    top = np.zeros(g.shape)
+    top[(np.abs(X) < 0.05) & (np.abs(Y) < 0.05)] = BODY.clearance + 0.01
+    edge = (X > 0.2) & (X < 0.25) & (np.abs(Y) > 0.2) & (np.abs(Y) < 0.3)
+    top[edge] = 0.15
+    st = stats(top, 0.002, 0.0)
+    st["mean"][edge] -= 0.075
+    st["rise"][edge], st["drop"][edge] = 0.075, 0.075
+    bare = {"edge_bias": 0.0, "edge_sigma": 0.0, "rock_sigma": 0.0, "top_sigma": 0.002}
+    one = posterior(st, g, 2.5, ChanceParams(within=0.0, **bare))
+    assert one.span is None and chance_check(one, g, AT_ORIGIN, BODY).safe.tolist() == [True]
+    post = posterior(st, g, 2.5, ChanceParams(within=1.0, **bare))
+    assert post.span[edge] == pytest.approx(0.15) and post.span[~edge].max() == 0.0
+    c = chance_check(post, g, AT_ORIGIN, BODY)
+    assert c.safe.tolist() == [False] and c.prob[0, LIMITS.index("belly")] == pytest.approx(1.0)
+
+
+def test_the_miss_trace_stands_the_body_as_the_vehicle_check_does() -> None:
+    # tools.bench.chance_trace: a rock under the box and one wheel on a 3 cm slab; the trace's
+    # contacts, resting plane and belly point give the check's own intrusion
+    from tools.bench.chance_trace import stand
+
+    g, X, Y = grid()
+    h = np.zeros(g.shape)
+    h[(np.abs(X) < 0.05) & (np.abs(Y) < 0.05)] = 0.07
+    h[(X > 0.05) & (Y < -0.2)] = 0.03  # under the front-right wheel
+    body = stand(h.astype(np.float32), g, np.array([0.0, 0.0, 0.0]), BODY, CELL)
+    check = check_poses(h.astype(np.float32), g, AT_ORIGIN, BODY)
+    assert body["intrusion"] == pytest.approx(check.intrusion[0], abs=1e-6)
+    assert [round(c[0], 3) for c in body["contacts"]][1] == pytest.approx(0.03, abs=0.002)
+    assert np.hypot(*body["belly_xy"]) < 0.08

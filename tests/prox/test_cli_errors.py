@@ -51,3 +51,16 @@ def test_bad_inputs_are_one_line_and_exit_2(cloud: Path, tmp_path: Path, capsys:
     _one_line(capsys, "rvs-dem-mosaik: ")
     assert dem2hazard.main([str(tmp_path / "missing_dem.tif"), "-o", str(tmp_path / "h")]) == 2
     _one_line(capsys, "rvs-dem2hazard: ")
+
+
+@pytest.mark.parametrize(("option", "says"), [
+    (("--range", "a,b"), "--range 'a,b': give min,max as numbers, e.g. --range 0.3,4"),
+    (("--range", "3,1"), "--range '3,1': need min,max with 0 <= min < max"),
+    (("--range", "1,nan"), "--range '1,nan': give min,max as numbers"),
+    (("--sensor", "1,x,2"), "--sensor '1,x,2': give x,y,z as numbers"),
+    (("--rover-mask", "1,2,q,4"), "--rover-mask '1,2,q,4': give xmin,ymin,xmax,ymax as numbers"),
+])
+def test_a_bad_number_list_names_its_option_and_shape(cloud: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str],
+                                                      option: tuple[str, str], says: str) -> None:
+    assert dem_import.main([str(cloud), "--cell", "0.1", *option, "-o", str(tmp_path / "x_dem.tif")]) == 2
+    _one_line(capsys, f"rvs-dem-import: {says}")

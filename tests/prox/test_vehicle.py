@@ -266,3 +266,21 @@ def test_the_margins_put_the_thresholds_below_the_capability_by_the_measured_bud
     assert Margins(read_low=0.02, tracking=0.05).thresholds(RoverBody(clearance=0.12))["step_max"] == 0.08
     with pytest.raises(ValueError, match="9.5 cm read-low budget leaves no step below the body's 8.0 cm"):
         Margins(read_low=0.095).thresholds(BODY)  # hirise's ToF at 5 cm
+
+
+def test_a_pair_read_between_the_cell_centres_judges_equal_bounds_as_one_grid() -> None:
+    # a surface drawn as a pair (chance.chance_check) is read bilinearly as one grid is: with its
+    # lows equal to its highs it gives the one grid's verdicts; read cellwise, as a map's bounds
+    # are, each rock's top stands over its whole cell and the verdicts differ
+    g = GridGeometry.covering(-1.0, -1.0, 1.0, 1.0, 0.05)
+    xs, ys = g.centers()
+    X, Y = np.meshgrid(xs, ys)
+    h = np.zeros(g.shape, np.float32)
+    for x, y in ((0.3, 0.25), (-0.1, -0.3), (0.05, 0.05)):
+        h[np.hypot(X - x, Y - y) < 0.07] = 0.10
+    poses = np.column_stack([np.linspace(-0.2, 0.2, 9) + 0.013, np.full(9, 0.011), np.linspace(0.0, 80.0, 9)])
+    one = check_poses(h, g, poses, BODY)
+    pair = check_poses((h, h.copy()), g, poses, BODY, 0.05, cellwise=False)
+    np.testing.assert_allclose(pair.excess, one.excess, atol=1e-5)
+    walled = check_poses((h, h.copy()), g, poses, BODY, 0.05)
+    assert np.abs(walled.excess - one.excess).max() > 0.005

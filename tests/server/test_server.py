@@ -359,7 +359,8 @@ def test_startup_errors_are_reported_once(tmp_path: Path) -> None:
         [sys.executable, "-m", "rvs_server", "--port", "0", "--data", str(tmp_path), "--scene", "nosuch"],
         capture_output=True, text=True, timeout=60, cwd=Path(__file__).resolve().parents[2],
     )
-    assert proc.returncode == 1 and "nosuch" in proc.stderr and "listen" not in proc.stderr
+    assert proc.returncode == 2 and "listen" not in proc.stderr  # a usage error, like a bad --set
+    assert proc.stderr.startswith("rvs-server: no scene 'nosuch'; known scenes: dense, hirise, marsyard"), proc.stderr
     proc = subprocess.run([sys.executable, "-m", "rvs_server", "--set", "sleep.seconds=-1"],
                           capture_output=True, text=True, timeout=60, cwd=Path(__file__).resolve().parents[2])
     assert proc.returncode == 2 and proc.stderr == "rvs-server: --set sleep.seconds is -1, out of range [0, 86400] s\n"

@@ -10,7 +10,6 @@ import signal
 import socket
 import subprocess
 import sys
-import time
 from pathlib import Path
 from typing import Any
 
@@ -138,7 +137,7 @@ def test_hello_and_status_say_whether_the_console_runs(server_factory: Any) -> N
 def test_ctrl_c_stops_the_server_at_once_while_the_kernels_compile(tmp_path: Path) -> None:
     """An empty numba cache: the warm-up compiles for many seconds (10-20 s on the development
     machine), a compile that cannot be cancelled. Ctrl-C right after the greeting must not wait
-    for it. The bound is generous for a loaded machine, and far below a compile."""
+    for it: the process ends before the warm-up logs that the kernels are ready."""
     env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path / "numba"))  # nothing cached: it compiles
     proc = subprocess.Popen(
         [sys.executable, "-m", "rvs_server", "--port", "0", "--data", str(tmp_path / "d"), "--web-port", "0",
@@ -154,17 +153,16 @@ def test_ctrl_c_stops_the_server_at_once_while_the_kernels_compile(tmp_path: Pat
             st = c.request("status").fields  # --web-port 0 is server.web_port=0
             assert st["console"] == "off" and "web_port is 0" in st["console_reason"], st
             assert st["foxglove"] == "off", st  # --foxglove-port 0 is server.foxglove_port=0
-            t0 = time.monotonic()
             proc.send_signal(signal.SIGINT)
-            status = proc.wait(60)  # a safety net; the bound is below
-            took = time.monotonic() - t0
+            status = proc.wait(60)  # a safety net: a compile takes 10-20 s
     finally:
         if proc.poll() is None:
             proc.kill()
             proc.wait()
     err = proc.stderr.read()
     assert status == 0, err
-    assert took < 5.0, f"SIGINT took {took:.1f} s"
+    log = "".join(p.read_text() for p in (tmp_path / "d").rglob("*.log"))
+    assert "SIGINT" in log and "kernels_ready" not in log, log  # stopped while the kernels compiled
     assert "stopping" in err and "SIGINT" in err, err  # the operator is told
 
 

@@ -20,8 +20,8 @@ Looks: ``one`` (one frame, pan 0, tilt -35), ``sweep`` (pans -40 / 0 / +40), ``a
 sweep, then a frame every 0.1 m over 2 m of straight drive, as the see loop sees the ground it
 comes to), ``approach+hazcam`` (the same with the front hazard camera pair's frame at every step:
 the simulated ``drivers.hazcam`` device as declared, its pair rendered and matched by the
-server's stereo matcher, see :func:`hazcam`; fused as the see loop fuses them, as independent
-returns), ``approach+stereo`` (the approach with the mast's own stereo pair every 0.4 m, at the
+server's stereo matcher, see :func:`hazcam`; fused as the see loop fuses them, as a stereo
+frame), ``approach+stereo`` (the approach with the mast's own stereo pair every 0.4 m, at the
 PTU's lowest tilt where it sees the ground 0.9-2.5 m ahead: the simulated PIKE pair at ``high``,
 matched by the workflows' matcher with its declared noise over a search range that reaches the
 nearest ground, every matched pixel fused as a stereo frame, see :func:`mast_stereo` and
@@ -147,6 +147,24 @@ def standing(world: World, n: int, model: str, seed: int) -> Iterator[tuple[Any,
         device.close()
 
 
+def tof_frame(world: World, rng: np.random.Generator, pan: float, across: bool = True) -> dict[str, Any]:
+    """One simulated ToF frame of ``world`` at ``pan`` (tilt -35 deg), the returns with the range
+    noise the camera is told of, as :meth:`BoundsMap.fuse`'s arguments (``points``, ``sigma``,
+    ``origin``, then ``args`` and ``kwargs``): the looks here and the tests fuse the same frame.
+    ``across``: each return's horizontal error an ellipse along its ray (a quarter of it across),
+    as the see loop fuses its frames, else a disc."""
+    world.set_ptu(pan, -35.0)
+    origin = world.sensor_pose("tof")[:3, 3]
+    view = world.render_sensor("tof", WIDTH, HEIGHT)
+    ranges = view.range.reshape(-1)
+    keep = np.isfinite(ranges) & (ranges < USABLE_RANGE) & (view.object_id.reshape(-1) != 1)
+    pts, r = view.points.reshape(-1, 3)[keep].astype(np.float64), ranges[keep].astype(np.float64)
+    noisy = pts + (pts - origin) / r[:, None] * (tof_sigma(r) * rng.standard_normal(len(r)))[:, None]
+    along = tof_horizontal_sigma(noisy, origin)
+    return {"points": noisy, "sigma": np.sqrt(tof_height_variance(noisy, origin)), "origin": origin,
+            "args": (USABLE_RANGE, along), "kwargs": {"sigma_across": along / 4 if across else None}}
+
+
 def frames(world: World, look: str, rng: np.random.Generator) -> Iterator[Frame]:
     """Each frame of a way of looking."""
     x0, y0, h0 = world.rover_pose()
@@ -159,15 +177,9 @@ def frames(world: World, look: str, rng: np.random.Generator) -> Iterator[Frame]
         pair.open()
 
     def grab(pan: float) -> Frame:
-        world.set_ptu(pan, -35.0)
-        origin = world.sensor_pose("tof")[:3, 3]
-        view = world.render_sensor("tof", WIDTH, HEIGHT)
-        r = view.range.reshape(-1)
-        keep = np.isfinite(r) & (r < USABLE_RANGE) & (view.object_id.reshape(-1) != 1)
-        pts, r = view.points.reshape(-1, 3)[keep].astype(np.float64), r[keep].astype(np.float64)
-        noisy = pts + (pts - origin) / r[:, None] * (tof_sigma(r) * rng.standard_normal(len(r)))[:, None]
-        return (noisy, np.sqrt(tof_height_variance(noisy, origin)).astype(np.float64), origin,
-                tof_horizontal_sigma(noisy, origin).astype(np.float64), USABLE_RANGE, "tof")
+        f = tof_frame(world, rng, pan)
+        return (f["points"], f["sigma"].astype(np.float64), f["origin"], f["args"][1].astype(np.float64),
+                USABLE_RANGE, "tof")
 
     pans = (0.0,) if look == "one" else (-40.0, 0.0, 40.0)
     for pan in pans:
@@ -191,7 +203,7 @@ def hazcam(world: World, device: hazcam_device.Hazcam) -> Frame:
     pts = frame.points @ T[:3, :3].T + T[:3, 3]
     origin = T[:3, :3] @ frame.origin + T[:3, 3]
     sigma, sigma_xy = pair_sigmas(pts, origin, frame.sigma_range, device.rig("front").focal)
-    return pts, sigma, origin, sigma_xy, device.config.max_range, "tof"  # as the see loop fuses it
+    return pts, sigma, origin, sigma_xy, device.config.max_range, "stereo"  # as the see loop fuses it
 
 
 def mast_stereo(world: World, pair: stereo_device.StereoPair) -> Frame:

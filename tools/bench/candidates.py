@@ -19,15 +19,16 @@ ranking and the bookkeeping).
 The cycle's other work (fusing frames, the gate) is not in these figures.
 
 ``--check chance`` judges the sections as the see loop does (:func:`posterior_check`: the chance
-constraint, 64 draws, ``verdict_only``; the look-aheads with it too, ``--ahead chance`` as
-``navigate.see_ahead``, or on the posterior's best estimate, ``--ahead best``), on a
+constraint, 64 draws, ``verdict_only``; the look-aheads on the posterior's best estimate,
+``--ahead best`` as ``navigate.see_ahead`` by default, or with the chance constraint too,
+``--ahead chance``), on a
 posterior made from the same window: each cell's top its highest true height, a sigma of the
 map's spread over 2.5, the rock-top error common to the body (``rock_sigma`` x the cell's relief);
 ``--check bounds`` (the default) is the worst case on the bounds. ``--digest`` prints, per trial,
 the status, candidate, rank and poses checked: the verdicts, to compare two versions of the check.
 
     python -m tools.bench.candidates [--scenes marsyard dense] [--maps tight wide] [--trials 40] [--max-poses N]
-    python -m tools.bench.candidates --check chance --trials 10 [--ahead best] [--digest] [--every-pose]
+    python -m tools.bench.candidates --check chance --trials 10 [--ahead chance] [--digest] [--every-pose]
 """
 
 from __future__ import annotations
@@ -121,9 +122,9 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--every-pose", action="store_true",
                     help="with --check chance: draw for every pose sent (no runs: a section is not read to its first "
                          "refusal only), for comparison")
-    ap.add_argument("--ahead", choices=["chance", "best"], default="chance",
-                    help="with --check chance: the look-aheads judged with the chance constraint (the see loop's "
-                         "navigate.see_ahead default) or on the posterior's best estimate")
+    ap.add_argument("--ahead", choices=["chance", "best"], default="best",
+                    help="with --check chance: the look-aheads judged on the posterior's best estimate (the see "
+                         "loop's navigate.see_ahead default) or with the chance constraint")
     ap.add_argument("--digest", action="store_true", help="print each trial's verdict (status, candidate, rank, poses)")
     args = ap.parse_args(argv)
     params = CandidateParams(max_poses=args.max_poses)

@@ -21,6 +21,12 @@ model, one draw). Then:
     python -m tools.bench.chance --cell 0.05 --world-seed 2   # a 5 cm map, another rock draw
     python -m tools.bench.chance --time                       # 1,000 poses on a 5 cm window
     python -m tools.bench.chance --look approach --world-seed 3 --posterior map   # as the chooser judges
+    python -m tools.bench.chance --risk --scenes marsyard hirise dense --world-seeds 20 21 22 23 24 25 26 27 28 29 --jobs 2
+
+``--risk``: the stated risk, as the issue asks it: the chance check at the declared epsilon, with
+the posterior as the chooser makes it, over many looks (``--look``) on rock draws no setting was
+tuned on (``--world-seeds``; the noise draw is the rock draw's), summed per scene: judged poses,
+false safes and their one-sided 95 % Clopper-Pearson bound, truly safe kept.
 
 ``--posterior``: ``look`` (default) makes the posterior seen from the look's mean sensor position;
 ``map`` as the see loop's chooser makes it, with no viewpoint (the slope's steepest direction and
@@ -32,18 +38,24 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import math
 import time
+from collections import Counter
 from typing import Any
 
 import numpy as np
 
-from drivers.sim.rover import RoverBody
+from drivers.sim.rover import IMU_SIGMA_DEG, RoverBody
 from drivers.sim.world import World
 from prox_workflows.algorithms.bounds_map import BoundsMap, BoundsParams
 from prox_workflows.algorithms.chance import ChanceParams, Posterior, chance_check, headroom, posterior
-from prox_workflows.algorithms.vehicle import check_poses
+from prox_workflows.algorithms.set_down import set_down
+from prox_workflows.algorithms.vehicle import LIMITS, check_poses
 from prox_workflows.grid import GridGeometry
+from rvs_truth.stats import clopper_pearson_upper
 from tools.bench.bounds import LOOKS, TRUE_CELL, frames, pooled
+from tools.bench.rows import streamed
+from tools.bench.set_down import BLIND, EDGE, FOOT, WIDTH
 
 JUMP_BANDS = (0.0, 0.01, 0.02, 0.04, 0.08, 0.16, np.inf)  # m
 Z999 = 3.09  # a normal's 99.9th percentile
@@ -110,10 +122,30 @@ def calibrate(scene: str, look: str, cell: float, world_seed: int, seed: int) ->
     return {"rows": rows, "edge_bias": a, "edge_sigma": b, "top_sigma": c, "cells": int(seen.sum())}
 
 
+def set_down_at_start(world: World, bounds: BoundsMap, body: RoverBody) -> str:
+    """The see loop's ring set-down at the rover's start (``see_set_down ring``,
+    :func:`prox_workflows.algorithms.set_down.set_down`): the wheels' ground from the pose and the
+    true attitude (the IMU's sigma), the disc the body turns in within 1 cm of that plane, the rest
+    of the mast's blind disc on the ring's plane within the ring's own spread."""
+    x0, y0, h0 = world.rover_pose()
+    roll, pitch = world.rover_attitude()
+    h = math.radians(h0)
+    disc = (x0 + FOOT * math.cos(h), y0 + FOOT * math.sin(h), BLIND)
+    datum = float(world.true_dem(0.01, (x0 - 0.005, y0 - 0.005, x0 + 0.005, y0 + 0.005))[0, 0])
+    return set_down(bounds, (x0, y0, h0), datum, body, (roll, pitch, IMU_SIGMA_DEG), disc, 0.0, EDGE, WIDTH)
+
+
 def evaluate(scene: str, look: str, cell: float, world_seed: int, seed: int, epsilons: list[float],
              samples: int, body: RoverBody, rock_sigma: float = ChanceParams().rock_sigma,
-             made: str = "look") -> dict[str, Any]:
+             made: str = "look", start: bool = False, models: list[ChanceParams] | None = None,
+             **model: float) -> dict[str, Any]:
+    """The pose-level table (see the module's docstring); ``start``: the ring set-down at the
+    rover's start and the poses round it (0.5 m behind it to 1.6 m ahead, 1.2 m either side: the
+    ground a rover leaving its start drives) instead of those 1.6-4.0 m ahead; ``models``: whole
+    parameter sets, each judging the same map and poses (else one per epsilon); ``model``: further
+    :class:`ChanceParams` for the chance check (e.g. ``prior_own=1.0``: a prior drawn cell by cell)."""
     world, bounds, viewpoint = fused(scene, look, cell, world_seed, seed)
+    said = set_down_at_start(world, bounds, body) if start else ""
     stats, g = whole(bounds)
     if made != "look":  # as the chooser makes it: no viewpoint
         viewpoint = None
@@ -122,7 +154,8 @@ def evaluate(scene: str, look: str, cell: float, world_seed: int, seed: int, eps
     x0, y0, _ = world.rover_pose()
     truth = world.true_dem(0.01, (g.xmin, g.ymin, g.xmin + g.width * g.cell, g.ymax))
     tg = GridGeometry(0.01, g.xmin, g.ymax, truth.shape[1], truth.shape[0])
-    px, py = np.meshgrid(x0 + np.arange(1.6, 4.0, 0.1), y0 + np.arange(-1.2, 1.25, 0.1))
+    ahead = np.arange(-0.5, 1.65, 0.1) if start else np.arange(1.6, 4.0, 0.1)
+    px, py = np.meshgrid(x0 + ahead, y0 + np.arange(-1.2, 1.25, 0.1))
     poses = np.column_stack([np.repeat(px.ravel(), 4), np.repeat(py.ravel(), 4),
                              np.tile([0.0, 45.0, 90.0, 135.0], px.size)])
     on_truth = check_poses(truth, tg, poses, body)
@@ -131,13 +164,16 @@ def evaluate(scene: str, look: str, cell: float, world_seed: int, seed: int, eps
     t_worst = time.perf_counter() - t0
     rows = [{"check": f"worst case (k {bounds.params.k:g})", "safe": worst.safe, "unknown": worst.unknown,
              "ms": 1000 * t_worst}]
-    for eps in epsilons:
-        params = ChanceParams(epsilon=eps, samples=samples, rock_sigma=rock_sigma)
+    for params in models or [ChanceParams(epsilon=eps, samples=samples, rock_sigma=rock_sigma, **model)
+                             for eps in epsilons]:
+        eps = params.epsilon
         t0 = time.perf_counter()
         post = posterior(stats, g, bounds.params.k, params, viewpoint)
         c = chance_check(post, g, poses, body, params)
         rows.append({"check": f"chance, epsilon {eps:g}", "safe": c.safe, "unknown": c.unknown,
-                     "ms": 1000 * (time.perf_counter() - t0), "screened": int(c.screened.sum())})
+                     "ms": 1000 * (time.perf_counter() - t0), "screened": int(c.screened.sum()),
+                     "misses": [_miss(poses[i], on_truth.excess[i], c.nominal.excess[i], float(c.p_any[i]))
+                                for i in np.flatnonzero(c.safe & on_truth.unsafe)]})
     truly_safe = ~on_truth.unsafe
     for row in rows:
         judged = ~row["unknown"]
@@ -145,7 +181,113 @@ def evaluate(scene: str, look: str, cell: float, world_seed: int, seed: int, eps
         row["false_safe"] = int((row["safe"] & on_truth.unsafe).sum())
         row["kept"] = float(row["safe"][truly_safe & judged].mean())
         row["of"] = int((truly_safe & judged).sum())
-    return {"poses": len(poses), "rows": rows, "truly_unsafe": int(on_truth.unsafe.sum())}
+    return {"poses": len(poses), "rows": rows, "truly_unsafe": int(on_truth.unsafe.sum()), "set_down": said}
+
+
+LAGS = (1, 2, 3, 4, 6, 8)  # cells: the lags the spatial correlation is measured at
+
+
+def lag_correlation(e: np.ndarray, ok: np.ndarray, lag: int) -> float:
+    """The correlation of ``e`` between cells ``lag`` apart along the rows and the columns (both
+    ``ok``), averaged over the two directions."""
+    out = []
+    for axis in (0, 1):
+        a, b = e, np.roll(e, -lag, axis=axis)
+        m = ok & np.roll(ok, -lag, axis=axis)
+        if axis == 0:
+            m[-lag:, :] = False
+        else:
+            m[:, -lag:] = False
+        x, y = a[m] - a[m].mean(), b[m] - b[m].mean()
+        out.append(float((x * y).mean() / np.sqrt((x * x).mean() * (y * y).mean())))
+    return float(np.mean(out))
+
+
+def correlation(scene: str, look: str, cell: float, world_seed: int, seed: int) -> dict[str, Any]:
+    """How the errors the chance check draws are correlated between neighbouring cells, on the
+    truth: (a) the map's means against the true ground's mean over each cell (cells a frame bounded;
+    all, off rock edges (J under 2 cm), near the look's mean sensor position and far from it), their spread
+    against the map's own sigma and their correlation at :data:`LAGS`; (b) the true ground off the
+    plane fitted to it over the blind disc round the rover's start (what the set-down's prior there
+    is wrong by), its spread and correlation alike, on the map's cells."""
+    world, bounds, viewpoint = fused(scene, look, cell, world_seed, seed)
+    stats, g = whole(bounds)
+    fine = world.true_dem(TRUE_CELL, (g.xmin, g.ymin, g.xmin + g.width * g.cell, g.ymax))
+    truth = pooled(fine, g, np.mean)
+    mean = np.asarray(stats["mean"], np.float64)
+    seen = np.isfinite(mean)
+    jump = headroom(stats, mean + stats["rise"])
+    e = np.where(seen, truth - mean, 0.0)
+    own = np.sqrt(np.asarray(stats["mean_var"], np.float64))
+    xs, ys = g.centers()
+    X, Y = np.meshgrid(xs, ys)
+    far = np.hypot(X - viewpoint[0], Y - viewpoint[1])
+    rows = []
+    for name, ok in (("map means, all", seen), ("map means, off rock edges", seen & (jump < FLAT)),
+                     ("map means, under 2 m from the sensor", seen & (far < 2.0)),
+                     ("map means, over 3 m from the sensor (grazing)", seen & (far > 3.0))):
+        rows.append({"what": name, "cells": int(ok.sum()), "sd": float(e[ok].std()),
+                     "own": float(np.median(own[ok])), "corr": [lag_correlation(e, ok, lag) for lag in LAGS]})
+    x0, y0, _ = world.rover_pose()
+    disc = np.hypot(X - x0, Y - y0) <= BLIND
+    a = np.column_stack([np.ones(int(disc.sum())), X[disc] - x0, Y[disc] - y0])
+    coef = np.linalg.lstsq(a, truth[disc], rcond=None)[0]
+    off = np.zeros(g.shape)
+    off[disc] = truth[disc] - a @ coef
+    rows.append({"what": "true ground off its plane, blind disc", "cells": int(disc.sum()), "sd": float(off[disc].std()),
+                 "own": float("nan"), "corr": [lag_correlation(off, disc, lag) for lag in LAGS]})
+    return {"rows": rows}
+
+
+def _miss(pose: np.ndarray, truth: np.ndarray, nominal: np.ndarray, p_any: float) -> dict[str, Any]:
+    """A false safe traced: the limits the truth exceeds there and by how much, what the
+    posterior's best estimate left, and the probability the check gave."""
+    over = {name: round(float(truth[k]), 4) for k, name in enumerate(LIMITS) if truth[k] > 0}
+    return {"pose": [round(float(v), 2) for v in pose], "truth_excess": over,
+            "nominal_excess": {name: round(float(nominal[k]), 4) for k, name in enumerate(LIMITS) if name in over},
+            "p_any": p_any}
+
+
+def _risk_row(job: tuple[str, str, float, int, int, dict[str, float]]) -> dict[str, Any]:
+    """One look's counts with the declared parameters, and with them changed by ``against`` where
+    it is given (the ``against`` key: the same map, poses and draws), in a pool's process."""
+    scene, look, cell, world_seed, samples, against = job
+    models = [ChanceParams(samples=samples)]
+    if against:
+        models.append(dataclasses.replace(models[0], **against))
+    out = evaluate(scene, look, cell, world_seed, world_seed, [], samples, RoverBody(), made="map", models=models)
+    rows = [{"judged": row["judged"], "false_safe": row["false_safe"], "kept": round(row["kept"], 4),
+             "of": row["of"], "misses": row["misses"]} for row in out["rows"][1:]]
+    head = {"scene": scene, "look": look, "world_seed": world_seed, "truly_unsafe": out["truly_unsafe"]}
+    return {**head, **rows[0], **({"against": rows[1]} if against else {})}
+
+
+def risk(scenes: list[str], looks: list[str], world_seeds: list[int], cell: float, samples: int,
+         jobs: int, against: dict[str, float] | None = None) -> list[dict[str, Any]]:
+    """Per scene, the looks' counts summed: the false-safe rate per judged pose and its bound.
+    Each look's row is printed as it comes, so a run cut short keeps what it measured."""
+    todo = [(scene, look, cell, ws, samples, against or {}) for ws in world_seeds for scene in scenes
+            for look in looks]
+    return streamed(_risk_row, todo, jobs)
+
+
+def risk_table(rows: list[dict[str, Any]]) -> list[str]:
+    lines = ["| scene | looks | judged poses | false safe | rate | 95 % upper bound | truly safe kept |",
+             "|---|---|---|---|---|---|---|"]
+    for scene in dict.fromkeys(r["scene"] for r in rows):
+        sel = [r for r in rows if r["scene"] == scene]
+        n, k = sum(r["judged"] for r in sel), sum(r["false_safe"] for r in sel)
+        kept = sum(r["kept"] * r["of"] for r in sel) / max(1, sum(r["of"] for r in sel))
+        lines.append(f"| {scene} | {len(sel)} | {n:,} | {k} | {k / max(n, 1):.1e} | "
+                     f"{clopper_pearson_upper(k, n) if n else float('nan'):.1e} | {100 * kept:.1f} % |")
+    misses = [(r["scene"], m) for r in rows for m in r.get("misses", [])]
+    for scene in dict.fromkeys(sc for sc, _ in misses):
+        mine = [m for sc, m in misses if sc == scene]
+        by = Counter(k for m in mine for k in m["truth_excess"])
+        worst = max(v for m in mine for v in m["truth_excess"].values())
+        lines.append(f"{scene}: false safes over {dict(by)} on the truth (worst excess {worst:g}), "
+                     f"P(any) median {float(np.median([m['p_any'] for m in mine])):.1e}")
+    return lines
 
 
 def timing(body: RoverBody, samples: int, poses: int = 1000) -> list[tuple[str, float]]:
@@ -189,13 +331,51 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--posterior", choices=["look", "map", "one"], default="look",
                     help="seen from the look's sensor (look), as the chooser makes it (map), or that with one "
                          "return's horizontal error (one)")
+    ap.add_argument("--risk", action="store_true",
+                    help="the stated risk: the chance check at the declared epsilon over --world-seeds, per scene")
+    ap.add_argument("--scenes", nargs="+", default=["marsyard", "hirise", "dense"], help="with --risk")
+    ap.add_argument("--world-seeds", nargs="+", type=int, default=[20, 21, 22],
+                    help="with --risk: rock draws no setting was tuned on")
+    ap.add_argument("--jobs", type=int, default=1, help="with --risk: looks run in this many processes")
+    ap.add_argument("--set-down", action="store_true",
+                    help="the ring set-down at the rover's start and the poses round it (the blind disc's prior "
+                         "judged) instead of the poses 1.6-4.0 m ahead")
+    ap.add_argument("--prior-own", type=float, default=ChanceParams().prior_own,
+                    help="ChanceParams.prior_own (1: a prior's error drawn cell by cell)")
+    ap.add_argument("--shared-length", type=float, default=ChanceParams().shared_length,
+                    help="ChanceParams.shared_length (m)")
+    ap.add_argument("--correlation", action="store_true",
+                    help="the spatial correlation of the map means' errors and of the blind disc's ground off its "
+                         "plane, on the truth")
+    ap.add_argument("--against", nargs="+", default=[], metavar="NAME=VALUE",
+                    help="with --risk: also judge each look with these ChanceParams changed (e.g. a term "
+                         "at 0: the model without it), on the same map and draws, and tabulate both")
     ap.add_argument("--time", action="store_true", help="time 1,000 poses on a synthetic 5 cm window instead")
     args = ap.parse_args(argv)
     if args.time:
         for name, seconds in timing(RoverBody(), args.samples):
             print(f"{name}: {seconds:.2f} s per 1,000 poses ({args.samples} samples)")
         return
+    if args.risk:
+        against = {k: float(v) for k, v in (a.split("=", 1) for a in args.against)}
+        rows = risk(args.scenes, [args.look], args.world_seeds, args.cell, args.samples, args.jobs, against)
+        print(f"\nthe chance check at epsilon {ChanceParams().epsilon:g}, the chooser's posterior, {args.look} looks")
+        print("\n".join(risk_table(rows)))
+        if against:
+            print(f"\nthe same with {' '.join(args.against)}")
+            print("\n".join(risk_table([{**r, **r["against"]} for r in rows])))
+        return
     head = f"{args.scene}, {args.look} ({args.posterior} posterior), cell {args.cell * 100:g} cm, rock draw {args.world_seed}, noise draw {args.seed}"
+    if args.correlation:
+        out = correlation(args.scene, args.look, args.cell, args.world_seed, args.seed)
+        print(head)
+        print("| error | cells | sd (cm) | own sd, median (cm) | correlation at " +
+              ", ".join(f"{lag * args.cell * 100:g}" for lag in LAGS) + " cm |")
+        print("|---|---|---|---|---|")
+        for r in out["rows"]:
+            print(f"| {r['what']} | {r['cells']} | {100 * r['sd']:.2f} | {100 * r['own']:.2f} | "
+                  + " / ".join(f"{c:.2f}" for c in r["corr"]) + " |")
+        return
     if args.calibrate:
         out = calibrate(args.scene, args.look, args.cell, args.world_seed, args.seed)
         print(f"{head}: {out['cells']} cells with returns")
@@ -211,7 +391,10 @@ def main(argv: list[str] | None = None) -> None:
         return
     body = RoverBody()
     out = evaluate(args.scene, args.look, args.cell, args.world_seed, args.seed, args.epsilon, args.samples,
-                   dataclasses.replace(body), args.rock_sigma, args.posterior)
+                   dataclasses.replace(body), args.rock_sigma, args.posterior, args.set_down,
+                   prior_own=args.prior_own, shared_length=args.shared_length)
+    if args.set_down:
+        head += f"; set down at the start: {out['set_down']}; prior_own {args.prior_own:g}, shared_length {args.shared_length:g} m"
     print(f"{head}: {out['poses']} poses, {out['truly_unsafe']} truly unsafe")
     print("| check | judged | false safe | truly safe kept (of) | poses screened | ms per 1,000 poses |")
     print("|---|---|---|---|---|---|")

@@ -28,6 +28,7 @@ are refused far from the rover's way.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import time
 from collections import Counter
@@ -225,16 +226,8 @@ def detail(choices: list[dict[str, Any]], refusals: list[dict[str, Any]], fine: 
         if not len(poses):
             continue
         full = chance.chance_check(post, wg, poses, body, c["chance"])
-        seen = np.isfinite(post.mean)
-        sd = np.sqrt(np.where(seen, post.var, 0.0))
-        common = np.where(seen, post.common, 0.0)
-        roof = np.where(np.isfinite(post.ceiling), post.ceiling, np.nan)
-        rng = np.random.default_rng(1)
-        ex = []
-        for _ in range(draws):
-            surface = np.where(seen, post.mean + sd * rng.standard_normal(post.mean.shape)
-                               + common * rng.standard_normal(), roof).astype(np.float32)
-            ex.append(vehicle.check_poses(surface, wg, poses, body).excess)
+        ex = [vehicle.check_poses(surface, wg, poses, body).excess
+              for surface in chance.surfaces(post, wg, dataclasses.replace(c["chance"], samples=draws))]
         ex = np.nan_to_num(np.array(ex), nan=-np.inf)
         truth = vehicle.check_poses(fine, g, poses, body)
         for i, p in enumerate(poses):

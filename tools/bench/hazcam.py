@@ -15,8 +15,19 @@ deviation), rms of the matches within 2 px of the truth (the Gaussian core), sha
 each ``--sizes``: the capture (the simulator's render of both cameras and their image
 formation; a real camera renders nothing) and the matching (disparity, points, rover frame).
 
+**The start's ring** (``--ring``): at the first ``--missions`` starts of the navigate bench's
+draws per scene, facing the goal, both pairs grabbed at the headings of the see loop's start turn
+(``navigate.see_start_turn``: 0, 60 and 120 deg) and fused into a bounds map as the see loop
+fuses them (``--sensor stereo``; ``tof``: as independent returns). Of the ring between the body
+(its rectangle, wheels included, at the last heading) and the mast's blind disc (its radius plus
+the edge the mast's rays graze, round the pan axis's foot): the cells a pair bounded, those past
+the disc the body turns in, and against the true surface (0.5 cm samples pooled per 2.5 cm
+cell): the true top over the upper bound, the true bottom under the lower, and the cell mean's
+error in its own sigmas.
+
     python -m tools.bench.hazcam                     # marsyard hirise dense, the declared size
     python -m tools.bench.hazcam --sizes 640x480 480x360 320x240 --grabs 5
+    python -m tools.bench.hazcam --ring --missions 4 [--sensor tof]
 """
 
 from __future__ import annotations
@@ -101,12 +112,88 @@ def grab_times(size: tuple[int, int], grabs: int, scene: str) -> dict[str, Any]:
             "points": int(np.median(points))}
 
 
+def ring(scene: str, missions: int, sensor: str) -> dict[str, Any]:
+    """The start's ring seen by both pairs over a start turn, against the truth (see the module)."""
+    from drivers.ptu.protocol import D46_LIMITS, D46_RESOLUTION_ARCSEC, pos_to_deg
+    from drivers.tof.constants import FOV_H_DEG, FOV_V_DEG
+    from prox_workflows.algorithms.bounds_map import BoundsMap
+    from prox_workflows.algorithms.looks import View, blind_radius, on_body
+    from prox_workflows.algorithms.noise import pair_sigmas
+    from prox_workflows.algorithms.transforms import HeadCalibration
+    from rvs_server.navigation.config import SeeConfig
+    from rvs_server.navigation.see import BLIND_EDGE, BODY_MARGIN
+    from rvs_truth.surface import missions as draws
+
+    world = World.from_scene(scene)
+    dev = hazcam.create({"cameras": "front,rear"}, world, stereo_points)
+    dev.open()
+    body, head = world.body, HeadCalibration()
+    lowest = pos_to_deg(D46_LIMITS["tilt"][0], D46_RESOLUTION_ARCSEC)
+    radius = blind_radius(head, View(FOV_H_DEG, FOV_V_DEG, lowest, 150.0)) + BLIND_EDGE
+    step = SeeConfig().start_turn
+    turns = step * np.arange(int(np.ceil(360.0 / (2 * step) - 1e-9)))
+    spin = float(np.hypot(body.length, body.width) / 2 + 0.05)  # the disc the body turns in (see.py's radius)
+    out = {"scene": scene, "sensor": sensor, "ring": 0, "seen": 0, "outer": 0, "outer_seen": 0, "over": 0,
+           "under": 0}
+    z = []
+    for (x0, y0), goal in draws(scene, missions):
+        h0 = float(np.degrees(np.arctan2(goal[1] - y0, goal[0] - x0)))
+        bm = BoundsMap.covering([(x0, y0)], 1.5)
+        for turn in turns:
+            world.set_rover_pose(x0, y0, h0 + turn)
+            T = world.T_world_rover()
+            for camera in dev.cameras():
+                frame = dev.grab(camera)
+                ground = ~on_body(frame.points, body, BODY_MARGIN)
+                pts = frame.points[ground] @ T[:3, :3].T + T[:3, 3]
+                origin = T[:3, :3] @ frame.origin + T[:3, 3]
+                sigma, sigma_xy = pair_sigmas(pts, origin, frame.sigma_range[ground], dev.rig(camera).focal)
+                bm.fuse(pts, sigma, origin, dev.config.max_range, sigma_xy, sensor=sensor)
+        g = bm.geometry
+        xs, ys = g.centers()
+        X, Y = np.meshgrid(xs - x0, ys - y0)
+        h = np.radians(h0 + turns[-1])
+        local = np.column_stack([(X * np.cos(h) + Y * np.sin(h)).ravel(), (-X * np.sin(h) + Y * np.cos(h)).ravel()])
+        under = on_body(local, body, 0.0).reshape(X.shape)
+        h = np.radians(h0)
+        disc = np.hypot(X - head.ptu_base[0] * np.cos(h), Y - head.ptu_base[0] * np.sin(h)) <= radius
+        inner = np.hypot(X, Y) <= spin
+        rim = disc & ~under
+        seen = rim & np.isfinite(bm.upper) & np.isfinite(bm.lower)
+        fine = world.true_dem(g.cell / 5, g.bounds).reshape(g.height, 5, g.width, 5)
+        out["ring"] += int(rim.sum())
+        out["seen"] += int(seen.sum())
+        out["outer"] += int((rim & ~inner).sum())
+        out["outer_seen"] += int((seen & ~inner).sum())
+        out["over"] += int((fine.max(axis=(1, 3))[seen] > bm.upper[seen]).sum())
+        out["under"] += int((fine.min(axis=(1, 3))[seen] < bm.lower[seen]).sum())
+        z.append((bm.mean[seen] - fine.mean(axis=(1, 3))[seen]) / np.sqrt(bm.mean_var[seen]))
+    zs = np.concatenate(z)
+    out.update(z_sd=float(np.std(zs)), z_over3=float(np.mean(np.abs(zs) > 3.0)), turns=turns.tolist())
+    return out
+
+
 def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--scenes", nargs="+", default=["marsyard", "hirise", "dense"])
     ap.add_argument("--sizes", nargs="+", default=["x".join(map(str, hazcam.BACKENDS.settings().size))])
     ap.add_argument("--grabs", type=int, default=5, help="grabs per pair for the grab time")
+    ap.add_argument("--ring", action="store_true", help="the start's ring seen by the pairs over a start turn")
+    ap.add_argument("--missions", type=int, default=4, help="--ring: starts per scene")
+    ap.add_argument("--sensor", choices=("stereo", "tof"), default="stereo",
+                    help="--ring: fuse the pairs' frames as stereo (the see loop's) or as independent returns")
     args = ap.parse_args(argv)
+    if args.ring:
+        print("| scene | fused as | headings (deg) | ring cells | seen | past the turning disc: seen | true top over "
+              "upper | true bottom under lower | mean error sd (sigmas) | over 3 sigma |")
+        print("|---|---|---|---|---|---|---|---|---|---|")
+        for scene in args.scenes:
+            r = ring(scene, args.missions, args.sensor)
+            print(f"| {scene} | {r['sensor']} | {', '.join(f'{t:g}' for t in r['turns'])} | {r['ring']} | "
+                  f"{100 * r['seen'] / r['ring']:.1f} % | {100 * r['outer_seen'] / r['outer']:.1f} % | "
+                  f"{100 * r['over'] / r['seen']:.2f} % | {100 * r['under'] / r['seen']:.2f} % | {r['z_sd']:.2f} | "
+                  f"{100 * r['z_over3']:.1f} % |")
+        return
     sizes = [tuple(int(v) for v in s.lower().split("x")) for s in args.sizes]
     rows = []
     for size in sizes:

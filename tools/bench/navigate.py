@@ -34,6 +34,18 @@ distance from the planned waypoint legs) it prints the margin table.
     python -m tools.bench.navigate --budget --scenes marsyard hirise
     python -m tools.bench.navigate --ceiling --footprint body --scenes hirise   # perfect maps, 35 s
     python -m tools.bench.navigate --oracle --missions 5 --scenes marsyard hirise dense --jobs 2
+    python -m tools.bench.navigate --missions 3 --scenes marsyard --modes see --jobs 1 --slip 0.05,2
+
+``--slip SHARE,DEG_PER_M`` runs every mission with the simulated rover's wheels slipping
+(``sim slip``: it covers 1 - SHARE of what its odometry counts and its heading drifts DEG_PER_M
+per metre to one side, seeded per mission) and no GNC pose: navigate -auto's pose is the
+rover's dead reckoning, so the loop steers, places its frames and judges its arrival by a
+pose that parts from the truth. The row then holds, beside ``true_miss`` (the true distance
+from the goal where the rover stopped: the simulator's pose, never the loop's), the loop's own
+``believed_miss`` and ``true_reached`` (the true distance within navigate's tolerance).
+``--localise MODE`` gives navigate ``-localise MODE`` with the scene's true DEM at 0.5 m as its
+orbital map (``-global``, a UTM GeoTIFF, as ``tools.bench.localise`` gives it): the fixes that
+can bring the true pose back within the tolerance.
 """
 
 from __future__ import annotations
@@ -60,7 +72,7 @@ from rvs_server.client.session import ServerThread
 from rvs_server.protocol import Reply, parse_reply
 from rvs_truth.ceiling import perception_ceiling
 from rvs_truth.oracle import default_cache_dir, mission_oracle
-from rvs_truth.orbital import write_global_maps
+from rvs_truth.orbital import ORIGIN, orbital_geotiff, write_global_maps
 from rvs_truth.surface import AREA, CEILING_MAPS, missions, true_maps, truth_surface
 from rvs_truth.vehicle import (
     ROVER,
@@ -74,8 +86,19 @@ from rvs_truth.vehicle import (
     stop_reason,
     vehicle_check,
 )
+from tools.bench.rows import streamed
 
-TOP_SPEED = 0.1  # m/s: the scenes' rover speed
+
+def drive_time(poses: np.ndarray, speed: float, turn_rate: float) -> float:
+    """The least time (s) the rover takes along ``poses`` (x, y, heading in deg) as the simulated
+    rover drives: each step at ``speed``, or slower where its heading change needs it at
+    ``turn_rate`` (deg/s: an arc no faster than the turn rate drives its curvature, a turn on the
+    spot at the turn rate). A path's own time, without looks or stops: the oracle's path timed so
+    that its efficiency and a mission's are the same measure."""
+    p = np.asarray(poses, float).reshape(-1, 3)
+    ds = np.hypot(np.diff(p[:, 0]), np.diff(p[:, 1]))
+    dh = np.abs((np.diff(p[:, 2]) + 180.0) % 360.0 - 180.0)
+    return float(np.maximum(ds / speed, dh / turn_rate).sum())
 ORBITAL = {"hirise", "dense"}  # scenes built on an orbital DTM (rvs_truth.orbital writes it)
 # m: where the see loop is set down it takes the ground round the mast's foot that no tilt shows
 # (0.72 m) as clear; a body at its edge reaches a little further. Events only there come from that
@@ -123,10 +146,55 @@ def scene_server(data: Path, scene: str, sets: tuple[str, ...] | list[str] = ())
     return srv
 
 
+def slip_lines(slip: tuple[float, float] | None, seed: int, mission: int) -> list[str]:
+    """The requests that make a mission's wheels slip (``sim slip``), seeded by the draw and the
+    mission so a rerun slips the same way; none without ``slip`` (share, deg per m)."""
+    if slip is None:
+        return []
+    return [f"sim slip -distance {slip[0]:g} -heading {slip[1]:g} -seed {seed * 1000 + mission}"]
+
+
+def parse_slip(text: str) -> tuple[float, float]:
+    """``--slip``'s SHARE,DEG_PER_M (0.05,2: 5 % short, 2 deg per metre): ValueError that says
+    what to give otherwise."""
+    parts = text.split(",")
+    try:
+        share, drift = (float(v) for v in parts)
+    except ValueError:
+        raise ValueError(f"--slip {text!r}: give SHARE,DEG_PER_M, e.g. 0.05,2 (5 % slip, 2 deg per metre)") from None
+    if not (0.0 <= share <= 0.9 and 0.0 <= drift <= 90.0):
+        raise ValueError(f"--slip {text!r}: the share is 0 to 0.9 and the drift 0 to 90 deg per metre (sim slip's "
+                         "ranges)")
+    return share, drift
+
+
+def arrival(world: World, believed: tuple[float, float], goal: tuple[float, float], tolerance: float
+            ) -> dict[str, Any]:
+    """Where a mission ended against its goal: the true distance (the simulator's pose), the
+    distance the loop believes (its pose: dead reckoning without a GNC) and whether the true
+    one is within navigate's ``tolerance``."""
+    truth = world.truth()
+    miss = math.hypot(truth["x"] - goal[0], truth["y"] - goal[1])
+    return {"true_miss": round(miss, 3),
+            "believed_miss": round(math.hypot(believed[0] - goal[0], believed[1] - goal[1]), 3),
+            "true_reached": bool(miss <= tolerance)}
+
+
+def localise_options(world: World, folder: Path, mode: str) -> str:
+    """navigate's options for ``-localise mode``: the world's true DEM at 0.5 m written into
+    ``folder`` as the orbital map it matches on (``-global``, placed by ``-global-origin``); ""
+    for none."""
+    if mode == "none":
+        return ""
+    orbit = orbital_geotiff(world, folder / "orbit.tif")
+    return f"-localise {mode} -global {orbit} -global-origin {ORIGIN[0]},{ORIGIN[1]}"
+
+
 def run_mission(scene: str, mode: str, start: tuple[float, float], goal: tuple[float, float],
                 extra: list[str], sets: tuple[str, ...] = (), seed: int = 0,
-                oracle_cache: Path | None = None) -> dict[str, Any]:
-    """One navigate -auto in a fresh server (:func:`scene_server`), judged by the vehicle check."""
+                oracle_cache: Path | None = None, localise: str = "none") -> dict[str, Any]:
+    """One navigate -auto in a fresh server (:func:`scene_server`), judged by the vehicle check;
+    with ``localise`` other than none, navigate matches on the scene's true DEM at 0.5 m."""
     with tempfile.TemporaryDirectory() as tmp:
         srv = scene_server(Path(tmp), scene, sets)
         try:
@@ -134,19 +202,25 @@ def run_mission(scene: str, mode: str, start: tuple[float, float], goal: tuple[f
             for line in extra:
                 srv.request(line)
             heading = math.degrees(math.atan2(goal[1] - start[1], goal[0] - start[0]))
+            fixes = localise_options(world, Path(tmp), localise)
             t_sim0, t_wall0 = world.clock.now(), time.monotonic()
             r = srv.request(f"navigate -start {start[0]},{start[1]},{heading:.1f} -goal {goal[0]},{goal[1]} "
-                            f"-auto -loop {mode} -footprint {FOOTPRINT[mode]} -name bench -max-legs 30")
+                            f"-auto -loop {mode} -footprint {FOOTPRINT[mode]} -name bench -max-legs 30 {fixes}".rstrip())
             sim_s = world.clock.now() - t_sim0
             wall_s = time.monotonic() - t_wall0
-            truth = world.truth()
             dist = math.hypot(goal[0] - start[0], goal[1] - start[1])
             out: dict[str, Any] = {"scene": scene, "mode": mode, "start": start, "goal": goal,
                                    "distance": round(dist, 2), "status": r.status, "sim_s": round(sim_s, 1),
                                    "wall_s": round(wall_s, 1),
-                                   "true_miss": round(math.hypot(truth["x"] - goal[0], truth["y"] - goal[1]), 3)}
+                                   **arrival(world, (srv.app.pose.x, srv.app.pose.y), goal,
+                                             srv.app.config.get("navigate").tolerance)}
+            if world.slip.active:
+                out["slip"] = [world.slip.distance, world.slip.heading]
+            if localise != "none":
+                out["localise"] = localise
             out["reached"] = r.status == "OK" and r.fields.get("reached") == "true"
-            out["efficiency"] = round(dist / (sim_s * TOP_SPEED), 3) if out["reached"] else 0.0
+            speed, turn_rate = world.drive_model.speed, world.drive_model.turn_rate
+            out["efficiency"] = round(dist / (sim_s * speed), 3) if out["reached"] else 0.0
             for key in ("legs", "scans", "replans", "stops", "looks", "cycles", "cycle_ms", "cycle_ms_max", "cycle_ms_p95",
                         "cycle_cpu_ms_p95", "frame_ms", "replan_ms", "replan_ms_p95", "replan_cpu_ms_p95", "searches",
                         "repairs"):
@@ -165,6 +239,8 @@ def run_mission(scene: str, mode: str, start: tuple[float, float], goal: tuple[f
             out["events"] = [{"kind": e.kind, "excess": e.excess, "band": e.band, "x": round(e.x, 2), "y": round(e.y, 2),
                               "heading": round(e.heading, 1)} for e in events]
             out["poses_checked"] = checked
+            driven = float(np.hypot(*np.diff(poses[:, :2], axis=0).T).sum())
+            out["path_efficiency"] = round(dist / driven, 3) if out["reached"] and driven > 0 else 0.0
             if not out["reached"] and not events:
                 out["safe_stop"] = stop_reason(out.get("message", "stopped"))
             wfile = nav / "bench_waypoints.csv"
@@ -183,6 +259,8 @@ def run_mission(scene: str, mode: str, start: tuple[float, float], goal: tuple[f
             found = mission_oracle(scene, seed, start, goal, body, oracle_cache)
             out["feasible"], out["perfect_efficiency"] = found["feasible"], found["efficiency"]
             out["oracle_reason"] = found["reason"]
+            out["oracle_time_efficiency"] = (round(dist / (speed * drive_time(np.array(found["path"]), speed, turn_rate)), 3)
+                                             if found["feasible"] else 0.0)
             feas = feasibility(surface, body, start, goal, FOOTPRINT[mode])
             out["window_feasible"], out["window_efficiency"] = feas["feasible"], feas["efficiency"]
             out["window_step_max"] = feas["step_max"]
@@ -196,6 +274,12 @@ def run_mission(scene: str, mode: str, start: tuple[float, float], goal: tuple[f
 
 def _pct(values: list[float], q: float) -> float | None:
     return round(float(np.percentile(values, q)), 3) if values else None
+
+
+def _mean(values: list[float | None]) -> float | None:
+    """The mean of the values a row has (rows from before a field was measured lack it)."""
+    known = [v for v in values if v is not None]
+    return round(float(np.mean(known)), 3) if known else None
 
 
 def summarise(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
@@ -220,6 +304,10 @@ def summarise(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
             s = {"scene": scene, "mode": mode, "missions": len(sel), "feasible": len(feasible),
                  "window_feasible": sum(1 for r in sel if r.get("window_feasible")),
                  "reached": len(reached), "reached_of_feasible": sum(1 for r in feasible if r["reached"]),
+                 "true_reached": sum(1 for r in sel if r.get("true_reached")),
+                 "true_miss_median": round(float(np.median([r["true_miss"] for r in sel])), 3),
+                 "believed_miss_median": round(float(np.median([r.get("believed_miss", r["true_miss"])
+                                                                for r in sel])), 3),
                  "failed": sum(1 for r in sel if r["events"]), "events": len(events),
                  "failed_at_set_down": sum(1 for r in sel if r["events"] and all(
                      math.hypot(e["x"] - r["start"][0], e["y"] - r["start"][1]) <= SET_DOWN_REACH for e in r["events"])),
@@ -233,6 +321,8 @@ def summarise(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
                  "efficiency_reached": round(float(np.mean([r["efficiency"] for r in ok])), 3) if ok else None,
                  "perfect_efficiency_same": round(float(np.mean([r["perfect_efficiency"] for r in ok])), 3) if ok
                  else None,
+                 "path_efficiency_reached": _mean([r.get("path_efficiency") for r in ok]),
+                 "oracle_time_efficiency_same": _mean([r.get("oracle_time_efficiency") for r in ok]),
                  "perfect_efficiency_feasible": round(float(np.mean([r["perfect_efficiency"] for r in feasible])), 3)
                  if feasible else None,
                  "crossing_missions": sum(1 for r in sel if r["crossed_cells"] > 0),
@@ -406,33 +496,16 @@ def margin_table(budget: list[dict[str, Any]], rows: list[dict[str, Any]], body:
     return lines
 
 
-def _run(job: tuple[str, str, tuple[float, float], tuple[float, float], tuple[str, ...], int, str, int, str]
-         ) -> dict[str, Any]:
+def _run(job: tuple[str, str, tuple[float, float], tuple[float, float], tuple[str, ...], int, str, int, str,
+               tuple[float, float] | None, str]) -> dict[str, Any]:
     """One mission (in a pool's process: the see loop's footprint comes along)."""
-    scene, mode, start, goal, sets, i, footprint, seed, cache = job
+    scene, mode, start, goal, sets, i, footprint, seed, cache, slip, localise = job
     FOOTPRINT["see"] = footprint
-    row = run_mission(scene, mode, start, goal, [], sets, seed, Path(cache))
+    row = run_mission(scene, mode, start, goal, slip_lines(slip, seed, i), sets, seed, Path(cache), localise)
     row["mission"] = i
     return row
 
 
-
-def _rows(fn: Any, todo: list[Any], jobs: int) -> list[dict[str, Any]]:
-    """``fn`` of every item of ``todo``, in order, in ``jobs`` processes; each row printed as JSON
-    as it comes, so a run cut short keeps what it measured."""
-    rows: list[dict[str, Any]] = []
-    if jobs > 1:
-        import multiprocessing
-
-        with multiprocessing.get_context("spawn").Pool(jobs) as pool:
-            for row in pool.imap(fn, todo):
-                rows.append(row)
-                print(json.dumps(row), flush=True)
-    else:
-        for item in todo:
-            rows.append(fn(item))
-            print(json.dumps(rows[-1]), flush=True)
-    return rows
 
 def print_summary(summary: list[dict[str, Any]]) -> None:
     print("\nscene     mode missions feasible(window) reached(of feasible) failed events(worst excess)              safe stops "
@@ -449,7 +522,12 @@ def print_summary(summary: list[dict[str, Any]]) -> None:
               + (f"{s['cycle_ms_mean']}/{s['cycle_ms_max']}" if s["mode"] == "see" else ""), flush=True)
         print(f"    failed with every event within {SET_DOWN_REACH} m of the start: "
               f"{s['failed_at_set_down']}/{s['failed']}; progress toward the goal median "
-              f"{s['progress_median']} m, best {s['progress_best']} m")
+              f"{s['progress_median']} m, best {s['progress_best']} m; reached by path length "
+              f"{s['path_efficiency_reached']} (the oracle's above), by time {s['efficiency_reached']} against the "
+              f"oracle's path timed {s['oracle_time_efficiency_same']}")
+        print(f"    truly within the tolerance at the end: {s['true_reached']}/{s['missions']} (reached by its own "
+              f"pose: {s['reached']}); miss median true {s['true_miss_median']} m, believed "
+              f"{s['believed_miss_median']} m")
         if s["stop_reasons"]:
             print(f"    safe stops: {s['stop_reasons']}; perfect-knowledge efficiency over all feasible "
                   f"{s['perfect_efficiency_feasible']}; today's-threshold perfect plans with events: "
@@ -477,7 +555,7 @@ def oracle_table(scenes: list[str], count: int, seed: int, jobs: int, cache: Pat
     the oracle efficiency of the feasible ones, the time per mission (computed, not read from the
     cache), beside the window-step feasibility (navigate's circle planner)."""
     todo = [(scene, seed, i, *m, str(cache)) for scene in scenes for i, m in enumerate(missions(scene, count, seed))]
-    rows = _rows(_oracle_job, todo, jobs)
+    rows = streamed(_oracle_job, todo, jobs)
     print("\nscene     missions feasible (no way / budget / refused)  oracle efficiency mean (per mission)   "
           "s/mission mean max  window-step feasible, efficiency")
     for scene in scenes:
@@ -527,10 +605,21 @@ def main(argv: list[str] | None = None) -> None:
                          "mission, beside the window-step feasibility")
     ap.add_argument("--oracle-cache", default=str(default_cache_dir()),
                     help="where the oracle keeps its verdicts per mission, body and code (default: %(default)s)")
+    ap.add_argument("--slip", default="", metavar="SHARE,DEG_PER_M",
+                    help="every mission with the wheels slipping (sim slip, seeded per mission) and no GNC pose: "
+                         "0.05,2 is 5 %% slip and 2 deg of heading drift per metre; the rows add the loop's "
+                         "believed_miss and true_reached (the true distance within navigate's tolerance)")
+    ap.add_argument("--localise", default="none", choices=["none", "vo", "map", "both"],
+                    help="navigate -localise for every mission, the scene's true DEM at 0.5 m as its orbital map "
+                         "(-global): with --slip, what brings the true pose back")
     ap.add_argument("--derived", action="store_true",
                     help="run with the thresholds the error budget gives (vehicle.Margins): dem2hazard.step_max, "
                          "dem2hazard.slope_max and navigate.margin")
     args = ap.parse_args(argv)
+    try:
+        slip = parse_slip(args.slip) if args.slip else None
+    except ValueError as e:
+        ap.error(str(e))
     missing = [f for f in args.tracking_from if not Path(f).is_file()]
     if missing:
         ap.error(f"--tracking-from: no such file {missing[0]} (a run's --out JSON)")
@@ -575,10 +664,11 @@ def main(argv: list[str] | None = None) -> None:
         return
     # scenes and modes interleaved mission by mission: a run cut short still compares them
     todo = {scene: missions(scene, args.missions, args.seed) for scene in args.scenes}
-    jobs = [(scene, mode, *todo[scene][i], tuple(args.set), i, args.footprint, args.seed, args.oracle_cache)
+    jobs = [(scene, mode, *todo[scene][i], tuple(args.set), i, args.footprint, args.seed, args.oracle_cache, slip,
+             args.localise)
             for i in range(args.first, args.missions)
             for scene in args.scenes for mode in args.modes]
-    rows = _rows(_run, jobs, args.jobs)
+    rows = streamed(_run, jobs, args.jobs)
     summary = summarise(rows)
     print_summary(summary)
     rep = replan_vs_astar(args.replan_trials, args.seed) if args.replan_trials > 0 else {}

@@ -39,7 +39,8 @@ from prox_workflows.algorithms.vehicle import densify
 from rvs_server.protocol import Reply, parse_reply
 from rvs_truth.surface import missions, surface_over
 from rvs_truth.vehicle import read_track, vehicle_check
-from tools.bench.navigate import _rows, scene_server
+from tools.bench.navigate import scene_server
+from tools.bench.rows import streamed
 
 RADIUS = (0.15, 0.25)  # m: the rock's base radius
 HEIGHT = (0.15, 0.30)  # m: above both the climb (0.10) and the belly's clearance (0.08)
@@ -248,7 +249,7 @@ def main(argv: list[str] | None = None) -> None:
     args = ap.parse_args(argv)
     todo = [(scene, i, args.seed, args.timeout, args.settle) for i in range(args.first, args.first + args.trials)
             for scene in args.scenes]
-    rows = _rows(_trial, todo, args.jobs)
+    rows = streamed(_trial, todo, args.jobs)
     table(rows)
     if args.out:
         Path(args.out).write_text(json.dumps({"rows": rows}, indent=1))

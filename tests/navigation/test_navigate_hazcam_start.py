@@ -1,0 +1,83 @@
+"""The see loop's start with the body's hazard cameras on (drivers.hazcam.cameras): a turn on the
+spot shows the pairs the ground between the body and the mast's blind disc, which no tilt of the
+mast shows, and the set-down's prior is left only where no camera saw. Through the real server;
+the bounds map is read where the chooser makes its first choice."""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+import pytest
+
+import rvs_server.navigation.sections as sections
+from rvs_server.navigation.see import BLIND_EDGE
+from rvs_server.protocol import ProtocolError
+
+STOP = "the first choice"
+
+
+def _at_first_choice(monkeypatch: pytest.MonkeyPatch) -> dict[str, Any]:
+    """What the bounds map holds round the rover when the chooser first chooses: the ring (the
+    mast's blind disc, past the body's own rectangle grown by 5 cm), its cells that a frame
+    bounded, the disc's cells under that rectangle, and the disc's cells that only the set-down's
+    prior (and the wheels' contacts) gave bounds."""
+    seen: dict[str, Any] = {}
+    choose = sections.Chooser._choose
+
+    def first(self: sections.Chooser, pose: tuple[float, float, float], look_cost: float | None) -> Any:
+        if not seen:
+            d = self.d
+            fx, fy, radius = d.blind_disc()
+            g = d.bounds.geometry
+            xs, ys = g.centers()
+            X, Y = np.meshgrid(xs, ys)
+            h = math.radians(pose[2])
+            along = (X - pose[0]) * math.cos(h) + (Y - pose[1]) * math.sin(h)
+            across = -(X - pose[0]) * math.sin(h) + (Y - pose[1]) * math.cos(h)
+            body = (np.abs(along) <= d.body.length / 2 + 0.05) & (np.abs(across) <= d.body.width / 2 + 0.05)
+            disc = np.hypot(X - fx, Y - fy) <= radius + BLIND_EDGE
+            framed = d.bounds.stamp > 0
+            seen.update(pose=pose, ring=int((disc & ~body).sum()), ring_framed=int((disc & ~body & framed).sum()),
+                        body=int((disc & body).sum()), prior=int((disc & np.isfinite(d.bounds.mean) & ~framed).sum()))
+            raise ProtocolError("E_DATA", STOP)  # the start is what is measured: no drive after it
+        return choose(self, pose, look_cost)
+
+    monkeypatch.setattr(sections.Chooser, "_choose", first)
+    return seen
+
+
+def _start(server_factory: Any, monkeypatch: pytest.MonkeyPatch, hazcams: str) -> dict[str, Any]:
+    seen = _at_first_choice(monkeypatch)
+    # one ToF frame a position of the look round: its averaging is not what is measured here
+    srv = server_factory(["server.scene=quarry", f"drivers.hazcam.cameras={hazcams}", "navigate.see_look_frames=1",
+                          "drivers.ptu.timeout=30"])  # the PTU emulator answers late on a loaded machine
+    srv.app.world.set_target_visible(False)
+    c = srv.client()
+    job = c.start_job("navigate -start 0,0,0 -goal 2.0,0 -auto -loop see -name start")
+    final = c.until_final(job=job, timeout=900)[-1]
+    assert final.status == "ERROR" and final.fields["message"].startswith(STOP), final.fields
+    return seen
+
+
+@pytest.mark.timeout(900)  # the start renders some 40 ToF and 20 hazcam frames: minutes on a loaded machine
+def test_with_the_hazcams_on_the_start_s_turn_shows_the_ring_round_the_body(server_factory, monkeypatch) -> None:
+    """Both pairs look ahead and behind, 90 deg across each: two turns of 60 deg on the spot at
+    the start put the ground all round before them. At the first choice nearly the whole ring
+    between the body and the mast's blind disc has a frame's bounds, and the set-down's prior
+    is left on a small part of the disc (under the body and a narrow band round it)."""
+    seen = _start(server_factory, monkeypatch, "front,rear")
+    assert abs((seen["pose"][2] - 120.0 + 180.0) % 360.0 - 180.0) < 3.0, seen  # facing where the turn left it
+    assert seen["ring_framed"] >= 0.85 * seen["ring"], seen
+    assert seen["prior"] <= seen["body"] + 0.1 * seen["ring"], seen
+
+
+@pytest.mark.timeout(900)
+def test_with_the_hazcams_off_the_start_is_unchanged(server_factory, monkeypatch) -> None:
+    """Without the body's cameras the start does not turn, and the mast's blind disc is the
+    set-down's prior: only its edge, which the mast's rays graze, has a frame's bounds."""
+    seen = _start(server_factory, monkeypatch, "off")
+    assert abs(seen["pose"][2]) < 3.0, seen
+    assert seen["ring_framed"] <= 0.3 * seen["ring"], seen
+    assert seen["prior"] >= 0.6 * seen["ring"], seen
