@@ -16,11 +16,11 @@ What this module holds (plain functions; the loop that drives them is
       dead end's disc and cost.
     - :func:`reverse_options`: the reverse sections from a pose: the track back (the rover's
       last arc driven backwards to where it began) and ``arcs`` reverse arcs.
-    - :func:`choose_reverse`: the cheapest of them by the cost to go at its end that the check
-      passes. A reverse arc passes only where every pose is judged safe (unseen ground under the
+    - :func:`choose_reverse`: the track back where it passes, else the cheapest reverse arc by the
+      cost to go at its end that the check passes. A reverse arc passes only where every pose is judged safe (unseen ground under the
       body's rear fails it, as it fails a forward section); the track back also passes where a
-      pose's ground is unknown to the map, since the body stood on every pose of it, but not
-      where the map now shows a limit exceeded (a rock dropped on the track is seen there).
+      pose's ground is unknown to its check, since the body stood on every pose of it, but not
+      where frames now show a limit exceeded (a rock dropped on the track is seen there).
     - :class:`DeadEnd`, :func:`add_dead_ends` and :func:`dead_end_penalty`: a dead end is a cost
       per metre on the coarse grid's cells within its disc, and on every candidate path over it
       (the cost to go is read at a path's end, past the disc it crossed): a cost, never a wall,
@@ -104,12 +104,17 @@ def _back(pose: Sequence[float], k: float, metres: float, step: float) -> np.nda
 
 def choose_reverse(pose: Sequence[float], options: list[ReverseOption], check: Check, ctg: CostToGo,
                    track_check: Check | None = None) -> Choice:
-    """The cheapest reverse option by the cost to go at its end that passes, as a ``drive``
-    :class:`~.candidates.Choice` with ``backward`` set; or ``blocked`` with each option's failure.
+    """The track back where it passes, else the cheapest reverse arc that passes by the cost to go
+    at its end, as a ``drive`` :class:`~.candidates.Choice` with ``backward`` set; or ``blocked``
+    with each option's failure. The track back comes first whatever an arc's end is worth: its
+    ground is the one ground the body itself proved, where an arc is judged on the map that just
+    failed to show a way on (in the start's blind disc, on the set-down's guess at the ground).
     The reverse arcs are judged with ``check`` (in one call); the track back with ``track_check``
-    where given: the body stood on every pose of it, so what can refuse it is ground that changed
-    since (a rock that fell there shows in the map's best estimate), not the draws of a map that
-    never bounded a wheel's patch as closely as the wheel itself did."""
+    where given (the see loop's: the best estimate of the cells frames bounded,
+    ``sections.track_check``): the body stood on every pose of it, so what can refuse it is ground
+    that changed since, which only a frame shows (a rock that fell there), not the draws of a map
+    that never bounded a wheel's patch as closely as the wheel itself did, nor a prior's guess at
+    ground no frame saw. An unknown verdict does not refuse the track back."""
     if not options:
         return Choice("blocked", "no reverse section to judge", np.zeros((0, 3)), np.zeros((0, 3)))
     ends = np.array([o.poses[-1, :2] for o in options])
@@ -136,7 +141,7 @@ def choose_reverse(pose: Sequence[float], options: list[ReverseOption], check: C
         what = ", ".join(f"{n} {k}" for k, n in sorted(reasons.items(), key=lambda kv: -kv[1])) or "no way to the goal"
         return Choice("blocked", f"no reverse section passes ({what})", np.zeros((0, 3)), np.zeros((0, 3)),
                       total=len(options), reasons=reasons)
-    i = min(passing, key=lambda j: (cost[j], not options[j].track))
+    i = min(passing, key=lambda j: (not options[j].track, cost[j]))
     o = options[i]
     name = "the track back" if o.track else f"a reverse arc of curvature {o.curvature:.2f} 1/m"
     return Choice("drive", f"{name} ({o.length:.2f} m) passes", o.poses, o.poses, i, i, float(cost[i]),

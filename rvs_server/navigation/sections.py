@@ -21,16 +21,16 @@ goes, and chooses again. The check is the chance constraint on the map's per-cel
   priced out, and ground still unseen is a failure like any other.
 - *blocked*: every candidate fails on the body's limits (or the goal has no way to it on the
   coarse grid). Once the rover has looked round where it stands, it is a dead end, as are unseen
-  ground no look shows and ``STALL_SECTIONS`` sections without progress: the rover backs out
-  (:mod:`prox_workflows.algorithms.retreat`: along its last arc, whose ground it drove, or on a
-  reverse arc its check passes), leaves a cost on the dead end's ground for the cost to go, and
-  chooses again. Past ``see.retreat.retreats`` retreats, or with no reverse section that passes,
-  it is a safe stop: the job ends ``E_DATA`` with the reason, the count of failures by limit and
-  the retreats made.
+  ground no look shows and ``STALL_SECTIONS`` sections without progress. With
+  ``see.retreat.retreats`` above 0 the rover backs out (:mod:`prox_workflows.algorithms.retreat`:
+  along its last arc, whose ground it drove, or on a reverse arc its check passes), leaves a cost
+  on the dead end's ground for the cost to go, and chooses again. Past that many retreats (by
+  default at once), or with no reverse section that passes, it is a safe stop: the job ends
+  ``E_DATA`` with the reason, the count of failures by limit and the retreats made.
 
-Each candidate's look-ahead beyond its section is judged with the section's own check
-(``see_ahead chance``): a section is chosen only with a continuation that passes, so the rover
-does not commit into a pocket the best estimate alone lets through.
+Each candidate's look-ahead beyond its section only ranks it: it is judged on the posterior's best
+estimate (``see_ahead best``), or with the section's own check (``see_ahead chance``: a section is
+chosen only with a continuation that passes, at about twice a choice's CPU).
 
 No Dem2Hazard threshold decides where the wheels go, and no verdict is kept: a refusal concerns
 the map it was made on, and the next choice judges the pose again on the map as it then is. A dead
@@ -95,13 +95,28 @@ def map_check(bounds: BoundsMap, box: tuple[float, float, float, float], body: A
     :data:`~prox_workflows.algorithms.candidates.Check`: ``chance`` on the cells' posteriors (the
     map's per-cell statistics: the mean's horizontal error along its rays averaged as its height
     is, and the slope's steepest direction for the rays'), ``best`` on their best estimate alone
-    (no draws), ``bounds`` the worst case on its bounds."""
+    (no draws), ``framed`` on the best estimate of the cells a frame bounded only (the rest
+    unknown: the track back's check, :func:`track_check`), ``bounds`` the worst case on its bounds."""
     stats, g = bounds.statistics(*box)
     if how == "chance":
         return posterior_check(posterior(stats, g, bounds.params.k, chance), g, body, chance)
     if how == "best":
         return best_check(posterior(stats, g, bounds.params.k, chance), g, body)
+    if how == "framed":
+        return track_check(posterior(stats, g, bounds.params.k, chance), stats["framed"], g, body)
     return bounds_check((stats["lower"], stats["upper"]), g, body)
+
+
+def track_check(post: Any, framed: np.ndarray, g: Any, body: Any) -> Check:
+    """The check of the track back: the posterior's best estimate where a frame bounded the cell,
+    unknown elsewhere (the set-down's prior, the wheels' contacts, a ray's ceiling). The body stood
+    on every pose of the track, so what can refuse it is ground that changed since, and only a
+    frame shows a change: a prior is a guess at ground no frame saw (the start's blind disc filled
+    on from the ring round it), and judged as ground it refuses poses the wheels drove over. A
+    pose over unframed ground is unknown, which the track back takes (never a limit exceeded),
+    judged cell by cell on the frames' heights (bounds read cellwise, lower and upper alike)."""
+    surface = np.where(framed, post.mean, np.nan).astype(np.float32)
+    return bounds_check((surface, surface.copy()), g, body)
 
 
 def guidance(bounds: BoundsMap, goal: tuple[float, float], body: Any, dead_ends: Sequence[DeadEnd] = (),
@@ -118,7 +133,7 @@ def choose_from(bounds: BoundsMap, pose: tuple[float, float, float], goal: tuple
     """The chooser's answer from ``pose`` toward ``goal`` on the bounds map as it is now, and the
     cost to go from ``pose``: the cost to go over the whole map's coarse grid (:func:`guidance`),
     the candidates ranked and checked on the window they reach. ``ahead`` (``see_ahead``):
-    ``chance`` judges the look-aheads with the section's check, ``best`` on the best estimate."""
+    ``best`` judges the look-aheads on the best estimate, ``chance`` with the section's check."""
     ctg = guidance(bounds, goal, body, dead_ends, dead_end_cost)
     r = params.section + params.beyond + reach(body) + 0.1
     box = (pose[0] - r, pose[1] - r, pose[0] + r, pose[1] + r)
@@ -204,7 +219,7 @@ class Chooser:
             pad = reach(self.d.body) + 0.1
             box = (pts[:, 0].min() - pad, pts[:, 1].min() - pad, pts[:, 0].max() + pad, pts[:, 1].max() + pad)
             check = map_check(bounds, box, self.d.body, self.d.p.vehicle, self.chance)
-            track = map_check(bounds, box, self.d.body, "best", self.chance) if self.d.p.vehicle == "chance" else None
+            track = map_check(bounds, box, self.d.body, "framed", self.chance)
             choice = choose_reverse(pose, options, check, ctg, track)
         finally:
             self.s.stats.replanned(t0, c0)
@@ -432,7 +447,7 @@ class SectionPilot:
         if sl is None or not (bounds.stamp[sl] > self.frames).any():
             return None
         self.frames = bounds.frames
-        how = "best" if self.backward == "track" and d.p.vehicle == "chance" else d.p.vehicle  # as it was chosen
+        how = "framed" if self.backward == "track" else d.p.vehicle  # as it was chosen
         codes = np.asarray(map_check(bounds, box, d.body, how, self.c.chance)(ahead[1:]))
         # the track back's ground was under the body: unknown to the map is no reason to stop there
         bad = np.flatnonzero((codes > 0) if self.backward == "track" else (codes != SAFE))

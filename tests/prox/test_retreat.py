@@ -34,14 +34,18 @@ def _ground(x0: float, x1: float, rock: tuple[float, float, float, float] | None
     return np.column_stack([x, y, z])
 
 
-def _choose(bounds: BoundsMap, track_back: tuple[float, float] | None):
+def _choose(bounds: BoundsMap, track_back: tuple[float, float] | None, track: str = "framed"):
+    """The reverse choice from POSE as the see loop makes it: the reverse arcs on the chance check,
+    the track back with ``track`` (``sections.map_check``'s: framed, as the loop judges it)."""
+    from rvs_server.navigation.sections import map_check
+
     chance = ChanceParams()
     stats, g = bounds.statistics(-2.0, -1.0, 1.0, 1.0)
     check = posterior_check(posterior(stats, g, bounds.params.k, chance), g, BODY, chance)
     lower, upper, wg = bounds.window(-2.0, -1.0, 1.0, 1.0)
     ctg = cost_to_go(*coarse_costs((lower, upper), wg, BODY), (3.0, 0.0))
     options = reverse_options(POSE, track_back, RetreatParams(), 2.4, 0.05)
-    return choose_reverse(POSE, options, check, ctg)
+    return choose_reverse(POSE, options, check, ctg, map_check(bounds, (-2.0, -1.0, 1.0, 1.0), BODY, track, chance))
 
 
 def _map(*grounds: np.ndarray) -> BoundsMap:
@@ -82,6 +86,41 @@ def test_the_track_back_passes_over_ground_the_body_drove_and_not_over_a_rock_se
     rock = _choose(_map(_ground(-0.35, 1.0), _ground(-2.0, -0.35, (-0.9, -0.6, 0.3, 0.2))), (0.0, 0.6))
     assert not (rock.status == "drive" and rock.backward == "track"), rock.reason
     assert any(k.startswith("track back ") and not k.endswith("unknown") for k in rock.reasons), rock.reasons
+
+
+def test_the_track_back_is_taken_where_it_passes_though_a_reverse_arc_ends_nearer_the_goal() -> None:
+    """Level ground seen all round: the track back (0.9 m straight back) and the reverse arcs
+    (0.6 m) all pass, and the curved arcs end nearer the goal ahead. The track back is driven: its
+    ground is the one the body proved; an arc is judged on the map that has just shown no way on."""
+    bounds = _map(_ground(-0.35, 1.0), _ground(-2.0, -0.35))
+    options = reverse_options(POSE, (0.0, 0.9), RetreatParams(), 2.4, 0.05)
+    lower, upper, wg = bounds.window(-2.0, -1.0, 1.0, 1.0)
+    ctg = cost_to_go(*coarse_costs((lower, upper), wg, BODY), (3.0, 0.0))
+    ends = np.array([o.poses[-1, :2] for o in options])
+    worth = ctg.at(ends[:, 0], ends[:, 1])
+    assert worth[0] > worth[1:].min() + 0.2  # an arc's end is nearer the goal
+    choice = _choose(bounds, (0.0, 0.9))
+    assert choice.status == "drive" and choice.backward == "track", choice.reason
+    assert choice.reasons == {}, choice.reasons  # every option passed
+    assert choice.poses[-1, 0] == pytest.approx(-0.9)
+
+
+def test_a_prior_on_the_track_back_does_not_refuse_it_where_no_frame_shows_a_change() -> None:
+    """The start's blind disc holds the set-down's guess at the ground (a plane carried on from the
+    ring round it), not a frame's: here 12 cm over the seen ground behind the rover, a step over
+    the wheel's climb. The rover drove over that ground, so the track back over it passes (judged
+    on the cells frames bounded only), where the best estimate, prior included, refuses it on the
+    step; a reverse arc there still fails (its ground is no frame's and the body never stood on
+    it)."""
+    bounds = _map(_ground(-0.35, 1.0))
+    bounds.set_down((-0.6, 0.0), 0.4, 0.12, sigma=0.005)
+    on_prior = _choose(bounds, (0.0, 0.6), "best")
+    assert not (on_prior.status == "drive" and on_prior.backward == "track"), on_prior.reason
+    assert any(k.startswith("track back ") and not k.endswith("unknown") for k in on_prior.reasons), \
+        on_prior.reasons
+    driven = _choose(bounds, (0.0, 0.6))
+    assert driven.status == "drive" and driven.backward == "track", driven.reason
+    assert driven.poses[-1, 0] == pytest.approx(-0.6)
 
 
 def test_a_dead_end_prices_its_disc_until_frames_from_outside_cover_it() -> None:
