@@ -386,6 +386,19 @@ def _reverse_waypoints(poses: np.ndarray) -> Waypoints:
     return Waypoints(xy, (poses[:, 2] + 180.0) % 360.0 - 180.0, np.zeros(len(xy)), np.r_[legs, 0.0])
 
 
+def turn_faces(heading: float, turn: float) -> list[float]:
+    """The headings a turn on the spot of ``turn`` degrees (counter-clockwise positive) from
+    ``heading`` faces one after the other: the rover turns to face each the shortest way, so a turn
+    of more than 90 degrees faces its middle first. The check judged the turn's own way round, and
+    a half turn (the candidates' 180 degrees) is either way by the shortest: the body would sweep
+    the other half circle, ground no check judged. None for a turn under half a degree."""
+    if abs(turn) < 0.5:
+        return []
+    if abs(turn) <= 90.0:
+        return [heading + turn]
+    return [heading + turn / 2, heading + turn]
+
+
 def _dedup(xy: np.ndarray) -> np.ndarray:
     """Waypoints without repeats (a turn on the spot stands at one point)."""
     keep = np.r_[True, np.hypot(*np.diff(xy, axis=0).T) > 1e-6]
@@ -405,8 +418,8 @@ class SectionPilot:
         n_turn = int(np.count_nonzero(np.hypot(*(choice.poses[:, :2] - choice.poses[0, :2]).T) < 1e-9)) - 1
         self.n_turn = max(0, n_turn)
         start = choice.poses[0]
-        self.heading = float(start[2] + choice.turn)
-        self.turned = abs(choice.turn) < 0.5
+        self.faces = turn_faces(float(start[2]), choice.turn)  # the headings the turn faces in turn
+        self.turned = not self.faces
         self.curvature = choice.curvature
         self.length = choice.length
         self.s = np.r_[np.zeros(self.n_turn + 1),
@@ -476,8 +489,8 @@ class SectionPilot:
             return None
         d._clear()
         if not self.turned:
-            self.turned = True
-            h = math.radians(self.heading)
+            h = math.radians(self.faces.pop(0))
+            self.turned = not self.faces
             return Motion.face(seen[0] + math.cos(h), seen[1] + math.sin(h))
         left = self.length - self.driven
         if left <= 1e-3:
