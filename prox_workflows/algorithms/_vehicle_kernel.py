@@ -260,7 +260,8 @@ def check(lower: np.ndarray, upper: np.ndarray, bounded: bool, cellwise: bool, x
         highs, middles = (hi, mid) if bounded else (lo, lo)  # one grid: the heights are all three
         grade[p] = _grade(middles, half, bounded, g0, g1, pull_a, pull_b, pulls_a, pulls_b)
         _edges(lo, highs, bounded, pair_a, pair_b, pair_wheel, edge[p])
-        open_box = _contacts(lo, highs, bounded, wheel_of, sag, contact)
+        # one corner (a pair whose wheels rest on its lows): the contacts are pinned to it
+        open_box = _contacts(lo, highs, bounded, wheel_of, sag, contact) and corners.shape[0] > 1
         for i in range(belly.shape[0]):
             hb[i] = highs[belly[i]]
         worst_in, worst_st, worst_tilt, worst_tip = -np.inf, -np.inf, 0.0, 90.0

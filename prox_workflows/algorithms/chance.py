@@ -69,8 +69,12 @@ end meets a rock's edge cell, and a ray's height is no ground for a wheel at all
 surface, both lift the wheels' resting plane over the belly's contact: the false safes on rock
 draws no setting was tuned on are that (the trace in docs/NAVIGATE_BENCH.md, "The stated risk on
 untuned draws"), not an overconfident sigma. Above 0, each drawn surface is judged as a pair
-(:func:`_judge`): the tops, and lows ``within`` times the cell's relief within it under them (none
-where only a ray bounds the ground), read between the cell centres as one surface is.
+(:func:`_judge`): the tops for the belly, and lows ``within`` times the cell's relief within it
+under them (none where only a ray bounds the ground) on which each wheel rests, one plane per
+draw, read between the cell centres as one surface is. Not the worst corner of a box of rests
+between the lows and the tops: a draw is one ground, and that worst case within every draw leaned
+the box's edge 2-3 cm into the belly at the refused turns of marsyard's stops (docs/NAVIGATE_BENCH.md,
+"The `within` 1 stops, traced against the truth").
 
 Poses are first screened by the worst-case check on bounds :func:`screen_k` sigmas out (of both
 errors), which makes the chance that any cell under the body lies outside them at most
@@ -147,9 +151,9 @@ class ChanceParams(Settings):
     edge_sigma: float = param(0.17, "a rock edge's further uncertainty (1 sigma), as a share of the same height "
                                     "(calibrated alike, on the 99.9th percentile)", min=0.0, max=2.0)
     within: float = param(0.0, "a cell's top holds somewhere in the cell, not all over it: above 0, a drawn surface "
-                               "is judged as bounds, a wheel resting anywhere from the top down to this share of "
-                               "the cell's relief within it (its returns' rise over their mean and drop under "
-                               "it), and on nothing where only a ray bounds the ground; 0: one surface, the top "
+                               "is judged as a pair, the belly over the tops and each wheel resting on the lows: the "
+                               "top less this share of the cell's relief within it (its returns' rise over their "
+                               "mean and drop under it), and on nothing where only a ray bounds the ground; 0: one surface, the top "
                                "and the ray's height read as the ground all over each cell, which lifts the "
                                "wheels' resting plane over rock edges and unseen ground (measured, not the "
                                "default: docs/NAVIGATE_BENCH.md, The stated risk)", min=0.0, max=1.0)
@@ -164,9 +168,8 @@ class Posterior:
     none), and the sigma of its share of an error it shares with its neighbours (m; a prior's:
     drawn as a field correlated over ``ChanceParams.shared_length``). The top's variance is
     var + shared^2 + common^2. ``span`` (None: one surface): a drawn surface is then a pair of
-    bounds, the top and ``span`` under it (none where only a ray bounds the ground), judged as
-    :func:`vehicle.check_poses` judges bounds: the belly over the tops, each wheel resting anywhere
-    its cells allow."""
+    bounds, the top and ``span`` under it (none where only a ray bounds the ground), judged with the
+    belly over the tops and each wheel resting on the lows (:func:`_judge`)."""
 
     mean: np.ndarray
     var: np.ndarray
@@ -341,9 +344,11 @@ def chance_check(post: Posterior, geom: GridGeometry, poses: np.ndarray, body: V
     lower = np.where(seen, mu - ks * cell_sd - (0.0 if span is None else span), np.nan).astype(np.float32)
     upper = np.where(seen, mu + ks * cell_sd, roof).astype(np.float32)
     wide = check_poses((lower, upper), geom, poses, body, step)
-    unknown = wide.unknown.copy()
-    screened = wide.safe
     nominal = _judge(best, seen, span, geom, poses, body, step)
+    # a pair read between the cell centres leaves a wheel over ground only a ray bounds nothing to
+    # rest on: no plane, no belly judged in any draw, so such a pose is unknown, not safe
+    unknown = wide.unknown | nominal.unknown
+    screened = wide.safe & ~unknown
     prob = np.where(unknown[:, None], np.nan, np.zeros((n, 4)))
     p_any = np.where(unknown, np.nan, 0.0)
     todo = ~unknown & ~screened
@@ -400,7 +405,8 @@ def _judge(top: np.ndarray, seen: np.ndarray, span: np.ndarray | None, geom: Gri
            body: VehicleBody, step: float | None) -> PoseChecks:
     """:func:`vehicle.check_poses` on a surface of cell tops (the ray's height where ``seen`` is
     False): the tops alone, or with ``span`` the pair (tops less span, tops), the low NaN where
-    only a ray bounds the ground, each read between the cell centres as one surface is. A cell's
+    only a ray bounds the ground, each read between the cell centres as one surface is, each wheel
+    resting on the lows (one plane, not the worst of a box of rests). A cell's
     top is its highest ground: read as the ground all over the cell, a wheel whose footprint's end
     meets a rock's edge cell, or a ray's height over ground no return met, rests on it and lifts
     the resting plane over a belly whose ground is read at its top (the misses traced in
@@ -409,7 +415,7 @@ def _judge(top: np.ndarray, seen: np.ndarray, span: np.ndarray | None, geom: Gri
     if span is None:
         return check_poses(high, geom, poses, body, step)
     low = np.where(seen, top - span, np.nan).astype(np.float32)
-    return check_poses((low, high), geom, poses, body, step or geom.cell, cellwise=False)
+    return check_poses((low, high), geom, poses, body, step or geom.cell, cellwise=False, rest_low=True)
 
 
 def _spreads(post: Posterior) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:

@@ -356,7 +356,8 @@ def _default_step(geom: GridGeometry, bounded: bool) -> float:
 
 
 def check_poses(heights: np.ndarray | tuple[np.ndarray, np.ndarray], geom: GridGeometry, poses: np.ndarray,
-                body: VehicleBody, step: float | None = None, cellwise: bool | None = None) -> PoseChecks:
+                body: VehicleBody, step: float | None = None, cellwise: bool | None = None,
+                rest_low: bool = False) -> PoseChecks:
     """Step, belly intrusion, stability and grade of ``body`` at each of ``poses`` ((N, 3): x, y,
     heading in degrees) on ``heights`` over ``geom``: one height grid (the truth; the finer the
     truer: 1-2 cm), read bilinearly between its cell centres, or a ``(lower, upper)`` pair of bound
@@ -377,7 +378,10 @@ def check_poses(heights: np.ndarray | tuple[np.ndarray, np.ndarray], geom: GridG
     (default: the grid's cell on one grid, :data:`BOUNDS_STEP` of it on bounds). ``cellwise``
     (default: on bounds) reads each sample from the cell that holds it; False reads a pair
     bilinearly as one grid is read (a pair of surfaces of cell tops and lows drawn from a
-    posterior, not a map's bounds: ``chance.chance_check``).
+    posterior, not a map's bounds: ``chance.chance_check``). ``rest_low`` (on a pair): each wheel
+    rests on the lower surface (its highest low under the circle), one plane per pose, where bounds
+    let each wheel rest anywhere between its lowest and highest contact and judge the worst corner of
+    that box: a drawn pair is one ground, whose wheel rests the lows give (``chance._judge``).
 
     The per-pose work is one compiled pass (:mod:`._vehicle_kernel`)."""
     lower, upper = heights if isinstance(heights, tuple) else (heights, heights)
@@ -392,7 +396,7 @@ def check_poses(heights: np.ndarray | tuple[np.ndarray, np.ndarray], geom: GridG
         _kernel().check(lower, upper, bounded, bounded if cellwise is None else cellwise, float(geom.xmin),
                         float(geom.ymax), float(geom.cell), poses, plan.px, plan.py, plan.wheel_of, plan.belly, plan.sag, plan.pair_a, plan.pair_b, plan.pair_wheel,
                         plan.ground[0], plan.ground[1], plan.pulls[0], plan.pulls[1], plan.inv, plan.triplets,
-                        plan.corners[bounded], plan.hubs, *plan.support, float(body.cog_height),
+                        plan.corners[bounded and not rest_low], plan.hubs, *plan.support, float(body.cog_height),
                         float(body.safety), edge, intrusion, tilt, tip, grade, stability, unknown)
     intrusion -= body.clearance
     excess = np.column_stack([edge.max(axis=1) - body.climb, intrusion, stability, grade - body.grade])

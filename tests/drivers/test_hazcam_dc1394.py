@@ -3,28 +3,15 @@ pair's frames through the stereo pair's binding against its fake library."""
 
 from __future__ import annotations
 
-import importlib.util
-import sys
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 import pytest
+import support.fake_dc1394 as fake
 
 import drivers.hazcam as hazcam
 from drivers.base import DeviceError
 from drivers.hazcam.dc1394 import Dc1394Hazcams
-
-
-def fake_lib_module() -> Any:
-    """tests/drivers/test_stereo_dc1394.py's FakeLib and GUIDs (one fake libdc1394 for both devices)."""
-    name = "rvs_tests_stereo_dc1394"
-    if name not in sys.modules:
-        spec = importlib.util.spec_from_file_location(name, Path(__file__).with_name("test_stereo_dc1394.py"))
-        module = importlib.util.module_from_spec(spec)
-        sys.modules[name] = module
-        spec.loader.exec_module(module)
-    return sys.modules[name]
 
 
 def test_without_libdc1394_the_hazcams_fail_with_a_device_error_saying_what_to_install(tmp_path: Path) -> None:
@@ -40,7 +27,6 @@ def test_without_libdc1394_the_hazcams_fail_with_a_device_error_saying_what_to_i
 
 
 def test_the_pairs_are_found_by_their_configured_guids() -> None:
-    fake = fake_lib_module()
     a, b = f"{fake.GUID_A:016x}", f"{fake.GUID_B:016x}"
     settings = hazcam.BACKENDS.settings({"backend": "dc1394", "cameras": "front", "size": [64, 48]})
     with pytest.raises(DeviceError, match="set drivers.hazcam.front_left_id and front_right_id") as err:

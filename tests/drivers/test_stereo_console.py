@@ -2,9 +2,7 @@
 
 from __future__ import annotations
 
-import importlib.util
 import io
-import sys
 from pathlib import Path
 from typing import Any
 
@@ -13,23 +11,10 @@ import numpy as np
 import pytest
 import tifffile
 import yaml
+from support.stereo_fakeworld import FakeWorld
 
 from drivers.stereo import console
 from drivers.stereo import dc1394_lib as dc
-
-
-def _load_fakeworld() -> Any:
-    name = "rvs_tests_stereo_fakeworld"
-    if name not in sys.modules:
-        spec = importlib.util.spec_from_file_location(name, Path(__file__).with_name("stereo_fakeworld.py"))
-        assert spec is not None and spec.loader is not None
-        module = importlib.util.module_from_spec(spec)
-        sys.modules[name] = module
-        spec.loader.exec_module(module)
-    return sys.modules[name]
-
-
-FakeWorld = _load_fakeworld().FakeWorld
 
 
 def run(*lines: str, extra: tuple[str, ...] = (), world: Any = None) -> tuple[int, str, str]:

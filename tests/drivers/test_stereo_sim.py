@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-import importlib.util
-import sys
 import threading
 import time
 from pathlib import Path
@@ -13,25 +11,11 @@ import cv2
 import numpy as np
 import pytest
 import yaml
+from support.stereo_fakeworld import FakeWorld
 
 from drivers.base import DeviceError
 from drivers.stereo import BACKENDS, GrabCancelled, StereoPair, create
 from drivers.trigger import create as create_trigger
-
-
-def _load_fakeworld() -> Any:
-    """Import the helper next to this file whatever pytest's import mode or package layout."""
-    name = "rvs_tests_stereo_fakeworld"
-    if name not in sys.modules:
-        spec = importlib.util.spec_from_file_location(name, Path(__file__).with_name("stereo_fakeworld.py"))
-        assert spec is not None and spec.loader is not None
-        module = importlib.util.module_from_spec(spec)
-        sys.modules[name] = module
-        spec.loader.exec_module(module)
-    return sys.modules[name]
-
-
-FakeWorld = _load_fakeworld().FakeWorld
 
 BASE = {
     "backend": "sim",

@@ -4,8 +4,6 @@ verbs end to end against the simulator's true calibration."""
 from __future__ import annotations
 
 import csv
-import importlib.util
-import sys
 from pathlib import Path
 from typing import Any
 
@@ -13,26 +11,13 @@ import cv2
 import numpy as np
 import pytest
 import yaml
+from support import stereo_rig as rig
 
 from prox_workflows.algorithms import calibration as cb
 from prox_workflows.algorithms.stereo import load_calibration
 from prox_workflows.algorithms.transforms import read_cal
 from prox_workflows.cli.calib import main as calib_main
 from prox_workflows.products import write_tiff
-
-
-def _rig() -> Any:
-    name = "rvs_tests_prox_stereo_rig"
-    if name not in sys.modules:
-        spec = importlib.util.spec_from_file_location(name, Path(__file__).with_name("stereo_rig.py"))
-        assert spec is not None and spec.loader is not None
-        module = importlib.util.module_from_spec(spec)
-        sys.modules[name] = module
-        spec.loader.exec_module(module)
-    return sys.modules[name]
-
-
-rig = _rig()
 
 
 def random_rotation(rng: np.random.Generator) -> np.ndarray:

@@ -417,6 +417,31 @@ def test_a_wheel_does_not_rest_on_a_ray_s_height_over_ground_no_return_met() -> 
     assert within.nominal.excess[0, LIMITS.index("belly")] == pytest.approx(0.01, abs=0.002)
 
 
+BARE = {"edge_bias": 0.0, "edge_sigma": 0.0, "rock_sigma": 0.0, "top_sigma": 0.002}  # the top's own sigma alone
+
+
+def spread(top: np.ndarray, cells: np.ndarray, relief: float) -> dict[str, np.ndarray]:
+    """:func:`stats` of ``top`` known to 2 mm, where ``cells`` hold returns that rise and drop
+    ``relief`` about their mean (a rock's edge in the cell: its top ``2 relief`` over its low)."""
+    st = stats(top, 0.002, 0.0)
+    st["mean"][cells] -= relief
+    st["rise"][cells], st["drop"][cells] = relief, relief
+    return st
+
+
+def test_a_pair_s_wheel_over_ground_only_a_ray_bounds_is_unknown_not_safe() -> None:
+    # the front half of the front-left wheel over cells no return met (a ray 15 cm up), a rock
+    # under the box: read between the cell centres, most of that wheel rests on nothing and no
+    # plane is judged in any draw (read cellwise, as the screen reads bounds, less than half);
+    # that is ground not seen, never a safe pose
+    post, g, X, Y = wheel_edge_over_unseen_ground()
+    mean, ceiling = post.mean.copy(), post.ceiling.copy()
+    under = (X > 0.15) & (X < 0.3) & (Y > 0.15) & (Y < 0.35)
+    mean[under], ceiling[under] = np.nan, 0.15
+    pair = chance_check(Posterior(mean, post.var, ceiling, span=np.zeros(mean.shape)), g, AT_ORIGIN, BODY)
+    assert pair.unknown.tolist() == [True] and pair.safe.tolist() == [False]
+
+
 def test_a_wheel_meeting_a_rock_edge_cell_may_rest_below_its_top() -> None:
     # the front wheels' footprint ends over cells whose returns rise 7.5 cm over their mean and drop
     # 7.5 cm under it (a rock's edge in the cell): their top, read all over the cell, lifts the wheels
@@ -425,16 +450,36 @@ def test_a_wheel_meeting_a_rock_edge_cell_may_rest_below_its_top() -> None:
     top[(np.abs(X) < 0.05) & (np.abs(Y) < 0.05)] = BODY.clearance + 0.01
     edge = (X > 0.2) & (X < 0.25) & (np.abs(Y) > 0.2) & (np.abs(Y) < 0.3)
     top[edge] = 0.15
-    st = stats(top, 0.002, 0.0)
-    st["mean"][edge] -= 0.075
-    st["rise"][edge], st["drop"][edge] = 0.075, 0.075
-    bare = {"edge_bias": 0.0, "edge_sigma": 0.0, "rock_sigma": 0.0, "top_sigma": 0.002}
-    one = posterior(st, g, 2.5, ChanceParams(within=0.0, **bare))
+    st = spread(top, edge, 0.075)
+    one = posterior(st, g, 2.5, ChanceParams(within=0.0, **BARE))
     assert one.span is None and chance_check(one, g, AT_ORIGIN, BODY).safe.tolist() == [True]
-    post = posterior(st, g, 2.5, ChanceParams(within=1.0, **bare))
+    post = posterior(st, g, 2.5, ChanceParams(within=1.0, **BARE))
     assert post.span[edge] == pytest.approx(0.15) and post.span[~edge].max() == 0.0
     c = chance_check(post, g, AT_ORIGIN, BODY)
     assert c.safe.tolist() == [False] and c.prob[0, LIMITS.index("belly")] == pytest.approx(1.0)
+
+
+def test_a_drawn_pair_rests_its_wheels_on_the_lows_not_on_the_worst_corner_of_their_box() -> None:
+    # a rock under the box's front-left corner 1 cm under the clearance over flat ground, and the
+    # rear-left wheel over cells whose returns rise and drop 3 cm about their mean (its top 6 cm
+    # over its low, 0: the floor the wheel stands on). Resting anywhere in that box, the worst
+    # corner stands the rear-left wheel at its top and the others at their lows, a plane that
+    # leans the front-left corner 2 cm down into the rock; on the lows the body is level
+    g, X, Y = grid()
+    top = np.zeros(g.shape)
+    rock = (X > 0.2) & (X < 0.3) & (Y > 0.05) & (Y < 0.2)
+    top[rock] = BODY.clearance - 0.01
+    wheel = (X > -0.26) & (X < -0.03) & (Y > 0.2) & (Y < 0.3)
+    top[wheel] = 0.06
+    post = posterior(spread(top, wheel, 0.03), g, 2.5, ChanceParams(within=1.0, **BARE))
+    c = chance_check(post, g, AT_ORIGIN, BODY)
+    assert c.safe.tolist() == [True]
+    assert c.nominal.excess[0, LIMITS.index("belly")] == pytest.approx(-0.01, abs=0.002)
+    assert c.nominal.tilt[0] == pytest.approx(0.0, abs=0.2)
+    # the same pair judged as bounds (each wheel anywhere between its low and its top)
+    low = np.where(np.isfinite(post.mean), post.mean - post.span, np.nan).astype(np.float32)
+    box = check_poses((low, post.mean.astype(np.float32)), g, AT_ORIGIN, BODY, CELL, cellwise=False)
+    assert box.excess[0, LIMITS.index("belly")] == pytest.approx(0.0107, abs=0.002)
 
 
 def test_the_miss_trace_stands_the_body_as_the_vehicle_check_does() -> None:
@@ -451,3 +496,25 @@ def test_the_miss_trace_stands_the_body_as_the_vehicle_check_does() -> None:
     assert body["intrusion"] == pytest.approx(check.intrusion[0], abs=1e-6)
     assert [round(c[0], 3) for c in body["contacts"]][1] == pytest.approx(0.03, abs=0.002)
     assert np.hypot(*body["belly_xy"]) < 0.08
+
+
+def test_the_rest_trace_stands_a_pair_as_the_vehicle_check_does() -> None:
+    # tools.bench.rest_trace: a rock under the box, the rear-left wheel over cells whose lows lie
+    # 6 cm under their tops; its contacts and plane give the check's own belly figure, on the lows
+    # and over the worst corner of the box of rests alike
+    from tools.bench.rest_trace import stand_pair
+
+    g, X, Y = grid()
+    high = np.zeros(g.shape)
+    high[(X > 0.2) & (X < 0.3) & (Y > 0.05) & (Y < 0.2)] = 0.07
+    wheel = (X > -0.26) & (X < -0.03) & (Y > 0.2) & (Y < 0.3)
+    high[wheel] = 0.06
+    low = np.where(wheel, 0.0, high).astype(np.float32)
+    high = high.astype(np.float32)
+    for rest_low in (True, False):
+        body = stand_pair(low, high, g, np.array([0.0, 0.0, 0.0]), BODY, CELL, rest_low=rest_low)
+        check = check_poses((low, high), g, AT_ORIGIN, BODY, CELL, cellwise=False, rest_low=rest_low)
+        assert body["intrusion"] == pytest.approx(check.intrusion[0], abs=1e-6)
+        assert body["contact_low"][2] == pytest.approx(0.0, abs=0.002)
+        assert body["contact_high"][2] == pytest.approx(0.06, abs=0.005)
+    assert stand_pair(low, high, g, np.array([0.0, 0.0, 0.0]), BODY, CELL, rest_low=False)["triplet"][1] != [0, 0, 0]

@@ -4,8 +4,6 @@ rendered truth."""
 
 from __future__ import annotations
 
-import importlib.util
-import sys
 from pathlib import Path
 from typing import Any
 
@@ -15,25 +13,11 @@ import pytest
 import tifffile
 import yaml
 from scipy.ndimage import map_coordinates
+from support import stereo_rig as rig
 
 from prox_workflows.algorithms import stereo as st
 from prox_workflows.cli.stereo import main as stereo_main
 from prox_workflows.pointcloud import read_ply
-
-
-def _rig() -> Any:
-    name = "rvs_tests_prox_stereo_rig"
-    if name not in sys.modules:
-        spec = importlib.util.spec_from_file_location(name, Path(__file__).with_name("stereo_rig.py"))
-        assert spec is not None and spec.loader is not None
-        module = importlib.util.module_from_spec(spec)
-        sys.modules[name] = module
-        spec.loader.exec_module(module)
-    return sys.modules[name]
-
-
-rig = _rig()
-
 
 # -- synthetic rectified pairs --------------------------------------------------------------------------
 F, B, W, H = 500.0, 0.2, 320, 240
