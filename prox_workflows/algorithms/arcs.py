@@ -42,8 +42,9 @@ class Arc:
 
 def arc_poses(pose: Sequence[float], curvature: float, length: float, step: float) -> np.ndarray:
     """Poses along a constant-curvature arc of ``length`` metres from ``pose`` (x, y, heading
-    deg), every ``step`` metres or closer (the last exactly at the end)."""
-    n = max(1, math.ceil(length / step))
+    deg), every ``step`` metres or closer (the last exactly at the end). A negative ``length``
+    runs the arc backwards: the rover reversing, its heading the body's."""
+    n = max(1, math.ceil(abs(length) / step))
     s = np.linspace(0.0, length, n + 1)
     x0, y0, h0 = float(pose[0]), float(pose[1]), math.radians(float(pose[2]))
     if abs(curvature) < 1e-9:

@@ -421,7 +421,7 @@ class Choice:
     """What :func:`choose` decided.
 
     ``status``: ``drive`` (``poses``: the section to drive, from the rover's pose, turn on the
-    spot first where there is one), ``look`` (``look_at``: the first unseen ground on the best
+    spot first where there is one; driven backwards where ``backward`` says so), ``look`` (``look_at``: the first unseen ground on the best
     path, worth a look before anything is driven) or ``blocked`` (every candidate fails on the
     body's limits, or the goal has no way to it). ``reason`` says which, in a sentence."""
 
@@ -441,6 +441,8 @@ class Choice:
     turn: float = 0.0  # deg: the section's turn on the spot (counter-clockwise), before its arc
     curvature: float = 0.0  # 1/m: the section's arc (counter-clockwise positive)
     length: float = 0.0  # m: the arc driven (the section's, or to its pose nearest the goal)
+    # driven backwards: "track" the rover's own last arc reversed, "arc" a reverse arc (.retreat)
+    backward: str = ""
 
 
 def _to_world(local: np.ndarray, pose: tuple[float, float, float]) -> np.ndarray:
@@ -486,13 +488,16 @@ def _terrain(tree: ArcTree, pose: tuple[float, float, float], heights: np.ndarra
 
 def choose(pose: tuple[float, float, float], heights: np.ndarray | tuple[np.ndarray, np.ndarray],
            geom: GridGeometry, body: VehicleBody, ctg: CostToGo, check: Check,
-           params: CandidateParams | None = None, lookahead: Check | None = None) -> Choice:
+           params: CandidateParams | None = None, lookahead: Check | None = None,
+           penalty: Callable[[np.ndarray], np.ndarray] | None = None) -> Choice:
     """The section to drive next from ``pose`` (x, y, heading deg) toward ``ctg``'s goal: the
     candidates of :func:`arc_tree` ranked on the map ``heights`` (one grid or a ``(lower,
     upper)`` pair over ``geom``: its mean surface for the terrain cost, its unseen cells for the
     unknown cost), checked lazily in rank order with ``check`` (see the module's docstring).
     ``lookahead``: the check of the look-aheads beyond the sections, where it differs (a cheaper
-    one: a look-ahead only ranks, and is judged again with ``check`` before it is driven)."""
+    one: a look-ahead only ranks, and is judged again with ``check`` before it is driven).
+    ``penalty``: a further cost per metre at points (N, 2) of the world, paid by every path over
+    them (a dead end's ground: the cost to go at a path's end does not see what the path crossed)."""
     params = params or CandidateParams()
     tree = arc_tree(params, body)
     terrain, unknown, probes = _terrain(tree, pose, heights, geom, body, params)
@@ -502,6 +507,8 @@ def choose(pose: tuple[float, float, float], heights: np.ndarray | tuple[np.ndar
     section_unseen = (unknown[t_i] + unknown[s_i]) > 0
     keys = (tree.base + terrain[t_i] + terrain[s_i] + terrain[b_i] + params.unknown_cost * unknown[b_i]
             + params.look_cost * section_unseen + togo)
+    paid = _paid(tree, probes, penalty)
+    keys = keys + paid[t_i] + paid[s_i] + paid[b_i]
     keys = np.minimum(keys, _to_goal(tree, probes, ctg.goal, terrain, params))
     order = np.argsort(keys, kind="stable")
     order = order[np.isfinite(keys[order])]
@@ -610,6 +617,13 @@ def choose(pose: tuple[float, float, float], heights: np.ndarray | tuple[np.ndar
     choice.checked, choice.poses_checked, choice.failures = checked, poses_checked, failures
     choice.reasons = _reasons(failures)
     return choice
+
+
+def _paid(tree: ArcTree, probes: np.ndarray, penalty: Callable[[np.ndarray], np.ndarray] | None) -> np.ndarray:
+    """Per node, the ``penalty`` (per metre at the probes' points) over the metres it stands for."""
+    if penalty is None:
+        return np.zeros(len(tree.part))
+    return np.bincount(tree.probe_node, np.asarray(penalty(probes[:, :2]), float) * tree.probe_ds, len(tree.part))
 
 
 def _to_goal(tree: ArcTree, probes: np.ndarray, goal: tuple[float, float], terrain: np.ndarray,

@@ -59,6 +59,11 @@ class CoarseMemory:
         held = self.cost[rows, cols]
         self.cost[rows, cols] = np.where(np.isnan(part), held, part)
 
+    def costs(self) -> tuple[np.ndarray, GridGeometry]:
+        """The kept grid with never-seen cells at the unknown cost, as :func:`.candidates.coarse_costs`
+        gives a map's."""
+        return np.where(np.isnan(self.cost), UNKNOWN_COST, self.cost), self.geometry
+
     def cost_to_go(self, goal: tuple[float, float]) -> CostToGo:
-        """The cost to go to ``goal`` over the kept grid (never-seen cells at the unknown cost)."""
-        return cost_to_go(np.where(np.isnan(self.cost), UNKNOWN_COST, self.cost), self.geometry, goal)
+        """The cost to go to ``goal`` over the kept grid."""
+        return cost_to_go(*self.costs(), goal)

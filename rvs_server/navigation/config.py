@@ -14,6 +14,7 @@ from typing import ClassVar
 from prox_workflows.algorithms.candidates import CandidateParams
 from prox_workflows.algorithms.chance import ChanceParams
 from prox_workflows.algorithms.planner import PlanParams
+from prox_workflows.algorithms.retreat import RetreatParams
 from rvs_params import Settings
 
 from ..config import ModuleConfig, param
@@ -115,6 +116,14 @@ class SeeConfig(Settings):
                                      "costs that rank them (prox_workflows.algorithms.candidates)")
     chance: ChanceParams = param(ChanceParams(), "see loop with the gate, see_vehicle chance: the risk a section "
                                  "may carry (epsilon) and how its probability is drawn")
+    ahead: str = param("best", "see loop with the gate: the check of each candidate's look-ahead beyond its "
+                       "section: best, the posterior's best estimate (the look-ahead only ranks: the section is "
+                       "judged in full before it is driven); chance, the section's own check (a section is "
+                       "chosen only with a continuation that passes it, at about 1.4-2.3x a choice's CPU)",
+                       choices=("chance", "best"), option=False)
+    retreat: RetreatParams = param(RetreatParams(), "see loop with the gate: backing out of dead ends (no candidate "
+                                   "passes, or no progress) and the cost a dead end leaves on the cost to go "
+                                   "(prox_workflows.algorithms.retreat)")
 
 
 @dataclass

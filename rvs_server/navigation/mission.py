@@ -99,16 +99,18 @@ class Mission:
         self.paths.append(path)
         self.waypoints.append(waypoints)
 
-    def announce(self, leg: int, waypoints: Any, file: str) -> int:
+    def announce(self, leg: int, waypoints: Any, file: str, reverse: bool = False) -> int:
         """``EVENT kind=waiting`` with the leg's waypoints (the GNC drives them); returns the mark
-        of the pose reports before it (a GNC may answer it at once)."""
+        of the pose reports before it (a GNC may answer it at once). ``reverse``: the leg is driven
+        backwards (the waypoints' headings are the body's, opposite to the way it moves), which
+        the event says with ``drive=reverse``; a forward leg's event has no such field."""
         since = self.rover.mark()
         pose = self.app.pose
         self.announced_at = (pose.x, pose.y, pose.heading)
         rows = Rows((Fixed(x, 3), Fixed(y, 3), Fixed(h, 2)) for x, y, h in waypoints.table()[:, :3])
         self.app.broadcast_threadsafe(Reply("RVS", "EVENT", {
             "kind": "waiting", "job": self.job.id, "leg": leg, "waypoints": rows, "file": file,
-            **pose_fields(self.job)}))
+            **({"drive": "reverse"} if reverse else {}), **pose_fields(self.job)}))
         return since
 
     def drive(self, pilot: Pilot, since: int, end: tuple[float, float]) -> tuple[float, float, float]:

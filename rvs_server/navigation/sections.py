@@ -20,11 +20,21 @@ goes, and chooses again. The check is the chance constraint on the map's per-cel
   shows nothing new is not repeated from the same place; the choice is then made with looking
   priced out, and ground still unseen is a failure like any other.
 - *blocked*: every candidate fails on the body's limits (or the goal has no way to it on the
-  coarse grid). Once the rover has looked round where it stands, this is a safe stop: the job ends
-  ``E_DATA`` with the reason and the count of failures by limit.
+  coarse grid). Once the rover has looked round where it stands, it is a dead end, as are unseen
+  ground no look shows and ``STALL_SECTIONS`` sections without progress. With
+  ``see.retreat.retreats`` above 0 the rover backs out (:mod:`prox_workflows.algorithms.retreat`:
+  along its last arc, whose ground it drove, or on a reverse arc its check passes), leaves a cost
+  on the dead end's ground for the cost to go, and chooses again. Past that many retreats (by
+  default at once), or with no reverse section that passes, it is a safe stop: the job ends
+  ``E_DATA`` with the reason, the count of failures by limit and the retreats made.
+
+Each candidate's look-ahead beyond its section only ranks it: it is judged on the posterior's best
+estimate (``see_ahead best``), or with the section's own check (``see_ahead chance``: a section is
+chosen only with a continuation that passes, at about twice a choice's CPU).
 
 No Dem2Hazard threshold decides where the wheels go, and no verdict is kept: a refusal concerns
-the map it was made on, and the next choice judges the pose again on the map as it then is.
+the map it was made on, and the next choice judges the pose again on the map as it then is. A dead
+end is a cost, not a verdict, and it expires once frames from outside it cover its ground.
 """
 
 from __future__ import annotations
@@ -32,6 +42,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import time
+from collections.abc import Sequence
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -43,6 +54,7 @@ from prox_workflows.algorithms.candidates import (
     CandidateParams,
     Check,
     Choice,
+    CostToGo,
     best_check,
     bounds_check,
     choose,
@@ -54,8 +66,15 @@ from prox_workflows.algorithms.candidates import (
 )
 from prox_workflows.algorithms.chance import ChanceParams, posterior
 from prox_workflows.algorithms.coarse_memory import CoarseMemory
+from prox_workflows.algorithms.retreat import (
+    DeadEnd,
+    add_dead_ends,
+    choose_reverse,
+    dead_end_penalty,
+    reverse_options,
+)
 from prox_workflows.algorithms.vehicle import densify, reach
-from prox_workflows.algorithms.waypoints import make_waypoints
+from prox_workflows.algorithms.waypoints import Waypoints, make_waypoints
 
 from ..protocol import ProtocolError
 
@@ -97,26 +116,53 @@ def map_check(bounds: BoundsMap, box: tuple[float, float, float, float], body: A
     """The vehicle check over ``box`` (xmin, ymin, xmax, ymax) of the bounds map as a
     :data:`~prox_workflows.algorithms.candidates.Check`: ``chance`` on the cells' posteriors (the
     map's per-cell statistics: the mean's horizontal error along its rays averaged as its height
-    is, and the slope's steepest direction for the rays'), ``bounds`` the worst case on its
-    bounds."""
+    is, and the slope's steepest direction for the rays'), ``best`` on their best estimate alone
+    (no draws), ``framed`` on the best estimate of the cells a frame bounded only (the rest
+    unknown: the track back's check, :func:`track_check`), ``bounds`` the worst case on its bounds."""
     stats, g = bounds.statistics(*box)
     if how == "chance":
         return posterior_check(posterior(stats, g, bounds.params.k, chance), g, body, chance)
+    if how == "best":
+        return best_check(posterior(stats, g, bounds.params.k, chance), g, body)
+    if how == "framed":
+        return track_check(posterior(stats, g, bounds.params.k, chance), stats["framed"], g, body)
     return bounds_check((stats["lower"], stats["upper"]), g, body)
 
 
-def choose_from(bounds: BoundsMap, pose: tuple[float, float, float], goal: tuple[float, float], body: Any,
-                how: str, params: CandidateParams, chance: ChanceParams, guide: CoarseMemory | None = None
-                ) -> tuple[Choice, float]:
-    """The chooser's answer from ``pose`` toward ``goal`` on the bounds map as it is now, and the
-    cost to go from ``pose``: the cost to go over the coarse grid (``guide``'s, the whole mission
-    with what the map now says written in; None: the map's own), the candidates ranked and
-    checked on the window they reach."""
+def track_check(post: Any, framed: np.ndarray, g: Any, body: Any) -> Check:
+    """The check of the track back: the posterior's best estimate where a frame bounded the cell,
+    unknown elsewhere (the set-down's prior, the wheels' contacts, a ray's ceiling). The body stood
+    on every pose of the track, so what can refuse it is ground that changed since, and only a
+    frame shows a change: a prior is a guess at ground no frame saw (the start's blind disc filled
+    on from the ring round it), and judged as ground it refuses poses the wheels drove over. A
+    pose over unframed ground is unknown, which the track back takes (never a limit exceeded),
+    judged cell by cell on the frames' heights (bounds read cellwise, lower and upper alike)."""
+    surface = np.where(framed, post.mean, np.nan).astype(np.float32)
+    return bounds_check((surface, surface.copy()), g, body)
+
+
+def guidance(bounds: BoundsMap, goal: tuple[float, float], body: Any, guide: CoarseMemory | None = None,
+             dead_ends: Sequence[DeadEnd] = (), dead_end_cost: float = 0.0) -> CostToGo:
+    """The cost to go over the coarse grid (``guide``'s, the whole mission with what the map now
+    says written in; None: the map's own), a dead end's disc priced ``dead_end_cost`` per metre
+    more."""
     if guide is None:
-        ctg = cost_to_go(*coarse_costs(bounds.whole(), bounds.geometry, body), goal)
+        cost, cg = coarse_costs(bounds.whole(), bounds.geometry, body)
     else:
         guide.update(bounds.whole(), bounds.geometry, body)
-        ctg = guide.cost_to_go(goal)
+        cost, cg = guide.costs()
+    return cost_to_go(add_dead_ends(cost, cg, dead_ends, dead_end_cost), cg, goal)
+
+
+def choose_from(bounds: BoundsMap, pose: tuple[float, float, float], goal: tuple[float, float], body: Any,
+                how: str, params: CandidateParams, chance: ChanceParams, guide: CoarseMemory | None = None, *,
+                ahead: str = "best", dead_ends: Sequence[DeadEnd] = (), dead_end_cost: float = 0.0
+                ) -> tuple[Choice, float]:
+    """The chooser's answer from ``pose`` toward ``goal`` on the bounds map as it is now, and the
+    cost to go from ``pose``: the cost to go over the coarse grid (:func:`guidance`), the
+    candidates ranked and checked on the window they reach. ``ahead`` (``see_ahead``): ``best``
+    judges the look-aheads on the best estimate, ``chance`` with the section's check."""
+    ctg = guidance(bounds, goal, body, guide, dead_ends, dead_end_cost)
     r = judged_reach(params, body)
     box = (pose[0] - r, pose[1] - r, pose[0] + r, pose[1] + r)
     stats, wg = bounds.statistics(*box)
@@ -124,12 +170,12 @@ def choose_from(bounds: BoundsMap, pose: tuple[float, float, float], goal: tuple
     if how == "chance":
         post = posterior(stats, wg, bounds.params.k, chance)
         check = posterior_check(post, wg, body, chance)
-        # the look-aheads only rank (a section is judged with the chance constraint before it is
-        # driven): the posterior's best estimate judges them, one check instead of 64 draws
-        lookahead = best_check(post, wg, body)
+        if ahead == "best":  # the look-aheads only rank: one check on the best estimate, no draws
+            lookahead = best_check(post, wg, body)
     else:
         check = bounds_check((stats["lower"], stats["upper"]), wg, body)
-    choice = choose(pose, (stats["lower"], stats["upper"]), wg, body, ctg, check, params, lookahead)
+    choice = choose(pose, (stats["lower"], stats["upper"]), wg, body, ctg, check, params, lookahead,
+                    dead_end_penalty(dead_ends, dead_end_cost))
     return choice, float(ctg.at(np.array([pose[0]]), np.array([pose[1]]))[0])
 
 
@@ -150,6 +196,9 @@ class Chooser:
         self.rounds: list[tuple[float, float]] = []  # where the rover looked round
         self.best = math.inf  # the least cost to go the rover stood at
         self.since_best = 0  # sections driven since
+        self.retreat = self.d.p.retreat
+        self.dead_ends: list[DeadEnd] = []  # where the rover found no way on, priced until seen from outside
+        self.arcs: list[tuple[float, float]] = []  # the arcs driven forward since the last reverse: curvature, m
         self.started = False  # the start's turn (the hazard cameras' look round the body) is behind
         # the cost to go's coarse grid over the whole mission: the bounds map is a window round the rover
         self.guide = CoarseMemory.covering(strategy.cover, GUIDE_PAD, GUIDE_CELL)
@@ -170,13 +219,51 @@ class Chooser:
 
     def _choose(self, pose: tuple[float, float, float], look_cost: float | None) -> tuple[Choice, float]:
         params = self.params if look_cost is None else dataclasses.replace(self.params, look_cost=look_cost)
-        self.d.app.bus.publish("bounds", bounds=self.d.bounds, replan=True)  # what this choice reads
+        bounds = self.d.bounds
+        self.d.app.bus.publish("bounds", bounds=bounds, replan=True)  # what this choice reads
+        self.dead_ends = [e for e in self.dead_ends
+                          if not e.expired(pose, bounds.stamp, bounds.geometry, bounds.frames, self.retreat.clear)]
         t0, c0 = time.monotonic(), time.process_time()
         try:
-            return choose_from(self.d.bounds, pose, self.s.mission.goal, self.d.body, self.d.p.vehicle, params,
-                               self.chance, guide=self.guide)
+            return choose_from(bounds, pose, self.s.mission.goal, self.d.body, self.d.p.vehicle, params,
+                               self.chance, self.guide, ahead=self.d.p.ahead, dead_ends=self.dead_ends,
+                               dead_end_cost=self.retreat.cost)
         finally:
             self.s.stats.replanned(t0, c0)
+
+    def _back_out(self, leg: int, pose: tuple[float, float, float], why: str) -> None:
+        """A dead end at ``pose`` (``why``: the sentence the safe stop would have said): back out of
+        it on the cheapest reverse section that passes, its ground priced for the cost to go; a
+        safe stop (E_DATA) once ``see.retreat.retreats`` retreats are made or none passes."""
+        made, bound = self.s.stats.retreats, self.retreat.retreats
+        if made >= bound:
+            raise ProtocolError("E_DATA", f"{why}; {made} of {bound} retreats made (navigate.see.retreat.retreats)")
+        bounds = self.d.bounds
+        self.dead_ends.append(DeadEnd(pose[0], pose[1], self.retreat.radius, bounds.frames))
+        options = reverse_options(pose, self.arcs[-1] if self.arcs else None, self.retreat,
+                                  self.params.max_curvature, self.params.step)
+        t0, c0 = time.monotonic(), time.process_time()
+        try:
+            ctg = guidance(bounds, self.s.mission.goal, self.d.body, self.guide, self.dead_ends, self.retreat.cost)
+            pts = np.concatenate([o.poses for o in options])
+            pad = reach(self.d.body) + 0.1
+            box = (pts[:, 0].min() - pad, pts[:, 1].min() - pad, pts[:, 0].max() + pad, pts[:, 1].max() + pad)
+            check = map_check(bounds, box, self.d.body, self.d.p.vehicle, self.chance)
+            track = map_check(bounds, box, self.d.body, "framed", self.chance)
+            choice = choose_reverse(pose, options, check, ctg, track)
+        finally:
+            self.s.stats.replanned(t0, c0)
+        if choice.status != "drive":
+            raise ProtocolError("E_DATA", f"{why}; backing out: {choice.reason} ({made} of {bound} retreats made)")
+        self.s.stats.retreats += 1
+        self.s.mission.progress(leg, 1, 1, f"dead end at ({pose[0]:.2f}, {pose[1]:.2f}): backing out "
+                                           f"({made + 1} of {bound}) on {choice.reason}", "plan")
+        if choice.backward == "track":
+            self.arcs.pop()
+        else:  # off the track: the arcs before it no longer lead back from where it stands
+            self.arcs.clear()
+        self.best, self.since_best = math.inf, 0
+        self.drive(leg, choice)
 
     def drive_on(self, leg: int) -> bool:
         """Choose and drive one section (looking first where the choice asks); a blocked choice
@@ -208,27 +295,31 @@ class Chooser:
                 if look_cost is None:  # looking from here shows no more: choose among what it shows
                     look_cost = PRICED_OUT
                     continue
-                raise ProtocolError("E_DATA", f"unseen ground ahead that no look from here shows: the best way "
-                                              f"on runs over ({x:.2f}, {y:.2f}), no frame bounds it after a look "
-                                              f"round from ({pose[0]:.2f}, {pose[1]:.2f}); failures: "
-                                              f"{reasons(choice)}")
+                self._back_out(leg, pose, f"unseen ground ahead that no look from here shows: the best way "
+                                          f"on runs over ({x:.2f}, {y:.2f}), no frame bounds it after a look "
+                                          f"round from ({pose[0]:.2f}, {pose[1]:.2f}); failures: "
+                                          f"{reasons(choice)}")
+                return True
             if not self._looked_round_here(pose):  # blocked: look round before giving up
                 self._look_round(pose)
                 continue
-            raise ProtocolError("E_DATA", f"no way on within the body's limits: {choice.reason} from "
-                                          f"({pose[0]:.2f}, {pose[1]:.2f}) after a look round; failures: "
-                                          f"{reasons(choice)}")
+            self._back_out(leg, pose, f"no way on within the body's limits: {choice.reason} from "
+                                      f"({pose[0]:.2f}, {pose[1]:.2f}) after a look round; failures: "
+                                      f"{reasons(choice)}")
+            return True
         else:
-            raise ProtocolError("E_DATA", f"no way on: {LOOKS} looks from ({pose[0]:.2f}, {pose[1]:.2f}) show no "
-                                          "section that passes")
+            self._back_out(leg, pose, f"no way on: {LOOKS} looks from ({pose[0]:.2f}, {pose[1]:.2f}) show no "
+                                      "section that passes")
+            return True
         if togo < self.best - STALL_GAIN:
             self.best, self.since_best = togo, 0
         else:
             self.since_best += 1
             if self.since_best >= STALL_SECTIONS:
-                raise ProtocolError("E_DATA", f"no progress: {STALL_SECTIONS} sections from ({pose[0]:.2f}, "
-                                              f"{pose[1]:.2f}) brought the rover no {STALL_GAIN:g} m closer by "
-                                              f"the cost to go ({togo:.2f} m)")
+                self._back_out(leg, pose, f"no progress: {STALL_SECTIONS} sections from ({pose[0]:.2f}, "
+                                          f"{pose[1]:.2f}) brought the rover no {STALL_GAIN:g} m closer by "
+                                          f"the cost to go ({togo:.2f} m)")
+                return True
         self.drive(leg, choice)
         self.s.stats.replans += 1
         return True
@@ -275,21 +366,67 @@ class Chooser:
         xy = choice.poses[:, :2]
         step = max(1, int(round(WAYPOINT_STEP / max(self.params.step, 1e-3))))
         keep = np.unique(np.r_[np.arange(0, len(xy), step), len(xy) - 1])
-        wps = make_waypoints(_dedup(xy[keep]), start_heading=float(choice.poses[0, 2]))
+        if choice.backward:  # the body's headings: the GNC backs along them (drive=reverse)
+            wps = _reverse_waypoints(choice.poses[keep])
+        else:
+            wps = make_waypoints(_dedup(xy[keep]), start_heading=float(choice.poses[0, 2]))
         m.record(xy, wps.xy)
         end = (float(xy[-1, 0]), float(xy[-1, 1]))
-        m.progress(leg, 1, 1, what or f"chose candidate {choice.candidate} (rank {choice.rank + 1} of "
-                                      f"{choice.total}, {choice.checked} checked): turn {choice.turn:.0f} deg, "
-                                      f"{choice.length:.2f} m to ({end[0]:.2f}, {end[1]:.2f})", "plan")
-        since = m.announce(leg, wps, "none")
+        if not choice.backward:
+            m.progress(leg, 1, 1, what or f"chose candidate {choice.candidate} (rank {choice.rank + 1} of "
+                                          f"{choice.total}, {choice.checked} checked): turn {choice.turn:.0f} deg, "
+                                          f"{choice.length:.2f} m to ({end[0]:.2f}, {end[1]:.2f})", "plan")
+        since = m.announce(leg, wps, "none", reverse=bool(choice.backward))
         pilot = SectionPilot(self, choice, m.track)
         start_of_leg = len(m.track)
         d.point_forward()
         m.drive(pilot, since, end)
         if pilot.stopped is not None:
             m.progress(leg, 1, 1, f"stopped: {pilot.stopped}", "drive")
+        if not choice.backward:
+            # from the row before the section's: where the rover stood when it set off
+            arc = _driven_arc(np.asarray(m.track.rows[max(0, start_of_leg - 1):], float).reshape(-1, 3))
+            if arc is not None:
+                self.arcs.append(arc)
         self.s.localise(leg, m.track.xy(start_of_leg))
         return pilot.stopped
+
+
+def _driven_arc(rows: np.ndarray) -> tuple[float, float] | None:
+    """The arc the track rows of one section show driven (after its turn on the spot): its
+    curvature (1/m, the heading's change over the metres) and its metres; None if it did not
+    move. The track is where the body went (the simulator's truth, the GNC's reports), so the
+    track back follows it, not the section as chosen."""
+    if len(rows) < 2:
+        return None
+    steps = np.hypot(*np.diff(rows[:, :2], axis=0).T)
+    moved = np.flatnonzero(steps > 1e-4)
+    metres = float(steps.sum())
+    if not len(moved) or metres < 1e-3:
+        return None
+    turned = (rows[-1, 2] - rows[moved[0], 2] + 180.0) % 360.0 - 180.0
+    return math.radians(turned) / metres, metres
+
+
+def _reverse_waypoints(poses: np.ndarray) -> Waypoints:
+    """A reverse section's waypoints: each with the body's heading there (opposite to the way it
+    moves), no turn on the spot, and the leg's length to the next."""
+    xy = poses[:, :2]
+    legs = np.hypot(*np.diff(xy, axis=0).T)
+    return Waypoints(xy, (poses[:, 2] + 180.0) % 360.0 - 180.0, np.zeros(len(xy)), np.r_[legs, 0.0])
+
+
+def turn_faces(heading: float, turn: float) -> list[float]:
+    """The headings a turn on the spot of ``turn`` degrees (counter-clockwise positive) from
+    ``heading`` faces one after the other: the rover turns to face each the shortest way, so a turn
+    of more than 90 degrees faces its middle first. The check judged the turn's own way round, and
+    a half turn (the candidates' 180 degrees) is either way by the shortest: the body would sweep
+    the other half circle, ground no check judged. None for a turn under half a degree."""
+    if abs(turn) < 0.5:
+        return []
+    if abs(turn) <= 90.0:
+        return [heading + turn]
+    return [heading + turn / 2, heading + turn]
 
 
 def _dedup(xy: np.ndarray) -> np.ndarray:
@@ -311,8 +448,8 @@ class SectionPilot:
         n_turn = int(np.count_nonzero(np.hypot(*(choice.poses[:, :2] - choice.poses[0, :2]).T) < 1e-9)) - 1
         self.n_turn = max(0, n_turn)
         start = choice.poses[0]
-        self.heading = float(start[2] + choice.turn)
-        self.turned = abs(choice.turn) < 0.5
+        self.faces = turn_faces(float(start[2]), choice.turn)  # the headings the turn faces in turn
+        self.turned = not self.faces
         self.curvature = choice.curvature
         self.length = choice.length
         self.s = np.r_[np.zeros(self.n_turn + 1),
@@ -320,6 +457,7 @@ class SectionPilot:
         self.driven = 0.0
         self.path = choice.path
         self.frames = self.d.bounds.frames  # the map the section was judged on
+        self.backward = choice.backward
         self.stopped: str | None = None
         self.hazard: dict[str, Any] | None = None
 
@@ -352,8 +490,10 @@ class SectionPilot:
         if sl is None or not (bounds.stamp[sl] > self.frames).any():
             return None
         self.frames = bounds.frames
-        codes = np.asarray(map_check(bounds, box, d.body, d.p.vehicle, self.c.chance)(ahead[1:]))
-        bad = np.flatnonzero(codes != SAFE)
+        how = "framed" if self.backward == "track" else d.p.vehicle  # as it was chosen
+        codes = np.asarray(map_check(bounds, box, d.body, how, self.c.chance)(ahead[1:]))
+        # the track back's ground was under the body: unknown to the map is no reason to stop there
+        bad = np.flatnonzero((codes > 0) if self.backward == "track" else (codes != SAFE))
         return None if not len(bad) else (int(codes[bad[0]]), ahead[1 + bad[0]])
 
     def _stop(self, verdict: int, at: np.ndarray, pose: tuple[float, float, float]) -> None:
@@ -364,7 +504,7 @@ class SectionPilot:
 
     def next(self, pose: tuple[float, float, float]) -> Motion | None:
         d = self.d
-        if d.rover.steers:
+        if d.rover.steers and not self.backward:  # backing out, the mast stays forward: it cannot pan behind
             d.gaze(pose, self._path_ahead(pose))
         seen, t1 = d.see(d.pan_tilt)
         d.job.check()
@@ -379,8 +519,8 @@ class SectionPilot:
             return None
         d._clear()
         if not self.turned:
-            self.turned = True
-            h = math.radians(self.heading)
+            h = math.radians(self.faces.pop(0))
+            self.turned = not self.faces
             return Motion.face(seen[0] + math.cos(h), seen[1] + math.sin(h))
         left = self.length - self.driven
         if left <= 1e-3:
@@ -390,4 +530,6 @@ class SectionPilot:
             speed = min(speed, math.radians(turn_rate) / abs(self.curvature))
         dt = min(d.p.period, left / speed)
         self.driven += speed * dt
+        if self.backward:
+            speed = -speed
         return Motion.arc(speed, math.degrees(self.curvature * speed), dt)

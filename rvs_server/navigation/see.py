@@ -100,6 +100,7 @@ class LoopStats:
     replans: int = 0
     stops: int = 0
     looks: int = 0  # frames taken standing at unseen ground ahead (see_unseen)
+    retreats: int = 0  # dead ends the chooser backed out of (sections.Chooser)
     cycles: int = 0
     cycle_ms: list[float] = field(default_factory=list)  # rolling map + hazard + check, wall ms
     # the same in the process's CPU ms: on a shared machine the wall time also counts the waits
@@ -130,7 +131,7 @@ class LoopStats:
             return float(np.percentile(v, 95)) if v else 0.0
 
         return {"scans": self.scans, "replans": self.replans, "stops": self.stops, "looks": self.looks,
-                "cycles": self.cycles,
+                "retreats": self.retreats, "cycles": self.cycles,
                 "cycle_ms": Fixed(mean(self.cycle_ms), 1),
                 "cycle_ms_max": Fixed(max(self.cycle_ms, default=0.0), 1),
                 "cycle_ms_p95": Fixed(p95(self.cycle_ms), 1), "cycle_cpu_ms_p95": Fixed(p95(self.cycle_cpu_ms), 1),

@@ -7,6 +7,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
+import pytest
 from support.marks import long_test
 from support.server import wait_for
 
@@ -212,3 +213,20 @@ def test_a_rock_dropped_ahead_of_the_driving_chooser_is_not_driven_into(server_f
     assert events == [], [e.describe() for e in events]
     # it went on afterwards: round the rock to the goal, or a safe stop with its reason
     assert final.status == "OK" or final.fields["code"] == "E_DATA", final.fields
+
+
+@pytest.mark.parametrize("heading,turn", [(-105.0, -180.0), (75.0, 180.0), (0.0, 157.5), (30.0, -112.5), (10.0, 45.0)])
+def test_a_turn_on_the_spot_is_faced_the_way_round_it_was_judged(heading: float, turn: float) -> None:
+    """The simulated rover turns to face each heading the shortest way; the faces of a section's
+    turn (``sections.turn_faces``) bring it round the way the check judged, all the way: a half
+    turn faced at once goes either way (hirise mission 0: planned clockwise from -105 deg, driven
+    counter-clockwise over a step the check never saw)."""
+    from rvs_server.navigation.sections import turn_faces
+
+    at, swept = heading, 0.0
+    for face in turn_faces(heading, turn):
+        step = (face - at + 180.0) % 360.0 - 180.0  # the shortest way round, as World.turn_toward turns
+        assert step * turn > 0 and abs(step) < 179.0, (face, at, step)
+        swept += step
+        at = face
+    assert swept == pytest.approx(turn)

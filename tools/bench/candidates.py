@@ -19,14 +19,16 @@ ranking and the bookkeeping).
 The cycle's other work (fusing frames, the gate) is not in these figures.
 
 ``--check chance`` judges the sections as the see loop does (:func:`posterior_check`: the chance
-constraint, 64 draws, ``verdict_only``; the look-aheads on the posterior's best estimate), on a
+constraint, 64 draws, ``verdict_only``; the look-aheads on the posterior's best estimate,
+``--ahead best`` as ``navigate.see_ahead`` by default, or with the chance constraint too,
+``--ahead chance``), on a
 posterior made from the same window: each cell's top its highest true height, a sigma of the
 map's spread over 2.5, the rock-top error common to the body (``rock_sigma`` x the cell's relief);
 ``--check bounds`` (the default) is the worst case on the bounds. ``--digest`` prints, per trial,
 the status, candidate, rank and poses checked: the verdicts, to compare two versions of the check.
 
     python -m tools.bench.candidates [--scenes marsyard dense] [--maps tight wide] [--trials 40] [--max-poses N]
-    python -m tools.bench.candidates --check chance --trials 10 [--digest] [--every-pose]
+    python -m tools.bench.candidates --check chance --trials 10 [--ahead chance] [--digest] [--every-pose]
 """
 
 from __future__ import annotations
@@ -120,12 +122,16 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--every-pose", action="store_true",
                     help="with --check chance: draw for every pose sent (no runs: a section is not read to its first "
                          "refusal only), for comparison")
+    ap.add_argument("--ahead", choices=["chance", "best"], default="best",
+                    help="with --check chance: the look-aheads judged on the posterior's best estimate (the see "
+                         "loop's navigate.see_ahead default) or with the chance constraint")
     ap.add_argument("--digest", action="store_true", help="print each trial's verdict (status, candidate, rank, poses)")
     args = ap.parse_args(argv)
     params = CandidateParams(max_poses=args.max_poses)
     chance = ChanceParams()
     digests: list[str] = []
-    print(f"check: {args.check}{' (every pose drawn)' if args.every_pose else ''}")
+    print(f"check: {args.check}{' (every pose drawn)' if args.every_pose else ''}"
+          f"{f', look-aheads {args.ahead}' if args.check == 'chance' else ''}")
     print("| scene | map | trials | field ms p50 / p95 | choose ms p50 / p95 | total ms p50 / p95 | drive / look / blocked "
           "| candidates checked p50 / max | poses checked p50 / p95 | choose less the check ms p50 / p95 |")
     print("|---|---|---|---|---|---|---|---|---|---|")
@@ -144,7 +150,7 @@ def main(argv: list[str] | None = None) -> None:
                 vehicle = posterior_check(post, g, body, chance)
                 if args.every_pose:
                     vehicle = (lambda f: lambda poses: f(poses))(vehicle)
-                lookahead = best_check(post, g, body)
+                lookahead = best_check(post, g, body) if args.ahead == "best" else None
             else:
                 vehicle = bounds_check(heights, g, body)
             in_check = [0.0]

@@ -92,15 +92,15 @@ def capture(scene: str, mission: int, every: int, most: int, out: Path) -> int:
     choose_from = sections.choose_from
 
     def choosing(bounds: Any, pose: Any, goal: Any, body: Any, how: str, params: Any, chance: Any,
-                 guide: Any = None) -> Any:
+                 guide: Any = None, **kw: Any) -> Any:
         keep = state["n"] % every == 0 and state["saved"] < most
         snapshot = copy.deepcopy((bounds, guide)) if keep else None
-        choice, togo = choose_from(bounds, pose, goal, body, how, params, chance, guide)
+        choice, togo = choose_from(bounds, pose, goal, body, how, params, chance, guide, **kw)
         if keep:
             assert snapshot is not None
             state["pending"] = {"bounds": snapshot[0], "guide": snapshot[1], "pose": tuple(map(float, pose)),
                                 "goal": tuple(map(float, goal)),
-                                "body": body, "how": how, "params": params, "chance": chance,
+                                "body": body, "how": how, "params": params, "chance": chance, "kw": kw,
                                 "section": np.asarray(choice.poses), "status": choice.status, "scene": scene,
                                 "mission": mission, "choice": state["n"]}
         state["n"] += 1
@@ -153,7 +153,7 @@ def _choice(e: dict[str, Any]) -> Any:
     writes into it)."""
     guide = copy.deepcopy(e.get("guide"))
     return sections.choose_from(e["bounds"], e["pose"], e["goal"], e["body"], e["how"], e["params"], e["chance"],
-                                guide)
+                                guide, **e.get("kw", {}))
 
 
 def _cycle(e: dict[str, Any]) -> Any:

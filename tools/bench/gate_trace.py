@@ -95,7 +95,7 @@ def main() -> None:
     choose_from = sections.choose_from
 
     def choosing(bounds: Any, pose: Any, goal: Any, body: Any, how: str, params: Any, chance_params: Any,
-                 guide: Any = None) -> Any:
+                 guide: Any = None, **kw: Any) -> Any:
         where["choice"] = len(choices)
         r = sections.judged_reach(params, body)
         stats, wg = bounds.statistics(pose[0] - r, pose[1] - r, pose[0] + r, pose[1] + r)
@@ -104,7 +104,7 @@ def main() -> None:
         choices.append(entry)
         if len(choices) > args.detail:
             choices[-args.detail - 1].pop("map", None)
-        choice, togo = choose_from(bounds, pose, goal, body, how, params, chance_params, guide)
+        choice, togo = choose_from(bounds, pose, goal, body, how, params, chance_params, guide, **kw)
         entry.update(status=choice.status, turn=round(choice.turn, 1), length=round(choice.length, 3),
                      togo=round(togo, 3), checked=choice.checked, reasons=dict(choice.reasons),
                      section=np.round(choice.poses, 3).tolist())

@@ -221,7 +221,7 @@ def run_mission(scene: str, mode: str, start: tuple[float, float], goal: tuple[f
             out["reached"] = r.status == "OK" and r.fields.get("reached") == "true"
             speed, turn_rate = world.drive_model.speed, world.drive_model.turn_rate
             out["efficiency"] = round(dist / (sim_s * speed), 3) if out["reached"] else 0.0
-            for key in ("legs", "scans", "replans", "stops", "looks", "cycles", "cycle_ms", "cycle_ms_max", "cycle_ms_p95",
+            for key in ("legs", "scans", "replans", "stops", "looks", "retreats", "cycles", "cycle_ms", "cycle_ms_max", "cycle_ms_p95",
                         "cycle_cpu_ms_p95", "frame_ms", "replan_ms", "replan_ms_p95", "replan_cpu_ms_p95", "searches",
                         "repairs"):
                 if key in r.fields:

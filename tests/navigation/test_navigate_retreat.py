@@ -1,0 +1,134 @@
+"""navigate -loop see backs out of a dead end (rvs_server/navigation/sections.py, Chooser._back_out):
+a cul-de-sac of rocks round the rover on three sides, through the real server, judged by the vehicle
+on the simulator's true surface."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from support.marks import long_test
+from support.server import wait_for
+
+from prox_workflows.grid import GridGeometry
+from rvs_truth.surface import fine_surface
+from rvs_truth.vehicle import read_track, vehicle_check
+
+# a fence of rocks (x, y, radius) 20 cm high across the way at x -0.6 m, |y| to 1.6 m, with a gate in
+# it: a corridor to x 0.6 m whose walls stand 38 cm to each side of its middle, inside the 38.6 cm
+# the body's corners sweep in a turn on the spot: the body drives through it straight, and turns in
+# it nowhere
+FENCE = [(-0.6, side * y, 0.14) for y in (0.8, 1.08, 1.36, 1.64) for side in (-1, 1)]
+CORRIDOR = [(x, side * 0.52, 0.14) for x in (-0.6, -0.32, -0.04, 0.24, 0.52) for side in (-1, 1)]
+
+
+def _pocket(srv) -> None:
+    c = srv.client()
+    for x, y, r in FENCE + CORRIDOR:
+        reply = c.request(f"sim add-rock -x {x} -y {y} -radius {r} -height 0.2")
+        assert reply.status == "OK", reply.fields
+
+
+def _events(srv, world, name: str, box: tuple[float, float, float, float]) -> tuple[list, int]:
+    fine, g = fine_surface(world, box)
+    surface = (fine, GridGeometry(0.01, g.xmin, g.ymax, g.width * 5, g.height * 5), g)
+    return vehicle_check(read_track(srv.data / "nav" / f"{name}_track.csv"), surface, world.body)
+
+
+def test_the_retreat_bound_ends_a_mission_in_a_dead_end_with_its_reason(server_factory) -> None:
+    """With no retreat allowed (``navigate.see.retreat.retreats=0``) the cul-de-sac is a safe stop
+    where the rover stands, and the reason says what refused and that the bound of retreats is
+    spent."""
+    srv = server_factory(["server.scene=quarry", "navigate.see.retreat.retreats=0"])
+    world = srv.app.world
+    world.set_target_visible(False)
+    _pocket(srv)
+    c = srv.client()
+    # standing in the corridor, its far end closed
+    assert c.request("sim add-rock -x 0.95 -y 0 -radius 0.24 -height 0.25").status == "OK"
+    final = c.request("navigate -start 0.1,0,0 -goal 2.5,0 -auto -loop see -name bound", timeout=900)
+    assert final.status == "ERROR" and final.fields["code"] == "E_DATA", final.fields
+    message = final.fields["message"]
+    assert message.startswith("no way on within the body's limits"), message
+    assert "0 of 0 retreats made (navigate.see.retreat.retreats)" in message, message
+    truth = world.truth()
+    assert math.hypot(truth["x"] - 0.1, truth["y"]) < 0.1  # it stood
+
+
+@long_test  # about 10 m through the gate, back out and round the fence: 4-8 min of wall time
+@pytest.mark.timeout(2400)  # pyproject's 300 s is for ordinary tests
+def test_a_rover_in_a_cul_de_sac_backs_out_and_reaches_the_goal_round_it(server_factory) -> None:
+    """The rover drives into the gate's corridor toward the goal beyond the fence; once it is in, a
+    rock dropped at the corridor's far end closes it (a cul-de-sac: rocks on three sides). Nothing
+    forward passes there and no turn on the spot clears the walls, so it backs out along the track
+    it drove in on, leaves the dead end priced, and goes round the fence to the goal, with no event
+    on the true surface. A forward-only chooser ends in the corridor with a safe stop."""
+    srv = server_factory(["server.scene=quarry", "drivers.ptu.timeout=30", "navigate.see.retreat.retreats=4"])
+    world = srv.app.world
+    world.set_target_visible(False)
+    _pocket(srv)
+    c, op = srv.client(), srv.client()
+    job = c.start_job("navigate -start -2.0,0,0 -goal 2.5,0 -auto -loop see -name pocket")
+    assert wait_for(lambda: world.truth()["x"] < -1.5, timeout=60, interval=0.01)
+    assert wait_for(lambda: world.truth()["x"] >= -0.35 and abs(world.truth()["y"]) < 0.25, timeout=1200,
+                    interval=0.01), "the rover never drove into the corridor"
+    r = op.request("sim add-rock -x 0.95 -y 0 -radius 0.24 -height 0.25")
+    assert r.status == "OK", r.fields
+    lines = c.until_final(job=job, timeout=2400)
+    final = lines[-1]
+    assert final.status == "OK" and final.fields["reached"] == "true", final.fields
+    assert int(final.fields["retreats"]) >= 1, final.fields
+    backing = [r.fields["message"] for r in lines if r.status == "PROGRESS" and "backing out" in
+               r.fields.get("message", "")]
+    assert backing and "track back" in backing[0], backing
+    reverse = [r for r in lines if r.status == "EVENT" and r.fields.get("kind") == "waiting"
+               and r.fields.get("drive") == "reverse"]
+    assert len(reverse) == int(final.fields["retreats"])
+    events, checked = _events(srv, world, "pocket", (-3.0, -3.0, 3.5, 3.0))
+    assert checked > 500
+    assert events == [], [e.describe() for e in events]
+
+
+def test_the_gnc_is_sent_a_reverse_section_as_waypoints_with_the_body_s_heading(server_factory) -> None:
+    """Without -auto the GNC drives: it drives the rover its own way, straight on toward the
+    corridor whose far end a rock closes (to x -1.0 m, then into it), whatever sections it is
+    sent. Where the chooser finds a dead end (before the gate or in the corridor: where the map
+    is ambiguous enough to refuse, run to run) it backs out along the track the GNC reported, and
+    the GNC is sent that section as any other, a waiting EVENT's waypoints, with
+    ``drive=reverse``: the points run back along the track to where the last section set off while
+    each heading is the body's (toward the rocks, not the way it moves). A forward section's event
+    has no ``drive`` field."""
+    srv = server_factory(["server.scene=quarry", "navigate.pose_settle=0.5", "navigate.see.retreat.retreats=4"])
+    world = srv.app.world
+    world.set_target_visible(False)
+    _pocket(srv)
+    c, gnc = srv.client(), srv.client()
+    assert c.request("sim add-rock -x 0.95 -y 0 -radius 0.24 -height 0.25").status == "OK"
+    world.set_rover_pose(-2.0, 0.0, 0.0)  # the GNC's rover stands where it says
+    job = c.start_job("navigate -start -2.0,0,0 -goal 2.5,0 -loop see -name gncback")
+    events, messages = [], []
+    while not any(e.get("drive") for e in events):
+        r = c.reply(timeout=600)
+        assert not (r.status in ("OK", "ERROR") and r.fields.get("job") == job), (r.fields, messages, events)
+        if r.status == "PROGRESS":
+            messages.append(r.fields.get("message", ""))
+        if r.status == "EVENT" and r.fields.get("kind") == "waiting":
+            events.append(r.fields)
+            if not events[-1].get("drive"):  # the GNC's own way: to x -1.0, then into the corridor, every 5 cm
+                x0, x1 = (-2.0, -1.0) if len(events) == 1 else (-1.0, 0.3)
+                for x in np.arange(x0 + 0.05, x1 + 0.001, 0.05):
+                    world.set_rover_pose(float(x), 0.0, 0.0)
+                    assert gnc.request(f"pose -x {x:.3f} -y 0 -heading 0").status == "OK"
+                assert gnc.request(f"pose -x {x1} -y 0 -heading 0 -stopped true").status == "OK"
+    assert c.request("break").status == "OK"
+    assert len(events) in (2, 3) and not any(e.get("drive") for e in events[:-1]), events
+    back = events[-1]
+    assert back["drive"] == "reverse", back
+    # from where the GNC stopped back to where its last section set off
+    stood, set_off = (-1.0, -2.0) if len(events) == 2 else (0.3, -1.0)
+    wps = np.array([float(v) for v in back["waypoints"].split(",")]).reshape(-1, 3)
+    assert wps[0, 0] == pytest.approx(stood, abs=1e-3) and np.all(np.diff(wps[:, 0]) < 0), wps  # backwards
+    assert wps[-1, 0] == pytest.approx(set_off, abs=0.05) and np.abs(wps[:, 1]).max() < 0.01, wps  # along the track
+    assert np.abs(wps[:, 2]).max() < 1.0, wps  # the body still faces the rocks
+    assert any("backing out (1 of 4) on the track back" in m for m in messages), messages
