@@ -433,6 +433,8 @@ class BoundsMap:
         function of the cells' x and y (``plane`` then unused): the plane conditioned on the ground
         seen beside the cell (:func:`prox_workflows.algorithms.set_down.set_down`)."""
         g = self.geometry
+        if not callable(z):
+            z = z + self.lift  # the frames' datum, as the last frame was moved to meet the map
         xs, ys = g.centers()
         near = np.hypot(xs[None, :] - centre[0], ys[:, None] - centre[1]) <= radius
         blank = near & ~np.isfinite(self.mean)

@@ -155,7 +155,8 @@ def test_a_frame_moved_to_the_map_keeps_a_rocks_top_and_a_rock_dropped_in() -> N
 
 def test_the_ground_the_rover_stands_on_moves_with_the_frames() -> None:
     """The rover's own ground is given in the frames' datum: a map that moved the last frame up
-    by 3 cm takes the wheels' ground 3 cm higher than the datum says."""
+    by 3 cm takes the wheels' ground, and the ground set down round them, 3 cm higher than the
+    datum says."""
     from drivers.sim.rover import RoverBody
 
     rng = np.random.default_rng(7)
@@ -169,6 +170,10 @@ def test_the_ground_the_rover_stands_on_moves_with_the_frames() -> None:
     assert under.sum() > 10
     assert m.lift == pytest.approx(0.03, abs=0.002)
     np.testing.assert_allclose(m.mean[under], -0.03 + m.lift, atol=1e-6)
+    m.set_down((0.0, 0.0), 0.6, -0.03)  # the ground round it no frame showed, in the same datum
+    blank = np.isfinite(m.mean) & (m.stamp == 0) & ~under
+    assert blank.sum() > 100
+    np.testing.assert_allclose(m.mean[blank], -0.03 + m.lift, atol=1e-6)
 
 
 def _level(rng: np.random.Generator, z: float, noise: float, n: int = 40_000) -> np.ndarray:
