@@ -13,10 +13,12 @@ What each observation says, and so what the map keeps:
   mean (the returns' height variance over their number), and how far the returns rise above and
   drop below the mean beyond what their noise explains (``rise``, ``drop``: a rock's flank or
   edge within the cell). Across frames the means are fused by their variance, as DemMosaik fuses
-  heights, so repeated looks tighten the bounds; the rise and drop are averaged alike. A
-  frame that disagrees beyond the gate (a rock dropped in, a frame placed with a drifted pose)
-  widens the cell to the union of both: the map keeps what may be there, not an average of two
-  stories. Bounds: ``mean + rise + k sigma`` and ``mean - drop - k sigma``.
+  heights, so repeated looks tighten the bounds; the rise and drop are averaged alike. A frame
+  is first moved up or down to meet the map (``register``): it is placed at the rover's height,
+  which is centimetres off for all its returns at once. A frame that still disagrees beyond
+  the gate (a rock dropped in) widens the cell to the union of both: the map keeps what may be
+  there, not an average of two stories. Bounds: ``mean + rise + k sigma`` and
+  ``mean - drop - k sigma``.
 - A stereo pair's frame is fused as its own kind of sensor (``sensor="stereo"``): its pixels in a
   cell share the matcher's window and its semi-global paths, so their errors are one error, not
   n (``stereo_correlation``: a cell's mean is no better than a pixel, and none of the spread
