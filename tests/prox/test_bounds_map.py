@@ -111,6 +111,71 @@ def test_a_rock_reads_at_its_top_and_a_later_look_at_a_new_rock_widens_the_cell(
 
 
 
+def test_a_frame_placed_high_meets_the_map_and_flat_ground_grows_no_spread() -> None:
+    """A frame is placed at the rover's height, which is centimetres off for the whole frame at
+    once: flat ground seen by a frame 3 cm high keeps the spread of the frames that agree, and
+    the map says how far it moved the frame (``lift``). Unmoved, every cell keeps the union."""
+    rng = np.random.default_rng(5)
+    flat = _cells(_map(), 1.05, 1.95, -0.45, 0.45)
+    moved, unmoved = _map(), BoundsMap(_map().geometry, BoundsParams(register=0))
+    for m in (moved, unmoved):
+        for _ in range(4):
+            m.fuse(*_ground(rng, 40_000))
+    before = float(np.median(moved.upper[flat] - moved.lower[flat]))
+    for m in (moved, unmoved):
+        pts, sigma = _ground(rng, 40_000)
+        m.fuse(pts + [0.0, 0.0, 0.03], sigma)
+    assert moved.lift == pytest.approx(-0.03, abs=0.002)
+    spread = moved.rise[flat] + moved.drop[flat]
+    assert float(np.median(spread)) < 0.003 and float(np.percentile(spread, 99)) < 0.01
+    assert float(np.median(moved.upper[flat] - moved.lower[flat])) < before + 0.002
+    assert np.mean(moved.upper[flat] >= 0.0) > 0.99 and np.mean(moved.lower[flat] <= 0.0) > 0.99
+    assert float(np.median(unmoved.rise[flat] + unmoved.drop[flat])) > 0.025  # the union of both heights
+
+
+def test_a_frame_moved_to_the_map_keeps_a_rocks_top_and_a_rock_dropped_in() -> None:
+    rng = np.random.default_rng(6)
+    top = _cells(_map(), 1.42, 1.58, -0.08, 0.08)
+    seen = _map()  # the rock seen from the start, then by a frame 3 cm low
+    for _ in range(4):
+        seen.fuse(*_ground(rng, 40_000, rock=0.12))
+    pts, sigma = _ground(rng, 40_000, rock=0.12)
+    seen.fuse(pts - [0.0, 0.0, 0.03], sigma)
+    assert seen.lift == pytest.approx(0.03, abs=0.002)
+    assert (seen.upper[top] >= 0.12).mean() > 0.99 and (seen.lower[top] <= 0.12).mean() > 0.99
+    assert float(np.median(seen.upper[top])) < 0.14
+    dropped = _map()  # flat ground, then a rock where it was, in a frame 3 cm high
+    for _ in range(4):
+        dropped.fuse(*_ground(rng, 40_000))
+    pts, sigma = _ground(rng, 40_000, rock=0.12)
+    dropped.fuse(pts + [0.0, 0.0, 0.03], sigma)
+    assert dropped.lift == pytest.approx(-0.03, abs=0.002)  # the rock's 64 cells of 1,400 move no median
+    assert (dropped.upper[top] >= 0.12).mean() > 0.99 and (dropped.lower[top] <= 0.0).mean() > 0.99
+
+
+def test_the_ground_the_rover_stands_on_moves_with_the_frames() -> None:
+    """The rover's own ground is given in the frames' datum: a map that moved the last frame up
+    by 3 cm takes the wheels' ground, and the ground set down round them, 3 cm higher than the
+    datum says."""
+    from drivers.sim.rover import RoverBody
+
+    rng = np.random.default_rng(7)
+    m = BoundsMap(GridGeometry(0.025, -1.0, 1.0, 160, 80), BoundsParams())
+    for _ in range(4):
+        m.fuse(*_ground(rng, 40_000))
+    pts, sigma = _ground(rng, 40_000)
+    m.fuse(pts - [0.0, 0.0, 0.03], sigma)
+    m.stood((0.0, 0.0, 0.0), -0.03, RoverBody())
+    under = np.isfinite(m.mean) & (m.stamp == 0)
+    assert under.sum() > 10
+    assert m.lift == pytest.approx(0.03, abs=0.002)
+    np.testing.assert_allclose(m.mean[under], -0.03 + m.lift, atol=1e-6)
+    m.set_down((0.0, 0.0), 0.6, -0.03)  # the ground round it no frame showed, in the same datum
+    blank = np.isfinite(m.mean) & (m.stamp == 0) & ~under
+    assert blank.sum() > 100
+    np.testing.assert_allclose(m.mean[blank], -0.03 + m.lift, atol=1e-6)
+
+
 def _level(rng: np.random.Generator, z: float, noise: float, n: int = 40_000) -> np.ndarray:
     """Returns over x 1..2 m, y -0.5..0.5 m at height ``z`` with independent noise ``noise``."""
     return np.column_stack([rng.uniform(1.0, 2.0, n), rng.uniform(-0.5, 0.5, n), z + noise * rng.standard_normal(n)])
