@@ -13,12 +13,10 @@ What each observation says, and so what the map keeps:
   mean (the returns' height variance over their number), and how far the returns rise above and
   drop below the mean beyond what their noise explains (``rise``, ``drop``: a rock's flank or
   edge within the cell). Across frames the means are fused by their variance, as DemMosaik fuses
-  heights, so repeated looks tighten the bounds; the rise and drop are averaged alike. A frame
-  is first moved up or down to meet the map (``register``): it is placed at the rover's height,
-  which is centimetres off for all its returns at once. A frame that still disagrees beyond
-  the gate (a rock dropped in) widens the cell to the union of both: the map keeps what may be
-  there, not an average of two stories. Bounds: ``mean + rise + k sigma`` and
-  ``mean - drop - k sigma``.
+  heights, so repeated looks tighten the bounds; the rise and drop are averaged alike. A
+  frame that disagrees beyond the gate (a rock dropped in, a frame placed with a drifted pose)
+  widens the cell to the union of both: the map keeps what may be there, not an average of two
+  stories. Bounds: ``mean + rise + k sigma`` and ``mean - drop - k sigma``.
 - A stereo pair's frame is fused as its own kind of sensor (``sensor="stereo"``): its pixels in a
   cell share the matcher's window and its semi-global paths, so their errors are one error, not
   n (``stereo_correlation``: a cell's mean is no better than a pixel, and none of the spread
@@ -70,10 +68,6 @@ class BoundsParams(Settings):
                      min=0.0, max=10.0)
     gate: float = param(3.0, "a frame further than this many sigmas from the cell's bounds widens them "
                              "to the union instead of being averaged in", min=0.5, max=100.0)
-    register: int = param(200, "a frame whose cells meet this many cells other frames bounded is first moved "
-                               "up or down by the median of its cells' means less the map's there: its height "
-                               "comes from the rover's, which is read off the ground round it and is "
-                               "centimetres off, for the whole frame at once (0: never moved)", min=0, max=1_000_000)
     reach: float = param(0.5, "a ray bounds the ground only where it runs at most this high over its "
                               "return: higher, the bound is of no use to a rover", unit="m", min=0.05, max=10.0)
     min_returns: int = param(2, "a frame's returns in a cell give it bounds only from this many on: a lone "
@@ -226,9 +220,6 @@ class BoundsMap:
         # a window's grid moves in whole multiples of this many cells (:meth:`follow`): its
         # origin stays on the coarse grid the chooser's guidance is kept on
         self.align = 1
-        # m: how far the last frame was moved up to meet the map (:meth:`_register`); the ground the
-        # rover stands on is given in the frames' datum, and is moved with them
-        self.lift = 0.0
         # the whole map's bounds as :meth:`whole` last gave them, with the parameters and the
         # inputs they were computed from
         self._whole: tuple[tuple, tuple[np.ndarray, ...], np.ndarray, np.ndarray] | None = None
@@ -472,7 +463,6 @@ class BoundsMap:
         from .vehicle import _pattern
 
         g, k = self.geometry, self.params.k
-        z += self.lift  # the frames' datum, as the last frame was moved to meet the map
         pat = _pattern(body, g.cell / 2)
         pts, wheel_of, belly = pat.pts, pat.wheel_of, pat.belly
         c, s = math.cos(math.radians(pose[2])), math.sin(math.radians(pose[2]))
@@ -534,8 +524,6 @@ class BoundsMap:
         function of the cells' x and y (``plane`` then unused): the plane conditioned on the ground
         seen beside the cell (:func:`prox_workflows.algorithms.set_down.set_down`)."""
         g = self.geometry
-        if not callable(z):
-            z = z + self.lift  # the frames' datum, as the last frame was moved to meet the map
         xs, ys = g.centers()
         near = np.hypot(xs[None, :] - centre[0], ys[:, None] - centre[1]) <= radius
         blank = near & ~np.isfinite(self.mean)
@@ -581,8 +569,6 @@ class BoundsMap:
         keep = np.isfinite(pts).all(axis=1) & np.isfinite(sig) & np.isfinite(sig_xy) & np.isfinite(across)
         pts, sig, sig_xy, across = pts[keep], sig[keep], sig_xy[keep], across[keep]
         self.frames += 1
-        if self.params.register and len(pts):
-            pts, origin = self._register(pts, origin, sensor)
         if origin is not None and len(pts):
             o = np.asarray(origin, dtype=np.float64)
             self._pass_over(o, pts, sig)
@@ -639,39 +625,6 @@ class BoundsMap:
                          spread[:, enough], along_var[enough])
         self.stamp.flat[cells] = self.frames
         return int(len(cells))
-
-    def _register(self, pts: np.ndarray, origin: np.ndarray | None, sensor: str
-                  ) -> tuple[np.ndarray, np.ndarray | None]:
-        """The frame's returns and origin moved up by ``lift``: the median over the cells other frames
-        of its sensor bounded of the map's mean less the frame's (its cells of ``min_returns``
-        returns), where there are ``register`` of them; else not moved. A frame is placed at the
-        rover's height, read off the map's ground round the rover: a median over half a metre that
-        moves by centimetres as frames fill that disc and as rocks enter it, standing still or in a
-        10 cm step, and moves every return of the frame with it (marsyard mission 2: -2.4 to +3.3 cm
-        off the truth, p10 to p90; the frames' disagreements with the map follow it, correlation
-        0.94: docs/NAVIGATE_BENCH.md "Why frames disagree"). Fused unmoved, such a frame disagrees
-        with every cell it shares with the map and each keeps the union of both heights. A rock
-        that came or went moves the cells it covers, a few of the hundreds the median runs over."""
-        g, p = self.geometry, self.params
-        r, c = g.cell_of(pts[:, 0], pts[:, 1])
-        inside = g.inside(r, c)
-        flat = (r[inside] * g.width + c[inside]).astype(np.int64)
-        n = np.bincount(flat, minlength=g.width * g.height)
-        total = np.bincount(flat, weights=pts[inside, 2], minlength=g.width * g.height)
-        cells = np.flatnonzero(n >= p.min_returns)
-        # a sensor's frames meet their own: where a stereo pair bounded a cell its bounds stand alone
-        # (``stereo_first``), and are not the ToF's to move
-        own = self.source.flat[cells] == SENSORS.index(sensor)
-        cells = cells[own & (self.stamp.flat[cells] > 0) & np.isfinite(self.mean.flat[cells])]
-        if len(cells) < p.register:
-            self.lift = 0.0
-            return pts, origin
-        self.lift = float(np.median(self.mean.flat[cells] - total[cells] / n[cells]))
-        pts = pts.copy()
-        pts[:, 2] += self.lift
-        if origin is not None:
-            origin = np.asarray(origin, dtype=np.float64) + np.array([0.0, 0.0, self.lift])
-        return pts, origin
 
     def _forget(self, cells: np.ndarray) -> None:
         """Drop what the frames gave ``cells`` (a sensor of higher precedence takes them over)."""
