@@ -10,6 +10,7 @@ from typing import Any
 
 import numpy as np
 import pytest
+from support.marks import long_test
 
 import drivers.hazcam as hazcam
 from drivers.base import DeviceError, DeviceInterrupted
@@ -156,6 +157,7 @@ def test_a_pair_grabbed_standing_takes_its_exposure_and_readout_on_the_simulated
         assert world.clock.now() == t1
 
 
+@long_test  # the bench's two starts rendered and matched, 20-40 s
 @pytest.mark.timeout(900)  # two starts' turns of both pairs rendered and matched: minutes on a loaded machine
 def test_the_ring_bench_holds_the_truth_fused_as_stereo_and_misses_it_as_independent_returns() -> None:
     """``python -m tools.bench.hazcam --ring``: at marsyard's first mission start the pairs over the

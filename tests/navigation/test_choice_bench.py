@@ -9,6 +9,7 @@ import sys
 from pathlib import Path
 
 import numpy as np
+from support.marks import long_test
 
 from drivers.sim.world import World
 from prox_workflows.algorithms.bounds_map import BoundsMap
@@ -19,6 +20,7 @@ from tools.bench.bounds import tof_frame
 ROOT = Path(__file__).resolve().parents[2]
 
 
+@long_test  # the bench times both paths in a subprocess, 15-30 s
 def test_a_dumped_choice_is_timed_on_both_paths_which_agree(tmp_path: Path) -> None:
     world = World.from_scene("hirise", seed=1)
     rng = np.random.default_rng(0)

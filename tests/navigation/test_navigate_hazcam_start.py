@@ -10,6 +10,7 @@ from typing import Any
 
 import numpy as np
 import pytest
+from support.marks import long_test
 
 import rvs_server.navigation.sections as sections
 from rvs_server.navigation.see import BLIND_EDGE
@@ -61,6 +62,7 @@ def _start(server_factory: Any, monkeypatch: pytest.MonkeyPatch, hazcams: str) -
     return seen
 
 
+@long_test  # hazcams are off by default: 40 ToF and 20 hazcam frames, 15-30 s
 @pytest.mark.timeout(900)  # the start renders some 40 ToF and 20 hazcam frames: minutes on a loaded machine
 def test_with_the_hazcams_on_the_start_s_turn_shows_the_ring_round_the_body(server_factory, monkeypatch) -> None:
     """Both pairs look ahead and behind, 90 deg across each: two turns of 60 deg on the spot at

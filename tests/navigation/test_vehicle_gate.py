@@ -14,7 +14,7 @@ from rvs_truth.surface import fine_surface
 from rvs_truth.vehicle import read_track, vehicle_check
 
 
-@pytest.mark.parametrize("gate", ["bounds", pytest.param("off", marks=long_only()),
+@pytest.mark.parametrize("gate", [pytest.param("bounds", marks=long_only()), pytest.param("off", marks=long_only()),
                                   pytest.param("bounds+hazcam", marks=long_only())])
 def test_the_gate_keeps_the_belly_off_a_rock_the_5cm_maps_call_safe(server_factory, gate: str) -> None:
     """A 12 cm rock on the straight way across the quarry: under the 5 cm maps' 15 cm step, so
