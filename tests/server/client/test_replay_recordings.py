@@ -131,6 +131,7 @@ def test_a_recording_started_after_a_dem_replays_from_that_dem(tmp_path: Path) -
     assert_matches(out, 1, layers=0)  # no map made during the recording: nothing to compare, no mismatch
 
 
+@long_test  # a second bit-exact replay (away from the origin), 10-20 s; the others run by default
 def test_a_recording_away_from_the_origin_replays_bit_exact(tmp_path: Path) -> None:
     # the rover stands away from the origin on the ground a DEM made before the recording shows
     # (its height places the new scan's points); the new DEM must come back cell for cell
