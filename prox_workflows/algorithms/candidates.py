@@ -81,7 +81,7 @@ from .chance import ChanceParams, Posterior, chance_check
 from .vehicle import LIMITS, VehicleBody, check_poses, reach
 
 __all__ = ["CandidateParams", "ArcTree", "CostToGo", "Choice", "Failure", "Check", "arc_tree", "coarse_costs",
-           "cost_to_go", "bounds_check", "posterior_check", "best_check", "crop", "choose", "SAFE", "UNKNOWN", "verdict_name"]
+           "cost_to_go", "bounds_check", "posterior_check", "best_check", "crop", "choose", "SAFE", "UNKNOWN", "verdict_name", "UNKNOWN_COST"]
 
 # A check's per-pose verdicts: SAFE, UNKNOWN, or 1 + the index in LIMITS of the limit exceeded worst.
 SAFE = 0
@@ -264,8 +264,11 @@ def _mean(heights: np.ndarray | tuple[np.ndarray, np.ndarray]) -> tuple[np.ndarr
     return heights, np.isnan(heights)
 
 
+UNKNOWN_COST = 2.0  # per metre: a coarse cell mostly unseen (a cost, never a wall)
+
+
 def coarse_costs(heights: np.ndarray | tuple[np.ndarray, np.ndarray], geom: GridGeometry, body: VehicleBody,
-                 cell: float = 0.25, unknown_cost: float = 2.0, rough_cost: float = 1.0
+                 cell: float = 0.25, unknown_cost: float = UNKNOWN_COST, rough_cost: float = 1.0
                  ) -> tuple[np.ndarray, GridGeometry]:
     """A coarse cost grid (per metre) over ``geom``'s area for :func:`cost_to_go`, from a height
     grid or a ``(lower, upper)`` bounds pair: a coarse cell mostly unseen costs ``unknown_cost``

@@ -18,11 +18,9 @@ from typing import Any
 import numpy as np
 
 from ..grid import GridGeometry
-from .candidates import CostToGo, coarse_costs, cost_to_go
+from .candidates import UNKNOWN_COST, CostToGo, coarse_costs, cost_to_go
 
 __all__ = ["CoarseMemory"]
-
-UNKNOWN_COST = 2.0  # per metre: coarse_costs' default for a cell mostly unseen (a cost, never a wall)
 
 
 class CoarseMemory:
