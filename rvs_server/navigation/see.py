@@ -598,7 +598,7 @@ class SeeStrategy:
         if self.p.gate == "bounds":
             head = HeadCalibration.from_dict(self.app.config.get("head").as_dict())
             half = window_half(self.p, mission.rover.body(), head)
-            bounds = BoundsMap.around(self.cover[0], half, GUIDE_CELL)
+            bounds = BoundsMap.around(self.cover[0], half, GUIDE_CELL, self.p.bounds)
         self.driver = SeeingDriver(self.job, mission.rover, self.p, self.stats, memory, bounds)
         if bounds is not None and self.p.set_down == "ring":
             self.driver.set_down_pending = True  # (Chooser.drive_on: after the first look round)
