@@ -68,3 +68,49 @@ def test_the_simulated_ptu_announces_the_stop_of_every_move() -> None:
         assert abs(heard[-1][0] - 25.0) < 0.05 and abs(heard[-1][1] + 15.0) < 0.05
     finally:
         ptu.close()
+
+
+def test_a_camera_that_takes_no_frame_stops_rendering_ahead_until_it_takes_one() -> None:
+    """While the PTU points other sensors (a stereo scan, orient), the ToF renders the first
+    move's view ahead and no further views it never uses; its next frame is the one a render at
+    that pose gives, and the renders ahead resume from there."""
+    world = World.from_scene("office")
+    renders: list[np.ndarray] = []
+    render = world.render
+
+    def counted(K, w, h, T, cancel=None):  # noqa: ANN001, ANN202 - the world's own signature
+        renders.append(np.asarray(T).copy())
+        return render(K, w, h, T, cancel)
+
+    world.render = counted  # type: ignore[method-assign]
+    cam = create({"backend": "sim", "seed": 3}, world)
+    cam.open()
+
+    def settled(n: int) -> None:  # the render ahead runs in its own thread
+        end = time.monotonic() + 30.0
+        while len(renders) < n and time.monotonic() < end:
+            time.sleep(0.01)
+        time.sleep(0.2)
+
+    for i, pan in enumerate((30.0, 10.0, -10.0, -30.0, 20.0)):  # five moves, no frame: two renders ahead
+        world.set_ptu_target(pan, -20.0)
+        settled(min(i + 1, 2))
+        world.set_ptu(pan, -20.0)
+    assert len(renders) == 2
+    xyz, _ = cam.grab_xyz(integrate=2)  # where the PTU is: rendered at the grab
+    assert len(renders) == 3
+    np.testing.assert_array_equal(renders[-1], world.sensor_pose("tof"))
+    world.render = render  # type: ignore[method-assign]
+    fresh = create({"backend": "sim", "seed": 3}, world)
+    fresh.open()
+    again, _ = fresh.grab_xyz(integrate=2)
+    fresh.close()
+    np.testing.assert_array_equal(xyz, again)
+    world.render = counted  # type: ignore[method-assign]
+    world.set_ptu_target(0.0, -30.0)  # a frame was taken: the next move is rendered ahead again
+    settled(4)
+    world.set_ptu(0.0, -30.0)
+    cam.grab_xyz()
+    assert len(renders) == 4
+    np.testing.assert_array_equal(renders[-1], world.sensor_pose("tof"))
+    cam.close()
