@@ -23,7 +23,7 @@ from ..protocol import Fixed, ProtocolError, Reply, Rows
 from .localiser import Localiser, pose_fields
 from .planning import load_global_maps, planner_params
 from .scan import ScanStrategy
-from .see import SeeStrategy
+from .see_strategy import SeeStrategy
 from .track import Track
 
 if TYPE_CHECKING:

@@ -37,13 +37,6 @@ def motion_poses(pose: tuple[float, float, float], target: tuple[float, float], 
     return arc_poses(pose, math.radians(w) / speed, speed * max(dt, 0.0), step=0.05)
 
 
-def in_rover_frame(pose: tuple[float, float, float], x: float, y: float) -> tuple[float, float]:
-    """Global (x, y) in the frame of the rover at ``pose`` (x forward, y left)."""
-    c, s = math.cos(math.radians(pose[2])), math.sin(math.radians(pose[2]))
-    dx, dy = x - pose[0], y - pose[1]
-    return dx * c + dy * s, -dx * s + dy * c
-
-
 def passed(pose: tuple[float, float, float], a: np.ndarray, b: np.ndarray, reach: float = 0.02) -> bool:
     """Whether the rover (by odometry) has reached waypoint ``b`` of the stretch a-b: within
     ``reach`` of it, or past the line through it square to the stretch."""
