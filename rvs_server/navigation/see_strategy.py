@@ -248,8 +248,7 @@ class SeeStrategy:
                 except PlanningError as exc:
                     why = f"replan from the rolling map: {exc.reason}"
                     continue
-                driven = plan.path[: plan.cut]
-                if len(plan.waypoints) < 2 or math.hypot(*(driven[-1] - driven[0])) < max(MIN_LEG, 0.1):
+                if plan.stands_still(max(MIN_LEG, 0.1)):
                     why = "the rolling map shows no way on"
                     continue
                 self.strict = strict
