@@ -2,7 +2,7 @@
 
 The mission owns what every leg shares: the rover (drivers/rover), the believed pose and its
 localiser, the planner's parameters and the global maps, the 360-degree scans, the track and
-the products. Its strategy (:mod:`.scan` or :mod:`.see`, behind :class:`.strategy.Strategy`)
+the products. Its strategy (:mod:`.scan` or :mod:`.see_strategy`, behind :class:`.strategy.Strategy`)
 plans and drives the legs between scans.
 """
 

@@ -26,7 +26,7 @@ def arc_rate(pose: tuple[float, float, float], target: tuple[float, float], spee
 
 def motion_poses(pose: tuple[float, float, float], target: tuple[float, float], w: float | None, speed: float,
                  dt: float) -> np.ndarray:
-    """The poses the rover passes through in one cycle of the see loop's drive (:class:`~rvs_server.navigation.see.SeePilot`): the arc at
+    """The poses the rover passes through in one cycle of the see loop's drive (:class:`~rvs_server.navigation.map_legs.SeePilot`): the arc at
     turn rate ``w`` (deg/s, :func:`arc_rate`) for ``dt`` seconds at ``speed``, or, with ``w``
     None, the turn on the spot to face ``target`` (its two end poses; the check sweeps the turn
     between them in 5-degree steps)."""

@@ -3,7 +3,7 @@ frames (the ToF's, and the body's hazard cameras' where switched on) and fuses t
 rolling 5 cm map and the chooser's bounds map, runs the check of the next metres, points the
 mast where the look planner (:mod:`prox_workflows.algorithms.looks`) says and sends the stop
 EVENT. What drives with it: the chooser's sections (:mod:`.sections`, ``see_gate bounds``, the
-default) or the 5 cm maps' pilot (:mod:`.see_pilot`, ``see_gate off``); what keeps it for the
+default) or the legs planned on the 5 cm maps (:mod:`.map_legs`, ``see_gate off``); what keeps it for the
 mission: the see strategy (:mod:`.see_strategy`).
 
 On the 5 cm maps the rover drives a leg in cycles (the simulated rover: every ``see_period`` of

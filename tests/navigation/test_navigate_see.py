@@ -377,7 +377,7 @@ def test_a_leg_the_rover_gets_no_closer_on_is_ended_and_replanned(server_factory
     10 cm back: a marsyard mission did so for 5 simulated hours) ends the leg after 20 cycles
     without getting 5 cm closer to its end, and navigate replans; three replans that drive
     nowhere call for a scan, which -max-legs 1 does not allow: the job ends, it never hangs."""
-    from rvs_server.navigation import see_pilot
+    from rvs_server.navigation import map_legs
 
     calls = [0]
 
@@ -387,7 +387,7 @@ def test_a_leg_the_rover_gets_no_closer_on_is_ended_and_replanned(server_factory
         h = math.radians(pose[2])
         return pose[0] + sign * 0.05 * math.cos(h), pose[1] + sign * 0.05 * math.sin(h)
 
-    monkeypatch.setattr(see_pilot, "pursuit_point", swinging)
+    monkeypatch.setattr(map_legs, "pursuit_point", swinging)
     srv = server_factory([*MEANS_ONLY, "server.scene=marsyard", "navigate.range=-30,30,-50,-10"])  # a few views: cheap
     srv.app.world.set_target_visible(False)
     c = srv.client()
