@@ -10,7 +10,6 @@ one (100,000 lines) with RVS_LONG=1.
 
 from __future__ import annotations
 
-import os
 import random
 import time
 from collections.abc import Iterator
@@ -41,19 +40,8 @@ WARM_UP = [  # every variant of the jobs the fuzz may run: their first renders a
 
 @pytest.fixture(scope="module")
 def server() -> Iterator[ServerProcess]:
-    # glibc's per-thread arenas make the resident size climb in steps while job threads take
-    # turns at the renders (bounded, not a leak: see fuzz()); two arenas keep it a leak detector.
-    # The soak measures the default allocator.
-    saved = os.environ.get("MALLOC_ARENA_MAX")
-    os.environ["MALLOC_ARENA_MAX"] = "2"
-    try:
-        srv = ServerProcess(extra_args=FAST)
-        srv.start()
-    finally:
-        if saved is None:
-            os.environ.pop("MALLOC_ARENA_MAX", None)
-        else:
-            os.environ["MALLOC_ARENA_MAX"] = saved
+    srv = ServerProcess(extra_args=FAST)
+    srv.start()
     yield srv
     srv.stop()
 
@@ -72,10 +60,10 @@ def fuzz(srv: ServerProcess, lines_per_connection: int, rounds: int, seed: int, 
     """Warm-up rounds, then ``rounds`` rounds of 20 connections; RSS after the warm-up against
     the end, fds before against after.
 
-    Jobs run in worker threads, and glibc gives each thread that allocates its own arena: the
-    resident size climbs in steps while more threads take their share of the renders, then stays
-    (measured: +16 % over the first rounds of job-heavy traffic, flat over the next ten; +3 % with
-    MALLOC_ARENA_MAX=2, which the fixture sets). The warm-up runs job-heavy rounds too."""
+    Jobs run in worker threads; the server bounds glibc's arenas (``server.malloc_arenas``, 2),
+    without which the resident size climbs in steps while more threads take their share of the
+    renders (+16 % over the first rounds of job-heavy traffic, flat over the next ten). The
+    warm-up runs job-heavy rounds too."""
     pid = srv.proc.pid
     c = LineClient(srv.port)  # warm-up: the first stereo render alone allocates ~100 MB for good
     for line in WARM_UP:
