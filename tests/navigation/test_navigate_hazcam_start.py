@@ -75,6 +75,7 @@ def test_with_the_hazcams_on_the_start_s_turn_shows_the_ring_round_the_body(serv
     assert seen["prior"] <= seen["body"] + 0.1 * seen["ring"], seen
 
 
+@long_test  # a whole start, 15-30 s: the default run's 6 minutes; CI's long suite runs it
 @pytest.mark.timeout(900)
 def test_with_the_hazcams_off_the_start_is_unchanged(server_factory, monkeypatch) -> None:
     """Without the body's cameras the start does not turn, and the mast's blind disc is the

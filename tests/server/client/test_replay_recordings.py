@@ -123,6 +123,7 @@ def test_a_monitor_whose_stop_came_late_replays_the_cycles_it_made_meanwhile(tmp
     assert out.returncode == 0 and "replies match (0 mismatches)" in out.stdout, (got, out.stdout + out.stderr)
 
 
+@long_test  # 15-30 s of DEM and replay; the console's recording replays by default
 def test_a_recording_started_after_a_dem_replays_from_that_dem(tmp_path: Path) -> None:
     # a move that reaches past the rover's unseen footprint into the map: the verdict reads its cells
     got = record(tmp_path / "rec", ["check-move -dx 2"], before=(DEM,))
