@@ -256,7 +256,7 @@ class ServerConfig(ModuleConfig):
     log_file: str = param("rvs.log", "log file, relative to the data directory", protected=True)
     shared_dir: str = param("shared", "where logbook copies go, relative to the data directory", protected=True)
     warm_up: bool = param(True, "compile or load the numba kernels (DemImport, A*) in the background at start")
-    malloc_arenas: int = param(2, "glibc malloc arenas the server's threads share (0: glibc's default, 8 a core); each "
+    malloc_arenas: int = param(2, "glibc malloc arenas the rvs-server process's threads share (0: glibc's default, 8 a core); each "
                                "arena keeps what its threads freed, so with one a thread the resident size climbs "
                                "in steps as job threads take turns at the renders", min=0, max=1024, protected=True)
     web_port: int = param(7071, "operator web console port, on the same host (0: no console)", min=0, max=65535,

@@ -19,7 +19,7 @@ from . import commands as _commands  # noqa: F401 - fills the command table
 from .app import App
 from .config import STANDALONE, ConfigStore, ModuleConfig
 from .logs import setup as setup_logging
-from .server import listen, serve
+from .server import bound_malloc_arenas, listen, serve
 from .table import COMMANDS
 from .web.address import console_host
 
@@ -156,6 +156,7 @@ def main(argv: list[str] | None = None) -> int:
     server = store.get("server")
     data = Path(server.data)
     setup_logging(server.log_level, data / server.log_file)
+    bound_malloc_arenas(server.malloc_arenas)
     try:
         status = asyncio.run(run(store, recover=args.recover))
     except StartupError as exc:

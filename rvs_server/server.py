@@ -238,7 +238,9 @@ def bound_malloc_arenas(arenas: int) -> bool:
     has no mallopt or refuses. Each arena keeps the memory its threads freed: with glibc's
     default of one a thread (up to 8 a core), a rover's server would grow by a render's worth
     each time a job ran on a thread that had not rendered yet, for as long as it runs. Arenas
-    made before the call stay; the server calls it before its devices' and jobs' threads start."""
+    made before the call stay, and the bound holds for the whole process: the server program
+    calls it before any thread starts, while a process that embeds a server (a test, a bench)
+    keeps its own allocator."""
     if arenas <= 0:
         return False
     try:
@@ -313,7 +315,6 @@ async def serve(app: App, sock: socket.socket, *, ready: Any = None, handle_sign
                 web_sock: socket.socket | None = None, console_off: str | None = None) -> int:
     """Open the devices, serve until quit or a signal; returns the exit status. ``console_off``
     says why there is no ``web_sock`` (status and the log repeat it)."""
-    bound_malloc_arenas(app.server_cfg.malloc_arenas)
     loop = asyncio.get_running_loop()
     bound = sock.getsockname()
     log.info("listening", host=bound[0], port=bound[1], server=app.name, data=str(app.data_dir))
