@@ -89,6 +89,7 @@ def _final_of(c: LineClient, job: str, timeout: float = 60.0) -> Reply:
     return reply[0]
 
 
+@long_test  # 6-9 s of waiting out the GNC: CI's long suite runs it; the wait's other ends run by default
 def test_a_navigate_whose_connection_closed_ends_once_no_pose_comes(server_factory) -> None:
     """The requester's connection closes while its leg waits (wait_timeout off, so only the
     disconnect can end it): a pose streamed from another connection keeps the job; once none

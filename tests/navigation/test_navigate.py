@@ -214,6 +214,7 @@ def test_a_goal_short_of_the_clearance_is_planned_to_within_the_tolerance() -> N
     assert far is not None and math.hypot(far[0] - 8.0, far[1] - 2.0) > cfg.tolerance
 
 
+@long_test  # a drive broken mid-way, 5-8 s: CI's long suite runs it; every job's break runs by default (test_break_continue)
 def test_a_break_mid_drive_leaves_the_rovers_pose_and_its_track(server_factory) -> None:
     """navigate -auto broken while the rover drives: the pose the server believes in is where the
     rover's odometry stopped (status, check-move and the recovery set agree), and the track it

@@ -49,6 +49,7 @@ def test_the_see_loop_gets_out_where_the_gated_planner_stopped_at_its_start(serv
     assert events == [], [e.describe() for e in events]
 
 
+@long_test  # a whole blocked mission, 10-16 s: CI's long suite runs it; the chooser's sections are driven by default
 def test_a_blocked_mission_is_a_safe_stop_with_its_reason(server_factory) -> None:
     """A ring of 20 cm rocks round the rover, no gap the body fits through: after a look round
     the chooser finds every candidate failing on the body's limits and the job ends E_DATA with
