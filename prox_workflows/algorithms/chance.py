@@ -263,7 +263,7 @@ def posterior(stats: dict[str, np.ndarray], geom: GridGeometry, k: float, params
     return Posterior(np.where(seen, mu, np.nan), np.where(seen, var, np.nan), ceiling,
                      np.where(seen, np.hypot(p.edge_sigma * jump, p.rock_sigma * relief(top, geom)), 0.0),
                      np.where(prior, np.sqrt(np.maximum((1.0 - p.prior_own) * var0, 0.0)), 0.0),
-                     np.where(seen, p.within * within, 0.0) if p.within > 0 else None)
+                     np.where(seen & ~prior, p.within * within, 0.0) if p.within > 0 else None)
 
 
 
