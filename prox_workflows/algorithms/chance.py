@@ -259,7 +259,12 @@ def posterior(stats: dict[str, np.ndarray], geom: GridGeometry, k: float, params
     var = np.where(prior, p.prior_own, 1.0) * var0 + p.top_sigma**2 + (slope * along) ** 2
     mu = top + p.edge_bias * jump
     ceiling = np.asarray(stats.get("ceiling", np.full(mean.shape, np.inf)), np.float64)
-    within = np.asarray(stats["rise"], np.float64) + np.asarray(stats["drop"], np.float64)
+    # a cell's relief as the frames see it: where frames disagree, rise and drop also hold how far
+    # apart they put the same ground (the frames' height error, shared by a wheel and the belly
+    # beside it), which lowered the wheels' rest under ground read high and refused the start of
+    # marsyard's missions (docs/NAVIGATE_BENCH.md, The stated risk on draws 70-92)
+    within = np.asarray(stats["relief"], np.float64) if "relief" in stats else \
+        np.asarray(stats["rise"], np.float64) + np.asarray(stats["drop"], np.float64)
     return Posterior(np.where(seen, mu, np.nan), np.where(seen, var, np.nan), ceiling,
                      np.where(seen, np.hypot(p.edge_sigma * jump, p.rock_sigma * relief(top, geom)), 0.0),
                      np.where(prior, np.sqrt(np.maximum((1.0 - p.prior_own) * var0, 0.0)), 0.0),
