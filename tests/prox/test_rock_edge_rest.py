@@ -45,23 +45,37 @@ def beside_a_rock(gap: float) -> tuple[np.ndarray, GridGeometry, dict[str, np.nd
 
 def test_a_wheel_beside_a_rock_does_not_rest_on_the_rock_s_edge_cell() -> None:
     # 5 mm between the wheels and the rock: on the truth the wheels stand on the flat ground and
-    # the box's rock stands 5 mm into the belly. The declared check reads the edge cell's top (the
-    # rock's 8 cm) as the ground under the wheels' outer edge, lifts the left side and passes the
-    # pose; a wheel resting under the top by the cell's relief (the pair, within 1) stands on the
-    # flat ground and refuses it on the belly.
+    # the box's rock stands 5 mm into the belly. One surface (within 0) reads the edge cell's top
+    # (the rock's 8 cm) as the ground under the wheels' outer edge, lifts the left side and passes
+    # the pose; the declared check rests each wheel under the top by the cell's relief (the pair),
+    # stands it on the flat ground and refuses the pose on the belly
     truth, tg, stats, g = beside_a_rock(0.005)
     on_truth = check_poses(truth, tg, AT_ORIGIN, BODY)
     assert on_truth.unsafe.tolist() == [True]
     assert on_truth.excess[0, BELLY] == pytest.approx(0.005, abs=1e-3)
     declared = ChanceParams()
-    one = chance_check(posterior(stats, g, 2.5, declared), g, AT_ORIGIN, BODY, declared)
-    assert one.safe.tolist() == [True]  # the miss: the wheel's plane read high
+    one_surface = dataclasses.replace(declared, within=0.0)
+    one = chance_check(posterior(stats, g, 2.5, one_surface), g, AT_ORIGIN, BODY, one_surface)
+    assert one.safe.tolist() == [True]  # the miss: the wheels' plane read high
     assert one.nominal.excess[0, BELLY] < -0.02
-    pair = dataclasses.replace(declared, within=1.0)
-    c = chance_check(posterior(stats, g, 2.5, pair), g, AT_ORIGIN, BODY, pair)
+    c = chance_check(posterior(stats, g, 2.5, declared), g, AT_ORIGIN, BODY, declared)
     assert c.safe.tolist() == [False] and not c.unknown[0]
     assert c.prob[0, BELLY] > 0.1
     assert c.nominal.excess[0, BELLY] == pytest.approx(0.005, abs=0.002)  # the truth's intrusion, to 2 mm
+
+
+def test_a_wheel_clear_of_the_rock_s_edge_cell_passes() -> None:
+    # the rock moved 4 cm further out, its edge cell no longer under the wheels' read, and the
+    # box's rock gone: the pair keeps the pose the truth keeps
+    truth, tg, stats, g = beside_a_rock(0.045)
+    under = (np.abs(g.centers()[0])[None, :] < 0.06) & (np.abs(g.centers()[1])[:, None] < 0.06)
+    for name in ("mean", "upper", "lower"):
+        stats[name] = np.where(under, 0.0, stats[name])
+    stats["rise"], stats["drop"] = np.where(under, 0.0, stats["rise"]), np.where(under, 0.0, stats["drop"])
+    truth[np.abs(truth - (BODY.clearance + 0.005)) < 1e-9] = 0.0
+    assert check_poses(truth, tg, AT_ORIGIN, BODY).unsafe.tolist() == [False]
+    c = chance_check(posterior(stats, g, 2.5), g, AT_ORIGIN, BODY)
+    assert c.safe.tolist() == [True]
 
 
 def test_a_prior_s_cells_are_not_lowered_by_the_pair() -> None:
