@@ -63,15 +63,19 @@ alone cannot show a probability below about 1 / samples; the tail reaches epsilo
 measured against the truth by the pose-level statistics). P(any) is the share of samples over
 any limit or the sum of the four tails (the union bound), whichever is higher.
 
-**Where a wheel rests** (``ChanceParams.within``, measured and not the default): a cell's top is
+**Where a wheel rests** (``ChanceParams.within``): a cell's top is
 its highest ground, the right ground for the belly and the wrong one for a wheel whose footprint's
 end meets a rock's edge cell, and a ray's height is no ground for a wheel at all. Read as one
 surface, both lift the wheels' resting plane over the belly's contact: the false safes on rock
 draws no setting was tuned on are that (the trace in docs/NAVIGATE_BENCH.md, "The stated risk on
-untuned draws"), not an overconfident sigma. Above 0, each drawn surface is judged as a pair
-(:func:`_judge`): the tops for the belly, and lows ``within`` times the cell's relief within it
-under them (none where only a ray bounds the ground) on which each wheel rests, one plane per
-draw, read between the cell centres as one surface is. Not the worst corner of a box of rests
+untuned draws" and "The stated risk on draws 70-92"), not an overconfident sigma. Above 0, each
+drawn surface is judged as a pair (:func:`_judge`): the tops for the belly, and lows ``within``
+times the cell's relief under them (none where only a ray bounds the ground) on which each wheel
+rests, one plane per draw, read between the cell centres as one surface is. The relief is the
+one each frame's returns show in the cell (the map's ``relief``), on cells a frame bounded: where
+frames disagree the map's rise and drop also hold how far apart the frames put the same ground,
+and taken as relief that lowered every wheel on ground read high and stopped marsyard's first
+mission 0.19 m from its start. Not the worst corner of a box of rests
 between the lows and the tops: a draw is one ground, and that worst case within every draw leaned
 the box's edge 2-3 cm into the belly at the refused turns of marsyard's stops (docs/NAVIGATE_BENCH.md,
 "The `within` 1 stops, traced against the truth").
