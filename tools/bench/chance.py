@@ -26,7 +26,8 @@ model, one draw). Then:
 ``--risk``: the stated risk, as the issue asks it: the chance check at the declared epsilon, with
 the posterior as the chooser makes it, over many looks (``--look``) on rock draws no setting was
 tuned on (``--world-seeds``; the noise draw is the rock draw's), summed per scene: judged poses,
-false safes and their one-sided 95 % Clopper-Pearson bound, truly safe kept.
+false safes and their one-sided 95 % Clopper-Pearson bound, truly safe kept (of those judged, and of
+all truly safe poses: a model that leaves more poses unknown keeps no more for it).
 
 ``--posterior``: ``look`` (default) makes the posterior seen from the look's mean sensor position;
 ``map`` as the see loop's chooser makes it, with no viewpoint (the slope's steepest direction and
