@@ -21,7 +21,7 @@ from .config import STANDALONE, ConfigStore, ModuleConfig
 from .logs import setup as setup_logging
 from .server import listen, serve
 from .table import COMMANDS
-from .web.console import console_host
+from .web.address import console_host
 
 
 def config_classes() -> list[type[ModuleConfig]]:

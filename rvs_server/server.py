@@ -35,7 +35,7 @@ from .protocol import (
     format_reply_json,
 )
 from .telemetry import Station
-from .web.console import WebConsole, console_host
+from .web.address import console_host
 
 log = structlog.get_logger("rvs.server")
 
@@ -312,6 +312,10 @@ async def serve(app: App, sock: socket.socket, *, ready: Any = None, handle_sign
     if not app.devices.healthy():
         app.set_mode("fault")
     if web_sock is not None:  # before the TCP server, so that every greeting says console=on
+        # imported here, once, before the server serves: a server without a console (web_port 0)
+        # does without aiohttp, a third of its start
+        from .web.console import WebConsole
+
         try:
             app.console = WebConsole(app)
             await app.console.start(web_sock)

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import contextlib
 import copy
+import json
 import math
 import threading
 from collections.abc import Callable, Iterator
@@ -95,23 +96,8 @@ class World:
 
     def _load(self, spec: dict, seed: int | None) -> None:
         seed = int(spec.get("seed", 0) if seed is None else seed)
-        rng = np.random.default_rng(seed)
         look = SceneLook.from_spec(spec)
-        terrain = build_terrain(spec["terrain"], rng, base_dir=spec.get("_dir"), albedo=look.albedo)
-        # The global frame's origin is the ground under the rover's start (x forward at the start
-        # pose, z up from there), as the server assumes; scenes are shifted to it.
-        start_spec = spec.get("rover", {}).get("start", {})
-        z0 = float(terrain.sample(float(start_spec.get("x", 0.0)), float(start_spec.get("y", 0.0))))
-        if not np.isfinite(z0):
-            z0 = 0.0
-        if z0 != 0.0:
-            terrain = Heightfield(terrain.x0, terrain.y0, terrain.cell, terrain.heights - np.float32(z0),
-                                  terrain.albedo, rocks=terrain.rocks)
-        terrain = _with_shadows(terrain, look.sun)
-        tile = periodic_tile(512, rng)  # drawn either way: one seed, one world
-        if look.albedo.source == "mars" and look.albedo.detail:
-            rel = load_texture(data_file(look.albedo.texture, Path(spec["_dir"]) if "_dir" in spec else None))
-            tile = np.clip(0.5 + 0.5 * (rel - 1.0), 0.0, 1.0).astype(np.float32)
+        terrain, z0, tile = _ground(spec, seed, look)
         detail = Detail(tile, **spec.get("detail", {}))
         head = HeadGeometry.from_spec(spec.get("head"))
         objects = [build_object(o, FIRST_OBJECT_ID + i) for i, o in enumerate(spec.get("objects", []))]
@@ -503,6 +489,47 @@ class World:
             higher = np.isfinite(z) & (np.isnan(sub) | (z > sub))
             sub[higher] = z[higher]
         return dem.astype(np.float32)
+
+
+# The ground a scene builds (its terrain with the shadows, the shift to the start, the detail
+# tile), by scene and seed: a process that builds a scene again (a test's next server, a load-scene
+# back to it) takes it from here rather than spending its CPU again (0.1 s office, 2 s quarry).
+# Worlds may share one: nothing changes a built heightfield in place (add_rock makes a copy).
+_GROUNDS: dict[str, tuple[Heightfield, float, np.ndarray]] = {}
+GROUNDS_KEPT = 3  # the scenes last built (a quarry's ground holds some 50 MB)
+_GROUNDS_LOCK = threading.Lock()
+
+
+def _ground(spec: dict, seed: int, look: SceneLook) -> tuple[Heightfield, float, np.ndarray]:
+    """The scene's terrain (shifted so the ground under the rover's start is z = 0, with its
+    shadows), that shift, and the render's detail tile."""
+    key = json.dumps([spec, seed], sort_keys=True, default=repr)
+    with _GROUNDS_LOCK:
+        kept = _GROUNDS.pop(key, None)
+        if kept is not None:
+            _GROUNDS[key] = kept  # the most recent last
+            return kept
+    rng = np.random.default_rng(seed)
+    terrain = build_terrain(spec["terrain"], rng, base_dir=spec.get("_dir"), albedo=look.albedo)
+    # The global frame's origin is the ground under the rover's start (x forward at the start
+    # pose, z up from there), as the server assumes; scenes are shifted to it.
+    start_spec = spec.get("rover", {}).get("start", {})
+    z0 = float(terrain.sample(float(start_spec.get("x", 0.0)), float(start_spec.get("y", 0.0))))
+    if not np.isfinite(z0):
+        z0 = 0.0
+    if z0 != 0.0:
+        terrain = Heightfield(terrain.x0, terrain.y0, terrain.cell, terrain.heights - np.float32(z0),
+                              terrain.albedo, rocks=terrain.rocks)
+    terrain = _with_shadows(terrain, look.sun)
+    tile = periodic_tile(512, rng)  # drawn either way: one seed, one world
+    if look.albedo.source == "mars" and look.albedo.detail:
+        rel = load_texture(data_file(look.albedo.texture, Path(spec["_dir"]) if "_dir" in spec else None))
+        tile = np.clip(0.5 + 0.5 * (rel - 1.0), 0.0, 1.0).astype(np.float32)
+    with _GROUNDS_LOCK:
+        _GROUNDS[key] = (terrain, z0, tile)
+        while len(_GROUNDS) > GROUNDS_KEPT:
+            _GROUNDS.pop(next(iter(_GROUNDS)))
+    return terrain, z0, tile
 
 
 def _with_shadows(terrain: Heightfield, sun: SunSettings) -> Heightfield:

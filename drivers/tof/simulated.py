@@ -41,6 +41,9 @@ from .backend import BACKENDS, DeviceInfo, RawFrame, SR4000Settings
 from .physics import SignalModel, block_mean, direct_phasor, multipath_phasor, phasor_range, pixel_solid_angle
 
 FAULTS = ("unplug", "timeout")
+# Views rendered ahead with no frame taken since: one two-axis move (the PTU names its pan, then
+# its tilt). A frame taken renders where it is if nothing was rendered there ahead.
+AHEAD_UNUSED = 2
 DEFAULT_SIM_SERIAL = 0x4000002F
 _M = SignalModel()
 
@@ -168,6 +171,9 @@ class SimTof:
         # the view where the PTU is heading, rendered while it travels (one at a time, the latest)
         self._ahead: tuple[tuple, Future[_Expected]] | None = None
         self._ahead_pool: ThreadPoolExecutor | None = None  # while open
+        # renders ahead since the last frame: a camera that takes none while the PTU moves (a
+        # stereo scan, orient) stops rendering views it never uses after AHEAD_UNUSED of them
+        self._ahead_unused = 0
         self._view: tuple[tuple, Any] | None = None  # the last render of the scene: (T and world state, Render)
         self.frames = 0
         self._rays, self._undist_maps = self._ray_geometry()
@@ -223,6 +229,7 @@ class SimTof:
                 "tof", f"no SR4000 with serial 0x{serial:08X} on the USB bus (found 0x{self._serial:08X}); use 0 for the first camera"
             )
         self._open = True
+        self._ahead_unused = 0
         if self._ahead_pool is None and hasattr(self._world, "watch_ptu_target"):
             self._ahead_pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="tof-ahead")
             self._world.watch_ptu_target(self._render_ahead)
@@ -312,6 +319,7 @@ class SimTof:
                 self._world.clock.sleep(frame_s)
         elif self._time_scale > 0:
             time.sleep(self._time_scale * frame_s)
+        self._ahead_unused = 0
         frame = self._measure(self._expected(t_ms), integration)
         self.frames += 1
         return frame
@@ -335,7 +343,7 @@ class SimTof:
         """The PTU started toward (pan, tilt): render the view there while it travels, so that a
         grab on arrival costs what the camera's frame costs, not the simulator's render too."""
         pool = self._ahead_pool
-        if not self._open or pool is None:
+        if not self._open or pool is None or self._ahead_unused >= AHEAD_UNUSED:
             return
         T = np.asarray(self._world.sensor_pose_at("tof", pan, tilt), dtype=np.float64)
         t_ms = k.integration_ms(self._integration)
@@ -347,6 +355,7 @@ class SimTof:
             ahead[1].cancel()  # superseded before it started: a two-axis move names its pan first
         try:
             self._ahead = (key, pool.submit(self._render_expected, T, t_ms))
+            self._ahead_unused += 1
         except RuntimeError:  # closed meanwhile: the grab renders for itself, as without this
             self._ahead = None
 

@@ -11,6 +11,11 @@ lowest, whose view starts at the blind disc's edge and reaches about 1.5 m, and 
 bearings need (3-5 for a fan of drives ahead), and none at a tilt or pan whose frame shows only
 ground the map has already judged.
 
+Driving, the mast's gaze (:func:`gaze`) alternates between the path a little ahead, at the
+lowest tilt, and farther along it; standing, a look at one point (:func:`look_at`) and a fan of
+pans about a bearing (:func:`look_pans`) complete what the see loop asks of the mast. The device
+calls (pointing the PTU, grabbing frames) are the driver's; here is only where to point.
+
 Everything about the camera is asked of its owners: the field of view (the ToF's), the PTU's
 lowest tilt (the PTU's limits), the mast's geometry (the head's calibration), the body (the
 vehicle's); nothing here restates them.
@@ -25,11 +30,24 @@ from typing import Any
 import numpy as np
 
 from ..grid import GridGeometry
-from .transforms import HeadCalibration
+from .rolling_map import path_poses
+from .transforms import HeadCalibration, in_rover_frame
 
-__all__ = ["View", "blind_radius", "drive_band", "on_body", "standing_look"]
+__all__ = ["View", "blind_disc", "blind_radius", "drive_band", "gaze", "look_at", "look_pans", "looked_from_here",
+           "on_body", "round_look", "standing_look"]
 
 BODY_MARGIN = 0.06  # m round the rover's box and wheels whose returns are its own
+GAZE_NEAR, GAZE_FAR = 0.9, 1.8  # m along the path: where the near and the far frames of the gaze look
+GAZE_PAN = 60.0  # deg: the gaze pans along the path at most this far off the heading
+# a PTU move stops the drive for about 0.8 s of its 1 s cycle: the gaze holds where it points for
+# GAZE_HOLD frames (near, then far), and between re-aims pans again only where the path's bearing
+# has moved more than GAZE_SLACK off the pan (a turn), well inside the ToF's field of view
+GAZE_HOLD = 3
+GAZE_SLACK = 15.0  # deg
+GAZE_STEP = 5.0  # deg: the gaze's pans are rounded to this (fewer moves)
+LOOK_PAN = 150.0  # deg: a standing look at a point or a bearing pans at most this far off the heading
+# a look from within this distance (m) and heading change (deg) of the last one is from the same place
+SAME_PLACE, SAME_HEADING = 0.3, 20.0
 
 
 @dataclass(frozen=True)
@@ -44,12 +62,94 @@ class View:
     sensor: str = "tof"
     margin: float = 2.0  # deg inside the image's edge a point must lie to count as shown
 
+    @classmethod
+    def of_ptu(cls, limits: dict[str, dict[str, float]], fov_h: float, fov_v: float) -> View:
+        """The view of a camera with that field of view (deg) on a PTU with those ``limits`` (as
+        the PTU reports them: ``{"pan": {"min_deg", "max_deg"}, "tilt": {...}}``): its pan
+        reach is the lesser side's, so a pan within it is reached either way."""
+        pan = min(-float(limits["pan"]["min_deg"]), float(limits["pan"]["max_deg"]))
+        return cls(fov_h, fov_v, float(limits["tilt"]["min_deg"]), pan)
+
 
 def blind_radius(head: HeadCalibration, view: View) -> float:
     """The radius (m, on level ground round the pan axis's foot) of the ground no tilt shows: the
     lowest tilt's view starts there."""
     bz = head.ptu_base[2] + head.tilt_offset
     return bz / math.tan(math.radians(view.fov_v / 2 - view.lowest_tilt))
+
+
+def blind_disc(pose: tuple[float, float, float], head: HeadCalibration, view: View) -> tuple[float, float, float]:
+    """The ground round the mast's foot that no frame shows, even at the PTU's lowest tilt, for
+    the rover at ``pose`` (x, y, heading deg): (x, y) of the pan axis's foot and the radius
+    (:func:`blind_radius`)."""
+    x, y, heading = pose
+    bx, by, _ = head.ptu_base
+    c, s = math.cos(math.radians(heading)), math.sin(math.radians(heading))
+    return x + bx * c - by * s, y + bx * s + by * c, blind_radius(head, view)
+
+
+def gaze(frame: int, pose: tuple[float, float, float], remaining: np.ndarray, head: HeadCalibration,
+         pan_tilt: tuple[float, float], tilts: tuple[float, float]) -> tuple[float, float] | None:
+    """Where the ToF looks for the drive's ``frame``-th frame (counted from 1), the rover at
+    ``pose`` with ``remaining`` waypoints ahead and the PTU at ``pan_tilt``; None: it stays.
+
+    The mast pans along the path, not the heading, so the ground a turn will put under the
+    wheels is seen before the turn; ``GAZE_HOLD`` frames in turn it looks at the path
+    ``GAZE_NEAR`` m ahead at the near tilt (``tilts[0]``: the PTU's lowest, where the next
+    section is judged, closer, so with a third of the range noise) and at the point ``GAZE_FAR``
+    m ahead at the far one (``tilts[1]``); pans are rounded to ``GAZE_STEP`` and kept within
+    ``GAZE_PAN``, and within a hold the mast pans only where the path's bearing has moved
+    ``GAZE_SLACK`` off its pan: each PTU move costs the drive its time."""
+    near = (frame // GAZE_HOLD) % 2 == 1
+    ahead = path_poses(pose, remaining, GAZE_NEAR if near else GAZE_FAR, step=0.05)[-1]
+    pan, _ = head.look_at(np.array([*in_rover_frame(pose, ahead[0], ahead[1]), 0.0]))
+    pan = max(-GAZE_PAN, min(GAZE_PAN, round(pan / GAZE_STEP) * GAZE_STEP))
+    tilt = tilts[0] if near else tilts[1]
+    due = frame % GAZE_HOLD == 0 or abs(pan - pan_tilt[0]) > GAZE_SLACK
+    return (pan, tilt) if due and (pan, tilt) != pan_tilt else None
+
+
+def looked_from_here(last: tuple[float, float, float] | None, pose: tuple[float, float, float]) -> bool:
+    """Whether a look from ``pose`` would be one from about where the ``last`` look was taken
+    (within ``SAME_PLACE`` and ``SAME_HEADING``): what that look did not show, another from the
+    same place will not."""
+    return last is not None and math.hypot(pose[0] - last[0], pose[1] - last[1]) < SAME_PLACE and \
+        abs((pose[2] - last[2] + 180.0) % 360.0 - 180.0) < SAME_HEADING
+
+
+def look_at(pose: tuple[float, float, float], x: float, y: float, head: HeadCalibration, lowest_tilt: float,
+            far_tilt: float) -> tuple[float, float]:
+    """The PTU position (pan, tilt deg) of a standing frame toward ground point (x, y): panned to
+    it (within ``LOOK_PAN``), tilted to it but no lower than ``lowest_tilt`` and no higher than
+    ``far_tilt``. The frame then shows the ground along that bearing from the mast's blind disc
+    out (:func:`blind_disc`), which holds the point unless it lies inside that disc."""
+    pan, tilt = head.look_at(np.array([*in_rover_frame(pose, x, y), 0.0]))
+    return max(-LOOK_PAN, min(LOOK_PAN, pan)), max(lowest_tilt, min(far_tilt, tilt))
+
+
+def look_pans(bearing: float, spread: float) -> list[float]:
+    """The pans (deg) of a standing look toward ``bearing`` (deg from the heading) and ``spread``
+    either side, each within ``LOOK_PAN``."""
+    return [max(-LOOK_PAN, min(LOOK_PAN, pan)) for pan in (bearing - spread, bearing, bearing + spread)]
+
+
+def round_look(pose: tuple[float, float, float], head: HeadCalibration, view: View, body: Any, drive: float,
+               far_tilt: float, toward: float | None = None, bounds: Any = None) -> list[tuple[float, float]]:
+    """The PTU positions (:func:`standing_look`) of a standing look at ``pose`` that show the
+    ground the ``body`` covers driving ``drive`` m in a fan of +-60 deg about ``toward`` (deg
+    from the heading; None: all round, as a turn on the spot may face any way) and as far
+    again, leaving out ground the ``bounds`` map (a :class:`~.bounds_map.BoundsMap`, if any)
+    already holds within half the lower of the body's climb and clearance: wider bounds are
+    what refuse a safe pose."""
+    judged = None
+    if bounds is not None:
+        reach = 2 * drive + body.length
+        lower, upper, g = bounds.window(pose[0] - reach, pose[1] - reach, pose[0] + reach, pose[1] + reach)
+        with np.errstate(invalid="ignore"):
+            judged = (upper - lower <= min(body.climb, body.clearance) / 2, g)
+    fan = np.arange(-60.0, 60.1, 15.0) + toward if toward is not None else np.arange(-180.0, 180.0, 15.0)
+    return standing_look(pose, head, view, body.length, body.width, drive, bearings=fan, far_tilt=far_tilt,
+                         judged=judged)
 
 
 def on_body(points: np.ndarray, body: Any, margin: float = BODY_MARGIN) -> np.ndarray:

@@ -28,7 +28,7 @@ import time
 from dataclasses import dataclass
 
 import numpy as np
-from scipy import ndimage, optimize
+from scipy import ndimage
 
 from rvs_params.hazard import UNDEFINED
 
@@ -215,6 +215,9 @@ def match_dem(local: np.ndarray, local_geom: GridGeometry, reference: np.ndarray
         xq, yq = _moved(pts[idx], pivot, q[0], q[1], q[2] / scale)
         r = pts[idx, 2] - ref(xq, yq) - q[3]
         return np.where(np.isfinite(r), r, 0.0)
+
+    # imported here: the server and the CLIs start without scipy.optimize (0.2-0.3 s)
+    from scipy import optimize
 
     sol = None
     for _ in range(3):

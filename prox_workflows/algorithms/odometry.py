@@ -36,7 +36,6 @@ from typing import Any
 
 import cv2
 import numpy as np
-from scipy.optimize import least_squares
 
 from .transforms import invert
 
@@ -359,6 +358,9 @@ def refine(X_a: np.ndarray, n_b: np.ndarray, X_b: np.ndarray, n_a: np.ndarray, T
         wb = 1.0 / np.sqrt(params.pixel_sigma ** 2 + slideb ** 2)
         rb = (ua - na) * focal * wb[:, None]
         return np.concatenate([ra.ravel(), rb.ravel()])
+
+    # imported here: the server and the CLIs start without scipy.optimize (0.2-0.3 s)
+    from scipy.optimize import least_squares
 
     sol = least_squares(residuals, x0, loss="huber", f_scale=2.0, method="trf", x_scale="jac", max_nfev=100)
     return _pose_T(sol.x[:3], sol.x[3:])

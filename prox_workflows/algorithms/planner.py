@@ -66,6 +66,13 @@ class PlanResult:
         """Whether the driven part ends at the goal (not cut at the local map's border)."""
         return self.cut == len(self.path)
 
+    def stands_still(self, least: float = MIN_LEG) -> bool:
+        """Whether driving it gets the rover nowhere: fewer than two waypoints, or the driven
+        part (``path[:cut]``) ends less than ``least`` metres from where it starts. navigate's
+        loops end such a leg (the scan loop with E_DATA, the see loop with a look or a scan)."""
+        driven = self.path[: self.cut]
+        return len(self.waypoints) < 2 or math.hypot(*(driven[-1] - driven[0])) < least
+
 
 def _relax_start(image: PlanningImage, cell: tuple[int, int]) -> float | None:
     """A start inside the hazard margin (not on a hazard) may leave it: unblock the cells near

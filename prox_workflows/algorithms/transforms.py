@@ -90,6 +90,13 @@ class HeadCalibration:
         return pan, tilt
 
 
+def in_rover_frame(pose: tuple[float, float, float], x: float, y: float) -> tuple[float, float]:
+    """Global (x, y) in the frame of the rover at ``pose`` (x, y, heading deg; x forward, y left)."""
+    c, s = math.cos(math.radians(pose[2])), math.sin(math.radians(pose[2]))
+    dx, dy = x - pose[0], y - pose[1]
+    return dx * c + dy * s, -dx * s + dy * c
+
+
 def T_global_from_rover(x: float, y: float, heading: float, z: float = 0.0) -> np.ndarray:
     """The rover pose in the global frame (the rover kept level: heading only)."""
     return make_T(rot_z(heading), (x, y, z))

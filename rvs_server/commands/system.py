@@ -25,6 +25,7 @@ from ..config import ModuleConfig, ServerConfig, param
 from ..jobs import HISTORY, Job
 from ..protocol import Fixed, Group, ProtocolError, render_value
 from ..table import ALWAYS, COMMANDS, CONTROL, command, lookup
+from ..web.address import console_fields
 
 if TYPE_CHECKING:
     from ..app import App
@@ -308,9 +309,7 @@ def status(ctx: Context, cfg: StatusConfig) -> dict[str, Any]:
     if last is not None:
         out["last_job_command"] = last.command
         out["last_job_outcome"] = "OK" if last.status == "OK" else last.fields.get("code", "ERROR")
-    from ..web.console import console_fields  # console=on console_url, or off console_reason
-
-    out.update(console_fields(app))
+    out.update(console_fields(app))  # console=on console_url, or off console_reason
     if app.telemetry is not None:  # foxglove=on foxglove_url, or off foxglove_reason; recording
         out.update(app.telemetry.fields())
     if app.world is not None:

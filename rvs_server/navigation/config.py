@@ -11,6 +11,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import ClassVar
 
+from prox_workflows.algorithms.bounds_map import BoundsParams
 from prox_workflows.algorithms.candidates import CandidateParams
 from prox_workflows.algorithms.chance import ChanceParams
 from prox_workflows.algorithms.planner import PlanParams
@@ -121,6 +122,8 @@ class SeeConfig(Settings):
                        "judged in full before it is driven); chance, the section's own check (a section is "
                        "chosen only with a continuation that passes it, at about 1.4-2.3x a choice's CPU)",
                        choices=("chance", "best"), option=False)
+    bounds: BoundsParams = param(BoundsParams(), "see loop with the gate: the bounds map's cell and how wide its "
+                                 "bounds are drawn round each frame (prox_workflows.algorithms.bounds_map)")
     retreat: RetreatParams = param(RetreatParams(), "see loop with the gate: backing out of dead ends (no candidate "
                                    "passes, or no progress) and the cost a dead end leaves on the cost to go "
                                    "(prox_workflows.algorithms.retreat)")

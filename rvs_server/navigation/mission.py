@@ -2,7 +2,7 @@
 
 The mission owns what every leg shares: the rover (drivers/rover), the believed pose and its
 localiser, the planner's parameters and the global maps, the 360-degree scans, the track and
-the products. Its strategy (:mod:`.scan` or :mod:`.see`, behind :class:`.strategy.Strategy`)
+the products. Its strategy (:mod:`.scan` or :mod:`.see_strategy`, behind :class:`.strategy.Strategy`)
 plans and drives the legs between scans.
 """
 
@@ -23,7 +23,7 @@ from ..protocol import Fixed, ProtocolError, Reply, Rows
 from .localiser import Localiser, pose_fields
 from .planning import load_global_maps, planner_params
 from .scan import ScanStrategy
-from .see import SeeStrategy
+from .see_strategy import SeeStrategy
 from .track import Track
 
 if TYPE_CHECKING:

@@ -26,7 +26,7 @@ def arc_rate(pose: tuple[float, float, float], target: tuple[float, float], spee
 
 def motion_poses(pose: tuple[float, float, float], target: tuple[float, float], w: float | None, speed: float,
                  dt: float) -> np.ndarray:
-    """The poses the rover passes through in one cycle of the see loop's drive (:class:`~rvs_server.navigation.see.SeePilot`): the arc at
+    """The poses the rover passes through in one cycle of the see loop's drive (:class:`~rvs_server.navigation.map_legs.SeePilot`): the arc at
     turn rate ``w`` (deg/s, :func:`arc_rate`) for ``dt`` seconds at ``speed``, or, with ``w``
     None, the turn on the spot to face ``target`` (its two end poses; the check sweeps the turn
     between them in 5-degree steps)."""
@@ -35,13 +35,6 @@ def motion_poses(pose: tuple[float, float, float], target: tuple[float, float], 
         turn = (bearing - pose[2] + 180.0) % 360.0 - 180.0
         return np.array([pose, (pose[0], pose[1], pose[2] + turn)], dtype=np.float64)
     return arc_poses(pose, math.radians(w) / speed, speed * max(dt, 0.0), step=0.05)
-
-
-def in_rover_frame(pose: tuple[float, float, float], x: float, y: float) -> tuple[float, float]:
-    """Global (x, y) in the frame of the rover at ``pose`` (x forward, y left)."""
-    c, s = math.cos(math.radians(pose[2])), math.sin(math.radians(pose[2]))
-    dx, dy = x - pose[0], y - pose[1]
-    return dx * c + dy * s, -dx * s + dy * c
 
 
 def passed(pose: tuple[float, float, float], a: np.ndarray, b: np.ndarray, reach: float = 0.02) -> bool:

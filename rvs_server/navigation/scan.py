@@ -67,7 +67,7 @@ class ScanStrategy:
     def scanned(self, leg: int, local: Any) -> None:
         """Plan the leg on the scan's maps (toward a stand-in where the goal cannot be planned
         to) and drive it."""
-        from prox_workflows.algorithms.planner import MIN_LEG, PlanningError
+        from prox_workflows.algorithms.planner import PlanningError
 
         m = self.mission
         app, cfg, goal = m.app, m.cfg, m.goal
@@ -108,8 +108,7 @@ class ScanStrategy:
                 progress(0, 1, f"goal judged unreachable ({exc.reason}) from {distance:.2f} m, farther than "
                                f"{cfg.judge_range:g} m: driving toward it to ({toward[0]:.2f}, {toward[1]:.2f}) "
                                "to judge it again from closer", "plan")
-        driven = plan.path[: plan.cut]
-        if len(plan.waypoints) < 2 or math.hypot(*(driven[-1] - driven[0])) < MIN_LEG:
+        if plan.stands_still():
             if judged is not None:  # it cannot get closer: the verdict from here stands
                 raise ProtocolError("E_DATA", f"goal unreachable ({judged.reason}): {judged.message}; judged from "
                                               f"{distance:.2f} m, and the rover can get no closer")

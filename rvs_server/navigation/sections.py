@@ -81,7 +81,8 @@ from ..protocol import ProtocolError
 if TYPE_CHECKING:
     from prox_workflows.algorithms.bounds_map import BoundsMap
 
-    from .see import SeeingDriver, SeeStrategy
+    from .see import SeeingDriver
+    from .see_strategy import SeeStrategy
 
 LOOKS = 6  # looks before one drive at most: past them the choice is made with looking priced out
 PRICED_OUT = 1e6  # m: the look cost that makes a look the answer only when no candidate passes

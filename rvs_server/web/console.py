@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
-import ipaddress
 import json
 import socket
 import time
@@ -51,13 +50,6 @@ SHOWN_FIRST = ("dem", "hazard")  # the layers a new page shows (console.js S.vis
 # bottom to top: the orbital map under the rover's own (where the rover has seen, it knows better)
 LAYER_ORDER = ("global_hazard", "ortho", "dem", "hazard", "traversability", "slope", "step", "roughness",
                "variance", "count", "filled")
-
-
-def is_loopback(host: str) -> bool:
-    try:
-        return ipaddress.ip_address(host).is_loopback
-    except ValueError:
-        return host == "localhost"
 
 
 _last: list[tuple[Reply, bool, str]] = []  # the last reply encoded: a mirrored job line goes to every page
@@ -468,18 +460,3 @@ class WebConsole:
             await page.writing
             page.log.info("client_disconnected", clients=len(app.connections))
         return ws
-
-
-def console_fields(app: App) -> dict[str, Any]:
-    """What status says of the console: where it is, or why there is none."""
-    if app.console is not None:
-        return {"console": "on", "console_url": app.console.url}
-    return {"console": "off", "console_reason": app.console_off or "not started"}
-
-
-def console_host(host: str, token: str, public: bool) -> str:
-    """Where the console listens: the server's host, but loopback without a token unless the
-    operator asked for a public console (the page can drive the rover)."""
-    if token or public or is_loopback(host):
-        return host
-    return "127.0.0.1"

@@ -222,3 +222,29 @@ def test_truth_reports_pose_and_ptu_together() -> None:
     assert t["z"] == pytest.approx(float(w.terrain.sample(10.0, 0.0)))
     assert t["z"] > 1.0
     assert w.sensor_pose("tof")[2, 3] == pytest.approx(t["z"] + 1.26 - 0.06 * np.sin(np.radians(7.0)))
+
+
+def test_a_scene_built_again_shares_its_ground_and_a_rock_added_to_one_world_stays_there() -> None:
+    """A process that builds a scene again (each test's server, a load-scene back to it) takes
+    the ground it built (terrain, shadows, detail tile) instead of building it anew; a rock added
+    at run time changes only the world it was added to."""
+    from drivers.sim import world as world_mod
+
+    a = World.from_scene("office", clock_scale=0.0)
+    b = World.from_scene("office", clock_scale=0.0)
+    assert b.terrain is a.terrain and b.detail.tile is a.detail.tile and b.z_shift == a.z_shift
+    assert World.from_scene("office", seed=5).terrain is not a.terrain  # another seed, another ground
+    bounds = (1.2, -0.3, 1.8, 0.3)
+    pristine = a.true_dem(0.02, bounds)
+    a.add_rock(1.5, 0.0, 0.2, 0.3)
+    assert float(np.nanmax(a.true_dem(0.02, bounds) - pristine)) > 0.25
+    np.testing.assert_array_equal(b.true_dem(0.02, bounds), pristine)
+    np.testing.assert_array_equal(World.from_scene("office").true_dem(0.02, bounds), pristine)
+    # the ground kept is the ground a fresh build makes, value for value
+    world_mod._GROUNDS.clear()
+    fresh = World.from_scene("office")
+    assert fresh.terrain is not b.terrain
+    for name in ("heights", "albedo", "sunlit"):
+        np.testing.assert_array_equal(getattr(fresh.terrain, name), getattr(b.terrain, name))
+    np.testing.assert_array_equal(fresh.detail.tile, b.detail.tile)
+    assert fresh.terrain.rocks == b.terrain.rocks and fresh.z_shift == b.z_shift

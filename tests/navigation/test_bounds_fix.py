@@ -13,7 +13,7 @@ from typing import Any
 import numpy as np
 
 from prox_workflows.algorithms.bounds_map import BoundsMap
-from rvs_server.navigation.see import SeeStrategy
+from rvs_server.navigation.see_strategy import SeeStrategy
 
 
 def _rock(x: float, y: float) -> np.ndarray:

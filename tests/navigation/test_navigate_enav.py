@@ -230,3 +230,22 @@ def test_a_turn_on_the_spot_is_faced_the_way_round_it_was_judged(heading: float,
         swept += step
         at = face
     assert swept == pytest.approx(turn)
+
+
+def test_the_bounds_maps_params_are_set_like_any_other(server_factory) -> None:
+    """``navigate.see.bounds.*`` reaches the bounds map the see loop builds: the map the loop
+    publishes has the cell and k set on the command line, and ``config`` shows them."""
+    srv = server_factory(["server.scene=quarry", "navigate.see.bounds.cell=0.05", "navigate.see.bounds.k=3"])
+    srv.app.world.set_target_visible(False)
+    seen: list = []
+    srv.app.bus.subscribe(lambda item: seen.append(item.data["bounds"]) if item.kind == "bounds" else None)
+    c = srv.client()
+    shown = c.request("config -module navigate")
+    assert shown.status == "OK", shown.fields
+    text = " ".join(f"{k}={v}" for k, v in shown.fields.items())
+    assert "cell=0.05" in text and "bounds" in text, text
+    job = c.start_job("navigate -start 0,0,0 -goal 2,0 -auto -name params")
+    wait_for(lambda: seen, timeout=300)
+    c.request("break")
+    c.until_final(job=job, timeout=300)
+    assert seen[0].geometry.cell == 0.05 and seen[0].params.k == 3.0

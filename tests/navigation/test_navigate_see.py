@@ -377,7 +377,7 @@ def test_a_leg_the_rover_gets_no_closer_on_is_ended_and_replanned(server_factory
     10 cm back: a marsyard mission did so for 5 simulated hours) ends the leg after 20 cycles
     without getting 5 cm closer to its end, and navigate replans; three replans that drive
     nowhere call for a scan, which -max-legs 1 does not allow: the job ends, it never hangs."""
-    from rvs_server.navigation import see
+    from rvs_server.navigation import map_legs
 
     calls = [0]
 
@@ -387,7 +387,7 @@ def test_a_leg_the_rover_gets_no_closer_on_is_ended_and_replanned(server_factory
         h = math.radians(pose[2])
         return pose[0] + sign * 0.05 * math.cos(h), pose[1] + sign * 0.05 * math.sin(h)
 
-    monkeypatch.setattr(see, "pursuit_point", swinging)
+    monkeypatch.setattr(map_legs, "pursuit_point", swinging)
     srv = server_factory([*MEANS_ONLY, "server.scene=marsyard", "navigate.range=-30,30,-50,-10"])  # a few views: cheap
     srv.app.world.set_target_visible(False)
     c = srv.client()
@@ -555,7 +555,8 @@ def _standing_driver(unseen: str, bounds: Any = None) -> Any:
     from rvs_server.commands.dem import Dem2HazardConfig
     from rvs_server.config import HeadConfig
     from rvs_server.navigation.config import SeeConfig
-    from rvs_server.navigation.see import LoopStats, SeeingDriver
+    from rvs_server.navigation.loop_stats import LoopStats
+    from rvs_server.navigation.see import SeeingDriver
 
     configs = {"head": HeadConfig(), "dem2hazard": Dem2HazardConfig()}  # body 0.51 x 0.40 m
     app = SimpleNamespace(config=SimpleNamespace(get=configs.__getitem__),
@@ -603,7 +604,8 @@ def test_the_pursuit_point_never_falls_behind_the_rover_beside_a_short_side_stre
     """The rover drove past a 30 cm side step of its path without crossing the line square to
     its end: steering from the foot on that stretch aimed behind it (a 135-degree turn on the
     spot, then a drive the check never swept); from the nearest stretch it aims ahead."""
-    from rvs_server.navigation.pursuit import in_rover_frame, nearest_stretch, passed, pursuit_point
+    from prox_workflows.algorithms.transforms import in_rover_frame
+    from rvs_server.navigation.pursuit import nearest_stretch, passed, pursuit_point
 
     wps = np.array([(0.0, 0.0), (1.0, 0.0), (1.0, 0.3), (3.0, 0.3)])
     pose = (1.3, 0.1, 0.0)  # past the side step's x, beside it, heading along the path

@@ -110,7 +110,7 @@ def test_the_sampler_reads_the_mission_the_bus_hands_over() -> None:
     from types import SimpleNamespace
 
     from rvs_server.bus import Bus
-    from rvs_server.navigation.see import LoopStats
+    from rvs_server.navigation.loop_stats import LoopStats
     from tools.bench.scale import Sampler
 
     stats = LoopStats(cycle_ms=[10.0, 20.0], cycle_cpu_ms=[5.0, 6.0], replan_ms=[300.0], replan_cpu_ms=[100.0])

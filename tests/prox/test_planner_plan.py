@@ -374,3 +374,20 @@ def test_every_plan_setting_the_planner_declares_reaches_it_by_name() -> None:
     assert circle.half_width is None and circle.unknown_cost == 3.0 and circle.border == PlanParams().border
     with pytest.raises(ValueError, match="half width"):
         PlannerParams.of({"footprint": "body"}, rover_radius=0.4, critical_slope=15.0)
+
+
+def test_a_plan_that_gets_the_rover_nowhere_says_so() -> None:
+    """navigate's loops both end a leg whose driven part ends within MIN_LEG (or the see loop's
+    10 cm) of where it starts: a plan says so itself (``PlanResult.stands_still``)."""
+    maps = rock_field(3, rocks=0)
+    start = (100.52, -44.03)
+    far = plan_path(maps, None, start, (101.52, -44.03), PlannerParams(weight=1.0, border=0.0))
+    assert not far.stands_still() and not far.stands_still(0.1)
+    # 8 cm east: more than MIN_LEG (5 cm), less than the see loop's 10 cm
+    near = plan_path(maps, None, start, (100.60, -44.03), PlannerParams(weight=1.0, border=0.0))
+    moved = math.hypot(*(near.path[near.cut - 1] - near.path[0]))
+    assert moved == pytest.approx(0.08, abs=1e-9)
+    assert not near.stands_still() and near.stands_still(0.1)
+    # 3 cm: less than MIN_LEG
+    step = plan_path(maps, None, start, (100.55, -44.03), PlannerParams(weight=1.0, border=0.0))
+    assert step.stands_still()

@@ -11,9 +11,12 @@ from rvs_server.client import session
 from rvs_server.protocol import Reply, parse_reply
 
 FINAL = ("OK", "ERROR")
-# a ServerProcess's arguments for a world that takes no wall time, with no console or Foxglove
+# a ServerProcess's arguments for a world that takes no wall time, with no console or Foxglove, and
+# no warm-up: loading the numba kernels in the background costs each server some 4 s of CPU (which
+# every test server on the 2 cores pays), and its ~30 MB arrive while a test measures the resident
+# memory; a job loads the kernels it needs when it first runs (ServerThread's servers do the same)
 FAST = ("--set", "drivers.ptu.time_scale=0", "--set", "sim.time_scale=0",
-        "--set", "server.web_port=0", "--set", "server.foxglove_port=0")
+        "--set", "server.web_port=0", "--set", "server.foxglove_port=0", "--set", "server.warm_up=false")
 
 
 class LineClient:

@@ -117,11 +117,11 @@ def ring(scene: str, missions: int, sensor: str) -> dict[str, Any]:
     from drivers.ptu.protocol import D46_LIMITS, D46_RESOLUTION_ARCSEC, pos_to_deg
     from drivers.tof.constants import FOV_H_DEG, FOV_V_DEG
     from prox_workflows.algorithms.bounds_map import BoundsMap
-    from prox_workflows.algorithms.looks import View, blind_radius, on_body
+    from prox_workflows.algorithms.looks import BODY_MARGIN, View, blind_radius, on_body
     from prox_workflows.algorithms.noise import pair_sigmas
     from prox_workflows.algorithms.transforms import HeadCalibration
     from rvs_server.navigation.config import SeeConfig
-    from rvs_server.navigation.see import BLIND_EDGE, BODY_MARGIN
+    from rvs_server.navigation.see import BLIND_EDGE
     from rvs_truth.surface import missions as draws
 
     world = World.from_scene(scene)

@@ -11,7 +11,7 @@ true track judged by the rover's own body on the true 1 cm surface, built in til
 track (:func:`rvs_truth.surface.truth_checks`: the whole strip at 1 cm is several GB). The
 server runs in this process (as navigate's bench runs it); a sampler thread reads the loop's
 own timing lists (the running :class:`~rvs_server.navigation.see.SeeingDriver`'s
-:class:`~rvs_server.navigation.see.LoopStats`; the mission is handed over on the server's bus as
+:class:`~rvs_server.navigation.loop_stats.LoopStats`; the mission is handed over on the server's bus as
 it starts, its ``mission`` item) and the true track navigate records (a row every
 5 cm or 5 deg) every ``--every`` wall seconds, so each cycle and choice is put at the distance
 driven when it was read (within one poll, about 10-30 cm). Each stretch's row is printed (and appended to ``--out`` as a JSON line) once

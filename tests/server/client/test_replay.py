@@ -10,6 +10,7 @@ from pathlib import Path
 
 import pytest
 from support.marks import long_test
+from support.server import FAST
 
 from rvs_server import __version__
 from rvs_server.client import replay
@@ -18,8 +19,6 @@ from rvs_server.client.session import Line, ServerProcess
 
 REPLAYS = sorted((Path(__file__).resolve().parents[2] / "replays").glob("*.rvs"))
 SUMMARY = re.compile(r"(\d+) passed, (\d+) failed")
-FAST = ["--set", "drivers.ptu.time_scale=0", "--set", "sim.time_scale=0",  # a simulated world that takes no wall time
-        "--set", "server.web_port=0", "--set", "server.foxglove_port=0"]  # no console or Foxglove (parallel servers would share their ports)
 SERVER = ["--server", *(f"--server-arg={a}" for a in FAST)]
 
 

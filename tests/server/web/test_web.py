@@ -19,7 +19,8 @@ import pytest
 import yaml
 
 from prox_workflows.grid import read_geotiff
-from rvs_server.web.console import HISTORY, console_host
+from rvs_server.web.address import console_host
+from rvs_server.web.console import HISTORY
 
 DEM = "dem-full-tof -range -20,20,-50,-35 -cell 0.05 -name web"
 
