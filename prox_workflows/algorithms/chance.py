@@ -152,10 +152,6 @@ class ChanceParams(Settings):
                                    "smooth at a cell's scale, leaves out (with shared_length it puts the draws' "
                                    "correlation at 0.94 / 0.89 / 0.74 / 0.35 at 2.5 / 5 / 10 / 20 cm)",
                              min=0.0, max=1.0)
-    common_length: float = param(0.0, "the common error (a rock's top or edge read low) is drawn as a field "
-                                      "correlated over this distance (m, 1/e), so that rocks apart under one body "
-                                      "are read low or high apart; 0: one error for every cell under the body",
-                                 unit="m", min=0.0, max=2.0)
     edge_sigma: float = param(0.17, "a rock edge's further uncertainty (1 sigma), as a share of the same height "
                                     "(calibrated alike, on the 99.9th percentile)", min=0.0, max=2.0)
     within: float = param(1.0, "a cell's top holds somewhere in the cell, not all over it: above 0, a drawn surface "
@@ -387,7 +383,7 @@ def chance_check(post: Posterior, geom: GridGeometry, poses: np.ndarray, body: V
         for s in range(p.samples):
             if not live.any():
                 continue
-            surface = _surface(mu, sd, shared, common, roof, _draw(p.seed, s, geom, p.shared_length, p.common_length))
+            surface = _surface(mu, sd, shared, common, roof, _draw(p.seed, s, geom, p.shared_length))
             excess[s, live] = _judge(surface, seen, span, geom, poses[rest[live]], body, step).excess
             if early and s % EARLY == EARLY - 1:
                 # one draw over a limit in ``samples`` is a share of at least 1 / samples, above
@@ -443,7 +439,7 @@ def _spreads(post: Posterior) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.nd
 
 
 def _surface(mu: np.ndarray, sd: np.ndarray, shared: np.ndarray, common: np.ndarray, roof: np.ndarray,
-             drawn: tuple[np.ndarray, np.ndarray, float | np.ndarray]) -> np.ndarray:
+             drawn: tuple[np.ndarray, np.ndarray, float]) -> np.ndarray:
     z, field, once = drawn
     return np.where(np.isfinite(mu), mu + sd * z + shared * field + common * once, roof).astype(np.float32)
 
@@ -454,11 +450,10 @@ def surfaces(post: Posterior, geom: GridGeometry, params: ChanceParams | None = 
     p = params or ChanceParams()
     sd, shared, common, roof = _spreads(post)
     for s in range(p.samples):
-        yield _surface(post.mean, sd, shared, common, roof, _draw(p.seed, s, geom, p.shared_length, p.common_length))
+        yield _surface(post.mean, sd, shared, common, roof, _draw(p.seed, s, geom, p.shared_length))
 
 
-def _draw(seed: int, s: int, geom: GridGeometry, length: float = 0.0, common_length: float = 0.0
-          ) -> tuple[np.ndarray, np.ndarray, float | np.ndarray]:
+def _draw(seed: int, s: int, geom: GridGeometry, length: float = 0.0) -> tuple[np.ndarray, np.ndarray, float]:
     """Draw ``s``'s standard normal errors of the cells of ``geom``: their own, the shared field
     (correlated over ``length`` m, :func:`_field`) and the one common to a surface. The first two
     are read from tiles of :data:`TILE` x :data:`TILE` cells repeated over the plane, indexed by
@@ -473,8 +468,6 @@ def _draw(seed: int, s: int, geom: GridGeometry, length: float = 0.0, common_len
     rows = (r0 + np.arange(geom.height)) % TILE
     cols = (c0 + np.arange(geom.width)) % TILE
     at = np.ix_(rows, cols)
-    if common_length > 0:
-        once = _field(seed, s, _smoothing(common_length, geom.cell), 2)[at].astype(np.float64)
     return tile[at].astype(np.float64), field[at].astype(np.float64), once
 
 
@@ -494,11 +487,11 @@ def _tile(seed: int, s: int) -> tuple[np.ndarray, float]:
 
 
 @lru_cache(maxsize=128)
-def _field(seed: int, s: int, sigma: float, stream: int = 1) -> np.ndarray:
+def _field(seed: int, s: int, sigma: float) -> np.ndarray:
     """Draw ``s``'s field of errors shared by neighbouring cells: white noise of its own stream
     smoothed by a Gaussian of ``sigma`` cells, wrapped round the tile so that it repeats without
     a seam, and scaled to unit variance (each cell's marginal is the posterior's ``shared``)."""
-    noise = np.random.default_rng((seed, s, stream)).standard_normal((TILE, TILE))
+    noise = np.random.default_rng((seed, s, 1)).standard_normal((TILE, TILE))
     field = gaussian_filter(noise, sigma, mode="wrap") if sigma > 0 else noise
     field = (field / field.std()).astype(np.float32)
     field.setflags(write=False)
