@@ -151,6 +151,26 @@ def trace_look(scene: str, look: str, world_seed: int, poses: list[list[float]],
     return out
 
 
+def by_term(truly_unsafe: np.ndarray, checks: dict[str, Any]) -> dict[str, Any]:
+    """Per pose verdicts (``safe``, ``unknown``) of the one surface (``one``), the pair without
+    relief (``rays``) and the declared pair (``pair``) against the truth: the truly safe poses and
+    false safes each keeps, and per term (the rays: a wheel over ground only a ray bounds rests
+    on nothing; the relief: the rests lowered) the truly safe poses the one surface keeps that it
+    loses, and the false safes of the one surface that it catches (a pose is the rays' where the
+    pair without relief already loses or catches it)."""
+    ok, bad = ~truly_unsafe, truly_unsafe
+    one, rays, pair = (checks[n] for n in ("one", "rays", "pair"))
+    lost_rays = ok & one.safe & ~rays.safe
+    return {"truly_safe": int(ok.sum()),
+            "kept": {n: int((c.safe & ok).sum()) for n, c in checks.items()},
+            "false_safe": {n: int((c.safe & bad).sum()) for n, c in checks.items()},
+            "lost_to_rays": {"poses": int(lost_rays.sum()), "unknown": int((lost_rays & rays.unknown).sum())},
+            "caught_by_rays": int((bad & one.safe & ~rays.safe).sum()),
+            "lost_to_relief": int((ok & one.safe & rays.safe & ~pair.safe).sum()),
+            "caught_by_relief": int((bad & one.safe & rays.safe & ~pair.safe).sum()),
+            "gained_by_relief": int((ok & ~one.safe & rays.safe & pair.safe).sum())}
+
+
 def kept_trace(scene: str, look: str, world_seed: int, cell: float = 0.025) -> dict[str, Any]:
     """Which term of the declared check refuses the truly safe poses one surface (``within`` 0)
     keeps, and what each term buys: the same look's map and poses judged three times, by one
@@ -175,23 +195,11 @@ def kept_trace(scene: str, look: str, world_seed: int, cell: float = 0.025) -> d
     for name, within in (("one", 0.0), ("rays", 1e-6), ("pair", declared.within)):
         params = dataclasses.replace(declared, within=within)
         checks[name] = chance_check(posterior(stats, g, bounds.params.k, params, None), g, poses, body, params)
-    ok, bad = ~on_truth.unsafe, on_truth.unsafe
+    out: dict[str, Any] = {"scene": scene, "world_seed": world_seed, **by_term(on_truth.unsafe, checks)}
     one, rays, pair = (checks[n] for n in ("one", "rays", "pair"))
-    lost_rays = ok & one.safe & ~rays.safe
-    lost_relief = ok & one.safe & rays.safe & ~pair.safe
-    out: dict[str, Any] = {
-        "scene": scene, "world_seed": world_seed, "truly_safe": int(ok.sum()),
-        "kept": {n: int((c.safe & ok).sum()) for n, c in checks.items()},
-        "false_safe": {n: int((c.safe & bad).sum()) for n, c in checks.items()},
-        "lost_to_rays": {"poses": int(lost_rays.sum()), "unknown": int((lost_rays & rays.unknown).sum())},
-        "caught_by_rays": int((bad & one.safe & ~rays.safe).sum()),
-        "lost_to_relief": int(lost_relief.sum()),
-        "caught_by_relief": int((bad & one.safe & rays.safe & ~pair.safe).sum()),
-        "gained_by_relief": int((ok & ~one.safe & rays.safe & pair.safe).sum()),
-    }
     # the relief's refusals: the limit most likely over, and how far the best estimate's rests
     # lie from the truth's contacts (a rest under the true contact leans the plane off the truth)
-    idx = np.flatnonzero(lost_relief)
+    idx = np.flatnonzero(~on_truth.unsafe & one.safe & rays.safe & ~pair.safe)
     k, _ = pair.worst()
     out["relief_refused_on"] = dict(Counter(LIMITS[int(k[i])] for i in idx))
     out["relief_refused_on_best_estimate"] = int(pair.nominal.unsafe[idx].sum())
