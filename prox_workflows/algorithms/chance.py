@@ -43,7 +43,12 @@ mean + rise, with five variances:
   errors cancel in the contact and the belly's highest ground. A further common sigma
   ``rock_sigma * H``, H the cell's height over the lowest top within ``ROCK_WINDOW``
   (:func:`relief`). Its share is chosen at the pose level, on the false safes against the truth
-  (docs/BENCHMARKS.md), not per cell: per cell the marginals above already hold.
+  (docs/BENCHMARKS.md), not per cell: per cell the marginals above already hold. One common
+  draw moves the wheels' rocks with the belly's, so it leaves the belly's margin where two rocks
+  under one body are read apart (dense's misses: the belly's rock read 1.5-2.3 cm low, the
+  wheels' contacts right); drawn as a field over 0.1-0.5 m it catches them, but keeps no more
+  truly safe poses than a smaller epsilon catching as many (docs/NAVIGATE_BENCH.md, "Dense's
+  false safes traced"), so it stays one draw.
 
 **A prior's error** (a cell no frame bounded: the set-down's blind disc, the wheels' contacts) is
 the ground's off the prior's plane, which the true ground shares with its neighbours (correlated
