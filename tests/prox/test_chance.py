@@ -498,17 +498,24 @@ def test_the_miss_trace_stands_the_body_as_the_vehicle_check_does() -> None:
     assert np.hypot(*body["belly_xy"]) < 0.08
 
 
+def rock_and_slab() -> tuple[GridGeometry, np.ndarray, np.ndarray]:
+    """A 7 cm rock under the box's front left and a 6 cm slab under the rear-left wheel: the tops,
+    and the slab's cells (where a trace's pair puts the lows under them)."""
+    g, X, Y = grid()
+    high = np.zeros(g.shape)
+    high[(X > 0.2) & (X < 0.3) & (Y > 0.05) & (Y < 0.2)] = 0.07
+    wheel = (X > -0.26) & (X < -0.03) & (Y > 0.2) & (Y < 0.3)
+    high[wheel] = 0.06
+    return g, high, wheel
+
+
 def test_the_rest_trace_stands_a_pair_as_the_vehicle_check_does() -> None:
     # tools.bench.rest_trace: a rock under the box, the rear-left wheel over cells whose lows lie
     # 6 cm under their tops; its contacts and plane give the check's own belly figure, on the lows
     # and over the worst corner of the box of rests alike
     from tools.bench.rest_trace import stand_pair
 
-    g, X, Y = grid()
-    high = np.zeros(g.shape)
-    high[(X > 0.2) & (X < 0.3) & (Y > 0.05) & (Y < 0.2)] = 0.07
-    wheel = (X > -0.26) & (X < -0.03) & (Y > 0.2) & (Y < 0.3)
-    high[wheel] = 0.06
+    g, high, wheel = rock_and_slab()
     low = np.where(wheel, 0.0, high).astype(np.float32)
     high = high.astype(np.float32)
     for rest_low in (True, False):
@@ -528,11 +535,7 @@ def test_the_miss_trace_stands_the_wheels_on_the_lows_as_the_declared_check_does
     from prox_workflows.algorithms.chance import _judge
     from tools.bench.chance_trace import stand
 
-    g, X, Y = grid()
-    high = np.zeros(g.shape)
-    high[(X > 0.2) & (X < 0.3) & (Y > 0.05) & (Y < 0.2)] = 0.07
-    wheel = (X > -0.26) & (X < -0.03) & (Y > 0.2) & (Y < 0.3)
-    high[wheel] = 0.06
+    g, high, wheel = rock_and_slab()
     span = np.where(wheel, 0.06, 0.0)
     low = (high - span).astype(np.float32)
     pair = stand(high.astype(np.float32), g, np.array([0.0, 0.0, 0.0]), BODY, CELL, low)
