@@ -112,7 +112,7 @@ def contact_plane(heading: float, roll: float, pitch: float) -> tuple[float, flo
 # what a cell nothing has bounded holds, per layer (0 where not named)
 _FILLS = {"mean": np.nan, "mean_var": np.nan, "ceiling": np.inf}
 # the layers a frame's bounds are held in (moved by a fix with the cell's ``stamp``)
-_BOUND_LAYERS = ("mean", "mean_var", "rise", "drop", "shift", "along_var", "spread", "source")
+_BOUND_LAYERS = ("mean", "mean_var", "rise", "drop", "relief", "shift", "along_var", "spread", "source")
 # every per-cell layer, with its fill (a window's recentring moves them all)
 _LAYERS = tuple((name, _FILLS.get(name, 0)) for name in (*_BOUND_LAYERS, "ceiling", "stamp", "lowered"))
 
@@ -204,6 +204,11 @@ class BoundsMap:
         self.mean_var = np.full(shape, np.nan, np.float32)  # its variance (m^2)
         self.rise = np.zeros(shape, np.float32)  # ground above the mean within the cell (m)
         self.drop = np.zeros(shape, np.float32)  # ground below it (m)
+        # the returns' own rise plus drop within each frame, averaged as rise and drop are (m): the
+        # cell's relief as one frame sees it (a rock's edge in the cell). Where frames disagree,
+        # rise and drop take the union of both frames' intervals and also hold how far apart the
+        # frames put the same ground, which is the frames' error, not the cell's relief
+        self.relief = np.zeros(shape, np.float32)
         self.shift = np.zeros(shape, np.float32)  # how far (m) the cell's returns may lie from their ground
         # the fused mean's own horizontal error along the rays (m^2): one return's, averaged over the
         # returns and frames as the mean's height error is (a check weighing the slope's share of
@@ -499,6 +504,7 @@ class BoundsMap:
         self.mean_var.flat[wheels] = var
         self.rise.flat[wheels] = sag
         self.drop.flat[wheels] = sag
+        self.relief.flat[wheels] = 2 * sag
         self.shift.flat[wheels] = 0.0
         self.along_var.flat[wheels] = 0.0
         under = np.setdiff1d(np.unique(flat[inside & belly]), wheels)
@@ -540,6 +546,7 @@ class BoundsMap:
         self.mean_var[rows, cols] = sd * sd
         self.rise[rows, cols] = 0.0
         self.drop[rows, cols] = 0.0
+        self.relief[rows, cols] = 0.0
 
     # ------------------------------------------------------------------ fusion
 
@@ -630,7 +637,7 @@ class BoundsMap:
         """Drop what the frames gave ``cells`` (a sensor of higher precedence takes them over)."""
         self.mean.flat[cells] = np.nan
         self.mean_var.flat[cells] = np.nan
-        for layer in (self.rise, self.drop, self.shift, self.along_var, *self.spread):
+        for layer in (self.rise, self.drop, self.relief, self.shift, self.along_var, *self.spread):
             layer.flat[cells] = 0.0
 
     def _fuse_cells(self, cells: np.ndarray, mean: np.ndarray, var: np.ndarray, rise: np.ndarray,
@@ -657,6 +664,8 @@ class BoundsMap:
             before = getattr(self, name).flat[cells].astype(np.float64)
             blended[name] = before + share * (new - before)
         old_rise, old_drop = self.rise.flat[cells], self.drop.flat[cells]
+        before = self.relief.flat[cells].astype(np.float64)
+        self.relief.flat[cells] = before + share * (rise + drop - before)
         # a frame's mean may differ from the map's by the cell's own relief (other returns of it)
         room = self.params.gate * np.sqrt(np.where(first, 0.0, old_var) + var) + blended["rise"] + blended["drop"]
         agree = first | (np.abs(mean - old) <= room)
@@ -739,13 +748,14 @@ class BoundsMap:
     def statistics(self, xmin: float, ymin: float, xmax: float, ymax: float
                    ) -> tuple[dict[str, np.ndarray], GridGeometry]:
         """What the bounds are drawn from over a box (copies, clipped to the map), with its grid:
-        ``mean``, ``mean_var`` (the fused mean's variance), ``rise``, ``drop``, ``shift``,
+        ``mean``, ``mean_var`` (the fused mean's variance), ``rise``, ``drop``, ``relief`` (the
+        returns' rise plus drop within a frame, averaged: the part of the spread frames agree on), ``shift``,
         ``along_var`` (the fused mean's horizontal variance along the rays), ``ceiling`` and
         ``framed`` (a frame bounded it; else its mean is a prior's: the set-down's, the wheels'
         contacts) per cell. A check that weighs how likely the ground is rather than its extremes
         reads these (``chance.posterior``), and the bounds drawn from them (``lower``, ``upper``)."""
         sl, sub = self._box(xmin, ymin, xmax, ymax)
-        names = ("mean", "mean_var", "rise", "drop", "shift", "along_var", "ceiling")
+        names = ("mean", "mean_var", "rise", "drop", "relief", "shift", "along_var", "ceiling")
         if sl is None:
             return {name: np.full((0, 0), np.nan, np.float32) for name in (*names, "lower", "upper")} | \
                 {"framed": np.zeros((0, 0), bool)}, sub

@@ -82,3 +82,18 @@ def test_the_stated_risk_sums_a_scenes_looks_before_bounding_the_rate() -> None:
     assert marsyard.split(" | ")[1:4] == ["2", "4,100", "1"]
     assert f"{clopper_pearson_upper(1, 4100):.1e}" in marsyard and "82.5 %" in marsyard
     assert f"{1 - 0.05 ** (1 / 1900):.1e}" in dense and "50.0 %" in dense
+
+
+def test_the_stated_risk_gives_the_share_kept_of_every_truly_safe_pose_judged_or_not() -> None:
+    """A model that leaves poses unknown judges fewer: its share kept of those it judges rises while
+    it keeps fewer poses. The table gives both: 1,300 kept of 2,000 truly safe poses is 65 %,
+    whatever share of them each model judged."""
+    from tools.bench.chance import risk_table
+
+    rows = [{"scene": "hirise", "judged": 1500, "false_safe": 0, "kept": 0.8, "of": 1000, "safe_n": 800,
+             "truly_safe": 1200},
+            {"scene": "hirise", "judged": 700, "false_safe": 0, "kept": 0.833, "of": 600, "safe_n": 500,
+             "truly_safe": 800}]
+    (hirise,) = risk_table(rows)[2:]
+    cols = hirise.split(" | ")
+    assert cols[-2] == "81.2 %" and cols[-1] == "65.0 % |"

@@ -504,3 +504,24 @@ def test_the_whole_maps_bounds_kept_between_frames_are_those_computed_whole() ->
     assert np.isfinite(kept[1]).sum() > 10_000
     computed.clear()
     assert m.whole()[1] is kept[1] and not computed  # nothing changed: nothing computed
+
+
+def test_frames_that_disagree_widen_the_spread_but_not_the_cell_s_relief() -> None:
+    # the same flat ground seen twice, the second frame placed 4 cm high (its datum's error): the
+    # cells keep the union of both frames' intervals (rise plus drop: centimetres), while the relief
+    # each frame sees in them is its returns' own (millimetres), which the chance check's wheel
+    # rests on (a rock edge's relief is a frame's own; the frames' disagreement is not the ground's)
+    from prox_workflows.algorithms.chance import ChanceParams, posterior
+
+    rng = np.random.default_rng(3)
+    m = _map()
+    for lift in (0.0, 0.04):
+        pts, sig = _ground(rng, 40000)
+        m.fuse(pts + np.array([0.0, 0.0, lift]), sig, SENSOR)
+    stats, g = m.statistics(1.1, -0.4, 1.9, 0.4)
+    seen = np.isfinite(stats["mean"])
+    spread = (stats["rise"] + stats["drop"])[seen]
+    assert np.median(spread) > 0.03
+    assert np.median(stats["relief"][seen]) < 0.005
+    post = posterior(stats, g, m.params.k, ChanceParams(within=1.0))
+    np.testing.assert_allclose(post.span[seen], stats["relief"][seen], atol=1e-6)

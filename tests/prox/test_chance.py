@@ -498,17 +498,24 @@ def test_the_miss_trace_stands_the_body_as_the_vehicle_check_does() -> None:
     assert np.hypot(*body["belly_xy"]) < 0.08
 
 
+def rock_and_slab() -> tuple[GridGeometry, np.ndarray, np.ndarray]:
+    """A 7 cm rock under the box's front left and a 6 cm slab under the rear-left wheel: the tops,
+    and the slab's cells (where a trace's pair puts the lows under them)."""
+    g, X, Y = grid()
+    high = np.zeros(g.shape)
+    high[(X > 0.2) & (X < 0.3) & (Y > 0.05) & (Y < 0.2)] = 0.07
+    wheel = (X > -0.26) & (X < -0.03) & (Y > 0.2) & (Y < 0.3)
+    high[wheel] = 0.06
+    return g, high, wheel
+
+
 def test_the_rest_trace_stands_a_pair_as_the_vehicle_check_does() -> None:
     # tools.bench.rest_trace: a rock under the box, the rear-left wheel over cells whose lows lie
     # 6 cm under their tops; its contacts and plane give the check's own belly figure, on the lows
     # and over the worst corner of the box of rests alike
     from tools.bench.rest_trace import stand_pair
 
-    g, X, Y = grid()
-    high = np.zeros(g.shape)
-    high[(X > 0.2) & (X < 0.3) & (Y > 0.05) & (Y < 0.2)] = 0.07
-    wheel = (X > -0.26) & (X < -0.03) & (Y > 0.2) & (Y < 0.3)
-    high[wheel] = 0.06
+    g, high, wheel = rock_and_slab()
     low = np.where(wheel, 0.0, high).astype(np.float32)
     high = high.astype(np.float32)
     for rest_low in (True, False):
@@ -518,3 +525,44 @@ def test_the_rest_trace_stands_a_pair_as_the_vehicle_check_does() -> None:
         assert body["contact_low"][2] == pytest.approx(0.0, abs=0.002)
         assert body["contact_high"][2] == pytest.approx(0.06, abs=0.005)
     assert stand_pair(low, high, g, np.array([0.0, 0.0, 0.0]), BODY, CELL, rest_low=False)["triplet"][1] != [0, 0, 0]
+
+
+def test_the_miss_trace_stands_the_wheels_on_the_lows_as_the_declared_check_does() -> None:
+    # tools.bench.chance_trace with the pair: a rock under the box, the rear-left wheel over cells
+    # whose lows lie 6 cm under their tops; the trace rests that wheel on the lows and reads the
+    # belly over the tops, and so gives the declared check's own belly figure, where standing the
+    # body on the tops alone (the one surface) puts the plane elsewhere: its belly figure is 2 cm off
+    from prox_workflows.algorithms.chance import _judge
+    from tools.bench.chance_trace import stand
+
+    g, high, wheel = rock_and_slab()
+    span = np.where(wheel, 0.06, 0.0)
+    low = (high - span).astype(np.float32)
+    pair = stand(high.astype(np.float32), g, np.array([0.0, 0.0, 0.0]), BODY, CELL, low)
+    check = _judge(high, np.ones(g.shape, bool), span, g, AT_ORIGIN, BODY, None)
+    assert pair["intrusion"] == pytest.approx(check.intrusion[0], abs=1e-6)
+    assert min(c[0] for c in pair["contacts"]) == pytest.approx(0.0, abs=0.002)
+    one = stand(high.astype(np.float32), g, np.array([0.0, 0.0, 0.0]), BODY, CELL)
+    assert abs(pair["intrusion"] - one["intrusion"]) > 0.02
+
+
+def test_the_kept_trace_gives_each_lost_pose_to_the_first_term_that_loses_it() -> None:
+    # tools.bench.chance_trace --kept: six poses, the first four truly safe; the one surface keeps
+    # 0-2 and 4, the pair without relief leaves 0 unknown and refuses 4 (a false safe caught by
+    # the rays), the declared pair also refuses 1 and keeps 3, which the one surface refuses
+    from types import SimpleNamespace
+
+    from tools.bench.chance_trace import by_term
+
+    def verdicts(safe: list[int], unknown: list[int]) -> SimpleNamespace:
+        return SimpleNamespace(safe=np.array(safe, bool), unknown=np.array(unknown, bool))
+
+    truly_unsafe = np.array([0, 0, 0, 0, 1, 1], bool)
+    checks = {"one": verdicts([1, 1, 1, 0, 1, 0], [0] * 6), "rays": verdicts([0, 1, 1, 1, 0, 0], [1, 0, 0, 0, 0, 0]),
+              "pair": verdicts([0, 0, 1, 1, 0, 0], [1, 0, 0, 0, 0, 0])}
+    out = by_term(truly_unsafe, checks)
+    assert out["kept"] == {"one": 3, "rays": 3, "pair": 2}
+    assert out["false_safe"] == {"one": 1, "rays": 0, "pair": 0}
+    assert out["lost_to_rays"] == {"poses": 1, "unknown": 1}
+    assert out["caught_by_rays"] == 1
+    assert (out["lost_to_relief"], out["caught_by_relief"], out["gained_by_relief"]) == (1, 0, 1)

@@ -26,7 +26,8 @@ model, one draw). Then:
 ``--risk``: the stated risk, as the issue asks it: the chance check at the declared epsilon, with
 the posterior as the chooser makes it, over many looks (``--look``) on rock draws no setting was
 tuned on (``--world-seeds``; the noise draw is the rock draw's), summed per scene: judged poses,
-false safes and their one-sided 95 % Clopper-Pearson bound, truly safe kept.
+false safes and their one-sided 95 % Clopper-Pearson bound, truly safe kept (of those judged, and of
+all truly safe poses: a model that leaves more poses unknown keeps no more for it).
 
 ``--posterior``: ``look`` (default) makes the posterior seen from the look's mean sensor position;
 ``map`` as the see loop's chooser makes it, with no viewpoint (the slope's steepest direction and
@@ -181,6 +182,7 @@ def evaluate(scene: str, look: str, cell: float, world_seed: int, seed: int, eps
         row["false_safe"] = int((row["safe"] & on_truth.unsafe).sum())
         row["kept"] = float(row["safe"][truly_safe & judged].mean())
         row["of"] = int((truly_safe & judged).sum())
+        row["safe_n"] = int((row["safe"] & truly_safe).sum())
     return {"poses": len(poses), "rows": rows, "truly_unsafe": int(on_truth.unsafe.sum()), "set_down": said}
 
 
@@ -257,8 +259,9 @@ def _risk_row(job: tuple[str, str, float, int, int, dict[str, float]]) -> dict[s
         models.append(dataclasses.replace(models[0], **against))
     out = evaluate(scene, look, cell, world_seed, world_seed, [], samples, RoverBody(), made="map", models=models)
     rows = [{"judged": row["judged"], "false_safe": row["false_safe"], "kept": round(row["kept"], 4),
-             "of": row["of"], "misses": row["misses"]} for row in out["rows"][1:]]
-    head = {"scene": scene, "look": look, "world_seed": world_seed, "truly_unsafe": out["truly_unsafe"]}
+             "of": row["of"], "safe_n": row["safe_n"], "misses": row["misses"]} for row in out["rows"][1:]]
+    head = {"scene": scene, "look": look, "world_seed": world_seed, "truly_unsafe": out["truly_unsafe"],
+            "truly_safe": out["poses"] - out["truly_unsafe"]}
     return {**head, **rows[0], **({"against": rows[1]} if against else {})}
 
 
@@ -272,14 +275,17 @@ def risk(scenes: list[str], looks: list[str], world_seeds: list[int], cell: floa
 
 
 def risk_table(rows: list[dict[str, Any]]) -> list[str]:
-    lines = ["| scene | looks | judged poses | false safe | rate | 95 % upper bound | truly safe kept |",
-             "|---|---|---|---|---|---|---|"]
+    lines = ["| scene | looks | judged poses | false safe | rate | 95 % upper bound | truly safe kept "
+             "(of those judged) | truly safe kept (of all) |", "|---|---|---|---|---|---|---|---|"]
     for scene in dict.fromkeys(r["scene"] for r in rows):
         sel = [r for r in rows if r["scene"] == scene]
         n, k = sum(r["judged"] for r in sel), sum(r["false_safe"] for r in sel)
         kept = sum(r["kept"] * r["of"] for r in sel) / max(1, sum(r["of"] for r in sel))
+        # of every truly safe pose, judged or not: a model that judges fewer poses keeps no more
+        kept_all = sum(r.get("safe_n", 0) for r in sel) / max(1, sum(r.get("truly_safe", 0) for r in sel))
         lines.append(f"| {scene} | {len(sel)} | {n:,} | {k} | {k / max(n, 1):.1e} | "
-                     f"{clopper_pearson_upper(k, n) if n else float('nan'):.1e} | {100 * kept:.1f} % |")
+                     f"{clopper_pearson_upper(k, n) if n else float('nan'):.1e} | {100 * kept:.1f} % | "
+                     f"{100 * kept_all:.1f} % |")
     misses = [(r["scene"], m) for r in rows for m in r.get("misses", [])]
     for scene in dict.fromkeys(sc for sc, _ in misses):
         mine = [m for sc, m in misses if sc == scene]

@@ -20,38 +20,43 @@ rock, its back face unseen).
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
+from collections import Counter
 from typing import Any
 
 import numpy as np
 
 from drivers.sim.rover import RoverBody
-from prox_workflows.algorithms.chance import ChanceParams, posterior
-from prox_workflows.algorithms.vehicle import _TRIPLETS, _pattern, _sample, check_poses
+from prox_workflows.algorithms.chance import ChanceParams, _judge, chance_check, headroom, posterior
+from prox_workflows.algorithms.vehicle import _TRIPLETS, LIMITS, _pattern, _sample, check_poses
 from prox_workflows.grid import GridGeometry
 from tools.bench.bounds import TRUE_CELL, pooled
 from tools.bench.chance import fused, whole
 
 
-def stand(heights: np.ndarray, geom: GridGeometry, pose: np.ndarray, body: RoverBody, step: float
-          ) -> dict[str, Any]:
+def stand(heights: np.ndarray, geom: GridGeometry, pose: np.ndarray, body: RoverBody, step: float,
+          low: np.ndarray | None = None) -> dict[str, Any]:
     """The body at ``pose`` on one height grid, as the vehicle check stands it: per wheel the
     contact (height and where), the resting planes, and the belly's highest ground over the worse
-    plane (where, how high)."""
+    plane (where, how high). ``low``: the pair the declared check judges (``ChanceParams.within``),
+    each wheel resting on its highest low (NaN: only a ray bounds the ground there) and the belly
+    over ``heights``, the tops."""
     pat = _pattern(body, step)
     rad = np.radians(pose[2])
     c, s = np.cos(rad), np.sin(rad)
     wx = pose[0] + c * pat.pts[:, 0] - s * pat.pts[:, 1]
     wy = pose[1] + s * pat.pts[:, 0] + c * pat.pts[:, 1]
     h = _sample(heights, geom, wx, wy)
+    rest = h if low is None else _sample(low, geom, wx, wy)
     r = body.wheel_radius
     sag = r - np.sqrt(np.maximum(r * r - pat.dx * pat.dx, 0.0))
     hubs = np.asarray(body.wheels, float)
     contacts = []
     for w in range(4):
         on = np.flatnonzero(pat.wheel_of == w)
-        j = on[np.nanargmax(h[on] - sag[on])]
-        contacts.append((float(h[j] - sag[j]), float(wx[j]), float(wy[j])))
+        j = on[np.nanargmax(rest[on] - sag[on])]
+        contacts.append((float(rest[j] - sag[j]), float(wx[j]), float(wy[j])))
     z = np.array([cz for cz, _, _ in contacts])
     belly = np.flatnonzero(pat.belly)
     worst = (-np.inf, None, None)
@@ -86,7 +91,13 @@ def trace_look(scene: str, look: str, world_seed: int, poses: list[list[float]],
     tg = GridGeometry(0.01, g.xmin, g.ymax, truth.shape[1], truth.shape[0])
     fine = world.true_dem(TRUE_CELL, box)
     top, floor = pooled(fine, g, np.max), pooled(fine, g, np.min)
-    best = np.where(np.isfinite(post.mean), post.mean, np.where(np.isfinite(post.ceiling), post.ceiling, np.nan))
+    seen = np.isfinite(post.mean)
+    best = np.where(seen, post.mean, np.where(np.isfinite(post.ceiling), post.ceiling, np.nan))
+    # the wheels' rests as the declared check reads them: the tops less the cell's relief, none
+    # where only a ray bounds the ground (None: one surface, within 0)
+    span = None if post.span is None else np.where(seen, post.span, 0.0)
+    low = None if span is None else np.where(seen, best - span, np.nan).astype(np.float32)
+    jump = headroom(stats, np.asarray(stats["mean"], np.float64) + np.asarray(stats["rise"], np.float64))
     common = np.broadcast_to(post.common, post.mean.shape)
     body = RoverBody()
     out = []
@@ -105,6 +116,11 @@ def trace_look(scene: str, look: str, world_seed: int, poses: list[list[float]],
                                  / np.sqrt(post.var[row, col] + common[row, col] ** 2)), 2),
                 "true_floor": round(float(floor[row, col]), 4),
                 "rise": round(float(stats["rise"][row, col]), 4), "drop": round(float(stats["drop"][row, col]), 4),
+                # the frames' own relief in the cell (rise + drop over it: the frames' disagreement)
+                "relief": round(float(stats["relief"][row, col]), 4) if "relief" in stats else None,
+                "span": None if span is None else round(float(span[row, col]), 4),
+                "headroom": round(float(jump[row, col]), 4), "ray_only": bool(not seen[row, col]),
+                "framed": bool(stats["framed"][row, col]),
                 "upper": round(float(stats["upper"][row, col]), 4),
                 "elev_deg": round(float(np.degrees(np.arctan2(viewpoint[2] - top[row, col], d))), 1),
                 "range": round(float(d), 2),
@@ -113,8 +129,8 @@ def trace_look(scene: str, look: str, world_seed: int, poses: list[list[float]],
     for pose in poses:
         p = np.asarray(pose, float)
         t = stand(truth, tg, p, body, 0.01)
-        e = stand(best.astype(np.float32), g, p, body, g.cell)
-        on_est = check_poses(best.astype(np.float32), g, p[None], body).excess[0]
+        e = stand(best.astype(np.float32), g, p, body, g.cell, low)
+        on_est = _judge(best, seen, span, g, p[None], body, None).excess[0]
         bl = t["belly_local"]
         est_h = float(_sample(best.astype(np.float32), g, np.array([t["belly_xy"][0]]),
                               np.array([t["belly_xy"][1]]))[0])
@@ -135,12 +151,99 @@ def trace_look(scene: str, look: str, world_seed: int, poses: list[list[float]],
     return out
 
 
+def by_term(truly_unsafe: np.ndarray, checks: dict[str, Any]) -> dict[str, Any]:
+    """Per pose verdicts (``safe``, ``unknown``) of the one surface (``one``), the pair without
+    relief (``rays``) and the declared pair (``pair``) against the truth: the truly safe poses and
+    false safes each keeps, and per term (the rays: a wheel over ground only a ray bounds rests
+    on nothing; the relief: the rests lowered) the truly safe poses the one surface keeps that it
+    loses, and the false safes of the one surface that it catches (a pose is the rays' where the
+    pair without relief already loses or catches it)."""
+    ok, bad = ~truly_unsafe, truly_unsafe
+    one, rays, pair = (checks[n] for n in ("one", "rays", "pair"))
+    lost_rays = ok & one.safe & ~rays.safe
+    return {"truly_safe": int(ok.sum()),
+            "kept": {n: int((c.safe & ok).sum()) for n, c in checks.items()},
+            "false_safe": {n: int((c.safe & bad).sum()) for n, c in checks.items()},
+            "lost_to_rays": {"poses": int(lost_rays.sum()), "unknown": int((lost_rays & rays.unknown).sum())},
+            "caught_by_rays": int((bad & one.safe & ~rays.safe).sum()),
+            "lost_to_relief": int((ok & one.safe & rays.safe & ~pair.safe).sum()),
+            "caught_by_relief": int((bad & one.safe & rays.safe & ~pair.safe).sum()),
+            "gained_by_relief": int((ok & ~one.safe & rays.safe & pair.safe).sum())}
+
+
+def kept_trace(scene: str, look: str, world_seed: int, cell: float = 0.025) -> dict[str, Any]:
+    """Which term of the declared check refuses the truly safe poses one surface (``within`` 0)
+    keeps, and what each term buys: the same look's map and poses judged three times, by one
+    surface, by the pair with no relief (``within`` at a hair over 0: a wheel over ground only a
+    ray bounds rests on nothing, nothing lowered) and by the declared pair. A pose the one surface
+    keeps is lost to the rays where the pair without relief already leaves it, else to the relief;
+    per term, how many truly safe poses it costs and how many false safes of the one surface it
+    catches, and at the poses the relief refuses, the limit and how far the wheels' rests (the
+    lows) lie under the true contacts."""
+    world, bounds, _ = fused(scene, look, cell, world_seed, world_seed)
+    stats, g = whole(bounds)
+    x0, y0, _ = world.rover_pose()
+    truth = world.true_dem(0.01, (g.xmin, g.ymin, g.xmin + g.width * g.cell, g.ymax))
+    tg = GridGeometry(0.01, g.xmin, g.ymax, truth.shape[1], truth.shape[0])
+    px, py = np.meshgrid(x0 + np.arange(1.6, 4.0, 0.1), y0 + np.arange(-1.2, 1.25, 0.1))
+    poses = np.column_stack([np.repeat(px.ravel(), 4), np.repeat(py.ravel(), 4),
+                             np.tile([0.0, 45.0, 90.0, 135.0], px.size)])
+    body = RoverBody()
+    on_truth = check_poses(truth, tg, poses, body)
+    declared = ChanceParams()
+    checks = {}
+    for name, within in (("one", 0.0), ("rays", 1e-6), ("pair", declared.within)):
+        params = dataclasses.replace(declared, within=within)
+        checks[name] = chance_check(posterior(stats, g, bounds.params.k, params, None), g, poses, body, params)
+    out: dict[str, Any] = {"scene": scene, "world_seed": world_seed, **by_term(on_truth.unsafe, checks)}
+    one, rays, pair = (checks[n] for n in ("one", "rays", "pair"))
+    # the relief's refusals: the limit most likely over, and how far the best estimate's rests
+    # lie from the truth's contacts (a rest under the true contact leans the plane off the truth)
+    idx = np.flatnonzero(~on_truth.unsafe & one.safe & rays.safe & ~pair.safe)
+    k, _ = pair.worst()
+    out["relief_refused_on"] = dict(Counter(LIMITS[int(k[i])] for i in idx))
+    out["relief_refused_on_best_estimate"] = int(pair.nominal.unsafe[idx].sum())
+    if len(idx):
+        post = posterior(stats, g, bounds.params.k, declared, None)
+        seen = np.isfinite(post.mean)
+        best = np.where(seen, post.mean, np.where(np.isfinite(post.ceiling), post.ceiling, np.nan))
+        low = np.where(seen, best - post.span, np.nan).astype(np.float32)
+        rest_err, span_at, plane_low = [], [], []
+        for i in idx[:: max(1, len(idx) // 60)]:
+            t = stand(truth, tg, poses[i], body, 0.01)
+            e = stand(best.astype(np.float32), g, poses[i], body, g.cell, low)
+            bl = t["belly_local"]
+            plane_low.append(_plane_at(t["plane"], bl) - _plane_at(e["plane"], bl) if e["plane"] else np.nan)
+            for (tz, _, _), (ez, ex, ey) in zip(t["contacts"], e["contacts"], strict=True):
+                rest_err.append(ez - tz)
+                col, row = int((ex - g.xmin) / g.cell), int((g.ymax - ey) / g.cell)
+                span_at.append(float(post.span[row, col]))
+        q = (10, 50, 90)
+        out["relief_rest_minus_true_contact_cm"] = [round(100 * float(v), 2) for v in np.nanpercentile(rest_err, q)]
+        out["relief_span_at_rest_cm"] = [round(100 * float(v), 2) for v in np.nanpercentile(span_at, q)]
+        out["relief_plane_low_at_belly_cm"] = [round(100 * float(v), 2) for v in np.nanpercentile(plane_low, q)]
+    return out
+
+
 def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--log", required=True, help="the JSON rows of a --risk run")
+    ap.add_argument("--log", help="the JSON rows of a --risk run")
     ap.add_argument("--look", default="approach")
     ap.add_argument("--out", required=True)
+    ap.add_argument("--kept", nargs=2, metavar=("SCENE", "DRAW"), action="append", default=[],
+                    help="instead: which term refuses the truly safe poses the one surface keeps, on this "
+                         "scene's rock draw (repeatable)")
     args = ap.parse_args(argv)
+    if args.kept:
+        outs = []
+        for scene, draw in args.kept:
+            outs.append(kept_trace(scene, args.look, int(draw)))
+            print(json.dumps(outs[-1]), flush=True)
+        with open(args.out, "w") as f:
+            json.dump(outs, f, indent=1)
+        return
+    if not args.log:
+        ap.error("--log (or --kept) is required")
     rows = [json.loads(line) for line in open(args.log) if line.startswith("{")]
     traced = []
     for r in rows:

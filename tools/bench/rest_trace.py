@@ -163,7 +163,7 @@ def trace(scene: str, dump: str, params: chance.ChanceParams, limit: int = 0, bo
             continue
         cell, xmin, ymax, width, height = d[f"c{ci}_geom"]
         g = GridGeometry(float(cell), float(xmin), float(ymax), int(width), int(height))
-        names = ("mean", "mean_var", "rise", "drop", "shift", "along_var", "ceiling", "upper", "framed")
+        names = ("mean", "mean_var", "rise", "drop", "relief", "shift", "along_var", "ceiling", "upper", "framed")
         stats = {n: d[f"c{ci}_{n}"] for n in names if f"c{ci}_{n}" in d.files}
         post = chance.posterior(stats, g, float(d[f"c{ci}_k"]), params)
         seen = np.isfinite(post.mean)
