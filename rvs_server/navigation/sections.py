@@ -466,10 +466,13 @@ class SectionPilot:
         self.track.add(truth, end)
 
     def _ahead(self) -> np.ndarray:
-        """The section's poses still to drive."""
+        """The section's poses still to drive: past the one the rover stands on, which the choice
+        never judged either (a candidate's poses start past the rover's). The pose it stands on is
+        no reason to stop, as stopping leaves the rover on it: judged, a spread the frames taken
+        standing there give it would stop every section set off from it, over and over."""
         if not self.turned:
-            return self.poses
-        return self.poses[self.n_turn:][self.s[self.n_turn:] >= self.driven - 1e-6]
+            return self.poses[1:]
+        return self.poses[self.n_turn:][self.s[self.n_turn:] > self.driven + 1e-6]
 
     def _path_ahead(self, pose: tuple[float, float, float]) -> np.ndarray:
         """The chosen path's points still ahead of ``pose`` (past the one nearest it): the gaze
@@ -483,6 +486,8 @@ class SectionPilot:
         the pose), where a frame touched the ground under that rest since it was judged; None: all
         pass, or nothing there changed."""
         ahead = np.vstack([np.array([pose]), self._ahead()])
+        if len(ahead) == 1:  # at the section's end: nothing left to drive
+            return None
         d = self.d
         pad = reach(d.body) + 0.05
         box = (ahead[:, 0].min() - pad, ahead[:, 1].min() - pad, ahead[:, 0].max() + pad, ahead[:, 1].max() + pad)

@@ -250,3 +250,31 @@ def test_the_bounds_maps_params_are_set_like_any_other(server_factory) -> None:
     c.request("break")
     c.until_final(job=job, timeout=300)
     assert seen[0].geometry.cell == 0.05 and seen[0].params.k == 3.0
+
+
+def test_the_section_pilot_judges_the_poses_past_the_one_the_rover_stands_on() -> None:
+    """The pilot's recheck judges what is still to drive as the choice judged it: from the pose
+    past the rover's. The pose it stands on (a section's first, or the arc's pose at the metres
+    driven) is left out: judged, a spread the frames taken standing there give it would stop every
+    section set off from it, over and over."""
+    from types import SimpleNamespace
+
+    from prox_workflows.algorithms.candidates import Choice
+    from rvs_server.navigation.sections import SectionPilot
+
+    xs = np.round(np.arange(0.0, 1.0 + 1e-9, 0.1), 3)
+    straight = np.column_stack([xs, np.zeros_like(xs), np.zeros_like(xs)])
+    chooser = SimpleNamespace(d=SimpleNamespace(bounds=SimpleNamespace(frames=0)))
+    pilot = SectionPilot(chooser, Choice("drive", "test", straight, straight, length=1.0), None)
+    assert np.array_equal(pilot._ahead(), straight[1:])
+    pilot.driven = 0.3  # the rover stands on the arc's pose at 0.3 m
+    assert np.allclose(pilot._ahead()[:, 0], xs[4:])
+    pilot.driven = 1.0
+    assert len(pilot._ahead()) == 0
+    # a turn on the spot of 30 deg first, then the arc: before the turn, all but the pose it stands on
+    turn = np.array([[0.0, 0.0, 0.0], [0.0, 0.0, 15.0], [0.0, 0.0, 30.0]])
+    arc = np.column_stack([xs[1:] * math.cos(math.radians(30)), xs[1:] * math.sin(math.radians(30)),
+                           np.full(10, 30.0)])
+    poses = np.vstack([turn, arc])
+    pilot = SectionPilot(chooser, Choice("drive", "test", poses, poses, turn=30.0, length=1.0), None)
+    assert not pilot.turned and np.array_equal(pilot._ahead(), poses[1:])
