@@ -250,26 +250,25 @@ def _miss(pose: np.ndarray, truth: np.ndarray, nominal: np.ndarray, p_any: float
             "p_any": p_any}
 
 
-def _risk_row(job: tuple[str, str, float, int, int, dict[str, float]]) -> dict[str, Any]:
-    """One look's counts with the declared parameters, and with them changed by ``against`` where
-    it is given (the ``against`` key: the same map, poses and draws), in a pool's process."""
+def _risk_row(job: tuple[str, str, float, int, int, list[dict[str, float]]]) -> dict[str, Any]:
+    """One look's counts with the declared parameters, and with them changed by each set of
+    ``against`` (the ``against`` key, in order: the same map, poses and draws), in a pool's process."""
     scene, look, cell, world_seed, samples, against = job
     models = [ChanceParams(samples=samples)]
-    if against:
-        models.append(dataclasses.replace(models[0], **against))
+    models += [dataclasses.replace(models[0], **changed) for changed in against]
     out = evaluate(scene, look, cell, world_seed, world_seed, [], samples, RoverBody(), made="map", models=models)
     rows = [{"judged": row["judged"], "false_safe": row["false_safe"], "kept": round(row["kept"], 4),
              "of": row["of"], "safe_n": row["safe_n"], "misses": row["misses"]} for row in out["rows"][1:]]
     head = {"scene": scene, "look": look, "world_seed": world_seed, "truly_unsafe": out["truly_unsafe"],
             "truly_safe": out["poses"] - out["truly_unsafe"]}
-    return {**head, **rows[0], **({"against": rows[1]} if against else {})}
+    return {**head, **rows[0], **({"against": rows[1:]} if against else {})}
 
 
 def risk(scenes: list[str], looks: list[str], world_seeds: list[int], cell: float, samples: int,
-         jobs: int, against: dict[str, float] | None = None) -> list[dict[str, Any]]:
+         jobs: int, against: list[dict[str, float]] | None = None) -> list[dict[str, Any]]:
     """Per scene, the looks' counts summed: the false-safe rate per judged pose and its bound.
     Each look's row is printed as it comes, so a run cut short keeps what it measured."""
-    todo = [(scene, look, cell, ws, samples, against or {}) for ws in world_seeds for scene in scenes
+    todo = [(scene, look, cell, ws, samples, against or []) for ws in world_seeds for scene in scenes
             for look in looks]
     return streamed(_risk_row, todo, jobs)
 
@@ -322,6 +321,21 @@ def timing(body: RoverBody, samples: int, poses: int = 1000) -> list[tuple[str, 
     return out
 
 
+def against_set(words: list[str]) -> dict[str, float]:
+    """One ``--against`` set: NAME=VALUE words as ChanceParams changes, a clear error for a name
+    the check does not declare."""
+    known = {f.name for f in dataclasses.fields(ChanceParams)}
+    declared = ChanceParams()
+    out: dict[str, float] = {}
+    for word in words:
+        name, eq, value = word.partition("=")
+        if not eq or name not in known:
+            raise SystemExit(f"ERROR: --against takes NAME=VALUE with NAME one of {', '.join(sorted(known))}; "
+                             f"got {word!r}")
+        out[name] = type(getattr(declared, name))(float(value))
+    return out
+
+
 def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--scene", default="marsyard")
@@ -353,9 +367,11 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--correlation", action="store_true",
                     help="the spatial correlation of the map means' errors and of the blind disc's ground off its "
                          "plane, on the truth")
-    ap.add_argument("--against", nargs="+", default=[], metavar="NAME=VALUE",
+    ap.add_argument("--against", nargs="+", action="append", default=[], metavar="NAME=VALUE",
                     help="with --risk: also judge each look with these ChanceParams changed (e.g. a term "
-                         "at 0: the model without it), on the same map and draws, and tabulate both")
+                         "at 0: the model without it), on the same map and draws, and tabulate both; given "
+                         "again, each set is judged and tabulated apart (e.g. --against epsilon=1e-4 "
+                         "--against epsilon=3e-5: one fused map and one truth for every setting)")
     ap.add_argument("--time", action="store_true", help="time 1,000 poses on a synthetic 5 cm window instead")
     args = ap.parse_args(argv)
     if args.time:
@@ -363,13 +379,13 @@ def main(argv: list[str] | None = None) -> None:
             print(f"{name}: {seconds:.2f} s per 1,000 poses ({args.samples} samples)")
         return
     if args.risk:
-        against = {k: float(v) for k, v in (a.split("=", 1) for a in args.against)}
+        against = [against_set(words) for words in args.against]
         rows = risk(args.scenes, [args.look], args.world_seeds, args.cell, args.samples, args.jobs, against)
         print(f"\nthe chance check at epsilon {ChanceParams().epsilon:g}, the chooser's posterior, {args.look} looks")
         print("\n".join(risk_table(rows)))
-        if against:
-            print(f"\nthe same with {' '.join(args.against)}")
-            print("\n".join(risk_table([{**r, **r["against"]} for r in rows])))
+        for i, words in enumerate(args.against):
+            print(f"\nthe same with {' '.join(words)}")
+            print("\n".join(risk_table([{**r, **r["against"][i]} for r in rows])))
         return
     head = f"{args.scene}, {args.look} ({args.posterior} posterior), cell {args.cell * 100:g} cm, rock draw {args.world_seed}, noise draw {args.seed}"
     if args.correlation:
