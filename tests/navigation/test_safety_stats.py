@@ -97,3 +97,45 @@ def test_the_stated_risk_gives_the_share_kept_of_every_truly_safe_pose_judged_or
     (hirise,) = risk_table(rows)[2:]
     cols = hirise.split(" | ")
     assert cols[-2] == "81.2 %" and cols[-1] == "65.0 % |"
+
+
+def test_the_stated_risk_tabulates_each_against_set_on_its_own(monkeypatch: pytest.MonkeyPatch,
+                                                               capsys: pytest.CaptureFixture[str]) -> None:
+    """``--against`` given twice: each set is a model of its own, judged on the same looks, and gets
+    its own table (a look's row carries one count per set, in the order given)."""
+    import tools.bench.chance as bench
+
+    asked = {}
+
+    def looks(scenes, looks, seeds, cell, samples, jobs, against):  # noqa: ANN001, ANN202
+        asked["against"] = against
+        miss = {"pose": [1.0, 0.0, 0.0], "truth_excess": {"belly": 0.003}, "nominal_excess": {}, "p_any": 2e-4}
+        return [{"scene": "dense", "judged": 1000, "false_safe": 2, "kept": 0.6, "of": 500, "safe_n": 300,
+                 "truly_safe": 600, "misses": [miss, miss],
+                 "against": [{"judged": 1000, "false_safe": 1, "kept": 0.5, "of": 500, "safe_n": 250, "misses": [miss]},
+                             {"judged": 900, "false_safe": 0, "kept": 0.4, "of": 450, "safe_n": 180, "misses": []}]}]
+
+    monkeypatch.setattr(bench, "risk", looks)
+    bench.main(["--risk", "--scenes", "dense", "--against", "epsilon=1e-4", "--against", "edge_sigma=0.3",
+                "samples=32"])
+    assert asked["against"] == [{"epsilon": 1e-4}, {"edge_sigma": 0.3, "samples": 32}]
+    assert isinstance(asked["against"][1]["samples"], int)
+    out = capsys.readouterr().out
+    declared, first, second = out.split("the same with ")[0], *out.split("the same with ")[1:]
+    assert "| dense | 1 | 1,000 | 2 |" in declared and "60.0 % | 50.0 % |" in declared
+    assert first.startswith("epsilon=1e-4\n") and "| dense | 1 | 1,000 | 1 |" in first and "50.0 % | 41.7 % |" in first
+    assert second.startswith("edge_sigma=0.3 samples=32\n") and "| dense | 1 | 900 | 0 |" in second
+    assert "40.0 % | 30.0 % |" in second
+
+
+def test_the_stated_risk_refuses_a_setting_the_check_does_not_declare() -> None:
+    """A misspelt name is one clear ERROR line before any look is fused, not a model silently
+    judged as the declared one."""
+    import subprocess
+    import sys
+
+    run = subprocess.run([sys.executable, "-m", "tools.bench.chance", "--risk", "--against", "epsilom=1e-4"],
+                         capture_output=True, text=True, timeout=120)
+    assert run.returncode != 0
+    assert run.stderr.strip().splitlines()[-1].startswith("ERROR: --against takes NAME=VALUE with NAME one of ")
+    assert "epsilon" in run.stderr and "'epsilom=1e-4'" in run.stderr and run.stdout == ""
