@@ -134,8 +134,10 @@ def test_the_stated_risk_refuses_a_setting_the_check_does_not_declare() -> None:
     import subprocess
     import sys
 
-    run = subprocess.run([sys.executable, "-m", "tools.bench.chance", "--risk", "--against", "epsilom=1e-4"],
-                         capture_output=True, text=True, timeout=120)
-    assert run.returncode != 0
-    assert run.stderr.strip().splitlines()[-1].startswith("ERROR: --against takes NAME=VALUE with NAME one of ")
-    assert "epsilon" in run.stderr and "'epsilom=1e-4'" in run.stderr and run.stdout == ""
+    for word in ("epsilom=1e-4", "epsilon=small"):
+        run = subprocess.run([sys.executable, "-m", "tools.bench.chance", "--risk", "--against", word],
+                             capture_output=True, text=True, timeout=120)
+        assert run.returncode != 0
+        (line,) = run.stderr.strip().splitlines()
+        assert line.startswith("ERROR: --against takes NAME=VALUE, NAME one of ")
+        assert "epsilon" in line and f"got '{word}'" in line and run.stdout == ""

@@ -340,10 +340,13 @@ def against_set(words: list[str]) -> dict[str, float]:
     out: dict[str, float] = {}
     for word in words:
         name, eq, value = word.partition("=")
-        if not eq or name not in known:
-            raise SystemExit(f"ERROR: --against takes NAME=VALUE with NAME one of {', '.join(sorted(known))}; "
-                             f"got {word!r}")
-        out[name] = type(getattr(declared, name))(float(value))
+        try:
+            if not eq or name not in known:
+                raise ValueError(name)
+            out[name] = type(getattr(declared, name))(float(value))
+        except ValueError:
+            raise SystemExit(f"ERROR: --against takes NAME=VALUE, NAME one of {', '.join(sorted(known))} and "
+                             f"VALUE a number; got {word!r}") from None
     return out
 
 
