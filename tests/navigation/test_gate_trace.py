@@ -9,7 +9,7 @@ from drivers.sim.rover import RoverBody
 from prox_workflows.algorithms.bounds_map import BoundsParams
 from prox_workflows.algorithms.chance import ChanceParams
 from prox_workflows.grid import GridGeometry
-from tools.bench.gate_trace import detail, trace_events
+from tools.bench.gate_trace import detail, trace_events, turn_trace
 
 BODY = RoverBody()
 
@@ -49,3 +49,30 @@ def test_an_event_is_traced_to_the_nearest_chosen_pose_and_the_truth_there() -> 
     assert abs(chosen_unsafe["off_m"] - np.hypot(0.01, 0.005)) < 1e-9 and chosen_unsafe["off_deg"] == 2.0
     assert strayed["nearest"] == [-0.3, 0.0, 0.0] and not strayed["planned_truly_unsafe"]
     assert strayed["section_p_any"] == 1e-6 and strayed["choice"] == 0
+
+
+def test_the_stop_s_turn_names_the_frames_spread_that_refuses_it_on_flat_ground() -> None:
+    """Flat true ground; the map's means are right to 1 mm and each frame's returns show no relief,
+    but between the left wheels, on the circle they turn on, the frames disagree by 12 cm (the top
+    12 cm over the mean): the turn is refused each way where a wheel meets it, and passes all round
+    with the spread taken out; no other term's removal passes it."""
+    g = GridGeometry.covering(-1.0, -1.0, 1.0, 1.0, 0.025)
+    flat = np.zeros((g.height, g.width), np.float32)
+    xs, ys = g.centers()
+    X, Y = np.meshgrid(xs, ys)
+    # on the wheels' circle midway between the left wheels (0.145, +-0.245 and -0.145, 0.245): the
+    # front-left wheel comes there turning 30 deg left, the rear-left turning 30 deg right
+    wx, wy = 0.0, float(np.hypot(0.145, 0.245))
+    spread = (np.abs(X - wx) < 0.025) & (np.abs(Y - wy) < 0.025)  # 2 x 2 cells
+    z = np.zeros_like(flat)
+    rise = np.where(spread, 0.12, 0.0).astype(np.float32)
+    stats = {"mean": flat, "mean_var": np.full(flat.shape, 0.001**2, np.float32), "rise": rise, "drop": z,
+             "relief": z, "shift": z, "along_var": z, "ceiling": np.full(flat.shape, np.inf, np.float32),
+             "framed": np.ones(flat.shape, bool), "lower": flat, "upper": flat + rise}
+    turn = turn_trace(stats, g, BoundsParams().k, (0.0, 0.0, 0.0), flat, g, BODY, ChanceParams(), step=5.0)
+    left, right = turn["left"], turn["right"]
+    assert left["truth"] == 360.0 and right["truth"] == 360.0
+    for way in (left, right):
+        assert 0.0 <= way["check"] < 30.0  # the pose itself passes; refused as a wheel reaches the spread
+        assert way["without"]["frames' spread"] == 360.0
+        assert all(deg < 360.0 for name, deg in way["without"].items() if name != "frames' spread")

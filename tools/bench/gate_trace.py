@@ -13,7 +13,10 @@ unsafe, and by which limit.
 limit: the posterior's best estimate, the drawn surfaces' excess (mean and the worst of the
 draws), the chance check's probability, and the true surface's excess at the same pose. Which of
 them is far from the truth says what refuses: a wide posterior (the draws), the best estimate
-itself (a step in the map that is not on the ground), or ground under the body not seen.
+itself (a step in the map that is not on the ground), or ground under the body not seen. With it,
+the turn on the spot from the last choice's pose (:func:`turn_trace`): how far each way the truth
+allows it, how far the check passes it, and how far with each of the check's terms taken out in
+turn, which names the term that holds the rover where it stands.
 
 Each unsafe event on the true track is traced to the nearest pose of a section the chooser
 passed (:func:`trace_events`): truly unsafe there is the check's false safe, safe there the
@@ -136,9 +139,15 @@ def main() -> None:
               f"({e['x']}, {e['y']}, {e['heading']}): nearest chosen pose {e['nearest']} of choice {e['choice']} "
               f"({e['off_m']:.3f} m, {e['off_deg']:.1f} deg off), truly unsafe there: {e['planned_truly_unsafe']} "
               f"{e['planned_truth']}; the section's P(any) {e['section_p_any']}")
+    turn = {}
+    if args.detail:
+        last = next((c for c in reversed(choices) if "map" in c), None)
+        if last is not None:
+            stats, wg, k = last["map"]
+            turn = turn_trace(stats, wg, k, last["pose"], fine, g, world.body, last["chance"])
     if args.dump:
         dump(args.dump, choices, refusals, goal)
-    row.update(refusals=refusals, trace_wall_s=round(time.monotonic() - t0, 1), detailed=detailed,
+    row.update(stop_turn=turn, refusals=refusals, trace_wall_s=round(time.monotonic() - t0, 1), detailed=detailed,
                choices=[{k: v for k, v in c.items() if k not in ("map", "chance")} for c in choices])
     if args.out:
         with open(args.out, "w") as fh:
@@ -156,6 +165,10 @@ def main() -> None:
         truly = Counter(r["verdict"] for r in rs if r["truth"]["unsafe"])
         print(f"{part}: {len(rs)} refused poses, truly unsafe {unsafe} ({100 * unsafe / len(rs):.0f} %); by limit "
               + ", ".join(f"{k} {n} (truly {truly.get(k, 0)})" for k, n in by.most_common()))
+    for way, t in turn.items():
+        print(f"the turn on the spot {way} from the last choice's pose: truly safe {t['truth']} deg, the check "
+              f"passes {t['check']} deg; with one term out: "
+              + ", ".join(f"{name} {deg}" for name, deg in t["without"].items()))
     if detailed:
         print(f"the last {args.detail} choices' {len(detailed)} refused poses, per limit: over on the best estimate "
               "/ over only in the draws / truly over; median excess best, draw mean, draw max, truth")
@@ -166,6 +179,45 @@ def main() -> None:
             true = np.array([d["truth"][k] for d in detailed])
             print(f"  {name}: {(best > 0).sum()} / {((best <= 0) & (dmax > 0)).sum()} / {(true > 0).sum()}; "
                   f"{np.median(best):+.4f} {np.median(dmean):+.4f} {np.median(dmax):+.4f} {np.median(true):+.4f}")
+
+
+# the check's terms, each taken out in turn (:func:`turn_trace`): a change of the map's statistics
+# or of the check's parameters
+TERMS: dict[str, Any] = {
+    "relief pair": lambda st, p: (st, dataclasses.replace(p, within=0.0)),
+    "rock edge": lambda st, p: (st, dataclasses.replace(p, edge_bias=0.0, edge_sigma=0.0)),
+    "rock top": lambda st, p: (st, dataclasses.replace(p, rock_sigma=0.0)),
+    "frames' spread": lambda st, p: ({**st, "rise": np.minimum(st["rise"], st["relief"])}, p),
+    "prior": lambda st, p: ({**st, "framed": np.ones_like(st["framed"])}, p),
+    "epsilon 1e-2": lambda st, p: (st, dataclasses.replace(p, epsilon=1e-2)),
+}
+
+
+def turn_trace(stats: dict[str, np.ndarray], g: Any, k: float, pose: Any, fine: np.ndarray, fg: Any, body: Any,
+               params: chance.ChanceParams, step: float = 2.0) -> dict[str, dict[str, Any]]:
+    """The turn on the spot from ``pose`` each way (``left``: the heading rising), in ``step`` deg:
+    how many degrees of it are truly safe on the true surface ``fine`` over ``fg``, how many the
+    chance check passes on the map's ``stats`` over ``g``, and how many it passes with each of
+    :data:`TERMS` taken out (``without``). The turn's first pose is the pose itself: -``step``
+    means the rover's own pose fails. A stop where the truth allows a turn the check refuses is
+    held by the map, and the term whose removal passes the turn is the one that holds it (taking
+    it out is a diagnosis, not a fix: it changes the stated risk)."""
+
+    def passes(ok: np.ndarray) -> float:
+        bad = np.flatnonzero(~ok)
+        return 360.0 if not len(bad) else float(step * (bad[0] - 1))
+
+    def judged(poses: np.ndarray, st: dict[str, np.ndarray], p: chance.ChanceParams) -> float:
+        return passes(chance.chance_check(chance.posterior(st, g, k, p), g, poses, body, p).safe)
+
+    out = {}
+    for way, sign in (("left", 1.0), ("right", -1.0)):
+        heads = pose[2] + sign * np.arange(0.0, 360.0 + step / 2, step)
+        poses = np.column_stack([np.full(len(heads), pose[0]), np.full(len(heads), pose[1]), heads])
+        out[way] = {"truth": passes(vehicle.check_poses(fine, fg, poses, body).safe),
+                    "check": judged(poses, stats, params),
+                    "without": {name: judged(poses, *term(stats, params)) for name, term in TERMS.items()}}
+    return out
 
 
 def trace_events(events: list[dict[str, Any]], choices: list[dict[str, Any]], fine: np.ndarray, g: Any,
