@@ -72,6 +72,7 @@ class World:
         # frames); it outlives scene changes, as time does.
         self.clock = SimClock(clock_scale)
         self._drive_lock = threading.Lock()  # one drive at a time (navigate -auto or sim drive)
+        self._rock_lock = threading.Lock()  # one rock added at a time (add_rock)
         self._under_way = 0  # a drive loop keeps the rover rolling between its drive calls
         self._pan = 0.0
         self._tilt = 0.0
@@ -315,9 +316,19 @@ class World:
     def add_rock(self, x: float, y: float, radius: float, height: float) -> dict[str, float]:
         """Place a rock at run time (a hazard the last scan did not see): the heightfield, and so
         every renderer and ``true_dem``, has it from the next frame on. Returns its record."""
-        with self._lock:
-            self.terrain = _with_shadows(add_rock(self.terrain, x, y, radius, height, self._rock_rng), self.sun)
-            return dict(self.terrain.rocks[-1])
+        # The new heightfield and its shadows take 0.2-0.6 s of CPU (seconds on a loaded machine):
+        # made outside the world's lock, which the rover's pose, the PTU's moves and every frame
+        # take, so a drive, a PTU reply and a grab go on meanwhile; swapped in under it, made again
+        # if a scene was loaded in between. One rock at a time keeps the rocks' seeded shapes.
+        with self._rock_lock:
+            while True:
+                with self._lock:
+                    base, rng, sun = self.terrain, self._rock_rng, self.sun
+                terrain = _with_shadows(add_rock(base, x, y, radius, height, rng), sun)
+                with self._lock:
+                    if self.terrain is base:  # else a scene was loaded, with a rock generator of its own
+                        self.terrain = terrain
+                        return dict(terrain.rocks[-1])
 
     def truth(self) -> dict[str, float]:
         """The true state for ``sim truth``: x, y, z, heading (deg) of the rover in the global

@@ -248,3 +248,40 @@ def test_a_scene_built_again_shares_its_ground_and_a_rock_added_to_one_world_sta
         np.testing.assert_array_equal(getattr(fresh.terrain, name), getattr(b.terrain, name))
     np.testing.assert_array_equal(fresh.detail.tile, b.detail.tile)
     assert fresh.terrain.rocks == b.terrain.rocks and fresh.z_shift == b.z_shift
+
+
+def test_the_world_serves_the_rover_and_the_ptu_while_a_rock_is_being_made(monkeypatch) -> None:
+    """A rock added at run time costs seconds of shading on a loaded machine; meanwhile the rover's
+    pose, the PTU's move (which asks the world where the camera will look) and the true DEM are
+    served, on the ground before the rock; the rock is there once the call returns. Held under the
+    world's lock, the shading made the simulated PTU miss its 2 s reply during a drive."""
+    from drivers.sim import world as world_mod
+
+    world = World.from_scene("office", clock_scale=0.0)
+    shading, release = threading.Event(), threading.Event()
+    shade = world_mod._with_shadows
+
+    def held_shade(terrain, sun):
+        shading.set()
+        assert release.wait(30), "the test never released the shading"
+        return shade(terrain, sun)
+
+    monkeypatch.setattr(world_mod, "_with_shadows", held_shade)
+    bounds = (1.2, -0.3, 1.8, 0.3)
+    pristine = world.true_dem(0.02, bounds)
+    adder = threading.Thread(target=world.add_rock, args=(1.5, 0.0, 0.2, 0.3))
+    adder.start()
+    try:
+        assert shading.wait(30)
+        served: list[object] = []
+        reader = threading.Thread(target=lambda: served.extend(
+            [world.rover_pose(), world.set_ptu_target(40.0, -30.0), world.sensor_pose_at("tof", 40.0, -30.0),
+             world.true_dem(0.02, bounds)]))
+        reader.start()
+        reader.join(20)
+        assert not reader.is_alive() and len(served) == 4, "the world's readers waited for the rock's shading"
+        np.testing.assert_array_equal(served[3], pristine)
+    finally:
+        release.set()
+        adder.join(30)
+    assert float(np.nanmax(world.true_dem(0.02, bounds) - pristine)) > 0.25
