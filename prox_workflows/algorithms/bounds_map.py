@@ -548,6 +548,35 @@ class BoundsMap:
         self.drop[rows, cols] = 0.0
         self.relief[rows, cols] = 0.0
 
+    def offset(self, points: np.ndarray, min_cells: int = 100, flat: float = 0.01) -> float | None:
+        """How far (m) a frame's returns (global, N x 3), placed at the height its pose gives the
+        rover, stand over the ground the map's earlier frames hold: the median, over the cells both
+        bound, of the frame's cell mean less the map's. A frame is placed at a height read off the
+        map round the rover's centre, which is not where the body rests (the simulated rover's
+        camera rides with the ground under its centre point): frames placed 1-4 cm apart that way
+        disagree on the same ground, and the union the fusion keeps of disagreeing frames reads
+        as relief no rock has. Only ground the map knows to ``flat`` (its mean's sigma and the
+        relief its frames saw within the cell) is compared, where a height error along the ray moves
+        no height; a rock dropped onto known ground since is a minority of the overlap, which the
+        median ignores. None where fewer than ``min_cells`` compare (the frame is then placed as
+        its pose says)."""
+        g = self.geometry
+        pts = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+        pts = pts[np.isfinite(pts).all(axis=1)]
+        r, c = g.cell_of(pts[:, 0], pts[:, 1])
+        inside = g.inside(r, c)
+        flat_idx = (r[inside] * g.width + c[inside]).astype(np.int64)
+        if not len(flat_idx):
+            return None
+        cells, index, n = np.unique(flat_idx, return_inverse=True, return_counts=True)
+        mean = np.bincount(index, pts[inside, 2], len(cells)) / n
+        known = (self.stamp.flat[cells] > 0) & (n >= self.params.min_returns)
+        with np.errstate(invalid="ignore"):
+            known &= np.sqrt(self.mean_var.flat[cells]) + self.relief.flat[cells] <= flat
+        if np.count_nonzero(known) < min_cells:
+            return None
+        return float(np.median(mean[known] - self.mean.flat[cells[known]]))
+
     # ------------------------------------------------------------------ fusion
 
     def fuse(self, points: np.ndarray, sigma: np.ndarray | float, origin: np.ndarray | None = None,

@@ -69,6 +69,7 @@ if TYPE_CHECKING:
 
 EDGE_JUMP = 0.02  # share of the range: a bigger jump to a neighbouring pixel marks a depth edge's mixed pixel
 BLIND_EDGE = 0.1  # m past the mast's blind disc that its rays only graze (bounded by a ray, seldom by returns)
+STILL = 0.005  # m: a pose this close to the last frame's is the same stand (a look round, a turn on the spot)
 RING_WIDTH = 0.5  # m past the blind disc: the seen ground whose plane see_set_down ring takes
 
 
@@ -107,6 +108,9 @@ class SeeingDriver:
         self.known: NavMaps | None = None
         self.seen: tuple[Any, Any, np.ndarray] | None = None  # (known, geometry, layer) of the last resampling
         self.looked_from: tuple[float, float, float] | None = None  # the pose of the last look at unseen ground
+        # (x, y, z) the last frame put the rover frame's origin at: a rover that has not moved since
+        # stands at that height, whatever the map round it says now that the frames have filled it
+        self.held: tuple[float, float, float] | None = None
 
     def point_forward(self) -> None:
         """The PTU to pan 0 (the rover's forward), tilted down: the ToF looks where the rover goes."""
@@ -151,10 +155,8 @@ class SeeingDriver:
         T_rc = self.head.T_rover_from_sensor("tof", *pan_tilt)
         pts = rover_points(xyz, T_rc, self.p.subsample, self.p.max_range, amplitude, 0.1)
         ranges = np.linalg.norm(pts - T_rc[:3, 3].astype(np.float32), axis=1)
-        T = T_global_from_rover(x, y, heading, self.datum(x, y))
-        world_pts = pts.astype(np.float64) @ T[:3, :3].T + T[:3, 3]
-        self.map.follow(x, y)
-        self.map.fuse(world_pts, ranges)
+        standing = self.standing(x, y)
+        T = T_global_from_rover(x, y, heading, self.stand_height(x, y))
         if self.bounds is not None:
             self.bounds.follow(x, y, WINDOW_SLACK)
             # every pixel: a rock's top is read by the few returns on it, which a subsample drops
@@ -163,7 +165,16 @@ class SeeingDriver:
             full = cam @ T_rc[:3, :3].T + T_rc[:3, 3]
             ground = ~self.on_body(full)
             full = full[ground] @ T[:3, :3].T + T[:3, 3]
+            rise = None if standing else self.bounds.offset(full)
+            if rise is not None:  # placed on the ground the map holds, not on the height read round the centre
+                T[2, 3] -= rise
+                full[:, 2] -= rise
             origin = T[:3, :3] @ T_rc[:3, 3] + T[:3, 3]
+        self.held = (x, y, float(T[2, 3]))
+        world_pts = pts.astype(np.float64) @ T[:3, :3].T + T[:3, 3]
+        self.map.follow(x, y)
+        self.map.fuse(world_pts, ranges)
+        if self.bounds is not None:
             raw, mhz = tof.noise_amplitude(amplitude[keep][ground], np.linalg.norm(cam[ground], axis=1))
             sigma, along, across = tof_spread(full, origin, raw, frames=frames, frequency_mhz=mhz)
             self.bounds.fuse(full, sigma, origin, self.p.max_range, along, sigma_across=across)
@@ -230,6 +241,17 @@ class SeeingDriver:
         """Rover-frame points on the rover itself (its box and wheels, a few centimetres grown):
         the mast looking down and back sees its own deck and wheels, which are not ground."""
         return on_body(pts, self.body, BODY_MARGIN)
+
+    def standing(self, x: float, y: float) -> bool:
+        """The rover stands where it took the last frame (a look round, a turn on the spot)."""
+        return self.held is not None and math.hypot(x - self.held[0], y - self.held[1]) <= STILL
+
+    def stand_height(self, x: float, y: float) -> float:
+        """The height the frames put the rover frame's origin at, standing at (x, y): where the last
+        frame was taken, the height it was placed at; elsewhere :meth:`datum`, until the frame is
+        placed on the ground the map holds (:meth:`BoundsMap.offset
+        <prox_workflows.algorithms.bounds_map.BoundsMap.offset>`)."""
+        return self.held[2] if self.held is not None and self.standing(x, y) else self.datum(x, y)
 
     def datum(self, x: float, y: float) -> float:
         """The height the frames take the rover's own ground at (x, y): the rolling map's there,

@@ -97,7 +97,7 @@ class SeeStrategy:
         on the ring's plane within the ring's own spread. Returns what it took."""
         d = self.driver
         x, y, heading = d.pose()
-        said = set_down(d.bounds, (x, y, heading), d.datum(x, y), d.body, d.imu(), d.blind_disc(), d.radius,
+        said = set_down(d.bounds, (x, y, heading), d.stand_height(x, y), d.body, d.imu(), d.blind_disc(), d.radius,
                         BLIND_EDGE, RING_WIDTH)
         d.set_down_pending = False
         return said

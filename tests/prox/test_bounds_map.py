@@ -525,3 +525,19 @@ def test_frames_that_disagree_widen_the_spread_but_not_the_cell_s_relief() -> No
     assert np.median(stats["relief"][seen]) < 0.005
     post = posterior(stats, g, m.params.k, ChanceParams(within=1.0))
     np.testing.assert_allclose(post.span[seen], stats["relief"][seen], atol=1e-6)
+
+
+def test_a_frame_is_placed_on_the_ground_the_map_holds_and_a_rock_dropped_since_does_not_move_it() -> None:
+    # flat ground seen four times; a frame of it placed 3 cm high (the height read round the
+    # rover's centre is not where its camera rides) reads 3 cm over the map, with a 0.2 m rock
+    # dropped onto that ground since or without; a frame over ground the map never held, none
+    rng = np.random.default_rng(4)
+    m = _map()
+    for _ in range(4):
+        m.fuse(*_ground(rng, 40_000))
+    for rock in (0.0, 0.12):
+        pts, _sig = _ground(rng, 40_000, rock=rock)
+        rise = m.offset(pts + np.array([0.0, 0.0, 0.03]))
+        assert rise is not None and abs(rise - 0.03) < 0.002
+    elsewhere, _sig = _ground(rng, 40_000)
+    assert m.offset(elsewhere + np.array([-1.5, 0.0, 0.0])) is None
