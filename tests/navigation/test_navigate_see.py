@@ -652,3 +652,66 @@ def test_the_live_check_sweeps_the_turn_on_the_spot_and_the_arc_the_rover_execut
     start = (0.8, 0.0, 0.0)
     assert sweep_check(layer, g, path_poses(start, corner, 1.5), driver.length, driver.width).verdict == "ok"
     assert driver.judge(start, corner, arc)[0].verdict == "not_traversable"
+
+
+def test_frames_agree_on_the_ground_whatever_height_the_camera_rides_at() -> None:
+    """The simulated camera rides with the ground under the rover's centre point, which the map
+    round the centre does not give: frames placed at that map's height disagreed by centimetres on
+    the same ground (the start's look round by 5 cm once the map round the centre had filled), and
+    the map kept the union of both as relief. A rover that has not moved keeps its last frame's
+    height; a frame after a move is placed on the ground the map holds. Here the ground is flat
+    at 0 and the true rover frame's origin stands 5 cm over it at the start (a stone under the
+    centre point), then 3 cm over it after a 0.3 m drive."""
+    from types import SimpleNamespace
+
+    from drivers.sim.rover import RoverBody
+    from prox_workflows.algorithms.bounds_map import BoundsMap
+    from prox_workflows.algorithms.transforms import HeadCalibration, invert
+    from rvs_server.commands.dem import Dem2HazardConfig
+    from rvs_server.config import HeadConfig
+    from rvs_server.navigation.config import SeeConfig
+    from rvs_server.navigation.loop_stats import LoopStats
+    from rvs_server.navigation.see import SeeingDriver
+
+    head = HeadConfig()
+    cal = HeadCalibration.from_dict(head.as_dict())
+    rng = np.random.default_rng(5)
+    truth = {"pose": (0.0, 0.0, 0.0), "z": 0.05}
+    gx, gy = np.meshgrid(np.linspace(0.3, 2.5, 160), np.linspace(-1.2, 1.2, 120), indexing="ij")
+
+    def grab_xyz(frames: int, t: float, cancel: Any = None) -> tuple[np.ndarray, np.ndarray]:
+        # flat ground at 0 in front of the true rover, seen from the camera's true pose, 2 mm noise
+        x, y, _ = truth["pose"]
+        rover = np.stack([gx, gy, np.full(gx.shape, -truth["z"])], axis=-1).reshape(-1, 3)
+        rover[:, 2] += rng.normal(0.0, 0.002, len(rover))
+        T_cr = invert(cal.T_rover_from_sensor("tof", *driver.pan_tilt))
+        cam = (rover @ T_cr[:3, :3].T + T_cr[:3, 3]).reshape(*gx.shape, 3).astype(np.float32)
+        return cam, np.full(gx.shape, 20000.0, np.float32)  # 3.6 mm a return, as the noise model says
+
+    tof = SimpleNamespace(grab_xyz=grab_xyz, noise_amplitude=lambda a, r: (np.asarray(a, float), 30.0))
+    app = SimpleNamespace(config=SimpleNamespace(get={"head": head, "dem2hazard": Dem2HazardConfig()}.__getitem__),
+                          pose=SimpleNamespace(x=0.0, y=0.0, heading=0.0), maps=SimpleNamespace(layers=None),
+                          devices=SimpleNamespace(devices={"tof": tof}, get={"tof": tof}.__getitem__),
+                          bus=SimpleNamespace(watched=False, publish=lambda *a, **k: None))
+    rover = SimpleNamespace(pose=lambda: truth["pose"], steers=False, body=RoverBody)
+    bounds = BoundsMap.around((0.0, 0.0), 4.0, 0.1)
+    driver = SeeingDriver(SimpleNamespace(app=app, cancel=None), rover, SeeConfig(margin=0.0), LoopStats(), bounds=bounds)
+    driver.set_down_pending = True  # frames only: no wheels' prior
+
+    def spread() -> float:
+        stats, _ = bounds.statistics(1.0, -0.5, 2.0, 0.5)
+        seen = np.isfinite(stats["mean"])
+        return float(np.percentile((stats["rise"] + stats["drop"])[seen], 95))
+
+    for pan in (-20.0, 20.0, 0.0):  # a look round, standing: the map round the centre fills meanwhile
+        driver.pan_tilt = (pan, -35.0)
+        driver.see(driver.pan_tilt)
+    assert spread() < 0.01
+    first, _ = bounds.statistics(1.0, -0.5, 2.0, 0.5)
+    truth.update(pose=(0.3, 0.0, 0.0), z=0.03)  # driven on: the camera rides 2 cm lower than at the start
+    driver.see(driver.pan_tilt)
+    assert spread() < 0.01
+    after, _ = bounds.statistics(1.0, -0.5, 2.0, 0.5)
+    # the map's ground stays where the frames at the start put it (their datum: 5 cm low)
+    assert np.nanmedian(after["mean"] - first["mean"]) == pytest.approx(0.0, abs=0.002)
+    assert np.nanmedian(after["mean"]) == pytest.approx(-0.05, abs=0.003)
