@@ -94,6 +94,16 @@ class BoundsParams(Settings):
     hang: float = param(0.025, "how far below the plane its attitude gives the ground under a standing wheel may "
                                "lie: a rigid body on four wheels rests on three, and the IMU does not tell which "
                                "one hangs, nor by how much, over lower ground", unit="m", min=0.0, max=0.5)
+    changed: float = param(0.05, "a frame that reads a cell's ground this much over the highest the map held there "
+                                 "(its top and k sigmas) finds the ground changed: a rock came since", unit="m",
+                           min=0.01, max=1.0)
+    changed_cells: int = param(16, "cells of one frame that must read the ground changed before the map drops what "
+                                   "it held round them (fewer are a rock edge seen from a new side)", min=1,
+                               max=10000)
+    stale_radius: float = param(0.3, "what the map held within this of changed ground is dropped and unknown until "
+                                     "a frame shows it again: the new rock's flank the frame did not see (its near "
+                                     "rim below the mast's view) kept the ground seen before it came", unit="m",
+                                min=0.0, max=2.0)
     contact_sigma: float = param(0.001, "the ground under a standing wheel off the plane its pose and attitude put "
                                         "the four contacts on: the tyre's give and the grain it rests on (the "
                                         "attitude's own error is added to it)", unit="m", min=0.0, max=0.05)
@@ -657,10 +667,41 @@ class BoundsMap:
             self._forget(cells[enough & (held < rank)])
             self.source.flat[cells[enough]] = rank
         cells = cells[enough]
+        self._changed(cells, mean[enough])
         self._fuse_cells(cells, mean[enough], mean_var[enough], rise[enough], drop[enough], shift[enough],
                          spread[:, enough], along_var[enough])
         self.stamp.flat[cells] = self.frames
         return int(len(cells))
+
+    def _changed(self, cells: np.ndarray, mean: np.ndarray) -> None:
+        """Where a frame reads the ground of at least ``changed_cells`` cells ``changed`` over the
+        highest the map allowed there, the ground changed (a rock came), and what earlier frames
+        said within ``stale_radius`` of those cells is dropped: the frame's own cells take its word
+        alone, the rest are unknown until a frame shows them (the chooser refuses or looks first).
+        Fused as a disagreement, the union of both stories kept the rock, but the rock's flank
+        the frame did not see kept the flat ground seen before, and a turn on the spot swung a
+        wheel onto it. Priors (the set-down's, the wheels' under the standing rover) are kept:
+        they are what the body feels, not what a frame saw."""
+        p = self.params
+        old = self.mean.flat[cells].astype(np.float64)
+        with np.errstate(invalid="ignore"):
+            top = old + self.rise.flat[cells] + p.k * np.sqrt(self.mean_var.flat[cells].astype(np.float64))
+            risen = (self.stamp.flat[cells] > 0) & (mean - top > p.changed)
+        if np.count_nonzero(risen) < p.changed_cells:
+            return
+        from scipy.ndimage import binary_dilation
+
+        g = self.geometry
+        n = int(math.ceil(p.stale_radius / g.cell))
+        yy, xx = np.mgrid[-n:n + 1, -n:n + 1]
+        near = np.zeros(g.shape, bool)
+        near.flat[cells[risen]] = True
+        near = binary_dilation(near, structure=xx * xx + yy * yy <= n * n) & (self.stamp > 0)
+        stale = np.flatnonzero(near)
+        self._forget(stale)
+        self.stamp.flat[stale] = 0
+        self.source.flat[stale] = 0
+        self.ceiling.flat[stale] = np.where(self.lowered.flat[stale] == self.frames, self.ceiling.flat[stale], np.inf)
 
     def _forget(self, cells: np.ndarray) -> None:
         """Drop what the frames gave ``cells`` (a sensor of higher precedence takes them over)."""
