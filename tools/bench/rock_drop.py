@@ -14,7 +14,9 @@ Judged on the truth: the true track (``nav/<name>_track.csv``) with the vehicle 
 navigate benchmark (:func:`rvs_truth.vehicle.vehicle_check`) on the true 1 cm surface as it is
 after the drop (the rock included), and the least clearance between the body's outline (box and
 wheels) and the rock's base circle over that track. A trial **passes** when the clearance stayed
-above 0 and the truth check finds no event. The reaction is the first of the loop's answers after
+above 0 and the truth check finds no event. A trial whose ``sim add-rock`` is refused (the rock
+would lie off the terrain) is not run: it is reported as "rock refused" and left out of the count,
+as is one that ended before the drop. The reaction is the first of the loop's answers after
 the drop: a stop (``EVENT kind=hazard level=stop``, the section's recheck refused a pose) or a new
 section chosen.
 
@@ -142,12 +144,15 @@ def trial(scene: str, i: int, seed: int, timeout: float, settle: float) -> dict[
                     d = math.atan2(xy[1] - back[1], xy[0] - back[0])
                     if abs((math.degrees(d) - t["heading"] + 180.0) % 360.0 - 180.0) > 10.0:
                         continue
-                    rock = (xy[0] + ahead * math.cos(d), xy[1] + ahead * math.sin(d), radius)
-                    r = srv.request(f"sim add-rock -x {rock[0]:.3f} -y {rock[1]:.3f} -radius {radius:.3f} "
+                    at = (xy[0] + ahead * math.cos(d), xy[1] + ahead * math.sin(d), radius)
+                    r = srv.request(f"sim add-rock -x {at[0]:.3f} -y {at[1]:.3f} -radius {radius:.3f} "
                                     f"-height {height:.3f}")
                     if r.status != "OK":
-                        out["error"] = f"sim add-rock: {r.fields}"
+                        # no rock lies on the ground: the track proves nothing about one
+                        out["refused"] = f"sim add-rock: {r.fields.get('message', r.fields)}"
+                        out["end"] = "rock refused"
                         break
+                    rock = at
                     t = world.truth()
                     drop_t, out["drop_pose"] = t["sim_time"], (round(t["x"], 3), round(t["y"], 3),
                                                               round(t["heading"], 1))
@@ -214,11 +219,21 @@ def _trial(job: tuple[str, int, int, float, float]) -> dict[str, Any]:
     return trial(*job)
 
 
+def dropped(row: dict[str, Any]) -> bool:
+    """Whether a rock lay on the ground in this trial, so that its verdict counts: a trial whose
+    ``sim add-rock`` was refused, or that ended before the drop, has nothing to be judged on."""
+    return "rock" in row and "refused" not in row and "passed" in row
+
+
 def table(rows: list[dict[str, Any]]) -> None:
-    """One line per trial, then the ratio of passes per scene."""
+    """One line per trial, then the ratio of passes per scene over the trials where a rock was
+    dropped (one refused by ``sim add-rock`` or never dropped is no evidence either way)."""
     print("\nscene     trial after ahead radius height blocks end        reaction (s)       stops sections clearance events  "
           "pass")
     for r in rows:
+        if "refused" in r:
+            print(f"{r['scene']:9} {r['trial']:5} {r['after']:5.2f}     -  rock refused: {r['refused']}")
+            continue
         if "rock" not in r:
             print(f"{r['scene']:9} {r['trial']:5} {r['after']:5.2f}     -  no drop: {r.get('end')} {r.get('message', '')}")
             continue
@@ -228,11 +243,13 @@ def table(rows: list[dict[str, Any]]) -> None:
               f"{'yes' if r['blocks_goal'] else 'no':6} {r['end']:10} {react:18} {r['stops']:5} {r['sections']:8} {r['clearance']:9.3f} {ev:7} "
               f"{'pass' if r['passed'] else 'FAIL'}", flush=True)
     for scene in dict.fromkeys(r["scene"] for r in rows):
-        sel = [r for r in rows if r["scene"] == scene and "rock" in r]
+        sel = [r for r in rows if r["scene"] == scene and dropped(r)]
+        refused = sum(1 for r in rows if r["scene"] == scene and "refused" in r)
         print(f"{scene}: {sum(r['passed'] for r in sel)}/{len(sel)} trials passed (no contact, no event); "
               f"{sum(r['passed'] for r in sel if r['blocks_goal'])}/{sum(r['blocks_goal'] for r in sel)} of those with "
               "the rock on the straight way to the goal; "
-              f"{sum(1 for r in rows if r['scene'] == scene and 'rock' not in r)} ended before the drop", flush=True)
+              f"{sum(1 for r in rows if r['scene'] == scene and not dropped(r)) - refused} ended before the drop; "
+              f"{refused} rock refused (not run)", flush=True)
 
 
 def main(argv: list[str] | None = None) -> None:
