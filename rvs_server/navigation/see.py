@@ -165,7 +165,7 @@ class SeeingDriver:
             full = cam @ T_rc[:3, :3].T + T_rc[:3, 3]
             ground = ~self.on_body(full)
             full = full[ground] @ T[:3, :3].T + T[:3, 3]
-            rise = None if standing else self.bounds.offset(full)
+            rise = None if standing or not self.p.register else self.bounds.offset(full)
             if rise is not None:  # placed on the ground the map holds, not on the height read round the centre
                 T[2, 3] -= rise
                 full[:, 2] -= rise
@@ -248,8 +248,8 @@ class SeeingDriver:
 
     def stand_height(self, x: float, y: float) -> float:
         """The height the frames put the rover frame's origin at, standing at (x, y): where the last
-        frame was taken, the height it was placed at; elsewhere :meth:`datum`, until the frame is
-        placed on the ground the map holds (:meth:`BoundsMap.offset
+        frame was taken, the height it was placed at; elsewhere :meth:`datum` (with ``see_register``,
+        until the frame is placed on the ground the map holds: :meth:`BoundsMap.offset
         <prox_workflows.algorithms.bounds_map.BoundsMap.offset>`)."""
         return self.held[2] if self.held is not None and self.standing(x, y) else self.datum(x, y)
 
