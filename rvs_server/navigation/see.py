@@ -247,11 +247,11 @@ class SeeingDriver:
         return self.held is not None and math.hypot(x - self.held[0], y - self.held[1]) <= STILL
 
     def stand_height(self, x: float, y: float) -> float:
-        """The height the frames put the rover frame's origin at, standing at (x, y): where the last
-        frame was taken, the height it was placed at; elsewhere :meth:`datum` (with ``see_register``,
-        until the frame is placed on the ground the map holds: :meth:`BoundsMap.offset
-        <prox_workflows.algorithms.bounds_map.BoundsMap.offset>`)."""
-        return self.held[2] if self.held is not None and self.standing(x, y) else self.datum(x, y)
+        """The height the frames put the rover frame's origin at, standing at (x, y): :meth:`datum`;
+        with ``see_register``, where the last frame was taken, the height it was placed at, and
+        elsewhere :meth:`datum` until the frame is placed on the ground the map holds
+        (:meth:`BoundsMap.offset <prox_workflows.algorithms.bounds_map.BoundsMap.offset>`)."""
+        return self.held[2] if self.p.register and self.held is not None and self.standing(x, y) else self.datum(x, y)
 
     def datum(self, x: float, y: float) -> float:
         """The height the frames take the rover's own ground at (x, y): the rolling map's there,
