@@ -5,9 +5,10 @@ from __future__ import annotations
 
 from typing import Any
 
+import numpy as np
 import pytest
 
-from tools.bench.rock_drop import dropped, table
+from tools.bench.rock_drop import after_drop, dropped, table
 
 
 def _row(i: int, **fields: Any) -> dict[str, Any]:
@@ -36,3 +37,16 @@ def test_a_refused_rock_is_reported_apart_and_left_out_of_the_pass_count(capsys:
     assert summary.startswith("marsyard: 1/2 trials passed"), summary
     assert "1/2 of those with the rock on the straight way" in summary
     assert "1 ended before the drop; 1 rock refused (not run)" in summary
+
+
+def test_a_trial_is_judged_on_its_track_from_the_drop_on() -> None:
+    # a turn at the start over ground the rock later covered, then a drive out and back past it:
+    # the rock came when the rover stood at (2, 0) heading 180, so the turn at the start is not judged
+    start_turn = [(0.0, 0.0, h) for h in (0.0, 45.0, 90.0)]
+    out = [(x, 0.0, 0.0) for x in (0.5, 1.0, 1.5, 2.0)]
+    back = [(2.0, 0.0, 90.0), (2.0, 0.0, 180.0), (1.5, 0.0, 180.0), (1.0, 0.1, 180.0)]
+    poses = np.array(start_turn + out + back)
+    judged = after_drop(poses, (2.0, 0.0, 180.0))
+    np.testing.assert_array_equal(judged, poses[8:])
+    # a drop pose the track never held (a rounded pose off the track): the whole track
+    assert len(after_drop(poses, (5.0, 5.0, 0.0))) == len(poses)

@@ -10,7 +10,8 @@ direction it is driving. The trial ends when the rover has passed the rock (fart
 rock and clear of it), or has stopped short of it for ``--settle`` simulated seconds, or the job
 ended; a running job is interrupted with ``break`` (the track so far is written).
 
-Judged on the truth: the true track (``nav/<name>_track.csv``) with the vehicle check of the
+Judged on the truth: the true track (``nav/<name>_track.csv``) from the pose the rover had at the
+drop on (:func:`after_drop`), with the vehicle check of the
 navigate benchmark (:func:`rvs_truth.vehicle.vehicle_check`) on the true 1 cm surface as it is
 after the drop (the rock included), and the least clearance between the body's outline (box and
 wheels) and the rock's base circle over that track. A trial **passes** when the clearance stayed
@@ -200,7 +201,8 @@ def trial(scene: str, i: int, seed: int, timeout: float, settle: float) -> dict[
             out["reaction_s"] = None if first is None else round(first - drop_t, 1)
             out["stops"], out["sections"] = len(stops), len(chosen)
             track_file = Path(tmp) / "nav" / "drop_track.csv"
-            poses = read_track(track_file)
+            # the track from the drop on: what came before drove ground that held no rock then
+            poses = after_drop(read_track(track_file), out["drop_pose"])
             out["clearance"] = round(clearance(poses, rock, world.body), 3)
             pad = 1.0
             box = (float(poses[:, 0].min()) - pad, float(poses[:, 1].min()) - pad,
@@ -213,6 +215,19 @@ def trial(scene: str, i: int, seed: int, timeout: float, settle: float) -> dict[
             return out
         finally:
             srv.stop()
+
+
+def after_drop(poses: np.ndarray, drop_pose: tuple[float, float, float], tol: float = 0.02,
+               tol_deg: float = 2.0) -> np.ndarray:
+    """The true track (N x 3) from the pose the rover had when the rock was dropped: the first
+    pose within ``tol`` and ``tol_deg`` of it (the track keeps no time; a rover that passed the
+    same pose earlier is judged from there, more than it need be, never less). The whole track
+    where none matches. Judged whole on the surface after the drop, a turn at the start over
+    ground the rock later covered counted as contact with a rock not yet there."""
+    d = np.hypot(poses[:, 0] - drop_pose[0], poses[:, 1] - drop_pose[1])
+    turn = np.abs((poses[:, 2] - drop_pose[2] + 180.0) % 360.0 - 180.0)
+    match = np.flatnonzero((d <= tol) & (turn <= tol_deg))
+    return poses[int(match[0]):] if len(match) else poses
 
 
 def _trial(job: tuple[str, int, int, float, float]) -> dict[str, Any]:
