@@ -701,11 +701,14 @@ class BoundsMap:
         near = np.zeros(g.shape, bool)
         near.flat[cells[risen]] = True
         near = binary_dilation(near, structure=xx * xx + yy * yy <= n * n) & (self.stamp > 0)
-        stale = np.flatnonzero(near)
-        self._forget(stale)
-        self.stamp.flat[stale] = 0
-        self.source.flat[stale] = 0
-        self.ceiling.flat[stale] = np.where(self.lowered.flat[stale] == self.frames, self.ceiling.flat[stale], np.inf)
+        # every layer back to what a cell nothing bounded holds, but a ray of this very frame
+        rows, cols = np.nonzero(near)
+        ray = self.lowered[rows, cols] == self.frames
+        for name, fill in _LAYERS:
+            if name in ("ceiling", "lowered"):
+                getattr(self, name)[rows[~ray], cols[~ray]] = fill
+            else:
+                getattr(self, name)[..., rows, cols] = fill
 
     def _forget(self, cells: np.ndarray) -> None:
         """Drop what the frames gave ``cells`` (a sensor of higher precedence takes them over)."""
