@@ -154,18 +154,44 @@ def whole_truth(scene: str) -> bool:
 
 
 def truth_checks(world: World, scene: str, poses: np.ndarray, body: VehicleBody) -> PoseChecks:
-    """The vehicle check of ``poses`` ((N, 3), in the order driven) on the true 1 cm surface: the
-    scene's whole surface (:func:`truth_surface`) when it is small enough (:func:`whole_truth`),
-    else a tile per run of poses that spreads at most :data:`TILE` along x and y, built over
-    that run's box grown by the body's reach (and a 5 cm cell). A tile is on the same 1 cm
-    lattice as the whole surface (both refine the 5 cm grid aligned to multiples of its cell),
-    so a pose reads the same samples either way; memory stays that of one tile, whatever the
-    distance driven."""
-    poses = np.atleast_2d(np.asarray(poses, float))
-    if whole_truth(scene) or not len(poses):
+    """The vehicle check of ``poses`` ((N, 3), in the order driven) on the true 1 cm surface under
+    each body: the scene's whole surface (:func:`truth_surface`) for the poses whose body it
+    covers when it is small enough (:func:`whole_truth`), else a tile per run of poses that
+    spreads at most :data:`TILE` along x and y, built over that run's box grown by the body's
+    reach (and a 5 cm cell). A rover may drive where its mission's area ends and the world goes
+    on (hirise's area ends 1 m inside its terrain): read off the surface, that ground would be
+    taken as a drop, a step of 10-14 cm at every wheel over the edge that the world does not
+    have. A tile is on the same 1 cm lattice as the whole surface (both refine the 5 cm grid
+    aligned to multiples of its cell), so a pose reads the same samples either way; memory stays
+    that of one tile, whatever the distance driven."""
+    poses = np.atleast_2d(np.asarray(poses, float)).reshape(-1, 3)
+    grow = reach(body) + 0.05
+    covered = np.zeros(len(poses), bool)
+    if whole_truth(scene):
+        x0, y0, x1, y1 = AREA[scene]
+        covered = ((poses[:, 0] - grow >= x0) & (poses[:, 0] + grow <= x1)
+                   & (poses[:, 1] - grow >= y0) & (poses[:, 1] + grow <= y1))
+    if covered.all() and len(poses):
         fine, g, _ = truth_surface(world, scene)
         return check_poses(fine, g, poses, body)
-    grow = reach(body) + 0.05
+    parts = [(np.flatnonzero(~covered), _tiled(world, poses[~covered], body, grow))]
+    if covered.any():
+        fine, g, _ = truth_surface(world, scene)
+        parts.append((np.flatnonzero(covered), check_poses(fine, g, poses[covered], body)))
+    out = {}
+    for f in dataclasses.fields(PoseChecks):
+        first = getattr(parts[0][1], f.name)
+        a = np.empty((len(poses), *first.shape[1:]), first.dtype)
+        for at, c in parts:
+            a[at] = getattr(c, f.name)
+        out[f.name] = a
+    return PoseChecks(**out)
+
+
+def _tiled(world: World, poses: np.ndarray, body: VehicleBody, grow: float) -> PoseChecks:
+    """:func:`truth_checks` on tiles built round runs of ``poses`` (see there)."""
+    if not len(poses):  # an empty check of the right shapes
+        return check_poses(np.zeros((1, 1), np.float32), GridGeometry(0.01, 0.0, 0.01, 1, 1), poses, body)
     parts = []
     first = 0
     while first < len(poses):

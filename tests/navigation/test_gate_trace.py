@@ -3,15 +3,24 @@ synthetic ground: a 12 cm ledge under the rover's turn, known to the map to 5 mm
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import numpy as np
 
 from drivers.sim.rover import RoverBody
 from prox_workflows.algorithms.bounds_map import BoundsParams
 from prox_workflows.algorithms.chance import ChanceParams
+from prox_workflows.algorithms.vehicle import PoseChecks, check_poses
 from prox_workflows.grid import GridGeometry
 from tools.bench.gate_trace import detail, trace_events, turn_trace
 
 BODY = RoverBody()
+
+
+def on(h: np.ndarray, g: GridGeometry) -> Callable[[np.ndarray], PoseChecks]:  # the truth judging poses on ``h``
+    def truth(poses: np.ndarray) -> PoseChecks:
+        return check_poses(h, g, poses, BODY)
+    return truth
 
 
 def ground() -> tuple[np.ndarray, GridGeometry]:
@@ -29,7 +38,7 @@ def test_a_refusal_is_judged_per_limit_on_the_map_the_draws_and_the_truth() -> N
     choices = [{"pose": [0.0, 0.0, 0.0], "map": (stats, g, BoundsParams().k), "chance": ChanceParams()}]
     refusals = [{"pose": [0.0, 0.0, 0.0], "choice": 0, "where": "choose"},  # the ledge under the front wheels
                 {"pose": [-0.5, 0.0, 0.0], "choice": 0, "where": "choose"}]  # flat ground behind it
-    out = detail(choices, refusals, h, g, BODY, draws=16)
+    out = detail(choices, refusals, on(h, g), BODY, draws=16)
     assert len(out) == 2
     ledge, flat = out
     assert ledge["truth_unsafe"] and not flat["truth_unsafe"]
@@ -44,7 +53,7 @@ def test_an_event_is_traced_to_the_nearest_chosen_pose_and_the_truth_there() -> 
     choices = [{"pose": [-0.5, 0.0, 0.0], "section": section, "section_p_any": 1e-6}]
     events = [{"kind": "step front-left", "excess": 0.02, "x": 0.01, "y": 0.005, "heading": 2.0},
               {"kind": "belly", "excess": 0.001, "x": -0.29, "y": 0.01, "heading": 0.0}]
-    chosen_unsafe, strayed = trace_events(events, choices, h, g, BODY)
+    chosen_unsafe, strayed = trace_events(events, choices, on(h, g))
     assert chosen_unsafe["nearest"] == [0.0, 0.0, 0.0] and chosen_unsafe["planned_truly_unsafe"]
     assert abs(chosen_unsafe["off_m"] - np.hypot(0.01, 0.005)) < 1e-9 and chosen_unsafe["off_deg"] == 2.0
     assert strayed["nearest"] == [-0.3, 0.0, 0.0] and not strayed["planned_truly_unsafe"]
@@ -69,7 +78,7 @@ def test_the_stop_s_turn_names_the_frames_spread_that_refuses_it_on_flat_ground(
     stats = {"mean": flat, "mean_var": np.full(flat.shape, 0.001**2, np.float32), "rise": rise, "drop": z,
              "relief": z, "shift": z, "along_var": z, "ceiling": np.full(flat.shape, np.inf, np.float32),
              "framed": np.ones(flat.shape, bool), "lower": flat, "upper": flat + rise}
-    turn = turn_trace(stats, g, BoundsParams().k, (0.0, 0.0, 0.0), flat, g, BODY, ChanceParams(), step=5.0)
+    turn = turn_trace(stats, g, BoundsParams().k, (0.0, 0.0, 0.0), on(flat, g), BODY, ChanceParams(), step=5.0)
     left, right = turn["left"], turn["right"]
     assert left["truth"] == 360.0 and right["truth"] == 360.0
     for way in (left, right):

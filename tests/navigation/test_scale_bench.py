@@ -11,6 +11,7 @@ from support.marks import long_test
 
 import rvs_truth.surface as surface
 from drivers.sim.world import World
+from prox_workflows.algorithms.vehicle import check_poses
 from rvs_truth.surface import AREA, missions, truth_checks
 from tools.bench.scale import judge, odometer, stretch_table
 
@@ -55,6 +56,27 @@ def test_the_truth_judged_in_tiles_is_the_whole_surfaces_judgement(monkeypatch: 
     # the samples of a tile and of the whole surface differ in the last float bits of their positions
     np.testing.assert_allclose(tiled.excess, whole.excess, atol=1e-4)
     np.testing.assert_array_equal(tiled.unsafe, whole.unsafe)
+
+
+def test_a_body_reaching_past_the_mission_area_is_judged_on_the_world_s_ground_there(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """Hirise's area ends at y = 14 m, 1 m inside its terrain. A rover turning at (-7.58, 13.85)
+    puts its right wheels past that edge: read on the area's surface alone, the ground off it is
+    taken as a drop (a 4 cm step over the climb at the front-right wheel that the world does not
+    have); judged where the world goes on, it is safe with 7 cm to spare. A pose the area covers
+    is judged on it as before. (The area is cut down to 2 x 1 m here to keep the surface small.)"""
+    world = World.from_scene("hirise")
+    monkeypatch.setitem(AREA, "hirise", (-8.5, 13.0, -6.5, 14.0))
+    monkeypatch.setattr(surface, "_TRUTH", {})
+    poses = np.array([[-7.582, 13.854, -152.491], [-7.6, 13.3, 0.0]])
+    fine, g, _ = surface.truth_surface(world, "hirise")
+    cut = check_poses(fine, g, poses, world.body)
+    assert cut.excess[0, 0] > 0.03  # the edge read as a step
+    judged = truth_checks(world, "hirise", poses, world.body)
+    around, ga, _ = surface.surface_over(world, (-9.0, 12.5, -6.0, 15.0))
+    np.testing.assert_allclose(judged.excess, check_poses(around, ga, poses, world.body).excess, atol=1e-4)
+    assert judged.excess[0, 0] < -0.05 and not judged.unsafe.any()
+    np.testing.assert_allclose(judged.excess[1], cut.excess[1], atol=1e-6)
 
 
 def test_an_event_is_put_at_the_distance_driven_where_it_starts() -> None:

@@ -35,6 +35,7 @@ import dataclasses
 import json
 import time
 from collections import Counter
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
@@ -43,8 +44,10 @@ import rvs_server.navigation.sections as sections
 from drivers.sim.world import World
 from prox_workflows.algorithms import bounds_map, chance, vehicle
 from prox_workflows.algorithms.candidates import verdict_name
-from rvs_truth.surface import missions
+from rvs_truth.surface import missions, truth_checks
 from tools.bench import navigate as bench
+
+Truth = Callable[[np.ndarray], vehicle.PoseChecks]  # the truth's check of (N, 3) poses wherever they are
 
 
 def main() -> None:
@@ -126,14 +129,16 @@ def main() -> None:
     t0 = time.monotonic()
     row = bench.run_mission(args.scene, "see", start, goal, [], tuple(args.set))
     world = World.from_scene(args.scene)
-    fine, g, _ = bench.truth_surface(world, args.scene)
+    def truth(poses: np.ndarray) -> vehicle.PoseChecks:
+        return truth_checks(world, args.scene, poses, world.body)
+
     if refusals:
-        c = vehicle.check_poses(fine, g, np.array([r["pose"] for r in refusals]), world.body)
+        c = truth(np.array([r["pose"] for r in refusals]))
         for i, r in enumerate(refusals):
             r["truth"] = {"unsafe": bool(c.unsafe[i]), "tilt": round(float(c.tilt[i]), 2),
                           "belly": round(float(c.intrusion[i]), 4)}
-    detailed = detail(choices, refusals, fine, g, world.body) if args.detail else []
-    row["events_traced"] = trace_events(row["events"], choices, fine, g, world.body)
+    detailed = detail(choices, refusals, truth, world.body) if args.detail else []
+    row["events_traced"] = trace_events(row["events"], choices, truth)
     for e in row["events_traced"]:
         print(f"event {e['kind']} +{e['excess'] * (100 if e['kind'][:4] in ('step', 'bell') else 1):.2f} at "
               f"({e['x']}, {e['y']}, {e['heading']}): nearest chosen pose {e['nearest']} of choice {e['choice']} "
@@ -144,7 +149,7 @@ def main() -> None:
         last = next((c for c in reversed(choices) if "map" in c), None)
         if last is not None:
             stats, wg, k = last["map"]
-            turn = turn_trace(stats, wg, k, last["pose"], fine, g, world.body, last["chance"])
+            turn = turn_trace(stats, wg, k, last["pose"], truth, world.body, last["chance"])
     if args.dump:
         dump(args.dump, choices, refusals, goal)
     row.update(stop_turn=turn, refusals=refusals, trace_wall_s=round(time.monotonic() - t0, 1), detailed=detailed,
@@ -193,10 +198,10 @@ TERMS: dict[str, Any] = {
 }
 
 
-def turn_trace(stats: dict[str, np.ndarray], g: Any, k: float, pose: Any, fine: np.ndarray, fg: Any, body: Any,
+def turn_trace(stats: dict[str, np.ndarray], g: Any, k: float, pose: Any, truth: Truth, body: Any,
                params: chance.ChanceParams, step: float = 2.0) -> dict[str, dict[str, Any]]:
     """The turn on the spot from ``pose`` each way (``left``: the heading rising), in ``step`` deg:
-    how many degrees of it are truly safe on the true surface ``fine`` over ``fg``, how many the
+    how many degrees of it are truly safe on the true surface (``truth`` judges poses there), how many the
     chance check passes on the map's ``stats`` over ``g``, and how many it passes with each of
     :data:`TERMS` taken out (``without``). The turn's first pose is the pose itself: -``step``
     means the rover's own pose fails. A stop where the truth allows a turn the check refuses is
@@ -214,14 +219,13 @@ def turn_trace(stats: dict[str, np.ndarray], g: Any, k: float, pose: Any, fine: 
     for way, sign in (("left", 1.0), ("right", -1.0)):
         heads = pose[2] + sign * np.arange(0.0, 360.0 + step / 2, step)
         poses = np.column_stack([np.full(len(heads), pose[0]), np.full(len(heads), pose[1]), heads])
-        out[way] = {"truth": passes(vehicle.check_poses(fine, fg, poses, body).safe),
+        out[way] = {"truth": passes(truth(poses).safe),
                     "check": judged(poses, stats, params),
                     "without": {name: judged(poses, *term(stats, params)) for name, term in TERMS.items()}}
     return out
 
 
-def trace_events(events: list[dict[str, Any]], choices: list[dict[str, Any]], fine: np.ndarray, g: Any,
-                 body: Any) -> list[dict[str, Any]]:
+def trace_events(events: list[dict[str, Any]], choices: list[dict[str, Any]], truth: Truth) -> list[dict[str, Any]]:
     """Per unsafe event on the true track: the nearest pose of a section the chooser passed (how far
     off the true pose was, in metres and degrees), and the truth's verdict at that planned pose: a
     truly unsafe planned pose is the check's false safe, a safe one the track's straying."""
@@ -238,7 +242,7 @@ def trace_events(events: list[dict[str, Any]], choices: list[dict[str, Any]], fi
         if best is None:
             continue
         _, ci, pose, dh = best
-        t = vehicle.check_poses(fine, g, pose[None, :], body)
+        t = truth(pose[None, :])
         out.append({**e, "choice": ci, "nearest": [round(float(v), 3) for v in pose],
                     "off_m": float(np.hypot(pose[0] - e["x"], pose[1] - e["y"])), "off_deg": dh,
                     "planned_truly_unsafe": bool(t.unsafe[0]), "planned_truth": [round(float(v), 4) for v in t.excess[0]],
@@ -263,7 +267,7 @@ def dump(path: str, choices: list[dict[str, Any]], refusals: list[dict[str, Any]
     np.savez_compressed(path, **out)
 
 
-def detail(choices: list[dict[str, Any]], refusals: list[dict[str, Any]], fine: np.ndarray, g: Any, body: Any,
+def detail(choices: list[dict[str, Any]], refusals: list[dict[str, Any]], truth: Truth, body: Any,
            draws: int = 64, per_choice: int = 400) -> list[dict[str, Any]]:
     """Per refused pose of the choices that kept their map: per limit (LIMITS order) the excess on
     the posterior's best estimate, the mean and the worst of ``draws`` drawn surfaces' excesses,
@@ -281,7 +285,7 @@ def detail(choices: list[dict[str, Any]], refusals: list[dict[str, Any]], fine: 
         ex = [vehicle.check_poses(surface, wg, poses, body).excess
               for surface in chance.surfaces(post, wg, dataclasses.replace(c["chance"], samples=draws))]
         ex = np.nan_to_num(np.array(ex), nan=-np.inf)
-        truth = vehicle.check_poses(fine, g, poses, body)
+        true = truth(poses)
         for i, p in enumerate(poses):
             out.append({"choice": ci, "pose": [round(float(v), 3) for v in p],
                         "from_rover": round(float(np.hypot(*(p[:2] - np.array(c["pose"][:2])))), 3),
@@ -290,8 +294,8 @@ def detail(choices: list[dict[str, Any]], refusals: list[dict[str, Any]], fine: 
                         "best_wheel": int(full.nominal.wheel[i]),
                         "draw_mean": [round(float(v), 4) for v in ex[:, i].mean(axis=0)],
                         "draw_max": [round(float(v), 4) for v in ex[:, i].max(axis=0)],
-                        "truth": [round(float(v), 4) for v in truth.excess[i]], "truth_wheel": int(truth.wheel[i]),
-                        "truth_unsafe": bool(truth.unsafe[i])})
+                        "truth": [round(float(v), 4) for v in true.excess[i]], "truth_wheel": int(true.wheel[i]),
+                        "truth_unsafe": bool(true.unsafe[i])})
     return out
 
 

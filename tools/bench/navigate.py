@@ -84,7 +84,7 @@ from rvs_truth.vehicle import (
     perfect_plan,
     read_track,
     stop_reason,
-    vehicle_check,
+    track_check,
 )
 from tools.bench.rows import streamed
 
@@ -235,7 +235,7 @@ def run_mission(scene: str, mode: str, start: tuple[float, float], goal: tuple[f
             out["track_heading"] = bool(track_file.exists() and "heading" in track_file.read_text().split("\n", 1)[0])
             body = world.body
             surface = truth_surface(world, scene)
-            events, checked = vehicle_check(poses, surface, body)
+            events, checked = track_check(world, scene, poses, body)
             out["events"] = [{"kind": e.kind, "excess": e.excess, "band": e.band, "x": round(e.x, 2), "y": round(e.y, 2),
                               "heading": round(e.heading, 1)} for e in events]
             out["poses_checked"] = checked
