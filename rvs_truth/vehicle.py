@@ -14,13 +14,12 @@ from typing import Any
 import numpy as np
 
 from drivers.sim.rover import RoverBody
-from drivers.sim.world import World
 from prox_workflows.algorithms.dem2hazard import HazardParams, classify
 from prox_workflows.algorithms.safety import check_move
 from prox_workflows.algorithms.vehicle import Event, check_poses, densify, track_poses, unsafe_events
 from prox_workflows.grid import GridGeometry
 
-from .surface import ceiling_layers, truth_checks
+from .surface import ceiling_layers
 
 ROVER = (0.51, 0.40)  # config/head.yaml rover_length, rover_width
 
@@ -69,13 +68,6 @@ def vehicle_check(poses: np.ndarray, surface: tuple[np.ndarray, GridGeometry, Gr
     dense = densify(poses, TRACK_STEP, body)
     checks = check_poses(surface[0], surface[1], dense, body)
     return unsafe_events(checks, dense, body), len(dense)
-
-
-def track_check(world: World, scene: str, poses: np.ndarray, body: RoverBody) -> tuple[list[Event], int]:
-    """:func:`vehicle_check` of a track driven in ``scene`` on the world's true ground under every
-    pose, wherever the track went (:func:`rvs_truth.surface.truth_checks`)."""
-    dense = densify(poses, TRACK_STEP, body)
-    return unsafe_events(truth_checks(world, scene, dense, body), dense, body), len(dense)
 
 
 def plan_poses(xy: np.ndarray, start_heading: float) -> np.ndarray:

@@ -66,16 +66,17 @@ import numpy as np
 from drivers.sim.rover import RoverBody
 from drivers.sim.world import World
 from prox_workflows.algorithms.dem2hazard import HazardParams, dem2hazard
-from prox_workflows.algorithms.vehicle import Margins
+from prox_workflows.algorithms.vehicle import Margins, densify, unsafe_events
 from prox_workflows.grid import GridGeometry
 from rvs_server.client.session import ServerThread
 from rvs_server.protocol import Reply, parse_reply
 from rvs_truth.ceiling import perception_ceiling
 from rvs_truth.oracle import default_cache_dir, mission_oracle
 from rvs_truth.orbital import ORIGIN, orbital_geotiff, write_global_maps
-from rvs_truth.surface import AREA, CEILING_MAPS, missions, true_maps, truth_surface
+from rvs_truth.surface import AREA, CEILING_MAPS, missions, true_maps, truth_checks, truth_surface
 from rvs_truth.vehicle import (
     ROVER,
+    TRACK_STEP,
     capability_hazard,
     cross_track,
     crossed,
@@ -84,7 +85,6 @@ from rvs_truth.vehicle import (
     perfect_plan,
     read_track,
     stop_reason,
-    track_check,
 )
 from tools.bench.rows import streamed
 
@@ -235,7 +235,8 @@ def run_mission(scene: str, mode: str, start: tuple[float, float], goal: tuple[f
             out["track_heading"] = bool(track_file.exists() and "heading" in track_file.read_text().split("\n", 1)[0])
             body = world.body
             surface = truth_surface(world, scene)
-            events, checked = track_check(world, scene, poses, body)
+            dense = densify(poses, TRACK_STEP, body)  # judged under every pose, wherever the track went
+            events, checked = unsafe_events(truth_checks(world, scene, dense, body), dense, body), len(dense)
             out["events"] = [{"kind": e.kind, "excess": e.excess, "band": e.band, "x": round(e.x, 2), "y": round(e.y, 2),
                               "heading": round(e.heading, 1)} for e in events]
             out["poses_checked"] = checked
