@@ -171,13 +171,13 @@ def truth_checks(world: World, scene: str, poses: np.ndarray, body: VehicleBody)
         x0, y0, x1, y1 = AREA[scene]
         covered = ((poses[:, 0] - grow >= x0) & (poses[:, 0] + grow <= x1)
                    & (poses[:, 1] - grow >= y0) & (poses[:, 1] + grow <= y1))
-    if covered.all() and len(poses):
-        fine, g, _ = truth_surface(world, scene)
-        return check_poses(fine, g, poses, body)
-    parts = [(np.flatnonzero(~covered), _tiled(world, poses[~covered], body, grow))]
+    parts = _tiled(world, poses, np.flatnonzero(~covered), body, grow)
     if covered.any():
         fine, g, _ = truth_surface(world, scene)
-        parts.append((np.flatnonzero(covered), check_poses(fine, g, poses[covered], body)))
+        at = np.flatnonzero(covered)
+        parts.append((at, check_poses(fine, g, poses[at], body)))
+    if not parts:  # no pose: an empty check of the right shapes
+        return check_poses(np.zeros((1, 1), np.float32), GridGeometry(0.01, 0.0, 0.01, 1, 1), poses, body)
     out = {}
     for f in dataclasses.fields(PoseChecks):
         first = getattr(parts[0][1], f.name)
@@ -188,25 +188,25 @@ def truth_checks(world: World, scene: str, poses: np.ndarray, body: VehicleBody)
     return PoseChecks(**out)
 
 
-def _tiled(world: World, poses: np.ndarray, body: VehicleBody, grow: float) -> PoseChecks:
-    """:func:`truth_checks` on tiles built round runs of ``poses`` (see there)."""
-    if not len(poses):  # an empty check of the right shapes
-        return check_poses(np.zeros((1, 1), np.float32), GridGeometry(0.01, 0.0, 0.01, 1, 1), poses, body)
+def _tiled(world: World, poses: np.ndarray, which: np.ndarray, body: VehicleBody,
+           grow: float) -> list[tuple[np.ndarray, PoseChecks]]:
+    """:func:`truth_checks` of ``poses[which]`` on tiles built round runs of them (see there): per
+    tile, the indices into ``poses`` it judged and its checks."""
     parts = []
     first = 0
-    while first < len(poses):
-        lo = hi = poses[first, :2]
+    while first < len(which):
+        lo = hi = poses[which[first], :2]
         end = first + 1
-        while end < len(poses):
-            nlo, nhi = np.minimum(lo, poses[end, :2]), np.maximum(hi, poses[end, :2])
+        while end < len(which):
+            nlo, nhi = np.minimum(lo, poses[which[end], :2]), np.maximum(hi, poses[which[end], :2])
             if (nhi - nlo).max() > TILE:
                 break
             lo, hi, end = nlo, nhi, end + 1
         fine, g, _ = surface_over(world, (lo[0] - grow, lo[1] - grow, hi[0] + grow, hi[1] + grow))
-        parts.append(check_poses(fine, g, poses[first:end], body))
+        at = which[first:end]
+        parts.append((at, check_poses(fine, g, poses[at], body)))
         first = end
-    return PoseChecks(**{f.name: np.concatenate([getattr(c, f.name) for c in parts])
-                         for f in dataclasses.fields(PoseChecks)})
+    return parts
 
 
 def surface_over(world: World, bounds: tuple[float, float, float, float]
