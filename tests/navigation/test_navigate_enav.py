@@ -188,7 +188,7 @@ def test_a_rock_dropped_ahead_of_the_driving_chooser_is_not_driven_into(server_f
     track keeps the body's outline off the rock's base and the vehicle check on the true surface
     (the rock included) finds no event. A loop that drove its section on regardless of the new
     ground puts the body on the rock."""
-    from tools.bench.rock_drop import clearance
+    from tools.bench.rock_drop import clearance, clock_held
 
     # the simulated PTU answers over a pseudo-terminal: on a loaded machine its 2 s reply wait can
     # run out, which is the machine's, not the loop's
@@ -200,11 +200,14 @@ def test_a_rock_dropped_ahead_of_the_driving_chooser_is_not_driven_into(server_f
     radius = 0.2
     # once it has driven 0.5 m: a rock 1 m ahead along its heading
     assert wait_for(lambda: world.truth()["x"] >= 0.5, timeout=600, interval=0.01), "the rover never drove 0.5 m"
-    t = world.truth()
-    h = math.radians(t["heading"])
-    rock = (t["x"] + math.cos(h), t["y"] + math.sin(h), radius)
-    r = op.request(f"sim add-rock -x {rock[0]:.3f} -y {rock[1]:.3f} -radius {radius} -height 0.25")
+    with clock_held(op.request, world):
+        t = world.truth()
+        h = math.radians(t["heading"])
+        rock = (t["x"] + math.cos(h), t["y"] + math.sin(h), radius)
+        r = op.request(f"sim add-rock -x {rock[0]:.3f} -y {rock[1]:.3f} -radius {radius} -height 0.25")
+        landed = world.truth()
     assert r.status == "OK", r.fields
+    assert math.hypot(rock[0] - landed["x"], rock[1] - landed["y"]) > 0.98, (rock, landed)
     lines = c.until_final(job=job, timeout=900)
     final = lines[-1]
     track = read_track(srv.data / "nav" / "drop_track.csv")

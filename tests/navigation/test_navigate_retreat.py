@@ -14,19 +14,21 @@ from support.server import wait_for
 from prox_workflows.grid import GridGeometry
 from rvs_truth.surface import fine_surface
 from rvs_truth.vehicle import read_track, vehicle_check
+from tools.bench.rock_drop import clock_held
 
 # a fence of rocks (x, y, radius) 20 cm high across the way at x -0.6 m, |y| to 1.6 m, with a gate in
-# it: a corridor to x 0.6 m whose walls stand 38 cm to each side of its middle, inside the 38.6 cm
-# the body's corners sweep in a turn on the spot: the body drives through it straight, and turns in
-# it nowhere
+# it: a corridor to x 0.7 m whose walls, rocks 30 cm high set 14 cm apart (no gap between them),
+# stand 37 cm to each side of its middle, inside the 38.5 cm the wheels' outer corners sweep in a
+# turn on the spot. On the true surface the body drives through it straight, and a turn on the spot
+# anywhere past x -0.5 m meets a limit 13-30 deg round (walls 38 cm off with gaps between round
+# rocks 20 cm high let the wheels pass over their flanks: the whole turn was safe)
 FENCE = [(-0.6, side * y, 0.14) for y in (0.8, 1.08, 1.36, 1.64) for side in (-1, 1)]
-CORRIDOR = [(x, side * 0.52, 0.14) for x in (-0.6, -0.32, -0.04, 0.24, 0.52) for side in (-1, 1)]
-
+CORRIDOR = [(round(-0.6 + 0.14 * i, 2), side * 0.55, 0.18) for i in range(9) for side in (-1, 1)]
 
 def _pocket(srv) -> None:
     c = srv.client()
-    for x, y, r in FENCE + CORRIDOR:
-        reply = c.request(f"sim add-rock -x {x} -y {y} -radius {r} -height 0.2")
+    for (x, y, r), height in [(rock, 0.2) for rock in FENCE] + [(rock, 0.3) for rock in CORRIDOR]:
+        reply = c.request(f"sim add-rock -x {x} -y {y} -radius {r} -height {height}")
         assert reply.status == "OK", reply.fields
 
 
@@ -74,8 +76,11 @@ def test_a_rover_in_a_cul_de_sac_backs_out_and_reaches_the_goal_round_it(server_
     assert wait_for(lambda: world.truth()["x"] < -1.5, timeout=60, interval=0.01)
     assert wait_for(lambda: world.truth()["x"] >= -0.35 and abs(world.truth()["y"]) < 0.25, timeout=1200,
                     interval=0.01), "the rover never drove into the corridor"
-    r = op.request("sim add-rock -x 0.95 -y 0 -radius 0.24 -height 0.25")
+    with clock_held(op.request, world):
+        r = op.request("sim add-rock -x 0.95 -y 0 -radius 0.24 -height 0.25")
+        landed = world.truth()["x"]
     assert r.status == "OK", r.fields
+    assert landed < 0.0, landed  # the rock closed the corridor 1 m or more ahead of the rover
     lines = c.until_final(job=job, timeout=2400)
     final = lines[-1]
     assert final.status == "OK" and final.fields["reached"] == "true", final.fields
