@@ -94,11 +94,11 @@ class BoundsParams(Settings):
     hang: float = param(0.025, "how far below the plane its attitude gives the ground under a standing wheel may "
                                "lie: a rigid body on four wheels rests on three, and the IMU does not tell which "
                                "one hangs, nor by how much, over lower ground", unit="m", min=0.0, max=0.5)
-    changed: float = param(0.0, "a frame that reads a cell's ground this much over the highest the map held there "
-                                "(its top and k sigmas) finds the ground changed: a rock came since; 0: never "
-                                "(disagreeing frames keep the union of both). Frames placed on the map's ground "
-                                "(navigate.see_register) need it at 0.05: their agreement no longer widens a dropped "
-                                "rock's unseen flank", unit="m", min=0.0, max=1.0)
+    changed: float = param(0.05, "a frame that reads a cell's ground this much over the highest the map held there "
+                                 "(its top and k sigmas) finds the ground changed: a rock came since; 0: never "
+                                 "(disagreeing frames keep the union of both, which covered a dropped rock's unseen "
+                                 "flank only while frames disagreed by chance: navigate.see_register places them "
+                                 "on the map's ground, to millimetres)", unit="m", min=0.0, max=1.0)
     changed_cells: int = param(16, "cells of one frame that must read the ground changed before the map drops what "
                                    "it held round them (fewer are a rock edge seen from a new side)", min=1,
                                max=10000)

@@ -52,7 +52,7 @@ __all__ = ["RetreatParams", "ReverseOption", "DeadEnd", "reverse_options", "choo
 class RetreatParams(Settings):
     """Backing out of dead ends, and the price a dead end leaves on the cost to go."""
 
-    retreats: int = param(0, "dead ends the rover may back out of in one mission (a reverse section each, then "
+    retreats: int = param(4, "dead ends the rover may back out of in one mission (a reverse section each, then "
                              "it chooses again); at the next one, or where no reverse section passes, the "
                              "mission is a safe stop with the reason (0: no backing out)", min=0, max=100)
     length: float = param(0.6, "length of each reverse arc, driven backwards", unit="m", min=0.1, max=3.0)

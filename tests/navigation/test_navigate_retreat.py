@@ -40,7 +40,7 @@ def _events(srv, world, name: str, box: tuple[float, float, float, float]) -> tu
     return vehicle_check(read_track(srv.data / "nav" / f"{name}_track.csv"), surface, world.body)
 
 
-@long_test  # retreats are off by default: a mission to a dead end, 10-25 s
+@long_test  # a mission to a dead end, 10-25 s
 def test_the_retreat_bound_ends_a_mission_in_a_dead_end_with_its_reason(server_factory) -> None:
     """With no retreat allowed (``navigate.see.retreat.retreats=0``) the cul-de-sac is a safe stop
     where the rover stands, and the reason says what refused and that the bound of retreats is
@@ -105,7 +105,7 @@ def test_a_rover_in_a_cul_de_sac_backs_out_and_reaches_the_goal_round_it(server_
     assert events == [], [e.describe() for e in events]
 
 
-@long_test  # retreats are off by default: a GNC mission into a dead end, 20-40 s
+@long_test  # a GNC mission into a dead end, 20-40 s
 def test_the_gnc_is_sent_a_reverse_section_as_waypoints_with_the_body_s_heading(server_factory) -> None:
     """Without -auto the GNC drives: it drives the rover its own way, straight on toward the
     corridor whose far end a rock closes (to x -1.0 m, then into it), whatever sections it is

@@ -107,14 +107,14 @@ def test_a_rock_reads_at_its_top_and_a_later_look_at_a_new_rock_widens_the_cell_
     top = _cells(m, 1.42, 1.58, -0.08, 0.08)
     assert (m.upper[top] >= 0.12).mean() > 0.99 and (m.lower[top] <= 0.12).mean() > 0.99
     assert float(np.median(m.upper[top])) < 0.14  # the top, not a wall of doubt over it
-    # a rock where the map saw flat ground: by default the cells cover both stories
-    m1 = _map()
+    # a rock where the map saw flat ground: with the rule off (``changed`` 0) the cells cover both stories
+    m1 = BoundsMap(GridGeometry(0.025, 0.0, 1.0, 100, 80), BoundsParams(changed=0.0))
     for _ in range(4):
         m1.fuse(*_ground(rng, 40_000))
     m1.fuse(*_ground(rng, 40_000, rock=0.12))
     assert (m1.upper[top] >= 0.12).mean() > 0.99 and (m1.lower[top] <= 0.0).mean() > 0.99
-    # with ``changed`` (frames placed on the map's ground): the ground changed, and its cells take
-    # the new frame's word alone
+    # with ``changed`` (the default, for frames placed on the map's ground): the ground changed, and
+    # its cells take the new frame's word alone
     m2 = _changing()
     for _ in range(4):
         m2.fuse(*_ground(rng, 40_000))
