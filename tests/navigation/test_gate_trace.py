@@ -12,7 +12,7 @@ from prox_workflows.algorithms.bounds_map import BoundsParams
 from prox_workflows.algorithms.chance import ChanceParams
 from prox_workflows.algorithms.vehicle import PoseChecks, check_poses
 from prox_workflows.grid import GridGeometry
-from tools.bench.gate_trace import detail, trace_events, turn_trace
+from tools.bench.gate_trace import detail, readings, trace_events, turn_trace
 
 BODY = RoverBody()
 
@@ -85,3 +85,30 @@ def test_the_stop_s_turn_names_the_frames_spread_that_refuses_it_on_flat_ground(
         assert 0.0 <= way["check"] < 30.0  # the pose itself passes; refused as a wheel reaches the spread
         assert way["without"]["frames' spread"] == 360.0
         assert all(deg < 360.0 for name, deg in way["without"].items() if name != "frames' spread")
+
+
+def test_a_steep_flank_reads_as_a_step_where_the_map_s_samples_span_more_than_the_truth_s() -> None:
+    """A rise of 3.5 m a metre (74 deg) is 7 cm within the truth's 2 cm of a wheel's lane, under
+    the 10 cm climb; the map's 2.5 cm cells read each sample from its cell, 1.75 cm apart, so a
+    pair of samples two apart spans two cells' rise, 17.5 cm: a step the ground does not have.
+    Read bilinearly at the truth's 1 cm it is the truth's 7 cm again."""
+    fine = GridGeometry.covering(-1.0, -1.0, 1.0, 1.0, 0.01)
+    g = GridGeometry.covering(-1.0, -1.0, 1.0, 1.0, 0.025)
+
+    def ramp(geom: GridGeometry) -> np.ndarray:
+        xs, ys = geom.centers()
+        X, _ = np.meshgrid(xs, ys)
+        return np.clip((X - 0.10) * 3.5, 0.0, 0.5).astype(np.float32)
+
+    h = ramp(g)
+    z = np.zeros(h.shape, np.float32)
+    dumped = {"c0_mean": h, "c0_mean_var": np.full(h.shape, 0.002**2, np.float32), "c0_rise": z, "c0_drop": z,
+              "c0_relief": z, "c0_shift": z, "c0_along_var": z, "c0_ceiling": np.full(h.shape, np.inf, np.float32),
+              "c0_framed": np.ones(h.shape, bool), "c0_lower": h, "c0_upper": h,
+              "c0_geom": np.array([g.cell, g.xmin, g.ymax, g.width, g.height], float), "c0_k": np.array(2.5),
+              "c0_pose": np.zeros(3), "c0_refused": np.array([[0.0, 0.0, 0.0], [-0.6, 0.0, 0.0]])}
+    table = readings(dumped, on(ramp(fine), fine), BODY)
+    assert table["truth"]["step"]["over"] == 0
+    cellwise, fine_read = table["best estimate, cellwise"]["step"], table["cell means, 1 cm"]["step"]
+    assert cellwise["false_over"] == 1 and cellwise["median_error"] > 0.03  # the ramp's pose; flat ground is not
+    assert fine_read["over"] == 0 and abs(fine_read["median_error"]) < 0.01

@@ -18,6 +18,13 @@ the turn on the spot from the last choice's pose (:func:`turn_trace`): how far e
 allows it, how far the check passes it, and how far with each of the check's terms taken out in
 turn, which names the term that holds the rover where it stands.
 
+``--readings DUMP`` (no mission run): the refused poses of a ``--dump`` judged again on the
+map's surfaces read several ways (:func:`readings`): the chooser's best estimate as its check reads
+it (each sample the cell that holds it, samples 0.7 cells apart), the same read bilinearly at the
+truth's 1 cm samples, and the cells' means. A step is a rise within two samples along a wheel's
+lane, so the sample spacing sets the run over which a rise counts: 2 cm on the truth, 3.5 cm on
+the map. Where a reading's excess is far from the truth's, the reading, not the ground, refuses.
+
 Each unsafe event on the true track is traced to the nearest pose of a section the chooser
 passed (:func:`trace_events`): truly unsafe there is the check's false safe, safe there the
 track's straying from what was judged.
@@ -44,6 +51,7 @@ import rvs_server.navigation.sections as sections
 from drivers.sim.world import World
 from prox_workflows.algorithms import bounds_map, chance, vehicle
 from prox_workflows.algorithms.candidates import verdict_name
+from prox_workflows.grid import GridGeometry
 from rvs_truth.surface import missions, truth_checks
 from tools.bench import navigate as bench
 
@@ -60,7 +68,12 @@ def main() -> None:
                                                "to judge them again offline")
     ap.add_argument("--detail", type=int, default=0, help="judge the refusals of the last N choices per limit")
     ap.add_argument("--hang", type=float, default=None, help="bounds_map hang (m) instead of its default")
+    ap.add_argument("--readings", default="", metavar="DUMP", help="no mission: the refused poses of a --dump (of "
+                                                                   "--scene) on the map read several ways")
     args = ap.parse_args()
+    if args.readings:
+        show_readings(args.readings, args.scene)
+        return
     if args.hang is not None:
         init = bounds_map.BoundsMap.__init__
 
@@ -265,6 +278,67 @@ def dump(path: str, choices: list[dict[str, Any]], refusals: list[dict[str, Any]
         out[f"c{ci}_pose"] = np.asarray(c["pose"], float)
         out[f"c{ci}_refused"] = np.array([r["pose"] for r in refusals if r["choice"] == ci] or np.zeros((0, 3)))
     np.savez_compressed(path, **out)
+
+
+def show_readings(path: str, scene: str) -> None:
+    """``--readings``: :func:`readings` of a dump of ``scene``'s mission, printed."""
+    world = World.from_scene(scene)
+    table = readings(dict(np.load(path)), lambda poses: truth_checks(world, scene, poses, world.body),
+                     world.body)
+    print(f"{path}: refused poses judged again; per reading and limit: over / over where the truth is "
+          "within / within where the truth is over; median excess less the truth's")
+    for name, row in table.items():
+        print(f"  {name:24s} " + "   ".join(
+            f"{lim} {r['over']} / {r['false_over']} / {r['missed']}; {r['median_error']:+.4f}"
+            for lim, r in row.items()))
+
+
+READINGS: dict[str, tuple[str, bool, float | None]] = {
+    # name: (surface, cellwise, sample spacing; None: the check's own, 0.7 of a cell)
+    "best estimate, cellwise": ("best", True, None),
+    "best estimate, 1 cm": ("best", False, 0.01),
+    "cell means, cellwise": ("mean", True, None),
+    "cell means, 1 cm": ("mean", False, 0.01),
+}
+
+
+def readings(dumped: dict[str, np.ndarray], truth: Truth, body: Any,
+             limits: tuple[str, ...] = ("step", "belly")) -> dict[str, dict[str, dict[str, float]]]:
+    """The refused poses of a :func:`dump` judged on each of :data:`READINGS` of its choices' maps
+    and on the truth: per reading and limit, how many poses are over the limit, over where the
+    truth is within it, within where the truth is over, and the median of the excess less the
+    truth's. The truth row is the reference (its errors are 0)."""
+    ids = sorted({int(k[1:].split("_")[0]) for k in dumped if k.startswith("c") and k.endswith("_pose")})
+    excess: dict[str, list[np.ndarray]] = {name: [] for name in ("truth", *READINGS)}
+    for ci in ids:
+        poses = dumped[f"c{ci}_refused"]
+        if not len(poses):
+            continue
+        cell, xmin, ymax, width, height = dumped[f"c{ci}_geom"]
+        g = GridGeometry(float(cell), float(xmin), float(ymax), int(width), int(height))
+        stats = {k[len(f"c{ci}_"):]: v for k, v in dumped.items() if k.startswith(f"c{ci}_")}
+        post = chance.posterior(stats, g, float(dumped[f"c{ci}_k"]))
+        best = np.where(np.isfinite(post.mean), post.mean,
+                        np.where(np.isfinite(post.ceiling), post.ceiling, np.nan)).astype(np.float32)
+        surfaces = {"best": best, "mean": np.asarray(stats["mean"], np.float32)}
+        excess["truth"].append(truth(poses).excess)
+        for name, (which, cellwise, spacing) in READINGS.items():
+            surface = surfaces[which]
+            excess[name].append(vehicle.check_poses((surface, surface.copy()), g, poses, body, step=spacing,
+                                                    cellwise=cellwise).excess)
+    true = np.concatenate(excess["truth"]) if excess["truth"] else np.zeros((0, len(vehicle.LIMITS)))
+    out: dict[str, dict[str, dict[str, float]]] = {}
+    for name, parts in excess.items():
+        got = np.concatenate(parts) if parts else np.zeros_like(true)
+        out[name] = {}
+        for lim in limits:
+            k = vehicle.LIMITS.index(lim)
+            over, truly = got[:, k] > 0, true[:, k] > 0
+            err = got[:, k] - true[:, k]
+            out[name][lim] = {"over": int(over.sum()), "false_over": int((over & ~truly).sum()),
+                              "missed": int((~over & truly).sum()),
+                              "median_error": float(np.nanmedian(err)) if len(err) else 0.0}
+    return out
 
 
 def detail(choices: list[dict[str, Any]], refusals: list[dict[str, Any]], truth: Truth, body: Any,
