@@ -6,7 +6,8 @@ driven by ``navigate -auto -loop see`` through a real server (simulated time). O
 driven ``--after`` metres (drawn per trial) and is rolling forward, ``sim add-rock`` (a second
 connection, as an operator would) puts a rock it can neither climb nor clear with its belly
 (radius 0.15-0.25 m, height 0.15-0.30 m) on its way, 1-3 m ahead of its true pose along the
-direction it is driving. The trial ends when the rover has passed the rock (farther along than the
+direction it is driving, the simulated clock held while the rock is made (:func:`clock_held`), so it
+lands where it was meant. The trial ends when the rover has passed the rock (farther along than the
 rock and clear of it), or has stopped short of it for ``--settle`` simulated seconds, or the job
 ended; a running job is interrupted with ``break`` (the track so far is written).
 
