@@ -387,9 +387,7 @@ def posterior_check(post: Posterior, geom: GridGeometry, body: VehicleBody,
 def best_check(post: Posterior, geom: GridGeometry, body: VehicleBody) -> Check:
     """The vehicle check on the posterior's best estimate of the ground (a ray's ceiling where no
     return bounds a cell; unknown where neither) as a :data:`Check`: one check per pose, no draws."""
-    surface = np.where(np.isfinite(post.mean), post.mean,
-                       np.where(np.isfinite(post.ceiling), post.ceiling, np.nan)).astype(np.float32)
-    return bounds_check(surface, geom, body)
+    return bounds_check(post.best().astype(np.float32), geom, body)
 
 
 def crop(geom: GridGeometry, xmin: float, ymin: float, xmax: float, ymax: float

@@ -195,6 +195,11 @@ class Posterior:
     shared: np.ndarray | float = 0.0
     span: np.ndarray | None = None  # m: how far under its top the cell's ground may lie where a wheel rests
 
+    def best(self) -> np.ndarray:
+        """The ground's best estimate: the top where a return bounds the cell, else the lowest ray
+        that passed over it (the ground lies under it), NaN where neither."""
+        return np.where(np.isfinite(self.mean), self.mean, np.where(np.isfinite(self.ceiling), self.ceiling, np.nan))
+
     def window(self, sl: tuple[slice, slice]) -> Posterior:
         """The posterior over the rows and columns ``sl`` (a window of its grid)."""
         def cut(a: np.ndarray | float) -> np.ndarray | float:

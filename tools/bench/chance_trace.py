@@ -92,7 +92,7 @@ def trace_look(scene: str, look: str, world_seed: int, poses: list[list[float]],
     fine = world.true_dem(TRUE_CELL, box)
     top, floor = pooled(fine, g, np.max), pooled(fine, g, np.min)
     seen = np.isfinite(post.mean)
-    best = np.where(seen, post.mean, np.where(np.isfinite(post.ceiling), post.ceiling, np.nan))
+    best = post.best()
     # the wheels' rests as the declared check reads them: the tops less the cell's relief, none
     # where only a ray bounds the ground (None: one surface, within 0)
     span = None if post.span is None else np.where(seen, post.span, 0.0)
@@ -206,7 +206,7 @@ def kept_trace(scene: str, look: str, world_seed: int, cell: float = 0.025) -> d
     if len(idx):
         post = posterior(stats, g, bounds.params.k, declared, None)
         seen = np.isfinite(post.mean)
-        best = np.where(seen, post.mean, np.where(np.isfinite(post.ceiling), post.ceiling, np.nan))
+        best = post.best()
         low = np.where(seen, best - post.span, np.nan).astype(np.float32)
         rest_err, span_at, plane_low = [], [], []
         for i in idx[:: max(1, len(idx) // 60)]:

@@ -42,7 +42,7 @@ import dataclasses
 import json
 import time
 from collections import Counter
-from collections.abc import Callable
+from collections.abc import Callable, Iterator, Mapping
 from typing import Any
 
 import numpy as np
@@ -293,39 +293,32 @@ def show_readings(path: str, scene: str) -> None:
             for lim, r in row.items()))
 
 
-READINGS: dict[str, tuple[str, bool, float | None]] = {
-    # name: (surface, cellwise, sample spacing; None: the check's own, 0.7 of a cell)
-    "best estimate, cellwise": ("best", True, None),
-    "best estimate, 1 cm": ("best", False, 0.01),
-    "cell means, cellwise": ("mean", True, None),
-    "cell means, 1 cm": ("mean", False, 0.01),
+READINGS: dict[str, tuple[str, bool, float, str]] = {
+    # name: (surface, cellwise, sample spacing, in "cell"s or "m")
+    "best estimate, the bounds check's": ("best", True, vehicle.BOUNDS_STEP, "cell"),
+    "best estimate, the chance check's": ("best", False, 1.0, "cell"),
+    "best estimate, the truth's 1 cm": ("best", False, 0.01, "m"),
+    "cell means, the truth's 1 cm": ("mean", False, 0.01, "m"),
 }
 
 
-def readings(dumped: dict[str, np.ndarray], truth: Truth, body: Any,
+def readings(dumped: Mapping[str, np.ndarray], truth: Truth, body: Any,
              limits: tuple[str, ...] = ("step", "belly")) -> dict[str, dict[str, dict[str, float]]]:
     """The refused poses of a :func:`dump` judged on each of :data:`READINGS` of its choices' maps
     and on the truth: per reading and limit, how many poses are over the limit, over where the
     truth is within it, within where the truth is over, and the median of the excess less the
-    truth's. The truth row is the reference (its errors are 0)."""
-    ids = sorted({int(k[1:].split("_")[0]) for k in dumped if k.startswith("c") and k.endswith("_pose")})
+    truth's. The truth row is the reference (its errors are 0). The bounds check reads each sample
+    from its cell, 0.7 of a cell apart (the look-ahead's check and the worst case); the chance
+    check reads its drawn surfaces bilinearly, a cell apart (the section's)."""
     excess: dict[str, list[np.ndarray]] = {name: [] for name in ("truth", *READINGS)}
-    for ci in ids:
-        poses = dumped[f"c{ci}_refused"]
-        if not len(poses):
-            continue
-        cell, xmin, ymax, width, height = dumped[f"c{ci}_geom"]
-        g = GridGeometry(float(cell), float(xmin), float(ymax), int(width), int(height))
-        stats = {k[len(f"c{ci}_"):]: v for k, v in dumped.items() if k.startswith(f"c{ci}_")}
-        post = chance.posterior(stats, g, float(dumped[f"c{ci}_k"]))
-        best = np.where(np.isfinite(post.mean), post.mean,
-                        np.where(np.isfinite(post.ceiling), post.ceiling, np.nan)).astype(np.float32)
-        surfaces = {"best": best, "mean": np.asarray(stats["mean"], np.float32)}
+    for _, poses, g, stats, k in dumped_choices(dumped):
+        post = chance.posterior(stats, g, k)
+        surfaces = {"best": post.best().astype(np.float32), "mean": np.asarray(stats["mean"], np.float32)}
         excess["truth"].append(truth(poses).excess)
-        for name, (which, cellwise, spacing) in READINGS.items():
+        for name, (which, cellwise, spacing, unit) in READINGS.items():
             surface = surfaces[which]
-            excess[name].append(vehicle.check_poses((surface, surface.copy()), g, poses, body, step=spacing,
-                                                    cellwise=cellwise).excess)
+            excess[name].append(vehicle.check_poses((surface, surface.copy()), g, poses, body, cellwise=cellwise,
+                                                    step=spacing * (g.cell if unit == "cell" else 1.0)).excess)
     true = np.concatenate(excess["truth"]) if excess["truth"] else np.zeros((0, len(vehicle.LIMITS)))
     out: dict[str, dict[str, dict[str, float]]] = {}
     for name, parts in excess.items():
@@ -339,6 +332,22 @@ def readings(dumped: dict[str, np.ndarray], truth: Truth, body: Any,
                               "missed": int((~over & truly).sum()),
                               "median_error": float(np.nanmedian(err)) if len(err) else 0.0}
     return out
+
+
+def dumped_choices(d: Mapping[str, np.ndarray]
+                   ) -> Iterator[tuple[int, np.ndarray, GridGeometry, dict[str, np.ndarray], float]]:
+    """What :func:`dump` saved, per choice with refused poses: its index, the refused poses, the
+    map window's geometry, its statistics and its k."""
+    ids = sorted({int(k[1:].split("_")[0]) for k in d.keys() if k.startswith("c") and k.endswith("_pose")})
+    for ci in ids:
+        refused = np.asarray(d[f"c{ci}_refused"], float)
+        if not len(refused):
+            continue
+        cell, xmin, ymax, width, height = d[f"c{ci}_geom"]
+        prefix = f"c{ci}_"
+        stats = {k[len(prefix):]: d[k] for k in d.keys() if k.startswith(prefix)}
+        yield ci, refused, GridGeometry(float(cell), float(xmin), float(ymax), int(width), int(height)), stats, \
+            float(d[f"c{ci}_k"])
 
 
 def detail(choices: list[dict[str, Any]], refusals: list[dict[str, Any]], truth: Truth, body: Any,

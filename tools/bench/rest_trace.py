@@ -34,6 +34,7 @@ from prox_workflows.algorithms.vehicle import _TRIPLETS, _pattern, _sample, chec
 from prox_workflows.grid import GridGeometry
 from rvs_truth.surface import truth_surface
 from tools.bench.chance_trace import stand
+from tools.bench.gate_trace import dumped_choices
 
 
 def stand_pair(low: np.ndarray, high: np.ndarray, geom: GridGeometry, pose: np.ndarray, body: Any, step: float,
@@ -155,19 +156,11 @@ def trace(scene: str, dump: str, params: chance.ChanceParams, limit: int = 0, bo
     world = World.from_scene(scene)
     fine, tg, _ = truth_surface(world, scene)
     body = world.body
-    choices = sorted({int(k[1:].split("_")[0]) for k in d.files if k.startswith("c")})
     out = []
-    for ci in choices:
-        refused = d[f"c{ci}_refused"]
-        if not len(refused):
-            continue
-        cell, xmin, ymax, width, height = d[f"c{ci}_geom"]
-        g = GridGeometry(float(cell), float(xmin), float(ymax), int(width), int(height))
-        names = ("mean", "mean_var", "rise", "drop", "relief", "shift", "along_var", "ceiling", "upper", "framed")
-        stats = {n: d[f"c{ci}_{n}"] for n in names if f"c{ci}_{n}" in d.files}
-        post = chance.posterior(stats, g, float(d[f"c{ci}_k"]), params)
+    for ci, refused, g, stats, k in dumped_choices(d):
+        post = chance.posterior(stats, g, k, params)
         seen = np.isfinite(post.mean)
-        best = np.where(seen, post.mean, np.where(np.isfinite(post.ceiling), post.ceiling, np.nan))
+        best = post.best()
         span = np.zeros(best.shape) if post.span is None else np.where(seen, post.span, 0.0)
         low = np.where(seen, best - span, np.nan).astype(np.float32)
         high = best.astype(np.float32)
