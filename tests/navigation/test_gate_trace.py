@@ -12,7 +12,7 @@ from prox_workflows.algorithms.bounds_map import BoundsParams
 from prox_workflows.algorithms.chance import ChanceParams
 from prox_workflows.algorithms.vehicle import PoseChecks, check_poses
 from prox_workflows.grid import GridGeometry
-from tools.bench.gate_trace import detail, readings, trace_events, turn_trace
+from tools.bench.gate_trace import chance_spacings, detail, readings, trace_events, turn_trace
 
 BODY = RoverBody()
 
@@ -116,3 +116,19 @@ def test_a_steep_flank_reads_as_a_step_where_the_map_s_samples_span_more_than_th
     for reading in ("best estimate, the truth's 1 cm", "cell means, the truth's 1 cm"):
         step = table[reading]["step"]
         assert step["over"] == 0 and abs(step["median_error"]) < 0.01, (reading, step)
+
+
+def test_the_chance_check_is_judged_again_at_each_spacing_against_the_truth() -> None:
+    """The 12 cm ledge under the front wheels is refused at every spacing of the draws' samples and
+    truly unsafe; flat ground behind it passes at every spacing: no false safe, no false refusal."""
+    h, g = ground()
+    z = np.zeros(h.shape, np.float32)
+    dumped = {"c0_mean": h, "c0_mean_var": np.full(h.shape, 0.005**2, np.float32), "c0_rise": z, "c0_drop": z,
+              "c0_relief": z, "c0_shift": z, "c0_along_var": z, "c0_ceiling": np.full(h.shape, np.inf, np.float32),
+              "c0_framed": np.ones(h.shape, bool), "c0_lower": h, "c0_upper": h,
+              "c0_geom": np.array([g.cell, g.xmin, g.ymax, g.width, g.height], float), "c0_k": np.array(2.5),
+              "c0_pose": np.zeros(3), "c0_refused": np.array([[0.0, 0.0, 0.0], [-0.5, 0.0, 0.0]])}
+    table = chance_spacings(dumped, on(h, g), BODY)
+    assert set(table) == {"a cell (the check's)", "0.7 of a cell", "the truth's 1 cm"}
+    for row in table.values():
+        assert row == {"judged": 2, "passed": 1, "false_safe": 0, "false_refusal": 0}, row

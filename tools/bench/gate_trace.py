@@ -283,14 +283,20 @@ def dump(path: str, choices: list[dict[str, Any]], refusals: list[dict[str, Any]
 def show_readings(path: str, scene: str) -> None:
     """``--readings``: :func:`readings` of a dump of ``scene``'s mission, printed."""
     world = World.from_scene(scene)
-    table = readings(dict(np.load(path)), lambda poses: truth_checks(world, scene, poses, world.body),
-                     world.body)
+    def judge(poses: np.ndarray) -> vehicle.PoseChecks:
+        return truth_checks(world, scene, poses, world.body)
+
+    table = readings(dict(np.load(path)), judge, world.body)
     print(f"{path}: refused poses judged again; per reading and limit: over / over where the truth is "
           "within / within where the truth is over; median excess less the truth's")
     for name, row in table.items():
         print(f"  {name:24s} " + "   ".join(
             f"{lim} {r['over']} / {r['false_over']} / {r['missed']}; {r['median_error']:+.4f}"
             for lim, r in row.items()))
+    print("the chance check again, its draws sampled at: judged / passed / passed but truly unsafe / refused but "
+          "truly safe")
+    for name, r in chance_spacings(dict(np.load(path)), judge, world.body).items():
+        print(f"  {name:24s} {r['judged']} / {r['passed']} / {r['false_safe']} / {r['false_refusal']}")
 
 
 READINGS: dict[str, tuple[str, bool, float, str]] = {
@@ -348,6 +354,31 @@ def dumped_choices(d: Mapping[str, np.ndarray]
         stats = {k[len(prefix):]: d[k] for k in d.keys() if k.startswith(prefix)}
         yield ci, refused, GridGeometry(float(cell), float(xmin), float(ymax), int(width), int(height)), stats, \
             float(d[f"c{ci}_k"])
+
+
+SPACINGS: dict[str, tuple[float, str]] = {"a cell (the check's)": (1.0, "cell"), "0.7 of a cell": (0.7, "cell"),
+                                          "the truth's 1 cm": (0.01, "m")}
+
+
+def chance_spacings(dumped: Mapping[str, np.ndarray], truth: Truth, body: Any, per_choice: int = 60
+                    ) -> dict[str, dict[str, int]]:
+    """The chance check of a :func:`dump`'s refused poses (every n-th, about ``per_choice`` a
+    choice) again, its drawn surfaces sampled at each of :data:`SPACINGS`: how many it passes, how
+    many of those are truly unsafe (false safes), and how many it refuses that are truly safe. A
+    step's run is two samples, so a finer spacing measures the step the truth measures."""
+    out = {name: {"judged": 0, "passed": 0, "false_safe": 0, "false_refusal": 0} for name in SPACINGS}
+    for _, poses, g, stats, k in dumped_choices(dumped):
+        poses = poses[:: max(1, len(poses) // per_choice)]
+        post = chance.posterior(stats, g, k)
+        unsafe = truth(poses).unsafe
+        for name, (spacing, unit) in SPACINGS.items():
+            safe = chance.chance_check(post, g, poses, body, step=spacing * (g.cell if unit == "cell" else 1.0)).safe
+            row = out[name]
+            row["judged"] += len(poses)
+            row["passed"] += int(safe.sum())
+            row["false_safe"] += int((safe & unsafe).sum())
+            row["false_refusal"] += int((~safe & ~unsafe).sum())
+    return out
 
 
 def detail(choices: list[dict[str, Any]], refusals: list[dict[str, Any]], truth: Truth, body: Any,
