@@ -126,7 +126,7 @@ def _blocks(at: tuple[float, float], goal: tuple[float, float], rock: tuple[floa
     return bool(np.hypot(*(p - (a + u * (b - a)))) < rock[2] + _outline(body)[1])
 
 
-def trial(scene: str, i: int, seed: int, timeout: float, settle: float) -> dict[str, Any]:
+def trial(scene: str, i: int, seed: int, timeout: float, settle: float, sets: tuple[str, ...] = ()) -> dict[str, Any]:
     """One seeded trial (see the module's docstring)."""
     rng = np.random.default_rng([seed, i])
     start, goal = missions(scene, 30, seed)[i % 30]
@@ -138,7 +138,7 @@ def trial(scene: str, i: int, seed: int, timeout: float, settle: float) -> dict[
     with tempfile.TemporaryDirectory() as tmp:
         # the simulated PTU answers over a pseudo-terminal: on a loaded machine its 2 s reply wait
         # can run out, which is the machine's, not the loop's
-        srv = scene_server(Path(tmp), scene, ["drivers.ptu.timeout=30"])
+        srv = scene_server(Path(tmp), scene, ["drivers.ptu.timeout=30", *sets])
         try:
             world = srv.app.world
             job = _Job(srv.port, f"navigate -start {start[0]},{start[1]},{heading:.1f} -goal {goal[0]},{goal[1]} "
@@ -252,7 +252,7 @@ def after_drop(poses: np.ndarray, drop_pose: tuple[float, float, float], tol: fl
     return poses[int(match[0]):] if len(match) else poses
 
 
-def _trial(job: tuple[str, int, int, float, float]) -> dict[str, Any]:
+def _trial(job: tuple[str, int, int, float, float, tuple[str, ...]]) -> dict[str, Any]:
     return trial(*job)
 
 
@@ -300,8 +300,10 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--settle", type=float, default=120.0,
                     help="simulated seconds the rover may stand within 5 cm after the drop before the trial ends")
     ap.add_argument("--out", default="", help="also write the rows as JSON here")
+    ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                    help="a server setting for every trial (the peer a change is measured against)")
     args = ap.parse_args(argv)
-    todo = [(scene, i, args.seed, args.timeout, args.settle) for i in range(args.first, args.first + args.trials)
+    todo = [(scene, i, args.seed, args.timeout, args.settle, tuple(args.set)) for i in range(args.first, args.first + args.trials)
             for scene in args.scenes]
     rows = streamed(_trial, todo, args.jobs)
     table(rows)
