@@ -126,6 +126,65 @@ def _blocks(at: tuple[float, float], goal: tuple[float, float], rock: tuple[floa
     return bool(np.hypot(*(p - (a + u * (b - a)))) < rock[2] + _outline(body)[1])
 
 
+class _Dropper:
+    """The drop, decided at every step of the simulated drive, in the drive's own thread: the
+    rover stands while the rock is placed, so the drop's pose is the same run to run. Polled on
+    the wall clock instead, a rover on the instant clock drove on between two reads by as much as
+    the machine's load let it, and each run dropped the rock at another pose."""
+
+    def __init__(self, srv: Any, world: Any, after: float, ahead: float, radius: float, height: float,
+                 goal: tuple[float, float], out: dict[str, Any]) -> None:
+        self.srv, self.world, self.out = srv, world, out
+        self.after, self.ahead, self.radius, self.height, self.goal = after, ahead, radius, height, goal
+        self.driven, self.last, self.recent = 0.0, None, []
+        self.done = threading.Event()
+        self.sim_time = 0.0
+        drive = world.drive
+
+        def stepping(v: float, w_deg: float, seconds: float, stop: Any = None, on_step: Any = None) -> Any:
+            def step() -> None:
+                if on_step is not None:
+                    on_step()
+                if not self.done.is_set():
+                    self._step()
+            return drive(v, w_deg, seconds, stop, on_step=step)
+
+        world.drive = stepping
+
+    def _step(self) -> None:
+        t = self.world.truth()
+        xy = (t["x"], t["y"])
+        if self.last is not None:
+            self.driven += math.hypot(xy[0] - self.last[0], xy[1] - self.last[1])
+        self.last = xy
+        self.recent = [*self.recent, xy][-40:]
+        if self.driven < self.after:
+            return
+        # rolling forward: the last 15 cm of the track run along the heading
+        back = next((p for p in reversed(self.recent) if math.hypot(xy[0] - p[0], xy[1] - p[1]) >= 0.15), None)
+        if back is None:
+            return
+        d = math.atan2(xy[1] - back[1], xy[0] - back[0])
+        if abs((math.degrees(d) - t["heading"] + 180.0) % 360.0 - 180.0) > 10.0:
+            return
+        at = (xy[0] + self.ahead * math.cos(d), xy[1] + self.ahead * math.sin(d), self.radius)
+        with clock_held(self.srv.request, self.world):  # the ToF's frames wait too
+            r = self.srv.request(f"sim add-rock -x {at[0]:.3f} -y {at[1]:.3f} -radius {self.radius:.3f} "
+                                 f"-height {self.height:.3f}")
+        out = self.out
+        if r.status != "OK":
+            # no rock lies on the ground: the track proves nothing about one
+            out["refused"] = f"sim add-rock: {r.fields.get('message', r.fields)}"
+            out["end"] = "rock refused"
+        else:
+            self.sim_time = t["sim_time"]
+            out["drop_pose"] = (round(t["x"], 3), round(t["y"], 3), round(t["heading"], 1))
+            out["ahead"] = round(math.hypot(at[0] - t["x"], at[1] - t["y"]), 2)
+            out["dir"], out["rock"] = d, at
+            out["blocks_goal"] = _blocks(xy, self.goal, at, self.world.body)
+        self.done.set()
+
+
 def trial(scene: str, i: int, seed: int, timeout: float, settle: float, sets: tuple[str, ...] = ()) -> dict[str, Any]:
     """One seeded trial (see the module's docstring)."""
     rng = np.random.default_rng([seed, i])
@@ -144,45 +203,18 @@ def trial(scene: str, i: int, seed: int, timeout: float, settle: float, sets: tu
             job = _Job(srv.port, f"navigate -start {start[0]},{start[1]},{heading:.1f} -goal {goal[0]},{goal[1]} "
                                  "-auto -loop see -name drop -max-legs 200", world)
             t_wall = time.monotonic()
-            driven, last, rock, drop_t, still = 0.0, None, None, 0.0, None
-            recent: list[tuple[float, float]] = []
+            dropper = _Dropper(srv, world, after, ahead, radius, height, goal, out)
+            rock, drop_t, still = None, 0.0, None
             while job.final is None and time.monotonic() - t_wall < timeout:
                 time.sleep(POLL)
+                if rock is None:
+                    if not dropper.done.is_set():
+                        continue
+                    if "refused" in out:
+                        break
+                    rock, drop_t = out["rock"], dropper.sim_time
                 t = world.truth()
                 xy = (t["x"], t["y"])
-                if last is not None:
-                    driven += math.hypot(xy[0] - last[0], xy[1] - last[1])
-                last = xy
-                recent = [*recent, xy][-40:]
-                if rock is None:
-                    if driven < after:
-                        continue
-                    # rolling forward: the last 15 cm of the track run along the heading
-                    back = next((p for p in reversed(recent) if math.hypot(xy[0] - p[0], xy[1] - p[1]) >= 0.15), None)
-                    if back is None:
-                        continue
-                    d = math.atan2(xy[1] - back[1], xy[0] - back[0])
-                    if abs((math.degrees(d) - t["heading"] + 180.0) % 360.0 - 180.0) > 10.0:
-                        continue
-                    with clock_held(srv.request, world):
-                        t = world.truth()
-                        xy = (t["x"], t["y"])
-                        at = (xy[0] + ahead * math.cos(d), xy[1] + ahead * math.sin(d), radius)
-                        r = srv.request(f"sim add-rock -x {at[0]:.3f} -y {at[1]:.3f} -radius {radius:.3f} "
-                                        f"-height {height:.3f}")
-                        t = world.truth()
-                    if r.status != "OK":
-                        # no rock lies on the ground: the track proves nothing about one
-                        out["refused"] = f"sim add-rock: {r.fields.get('message', r.fields)}"
-                        out["end"] = "rock refused"
-                        break
-                    rock = at
-                    drop_t, out["drop_pose"] = t["sim_time"], (round(t["x"], 3), round(t["y"], 3),
-                                                              round(t["heading"], 1))
-                    out["ahead"] = round(math.hypot(rock[0] - t["x"], rock[1] - t["y"]), 2)
-                    out["dir"], out["rock"] = d, rock
-                    out["blocks_goal"] = _blocks((t["x"], t["y"]), goal, rock, world.body)
-                    continue
                 along = (xy[0] - rock[0]) * math.cos(out["dir"]) + (xy[1] - rock[1]) * math.sin(out["dir"])
                 if along > radius + 0.6 and math.hypot(xy[0] - rock[0], xy[1] - rock[1]) > radius + 0.6:
                     out["end"] = "passed"
