@@ -3,7 +3,8 @@
 
 Each trial is one of the navigate benchmark's seeded missions (:func:`rvs_truth.surface.missions`)
 driven by ``navigate -auto -loop see`` through a real server (simulated time). Once the rover has
-driven ``--after`` metres (drawn per trial) and is rolling forward, ``sim add-rock`` (a second
+driven ``--after`` metres (drawn per trial) and is rolling forward (judged at every step of the
+simulated drive: :class:`_Dropper`), ``sim add-rock`` (a second
 connection, as an operator would) puts a rock it can neither climb nor clear with its belly
 (radius 0.15-0.25 m, height 0.15-0.30 m) on its way, 1-3 m ahead of its true pose along the
 direction it is driving, the simulated clock held while the rock is made (:func:`clock_held`), so it
