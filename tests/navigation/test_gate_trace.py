@@ -30,6 +30,16 @@ def ground() -> tuple[np.ndarray, GridGeometry]:
     return np.where(X > 0.2, 0.12, 0.0).astype(np.float32), g
 
 
+def one_choice(h: np.ndarray, g: GridGeometry, sigma: float, refused: list[list[float]]) -> dict[str, np.ndarray]:
+    """A dump (:func:`tools.bench.gate_trace.dump`) of one choice whose map knows ``h`` to ``sigma``."""
+    z = np.zeros(h.shape, np.float32)
+    return {"c0_mean": h, "c0_mean_var": np.full(h.shape, sigma**2, np.float32), "c0_rise": z, "c0_drop": z,
+            "c0_relief": z, "c0_shift": z, "c0_along_var": z, "c0_ceiling": np.full(h.shape, np.inf, np.float32),
+            "c0_framed": np.ones(h.shape, bool), "c0_lower": h, "c0_upper": h,
+            "c0_geom": np.array([g.cell, g.xmin, g.ymax, g.width, g.height], float), "c0_k": np.array(2.5),
+            "c0_pose": np.zeros(3), "c0_refused": np.array(refused, float)}
+
+
 def test_a_refusal_is_judged_per_limit_on_the_map_the_draws_and_the_truth() -> None:
     h, g = ground()
     z = np.zeros(h.shape, np.float32)
@@ -101,13 +111,7 @@ def test_a_steep_flank_reads_as_a_step_where_the_map_s_samples_span_more_than_th
         X, _ = np.meshgrid(xs, ys)
         return np.clip((X - 0.10) * 3.5, 0.0, 0.5).astype(np.float32)
 
-    h = ramp(g)
-    z = np.zeros(h.shape, np.float32)
-    dumped = {"c0_mean": h, "c0_mean_var": np.full(h.shape, 0.002**2, np.float32), "c0_rise": z, "c0_drop": z,
-              "c0_relief": z, "c0_shift": z, "c0_along_var": z, "c0_ceiling": np.full(h.shape, np.inf, np.float32),
-              "c0_framed": np.ones(h.shape, bool), "c0_lower": h, "c0_upper": h,
-              "c0_geom": np.array([g.cell, g.xmin, g.ymax, g.width, g.height], float), "c0_k": np.array(2.5),
-              "c0_pose": np.zeros(3), "c0_refused": np.array([[0.0, 0.0, 0.0], [-0.6, 0.0, 0.0]])}
+    dumped = one_choice(ramp(g), g, 0.002, [[0.0, 0.0, 0.0], [-0.6, 0.0, 0.0]])
     table = readings(dumped, on(ramp(fine), fine), BODY)
     assert table["truth"]["step"]["over"] == 0
     for reading in ("best estimate, the bounds check's", "best estimate, the chance check's"):
@@ -122,13 +126,7 @@ def test_the_chance_check_is_judged_again_at_each_spacing_against_the_truth() ->
     """The 12 cm ledge under the front wheels is refused at every spacing of the draws' samples and
     truly unsafe; flat ground behind it passes at every spacing: no false safe, no false refusal."""
     h, g = ground()
-    z = np.zeros(h.shape, np.float32)
-    dumped = {"c0_mean": h, "c0_mean_var": np.full(h.shape, 0.005**2, np.float32), "c0_rise": z, "c0_drop": z,
-              "c0_relief": z, "c0_shift": z, "c0_along_var": z, "c0_ceiling": np.full(h.shape, np.inf, np.float32),
-              "c0_framed": np.ones(h.shape, bool), "c0_lower": h, "c0_upper": h,
-              "c0_geom": np.array([g.cell, g.xmin, g.ymax, g.width, g.height], float), "c0_k": np.array(2.5),
-              "c0_pose": np.zeros(3), "c0_refused": np.array([[0.0, 0.0, 0.0], [-0.5, 0.0, 0.0]])}
-    table = chance_spacings(dumped, on(h, g), BODY)
+    table = chance_spacings(one_choice(h, g, 0.005, [[0.0, 0.0, 0.0], [-0.5, 0.0, 0.0]]), on(h, g), BODY)
     assert set(table) == {"a cell (the check's)", "0.7 of a cell", "the truth's 1 cm"}
     for row in table.values():
         assert row == {"judged": 2, "passed": 1, "false_safe": 0, "false_refusal": 0}, row
