@@ -19,11 +19,13 @@ allows it, how far the check passes it, and how far with each of the check's ter
 turn, which names the term that holds the rover where it stands.
 
 ``--readings DUMP`` (no mission run): the refused poses of a ``--dump`` judged again on the
-map's surfaces read several ways (:func:`readings`): the chooser's best estimate as its check reads
-it (each sample the cell that holds it, samples 0.7 cells apart), the same read bilinearly at the
-truth's 1 cm samples, and the cells' means. A step is a rise within two samples along a wheel's
-lane, so the sample spacing sets the run over which a rise counts: 2 cm on the truth, 3.5 cm on
-the map. Where a reading's excess is far from the truth's, the reading, not the ground, refuses.
+map's surfaces read several ways (:func:`readings`): the best estimate as the bounds check reads
+it (each sample the cell that holds it, 0.7 of a cell apart), as the chance check reads its draws
+(bilinearly, a cell apart), and bilinearly at the truth's 1 cm; and the chance check itself with
+its draws sampled finer (:func:`chance_spacings`). A step is a rise within two samples along a
+wheel's lane, so the sample spacing sets the run over which a rise counts: 2 cm on the truth, 3.5
+and 5 cm on a 2.5 cm map. Where a reading's excess is far from the truth's, the reading, not the
+ground, refuses.
 
 Each unsafe event on the true track is traced to the nearest pose of a section the chooser
 passed (:func:`trace_events`): truly unsafe there is the check's false safe, safe there the
@@ -286,7 +288,8 @@ def show_readings(path: str, scene: str) -> None:
     def judge(poses: np.ndarray) -> vehicle.PoseChecks:
         return truth_checks(world, scene, poses, world.body)
 
-    table = readings(dict(np.load(path)), judge, world.body)
+    dumped = dict(np.load(path))
+    table = readings(dumped, judge, world.body)
     print(f"{path}: refused poses judged again; per reading and limit: over / over where the truth is "
           "within / within where the truth is over; median excess less the truth's")
     for name, row in table.items():
@@ -295,8 +298,13 @@ def show_readings(path: str, scene: str) -> None:
             for lim, r in row.items()))
     print("the chance check again, its draws sampled at: judged / passed / passed but truly unsafe / refused but "
           "truly safe")
-    for name, r in chance_spacings(dict(np.load(path)), judge, world.body).items():
+    for name, r in chance_spacings(dumped, judge, world.body).items():
         print(f"  {name:24s} {r['judged']} / {r['passed']} / {r['false_safe']} / {r['false_refusal']}")
+
+
+def _spacing(spacing: float, unit: str, g: GridGeometry) -> float:
+    """A sample spacing given in cells of ``g`` ("cell") or in metres ("m"), in metres."""
+    return spacing * (g.cell if unit == "cell" else 1.0)
 
 
 READINGS: dict[str, tuple[str, bool, float, str]] = {
@@ -324,7 +332,7 @@ def readings(dumped: Mapping[str, np.ndarray], truth: Truth, body: Any,
         for name, (which, cellwise, spacing, unit) in READINGS.items():
             surface = surfaces[which]
             excess[name].append(vehicle.check_poses((surface, surface.copy()), g, poses, body, cellwise=cellwise,
-                                                    step=spacing * (g.cell if unit == "cell" else 1.0)).excess)
+                                                    step=_spacing(spacing, unit, g)).excess)
     true = np.concatenate(excess["truth"]) if excess["truth"] else np.zeros((0, len(vehicle.LIMITS)))
     out: dict[str, dict[str, dict[str, float]]] = {}
     for name, parts in excess.items():
@@ -372,7 +380,7 @@ def chance_spacings(dumped: Mapping[str, np.ndarray], truth: Truth, body: Any, p
         post = chance.posterior(stats, g, k)
         unsafe = truth(poses).unsafe
         for name, (spacing, unit) in SPACINGS.items():
-            safe = chance.chance_check(post, g, poses, body, step=spacing * (g.cell if unit == "cell" else 1.0)).safe
+            safe = chance.chance_check(post, g, poses, body, step=_spacing(spacing, unit, g)).safe
             row = out[name]
             row["judged"] += len(poses)
             row["passed"] += int(safe.sum())
