@@ -31,6 +31,7 @@ import structlog
 from drivers.base import DeviceError, DeviceInterrupted
 
 from .bus import tapped_call
+from .heap import trim
 from .protocol import ProtocolError
 
 if TYPE_CHECKING:
@@ -214,6 +215,8 @@ class JobRunner:
                             log.info("job_error_after_stop", job=job.id, error=repr(error))
                         result, error = None, Interrupted(f"{job.command} job {job.id} was interrupted")
             self.loop.call_soon_threadsafe(self._finish, job, result, error, on_done)
+            del result, error
+            trim()  # after the final line is on its way; the work's arrays are freed by now
 
         self._pool.submit(run)
 

@@ -18,8 +18,9 @@ from rvs_params.cli import ToolParser
 from . import commands as _commands  # noqa: F401 - fills the command table
 from .app import App
 from .config import STANDALONE, ConfigStore, ModuleConfig
+from .heap import bound_malloc_arenas
 from .logs import setup as setup_logging
-from .server import bound_malloc_arenas, listen, serve
+from .server import listen, serve
 from .table import COMMANDS
 from .web.address import console_host
 

@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
-import ctypes
 import gc
 import logging
 import os
@@ -23,6 +22,7 @@ from typing import Any
 import structlog
 
 from .app import App
+from .heap import give_back_memory
 from .protocol import (
     INTERRUPT,
     TIMING_MARK,
@@ -215,38 +215,6 @@ class Connection(asyncio.Protocol):
             self.closed = True
             self.transport.close()
         self.app.connections.discard(self)
-
-
-def give_back_memory() -> None:
-    """Return freed heap to the system after dropping a client with megabytes queued: glibc keeps
-    freed memory in its arenas, so without a trim a rover's server would carry every flood it
-    survived. The collection first: a dropped connection's objects may sit in reference cycles,
-    and their memory is only free (and trimmable) once they are collected. A no-op where the C
-    library has no malloc_trim."""
-    gc.collect()
-    try:
-        ctypes.CDLL(None).malloc_trim(0)
-    except (OSError, AttributeError):
-        pass
-
-
-M_ARENA_MAX = -8  # glibc's mallopt parameter
-
-
-def bound_malloc_arenas(arenas: int) -> bool:
-    """Let the threads allocate from at most ``arenas`` glibc arenas; False where the C library
-    has no mallopt or refuses. Each arena keeps the memory its threads freed: with glibc's
-    default of one a thread (up to 8 a core), a rover's server would grow by a render's worth
-    each time a job ran on a thread that had not rendered yet, for as long as it runs. Arenas
-    made before the call stay, and the bound holds for the whole process: the server program
-    calls it before any thread starts, while a process that embeds a server (a test, a bench)
-    keeps its own allocator."""
-    if arenas <= 0:
-        return False
-    try:
-        return bool(ctypes.CDLL(None).mallopt(M_ARENA_MAX, arenas))
-    except (OSError, AttributeError):
-        return False
 
 
 def warm_up_kernels() -> None:

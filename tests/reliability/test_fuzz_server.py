@@ -56,9 +56,21 @@ def alive(srv: ServerProcess) -> bool:
         c.close()
 
 
+def at_rest_kb(srv: ServerProcess) -> int:
+    """The server's resident size once no job runs (a render in flight holds tens of MB)."""
+    c = LineClient(srv.port)
+    try:
+        assert wait_for(lambda: c.request("status").fields["job"] == "none", 60)
+    finally:
+        c.close()
+    return rss_kb(srv.proc.pid)
+
+
 def fuzz(srv: ServerProcess, lines_per_connection: int, rounds: int, seed: int, job_warmups: int) -> dict:
-    """Warm-up rounds, then ``rounds`` rounds of 20 connections; RSS after the warm-up against
-    the end, fds before against after.
+    """Warm-up rounds, then ``rounds`` rounds of 20 connections; fds before against after, and
+    the resident size at rest (no job running) after the warm-up against its least over the last
+    half of the rounds: a leak raises that floor, while a single sample after a round may sit up
+    to 15 % above it for a while (the allocator's pages of that round's last renders).
 
     Jobs run in worker threads; the server bounds glibc's arenas (``server.malloc_arenas``, 2),
     without which the resident size climbs in steps while more threads take their share of the
@@ -76,10 +88,11 @@ def fuzz(srv: ServerProcess, lines_per_connection: int, rounds: int, seed: int, 
     for k in range(0, len(warm), CONNECTIONS):
         totals = summarize(drive(srv.port, warm[k : k + CONNECTIONS], seed + k))
         assert totals["finals"] == totals["expected"] and not totals["errors"], totals
-    rss_warm = rss_kb(pid)
+    rss_warm = at_rest_kb(srv)
     time.sleep(0.5)  # the warm-up connections are closed by now
     fds_before = fd_count(pid)
     sent = expected = finals = 0
+    rests: list[int] = []
     failures: list[dict] = []
     t0 = time.monotonic()
     with Sampler(pid) as sampler:
@@ -93,13 +106,14 @@ def fuzz(srv: ServerProcess, lines_per_connection: int, rounds: int, seed: int, 
             if summary["miscounted"] or summary["errors"] or summary["missing_tags"] or summary["internal"] \
                     or summary["malformed"]:
                 failures.append(summary)
+            rests.append(at_rest_kb(srv))
     seconds = time.monotonic() - t0
     assert alive(srv), srv.log_tail()
     assert wait_for(lambda: fd_count(pid) <= fds_before, 60), (fd_count(pid), fds_before)
-    rss_end = rss_kb(pid)
+    rss_end = min(rests[len(rests) // 2 :])
     figures = {
         "lines": sent, "requests": expected, "finals": finals, "connections": CONNECTIONS, "seconds": round(seconds, 1),
-        "rss_warm_kb": rss_warm, "rss_end_kb": rss_end, "rss_peak_kb": sampler.peak_kb(),
+        "rss_warm_kb": rss_warm, "rss_end_kb": rss_end, "rss_rests_kb": rests, "rss_peak_kb": sampler.peak_kb(),
         "rss_growth": round((rss_end - rss_warm) / rss_warm, 4), "fds_before": fds_before, "fds_after": fd_count(pid),
     }
     record("fuzz_server", **figures)

@@ -14,7 +14,7 @@ import pytest
 COUNT_ARENAS = textwrap.dedent("""
     import ctypes, sys, threading
     import numpy as np
-    from rvs_server.server import bound_malloc_arenas
+    from rvs_server.heap import bound_malloc_arenas
 
     arenas = int(sys.argv[1])
     print(bound_malloc_arenas(arenas))
