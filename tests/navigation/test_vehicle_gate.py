@@ -6,6 +6,8 @@ simulator's 1 cm surface."""
 
 from __future__ import annotations
 
+import math
+
 import pytest
 from support.marks import long_only
 
@@ -63,6 +65,8 @@ def test_a_rock_dropped_ahead_while_driving_is_never_driven_onto(server_factory,
     at the goal or in a safe stop with its reason, never with an unsafe pose."""
     import numpy as np
 
+    from tools.bench.rock_drop import clock_held
+
     rng = np.random.default_rng(seed)
     srv = server_factory(["server.scene=quarry", "navigate.range=-30,30,-50,-10"])
     world = srv.app.world
@@ -74,12 +78,15 @@ def test_a_rock_dropped_ahead_while_driving_is_never_driven_onto(server_factory,
     while True:
         r = c.reply(timeout=900)
         if rock is None and r.status == "PROGRESS" and r.fields.get("phase") == "drive":
-            x, y, h = world.rover_pose()
             ahead = float(rng.uniform(1.0, 3.0))
-            rock = (x + ahead * np.cos(np.radians(h)), y + ahead * np.sin(np.radians(h)))
-            added = sim.request(f"sim add-rock -x {rock[0]:.3f} -y {rock[1]:.3f} -radius {rng.uniform(0.06, 0.15):.3f} "
-                                f"-height {rng.uniform(0.10, 0.25):.3f}")
+            with clock_held(sim.request, world):  # the rover is where the rock is placed from
+                x, y, h = world.rover_pose()
+                rock = (x + ahead * np.cos(np.radians(h)), y + ahead * np.sin(np.radians(h)))
+                added = sim.request(f"sim add-rock -x {rock[0]:.3f} -y {rock[1]:.3f} "
+                                    f"-radius {rng.uniform(0.06, 0.15):.3f} -height {rng.uniform(0.10, 0.25):.3f}")
+                landed = world.rover_pose()
             assert added.status == "OK", added.fields
+            assert math.hypot(rock[0] - landed[0], rock[1] - landed[1]) > ahead - 0.02, (rock, landed)
         if r.status in ("OK", "ERROR") and r.fields.get("job") == job:
             final = r
             break
