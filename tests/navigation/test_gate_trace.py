@@ -63,11 +63,32 @@ def test_an_event_is_traced_to_the_nearest_chosen_pose_and_the_truth_there() -> 
     choices = [{"pose": [-0.5, 0.0, 0.0], "section": section, "section_p_any": 1e-6}]
     events = [{"kind": "step front-left", "excess": 0.02, "x": 0.01, "y": 0.005, "heading": 2.0},
               {"kind": "belly", "excess": 0.001, "x": -0.29, "y": 0.01, "heading": 0.0}]
-    chosen_unsafe, strayed = trace_events(events, choices, on(h, g))
+    chosen_unsafe, strayed = trace_events(events, choices, on(h, g), BODY)
     assert chosen_unsafe["nearest"] == [0.0, 0.0, 0.0] and chosen_unsafe["planned_truly_unsafe"]
     assert abs(chosen_unsafe["off_m"] - np.hypot(0.01, 0.005)) < 1e-9 and chosen_unsafe["off_deg"] == 2.0
     assert strayed["nearest"] == [-0.3, 0.0, 0.0] and not strayed["planned_truly_unsafe"]
     assert strayed["section_p_any"] == 1e-6 and strayed["choice"] == 0
+    assert "at_event" not in strayed  # the choice kept no map
+
+
+def test_an_event_is_judged_at_its_true_pose_on_the_map_the_choice_read() -> None:
+    """The ledge's step at the event's pose: a map that reads the ledge 12 cm low passes that pose
+    (the check's false safe, though the nearest chosen pose is truly safe); a map that knows the
+    ledge refuses it (the track strayed from what was judged)."""
+    h, g = ground()
+    section = [[-0.5, 0.0, 0.0], [-0.3, 0.0, 0.0]]
+    event = {"kind": "step front-left", "excess": 0.02, "x": 0.0, "y": 0.0, "heading": 0.0}
+    judged = {}
+    for name, read in (("low", np.zeros_like(h)), ("right", h)):
+        stats = {k[3:]: v for k, v in one_choice(read, g, 0.002, [[0.0, 0.0, 0.0]]).items()}
+        choices = [{"pose": [-0.5, 0.0, 0.0], "section": section, "section_p_any": 1e-6,
+                    "map": (stats, g, BoundsParams().k), "chance": ChanceParams()}]
+        (traced,) = trace_events([event], choices, on(h, g), BODY)
+        assert not traced["planned_truly_unsafe"]  # the nearest chosen pose, 0.3 m back, is truly safe
+        judged[name] = traced["at_event"]
+    assert judged["low"]["passed"] and judged["low"]["p_any"] <= ChanceParams().epsilon
+    assert judged["low"]["best"][0] < 0.0  # the map's step at the event: none
+    assert not judged["right"]["passed"] and judged["right"]["best"][0] > 0.0
 
 
 def test_the_stop_s_turn_names_the_frames_spread_that_refuses_it_on_flat_ground() -> None:

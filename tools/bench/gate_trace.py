@@ -28,8 +28,8 @@ and 5 cm on a 2.5 cm map. Where a reading's excess is far from the truth's, the 
 ground, refuses.
 
 Each unsafe event on the true track is traced to the nearest pose of a section the chooser
-passed (:func:`trace_events`): truly unsafe there is the check's false safe, safe there the
-track's straying from what was judged.
+passed (:func:`trace_events`) and, where the choice kept its map, judged at its true pose on that
+map: a pass there is the check's false safe, a refusal the track's straying from what was judged.
 
 It hooks the checks the chooser builds (:mod:`rvs_server.navigation.sections`), so it measures the
 loop as it runs; docs/NAVIGATE_BENCH.md has what it showed. A refused pose of a choice is one
@@ -153,12 +153,15 @@ def main() -> None:
             r["truth"] = {"unsafe": bool(c.unsafe[i]), "tilt": round(float(c.tilt[i]), 2),
                           "belly": round(float(c.intrusion[i]), 4)}
     detailed = detail(choices, refusals, truth, world.body) if args.detail else []
-    row["events_traced"] = trace_events(row["events"], choices, truth)
+    row["events_traced"] = trace_events(row["events"], choices, truth, world.body)
     for e in row["events_traced"]:
+        at = e.get("at_event")
         print(f"event {e['kind']} +{e['excess'] * (100 if e['kind'][:4] in ('step', 'bell') else 1):.2f} at "
               f"({e['x']}, {e['y']}, {e['heading']}): nearest chosen pose {e['nearest']} of choice {e['choice']} "
               f"({e['off_m']:.3f} m, {e['off_deg']:.1f} deg off), truly unsafe there: {e['planned_truly_unsafe']} "
-              f"{e['planned_truth']}; the section's P(any) {e['section_p_any']}")
+              f"{e['planned_truth']}; the section's P(any) {e['section_p_any']}"
+              + ("" if at is None else f"; at the event's pose the choice's check {'passes' if at['passed'] else 'refuses'} "
+                                       f"(P(any) {at['p_any']:.2g}, best estimate's excess {at['best']})"))
     turn = {}
     if args.detail:
         last = next((c for c in reversed(choices) if "map" in c), None)
@@ -240,10 +243,14 @@ def turn_trace(stats: dict[str, np.ndarray], g: Any, k: float, pose: Any, truth:
     return out
 
 
-def trace_events(events: list[dict[str, Any]], choices: list[dict[str, Any]], truth: Truth) -> list[dict[str, Any]]:
+def trace_events(events: list[dict[str, Any]], choices: list[dict[str, Any]], truth: Truth, body: Any
+                 ) -> list[dict[str, Any]]:
     """Per unsafe event on the true track: the nearest pose of a section the chooser passed (how far
-    off the true pose was, in metres and degrees), and the truth's verdict at that planned pose: a
-    truly unsafe planned pose is the check's false safe, a safe one the track's straying."""
+    off the true pose was, in metres and degrees), and the truth's verdict at that planned pose.
+    Where that choice kept its map (``--detail``), the true pose itself is judged on it with the
+    choice's chance check (``at_event``: P(any), and the best estimate's excess per limit): a pass
+    there is the check's false safe, whatever the planned pose's truth (a planned pose truly safe
+    by a millimetre does not make the event the track's); a refusal is the track's straying."""
     planned = [(ci, np.asarray(c["section"], float)) for ci, c in enumerate(choices) if c.get("section")]
     out = []
     for e in events:
@@ -258,10 +265,19 @@ def trace_events(events: list[dict[str, Any]], choices: list[dict[str, Any]], tr
             continue
         _, ci, pose, dh = best
         t = truth(pose[None, :])
-        out.append({**e, "choice": ci, "nearest": [round(float(v), 3) for v in pose],
-                    "off_m": float(np.hypot(pose[0] - e["x"], pose[1] - e["y"])), "off_deg": dh,
-                    "planned_truly_unsafe": bool(t.unsafe[0]), "planned_truth": [round(float(v), 4) for v in t.excess[0]],
-                    "section_p_any": choices[ci].get("section_p_any")})
+        row = {**e, "choice": ci, "nearest": [round(float(v), 3) for v in pose],
+               "off_m": float(np.hypot(pose[0] - e["x"], pose[1] - e["y"])), "off_deg": dh,
+               "planned_truly_unsafe": bool(t.unsafe[0]), "planned_truth": [round(float(v), 4) for v in t.excess[0]],
+               "section_p_any": choices[ci].get("section_p_any")}
+        if "map" in choices[ci]:
+            stats, g, k = choices[ci]["map"]
+            params = choices[ci]["chance"]
+            post = chance.posterior(stats, g, k, params)
+            at = np.array([[e["x"], e["y"], e["heading"]]], float)
+            checked = chance.chance_check(post, g, at, body, params)
+            row["at_event"] = {"p_any": float(checked.p_any[0]), "passed": bool(checked.safe[0]),
+                               "best": [round(float(v), 4) for v in checked.nominal.excess[0]]}
+        out.append(row)
     return out
 
 
