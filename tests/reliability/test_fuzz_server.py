@@ -26,6 +26,7 @@ from support.wire_fuzz import LineGen, Plan, close_iac, drive, hazard, logical_l
 from rvs_server.client.session import ServerProcess
 
 CONNECTIONS = 20
+JOB_WARM_UP_LINES = 500  # a connection's lines in a job-heavy warm-up round
 WARM_UP = [  # every variant of the jobs the fuzz may run: their first renders allocate for good
     # a current map: check-move's generated values (up to the help's extremes) then sweep it
     "dem-full-tof -range -20,20,-40,-25 -name fzmap",
@@ -68,9 +69,11 @@ def at_rest_kb(srv: ServerProcess) -> int:
 
 def fuzz(srv: ServerProcess, lines_per_connection: int, rounds: int, seed: int, job_warmups: int) -> dict:
     """Warm-up rounds, then ``rounds`` rounds of 20 connections; fds before against after, and
-    the resident size at rest (no job running) after the warm-up against its least over the last
-    half of the rounds: a leak raises that floor, while a single sample after a round may sit up
-    to 15 % above it for a while (the allocator's pages of that round's last renders).
+    the resident size at rest (no job running) least over the warm-up's rounds against its least
+    over the last half of the rounds: a leak raises that floor. One sample is no measure: after
+    about one round in three the server holds 10-40 MiB more (anonymous memory, with the heap
+    trimmed after every job; what holds it is not traced) until a later round gives it back:
+    +15.8 % once on CI's loaded machine.
 
     Jobs run in worker threads; the server bounds glibc's arenas (``server.malloc_arenas``, 2),
     without which the resident size climbs in steps while more threads take their share of the
@@ -83,12 +86,14 @@ def fuzz(srv: ServerProcess, lines_per_connection: int, rounds: int, seed: int, 
     c.close()
     warm = [make_plan(LineGen(random.Random(seed * 7919 + i)), 100, f"w{i}") for i in range(CONNECTIONS)]
     for w in range(job_warmups):
-        warm += [make_plan(LineGen(random.Random(seed * 6151 + w * 100 + i)), lines_per_connection, f"j{w}c{i}",
+        warm += [make_plan(LineGen(random.Random(seed * 6151 + w * 100 + i)), JOB_WARM_UP_LINES, f"j{w}c{i}",
                            job_share=1.0, junk_share=0.0, mutate_share=0.0) for i in range(CONNECTIONS)]
+    warm_rests = []
     for k in range(0, len(warm), CONNECTIONS):
         totals = summarize(drive(srv.port, warm[k : k + CONNECTIONS], seed + k))
         assert totals["finals"] == totals["expected"] and not totals["errors"], totals
-    rss_warm = at_rest_kb(srv)
+        warm_rests.append(at_rest_kb(srv))
+    rss_warm = min(warm_rests)
     time.sleep(0.5)  # the warm-up connections are closed by now
     fds_before = fd_count(pid)
     sent = expected = finals = 0
@@ -124,7 +129,7 @@ def fuzz(srv: ServerProcess, lines_per_connection: int, rounds: int, seed: int, 
 
 @long_test
 def test_fuzz_20_connections(server: ServerProcess) -> None:
-    figures = fuzz(server, lines_per_connection=500, rounds=1, seed=1, job_warmups=1)
+    figures = fuzz(server, lines_per_connection=50, rounds=10, seed=1, job_warmups=1)
     assert figures["lines"] >= 10_000
     assert figures["rss_growth"] < 0.10, figures
 
@@ -132,7 +137,7 @@ def test_fuzz_20_connections(server: ServerProcess) -> None:
 @long_suite
 @pytest.mark.timeout(1200)
 def test_fuzz_100k_lines_over_20_connections(server: ServerProcess) -> None:
-    figures = fuzz(server, lines_per_connection=1000, rounds=5, seed=2, job_warmups=1)
+    figures = fuzz(server, lines_per_connection=500, rounds=10, seed=2, job_warmups=1)
     assert figures["lines"] >= 100_000
     assert figures["rss_growth"] < 0.10, figures
 
