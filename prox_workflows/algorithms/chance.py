@@ -219,6 +219,7 @@ class ChanceChecks:
     screened: np.ndarray  # (N,) bool: cleared by the worst case screen_k sigmas out (P(any) < SCREEN * epsilon)
     nominal: PoseChecks  # the check on the posterior's best estimate (which limit is closest, by how much)
     epsilon: float
+    z: np.ndarray | None = None  # (N, 4) the draws' mean excess over their spread per limit; -inf screened, NaN not drawn
 
     @property
     def unsafe(self) -> np.ndarray:
@@ -378,6 +379,8 @@ def chance_check(post: Posterior, geom: GridGeometry, poses: np.ndarray, body: V
     screened = wide.safe & ~unknown
     prob = np.where(unknown[:, None], np.nan, np.zeros((n, 4)))
     p_any = np.where(unknown, np.nan, 0.0)
+    zs = np.full((n, 4), np.nan)
+    zs[screened] = -np.inf
     todo = ~unknown & ~screened
     if verdict_only:
         over_best = todo & nominal.unsafe
@@ -421,11 +424,12 @@ def chance_check(post: Posterior, geom: GridGeometry, poses: np.ndarray, body: V
         tail = np.nan_to_num(ndtr(z), nan=0.0)
         per_limit = np.maximum(over.mean(axis=0), tail)
         prob[rest] = per_limit
+        zs[rest] = z
         p_any[rest] = np.maximum(over.any(axis=2).mean(axis=0), np.minimum(tail.sum(axis=1), 1.0))
     if cut.any():
         prob[cut], p_any[cut], unknown[cut] = np.nan, np.nan, True
     return ChanceChecks(prob=prob, p_any=p_any, unknown=unknown, screened=screened, nominal=nominal,
-                        epsilon=p.epsilon)
+                        epsilon=p.epsilon, z=zs)
 
 
 def _judge(top: np.ndarray, seen: np.ndarray, span: np.ndarray | None, geom: GridGeometry, poses: np.ndarray,

@@ -566,3 +566,34 @@ def test_the_kept_trace_gives_each_lost_pose_to_the_first_term_that_loses_it() -
     assert out["lost_to_rays"] == {"poses": 1, "unknown": 1}
     assert out["caught_by_rays"] == 1
     assert (out["lost_to_relief"], out["caught_by_relief"], out["gained_by_relief"]) == (1, 0, 1)
+
+
+def test_the_slack_bench_counts_false_safes_and_kept_poses_per_margin() -> None:
+    # tools.bench.chance --slack: five poses, the last two truly unsafe, the first unknown; a pose
+    # passes at t where its drawn margin is t sigmas or more under the limits
+    from tools.bench.chance import slack, slack_counts
+
+    unsafe = np.array([0, 0, 0, 1, 1], bool)
+    unknown = np.array([1, 0, 0, 0, 0], bool)
+    declared = np.array([0, 1, 0, 0, 0], bool)
+    z = np.array([-9.0, -4.0, -1.2, -2.2, 0.5])
+    look = slack_counts(unsafe, declared, unknown, z, (3.0, 2.0, 1.0))
+    assert look["judged"] == 4 and look["truly_safe"] == 3
+    assert look["verdicts"] == {"declared": [0, 1], "t 3": [0, 1], "t 2": [1, 1], "t 1": [1, 2]}
+    rows = slack([{"scene": "s", **look}, {"scene": "s", **look}])
+    at = {r["verdict"]: r for r in rows}
+    assert at["t 1"]["false_safe"] == 2 and at["t 1"]["kept"] == pytest.approx(4 / 6)
+    assert at["declared"]["bound"] == pytest.approx(1 - 0.05 ** (1 / 8))  # 0 of 8: the one-sided 95 % bound
+
+
+def test_a_drawn_pose_s_margin_is_its_draws_mean_excess_over_their_spread() -> None:
+    # the chance check's z: under the limit (negative) on a low edge, over it (positive) on an edge
+    # above the climb, -inf where the screen cleared the pose, NaN where the ground is unknown
+    h, g = ledge(0.09)
+    low = chance_check(known(h, 0.005), g, AT_ORIGIN, BODY)
+    high = chance_check(known(ledge(0.11)[0], 0.005), g, AT_ORIGIN, BODY)
+    assert low.z[0, STEP] < 0 < high.z[0, STEP]
+    flat = chance_check(known(ledge(0.0)[0], 0.001), g, AT_ORIGIN, BODY)
+    assert flat.screened[0] and (flat.z[0] == -np.inf).all()
+    blank = known(np.full(h.shape, np.nan), 0.005)
+    assert np.isnan(chance_check(blank, g, AT_ORIGIN, BODY).z[0]).all()

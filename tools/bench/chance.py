@@ -25,6 +25,10 @@ model, one draw). Then:
     python -m tools.bench.chance --look approach --world-seed 3 --posterior map   # as the chooser judges
     python -m tools.bench.chance --risk --scenes marsyard hirise dense --world-seeds 20 21 22 23 24 25 26 27 28 29 --jobs 2
 
+``--slack`` (with ``--scenes``, ``--world-seeds``, ``--set-down``): whether the stated probability
+has slack at the pose level: the declared verdict against passing a pose whose draws' mean excess
+lies t or more of their spread under every limit (:func:`slack`), false safes and kept per t.
+
 ``--risk``: the stated risk, as the issue asks it: the chance check at the declared epsilon, with
 the posterior as the chooser makes it, over many looks (``--look``) on rock draws no setting was
 tuned on (``--world-seeds``; the noise draw is the rock draw's), summed per scene: judged poses,
@@ -184,6 +188,7 @@ def evaluate(scene: str, look: str, cell: float, world_seed: int, seed: int, eps
         c = chance_check(post, g, poses, body, params)
         rows.append({"check": f"chance, epsilon {eps:g}", "safe": c.safe, "unknown": c.unknown,
                      "ms": 1000 * (time.perf_counter() - t0), "screened": int(c.screened.sum()),
+                     "z": np.nan_to_num(c.z, nan=-np.inf).max(axis=1),
                      "misses": [_miss(poses[i], on_truth.excess[i], c.nominal.excess[i], float(c.p_any[i]))
                                 for i in np.flatnonzero(c.safe & on_truth.unsafe)]})
     truly_safe = ~on_truth.unsafe
@@ -194,7 +199,8 @@ def evaluate(scene: str, look: str, cell: float, world_seed: int, seed: int, eps
         row["kept"] = float(row["safe"][truly_safe & judged].mean())
         row["of"] = int((truly_safe & judged).sum())
         row["safe_n"] = int((row["safe"] & truly_safe).sum())
-    return {"poses": len(poses), "rows": rows, "truly_unsafe": int(on_truth.unsafe.sum()), "set_down": said}
+    return {"poses": len(poses), "rows": rows, "truly_unsafe": int(on_truth.unsafe.sum()), "set_down": said,
+            "unsafe": on_truth.unsafe}
 
 
 LAGS = (1, 2, 3, 4, 6, 8)  # cells: the lags the spatial correlation is measured at
@@ -306,6 +312,48 @@ def risk_table(rows: list[dict[str, Any]]) -> list[str]:
     return lines
 
 
+SLACK_T = (3.43, 3.0, 2.5, 2.0, 1.5, 1.0, 0.5, 0.0)  # sigmas: 3.43 is the declared epsilon's normal tail
+
+
+def slack_counts(unsafe: np.ndarray, safe: np.ndarray, unknown: np.ndarray, z: np.ndarray,
+                 ts: tuple[float, ...] = SLACK_T) -> dict[str, Any]:
+    """One look's counts for :func:`slack`: per verdict (the declared one, then a pose passed where
+    the draws' mean excess lies ``t`` or more of their spread under every limit: the normal tail
+    alone, without the share of draws over a limit) its false safes and truly safe kept."""
+    judged = ~unknown
+    verdicts = [("declared", safe)] + [(f"t {t:g}", judged & (z <= -t)) for t in ts]
+    return {"judged": int(judged.sum()), "truly_safe": int((~unsafe).sum()),
+            "verdicts": {name: [int((ok & unsafe).sum()), int((ok & ~unsafe).sum())] for name, ok in verdicts}}
+
+
+def _slack_row(job: tuple[str, int, bool]) -> dict[str, Any]:
+    """One look's :func:`slack_counts` (poses as ``--risk`` judges them; ``start``: round the
+    start, set down on the ring)."""
+    scene, world_seed, start = job
+    out = evaluate(scene, "approach", BoundsParams().cell, world_seed, world_seed, [], ChanceParams().samples,
+                   RoverBody(), made="map", start=start, models=[ChanceParams()])
+    row = out["rows"][1]
+    return {"scene": scene, "world_seed": world_seed,
+            **slack_counts(out["unsafe"], row["safe"], row["unknown"], row["z"])}
+
+
+def slack(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """Per scene and verdict, the looks' :func:`slack_counts` summed: false safes, their 95 % bound
+    and the truly safe kept (of all). Whether the check's stated probability has slack at the
+    pose level: if a lower ``t`` kept many more truly safe poses for few false safes, the model's
+    spread would be too wide where it decides; if the false safes climb with the kept share, the
+    spread is what the truth asks (3.43 is the declared epsilon's normal tail)."""
+    out = []
+    for scene in dict.fromkeys(r["scene"] for r in rows):
+        sel = [r for r in rows if r["scene"] == scene]
+        n, truly_safe = sum(r["judged"] for r in sel), max(1, sum(r["truly_safe"] for r in sel))
+        for name in sel[0]["verdicts"]:
+            fs, kept = (sum(r["verdicts"][name][i] for r in sel) for i in (0, 1))
+            out.append({"scene": scene, "looks": len(sel), "verdict": name, "judged": n, "false_safe": fs,
+                        "bound": clopper_pearson_upper(fs, n) if n else float("nan"), "kept": kept / truly_safe})
+    return out
+
+
 def timing(body: RoverBody, samples: int, poses: int = 1000) -> list[tuple[str, float]]:
     """Seconds per ``poses`` poses on a 4 x 4 m window of 5 cm cells: the worst-case check on bounds
     +-2.5 sigma, and the chance check where every pose is sampled (ground with 10 cm rocks, cells
@@ -386,11 +434,25 @@ def main(argv: list[str] | None = None) -> None:
                          "at 0: the model without it), on the same map and draws, and tabulate both; given "
                          "again, each set is judged and tabulated apart (e.g. --against epsilon=1e-4 "
                          "--against epsilon=3e-5: one fused map and one truth for every setting)")
+    ap.add_argument("--slack", action="store_true",
+                    help="with --scenes and --world-seeds: the declared verdict against a threshold on the draws' "
+                         "margin in sigmas, whether the stated probability has slack at the pose level (with "
+                         "--set-down: round the start)")
     ap.add_argument("--time", action="store_true", help="time 1,000 poses on a synthetic 5 cm window instead")
     args = ap.parse_args(argv)
     if args.time:
         for name, seconds in timing(RoverBody(), args.samples):
             print(f"{name}: {seconds:.2f} s per 1,000 poses ({args.samples} samples)")
+        return
+    if args.slack:
+        rows = streamed(_slack_row, [(sc, ws, args.set_down) for ws in args.world_seeds for sc in args.scenes],
+                        args.jobs)
+        print(f"the draws' margin against the truth, {'round the start' if args.set_down else '1.6-4.0 m ahead'}")
+        print("| scene | looks | verdict | judged | false safe | 95 % bound | truly safe kept (of all) |")
+        print("|---|---|---|---|---|---|---|")
+        for r in slack(rows):
+            print(f"| {r['scene']} | {r['looks']} | {r['verdict']} | {r['judged']:,} | {r['false_safe']} | "
+                  f"{r['bound']:.1e} | {100 * r['kept']:.1f} % |")
         return
     if args.risk:
         against = [against_set(words) for words in args.against]
