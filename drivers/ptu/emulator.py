@@ -408,8 +408,15 @@ class PtuEmulator:
             for ax in self.axes.values():
                 if ax.profile is not None:
                     ax.pos, ax.vel = ax.profile.at(self._sim_t)
-        elif self._clock is not None:
-            self._clock.advance_to(self._sim_t)  # an instant move still took its simulated time
+
+    def _waited(self) -> None:
+        """On an instant clock, a reply that waited for the axes (an await, a reset) moves the
+        world's clock on to where they stopped: the caller's wait took that long. A move nobody
+        awaits leaves the clock alone, so that a rover driving on meanwhile overlaps it, as the
+        mast slews while the wheels turn; its time still counts from its start, and the next
+        await that finds it ended sooner costs nothing."""
+        if self._clock is not None and not math.isfinite(self._horizon()):
+            self._clock.advance_to(self._sim_t)
 
     def _finish(self, ax: _Axis, t: float) -> None:
         ax.pos, ax.vel, ax.profile = float(ax.target), 0.0, None
@@ -436,6 +443,7 @@ class PtuEmulator:
     def _answer_awaits(self) -> None:
         while self._awaits and not self._busy():
             self._awaits -= 1
+            self._waited()
             self._ack()
 
     def _start_reset(self, which: str) -> None:
@@ -465,6 +473,7 @@ class PtuEmulator:
                 self._begin_phase()
             else:
                 self._reset_phases = None
+                self._waited()
                 self._ack()
                 self._run_deferred()
                 return
@@ -570,6 +579,7 @@ class PtuEmulator:
         if self._busy():
             self._awaits += 1
         else:
+            self._waited()
             self._ack()
 
     def _cmd_halt(self, which: str = "PT") -> None:

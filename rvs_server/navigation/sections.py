@@ -461,6 +461,7 @@ class SectionPilot:
         self.backward = choice.backward
         self.stopped: str | None = None
         self.hazard: dict[str, Any] | None = None
+        self.aimed = False  # the next frame's look was sent with the last motion (the mast slews meanwhile)
 
     def moved(self, truth: tuple[float, float, float], end: bool) -> None:
         self.track.add(truth, end)
@@ -510,8 +511,10 @@ class SectionPilot:
 
     def next(self, pose: tuple[float, float, float]) -> Motion | None:
         d = self.d
-        if d.rover.steers and not self.backward:  # backing out, the mast stays forward: it cannot pan behind
+        gazing = d.rover.steers and not self.backward  # backing out, the mast stays forward: it cannot pan behind
+        if gazing and not self.aimed:  # the section's first frame: no look was sent ahead of it
             d.gaze(pose, self._path_ahead(pose))
+        d.settle()
         seen, t1 = d.see(d.pan_tilt)
         d.job.check()
         bad = self._recheck(seen)
@@ -527,15 +530,38 @@ class SectionPilot:
         if not self.turned:
             h = math.radians(self.faces.pop(0))
             self.turned = not self.faces
-            return Motion.face(seen[0] + math.cos(h), seen[1] + math.sin(h))
-        left = self.length - self.driven
-        if left <= 1e-3:
-            return None
-        speed, turn_rate = d.rover.speeds()
-        if self.curvature:  # no faster than the turn rate drives the arc's curvature
-            speed = min(speed, math.radians(turn_rate) / abs(self.curvature))
-        dt = min(d.p.period, left / speed)
-        self.driven += speed * dt
-        if self.backward:
-            speed = -speed
-        return Motion.arc(speed, math.degrees(self.curvature * speed), dt)
+            motion = Motion.face(seen[0] + math.cos(h), seen[1] + math.sin(h))
+        else:
+            left = self.length - self.driven
+            if left <= 1e-3:
+                return None
+            speed, turn_rate = d.rover.speeds()
+            if self.curvature:  # no faster than the turn rate drives the arc's curvature
+                speed = min(speed, math.radians(turn_rate) / abs(self.curvature))
+            dt = min(d.p.period, left / speed)
+            self.driven += speed * dt
+            if self.backward:
+                speed = -speed
+            motion = Motion.arc(speed, math.degrees(self.curvature * speed), dt)
+        if gazing:  # the next frame's look, sent now: the mast slews while the wheels turn
+            after = motion_end(seen, motion)
+            d.gaze(after, self._path_ahead(after), wait=False)
+            self.aimed = True
+        return motion
+
+
+def motion_end(pose: tuple[float, float, float], motion: Motion) -> tuple[float, float, float]:
+    """Where ``motion`` leaves a rover at ``pose`` (x, y, heading deg) by its own kinematics: a
+    turn on the spot faces its target, an arc turns at its rate for its seconds."""
+    x, y, h = pose
+    if motion.target is not None:
+        return x, y, math.degrees(math.atan2(motion.target[1] - y, motion.target[0] - x))
+    turn = math.radians(motion.rate * motion.seconds)
+    run = motion.speed * motion.seconds
+    if abs(turn) < 1e-9:
+        dx, dy = run, 0.0
+    else:
+        r = run / turn
+        dx, dy = r * math.sin(turn), r * (1.0 - math.cos(turn))
+    c, s = math.cos(math.radians(h)), math.sin(math.radians(h))
+    return x + c * dx - s * dy, y + s * dx + c * dy, h + math.degrees(turn)

@@ -102,6 +102,7 @@ class SeeingDriver:
         self.level = "clear"
         self.pan_tilt = (0.0, params.tilt)  # where the ToF points (what the PTU reached)
         self.frame_no = 0  # frames taken while driving (the gaze alternates far and near)
+        self.slewing: tuple[float, float] | None = None  # where the PTU was sent without waiting (settle)
         self.cpu1 = 0.0  # the process time the last frame's fusion started (a cycle's CPU is counted from it)
         # the maps the leg was planned on (the scans and the rolling map then) on the rolling map's
         # grid, as traversability: the check counts the ground they saw as seen
@@ -120,18 +121,35 @@ class SeeingDriver:
         reached = device_call(self.job, self.app.devices.get("ptu").move, pan,
                               self.p.tilt if tilt is None else tilt, True)
         self.pan_tilt = (float(reached[0]), float(reached[1]))
+        self.slewing = None
 
-    def gaze(self, pose: tuple[float, float, float], remaining: np.ndarray) -> None:
-        """The PTU to where the ToF looks for this cycle's frame (``see_gaze path``:
-        :func:`looks.gaze`, near frames at the PTU's lowest tilt, far ones at ``see_tilt``). Off,
-        or without the bounds map (which the near frames feed): pan 0, ``see_tilt``, and no PTU
-        move between frames (each move costs the drive its time)."""
+    def gaze(self, pose: tuple[float, float, float], remaining: np.ndarray, wait: bool = True) -> None:
+        """The PTU to where the ToF looks for the next frame taken while driving (``see_gaze
+        path``: :func:`looks.gaze`, near frames at the PTU's lowest tilt, far ones at
+        ``see_tilt``), the rover at ``pose`` when it is taken. ``wait`` False: sent on without
+        waiting, so that the mast slews while the rover drives the cycle's motion (:meth:`settle`
+        before the frame). Off, or without the bounds map (which the near frames feed): pan 0,
+        ``see_tilt``, and no PTU move between frames."""
         if self.p.gaze == "off" or self.bounds is None:
             return
         self.frame_no += 1
         aim = looks.gaze(self.frame_no, pose, remaining, self.head, self.pan_tilt, (self._lowest_tilt(), self.p.tilt))
-        if aim is not None:
+        if aim is None:
+            return
+        if wait:
             self._point(*aim)
+        else:
+            device_call(self.job, self.app.devices.get("ptu").move, aim[0], aim[1], False)
+            self.slewing = aim
+
+    def settle(self) -> None:
+        """Wait for the PTU where :meth:`gaze` sent it without waiting: no frame is taken while the
+        mast slews. A slew that ended while the rover drove costs nothing more."""
+        if self.slewing is None:
+            return
+        reached = device_call(self.job, self.app.devices.get("ptu").wait)
+        self.pan_tilt = (float(reached[0]), float(reached[1]))
+        self.slewing = None
 
     def pose(self) -> tuple[float, float, float]:
         """The rover's belief: the simulated rover's odometry, the GNC's last pose report."""
