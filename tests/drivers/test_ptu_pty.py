@@ -388,3 +388,30 @@ def test_any_pyserial_url_works_and_a_dead_loop_times_out() -> None:
         missing.open()
     assert "cannot open serial port /dev/does-not-exist-ptu" in err.value.message
     assert "dialout" in err.value.message
+
+
+def test_on_an_instant_world_clock_a_move_nobody_awaits_overlaps_what_moves_the_clock_meanwhile() -> None:
+    # The see loop sends the next frame's look with the cycle's motion and awaits it before the
+    # frame: the mast slews while the wheels turn. A move sent without waiting leaves the world's
+    # clock where it was; an await moves it on to where the axes stopped; an await after the rover
+    # drove past that costs nothing more.
+    from drivers.sim.clock import SimClock
+
+    clock = SimClock(0.0)
+    with bench(clock=clock) as (emu, ptu):
+        t0 = clock.now()
+        ptu.move(30, 0, wait=False)
+        assert clock.now() == pytest.approx(t0, abs=1e-9)
+        ptu.await_motion()
+        pan = [m for m in emu.moves if m["axis"] == "pan"][-1]
+        assert pan["duration"] > 0.3
+        assert clock.now() == pytest.approx(t0 + pan["duration"], abs=1e-3)
+        t1 = clock.now()
+        ptu.move(0, 0, wait=False)
+        clock.advance_to(t1 + 5.0)  # the rover drove 5 s meanwhile
+        ptu.await_motion()
+        back = [m for m in emu.moves if m["axis"] == "pan"][-1]
+        assert back["t_start"] == pytest.approx(t1, abs=1e-3) and back["t_end"] < t1 + 5.0
+        assert clock.now() == pytest.approx(t1 + 5.0, abs=1e-3)
+        ptu.move(30, 0)  # awaited: the caller's wait takes the move's time
+        assert clock.now() == pytest.approx(t1 + 5.0 + pan["duration"], abs=1e-3)

@@ -143,25 +143,47 @@ def test_the_gnc_drives_each_chosen_section_as_waypoints(server_factory) -> None
         assert float(np.hypot(*(wps[-1, :2] - wps[0, :2]))) <= 0.7 + 1e-6, wps
 
 
+def test_a_motion_s_end_by_the_rover_s_own_kinematics() -> None:
+    # where the see loop aims the next frame's look, sent with the cycle's motion
+    from drivers.rover.backend import Motion
+    from rvs_server.navigation.sections import motion_end
+
+    x, y, h = motion_end((1.0, 2.0, 90.0), Motion.arc(0.1, 0.0, 1.0))
+    assert (x, y, h) == pytest.approx((1.0, 2.1, 90.0), abs=1e-9)
+    # a quarter circle of 1 m radius to the left, heading east from the origin
+    x, y, h = motion_end((0.0, 0.0, 0.0), Motion.arc(math.pi / 2, 90.0, 1.0))
+    assert (x, y, h) == pytest.approx((1.0, 1.0, 90.0), abs=1e-9)
+    x, y, h = motion_end((0.0, 0.0, 0.0), Motion.arc(-math.pi / 2, 90.0, 1.0))  # backing: -1 m of arc
+    assert (x, y, h) == pytest.approx((-1.0, -1.0, 90.0), abs=1e-9)
+    assert motion_end((1.0, 1.0, 0.0), Motion.face(1.0, 0.0)) == pytest.approx((1.0, 1.0, -90.0))
+
+
 @long_test  # 2 m on quarry with every section chosen with the chance check: about 6 s of CPU
 def test_the_gaze_holds_the_mast_over_several_frames_while_driving(server_factory, monkeypatch) -> None:
-    """A PTU move stops the drive for most of a cycle: the gaze holds its near and its far look
-    for several frames each, so between two frames taken while driving the mast's tilt changes
-    on about one cycle in three (a turn or a new section may still pan it), and the goal is
-    reached."""
+    """A PTU move takes most of a cycle: the gaze holds its near and its far look for several
+    frames each, so between two frames taken while driving the mast's tilt changes on about one
+    cycle in three (a turn or a new section may still pan it), and the goal is reached. The look
+    for the next frame is sent with the cycle's motion, without waiting (the mast slews while the
+    wheels turn), and every frame finds the mast standing where it was sent."""
     srv = server_factory(["server.scene=quarry"])
     world = srv.app.world
     world.set_target_visible(False)
     ptu, tof = srv.app.devices.get("ptu"), srv.app.devices.get("tof")
     log: list[tuple[str, float]] = []
     move, grab = ptu.move, tof.grab_xyz
+    sent: list[tuple[float, float, bool]] = []  # every move: pan, tilt, waited
+    off_aim: list[tuple[tuple[float, float], tuple[float, float]]] = []
 
-    def logged_move(pan, tilt, *a, **k):  # noqa: ANN001, ANN002, ANN003, ANN202
+    def logged_move(pan, tilt, wait=True, *a, **k):  # noqa: ANN001, ANN002, ANN003, ANN202
         log.append(("move", float(tilt)))
-        return move(pan, tilt, *a, **k)
+        sent.append((float(pan), float(tilt), bool(wait)))
+        return move(pan, tilt, wait, *a, **k)
 
     def logged_grab(integrate: int = 1, *a, **k):  # noqa: ANN002, ANN003, ANN202
         log.append(("drive" if integrate == 1 else "look", 0.0))
+        at = ptu.position()
+        if sent and max(abs(at[0] - sent[-1][0]), abs(at[1] - sent[-1][1])) > 0.05:
+            off_aim.append((at, sent[-1][:2]))
         return grab(integrate, *a, **k)
 
     monkeypatch.setattr(ptu, "move", logged_move)
@@ -178,6 +200,8 @@ def test_the_gaze_holds_the_mast_over_several_frames_while_driving(server_factor
     changed = sum(a[1] != b[1] for a, b in pairs)
     assert len(pairs) >= 15
     assert changed <= 0.45 * len(pairs), (changed, len(pairs))
+    assert sum(not waited for *_, waited in sent) >= 3  # looks sent with the motion
+    assert not off_aim, off_aim[:5]
 
 
 @long_test  # a 3.5 m mission round the rock on rendered frames: 20-25 s of CPU
