@@ -39,7 +39,8 @@ __all__ = ["View", "blind_disc", "blind_radius", "drive_band", "gaze", "look_at"
 BODY_MARGIN = 0.06  # m round the rover's box and wheels whose returns are its own
 GAZE_NEAR, GAZE_FAR = 0.9, 1.8  # m along the path: where the near and the far frames of the gaze look
 GAZE_PAN = 60.0  # deg: the gaze pans along the path at most this far off the heading
-# a PTU move stops the drive for about 0.8 s of its 1 s cycle: the gaze holds where it points for
+# a PTU move takes about 0.8 s of a 1 s cycle (sent with the cycle's motion it slews while the wheels
+# turn, and the next frame waits for it to stand): the gaze holds where it points for
 # GAZE_HOLD frames (near, then far), and between re-aims pans again only where the path's bearing
 # has moved more than GAZE_SLACK off the pan (a turn), well inside the ToF's field of view
 GAZE_HOLD = 3
@@ -99,7 +100,7 @@ def gaze(frame: int, pose: tuple[float, float, float], remaining: np.ndarray, he
     section is judged, closer, so with a third of the range noise) and at the point ``GAZE_FAR``
     m ahead at the far one (``tilts[1]``); pans are rounded to ``GAZE_STEP`` and kept within
     ``GAZE_PAN``, and within a hold the mast pans only where the path's bearing has moved
-    ``GAZE_SLACK`` off its pan: each PTU move costs the drive its time."""
+    ``GAZE_SLACK`` off its pan: a move longer than the cycle's motion holds the next frame."""
     near = (frame // GAZE_HOLD) % 2 == 1
     ahead = path_poses(pose, remaining, GAZE_NEAR if near else GAZE_FAR, step=0.05)[-1]
     pan, _ = head.look_at(np.array([*in_rover_frame(pose, ahead[0], ahead[1]), 0.0]))

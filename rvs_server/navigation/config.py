@@ -103,7 +103,7 @@ class SeeConfig(Settings):
     gaze: str = param("path", "see loop with the gate: where the ToF looks while driving: path pans along the path "
                       "(the ground a turn will put under the wheels), three frames in turn at the path just ahead at the "
                       "lowest tilt (where the gate judges next) and three further on at see_tilt; off, or see_gate off, holds pan 0 and "
-                      "see_tilt (each PTU move costs the drive its time)",
+                      "see_tilt (a PTU move is sent with the cycle's motion and slews while the wheels turn; the next frame waits for the mast to stand)",
                       choices=("path", "off"), option=False)
     look_frames: int = param(8, "see loop with the gate: frames the ToF averages (grab-tof -integrate) at each "
                              "position of a look taken standing: its range noise falls as 1 / sqrt(frames), each "
