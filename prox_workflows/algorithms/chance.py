@@ -219,7 +219,7 @@ class ChanceChecks:
     screened: np.ndarray  # (N,) bool: cleared by the worst case screen_k sigmas out (P(any) < SCREEN * epsilon)
     nominal: PoseChecks  # the check on the posterior's best estimate (which limit is closest, by how much)
     epsilon: float
-    z: np.ndarray | None = None  # (N, 4) the draws' mean excess over their spread per limit; -inf screened, NaN not drawn
+    z: np.ndarray  # (N, 4) the draws' mean excess over their spread per limit; -inf screened, NaN not drawn
 
     @property
     def unsafe(self) -> np.ndarray:
