@@ -39,11 +39,8 @@ __all__ = ["View", "blind_disc", "blind_radius", "drive_band", "gaze", "look_at"
 BODY_MARGIN = 0.06  # m round the rover's box and wheels whose returns are its own
 GAZE_NEAR, GAZE_FAR = 0.9, 1.8  # m along the path: where the near and the far frames of the gaze look
 GAZE_PAN = 60.0  # deg: the gaze pans along the path at most this far off the heading
-# a PTU move takes about 0.8 s of a 1 s cycle (sent with the cycle's motion it slews while the wheels
-# turn, and the next frame waits for it to stand): the gaze holds where it points for
-# GAZE_HOLD frames (near, then far), and between re-aims pans again only where the path's bearing
-# has moved more than GAZE_SLACK off the pan (a turn), well inside the ToF's field of view
-GAZE_HOLD = 3
+# within a hold of the gaze (navigate.see_gaze_hold frames) the mast pans again only where the
+# path's bearing has moved more than GAZE_SLACK off the pan (a turn), well inside the ToF's field of view
 GAZE_SLACK = 15.0  # deg
 GAZE_STEP = 5.0  # deg: the gaze's pans are rounded to this (fewer moves)
 LOOK_PAN = 150.0  # deg: a standing look at a point or a bearing pans at most this far off the heading
@@ -90,23 +87,23 @@ def blind_disc(pose: tuple[float, float, float], head: HeadCalibration, view: Vi
 
 
 def gaze(frame: int, pose: tuple[float, float, float], remaining: np.ndarray, head: HeadCalibration,
-         pan_tilt: tuple[float, float], tilts: tuple[float, float]) -> tuple[float, float] | None:
+         pan_tilt: tuple[float, float], tilts: tuple[float, float], hold: int) -> tuple[float, float] | None:
     """Where the ToF looks for the drive's ``frame``-th frame (counted from 1), the rover at
     ``pose`` with ``remaining`` waypoints ahead and the PTU at ``pan_tilt``; None: it stays.
 
     The mast pans along the path, not the heading, so the ground a turn will put under the
-    wheels is seen before the turn; ``GAZE_HOLD`` frames in turn it looks at the path
+    wheels is seen before the turn; ``hold`` frames in turn it looks at the path
     ``GAZE_NEAR`` m ahead at the near tilt (``tilts[0]``: the PTU's lowest, where the next
     section is judged, closer, so with a third of the range noise) and at the point ``GAZE_FAR``
     m ahead at the far one (``tilts[1]``); pans are rounded to ``GAZE_STEP`` and kept within
     ``GAZE_PAN``, and within a hold the mast pans only where the path's bearing has moved
     ``GAZE_SLACK`` off its pan: a move longer than the cycle's motion holds the next frame."""
-    near = (frame // GAZE_HOLD) % 2 == 1
+    near = (frame // hold) % 2 == 1
     ahead = path_poses(pose, remaining, GAZE_NEAR if near else GAZE_FAR, step=0.05)[-1]
     pan, _ = head.look_at(np.array([*in_rover_frame(pose, ahead[0], ahead[1]), 0.0]))
     pan = max(-GAZE_PAN, min(GAZE_PAN, round(pan / GAZE_STEP) * GAZE_STEP))
     tilt = tilts[0] if near else tilts[1]
-    due = frame % GAZE_HOLD == 0 or abs(pan - pan_tilt[0]) > GAZE_SLACK
+    due = frame % hold == 0 or abs(pan - pan_tilt[0]) > GAZE_SLACK
     return (pan, tilt) if due and (pan, tilt) != pan_tilt else None
 
 

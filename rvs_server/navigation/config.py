@@ -101,10 +101,14 @@ class SeeConfig(Settings):
                            "navigate.see.bounds.changed: the frames' agreement no longer widens a dropped rock's "
                            "unseen flank", option=False)
     gaze: str = param("path", "see loop with the gate: where the ToF looks while driving: path pans along the path "
-                      "(the ground a turn will put under the wheels), three frames in turn at the path just ahead at the "
-                      "lowest tilt (where the gate judges next) and three further on at see_tilt; off, or see_gate off, holds pan 0 and "
+                      "(the ground a turn will put under the wheels), frames in turn at the path just ahead at the "
+                      "lowest tilt (where the gate judges next) and further on at see_tilt; off, or see_gate off, holds pan 0 and "
                       "see_tilt (a PTU move is sent with the cycle's motion and slews while the wheels turn; the next frame waits for the mast to stand)",
                       choices=("path", "off"), option=False)
+    gaze_hold: int = param(1, "see loop with see_gaze path: frames the gaze holds its near look, then its far one; "
+                           "above 1, within a hold the mast pans again only for a turn (the path's bearing 15 deg "
+                           "off its pan). 1 reached 10 of marsyard's 10 missions, 3 reached 9 "
+                           "(docs/NAVIGATE_BENCH.md)", min=1, max=20, option=False)
     look_frames: int = param(8, "see loop with the gate: frames the ToF averages (grab-tof -integrate) at each "
                              "position of a look taken standing: its range noise falls as 1 / sqrt(frames), each "
                              "frame costs its exposure on the clock (a frame taken while driving is one)",

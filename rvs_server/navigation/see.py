@@ -133,7 +133,8 @@ class SeeingDriver:
         if self.p.gaze == "off" or self.bounds is None:
             return
         self.frame_no += 1
-        aim = looks.gaze(self.frame_no, pose, remaining, self.head, self.pan_tilt, (self._lowest_tilt(), self.p.tilt))
+        aim = looks.gaze(self.frame_no, pose, remaining, self.head, self.pan_tilt, (self._lowest_tilt(), self.p.tilt),
+                         self.p.gaze_hold)
         if aim is None:
             return
         if wait:

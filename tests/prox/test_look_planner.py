@@ -51,33 +51,40 @@ def test_the_blind_disc_is_round_the_pan_axis_foot_with_the_lowest_tilts_reach()
 
 
 def test_the_gaze_alternates_far_and_near_holding_each_three_frames() -> None:
-    """Straight ahead, the PTU at see_tilt: frames 1-2 hold the far aim, frame 3 turns to the
-    near one at the lowest tilt, frames 4-5 hold it, frame 6 goes back to far."""
+    """Straight ahead, the PTU at see_tilt, a hold of 3: frames 1-2 hold the far aim, frame 3 turns
+    to the near one at the lowest tilt, frames 4-5 hold it, frame 6 goes back to far; with a hold
+    of 1 (navigate's default) every frame turns."""
     path = np.array([(5.0, 0.0)])
     at = (0.0, FAR)
     moves = []
     for frame in range(1, 8):
-        aim = gaze(frame, (0.0, 0.0, 0.0), path, HEAD, at, (LOWEST, FAR))
+        aim = gaze(frame, (0.0, 0.0, 0.0), path, HEAD, at, (LOWEST, FAR), 3)
         moves.append(aim)
         at = aim or at
     assert moves == [None, None, (0.0, LOWEST), None, None, (0.0, FAR), None]
+    at, moves = (0.0, FAR), []
+    for frame in range(1, 5):
+        aim = gaze(frame, (0.0, 0.0, 0.0), path, HEAD, at, (LOWEST, FAR), 1)
+        moves.append(aim)
+        at = aim or at
+    assert moves == [(0.0, LOWEST), (0.0, FAR), (0.0, LOWEST), (0.0, FAR)]
 
 
 def test_the_gaze_pans_along_the_path_within_sixty_degrees_and_only_past_the_slack() -> None:
     # the path turns north 0.5 m ahead: the far point (1.8 m along) is at 73 deg, past the 60 deg cap
     turning = np.array([(0.5, 0.0), (0.5, 3.0)])
-    assert gaze(1, (0.0, 0.0, 0.0), turning, HEAD, (0.0, FAR), (LOWEST, FAR)) == (60.0, FAR)
+    assert gaze(1, (0.0, 0.0, 0.0), turning, HEAD, (0.0, FAR), (LOWEST, FAR), 3) == (60.0, FAR)
     # from a rover heading north it lies at -22.6 deg: rounded to -25
-    assert gaze(1, (0.0, 0.0, 90.0), turning, HEAD, (0.0, FAR), (LOWEST, FAR)) == (-25.0, FAR)
+    assert gaze(1, (0.0, 0.0, 90.0), turning, HEAD, (0.0, FAR), (LOWEST, FAR), 3) == (-25.0, FAR)
     # heading west the path lies behind-right (-115 deg): the pan is capped at -60
-    assert gaze(1, (0.0, 0.0, 180.0), turning, HEAD, (0.0, FAR), (LOWEST, FAR)) == (-60.0, FAR)
+    assert gaze(1, (0.0, 0.0, 180.0), turning, HEAD, (0.0, FAR), (LOWEST, FAR), 3) == (-60.0, FAR)
     # a path 10 deg off the heading: within a hold the mast does not pan (10 < 15 deg), at the
     # hold's end it re-aims, its pan rounded to 5 deg steps (10.6 and 11.2 deg -> 10)
     bent = np.array([(3 * math.cos(math.radians(10.0)), 3 * math.sin(math.radians(10.0)))])
-    assert gaze(1, (0.0, 0.0, 0.0), bent, HEAD, (0.0, FAR), (LOWEST, FAR)) is None
-    assert gaze(3, (0.0, 0.0, 0.0), bent, HEAD, (0.0, FAR), (LOWEST, FAR)) == (10.0, LOWEST)
+    assert gaze(1, (0.0, 0.0, 0.0), bent, HEAD, (0.0, FAR), (LOWEST, FAR), 3) is None
+    assert gaze(3, (0.0, 0.0, 0.0), bent, HEAD, (0.0, FAR), (LOWEST, FAR), 3) == (10.0, LOWEST)
     # already there: no move
-    assert gaze(3, (0.0, 0.0, 0.0), bent, HEAD, (10.0, LOWEST), (LOWEST, FAR)) is None
+    assert gaze(3, (0.0, 0.0, 0.0), bent, HEAD, (10.0, LOWEST), (LOWEST, FAR), 3) is None
 
 
 def test_a_look_at_a_point_tilts_to_it_between_the_lowest_tilt_and_see_tilt_and_pans_within_150() -> None:
