@@ -380,7 +380,8 @@ class Chooser:
         since = m.announce(leg, wps, "none", reverse=bool(choice.backward))
         pilot = SectionPilot(self, choice, m.track)
         start_of_leg = len(m.track)
-        d.point_forward()
+        if not pilot.gazing:  # a gazing pilot points the mast itself, while the wheels turn
+            d.point_forward()
         m.drive(pilot, since, end)
         if pilot.stopped is not None:
             m.progress(leg, 1, 1, f"stopped: {pilot.stopped}", "drive")
@@ -459,6 +460,8 @@ class SectionPilot:
         self.path = choice.path
         self.frames = self.d.bounds.frames  # the map the section was judged on
         self.backward = choice.backward
+        # backing out, the mast stays forward: it cannot pan behind
+        self.gazing = self.d.rover.steers and not self.backward and self.d.gazes
         self.stopped: str | None = None
         self.hazard: dict[str, Any] | None = None
         self.aimed = False  # the next frame's look was sent with the last motion (the mast slews meanwhile)
@@ -511,14 +514,19 @@ class SectionPilot:
 
     def next(self, pose: tuple[float, float, float]) -> Motion | None:
         d = self.d
-        gazing = d.rover.steers and not self.backward  # backing out, the mast stays forward: it cannot pan behind
-        if gazing and not self.aimed:  # the section's first frame: no look was sent ahead of it
-            d.gaze(pose, self._path_ahead(pose))
-        d.settle()
-        seen, t1 = d.see(d.pan_tilt)
-        d.job.check()
-        bad = self._recheck(seen)
-        d.stats.cycle(t1, d.cpu1)
+        if self.gazing and not self.aimed and d.standing(pose[0], pose[1]):
+            # the section's start where the last frame was taken and the section chosen on it: a
+            # frame more from here would cost a standing slew and show what the choice judged;
+            # the first frame comes after the first motion, its look sent with it
+            seen, bad = pose, None
+        else:
+            if self.gazing and not self.aimed:  # set off from where no frame was taken: look first
+                d.gaze(pose, self._path_ahead(pose))
+            d.settle()
+            seen, t1 = d.see(d.pan_tilt)
+            d.job.check()
+            bad = self._recheck(seen)
+            d.stats.cycle(t1, d.cpu1)
         if not d.rover.steers:  # the GNC drives: a failing pose ahead is a stop EVENT, once
             if bad is not None and self.hazard is None:
                 self._stop(*bad, seen)
@@ -543,7 +551,7 @@ class SectionPilot:
             if self.backward:
                 speed = -speed
             motion = Motion.arc(speed, math.degrees(self.curvature * speed), dt)
-        if gazing:  # the next frame's look, sent now: the mast slews while the wheels turn
+        if self.gazing:  # the next frame's look, sent now: the mast slews while the wheels turn
             after = motion_end(seen, motion)
             d.gaze(after, self._path_ahead(after), wait=False)
             self.aimed = True

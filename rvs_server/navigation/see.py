@@ -130,7 +130,7 @@ class SeeingDriver:
         waiting, so that the mast slews while the rover drives the cycle's motion (:meth:`settle`
         before the frame). Off, or without the bounds map (which the near frames feed): pan 0,
         ``see_tilt``, and no PTU move between frames."""
-        if self.p.gaze == "off" or self.bounds is None:
+        if not self.gazes:
             return
         self.frame_no += 1
         aim = looks.gaze(self.frame_no, pose, remaining, self.head, self.pan_tilt, (self._lowest_tilt(), self.p.tilt),
@@ -142,6 +142,11 @@ class SeeingDriver:
         else:
             device_call(self.job, self.app.devices.get("ptu").move, aim[0], aim[1], False)
             self.slewing = aim
+
+    @property
+    def gazes(self) -> bool:
+        """The mast moves between the frames taken while driving (:meth:`gaze`)."""
+        return self.p.gaze != "off" and self.bounds is not None
 
     def settle(self) -> None:
         """Wait for the PTU where :meth:`gaze` sent it without waiting: no frame is taken while the

@@ -163,7 +163,8 @@ def test_the_gaze_alternates_near_and_far_and_slews_while_driving(server_factory
     """The gaze alternates its near and its far look frame by frame, so between two frames taken
     while driving the mast's tilt changes on most cycles, and the goal is reached. The look for the
     next frame is sent with the cycle's motion, without waiting (the mast slews while the wheels
-    turn), and every frame finds the mast standing where it was sent."""
+    turn), and every frame finds the mast standing where it was sent. A section set off from where
+    the last frame was taken waits for no slew: the mast waits standing only to look round."""
     srv = server_factory(["server.scene=quarry"])
     world = srv.app.world
     world.set_target_visible(False)
@@ -202,6 +203,10 @@ def test_the_gaze_alternates_near_and_far_and_slews_while_driving(server_factory
     assert len({t for kind, t in tilts if kind == "drive"}) >= 2  # near and far
     assert sum(not waited for *_, waited in sent) >= 3  # looks sent with the motion
     assert not off_aim, off_aim[:5]
+    # a waited move, then a frame taken driving: the rover stood for the slew at a section's start
+    moves = [i for i, (kind, _) in enumerate(log) if kind == "move"]
+    waited_then_drive = [i for n, i in enumerate(moves) if sent[n][2] and i + 1 < len(log) and log[i + 1][0] == "drive"]
+    assert len(moves) == len(sent) and waited_then_drive == [], [log[i - 1:i + 2] for i in waited_then_drive][:5]
 
 
 @long_test  # a 3.5 m mission round the rock on rendered frames: 20-25 s of CPU
@@ -291,7 +296,8 @@ def test_the_section_pilot_judges_the_poses_past_the_one_the_rover_stands_on() -
 
     xs = np.round(np.arange(0.0, 1.0 + 1e-9, 0.1), 3)
     straight = np.column_stack([xs, np.zeros_like(xs), np.zeros_like(xs)])
-    chooser = SimpleNamespace(d=SimpleNamespace(bounds=SimpleNamespace(frames=0)))
+    chooser = SimpleNamespace(d=SimpleNamespace(bounds=SimpleNamespace(frames=0), rover=SimpleNamespace(steers=True),
+                                                gazes=True))
     pilot = SectionPilot(chooser, Choice("drive", "test", straight, straight, length=1.0), None)
     assert np.array_equal(pilot._ahead(), straight[1:])
     pilot.driven = 0.3  # the rover stands on the arc's pose at 0.3 m
