@@ -92,6 +92,8 @@ WAYPOINT_STEP = 0.2  # m between the waypoints a GNC is sent for a section
 GUIDE_PAD = 4.0  # m round the mission's start and goal the coarse guidance covers (past it: the straight line)
 GUIDE_CELL = 0.25  # m: the coarse grid the cost to go runs on (coarse_costs'), kept over the whole mission
 WINDOW_SLACK = 1.0  # m the rover strays from the bounds window's centre before the window recentres
+TRACK_STILL = 0.02  # m: the rover stands where its last arc ended (the track back starts there)
+TRACK_TURN = 1.0  # deg: and faces as it did
 WINDOW_MARGIN = 0.5  # m past the farthest a choice or a frame reaches: a cell's spread, a coarse cell
 
 
@@ -199,7 +201,8 @@ class Chooser:
         self.since_best = 0  # sections driven since
         self.retreat = self.d.p.retreat
         self.dead_ends: list[DeadEnd] = []  # where the rover found no way on, priced until seen from outside
-        self.arcs: list[tuple[float, float]] = []  # the arcs driven forward since the last reverse: curvature, m
+        # the arcs driven forward since the last reverse: (curvature, m) and the pose (believed) it ended at
+        self.arcs: list[tuple[tuple[float, float], tuple[float, float, float]]] = []
         self.started = False  # the start's turn (the hazard cameras' look round the body) is behind
         # the cost to go's coarse grid over the whole mission: the bounds map is a window round the rover
         self.guide = CoarseMemory.covering(strategy.cover, GUIDE_PAD, GUIDE_CELL)
@@ -232,6 +235,17 @@ class Chooser:
         finally:
             self.s.stats.replanned(t0, c0)
 
+    def _track_back(self, pose: tuple[float, float, float]) -> tuple[float, float] | None:
+        """The last arc driven (curvature, m) where the rover stands at its end as it ended it, else
+        None. Reversed from any other pose it is not the track: a turn on the spot since (a section
+        stopped after its turn, the turn before the arc a track back has just undone) swings it
+        round onto ground the body never stood on, which the track back's check does not refuse."""
+        if not self.arcs:
+            return None
+        arc, (x, y, heading) = self.arcs[-1]
+        turned = abs((pose[2] - heading + 180.0) % 360.0 - 180.0)
+        return arc if math.hypot(pose[0] - x, pose[1] - y) <= TRACK_STILL and turned <= TRACK_TURN else None
+
     def _back_out(self, leg: int, pose: tuple[float, float, float], why: str) -> None:
         """A dead end at ``pose`` (``why``: the sentence the safe stop would have said): back out of
         it on the cheapest reverse section that passes, its ground priced for the cost to go; a
@@ -241,8 +255,8 @@ class Chooser:
             raise ProtocolError("E_DATA", f"{why}; {made} of {bound} retreats made (navigate.see.retreat.retreats)")
         bounds = self.d.bounds
         self.dead_ends.append(DeadEnd(pose[0], pose[1], self.retreat.radius, bounds.frames))
-        options = reverse_options(pose, self.arcs[-1] if self.arcs else None, self.retreat,
-                                  self.params.max_curvature, self.params.step)
+        options = reverse_options(pose, self._track_back(pose), self.retreat, self.params.max_curvature,
+                                  self.params.step)
         t0, c0 = time.monotonic(), time.process_time()
         try:
             ctg = guidance(bounds, self.s.mission.goal, self.d.body, self.guide, self.dead_ends, self.retreat.cost)
@@ -389,7 +403,7 @@ class Chooser:
             # from the row before the section's: where the rover stood when it set off
             arc = _driven_arc(np.asarray(m.track.rows[max(0, start_of_leg - 1):], float).reshape(-1, 3))
             if arc is not None:
-                self.arcs.append(arc)
+                self.arcs.append((arc, d.pose()))
         self.s.localise(leg, m.track.xy(start_of_leg))
         return pilot.stopped
 

@@ -148,3 +148,29 @@ def test_the_gnc_is_sent_a_reverse_section_as_waypoints_with_the_body_s_heading(
     assert wps[-1, 0] == pytest.approx(set_off, abs=0.05) and np.abs(wps[:, 1]).max() < 0.01, wps  # along the track
     assert np.abs(wps[:, 2]).max() < 1.0, wps  # the body still faces the rocks
     assert any("backing out (1 of 4) on the track back" in m for m in messages), messages
+
+
+def test_the_track_back_is_offered_only_from_where_the_last_arc_ended_facing_as_it_did() -> None:
+    """The track back reverses the last arc driven from where the rover stands. There, facing as it
+    ended the arc, it ends where the arc began. Once the rover has turned on the spot since (a
+    section stopped after its turn; after a track back, the turn that came before the arc undone)
+    the reversed arc swings round onto ground the body never stood on, and is not offered."""
+    from prox_workflows.algorithms.arcs import arc_poses
+    from prox_workflows.algorithms.retreat import RetreatParams, reverse_options
+    from rvs_server.navigation.sections import Chooser
+
+    k, metres = -1.2, 1.0
+    driven = arc_poses(np.array([2.0, 1.0, 40.0]), k, metres, 0.05)  # the arc as driven, from (2, 1) facing 40 deg
+    end = tuple(float(v) for v in driven[-1])
+    chooser = Chooser.__new__(Chooser)
+    chooser.arcs = [((k, metres), end)]
+    assert chooser._track_back(end) == (k, metres)
+    back = reverse_options(end, chooser._track_back(end), RetreatParams(), 2.4, 0.05)[0]
+    assert back.track and np.allclose(back.poses[-1, :2], driven[0, :2], atol=0.01)
+    turned = (end[0], end[1], end[2] + 180.0)  # a half turn on the spot since
+    assert chooser._track_back(turned) is None
+    assert not any(o.track for o in reverse_options(turned, chooser._track_back(turned), RetreatParams(), 2.4, 0.05))
+    # reversed from there regardless, the arc would end 1.3 m from where it began
+    wrong = reverse_options(turned, (k, metres), RetreatParams(), 2.4, 0.05)[0]
+    assert math.hypot(*(wrong.poses[-1, :2] - driven[0, :2])) > 1.0
+    assert chooser._track_back((end[0] + 0.1, end[1], end[2])) is None  # moved since
