@@ -113,6 +113,9 @@ class SeeConfig(Settings):
                              "position of a look taken standing: its range noise falls as 1 / sqrt(frames), each "
                              "frame costs its exposure on the clock (a frame taken while driving is one)",
                              min=1, max=100, option=False)
+    drive_frames: int = param(1, "see loop with the gate: frames the ToF averages for each frame taken while "
+                              "driving: exposed while the wheels turn, they cost no standing time (about 20 ms a "
+                              "frame: 2 mm of travel)", min=1, max=16, option=False)
     look_drive: float = param(1.0, "see loop with the gate: a look taken standing shows the ground the body covers "
                               "driving this far in a fan of +-60 deg ahead, and as far again beyond, from the mast's "
                               "blind disc out (prox_workflows.algorithms.looks: the lowest tilt and see_tilt)",

@@ -537,7 +537,7 @@ class SectionPilot:
             if self.gazing and not self.aimed:  # set off from where no frame was taken: look first
                 d.gaze(pose, self._path_ahead(pose))
             d.settle()
-            seen, t1 = d.see(d.pan_tilt)
+            seen, t1 = d.see(d.pan_tilt, frames=d.p.drive_frames)
             d.job.check()
             bad = self._recheck(seen)
             d.stats.cycle(t1, d.cpu1)
