@@ -528,13 +528,12 @@ class SectionPilot:
 
     def next(self, pose: tuple[float, float, float]) -> Motion | None:
         d = self.d
-        if self.gazing and not self.aimed and d.standing(pose[0], pose[1]):
-            # the section's start where the last frame was taken and the section chosen on it: a
-            # frame more from here would cost a standing slew and show what the choice judged;
-            # the first frame comes after the first motion, its look sent with it
+        if self.gazing and not self.aimed and not d.p.start_look and d.standing(pose[0], pose[1]):
+            # the section's start where the last frame was taken and the section chosen on it: the
+            # first frame comes after the first motion, its look sent with it
             seen, bad = pose, None
         else:
-            if self.gazing and not self.aimed:  # set off from where no frame was taken: look first
+            if self.gazing and not self.aimed:  # the section's first frame: a look along it, standing
                 d.gaze(pose, self._path_ahead(pose))
             d.settle()
             seen, t1 = d.see(d.pan_tilt, frames=d.p.drive_frames)

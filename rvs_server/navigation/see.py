@@ -351,7 +351,8 @@ class SeeingDriver:
         about ``toward`` (deg from the heading; None: all round) and as far again, from the
         mast's blind disc out, but for ground the bounds map has already judged; each position
         ``see_look_frames`` frames averaged. After a scan: the scan's views make the 5 cm maps
-        only."""
+        only. The mast stays at the last position: what drives next points it (the section's
+        pilot, :class:`~.sections.SectionPilot`)."""
         positions = looks.round_look(self.pose(), self.head, self.view(), self.body, self.p.look_drive, self.p.tilt,
                                      toward, self.bounds)
         if not positions:
@@ -365,7 +366,6 @@ class SeeingDriver:
             self.see(self.pan_tilt, cameras, self.p.look_frames)
             cameras = ()
             self.job.check()
-        self.point_forward()
 
     def look(self, bearing: float, spread: float = 40.0) -> None:
         """Frames panned to ``bearing`` (deg from the rover's heading) and ``spread`` either side

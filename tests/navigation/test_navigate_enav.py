@@ -159,13 +159,16 @@ def test_a_motion_s_end_by_the_rover_s_own_kinematics() -> None:
 
 
 @long_test  # 2 m on quarry with every section chosen with the chance check: about 6 s of CPU
-def test_the_gaze_alternates_near_and_far_and_slews_while_driving(server_factory, monkeypatch) -> None:
+@pytest.mark.parametrize("start_look", [True, False])
+def test_the_gaze_alternates_near_and_far_and_slews_while_driving(server_factory, monkeypatch,
+                                                                   start_look: bool) -> None:
     """The gaze alternates its near and its far look frame by frame, so between two frames taken
     while driving the mast's tilt changes on most cycles, and the goal is reached. The look for the
     next frame is sent with the cycle's motion, without waiting (the mast slews while the wheels
-    turn), and every frame finds the mast standing where it was sent. A section set off from where
-    the last frame was taken waits for no slew: the mast waits standing only to look round."""
-    srv = server_factory(["server.scene=quarry"])
+    turn), and every frame finds the mast standing where it was sent. A section's first frame is a
+    look along it, the mast's one standing slew there (``navigate.see_start_look``, the default);
+    without it a section waits for no slew at all: the mast waits standing only to look round."""
+    srv = server_factory(["server.scene=quarry", f"navigate.see_start_look={str(start_look).lower()}"])
     world = srv.app.world
     world.set_target_visible(False)
     ptu, tof = srv.app.devices.get("ptu"), srv.app.devices.get("tof")
@@ -206,7 +209,12 @@ def test_the_gaze_alternates_near_and_far_and_slews_while_driving(server_factory
     # a waited move, then a frame taken driving: the rover stood for the slew at a section's start
     moves = [i for i, (kind, _) in enumerate(log) if kind == "move"]
     waited_then_drive = [i for n, i in enumerate(moves) if sent[n][2] and i + 1 < len(log) and log[i + 1][0] == "drive"]
-    assert len(moves) == len(sent) and waited_then_drive == [], [log[i - 1:i + 2] for i in waited_then_drive][:5]
+    assert len(moves) == len(sent)
+    if start_look:  # one standing slew at a section's start, after the frames the section was chosen on
+        assert waited_then_drive and all(log[i - 1][0] in ("drive", "look") for i in waited_then_drive), \
+            [log[i - 2:i + 2] for i in waited_then_drive][:5]
+    else:
+        assert waited_then_drive == [], [log[i - 1:i + 2] for i in waited_then_drive][:5]
 
 
 @long_test  # a 3.5 m mission round the rock on rendered frames: 20-25 s of CPU
