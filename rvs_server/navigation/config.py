@@ -109,8 +109,8 @@ class SeeConfig(Settings):
                              "mast aimed along the section, and the section's rest judged on it before the first "
                              "motion; false sets off at once (the first frame after the first motion, its look sent "
                              "with it): marsyard 0-9 took 6-26 % less time in 9 missions (12 % more in one), but 4 of "
-                             "19 dropped rocks were touched (within the limits), and dense 0-4 reached 0 of 5 where "
-                             "true reached 1 (docs/NAVIGATE_BENCH.md)",
+                             "19 dropped rocks were touched (within the limits), and dense 0-4 reached 0 of 5 (1 with "
+                             "the look; docs/NAVIGATE_BENCH.md)",
                              option=False)
     gaze_hold: int = param(1, "see loop with see_gaze path: frames the gaze holds its near look, then its far one; "
                            "above 1, within a hold the mast pans again only for a turn (the path's bearing 15 deg "
