@@ -21,6 +21,7 @@ from prox_workflows.algorithms.planner import NavMaps
 from prox_workflows.algorithms.rolling_map import RollingMap, RollingParams, merge_nav_maps, path_poses
 from prox_workflows.grid import GridGeometry
 from rvs_truth.surface import true_hazard
+from tools.bench.rock_drop import clock_held
 
 STOP_DISTANCE = 0.5  # m: the hazard monitor's default stop distance
 
@@ -66,7 +67,10 @@ def test_a_rock_added_ahead_stops_the_rover_and_it_replans_around_it(server_fact
         if kind == "waiting" and rock is None:  # after the first scan: a rock 3 m ahead on the way
             along = 3.0 + float(rng.uniform(-0.2, 0.2))
             rock = np.array([start[0] + along, start[1]])
-            r = gnc.request(f"sim add-rock -x {rock[0]:.3f} -y {rock[1]:.3f} -radius 0.2 -height 0.25")
+            # the clock held while the rock is made: on a loaded machine the rover on the instant
+            # clock drives on for seconds meanwhile, and the rock lands within the stop distance
+            with clock_held(gnc.request, world):
+                r = gnc.request(f"sim add-rock -x {rock[0]:.3f} -y {rock[1]:.3f} -radius 0.2 -height 0.25")
             assert r.status == "OK", r.fields
         elif kind == "hazard" and line.fields.get("level") == "stop":
             stops.append(line)
