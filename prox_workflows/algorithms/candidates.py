@@ -62,6 +62,7 @@ docs/BENCHMARKS.md); the ranking itself reads the map at a probe every 20 cm of 
 
 from __future__ import annotations
 
+import heapq
 import math
 import warnings
 from collections.abc import Callable
@@ -119,6 +120,11 @@ class CandidateParams(Settings):
                                      "climb (less in proportion; capped at twice)", unit="m", min=0.0, max=100.0)
     unknown_cost: float = param(1.0, "extra cost per metre of unseen ground beyond the section", unit="m",
                                 min=0.0, max=100.0)
+    ahead_cost: float = param(2.0, "extra cost per metre of a look-ahead from its first pose judged over a limit "
+                                   "to its end: a blocked continuation ranks its section down, and the section is "
+                                   "still driven only if it passes (0: such a look-ahead refuses its candidate, "
+                                   "as a section's pose over a limit does)", unit="m", min=0.0,
+                              max=100.0)
     look_cost: float = param(1.5, "the price of stopping to look, in metres of driving: a path through unseen "
                                   "ground that ranks better than every passing path by more than this asks "
                                   "for a look", unit="m", min=0.0, max=100.0)
@@ -407,7 +413,8 @@ def crop(geom: GridGeometry, xmin: float, ymin: float, xmax: float, ymax: float
 class Failure:
     """Why a candidate ranked before the chosen one failed: its ``rank``, which ``part`` (turn,
     section, beyond), the ``verdict`` (``unknown`` or the limit's name) at its first failing pose
-    ``x``, ``y`` (world frame)."""
+    ``x``, ``y`` (world frame). A candidate whose look-ahead fails is still ranked, priced by it,
+    and may be the one chosen."""
 
     rank: int
     candidate: int
@@ -415,6 +422,7 @@ class Failure:
     verdict: str
     x: float
     y: float
+    index: int = 0  # the failing pose's index in its part
 
 
 @dataclass
@@ -515,28 +523,113 @@ def choose(pose: tuple[float, float, float], heights: np.ndarray | tuple[np.ndar
     order = order[np.isfinite(keys[order])]
     if not len(order):
         return _none("blocked", "the goal has no way to it over the ground the map shows", len(keys))
-    node_codes: dict[int, np.ndarray] = {}
-    poses_checked = 0
-    world_of: dict[int, np.ndarray] = {}
+    v = _Verdicts(tree, pose, check, lookahead)
 
-    def node_world(k: int) -> np.ndarray:
-        if k not in world_of:
-            world_of[k] = _to_world(np.asarray(tree.node(k)), pose)
-        return world_of[k]
+    failures: list[Failure] = []
+    look: tuple[float, Failure] | None = None
+    priced: list[tuple[float, int, int]] = []  # heap of (key with its look-ahead's price, rank, candidate)
+    checked = 0
 
-    def judge(nodes: list[int]) -> None:
-        nonlocal poses_checked
-        todo = [k for k in dict.fromkeys(nodes) if k not in node_codes and tree.start[k + 1] > tree.start[k]]
+    def settle(bound: float) -> Choice | None:
+        """The look or the priced candidate, whichever is cheaper, if it costs less than ``bound``
+        (inf: the candidates are spent); else None."""
+        best = priced[0] if priced else None
+        if look is not None and look[0] < bound and (best is None or look[0] <= best[0]):
+            return _look(look[1], checked, v.poses_checked, len(order), failures)
+        if best is not None and best[0] < bound:
+            choice = _drive(tree, v.world, pose, best[2], best[1], best[0], ctg.goal, params, checked,
+                            v.poses_checked, len(order), failures)
+            choice.reason += "; its look-ahead is over a limit, priced"
+            return choice
+        return None
+
+    size = params.batch
+    i = 0
+    while i < len(order):
+        if (done := settle(float(np.nextafter(keys[order[i]], np.inf)))) is not None:
+            return done  # nothing left can rank before it
+        if params.max_poses and v.poses_checked >= params.max_poses:
+            if (done := settle(math.inf)) is not None and done.status == "drive":
+                return done
+            choice = _none("blocked", f"no candidate passes among the best {checked} of {len(order)}: the check's "
+                                      f"budget of {params.max_poses} poses is spent", len(order))
+            choice.checked, choice.poses_checked, choice.failures = checked, v.poses_checked, failures
+            choice.reasons = _reasons(failures)
+            return choice
+        group = order[i:i + size]
+        if i == 0:
+            # the first batch whole in one call: on open ground its sections pass, and a call of
+            # the check has a fixed cost of the order of a hundred poses
+            v.judge([n for c in group for n in tree.paths[c]])
+        # the turns and sections first (a section after a turn already refused is not sent), then
+        # the look-aheads of the sections that pass: a refused prefix spares what hangs from it
+        v.judge([n for c in group for n in tree.paths[c][:2]
+                 if not (n == tree.paths[c][1] and tree.paths[c][0] in v.codes
+                         and v.first_bad(tree.paths[c][0], False) is not None)])
+        sections_ok = [c for c in group if v.first_bad(tree.paths[c][0], False) is None
+                       and tree.paths[c][1] in v.codes and v.first_bad(tree.paths[c][1], False) is None]
+        v.judge([tree.paths[c][2] for c in sections_ok])
+        checked += len(group)
+        for rank, c in enumerate(group, start=i):
+            fail = v.failure(rank, int(c))
+            if fail is None:
+                if (done := settle(float(keys[c]))) is not None:
+                    return done
+                return _drive(tree, v.world, pose, int(c), rank, float(keys[c]), ctg.goal, params, checked,
+                              v.poses_checked, len(order), failures)
+            failures.append(fail)
+            if fail.part == "beyond" and params.ahead_cost > 0:
+                # a continuation that fails only ranks the section down by the look-ahead it loses
+                b = int(tree.paths[c][2])
+                m = int(tree.start[b + 1] - tree.start[b])
+                price = params.ahead_cost * float(tree.length[b]) * (m - fail.index) / m
+                heapq.heappush(priced, (float(keys[c]) + price, rank, int(c)))
+            elif fail.verdict == "unknown" and fail.part != "beyond":
+                cost = float(keys[c]) + (0.0 if section_unseen[c] else params.look_cost)
+                if look is None or cost < look[0]:
+                    look = (cost, fail)
+        i += len(group)
+        size = min(size * 2, 64)
+    if (done := settle(math.inf)) is not None:
+        return done
+    choice = _none("blocked", f"all {len(order)} candidates fail on the body's limits over ground the map shows",
+                   len(order))
+    choice.checked, choice.poses_checked, choice.failures = checked, v.poses_checked, failures
+    choice.reasons = _reasons(failures)
+    return choice
+
+
+class _Verdicts:
+    """The check's verdicts on the tree's nodes from one pose, each node judged once, on demand."""
+
+    def __init__(self, tree: ArcTree, pose: tuple[float, float, float], check: Check, lookahead: Check | None
+                 ) -> None:
+        self.tree, self.pose, self.check, self.lookahead = tree, pose, check, lookahead
+        self.codes: dict[int, np.ndarray] = {}
+        self.poses_checked = 0
+        self._world: dict[int, np.ndarray] = {}
+        self._bad: dict[tuple[int, bool], tuple[int, int] | None] = {}
+
+    def world(self, k: int) -> np.ndarray:
+        """Node ``k``'s poses in the world."""
+        if k not in self._world:
+            self._world[k] = _to_world(np.asarray(self.tree.node(k)), self.pose)
+        return self._world[k]
+
+    def judge(self, nodes: list[int]) -> None:
+        """Send the poses of ``nodes`` not yet judged to the check, the look-aheads to theirs."""
+        tree = self.tree
+        todo = [k for k in dict.fromkeys(nodes) if k not in self.codes and tree.start[k + 1] > tree.start[k]]
         for k in dict.fromkeys(nodes):
             if tree.start[k + 1] == tree.start[k]:
-                node_codes[k] = np.zeros(0, int)
-        ahead = [k for k in todo if tree.part[k] == 2] if lookahead is not None else []
-        for group, fn in ((ahead, lookahead), ([k for k in todo if k not in set(ahead)], check)):
+                self.codes[k] = np.zeros(0, int)
+        ahead = [k for k in todo if tree.part[k] == 2] if self.lookahead is not None else []
+        for group, fn in ((ahead, self.lookahead), ([k for k in todo if k not in set(ahead)], self.check)):
             if not group or fn is None:
                 continue
-            batch = np.concatenate([node_world(k) for k in group])
+            batch = np.concatenate([self.world(k) for k in group])
             if getattr(fn, "by_runs", False):
-                # a turn or section is read to its first failing pose (:func:`first_bad`), so each
+                # a turn or section is read to its first failing pose (:meth:`first_bad`), so each
                 # is a run; a look-ahead's unknown poses do not fail it, so each of its poses is one
                 sizes = [int(tree.start[k + 1] - tree.start[k]) for k in group]
                 at = np.cumsum([0] + sizes[:-1])
@@ -545,79 +638,30 @@ def choose(pose: tuple[float, float, float], heights: np.ndarray | tuple[np.ndar
                 codes = np.asarray(fn(batch, runs), int)
             else:
                 codes = np.asarray(fn(batch), int)
-            poses_checked += len(batch)
+            self.poses_checked += len(batch)
             at = 0
             for k in group:
                 m = tree.start[k + 1] - tree.start[k]
-                node_codes[k] = codes[at:at + m]
+                self.codes[k] = codes[at:at + m]
                 at += m
 
-    bad_of: dict[tuple[int, bool], tuple[int, int] | None] = {}
-
-    def first_bad(k: int, allow_unknown: bool) -> tuple[int, int] | None:
+    def first_bad(self, k: int, allow_unknown: bool) -> tuple[int, int] | None:
         """The first pose of node ``k`` that fails it (its verdict and index), or None."""
         key = (int(k), allow_unknown)
-        if key not in bad_of:
-            codes = node_codes[int(k)]
+        if key not in self._bad:
+            codes = self.codes[int(k)]
             bad = np.flatnonzero((codes > 0) if allow_unknown else (codes != SAFE))
-            bad_of[key] = (int(codes[bad[0]]), int(bad[0])) if len(bad) else None
-        return bad_of[key]
+            self._bad[key] = (int(codes[bad[0]]), int(bad[0])) if len(bad) else None
+        return self._bad[key]
 
-    failures: list[Failure] = []
-    look: tuple[float, Failure] | None = None
-    checked = 0
-    size = params.batch
-    i = 0
-    while i < len(order):
-        if look is not None and keys[order[i]] >= look[0]:
-            break  # nothing left can rank before the look
-        if params.max_poses and poses_checked >= params.max_poses:
-            choice = _none("blocked", f"no candidate passes among the best {checked} of {len(order)}: the check's "
-                                      f"budget of {params.max_poses} poses is spent", len(order))
-            choice.checked, choice.poses_checked, choice.failures = checked, poses_checked, failures
-            choice.reasons = _reasons(failures)
-            return choice
-        group = order[i:i + size]
-        if i == 0:
-            # the first batch whole in one call: on open ground its sections pass, and a call of
-            # the check has a fixed cost of the order of a hundred poses
-            judge([n for c in group for n in tree.paths[c]])
-        # the turns and sections first (a section after a turn already refused is not sent), then
-        # the look-aheads of the sections that pass: a refused prefix spares what hangs from it
-        judge([n for c in group for n in tree.paths[c][:2]
-               if not (n == tree.paths[c][1] and tree.paths[c][0] in node_codes
-                       and first_bad(tree.paths[c][0], False) is not None)])
-        sections_ok = [c for c in group if first_bad(tree.paths[c][0], False) is None
-                       and tree.paths[c][1] in node_codes and first_bad(tree.paths[c][1], False) is None]
-        judge([tree.paths[c][2] for c in sections_ok])
-        checked += len(group)
-        for rank, c in enumerate(group, start=i):
-            fail = None
-            for part, k in enumerate(tree.paths[c]):
-                bad = first_bad(int(k), part == 2)
-                if bad is not None:
-                    p = node_world(int(k))[bad[1]]
-                    fail = Failure(rank, int(c), _PARTS[part], verdict_name(bad[0]), float(p[0]), float(p[1]))
-                    break
-            if fail is None:
-                if look is not None and look[0] < keys[c]:
-                    return _look(look[1], checked, poses_checked, len(order), failures)
-                return _drive(tree, node_world, pose, int(c), rank, float(keys[c]), ctg.goal, params, checked,
-                              poses_checked, len(order), failures)
-            failures.append(fail)
-            if fail.verdict == "unknown" and fail.part != "beyond":
-                cost = float(keys[c]) + (0.0 if section_unseen[c] else params.look_cost)
-                if look is None or cost < look[0]:
-                    look = (cost, fail)
-        i += len(group)
-        size = min(size * 2, 64)
-    if look is not None:
-        return _look(look[1], checked, poses_checked, len(order), failures)
-    choice = _none("blocked", f"all {len(order)} candidates fail on the body's limits over ground the map shows",
-                   len(order))
-    choice.checked, choice.poses_checked, choice.failures = checked, poses_checked, failures
-    choice.reasons = _reasons(failures)
-    return choice
+    def failure(self, rank: int, c: int) -> Failure | None:
+        """Where candidate ``c`` first fails (unseen ground beyond its section does not), or None."""
+        for part, k in enumerate(self.tree.paths[c]):
+            bad = self.first_bad(int(k), part == 2)
+            if bad is not None:
+                p = self.world(int(k))[bad[1]]
+                return Failure(rank, c, _PARTS[part], verdict_name(bad[0]), float(p[0]), float(p[1]), bad[1])
+        return None
 
 
 def _paid(tree: ArcTree, probes: np.ndarray, penalty: Callable[[np.ndarray], np.ndarray] | None) -> np.ndarray:

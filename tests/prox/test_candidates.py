@@ -123,6 +123,34 @@ def test_it_threads_the_gap_in_a_wall_of_rocks() -> None:
     assert w.truly_safe(c.path)
 
 
+def test_a_look_ahead_over_a_limit_ranks_its_section_down_instead_of_refusing_it() -> None:
+    """The look-ahead is judged 1-2.5 m out, on ground seen from afar: its verdict prices the
+    continuation it would lose, and the section, judged in full, still decides what is driven."""
+    w = World()
+    heights = w.bounds()
+    cost, cg = coarse_costs(heights, w.g, BODY)
+    ctg = cost_to_go(cost, cg, (5.0, 0.0))
+    check = bounds_check(heights, w.g, BODY)
+
+    def ahead_blocked(poses: np.ndarray) -> np.ndarray:  # every look-ahead over the belly limit
+        return np.full(len(poses), 2)
+
+    veto = choose((0.0, 0.0, 0.0), heights, w.g, BODY, ctg, check, CandidateParams(ahead_cost=0.0), ahead_blocked)
+    assert veto.status == "blocked" and set(veto.reasons) == {"beyond belly"}
+    priced = choose((0.0, 0.0, 0.0), heights, w.g, BODY, ctg, check, CandidateParams(), ahead_blocked)
+    assert priced.status == "drive" and "priced" in priced.reason and priced.rank == 0
+    assert priced.poses[-1][0] == pytest.approx(1.0, abs=1e-6) and abs(priced.poses[-1][1]) < 1e-6
+
+    def strip_ahead(poses: np.ndarray) -> np.ndarray:  # a rock straight ahead, past the section
+        return np.where((np.abs(poses[:, 1]) < 0.3) & (poses[:, 0] > 1.0), 2, SAFE)
+
+    c = choose((0.0, 0.0, 0.0), heights, w.g, BODY, ctg, check, CandidateParams(), strip_ahead)
+    # a whole continuation that passes costs less than the straight section's price
+    assert c.status == "drive" and "priced" not in c.reason and c.rank > 0
+    assert any(f.part == "beyond" for f in c.failures)
+    assert not (strip_ahead(c.path) > 0).any()
+
+
 def test_with_unseen_ground_ahead_it_commits_nothing_and_asks_to_look_there() -> None:
     w = World()
     xs, ys = w.g.centers()
