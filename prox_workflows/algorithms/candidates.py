@@ -125,6 +125,9 @@ class CandidateParams(Settings):
                                    "still driven only if it passes (0: such a look-ahead refuses its candidate, "
                                    "as a section's pose over a limit does)", unit="m", min=0.0,
                               max=100.0)
+    ahead_min: float = param(0.5, "a look-ahead over a limit within this far of its section's end refuses its "
+                                  "candidate: a section that ends facing ground the map already calls over a limit "
+                                  "puts the body's last poses at that ground's edge", unit="m", min=0.0, max=10.0)
     look_cost: float = param(1.5, "the price of stopping to look, in metres of driving: a path through unseen "
                                   "ground that ranks better than every passing path by more than this asks "
                                   "for a look", unit="m", min=0.0, max=100.0)
@@ -578,12 +581,12 @@ def choose(pose: tuple[float, float, float], heights: np.ndarray | tuple[np.ndar
                 return _drive(tree, v.world, pose, int(c), rank, float(keys[c]), ctg.goal, params, checked,
                               v.poses_checked, len(order), failures)
             failures.append(fail)
-            if fail.part == "beyond" and params.ahead_cost > 0:
+            b = int(tree.paths[c][2])
+            m = max(int(tree.start[b + 1] - tree.start[b]), 1)
+            lost = float(tree.length[b]) * (m - fail.index) / m  # the look-ahead's metres from its failing pose
+            if fail.part == "beyond" and params.ahead_cost > 0 and float(tree.length[b]) - lost >= params.ahead_min:
                 # a continuation that fails only ranks the section down by the look-ahead it loses
-                b = int(tree.paths[c][2])
-                m = int(tree.start[b + 1] - tree.start[b])
-                price = params.ahead_cost * float(tree.length[b]) * (m - fail.index) / m
-                heapq.heappush(priced, (float(keys[c]) + price, rank, int(c)))
+                heapq.heappush(priced, (float(keys[c]) + params.ahead_cost * lost, rank, int(c)))
             elif fail.verdict == "unknown" and fail.part != "beyond":
                 cost = float(keys[c]) + (0.0 if section_unseen[c] else params.look_cost)
                 if look is None or cost < look[0]:

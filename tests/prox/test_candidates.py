@@ -125,30 +125,36 @@ def test_it_threads_the_gap_in_a_wall_of_rocks() -> None:
 
 def test_a_look_ahead_over_a_limit_ranks_its_section_down_instead_of_refusing_it() -> None:
     """The look-ahead is judged 1-2.5 m out, on ground seen from afar: its verdict prices the
-    continuation it would lose, and the section, judged in full, still decides what is driven."""
+    continuation it would lose, and the section, judged in full, still decides what is driven;
+    except where it fails within ``ahead_min`` of the section's end."""
     w = World()
     heights = w.bounds()
     cost, cg = coarse_costs(heights, w.g, BODY)
     ctg = cost_to_go(cost, cg, (5.0, 0.0))
     check = bounds_check(heights, w.g, BODY)
 
-    def ahead_blocked(poses: np.ndarray) -> np.ndarray:  # every look-ahead over the belly limit
-        return np.full(len(poses), 2)
+    def rock_past(x0: float):  # a rock straight ahead past x0, judged over the belly limit
+        def ahead(poses: np.ndarray) -> np.ndarray:
+            return np.where((np.abs(poses[:, 1]) < 0.4) & (poses[:, 0] > x0), 2, SAFE)
+        return ahead
 
-    veto = choose((0.0, 0.0, 0.0), heights, w.g, BODY, ctg, check, CandidateParams(ahead_cost=0.0), ahead_blocked)
-    assert veto.status == "blocked" and set(veto.reasons) == {"beyond belly"}
-    priced = choose((0.0, 0.0, 0.0), heights, w.g, BODY, ctg, check, CandidateParams(), ahead_blocked)
+    far, near = rock_past(1.8), rock_past(1.2)  # 0.8 m and 0.2 m past the straight section's end
+
+    def pick(ahead, **kw):  # noqa: ANN001, ANN202
+        return choose((0.0, 0.0, 0.0), heights, w.g, BODY, ctg, check, CandidateParams(**kw), ahead)
+
+    priced = pick(far, ahead_cost=0.1)
     assert priced.status == "drive" and "priced" in priced.reason and priced.rank == 0
     assert priced.poses[-1][0] == pytest.approx(1.0, abs=1e-6) and abs(priced.poses[-1][1]) < 1e-6
-
-    def strip_ahead(poses: np.ndarray) -> np.ndarray:  # a rock straight ahead, past the section
-        return np.where((np.abs(poses[:, 1]) < 0.3) & (poses[:, 0] > 1.0), 2, SAFE)
-
-    c = choose((0.0, 0.0, 0.0), heights, w.g, BODY, ctg, check, CandidateParams(), strip_ahead)
-    # a whole continuation that passes costs less than the straight section's price
-    assert c.status == "drive" and "priced" not in c.reason and c.rank > 0
-    assert any(f.part == "beyond" for f in c.failures)
-    assert not (strip_ahead(c.path) > 0).any()
+    assert (far(priced.path) > 0).any()
+    veto = pick(far, ahead_cost=0.0)
+    assert veto.status == "drive" and "priced" not in veto.reason and not (far(veto.path) > 0).any()
+    # the straight section is refused where its look-ahead fails within ahead_min of its end
+    for c in (veto, pick(near, ahead_cost=0.1)):
+        assert c.rank > 0 and c.failures[0].rank == 0 and c.failures[0].part == "beyond"
+    # a continuation that passes whole costs less than the price of one that fails early
+    c = pick(far)
+    assert c.status == "drive" and "priced" not in c.reason and not (far(c.path) > 0).any()
 
 
 def test_with_unseen_ground_ahead_it_commits_nothing_and_asks_to_look_there() -> None:
