@@ -49,8 +49,10 @@ The rules on unseen ground (a cost and a reason to look, never driven on)
       ranked again with that price: the look-ahead is judged 1-2.5 m out on ground seen from
       afar, where three in four of its refusals stand on truly safe ground (marsyard, traced
       against the truth), and refusing on them bent the way round rocks the section never
-      meets. Only a look-ahead failing within ``ahead_min`` of the section's end refuses its
-      path: that section would end at the edge of ground the map already calls over a limit.
+      meets. A look-ahead failing within ``ahead_min`` of the section's end refuses its path
+      (that section would end at the edge of ground the map already calls over a limit), and a
+      priced path is driven only if some look-ahead from its section's end passes: a section
+      with no way on from its end is a pocket.
     - Looking has a price, ``look_cost`` (in metres of driving): a path whose section crosses
       unseen ground ranks with that price added, and if it still ranks before every path that
       passes, the answer is *look* (at the first unseen pose of it), not a worse drive. With no
@@ -542,6 +544,8 @@ def choose(pose: tuple[float, float, float], heights: np.ndarray | tuple[np.ndar
     def settle(bound: float) -> Choice | None:
         """The look or the priced candidate, whichever is cheaper, if it costs less than ``bound``
         (inf: the candidates are spent); else None."""
+        while priced and priced[0][0] < bound and not v.way_on(int(tree.paths[priced[0][2]][1])):
+            heapq.heappop(priced)  # no continuation from its section's end passes: a pocket
         best = priced[0] if priced else None
         if look is not None and look[0] < bound and (best is None or look[0] <= best[0]):
             return _look(look[1], checked, v.poses_checked, len(order), failures)
@@ -662,6 +666,12 @@ class _Verdicts:
             bad = np.flatnonzero((codes > 0) if allow_unknown else (codes != SAFE))
             self._bad[key] = (int(codes[bad[0]]), int(bad[0])) if len(bad) else None
         return self._bad[key]
+
+    def way_on(self, s: int) -> bool:
+        """Whether any look-ahead from section ``s``'s end passes (unseen ground does not fail it)."""
+        ahead = [int(k) for k in np.flatnonzero(self.tree.parent == s)]
+        self.judge(ahead)
+        return any(self.first_bad(k, True) is None for k in ahead)
 
     def failure(self, rank: int, c: int) -> Failure | None:
         """Where candidate ``c`` first fails (unseen ground beyond its section does not), or None."""

@@ -156,6 +156,15 @@ def test_a_look_ahead_over_a_limit_ranks_its_section_down_instead_of_refusing_it
     c = pick(far)
     assert c.status == "drive" and "priced" not in c.reason and not (far(c.path) > 0).any()
 
+    def wall_past(poses: np.ndarray) -> np.ndarray:  # a wall 0.4 m past the straight section's end
+        return np.where(poses[:, 0] > 1.4, 2, SAFE)
+
+    # every continuation from the straight section's end fails: a pocket, not driven into, whatever
+    # the price of its look-ahead
+    c = pick(wall_past, ahead_cost=0.01, ahead_min=0.3)
+    assert not (abs(c.poses[-1][0] - 1.0) < 1e-6 and abs(c.poses[-1][1]) < 1e-6)
+    assert any(f.rank == 0 and f.part == "beyond" for f in c.failures)
+
 
 def test_with_unseen_ground_ahead_it_commits_nothing_and_asks_to_look_there() -> None:
     w = World()
