@@ -44,15 +44,17 @@ The rules on unseen ground (a cost and a reason to look, never driven on)
     - A section (the turn and the first arc) is driven only if every pose of it is judged safe.
       One whose ground is unseen fails as ``unknown``.
     - Beyond the section, unseen ground adds ``unknown_cost`` per metre to the estimate: the
-      rover will look there before it gets there. A look-ahead pose judged over a limit prices
-      the path, ``ahead_cost`` per metre of the look-ahead from that pose on, and the path is
-      ranked again with that price: the look-ahead is judged 1-2.5 m out on ground seen from
-      afar, where three in four of its refusals stand on truly safe ground (marsyard, traced
-      against the truth), and refusing on them bent the way round rocks the section never
-      meets. A look-ahead failing within ``ahead_min`` of the section's end refuses its path
-      (that section would end at the edge of ground the map already calls over a limit), and a
-      priced path is driven only if some look-ahead from its section's end passes: a section
-      with no way on from its end is a pocket.
+      rover will look there before it gets there. A look-ahead pose judged over a limit refuses
+      the path (``ahead_cost`` 0), or prices it, ``ahead_cost`` per metre of the look-ahead from
+      that pose on, the path ranked again with that price. The look-ahead is judged 1-2.5 m out
+      on ground seen from afar, where three in four of its refusals stand on truly safe ground
+      (marsyard, traced against the truth); priced, the rover no longer bends round rocks its
+      section never meets (marsyard's efficiency up by a quarter), but on hirise's slopes it
+      drove into places it found no way on from (docs/NAVIGATE_BENCH.md), so the veto is the
+      default. Priced, a look-ahead failing within ``ahead_min`` of the section's end still
+      refuses its path (that section would end at the edge of ground the map already calls over
+      a limit), and a priced path is driven only if some look-ahead from its section's end
+      passes: a section with no way on from its end is a pocket.
     - Looking has a price, ``look_cost`` (in metres of driving): a path whose section crosses
       unseen ground ranks with that price added, and if it still ranks before every path that
       passes, the answer is *look* (at the first unseen pose of it), not a worse drive. With no
@@ -128,10 +130,10 @@ class CandidateParams(Settings):
                                      "climb (less in proportion; capped at twice)", unit="m", min=0.0, max=100.0)
     unknown_cost: float = param(1.0, "extra cost per metre of unseen ground beyond the section", unit="m",
                                 min=0.0, max=100.0)
-    ahead_cost: float = param(2.0, "extra cost per metre of a look-ahead from its first pose judged over a limit "
-                                   "to its end: a blocked continuation ranks its section down, and the section is "
-                                   "still driven only if it passes (0: such a look-ahead refuses its candidate, "
-                                   "as a section's pose over a limit does)", unit="m", min=0.0,
+    ahead_cost: float = param(0.0, "0: a look-ahead over a limit refuses its candidate, as a section's pose over "
+                                   "a limit does; above 0, the extra cost per metre of the look-ahead from its first "
+                                   "pose judged over a limit to its end: a blocked continuation ranks its section "
+                                   "down, and the section is still driven only if it passes", unit="m", min=0.0,
                               max=100.0)
     ahead_min: float = param(0.5, "a look-ahead over a limit within this far of its section's end refuses its "
                                   "candidate: a section that ends facing ground the map already calls over a limit "

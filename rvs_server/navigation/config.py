@@ -140,9 +140,9 @@ class SeeConfig(Settings):
     chance: ChanceParams = param(ChanceParams(), "see loop with the gate, see_vehicle chance: the risk a section "
                                  "may carry (epsilon) and how its probability is drawn")
     ahead: str = param("best", "see loop with the gate: the check of each candidate's look-ahead beyond its "
-                       "section, which prices the section where it fails (navigate.see.chooser.ahead_cost): best, the "
-                       "posterior's best estimate (the section is judged in full before it is driven); chance, "
-                       "the section's own check, at about 1.4-2.3x a choice's CPU",
+                       "section, which refuses (or prices: navigate.see.chooser.ahead_cost) the section where it "
+                       "fails: best, the posterior's best estimate (the section is judged in full before it is "
+                       "driven); chance, the section's own check, at about 1.4-2.3x a choice's CPU",
                        choices=("chance", "best"), option=False)
     bounds: BoundsParams = param(BoundsParams(), "see loop with the gate: the bounds map's cell and how wide its "
                                  "bounds are drawn round each frame (prox_workflows.algorithms.bounds_map)")

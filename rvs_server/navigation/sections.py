@@ -28,10 +28,10 @@ goes, and chooses again. The check is the chance constraint on the map's per-cel
   default at once), or with no reverse section that passes, it is a safe stop: the job ends
   ``E_DATA`` with the reason, the count of failures by limit and the retreats made.
 
-Each candidate's look-ahead beyond its section only ranks it (a look-ahead over a limit prices its
-section, :class:`CandidateParams` ``ahead_cost``, and refuses it only within ``ahead_min`` of its
-end): it is judged on the posterior's best estimate (``see_ahead best``), or with the section's own
-check (``see_ahead chance``, at about twice a choice's CPU).
+Each candidate's look-ahead beyond its section refuses it where it fails (or, with
+:class:`CandidateParams` ``ahead_cost`` above 0, prices it): it is judged on the posterior's best
+estimate (``see_ahead best``), or with the section's own check (``see_ahead chance``, at about
+twice a choice's CPU).
 
 No Dem2Hazard threshold decides where the wheels go, and no verdict is kept: a refusal concerns
 the map it was made on, and the next choice judges the pose again on the map as it then is. A dead

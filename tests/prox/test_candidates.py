@@ -153,7 +153,7 @@ def test_a_look_ahead_over_a_limit_ranks_its_section_down_instead_of_refusing_it
     for c in (veto, pick(near, ahead_cost=0.1)):
         assert c.rank > 0 and c.failures[0].rank == 0 and c.failures[0].part == "beyond"
     # a continuation that passes whole costs less than the price of one that fails early
-    c = pick(far)
+    c = pick(far, ahead_cost=2.0)
     assert c.status == "drive" and "priced" not in c.reason and not (far(c.path) > 0).any()
 
     def wall_past(poses: np.ndarray) -> np.ndarray:  # a wall 0.4 m past the straight section's end
