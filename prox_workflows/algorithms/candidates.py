@@ -593,12 +593,13 @@ def choose(pose: tuple[float, float, float], heights: np.ndarray | tuple[np.ndar
                 return _drive(tree, v.world, pose, int(c), rank, float(keys[c]), ctg.goal, params, checked,
                               v.poses_checked, len(order), failures)
             failures.append(fail)
-            b = int(tree.paths[c][2])
-            m = max(int(tree.start[b + 1] - tree.start[b]), 1)
-            lost = float(tree.length[b]) * (m - fail.index) / m  # the look-ahead's metres from its failing pose
-            if fail.part == "beyond" and params.ahead_cost > 0 and float(tree.length[b]) - lost >= params.ahead_min:
-                # a continuation that fails only ranks the section down by the look-ahead it loses
-                heapq.heappush(priced, (float(keys[c]) + params.ahead_cost * lost, rank, int(c)))
+            if fail.part == "beyond" and params.ahead_cost > 0:
+                b = int(tree.paths[c][2])
+                m = int(tree.start[b + 1] - tree.start[b])
+                lost = float(tree.length[b]) * (m - fail.index) / m  # the look-ahead's metres from its failing pose
+                if float(tree.length[b]) - lost >= params.ahead_min:
+                    # a continuation that fails only ranks the section down by the look-ahead it loses
+                    heapq.heappush(priced, (float(keys[c]) + params.ahead_cost * lost, rank, int(c)))
             elif fail.verdict == "unknown" and fail.part != "beyond":
                 cost = float(keys[c]) + (0.0 if section_unseen[c] else params.look_cost)
                 if look is None or cost < look[0]:
