@@ -426,8 +426,8 @@ def crop(geom: GridGeometry, xmin: float, ymin: float, xmax: float, ymax: float
 class Failure:
     """Why a candidate ranked before the chosen one failed: its ``rank``, which ``part`` (turn,
     section, beyond), the ``verdict`` (``unknown`` or the limit's name) at its first failing pose
-    ``x``, ``y`` (world frame). A candidate whose look-ahead fails is still ranked, priced by it,
-    and may be the one chosen."""
+    ``x``, ``y`` (world frame). With ``ahead_cost`` above 0, a candidate whose look-ahead fails
+    is still ranked, priced by it, and may be the one chosen."""
 
     rank: int
     candidate: int
