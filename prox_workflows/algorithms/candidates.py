@@ -89,7 +89,7 @@ from rvs_params import Settings, param
 from ..grid import GridGeometry
 from .arcs import arc_poses, default_curvatures
 from .chance import ChanceParams, Posterior, chance_check
-from .vehicle import LIMITS, VehicleBody, check_poses, reach
+from .vehicle import LIMITS, VehicleBody, check_poses, densify, reach
 
 __all__ = ["CandidateParams", "ArcTree", "CostToGo", "Choice", "Failure", "Check", "arc_tree", "coarse_costs",
            "cost_to_go", "bounds_check", "posterior_check", "best_check", "crop", "choose", "SAFE", "UNKNOWN", "verdict_name", "UNKNOWN_COST"]
@@ -138,6 +138,11 @@ class CandidateParams(Settings):
     ahead_min: float = param(0.5, "a look-ahead over a limit within this far of its section's end refuses its "
                                   "candidate: a section that ends facing ground the map already calls over a limit "
                                   "puts the body's last poses at that ground's edge", unit="m", min=0.0, max=10.0)
+    verify_step: float = param(0.02, "a candidate about to be chosen has its turn and section judged again between "
+                                     "their poses, this far apart at the body's farthest point (0: not): a rock's "
+                                     "crest under the box's edge can rise over the belly within a few degrees of a "
+                                     "turn (docs/NAVIGATE_BENCH.md, dense mission 8's event traced)", unit="m",
+                                min=0.0, max=0.5)
     look_cost: float = param(1.5, "the price of stopping to look, in metres of driving: a path through unseen "
                                   "ground that ranks better than every passing path by more than this asks "
                                   "for a look", unit="m", min=0.0, max=100.0)
@@ -536,7 +541,7 @@ def choose(pose: tuple[float, float, float], heights: np.ndarray | tuple[np.ndar
     order = order[np.isfinite(keys[order])]
     if not len(order):
         return _none("blocked", "the goal has no way to it over the ground the map shows", len(keys))
-    v = _Verdicts(tree, pose, check, lookahead)
+    v = _Verdicts(tree, pose, check, lookahead, body, params.verify_step)
 
     failures: list[Failure] = []
     look: tuple[float, Failure] | None = None
@@ -546,8 +551,9 @@ def choose(pose: tuple[float, float, float], heights: np.ndarray | tuple[np.ndar
     def settle(bound: float) -> Choice | None:
         """The look or the priced candidate, whichever is cheaper, if it costs less than ``bound``
         (inf: the candidates are spent); else None."""
-        while priced and priced[0][0] < bound and not v.way_on(int(tree.paths[priced[0][2]][1])):
-            heapq.heappop(priced)  # no continuation from its section's end passes: a pocket
+        while priced and priced[0][0] < bound and (not v.way_on(int(tree.paths[priced[0][2]][1]))
+                                                    or v.fine_failure(priced[0][1], priced[0][2]) is not None):
+            heapq.heappop(priced)  # a pocket (no continuation from its section's end passes), or it fails between poses
         best = priced[0] if priced else None
         if look is not None and look[0] < bound and (best is None or look[0] <= best[0]):
             return _look(look[1], checked, v.poses_checked, len(order), failures)
@@ -618,13 +624,15 @@ def choose(pose: tuple[float, float, float], heights: np.ndarray | tuple[np.ndar
 class _Verdicts:
     """The check's verdicts on the tree's nodes from one pose, each node judged once, on demand."""
 
-    def __init__(self, tree: ArcTree, pose: tuple[float, float, float], check: Check, lookahead: Check | None
-                 ) -> None:
+    def __init__(self, tree: ArcTree, pose: tuple[float, float, float], check: Check, lookahead: Check | None,
+                 body: VehicleBody, verify: float = 0.0) -> None:
         self.tree, self.pose, self.check, self.lookahead = tree, pose, check, lookahead
+        self.body, self.verify = body, verify
         self.codes: dict[int, np.ndarray] = {}
         self.poses_checked = 0
         self._world: dict[int, np.ndarray] = {}
         self._bad: dict[tuple[int, bool], tuple[int, int] | None] = {}
+        self._fine: dict[int, tuple[int, np.ndarray] | None] = {}
 
     def world(self, k: int) -> np.ndarray:
         """Node ``k``'s poses in the world."""
@@ -670,6 +678,30 @@ class _Verdicts:
             self._bad[key] = (int(codes[bad[0]]), int(bad[0])) if len(bad) else None
         return self._bad[key]
 
+    def fine_bad(self, k: int) -> tuple[int, np.ndarray] | None:
+        """The first pose between turn or section ``k``'s poses, ``verify`` apart at the body's
+        farthest point, that fails (its verdict and pose), or None. The tree's poses are
+        ``CandidateParams.step`` apart, and between two of them a turn sweeps the box's edge over
+        ground no judged pose put it on; judged once per node, for a candidate about to be chosen."""
+        if k not in self._fine:
+            poses = self.world(k)
+            self._fine[k] = None
+            if len(poses) and self.verify > 0:
+                p = int(self.tree.parent[k])
+                before = self.world(p)[-1] if p >= 0 and len(self.world(p)) else np.asarray(self.pose, float)
+                dense = densify(np.vstack([before, poses]), self.verify, self.body)
+                judged = {tuple(q) for q in np.round(np.vstack([before, poses]), 9)}
+                dense = dense[[tuple(q) not in judged for q in np.round(dense, 9)]]  # the poses between only
+                if not len(dense):
+                    return None
+                codes = np.asarray(self.check(dense, np.zeros(1, np.int64)) if getattr(self.check, "by_runs", False)
+                                   else self.check(dense), int)
+                self.poses_checked += len(dense)
+                bad = np.flatnonzero(codes != SAFE)
+                if len(bad):
+                    self._fine[k] = (int(codes[bad[0]]), dense[bad[0]])
+        return self._fine[k]
+
     def way_on(self, s: int) -> bool:
         """Whether any look-ahead from section ``s``'s end passes (unseen ground does not fail it)."""
         ahead = [int(k) for k in np.flatnonzero(self.tree.parent == s)]
@@ -683,6 +715,15 @@ class _Verdicts:
             if bad is not None:
                 p = self.world(int(k))[bad[1]]
                 return Failure(rank, c, _PARTS[part], verdict_name(bad[0]), float(p[0]), float(p[1]), bad[1])
+        return self.fine_failure(rank, c)
+
+    def fine_failure(self, rank: int, c: int) -> Failure | None:
+        """Where candidate ``c``'s turn or section first fails between its poses (:meth:`fine_bad`)."""
+        for part, k in enumerate(self.tree.paths[c][:2]):
+            fine = self.fine_bad(int(k))
+            if fine is not None:
+                code, p = fine
+                return Failure(rank, c, _PARTS[part], verdict_name(code), float(p[0]), float(p[1]))
         return None
 
 

@@ -43,6 +43,7 @@ from rvs_params import Settings, param
 from ..grid import GridGeometry
 from .arcs import arc_poses, default_curvatures
 from .candidates import SAFE, Check, Choice, CostToGo, verdict_name
+from .vehicle import VehicleBody, densify
 
 __all__ = ["RetreatParams", "ReverseOption", "DeadEnd", "reverse_options", "choose_reverse", "add_dead_ends",
            "dead_end_penalty"]
@@ -103,7 +104,8 @@ def _back(pose: Sequence[float], k: float, metres: float, step: float) -> np.nda
 
 
 def choose_reverse(pose: Sequence[float], options: list[ReverseOption], check: Check, ctg: CostToGo,
-                   track_check: Check | None = None) -> Choice:
+                   track_check: Check | None = None, body: VehicleBody | None = None, verify: float = 0.0
+                   ) -> Choice:
     """The track back where it passes, else the cheapest reverse arc that passes by the cost to go
     at its end, as a ``drive`` :class:`~.candidates.Choice` with ``backward`` set; or ``blocked``
     with each option's failure. The track back comes first whatever an arc's end is worth: its
@@ -114,7 +116,9 @@ def choose_reverse(pose: Sequence[float], options: list[ReverseOption], check: C
     ``sections.track_check``): the body stood on every pose of it, so what can refuse it is ground
     that changed since, which only a frame shows (a rock that fell there), not the draws of a map
     that never bounded a wheel's patch as closely as the wheel itself did, nor a prior's guess at
-    ground no frame saw. An unknown verdict does not refuse the track back."""
+    ground no frame saw. An unknown verdict does not refuse the track back. With ``verify`` above
+    0, the option about to be chosen is judged again between its poses, that far apart at
+    ``body``'s farthest point (``CandidateParams.verify_step``), and passed over if that fails."""
     if not options:
         return Choice("blocked", "no reverse section to judge", np.zeros((0, 3)), np.zeros((0, 3)))
     ends = np.array([o.poses[-1, :2] for o in options])
@@ -136,12 +140,25 @@ def choose_reverse(pose: Sequence[float], options: list[ReverseOption], check: C
         if len(bad):
             key = f"{'track back' if o.track else 'reverse arc'} {verdict_name(int(c[bad[0]]))}"
             reasons[key] = reasons.get(key, 0) + 1
-    passing = [i for i, v in enumerate(verdicts) if v is None and math.isfinite(cost[i])]
+    passing = sorted((i for i, v in enumerate(verdicts) if v is None and math.isfinite(cost[i])),
+                     key=lambda j: (not options[j].track, cost[j]))
+    for i in list(passing):
+        if verify <= 0 or body is None:
+            break
+        o = options[i]
+        between = densify(o.poses, verify, body)
+        c = np.asarray((track_check if o.track else check)(between), int)
+        bad = np.flatnonzero((c > 0) if o.track else (c != SAFE))
+        if not len(bad):
+            break
+        passing.remove(i)
+        key = f"{'track back' if o.track else 'reverse arc'} {verdict_name(int(c[bad[0]]))}"
+        reasons[key] = reasons.get(key, 0) + 1
     if not passing:
         what = ", ".join(f"{n} {k}" for k, n in sorted(reasons.items(), key=lambda kv: -kv[1])) or "no way to the goal"
         return Choice("blocked", f"no reverse section passes ({what})", np.zeros((0, 3)), np.zeros((0, 3)),
                       total=len(options), reasons=reasons)
-    i = min(passing, key=lambda j: (not options[j].track, cost[j]))
+    i = passing[0]
     o = options[i]
     name = "the track back" if o.track else f"a reverse arc of curvature {o.curvature:.2f} 1/m"
     return Choice("drive", f"{name} ({o.length:.2f} m) passes", o.poses, o.poses, i, i, float(cost[i]),

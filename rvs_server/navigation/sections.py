@@ -266,7 +266,7 @@ class Chooser:
             box = (pts[:, 0].min() - pad, pts[:, 1].min() - pad, pts[:, 0].max() + pad, pts[:, 1].max() + pad)
             check = map_check(bounds, box, self.d.body, self.d.p.vehicle, self.chance)
             track = map_check(bounds, box, self.d.body, "framed", self.chance)
-            choice = choose_reverse(pose, options, check, ctg, track)
+            choice = choose_reverse(pose, options, check, ctg, track, self.d.body, self.params.verify_step)
         finally:
             self.s.stats.replanned(t0, c0)
         if choice.status != "drive":
@@ -358,7 +358,8 @@ class Chooser:
         headings = math.ceil(360.0 / (len(d.hazcams) * step) - 1e-9)
         for _ in range(headings - 1):
             pose = d.pose()
-            poses = densify(np.array([pose, (pose[0], pose[1], pose[2] + step)]), self.params.step, d.body)
+            poses = densify(np.array([pose, (pose[0], pose[1], pose[2] + step)]),
+                            self.params.verify_step or self.params.step, d.body)
             r = reach(d.body) + 0.1
             codes = np.asarray(map_check(d.bounds, (pose[0] - r, pose[1] - r, pose[0] + r, pose[1] + r), d.body,
                                          d.p.vehicle, self.chance)(poses))

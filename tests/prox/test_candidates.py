@@ -227,7 +227,8 @@ def test_a_prefix_is_judged_once_and_a_refused_section_spares_its_look_aheads() 
         sent.append(poses.copy())
         return check(poses)
 
-    c = w.choose((0.0, 0.0, 0.0), (5.0, 0.0), recording)
+    # the tree's poses alone (the poses between a chosen candidate's are judged apart: verify_step)
+    c = w.choose((0.0, 0.0, 0.0), (5.0, 0.0), recording, verify_step=0.0)
     assert c.status == "drive" and c.rank > 0
     allp = np.vstack(sent)
     assert len(np.unique(np.round(allp, 9), axis=0)) == len(allp)  # no pose sent twice
@@ -241,6 +242,22 @@ def test_a_prefix_is_judged_once_and_a_refused_section_spares_its_look_aheads() 
         # the look-ahead's poses, in the world (the rover at the origin, heading 0: the same)
         assert not any(tuple(np.round(p, 6)) in seen for p in leaf)
     assert w.truly_safe(c.poses)
+
+
+def test_a_turn_is_judged_between_its_poses_before_it_is_chosen() -> None:
+    # a 2 cm post, 15 cm high, on the circle the rear-left wheel's outer corner sweeps turning
+    # right, between two of the tree's headings (5 cm apart there): the tree's poses of a turn
+    # toward a goal on the right all pass it, and the corner passes over it between them
+    w = World()
+    w.box(-0.03, -0.01, 0.365, 0.385, 0.15)
+    check = bounds_check(w.truth, w.tg, BODY)  # the 1 cm truth itself: no error in the map
+    coarse = w.choose((0.0, 0.0, 0.0), (0.0, -5.0), check, verify_step=0.0)
+    assert coarse.status == "drive" and coarse.turn < -60
+    assert check_poses(w.truth, w.tg, coarse.poses, BODY).safe.all()  # every pose the tree judged
+    assert not w.truly_safe(coarse.poses)  # and the turn between them
+    fine = w.choose((0.0, 0.0, 0.0), (0.0, -5.0), check)
+    assert fine.status == "drive" and w.truly_safe(fine.poses)
+    assert any(f.part == "turn" and f.verdict == "step" for f in fine.failures)
 
 
 def test_the_cost_to_go_takes_unseen_ground_as_a_cost_and_known_walls_as_walls() -> None:

@@ -164,3 +164,21 @@ def test_a_path_over_a_dead_end_pays_for_it_though_it_ends_beyond() -> None:
     assert priced.status == "drive", priced.reason
     assert not (priced.turn == 0.0 and abs(priced.curvature) < 1e-9), (priced.turn, priced.curvature)
     assert np.hypot(priced.path[:, 0] - 1.0, priced.path[:, 1]).min() > 0.3  # round it
+
+
+def test_the_reverse_section_chosen_is_judged_between_its_poses() -> None:
+    # a check that passes the options' own poses and refuses every pose between them: the arc the
+    # cost to go prefers is passed over once it is judged between its poses, and with every arc so
+    # refused none is driven
+    options = reverse_options(POSE, None, RetreatParams(), 2.4, 0.05)
+    own = {tuple(np.round(p, 6)) for o in options for p in o.poses}
+
+    def check(poses: np.ndarray) -> np.ndarray:
+        return np.array([0 if tuple(np.round(p, 6)) in own else 2 for p in poses])
+
+    cost, cg = coarse_costs((np.zeros((40, 40)), np.zeros((40, 40))), GridGeometry(0.05, -1.0, 1.0, 40, 40), BODY)
+    ctg = cost_to_go(cost, cg, (-0.8, 0.6))
+    coarse = choose_reverse(POSE, options, check, ctg)
+    assert coarse.status == "drive"
+    fine = choose_reverse(POSE, options, check, ctg, body=BODY, verify=0.02)
+    assert fine.status == "blocked" and fine.reasons == {"reverse arc belly": len(options)}
