@@ -33,7 +33,12 @@ What this module holds (plain functions on arrays; the loops that call them live
       (on open ground it passes, and a call costs as much as a hundred poses), each later one
       in two, the turns and sections first, then the look-aheads of the sections that passed,
       so that a refused section spares its nine leaves. No pose is judged twice. Nothing is remembered
-      between calls: a refusal concerns the map it was made on, and expires with it.
+      between calls: a refusal concerns the map it was made on, and expires with it. The tree's
+      poses are ``step`` apart at the body's farthest point; the candidate about to be chosen
+      has its turn and section judged again between them, ``verify_step`` apart (the spacing
+      the vehicle yardstick judges a track at), and fails if a pose there does: turning 7 deg
+      between two of the tree's headings, a wheel's corner passes over a post no judged pose put
+      it on.
     - The checks it takes (:data:`Check`): :func:`bounds_check` (the worst case on bounds, or the
       check on one height grid), :func:`posterior_check` (the chance constraint on the cells'
       posteriors, :mod:`.chance`, each call drawing only the cells round its poses) and

@@ -126,8 +126,11 @@ def main(argv: list[str] | None = None) -> None:
                     help="with --check chance: the look-aheads judged on the posterior's best estimate (the see "
                          "loop's navigate.see_ahead default) or with the chance constraint")
     ap.add_argument("--digest", action="store_true", help="print each trial's verdict (status, candidate, rank, poses)")
+    ap.add_argument("--verify-step", type=float, default=CandidateParams().verify_step,
+                    help="CandidateParams.verify_step: the chosen candidate judged between its poses this far apart "
+                         "(0: not; for comparison)")
     args = ap.parse_args(argv)
-    params = CandidateParams(max_poses=args.max_poses)
+    params = CandidateParams(max_poses=args.max_poses, verify_step=args.verify_step)
     chance = ChanceParams()
     digests: list[str] = []
     print(f"check: {args.check}{' (every pose drawn)' if args.every_pose else ''}"
