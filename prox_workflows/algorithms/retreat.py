@@ -142,16 +142,13 @@ def choose_reverse(pose: Sequence[float], options: list[ReverseOption], check: C
             reasons[key] = reasons.get(key, 0) + 1
     passing = sorted((i for i, v in enumerate(verdicts) if v is None and math.isfinite(cost[i])),
                      key=lambda j: (not options[j].track, cost[j]))
-    for i in list(passing):
-        if verify <= 0 or body is None:
-            break
-        o = options[i]
-        between = densify(o.poses, verify, body)
-        c = np.asarray((track_check if o.track else check)(between), int)
+    while passing and verify > 0 and body is not None:
+        o = options[passing[0]]
+        c = np.asarray((track_check if o.track else check)(densify(o.poses, verify, body)), int)
         bad = np.flatnonzero((c > 0) if o.track else (c != SAFE))
         if not len(bad):
             break
-        passing.remove(i)
+        passing.pop(0)
         key = f"{'track back' if o.track else 'reverse arc'} {verdict_name(int(c[bad[0]]))}"
         reasons[key] = reasons.get(key, 0) + 1
     if not passing:
