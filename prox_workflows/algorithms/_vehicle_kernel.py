@@ -207,6 +207,40 @@ def _contacts(lo: np.ndarray, hi: np.ndarray, bounded: bool, wheel_of: np.ndarra
     return open_box
 
 
+@_inline
+def _raise_on_tops(upper: np.ndarray, xmin: float, ymax: float, cell: float, x: float, y: float, c: float,
+                   si: float, px: np.ndarray, py: np.ndarray, wheel_of: np.ndarray, hubs: np.ndarray,
+                   radius: float, half_width: float, raised: np.ndarray) -> None:
+    """Raise each wheel's rests in ``raised`` (as ``_contacts`` fills them) to the top of every
+    cell of ``upper`` wholly inside its footprint, less the circle's sag at the cell's end
+    farthest from the hub: a cell's top lies somewhere in the cell, so a cell the footprint holds
+    whole holds its top under the wheel. The pose is at (``x``, ``y``), heading cos ``c``, sin ``si``."""
+    for j in range(px.shape[0]):
+        w = wheel_of[j]
+        if w < 0:
+            continue
+        fc = (x + c * px[j] - si * py[j] - xmin) / cell
+        fr = (ymax - (y + si * px[j] + c * py[j])) / cell
+        if not (fc >= 0.0 and fr >= 0.0 and fc < upper.shape[1] and fr < upper.shape[0]):
+            continue
+        col, row = math.floor(fc), math.floor(fr)
+        inside = True
+        reach = 0.0
+        for dc in range(2):
+            for dr in range(2):
+                ex = xmin + (col + dc) * cell - x
+                ey = ymax - (row + dr) * cell - y
+                lx = c * ex + si * ey - hubs[w, 0]
+                ly = -si * ex + c * ey - hubs[w, 1]
+                inside = inside and abs(lx) <= radius and abs(ly) <= half_width
+                reach = max(reach, abs(lx))
+        top = np.float64(upper[np.uint64(row), np.uint64(col)])
+        if inside and not math.isnan(top):
+            v = top - (radius - math.sqrt(max(radius * radius - reach * reach, 0.0)))
+            raised[0, w] = max(raised[0, w], v)
+            raised[1, w] = max(raised[1, w], v)
+
+
 @jit(error_model="numpy", fastmath={"nnan", "ninf"})
 def _under(hb: np.ndarray, bx: np.ndarray, by: np.ndarray, a: float, b: float, c: float) -> float:
     """The highest ground under the box over the plane z = a x + b y + c: ``hb`` the ground's
@@ -227,18 +261,23 @@ def check(lower: np.ndarray, upper: np.ndarray, bounded: bool, cellwise: bool, x
           g1: np.ndarray, pull_a: np.ndarray, pull_b: np.ndarray, inv: np.ndarray, triplets: np.ndarray,
           corners: np.ndarray, hubs: np.ndarray, fore: float, side: float, cog: float, safety: float,
           edge: np.ndarray, intrusion: np.ndarray, tilt: np.ndarray, tip: np.ndarray, grade: np.ndarray,
-          stability: np.ndarray, unknown: np.ndarray) -> None:
+          stability: np.ndarray, unknown: np.ndarray, rest_tops: bool = False, radius: float = 0.0,
+          half_width: float = 0.0) -> None:
     """Every limit at every pose ((N, 3): x, y, heading deg) into the output arrays; see
     ``vehicle.check_poses`` for what each is. The pattern: sample offsets ``px``, ``py`` (S,), each
     one's wheel (-1: none), the belly's samples (indices), each wheel sample's ``sag`` (the
     circle's rise there); the step's sample pairs (indices, and the wheel of each); the ground
     plane's pseudo-inverse rows ``g0``, ``g1`` (S,) and on bounds the zonotope's signed pulls
     ``pull_a``, ``pull_b`` (S, D); the resting planes' inverses (P, 3, 3) and their ``triplets``
-    (P, 4: three wheels, the fourth last); the contacts' ``corners`` (C, 3: 0 lowest, 1 highest)."""
+    (P, 4: three wheels, the fourth last); the contacts' ``corners`` (C, 3: 0 lowest, 1 highest).
+    ``rest_tops``: the resting planes are judged again with each wheel raised onto the tops of the
+    cells wholly under it (``radius``, ``half_width``: the wheel's footprint), for stability only;
+    the belly keeps the planes on the contacts as read."""
     s = px.shape[0]
     lo, hi, mid, half = np.empty(s), np.empty(s), np.empty(s), np.empty(s)
     pulls_a, pulls_b = np.empty(pull_a.shape[1]), np.empty(pull_a.shape[1])
     contact = np.empty((2, 4))
+    raised = np.empty((2, 4))
     hb, bx, by = np.empty(belly.shape[0]), px[belly], py[belly]
     nan_lo = np.zeros(4)
     on_wheel = np.zeros(4)
@@ -262,28 +301,34 @@ def check(lower: np.ndarray, upper: np.ndarray, bounded: bool, cellwise: bool, x
         _edges(lo, highs, bounded, pair_a, pair_b, pair_wheel, edge[p])
         # one corner (a pair whose wheels rest on its lows): the contacts are pinned to it
         open_box = _contacts(lo, highs, bounded, wheel_of, sag, contact) and corners.shape[0] > 1
+        if rest_tops:
+            raised[:, :] = contact
+            _raise_on_tops(upper, xmin, ymax, cell, poses[p, 0], poses[p, 1], c, si, px, py, wheel_of, hubs,
+                           radius, half_width, raised)
         for i in range(belly.shape[0]):
             hb[i] = highs[belly[i]]
         worst_in, worst_st, worst_tilt, worst_tip = -np.inf, -np.inf, 0.0, 90.0
-        for t in range(triplets.shape[0]):
-            fx, fy = hubs[triplets[t, 3], 0], hubs[triplets[t, 3], 1]
-            for k in range(corners.shape[0]):
-                z0 = contact[corners[k, 0], triplets[t, 0]]
-                z1 = contact[corners[k, 1], triplets[t, 1]]
-                z2 = contact[corners[k, 2], triplets[t, 2]]
-                pa = z0 * inv[t, 0, 0] + z1 * inv[t, 0, 1] + z2 * inv[t, 0, 2]
-                pb = z0 * inv[t, 1, 0] + z1 * inv[t, 1, 1] + z2 * inv[t, 1, 2]
-                pc = z0 * inv[t, 2, 0] + z1 * inv[t, 2, 1] + z2 * inv[t, 2, 2]
-                rests = contact[0, triplets[t, 3]] <= pa * fx + pb * fy + pc + 1e-9
-                if rests:  # the belly's ground counts only over a plane the body may rest on
-                    worst_in = max(worst_in, _under(hb, bx, by, pa, pb, pc))
-                angle = math.atan(math.hypot(pa, pb)) * _DEG
-                limit = _tip(pa, pb, fore, side, cog)
-                margin = angle - limit / safety
-                # the lean is worst at a corner of the contacts' box; which plane the body rests
-                # on there is not known, so every one counts
-                if (rests or open_box) and margin > worst_st:
-                    worst_st, worst_tilt, worst_tip = margin, angle, limit
+        for q in range(2 if rest_tops else 1):
+            rest = contact if q == 0 else raised
+            for t in range(triplets.shape[0]):
+                fx, fy = hubs[triplets[t, 3], 0], hubs[triplets[t, 3], 1]
+                for k in range(corners.shape[0]):
+                    z0 = rest[corners[k, 0], triplets[t, 0]]
+                    z1 = rest[corners[k, 1], triplets[t, 1]]
+                    z2 = rest[corners[k, 2], triplets[t, 2]]
+                    pa = z0 * inv[t, 0, 0] + z1 * inv[t, 0, 1] + z2 * inv[t, 0, 2]
+                    pb = z0 * inv[t, 1, 0] + z1 * inv[t, 1, 1] + z2 * inv[t, 1, 2]
+                    pc = z0 * inv[t, 2, 0] + z1 * inv[t, 2, 1] + z2 * inv[t, 2, 2]
+                    rests = rest[0, triplets[t, 3]] <= pa * fx + pb * fy + pc + 1e-9
+                    if rests and q == 0:  # the belly's ground counts only over a plane the body may rest on
+                        worst_in = max(worst_in, _under(hb, bx, by, pa, pb, pc))
+                    angle = math.atan(math.hypot(pa, pb)) * _DEG
+                    limit = _tip(pa, pb, fore, side, cog)
+                    margin = angle - limit / safety
+                    # the lean is worst at a corner of the contacts' box; which plane the body rests
+                    # on there is not known, so every one counts
+                    if (rests or open_box) and margin > worst_st:
+                        worst_st, worst_tilt, worst_tip = margin, angle, limit
         intrusion[p] = worst_in
         stability[p] = np.nan if worst_st == -np.inf else worst_st
         tilt[p] = worst_tilt

@@ -357,7 +357,7 @@ def _default_step(geom: GridGeometry, bounded: bool) -> float:
 
 def check_poses(heights: np.ndarray | tuple[np.ndarray, np.ndarray], geom: GridGeometry, poses: np.ndarray,
                 body: VehicleBody, step: float | None = None, cellwise: bool | None = None,
-                rest_low: bool = False) -> PoseChecks:
+                rest_low: bool = False, rest_tops: bool = False) -> PoseChecks:
     """Step, belly intrusion, stability and grade of ``body`` at each of ``poses`` ((N, 3): x, y,
     heading in degrees) on ``heights`` over ``geom``: one height grid (the truth; the finer the
     truer: 1-2 cm), read bilinearly between its cell centres, or a ``(lower, upper)`` pair of bound
@@ -382,6 +382,10 @@ def check_poses(heights: np.ndarray | tuple[np.ndarray, np.ndarray], geom: GridG
     rests on the lower surface (its highest low under the circle), one plane per pose, where bounds
     let each wheel rest anywhere between its lowest and highest contact and judge the worst corner of
     that box: a drawn pair is one ground, whose wheel rests the lows give (``chance._judge``).
+    ``rest_tops`` (on a pair): stability is also judged with each wheel raised onto the upper
+    surface's top of every cell wholly inside its footprint (a cell's top lies somewhere in the
+    cell, and such a cell holds it under the wheel), the worse of the two counting; the belly stays
+    over the planes on the lows (a wheel raised lifts the box off the ground it judges).
 
     The per-pose work is one compiled pass (:mod:`._vehicle_kernel`)."""
     lower, upper = heights if isinstance(heights, tuple) else (heights, heights)
@@ -397,7 +401,8 @@ def check_poses(heights: np.ndarray | tuple[np.ndarray, np.ndarray], geom: GridG
                         float(geom.ymax), float(geom.cell), poses, plan.px, plan.py, plan.wheel_of, plan.belly, plan.sag, plan.pair_a, plan.pair_b, plan.pair_wheel,
                         plan.ground[0], plan.ground[1], plan.pulls[0], plan.pulls[1], plan.inv, plan.triplets,
                         plan.corners[bounded and not rest_low], plan.hubs, *plan.support, float(body.cog_height),
-                        float(body.safety), edge, intrusion, tilt, tip, grade, stability, unknown)
+                        float(body.safety), edge, intrusion, tilt, tip, grade, stability, unknown, rest_tops,
+                        float(body.wheel_radius), float(body.wheel_width) / 2)
     intrusion -= body.clearance
     excess = np.column_stack([edge.max(axis=1) - body.climb, intrusion, stability, grade - body.grade])
     return PoseChecks(step=edge, intrusion=intrusion, tilt=tilt, tip=tip, grade=grade, excess=excess,

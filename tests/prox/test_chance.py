@@ -597,3 +597,23 @@ def test_a_drawn_pose_s_margin_is_its_draws_mean_excess_over_their_spread() -> N
     assert flat.screened[0] and (flat.z[0] == -np.inf).all()
     blank = known(np.full(h.shape, np.nan), 0.005)
     assert np.isnan(chance_check(blank, g, AT_ORIGIN, BODY).z[0]).all()
+
+
+def test_a_wheel_rests_on_the_tops_of_the_cells_it_covers_whole_for_stability() -> None:
+    # rough ground under the front-left wheel: cells whose returns rise 6 cm over their low (the
+    # relief a wheel rests on the peaks of). Within's rule rests it on the lows, a level body; a
+    # cell the footprint covers whole holds its top under the wheel, which tilts the body
+    g = GridGeometry.covering(-1.0, -1.0, 1.0, 1.0, 0.025)
+    xs, ys = g.centers()
+    X, Y = np.meshgrid(xs, ys)
+    hx, hy = BODY.wheels[0]
+    rough = (np.abs(X - hx) < BODY.wheel_radius) & (np.abs(Y - hy) < BODY.wheel_width / 2)
+    top = np.where(rough, 0.06, 0.0)
+    post = Posterior(top, np.full(top.shape, 0.002**2), np.full(top.shape, np.inf), span=np.where(rough, 0.06, 0.0))
+    low = chance_check(post, g, AT_ORIGIN, BODY, ChanceParams(samples=16))
+    raised = chance_check(post, g, AT_ORIGIN, BODY, ChanceParams(samples=16, rest_tops=True))
+    assert low.nominal.tilt[0] < 0.5  # resting on the lows: level
+    assert raised.nominal.tilt[0] > 5.0  # on the covered cells' tops, less the circle's sag
+    stab, belly = LIMITS.index("stability"), LIMITS.index("belly")
+    assert raised.nominal.excess[0, stab] > low.nominal.excess[0, stab] + 5.0
+    assert raised.nominal.excess[0, belly] == pytest.approx(low.nominal.excess[0, belly])
