@@ -135,22 +135,18 @@ def choose_reverse(pose: Sequence[float], options: list[ReverseOption], check: C
         else:
             c = codes_arcs[at:at + len(o.poses) - 1]
             at += len(o.poses) - 1
-        bad = np.flatnonzero((c > 0) if o.track else (c != SAFE))
-        verdicts.append(int(c[bad[0]]) if len(bad) else None)
-        if len(bad):
-            key = f"{'track back' if o.track else 'reverse arc'} {verdict_name(int(c[bad[0]]))}"
-            reasons[key] = reasons.get(key, 0) + 1
+        verdicts.append(_refusal(o, c))
+        if verdicts[-1] is not None:
+            _count(reasons, o, verdicts[-1])
     passing = sorted((i for i, v in enumerate(verdicts) if v is None and math.isfinite(cost[i])),
                      key=lambda j: (not options[j].track, cost[j]))
     while passing and verify > 0 and body is not None:
         o = options[passing[0]]
-        c = np.asarray((track_check if o.track else check)(densify(o.poses, verify, body)), int)
-        bad = np.flatnonzero((c > 0) if o.track else (c != SAFE))
-        if not len(bad):
+        refused = _refusal(o, np.asarray((track_check if o.track else check)(densify(o.poses, verify, body)), int))
+        if refused is None:
             break
         passing.pop(0)
-        key = f"{'track back' if o.track else 'reverse arc'} {verdict_name(int(c[bad[0]]))}"
-        reasons[key] = reasons.get(key, 0) + 1
+        _count(reasons, o, refused)
     if not passing:
         what = ", ".join(f"{n} {k}" for k, n in sorted(reasons.items(), key=lambda kv: -kv[1])) or "no way to the goal"
         return Choice("blocked", f"no reverse section passes ({what})", np.zeros((0, 3)), np.zeros((0, 3)),
@@ -161,6 +157,18 @@ def choose_reverse(pose: Sequence[float], options: list[ReverseOption], check: C
     return Choice("drive", f"{name} ({o.length:.2f} m) passes", o.poses, o.poses, i, i, float(cost[i]),
                   len(options), len(batch), len(options), [], reasons, curvature=o.curvature, length=o.length,
                   backward="track" if o.track else "arc")
+
+
+def _refusal(o: ReverseOption, codes: np.ndarray) -> int | None:
+    """The verdict at ``o``'s first failing pose, or None: the track back fails only on a limit
+    exceeded (ground unknown to its check does not refuse it), a reverse arc on anything not safe."""
+    bad = np.flatnonzero((codes > 0) if o.track else (codes != SAFE))
+    return int(codes[bad[0]]) if len(bad) else None
+
+
+def _count(reasons: dict[str, int], o: ReverseOption, verdict: int) -> None:
+    key = f"{'track back' if o.track else 'reverse arc'} {verdict_name(verdict)}"
+    reasons[key] = reasons.get(key, 0) + 1
 
 
 @dataclass
