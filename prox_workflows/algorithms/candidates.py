@@ -414,22 +414,9 @@ def posterior_check(post: Posterior, geom: GridGeometry, body: VehicleBody,
 
 
 def best_check(post: Posterior, geom: GridGeometry, body: VehicleBody) -> Check:
-    """The vehicle check on the posterior's best estimate of the ground as a :data:`Check`: one
-    check per pose, no draws. A pose over a cell no return bounded (a ray's ceiling alone, or
-    nothing) is UNKNOWN: a look-ahead only ranks, and the ceiling over a rock's shadow is no ground
-    (read as ground, it stands as a plateau at the height the ray grazed the rock, and the wheel's
-    rise onto it vetoed look-aheads over ground truly 9 cm under the climb: docs/NAVIGATE_BENCH.md,
-    "The look-ahead's shadows")."""
-    judged = bounds_check(post.best().astype(np.float32), geom, body)
-    seen = np.where(np.isfinite(post.mean), post.mean, np.nan).astype(np.float32)
-    pair = (seen, seen.copy())  # a pair, so that ground no bound covers makes the pose unknown
-
-    def check(poses: np.ndarray) -> np.ndarray:
-        out = judged(poses)
-        out[check_poses(pair, geom, poses, body).unknown] = UNKNOWN
-        return out
-
-    return check
+    """The vehicle check on the posterior's best estimate of the ground (a ray's ceiling where no
+    return bounds a cell; unknown where neither) as a :data:`Check`: one check per pose, no draws."""
+    return bounds_check(post.best().astype(np.float32), geom, body)
 
 
 def crop(geom: GridGeometry, xmin: float, ymin: float, xmax: float, ymax: float

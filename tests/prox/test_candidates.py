@@ -22,7 +22,6 @@ from prox_workflows.algorithms.candidates import (
     SAFE,
     CandidateParams,
     arc_tree,
-    best_check,
     bounds_check,
     choose,
     coarse_costs,
@@ -336,28 +335,3 @@ def test_the_chance_check_draws_a_section_no_further_than_its_first_refusal_and_
     # the draws: one check per pose and draw, fewer where sections stop at their first refusal (8 %
     # here: how many depends on where the draws put the first refusals)
     assert with_runs < 0.95 * sum(drawn)
-
-
-def test_a_look_ahead_over_a_rocks_shadow_is_unknown_not_a_step_up_to_the_ray() -> None:
-    """Behind a rock the mast sees only rays that grazed its top: the ground there lies under them,
-    nowhere near them on open ground. Read as ground, the ceiling is a plateau that tilts the body
-    and lifts a wheel; the best estimate's check calls that pose unknown (a cost, never a veto), and the same
-    plateau seen by returns is still over a limit."""
-    g = GridGeometry.covering(-1.0, -1.0, 2.0, 1.0, 0.025)
-    xs, ys = g.centers()
-    X, Y = np.meshgrid(xs, ys)
-    mean = np.zeros(g.shape)
-    rock = (X > 0.8) & (X < 0.95) & (np.abs(Y) < 0.15)
-    mean[rock] = 0.18
-    shadow = (X >= 0.95) & (X < 1.4) & (np.abs(Y) < 0.15)
-    ceiling = np.full(g.shape, np.inf)
-    ceiling[shadow] = 0.17 - 0.2 * (X[shadow] - 0.95)  # the rays' slope down from the rock's top
-    mean[shadow] = np.nan
-    truth = np.where(rock, 0.18, 0.0)  # flat ground behind it
-    post = Posterior(mean, np.full(g.shape, 0.003**2), ceiling)
-    pose = np.array([[1.25, 0.2, 90.0]])  # the right wheels' footprints in the shadow, the left on open ground
-    assert check_poses(truth, g, pose, BODY).safe.all()  # truly safe
-    assert bounds_check(post.best().astype(np.float32), g, BODY)(pose)[0] > SAFE  # over a limit on the ceiling
-    assert best_check(post, g, BODY)(pose)[0] == -1  # unknown
-    seen = Posterior(np.where(shadow, ceiling, mean), post.var, np.full(g.shape, np.inf))
-    assert best_check(seen, g, BODY)(pose)[0] > SAFE  # the same heights from returns: over a limit
