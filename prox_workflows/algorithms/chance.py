@@ -91,7 +91,8 @@ errors), which makes the chance that any cell under the body lies outside them a
 and is not sampled. That check also says which poses are ``unknown``: ground under the body with no
 upper bound (no return, no ray over it), or a wheel mostly over ground with no return, by the same
 rule as the worst-case check. A ray's ceiling with no return stands in as the ground's height in
-the samples: the highest it may be.
+the samples: the highest it may be (``under_ray``: anywhere between the ground seen round it and
+the ray, each draw its own).
 """
 
 from __future__ import annotations
@@ -134,7 +135,8 @@ class ChanceParams(Settings):
                                  "3.4e-4). 5e-5 makes 0 / 3 / 3 (bounds up to 1.7e-4) and keeps 1.6-2.8 points "
                                  "fewer, but stops marsyard's mission 0 6.3 m short where 3e-4 reaches it: reach "
                                  "traded for margin (docs/NAVIGATE_BENCH.md, Dense's stated risk: epsilon chosen "
-                                 "on the pose-level statistics)", min=1e-9, max=0.5)
+                                 "on the pose-level statistics). On fresh draws 310-323, 22,120 / 22,050 / 20,561 judged poses: "
+                                 "1 / 1 / 4 false safes, 95 % bounds 2.1e-4 / 2.2e-4 / 4.5e-4", min=1e-9, max=0.5)
     samples: int = param(64, "surfaces drawn from the cells' posteriors for each check (a normal tail over "
                              "their excesses reaches probabilities below 1 / samples)", min=8, max=4096)
     seed: int = param(0, "seed of the drawn surfaces: the same map and poses give the same verdict",
@@ -175,6 +177,15 @@ class ChanceParams(Settings):
                                "marsyard / hirise / dense draws 125-139 where 1 has 0 / 4 / 9 in 24,121 / 23,072 / "
                                "22,456 (docs/NAVIGATE_BENCH.md, Dense's false safes traced)", min=0.0, max=1.0)
 
+    under_ray: float = param(0.0, "where only a ray's ceiling bounds a cell (no return: a rock's shadow, the blind "
+                                  "disc's rim), how far under the ceiling its ground may lie: 0, at the ceiling, the "
+                                  "highest it may be; 1, anywhere between the lowest top seen within 0.2 m and the "
+                                  "ceiling, uniformly (each draw its own; the best estimate halfway). At the "
+                                  "ceiling a shadow's edge reads as a step up to the ray, which refused 66 of "
+                                  "marsyard mission 1's 74 section step refusals, all on truly safe ground; as no "
+                                  "edge at all it let a rock's hidden back (a 20 cm step at dense draw 310) pass "
+                                  "(docs/NAVIGATE_BENCH.md, A ray's ceiling: no ground, no edge, or between)",
+                            min=0.0, max=1.0)
     rest_tops: bool = param(False, "with within above 0: stability is also judged with each wheel raised onto the "
                                    "top of every cell wholly inside its footprint (a cell's top lies somewhere in "
                                    "it; within's low is right for a cell the footprint's edge cuts, not for one the "
@@ -182,8 +193,9 @@ class ChanceParams(Settings):
                                    "On untuned draws 300-309: hirise's false safes 5 to 3 (95 % bound 6.5e-4 to "
                                    "4.8e-4, its two stability misses on rough 23-30 deg slopes gone), marsyard 0 "
                                    "and dense 1 as before, 0.1-0.2 points fewer truly safe kept; raised for the belly "
-                                   "as well, hirise's belly misses rose 2 to 8 (docs/NAVIGATE_BENCH.md). Not yet the "
-                                   "default: its missions are not measured")
+                                   "as well, hirise's belly misses rose 2 to 8 (docs/NAVIGATE_BENCH.md). Off: on fresh "
+                                   "draws 310-323 it changes no false safe, and marsyard's missions 0-4 and hirise's "
+                                   "0 run the same with it")
 
 
 @dataclass(frozen=True)
@@ -375,7 +387,8 @@ def chance_check(post: Posterior, geom: GridGeometry, poses: np.ndarray, body: V
     mu = post.mean
     seen = np.isfinite(mu)
     sd, shared, common, roof = _spreads(post)
-    best = np.where(seen, mu, roof)
+    depth = _under_ray(post, geom, roof, p.under_ray)
+    best = np.where(seen, mu, roof - depth / 2)
     span = None if post.span is None else np.where(seen, post.span, 0.0)
     ks = screen_k(body, step or geom.cell, p.epsilon)
     cell_sd = np.hypot(sd, shared) + common  # each cell's own and its neighbours' errors are one normal
@@ -411,7 +424,7 @@ def chance_check(post: Posterior, geom: GridGeometry, poses: np.ndarray, body: V
         for s in range(p.samples):
             if not live.any():
                 continue
-            surface = _surface(mu, sd, shared, common, roof, _draw(p.seed, s, geom, p.shared_length))
+            surface = _surface(mu, sd, shared, common, roof, _draw(p.seed, s, geom, p.shared_length), depth)
             excess[s, live] = _judge(surface, seen, span, geom, poses[rest[live]], body, step, p.rest_tops).excess
             if early and s % EARLY == EARLY - 1:
                 # one draw over a limit in ``samples`` is a share of at least 1 / samples, above
@@ -468,10 +481,26 @@ def _spreads(post: Posterior) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.nd
             np.where(seen, post.common, 0.0), np.where(np.isfinite(post.ceiling), post.ceiling, np.nan))
 
 
+def _under_ray(post: Posterior, geom: GridGeometry, roof: np.ndarray, share: float) -> np.ndarray:
+    """How far under its ceiling a cell no return bounded may lie (``ChanceParams.under_ray``
+    times the ceiling's height over the lowest top seen within ROCK_WINDOW; 0 where a return
+    bounds the cell or none is seen near)."""
+    if share <= 0:
+        return np.zeros(roof.shape)
+    size = 2 * max(1, int(round(ROCK_WINDOW / 2 / geom.cell))) + 1
+    floor = minimum_filter(np.where(np.isfinite(post.mean), post.mean, np.inf), size=size, mode="nearest")
+    with np.errstate(invalid="ignore"):
+        depth = np.where(~np.isfinite(post.mean) & np.isfinite(roof) & np.isfinite(floor), roof - floor, 0.0)
+    return share * np.maximum(depth, 0.0)
+
+
 def _surface(mu: np.ndarray, sd: np.ndarray, shared: np.ndarray, common: np.ndarray, roof: np.ndarray,
-             drawn: tuple[np.ndarray, np.ndarray, float]) -> np.ndarray:
+             drawn: tuple[np.ndarray, np.ndarray, float], depth: np.ndarray | float = 0.0) -> np.ndarray:
     z, field, once = drawn
-    return np.where(np.isfinite(mu), mu + sd * z + shared * field + common * once, roof).astype(np.float32)
+    # a cell only a ray bounds: its ground uniformly within ``depth`` under the ray (its own normal,
+    # unused there, made uniform)
+    under = roof - depth * ndtr(-z) if np.ndim(depth) else roof
+    return np.where(np.isfinite(mu), mu + sd * z + shared * field + common * once, under).astype(np.float32)
 
 
 def surfaces(post: Posterior, geom: GridGeometry, params: ChanceParams | None = None) -> Iterator[np.ndarray]:
@@ -479,8 +508,9 @@ def surfaces(post: Posterior, geom: GridGeometry, params: ChanceParams | None = 
     (a trace reads the very draws the check refused on)."""
     p = params or ChanceParams()
     sd, shared, common, roof = _spreads(post)
+    depth = _under_ray(post, geom, roof, p.under_ray)
     for s in range(p.samples):
-        yield _surface(post.mean, sd, shared, common, roof, _draw(p.seed, s, geom, p.shared_length))
+        yield _surface(post.mean, sd, shared, common, roof, _draw(p.seed, s, geom, p.shared_length), depth)
 
 
 def _draw(seed: int, s: int, geom: GridGeometry, length: float = 0.0) -> tuple[np.ndarray, np.ndarray, float]:

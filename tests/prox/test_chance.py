@@ -617,3 +617,37 @@ def test_a_wheel_rests_on_the_tops_of_the_cells_it_covers_whole_for_stability() 
     stab, belly = LIMITS.index("stability"), LIMITS.index("belly")
     assert raised.nominal.excess[0, stab] > low.nominal.excess[0, stab] + 5.0
     assert raised.nominal.excess[0, belly] == pytest.approx(low.nominal.excess[0, belly])
+
+
+def shadow_beside_a_wheel(ceiling: float) -> tuple[Posterior, GridGeometry]:
+    """Flat ground known to 3 mm and, in the front-left wheel's lane ahead of its hub, a strip no
+    return met under rays ``ceiling`` up (a rock's shadow, the blind disc's rim), as wide as the
+    wheel, 5 cm deep: most of the wheel rests on seen ground."""
+    g, X, Y = grid()
+    h = np.zeros(g.shape)
+    hx, hy = BODY.wheels[0]
+    roof = np.full(h.shape, np.inf)
+    strip = (X > hx + 0.05) & (X < hx + 0.1) & (np.abs(Y - hy) < BODY.wheel_width / 2)
+    h[strip], roof[strip] = np.nan, ceiling
+    return Posterior(h, np.full(h.shape, 0.003**2), roof, span=np.zeros(h.shape)), g
+
+
+
+def test_ground_under_a_ray_is_drawn_between_the_ground_round_it_and_the_ray() -> None:
+    # at the ray (under_ray 0) every draw puts the shadow's ground 12 cm up, a step over the
+    # climb at its edge wherever the truth is flat; drawn between the lowest top seen within
+    # 0.2 m and the ray, its draws spread evenly over that depth
+    post, g = shadow_beside_a_wheel(0.12)
+    strip = ~np.isfinite(post.mean) & np.isfinite(post.ceiling)
+    at_ray = np.array([s[strip] for s in surfaces(post, g, ChanceParams(samples=200))])
+    assert np.allclose(at_ray, 0.12)
+    under = np.array([s[strip] for s in surfaces(post, g, ChanceParams(samples=200, under_ray=1.0))])
+    assert under.min() >= 0.0 and under.max() <= 0.12 + 1e-6
+    assert np.mean(under) == pytest.approx(0.06, abs=0.006)  # uniform over the 12 cm
+    assert np.mean(under > 0.10) == pytest.approx(2 / 12, abs=0.03)  # the share that hides a step
+    # a rock's hidden back under rays 25 cm up is refused either way: it may hide a step the
+    # wheel cannot climb
+    post, g = shadow_beside_a_wheel(0.25)
+    for share in (0.0, 1.0):
+        c = chance_check(post, g, AT_ORIGIN, BODY, ChanceParams(under_ray=share))
+        assert not c.safe[0] and not c.unknown[0] and c.prob[0, STEP] > c.epsilon
