@@ -135,8 +135,9 @@ class ChanceParams(Settings):
                                  "3.4e-4). 5e-5 makes 0 / 3 / 3 (bounds up to 1.7e-4) and keeps 1.6-2.8 points "
                                  "fewer, but stops marsyard's mission 0 6.3 m short where 3e-4 reaches it: reach "
                                  "traded for margin (docs/NAVIGATE_BENCH.md, Dense's stated risk: epsilon chosen "
-                                 "on the pose-level statistics). On fresh draws 310-323, 22,120 / 22,050 / 20,561 judged poses: "
-                                 "1 / 1 / 4 false safes, 95 % bounds 2.1e-4 / 2.2e-4 / 4.5e-4", min=1e-9, max=0.5)
+                                 "on the pose-level statistics). On fresh draws 310-337, 44,268 / 43,567 / 41,395 judged poses: "
+                                 "2 / 2 / 10 false safes, 95 % bounds 1.4e-4 / 1.5e-4 / 4.1e-4 (dense's 14 looks "
+                                 "324-337 alone: 5.7e-4)", min=1e-9, max=0.5)
     samples: int = param(64, "surfaces drawn from the cells' posteriors for each check (a normal tail over "
                              "their excesses reaches probabilities below 1 / samples)", min=8, max=4096)
     seed: int = param(0, "seed of the drawn surfaces: the same map and poses give the same verdict",
@@ -183,7 +184,9 @@ class ChanceParams(Settings):
                                   "ceiling, uniformly (each draw its own; the best estimate halfway). At the "
                                   "ceiling a shadow's edge reads as a step up to the ray, which refused 66 of "
                                   "marsyard mission 1's 74 section step refusals, all on truly safe ground; as no "
-                                  "edge at all it let a rock's hidden back (a 20 cm step at dense draw 310) pass "
+                                  "edge at all it let a rock's hidden back (a 20 cm step at dense draw 310) pass. At 1 "
+                                  "it keeps 2-8 points more of the truly safe poses and passes that step at P "
+                                  "2.7e-4; on fresh draws 324-337 dense's 95 % bound rises 5.7e-4 to 7.5e-4 "
                                   "(docs/NAVIGATE_BENCH.md, A ray's ceiling: no ground, no edge, or between)",
                             min=0.0, max=1.0)
     rest_tops: bool = param(False, "with within above 0: stability is also judged with each wheel raised onto the "
