@@ -484,12 +484,12 @@ def _spreads(post: Posterior) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.nd
             np.where(seen, post.common, 0.0), np.where(np.isfinite(post.ceiling), post.ceiling, np.nan))
 
 
-def _under_ray(post: Posterior, geom: GridGeometry, roof: np.ndarray, share: float) -> np.ndarray:
+def _under_ray(post: Posterior, geom: GridGeometry, roof: np.ndarray, share: float) -> np.ndarray | float:
     """How far under its ceiling a cell no return bounded may lie (``ChanceParams.under_ray``
     times the ceiling's height over the lowest top seen within ROCK_WINDOW; 0 where a return
-    bounds the cell or none is seen near)."""
+    bounds the cell or none is seen near; 0.0 when ``share`` is: the draws read the ceiling)."""
     if share <= 0:
-        return np.zeros(roof.shape)
+        return 0.0
     size = 2 * max(1, int(round(ROCK_WINDOW / 2 / geom.cell))) + 1
     floor = minimum_filter(np.where(np.isfinite(post.mean), post.mean, np.inf), size=size, mode="nearest")
     with np.errstate(invalid="ignore"):

@@ -632,7 +632,6 @@ def shadow_beside_a_wheel(ceiling: float) -> tuple[Posterior, GridGeometry]:
     return Posterior(h, np.full(h.shape, 0.003**2), roof, span=np.zeros(h.shape)), g
 
 
-
 def test_ground_under_a_ray_is_drawn_between_the_ground_round_it_and_the_ray() -> None:
     # at the ray (under_ray 0) every draw puts the shadow's ground 12 cm up, a step over the
     # climb at its edge wherever the truth is flat; drawn between the lowest top seen within
