@@ -118,6 +118,9 @@ __all__ = ["ChanceParams", "ChanceChecks", "Posterior", "posterior", "chance_che
 EARLY = 8  # draws between the checks for a pose already refused (``verdict_only``)
 SCREEN = 0.1  # the share of epsilon the screen may spend: a pose it clears has P(any) below this times epsilon
 ROCK_WINDOW = 0.2  # m: the ground round a cell its rock stands on
+# m: a rock's back the mast cannot see goes on this far past its seen cells (dense draw 310: its
+# hidden 20 cm step under rays 2.5-3.5 cm from the seen top, open ground 5-7.5 cm from it)
+HIDDEN_BACK = 0.05
 TILE = 256  # cells: the drawn errors repeat this far apart (6.4 m at 2.5 cm; a body reads less than 1 m)
 _MIN_ELEVATION = 0.05  # tan: a ray grazing flatter than this is taken at it (its horizontal error is bounded by shift)
 
@@ -181,7 +184,9 @@ class ChanceParams(Settings):
     under_ray: float = param(0.0, "where only a ray's ceiling bounds a cell (no return: a rock's shadow, the blind "
                                   "disc's rim), how far under the ceiling its ground may lie: 0, at the ceiling, the "
                                   "highest it may be; 1, anywhere between the lowest top seen within 0.2 m and the "
-                                  "ceiling, uniformly (each draw its own; the best estimate halfway). At the "
+                                  "ceiling, uniformly (each draw its own; the best estimate halfway), except within "
+                                  "5 cm of a seen rock standing over the middle of that depth, whose back may go on "
+                                  "under the ray (the ceiling kept there). At the "
                                   "ceiling a shadow's edge reads as a step up to the ray, which refused 66 of "
                                   "marsyard mission 1's 74 section step refusals, all on truly safe ground; as no "
                                   "edge at all it let a rock's hidden back (a 20 cm step at dense draw 310) pass. At 1 "
@@ -487,14 +492,20 @@ def _spreads(post: Posterior) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.nd
 def _under_ray(post: Posterior, geom: GridGeometry, roof: np.ndarray, share: float) -> np.ndarray | float:
     """How far under its ceiling a cell no return bounded may lie (``ChanceParams.under_ray``
     times the ceiling's height over the lowest top seen within ROCK_WINDOW; 0 where a return
-    bounds the cell or none is seen near; 0.0 when ``share`` is: the draws read the ceiling)."""
+    bounds the cell, none is seen near, or a rock seen within HIDDEN_BACK may go on under the
+    ray; 0.0 when ``share`` is: the draws read the ceiling)."""
     if share <= 0:
         return 0.0
+    seen = np.isfinite(post.mean)
     size = 2 * max(1, int(round(ROCK_WINDOW / 2 / geom.cell))) + 1
-    floor = minimum_filter(np.where(np.isfinite(post.mean), post.mean, np.inf), size=size, mode="nearest")
+    floor = minimum_filter(np.where(seen, post.mean, np.inf), size=size, mode="nearest")
+    near = 2 * max(1, int(round(HIDDEN_BACK / geom.cell))) + 1
+    top = maximum_filter(np.where(seen, post.mean, -np.inf), size=near, mode="nearest")
     with np.errstate(invalid="ignore"):
-        depth = np.where(~np.isfinite(post.mean) & np.isfinite(roof) & np.isfinite(floor), roof - floor, 0.0)
-    return share * np.maximum(depth, 0.0)
+        depth = np.where(~seen & np.isfinite(roof) & np.isfinite(floor), np.maximum(roof - floor, 0.0), 0.0)
+        # a rock seen within HIDDEN_BACK standing over the middle of that depth may go on under the ray
+        depth[top > floor + depth / 2] = 0.0
+    return share * depth
 
 
 def _surface(mu: np.ndarray, sd: np.ndarray, shared: np.ndarray, common: np.ndarray, roof: np.ndarray,

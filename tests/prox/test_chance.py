@@ -650,3 +650,13 @@ def test_ground_under_a_ray_is_drawn_between_the_ground_round_it_and_the_ray() -
     for share in (0.0, 1.0):
         c = chance_check(post, g, AT_ORIGIN, BODY, ChanceParams(under_ray=share))
         assert not c.safe[0] and not c.unknown[0] and c.prob[0, STEP] > c.epsilon
+
+    # beside a rock seen in the next cell, 20 cm up, the ground under the ray may be the rock's back
+    # the mast does not see: there the draws keep the ceiling
+    post, g = shadow_beside_a_wheel(0.12)
+    mean = post.mean.copy()
+    r, c = np.argwhere(strip)[0]
+    mean[r, c - 1] = 0.2
+    rock = Posterior(mean, post.var, post.ceiling, span=post.span)
+    drawn = np.array([s[r, c] for s in surfaces(rock, g, ChanceParams(samples=50, under_ray=1.0))])
+    assert np.allclose(drawn, 0.12)
