@@ -189,9 +189,11 @@ class ChanceParams(Settings):
                                   "under the ray (the ceiling kept there). At the "
                                   "ceiling a shadow's edge reads as a step up to the ray, which refused 66 of "
                                   "marsyard mission 1's 74 section step refusals, all on truly safe ground; as no "
-                                  "edge at all it let a rock's hidden back (a 20 cm step at dense draw 310) pass. At 1 "
-                                  "it keeps 2-8 points more of the truly safe poses and passes that step at P "
-                                  "2.7e-4; on fresh draws 324-337 dense's 95 % bound rises 5.7e-4 to 7.5e-4 "
+                                  "edge at all it let a rock's hidden back (a 20 cm step at dense draw 310) pass. "
+                                  "Without the 5 cm rule, 1 kept 2-8 points more of the truly safe poses and "
+                                  "raised dense's 95 % bound on draws 324-337 from 5.7e-4 to 7.5e-4; with it, the "
+                                  "same false safes as 0 over draws 300-337 and 0.5-1.1 points more kept, the rim "
+                                  "cells beside a standing rover read at the ceiling as before: off "
                                   "(docs/NAVIGATE_BENCH.md, A ray's ceiling: no ground, no edge, or between)",
                             min=0.0, max=1.0)
     rest_tops: bool = param(False, "with within above 0: stability is also judged with each wheel raised onto the "
