@@ -338,10 +338,15 @@ def prior_correlation(d: np.ndarray | float, params: ChanceParams | None = None)
 def relief(top: np.ndarray, geom: GridGeometry) -> np.ndarray:
     """H per cell: how far its ``top`` stands over the lowest top within ROCK_WINDOW (0 where no
     top): a rock's height over the ground it stands on, or a slope's rise over the window."""
-    size = 2 * max(1, int(round(ROCK_WINDOW / 2 / geom.cell))) + 1
-    low = minimum_filter(np.where(np.isfinite(top), top, np.inf), size=size, mode="nearest")
+    low = _lowest_top(top, geom)
     with np.errstate(invalid="ignore"):
         return np.where(np.isfinite(top), np.maximum(top - low, 0.0), 0.0)
+
+
+def _lowest_top(top: np.ndarray, geom: GridGeometry) -> np.ndarray:
+    """The lowest ``top`` within ROCK_WINDOW of each cell (inf where none): the ground its rock stands on."""
+    size = 2 * max(1, int(round(ROCK_WINDOW / 2 / geom.cell))) + 1
+    return minimum_filter(np.where(np.isfinite(top), top, np.inf), size=size, mode="nearest")
 
 
 def headroom(stats: dict[str, np.ndarray], top: np.ndarray) -> np.ndarray:
@@ -499,8 +504,7 @@ def _under_ray(post: Posterior, geom: GridGeometry, roof: np.ndarray, share: flo
     if share <= 0:
         return 0.0
     seen = np.isfinite(post.mean)
-    size = 2 * max(1, int(round(ROCK_WINDOW / 2 / geom.cell))) + 1
-    floor = minimum_filter(np.where(seen, post.mean, np.inf), size=size, mode="nearest")
+    floor = _lowest_top(post.mean, geom)
     near = 2 * max(1, int(round(HIDDEN_BACK / geom.cell))) + 1
     top = maximum_filter(np.where(seen, post.mean, -np.inf), size=near, mode="nearest")
     with np.errstate(invalid="ignore"):
