@@ -18,7 +18,7 @@ from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
-from support.marks import LONG, long, long_test
+from support.marks import long_test
 from support.proc_probes import fd_count, listening_addresses, rss_kb
 from support.reliability_figures import percentile, record
 from support.server import FAST, LineClient, wait_for
@@ -391,6 +391,7 @@ def test_slow_and_silent_clients_do_not_slow_the_others(child: ServerProcess) ->
     assert st.status == "OK" and st.fields["clients"] == "1"  # the flooder was dropped, the others left
 
 
+@long_test  # the default run's E_TOOLONG: test_server.py and test_server_edges.py; this one's memory and 6 MB in CI
 def test_1mb_lines_are_e_toolong_and_cost_nothing(child: ServerProcess) -> None:
     pid = child.proc.pid
     mb = 1 << 20
@@ -459,12 +460,12 @@ def test_protected_keys_cannot_be_set_at_run_time(server_factory) -> None:
     assert c.request("logbook -name here").fields["file"] == "shared/here.log"
 
 
-@long
+@long_test  # the default run: test_a_pipelining_client_is_served_in_turns, the same turns in process
 def test_a_pipelining_client_does_not_slow_the_others(child: ServerProcess) -> None:
-    """A client that sends 50,000 requests at once (200,000 with RVS_LONG=1) and then reads them: it
+    """A client that sends 200,000 requests at once and then reads them: it
     gets every answer in order, and five other clients are answered meanwhile. (That it is served in
     turns with the others: test_a_pipelining_client_is_served_in_turns. Round trips: recorded.)"""
-    n = 200_000 if LONG else 50_000
+    n = 200_000
     measured: list[float] = []
 
     async def main() -> int:
