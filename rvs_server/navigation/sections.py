@@ -62,6 +62,7 @@ from prox_workflows.algorithms.candidates import (
     coarse_costs,
     cost_to_go,
     crop,
+    over_rays,
     posterior_check,
     verdict_name,
 )
@@ -178,8 +179,9 @@ def choose_from(bounds: BoundsMap, pose: tuple[float, float, float], goal: tuple
             lookahead = best_check(post, wg, body)
     else:
         check = bounds_check((stats["lower"], stats["upper"]), wg, body)
+    rays = over_rays(stats["mean"], stats["ceiling"], wg, body) if params.ray_looks else None
     choice = choose(pose, (stats["lower"], stats["upper"]), wg, body, ctg, check, params, lookahead,
-                    dead_end_penalty(dead_ends, dead_end_cost))
+                    dead_end_penalty(dead_ends, dead_end_cost), rays)
     return choice, float(ctg.at(np.array([pose[0]]), np.array([pose[1]]))[0])
 
 
@@ -222,8 +224,11 @@ class Chooser:
         self.rounds.append((pose[0], pose[1]))
         self.d.look_round()
 
-    def _choose(self, pose: tuple[float, float, float], look_cost: float | None) -> tuple[Choice, float]:
+    def _choose(self, pose: tuple[float, float, float], look_cost: float | None,
+                ray_looks: bool = True) -> tuple[Choice, float]:
         params = self.params if look_cost is None else dataclasses.replace(self.params, look_cost=look_cost)
+        if not ray_looks:
+            params = dataclasses.replace(params, ray_looks=False)
         bounds = self.d.bounds
         self.d.app.bus.publish("bounds", bounds=bounds, replan=True)  # what this choice reads
         self.dead_ends = [e for e in self.dead_ends
@@ -296,14 +301,19 @@ class Chooser:
             self._start_turn(leg)
             pose = d.pose()
         look_cost: float | None = None
+        ray_looks = True
         for _ in range(LOOKS + 2):
             job.check()
-            choice, togo = self._choose(pose, look_cost)
+            choice, togo = self._choose(pose, look_cost, ray_looks)
             if choice.status == "drive":
                 break
             if choice.status == "look":
                 x, y = choice.look_at or (pose[0], pose[1])
-                if look_cost is None and d.look_at(x, y, pose):
+                ground = "ground only a ray bounds" if choice.look_for == "ray" else "unseen ground"
+                if look_cost is None and d.look_at(x, y, pose, ground):
+                    continue
+                if choice.look_for == "ray":  # looked from here: the ground a ray bounds is judged as it is
+                    ray_looks = False
                     continue
                 if not self._looked_round_here(pose):
                     self._look_round(pose)

@@ -330,16 +330,16 @@ class SeeingDriver:
         """The ToF's field of view and the PTU's reach, for the look planner."""
         return View.of_ptu(self.app.devices.get("ptu").limits(), FOV_H_DEG, FOV_V_DEG)
 
-    def look_at(self, x: float, y: float, pose: tuple[float, float, float]) -> bool:
+    def look_at(self, x: float, y: float, pose: tuple[float, float, float], what: str = "unseen ground") -> bool:
         """One frame (``see_look_frames`` averaged), standing, toward ground point (x, y)
         (:func:`looks.look_at`, tilted no lower than the PTU goes and no higher than
-        ``see_tilt``). False (no frame) when the rover looked from about here already
-        (:func:`looks.looked_from_here`)."""
+        ``see_tilt``); ``what`` the ground is, for the progress line. False (no frame) when the
+        rover looked from about here already (:func:`looks.looked_from_here`)."""
         if looks.looked_from_here(self.looked_from, pose):
             return False
         self.looked_from = pose
         self.stats.looks += 1
-        self.job.progress(0, 1, f"looking at unseen ground ({x:.2f}, {y:.2f}) before driving onto it", phase="drive")
+        self.job.progress(0, 1, f"looking at {what} ({x:.2f}, {y:.2f}) before driving onto it", phase="drive")
         self._point(*looks.look_at(pose, x, y, self.head, self._lowest_tilt(), self.p.tilt))
         self.see(self.pan_tilt, (), self.p.look_frames)  # the body's cameras saw this cycle's ground already
         self.job.check()

@@ -27,7 +27,8 @@ def _at_first_choice(monkeypatch: pytest.MonkeyPatch) -> dict[str, Any]:
     seen: dict[str, Any] = {}
     choose = sections.Chooser._choose
 
-    def first(self: sections.Chooser, pose: tuple[float, float, float], look_cost: float | None) -> Any:
+    def first(self: sections.Chooser, pose: tuple[float, float, float], look_cost: float | None,
+              ray_looks: bool = True) -> Any:
         if not seen:
             d = self.d
             fx, fy, radius = d.blind_disc()
@@ -43,7 +44,7 @@ def _at_first_choice(monkeypatch: pytest.MonkeyPatch) -> dict[str, Any]:
             seen.update(pose=pose, ring=int((disc & ~body).sum()), ring_framed=int((disc & ~body & framed).sum()),
                         body=int((disc & body).sum()), prior=int((disc & np.isfinite(d.bounds.mean) & ~framed).sum()))
             raise ProtocolError("E_DATA", STOP)  # the start is what is measured: no drive after it
-        return choose(self, pose, look_cost)
+        return choose(self, pose, look_cost, ray_looks)
 
     monkeypatch.setattr(sections.Chooser, "_choose", first)
     return seen

@@ -26,6 +26,7 @@ from prox_workflows.algorithms.candidates import (
     choose,
     coarse_costs,
     cost_to_go,
+    over_rays,
     posterior_check,
 )
 from prox_workflows.algorithms.chance import Posterior
@@ -180,6 +181,53 @@ def test_with_unseen_ground_ahead_it_commits_nothing_and_asks_to_look_there() ->
     # the same ground seen: it drives
     w.unseen[:] = False
     assert w.choose((0.0, 0.0, 0.0), (5.0, 0.0)).status == "drive"
+
+
+def test_a_refusal_on_ground_only_a_ray_bounds_asks_for_a_look_there_first() -> None:
+    """A limit judged where no return met the ground, only a ray's ceiling over it, is judged on
+    the ground's highest possible: a path refused there that ranks before every passing one by
+    more than the price of a look asks for that look; on ground frames bounded, the refusal
+    stands; priced over the gap, the rover drives the passing path."""
+    w = World()
+    heights = w.bounds()
+    cost, cg = coarse_costs(heights, w.g, BODY)
+    ctg = cost_to_go(cost, cg, (5.0, 0.0))
+    xs, ys = w.g.centers()
+    X, Y = np.meshgrid(xs, ys)
+    patch = (X > 1.6) & (X < 2.0) & (np.abs(Y) < 0.9)  # 1.6-2.0 m straight ahead, across the way to the goal
+    mean = np.zeros(w.g.shape)
+    ceiling = np.full(w.g.shape, np.inf)
+    mean[patch], ceiling[patch] = np.nan, 0.12  # a ray 12 cm up passed over it, no return met it
+
+    def check(poses: np.ndarray) -> np.ndarray:  # what the ceiling gives there: a step over the climb
+        return np.where((np.abs(poses[:, 0] - 1.8) < 0.45) & (np.abs(poses[:, 1]) < 1.1), 1, SAFE)
+
+    rays = over_rays(mean, ceiling, w.g, BODY)
+    # the box over the patch (the middle of what it covers of it), beside it, short of it, and its
+    # front edge (0.255 m ahead of its centre) over the patch's first cells
+    at = rays(np.array([[1.8, 0.0, 0.0], [1.8, 1.2, 0.0], [1.2, 0.0, 0.0], [1.4, 0.0, 0.0]]))
+    assert at[0] == pytest.approx([1.8, 0.0], abs=0.03)
+    assert np.isnan(at[1]).all() and np.isnan(at[2]).all()
+    assert 1.6 < at[3][0] < 1.66 and abs(at[3][1]) < 0.01
+
+    def pick(rays_=None, **kw):  # noqa: ANN001, ANN202
+        return choose((0.0, 0.0, 0.0), heights, w.g, BODY, ctg, check, CandidateParams(**kw), rays=rays_)
+
+    without = pick()
+    assert without.status == "drive" and without.rank > 0 and without.failures[0].rank == 0
+    gap = without.cost - 5.0  # what going round costs over the straight way (5 m to the goal)
+    assert 0.5 < gap < 5.0
+    c = pick(rays, ray_look_cost=gap / 2)
+    assert c.status == "look" and c.look_for == "ray" and len(c.poses) == 0, c.reason
+    assert "a ray bounds" in c.reason
+    x, y = c.look_at  # at the patch, not at the refused pose's centre
+    assert 1.6 < x < 2.0 and abs(y) < 0.9
+    # the same refusal on ground a frame bounded: no look, the passing path is driven
+    framed = pick(over_rays(np.zeros(w.g.shape), ceiling, w.g, BODY), ray_look_cost=gap / 2)
+    assert framed.status == "drive" and framed.rank == without.rank
+    # a look priced over what ranking past the refused paths costs: the passing path is driven
+    dear = pick(rays, ray_look_cost=gap * 1.5)
+    assert dear.status == "drive" and dear.rank == without.rank
 
 
 def test_unseen_ground_beyond_the_section_is_a_cost_not_a_refusal() -> None:
