@@ -164,9 +164,8 @@ class CandidateParams(Settings):
                                   "if it ranks before every passing path by more than ray_look_cost: the ray's "
                                   "ceiling is the ground's highest possible, and a frame from here shows most "
                                   "such ground")
-    ray_look_cost: float = param(0.3, "the price of that look, in metres of driving: one frame toward the refused "
-                                      "pose, the mast's slew and the frames averaged (a few seconds), never a look "
-                                      "round", unit="m", min=0.0, max=100.0)
+    ray_look_cost: float = param(0.3, "the price of that look, in metres of driving: one frame toward that ground, "
+                                      "the mast's slew and the frames averaged (a few seconds), never a look round", unit="m", min=0.0, max=100.0)
     batch: int = param(4, "candidates in the first batch sent to the check; each later batch doubles, up to 64",
                        min=1, max=1024)
     max_poses: int = param(0, "the most poses one call sends to the check before it gives up with 'blocked' "
