@@ -105,7 +105,7 @@ from .chance import ChanceParams, Posterior, chance_check
 from .vehicle import LIMITS, VehicleBody, check_poses, densify, reach
 
 __all__ = ["CandidateParams", "ArcTree", "CostToGo", "Choice", "Failure", "Check", "arc_tree", "coarse_costs",
-           "cost_to_go", "bounds_check", "posterior_check", "best_check", "over_rays", "crop", "choose", "SAFE", "UNKNOWN", "verdict_name", "UNKNOWN_COST"]
+           "cost_to_go", "bounds_check", "posterior_check", "best_check", "over_rays", "LOOK_GROUND", "crop", "choose", "SAFE", "UNKNOWN", "verdict_name", "UNKNOWN_COST"]
 
 # A check's per-pose verdicts: SAFE, UNKNOWN, or 1 + the index in LIMITS of the limit exceeded worst.
 SAFE = 0
@@ -113,6 +113,8 @@ UNKNOWN = -1
 Check = Callable[[np.ndarray], np.ndarray]  # (N, 3) poses x, y, heading deg -> (N,) int verdicts
 _PARTS = ("turn", "section", "beyond")
 PROBE = 0.2  # m between the poses where the ranking reads the map
+# what a look is for (Choice.look_for), as the progress lines and reasons name it
+LOOK_GROUND = {"unseen": "unseen ground", "ray": "ground only a ray bounds"}
 
 
 def verdict_name(code: int) -> str:
@@ -835,11 +837,12 @@ def _none(status: str, reason: str, total: int) -> Choice:
 
 def _look(fail: Failure, at: tuple[float, float], checked: int, poses_checked: int, total: int,
           failures: list[Failure]) -> Choice:
-    ground = "unseen ground" if fail.verdict == "unknown" else f"ground only a ray bounds ({fail.verdict})"
+    kind = "unseen" if fail.verdict == "unknown" else "ray"
+    ground = LOOK_GROUND[kind] + ("" if kind == "unseen" else f" ({fail.verdict})")
     return Choice("look", f"the best way runs over {ground} at ({at[0]:.2f}, {at[1]:.2f}): look there",
                   np.zeros((0, 3)), np.zeros((0, 3)), checked=checked, poses_checked=poses_checked, total=total,
                   failures=failures, reasons=_reasons(failures), look_at=at,
-                  look_for="unseen" if fail.verdict == "unknown" else "ray")
+                  look_for=kind)
 
 
 def _drive(tree: ArcTree, node_world: Callable[[int], np.ndarray], pose: tuple[float, float, float], c: int, rank: int, cost: float,

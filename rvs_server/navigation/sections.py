@@ -50,6 +50,7 @@ import numpy as np
 
 from drivers.rover import Motion
 from prox_workflows.algorithms.candidates import (
+    LOOK_GROUND,
     SAFE,
     UNKNOWN,
     CandidateParams,
@@ -309,8 +310,7 @@ class Chooser:
                 break
             if choice.status == "look":
                 x, y = choice.look_at or (pose[0], pose[1])
-                ground = "ground only a ray bounds" if choice.look_for == "ray" else "unseen ground"
-                if look_cost is None and d.look_at(x, y, pose, ground):
+                if look_cost is None and d.look_at(x, y, pose, LOOK_GROUND[choice.look_for or "unseen"]):
                     continue
                 if choice.look_for == "ray":  # looked from here: the ground a ray bounds is judged as it is
                     ray_looks = False
