@@ -91,6 +91,7 @@ LOOKS = 6  # looks before one drive at most: past them the choice is made with l
 PRICED_OUT = 1e6  # m: the look cost that makes a look the answer only when no candidate passes
 STALL_SECTIONS = 12  # sections in a row that bring the rover no STALL_GAIN closer by the cost to go
 STALL_GAIN = 0.1  # m
+REVISIT = 0.25  # m: a section ending this close to where the rover stood since its best closes a loop
 WAYPOINT_STEP = 0.2  # m between the waypoints a GNC is sent for a section
 GUIDE_PAD = 4.0  # m round the mission's start and goal the coarse guidance covers (past it: the straight line)
 GUIDE_CELL = 0.25  # m: the coarse grid the cost to go runs on (coarse_costs'), kept over the whole mission
@@ -203,6 +204,7 @@ class Chooser:
         self.rounds: list[tuple[float, float]] = []  # where the rover looked round
         self.best = math.inf  # the least cost to go the rover stood at
         self.since_best = 0  # sections driven since
+        self.stood: list[tuple[float, float]] = []  # where each section since the best began
         self.retreat = self.d.p.retreat
         self.dead_ends: list[DeadEnd] = []  # where the rover found no way on, priced until seen from outside
         # the arcs driven forward since the last reverse: (curvature, m) and the pose (believed) it ended at
@@ -284,7 +286,7 @@ class Chooser:
             self.arcs.pop()
         else:  # off the track: the arcs before it no longer lead back from where it stands
             self.arcs.clear()
-        self.best, self.since_best = math.inf, 0
+        self.best, self.since_best, self.stood = math.inf, 0, []
         self.drive(leg, choice)
 
     def drive_on(self, leg: int) -> bool:
@@ -338,7 +340,7 @@ class Chooser:
                                       "section that passes")
             return True
         if togo < self.best - STALL_GAIN:
-            self.best, self.since_best = togo, 0
+            self.best, self.since_best, self.stood = togo, 0, []
         else:
             self.since_best += 1
             if self.since_best >= STALL_SECTIONS:
@@ -346,9 +348,27 @@ class Chooser:
                                           f"{pose[1]:.2f}) brought the rover no {STALL_GAIN:g} m closer by "
                                           f"the cost to go ({togo:.2f} m)")
                 return True
+            self._close_loop(leg, pose, choice)
+        self.stood.append((pose[0], pose[1]))
         self.drive(leg, choice)
         self.s.stats.replans += 1
         return True
+
+    def _close_loop(self, leg: int, pose: tuple[float, float, float], choice: Choice) -> None:
+        """A section that brings the rover back to where it stood since its best, no closer, shows
+        that the way on from here was the way back: where it stands is priced as a dead end (no
+        reverse is driven: the section is the way out), so that the place it returns to does not
+        send it here again. Without it the rover shuttles between a place whose best estimate looks
+        open and one whose own check refuses every way on, until :data:`STALL_SECTIONS` run out."""
+        end = choice.poses[-1]
+        if any(math.hypot(e.x - pose[0], e.y - pose[1]) <= REVISIT for e in self.dead_ends):
+            return
+        for x, y in self.stood:
+            if math.hypot(x - pose[0], y - pose[1]) > REVISIT and math.hypot(x - end[0], y - end[1]) <= REVISIT:
+                self.dead_ends.append(DeadEnd(pose[0], pose[1], self.retreat.radius, self.d.bounds.frames))
+                self.s.mission.progress(leg, 1, 1, f"dead end at ({pose[0]:.2f}, {pose[1]:.2f}): the way on "
+                                                   f"leads back to ({x:.2f}, {y:.2f}), no closer", "plan")
+                return
 
     def _start_turn(self, leg: int) -> None:
         """With the body's hazard cameras on, the start's turn on the spot: ``see_start_turn`` at a

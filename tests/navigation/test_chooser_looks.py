@@ -1,5 +1,6 @@
 """The chooser's loop of looks before a drive (rvs_server/navigation/sections.py ``Chooser.drive_on``)
-on scripted choices: what it asks of the mast, and with which settings it chooses again."""
+on scripted choices: what it asks of the mast, with which settings it chooses again, and where a
+section back to where the rover stood leaves a dead end."""
 
 from __future__ import annotations
 
@@ -10,6 +11,7 @@ from typing import Any
 import numpy as np
 
 from prox_workflows.algorithms.candidates import CandidateParams, Choice
+from prox_workflows.algorithms.retreat import RetreatParams
 from rvs_server.navigation.sections import Chooser
 
 
@@ -22,10 +24,12 @@ class _Driver:
         self.rounds = 0
         self.looked = False
         self.set_down_pending = False
-        self.p = SimpleNamespace(chooser=CandidateParams(), chance=None, retreat=SimpleNamespace())
+        self.p = SimpleNamespace(chooser=CandidateParams(), chance=None, retreat=RetreatParams())
+        self.at = (0.0, 0.0, 0.0)
+        self.bounds = SimpleNamespace(frames=3)
 
     def pose(self) -> tuple[float, float, float]:
-        return (0.0, 0.0, 0.0)
+        return self.at
 
     def look_at(self, x: float, y: float, pose: tuple[float, float, float], what: str = "unseen ground") -> bool:
         if self.looked:
@@ -42,8 +46,11 @@ def _chooser(script: list[Choice]) -> tuple[Chooser, _Driver, list[tuple[Any, bo
     d = _Driver()
     c = Chooser.__new__(Chooser)
     c.d, c.params, c.rounds, c.started = d, d.p.chooser, [(0.0, 0.0)], True
-    c.best, c.since_best = math.inf, 0
-    c.s = SimpleNamespace(job=SimpleNamespace(check=lambda: None), stats=SimpleNamespace(replans=0))
+    c.best, c.since_best, c.stood, c.dead_ends, c.retreat = math.inf, 0, [], [], d.p.retreat
+    said: list[str] = []
+    c.s = SimpleNamespace(job=SimpleNamespace(check=lambda: None), stats=SimpleNamespace(replans=0),
+                          mission=SimpleNamespace(progress=lambda leg, done, total, message, phase="": said.append(message)))
+    c.said = said  # type: ignore[attr-defined]
     calls: list[tuple[Any, bool]] = []
     driven: list[Choice] = []
 
@@ -53,7 +60,12 @@ def _chooser(script: list[Choice]) -> tuple[Chooser, _Driver, list[tuple[Any, bo
 
     c._choose = choose  # type: ignore[method-assign]
     c._look_round = lambda pose: (c.rounds.append(pose[:2]), d.look_round())  # type: ignore[method-assign]
-    c.drive = lambda leg, choice, what="": driven.append(choice)  # type: ignore[method-assign]
+
+    def drive(leg: int, choice: Choice, what: str = "") -> None:
+        driven.append(choice)
+        d.at = tuple(choice.poses[-1])
+
+    c.drive = drive  # type: ignore[method-assign]
     return c, d, calls, driven
 
 
@@ -61,8 +73,9 @@ def _look(for_: str, at: tuple[float, float]) -> Choice:
     return Choice("look", "look there", np.zeros((0, 3)), np.zeros((0, 3)), look_at=at, look_for=for_)
 
 
-def _drive() -> Choice:
-    return Choice("drive", "passes", np.zeros((2, 3)), np.zeros((2, 3)), rank=7)
+def _drive(to: tuple[float, float] = (0.0, 0.0)) -> Choice:
+    poses = np.array([[0.0, 0.0, 0.0], [to[0], to[1], 0.0]])
+    return Choice("drive", "passes", poses, poses, rank=7)
 
 
 def test_ground_only_a_ray_bounds_is_looked_at_once_from_a_place_then_judged_as_it_is() -> None:
@@ -87,3 +100,19 @@ def test_unseen_ground_still_gets_its_look_round_after_a_ray_look() -> None:
     assert d.rounds == 1
     assert calls == [(None, True), (None, True), (None, True)]
     assert len(driven) == 1
+
+
+def test_a_section_back_to_where_the_rover_stood_no_closer_leaves_a_dead_end_where_it_stands() -> None:
+    """From A the rover drives to B; from B, no closer by the cost to go, the chosen section leads
+    back to A: B is priced as a dead end (the ground A's choice reads next), the section is driven
+    as the way out, and no reverse is made. A section on to new ground, or a turn on the spot,
+    leaves none."""
+    c, d, calls, driven = _chooser([_drive((0.9, 0.0)), _drive((1.5, 0.6)), _drive((1.5, 0.6)), _drive((0.05, 0.1))])
+    assert c.drive_on(0) and d.at[:2] == (0.9, 0.0)
+    assert c.drive_on(0) and d.at[:2] == (1.5, 0.6)  # on to new ground
+    assert c.drive_on(0) and d.at[:2] == (1.5, 0.6)  # a turn on the spot where it stands
+    assert c.dead_ends == []
+    assert c.drive_on(0) and d.at[:2] == (0.05, 0.1)  # back to A
+    assert [(e.x, e.y, e.radius) for e in c.dead_ends] == [(1.5, 0.6, RetreatParams().radius)]
+    assert c.said == ["dead end at (1.50, 0.60): the way on leads back to (0.00, 0.00), no closer"]
+    assert len(driven) == 4 and c.since_best == 3
