@@ -21,6 +21,7 @@ import cv2
 import numpy as np
 import pytest
 from google.protobuf import descriptor_pb2, descriptor_pool, message_factory
+from support.marks import long_only
 from support.mcap import transform_matrix
 from support.server import wait_for
 
@@ -372,7 +373,9 @@ def test_a_channel_is_advertised_once_it_has_something_to_say_and_every_one_adve
     assert not channels & never, channels & never
 
 
-@pytest.mark.parametrize("offered", [("foxglove.websocket.v1",), ("foxglove.websocket.v1", "foxglove.sdk.v1")])
+# both names offered: the long suite's (renamed_offer's test below covers the choice by default)
+@pytest.mark.parametrize("offered", [("foxglove.websocket.v1",),
+                                     pytest.param(("foxglove.websocket.v1", "foxglove.sdk.v1"), marks=long_only())])
 def test_a_client_offering_the_old_subprotocol_name_connects_lists_and_decodes(server_factory: Any,
                                                                                offered: tuple[str, ...]) -> None:
     """@foxglove/ws-protocol's FoxgloveClient (Lichtblick, foxglove_bridge's users) offers
