@@ -430,6 +430,47 @@ def posterior_check(post: Posterior, geom: GridGeometry, body: VehicleBody,
     return check
 
 
+def nearest_refusal(post: Posterior, geom: GridGeometry, body: VehicleBody, pose: tuple[float, float, float],
+                    failures: list[Failure], params: CandidateParams, chance: ChanceParams | None = None) -> str:
+    """Of the candidates whose turn or section the chance check refused on a limit, the one that
+    came nearest to passing, in a sentence: its turn and section judged whole (every pose, not
+    only to the first refused one), its worst pose's limit most likely exceeded, that probability
+    against epsilon and the best estimate's margin there ("" where none was refused on a limit).
+    A rover walled in by rock (P about 0.5) and one in a slot its belly fits only at a risk a few
+    times the declared one (hirise's stops: P 5e-4 against 3e-4, the truth 2.4 cm clear) read
+    the same without it, and only the second is an operator's call."""
+    tree = arc_tree(params, body)
+    refused = sorted({f.candidate for f in failures if f.part in ("turn", "section") and f.verdict in LIMITS})
+    if not refused:
+        return ""
+    # each turn and section as the chosen one is judged: its poses and those between them, verify_step apart
+    prefixes = sorted({tuple(int(k) for k in tree.paths[c][:2]): c for c in refused}.items())
+    runs = [densify(np.vstack([pose, *(_to_world(np.asarray(tree.node(k)), pose) for k in prefix)]),
+                    params.verify_step or params.step, body) for prefix, _ in prefixes]
+    poses = np.concatenate(runs)
+    pad = reach(body) + 2 * geom.cell
+    sub, sl = crop(geom, poses[:, 0].min() - pad, poses[:, 1].min() - pad, poses[:, 0].max() + pad,
+                   poses[:, 1].max() + pad)
+    if sl is None:
+        return ""
+    c = chance_check(post.window(sl), sub, poses, body, chance)
+    p_any = np.where(c.unknown, np.inf, np.nan_to_num(c.p_any, nan=np.inf))
+    ends = np.cumsum([len(r) for r in runs])
+    worst = [int(a + np.argmax(p_any[a:b])) for a, b in zip(ends - [len(r) for r in runs], ends, strict=True)]
+    j = int(np.argmin(p_any[worst]))
+    i = worst[j]
+    if not np.isfinite(p_any[i]):
+        return ""
+    k = int(np.nanargmax(c.prob[i]))
+    margin = -float(c.nominal.excess[i, k])
+    size = f"{100 * abs(margin):.1f} cm" if LIMITS[k] in ("step", "belly") else f"{abs(margin):.1f} deg"
+    rank = min(f.rank for f in failures if f.candidate == prefixes[j][1])
+    return (f"the nearest to passing, ranked {rank + 1}, is "
+            f"at worst at ({poses[i, 0]:.2f}, {poses[i, 1]:.2f}, {poses[i, 2]:.0f} deg): P({LIMITS[k]}) "
+            f"{c.prob[i, k]:.1e} against epsilon {c.epsilon:.1e}, the best estimate {size} "
+            f"{'inside' if margin >= 0 else 'over'} the limit")
+
+
 def best_check(post: Posterior, geom: GridGeometry, body: VehicleBody) -> Check:
     """The vehicle check on the posterior's best estimate of the ground (a ray's ceiling where no
     return bounds a cell; unknown where neither) as a :data:`Check`: one check per pose, no draws."""

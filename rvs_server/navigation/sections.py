@@ -63,6 +63,7 @@ from prox_workflows.algorithms.candidates import (
     coarse_costs,
     cost_to_go,
     crop,
+    nearest_refusal,
     over_rays,
     posterior_check,
     verdict_name,
@@ -163,12 +164,14 @@ def guidance(bounds: BoundsMap, goal: tuple[float, float], body: Any, guide: Coa
 
 def choose_from(bounds: BoundsMap, pose: tuple[float, float, float], goal: tuple[float, float], body: Any,
                 how: str, params: CandidateParams, chance: ChanceParams, guide: CoarseMemory | None = None, *,
-                ahead: str = "best", dead_ends: Sequence[DeadEnd] = (), dead_end_cost: float = 0.0
-                ) -> tuple[Choice, float]:
+                ahead: str = "best", dead_ends: Sequence[DeadEnd] = (), dead_end_cost: float = 0.0,
+                explain: bool = False) -> tuple[Choice, float]:
     """The chooser's answer from ``pose`` toward ``goal`` on the bounds map as it is now, and the
     cost to go from ``pose``: the cost to go over the coarse grid (:func:`guidance`), the
     candidates ranked and checked on the window they reach. ``ahead`` (``see_ahead``): ``best``
-    judges the look-aheads on the best estimate, ``chance`` with the section's check."""
+    judges the look-aheads on the best estimate, ``chance`` with the section's check. ``explain``:
+    a blocked choice's reason also names the candidate nearest to passing (:func:`nearest_refusal`,
+    seconds of CPU: asked for where a blocked choice ends the mission)."""
     ctg = guidance(bounds, goal, body, guide, dead_ends, dead_end_cost)
     r = judged_reach(params, body)
     box = (pose[0] - r, pose[1] - r, pose[0] + r, pose[1] + r)
@@ -184,6 +187,9 @@ def choose_from(bounds: BoundsMap, pose: tuple[float, float, float], goal: tuple
     rays = over_rays(stats["mean"], stats["ceiling"], wg, body) if params.ray_looks else None
     choice = choose(pose, (stats["lower"], stats["upper"]), wg, body, ctg, check, params, lookahead,
                     dead_end_penalty(dead_ends, dead_end_cost), rays)
+    if explain and how == "chance" and choice.status == "blocked" and \
+            (near := nearest_refusal(post, wg, body, pose, choice.failures, params, chance)):
+        choice = dataclasses.replace(choice, reason=f"{choice.reason} ({near})")
     return choice, float(ctg.at(np.array([pose[0]]), np.array([pose[1]]))[0])
 
 
@@ -240,7 +246,8 @@ class Chooser:
         try:
             return choose_from(bounds, pose, self.s.mission.goal, self.d.body, self.d.p.vehicle, params,
                                self.chance, self.guide, ahead=self.d.p.ahead, dead_ends=self.dead_ends,
-                               dead_end_cost=self.retreat.cost)
+                               dead_end_cost=self.retreat.cost,
+                               explain=self.s.stats.retreats >= self.retreat.retreats)
         finally:
             self.s.stats.replanned(t0, c0)
 

@@ -5,6 +5,7 @@ on the simulator's true surface."""
 from __future__ import annotations
 
 import math
+import re
 
 import numpy as np
 import pytest
@@ -57,6 +58,9 @@ def test_the_retreat_bound_ends_a_mission_in_a_dead_end_with_its_reason(server_f
     message = final.fields["message"]
     assert message.startswith("no way on within the body's limits"), message
     assert "0 of 0 retreats made (navigate.see.retreat.retreats)" in message, message
+    # the stop names the candidate that came nearest to passing: a rock wall, not the risk's edge
+    assert re.search(r"the nearest to passing, ranked \d+, is at worst at .*: P\(\w+\) [0-9.e+-]+ against "
+                     r"epsilon 3\.0e-04", message), message
     truth = world.truth()
     assert math.hypot(truth["x"] - 0.1, truth["y"]) < 0.1  # it stood
 

@@ -12,6 +12,7 @@ read up to 15 cm low a centimetre inside it without the spread).
 from __future__ import annotations
 
 import math
+import re
 
 import numpy as np
 import pytest
@@ -26,10 +27,11 @@ from prox_workflows.algorithms.candidates import (
     choose,
     coarse_costs,
     cost_to_go,
+    nearest_refusal,
     over_rays,
     posterior_check,
 )
-from prox_workflows.algorithms.chance import Posterior
+from prox_workflows.algorithms.chance import ChanceParams, Posterior
 from prox_workflows.algorithms.vehicle import check_poses, densify, reach
 from prox_workflows.grid import GridGeometry
 
@@ -383,3 +385,28 @@ def test_the_chance_check_draws_a_section_no_further_than_its_first_refusal_and_
     # the draws: one check per pose and draw, fewer where sections stop at their first refusal (8 %
     # here: how many depends on where the draws put the first refusals)
     assert with_runs < 0.95 * sum(drawn)
+
+
+@pytest.mark.parametrize(("height", "over"), [(0.3, True), (0.085, False)])
+def test_a_blocked_choice_names_the_candidate_nearest_to_passing(height: float, over: bool) -> None:
+    """Walled in by rock, the nearest candidate is over a limit on the best estimate (P about 1);
+    by a ledge the wheels could just climb, every candidate is inside the limits on the best
+    estimate and refused on its draws alone, at a probability above epsilon but far under 0.5:
+    the operator's call, which the sentence must tell from the wall."""
+    w = World()
+    w.truth[(np.hypot(w.X, w.Y) > 0.75) & (np.hypot(w.X, w.Y) < 0.95)] = height
+    blocks = w.truth.reshape(w.g.height, 5, w.g.width, 5).max(axis=(1, 3))
+    post = Posterior(blocks, np.full(blocks.shape, 0.006**2), np.full(blocks.shape, np.inf))
+    params = CandidateParams(headings=8, arcs=3)
+    c = w.choose((0.0, 0.0, 0.0), (5.0, 0.0), posterior_check(post, w.g, BODY), headings=8, arcs=3)
+    assert c.status == "blocked"
+    said = nearest_refusal(post, w.g, BODY, (0.0, 0.0, 0.0), c.failures, params)
+    m = re.search(r"ranked (\d+), is at worst at \(.*\): P\((\w+)\) ([0-9.e+-]+) against epsilon ([0-9.e+-]+), "
+                  r"the best estimate [0-9.]+ (cm|deg) (inside|over) the limit$", said)
+    assert m, said
+    rank, limit, p, epsilon = int(m[1]), m[2], float(m[3]), float(m[4])
+    assert 1 <= rank <= c.total and limit == "step" and epsilon == ChanceParams().epsilon
+    assert (p >= 0.5) == over and p > epsilon and (m[6] == "over") == over
+    # where nothing was refused on a limit, there is nothing to name
+    assert nearest_refusal(post, w.g, BODY, (0.0, 0.0, 0.0), [f for f in c.failures if f.part == "beyond"],
+                           params) == ""
