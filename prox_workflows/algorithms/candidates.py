@@ -456,7 +456,7 @@ def nearest_refusal(post: Posterior, geom: GridGeometry, body: VehicleBody, pose
     c = chance_check(post.window(sl), sub, poses, body, chance)
     p_any = np.where(c.unknown, np.inf, np.nan_to_num(c.p_any, nan=np.inf))
     ends = np.cumsum([len(r) for r in runs])
-    worst = [int(a + np.argmax(p_any[a:b])) for a, b in zip(ends - [len(r) for r in runs], ends, strict=True)]
+    worst = [int(a + np.argmax(p_any[a:b])) for a, b in zip([0, *ends[:-1]], ends, strict=True)]
     j = int(np.argmin(p_any[worst]))
     i = worst[j]
     if not np.isfinite(p_any[i]):
