@@ -78,7 +78,8 @@ class Mission:
         self.announced_at: tuple[float, float, float] | None = None  # the pose the last waiting EVENT left from
         self._place()
         # made where the rover starts: the see strategy's maps cover the start and the goal
-        self.strategy: Strategy = SeeStrategy(self) if cfg.loop == "see" else ScanStrategy(self)
+        chooser = cfg.loop == "see" or cfg.scan_plan == "chooser"
+        self.strategy: Strategy = SeeStrategy(self) if chooser else ScanStrategy(self)
         self.app.bus.publish("mission", mission=self)
 
     def _place(self) -> None:

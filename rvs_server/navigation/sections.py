@@ -220,8 +220,11 @@ class Chooser:
         self.guide = CoarseMemory.covering(strategy.cover, GUIDE_PAD, GUIDE_CELL)
 
     def scanned(self) -> None:
-        """A 360-degree scan was made where the rover stands (the localiser's): its views make the
-        5 cm maps only, so the rover looks round for the bounds map too."""
+        """A 360-degree scan was made where the rover stands (the scan loop's, or the localiser's):
+        its views make the 5 cm maps only, so the rover looks round for the bounds map too. Its
+        frames (4 a view, at the scan's tilts) are noisier than a look's (8, from the lowest tilt
+        out), and ground they had judged would not be looked at again (docs/NAVIGATE_BENCH.md, "The
+        scan loop on the chooser")."""
         self._look_round(self.d.pose())
 
     def _looked_round_here(self, pose: tuple[float, float, float]) -> bool:

@@ -5,8 +5,10 @@ the default) every section is chosen by the vehicle check itself, ENav's way (:m
 with ``see_gate off`` each leg is planned on the scans' 5 cm maps with the rolling map laid over
 them (:class:`~.map_legs.MapLegs`).
 
-The scan strategy (:mod:`.scan`) and this one are driven by the same mission (:mod:`.mission`),
-so the two compare side by side (``python -m tools.bench.navigate``).
+It also drives the scan loop on the chooser (``navigate -loop scan -scan-plan chooser``): a
+360-degree scan, then the chooser's sections until ``navigate.scan_stretch`` metres are behind,
+then the next scan. The circle's scan strategy (:mod:`.scan`) and this one are driven by the same
+mission (:mod:`.mission`), so the loops compare side by side (``python -m tools.bench.navigate``).
 """
 
 from __future__ import annotations
@@ -47,6 +49,9 @@ class SeeStrategy:
         self.localiser = mission.loc
         self.max_plans = self.p.max_replans
         self.need_scan = True  # the see loop scans first, then only when the rolling map shows no way
+        # the scan loop on the chooser: a scan every scan_stretch metres (the module's docstring)
+        self.scan_loop = self.cfg.loop == "scan"
+        self.stretch = 0.0  # metres driven since the last scan
         self.since_fix = 0.0  # metres driven since the rolling map was last matched on the global DEM
         self.fixed_at = 0  # the rolling map's frame count then: a fix matches and moves what came after
         self.bounds_fixed_at = 0  # the bounds map's frame count then: a fix moves what came after
@@ -57,7 +62,7 @@ class SeeStrategy:
         self.cover = [(self.app.pose.x, self.app.pose.y), mission.goal]
         memory = MapMemory.covering(self.cover, self.p.memory, RollingParams().cell) if self.p.memory > 0 else None
         bounds = None
-        if self.p.gate == "bounds":
+        if self.p.gate == "bounds" or self.scan_loop:
             head = HeadCalibration.from_dict(self.app.config.get("head").as_dict())
             half = window_half(self.p, mission.rover.body(), head)
             bounds = BoundsMap.around(self.cover[0], half, GUIDE_CELL, self.p.bounds)
@@ -86,7 +91,7 @@ class SeeStrategy:
         # scans' 5 cm maps with the rolling map laid over them (map_legs.py)
         self.chooser = Chooser(self) if bounds is not None else None
         self.legs = MapLegs(self) if bounds is None else None
-        if self.chooser is not None and not self.localiser.active:
+        if self.chooser is not None and not self.localiser.active and not self.scan_loop:
             self.need_scan = False
 
     def set_down_on_ring(self) -> str:
@@ -115,14 +120,20 @@ class SeeStrategy:
         if self.need_scan:
             return False
         if self.chooser is not None:
-            return self.chooser.drive_on(leg)
+            x0, y0, _ = self.driver.pose()
+            went = self.chooser.drive_on(leg)
+            if self.scan_loop:
+                x1, y1, _ = self.driver.pose()
+                self.stretch += math.hypot(x1 - x0, y1 - y0)
+                self.need_scan = self.stretch >= self.cfg.scan_stretch
+            return went
         assert self.legs is not None
         return self.legs.drive_on(leg)
 
     def scanned(self, leg: int, local: Any) -> None:
         """A 360-degree scan made the maps ``local`` (the scans so far, merged): the next choice
         or plan is made from them and what the rover sees next."""
-        self.need_scan = False
+        self.need_scan, self.stretch = False, 0.0
         if self.chooser is not None:
             self.chooser.scanned()
         if self.legs is not None:

@@ -21,7 +21,7 @@ def test_a_gnc_that_reports_its_start_pose_before_driving_keeps_its_leg(server_f
     getting ready: the leg waits for it to drive, and the navigate ends in that one leg."""
     srv = server_factory(["server.scene=office", NARROW])
     c, gnc = srv.client(), srv.client()
-    job = c.start_job("navigate -goal 1.5,-1.2 -loop scan -name slow")
+    job = c.start_job("navigate -goal 1.5,-1.2 -loop scan -scan-plan circle -name slow")
     event = waiting_event(gnc)
     assert event.fields["leg"] == "1"
     wps = [float(v) for v in event.fields["waypoints"].split(",")]
@@ -48,7 +48,7 @@ def test_stopped_at_the_start_still_ends_the_leg_at_once(server_factory) -> None
     started (a GNC that cannot drive the leg), and navigate scans again."""
     srv = server_factory(["server.scene=office", NARROW])
     c, gnc = srv.client(), srv.client()
-    job = c.start_job("navigate -goal 1.5,-1.2 -loop scan -name givesup")
+    job = c.start_job("navigate -goal 1.5,-1.2 -loop scan -scan-plan circle -name givesup")
     assert waiting_event(gnc).fields["leg"] == "1"
     assert gnc.request("pose -stopped true").fields["stopped"] == "true"
     assert waiting_event(gnc).fields["leg"] == "2"
@@ -63,7 +63,7 @@ def test_the_wait_for_the_gnc_has_a_timeout_by_default() -> None:
 def test_a_gnc_that_never_leaves_the_start_ends_navigate_with_what_to_do(server_factory) -> None:
     srv = server_factory(["server.scene=office", NARROW, "navigate.wait_timeout=3"])
     c, gnc = srv.client(), srv.client()
-    job = c.start_job("navigate -goal 1.5,-1.2 -loop scan -name stays")
+    job = c.start_job("navigate -goal 1.5,-1.2 -loop scan -scan-plan circle -name stays")
     waiting_event(gnc)
     for _ in range(16):  # 4 s of the standing pose at 4 Hz: alive, but not driving
         assert gnc.request("pose -x 0 -y 0 -heading 0").status == "OK"
@@ -96,7 +96,7 @@ def test_a_navigate_whose_connection_closed_ends_once_no_pose_comes(server_facto
     comes for pose_settle, it ends E_DATA, and status -job tells why."""
     srv = server_factory(["server.scene=office", NARROW, "navigate.wait_timeout=0"])
     c, gnc = srv.client(), srv.client()
-    job = c.start_job("navigate -goal 1.5,-1.2 -loop scan -name orphan")
+    job = c.start_job("navigate -goal 1.5,-1.2 -loop scan -scan-plan circle -name orphan")
     waiting_event(gnc)
     c.close()
     for i in range(12):  # 3 s of a GNC on another connection driving at 4 Hz

@@ -169,7 +169,7 @@ def _mission(server_factory, tmp_path: Path, mode: str, seed: int, loop: str = "
     scene = "marsyard" if far else "quarry"
     # localisation is the subject: the see loop drives without the vehicle gate, which on this
     # mission stops before the first metre (docs/NAVIGATE_BENCH.md)
-    srv = server_factory([f"server.scene={scene}", "navigate.see_gate=off"])
+    srv = server_factory([f"server.scene={scene}", "navigate.see_gate=off", "navigate.scan_plan=circle"])
     world = srv.app.world
     world.set_target_visible(False)
     start, goal = missions(scene, seed + 1)[seed] if far else pick_start_goal(world, scene, seed)

@@ -32,7 +32,7 @@ def test_navigate_reaches_the_goal_without_crossing_a_hazard(server_factory, sce
     c = srv.client()
     heading = float(np.degrees(np.arctan2(goal[1] - start[1], goal[0] - start[0])))
     r = c.request(f"navigate -start {start[0]:.3f},{start[1]:.3f},{heading:.1f} "
-                  f"-goal {goal[0]:.3f},{goal[1]:.3f} -auto -loop scan -name run", timeout=600)
+                  f"-goal {goal[0]:.3f},{goal[1]:.3f} -auto -loop scan -scan-plan circle -name run", timeout=600)
     assert r.status == "OK", r.fields
     truth = world.truth()
     assert np.hypot(truth["x"] - goal[0], truth["y"] - goal[1]) <= 0.3
@@ -50,7 +50,7 @@ def test_navigate_reaches_the_goal_without_crossing_a_hazard(server_factory, sce
 def test_navigate_waits_for_the_gnc_pose(server_factory) -> None:
     srv = server_factory(["server.scene=office", "navigate.range=-90,30,-50,-10"])
     c, gnc = srv.client(), srv.client()
-    job = c.start_job("navigate -goal 1.5,-1.2 -loop scan -name wait")
+    job = c.start_job("navigate -goal 1.5,-1.2 -loop scan -scan-plan circle -name wait")
     event = None
     while event is None:
         line = gnc.reply(timeout=120)
@@ -71,7 +71,7 @@ def test_navigate_errors(server_factory) -> None:
     srv = server_factory(["server.scene=office", "navigate.range=-90,30,-50,-10"])
     c = srv.client()
     assert c.request("navigate").fields["code"] == "E_ARG"  # -goal is required
-    r = c.request("navigate -goal 2.3,-0.45 -auto -loop scan", timeout=300)  # on the tall rock
+    r = c.request("navigate -goal 2.3,-0.45 -auto -loop scan -scan-plan circle", timeout=300)  # on the tall rock
     assert r.fields["code"] == "E_DATA" and "goal_in_hazard" in r.fields["message"]
 
 
@@ -80,7 +80,7 @@ def test_navigate_far_outside_any_map_ends_e_data(server_factory, x: float) -> N
     """Blank maps beyond the scans: legs until no progress or max_legs, then E_DATA (a minute of
     360-degree scans: the long suite)."""
     srv = server_factory(["server.scene=office"])
-    r = srv.client().request(f"navigate -goal {x:g},0 -auto -loop scan", timeout=600)
+    r = srv.client().request(f"navigate -goal {x:g},0 -auto -loop scan -scan-plan circle", timeout=600)
     assert r.status == "ERROR" and r.fields["code"] == "E_DATA", r.fields
 
 
@@ -88,7 +88,7 @@ def test_navigate_far_outside_any_map_ends_e_data(server_factory, x: float) -> N
 def test_navigate_with_the_fused_sensor(server_factory) -> None:
     srv = server_factory(["server.scene=office"])
     c = srv.client()
-    r = c.request("navigate -goal 1.6,-1.3 -sensor fused -auto -loop scan -name fused", timeout=600)
+    r = c.request("navigate -goal 1.6,-1.3 -sensor fused -auto -loop scan -scan-plan circle -name fused", timeout=600)
     assert r.status == "OK" and r.fields["reached"] == "true", r.fields
     truth = srv.app.world.truth()
     assert np.hypot(truth["x"] - 1.6, truth["y"] + 1.3) <= 0.3
@@ -133,7 +133,7 @@ def test_navigate_from_every_corner_reaches_a_clear_goal(server_factory, scene: 
     heading = math.degrees(math.atan2(goal[1] - start[1], goal[0] - start[0]))
     t0 = time.monotonic()
     r = srv.client().request(f"navigate -start {start[0]:.3f},{start[1]:.3f},{heading:.1f} "
-                             f"-goal {goal[0]:.3f},{goal[1]:.3f} -auto -loop scan -name corner", timeout=1200)
+                             f"-goal {goal[0]:.3f},{goal[1]:.3f} -auto -loop scan -scan-plan circle -name corner", timeout=1200)
     print(f"{scene} corner {corner} {start} -> {goal}: {r.status} legs={r.fields.get('legs')} "
           f"{time.monotonic() - t0:.1f} s {r.fields.get('message', '')}")
     assert r.status == "OK" and r.fields["reached"] == "true", r.fields
@@ -156,7 +156,7 @@ def test_a_goal_judged_in_a_hazard_from_far_is_judged_again_from_closer(server_f
     srv = server_factory(["server.scene=office"])
     world = srv.app.world
     c = srv.client()
-    c.send("navigate -start -1.0,0.0,0 -goal 2.3,-0.45 -auto -loop scan -name judge")
+    c.send("navigate -start -1.0,0.0,0 -goal 2.3,-0.45 -auto -loop scan -scan-plan circle -name judge")
     lines = c.until_final(timeout=600)
     final = lines[-1]
     assert final.status == "ERROR" and final.fields["code"] == "E_DATA", final.fields
@@ -221,7 +221,7 @@ def test_a_break_mid_drive_leaves_the_rovers_pose_and_its_track(server_factory) 
     drove is written, as after any ERROR once the rover moved."""
     srv = server_factory(["server.scene=office", "navigate.range=-90,30,-50,-10", "sim.time_scale=1"])
     c, ops = srv.client(), srv.client()
-    job = c.start_job("navigate -goal 1.5,-1.2 -auto -loop scan -name brk")
+    job = c.start_job("navigate -goal 1.5,-1.2 -auto -loop scan -scan-plan circle -name brk")
     while True:  # the first leg's drive, in real time at the rover's 0.1 m/s
         r = c.reply(timeout=120)
         if r.status == "PROGRESS" and r.fields.get("phase") == "drive":

@@ -297,7 +297,7 @@ def test_navigate_auto_believes_the_odometry_not_the_truth(server_factory) -> No
     c = srv.client()
     assert c.request("sim slip -distance 0.05 -heading 2 -seed 3").status == "OK"
     t0 = num(c.request("sim truth"), "sim_time")
-    c.send("navigate -goal 1.5,-1.2 -auto -loop scan -name slip")
+    c.send("navigate -goal 1.5,-1.2 -auto -loop scan -scan-plan circle -name slip")
     lines = c.until_final(timeout=600)
     final = lines[-1]
     assert final.status == "OK" and final.fields["reached"] == "true", final.fields

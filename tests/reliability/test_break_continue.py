@@ -73,7 +73,7 @@ RECIPES: dict[str, Recipe] = {
                              setup=["dem-full-tof -range -10,10,-45,-35 -name base"], wait_for="view 2/",
                              params={"range": [-60.0, 60.0, -50.0, -30.0], "name": "brk"},
                              again="dem-update-tof -range -10,10,-45,-35 -name again"),
-    "navigate": Recipe("navigate -goal 1.5,0 -loop scan -name brk", ["drivers.ptu.time_scale=0.5"], wait_for="view 2/",
+    "navigate": Recipe("navigate -goal 1.5,0 -loop scan -scan-plan circle -name brk", ["drivers.ptu.time_scale=0.5"], wait_for="view 2/",
                        params={"goal": [1.5, 0.0], "name": "brk"}, again=None),
     # The stereo twins share run_dem with the ToF ones; their stereo matching is what costs, so
     # they break at the first view and are not run again.

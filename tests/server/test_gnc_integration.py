@@ -39,7 +39,7 @@ def _orient_twice(srv: ServerThread, c: LineClient) -> None:
 NARROW = "navigate.range=-90,30,-50,-10"
 
 SETTERS = {
-    "navigate -auto": lambda srv, c: c.request("navigate -goal 1.2,0 -auto -loop scan -name brk", timeout=300),
+    "navigate -auto": lambda srv, c: c.request("navigate -goal 1.2,0 -auto -loop scan -scan-plan circle -name brk", timeout=300),
     "orient": _orient_twice,
     "sim move-rover": lambda srv, c: c.request("sim move-rover -dx 0.3 -dyaw 10"),
     "pose": lambda srv, c: c.request("pose -x 1.25 -y -0.5 -heading 12.5"),
@@ -98,7 +98,7 @@ def test_a_streamed_pose_ends_the_wait_only_once_it_holds_still(server_factory) 
     tolerance of it, while moving does not end the wait; the pose holding still does."""
     srv = server_factory(["server.scene=office", NARROW, "navigate.pose_settle=0.5"])
     c, gnc = srv.client(), srv.client()
-    job = c.start_job("navigate -goal 1.5,-1.2 -loop scan -name stream")
+    job = c.start_job("navigate -goal 1.5,-1.2 -loop scan -scan-plan circle -name stream")
     event = waiting_event(gnc)
     assert event.fields["job"] == job and event.fields["leg"] == "1"
     wps = [float(v) for v in event.fields["waypoints"].split(",")]
@@ -127,7 +127,7 @@ def test_a_streamed_pose_ends_the_wait_only_once_it_holds_still(server_factory) 
 def test_stopped_ends_the_wait_and_two_rescans_from_one_spot_are_e_data(server_factory) -> None:
     srv = server_factory(["server.scene=office", NARROW])
     c, gnc = srv.client(), srv.client()
-    job = c.start_job("navigate -goal 1.5,-1.2 -loop scan -name stuck")
+    job = c.start_job("navigate -goal 1.5,-1.2 -loop scan -scan-plan circle -name stuck")
     legs = []
     for _ in range(3):  # the GNC gives up at once, three times, without moving
         legs.append(waiting_event(gnc).fields["leg"])
@@ -246,7 +246,7 @@ def test_dem_progress_has_phases_with_fixed_totals(server, client: LineClient) -
 def test_navigate_progress_per_leg_and_phase(server_factory) -> None:
     srv = server_factory(["server.scene=office", NARROW])
     c = srv.client()
-    c.send("navigate -goal 1.5,-1.2 -auto -loop scan -name prog")
+    c.send("navigate -goal 1.5,-1.2 -auto -loop scan -scan-plan circle -name prog")
     lines = c.until_final(timeout=300)
     assert lines[-1].status == "OK", lines[-1]
     phases = _check_progress(lines)

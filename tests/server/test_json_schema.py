@@ -314,7 +314,7 @@ def test_the_waiting_event_gives_waypoints_as_rows(server_factory: Any) -> None:
     srv = server_factory(["server.scene=office", "navigate.range=-110,30,-55,-20", "navigate.overlap=0.05",
                           "navigate.border=0.3"])
     c, gnc = JsonClient(srv), srv.client()
-    tag, job = c.start("navigate -goal 1.5,-1.2 -loop scan -name rows")
+    tag, job = c.start("navigate -goal 1.5,-1.2 -loop scan -scan-plan circle -name rows")
     event = c.event("waiting", timeout=300)
     assert (event["job"], event["leg"]) == (job, 1) and event["file"].endswith("_leg1_waypoints.csv")
     rows = event["waypoints"]

@@ -63,7 +63,7 @@ def assert_matches(out: subprocess.CompletedProcess[str], requests: int, layers:
 
 def test_a_console_click_navigate_with_auto_replays(tmp_path: Path) -> None:
     # the console's click-navigate line, with its "-auto" box ticked
-    nav = "navigate -goal 0.60,0.00 -sensor tof -tolerance 0.3 -auto true -loop scan"
+    nav = "navigate -goal 0.60,0.00 -sensor tof -tolerance 0.3 -auto true -loop scan -scan-plan circle"
     # a narrower scan than the default (fewer views: a smaller recording), replayed with it
     got = record(tmp_path / "rec", [nav, "status"], sets=("navigate.range=-40,40,-45,-20",))
     assert got["navigate"]["reached"] == "true" and got["navigate"]["pose_source"] == "odometry"

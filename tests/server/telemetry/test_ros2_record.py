@@ -199,7 +199,7 @@ def test_a_navigate_recorded_as_ros2_has_its_plan_and_track_as_paths(server_fact
     srv = server_factory(["server.scene=office", "navigate.range=-90,30,-50,-10"])
     c = srv.client()
     assert c.request("record -start -name nav -profile ros2").status == "OK"
-    final = c.request("navigate -goal 1.5,-1.2 -auto -loop scan -name nav", timeout=300)
+    final = c.request("navigate -goal 1.5,-1.2 -auto -loop scan -scan-plan circle -name nav", timeout=300)
     assert final.status == "OK", final
     st = c.request("status").fields
     assert c.request("record -stop").fields["dropped"] == "0"

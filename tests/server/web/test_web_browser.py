@@ -742,7 +742,7 @@ def test_a_page_opened_mid_job_draws_the_whole_jobs_bar_and_drops_the_job_at_its
     watching.evaluate("""window.phases = []; const onReplyWas = onReply; onReply = (m, past) => { onReplyWas(m, past);
         if (m.reply.status === "PROGRESS") phases.push(`${m.reply.leg}/${m.reply.phase}`); }; 0""")
     with c.srv.client() as gnc:
-        gnc.start_job("navigate -goal 1.0,0.2 -auto false -loop scan")  # leg 1 scans, plans, then waits for the GNC
+        gnc.start_job("navigate -goal 1.0,0.2 -auto false -loop scan -scan-plan circle")  # leg 1 scans, plans, then waits for the GNC
         watching.wait_for_function("S.state.job && S.state.job.phase === 'drive' && S.bar && S.bar.key === '1/drive'",
                                    timeout=120_000)
         late = c.open(browser)  # opened (as reloaded) while the job waits in its first leg's drive
@@ -960,7 +960,7 @@ def test_the_rover_icon_moves_and_turns_live_during_a_drive_and_keeps_the_true_h
         onState = (st) => { onStateWas(st); if (st.job && st.truth) seen.push([st.pose.x, st.pose.y, st.pose.heading,
             st.truth.heading]); }; 0""")  # (a function as the last value would be called)
     with c.srv.client() as gnc:
-        gnc.start_job("navigate -goal 1.5,-1.2 -auto true -loop scan")
+        gnc.start_job("navigate -goal 1.5,-1.2 -auto true -loop scan -scan-plan circle")
         page.wait_for_function("seen.length > 1 && Math.hypot(seen.at(-1)[0], seen.at(-1)[1]) > 0.4", timeout=300_000)
         with c.srv.client() as other:
             assert other.request("break").status == "OK"
