@@ -213,15 +213,16 @@ class NavigateConfig(ModuleConfig):
     loop: str = param("see", "see looks standing with the forward ToF, chooses each section (at most 1 m) ENav's "
                       "way, checked by the rover's own body on a map of height bounds, and checks it again while "
                       "it drives (-auto: every cycle; the GNC: at every pose report); no 360-degree scan unless "
-                      "-localise matches scans; scan stops for a 360-degree scan where it starts and every "
-                      "scan_stretch metres (or, with -scan-plan circle, at every leg's end, the leg planned on "
-                      "its hazard map)", choices=("see", "scan"))
+                      "-localise matches scans; scan stops for a 360-degree scan where it starts and again scan_stretch "
+                      "metres on (or, with -scan-plan circle, at every leg's end, the leg planned on its hazard "
+                      "map)", choices=("see", "scan"))
     scan_plan: str = param("chooser", "scan loop: how the rover goes on from each 360-degree scan: chooser, by the see "
                            "loop's sections (each chosen by the vehicle check on the bounds map after a look round "
-                           "standing, and checked again on the frames taken while it drives) until scan_stretch "
-                           "metres are driven; circle, the plan_leg script's path on the scan's hazard map (the rover "
-                           "as a circle on Dem2Hazard's thresholds), driven to its end", choices=("chooser", "circle"))
-    scan_stretch: float = param(3.0, "scan loop with scan_plan chooser: metres driven on sections between two "
-                                "360-degree scans (about the band a scan shows densely)", unit="m", min=0.2,
-                                max=50.0, option=False)
+                           "standing, and checked again on the frames taken while it drives) until it stands "
+                           "scan_stretch from the last scan; circle, the plan_leg script's path on the scan's hazard "
+                           "map (the rover as a circle on Dem2Hazard's thresholds), driven to its end",
+                           choices=("chooser", "circle"))
+    scan_stretch: float = param(3.0, "scan loop with scan_plan chooser: the next 360-degree scan is made once the "
+                                "rover stands this far from the last one (about the ground a scan shows densely)",
+                                unit="m", min=0.2, max=50.0, option=False)
     see: SeeConfig = param(SeeConfig(), "the see loop", flat="see_")

@@ -51,7 +51,7 @@ class SeeStrategy:
         self.need_scan = True  # the see loop scans first, then only when the rolling map shows no way
         # the scan loop on the chooser: a scan every scan_stretch metres (the module's docstring)
         self.scan_loop = self.cfg.loop == "scan"
-        self.stretch = 0.0  # metres driven since the last scan
+        self.scanned_at: tuple[float, float] | None = None  # where the last 360-degree scan was made
         self.since_fix = 0.0  # metres driven since the rolling map was last matched on the global DEM
         self.fixed_at = 0  # the rolling map's frame count then: a fix matches and moves what came after
         self.bounds_fixed_at = 0  # the bounds map's frame count then: a fix moves what came after
@@ -120,12 +120,13 @@ class SeeStrategy:
         if self.need_scan:
             return False
         if self.chooser is not None:
-            x0, y0, _ = self.driver.pose()
             went = self.chooser.drive_on(leg)
-            if self.scan_loop:
-                x1, y1, _ = self.driver.pose()
-                self.stretch += math.hypot(x1 - x0, y1 - y0)
-                self.need_scan = self.stretch >= self.cfg.scan_stretch
+            if self.scan_loop and self.scanned_at is not None:
+                # the next scan once the rover stands scan_stretch from the last one: what a scan
+                # shows is ground round where it was made (a way on and back out of a dead end
+                # is no reason to scan the same place again)
+                x, y, _ = self.driver.pose()
+                self.need_scan = math.hypot(x - self.scanned_at[0], y - self.scanned_at[1]) >= self.cfg.scan_stretch
             return went
         assert self.legs is not None
         return self.legs.drive_on(leg)
@@ -133,7 +134,9 @@ class SeeStrategy:
     def scanned(self, leg: int, local: Any) -> None:
         """A 360-degree scan made the maps ``local`` (the scans so far, merged): the next choice
         or plan is made from them and what the rover sees next."""
-        self.need_scan, self.stretch = False, 0.0
+        self.need_scan = False
+        x, y, _ = self.driver.pose()
+        self.scanned_at = (x, y)
         if self.chooser is not None:
             self.chooser.scanned()
         if self.legs is not None:
