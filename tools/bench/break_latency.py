@@ -66,7 +66,7 @@ KINDS: dict[str, Kind] = {k.name: k for k in [
     Kind("grab-stereo highest", ["grab-stereo -output brk -resolution highest"]),
     Kind("dem-full-tof", ["dem-full-tof -range -60,60,-50,-30 -name brk"]),
     Kind("dem-full", ["dem-full -range -60,60,-50,-30 -name brk"]),
-    Kind("navigate -auto (drive)", ["navigate -goal 1.5,0 -auto true -loop scan -name brk"], after="phase=drive", window=3.0,
+    Kind("navigate -auto (drive)", ["navigate -goal 1.5,0 -auto true -loop scan -scan-plan circle -name brk"], after="phase=drive", window=3.0,
          before=["sim scene office", "pose -x 0 -y 0 -heading 0", "config -module sim -set time_scale=20"],
          at_mark=["config -module sim -set time_scale=1"]),
     Kind("reset", ["reset"]),

@@ -1,5 +1,7 @@
-"""Benchmark: navigate -auto's two loops, stop-and-go (``-loop scan``: a 360-degree scan at every
-leg's end) and driving while seeing (``-loop see``), side by side on the same seeded missions,
+"""Benchmark: navigate -auto's two loops, stop-and-go (``-loop scan``: a 360-degree scan where it
+starts and 3 m on from each, the chooser's sections between; ``--set navigate.scan_plan=circle``
+for the thesis's legs, each planned on its scan's hazard map) and driving while seeing (``-loop
+see``), side by side on the same seeded missions,
 judged by the vehicle itself (docs/NAVIGATE_BENCH.md).
 
 The yardstick is the rover's own body (``drivers.sim.rover.RoverBody``, declared in the scene's
