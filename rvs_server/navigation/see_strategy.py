@@ -6,8 +6,8 @@ with ``see_gate off`` each leg is planned on the scans' 5 cm maps with the rolli
 them (:class:`~.map_legs.MapLegs`).
 
 It also drives the scan loop on the chooser (``navigate -loop scan -scan-plan chooser``): a
-360-degree scan, then the chooser's sections until ``navigate.scan_stretch`` metres are behind,
-then the next scan. The circle's scan strategy (:mod:`.scan`) and this one are driven by the same
+360-degree scan, then the chooser's sections until the rover stands ``navigate.scan_stretch``
+from where it was made, then the next scan. The circle's scan strategy (:mod:`.scan`) and this one are driven by the same
 mission (:mod:`.mission`), so the loops compare side by side (``python -m tools.bench.navigate``).
 """
 
@@ -49,7 +49,7 @@ class SeeStrategy:
         self.localiser = mission.loc
         self.max_plans = self.p.max_replans
         self.need_scan = True  # the see loop scans first, then only when the rolling map shows no way
-        # the scan loop on the chooser: a scan every scan_stretch metres (the module's docstring)
+        # the scan loop on the chooser: a scan scan_stretch on from the last (the module's docstring)
         self.scan_loop = self.cfg.loop == "scan"
         self.scanned_at: tuple[float, float] | None = None  # where the last 360-degree scan was made
         self.since_fix = 0.0  # metres driven since the rolling map was last matched on the global DEM
