@@ -7,8 +7,9 @@ them (:class:`~.map_legs.MapLegs`).
 
 It also drives the scan loop on the chooser (``navigate -loop scan -scan-plan chooser``): a
 360-degree scan, then the chooser's sections until the rover stands ``navigate.scan_stretch``
-from where it was made, then the next scan. The circle's scan strategy (:mod:`.scan`) and this one are driven by the same
-mission (:mod:`.mission`), so the loops compare side by side (``python -m tools.bench.navigate``).
+from where it was made, then the next scan. The circle's scan strategy (:mod:`.scan`) and this
+one are driven by the same mission (:mod:`.mission`), so the loops compare side by side
+(``python -m tools.bench.navigate``).
 """
 
 from __future__ import annotations
