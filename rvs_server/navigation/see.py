@@ -38,6 +38,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from drivers.base import DeviceError
 from drivers.tof.constants import FOV_H_DEG, FOV_V_DEG
 from prox_workflows.algorithms import looks
 from prox_workflows.algorithms.bounds_map import BoundsMap
@@ -73,6 +74,27 @@ STILL = 0.005  # m: a pose this close to the last frame's is the same stand (a l
 RING_WIDTH = 0.5  # m past the blind disc: the seen ground whose plane see_set_down ring takes
 
 
+def map_pairs(app: App) -> list[str]:
+    """The hazard camera pairs whose frames feed the see loop's map.
+
+    A simulated pair renders the simulator's world, which is the rover's only where the mast's
+    ToF is simulated too: beside a real (or replayed) ToF it would lay that world into a real
+    rover's map, where the wheels trust it. That configuration is refused, not quietly dropped,
+    since the operator who left it believes the pairs guard the rover's start."""
+    devices = app.devices
+    if "hazcam" not in devices.devices:
+        return []
+    hazcam = devices.get("hazcam")
+    pairs = list(hazcam.cameras())
+    tof = devices.devices["tof"].backend if "tof" in devices.devices else devices.section("tof").backend
+    if pairs and hazcam.backend == "sim" and tof != "sim":
+        raise DeviceError("hazcam", f"the hazard cameras are simulated and the ToF is {tof}: a simulated pair "
+                                    "must not feed a real rover's map; set drivers.hazcam.cameras off, or "
+                                    "drivers.hazcam.backend dc1394 for the rover's own pairs, and reinit -device "
+                                    "hazcam")
+    return pairs
+
+
 class SeeingDriver:
     """One navigate's see loop: the rolling map lives for the whole mission."""
 
@@ -86,9 +108,7 @@ class SeeingDriver:
         self.bounds = bounds
         self.set_down_pending = False  # see_set_down ring: the set-down waits for the first look round
         # the body's hazard cameras switched on (drivers.hazcam.cameras): each frame feeds the bounds
-        self.hazcams: list[str] = []
-        if bounds is not None and "hazcam" in self.app.devices.devices:
-            self.hazcams = list(self.app.devices.get("hazcam").cameras())
+        self.hazcams: list[str] = map_pairs(self.app) if bounds is not None else []
         self.p = params
         self.stats = stats
         head = self.app.config.get("head")

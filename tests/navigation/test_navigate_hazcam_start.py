@@ -1,11 +1,12 @@
-"""The see loop's start with the body's hazard cameras on (drivers.hazcam.cameras): a turn on the
-spot shows the pairs the ground between the body and the mast's blind disc, which no tilt of the
+"""The see loop's start with the body's hazard cameras on (drivers.hazcam.cameras, both pairs on the
+simulated rover): a turn on the spot shows the pairs the ground between the body and the mast's blind disc, which no tilt of the
 mast shows, and the set-down's prior is left only where no camera saw. Through the real server;
 the bounds map is read where the chooser makes its first choice."""
 
 from __future__ import annotations
 
 import math
+from types import SimpleNamespace
 from typing import Any
 
 import numpy as np
@@ -13,7 +14,10 @@ import pytest
 from support.marks import long_test
 
 import rvs_server.navigation.sections as sections
-from rvs_server.navigation.see import BLIND_EDGE
+from drivers.base import DeviceError
+from rvs_server.devices import DeviceRegistry, stereo_points
+from rvs_server.main import build_config, make_world
+from rvs_server.navigation.see import BLIND_EDGE, map_pairs
 from rvs_server.protocol import ProtocolError
 
 STOP = "the first choice"
@@ -50,10 +54,10 @@ def _at_first_choice(monkeypatch: pytest.MonkeyPatch) -> dict[str, Any]:
     return seen
 
 
-def _start(server_factory: Any, monkeypatch: pytest.MonkeyPatch, hazcams: str) -> dict[str, Any]:
+def _start(server_factory: Any, monkeypatch: pytest.MonkeyPatch, *settings: str) -> dict[str, Any]:
     seen = _at_first_choice(monkeypatch)
     # one ToF frame a position of the look round: its averaging is not what is measured here
-    srv = server_factory(["server.scene=quarry", f"drivers.hazcam.cameras={hazcams}", "navigate.see_look_frames=1",
+    srv = server_factory(["server.scene=quarry", *settings, "navigate.see_look_frames=1",
                           "drivers.ptu.timeout=30"])  # the PTU emulator answers late on a loaded machine
     srv.app.world.set_target_visible(False)
     c = srv.client()
@@ -63,14 +67,14 @@ def _start(server_factory: Any, monkeypatch: pytest.MonkeyPatch, hazcams: str) -
     return seen
 
 
-@long_test  # hazcams are off by default: 40 ToF and 20 hazcam frames, 15-30 s
 @pytest.mark.timeout(900)  # the start renders some 40 ToF and 20 hazcam frames: minutes on a loaded machine
-def test_with_the_hazcams_on_the_start_s_turn_shows_the_ring_round_the_body(server_factory, monkeypatch) -> None:
-    """Both pairs look ahead and behind, 90 deg across each: two turns of 60 deg on the spot at
-    the start put the ground all round before them. At the first choice nearly the whole ring
-    between the body and the mast's blind disc has a frame's bounds, and the set-down's prior
-    is left on a small part of the disc (under the body and a narrow band round it)."""
-    seen = _start(server_factory, monkeypatch, "front,rear")
+def test_the_simulated_rover_s_start_turn_shows_its_pairs_the_ring_round_the_body(server_factory, monkeypatch) -> None:
+    """The simulated rover carries both pairs (config/drivers.yaml), looking ahead and behind, 90
+    deg across each: two turns of 60 deg on the spot at the start put the ground all round before
+    them. At the first choice nearly the whole ring between the body and the mast's blind disc
+    has a frame's bounds, and the set-down's prior is left on a small part of the disc (under the
+    body and a narrow band round it)."""
+    seen = _start(server_factory, monkeypatch)
     assert abs((seen["pose"][2] - 120.0 + 180.0) % 360.0 - 180.0) < 3.0, seen  # facing where the turn left it
     assert seen["ring_framed"] >= 0.85 * seen["ring"], seen
     assert seen["prior"] <= seen["body"] + 0.1 * seen["ring"], seen
@@ -81,7 +85,24 @@ def test_with_the_hazcams_on_the_start_s_turn_shows_the_ring_round_the_body(serv
 def test_with_the_hazcams_off_the_start_is_unchanged(server_factory, monkeypatch) -> None:
     """Without the body's cameras the start does not turn, and the mast's blind disc is the
     set-down's prior: only its edge, which the mast's rays graze, has a frame's bounds."""
-    seen = _start(server_factory, monkeypatch, "off")
+    seen = _start(server_factory, monkeypatch, "drivers.hazcam.cameras=off")
     assert abs(seen["pose"][2]) < 3.0, seen
     assert seen["ring_framed"] <= 0.3 * seen["ring"], seen
     assert seen["prior"] >= 0.6 * seen["ring"], seen
+
+
+def test_simulated_pairs_beside_a_real_tof_are_refused_and_beside_the_simulated_one_feed_the_map() -> None:
+    """A simulated pair renders the simulator's world: beside a real ToF (here the SR4000's
+    library, absent, so the ToF is not even open) it would lay that world into the rover's map."""
+    for tof, pairs in (("mesasr", None), ("sim", ["front", "rear"])):
+        store = build_config(None, [f"drivers.tof.backend={tof}"])
+        devices = DeviceRegistry(store.get("drivers"), make_world(store), matcher=stereo_points)
+        devices.open("hazcam")
+        app = SimpleNamespace(devices=devices)
+        if pairs is None:
+            with pytest.raises(DeviceError, match="ToF is mesasr: a simulated pair must not feed a real rover's map; "
+                                                  "set drivers.hazcam.cameras off"):
+                map_pairs(app)
+        else:
+            assert map_pairs(app) == pairs
+        devices.close()

@@ -11,12 +11,14 @@ from __future__ import annotations
 
 import base64
 import calendar
+import fcntl
 import json
 import math
 import os
 import shutil
 import socket
 import subprocess
+import tempfile
 import time
 import urllib.request
 from collections.abc import Iterator
@@ -49,11 +51,17 @@ def chromium_path() -> str:
         return CHROMIUM
     if shutil.which("apt-get") is None or os.geteuid() != 0:
         pytest.skip("no /usr/bin/chromium and no apt-get as root to install it (apt-get install chromium)")
-    for cmd in (["apt-get", "install", "-y", "-q", "chromium"], ["apt-get", "update", "-q"],
-                ["apt-get", "install", "-y", "-q", "chromium"]):
-        subprocess.run(cmd, capture_output=True, timeout=900, env={**os.environ, "DEBIAN_FRONTEND": "noninteractive"})
-        if Path(CHROMIUM).is_file():
-            return CHROMIUM
+    # pytest's workers each reach this on a fresh machine: one installs while the others wait on
+    # the lock, since apt-get refuses outright while another holds dpkg's lock
+    with open(Path(tempfile.gettempdir()) / "rvs-chromium-install.lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        for cmd in ([], ["apt-get", "install", "-y", "-q", "chromium"], ["apt-get", "update", "-q"],
+                    ["apt-get", "install", "-y", "-q", "chromium"]):
+            if cmd:
+                subprocess.run(cmd, capture_output=True, timeout=900,
+                               env={**os.environ, "DEBIAN_FRONTEND": "noninteractive"})
+            if Path(CHROMIUM).is_file():
+                return CHROMIUM
     pytest.skip("apt-get could not install chromium (no package registry reachable?)")
 
 
@@ -1007,11 +1015,14 @@ def test_the_camera_panel_shows_the_tof_frames_the_server_grabbed_once_opened(co
     page.wait_for_function("S.state.cameras.filter(c => c.url).length === 2")
     page.wait_for_timeout(1200)  # a tick of the panel's clock: closed, it fetches nothing
     assert not page.is_visible("#camera-list") and asked == []
-    assert page.evaluate("S.state.cameras.map(c => c.name)") == ["tof_amplitude", "tof_depth", "stereo_left"]
+    # the simulated rover carries both hazcam pairs (config/drivers.yaml): listed, not yet grabbed
+    assert page.evaluate("S.state.cameras.map(c => c.name)") == ["tof_amplitude", "tof_depth", "stereo_left",
+                                                                 "hazcam_front_left", "hazcam_rear_left"]
     page.click("#tab-cameras")
     for name in ("tof_amplitude", "tof_depth"):
         page.wait_for_selector(f"figure[data-camera={name}] img[data-v]")
     assert "no frame yet: grab-stereo" in page.text_content("figure[data-camera=stereo_left] figcaption")
+    assert "no frame yet" in page.text_content("figure[data-camera=hazcam_front_left] figcaption")
 
     # the depth image on the page is the one served, and it is the grabbed frame: its pixels
     # without a measurement are the transparent ones, the rest a ramp of the depth
