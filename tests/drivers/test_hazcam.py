@@ -1,5 +1,6 @@
 """The body hazard cameras: the simulated pairs' points against the world's true ground, the rear
-pair looking behind, the switch that keeps them off by default, and their settings through the
+pair looking behind, the switch that keeps them off by default (the simulated rover's config
+switches both on), and their settings through the
 device registry and a real server (~10 s in all); the start's ring bench through its CLI (a few
 minutes)."""
 
@@ -121,6 +122,14 @@ def test_the_settings_are_the_registry_s_and_the_mount_is_declared_once(marsyard
     steep = hazcam.pair_rig(hazcam.BACKENDS.settings({"front_pitch_deg": 70.0}), "front")
     flat = hazcam.pair_rig(hazcam.BACKENDS.settings(), "front")
     assert steep.T_rover_left[2, 2] < flat.T_rover_left[2, 2] < 0  # the optical axis points further down
+
+
+def test_the_simulated_rover_carries_both_pairs(server_factory: Any) -> None:
+    """The device's default is off (a real rover names the pairs it carries); the simulated
+    rover's config/drivers.yaml names both, for the see loop's start."""
+    srv = server_factory([])
+    assert srv.app.devices.get("hazcam").cameras() == ["front", "rear"]
+    assert srv.app.devices.get("hazcam").backend == "sim"
 
 
 def test_the_server_builds_the_hazcams_and_config_set_switches_them(server_factory: Any) -> None:
