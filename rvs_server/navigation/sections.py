@@ -389,11 +389,11 @@ class Chooser:
         camera saw (under the body, and a band of about 0.1 m round it). Each step is judged first
         on the map as it is, prior included (the start is where the rover was set down to turn:
         the missions' starts are drawn so); a step that fails ends the turn, and the prior stays
-        where it was not seen. Only a rover the server steers is turned: the server sends a GNC no
-        motion of its own choosing at the start."""
+        where it was not seen. A GNC is sent each step as a section of one waypoint, where the
+        rover stands with the heading to turn to."""
         d = self.d
         step = d.p.start_turn
-        if not d.hazcams or step <= 0.0 or not d.rover.steers:
+        if not d.hazcams or step <= 0.0:
             return
         headings = math.ceil(360.0 / (len(d.hazcams) * step) - 1e-9)
         for _ in range(headings - 1):
@@ -426,7 +426,13 @@ class Chooser:
         if choice.backward:  # the body's headings: the GNC backs along them (drive=reverse)
             wps = _reverse_waypoints(choice.poses[keep])
         else:
-            wps = make_waypoints(_dedup(xy[keep]), start_heading=float(choice.poses[0, 2]))
+            points = _dedup(xy[keep])
+            if np.hypot(*(points[-1] - points[0])) <= 1e-6:
+                # a turn on the spot alone (the start's): one waypoint, where the rover stands,
+                # with the heading it turns to
+                wps = make_waypoints(points[:1], start_heading=float(choice.poses[-1, 2]))
+            else:
+                wps = make_waypoints(points, start_heading=float(choice.poses[0, 2]))
         m.record(xy, wps.xy)
         end = (float(xy[-1, 0]), float(xy[-1, 1]))
         if not choice.backward:

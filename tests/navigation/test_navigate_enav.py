@@ -115,8 +115,9 @@ def test_a_refusal_does_not_outlive_the_frames_of_its_ground() -> None:
 
 
 def test_the_gnc_drives_each_chosen_section_as_waypoints(server_factory) -> None:
-    """Without -auto the GNC drives: each section the chooser picks (at most its configured
-    length, a turn on the spot first where there is one) is sent as a waiting EVENT's waypoints,
+    """Without -auto the GNC drives: the start's turn for the hazard cameras, then each section the
+    chooser picks (at most its configured length, a turn on the spot first where there is one), is
+    sent as a waiting EVENT's waypoints,
     every pose the GNC reports while driving is a cycle, and the goal is reached without a
     360-degree scan."""
     srv = server_factory(["server.scene=quarry", "navigate.pose_settle=0.5", "navigate.see.chooser.section=0.7"])
@@ -138,7 +139,12 @@ def test_the_gnc_drives_each_chosen_section_as_waypoints(server_factory) -> None
             final = r
             break
     assert final.status == "OK" and final.fields["reached"] == "true", final.fields
-    assert int(final.fields["scans"]) == 0 and len(sections) == int(final.fields["legs"]) >= 2
+    assert int(final.fields["scans"]) == 0 and len(sections) == int(final.fields["legs"]) >= 4
+    # first the start's turn on the spot, which shows the hazard camera pairs the ground round the
+    # body: each step one waypoint where the rover stands, with the heading it turns to
+    assert [w.shape for w in sections[:2]] == [(1, 3), (1, 3)], sections[:2]
+    assert [w[0, 2] for w in sections[:2]] == pytest.approx([60.0, 120.0]), sections[:2]
+    assert np.abs(np.vstack(sections[:2])[:, :2]).max() < 1e-3
     for wps in sections:  # a section: at most 0.7 m of arc from where the rover stands
         assert float(np.hypot(*(wps[-1, :2] - wps[0, :2]))) <= 0.7 + 1e-6, wps
 
