@@ -121,9 +121,10 @@ def test_the_gnc_is_sent_a_reverse_section_as_waypoints_with_the_body_s_heading(
     ``drive=reverse``: the points run back along the track to where the last section set off while
     each heading is the body's (toward the rocks, not the way it moves). A forward section's event
     has no ``drive`` field."""
-    # the hazard cameras off: with them this GNC's map (its rover set 5 cm on at each report, however
-    # long the cycle's frames take) holds a 5 cm rise on the track at x -1.3, which refuses the
-    # track back; not traced (docs/NAVIGATE_BENCH.md, "The simulated rover's hazard cameras")
+    # the hazard cameras off: with them the rear pair's frame where this GNC stops reads the ground
+    # at the bottom edge of its view (x -1.29, just behind its mount) 2 cm over what the start's
+    # frames read there, which refuses the track back; not traced further (docs/NAVIGATE_BENCH.md,
+    # "The simulated rover's hazard cameras")
     srv = server_factory(["server.scene=quarry", "navigate.pose_settle=0.5", "navigate.see.retreat.retreats=4",
                           "drivers.hazcam.cameras=off"])
     world = srv.app.world
