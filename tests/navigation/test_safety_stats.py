@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 from scipy.stats import binom
 
+from prox_workflows.algorithms.bounds_map import BoundsParams
 from rvs_truth.stats import clopper_pearson_upper, events_per_distance_upper, poses_per_trial
 
 
@@ -107,8 +108,8 @@ def test_the_stated_risk_tabulates_each_against_set_on_its_own(monkeypatch: pyte
 
     asked = {}
 
-    def looks(scenes, looks, seeds, cell, samples, jobs, against):  # noqa: ANN001, ANN202
-        asked["against"] = against
+    def looks(scenes, looks, seeds, cell, samples, jobs, against, params):  # noqa: ANN001, ANN202
+        asked["against"], asked["params"] = against, params
         miss = {"pose": [1.0, 0.0, 0.0], "truth_excess": {"belly": 0.003}, "nominal_excess": {}, "p_any": 2e-4}
         return [{"scene": "dense", "judged": 1000, "false_safe": 2, "kept": 0.6, "of": 500, "safe_n": 300,
                  "truly_safe": 600, "misses": [miss, miss],
@@ -120,12 +121,33 @@ def test_the_stated_risk_tabulates_each_against_set_on_its_own(monkeypatch: pyte
                 "samples=32"])
     assert asked["against"] == [{"epsilon": 1e-4}, {"edge_sigma": 0.3, "samples": 32}]
     assert isinstance(asked["against"][1]["samples"], int)
+    assert asked["params"] == BoundsParams()  # the map's own parameters unless --bounds says otherwise
     out = capsys.readouterr().out
     declared, first, second = out.split("the same with ")[0], *out.split("the same with ")[1:]
     assert "| dense | 1 | 1,000 | 2 |" in declared and "60.0 % | 50.0 % |" in declared
     assert first.startswith("epsilon=1e-4\n") and "| dense | 1 | 1,000 | 1 |" in first and "50.0 % | 41.7 % |" in first
     assert second.startswith("edge_sigma=0.3 samples=32\n") and "| dense | 1 | 900 | 0 |" in second
     assert "40.0 % | 30.0 % |" in second
+
+
+def test_the_stated_risk_fuses_its_looks_with_the_bounds_map_s_parameters_given(
+        monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]) -> None:
+    """``--bounds`` changes the map every look is fused into (a run of its own, unlike ``--against``),
+    typed by BoundsParams' declaration; a key it does not declare is one clear ERROR line."""
+    import tools.bench.chance as bench
+
+    asked = {}
+
+    def looks(scenes, looks, seeds, cell, samples, jobs, against, params):  # noqa: ANN001, ANN202
+        asked["params"] = params
+        return [{"scene": "dense", "judged": 10, "false_safe": 0, "kept": 0.5, "of": 4, "safe_n": 2, "truly_safe": 5}]
+
+    monkeypatch.setattr(bench, "risk", looks)
+    bench.main(["--risk", "--scenes", "dense", "--bounds", "stereo_first=true", "k=3"])
+    assert asked["params"].stereo_first is True and asked["params"].k == 3.0
+    assert "the map's stereo_first=true k=3" in capsys.readouterr().out
+    with pytest.raises(SystemExit, match="ERROR: --bounds stereo_frist: unknown key; known: cell, k"):
+        bench.main(["--risk", "--bounds", "stereo_frist=true"])
 
 
 def test_the_stated_risk_refuses_a_setting_the_check_does_not_declare() -> None:

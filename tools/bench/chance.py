@@ -33,7 +33,10 @@ lies t or more of their spread under every limit (:func:`slack`), false safes an
 the posterior as the chooser makes it, over many looks (``--look``) on rock draws no setting was
 tuned on (``--world-seeds``; the noise draw is the rock draw's), summed per scene: judged poses,
 false safes and their one-sided 95 % Clopper-Pearson bound, truly safe kept (of those judged, and of
-all truly safe poses: a model that leaves more poses unknown keeps no more for it).
+all truly safe poses: a model that leaves more poses unknown keeps no more for it). ``--bounds
+KEY=VALUE``: the bounds map's parameters for every look (a map of its own, so a run of its own;
+``--against`` changes only the check on the same map), e.g. ``--look approach+hazcam --bounds
+stereo_first=true``: the hazard cameras' cells standing alone.
 
 ``--posterior``: ``look`` (default) makes the posterior seen from the look's mean sensor position;
 ``map`` as the see loop's chooser makes it, with no viewpoint (the slope's steepest direction and
@@ -59,6 +62,7 @@ from prox_workflows.algorithms.chance import ChanceParams, Posterior, chance_che
 from prox_workflows.algorithms.set_down import set_down
 from prox_workflows.algorithms.vehicle import LIMITS, check_poses
 from prox_workflows.grid import GridGeometry
+from rvs_params import SettingError
 from rvs_truth.stats import clopper_pearson_upper
 from tools.bench.bounds import LOOKS, TRUE_CELL, frames, pooled
 from tools.bench.rows import streamed
@@ -69,13 +73,14 @@ Z999 = 3.09  # a normal's 99.9th percentile
 FLAT = 0.02  # m: bands of less headroom fit the floor (top_sigma), the others the share of J (edge_sigma)
 
 
-def fused(scene: str, look: str, cell: float, world_seed: int, seed: int
+def fused(scene: str, look: str, cell: float, world_seed: int, seed: int, params: BoundsParams | None = None
           ) -> tuple[World, BoundsMap, np.ndarray]:
-    """The bounds map of one look, as the bounds bench makes it, and the sensor's mean position."""
+    """The bounds map of one look, as the bounds bench makes it, and the sensor's mean position;
+    ``params``: the map's (its ``cell`` replaced by ``cell``)."""
     world = World.from_scene(scene, seed=world_seed)
     x0, y0, _ = world.rover_pose()
     box = [[x0 - 1.0, y0 - 3.0], [x0 + 6.5, y0 + 3.0]]
-    bounds = BoundsMap.covering(box, 0.0, BoundsParams(cell=cell))
+    bounds = BoundsMap.covering(box, 0.0, dataclasses.replace(params or BoundsParams(), cell=cell))
     origins = []
     for pts, sigma, origin, sigma_xy, cut, sensor in frames(world, look, np.random.default_rng(seed)):
         bounds.fuse(pts, sigma, origin, cut, sigma_xy, sensor)
@@ -154,13 +159,14 @@ def set_down_at_start(world: World, bounds: BoundsMap, body: RoverBody) -> str:
 def evaluate(scene: str, look: str, cell: float, world_seed: int, seed: int, epsilons: list[float],
              samples: int, body: RoverBody, rock_sigma: float = ChanceParams().rock_sigma,
              made: str = "look", start: bool = False, models: list[ChanceParams] | None = None,
-             **model: float) -> dict[str, Any]:
+             params: BoundsParams | None = None, **model: float) -> dict[str, Any]:
     """The pose-level table (see the module's docstring); ``start``: the ring set-down at the
     rover's start and the poses round it (0.5 m behind it to 1.6 m ahead, 1.2 m either side: the
     ground a rover leaving its start drives) instead of those 1.6-4.0 m ahead; ``models``: whole
     parameter sets, each judging the same map and poses (else one per epsilon); ``model``: further
-    :class:`ChanceParams` for the chance check (e.g. ``prior_own=1.0``: a prior drawn cell by cell)."""
-    world, bounds, viewpoint = fused(scene, look, cell, world_seed, seed)
+    :class:`ChanceParams` for the chance check (e.g. ``prior_own=1.0``: a prior drawn cell by cell);
+    ``params``: the bounds map's."""
+    world, bounds, viewpoint = fused(scene, look, cell, world_seed, seed, params)
     said = set_down_at_start(world, bounds, body) if start else ""
     stats, g = whole(bounds)
     if made != "look":  # as the chooser makes it: no viewpoint
@@ -267,13 +273,14 @@ def _miss(pose: np.ndarray, truth: np.ndarray, nominal: np.ndarray, p_any: float
             "p_any": p_any}
 
 
-def _risk_row(job: tuple[str, str, float, int, int, list[dict[str, float]]]) -> dict[str, Any]:
+def _risk_row(job: tuple[str, str, float, int, int, list[dict[str, float]], BoundsParams]) -> dict[str, Any]:
     """One look's counts with the declared parameters, and with them changed by each set of
     ``against`` (the ``against`` key, in order: the same map, poses and draws), in a pool's process."""
-    scene, look, cell, world_seed, samples, against = job
+    scene, look, cell, world_seed, samples, against, params = job
     models = [ChanceParams(samples=samples)]
     models += [dataclasses.replace(models[0], **changed) for changed in against]
-    out = evaluate(scene, look, cell, world_seed, world_seed, [], samples, RoverBody(), made="map", models=models)
+    out = evaluate(scene, look, cell, world_seed, world_seed, [], samples, RoverBody(), made="map", models=models,
+                   params=params)
     rows = [{"judged": row["judged"], "false_safe": row["false_safe"], "kept": round(row["kept"], 4),
              "of": row["of"], "safe_n": row["safe_n"], "misses": row["misses"]} for row in out["rows"][1:]]
     head = {"scene": scene, "look": look, "world_seed": world_seed, "truly_unsafe": out["truly_unsafe"],
@@ -282,10 +289,11 @@ def _risk_row(job: tuple[str, str, float, int, int, list[dict[str, float]]]) -> 
 
 
 def risk(scenes: list[str], looks: list[str], world_seeds: list[int], cell: float, samples: int,
-         jobs: int, against: list[dict[str, float]] | None = None) -> list[dict[str, Any]]:
+         jobs: int, against: list[dict[str, float]] | None = None, params: BoundsParams | None = None
+         ) -> list[dict[str, Any]]:
     """Per scene, the looks' counts summed: the false-safe rate per judged pose and its bound.
     Each look's row is printed as it comes, so a run cut short keeps what it measured."""
-    todo = [(scene, look, cell, ws, samples, against or []) for ws in world_seeds for scene in scenes
+    todo = [(scene, look, cell, ws, samples, against or [], params or BoundsParams()) for ws in world_seeds for scene in scenes
             for look in looks]
     return streamed(_risk_row, todo, jobs)
 
@@ -434,6 +442,9 @@ def main(argv: list[str] | None = None) -> None:
                          "at 0: the model without it), on the same map and draws, and tabulate both; given "
                          "again, each set is judged and tabulated apart (e.g. --against epsilon=1e-4 "
                          "--against epsilon=3e-5: one fused map and one truth for every setting)")
+    ap.add_argument("--bounds", nargs="+", default=[], metavar="KEY=VALUE",
+                    help="with --risk: the bounds map's parameters (BoundsParams, e.g. stereo_first=false): a map "
+                         "of its own, so a run of its own")
     ap.add_argument("--slack", action="store_true",
                     help="with --scenes and --world-seeds: the declared verdict against a threshold on the draws' "
                          "margin in sigmas, whether the stated probability has slack at the pose level (with "
@@ -456,8 +467,13 @@ def main(argv: list[str] | None = None) -> None:
         return
     if args.risk:
         against = [against_set(words) for words in args.against]
-        rows = risk(args.scenes, [args.look], args.world_seeds, args.cell, args.samples, args.jobs, against)
-        print(f"\nthe chance check at epsilon {ChanceParams().epsilon:g}, the chooser's posterior, {args.look} looks")
+        try:
+            params = BoundsParams(**BoundsParams.parse_assignments(args.bounds, flag="--bounds"))
+        except SettingError as exc:
+            raise SystemExit(f"ERROR: {exc}") from None
+        rows = risk(args.scenes, [args.look], args.world_seeds, args.cell, args.samples, args.jobs, against, params)
+        print(f"\nthe chance check at epsilon {ChanceParams().epsilon:g}, the chooser's posterior, {args.look} looks"
+              + (f", the map's {' '.join(args.bounds)}" if args.bounds else ""))
         print("\n".join(risk_table(rows)))
         for i, words in enumerate(args.against):
             print(f"\nthe same with {' '.join(words)}")
