@@ -271,8 +271,8 @@ class SeeingDriver:
         lay more than 3 sigma off the true surface and 7-16 % of the cells had the truth under
         their lower bound; as stereo about 1 % and at most 0.2 % (``python -m tools.bench.hazcam
         --ring``).
-        Where a pair bounded a cell its bounds stand alone (``stereo_first``): they replace the
-        set-down's prior there."""
+        Its cells fuse with the ToF's and the set-down's prior by their variances (the prior's
+        1-3.7 cm leaves the cell the pair's reading)."""
         device = self.app.devices.get("hazcam")
         frame = device_call(self.job, device.grab, camera)
         ground = ~self.on_body(frame.points)

@@ -166,23 +166,24 @@ def test_a_stereo_frames_pixels_in_a_cell_share_one_error() -> None:
         _map().fuse(frame, sigma, sensor="lidar")
 
 
-def test_where_a_stereo_frame_bounded_a_cell_its_bounds_stand_alone() -> None:
+def test_a_stereo_frame_fuses_with_the_tofs_by_default_and_stands_alone_with_stereo_first() -> None:
     rng = np.random.default_rng(4)
     tof, stereo = _level(rng, 0.004, 0.006), _level(rng, 0.0, 0.0005)
     flat = _cells(_map(), 1.05, 1.95, -0.45, 0.45)
     alone = _map()
     alone.fuse(stereo, 0.002, sensor="stereo")
-    m = _map()
-    m.fuse(tof, 0.006)
-    m.fuse(stereo, 0.002, sensor="stereo")
-    m.fuse(_level(rng, 0.004, 0.006), 0.006)  # a later ToF frame changes nothing there
-    assert np.array_equal(m.upper[flat], alone.upper[flat]) and np.array_equal(m.lower[flat], alone.lower[flat])
-    assert (m.source[flat] == 1).all()
-    # fused, the ToF's mean pulls the stereo's bounds up by a third of its offset
-    fused = BoundsMap(_map().geometry, BoundsParams(stereo_first=False))
+    # by default the ToF's mean pulls the stereo's bounds up by a third of its offset
+    fused = _map()
     fused.fuse(tof, 0.006)
     fused.fuse(stereo, 0.002, sensor="stereo")
     assert float(np.median(fused.lower[flat] - alone.lower[flat])) > 0.0005
+    first = BoundsMap(_map().geometry, BoundsParams(stereo_first=True))
+    first.fuse(tof, 0.006)
+    first.fuse(stereo, 0.002, sensor="stereo")
+    first.fuse(_level(rng, 0.004, 0.006), 0.006)  # a later ToF frame changes nothing there
+    assert np.array_equal(first.upper[flat], alone.upper[flat]) and np.array_equal(first.lower[flat], alone.lower[flat])
+    assert (first.source[flat] == 1).all()
+
 
 def test_a_ray_over_a_cell_bounds_it_from_above_only_and_unseen_cells_have_no_bound() -> None:
     m = _map()
