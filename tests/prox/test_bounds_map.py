@@ -182,7 +182,47 @@ def test_a_stereo_frame_fuses_with_the_tofs_by_default_and_stands_alone_with_ste
     first.fuse(stereo, 0.002, sensor="stereo")
     first.fuse(_level(rng, 0.004, 0.006), 0.006)  # a later ToF frame changes nothing there
     assert np.array_equal(first.upper[flat], alone.upper[flat]) and np.array_equal(first.lower[flat], alone.lower[flat])
-    assert (first.source[flat] == 1).all()
+    assert (first.sensors[flat] == 2).all()  # the stereo's bit alone
+
+
+def _patch(rng: np.random.Generator, z: float, n: int = 2_000) -> np.ndarray:
+    """Returns over the 3 x 3 cells x 1.5..1.575 m, y 0..0.075 m at height ``z``: fewer cells than
+    a changed ground needs (``changed_cells``), so they are fused, not taken as a rock come."""
+    return np.column_stack([rng.uniform(1.5, 1.575, n), rng.uniform(0.0, 0.075, n), z + 0.0005 * rng.standard_normal(n)])
+
+
+def test_where_a_pair_and_the_tof_disagree_the_tofs_reading_stands() -> None:
+    # a pair's mismatch at a rock's edge reads 12 cm high (and elsewhere 8 cm low) over ground the
+    # ToF read flat: kept as the union, the cell's top stood 12 cm over the ground
+    rng = np.random.default_rng(5)
+    tof = _level(rng, 0.0, 0.004)
+    patch = _cells(_map(), 1.5, 1.575, 0.0, 0.075)
+    flat = _cells(_map(), 1.05, 1.45, -0.45, -0.05)
+    high, low = _patch(rng, 0.12), _patch(rng, -0.08) - [0.0, 0.2, 0.0]
+    low_cells = _cells(_map(), 1.5, 1.575, -0.2, -0.125)
+    level = _level(rng, 0.0, 0.0005)
+    level = level[~((np.abs(level[:, 0] - 1.54) < 0.05) & (np.abs(level[:, 1] + 0.06) < 0.15))]
+    maps = {stands: BoundsMap(_map().geometry, BoundsParams(tof_stands=stands)) for stands in (True, False)}
+    for m in maps.values():
+        m.fuse(tof, 0.004)
+    alone = maps[True].mean_var.copy()
+    for m in maps.values():
+        m.fuse(np.vstack([level, high, low]), 0.002, sensor="stereo")
+    assert (maps[True].upper[patch] < 0.02).all() and (maps[True].lower[low_cells] > -0.02).all()
+    assert (maps[False].upper[patch] > 0.12).all() and (maps[False].lower[low_cells] < -0.08).all()
+    assert (maps[True].mean_var[flat] < alone[flat]).all()  # agreeing: fused
+    assert (maps[True].sensors[flat] == 3).all() and (maps[True].sensors[patch] == 1).all()
+    # a ToF frame disagreeing with what only a pair said replaces it; the union without
+    tof_only = _map()
+    tof_only.fuse(tof, 0.004)
+    for stands in (True, False):
+        m = BoundsMap(_map().geometry, BoundsParams(tof_stands=stands))
+        m.fuse(high, 0.002, sensor="stereo")
+        m.fuse(tof, 0.004)
+        if stands:
+            assert np.array_equal(m.upper[patch], tof_only.upper[patch]) and (m.sensors[patch] == 1).all()
+        else:
+            assert (m.upper[patch] > 0.12).all() and (m.sensors[patch] == 3).all()
 
 
 def test_a_ray_over_a_cell_bounds_it_from_above_only_and_unseen_cells_have_no_bound() -> None:
