@@ -702,7 +702,7 @@ class BoundsMap:
         disagrees with (returned False), and a ToF frame replaces what only pairs said of the
         cells it disagrees with. A pair's disagreement there is its matcher's error at a rock's
         edge, not the ground: kept as the union of both, it stood a flat cell's top up to 19 cm
-        over ground a ToF ray had passed 3 cm over, under the belly of every path the rover had
+        over ground a ray had passed 3 cm over, under the belly of every path the rover had
         (docs/NAVIGATE_BENCH.md). Two ToF frames that disagree keep the union."""
         tof = np.uint8(1 << SENSORS.index("tof"))
         held = self.sensors.flat[cells]
