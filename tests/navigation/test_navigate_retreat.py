@@ -81,7 +81,8 @@ def test_a_rover_in_a_cul_de_sac_backs_out_and_reaches_the_goal_round_it(server_
     surface. A forward-only chooser ends in the corridor with a safe stop."""
     # unregistered frames disagree by centimetres, which the change rule would take for rocks come
     # since; and the walls they spread are the pairs' disagreements with the ToF kept as unions
-    # (with the ToF's reading standing the map shows the turn, as registered)
+    # (with the ToF's reading standing, the map shows the turn, as registered: set here, whatever
+    # the default)
     placed = ["navigate.see_register=true", "navigate.see.bounds.changed=0.05"] if registered else \
         ["navigate.see_register=false", "navigate.see.bounds.changed=0", "navigate.see.bounds.tof_stands=false"]
     srv = server_factory(["server.scene=quarry", "drivers.ptu.timeout=30", "navigate.see.retreat.retreats=4", *placed])
