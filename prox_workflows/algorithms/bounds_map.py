@@ -30,8 +30,8 @@ What each observation says, and so what the map keeps:
   mast's stereo, where a fused mean shrinks the bounds below what either sensor holds alone
   (docs/BENCHMARKS.md). Where a pair's reading and a ToF frame's disagree beyond the gate, the
   union of both is kept, as between two ToF frames; with ``tof_stands`` the ToF's reading
-  stands instead: the pair's disagreement is its matcher's error at a rock's edge far more often
-  than the ground (dense, traced against the truth), and kept as a union it stood flat cells'
+  stands instead: the pair's disagreement is its own error far more often than the ground
+  (dense, traced against the truth), and kept as a union it stood flat cells'
   tops up to 19 cm high, but the missions moved both ways with it (docs/NAVIGATE_BENCH.md).
 - A ray that passed over a cell without a return there bounds the ground from above at the ray's
   height (``ceiling``): ground behind a rock the rays skimmed, or between sparse far returns, is
@@ -704,8 +704,8 @@ class BoundsMap:
         """Where a ToF frame and a stereo pair's reading of a cell disagree beyond the gate, the
         ToF's stands (``tof_stands``): a stereo frame leaves the cells a ToF frame bounded that it
         disagrees with (returned False), and a ToF frame replaces what only pairs said of the
-        cells it disagrees with. A pair's disagreement there is its matcher's error at a rock's
-        edge, not the ground: kept as the union of both, it stood a flat cell's top up to 19 cm
+        cells it disagrees with. A pair's disagreement there is its own error four times in five,
+        not the ground: kept as the union of both, it stood a flat cell's top up to 19 cm
         over ground a ray had passed 3 cm over, under the belly of every path the rover had
         (docs/NAVIGATE_BENCH.md). Two ToF frames that disagree keep the union."""
         tof = np.uint8(1 << SENSORS.index("tof"))
