@@ -29,10 +29,10 @@ What each observation says, and so what the map keeps:
   approach+hazcam``, docs/NAVIGATE_BENCH.md). ``stereo_first`` is for the worst-case check on the
   mast's stereo, where a fused mean shrinks the bounds below what either sensor holds alone
   (docs/BENCHMARKS.md). Where a pair's reading and a ToF frame's disagree beyond the gate, the
-  union of both is kept, as between two ToF frames; with ``tof_stands`` the ToF's reading
-  stands instead: the pair's disagreement is its own error far more often than the ground
-  (dense, traced against the truth), and kept as a union it stood flat cells'
-  tops up to 19 cm high, but the missions moved both ways with it (docs/NAVIGATE_BENCH.md).
+  union of both is kept by default, as between two ToF frames; ``disagree`` lets the ToF's
+  reading stand instead: the pair's disagreement is its own error far more often than the
+  ground (dense, traced against the truth), and kept as a union it stood flat cells' tops up to
+  19 cm high, but the missions moved both ways with it (docs/NAVIGATE_BENCH.md).
 - A ray that passed over a cell without a return there bounds the ground from above at the ray's
   height (``ceiling``): ground behind a rock the rays skimmed, or between sparse far returns, is
   not known, but it is known not to stand higher than the ray. It gives no lower bound.
@@ -91,14 +91,14 @@ class BoundsParams(Settings):
                                            "pixels share the matcher's window, so n of them are no better than one "
                                            "(0.9 already misses rock tops in the simulated rock fields)",
                                       min=0.0, max=1.0)
-    tof_stands: bool = param(False, "where a ToF frame and a stereo pair's reading of a cell disagree beyond the gate, "
-                                    "the ToF's stands (a stereo frame leaves the cell, a ToF frame replaces what only "
-                                    "pairs said); false: the union of both, as between two ToF frames. On dense's "
-                                    "mission 3 the pairs' disagreeing readings held the true ground in 12-21 % of "
-                                    "cells, the ToF-bounded map's in 87-96 %, and with it dense 3 made 10.4 m good "
-                                    "where it made 1.5; but over 14 missions it reached two more and lost three, "
-                                    "and was slower on every mission reached both ways: off until its two halves "
-                                    "are measured apart (docs/NAVIGATE_BENCH.md)")
+    disagree: str = param("union", "where a ToF frame and a stereo pair's reading of a cell disagree beyond the gate: "
+                                   "union, both are kept, as between two ToF frames; pair_yields, a stereo frame "
+                                   "leaves the cells a ToF frame bounded; tof_stands, that and a ToF frame replaces "
+                                   "what only pairs said. On dense's mission 3 the pairs' disagreeing readings held "
+                                   "the true ground in 12-21 % of cells, the ToF-bounded map's in 87-96 %, and with "
+                                   "tof_stands dense 3 made 10.4 m good where it made 1.5; but over 14 missions it "
+                                   "reached two more and lost three, and was slower on every mission reached both "
+                                   "ways (docs/NAVIGATE_BENCH.md)", choices=("union", "pair_yields", "tof_stands"))
     stereo_first: bool = param(False, "where a stereo frame bounded a cell, its bounds stand alone: ToF frames no "
                                       "longer fuse into the cell (for the worst-case check on the mast's stereo: "
                                       "fused, a mean better than either sensor's shrinks the bounds below what "
@@ -689,7 +689,7 @@ class BoundsMap:
             enough &= held < bit << 1  # a cell the stereo bounded takes no ToF frame
             self._forget(cells[enough & (held != 0) & (held < bit)])
         self._changed(cells[enough], mean[enough])
-        if self.params.tof_stands:
+        if self.params.disagree != "union":
             enough[enough] = self._settle(cells[enough], mean[enough], mean_var[enough], rise[enough], drop[enough],
                                           sensor)
         cells = cells[enough]
@@ -702,18 +702,22 @@ class BoundsMap:
     def _settle(self, cells: np.ndarray, mean: np.ndarray, var: np.ndarray, rise: np.ndarray, drop: np.ndarray,
                 sensor: str) -> np.ndarray:
         """Where a ToF frame and a stereo pair's reading of a cell disagree beyond the gate, the
-        ToF's stands (``tof_stands``): a stereo frame leaves the cells a ToF frame bounded that it
-        disagrees with (returned False), and a ToF frame replaces what only pairs said of the
-        cells it disagrees with. A pair's disagreement there is its own error four times in five,
-        not the ground: kept as the union of both, it stood a flat cell's top up to 19 cm
-        over ground a ray had passed 3 cm over, under the belly of every path the rover had
-        (docs/NAVIGATE_BENCH.md). Two ToF frames that disagree keep the union."""
+        ToF's stands (``disagree``): a stereo frame leaves the cells a ToF frame bounded that it
+        disagrees with (returned False), and with ``tof_stands`` a ToF frame also replaces what
+        only pairs said of the cells it disagrees with. A pair's disagreement with a ToF-bounded
+        cell is its own error four times in five, not the ground: kept as the union of both, it
+        stood a flat cell's top up to 19 cm over ground a ray had passed 3 cm over, under the
+        belly of every path the rover had (docs/NAVIGATE_BENCH.md). Where only pairs bounded the
+        cell the log does not tell which is right: near the body a pair's cells are within 2 mm
+        of the truth, and a ToF frame taken while driving may be the worse reading, hence the two
+        halves apart. Two ToF frames that disagree keep the union."""
         tof = np.uint8(1 << SENSORS.index("tof"))
         held = self.sensors.flat[cells]
         differ = ~self._agrees(cells, mean, var, rise, drop)
         if sensor != "tof":
             return ~(differ & ((held & tof) != 0))
-        self._forget(cells[differ & (held != 0) & ((held & tof) == 0)])
+        if self.params.disagree == "tof_stands":
+            self._forget(cells[differ & (held != 0) & ((held & tof) == 0)])
         return np.ones(len(cells), bool)
 
     def _changed(self, cells: np.ndarray, mean: np.ndarray) -> None:

@@ -84,7 +84,7 @@ def test_a_rover_in_a_cul_de_sac_backs_out_and_reaches_the_goal_round_it(server_
     # (with the ToF's reading standing, the map shows the turn, as registered: set here, whatever
     # the default)
     placed = ["navigate.see_register=true", "navigate.see.bounds.changed=0.05"] if registered else \
-        ["navigate.see_register=false", "navigate.see.bounds.changed=0", "navigate.see.bounds.tof_stands=false"]
+        ["navigate.see_register=false", "navigate.see.bounds.changed=0", "navigate.see.bounds.disagree=union"]
     srv = server_factory(["server.scene=quarry", "drivers.ptu.timeout=30", "navigate.see.retreat.retreats=4", *placed])
     world = srv.app.world
     world.set_target_visible(False)

@@ -202,24 +202,26 @@ def test_where_a_pair_and_the_tof_disagree_the_tofs_reading_stands() -> None:
     low_cells = _cells(_map(), 1.5, 1.575, -0.2, -0.125)
     level = _level(rng, 0.0, 0.0005)
     level = level[~((np.abs(level[:, 0] - 1.54) < 0.05) & (np.abs(level[:, 1] + 0.06) < 0.15))]
-    maps = {stands: BoundsMap(_map().geometry, BoundsParams(tof_stands=stands)) for stands in (True, False)}
+    maps = {rule: BoundsMap(_map().geometry, BoundsParams(disagree=rule)) for rule in ("tof_stands", "pair_yields", "union")}
     for m in maps.values():
         m.fuse(tof, 0.004)
-    alone = maps[True].mean_var.copy()
+    alone = maps["tof_stands"].mean_var.copy()
     for m in maps.values():
         m.fuse(np.vstack([level, high, low]), 0.002, sensor="stereo")
-    assert (maps[True].upper[patch] < 0.02).all() and (maps[True].lower[low_cells] > -0.02).all()
-    assert (maps[False].upper[patch] > 0.12).all() and (maps[False].lower[low_cells] < -0.08).all()
-    assert (maps[True].mean_var[flat] < alone[flat]).all()  # agreeing: fused
-    assert (maps[True].sensors[flat] == 3).all() and (maps[True].sensors[patch] == 1).all()
-    # a ToF frame disagreeing with what only a pair said replaces it; the union without
+    for rule in ("tof_stands", "pair_yields"):  # either way the pair leaves what the ToF bounded
+        assert (maps[rule].upper[patch] < 0.02).all() and (maps[rule].lower[low_cells] > -0.02).all()
+        assert (maps[rule].mean_var[flat] < alone[flat]).all()  # agreeing: fused
+        assert (maps[rule].sensors[flat] == 3).all() and (maps[rule].sensors[patch] == 1).all()
+    assert (maps["union"].upper[patch] > 0.12).all() and (maps["union"].lower[low_cells] < -0.08).all()
+    # a ToF frame disagreeing with what only a pair said replaces it with tof_stands; the union
+    # with the other two
     tof_only = _map()
     tof_only.fuse(tof, 0.004)
-    for stands in (True, False):
-        m = BoundsMap(_map().geometry, BoundsParams(tof_stands=stands))
+    for rule in ("tof_stands", "pair_yields", "union"):
+        m = BoundsMap(_map().geometry, BoundsParams(disagree=rule))
         m.fuse(high, 0.002, sensor="stereo")
         m.fuse(tof, 0.004)
-        if stands:
+        if rule == "tof_stands":
             assert np.array_equal(m.upper[patch], tof_only.upper[patch]) and (m.sensors[patch] == 1).all()
         else:
             assert (m.upper[patch] > 0.12).all() and (m.sensors[patch] == 3).all()
