@@ -104,6 +104,27 @@ def test_a_slip_run_slips_each_mission_its_own_seeded_way() -> None:
             parse_slip(bad)
 
 
+def test_a_noise_draw_reseeds_every_simulated_sensor_and_reach_is_counted_per_mission(tmp_path: Path) -> None:
+    """The noise draw reaches the three simulated sensors that draw noise, through the server's
+    own settings (a server started with them reads them back), and the rows of several draws
+    are counted per mission."""
+    from rvs_server.client.session import ServerThread
+    from tools.bench.navigate import noise_sets, reach_over_draws
+
+    sets = noise_sets(7)
+    assert sets == ["drivers.tof.seed=7", "drivers.stereo.seed=7", "drivers.hazcam.seed=7"]
+    srv = ServerThread([f"server.data={tmp_path}", "server.port=0", *sets], log_level="warning")
+    srv.start(60)
+    try:
+        drivers = srv.app.config.get("drivers")
+        assert (drivers.tof.seed, drivers.stereo.seed, drivers.hazcam.seed) == (7, 7, 7)
+    finally:
+        srv.stop()
+    rows = [{"scene": "dense", "mode": "see", "mission": m, "noise": n, "reached": r}
+            for m, n, r in [(0, 0, True), (0, 1, False), (0, 2, True), (3, 0, False), (3, 1, False), (3, 2, False)]]
+    assert reach_over_draws(rows) == ["dense see: m0 2/3 m3 0/3; 2 of 6 runs"]
+
+
 def test_the_slip_option_refuses_a_bad_value_on_the_command_line() -> None:
     import subprocess
     import sys

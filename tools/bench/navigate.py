@@ -37,6 +37,7 @@ distance from the planned waypoint legs) it prints the margin table.
     python -m tools.bench.navigate --ceiling --footprint body --scenes hirise   # perfect maps, 35 s
     python -m tools.bench.navigate --oracle --missions 5 --scenes marsyard hirise dense --jobs 2
     python -m tools.bench.navigate --missions 3 --scenes marsyard --modes see --jobs 1 --slip 0.05,2
+    python -m tools.bench.navigate --missions 5 --scenes dense --modes see --noise-seeds 0 1 2
 
 ``--slip SHARE,DEG_PER_M`` runs every mission with the simulated rover's wheels slipping
 (``sim slip``: it covers 1 - SHARE of what its odometry counts and its heading drifts DEG_PER_M
@@ -45,6 +46,10 @@ rover's dead reckoning, so the loop steers, places its frames and judges its arr
 pose that parts from the truth. The row then holds, beside ``true_miss`` (the true distance
 from the goal where the rover stopped: the simulator's pose, never the loop's), the loop's own
 ``believed_miss`` and ``true_reached`` (the true distance within navigate's tolerance).
+``--noise-seeds 0 1 2`` runs every mission under each sensor noise draw (the simulated ToF's,
+pairs' and hazard cameras' seed; the world, the mission and every setting the same) and prints
+each mission's reach over the draws: a mission turns on single refusals, and one run of it
+flips with any change to the frames.
 ``--localise MODE`` gives navigate ``-localise MODE`` with the scene's true DEM at 0.5 m as its
 orbital map (``-global``, a UTM GeoTIFF, as ``tools.bench.localise`` gives it): the fixes that
 can bring the true pose back within the tolerance.
@@ -54,6 +59,7 @@ from __future__ import annotations
 
 import argparse
 import csv
+import dataclasses
 import json
 import math
 import socket
@@ -65,6 +71,7 @@ from typing import Any
 
 import numpy as np
 
+from drivers.registry import DEVICE_KINDS, registry
 from drivers.sim.rover import RoverBody
 from drivers.sim.world import World
 from prox_workflows.algorithms.dem2hazard import HazardParams, dem2hazard
@@ -154,6 +161,15 @@ def slip_lines(slip: tuple[float, float] | None, seed: int, mission: int) -> lis
     if slip is None:
         return []
     return [f"sim slip -distance {slip[0]:g} -heading {slip[1]:g} -seed {seed * 1000 + mission}"]
+
+
+def noise_sets(noise: int) -> list[str]:
+    """The settings that give every simulated sensor with a noise generator (the device kinds whose
+    settings declare ``seed``) the noise draw ``noise``: the same world and mission, other frames.
+    A mission's outcome turns on single refusals, so one run of it says little of a change worth
+    one mission in ten; its reach over several draws does."""
+    kinds = [k for k in DEVICE_KINDS if "seed" in {f.name for f in dataclasses.fields(registry(k).settings_class())}]
+    return [f"drivers.{kind}.seed={noise}" for kind in kinds]
 
 
 def parse_slip(text: str) -> tuple[float, float]:
@@ -500,14 +516,29 @@ def margin_table(budget: list[dict[str, Any]], rows: list[dict[str, Any]], body:
 
 
 def _run(job: tuple[str, str, tuple[float, float], tuple[float, float], tuple[str, ...], int, str, int, str,
-               tuple[float, float] | None, str]) -> dict[str, Any]:
+               tuple[float, float] | None, str, int]) -> dict[str, Any]:
     """One mission (in a pool's process: the see loop's footprint comes along)."""
-    scene, mode, start, goal, sets, i, footprint, seed, cache, slip, localise = job
+    scene, mode, start, goal, sets, i, footprint, seed, cache, slip, localise, noise = job
     FOOTPRINT["see"] = footprint
-    row = run_mission(scene, mode, start, goal, slip_lines(slip, seed, i), sets, seed, Path(cache), localise)
-    row["mission"] = i
+    row = run_mission(scene, mode, start, goal, slip_lines(slip, seed, i), (*sets, *noise_sets(noise)), seed,
+                      Path(cache), localise)
+    row["mission"], row["noise"] = i, noise
     return row
 
+
+
+def reach_over_draws(rows: list[dict[str, Any]]) -> list[str]:
+    """Per scene and mode, each mission's reached draws over its runs (``m3 2/3``), and the share
+    of all runs reached: what a change is weighed by when single runs flip."""
+    lines = []
+    for scene, mode in dict.fromkeys((r["scene"], r["mode"]) for r in rows):
+        sel = [r for r in rows if r["scene"] == scene and r["mode"] == mode]
+        per = {}
+        for r in sel:
+            per.setdefault(r["mission"], []).append(r["reached"])
+        cells = " ".join(f"m{m} {sum(v)}/{len(v)}" for m, v in sorted(per.items()))
+        lines.append(f"{scene} {mode}: {cells}; {sum(r['reached'] for r in sel)} of {len(sel)} runs")
+    return lines
 
 
 def print_summary(summary: list[dict[str, Any]]) -> None:
@@ -587,6 +618,9 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--scenes", nargs="+", default=["marsyard", "hirise"])
     ap.add_argument("--modes", nargs="+", default=["scan", "see"], choices=["scan", "see"])
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--noise-seeds", type=int, nargs="+", default=[0], metavar="N",
+                    help="run every mission under each of these sensor noise draws (the simulated sensors' seed): "
+                         "its reach over several draws, where one run turns on single refusals")
     ap.add_argument("--replan-trials", type=int, default=20)
     ap.add_argument("--out", default="", help="also write the rows and the summary as JSON here")
     ap.add_argument("--footprint", choices=["circle", "body"], default=FOOTPRINT["see"],
@@ -668,12 +702,16 @@ def main(argv: list[str] | None = None) -> None:
     # scenes and modes interleaved mission by mission: a run cut short still compares them
     todo = {scene: missions(scene, args.missions, args.seed) for scene in args.scenes}
     jobs = [(scene, mode, *todo[scene][i], tuple(args.set), i, args.footprint, args.seed, args.oracle_cache, slip,
-             args.localise)
-            for i in range(args.first, args.missions)
+             args.localise, noise)
+            for noise in args.noise_seeds for i in range(args.first, args.missions)
             for scene in args.scenes for mode in args.modes]
     rows = streamed(_run, jobs, args.jobs)
     summary = summarise(rows)
     print_summary(summary)
+    if len(args.noise_seeds) > 1:
+        print("\nreached per mission over the noise draws " + " ".join(map(str, args.noise_seeds)) + ":")
+        for line in reach_over_draws(rows):
+            print("  " + line)
     rep = replan_vs_astar(args.replan_trials, args.seed) if args.replan_trials > 0 else {}
     if rep:
         print(f"\nreplanning on {rep['grid'][0]} x {rep['grid'][1]} cells (a rock 3 m ahead on the path): D* Lite "
