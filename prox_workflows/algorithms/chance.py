@@ -156,6 +156,9 @@ class ChanceParams(Settings):
                                    "as a share of the cell's height over the lowest top within 0.2 m (chosen on "
                                    "the false safes against the truth of two marsyard draws: python -m "
                                    "tools.bench.chance --rock-sigma)", min=0.0, max=1.0)
+    rock_sigma_max: float = param(1.0, "the rock top's common sigma (rock_sigma x H) at most this: a rock's top is "
+                                       "read low by the apex its returns miss, which does not grow with the rock's "
+                                       "height", unit="m", min=0.0, max=1.0)
     shared_length: float = param(0.2, "a prior's error (the set-down's blind disc, the wheels' contacts: ground no "
                                       "frame bounded) is the ground's off the prior's plane, shared by neighbouring "
                                       "cells: drawn as smoothed white noise whose correlation falls to 1/e at this "
@@ -321,7 +324,7 @@ def posterior(stats: dict[str, np.ndarray], geom: GridGeometry, k: float, params
     within = np.asarray(stats["relief"], np.float64) if "relief" in stats else \
         np.asarray(stats["rise"], np.float64) + np.asarray(stats["drop"], np.float64)
     return Posterior(np.where(seen, mu, np.nan), np.where(seen, var, np.nan), ceiling,
-                     np.where(seen, np.hypot(p.edge_sigma * jump, p.rock_sigma * relief(top, geom)), 0.0),
+                     np.where(seen, np.hypot(p.edge_sigma * jump, rock_top_sigma(top, geom, p)), 0.0),
                      np.where(prior, np.sqrt(np.maximum((1.0 - p.prior_own) * var0, 0.0)), 0.0),
                      np.where(seen & ~prior, p.within * within, 0.0) if p.within > 0 else None)
 
@@ -334,6 +337,12 @@ def prior_correlation(d: np.ndarray | float, params: ChanceParams | None = None)
     p = params or ChanceParams()
     length = max(p.shared_length, 1e-9)
     return (1.0 - p.prior_own) * np.exp(-(np.asarray(d, np.float64) / length) ** 2)
+
+def rock_top_sigma(top: np.ndarray, geom: GridGeometry, p: ChanceParams) -> np.ndarray:
+    """The sigma of the error a rock's top is read low by as a whole (common to the cells under a
+    body): ``rock_sigma`` of its height over the ground it stands on, at most ``rock_sigma_max``."""
+    return np.minimum(p.rock_sigma * relief(top, geom), p.rock_sigma_max)
+
 
 def relief(top: np.ndarray, geom: GridGeometry) -> np.ndarray:
     """H per cell: how far its ``top`` stands over the lowest top within ROCK_WINDOW (0 where no

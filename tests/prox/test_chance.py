@@ -4,6 +4,8 @@ epsilon, beside the worst-case check on bounds; and the posterior's ray and rock
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -326,6 +328,20 @@ def test_a_rock_top_shares_one_error_by_its_height_over_the_ground_round_it() ->
     assert post.common[rim][0] == pytest.approx(0.2 * 0.10, rel=1e-6)
     flat = (np.abs(X + 0.7) < 0.05) & (np.abs(Y) < 0.5)
     np.testing.assert_allclose(post.common[flat], 0.2 * 0.02 * 0.1, rtol=1e-6)  # the slope over 0.1 m: 0.4 mm
+
+
+def test_a_tall_rocks_top_is_read_low_by_no_more_than_a_low_ones() -> None:
+    """The rock top's common sigma grows with the rock's height up to ``rock_sigma_max``: the
+    apex its returns miss, not the rock's height, is what the top is read low by."""
+    g, X, Y = grid()
+    top = np.where(np.hypot(X, Y) < 0.2, 0.15, 0.0)
+    low = np.where(np.hypot(X, Y) < 0.2, 0.05, 0.0)
+    p = ChanceParams(edge_bias=0.0, edge_sigma=0.0, top_sigma=0.0, rock_sigma=0.2, rock_sigma_max=0.015)
+    rim = (np.abs(X - 0.175) < 1e-6) & (np.abs(Y - 0.025) < 1e-6)
+    assert posterior(stats(top, 0.004, 0.0), g, 2.5, p).common[rim][0] == pytest.approx(0.015)
+    assert posterior(stats(low, 0.004, 0.0), g, 2.5, p).common[rim][0] == pytest.approx(0.2 * 0.05, rel=1e-6)
+    uncapped = dataclasses.replace(p, rock_sigma_max=1.0)
+    assert posterior(stats(top, 0.004, 0.0), g, 2.5, uncapped).common[rim][0] == pytest.approx(0.2 * 0.15, rel=1e-6)
 
 
 def test_a_common_error_moves_a_wheel_and_the_ground_beside_it_together() -> None:
