@@ -38,6 +38,11 @@ KEY=VALUE``: the bounds map's parameters for every look (a map of its own, so a 
 ``--against`` changes only the check on the same map), e.g. ``--look approach+hazcam --bounds
 stereo_first=true``: the hazard cameras' cells standing alone.
 
+``--rock-top`` (with ``--scenes``, ``--world-seeds``): per band of a rock's height H over the
+ground round it, on cells away from an edge, how far the true top stands over the map's top, and
+the common sigma its 99.9th percentile needs over the cells' own at 3.09 sigmas, beside the rock
+top's declared common sigma (``rock_sigma`` x H, at most ``rock_sigma_max``).
+
 ``--posterior``: ``look`` (default) makes the posterior seen from the look's mean sensor position;
 ``map`` as the see loop's chooser makes it, with no viewpoint (the slope's steepest direction and
 the map's ``along_var``, the mean's horizontal error averaged over its returns); ``one`` the
@@ -58,7 +63,14 @@ import numpy as np
 from drivers.sim.rover import IMU_SIGMA_DEG, RoverBody
 from drivers.sim.world import World
 from prox_workflows.algorithms.bounds_map import BoundsMap, BoundsParams
-from prox_workflows.algorithms.chance import ChanceParams, Posterior, chance_check, headroom, posterior
+from prox_workflows.algorithms.chance import (
+    ChanceParams,
+    Posterior,
+    chance_check,
+    headroom,
+    posterior,
+    relief,
+)
 from prox_workflows.algorithms.set_down import set_down
 from prox_workflows.algorithms.vehicle import LIMITS, check_poses
 from prox_workflows.grid import GridGeometry
@@ -154,6 +166,55 @@ def set_down_at_start(world: World, bounds: BoundsMap, body: RoverBody) -> str:
     disc = (x0 + FOOT * math.cos(h), y0 + FOOT * math.sin(h), BLIND)
     datum = float(world.true_dem(0.01, (x0 - 0.005, y0 - 0.005, x0 + 0.005, y0 + 0.005))[0, 0])
     return set_down(bounds, (x0, y0, h0), datum, body, (roll, pitch, IMU_SIGMA_DEG), disc, 0.0, EDGE, WIDTH)
+
+
+HEIGHT_BANDS = (0.02, 0.04, 0.08, 0.16, np.inf)  # m: a rock top's height over the lowest top within 0.2 m
+
+
+def _rock_top_errors(job: tuple[str, str, float, int]) -> dict[str, list[float]]:
+    """One look's rock-top cells (:func:`rock_top`), in a pool's process."""
+    scene, look, cell, world_seed = job
+    world, bounds, _ = fused(scene, look, cell, world_seed, world_seed)
+    stats, g = whole(bounds)
+    bare = ChanceParams(edge_bias=0.0, edge_sigma=0.0, top_sigma=0.0, rock_sigma=0.0)
+    base = posterior(stats, g, bounds.params.k, bare, None)
+    top = pooled(world.true_dem(TRUE_CELL, (g.xmin, g.ymin, g.xmin + g.width * g.cell, g.ymax)), g, np.max)
+    height = relief(base.mean, g)
+    at = np.isfinite(base.mean) & stats["framed"] & (headroom(stats, base.mean) < 2 * FLAT) & (height >= HEIGHT_BANDS[0])
+    return {"error": (top - base.mean)[at].tolist(), "height": height[at].tolist(), "own": np.sqrt(base.var[at]).tolist()}
+
+
+def rock_top(scenes: list[str], look: str, cell: float, world_seeds: list[int], jobs: int) -> list[dict[str, Any]]:
+    """Per scene and band of a rock top's height H over the ground round it, on cells away from an
+    edge (J under 4 cm): how far the true top stands over the map's top (the posterior's best
+    estimate without the edge and rock terms), and the common sigma a band's 99.9th percentile
+    needs over the cells' own sigma at 3.09 sigmas, beside what ``rock_top_sigma`` declares. What
+    ``rock_sigma`` and ``rock_sigma_max`` are weighed against: the first grows with H, the second
+    holds where the error stops growing."""
+    todo = [(scene, look, cell, ws) for scene in scenes for ws in world_seeds]
+    if jobs > 1:  # the cells' lists are too long to stream as rows
+        import multiprocessing
+
+        with multiprocessing.get_context("spawn").Pool(jobs) as pool:
+            found = pool.map(_rock_top_errors, todo)
+    else:
+        found = [_rock_top_errors(job) for job in todo]
+    declared = ChanceParams()
+    rows = []
+    for scene in scenes:
+        got = [f for f, job in zip(found, todo, strict=True) if job[0] == scene]
+        e, h, own = (np.concatenate([np.asarray(f[key]) for f in got]) for key in ("error", "height", "own"))
+        for lo, hi in zip(HEIGHT_BANDS[:-1], HEIGHT_BANDS[1:], strict=True):
+            at = (h >= lo) & (h < hi)
+            if at.sum() < 20:
+                continue
+            q999 = float(np.percentile(e[at], 99.9))
+            sd = float(np.sqrt(np.mean(own[at] ** 2)))
+            rows.append({"scene": scene, "band": (lo, hi), "cells": int(at.sum()), "median": float(np.median(e[at])),
+                         "q99": float(np.percentile(e[at], 99)), "q999": q999, "max": float(e[at].max()), "own_sd": sd,
+                         "needed": math.sqrt(max((q999 / Z999) ** 2 - sd**2, 0.0)),
+                         "declared": float(np.mean(np.minimum(declared.rock_sigma * h[at], declared.rock_sigma_max)))})
+    return rows
 
 
 def evaluate(scene: str, look: str, cell: float, world_seed: int, seed: int, epsilons: list[float],
@@ -414,6 +475,9 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--world-seed", type=int, default=1, help="the scene's rock draw (the bounds bench's: 1)")
     ap.add_argument("--seed", type=int, default=0, help="the ToF noise draw")
     ap.add_argument("--calibrate", action="store_true", help="fit the rock-edge error model instead")
+    ap.add_argument("--rock-top", action="store_true",
+                    help="with --scenes and --world-seeds: how far rock tops away from an edge are read low, per "
+                         "band of the rock's height, against the rock top's declared common sigma")
     ap.add_argument("--epsilon", nargs="+", type=float, default=[1e-2, 1e-3, 1e-4])
     ap.add_argument("--samples", type=int, default=ChanceParams().samples)
     ap.add_argument("--rock-sigma", type=float, default=ChanceParams().rock_sigma,
@@ -489,6 +553,18 @@ def main(argv: list[str] | None = None) -> None:
         for r in out["rows"]:
             print(f"| {r['what']} | {r['cells']} | {100 * r['sd']:.2f} | {100 * r['own']:.2f} | "
                   + " / ".join(f"{c:.2f}" for c in r["corr"]) + " |")
+        return
+    if args.rock_top:
+        print(f"look {args.look}, cell {args.cell:g} m, world draws {' '.join(map(str, args.world_seeds))}, "
+              "cells with J under 4 cm")
+        print("| scene | rock height H (cm) | cells | true top - estimate: median / p99 / p99.9 / max (cm) | own sd (cm) "
+              "| common sigma p99.9 needs (cm) | declared (cm) |")
+        print("|---|---|---|---|---|---|---|")
+        for r in rock_top(args.scenes, args.look, args.cell, args.world_seeds, args.jobs):
+            lo, hi = r["band"]
+            print(f"| {r['scene']} | {lo * 100:g}-{hi * 100:g} | {r['cells']} | {100 * r['median']:.2f} / "
+                  f"{100 * r['q99']:.2f} / {100 * r['q999']:.2f} / {100 * r['max']:.2f} | {100 * r['own_sd']:.2f} "
+                  f"| {100 * r['needed']:.2f} | {100 * r['declared']:.2f} |")
         return
     if args.calibrate:
         out = calibrate(args.scene, args.look, args.cell, args.world_seed, args.seed, args.posterior)
