@@ -158,14 +158,15 @@ class ChanceParams(Settings):
                                    "tools.bench.chance --rock-sigma)", min=0.0, max=1.0)
     rock_sigma_max: float = param(1.0, "the rock top's common sigma (rock_sigma x H) at most this. Away from an "
                                        "edge a rock's top is read low by the apex its returns miss, which does not "
-                                       "grow with the rock's height: p99.9 1.4-3.2 cm in every band of H from 6 to "
-                                       "30 cm (python -m tools.bench.chance --rock-top), where 0.2 H declares 1.4-4 "
-                                       "cm. But capped at 1.5 / 1 cm the stated risk on draws 240-249 kept 0.4-1.1 / "
-                                       "0.9-1.8 points more truly safe poses, and the false safes went from 3 to 5 / 6 "
-                                       "on hirise and from 1 to 3 / 6 on dense "
-                                       "(3.6 cm step misses: a wheel at a rock's back edge over a drop into ground "
-                                       "only a ray bounds, which the tall rock's sigma had refused): 1 m, none "
-                                       "(docs/NAVIGATE_BENCH.md)", unit="m", min=0.0, max=1.0)
+                                       "grow with the rock's height: p99.9 1.8-3.1 cm in every band of H from 2 cm "
+                                       "to over 16 cm (python -m tools.bench.chance --rock-top, draws 1-6), where "
+                                       "0.2 H declares up to 4.1 cm. But capped at 1.5 / 1 cm the stated risk on "
+                                       "draws 240-249 kept 0.4-1.1 / 0.9-1.8 points more truly safe poses, and the "
+                                       "false safes went from 3 to 5 / 6 on hirise (belly) and from 1 to 3 / 6 on "
+                                       "dense (3.6 cm step misses: a wheel at a rock's back edge over a drop into "
+                                       "ground only a ray bounds, a step the judged pair leaves out, which the tall "
+                                       "rock's sigma had refused); with that step judged, still 3 to 4 / 5 on "
+                                       "hirise: 1 m, none (docs/NAVIGATE_BENCH.md)", unit="m", min=0.0, max=1.0)
     shared_length: float = param(0.2, "a prior's error (the set-down's blind disc, the wheels' contacts: ground no "
                                       "frame bounded) is the ground's off the prior's plane, shared by neighbouring "
                                       "cells: drawn as smoothed white noise whose correlation falls to 1/e at this "
@@ -344,6 +345,7 @@ def prior_correlation(d: np.ndarray | float, params: ChanceParams | None = None)
     p = params or ChanceParams()
     length = max(p.shared_length, 1e-9)
     return (1.0 - p.prior_own) * np.exp(-(np.asarray(d, np.float64) / length) ** 2)
+
 
 def rock_top_sigma(top: np.ndarray, geom: GridGeometry, p: ChanceParams) -> np.ndarray:
     """The sigma of the error a rock's top is read low by as a whole (common to the cells under a
