@@ -332,7 +332,7 @@ def posterior(stats: dict[str, np.ndarray], geom: GridGeometry, k: float, params
     within = np.asarray(stats["relief"], np.float64) if "relief" in stats else \
         np.asarray(stats["rise"], np.float64) + np.asarray(stats["drop"], np.float64)
     return Posterior(np.where(seen, mu, np.nan), np.where(seen, var, np.nan), ceiling,
-                     np.where(seen, np.hypot(p.edge_sigma * jump, rock_top_sigma(top, geom, p)), 0.0),
+                     np.where(seen, np.hypot(p.edge_sigma * jump, rock_top_sigma(relief(top, geom), p)), 0.0),
                      np.where(prior, np.sqrt(np.maximum((1.0 - p.prior_own) * var0, 0.0)), 0.0),
                      np.where(seen & ~prior, p.within * within, 0.0) if p.within > 0 else None)
 
@@ -347,10 +347,11 @@ def prior_correlation(d: np.ndarray | float, params: ChanceParams | None = None)
     return (1.0 - p.prior_own) * np.exp(-(np.asarray(d, np.float64) / length) ** 2)
 
 
-def rock_top_sigma(top: np.ndarray, geom: GridGeometry, p: ChanceParams) -> np.ndarray:
+def rock_top_sigma(height: np.ndarray, p: ChanceParams) -> np.ndarray:
     """The sigma of the error a rock's top is read low by as a whole (common to the cells under a
-    body): ``rock_sigma`` of its height over the ground it stands on, at most ``rock_sigma_max``."""
-    return np.minimum(p.rock_sigma * relief(top, geom), p.rock_sigma_max)
+    body), from its ``height`` over the ground it stands on (:func:`relief`): ``rock_sigma`` of
+    it, at most ``rock_sigma_max``."""
+    return np.minimum(p.rock_sigma * np.asarray(height, np.float64), p.rock_sigma_max)
 
 
 def relief(top: np.ndarray, geom: GridGeometry) -> np.ndarray:

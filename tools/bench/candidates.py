@@ -51,7 +51,7 @@ from prox_workflows.algorithms.candidates import (
     cost_to_go,
     posterior_check,
 )
-from prox_workflows.algorithms.chance import ChanceParams, Posterior, rock_top_sigma
+from prox_workflows.algorithms.chance import ChanceParams, Posterior, relief, rock_top_sigma
 from prox_workflows.algorithms.vehicle import check_poses
 from prox_workflows.grid import GridGeometry
 from rvs_truth.surface import AREA
@@ -91,7 +91,7 @@ def window_posterior(heights: tuple[np.ndarray, np.ndarray], g: GridGeometry, sp
     top = upper - spread
     seen = np.isfinite(top)
     var = np.where(seen, (spread / 2.5) ** 2 + chance.top_sigma**2, np.nan)
-    common = np.where(seen, rock_top_sigma(top, g, chance), 0.0)
+    common = np.where(seen, rock_top_sigma(relief(top, g), chance), 0.0)
     return Posterior(np.where(seen, top, np.nan), var, np.full(top.shape, np.inf), common)
 
 

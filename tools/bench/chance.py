@@ -70,6 +70,7 @@ from prox_workflows.algorithms.chance import (
     headroom,
     posterior,
     relief,
+    rock_top_sigma,
 )
 from prox_workflows.algorithms.set_down import set_down
 from prox_workflows.algorithms.vehicle import LIMITS, check_poses
@@ -192,13 +193,7 @@ def rock_top(scenes: list[str], look: str, cell: float, world_seeds: list[int], 
     ``rock_sigma`` and ``rock_sigma_max`` are weighed against: the first grows with H, the second
     holds where the error stops growing."""
     todo = [(scene, look, cell, ws) for scene in scenes for ws in world_seeds]
-    if jobs > 1:  # the cells' lists are too long to stream as rows
-        import multiprocessing
-
-        with multiprocessing.get_context("spawn").Pool(jobs) as pool:
-            found = pool.map(_rock_top_errors, todo)
-    else:
-        found = [_rock_top_errors(job) for job in todo]
+    found = streamed(_rock_top_errors, todo, jobs, show=False)
     declared = ChanceParams()
     rows = []
     for scene in scenes:
@@ -213,7 +208,7 @@ def rock_top(scenes: list[str], look: str, cell: float, world_seeds: list[int], 
             rows.append({"scene": scene, "band": (lo, hi), "cells": int(at.sum()), "median": float(np.median(e[at])),
                          "q99": float(np.percentile(e[at], 99)), "q999": q999, "max": float(e[at].max()), "own_sd": sd,
                          "needed": math.sqrt(max((q999 / Z999) ** 2 - sd**2, 0.0)),
-                         "declared": float(np.mean(np.minimum(declared.rock_sigma * h[at], declared.rock_sigma_max)))})
+                         "declared": float(np.mean(rock_top_sigma(h[at], declared)))})
     return rows
 
 
