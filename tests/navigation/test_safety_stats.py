@@ -163,3 +163,26 @@ def test_the_stated_risk_refuses_a_setting_the_check_does_not_declare() -> None:
         (line,) = run.stderr.strip().splitlines()
         assert line.startswith("ERROR: --against takes NAME=VALUE, NAME one of ")
         assert "epsilon" in line and f"got '{word}'" in line and run.stdout == ""
+
+
+@pytest.mark.long
+def test_the_rock_top_splits_its_worst_cells_into_the_mean_read_low_and_the_relief_missed() -> None:
+    """``--rock-top`` on one look of dense: an ``--against`` set is judged on the same map (only
+    what it changes moves: rock_sigma halved halves the declared sigma, the errors stay), and the
+    worst 1 % of each band's cells split their error into the cell's mean read low and the relief
+    the top misses, which sum to the error of those cells (at least the band's p99)."""
+    from tools.bench.chance import rock_top
+
+    rows = rock_top(["dense"], "approach+hazcam", 0.025, [2], 1, [{"rock_sigma": 0.1}])
+    declared = [r for r in rows if r["setting"] == 0]
+    halved = [r for r in rows if r["setting"] == 1]
+    assert declared and [r["band"] for r in declared] == [r["band"] for r in halved]
+    for a, b in zip(declared, halved, strict=True):
+        assert a["cells"] == b["cells"] and a["q999"] == b["q999"]
+        assert b["declared"] == pytest.approx(a["declared"] / 2, rel=1e-6)
+        split = a["worst_mean"] + a["worst_relief"]
+        assert a["q99"] <= split <= a["max"] + 1e-9
+    # the 2-4 cm band is the biggest: its worst cells are read low by both, each a few millimetres
+    low = declared[0]
+    assert low["band"][0] == pytest.approx(0.02) and low["cells"] > 1000
+    assert 0.002 < low["worst_mean"] < 0.03 and 0.002 < low["worst_relief"] < 0.03
