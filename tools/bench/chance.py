@@ -41,7 +41,9 @@ stereo_first=true``: the hazard cameras' cells standing alone.
 ``--rock-top`` (with ``--scenes``, ``--world-seeds``): per band of a rock's height H over the
 ground round it, on cells away from an edge, how far the true top stands over the map's top, and
 the common sigma its 99.9th percentile needs over the cells' own at 3.09 sigmas, beside the rock
-top's declared common sigma (``rock_sigma`` x H, at most ``rock_sigma_max``).
+top's declared common sigma (``rock_sigma`` x H, at most ``rock_sigma_max``), and its worst 1 % of
+cells split into the cell's mean read low and the relief within it the top misses. With
+``--against``, each set of ChanceParams changes is tabulated too, on the same maps.
 
 ``--posterior``: ``look`` (default) makes the posterior seen from the look's mean sensor position;
 ``map`` as the see loop's chooser makes it, with no viewpoint (the slope's steepest direction and
