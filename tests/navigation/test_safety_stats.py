@@ -6,6 +6,7 @@ import math
 import numpy as np
 import pytest
 from scipy.stats import binom
+from support.marks import long_test
 
 from prox_workflows.algorithms.bounds_map import BoundsParams
 from rvs_truth.stats import clopper_pearson_upper, events_per_distance_upper, poses_per_trial
@@ -165,7 +166,7 @@ def test_the_stated_risk_refuses_a_setting_the_check_does_not_declare() -> None:
         assert "epsilon" in line and f"got '{word}'" in line and run.stdout == ""
 
 
-@pytest.mark.long
+@long_test
 def test_the_rock_top_splits_its_worst_cells_into_the_mean_read_low_and_the_relief_missed() -> None:
     """``--rock-top`` on one look of dense: an ``--against`` set is judged on the same map (only
     what it changes moves: rock_sigma halved halves the declared sigma, the errors stay), and the
