@@ -125,6 +125,19 @@ def test_a_noise_draw_reseeds_every_simulated_sensor_and_reach_is_counted_per_mi
     assert reach_over_draws(rows) == ["dense see: m0 2/3 m3 0/3; 2 of 6 runs"]
 
 
+def test_a_sensor_seed_given_by_set_is_refused_for_the_noise_draw() -> None:
+    """The noise draw's settings come after ``--set``'s, so a sensor's seed given there would be
+    overridden without a word: every run under draw 0, whatever the command said."""
+    import subprocess
+    import sys
+
+    r = subprocess.run([sys.executable, "-m", "tools.bench.navigate", "--set", "drivers.tof.seed=3"],
+                       capture_output=True, text=True, cwd=Path(__file__).resolve().parents[2], timeout=120)
+    assert r.returncode == 2
+    assert ("--set drivers.tof.seed=3: the simulated sensors' noise draw is --noise-seeds N (it sets "
+            "drivers.hazcam.seed, drivers.stereo.seed, drivers.tof.seed); give the draw there") in r.stderr
+
+
 def test_the_slip_option_refuses_a_bad_value_on_the_command_line() -> None:
     import subprocess
     import sys

@@ -660,6 +660,12 @@ def main(argv: list[str] | None = None) -> None:
     missing = [f for f in args.tracking_from if not Path(f).is_file()]
     if missing:
         ap.error(f"--tracking-from: no such file {missing[0]} (a run's --out JSON)")
+    # the noise draw's settings come after --set's, so a seed given there would be overridden
+    seeded = {s.split("=", 1)[0] for s in noise_sets(0)}
+    clash = [s for s in args.set if s.split("=", 1)[0].strip() in seeded]
+    if clash:
+        ap.error(f"--set {clash[0]}: the simulated sensors' noise draw is --noise-seeds N (it sets "
+                 f"{', '.join(sorted(seeded))}); give the draw there")
     body = World.from_scene(args.scenes[0]).body
     if args.derived:
         t = Margins().thresholds(body)
