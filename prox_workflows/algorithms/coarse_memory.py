@@ -42,11 +42,11 @@ class CoarseMemory:
         h = math.ceil((y1 - xy[:, 1].min() + pad) / cell - 1e-9)
         return cls(GridGeometry(cell, x0, y1, max(1, w), max(1, h)))
 
-    def update(self, heights: tuple[np.ndarray, np.ndarray], geom: GridGeometry, body: Any) -> None:
+    def update(self, heights: tuple[np.ndarray, np.ndarray], geom: GridGeometry, body: Any, **costs: float) -> None:
         """What the window's bounds (``heights``: lower, upper over ``geom``, whose origin lies on
         this grid's) say of its coarse cells, written over what was kept where the window saw them."""
         cell = self.geometry.cell
-        window, cg = coarse_costs(heights, geom, body, cell=cell, unknown_cost=np.nan)
+        window, cg = coarse_costs(heights, geom, body, cell=cell, unknown_cost=np.nan, **costs)
         g = self.geometry
         c0, r0 = round((cg.xmin - g.xmin) / cell), round((g.ymax - cg.ymax) / cell)
         rows = slice(max(0, r0), min(g.height, r0 + cg.height))

@@ -149,15 +149,17 @@ def track_check(post: Any, framed: np.ndarray, g: Any, body: Any) -> Check:
     return bounds_check((surface, surface.copy()), g, body)
 
 
-def guidance(bounds: BoundsMap, goal: tuple[float, float], body: Any, guide: CoarseMemory | None = None,
-             dead_ends: Sequence[DeadEnd] = (), dead_end_cost: float = 0.0) -> CostToGo:
+def guidance(bounds: BoundsMap, goal: tuple[float, float], body: Any, params: CandidateParams,
+             guide: CoarseMemory | None = None, dead_ends: Sequence[DeadEnd] = (), dead_end_cost: float = 0.0
+             ) -> CostToGo:
     """The cost to go over the coarse grid (``guide``'s, the whole mission with what the map now
     says written in; None: the map's own), a dead end's disc priced ``dead_end_cost`` per metre
     more."""
+    costs = {"rough_cost": params.rough_cost, "rough_reach": params.rough_reach}
     if guide is None:
-        cost, cg = coarse_costs(bounds.whole(), bounds.geometry, body)
+        cost, cg = coarse_costs(bounds.whole(), bounds.geometry, body, **costs)
     else:
-        guide.update(bounds.whole(), bounds.geometry, body)
+        guide.update(bounds.whole(), bounds.geometry, body, **costs)
         cost, cg = guide.costs()
     return cost_to_go(add_dead_ends(cost, cg, dead_ends, dead_end_cost), cg, goal)
 
@@ -172,7 +174,7 @@ def choose_from(bounds: BoundsMap, pose: tuple[float, float, float], goal: tuple
     judges the look-aheads on the best estimate, ``chance`` with the section's check. ``explain``:
     a blocked choice's reason also names the candidate nearest to passing (:func:`nearest_refusal`,
     seconds of CPU: asked for where a blocked choice ends the mission)."""
-    ctg = guidance(bounds, goal, body, guide, dead_ends, dead_end_cost)
+    ctg = guidance(bounds, goal, body, params, guide, dead_ends, dead_end_cost)
     r = judged_reach(params, body)
     box = (pose[0] - r, pose[1] - r, pose[0] + r, pose[1] + r)
     stats, wg = bounds.statistics(*box)
@@ -278,7 +280,8 @@ class Chooser:
                                   self.params.step)
         t0, c0 = time.monotonic(), time.process_time()
         try:
-            ctg = guidance(bounds, self.s.mission.goal, self.d.body, self.guide, self.dead_ends, self.retreat.cost)
+            ctg = guidance(bounds, self.s.mission.goal, self.d.body, self.params, self.guide, self.dead_ends,
+                           self.retreat.cost)
             pts = np.concatenate([o.poses for o in options])
             pad = reach(self.d.body) + 0.1
             box = (pts[:, 0].min() - pad, pts[:, 1].min() - pad, pts[:, 0].max() + pad, pts[:, 1].max() + pad)
