@@ -145,6 +145,9 @@ class CandidateParams(Settings):
                                     "5 both ways (draw 0). A coarse cell's relief is mostly its slope, and the "
                                     "roughest within reach lifts nearly every cell toward the cap (the mean seen "
                                     "cost 1.6 to 1.9): off (docs/NAVIGATE_BENCH.md)", unit="m", min=0.0, max=2.0)
+    rough_headings: int = param(0, "the coarse guidance: 0 prices a coarse cell by the relief in it; above 0, by "
+                                   "the share of the poses centred on it, at this many headings over a half turn, "
+                                   "that the vehicle check refuses on the map's mean surface", min=0, max=36)
     step: float = param(0.05, "the section's poses are this far apart at the body's farthest point", unit="m",
                         min=0.005, max=0.5)
     beyond_step: float = param(0.10, "the look-ahead's poses are this far apart (it is judged again, closer, "
@@ -325,7 +328,7 @@ UNKNOWN_COST = 2.0  # per metre: a coarse cell mostly unseen (a cost, never a wa
 
 def coarse_costs(heights: np.ndarray | tuple[np.ndarray, np.ndarray], geom: GridGeometry, body: VehicleBody,
                  cell: float = 0.25, unknown_cost: float = UNKNOWN_COST, rough_cost: float = 1.0,
-                 rough_reach: float = 0.0) -> tuple[np.ndarray, GridGeometry]:
+                 rough_reach: float = 0.0, rough_headings: int = 0) -> tuple[np.ndarray, GridGeometry]:
     """A coarse cost grid (per metre) over ``geom``'s area for :func:`cost_to_go`, from a height
     grid or a ``(lower, upper)`` bounds pair: a coarse cell mostly unseen costs ``unknown_cost``
     (a cost, never a wall: the rover may look there); one whose ground certainly rises more than
@@ -333,7 +336,11 @@ def coarse_costs(heights: np.ndarray | tuple[np.ndarray, np.ndarray], geom: Grid
     and the clearance: neither a wheel nor the belly gets over it) is a wall (inf); the rest cost
     1 plus ``rough_cost`` times the mean surface's relief in it over the climb (capped at 1), and
     with ``rough_reach`` at least what any seen cell within that distance costs, a wall's
-    neighbours 1 + ``rough_cost``: with its centre in the cell, the body stands on them too."""
+    neighbours 1 + ``rough_cost``: with its centre in the cell, the body stands on them too.
+    ``rough_headings`` above 0 prices a cell by what the body meets there rather than by its
+    relief, most of which is the slope under it: 1 plus ``rough_cost`` times the share of the
+    poses centred on it (that many headings over a half turn) that the vehicle check refuses on
+    the mean surface (a cell none of whose poses the map covers keeps its relief's cost)."""
     lower, upper = heights if isinstance(heights, tuple) else (heights, heights)
     f = max(1, round(cell / geom.cell))
     cg = GridGeometry(geom.cell * f, geom.xmin, geom.ymax, -(-geom.width // f), -(-geom.height // f))
@@ -352,6 +359,9 @@ def coarse_costs(heights: np.ndarray | tuple[np.ndarray, np.ndarray], geom: Grid
         relief = np.nanmax(mean, axis=2) - np.nanmin(mean, axis=2)
     wall = seen & (np.nan_to_num(rise, nan=0.0) > max(body.climb, body.clearance))
     own = 1.0 + rough_cost * np.clip(np.nan_to_num(relief, nan=0.0) / body.climb, 0.0, 1.0)
+    if rough_headings > 0:
+        share = refused_share(_mean((lower, upper))[0], geom, cg, body, rough_headings)
+        own = np.where(np.isnan(share), own, 1.0 + rough_cost * np.nan_to_num(share))
     own[wall] = 1.0 + rough_cost
     r = int(round(rough_reach / cg.cell))
     if r > 0:
@@ -361,6 +371,25 @@ def coarse_costs(heights: np.ndarray | tuple[np.ndarray, np.ndarray], geom: Grid
     out = np.where(seen, own, unknown_cost)
     out[wall] = np.inf
     return out, cg
+
+
+def refused_share(surface: np.ndarray, geom: GridGeometry, cg: GridGeometry, body: VehicleBody,
+                  headings: int) -> np.ndarray:
+    """Per cell of the coarse grid ``cg``, the share of the poses centred on it (``headings``
+    over a half turn: the body's footprint turned end for end covers the same ground) that the
+    vehicle check refuses on ``surface`` (NaN: unseen), among those it judges; NaN where it
+    judges none."""
+    rr, cc = np.mgrid[0:cg.height, 0:cg.width]
+    x, y = cg.xmin + (cc + 0.5) * cg.cell, cg.ymax - (rr + 0.5) * cg.cell
+    h = np.arange(headings) * 180.0 / headings
+    poses = np.column_stack([np.repeat(x.ravel(), headings), np.repeat(y.ravel(), headings),
+                             np.tile(h, x.size)])
+    s = np.asarray(surface, np.float32)
+    c = check_poses((s, s.copy()), geom, poses, body)
+    judged = (~c.unknown).reshape(cg.height, cg.width, headings)
+    refused = (c.unsafe & ~c.unknown).reshape(cg.height, cg.width, headings)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.where(judged.any(axis=2), refused.sum(axis=2) / judged.sum(axis=2), np.nan)
 
 
 def cost_to_go(cost: np.ndarray, geom: GridGeometry, goal: tuple[float, float]) -> CostToGo:
