@@ -347,6 +347,30 @@ def test_the_coarse_cost_within_the_bodys_reach_prices_the_ground_beside_rough_g
     assert steep[7, 8] == pytest.approx(1 + 3 * 0.8) and steep[12, 3] == pytest.approx(4.0)
 
 
+def test_the_coarse_cost_from_the_vehicle_check_prices_what_the_body_meets_not_the_slope() -> None:
+    """``rough_headings``: a coarse cell costs 1 + rough_cost times the share of the poses centred
+    on it that the check refuses. A slope within the grade, which the relief prices, is free; a
+    rock the body straddles is free; one under the belly costs the most, and the cells round it
+    what the headings that reach it refuse. Unseen ground keeps its own cost."""
+    g = GridGeometry(0.05, 0.0, 4.0, 80, 80)
+    x = (np.arange(80) + 0.5) * g.cell
+    slope = np.tile(x * math.tan(math.radians(8.0)), (80, 1))
+    slope[36:39, 36:39] += 0.07  # 7 cm, 15 cm across: below the belly's 8 cm and the wheels' climb
+    relief, _ = coarse_costs(slope, g, BODY)
+    checked, _ = coarse_costs(slope, g, BODY, rough_headings=4)
+    assert relief[4, 4] == pytest.approx(1 + 0.2 * math.tan(math.radians(8.0)) / BODY.climb)
+    assert relief[7, 7] > 1.8
+    assert (checked[1:15, 1:15] == 1.0).all()  # within the grid's edge, where every pose is judged
+    flat = np.zeros(g.shape)
+    flat[36:39, 36:39] = 0.09  # 9 cm: over the belly's clearance, under the climb (not a wall)
+    flat[:, 75:] = np.nan  # the east strip unseen (coarse column 15)
+    cost, _ = coarse_costs(flat, g, BODY, rough_cost=3.0, rough_headings=4)
+    assert cost[7, 7] == 4.0  # every heading centred on it puts the rock under the belly
+    assert cost[6, 7] == cost[7, 6] == cost[8, 7] == cost[7, 8] == 1.75  # one heading of four reaches it
+    assert cost[5, 5] == 1.0 and cost[9, 9] == 1.0
+    assert (cost[:, 15] == 2.0).all()  # unseen: UNKNOWN_COST
+
+
 def test_the_check_wrapper_names_unknown_and_limits() -> None:
     w = World()
     w.box(1.9, 2.1, -0.1, 0.1, 0.3)
