@@ -135,19 +135,14 @@ class CandidateParams(Settings):
                            min=0.1, max=5.0)
     beyond: float = param(1.5, "length of the second arc, the look-ahead to the horizon", unit="m", min=0.0,
                           max=10.0)
-    rough_cost: float = param(1.0, "the coarse guidance: a coarse cell costs 1 plus this times the relief in it over "
-                                   "the body's climb (capped at 1), per metre", min=0.0, max=100.0)
-    rough_reach: float = param(0.0, "the coarse guidance: a coarse cell costs at least what any cell within this "
-                                    "distance costs (a wall's neighbours the roughest): with the body's centre in "
-                                    "it, the body stands on that ground too; 0: the cell alone. Measured at 0.25 on "
-                                    "hirise 0-4 under three sensor noise draws: 11 of 15 runs reached (0: 9), at a lower "
-                                    "efficiency where both reached (0.276 against 0.357, 7 missions); dense 0-4 1 of "
-                                    "5 both ways (draw 0). A coarse cell's relief is mostly its slope, and the "
-                                    "roughest within reach lifts nearly every cell toward the cap (the mean seen "
-                                    "cost 1.6 to 1.9): off (docs/NAVIGATE_BENCH.md)", unit="m", min=0.0, max=2.0)
-    rough_headings: int = param(0, "the coarse guidance: 0 prices a coarse cell by the relief in it; above 0, by "
-                                   "the share of the poses centred on it, at this many headings over a half turn, "
-                                   "that the vehicle check refuses on the map's mean surface", min=0, max=36)
+    rough_cost: float = param(3.0, "the coarse guidance: a coarse cell costs 1 plus this times its roughness, per "
+                                   "metre: the share of the poses centred on it that the check refuses "
+                                   "(rough_headings), else its relief over the body's climb (capped at 1)",
+                              min=0.0, max=100.0)
+    rough_headings: int = param(4, "the coarse guidance: headings over a half turn at which the poses centred on a "
+                                   "coarse cell are judged on the map's mean surface; 0: the cell's relief instead, "
+                                   "most of which is the slope under it. Measured on hirise and dense 0-4 under two "
+                                   "sensor noise draws against the relief (docs/NAVIGATE_BENCH.md)", min=0, max=36)
     step: float = param(0.05, "the section's poses are this far apart at the body's farthest point", unit="m",
                         min=0.005, max=0.5)
     beyond_step: float = param(0.10, "the look-ahead's poses are this far apart (it is judged again, closer, "
@@ -188,6 +183,11 @@ class CandidateParams(Settings):
     goal_tolerance: float = param(0.1, "a path passing this close to the goal (and half the ranking's probe "
                                        "spacing) ranks by its cost to the goal, and its section stops at its "
                                        "pose nearest the goal", unit="m", min=0.0, max=5.0)
+
+    @property
+    def coarse(self) -> dict[str, float]:
+        """The coarse guidance's keywords for :func:`coarse_costs`."""
+        return {"rough_cost": self.rough_cost, "rough_headings": self.rough_headings}
 
 
 @dataclass(frozen=True)
@@ -328,19 +328,18 @@ UNKNOWN_COST = 2.0  # per metre: a coarse cell mostly unseen (a cost, never a wa
 
 def coarse_costs(heights: np.ndarray | tuple[np.ndarray, np.ndarray], geom: GridGeometry, body: VehicleBody,
                  cell: float = 0.25, unknown_cost: float = UNKNOWN_COST, rough_cost: float = 1.0,
-                 rough_reach: float = 0.0, rough_headings: int = 0) -> tuple[np.ndarray, GridGeometry]:
+                 rough_headings: int = 0) -> tuple[np.ndarray, GridGeometry]:
     """A coarse cost grid (per metre) over ``geom``'s area for :func:`cost_to_go`, from a height
     grid or a ``(lower, upper)`` bounds pair: a coarse cell mostly unseen costs ``unknown_cost``
     (a cost, never a wall: the rover may look there); one whose ground certainly rises more than
     the body can pass (its highest lower bound over its lowest upper bound above both the climb
     and the clearance: neither a wheel nor the belly gets over it) is a wall (inf); the rest cost
-    1 plus ``rough_cost`` times the mean surface's relief in it over the climb (capped at 1), and
-    with ``rough_reach`` at least what any seen cell within that distance costs, a wall's
-    neighbours 1 + ``rough_cost``: with its centre in the cell, the body stands on them too.
+    1 plus ``rough_cost`` times the mean surface's relief in it over the climb (capped at 1).
     ``rough_headings`` above 0 prices a cell by what the body meets there rather than by its
-    relief, most of which is the slope under it: 1 plus ``rough_cost`` times the share of the
-    poses centred on it (that many headings over a half turn) that the vehicle check refuses on
-    the mean surface (a cell none of whose poses the map covers keeps its relief's cost)."""
+    relief, most of which is the slope under it, and over the whole body, which stands on the
+    cells round it too: 1 plus ``rough_cost`` times the share of the poses centred on it (that
+    many headings over a half turn) that the vehicle check refuses on the mean surface (a cell
+    none of whose poses the map covers keeps its relief's cost)."""
     lower, upper = heights if isinstance(heights, tuple) else (heights, heights)
     f = max(1, round(cell / geom.cell))
     cg = GridGeometry(geom.cell * f, geom.xmin, geom.ymax, -(-geom.width // f), -(-geom.height // f))
@@ -362,12 +361,6 @@ def coarse_costs(heights: np.ndarray | tuple[np.ndarray, np.ndarray], geom: Grid
     if rough_headings > 0:
         share = refused_share(_mean((lower, upper))[0], geom, cg, body, rough_headings)
         own = np.where(np.isnan(share), own, 1.0 + rough_cost * np.nan_to_num(share))
-    own[wall] = 1.0 + rough_cost
-    r = int(round(rough_reach / cg.cell))
-    if r > 0:
-        yy, xx = np.mgrid[-r:r + 1, -r:r + 1]
-        own = np.maximum(own, ndimage.maximum_filter(np.where(seen, own, 1.0), footprint=np.hypot(yy, xx) <= r + 0.5,
-                                                     mode="nearest"))
     out = np.where(seen, own, unknown_cost)
     out[wall] = np.inf
     return out, cg

@@ -155,12 +155,10 @@ def guidance(bounds: BoundsMap, goal: tuple[float, float], body: Any, params: Ca
     """The cost to go over the coarse grid (``guide``'s, the whole mission with what the map now
     says written in; None: the map's own), a dead end's disc priced ``dead_end_cost`` per metre
     more."""
-    costs = {"rough_cost": params.rough_cost, "rough_reach": params.rough_reach,
-             "rough_headings": params.rough_headings}
     if guide is None:
-        cost, cg = coarse_costs(bounds.whole(), bounds.geometry, body, **costs)
+        cost, cg = coarse_costs(bounds.whole(), bounds.geometry, body, **params.coarse)
     else:
-        guide.update(bounds.whole(), bounds.geometry, body, **costs)
+        guide.update(bounds.whole(), bounds.geometry, body, **params.coarse)
         cost, cg = guide.costs()
     return cost_to_go(add_dead_ends(cost, cg, dead_ends, dead_end_cost), cg, goal)
 

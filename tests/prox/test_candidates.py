@@ -325,28 +325,6 @@ def test_the_cost_to_go_takes_unseen_ground_as_a_cost_and_known_walls_as_walls()
     assert far.at(np.array([4.9]), np.array([2.5]))[0] == pytest.approx(15.1, abs=0.2)
 
 
-def test_the_coarse_cost_within_the_bodys_reach_prices_the_ground_beside_rough_ground() -> None:
-    """``rough_reach``: with the body's centre in a coarse cell the body stands on the cells round
-    it too, so a cell costs at least the roughest within that reach, and a wall's neighbours cost
-    the roughest (1 + rough_cost); a wall stays the only wall, and unseen ground its own cost."""
-    g = GridGeometry(0.05, 0.0, 4.0, 80, 80)
-    h = np.zeros(g.shape)
-    h[36:39, 36:39] = 0.08  # a rock 8 cm tall inside coarse cell (7, 7): rough, not a wall
-    h[61:64, 11:14] = 0.30  # one no wheel or belly gets over, inside coarse cell (12, 2)
-    h[:, 75:] = np.nan  # the east strip unseen (coarse column 15)
-    own, cg = coarse_costs(h, g, BODY)
-    assert own[7, 7] == pytest.approx(1.8) and own[7, 8] == 1.0 and own[6, 6] == 1.0
-    assert np.isinf(own[12, 2]) and own[12, 3] == 1.0
-    near, _ = coarse_costs(h, g, BODY, rough_reach=0.25)
-    assert near[7, 7] == pytest.approx(1.8)
-    assert near[6:9, 6:9] == pytest.approx(np.full((3, 3), 1.8)) and near[7, 9] == 1.0 and near[7, 5] == 1.0
-    assert np.isinf(near[12, 2]) and np.isinf(near).sum() == 1
-    assert near[11:14, 1:4][np.isfinite(near[11:14, 1:4])] == pytest.approx(np.full(8, 2.0))
-    assert (near[:, 15] == 2.0).all() and (near[:, 14] == 1.0).all()  # unseen: UNKNOWN_COST, not spread
-    steep, _ = coarse_costs(h, g, BODY, rough_cost=3.0, rough_reach=0.25)
-    assert steep[7, 8] == pytest.approx(1 + 3 * 0.8) and steep[12, 3] == pytest.approx(4.0)
-
-
 def test_the_coarse_cost_from_the_vehicle_check_prices_what_the_body_meets_not_the_slope() -> None:
     """``rough_headings``: a coarse cell costs 1 + rough_cost times the share of the poses centred
     on it that the check refuses. A slope within the grade, which the relief prices, is free; a

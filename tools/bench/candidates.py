@@ -168,7 +168,7 @@ def main(argv: list[str] | None = None) -> None:
             check.by_runs = getattr(vehicle, "by_runs", False)  # type: ignore[attr-defined]
 
             t0 = time.perf_counter()
-            cost, cg = coarse_costs(heights, g, body)
+            cost, cg = coarse_costs(heights, g, body, **params.coarse)
             ctg = cost_to_go(cost, cg, goal)
             t1 = time.perf_counter()
             c = choose(pose, heights, g, body, ctg, check, params, lookahead)
