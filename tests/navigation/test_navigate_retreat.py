@@ -83,8 +83,11 @@ def test_a_rover_in_a_cul_de_sac_backs_out_and_reaches_the_goal_round_it(server_
     # since; and the walls they spread are the pairs' disagreements with the ToF kept as unions
     # (with the ToF's reading standing, the map shows the turn, as registered: set here, whatever
     # the default)
+    # and the coarse guidance priced by each cell's relief: with the check's, the rover reaches the
+    # goal here without backing out, and this variant is of the backing out
     placed = ["navigate.see_register=true", "navigate.see.bounds.changed=0.05"] if registered else \
-        ["navigate.see_register=false", "navigate.see.bounds.changed=0", "navigate.see.bounds.disagree=union"]
+        ["navigate.see_register=false", "navigate.see.bounds.changed=0", "navigate.see.bounds.disagree=union",
+         "navigate.see.chooser.rough_headings=0", "navigate.see.chooser.rough_cost=1"]
     srv = server_factory(["server.scene=quarry", "drivers.ptu.timeout=30", "navigate.see.retreat.retreats=4", *placed])
     world = srv.app.world
     world.set_target_visible(False)
