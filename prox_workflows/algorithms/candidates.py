@@ -359,7 +359,7 @@ def coarse_costs(heights: np.ndarray | tuple[np.ndarray, np.ndarray], geom: Grid
     wall = seen & (np.nan_to_num(rise, nan=0.0) > max(body.climb, body.clearance))
     own = 1.0 + rough_cost * np.clip(np.nan_to_num(relief, nan=0.0) / body.climb, 0.0, 1.0)
     if rough_headings > 0:
-        share = refused_share(_mean((lower, upper))[0], geom, cg, body, rough_headings)
+        share = refused_share(_mean((lower, upper))[0], geom, cg, body, rough_headings, seen & ~wall)
         own = np.where(np.isnan(share), own, 1.0 + rough_cost * np.nan_to_num(share))
     out = np.where(seen, own, unknown_cost)
     out[wall] = np.inf
@@ -367,22 +367,23 @@ def coarse_costs(heights: np.ndarray | tuple[np.ndarray, np.ndarray], geom: Grid
 
 
 def refused_share(surface: np.ndarray, geom: GridGeometry, cg: GridGeometry, body: VehicleBody,
-                  headings: int) -> np.ndarray:
+                  headings: int, cells: np.ndarray | None = None) -> np.ndarray:
     """Per cell of the coarse grid ``cg``, the share of the poses centred on it (``headings``
     over a half turn: the body's footprint turned end for end covers the same ground) that the
     vehicle check refuses on ``surface`` (NaN: unseen), among those it judges; NaN where it
-    judges none."""
-    rr, cc = np.mgrid[0:cg.height, 0:cg.width]
+    judges none, and on cells off ``cells`` (a mask over ``cg``; None: all), which are not judged."""
+    rr, cc = np.nonzero(np.ones(cg.shape, bool) if cells is None else cells)
     x, y = cg.xmin + (cc + 0.5) * cg.cell, cg.ymax - (rr + 0.5) * cg.cell
     h = np.arange(headings) * 180.0 / headings
-    poses = np.column_stack([np.repeat(x.ravel(), headings), np.repeat(y.ravel(), headings),
-                             np.tile(h, x.size)])
+    poses = np.column_stack([np.repeat(x, headings), np.repeat(y, headings), np.tile(h, x.size)])
     s = np.asarray(surface, np.float32)
     c = check_poses((s, s.copy()), geom, poses, body)
-    judged = (~c.unknown).reshape(cg.height, cg.width, headings)
-    refused = (c.unsafe & ~c.unknown).reshape(cg.height, cg.width, headings)
+    judged = (~c.unknown).reshape(-1, headings)
+    refused = (c.unsafe & ~c.unknown).reshape(-1, headings)
+    out = np.full(cg.shape, np.nan)
     with np.errstate(invalid="ignore", divide="ignore"):
-        return np.where(judged.any(axis=2), refused.sum(axis=2) / judged.sum(axis=2), np.nan)
+        out[rr, cc] = np.where(judged.any(axis=1), refused.sum(axis=1) / judged.sum(axis=1), np.nan)
+    return out
 
 
 def cost_to_go(cost: np.ndarray, geom: GridGeometry, goal: tuple[float, float]) -> CostToGo:
