@@ -12,8 +12,9 @@ Why
 
 What this module holds (plain functions; the loop that drives them is
 ``rvs_server.navigation.sections``)
-    - :class:`RetreatParams`: how many retreats a mission may make, the reverse arcs, and the
-      dead end's disc and cost.
+    - :class:`RetreatParams`: how many retreats the rover may make before it comes closer to the
+      goal, the reverse arcs, and the dead end's disc and cost; :class:`RetreatBudget` keeps the
+      count.
     - :func:`reverse_options`: the reverse sections from a pose: the track back (the rover's
       last arc driven backwards to where it began) and ``arcs`` reverse arcs.
     - :func:`choose_reverse`: the track back where it passes, else the cheapest reverse arc by the
@@ -45,7 +46,7 @@ from .arcs import arc_poses, default_curvatures
 from .candidates import SAFE, Check, Choice, CostToGo, verdict_name
 from .vehicle import VehicleBody, densify
 
-__all__ = ["RetreatParams", "ReverseOption", "DeadEnd", "reverse_options", "choose_reverse", "add_dead_ends",
+__all__ = ["RetreatParams", "RetreatBudget", "ReverseOption", "DeadEnd", "reverse_options", "choose_reverse", "add_dead_ends",
            "dead_end_penalty"]
 
 
@@ -53,9 +54,14 @@ __all__ = ["RetreatParams", "ReverseOption", "DeadEnd", "reverse_options", "choo
 class RetreatParams(Settings):
     """Backing out of dead ends, and the price a dead end leaves on the cost to go."""
 
-    retreats: int = param(4, "dead ends the rover may back out of in one mission (a reverse section each, then "
-                             "it chooses again); at the next one, or where no reverse section passes, the "
-                             "mission is a safe stop with the reason (0: no backing out)", min=0, max=100)
+    retreats: int = param(4, "dead ends the rover may back out of (a reverse section each, then it chooses "
+                             "again) before it stands `regain` m closer to the goal than it stood when the count "
+                             "began; at the next one, or where no reverse section passes, the mission is a safe "
+                             "stop with the reason (0: no backing out)", min=0, max=100)
+    regain: float = param(2.0, "coming this much closer to the goal (straight) than the rover stood when the count "
+                               "of retreats began starts it again: a long traverse through rock meets more "
+                               "pockets than a short one, and progress bounds how often the count restarts "
+                               "(0: the count is the mission's)", unit="m", min=0.0, max=1000.0)
     length: float = param(0.6, "length of each reverse arc, driven backwards", unit="m", min=0.1, max=3.0)
     arcs: int = param(5, "curvatures of the reverse arcs, evenly spaced from the chooser's tightest left to its "
                          "tightest right", min=1, max=31)
@@ -66,6 +72,41 @@ class RetreatParams(Settings):
     clear: float = param(1.0, "a dead end expires once frames taken farther than this beyond its disc cover its "
                               "ground (frames from inside the pocket are what refused it)", unit="m",
                          min=0.0, max=10.0)
+
+
+@dataclass
+class RetreatBudget:
+    """The retreats the rover may still make: ``params.retreats`` counted from where it stood when
+    the count began, begun again each time it stands ``params.regain`` m closer to the goal than
+    there.
+
+    Why: a budget for the whole mission ends a long traverse through rock at its fifth pocket
+    however far it had got, and each retreat costs time, not safety (a reverse section is checked
+    as any other). The straight distance to the goal only shrinks so far, so the count begins
+    again at most distance / regain times: the mission stays bounded."""
+
+    params: RetreatParams
+    made: int = 0  # retreats since the count began
+    count_from: float = math.inf  # the rover's straight distance to the goal when it began
+
+    def stand(self, to_goal: float) -> None:
+        """The rover stands ``to_goal`` m from the goal (straight), choosing its next section."""
+        regain = self.params.regain
+        if self.count_from == math.inf or (regain > 0.0 and to_goal <= self.count_from - regain):
+            self.count_from, self.made = to_goal, 0
+
+    @property
+    def spent(self) -> bool:
+        return self.made >= self.params.retreats
+
+    def __str__(self) -> str:
+        """The count for a safe stop's reason, with where it began."""
+        made = f"{self.made} of {self.params.retreats} retreats made"
+        if self.params.retreats == 0:
+            return made
+        if self.params.regain <= 0.0:
+            return f"{made} in the mission"
+        return f"{made} since the rover stood {self.count_from:.2f} m from the goal, none {self.params.regain:g} m closer"
 
 
 @dataclass(frozen=True)

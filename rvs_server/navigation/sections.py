@@ -24,9 +24,10 @@ goes, and chooses again. The check is the chance constraint on the map's per-cel
   ground no look shows and ``STALL_SECTIONS`` sections without progress. With
   ``see.retreat.retreats`` above 0 the rover backs out (:mod:`prox_workflows.algorithms.retreat`:
   along its last arc, whose ground it drove, or on a reverse arc its check passes), leaves a cost
-  on the dead end's ground for the cost to go, and chooses again. Past that many retreats (by
-  default at once), or with no reverse section that passes, it is a safe stop: the job ends
-  ``E_DATA`` with the reason, the count of failures by limit and the retreats made.
+  on the dead end's ground for the cost to go, and chooses again. Past that many retreats before
+  the rover stands ``see.retreat.regain`` m closer to the goal than where their count began, or
+  with no reverse section that passes, it is a safe stop: the job ends ``E_DATA`` with the
+  reason, the count of failures by limit and the retreats made.
 
 Each candidate's look-ahead beyond its section refuses it where it fails (or, with
 :class:`CandidateParams` ``ahead_cost`` above 0, prices it): it is judged on the posterior's best
@@ -72,6 +73,7 @@ from prox_workflows.algorithms.chance import ChanceParams, posterior
 from prox_workflows.algorithms.coarse_memory import CoarseMemory
 from prox_workflows.algorithms.retreat import (
     DeadEnd,
+    RetreatBudget,
     add_dead_ends,
     choose_reverse,
     dead_end_penalty,
@@ -213,6 +215,7 @@ class Chooser:
         self.since_best = 0  # sections driven since
         self.stood: list[tuple[float, float]] = []  # where each section since the best began
         self.retreat = self.d.p.retreat
+        self.budget = RetreatBudget(self.retreat)
         self.dead_ends: list[DeadEnd] = []  # where the rover found no way on, priced until seen from outside
         # the arcs driven forward since the last reverse: (curvature, m) and the pose (believed) it ended at
         self.arcs: list[tuple[tuple[float, float], tuple[float, float, float]]] = []
@@ -251,7 +254,7 @@ class Chooser:
             return choose_from(bounds, pose, self.s.mission.goal, self.d.body, self.d.p.vehicle, params,
                                self.chance, self.guide, ahead=self.d.p.ahead, dead_ends=self.dead_ends,
                                dead_end_cost=self.retreat.cost,
-                               explain=self.s.stats.retreats >= self.retreat.retreats)
+                               explain=self.budget.spent)
         finally:
             self.s.stats.replanned(t0, c0)
 
@@ -270,9 +273,8 @@ class Chooser:
         """A dead end at ``pose`` (``why``: the sentence the safe stop would have said): back out of
         it on the cheapest reverse section that passes, its ground priced for the cost to go; a
         safe stop (E_DATA) once ``see.retreat.retreats`` retreats are made or none passes."""
-        made, bound = self.s.stats.retreats, self.retreat.retreats
-        if made >= bound:
-            raise ProtocolError("E_DATA", f"{why}; {made} of {bound} retreats made (navigate.see.retreat.retreats)")
+        if self.budget.spent:
+            raise ProtocolError("E_DATA", f"{why}; {self.budget} (navigate.see.retreat.retreats)")
         bounds = self.d.bounds
         self.dead_ends.append(DeadEnd(pose[0], pose[1], self.retreat.radius, bounds.frames))
         options = reverse_options(pose, self._track_back(pose), self.retreat, self.params.max_curvature,
@@ -290,10 +292,12 @@ class Chooser:
         finally:
             self.s.stats.replanned(t0, c0)
         if choice.status != "drive":
-            raise ProtocolError("E_DATA", f"{why}; backing out: {choice.reason} ({made} of {bound} retreats made)")
+            raise ProtocolError("E_DATA", f"{why}; backing out: {choice.reason} ({self.budget})")
         self.s.stats.retreats += 1
+        self.budget.made += 1
         self.s.mission.progress(leg, 1, 1, f"dead end at ({pose[0]:.2f}, {pose[1]:.2f}): backing out "
-                                           f"({made + 1} of {bound}) on {choice.reason}", "plan")
+                                           f"({self.budget.made} of {self.retreat.retreats}) on {choice.reason}",
+                                "plan")
         if choice.backward == "track":
             self.arcs.pop()
         else:  # off the track: the arcs before it no longer lead back from where it stands
@@ -306,6 +310,8 @@ class Chooser:
         after a look round here is a safe stop (E_DATA with its reason)."""
         d, job = self.d, self.s.job
         pose = d.pose()
+        goal = self.s.mission.goal
+        self.budget.stand(math.hypot(goal[0] - pose[0], goal[1] - pose[1]))
         if not self.rounds:  # the set-down: the ground round the rover from the blind disc out
             self._look_round(pose)
         if d.set_down_pending:

@@ -13,6 +13,7 @@ from prox_workflows.algorithms.candidates import coarse_costs, cost_to_go, poste
 from prox_workflows.algorithms.chance import ChanceParams, posterior
 from prox_workflows.algorithms.retreat import (
     DeadEnd,
+    RetreatBudget,
     RetreatParams,
     add_dead_ends,
     choose_reverse,
@@ -182,3 +183,28 @@ def test_the_reverse_section_chosen_is_judged_between_its_poses() -> None:
     assert coarse.status == "drive"
     fine = choose_reverse(POSE, options, check, ctg, body=BODY, verify=0.02)
     assert fine.status == "blocked" and fine.reasons == {"reverse arc belly": len(options)}
+
+
+def test_the_count_of_retreats_begins_again_each_time_the_rover_comes_regain_closer_to_the_goal() -> None:
+    """A long traverse through rock meets more pockets than a short one: the budget of retreats is
+    counted from where the rover stood, and begins again once it stands ``regain`` m closer to the
+    goal than there, never for standing as close again; with ``regain`` 0 it is the mission's."""
+    budget = RetreatBudget(RetreatParams(retreats=2, regain=2.0))
+    budget.stand(15.0)
+    budget.made = 2
+    assert budget.spent
+    budget.stand(13.5)  # closer, not 2 m closer
+    assert budget.spent and budget.count_from == 15.0
+    assert str(budget) == "2 of 2 retreats made since the rover stood 15.00 m from the goal, none 2 m closer"
+    budget.stand(13.0)
+    assert not budget.spent and budget.made == 0 and budget.count_from == 13.0
+    budget.made = 2
+    budget.stand(14.0)  # backed away and back: the count stands
+    budget.stand(13.0)
+    assert budget.spent
+    mission = RetreatBudget(RetreatParams(retreats=1, regain=0.0))
+    mission.stand(15.0)
+    mission.made = 1
+    mission.stand(1.0)
+    assert mission.spent and str(mission) == "1 of 1 retreats made in the mission"
+    assert str(RetreatBudget(RetreatParams(retreats=0))) == "0 of 0 retreats made"
