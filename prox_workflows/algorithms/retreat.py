@@ -59,9 +59,10 @@ class RetreatParams(Settings):
                              "began; at the next one, or where no reverse section passes, the mission is a safe "
                              "stop with the reason (0: no backing out)", min=0, max=100)
     regain: float = param(2.0, "coming this much closer to the goal (straight) than the rover stood when the count "
-                               "of retreats began starts it again: a long traverse through rock meets more "
-                               "pockets than a short one, and progress bounds how often the count restarts "
-                               "(0: the count is the mission's)", unit="m", min=0.0, max=1000.0)
+                               "of retreats began, or half the way there where that is less, starts it again: a "
+                               "long traverse through rock meets more pockets than a short one, and progress "
+                               "bounds how often the count restarts (0: the count is the mission's)", unit="m",
+                          min=0.0, max=1000.0)
     length: float = param(0.6, "length of each reverse arc, driven backwards", unit="m", min=0.1, max=3.0)
     arcs: int = param(5, "curvatures of the reverse arcs, evenly spaced from the chooser's tightest left to its "
                          "tightest right", min=1, max=31)
@@ -78,7 +79,7 @@ class RetreatParams(Settings):
 class RetreatBudget:
     """The retreats the rover may still make: ``params.retreats`` counted from where it stood when
     the count began, begun again each time it stands ``params.regain`` m closer to the goal than
-    there.
+    there (half the way there, nearer than twice that: the last metres have pockets too).
 
     Why: a budget for the whole mission ends a long traverse through rock at its fifth pocket
     however far it had got, and each retreat costs time, not safety (a reverse section is checked
@@ -91,7 +92,7 @@ class RetreatBudget:
 
     def stand(self, to_goal: float) -> None:
         """The rover stands ``to_goal`` m from the goal (straight), choosing its next section."""
-        regain = self.params.regain
+        regain = min(self.params.regain, self.count_from / 2.0)
         if self.count_from == math.inf or (regain > 0.0 and to_goal <= self.count_from - regain):
             self.count_from, self.made = to_goal, 0
 
@@ -106,7 +107,8 @@ class RetreatBudget:
             return made
         if self.params.regain <= 0.0:
             return f"{made} in the mission"
-        return f"{made} since the rover stood {self.count_from:.2f} m from the goal, none {self.params.regain:g} m closer"
+        regain = min(self.params.regain, self.count_from / 2.0)
+        return f"{made} since the rover stood {self.count_from:.2f} m from the goal, none {regain:.2f} m closer"
 
 
 @dataclass(frozen=True)

@@ -188,20 +188,28 @@ def test_the_reverse_section_chosen_is_judged_between_its_poses() -> None:
 def test_the_count_of_retreats_begins_again_each_time_the_rover_comes_regain_closer_to_the_goal() -> None:
     """A long traverse through rock meets more pockets than a short one: the budget of retreats is
     counted from where the rover stood, and begins again once it stands ``regain`` m closer to the
-    goal than there, never for standing as close again; with ``regain`` 0 it is the mission's."""
+    goal than there (half the way there when that is less), never for standing as close again;
+    with ``regain`` 0 it is the mission's."""
     budget = RetreatBudget(RetreatParams(retreats=2, regain=2.0))
     budget.stand(15.0)
     budget.made = 2
     assert budget.spent
     budget.stand(13.5)  # closer, not 2 m closer
     assert budget.spent and budget.count_from == 15.0
-    assert str(budget) == "2 of 2 retreats made since the rover stood 15.00 m from the goal, none 2 m closer"
+    assert str(budget) == "2 of 2 retreats made since the rover stood 15.00 m from the goal, none 2.00 m closer"
     budget.stand(13.0)
     assert not budget.spent and budget.made == 0 and budget.count_from == 13.0
     budget.made = 2
     budget.stand(14.0)  # backed away and back: the count stands
     budget.stand(13.0)
     assert budget.spent
+    near = RetreatBudget(RetreatParams(retreats=2, regain=2.0))  # nearer than 4 m: half the way
+    near.stand(1.9)
+    near.made = 2
+    near.stand(1.0)
+    assert near.spent and str(near).endswith("none 0.95 m closer")
+    near.stand(0.9)
+    assert not near.spent and near.count_from == 0.9
     mission = RetreatBudget(RetreatParams(retreats=1, regain=0.0))
     mission.stand(15.0)
     mission.made = 1
