@@ -262,7 +262,7 @@ def check(lower: np.ndarray, upper: np.ndarray, bounded: bool, cellwise: bool, x
           corners: np.ndarray, hubs: np.ndarray, fore: float, side: float, cog: float, safety: float,
           edge: np.ndarray, intrusion: np.ndarray, tilt: np.ndarray, tip: np.ndarray, grade: np.ndarray,
           stability: np.ndarray, unknown: np.ndarray, rest_tops: bool = False, radius: float = 0.0,
-          half_width: float = 0.0) -> None:
+          half_width: float = 0.0, fit_grade: bool = False) -> None:
     """Every limit at every pose ((N, 3): x, y, heading deg) into the output arrays; see
     ``vehicle.check_poses`` for what each is. The pattern: sample offsets ``px``, ``py`` (S,), each
     one's wheel (-1: none), the belly's samples (indices), each wheel sample's ``sag`` (the
@@ -272,7 +272,8 @@ def check(lower: np.ndarray, upper: np.ndarray, bounded: bool, cellwise: bool, x
     (P, 4: three wheels, the fourth last); the contacts' ``corners`` (C, 3: 0 lowest, 1 highest).
     ``rest_tops``: the resting planes are judged again with each wheel raised onto the tops of the
     cells wholly under it (``radius``, ``half_width``: the wheel's footprint), for stability only;
-    the belly keeps the planes on the contacts as read."""
+    the belly keeps the planes on the contacts as read. ``fit_grade`` (on a pair): the grade is the
+    plane fitted to the pair's middles, not the steepest the pair allows."""
     s = px.shape[0]
     lo, hi, mid, half = np.empty(s), np.empty(s), np.empty(s), np.empty(s)
     pulls_a, pulls_b = np.empty(pull_a.shape[1]), np.empty(pull_a.shape[1])
@@ -297,7 +298,7 @@ def check(lower: np.ndarray, upper: np.ndarray, bounded: bool, cellwise: bool, x
                 hi[j] = _read(upper, xmin, ymax, cell, wx, wy, cellwise)
         unknown[p] = _fill(lo, hi, mid, half, bounded, holes, wheel_of, on_wheel, nan_lo)
         highs, middles = (hi, mid) if bounded else (lo, lo)  # one grid: the heights are all three
-        grade[p] = _grade(middles, half, bounded, g0, g1, pull_a, pull_b, pulls_a, pulls_b)
+        grade[p] = _grade(middles, half, bounded and not fit_grade, g0, g1, pull_a, pull_b, pulls_a, pulls_b)
         _edges(lo, highs, bounded, pair_a, pair_b, pair_wheel, edge[p])
         # one corner (a pair whose wheels rest on its lows): the contacts are pinned to it
         open_box = _contacts(lo, highs, bounded, wheel_of, sag, contact) and corners.shape[0] > 1

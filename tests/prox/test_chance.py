@@ -498,6 +498,27 @@ def test_a_drawn_pair_rests_its_wheels_on_the_lows_not_on_the_worst_corner_of_th
     assert box.excess[0, LIMITS.index("belly")] == pytest.approx(0.0107, abs=0.002)
 
 
+def test_a_drawn_pair_s_grade_is_the_plane_fitted_to_it_as_the_truth_s_is() -> None:
+    # a uniform 9 deg slope, each cell's pair its top and its low a cell's rise under it: the
+    # steepest plane within every cell's pair read 9.6 deg; the truth's plane, fitted on its 1 cm
+    # grid, reads 9.0, and a drawn pair is one ground
+    slope = np.tan(np.radians(9.0))
+    g = GridGeometry(0.025, -1.5, 1.5, 120, 120)
+    xs, _ = g.centers()
+    top = np.tile(slope * (xs + g.cell / 2), (g.height, 1))
+    post = Posterior(top, np.full(g.shape, 1e-8), np.full(g.shape, np.inf), span=np.full(g.shape, slope * g.cell))
+    poses = np.array([[0.0, 0.0, h] for h in (0.0, 30.0, 90.0)])
+    c = chance_check(post, g, poses, BODY, ChanceParams(**BARE))
+    fine = GridGeometry(0.01, -1.5, 1.5, 300, 300)
+    truth = check_poses(np.tile(slope * fine.centers()[0], (fine.height, 1)).astype(np.float32), fine, poses, BODY)
+    assert truth.grade == pytest.approx([9.0] * 3, abs=0.02)
+    assert c.nominal.grade == pytest.approx(truth.grade, abs=0.05)
+    # as bounds (each sample anywhere within its cell's pair) the grade is the steepest they allow
+    low = (top - slope * g.cell).astype(np.float32)
+    box = check_poses((low, top.astype(np.float32)), g, poses, BODY, g.cell, cellwise=False)
+    assert box.grade.min() > 9.4
+
+
 def test_the_miss_trace_stands_the_body_as_the_vehicle_check_does() -> None:
     # tools.bench.chance_trace: a rock under the box and one wheel on a 3 cm slab; the trace's
     # contacts, resting plane and belly point give the check's own intrusion
