@@ -83,7 +83,9 @@ and taken as relief that lowered every wheel on ground read high and stopped mar
 mission 0.19 m from its start. Not the worst corner of a box of rests
 between the lows and the tops: a draw is one ground, and that worst case within every draw leaned
 the box's edge 2-3 cm into the belly at the refused turns of marsyard's stops (docs/NAVIGATE_BENCH.md,
-"The `within` 1 stops, traced against the truth").
+"The `within` 1 stops, traced against the truth"). Nor the steepest plane within every cell's
+pair for the grade: a draw's grade is the plane fitted to its middles, as the truth's is to its
+one grid (the steepest read a uniform 9 deg slope at 9.6).
 
 Poses are first screened by the worst-case check on bounds :func:`screen_k` sigmas out (of both
 errors), which makes the chance that any cell under the body lies outside them at most
