@@ -46,8 +46,8 @@ from .arcs import arc_poses, default_curvatures
 from .candidates import SAFE, Check, Choice, CostToGo, verdict_name
 from .vehicle import VehicleBody, densify
 
-__all__ = ["RetreatParams", "RetreatBudget", "ReverseOption", "DeadEnd", "reverse_options", "choose_reverse", "add_dead_ends",
-           "dead_end_penalty"]
+__all__ = ["RetreatParams", "RetreatBudget", "ReverseOption", "DeadEnd", "reverse_options", "choose_reverse",
+           "add_dead_ends", "dead_end_penalty"]
 
 
 @dataclass
@@ -90,10 +90,14 @@ class RetreatBudget:
     made: int = 0  # retreats since the count began
     count_from: float = math.inf  # the rover's straight distance to the goal when it began
 
+    @property
+    def regain(self) -> float:
+        """How much closer the rover must stand for the count to begin again."""
+        return min(self.params.regain, self.count_from / 2.0)
+
     def stand(self, to_goal: float) -> None:
         """The rover stands ``to_goal`` m from the goal (straight), choosing its next section."""
-        regain = min(self.params.regain, self.count_from / 2.0)
-        if self.count_from == math.inf or (regain > 0.0 and to_goal <= self.count_from - regain):
+        if self.count_from == math.inf or (self.regain > 0.0 and to_goal <= self.count_from - self.regain):
             self.count_from, self.made = to_goal, 0
 
     @property
@@ -107,8 +111,7 @@ class RetreatBudget:
             return made
         if self.params.regain <= 0.0:
             return f"{made} in the mission"
-        regain = min(self.params.regain, self.count_from / 2.0)
-        return f"{made} since the rover stood {self.count_from:.2f} m from the goal, none {regain:.2f} m closer"
+        return f"{made} since the rover stood {self.count_from:.2f} m from the goal, none {self.regain:.2f} m closer"
 
 
 @dataclass(frozen=True)

@@ -272,7 +272,8 @@ class Chooser:
     def _back_out(self, leg: int, pose: tuple[float, float, float], why: str) -> None:
         """A dead end at ``pose`` (``why``: the sentence the safe stop would have said): back out of
         it on the cheapest reverse section that passes, its ground priced for the cost to go; a
-        safe stop (E_DATA) once ``see.retreat.retreats`` retreats are made or none passes."""
+        safe stop (E_DATA) once the budget's retreats are made (:class:`RetreatBudget`) or none
+        passes."""
         if self.budget.spent:
             raise ProtocolError("E_DATA", f"{why}; {self.budget} (navigate.see.retreat.retreats)")
         bounds = self.d.bounds
