@@ -11,7 +11,7 @@ from typing import Any
 import numpy as np
 
 from prox_workflows.algorithms.candidates import CandidateParams, Choice
-from prox_workflows.algorithms.retreat import RetreatParams
+from prox_workflows.algorithms.retreat import RetreatBudget, RetreatParams
 from rvs_server.navigation.sections import Chooser
 
 
@@ -47,9 +47,11 @@ def _chooser(script: list[Choice]) -> tuple[Chooser, _Driver, list[tuple[Any, bo
     c = Chooser.__new__(Chooser)
     c.d, c.params, c.rounds, c.started = d, d.p.chooser, [(0.0, 0.0)], True
     c.best, c.since_best, c.stood, c.dead_ends, c.retreat = math.inf, 0, [], [], d.p.retreat
+    c.budget = RetreatBudget(d.p.retreat)
     said: list[str] = []
     c.s = SimpleNamespace(job=SimpleNamespace(check=lambda: None), stats=SimpleNamespace(replans=0),
-                          mission=SimpleNamespace(progress=lambda leg, done, total, message, phase="": said.append(message)))
+                          mission=SimpleNamespace(goal=(5.0, 0.0), progress=lambda leg, done, total, message,
+                                                  phase="": said.append(message)))
     c.said = said  # type: ignore[attr-defined]
     calls: list[tuple[Any, bool]] = []
     driven: list[Choice] = []
