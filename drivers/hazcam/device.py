@@ -36,7 +36,10 @@ class HazcamFrame:
     (the backend's clock: simulated seconds for the simulator), ``sigma_range`` (N, m) the
     standard deviation of each point along its ray from ``origin`` (the left camera's centre, rover
     frame), ``pixels`` (N x 2 row, col) where each point lies in ``left``; ``left`` and ``right``
-    the mono8 images it was matched from."""
+    the mono8 images it was matched from. ``capture_s`` and ``capture_cpu_s``: the wall and process
+    CPU seconds the capture took on this machine (the simulator's render of both cameras, a real
+    pair's exposure and transfer), apart from the matching: a consumer timing its own work on the
+    frame leaves them out, as it leaves out the wait for any sensor."""
 
     camera: str
     stamp: float
@@ -46,6 +49,8 @@ class HazcamFrame:
     pixels: np.ndarray
     left: np.ndarray
     right: np.ndarray
+    capture_s: float = 0.0
+    capture_cpu_s: float = 0.0
 
 
 class Hazcam:
@@ -142,24 +147,26 @@ class Hazcam:
             if self._matcher is None:
                 raise DeviceError(NAME, "no stereo matcher was given to this device (the server gives its own; "
                                         "drivers.hazcam.create(..., matcher=...)): only images() works")
+            t_capture, cpu_capture = time.perf_counter(), time.process_time()
             left, right, stamp = self._capture(camera, cancel)
             if is_cancelled(cancel):
                 raise DeviceInterrupted(NAME, "grab cancelled before matching")
             rig = self._rigs[camera]
             t0 = time.perf_counter()
+            captured = (t0 - t_capture, time.process_time() - cpu_capture)
             try:
                 pts, pixels = self._matcher(left, right, rig.calibration, {"min_depth": self.config.min_range})
             except ValueError as exc:
                 raise self._failed(camera, f"stereo matching failed: {exc}") from exc
             frame = self._frame(rig, stamp, np.asarray(pts, np.float64).reshape(-1, 3),
-                                np.asarray(pixels).reshape(-1, 2), left, right)
+                                np.asarray(pixels).reshape(-1, 2), left, right, captured)
             with self._st:
                 self._status["last_grab"]["match_ms"] = round(1000 * (time.perf_counter() - t0), 1)
                 self._status["last_grab"]["points"] = len(frame.points)
             return frame
 
     def _frame(self, rig: PairRig, stamp: float, pts: np.ndarray, pixels: np.ndarray, left: np.ndarray,
-               right: np.ndarray) -> HazcamFrame:
+               right: np.ndarray, captured: tuple[float, float] = (0.0, 0.0)) -> HazcamFrame:
         """Points within max_range, to the rover frame, each with its range sigma: the depth noise
         z^2 sigma_d / (f b) of a disparity error, stretched along the ray by range / depth."""
         r = np.linalg.norm(pts, axis=1)
@@ -170,7 +177,7 @@ class Hazcam:
         T = rig.T_rover_left
         return HazcamFrame(camera=rig.camera, stamp=float(stamp), points=pts @ T[:3, :3].T + T[:3, 3],
                            sigma_range=sigma_z * r / z, origin=rig.origin, pixels=pixels[keep], left=left,
-                           right=right)
+                           right=right, capture_s=captured[0], capture_cpu_s=captured[1])
 
     def _capture(self, camera: str, cancel: Cancel) -> tuple[np.ndarray, np.ndarray, float]:
         self._require(camera)

@@ -27,7 +27,7 @@ class LoopStats:
     # for a core, which the cycle's own cost does not include (the rest of the process, status
     # replies included, counts in it: an upper bound)
     cycle_cpu_ms: list[float] = field(default_factory=list)
-    frame_ms: list[float] = field(default_factory=list)  # the ToF frame (the simulator's render), wall ms
+    frame_ms: list[float] = field(default_factory=list)  # the frames' captures (the simulator's renders), wall ms
     replan_ms: list[float] = field(default_factory=list)  # A* on the merged maps (the chooser: a choice), wall ms
     replan_cpu_ms: list[float] = field(default_factory=list)  # the same, process CPU ms
 

@@ -62,6 +62,8 @@ from ..protocol import Fixed, Reply
 from .sections import WINDOW_SLACK
 
 if TYPE_CHECKING:
+    from drivers.hazcam import HazcamFrame
+
     from ..app import App
     from ..jobs import Job
     from .config import SeeConfig
@@ -188,7 +190,9 @@ class SeeingDriver:
         the front pair, which sees the ground the wheels meet next); returns the rover's pose and
         the wall time (monotonic) the fusion started. Each return's sigma is the ToF's noise
         model's at its own amplitude (as the device says the noise goes with it) over the frames
-        averaged, its horizontal error along its ray."""
+        averaged, its horizontal error along its ray. The returned time is moved on by each pair's
+        capture (the simulator's render of it, a real pair's exposure): from it to the verdict is
+        the cycle's own work (``LoopStats.cycle``)."""
         job, app = self.job, self.app
         t0 = time.monotonic()
         tof = app.devices.get("tof")
@@ -223,11 +227,14 @@ class SeeingDriver:
             sigma, along, across = tof_spread(full, origin, raw, frames=frames, frequency_mhz=mhz)
             self.bounds.fuse(full, sigma, origin, self.p.max_range, along, sigma_across=across)
             for camera in (c for c in self.hazcams if c in cameras):
-                self._fuse_hazcam(camera, T)
+                frame = self._fuse_hazcam(camera, T)
+                # the pair's capture is the sensor's time, as the ToF frame's is: the cycle starts later by it
+                t1 += frame.capture_s
+                self.cpu1 += frame.capture_cpu_s
             if not self.set_down_pending:
                 self.bounds.stood((x, y, heading), float(T[2, 3]), self.body, self.attitude())
             app.bus.publish("bounds", bounds=self.bounds)  # Foxglove and recordings (their hub throttles)
-        self.stats.frame_ms.append((t1 - t0) * 1000)
+        self.stats.frame_ms.append((t1 - t0) * 1000)  # the ToF frame's and the pairs' captures
         return (x, y, heading), t1
 
     def cycle(self, remaining: np.ndarray) -> tuple[Any, Any, tuple[float, float, float]]:
@@ -262,7 +269,7 @@ class SeeingDriver:
         near = sweep_check(trav, g, along(self.p.blind), self.length, self.width)
         return check, near if near.verdict == "unknown" else None
 
-    def _fuse_hazcam(self, camera: str, T: np.ndarray) -> None:
+    def _fuse_hazcam(self, camera: str, T: np.ndarray) -> HazcamFrame:
         """One body hazard camera's pair into the bounds map (with the rover at ``T``): the ground
         from about 0.1 m past the body's end, where the mast never sees. Each point's range sigma
         is the disparity noise's (it grows with the range squared), and the frame is fused as a
@@ -280,6 +287,7 @@ class SeeingDriver:
         origin = T[:3, :3] @ frame.origin + T[:3, 3]
         sigma, sigma_xy = pair_sigmas(pts, origin, frame.sigma_range[ground], device.rig(camera).focal)
         self.bounds.fuse(pts, sigma, origin, device.config.max_range, sigma_xy, sensor="stereo")
+        return frame
 
     def on_body(self, pts: np.ndarray) -> np.ndarray:
         """Rover-frame points on the rover itself (its box and wheels, a few centimetres grown):

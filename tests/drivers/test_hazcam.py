@@ -67,6 +67,9 @@ def test_the_front_pair_measures_the_ground_ahead_within_its_declared_sigma(mars
     assert frame.left.shape == frame.right.shape == (360, 480) and frame.left.dtype == np.uint8
     rows, cols = frame.pixels.T
     assert rows.max() < 360 and cols.max() < 480
+    # the capture's own time, apart from the matching: the one the device's status reports
+    assert frame.capture_s == pytest.approx(dev.status()["last_grab"]["capture_ms"] / 1000, abs=2e-3)
+    assert frame.capture_s > 0 and frame.capture_cpu_s > 0
 
 
 def test_the_rear_pair_sees_behind_the_rover_whatever_its_heading(marsyard: World) -> None:
