@@ -831,14 +831,21 @@ def reproject_rectified(disp_rect: np.ndarray, rect: Rectification) -> np.ndarra
 def reproject_left(disp_left: np.ndarray, rect: Rectification) -> np.ndarray:
     """H x W x 3 float32 points in the left camera frame, one per left original pixel: Q applied
     to each pixel's exact rectified position and its disparity."""
-    valid = np.isfinite(disp_left) & (disp_left > 0)
-    xy = rect.left_to_rect[valid].astype(np.float64)
-    d = disp_left[valid].astype(np.float64)
+    pts, rows, cols = _left_points(disp_left, rect)
+    out = np.full((*disp_left.shape, 3), np.nan, np.float32)
+    out[rows, cols] = pts
+    return out
+
+
+def _left_points(disp_left: np.ndarray, rect: Rectification) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`reproject_left`'s points of the pixels with a disparity only (N x 3 float32, and
+    their rows and columns): a frame's cloud wants them, not the image of them."""
+    rows, cols = np.nonzero(np.isfinite(disp_left) & (disp_left > 0))
+    xy = rect.left_to_rect[rows, cols].astype(np.float64)
+    d = disp_left[rows, cols].astype(np.float64)
     hom = np.column_stack([xy, d, np.ones_like(d)]) @ np.asarray(rect.Q).T
     x_rect = hom[:, :3] / hom[:, 3:4]
-    out = np.full((*disp_left.shape, 3), np.nan, np.float32)
-    out[valid] = (x_rect @ np.asarray(rect.R1)).astype(np.float32)
-    return out
+    return (x_rect @ np.asarray(rect.R1)).astype(np.float32), rows, cols
 
 
 def depth_sigma(z: np.ndarray | float, baseline: float, focal: float,
@@ -853,10 +860,9 @@ def depth_sigma(z: np.ndarray | float, baseline: float, focal: float,
 def cloud(disp: Disparity, sigma_d: float | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(N x 3 points in the left camera frame, N depth sigmas, N x 2 int left pixel (row, col)):
     measured pixels only, filled ones never (see :attr:`SgbmParams.fill`)."""
-    pts = disp.points(measured_only=True)
-    ok = np.isfinite(pts[..., 2])
-    rows, cols = np.nonzero(ok)
-    p = pts[ok]
+    p, rows, cols = _left_points(disp.measured, disp.rect)
+    ok = np.isfinite(p[:, 2])
+    p, rows, cols = p[ok], rows[ok], cols[ok]
     sd = sigma_d_for(disp.params.scale) if sigma_d is None else sigma_d
     sig = depth_sigma(p[:, 2], disp.rect.baseline, disp.rect.focal, sd)
     return p, sig, np.stack([rows, cols], axis=1)
