@@ -193,7 +193,7 @@ def run_dem(job: Job, cfg: Any, *, update: bool, sensor: str = "tof",
             return device_call(job, ptu.move, pan, tilt, True)
         arrival = ahead.pop("arrival")
         if lead > 0 and clock is not None:
-            clock.sleep(arrival - lead - clock.now(), cancel=lambda: job.cancelled)
+            clock.sleep(arrival - lead - clock.now(), cancel=lambda: job.cancelled, what="ptu moves")
             job.check()
             return None
         return device_call(job, ptu.wait)

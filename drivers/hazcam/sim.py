@@ -89,5 +89,5 @@ class SimHazcams:
             left, right = (imaging.jpeg(imaging.expose(rad, shutter, 0.0, self.sensor, rng), optics.jpeg_quality)
                            for rad in rads)
         if not world.rolling:  # standing, the frame's exposure and readout are the rover's time
-            world.clock.sleep(shutter / 1e6 + self.readout)
+            world.clock.sleep(shutter / 1e6 + self.readout, what="hazcam frames")
         return left, right, stamp

@@ -416,7 +416,7 @@ class PtuEmulator:
         mast slews while the wheels turn; its time still counts from its start, and the next
         await that finds it ended sooner costs nothing."""
         if self._clock is not None and not math.isfinite(self._horizon()):
-            self._clock.advance_to(self._sim_t)
+            self._clock.advance_to(self._sim_t, "ptu moves")
 
     def _finish(self, ax: _Axis, t: float) -> None:
         ax.pos, ax.vel, ax.profile = float(ax.target), 0.0, None

@@ -274,11 +274,12 @@ class World:
             raise ValueError("seconds must be a finite number >= 0")
         step = self.drive_model.step
         driven = 0.0
+        what = "drive" if v > 0 else "reverse" if v < 0 else "turn on the spot" if w_deg else "stand"
         with self._drive_lock:
             n = max(1, math.ceil(seconds / step - 1e-9)) if seconds > 0 else 0
             for k in range(n):
                 dt = min(step, seconds - k * step)
-                if not self.clock.sleep(dt, stop):
+                if not self.clock.sleep(dt, stop, what):
                     break
                 ds, dyaw = v * dt, w_deg * dt
                 with self._lock:

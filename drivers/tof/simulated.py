@@ -316,7 +316,7 @@ class SimTof:
         frame_s = k.frame_seconds(t_ms)
         if self._time_scale is None:
             if not self._world.rolling:  # exposed while the rover rolls, the frame overlaps the drive
-                self._world.clock.sleep(frame_s)
+                self._world.clock.sleep(frame_s, what="tof frames")
         elif self._time_scale > 0:
             time.sleep(self._time_scale * frame_s)
         self._ahead_unused = 0

@@ -140,6 +140,10 @@ def test_the_bench_sets_a_missions_efficiencies_beside_the_oracles_in_both_measu
     rows = [{**base, "efficiency": 0.4, "path_efficiency": 0.8, "oracle_time_efficiency": 0.7},
             {**base, "efficiency": 0.2, "path_efficiency": 0.6, "oracle_time_efficiency": 0.9},
             {**base, "efficiency": 0.3}]  # a row from before the two were measured
+    rows[0]["time_split"] = {"drive": 300.0, "turn on the spot": 60.0, "ptu moves": 40.0}
+    rows[1]["time_split"] = {"drive": 200.0, "ptu moves": 200.0}
     s = summarise(rows)[0]
+    # the share of the simulated time of the runs that record it, whatever else each row holds
+    assert s["time_split"] == pytest.approx({"drive": 0.625, "ptu moves": 0.3, "turn on the spot": 0.075})
     assert s["efficiency_reached"] == pytest.approx(0.3)
     assert (s["path_efficiency_reached"], s["oracle_time_efficiency_same"]) == (pytest.approx(0.7), pytest.approx(0.8))

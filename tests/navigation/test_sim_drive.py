@@ -80,6 +80,20 @@ def test_drive_integrates_v_and_w_and_odometry_equals_truth_without_slip() -> No
     assert w.odometry() == pytest.approx((t["x"], t["y"], t["heading"]))
 
 
+def test_the_clock_keeps_what_moved_it_on_and_overlapping_waits_count_once() -> None:
+    w = World.from_scene("office", clock_scale=0.0)
+    w.drive(0.1, 0.0, 10.0)
+    w.drive(0.0, 15.0, 6.0)
+    w.drive(-0.1, 5.0, 2.0)
+    w.clock.sleep(1.5, what="tof frames")
+    now = w.clock.now()
+    w.clock.advance_to(now + 3.0, "ptu moves")  # a slew awaited
+    w.clock.advance_to(now + 2.0, "ptu moves")  # a second wait that ended within the first
+    assert dict(w.clock.spent) == pytest.approx({"drive": 10.0, "turn on the spot": 6.0, "reverse": 2.0,
+                                                 "tof frames": 1.5, "ptu moves": 3.0})
+    assert sum(w.clock.spent.values()) == pytest.approx(w.clock.now())
+
+
 @pytest.mark.parametrize("seed", [1, 2])
 def test_slip_leaves_the_truth_short_of_and_beside_the_odometry(seed: int) -> None:
     w = World.from_scene("office", clock_scale=0.0)

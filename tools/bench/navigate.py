@@ -23,7 +23,9 @@ efficiency, and the old score: true hazard cells (Dem2Hazard of the true DEM at 
 0.51 x 0.40 m box swept along the track, counted once per 5 cm chord.
 
 Traverse efficiency = goal distance / (simulated time x top speed): 1.0 is a rover that drives
-straight at full speed and never stops. Simulated time is the world's clock (``sim.time_scale=0``);
+straight at full speed and never stops. Simulated time is the world's clock (``sim.time_scale=0``), and where it went is each row's
+``time_split`` (``SimClock.spent``: driving, reversing, turning on the spot, the PTU's moves awaited,
+the frames taken standing), printed per scene as shares: what the efficiency lost goes to;
 the see loop's cycle latency and the replanning times are wall milliseconds, apart.
 
 ``--budget`` measures the error budget the margins come from: each sensor's DEM (dem-full-tof,
@@ -221,15 +223,17 @@ def run_mission(scene: str, mode: str, start: tuple[float, float], goal: tuple[f
                 srv.request(line)
             heading = math.degrees(math.atan2(goal[1] - start[1], goal[0] - start[0]))
             fixes = localise_options(world, Path(tmp), localise)
-            t_sim0, t_wall0 = world.clock.now(), time.monotonic()
+            t_sim0, t_wall0, spent0 = world.clock.now(), time.monotonic(), world.clock.spent.copy()
             r = srv.request(f"navigate -start {start[0]},{start[1]},{heading:.1f} -goal {goal[0]},{goal[1]} "
                             f"-auto -loop {mode} -footprint {FOOTPRINT[mode]} -name bench -max-legs 30 {fixes}".rstrip())
             sim_s = world.clock.now() - t_sim0
+            spent = world.clock.spent - spent0
             wall_s = time.monotonic() - t_wall0
             dist = math.hypot(goal[0] - start[0], goal[1] - start[1])
             out: dict[str, Any] = {"scene": scene, "mode": mode, "start": start, "goal": goal,
                                    "distance": round(dist, 2), "status": r.status, "sim_s": round(sim_s, 1),
                                    "wall_s": round(wall_s, 1),
+                                   "time_split": {what: round(t, 1) for what, t in spent.most_common()},
                                    **arrival(world, (srv.app.pose.x, srv.app.pose.y), goal,
                                              srv.app.config.get("navigate").tolerance)}
             if world.slip.active:
@@ -301,6 +305,17 @@ def _mean(values: list[float | None]) -> float | None:
     return round(float(np.mean(known)), 3) if known else None
 
 
+def _time_split(rows: list[dict[str, Any]]) -> dict[str, float]:
+    """Where the missions' simulated time went (the share of each thing that moved the world's
+    clock on, ``SimClock.spent``), over the runs that record it."""
+    rows = [r for r in rows if "time_split" in r]
+    total = sum(r["sim_s"] for r in rows)
+    shares: Counter[str] = Counter()
+    for r in rows:
+        shares.update(r["time_split"])
+    return {what: round(t / total, 3) for what, t in shares.most_common()} if total > 0 else {}
+
+
 def summarise(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
     """Per scene and mode: feasible, reached (of feasible), failed (a mission with an event), the
     events, safe stops with their reasons, efficiency (reached missions) beside the perfect-knowledge
@@ -349,6 +364,7 @@ def summarise(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
                  "cross_track_p99_max": max(track) if track else None,
                  "today_plans_with_events": sum(1 for r in sel if r["today_plan"]["events"]),
                  "scans_per_mission": round(float(np.mean([r.get("scans", r.get("legs", 0)) for r in sel])), 2),
+                 "time_split": _time_split(sel),
                  "sim_s_mean": round(float(np.mean([r["sim_s"] for r in sel])), 1),
                  "wall_s_mean": round(float(np.mean([r["wall_s"] for r in sel])), 1)}
             if mode == "see":
@@ -559,6 +575,8 @@ def print_summary(summary: list[dict[str, Any]]) -> None:
               f"{s['progress_median']} m, best {s['progress_best']} m; reached by path length "
               f"{s['path_efficiency_reached']} (the oracle's above), by time {s['efficiency_reached']} against the "
               f"oracle's path timed {s['oracle_time_efficiency_same']}")
+        if s["time_split"]:
+            print("    simulated time: " + ", ".join(f"{what} {share:.1%}" for what, share in s["time_split"].items()))
         print(f"    truly within the tolerance at the end: {s['true_reached']}/{s['missions']} (reached by its own "
               f"pose: {s['reached']}); miss median true {s['true_miss_median']} m, believed "
               f"{s['believed_miss_median']} m")
