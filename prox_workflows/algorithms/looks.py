@@ -132,13 +132,14 @@ def look_pans(bearing: float, spread: float) -> list[float]:
 
 
 def round_look(pose: tuple[float, float, float], head: HeadCalibration, view: View, body: Any, drive: float,
-               far_tilt: float, toward: float | None = None, bounds: Any = None) -> list[tuple[float, float]]:
+               far_tilt: float, toward: float | None = None, bounds: Any = None,
+               start_pan: float | None = None) -> list[tuple[float, float]]:
     """The PTU positions (:func:`standing_look`) of a standing look at ``pose`` that show the
     ground the ``body`` covers driving ``drive`` m in a fan of +-60 deg about ``toward`` (deg
     from the heading; None: all round, as a turn on the spot may face any way) and as far
     again, leaving out ground the ``bounds`` map (a :class:`~.bounds_map.BoundsMap`, if any)
     already holds within half the lower of the body's climb and clearance: wider bounds are
-    what refuse a safe pose."""
+    what refuse a safe pose. ``start_pan``: where the mast points now (the serpentine's start)."""
     judged = None
     if bounds is not None:
         reach = 2 * drive + body.length
@@ -147,7 +148,7 @@ def round_look(pose: tuple[float, float, float], head: HeadCalibration, view: Vi
             judged = (upper - lower <= min(body.climb, body.clearance) / 2, g)
     fan = np.arange(-60.0, 60.1, 15.0) + toward if toward is not None else np.arange(-180.0, 180.0, 15.0)
     return standing_look(pose, head, view, body.length, body.width, drive, bearings=fan, far_tilt=far_tilt,
-                         judged=judged)
+                         judged=judged, start_pan=start_pan)
 
 
 def on_body(points: np.ndarray, body: Any, margin: float = BODY_MARGIN) -> np.ndarray:
@@ -196,8 +197,8 @@ def standing_look(pose: tuple[float, float, float], head: HeadCalibration, view:
                   width: float, distance: float = 1.0, beyond: float | None = None,
                   bearings: np.ndarray | list[float] | None = None,
                   tilts: tuple[float, ...] | None = None, far_tilt: float = -35.0, ground: float = 0.0,
-                  judged: tuple[np.ndarray, GridGeometry] | None = None, overlap: float = 0.15
-                  ) -> list[tuple[float, float]]:
+                  judged: tuple[np.ndarray, GridGeometry] | None = None, overlap: float = 0.15,
+                  start_pan: float | None = None) -> list[tuple[float, float]]:
     """PTU positions (pan, tilt deg) for a standing look at ``pose`` that shows the ground the
     body covers over the next drive (:func:`drive_band`: at most ``distance`` m along each of
     ``bearings``, deg from the heading; default a fan of -60..60 deg) and the ``beyond`` m after
@@ -211,8 +212,10 @@ def standing_look(pose: tuple[float, float, float], head: HeadCalibration, view:
     panned to them (and that an earlier tilt's frames do not) are covered by pans ``fov_h (1 -
     overlap)`` apart, centred on the span of their bearings (3-5 for the default fan; a ring all
     round takes 9-10), within the PTU's ``pan_limit``; a pan whose frame would show none of them
-    is left out. Ordered as a serpentine (the lowest tilt left to right, the next right to left),
-    so the PTU travels least."""
+    is left out. Ordered as a serpentine (the lowest tilt one way, the next the other), so the PTU
+    travels least, from the end of the first tilt's pans nearer ``start_pan`` (where the mast
+    points now; None: the lowest pan): the PTU's moves awaited are a fifth of a mission's time,
+    and a look begun at the far end slews across the whole fan first."""
     if bearings is None:
         bearings = np.arange(-60.0, 60.0 + 1e-9, 15.0)
     if tilts is None:
@@ -239,9 +242,9 @@ def standing_look(pose: tuple[float, float, float], head: HeadCalibration, view:
     base = np.array(head.ptu_base) + np.array([0.0, 0.0, head.tilt_offset])
     azimuth = np.degrees(np.arctan2(pts[:, 1] - base[1], pts[:, 0] - base[0]))
     step = view.fov_h * (1.0 - overlap)
-    out: list[tuple[float, float]] = []
+    rows: list[list[tuple[float, float]]] = []  # per tilt that shows any, its pans from the lowest
     left = set(range(len(pts)))
-    for i, tilt in enumerate(tilts):
+    for tilt in tilts:
         # the points this tilt shows when panned straight at them, not shown by an earlier tilt's frames
         todo = np.array(sorted(left), dtype=np.int64)
         if not len(todo):
@@ -266,5 +269,7 @@ def standing_look(pose: tuple[float, float, float], head: HeadCalibration, view:
             if shown.any():
                 chosen.append((round(float(pan), 1), float(tilt)))
                 left -= set(todo[shown].tolist())
-        out.extend(chosen if i % 2 == 0 else chosen[::-1])
-    return out
+        if chosen:
+            rows.append(chosen)
+    flip = bool(rows) and start_pan is not None and abs(rows[0][-1][0] - start_pan) < abs(rows[0][0][0] - start_pan)
+    return [p for i, row in enumerate(rows) for p in (row if (i % 2 == 0) != flip else row[::-1])]

@@ -382,7 +382,7 @@ class SeeingDriver:
         only. The mast stays at the last position: what drives next points it (the section's
         pilot, :class:`~.sections.SectionPilot`)."""
         positions = looks.round_look(self.pose(), self.head, self.view(), self.body, self.p.look_drive, self.p.tilt,
-                                     toward, self.bounds)
+                                     toward, self.bounds, (self.slewing or self.pan_tilt)[0])
         if not positions:
             return
         self.stats.looks += 1

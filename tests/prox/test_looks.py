@@ -71,3 +71,21 @@ def test_ground_the_map_has_judged_takes_no_frame() -> None:
     half = standing_look(pose, head, VIEW, body.length, body.width, judged=(left, g))
     assert 0 < len(half) < len(every)
     assert all(pan < 15.0 for pan, _ in half), half  # only the right-hand ground is left to show
+
+
+def test_a_standing_look_begins_at_the_end_of_its_fan_nearer_the_mast() -> None:
+    pose = (0.0, 0.0, 0.0)
+    body, head = RoverBody(), HeadCalibration()
+    plain = standing_look(pose, head, VIEW, body.length, body.width)
+    first_row = [p for p in plain if p[1] == plain[0][1]]
+    lo, hi = first_row[0][0], first_row[-1][0]
+    assert lo < hi  # a fan of several pans at the lowest tilt, from the lowest pan
+    assert standing_look(pose, head, VIEW, body.length, body.width, start_pan=lo - 30.0) == plain
+    # the mast at the far end: the same positions, begun there, each tilt's row the other way
+    flipped = standing_look(pose, head, VIEW, body.length, body.width, start_pan=hi + 10.0)
+    assert sorted(flipped) == sorted(plain) and flipped[0] == (hi, plain[0][1])
+    rows = [[p for p in seq if p[1] == t] for seq in (plain, flipped) for t in (plain[0][1], plain[-1][1])]
+    assert rows[2] == rows[0][::-1] and rows[3] == rows[1][::-1]
+    # still a serpentine: the second tilt begins at its end nearer where the first ended
+    n = len(rows[2])
+    assert abs(flipped[n][0] - flipped[n - 1][0]) < abs(flipped[-1][0] - flipped[n - 1][0])
