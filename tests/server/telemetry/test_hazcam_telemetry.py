@@ -80,7 +80,8 @@ def test_hazcam_frames_images_and_points_are_recorded(recorded: dict[str, Any]) 
             np.testing.assert_array_equal(np.frombuffer(raw[0].data, np.uint8).reshape(want.shape), want)
     calls = [m for topic, _, m in messages if topic == "/raw/calls"]
     assert [(c["device"], c["call"], c["args"], c["result"]) for c in calls] == [
-        *(("hazcam", "grab", [f.camera], {"camera": f.camera, "stamp": f.stamp}) for f in (front, rear)),
+        *(("hazcam", "grab", [f.camera], {"camera": f.camera, "stamp": f.stamp, "capture_s": f.capture_s,
+                                          "capture_cpu_s": f.capture_cpu_s}) for f in (front, rear)),
         ("rover", "drive", ["Pilot"], [1.0, 2.0, 3.0])]
 
 
