@@ -214,7 +214,7 @@ def standing_look(pose: tuple[float, float, float], head: HeadCalibration, view:
     round takes 9-10), within the PTU's ``pan_limit``; a pan whose frame would show none of them
     is left out. Ordered as a serpentine (the lowest tilt one way, the next the other), so the PTU
     travels least, from the end of the first tilt's pans nearer ``start_pan`` (where the mast
-    points now; None: the lowest pan): the PTU's moves awaited are a fifth of a mission's time,
+    points now; None: the lowest pan): the PTU's moves awaited took a fifth of dense 5's time,
     and a look begun at the far end slews across the whole fan first."""
     if bearings is None:
         bearings = np.arange(-60.0, 60.0 + 1e-9, 15.0)
