@@ -137,7 +137,7 @@ class Hazcam:
     def images(self, camera: str, cancel: Cancel = None) -> tuple[np.ndarray, np.ndarray]:
         """The left and right mono8 images of one pair, exposed together (no matching)."""
         with self._op:
-            left, right, _ = self._capture(camera, cancel)
+            left, right, _, _ = self._capture(camera, cancel)
             return left, right
 
     def grab(self, camera: str, cancel: Cancel = None) -> HazcamFrame:
@@ -147,13 +147,11 @@ class Hazcam:
             if self._matcher is None:
                 raise DeviceError(NAME, "no stereo matcher was given to this device (the server gives its own; "
                                         "drivers.hazcam.create(..., matcher=...)): only images() works")
-            t_capture, cpu_capture = time.perf_counter(), time.process_time()
-            left, right, stamp = self._capture(camera, cancel)
+            left, right, stamp, captured = self._capture(camera, cancel)
             if is_cancelled(cancel):
                 raise DeviceInterrupted(NAME, "grab cancelled before matching")
             rig = self._rigs[camera]
             t0 = time.perf_counter()
-            captured = (t0 - t_capture, time.process_time() - cpu_capture)
             try:
                 pts, pixels = self._matcher(left, right, rig.calibration, {"min_depth": self.config.min_range})
             except ValueError as exc:
@@ -179,22 +177,23 @@ class Hazcam:
                            sigma_range=sigma_z * r / z, origin=rig.origin, pixels=pixels[keep], left=left,
                            right=right, capture_s=captured[0], capture_cpu_s=captured[1])
 
-    def _capture(self, camera: str, cancel: Cancel) -> tuple[np.ndarray, np.ndarray, float]:
+    def _capture(self, camera: str, cancel: Cancel) -> tuple[np.ndarray, np.ndarray, float, tuple[float, float]]:
+        """The pair's images, their stamp, and the wall and process CPU seconds the capture took."""
         self._require(camera)
         self._require_open()
-        t0 = time.perf_counter()
+        t0, cpu0 = time.perf_counter(), time.process_time()
         try:
             left, right, stamp = self._backend.capture(self._rigs[camera], cancel)
         except DeviceInterrupted:
             raise
         except DeviceError as exc:
             raise self._failed(camera, exc.message) from exc
+        captured = (time.perf_counter() - t0, time.process_time() - cpu0)
         with self._st:
             self._status["grabs"] += 1
             self._status["last_error"] = None
-            self._status["last_grab"] = {"camera": camera, "stamp": stamp,
-                                         "capture_ms": round(1000 * (time.perf_counter() - t0), 1)}
-        return left, right, stamp
+            self._status["last_grab"] = {"camera": camera, "stamp": stamp, "capture_ms": round(1000 * captured[0], 1)}
+        return left, right, stamp, captured
 
     def _require(self, camera: str) -> None:
         if camera not in CAMERAS:

@@ -428,7 +428,8 @@ def _copied(result: Any) -> Any:
 def _plain(value: Any) -> Any:
     """A call's arguments or result as JSON takes them (a PTU's position comes as numpy
     scalars); of a frame object (a hazcam's), the fields that are no array (its pair, time stamp
-    and how long its capture took); any other object (a drive's pilot, which holds the job) by its type's name."""
+    and how long its capture took); any other object (a drive's pilot, which holds the job) by
+    its type's name."""
     if isinstance(value, tuple | list):
         return [_plain(v) for v in value]
     if isinstance(value, dict):

@@ -23,10 +23,11 @@ efficiency, and the old score: true hazard cells (Dem2Hazard of the true DEM at 
 0.51 x 0.40 m box swept along the track, counted once per 5 cm chord.
 
 Traverse efficiency = goal distance / (simulated time x top speed): 1.0 is a rover that drives
-straight at full speed and never stops. Simulated time is the world's clock (``sim.time_scale=0``), and where it went is each row's
-``time_split`` (``SimClock.spent``: driving, reversing, turning on the spot, the PTU's moves awaited,
-the frames taken standing), printed per scene as shares: what the efficiency lost goes to;
-the see loop's cycle latency and the replanning times are wall milliseconds, apart.
+straight at full speed and never stops. Simulated time is the world's clock (``sim.time_scale=0``),
+and where it went is each row's ``time_split`` (``SimClock.spent``: driving, reversing, turning on
+the spot, the PTU's moves awaited, the frames taken standing), printed per scene as shares: what
+the efficiency lost goes to. The see loop's cycle latency and the replanning times are wall
+milliseconds, apart.
 
 ``--budget`` measures the error budget the margins come from: each sensor's DEM (dem-full-tof,
 dem-full) at 5 and 2.5 cm from mission starts, against the true surface: how much lower than the
