@@ -41,6 +41,96 @@ def lower_ceiling(ox: float, oy: float, oz: float, px: np.ndarray, py: np.ndarra
 
 
 @jit
+def lowest_rays(px: np.ndarray, py: np.ndarray, pz: np.ndarray, xmin: float, ymax: float, cell: float, h: int,
+                w: int, sub: int) -> np.ndarray:
+    """The indices of the returns whose rays :func:`lower_ceiling` walks: in each cell of the grid
+    the one with the lowest ray height, and every return off the grid."""
+    h, w, cell = h * sub, w * sub, cell / sub
+    best = np.full((h, w), -1, np.int64)
+    out = np.empty(px.shape[0], np.int64)
+    n = 0
+    for i in range(px.shape[0]):
+        fc = (px[i] - xmin) / cell
+        fr = (ymax - py[i]) / cell
+        if fc >= 0.0 and fr >= 0.0 and fc < w and fr < h:
+            r, c = int(fr), int(fc)
+            j = best[r, c]
+            if j < 0 or pz[i] < pz[j]:
+                best[r, c] = i
+        else:
+            out[n] = i
+            n += 1
+    for r in range(h):
+        for c in range(w):
+            if best[r, c] >= 0:
+                out[n] = best[r, c]
+                n += 1
+    return out[:n]
+
+
+@jit
+def cell_moments(px: np.ndarray, py: np.ndarray, pz: np.ndarray, sig: np.ndarray, sig_xy: np.ndarray,
+                 across: np.ndarray, ox: float, oy: float, oz: float, max_range: float, along_rays: bool,
+                 xmin: float, ymax: float, cell: float, h: int, w: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """One frame's returns summed per cell of the grid, in one pass: the cells (flat indices,
+    ascending), their counts, and per cell the sums of the heights, the height variances, the
+    horizontal variances along the rays and along the larger axis, and the horizontal covariance
+    (xx, xy, yy), then the highest and lowest height (columns of the (cells, 9) array, in that
+    order). Each return's horizontal error is ``sig_xy`` along its ray's bearing from (ox, oy)
+    and ``across`` at right angles (``along_rays``), else ``sig_xy`` both ways. A cell's sums run
+    over its returns in their order."""
+    slot = np.full(h * w, -1, np.int64)
+    cells = np.empty(px.shape[0], np.int64)
+    acc = np.zeros((px.shape[0], 9))
+    count = np.zeros(px.shape[0], np.int64)
+    m = 0
+    for i in range(px.shape[0]):
+        c = math.floor((px[i] - xmin) / cell)
+        r = math.floor((ymax - py[i]) / cell)
+        if r < 0 or r >= h or c < 0 or c >= w:
+            continue
+        # a cell the range cut crosses takes none of the frame's returns: its far corner from the
+        # sensor, at the return's height, lies beyond the cut
+        far = math.hypot(abs(px[i] - ox) + cell, abs(py[i] - oy) + cell)
+        if not math.hypot(far, pz[i] - oz) <= max_range:
+            continue
+        f = r * w + c
+        k = slot[f]
+        if k < 0:
+            k = m
+            slot[f] = k
+            cells[k] = f
+            acc[k, 7] = pz[i]
+            acc[k, 8] = pz[i]
+            m += 1
+        if along_rays:
+            dx, dy = px[i] - ox, py[i] - oy
+            norm = max(math.hypot(dx, dy), 1e-9)
+            ux, uy = dx / norm, dy / norm
+        else:
+            ux, uy = 1.0, 0.0
+        a2 = sig_xy[i] ** 2
+        b2 = across[i] ** 2
+        xx = a2 * ux * ux + b2 * uy * uy
+        xy = (a2 - b2) * ux * uy
+        yy = a2 * uy * uy + b2 * ux * ux
+        count[k] += 1
+        acc[k, 0] += pz[i]
+        acc[k, 1] += sig[i] ** 2
+        acc[k, 2] += a2
+        acc[k, 3] += xx + yy - min(a2, b2)  # the larger axis
+        acc[k, 4] += xx
+        acc[k, 5] += xy
+        acc[k, 6] += yy
+        if pz[i] > acc[k, 7]:
+            acc[k, 7] = pz[i]
+        if pz[i] < acc[k, 8]:
+            acc[k, 8] = pz[i]
+    order = np.argsort(cells[:m])
+    return cells[:m][order], count[:m][order], acc[:m][order]
+
+
+@jit
 def spread_extremes(top: np.ndarray, bottom: np.ndarray, index: np.ndarray, start: np.ndarray, dr: np.ndarray,
                     dc: np.ndarray, up: np.ndarray, lo: np.ndarray) -> None:
     """Raise ``up`` to each cell's ``top`` and lower ``lo`` to its ``bottom`` over the cells its

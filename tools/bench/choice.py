@@ -43,6 +43,7 @@ import numpy as np
 
 import rvs_server.navigation.sections as sections
 from prox_workflows.algorithms import bounds_map
+from prox_workflows.grid import GridGeometry
 
 
 def reference_spread(top: np.ndarray, bottom: np.ndarray, seen: np.ndarray, shape: np.ndarray
@@ -70,16 +71,59 @@ def reference_whole(self: bounds_map.BoundsMap) -> tuple[np.ndarray, np.ndarray]
     return self.bounds((slice(0, g.height), slice(0, g.width)))
 
 
+def reference_moments(pts: np.ndarray, sig: np.ndarray, sig_xy: np.ndarray, across: np.ndarray,
+                      origin: np.ndarray | None, max_range: float | None, across_rays: bool, g: GridGeometry
+                      ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A frame's returns summed per cell as a sort and segment sums: the straightforward
+    formulation of :func:`prox_workflows.algorithms.bounds_map._cell_moments`, which must give its
+    bits."""
+    if origin is not None and max_range is not None:
+        far = np.hypot(np.abs(pts[:, 0] - origin[0]) + g.cell, np.abs(pts[:, 1] - origin[1]) + g.cell)
+        whole = np.hypot(far, pts[:, 2] - origin[2]) <= max_range
+        pts, sig, sig_xy, across = pts[whole], sig[whole], sig_xy[whole], across[whole]
+    if across_rays and origin is not None:
+        dx, dy = pts[:, 0] - origin[0], pts[:, 1] - origin[1]
+        norm = np.maximum(np.hypot(dx, dy), 1e-9)
+        ux, uy = dx / norm, dy / norm
+    else:
+        ux, uy = np.ones(len(pts)), np.zeros(len(pts))
+    a2, b2 = sig_xy**2, across**2
+    xx, xy, yy = a2 * ux * ux + b2 * uy * uy, (a2 - b2) * ux * uy, a2 * uy * uy + b2 * ux * ux
+    r, c = g.cell_of(pts[:, 0], pts[:, 1])
+    inside = g.inside(r, c)
+    flat = (r * g.width + c)[inside]
+    order = np.argsort(flat, kind="stable")
+    flat = flat[order]
+    starts = np.flatnonzero(np.r_[True, flat[1:] != flat[:-1]]) if len(flat) else np.zeros(0, np.int64)
+    columns = [v[inside][order] for v in (pts[:, 2], sig**2, a2, xx + yy - np.minimum(a2, b2), xx, xy, yy)]
+    z = columns[0]
+    acc = np.column_stack([np.add.reduceat(v, starts) for v in columns]
+                          + [np.maximum.reduceat(z, starts), np.minimum.reduceat(z, starts)]) \
+        if len(flat) else np.zeros((0, 9))
+    return flat[starts], np.diff(np.r_[starts, len(flat)]), acc
+
+
+def reference_rays(pts: np.ndarray, heights: np.ndarray, g: GridGeometry) -> np.ndarray:
+    """Every return's ray: what :func:`prox_workflows.algorithms.bounds_map._rays` thins."""
+    return np.arange(len(pts))
+
+
 @contextmanager
 def reference() -> Iterator[None]:
-    """Within the block, the bounds map's spread computed by :func:`reference_spread` and its
-    whole bounds by :func:`reference_whole`: the straightforward path."""
-    fast = bounds_map._spread, bounds_map.BoundsMap.whole
-    bounds_map._spread, bounds_map.BoundsMap.whole = reference_spread, reference_whole
+    """Within the block, the bounds map's spread computed by :func:`reference_spread`, its whole
+    bounds by :func:`reference_whole`, a frame's sums per cell by :func:`reference_moments` and its
+    ceilings from every ray (:func:`reference_rays`): the straightforward path."""
+    names = ("_spread", "_cell_moments", "_rays")
+    fast = [getattr(bounds_map, n) for n in names], bounds_map.BoundsMap.whole
+    for n, f in zip(names, (reference_spread, reference_moments, reference_rays), strict=True):
+        setattr(bounds_map, n, f)
+    bounds_map.BoundsMap.whole = reference_whole
     try:
         yield
     finally:
-        bounds_map._spread, bounds_map.BoundsMap.whole = fast
+        for n, f in zip(names, fast[0], strict=True):
+            setattr(bounds_map, n, f)
+        bounds_map.BoundsMap.whole = fast[1]
 
 
 def capture(scene: str, mission: int, every: int, most: int, out: Path) -> int:
