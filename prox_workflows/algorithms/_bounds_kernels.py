@@ -44,8 +44,8 @@ def lower_ceiling(ox: float, oy: float, oz: float, px: np.ndarray, py: np.ndarra
 def _box(px: np.ndarray, py: np.ndarray, xmin: float, ymax: float, cell: float, h: int, w: int
          ) -> tuple[int, int, int, int]:
     """The rows and columns (first, past the last) of the grid's cells that hold any of the
-    points: what a frame's per-cell work needs to index, not the whole map (a mission's map is
-    millions of cells, a frame's a few thousand)."""
+    points: what a frame's sums need to index, not the whole map (a mission's map is millions of
+    cells, a frame's a few thousand)."""
     r0, r1, c0, c1 = h, 0, w, 0
     for i in range(px.shape[0]):
         fc = (px[i] - xmin) / cell
@@ -54,35 +54,6 @@ def _box(px: np.ndarray, py: np.ndarray, xmin: float, ymax: float, cell: float, 
             r, c = int(fr), int(fc)
             r0, r1, c0, c1 = min(r0, r), max(r1, r + 1), min(c0, c), max(c1, c + 1)
     return r0, max(r1, r0), c0, max(c1, c0)
-
-
-@jit
-def lowest_rays(px: np.ndarray, py: np.ndarray, pz: np.ndarray, xmin: float, ymax: float, cell: float, h: int,
-                w: int, sub: int) -> np.ndarray:
-    """The indices of the returns whose rays :func:`lower_ceiling` walks: in each ``sub`` x ``sub``
-    part of a cell of the grid the one with the lowest ray height, and every return off the grid."""
-    h, w, cell = h * sub, w * sub, cell / sub
-    r0, r1, c0, c1 = _box(px, py, xmin, ymax, cell, h, w)
-    best = np.full((r1 - r0, c1 - c0), -1, np.int64)
-    out = np.empty(px.shape[0], np.int64)
-    n = 0
-    for i in range(px.shape[0]):
-        fc = (px[i] - xmin) / cell
-        fr = (ymax - py[i]) / cell
-        if fc >= 0.0 and fr >= 0.0 and fc < w and fr < h:
-            r, c = int(fr) - r0, int(fc) - c0
-            j = best[r, c]
-            if j < 0 or pz[i] < pz[j]:
-                best[r, c] = i
-        else:
-            out[n] = i
-            n += 1
-    for r in range(best.shape[0]):
-        for c in range(best.shape[1]):
-            if best[r, c] >= 0:
-                out[n] = best[r, c]
-                n += 1
-    return out[:n]
 
 
 @jit

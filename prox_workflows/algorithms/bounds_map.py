@@ -66,12 +66,6 @@ __all__ = ["BoundsMap", "BoundsParams", "SENSORS", "contact_plane"]
 
 # the kinds of frame the map fuses, in rising precedence (with ``stereo_first``)
 SENSORS = ("tof", "stereo")
-# A frame's rays bound the cells they cross through the lowest of them landing in each half cell
-# (:func:`._bounds_kernels.lowest_rays`): a pair's 141,000 rays are 15,000 such, walked in 7 ms
-# where all took 25. Rays landing that close cross the same cells nearly as low; keeping one a
-# whole cell left 10 % of the rays' ceilings over unseen ground 5 mm or more higher, and one a
-# half cell 2 % (a quarter cell 0.2 %, in twice the time).
-RAY_SUBCELLS = 2
 
 
 @dataclass
@@ -250,14 +244,6 @@ def _cell_moments(pts: np.ndarray, sig: np.ndarray, sig_xy: np.ndarray, across: 
                         np.ascontiguousarray(pts[:, 2]), np.ascontiguousarray(sig), np.ascontiguousarray(sig_xy),
                         np.ascontiguousarray(across), *o, cut, across_rays and origin is not None, float(g.xmin),
                         float(g.ymax), float(g.cell), g.height, g.width)
-
-
-def _rays(pts: np.ndarray, heights: np.ndarray, g: GridGeometry) -> np.ndarray:
-    """The returns whose rays bound the cells they cross (:data:`RAY_SUBCELLS`)."""
-    from ._bounds_kernels import lowest_rays
-
-    return lowest_rays(np.ascontiguousarray(pts[:, 0]), np.ascontiguousarray(pts[:, 1]), heights, float(g.xmin),
-                       float(g.ymax), float(g.cell), g.height, g.width, RAY_SUBCELLS)
 
 
 class BoundsMap:
@@ -840,11 +826,10 @@ class BoundsMap:
 
         g = self.geometry
         heights = pts[:, 2] + self.params.k * sig  # the ray's height may be off as its return's is
-        ray = _rays(pts, heights, g)
-        px, py, heights = pts[ray, 0], pts[ray, 1], heights[ray]
         before = self.ceiling.copy()
         lower_ceiling(float(origin[0]), float(origin[1]), float(origin[2]),
-                      px, py, np.ascontiguousarray(heights), float(g.xmin), float(g.ymax), float(g.cell),
+                      np.ascontiguousarray(pts[:, 0]), np.ascontiguousarray(pts[:, 1]),
+                      np.ascontiguousarray(heights), float(g.xmin), float(g.ymax), float(g.cell),
                       float(max(self.params.near, g.cell)), float(self.params.reach), self.ceiling)
         self.lowered[self.ceiling < before] = self.frames
 

@@ -103,19 +103,14 @@ def reference_moments(pts: np.ndarray, sig: np.ndarray, sig_xy: np.ndarray, acro
     return flat[starts], np.diff(np.r_[starts, len(flat)]), acc
 
 
-def reference_rays(pts: np.ndarray, heights: np.ndarray, g: GridGeometry) -> np.ndarray:
-    """Every return's ray: what :func:`prox_workflows.algorithms.bounds_map._rays` thins."""
-    return np.arange(len(pts))
-
-
 @contextmanager
 def reference() -> Iterator[None]:
     """Within the block, the bounds map's spread computed by :func:`reference_spread`, its whole
-    bounds by :func:`reference_whole`, a frame's sums per cell by :func:`reference_moments` and its
-    ceilings from every ray (:func:`reference_rays`): the straightforward path."""
-    names = ("_spread", "_cell_moments", "_rays")
+    bounds by :func:`reference_whole` and a frame's sums per cell by :func:`reference_moments`: the
+    straightforward path."""
+    names = ("_spread", "_cell_moments")
     fast = [getattr(bounds_map, n) for n in names], bounds_map.BoundsMap.whole
-    for n, f in zip(names, (reference_spread, reference_moments, reference_rays), strict=True):
+    for n, f in zip(names, (reference_spread, reference_moments), strict=True):
         setattr(bounds_map, n, f)
     bounds_map.BoundsMap.whole = reference_whole
     try:
