@@ -400,11 +400,11 @@ def print_pose_table(table: list[dict[str, Any]]) -> None:
               f"| {t['per_trial']:.1f} ({100 * PATH_STEP * t['per_trial']:.0f}) | {t['per_100m']:.2f} | {t['seconds']:.0f} |")
 
 
-def motorcycle_row(k: float) -> dict[str, Any] | None:
-    """Middlebury Motorcycle (quarter size, scikit-image): the project's stereo on the real pair,
-    its points as a height map over the floor plane (camera x right, z ahead; height = -y), bounds
-    drawn with the matcher's own noise model as a stereo frame, against the ground-truth disparity's
-    points."""
+def motorcycle_cloud() -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None:
+    """Middlebury Motorcycle (quarter size, scikit-image) matched by the project's stereo: its points
+    as a height map over the floor plane (camera x right, z ahead; height = -y), their height and
+    horizontal sigmas from the matcher's own noise model, and the ground-truth disparity's points.
+    None (and why, printed) where scikit-image or its data is absent."""
     try:
         from skimage.data import stereo_motorcycle
 
@@ -435,6 +435,16 @@ def motorcycle_row(k: float) -> dict[str, Any] | None:
     up_share = np.abs(pts[:, 2]) / np.maximum(r, 1e-9)  # the depth error's share along the height
     sigma = np.sqrt((sigma_z * up_share) ** 2 + (0.0015 * r) ** 2)
     sigma_xy = np.sqrt(sigma_z**2 * (1.0 - up_share**2) + (0.0015 * r) ** 2)
+    return pts, sigma, sigma_xy, true_pts
+
+
+def motorcycle_row(k: float) -> dict[str, Any] | None:
+    """The Motorcycle pair's points (:func:`motorcycle_cloud`) fused as one stereo frame, its bounds
+    drawn with the matcher's own noise model, against the ground-truth disparity's points."""
+    got = motorcycle_cloud()
+    if got is None:
+        return None
+    pts, sigma, sigma_xy, true_pts = got
     bounds = BoundsMap.covering(true_pts[:, :2], 0.05, BoundsParams(k=k))
     t0 = time.perf_counter()
     bounds.fuse(pts, sigma, np.zeros(3), None, sigma_xy, "stereo")

@@ -25,14 +25,22 @@ the disc the body turns in, and against the true surface (0.5 cm samples pooled 
 cell): the true top over the upper bound, the true bottom under the lower, and the cell mean's
 error in its own sigmas.
 
+**A pair fused** (``--fuse``): the front pair's frame at each of the first ``--missions`` starts
+per scene, fused into a bounds map the size of the see loop's window as the see loop fuses it,
+by the compiled per-cell sums and by the numpy reduction (``tools.bench.choice.reference``)
+alternately in one process, ``--grabs`` times each: the median of each and their ratio, beside
+the real Motorcycle pair's cloud (the bounds bench's ``motorcycle_cloud``) fused both ways.
+
     python -m tools.bench.hazcam                     # marsyard hirise dense, the declared size
     python -m tools.bench.hazcam --sizes 640x480 480x360 320x240 --grabs 5
     python -m tools.bench.hazcam --ring --missions 4 [--sensor tof]
+    python -m tools.bench.hazcam --fuse --missions 3 --grabs 7
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import time
 from typing import Any
 
@@ -173,6 +181,50 @@ def ring(scene: str, missions: int, sensor: str) -> dict[str, Any]:
     return out
 
 
+def fuse_times(frames: list[tuple[np.ndarray, ...]], repeats: int) -> tuple[float, float, int]:
+    """Median ms of fusing each of ``frames`` (points, sigma, sigma_xy, origin, max_range, map
+    centre, half width) into a fresh bounds map, compiled and the numpy reduction alternately;
+    and the points per frame (median)."""
+    from prox_workflows.algorithms.bounds_map import BoundsMap
+    from tools.bench.choice import reference
+
+    times: dict[str, list[float]] = {"compiled": [], "numpy": []}
+    for _ in range(repeats + 1):  # the first round compiles and warms
+        for pts, sigma, sigma_xy, origin, cut, centre, half in frames:
+            for path in ("compiled", "numpy"):
+                bm = BoundsMap.around(centre, half, 0.025)
+                with reference() if path == "numpy" else contextlib.nullcontext():
+                    t0 = time.perf_counter()
+                    bm.fuse(pts, sigma, origin, cut, sigma_xy, sensor="stereo")
+                    times[path].append(1000 * (time.perf_counter() - t0))
+    drop = len(frames)
+    return (float(np.median(times["compiled"][drop:])), float(np.median(times["numpy"][drop:])),
+            int(np.median([len(f[0]) for f in frames])))
+
+
+def pair_frames(scene: str, missions: int) -> list[tuple[Any, ...]]:
+    """The front pair's frame at each of ``scene``'s first ``missions`` starts, facing the goal, as
+    the see loop fuses it, with the see loop's window round the rover (4 m half width)."""
+    from prox_workflows.algorithms.looks import BODY_MARGIN, on_body
+    from prox_workflows.algorithms.noise import pair_sigmas
+    from rvs_truth.surface import missions as draws
+
+    world = World.from_scene(scene)
+    dev = hazcam.create({"cameras": "front"}, world, stereo_points)
+    dev.open()
+    out = []
+    for (x0, y0), goal in draws(scene, missions):
+        world.set_rover_pose(x0, y0, float(np.degrees(np.arctan2(goal[1] - y0, goal[0] - x0))))
+        T = world.T_world_rover()
+        frame = dev.grab("front")
+        ground = ~on_body(frame.points, world.body, BODY_MARGIN)
+        pts = frame.points[ground] @ T[:3, :3].T + T[:3, 3]
+        origin = T[:3, :3] @ frame.origin + T[:3, 3]
+        sigma, sigma_xy = pair_sigmas(pts, origin, frame.sigma_range[ground], dev.rig("front").focal)
+        out.append((pts, sigma, sigma_xy, origin, dev.config.max_range, (x0, y0), 4.0))
+    return out
+
+
 def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--scenes", nargs="+", default=["marsyard", "hirise", "dense"])
@@ -182,7 +234,23 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--missions", type=int, default=4, help="--ring: starts per scene")
     ap.add_argument("--sensor", choices=("stereo", "tof"), default="stereo",
                     help="--ring: fuse the pairs' frames as stereo (the see loop's) or as independent returns")
+    ap.add_argument("--fuse", action="store_true", help="a pair's frame fused, compiled against the numpy reduction")
     args = ap.parse_args(argv)
+    if args.fuse:
+        from tools.bench.bounds import motorcycle_cloud
+
+        print("| frame | points | fused ms, compiled | numpy | ratio |")
+        print("|---|---|---|---|---|")
+        named = [(f"{scene} front pair (sim)", pair_frames(scene, args.missions)) for scene in args.scenes]
+        if (real := motorcycle_cloud()) is not None:
+            pts, sigma, sigma_xy, true_pts = real
+            centre = tuple(float(v) for v in np.median(true_pts[:, :2], axis=0))
+            half = float(np.abs(true_pts[:, :2] - centre).max())
+            named.append(("Motorcycle (real, Middlebury)", [(pts, sigma, sigma_xy, np.zeros(3), None, centre, half)]))
+        for name, frames in named:
+            fast, slow, n = fuse_times(frames, args.grabs)
+            print(f"| {name} | {n:,} | {fast:.1f} | {slow:.1f} | {slow / fast:.2f} |")
+        return
     if args.ring:
         print("| scene | fused as | headings (deg) | ring cells | seen | past the turning disc: seen | true top over "
               "upper | true bottom under lower | mean error sd (sigmas) | over 3 sigma |")
