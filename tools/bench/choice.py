@@ -76,7 +76,7 @@ def reference_moments(pts: np.ndarray, sig: np.ndarray, sig_xy: np.ndarray, acro
                       ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """A frame's returns summed per cell as a sort and segment sums: the straightforward
     formulation of :func:`prox_workflows.algorithms.bounds_map._cell_moments`, which must give its
-    bits."""
+    cells and counts, and its sums to within rounding."""
     if origin is not None and max_range is not None:
         far = np.hypot(np.abs(pts[:, 0] - origin[0]) + g.cell, np.abs(pts[:, 1] - origin[1]) + g.cell)
         whole = np.hypot(far, pts[:, 2] - origin[2]) <= max_range
