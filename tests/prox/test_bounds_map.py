@@ -549,29 +549,6 @@ def test_the_compiled_spread_gives_the_bits_of_the_image_morphology() -> None:
         assert np.isfinite(fast[1]).sum() > 500
 
 
-def _pair_frame(scene: str) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, float]:
-    """The front hazard pair's frame at ``scene``'s first mission start, as the see loop fuses it:
-    its ground points, their height and horizontal sigmas, the pair's origin and its range cut."""
-    import drivers.hazcam as hazcam
-    from prox_workflows.algorithms.looks import BODY_MARGIN, on_body
-    from prox_workflows.algorithms.noise import pair_sigmas
-    from rvs_server.devices import stereo_points
-    from rvs_truth.surface import missions
-
-    world = World.from_scene(scene)
-    dev = hazcam.create({"cameras": "front"}, world, stereo_points)
-    dev.open()
-    (x0, y0), goal = next(iter(missions(scene, 1)))
-    world.set_rover_pose(x0, y0, float(np.degrees(np.arctan2(goal[1] - y0, goal[0] - x0))))
-    T = world.T_world_rover()
-    frame = dev.grab("front")
-    ground = ~on_body(frame.points, world.body, BODY_MARGIN)
-    pts = frame.points[ground] @ T[:3, :3].T + T[:3, 3]
-    origin = T[:3, :3] @ frame.origin + T[:3, 3]
-    sigma, sigma_xy = pair_sigmas(pts, origin, frame.sigma_range[ground], dev.rig("front").focal)
-    return pts, sigma, sigma_xy, origin, dev.config.max_range
-
-
 def test_a_frames_sums_per_cell_are_those_of_the_sorted_reduction() -> None:
     """The compiled pass that sums a frame's returns per cell gives what sorting the returns by
     cell and summing each run gives: the same cells and counts, the sums to within float64's
@@ -579,8 +556,9 @@ def test_a_frames_sums_per_cell_are_those_of_the_sorted_reduction() -> None:
     on ToF returns with their errors along and across the rays, some off the grid."""
     from prox_workflows.algorithms.bounds_map import _cell_moments
     from tools.bench.choice import reference_moments
+    from tools.bench.hazcam import pair_frames
 
-    pts, sigma, sigma_xy, origin, cut = (np.asarray(v, np.float64) for v in _pair_frame("marsyard"))
+    pts, sigma, sigma_xy, origin, cut = (np.asarray(v, np.float64) for v in pair_frames("marsyard", 1)[0][:5])
     g = BoundsMap.around(tuple(origin[:2]), 4.0, 0.025).geometry
     rng = np.random.default_rng(3)
     tof, tof_sigma_h = (np.asarray(v, np.float64) for v in _ground(rng, 20_000, rock=0.15))
