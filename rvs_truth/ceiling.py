@@ -10,7 +10,7 @@ import numpy as np
 from drivers.sim.world import World
 from prox_workflows.algorithms.dem2hazard import HazardParams, classify
 
-from .surface import AREA, CEILING_MAPS, ceiling_layers, fine_surface, missions, true_maps
+from .surface import CEILING_MAPS, area, ceiling_layers, fine_surface, missions, true_maps
 from .vehicle import crossed, plan_params
 
 
@@ -27,9 +27,9 @@ def perception_ceiling(scene: str, count: int, seed: int = 0, limits: tuple[floa
     from prox_workflows.algorithms.planner import NavMaps, PlanningError, plan_path
 
     world = World.from_scene(scene)
-    truth, g = true_maps(world, AREA[scene])
+    truth, g = true_maps(world, area(scene))
     params = plan_params(g.cell, footprint)
-    fine, _ = fine_surface(world, AREA[scene])
+    fine, _ = fine_surface(world, area(scene))
     todo = missions(scene, count, seed)
     rows = []
     for kind in maps:

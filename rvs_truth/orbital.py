@@ -31,6 +31,12 @@ from prox_workflows.products import write_text_atomic
 from rvs_params.hazard import UNDEFINED
 
 
+def from_orbit(scene: str) -> bool:
+    """Whether the scene's ground is built on an orbital DTM (a ``dtm`` primitive), which a rover
+    team would have as its global maps."""
+    return any(p.get("type") == "dtm" for p in load_scene_spec(scene)["terrain"].get("primitives", []))
+
+
 def scene_dtm(scene: str, world: World | None = None) -> tuple[np.ndarray, GridGeometry, dict[str, Any], dict[str, Any]]:
     """The scene's whole ``dtm`` primitive as the simulated ground has it: north-up float32
     heights in the world frame (``world``'s height shift applied: the ground under the rover's

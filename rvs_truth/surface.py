@@ -9,6 +9,7 @@ import math
 import numpy as np
 from scipy import ndimage
 
+from drivers.sim.scene import load_scene_spec
 from drivers.sim.world import World
 from prox_workflows.algorithms.dem2hazard import HazardParams, dem2hazard
 from prox_workflows.algorithms.vehicle import (
@@ -27,6 +28,19 @@ from rvs_params.hazard import HAZARDOUS, SAFE, UNDEFINED
 NEAR_AREA = {"office": (-2.5, -3.0, 5.5, 3.0), "quarry": (-3.0, -4.0, 7.0, 4.0), "marsyard": (-4.0, -6.0, 8.0, 6.0)}
 AREA = {"marsyard": (-5.5, -9.5, 13.5, 9.5), "hirise": (-14.0, -14.0, 14.0, 14.0), "dense": (-14.0, -14.0, 14.0, 14.0),
         "marsyard_long": (-5.5, -7.5, 205.5, 7.5)}
+
+
+def area(scene: str) -> tuple[float, float, float, float]:
+    """The scene's mission area (:data:`AREA`); a scene that extends another (another draw of its
+    rocks) has that scene's."""
+    while scene not in AREA:
+        base = load_scene_spec(scene).get("extends")
+        if base is None:
+            raise KeyError(f"scene {scene!r} has no mission area (rvs_truth.surface.AREA)")
+        scene = base
+    return AREA[scene]
+
+
 # m: how far apart a scene's mission start and goal are (min, max); the others' 15-20 m
 SPAN = {"marsyard_long": (199.0, 201.0)}
 MISSION_SPAN = (15.0, 20.0)
@@ -60,7 +74,7 @@ def missions(scene: str, count: int, seed: int = 0) -> list[tuple[tuple[float, f
     hazards can still put a wheel on a step or the belly on a rock; a loop that takes the ground
     it is set down on as clear (as navigate does) would then be blamed for the start."""
     world = World.from_scene(scene)
-    hazard, g = true_hazard(world, AREA[scene])
+    hazard, g = true_hazard(world, area(scene))
     clear = (ndimage.distance_transform_edt(hazard != HAZARDOUS) * g.cell >= 1.0) & (hazard == SAFE)
     rows, cols = np.nonzero(clear)
     xs, ys = g.centers()
@@ -143,13 +157,13 @@ def truth_surface(world: World, scene: str) -> tuple[np.ndarray, GridGeometry, G
     """The scene's true 1 cm surface over its mission area, its grid, and the 5 cm grid it
     refines (computed once per process and scene)."""
     if scene not in _TRUTH:
-        _TRUTH[scene] = surface_over(world, AREA[scene])
+        _TRUTH[scene] = surface_over(world, area(scene))
     return _TRUTH[scene]
 
 
 def whole_truth(scene: str) -> bool:
     """Whether the scene's true 1 cm surface over its mission area is built whole (else in tiles)."""
-    x0, y0, x1, y1 = AREA[scene]
+    x0, y0, x1, y1 = area(scene)
     return (x1 - x0) * (y1 - y0) * 1e4 <= WHOLE_TRUTH_CELLS
 
 
@@ -168,7 +182,7 @@ def truth_checks(world: World, scene: str, poses: np.ndarray, body: VehicleBody)
     grow = reach(body) + 0.05
     covered = np.zeros(len(poses), bool)
     if whole_truth(scene):
-        x0, y0, x1, y1 = AREA[scene]
+        x0, y0, x1, y1 = area(scene)
         covered = ((poses[:, 0] - grow >= x0) & (poses[:, 0] + grow <= x1)
                    & (poses[:, 1] - grow >= y0) & (poses[:, 1] + grow <= y1))
     parts = _tiled(world, poses, np.flatnonzero(~covered), body, grow)

@@ -43,16 +43,26 @@ def scene_path(name_or_path: str | Path) -> Path:
     raise FileNotFoundError(f"no scene {str(name_or_path)!r}; known scenes: {', '.join(known)}")
 
 
-def load_scene_spec(name_or_path: str | Path) -> dict:
+def load_scene_spec(name_or_path: str | Path, _seen: tuple[Path, ...] = ()) -> dict:
     """The scene's YAML as a dict, with ``_dir`` (its folder, where relative data files are
-    looked up) added."""
+    looked up) added. ``extends: NAME`` takes that scene's sections and replaces the ones this
+    file gives (whole sections, not merged key by key): another rock draw of a scene is its name
+    and a ``seed``, with nothing copied that could drift from the original."""
     path = scene_path(name_or_path)
+    if path.resolve() in _seen:
+        raise ValueError(f"{path}: scenes extend each other in a loop ({' -> '.join(p.stem for p in _seen)})")
     with open(path) as f:
         spec = yaml.safe_load(f) or {}
-    if not isinstance(spec, dict) or "terrain" not in spec:
+    if not isinstance(spec, dict):
+        raise ValueError(f"{path} is not a scene (a mapping with a terrain section)")
+    base = spec.pop("extends", None)
+    if base is not None:
+        spec = {**load_scene_spec(str(base), (*_seen, path.resolve())), "name": path.stem, **spec,
+                "extends": str(base)}
+    if "terrain" not in spec:
         raise ValueError(f"{path} is not a scene (a mapping with a terrain section)")
     spec.setdefault("name", path.stem)
-    spec["_dir"] = str(path.resolve().parent)
+    spec.setdefault("_dir", str(path.resolve().parent))
     return spec
 
 

@@ -118,3 +118,27 @@ def test_marker_target_shows_its_marker() -> None:
     det = cv2.aruco.ArucoDetector(cv2.aruco.getPredefinedDictionary(cv2.aruco.DICT_6X6_250))
     corners, ids, _ = det.detectMarkers(img)
     assert ids is not None and 7 in ids.ravel()
+
+
+def test_a_scene_extending_another_is_its_ground_under_its_own_seed(tmp_path) -> None:
+    (tmp_path / "office_b.yaml").write_text("extends: office\nseed: 6\n")
+    spec, base = load_scene_spec(tmp_path / "office_b.yaml"), load_scene_spec("office")
+    assert spec["name"] == "office_b" and spec["extends"] == "office" and spec["seed"] == 6 != base["seed"]
+    assert spec["terrain"] == base["terrain"] and spec["_dir"] == base["_dir"]  # its data files are the base's
+    other, same = World.from_scene(tmp_path / "office_b.yaml"), World.from_scene("office", seed=6)
+    assert np.array_equal(other.terrain.heights, same.terrain.heights)
+    assert not np.array_equal(other.terrain.heights, World.from_scene("office").terrain.heights)
+    # the held-out draws that ship: dense's and hirise's ground, seeds of their own
+    for fresh, of in (("dense_fresh", "dense"), ("hirise_fresh", "hirise")):
+        f, b = load_scene_spec(fresh), load_scene_spec(of)
+        assert f["terrain"] == b["terrain"] and f["seed"] != b["seed"]
+
+
+def test_scenes_extending_each_other_in_a_loop_are_refused(tmp_path) -> None:
+    (tmp_path / "a.yaml").write_text(f"extends: {tmp_path / 'b.yaml'}\n")
+    (tmp_path / "b.yaml").write_text(f"extends: {tmp_path / 'a.yaml'}\n")
+    with pytest.raises(ValueError, match="in a loop"):
+        load_scene_spec(tmp_path / "a.yaml")
+    (tmp_path / "c.yaml").write_text("seed: 3\n")
+    with pytest.raises(ValueError, match="not a scene"):
+        load_scene_spec(tmp_path / "c.yaml")

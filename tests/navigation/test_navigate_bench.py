@@ -13,7 +13,8 @@ from drivers.sim.rover import RoverBody
 from drivers.sim.world import World
 from prox_workflows.algorithms.vehicle import check_poses, densify
 from prox_workflows.grid import GridGeometry
-from rvs_truth.surface import missions, set_down_safe, truth_surface
+from rvs_truth.orbital import from_orbit
+from rvs_truth.surface import area, missions, set_down_safe, truth_surface
 from rvs_truth.vehicle import (
     capability_hazard,
     cross_track,
@@ -90,6 +91,13 @@ def test_every_mission_start_is_one_the_rover_can_be_set_down_and_turn_at() -> N
     for start, _ in drawn:
         turn = densify(np.array([(*start, h) for h in (0.0, 120.0, 240.0, 360.0)]), 0.02, world.body)
         assert check_poses(fine, g, turn, world.body).safe.all(), start
+
+
+def test_a_held_out_rock_draw_has_its_scenes_area_and_orbit_and_missions_of_its_own() -> None:
+    assert area("dense_fresh") == area("dense") and from_orbit("dense_fresh") and not from_orbit("marsyard")
+    assert missions("dense_fresh", 2) != missions("dense", 2)  # other rocks, other clear starts
+    with pytest.raises(KeyError, match="no mission area"):
+        area("office")
 
 
 def test_a_slip_run_slips_each_mission_its_own_seeded_way() -> None:

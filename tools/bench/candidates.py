@@ -54,7 +54,7 @@ from prox_workflows.algorithms.candidates import (
 from prox_workflows.algorithms.chance import ChanceParams, Posterior, relief, rock_top_sigma
 from prox_workflows.algorithms.vehicle import check_poses
 from prox_workflows.grid import GridGeometry
-from rvs_truth.surface import AREA
+from rvs_truth.surface import area
 
 WINDOW = 8.0  # m
 MAPS = {"tight": (0.005, 0), "wide": (0.02, 1)}  # bounds spread (m) and dilation (cells)
@@ -96,7 +96,7 @@ def window_posterior(heights: tuple[np.ndarray, np.ndarray], g: GridGeometry, sp
 
 
 def trial_poses(world: World, scene: str, n: int, rng: np.random.Generator) -> list[tuple[float, float, float]]:
-    xmin, ymin, xmax, ymax = AREA[scene]
+    xmin, ymin, xmax, ymax = area(scene)
     out: list[tuple[float, float, float]] = []
     while len(out) < n:
         p = (float(rng.uniform(xmin + 5, xmax - 5)), float(rng.uniform(ymin + 5, ymax - 5)),

@@ -52,8 +52,9 @@ import numpy as np
 import rvs_server.navigation.sections as sections
 from drivers.sim.world import World
 from prox_workflows.algorithms import bounds_map, chance, vehicle
-from prox_workflows.algorithms.candidates import verdict_name
+from prox_workflows.algorithms.candidates import SAFE, UNKNOWN, verdict_name
 from prox_workflows.grid import GridGeometry
+from rvs_truth.stats import clopper_pearson_upper
 from rvs_truth.surface import missions, truth_checks
 from tools.bench import navigate as bench
 
@@ -86,6 +87,7 @@ def main() -> None:
         bounds_map.BoundsMap.__init__ = with_hang
 
     refusals: list[dict[str, Any]] = []
+    judged: list[tuple[np.ndarray, np.ndarray, str, int]] = []  # every check's poses and verdicts, where, choice
     where: dict[str, Any] = {"now": "choose", "choice": -1}
     choices: list[dict[str, Any]] = []  # every choice: the pose, its answer; the last ``detail`` keep their map
 
@@ -95,6 +97,8 @@ def main() -> None:
 
             def run(poses: np.ndarray) -> np.ndarray:
                 codes = np.asarray(check(poses))
+                judged.append((np.atleast_2d(poses).astype(np.float32), codes.astype(np.int8), where["now"],
+                               where["choice"]))
                 for p, code in zip(np.atleast_2d(poses)[codes > 0], codes[codes > 0], strict=True):
                     refusals.append({"pose": [round(float(v), 3) for v in p], "verdict": verdict_name(int(code)),
                                      "where": where["now"], "choice": where["choice"]})
@@ -153,6 +157,7 @@ def main() -> None:
             r["truth"] = {"unsafe": bool(c.unsafe[i]), "tilt": round(float(c.tilt[i]), 2),
                           "belly": round(float(c.intrusion[i]), 4)}
     detailed = detail(choices, refusals, truth, world.body) if args.detail else []
+    live = live_risk(judged, truth)
     row["events_traced"] = trace_events(row["events"], choices, truth, world.body)
     for e in row["events_traced"]:
         at = e.get("at_event")
@@ -170,7 +175,7 @@ def main() -> None:
             turn = turn_trace(stats, wg, k, last["pose"], truth, world.body, last["chance"])
     if args.dump:
         dump(args.dump, choices, refusals, goal)
-    row.update(stop_turn=turn, refusals=refusals, trace_wall_s=round(time.monotonic() - t0, 1), detailed=detailed,
+    row.update(stop_turn=turn, live_risk=live, refusals=refusals, trace_wall_s=round(time.monotonic() - t0, 1), detailed=detailed,
                choices=[{k: v for k, v in c.items() if k not in ("map", "chance")} for c in choices])
     if args.out:
         with open(args.out, "w") as fh:
@@ -188,6 +193,7 @@ def main() -> None:
         truly = Counter(r["verdict"] for r in rs if r["truth"]["unsafe"])
         print(f"{part}: {len(rs)} refused poses, truly unsafe {unsafe} ({100 * unsafe / len(rs):.0f} %); by limit "
               + ", ".join(f"{k} {n} (truly {truly.get(k, 0)})" for k, n in by.most_common()))
+    show_live(live)
     for way, t in turn.items():
         print(f"the turn on the spot {way} from the last choice's pose: truly safe {t['truth']} deg, the check "
               f"passes {t['check']} deg; with one term out: "
@@ -202,6 +208,51 @@ def main() -> None:
             true = np.array([d["truth"][k] for d in detailed])
             print(f"  {name}: {(best > 0).sum()} / {((best <= 0) & (dmax > 0)).sum()} / {(true > 0).sum()}; "
                   f"{np.median(best):+.4f} {np.median(dmean):+.4f} {np.median(dmax):+.4f} {np.median(true):+.4f}")
+
+
+def live_risk(judged: list[tuple[np.ndarray, np.ndarray, str, int]], truth: Truth, chunk: int = 200_000
+              ) -> dict[str, dict[str, Any]]:
+    """The live check's false-safe rate per judged pose, as the issue states the risk, on every
+    pose the loop's checks gave a verdict (unknown left out) in choosing (``choose``) and in
+    re-judging the section being driven (``drive``, each pose's last judgements before the wheels
+    reach it): a pass on a pose the truth finds over a limit is a false safe. The chooser judges
+    the same pose again cycle after cycle, so the count per distinct pose (1 cm, 1 deg) stands
+    beside the count per judgement; Clopper-Pearson's bound assumes the judgements independent,
+    which repeats are not."""
+    out: dict[str, dict[str, Any]] = {}
+    for part in ("choose", "drive", "all"):
+        calls = [(p, c, i) for p, c, w, i in judged if part in ("all", w)]
+        if not calls:
+            continue
+        poses = np.concatenate([p for p, _, _ in calls])
+        codes = np.concatenate([c for _, c, _ in calls])
+        choice = np.concatenate([np.full(len(p), i) for p, _, i in calls])
+        keep = codes != UNKNOWN
+        poses, codes, choice = poses[keep], codes[keep], choice[keep]
+        key = np.column_stack([np.round(poses[:, :2] * 100), np.round(poses[:, 2]) % 360]).astype(np.int64)
+        _, first, inverse = np.unique(key, axis=0, return_index=True, return_inverse=True)
+        unsafe_distinct = np.zeros(len(first), bool)
+        for a in range(0, len(first), chunk):  # the truth judges each distinct pose once
+            unsafe_distinct[a:a + chunk] = truth(poses[first[a:a + chunk]].astype(float)).unsafe
+        unsafe = unsafe_distinct[inverse.ravel()]
+        passed = codes == SAFE
+        false = passed & unsafe
+        false_distinct = np.unique(inverse.ravel()[false])
+        out[part] = {"judged": int(len(codes)), "distinct": int(len(first)), "passed": int(passed.sum()),
+                     "truly_unsafe": int(unsafe.sum()), "false_safes": int(false.sum()),
+                     "false_safes_distinct": int(len(false_distinct)),
+                     "bound": clopper_pearson_upper(int(false.sum()), len(codes)),
+                     "bound_distinct": clopper_pearson_upper(len(false_distinct), len(first)),
+                     "misses": [{"pose": [round(float(v), 3) for v in poses[first[d]]],
+                                 "choice": int(choice[first[d]])} for d in false_distinct[:50]]}
+    return out
+
+
+def show_live(live: dict[str, dict[str, Any]]) -> None:
+    for part, r in live.items():
+        print(f"live check, {part}: {r['judged']} judged poses ({r['distinct']} distinct), {r['passed']} passed, "
+              f"{r['false_safes']} false safes ({r['false_safes_distinct']} distinct), 95 % bound "
+              f"{r['bound']:.2g} per judged pose ({r['bound_distinct']:.2g} per distinct pose)")
 
 
 # the check's terms, each taken out in turn (:func:`turn_trace`): a change of the map's statistics

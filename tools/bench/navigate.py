@@ -84,8 +84,8 @@ from rvs_server.client.session import ServerThread
 from rvs_server.protocol import Reply, parse_reply
 from rvs_truth.ceiling import perception_ceiling
 from rvs_truth.oracle import default_cache_dir, mission_oracle
-from rvs_truth.orbital import ORIGIN, orbital_geotiff, write_global_maps
-from rvs_truth.surface import AREA, CEILING_MAPS, missions, true_maps, truth_checks, truth_surface
+from rvs_truth.orbital import ORIGIN, from_orbit, orbital_geotiff, write_global_maps
+from rvs_truth.surface import CEILING_MAPS, area, missions, true_maps, truth_checks, truth_surface
 from rvs_truth.vehicle import (
     ROVER,
     TRACK_STEP,
@@ -111,7 +111,6 @@ def drive_time(poses: np.ndarray, speed: float, turn_rate: float) -> float:
     ds = np.hypot(np.diff(p[:, 0]), np.diff(p[:, 1]))
     dh = np.abs((np.diff(p[:, 2]) + 180.0) % 360.0 - 180.0)
     return float(np.maximum(ds / speed, dh / turn_rate).sum())
-ORBITAL = {"hirise", "dense"}  # scenes built on an orbital DTM (rvs_truth.orbital writes it)
 # m: where the see loop is set down it takes the ground round the mast's foot that no tilt shows
 # (0.72 m) as clear; a body at its edge reaches a little further. Events only there come from that
 # assumption, not from ground the loop judged.
@@ -150,7 +149,7 @@ def scene_server(data: Path, scene: str, sets: tuple[str, ...] | list[str] = ())
     built on an orbital DTM gets it as navigate's global maps, as a rover team would load its
     orbital map."""
     sets = list(sets)
-    if scene in ORBITAL:
+    if from_orbit(scene):
         write_global_maps(scene, data / "global")
         sets.append(f"navigate.global_maps={data / 'global'}")
     srv = _Server(data, scene, sets)
@@ -276,7 +275,7 @@ def run_mission(scene: str, mode: str, start: tuple[float, float], goal: tuple[f
                     err = cross_track(poses, wps, np.array([int(w["leg"]) for w in rows]))
                     out["cross_track_p50"], out["cross_track_p99"] = (round(float(np.percentile(err, q)), 3)
                                                                       for q in (50, 99))
-            maps, g = true_maps(world, AREA[scene])
+            maps, g = true_maps(world, area(scene))
             out["crossed_cells"], worst_step, worst_slope = crossed(poses[:, :2], maps, g)
             if out["crossed_cells"]:
                 out["crossed_step_m"], out["crossed_slope_deg"] = round(worst_step, 3), round(worst_slope, 1)

@@ -40,7 +40,7 @@ from prox_workflows.algorithms.vehicle import (
     check_poses,
 )
 from prox_workflows.grid import GridGeometry
-from rvs_truth.surface import AREA, truth_surface
+from rvs_truth.surface import AREA, area, truth_surface
 
 SPREAD = 0.005  # m: the bounds' spread over each cell's true range
 TOL_M, TOL_DEG = 1e-6, 1e-4
@@ -216,7 +216,7 @@ def disagreement(ours: PoseChecks, peer: PoseChecks, body: VehicleBody) -> list[
 
 def scene_poses(scene: str, n: int, seed: int = 0) -> np.ndarray:
     """``n`` seeded poses over the scene's mission area, 1 m in from its edge, any heading."""
-    a = AREA[scene]
+    a = area(scene)
     rng = np.random.default_rng(seed)
     return np.column_stack([rng.uniform(a[0] + 1, a[2] - 1, n), rng.uniform(a[1] + 1, a[3] - 1, n),
                             rng.uniform(-180.0, 180.0, n)])
