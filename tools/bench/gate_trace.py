@@ -52,11 +52,11 @@ import numpy as np
 import rvs_server.navigation.sections as sections
 from drivers.sim.world import World
 from prox_workflows.algorithms import bounds_map, chance, vehicle
-from prox_workflows.algorithms.candidates import SAFE, UNKNOWN, verdict_name
+from prox_workflows.algorithms.candidates import verdict_name
 from prox_workflows.grid import GridGeometry
-from rvs_truth.stats import clopper_pearson_upper
 from rvs_truth.surface import missions, truth_checks
 from tools.bench import navigate as bench
+from tools.bench.live_risk import Recorder, lines, live_risk
 
 Truth = Callable[[np.ndarray], vehicle.PoseChecks]  # the truth's check of (N, 3) poses wherever they are
 
@@ -86,42 +86,14 @@ def main() -> None:
 
         bounds_map.BoundsMap.__init__ = with_hang
 
-    refusals: list[dict[str, Any]] = []
-    judged: list[tuple[np.ndarray, np.ndarray, str, int]] = []  # every check's poses and verdicts, where, choice
-    where: dict[str, Any] = {"now": "choose", "choice": -1}
+    rec = Recorder()
     choices: list[dict[str, Any]] = []  # every choice: the pose, its answer; the last ``detail`` keep their map
-
-    def traced(make: Any) -> Any:
-        def build(*a: Any, **k: Any) -> Any:
-            check = make(*a, **k)
-
-            def run(poses: np.ndarray) -> np.ndarray:
-                codes = np.asarray(check(poses))
-                judged.append((np.atleast_2d(poses).astype(np.float32), codes.astype(np.int8), where["now"],
-                               where["choice"]))
-                for p, code in zip(np.atleast_2d(poses)[codes > 0], codes[codes > 0], strict=True):
-                    refusals.append({"pose": [round(float(v), 3) for v in p], "verdict": verdict_name(int(code)),
-                                     "where": where["now"], "choice": where["choice"]})
-                return codes
-
-            return run
-
-        return build
-
-    recheck = sections.SectionPilot._recheck
-
-    def driving(self: Any, pose: Any) -> Any:
-        where["now"] = "drive"
-        try:
-            return recheck(self, pose)
-        finally:
-            where["now"] = "choose"
 
     choose_from = sections.choose_from
 
     def choosing(bounds: Any, pose: Any, goal: Any, body: Any, how: str, params: Any, chance_params: Any,
                  guide: Any = None, **kw: Any) -> Any:
-        where["choice"] = len(choices)
+        rec.choice = len(choices)
         r = sections.judged_reach(params, body)
         stats, wg = bounds.statistics(pose[0] - r, pose[1] - r, pose[0] + r, pose[1] + r)
         entry: dict[str, Any] = {"pose": [round(float(v), 3) for v in pose], "map": (stats, wg, bounds.params.k),
@@ -140,24 +112,24 @@ def main() -> None:
         return choice, togo
 
     sections.choose_from = choosing
-    sections.posterior_check = traced(sections.posterior_check)
-    sections.bounds_check = traced(sections.bounds_check)
-    sections.SectionPilot._recheck = driving
 
     start, goal = missions(args.scene, args.mission + 1, 0)[args.mission]
     t0 = time.monotonic()
-    row = bench.run_mission(args.scene, "see", start, goal, [], tuple(args.set))
+    with rec.installed():
+        row = bench.run_mission(args.scene, "see", start, goal, [], tuple(args.set))
     world = World.from_scene(args.scene)
     def truth(poses: np.ndarray) -> vehicle.PoseChecks:
         return truth_checks(world, args.scene, poses, world.body)
 
+    refusals = [{"pose": [round(float(v), 3) for v in p], "verdict": verdict_name(code), "where": where,
+                 "choice": choice} for p, code, where, choice in rec.refusals()]
     if refusals:
         c = truth(np.array([r["pose"] for r in refusals]))
         for i, r in enumerate(refusals):
             r["truth"] = {"unsafe": bool(c.unsafe[i]), "tilt": round(float(c.tilt[i]), 2),
                           "belly": round(float(c.intrusion[i]), 4)}
     detailed = detail(choices, refusals, truth, world.body) if args.detail else []
-    live = live_risk(judged, truth)
+    live = live_risk(rec.judged, truth)
     row["events_traced"] = trace_events(row["events"], choices, truth, world.body)
     for e in row["events_traced"]:
         at = e.get("at_event")
@@ -193,7 +165,7 @@ def main() -> None:
         truly = Counter(r["verdict"] for r in rs if r["truth"]["unsafe"])
         print(f"{part}: {len(rs)} refused poses, truly unsafe {unsafe} ({100 * unsafe / len(rs):.0f} %); by limit "
               + ", ".join(f"{k} {n} (truly {truly.get(k, 0)})" for k, n in by.most_common()))
-    show_live(live)
+    print("\n".join(lines(live)))
     for way, t in turn.items():
         print(f"the turn on the spot {way} from the last choice's pose: truly safe {t['truth']} deg, the check "
               f"passes {t['check']} deg; with one term out: "
@@ -208,51 +180,6 @@ def main() -> None:
             true = np.array([d["truth"][k] for d in detailed])
             print(f"  {name}: {(best > 0).sum()} / {((best <= 0) & (dmax > 0)).sum()} / {(true > 0).sum()}; "
                   f"{np.median(best):+.4f} {np.median(dmean):+.4f} {np.median(dmax):+.4f} {np.median(true):+.4f}")
-
-
-def live_risk(judged: list[tuple[np.ndarray, np.ndarray, str, int]], truth: Truth, chunk: int = 200_000
-              ) -> dict[str, dict[str, Any]]:
-    """The live check's false-safe rate per judged pose, as the issue states the risk, on every
-    pose the loop's checks gave a verdict (unknown left out) in choosing (``choose``) and in
-    re-judging the section being driven (``drive``, each pose's last judgements before the wheels
-    reach it): a pass on a pose the truth finds over a limit is a false safe. The chooser judges
-    the same pose again cycle after cycle, so the count per distinct pose (1 cm, 1 deg) stands
-    beside the count per judgement; Clopper-Pearson's bound assumes the judgements independent,
-    which repeats are not."""
-    out: dict[str, dict[str, Any]] = {}
-    for part in ("choose", "drive", "all"):
-        calls = [(p, c, i) for p, c, w, i in judged if part in ("all", w)]
-        if not calls:
-            continue
-        poses = np.concatenate([p for p, _, _ in calls])
-        codes = np.concatenate([c for _, c, _ in calls])
-        choice = np.concatenate([np.full(len(p), i) for p, _, i in calls])
-        keep = codes != UNKNOWN
-        poses, codes, choice = poses[keep], codes[keep], choice[keep]
-        key = np.column_stack([np.round(poses[:, :2] * 100), np.round(poses[:, 2]) % 360]).astype(np.int64)
-        _, first, inverse = np.unique(key, axis=0, return_index=True, return_inverse=True)
-        unsafe_distinct = np.zeros(len(first), bool)
-        for a in range(0, len(first), chunk):  # the truth judges each distinct pose once
-            unsafe_distinct[a:a + chunk] = truth(poses[first[a:a + chunk]].astype(float)).unsafe
-        unsafe = unsafe_distinct[inverse.ravel()]
-        passed = codes == SAFE
-        false = passed & unsafe
-        false_distinct = np.unique(inverse.ravel()[false])
-        out[part] = {"judged": int(len(codes)), "distinct": int(len(first)), "passed": int(passed.sum()),
-                     "truly_unsafe": int(unsafe.sum()), "false_safes": int(false.sum()),
-                     "false_safes_distinct": int(len(false_distinct)),
-                     "bound": clopper_pearson_upper(int(false.sum()), len(codes)),
-                     "bound_distinct": clopper_pearson_upper(len(false_distinct), len(first)),
-                     "misses": [{"pose": [round(float(v), 3) for v in poses[first[d]]],
-                                 "choice": int(choice[first[d]])} for d in false_distinct[:50]]}
-    return out
-
-
-def show_live(live: dict[str, dict[str, Any]]) -> None:
-    for part, r in live.items():
-        print(f"live check, {part}: {r['judged']} judged poses ({r['distinct']} distinct), {r['passed']} passed, "
-              f"{r['false_safes']} false safes ({r['false_safes_distinct']} distinct), 95 % bound "
-              f"{r['bound']:.2g} per judged pose ({r['bound_distinct']:.2g} per distinct pose)")
 
 
 # the check's terms, each taken out in turn (:func:`turn_trace`): a change of the map's statistics

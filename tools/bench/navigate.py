@@ -61,6 +61,7 @@ can bring the true pose back within the tolerance.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import csv
 import dataclasses
 import json
@@ -98,6 +99,7 @@ from rvs_truth.vehicle import (
     read_track,
     stop_reason,
 )
+from tools.bench.live_risk import Recorder, lines, live_risk, summed
 from tools.bench.rows import streamed
 
 
@@ -532,12 +534,17 @@ def margin_table(budget: list[dict[str, Any]], rows: list[dict[str, Any]], body:
 
 
 def _run(job: tuple[str, str, tuple[float, float], tuple[float, float], tuple[str, ...], int, str, int, str,
-               tuple[float, float] | None, str, int]) -> dict[str, Any]:
-    """One mission (in a pool's process: the see loop's footprint comes along)."""
-    scene, mode, start, goal, sets, i, footprint, seed, cache, slip, localise, noise = job
+               tuple[float, float] | None, str, int, bool]) -> dict[str, Any]:
+    """One mission (in a pool's process: the see loop's footprint comes along); with ``live``,
+    every pose its checks judged, against the truth (:mod:`tools.bench.live_risk`)."""
+    scene, mode, start, goal, sets, i, footprint, seed, cache, slip, localise, noise, live = job
     FOOTPRINT["see"] = footprint
-    row = run_mission(scene, mode, start, goal, slip_lines(slip, seed, i), (*sets, *noise_sets(noise)), seed,
-                      Path(cache), localise)
+    with Recorder().installed() if live else contextlib.nullcontext() as rec:
+        row = run_mission(scene, mode, start, goal, slip_lines(slip, seed, i), (*sets, *noise_sets(noise)), seed,
+                          Path(cache), localise)
+    if rec is not None:
+        world = World.from_scene(scene)
+        row["live_risk"] = live_risk(rec.judged, lambda poses: truth_checks(world, scene, poses, world.body))
     row["mission"], row["noise"] = i, noise
     return row
 
@@ -640,6 +647,9 @@ def main(argv: list[str] | None = None) -> None:
                     help="run every mission under each of these sensor noise draws (the simulated sensors' seed): "
                          "its reach over several draws, where one run turns on single refusals")
     ap.add_argument("--replan-trials", type=int, default=20)
+    ap.add_argument("--live-risk", action="store_true",
+                    help="also judge every pose the see loop's chance check judged against the truth: the live "
+                         "check's false-safe rate per judged pose, choosing and driving (tools.bench.live_risk)")
     ap.add_argument("--out", default="", help="also write the rows and the summary as JSON here")
     ap.add_argument("--footprint", choices=["circle", "body"], default=FOOTPRINT["see"],
                     help="the see loop's planning footprint")
@@ -726,12 +736,15 @@ def main(argv: list[str] | None = None) -> None:
     # scenes and modes interleaved mission by mission: a run cut short still compares them
     todo = {scene: missions(scene, args.missions, args.seed) for scene in args.scenes}
     jobs = [(scene, mode, *todo[scene][i], tuple(args.set), i, args.footprint, args.seed, args.oracle_cache, slip,
-             args.localise, noise)
+             args.localise, noise, args.live_risk)
             for noise in args.noise_seeds for i in range(args.first, args.missions)
             for scene in args.scenes for mode in args.modes]
     rows = streamed(_run, jobs, args.jobs)
     summary = summarise(rows)
     print_summary(summary)
+    for scene in dict.fromkeys(r["scene"] for r in rows if "live_risk" in r):
+        live = summed([r["live_risk"] for r in rows if r["scene"] == scene and "live_risk" in r])
+        print(f"\n{scene}: " + f"\n{scene}: ".join(lines(live)))
     if len(args.noise_seeds) > 1:
         print("\nreached per mission over the noise draws " + " ".join(map(str, args.noise_seeds)) + ":")
         for line in reach_over_draws(rows):
