@@ -5,15 +5,19 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
 
+import rvs_server.navigation.sections as sections
 from drivers.sim.rover import RoverBody
 from drivers.sim.world import World
+from prox_workflows.algorithms.candidates import SAFE, UNKNOWN
 from prox_workflows.algorithms.vehicle import check_poses, densify
 from prox_workflows.grid import GridGeometry
 from rvs_truth.orbital import from_orbit
+from rvs_truth.stats import clopper_pearson_upper
 from rvs_truth.surface import area, missions, set_down_safe, truth_surface
 from rvs_truth.vehicle import (
     capability_hazard,
@@ -24,6 +28,7 @@ from rvs_truth.vehicle import (
     stop_reason,
     vehicle_check,
 )
+from tools.bench.live_risk import Recorder, live_risk, summed
 
 
 def test_a_track_is_read_with_its_headings_or_faces_along_itself(tmp_path: Path) -> None:
@@ -191,3 +196,42 @@ def test_a_localised_run_matches_on_the_scenes_true_dem_from_orbit(tmp_path: Pat
     r, c = int(round((g.ymax - 4000001.5) / 0.5)), int(round((500004.0 - g.xmin) / 0.5))
     top = world.true_dem(0.5, (4.0, 1.0, 4.5, 1.5), include_target=False)[0, 0]
     assert top > 0.2 and dem[r, c] == pytest.approx(top, abs=1e-4)
+
+
+def test_the_live_risk_counts_passes_the_truth_refuses_per_judgement_and_per_pose() -> None:
+    """Truth: unsafe where x > 1. The chance check passes (2, 0, 10) twice and (2.004, 0, 10.2)
+    once (the same pose at 1 cm, 1 deg), refuses (2.5, 0, 0), leaves (3, 0, 0) unknown; the
+    worst-case check's pass at x 2 is not the chance check's; the drive's pass is its own part."""
+    p = np.array([[2.0, 0.0, 10.0], [2.004, 0.0, 10.2], [0.0, 0.0, 0.0], [2.5, 0.0, 0.0], [3.0, 0.0, 0.0]], np.float32)
+    judged = [(p, np.array([SAFE, SAFE, SAFE, 2, UNKNOWN], np.int8), "chance", "choose", 4),
+              (p[:1], np.array([SAFE], np.int8), "chance", "choose", 5),
+              (p[:1], np.array([SAFE], np.int8), "bounds", "choose", 5),
+              (p[2:3], np.array([SAFE], np.int8), "chance", "drive", 6)]
+
+    def truth(poses: np.ndarray) -> SimpleNamespace:
+        return SimpleNamespace(unsafe=poses[:, 0] > 1.0)
+
+    live = live_risk(judged, truth)
+    choose, drive, every = live["choose"], live["drive"], live["all"]
+    assert (choose["judged"], choose["distinct"], choose["passed"], choose["truly_unsafe"]) == (5, 3, 4, 4)
+    assert (choose["false_safes"], choose["false_safes_distinct"]) == (3, 1)
+    assert choose["misses"] == [{"pose": [2.0, 0.0, 10.0], "choice": 4}]
+    assert choose["bound"] == pytest.approx(clopper_pearson_upper(3, 5))
+    assert (drive["judged"], drive["false_safes"], drive["distinct"]) == (1, 0, 1)
+    assert (every["judged"], every["false_safes"]) == (6, 3)
+    assert summed([live, live])["choose"]["false_safes_distinct"] == 2
+
+
+def test_the_recorder_sees_the_loops_checks_and_puts_them_back() -> None:
+    body = RoverBody()
+    g = GridGeometry(0.025, -2.0, 2.0, 160, 160)
+    ground = np.zeros((160, 160), np.float32)
+    ground[:, 100:] = np.nan  # no bound east of x 0.5
+    kept = sections.bounds_check
+    with Recorder().installed() as rec:
+        codes = sections.bounds_check((ground, ground.copy()), g, body)(np.array([[-1.0, 0.0, 0.0], [1.5, 0.0, 0.0]]))
+    assert sections.bounds_check is kept
+    assert list(codes) == [SAFE, UNKNOWN]
+    (poses, recorded, kind, where, choice), = rec.judged
+    assert kind == "bounds" and where == "choose" and choice == -1 and list(recorded) == list(codes)
+    assert len(poses) == 2 and list(rec.refusals()) == []

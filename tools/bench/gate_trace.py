@@ -31,6 +31,10 @@ Each unsafe event on the true track is traced to the nearest pose of a section t
 passed (:func:`trace_events`) and, where the choice kept its map, judged at its true pose on that
 map: a pass there is the check's false safe, a refusal the track's straying from what was judged.
 
+Every pose the checks judged is judged again on the truth after the mission
+(:mod:`tools.bench.live_risk`): the live check's false-safe rate per judged pose, choosing and
+driving; with ``--detail``, the false safes of the last N choices traced as the refusals are.
+
 It hooks the checks the chooser builds (:mod:`rvs_server.navigation.sections`), so it measures the
 loop as it runs; docs/NAVIGATE_BENCH.md has what it showed. A refused pose of a choice is one
 the chooser's check said no to, not necessarily one the rover would have driven: most candidates
@@ -130,6 +134,8 @@ def main() -> None:
                           "belly": round(float(c.intrusion[i]), 4)}
     detailed = detail(choices, refusals, truth, world.body) if args.detail else []
     live = live_risk(rec.judged, truth)
+    missed = detail(choices, [{**m, "where": "choose"} for m in live.get("choose", {}).get("misses", [])], truth,
+                    world.body) if args.detail else []
     row["events_traced"] = trace_events(row["events"], choices, truth, world.body)
     for e in row["events_traced"]:
         at = e.get("at_event")
@@ -148,6 +154,7 @@ def main() -> None:
     if args.dump:
         dump(args.dump, choices, refusals, goal)
     row.update(stop_turn=turn, live_risk=live, refusals=refusals, trace_wall_s=round(time.monotonic() - t0, 1), detailed=detailed,
+               missed=missed,
                choices=[{k: v for k, v in c.items() if k not in ("map", "chance")} for c in choices])
     if args.out:
         with open(args.out, "w") as fh:
@@ -170,6 +177,10 @@ def main() -> None:
         print(f"the turn on the spot {way} from the last choice's pose: truly safe {t['truth']} deg, the check "
               f"passes {t['check']} deg; with one term out: "
               + ", ".join(f"{name} {deg}" for name, deg in t["without"].items()))
+    for d in missed:
+        print(f"false safe at {d['pose']} ({d['from_rover']} m from the rover, choice {d['choice']}, "
+              f"{d['framed']:.0%} of the ground under the body framed): P {max(d['prob']):.2g}; per limit best "
+              f"{d['best']}, draws' worst {d['draw_max']}, truth {d['truth']}")
     if detailed:
         print(f"the last {args.detail} choices' {len(detailed)} refused poses, per limit: over on the best estimate "
               "/ over only in the draws / truly over; median excess best, draw mean, draw max, truth")
@@ -385,7 +396,8 @@ def chance_spacings(dumped: Mapping[str, np.ndarray], truth: Truth, body: Any, p
 
 def detail(choices: list[dict[str, Any]], refusals: list[dict[str, Any]], truth: Truth, body: Any,
            draws: int = 64, per_choice: int = 400) -> list[dict[str, Any]]:
-    """Per refused pose of the choices that kept their map: per limit (LIMITS order) the excess on
+    """Per refused pose (or any other, by choice) of the choices that kept their map: the share
+    of the ground under the body's middle a frame bounded; per limit (LIMITS order) the excess on
     the posterior's best estimate, the mean and the worst of ``draws`` drawn surfaces' excesses,
     the chance check's probability, and the true excess; and which wheel's step it was."""
     out = []
@@ -402,9 +414,12 @@ def detail(choices: list[dict[str, Any]], refusals: list[dict[str, Any]], truth:
               for surface in chance.surfaces(post, wg, dataclasses.replace(c["chance"], samples=draws))]
         ex = np.nan_to_num(np.array(ex), nan=-np.inf)
         true = truth(poses)
+        xs, ys = wg.centers()
         for i, p in enumerate(poses):
+            under = np.hypot(*np.meshgrid(xs - p[0], ys - p[1])) <= body.width / 2  # the cells under the body's middle
             out.append({"choice": ci, "pose": [round(float(v), 3) for v in p],
                         "from_rover": round(float(np.hypot(*(p[:2] - np.array(c["pose"][:2])))), 3),
+                        "framed": float(np.mean(stats["framed"][under] > 0)) if under.any() else 0.0,
                         "prob": [round(float(v), 4) for v in full.prob[i]],
                         "best": [round(float(v), 4) for v in full.nominal.excess[i]],
                         "best_wheel": int(full.nominal.wheel[i]),
