@@ -55,6 +55,12 @@ def test_a_refusal_is_judged_per_limit_on_the_map_the_draws_and_the_truth() -> N
     assert ledge["best"][0] > 0.0 and ledge["truth"][0] > 0.0 and ledge["prob"][0] > 0.5  # the step, all three
     assert flat["best"][0] < -0.05 and flat["draw_max"][0] < 0.0 and flat["prob"][0] < 1e-3
     assert ledge["from_rover"] == 0.0 and flat["from_rover"] == 0.5
+    assert np.isnan(ledge["framed"])  # a map with no frame stamps: the share unknown
+    xs, _ = g.centers()
+    framed = np.broadcast_to(xs < -0.5, h.shape)  # frames bounded only the ground west of x -0.5
+    out = detail([{**choices[0], "map": ({**stats, "framed": framed}, g, BoundsParams().k)}], refusals, on(h, g),
+                 BODY, draws=16)
+    assert out[0]["framed"] == 0.0 and 0.3 < out[1]["framed"] < 0.7  # the flat pose's middle straddles x -0.5
 
 
 def test_an_event_is_traced_to_the_nearest_chosen_pose_and_the_truth_there() -> None:

@@ -46,6 +46,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
+import math
 import time
 from collections import Counter
 from collections.abc import Callable, Iterator, Mapping
@@ -415,11 +416,12 @@ def detail(choices: list[dict[str, Any]], refusals: list[dict[str, Any]], truth:
         ex = np.nan_to_num(np.array(ex), nan=-np.inf)
         true = truth(poses)
         xs, ys = wg.centers()
+        framed = stats.get("framed")
         for i, p in enumerate(poses):
             under = np.hypot(*np.meshgrid(xs - p[0], ys - p[1])) <= body.width / 2  # the cells under the body's middle
             out.append({"choice": ci, "pose": [round(float(v), 3) for v in p],
                         "from_rover": round(float(np.hypot(*(p[:2] - np.array(c["pose"][:2])))), 3),
-                        "framed": float(np.mean(stats["framed"][under] > 0)) if under.any() else 0.0,
+                        "framed": float(np.mean(framed[under])) if framed is not None and under.any() else math.nan,
                         "prob": [round(float(v), 4) for v in full.prob[i]],
                         "best": [round(float(v), 4) for v in full.nominal.excess[i]],
                         "best_wheel": int(full.nominal.wheel[i]),
