@@ -98,9 +98,8 @@ def test_every_mission_start_is_one_the_rover_can_be_set_down_and_turn_at() -> N
         assert check_poses(fine, g, turn, world.body).safe.all(), start
 
 
-def test_a_held_out_rock_draw_has_its_scenes_area_and_orbit_and_missions_of_its_own() -> None:
+def test_a_held_out_rock_draw_has_its_scenes_area_and_orbit() -> None:
     assert area("dense_fresh") == area("dense") and from_orbit("dense_fresh") and not from_orbit("marsyard")
-    assert missions("dense_fresh", 2) != missions("dense", 2)  # other rocks, other clear starts
     with pytest.raises(KeyError, match="no mission area"):
         area("office")
 
