@@ -8,7 +8,7 @@ import math
 
 import numpy as np
 import pytest
-from support.marks import long_test
+from support.marks import long_only, long_test
 from support.server import wait_for
 
 from prox_workflows.algorithms.bounds_map import BoundsMap
@@ -327,27 +327,29 @@ def test_the_section_pilot_judges_the_poses_past_the_one_the_rover_stands_on() -
     assert not pilot.turned and np.array_equal(pilot._ahead(), poses[1:])
 
 
-def test_the_scan_loop_on_the_chooser_scans_every_stretch_and_drives_by_the_vehicle_check(server_factory) -> None:
+@pytest.mark.parametrize("goal, stretch", [(1.5, 0.6), pytest.param(2.4, 1.0, marks=long_only())])
+def test_the_scan_loop_on_the_chooser_scans_every_stretch_and_drives_by_the_vehicle_check(
+        server_factory, goal: float, stretch: float) -> None:
     """``-loop scan -scan-plan chooser``: every stretch starts with a 360-degree scan (and the look
     round standing that feeds the bounds map), then the chooser's sections are driven, seeing as
     the see loop does, until ``scan_stretch`` metres are behind, and the next scan follows.
     Judged by the vehicle on the true surface, as the see loop is."""
-    srv = server_factory(["server.scene=quarry", "navigate.scan_stretch=1.0",
+    srv = server_factory(["server.scene=quarry", f"navigate.scan_stretch={stretch}",
                           "navigate.range=-60,60,-50,-10"])
     world = srv.app.world
     world.set_target_visible(False)
     c = srv.client()
-    job = c.start_job("navigate -start 0,0,0 -goal 2.4,0 -auto -loop scan -scan-plan chooser -name stop")
+    job = c.start_job(f"navigate -start 0,0,0 -goal {goal},0 -auto -loop scan -scan-plan chooser -name stop")
     lines = c.until_final(job=job, timeout=1800)
     final = lines[-1]
     assert final.status == "OK" and final.fields["reached"] == "true", final.fields
     assert final.fields["loop"] == "scan"
-    # 2.4 m in stretches of at least 1 m: a scan at the start and one or two on the way
+    # stretches of at least ``stretch``, over 2.5 of them: a scan at the start and one or two on the way
     assert 2 <= int(final.fields["scans"]) <= 3, final.fields
     assert int(final.fields["cycles"]) > 0  # frames while driving, each a check of the section's rest
     assert int(final.fields["legs"]) >= 3  # sections of at most the chooser's length, not one leg a scan
     truth = world.truth()
-    assert math.hypot(truth["x"] - 2.4, truth["y"]) <= 0.3
+    assert math.hypot(truth["x"] - goal, truth["y"]) <= 0.3
     events, checked = _events(srv, world, "stop", (-1.0, -1.5, 3.5, 1.5))
     assert checked > 50
     assert events == [], [e.describe() for e in events]
