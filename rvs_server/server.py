@@ -220,9 +220,10 @@ class Connection(asyncio.Protocol):
 def warm_up_kernels() -> None:
     """Compile (first run after installing) or load from cache the numba kernels."""
     from drivers.sim import raycast
-    from prox_workflows.algorithms import dem2hazard, dem_import, planner, vehicle
+    from prox_workflows.algorithms import bounds_map, dem2hazard, dem_import, planner, vehicle
 
     try:
+        bounds_map.warm_up()
         dem_import.warm_up()
         dem2hazard.warm_up()
         planner.warm_up()

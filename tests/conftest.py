@@ -28,7 +28,7 @@ from support.simtime import SimTime  # noqa: E402
 # before the workers start: each worker would otherwise compile every kernel its tests meet (some
 # 30 s of CPU a worker on a fresh clone; once cached, this costs the 2 s of loading them).
 # The two groups take about as long each (the vehicle check's kernel alone is a third of the whole).
-KERNELS = (("prox_workflows.algorithms.vehicle", "drivers.sim.raycast"),
+KERNELS = (("prox_workflows.algorithms.vehicle", "drivers.sim.raycast", "prox_workflows.algorithms.bounds_map"),
            ("prox_workflows.algorithms.dem_import", "prox_workflows.algorithms.replan",
             "prox_workflows.algorithms.dem2hazard", "prox_workflows.algorithms.planner"))
 

@@ -62,7 +62,7 @@ from rvs_params import Settings, param
 
 from ..grid import GridGeometry
 
-__all__ = ["BoundsMap", "BoundsParams", "SENSORS", "contact_plane"]
+__all__ = ["BoundsMap", "BoundsParams", "SENSORS", "contact_plane", "warm_up"]
 
 # the kinds of frame the map fuses, in rising precedence (with ``stereo_first``)
 SENSORS = ("tof", "stereo")
@@ -913,3 +913,12 @@ class BoundsMap:
             return None, GridGeometry(g.cell, g.xmin, g.ymax, 1, 1, g.crs)
         sub = GridGeometry(g.cell, g.xmin + c0 * g.cell, g.ymax - r0 * g.cell, c1 - c0, r1 - r0, g.crs)
         return (slice(r0, r1), slice(c0, c1)), sub
+
+
+def warm_up() -> None:
+    """Compile (or load from numba's cache) the fusion's kernels now, rather than in the see loop's
+    first cycle: a frame's sums, its rays' ceilings and the bounds' spread."""
+    bounds = BoundsMap(GridGeometry(0.025, 0.0, 0.25, 10, 10))
+    points = np.array([[0.10, 0.10, 0.00], [0.15, 0.12, 0.01], [0.20, 0.05, 0.02]])
+    bounds.fuse(points, 0.005, origin=np.array([-1.0, 0.1, 1.0]), sigma_xy=0.01, sigma_across=0.005)
+    bounds.whole()
