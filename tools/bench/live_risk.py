@@ -3,7 +3,7 @@ judge during a mission (the chooser's candidates, and the section being driven r
 cycle), checked again after the mission on the simulator's true 1 cm surface. A pass on a pose the
 truth finds over a limit is a false safe.
 
-This is the issue's "false-safe rate per judged pose" taken on the judgements the loop really
+This is the stated risk (the false-safe rate per judged pose) taken on the judgements the loop really
 makes, on maps fused from every look and cycle as they were when it judged. The risk bench
 (``tools.bench.chance --risk``) takes it on one look's map, on poses 1.6-4 m out. The section
 being driven (``drive``) holds each pose's last judgements before the wheels reach it, the ones
