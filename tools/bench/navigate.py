@@ -41,6 +41,11 @@ distance from the planned waypoint legs) it prints the margin table.
     python -m tools.bench.navigate --oracle --missions 5 --scenes marsyard hirise dense --jobs 2
     python -m tools.bench.navigate --missions 3 --scenes marsyard --modes see --jobs 1 --slip 0.05,2
     python -m tools.bench.navigate --missions 5 --scenes dense --modes see --noise-seeds 0 1 2
+    python -m tools.bench.navigate --missions 6 --scenes dense_fresh hirise_fresh --modes see --live-risk
+
+``dense_fresh`` and ``hirise_fresh`` are dense's and hirise's ground under rock draws no setting
+was tuned on. ``--live-risk`` judges every pose the see loop's chance check judged against the
+truth (:mod:`tools.bench.live_risk`), per scene: the stated risk on the loop's own judgements.
 
 ``--slip SHARE,DEG_PER_M`` runs every mission with the simulated rover's wheels slipping
 (``sim slip``: it covers 1 - SHARE of what its odometry counts and its heading drifts DEG_PER_M
