@@ -49,7 +49,7 @@ import json
 import math
 import time
 from collections import Counter
-from collections.abc import Callable, Iterator, Mapping
+from collections.abc import Iterator, Mapping
 from typing import Any
 
 import numpy as np
@@ -61,9 +61,7 @@ from prox_workflows.algorithms.candidates import verdict_name
 from prox_workflows.grid import GridGeometry
 from rvs_truth.surface import missions, truth_checks
 from tools.bench import navigate as bench
-from tools.bench.live_risk import Recorder, lines, live_risk
-
-Truth = Callable[[np.ndarray], vehicle.PoseChecks]  # the truth's check of (N, 3) poses wherever they are
+from tools.bench.live_risk import Recorder, Truth, lines, live_risk
 
 
 def main() -> None:

@@ -139,6 +139,7 @@ def summed(rows: list[dict[str, dict[str, Any]]]) -> dict[str, dict[str, Any]]:
 
 
 def lines(live: dict[str, dict[str, Any]]) -> list[str]:
+    """A line per part, as the benches print it."""
     return [f"live check, {part}: {r['judged']} judged poses ({r['distinct']} distinct), {r['passed']} passed, "
             f"{r['false_safes']} false safes ({r['false_safes_distinct']} distinct), 95 % bound "
             f"{r['bound']:.2g} per judged pose ({r['bound_distinct']:.2g} per distinct pose)" for part, r in live.items()]
