@@ -275,6 +275,10 @@ class BoundsMap:
         self.lowered = np.zeros(shape, np.int32)  # the frame that last lowered the cell's ceiling
         self.sensors = np.zeros(shape, np.uint8)  # bit i: a frame of SENSORS[i] bounded the cell
         self.frames = 0
+        # where the rover was set down (x, y, radius m): the operators set it down where it can stand
+        # and turn, so a pose there passes whatever the map says of the ground under it, which no
+        # frame shows (:func:`prox_workflows.algorithms.set_down.set_down`; None: no such promise)
+        self.promised: tuple[float, float, float] | None = None
         # a window's grid moves in whole multiples of this many cells (:meth:`follow`): its
         # origin stays on the coarse grid the chooser's guidance is kept on
         self.align = 1
@@ -497,7 +501,8 @@ class BoundsMap:
     # ------------------------------------------------------------------ what the rover's body says
 
     def stood(self, pose: tuple[float, float, float], z: float, body: Any,
-              attitude: tuple[float, float, float] | None = None, sigma: float = 0.005) -> None:
+              attitude: tuple[float, float, float] | None = None, sigma: float = 0.005,
+              tilt: tuple[float, float] = (0.0, 0.0)) -> None:
         """The rover stands at ``pose`` (x, y, heading deg) with its centre's ground at height ``z``:
         its body is a sensor too, for the ground no frame bounded (the mast never sees within
         about 0.7 m of its foot). Frames outrank it: a cell a frame bounded keeps its bounds.
@@ -510,8 +515,8 @@ class BoundsMap:
           on four wheels rests on three: the fourth may hang over lower ground, which the IMU
           does not show (4.4 cm at marsyard mission 0's start), so the ground under each wheel
           reaches ``hang`` below the plane. This overrides the set-down's prior there; without
-          an attitude the contacts are taken level at ``z`` within ``sigma``, where nothing else
-          bounds them.
+          an attitude the contacts are taken on the plane through ``z`` rising ``tilt`` (per metre
+          along x and y; level by default) within ``sigma``, where nothing else bounds them.
         - Under the box between the wheels proprioception says only that nothing reaches the
           belly: the ground there is bounded from above (a ceiling) at the belly over that plane,
           drawn ``3 k`` contact sigmas lower so that the worst-case check of this very pose, its
@@ -538,9 +543,10 @@ class BoundsMap:
         xs = g.xmin + (wheels % g.width + 0.5) * g.cell
         ys = g.ymax - (wheels // g.width + 0.5) * g.cell
         if attitude is None:
-            wheels = wheels[~np.isfinite(self.mean.flat[wheels])]
-            height, var = np.full(len(wheels), z), np.full(len(wheels), sigma * sigma)
-            gx = gy = 0.0
+            blank = ~np.isfinite(self.mean.flat[wheels])
+            wheels, xs, ys = wheels[blank], xs[blank], ys[blank]
+            gx, gy = tilt
+            height, var = z + gx * (xs - pose[0]) + gy * (ys - pose[1]), np.full(len(wheels), sigma * sigma)
             spread = sigma
         else:
             keep = self.stamp.flat[wheels] == 0  # no frame bounded it

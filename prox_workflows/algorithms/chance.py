@@ -242,8 +242,10 @@ class Posterior:
 
     def best(self) -> np.ndarray:
         """The ground's best estimate: the top where a return bounds the cell, else the lowest ray
-        that passed over it (the ground lies under it), NaN where neither."""
-        return np.where(np.isfinite(self.mean), self.mean, np.where(np.isfinite(self.ceiling), self.ceiling, np.nan))
+        that passed over it (the ground lies under it), NaN where neither; a prior's held under its
+        ceiling (:func:`_under_roof`)."""
+        best = np.where(np.isfinite(self.mean), self.mean, np.where(np.isfinite(self.ceiling), self.ceiling, np.nan))
+        return _under_roof(best, self.shared, self.ceiling)
 
     def window(self, sl: tuple[slice, slice]) -> Posterior:
         """The posterior over the rows and columns ``sl`` (a window of its grid)."""
@@ -424,12 +426,12 @@ def chance_check(post: Posterior, geom: GridGeometry, poses: np.ndarray, body: V
     seen = np.isfinite(mu)
     sd, shared, common, roof = _spreads(post)
     depth = _under_ray(post, geom, roof, p.under_ray)
-    best = np.where(seen, mu, roof - depth / 2)
+    best = _under_roof(np.where(seen, mu, roof - depth / 2), shared, roof)
     span = None if post.span is None else np.where(seen, post.span, 0.0)
     ks = screen_k(body, step or geom.cell, p.epsilon)
     cell_sd = np.hypot(sd, shared) + common  # each cell's own and its neighbours' errors are one normal
     lower = np.where(seen, mu - ks * cell_sd - (0.0 if span is None else span), np.nan).astype(np.float32)
-    upper = np.where(seen, mu + ks * cell_sd, roof).astype(np.float32)
+    upper = _under_roof(np.where(seen, mu + ks * cell_sd, roof), shared, roof).astype(np.float32)
     wide = check_poses((lower, upper), geom, poses, body, step)
     nominal = _judge(best, seen, span, geom, poses, body, step, p.rest_tops)
     # a pair read between the cell centres leaves a wheel over ground only a ray bounds nothing to
@@ -541,7 +543,16 @@ def _surface(mu: np.ndarray, sd: np.ndarray, shared: np.ndarray, common: np.ndar
     # a cell only a ray bounds: its ground uniformly within ``depth`` under the ray (its own normal,
     # unused there, made uniform)
     under = roof - depth * ndtr(-z) if np.ndim(depth) else roof
-    return np.where(np.isfinite(mu), mu + sd * z + shared * field + common * once, under).astype(np.float32)
+    return _under_roof(np.where(np.isfinite(mu), mu + sd * z + shared * field + common * once, under), shared,
+                       roof).astype(np.float32)
+
+
+def _under_roof(z: np.ndarray, shared: np.ndarray, roof: np.ndarray) -> np.ndarray:
+    """Heights ``z`` with a prior's cells (``shared`` above 0: ground no frame bounded) held under
+    their ceiling: the belly the rover stood over them with (:meth:`.bounds_map.BoundsMap.stood`)
+    or a ray that passed over. A prior as wide as unseen ground is puts some draws through the
+    belly of the very pose the ground was felt under."""
+    return np.where(shared > 0, np.fmin(z, roof), z)
 
 
 def surfaces(post: Posterior, geom: GridGeometry, params: ChanceParams | None = None) -> Iterator[np.ndarray]:

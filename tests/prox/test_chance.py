@@ -189,6 +189,26 @@ def test_a_real_step_edge_under_a_prior_known_to_a_few_centimetres_is_still_refu
     assert edge.prob[0, STEP] > 0.9
 
 
+def test_a_prior_s_draws_stay_under_the_belly_the_rover_stood_over_it_with() -> None:
+    """Unseen ground under the rover's box known to 3 cm (sd) about its plane, as the set-down's
+    prior takes it, under the ceiling the belly puts there (BoundsMap.stood: 4 cm over the plane):
+    no draw of a prior's cell stands over it, and the belly is touched less often over a turn on
+    the spot (its wheels drawn on the prior too). A cell a frame bounded keeps its draws
+    whatever ceiling it has: there the returns are the evidence."""
+    post, g, X, Y = prior_plane(0.03, shared=True)
+    box = (np.abs(X) < 0.25) & (np.abs(Y) < 0.22)
+    ceiling = np.where(box, post.mean + 0.04, np.inf)
+    stood = Posterior(post.mean, post.var, ceiling, 0.0, post.shared)
+    drawn = np.array([s[box] for s in surfaces(stood, g)])
+    assert (drawn <= ceiling[box] + 1e-6).all() and (drawn >= ceiling[box] - 1e-6).any()
+    belly = LIMITS.index("belly")
+    under, over = chance_check(stood, g, TURN, BODY).prob[:, belly], chance_check(post, g, TURN, BODY).prob[:, belly]
+    assert (under <= over).all() and under.mean() < 0.7 * over.mean(), (under, over)
+    low = np.where(box, post.mean + 0.002, np.inf)
+    seen = Posterior(post.mean, post.var, low, 0.0, 0.0)
+    assert max(float((s[box] - low[box]).max()) for s in surfaces(seen, g)) > 0.005
+
+
 def test_the_set_down_s_prior_is_shared_by_neighbours_and_the_frames_noise_is_each_cell_s_own() -> None:
     m = BoundsMap(GridGeometry.covering(0.0, 0.0, 1.0, 1.0, 0.025), BoundsParams())
     rng = np.random.default_rng(0)
