@@ -550,8 +550,8 @@ def _surface(mu: np.ndarray, sd: np.ndarray, shared: np.ndarray, common: np.ndar
 def _under_roof(z: np.ndarray, shared: np.ndarray, roof: np.ndarray) -> np.ndarray:
     """Heights ``z`` with a prior's cells (``shared`` above 0: ground no frame bounded) held under
     their ceiling: the belly the rover stood over them with (:meth:`.bounds_map.BoundsMap.stood`)
-    or a ray that passed over. A prior as wide as unseen ground is puts some draws through the
-    belly of the very pose the ground was felt under."""
+    or a ray that passed over. A prior as wide as unseen ground may be otherwise puts some draws
+    through the belly of the very pose that ground was felt under."""
     return np.where(shared > 0, np.fmin(z, roof), z)
 
 

@@ -140,13 +140,13 @@ def set_down(bounds: Any, pose: tuple[float, float, float], datum: float, body: 
       :func:`vehicle.reach`), the ground under the body between the wheels included: the plane of
       the ring of seen ground from ``ring_edge`` to ``ring_width`` past the disc
       (:func:`ring_plane`), within the ring's own spread about it (:meth:`RingPlane.sigma`),
-      conditioned on the ground frames bounded beside it and the wheels' (:func:`conditioned`). Taken instead as
-      the wheels' plane within 1 cm, the ground under the start's body read 3.7 cm high at the
-      median (p95 7.7 cm) at hirise_fresh mission 4's start: wheels rest on the highest ground
-      under them, and the ground between lies lower. The rover's first section there put its new
-      wheels on that prior 1.3-6.1 cm high and its belly on a rock. With too little of the ring
-      seen, that ground stays unknown."""
-    x, y, heading = pose
+      conditioned on the ground frames bounded beside it and on the wheels' (:func:`conditioned`).
+      Taken instead as the wheels' plane within 1 cm, the ground under the start's body read
+      3.7 cm high at the median (p95 7.7 cm) at hirise_fresh mission 4's start: wheels rest on the
+      highest ground under them, and the ground between lies lower. The rover's first section
+      there put its new wheels on that prior 1.3-6.1 cm high and its belly on a rock. With too
+      little of the ring seen, that ground stays unknown."""
+    x, y, _ = pose
     fx, fy, radius = disc
     # the turn's disc reaches the wheels' outer corners and the cells round them a sample reads
     turn = max(turn, reach(body) + 2 * bounds.geometry.cell)

@@ -86,11 +86,13 @@ class SeeConfig(Settings):
                           "the simulator's, the GNC's pose -roll -pitch) and the ground under the wheels no higher "
                           "than that plane, down to 2.5 cm below it (a rigid body rests on three wheels), where the "
                           "rover stands throughout the drive; without an attitude, level; ring (with the chooser), after "
-                          "the first look round, takes the wheels' ground from the pose and the IMU's attitude, the "
-                          "disc the body turns in within 1 cm of that plane, and the rest of the blind disc on the "
-                          "plane fitted to the seen ground just outside it, carried continuously into the ground known "
-                          "beside it, within that ground's own spread about the plane, less near known ground (at least "
-                          "1 cm; prox_workflows.algorithms.set_down)", choices=("level", "attitude", "ring"),
+                          "the first look round, takes the wheels' ground from the pose and the IMU's attitude, keeps "
+                          "the operators' promise that the rover can turn where it was set down (a pose within 2 cm of "
+                          "there passes), and takes the rest of the blind disc and of the disc the body turns in (the "
+                          "ground between the wheels included) on the plane fitted to the seen ground just outside it, "
+                          "carried continuously into the ground known beside it, within that ground's own spread "
+                          "about the plane, less near known ground (at least 1 cm), never over the belly's ceiling "
+                          "(prox_workflows.algorithms.set_down)", choices=("level", "attitude", "ring"),
                           option=False)
     register: bool = param(True, "see loop with the gate: a rover that has not moved keeps its last frame's "
                            "height, and each frame taken after a move is placed on the ground the bounds map holds "

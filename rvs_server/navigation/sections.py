@@ -128,7 +128,8 @@ def map_check(bounds: BoundsMap, box: tuple[float, float, float, float], body: A
     map's per-cell statistics: the mean's horizontal error along its rays averaged as its height
     is, and the slope's steepest direction for the rays'), ``best`` on their best estimate alone
     (no draws), ``framed`` on the best estimate of the cells a frame bounded only (the rest
-    unknown: the track back's check, :func:`track_check`), ``bounds`` the worst case on its bounds."""
+    unknown: the track back's check, :func:`track_check`), ``bounds`` the worst case on its bounds.
+    Each keeps the operators' promise where the rover was set down (``BoundsMap.promised``)."""
     stats, g = bounds.statistics(*box)
     if how == "chance":
         return posterior_check(posterior(stats, g, bounds.params.k, chance), g, body, chance, bounds.promised)

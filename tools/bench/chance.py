@@ -161,8 +161,8 @@ def calibrate(scene: str, look: str, cell: float, world_seed: int, seed: int, ma
 def set_down_at_start(world: World, bounds: BoundsMap, body: RoverBody) -> str:
     """The see loop's ring set-down at the rover's start (``see_set_down ring``,
     :func:`prox_workflows.algorithms.set_down.set_down`): the wheels' ground from the pose and the
-    true attitude (the IMU's sigma), the disc the body turns in within 1 cm of that plane, the rest
-    of the mast's blind disc on the ring's plane within the ring's own spread."""
+    true attitude (the IMU's sigma), the rest of the mast's blind disc and of the disc the body
+    turns in on the ring's plane within the ring's own spread."""
     x0, y0, h0 = world.rover_pose()
     roll, pitch = world.rover_attitude()
     h = math.radians(h0)
