@@ -275,10 +275,6 @@ class BoundsMap:
         self.lowered = np.zeros(shape, np.int32)  # the frame that last lowered the cell's ceiling
         self.sensors = np.zeros(shape, np.uint8)  # bit i: a frame of SENSORS[i] bounded the cell
         self.frames = 0
-        # where the rover was set down (x, y, radius m): the operators set it down where it can stand
-        # and turn, so a pose there passes whatever the map says of the ground under it, which no
-        # frame shows (:func:`prox_workflows.algorithms.set_down.set_down`; None: no such promise)
-        self.promised: tuple[float, float, float] | None = None
         # a window's grid moves in whole multiples of this many cells (:meth:`follow`): its
         # origin stays on the coarse grid the chooser's guidance is kept on
         self.align = 1

@@ -431,40 +431,24 @@ def cost_to_go(cost: np.ndarray, geom: GridGeometry, goal: tuple[float, float]) 
     return CostToGo(dist[:h * w].reshape(h, w), geom, (float(goal[0]), float(goal[1])))
 
 
-def kept_promise(codes: np.ndarray, poses: np.ndarray, promised: tuple[float, float, float] | None) -> np.ndarray:
-    """``codes`` with every pose within the ``promised`` disc (x, y, radius m: where the operators
-    set the rover down, :attr:`.bounds_map.BoundsMap.promised`) SAFE: a turn on the spot there is
-    their promise, and the ground under the body there is what no frame shows."""
-    return np.where(_promised(poses, promised), SAFE, codes) if len(codes) else codes
-
-
-def _promised(poses: np.ndarray, promised: tuple[float, float, float] | None) -> np.ndarray:
-    poses = np.atleast_2d(np.asarray(poses, float))
-    if promised is None:
-        return np.zeros(len(poses), bool)
-    return np.hypot(poses[:, 0] - promised[0], poses[:, 1] - promised[1]) <= promised[2]
-
-
 def bounds_check(heights: np.ndarray | tuple[np.ndarray, np.ndarray], geom: GridGeometry,
-                 body: VehicleBody, promised: tuple[float, float, float] | None = None) -> Check:
+                 body: VehicleBody) -> Check:
     """The vehicle check (:func:`.vehicle.check_poses`) on a bounds pair or one height grid as a
     :data:`Check`: per pose SAFE, UNKNOWN (ground under the body no bound covers) or 1 + the
-    index of the limit exceeded worst (relative to its own limit); SAFE within ``promised``
-    (:func:`kept_promise`)."""
+    index of the limit exceeded worst (relative to its own limit)."""
 
     def check(poses: np.ndarray) -> np.ndarray:
         c = check_poses(heights, geom, poses, body)
         k, _ = c.worst(body)
         out = np.where(c.unsafe, k + 1, SAFE)
         out[c.unknown] = UNKNOWN
-        return kept_promise(out, poses, promised)
+        return out
 
     return check
 
 
 def posterior_check(post: Posterior, geom: GridGeometry, body: VehicleBody,
-                    params: ChanceParams | None = None, promised: tuple[float, float, float] | None = None
-                    ) -> Check:
+                    params: ChanceParams | None = None) -> Check:
     """The chance-constrained vehicle check (:func:`.chance.chance_check`) on the cells'
     posteriors ``post`` over ``geom`` as a :data:`Check`: per pose SAFE (P(any limit exceeded)
     at most epsilon), UNKNOWN, or 1 + the index of the limit most likely exceeded. Each call
@@ -473,17 +457,15 @@ def posterior_check(post: Posterior, geom: GridGeometry, body: VehicleBody,
 
     def check(poses: np.ndarray, runs: np.ndarray | None = None) -> np.ndarray:
         poses = np.atleast_2d(np.asarray(poses, float))
-        if len(poses) and _promised(poses, promised).all():  # a turn on the spot where the rover was set down
-            return np.full(len(poses), SAFE)
         sub, sl = crop(geom, poses[:, 0].min() - pad, poses[:, 1].min() - pad, poses[:, 0].max() + pad,
                         poses[:, 1].max() + pad)
         if sl is None:
-            return kept_promise(np.full(len(poses), UNKNOWN), poses, promised)
+            return np.full(len(poses), UNKNOWN)
         c = chance_check(post.window(sl), sub, poses, body, params, verdict_only=True, runs=runs)
         k, _ = c.worst()
         out = np.where(c.unsafe, k + 1, SAFE)
         out[c.unknown] = UNKNOWN
-        return kept_promise(out, poses, promised)
+        return out
 
     check.by_runs = True  # type: ignore[attr-defined]
     return check
@@ -530,11 +512,10 @@ def nearest_refusal(post: Posterior, geom: GridGeometry, body: VehicleBody, pose
             f"{'inside' if margin >= 0 else 'over'} the limit")
 
 
-def best_check(post: Posterior, geom: GridGeometry, body: VehicleBody,
-               promised: tuple[float, float, float] | None = None) -> Check:
+def best_check(post: Posterior, geom: GridGeometry, body: VehicleBody) -> Check:
     """The vehicle check on the posterior's best estimate of the ground (a ray's ceiling where no
     return bounds a cell; unknown where neither) as a :data:`Check`: one check per pose, no draws."""
-    return bounds_check(post.best().astype(np.float32), geom, body, promised)
+    return bounds_check(post.best().astype(np.float32), geom, body)
 
 
 def over_rays(mean: np.ndarray, ceiling: np.ndarray, geom: GridGeometry, body: VehicleBody

@@ -29,14 +29,13 @@ from scipy.ndimage import distance_transform_edt
 from .chance import prior_correlation
 from .vehicle import reach
 
-__all__ = ["RingPlane", "ring_plane", "set_down", "FLOOR", "MIN_CELLS", "PROMISED"]
+__all__ = ["RingPlane", "ring_plane", "set_down", "FLOOR", "MIN_CELLS"]
 
 MIN_CELLS = 50  # seen cells in the ring below which the plane is not fitted (level instead)
 OUTLIER = 0.02  # m: cells further than this (or twice the residuals' sd) from the first fit are rocks
 CONDITION_REACH = 0.4  # m round the unknown ground: the known cells that may condition it (the correlation is nil by 0.4 m)
 FLOOR = 0.01  # m: the least sigma unseen ground is taken within, however smooth the ring: a hollow or a
 # rock wholly inside the disc leaves no trace in the ring
-PROMISED = 0.02  # m from where the rover was set down: a turn on the spot there is the operators' promise
 
 
 @dataclass(frozen=True)
@@ -125,9 +124,6 @@ def set_down(bounds: Any, pose: tuple[float, float, float], datum: float, body: 
     """What a rover set down at ``pose`` (x, y, heading deg) knows of the ground round it that no
     frame of ``bounds`` shows, each part from what shows it; returns what it took.
 
-    - Where it stands: the operators set it down where it can stand and turn on the spot. That is a
-      promise about poses, not a height: every pose within :data:`PROMISED` of (x, y) passes the
-      check whatever the map says (:attr:`BoundsMap.promised`), and no cell is taken as known for it.
     - Under the wheels: their contacts from the pose and the IMU's ``attitude`` (roll, pitch and
       their sigma, deg; None: the GNC gives none), on the plane through ``datum`` (the frames'
       height of the rover's own ground at its centre), to a few millimetres; under the box, a
@@ -145,7 +141,11 @@ def set_down(bounds: Any, pose: tuple[float, float, float], datum: float, body: 
       3.7 cm high at the median (p95 7.7 cm) at hirise_fresh mission 4's start: wheels rest on the
       highest ground under them, and the ground between lies lower. The rover's first section
       there put its new wheels on that prior 1.3-6.1 cm high and its belly on a rock. With too
-      little of the ring seen, that ground stays unknown."""
+      little of the ring seen, that ground stays unknown.
+
+    No pose is promised: the rover may turn where it was set down only where the check passes the
+    turn. Promised, the turn at dense_fresh mission 6's start put the belly 1.5 mm into a rock
+    at one heading."""
     x, y, _ = pose
     fx, fy, radius = disc
     # the turn's disc reaches the wheels' outer corners and the cells round them a sample reads
@@ -160,7 +160,6 @@ def set_down(bounds: Any, pose: tuple[float, float, float], datum: float, body: 
         blind = max(radius + ring_edge, math.hypot(x - fx, y - fy) + turn)
         height, sigma = conditioned(bounds, ring, (fx, fy), blind)
         bounds.set_down((fx, fy), blind, height, sigma=sigma)
-    bounds.promised = (x, y, PROMISED)
     wheels = "the IMU's attitude" if attitude is not None else "the ring's plane (no attitude)"
     return f"{ring.said}; the wheels' ground from the pose and {wheels}"
 

@@ -128,20 +128,18 @@ def map_check(bounds: BoundsMap, box: tuple[float, float, float, float], body: A
     map's per-cell statistics: the mean's horizontal error along its rays averaged as its height
     is, and the slope's steepest direction for the rays'), ``best`` on their best estimate alone
     (no draws), ``framed`` on the best estimate of the cells a frame bounded only (the rest
-    unknown: the track back's check, :func:`track_check`), ``bounds`` the worst case on its bounds.
-    Each keeps the operators' promise where the rover was set down (``BoundsMap.promised``)."""
+    unknown: the track back's check, :func:`track_check`), ``bounds`` the worst case on its bounds."""
     stats, g = bounds.statistics(*box)
     if how == "chance":
-        return posterior_check(posterior(stats, g, bounds.params.k, chance), g, body, chance, bounds.promised)
+        return posterior_check(posterior(stats, g, bounds.params.k, chance), g, body, chance)
     if how == "best":
-        return best_check(posterior(stats, g, bounds.params.k, chance), g, body, bounds.promised)
+        return best_check(posterior(stats, g, bounds.params.k, chance), g, body)
     if how == "framed":
-        return track_check(posterior(stats, g, bounds.params.k, chance), stats["framed"], g, body, bounds.promised)
-    return bounds_check((stats["lower"], stats["upper"]), g, body, bounds.promised)
+        return track_check(posterior(stats, g, bounds.params.k, chance), stats["framed"], g, body)
+    return bounds_check((stats["lower"], stats["upper"]), g, body)
 
 
-def track_check(post: Any, framed: np.ndarray, g: Any, body: Any,
-                promised: tuple[float, float, float] | None = None) -> Check:
+def track_check(post: Any, framed: np.ndarray, g: Any, body: Any) -> Check:
     """The check of the track back: the posterior's best estimate where a frame bounded the cell,
     unknown elsewhere (the set-down's prior, the wheels' contacts, a ray's ceiling). The body stood
     on every pose of the track, so what can refuse it is ground that changed since, and only a
@@ -150,7 +148,7 @@ def track_check(post: Any, framed: np.ndarray, g: Any, body: Any,
     pose over unframed ground is unknown, which the track back takes (never a limit exceeded),
     judged cell by cell on the frames' heights (bounds read cellwise, lower and upper alike)."""
     surface = np.where(framed, post.mean, np.nan).astype(np.float32)
-    return bounds_check((surface, surface.copy()), g, body, promised)
+    return bounds_check((surface, surface.copy()), g, body)
 
 
 def guidance(bounds: BoundsMap, goal: tuple[float, float], body: Any, params: CandidateParams,
@@ -184,11 +182,11 @@ def choose_from(bounds: BoundsMap, pose: tuple[float, float, float], goal: tuple
     lookahead = None
     if how == "chance":
         post = posterior(stats, wg, bounds.params.k, chance)
-        check = posterior_check(post, wg, body, chance, bounds.promised)
+        check = posterior_check(post, wg, body, chance)
         if ahead == "best":  # the look-aheads only rank: one check on the best estimate, no draws
-            lookahead = best_check(post, wg, body, bounds.promised)
+            lookahead = best_check(post, wg, body)
     else:
-        check = bounds_check((stats["lower"], stats["upper"]), wg, body, bounds.promised)
+        check = bounds_check((stats["lower"], stats["upper"]), wg, body)
     rays = over_rays(stats["mean"], stats["ceiling"], wg, body) if params.ray_looks else None
     choice = choose(pose, (stats["lower"], stats["upper"]), wg, body, ctg, check, params, lookahead,
                     dead_end_penalty(dead_ends, dead_end_cost), rays)

@@ -358,24 +358,6 @@ def test_the_check_wrapper_names_unknown_and_limits() -> None:
     assert codes[0] == SAFE and codes[1] > 0 and codes[2] == -1
 
 
-def test_where_the_rover_was_set_down_a_pose_keeps_the_operators_promise() -> None:
-    """A rock the map puts under the rover where it was set down (the ground under its body no
-    frame shows): a pose within the promised disc passes whatever the map says, in both checks;
-    one 5 cm off it is judged on the map."""
-    w = World()
-    w.box(-0.1, 0.1, -0.1, 0.1, 0.3)
-    heights = w.bounds()
-    poses = np.array([[0.0, 0.0, 0.0], [0.01, 0.0, 90.0], [0.05, 0.0, 0.0]])
-    promise = (0.0, 0.0, 0.02)
-    assert (bounds_check(heights, w.g, BODY)(poses) > 0).all()
-    assert bounds_check(heights, w.g, BODY, promise)(poses).tolist()[:2] == [SAFE, SAFE]
-    assert bounds_check(heights, w.g, BODY, promise)(poses)[2] > 0
-    post = Posterior(heights[1], np.full(w.g.shape, 0.005**2), np.full(w.g.shape, np.inf))
-    codes = posterior_check(post, w.g, BODY, None, promise)(poses)
-    assert codes.tolist()[:2] == [SAFE, SAFE] and codes[2] > 0
-    assert (posterior_check(post, w.g, BODY)(poses) > 0).all()
-
-
 def test_a_pose_budget_stops_the_search_and_says_so() -> None:
     w = World()
     ring = (np.hypot(w.X, w.Y) > 0.75) & (np.hypot(w.X, w.Y) < 0.95)

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from prox_workflows.algorithms.bounds_map import BoundsMap
-from prox_workflows.algorithms.set_down import FLOOR, PROMISED, ring_plane, set_down
+from prox_workflows.algorithms.set_down import FLOOR, ring_plane, set_down
 
 
 def _slope_frame(bounds: BoundsMap, grade_deg: float, rock: bool) -> None:
@@ -189,12 +189,11 @@ def test_the_blind_disc_meets_the_seen_ground_and_the_turn_s_disc_without_a_step
     assert ring.spread > 0.012 and np.nanmax(sd) > 0.8 * ring.spread
 
 
-def test_the_ground_under_the_start_s_body_is_the_ring_s_and_the_start_a_promise() -> None:
+def test_the_ground_under_the_start_s_body_is_the_ring_s() -> None:
     """A 4 cm hollow under the rover's box between its wheels, on rough ground: the set-down takes
     it within the ring's spread conditioned on the wheels' contacts (the hollow's cells read 3 cm
     high, within 3.2 of their sigmas, which reach the ring's 1.5 cm), not on the wheels' plane
-    within 1 cm, where they stood 3 and more sigmas out; the rover may still turn where it was set
-    down, as the operators promise (BoundsMap.promised)."""
+    within 1 cm, where they stood 3 and more sigmas out."""
     from drivers.sim.rover import RoverBody
 
     rough = _bumps(3)
@@ -208,4 +207,3 @@ def test_the_ground_under_the_start_s_body_is_the_ring_s_and_the_start_a_promise
     x, y, top, sd = _cells(bounds, lambda X, Y: np.hypot(X, Y) < 0.1)
     assert len(x) > 40 and sd.max() > 0.014 and sd.min() > FLOOR, (sd.min(), sd.max())
     assert 0.02 < float(np.median(top - truth(x, y))) < 0.04 and ((top - truth(x, y)) / sd).max() < 3.2
-    assert bounds.promised == (0.0, 0.0, PROMISED)
