@@ -327,7 +327,9 @@ def test_the_section_pilot_judges_the_poses_past_the_one_the_rover_stands_on() -
     assert not pilot.turned and np.array_equal(pilot._ahead(), poses[1:])
 
 
-@pytest.mark.parametrize("goal, stretch", [(1.5, 0.6), pytest.param(2.4, 1.0, marks=long_only())])
+# both in the long suite (the default run's 6 minutes: 40-60 s of it); the see loop's chooser runs by default
+@pytest.mark.parametrize("goal, stretch", [pytest.param(1.5, 0.6, marks=long_only()),
+                                           pytest.param(2.4, 1.0, marks=long_only())])
 def test_the_scan_loop_on_the_chooser_scans_every_stretch_and_drives_by_the_vehicle_check(
         server_factory, goal: float, stretch: float) -> None:
     """``-loop scan -scan-plan chooser``: every stretch starts with a 360-degree scan (and the look
