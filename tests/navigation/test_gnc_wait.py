@@ -16,6 +16,7 @@ from rvs_server.protocol import Reply
 NARROW = "navigate.range=-90,30,-50,-10"
 
 
+@long_test  # 8-9 s: CI's long suite runs it; the GNC that never leaves the start runs by default
 def test_a_gnc_that_reports_its_start_pose_before_driving_keeps_its_leg(server_factory) -> None:
     """Ten unchanged reports of the start at 4 Hz (2.5 s, longer than pose_settle) are a GNC
     getting ready: the leg waits for it to drive, and the navigate ends in that one leg."""

@@ -114,6 +114,7 @@ def test_a_refusal_does_not_outlive_the_frames_of_its_ground() -> None:
             assert after.poses[-1][0] > 0.95  # the whole metre of the section, toward the goal
 
 
+@long_test  # 15-21 s of a GNC driving sections: CI's long suite runs it; the chooser's own sections run by default
 def test_the_gnc_drives_each_chosen_section_as_waypoints(server_factory) -> None:
     """Without -auto the GNC drives: the start's turn for the hazard cameras, then each section the
     chooser picks (at most its configured length, a turn on the spot first where there is one), is

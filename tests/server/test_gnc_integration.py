@@ -11,6 +11,7 @@ from pathlib import Path
 
 import pytest
 import yaml
+from support.marks import long_test
 from support.server import LineClient, ServerThread, waiting_event
 
 from rvs_server.protocol import Reply
@@ -124,6 +125,7 @@ def test_a_streamed_pose_ends_the_wait_only_once_it_holds_still(server_factory) 
     assert abs(float(final.fields["x"]) - end[0]) < 1e-3
 
 
+@long_test  # 7-10 s of scans: CI's long suite runs it; the streamed pose ending the wait runs by default
 def test_stopped_ends_the_wait_and_two_rescans_from_one_spot_are_e_data(server_factory) -> None:
     srv = server_factory(["server.scene=office", NARROW])
     c, gnc = srv.client(), srv.client()

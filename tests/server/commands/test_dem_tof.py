@@ -104,6 +104,7 @@ def test_products_open_in_gdal_with_their_geometry(scan) -> None:
     assert (srv.data / "dem/prod_views/prod_images.csv").is_file()
 
 
+@long_test  # 7-9 s of scans: CI's long suite runs it; the DEM against the truth runs by default
 def test_update_fuses_lowers_noise_and_extends(scan) -> None:
     srv, c, r1 = scan("office", name="a")
     dem1, g1 = read_geotiff(srv.data / r1.fields["dem"])
