@@ -152,10 +152,8 @@ def set_down(bounds: Any, pose: tuple[float, float, float], datum: float, body: 
     turn = max(turn, reach(body) + 2 * bounds.geometry.cell)
     ring = ring_plane(bounds, (fx, fy), radius + ring_edge, radius + ring_width, (x, y))
     # the wheels first: the fill takes only blank cells, and meets the wheels' ground without a step
-    if attitude is None:
-        bounds.stood(pose, datum, body, sigma=FLOOR, tilt=(ring.gx, ring.gy))
-    else:
-        bounds.stood(pose, datum, body, attitude)
+    # (sigma and tilt speak only where no attitude does)
+    bounds.stood(pose, datum, body, attitude, sigma=FLOOR, tilt=(ring.gx, ring.gy))
     if ring.known:
         blind = max(radius + ring_edge, math.hypot(x - fx, y - fy) + turn)
         height, sigma = conditioned(bounds, ring, (fx, fy), blind)
