@@ -85,7 +85,12 @@ def test_a_rover_in_a_cul_de_sac_backs_out_and_reaches_the_goal_round_it(server_
     # the default)
     # and the coarse guidance priced by each cell's relief: with the check's, the rover reaches the
     # goal here without backing out, and this variant is of the backing out
-    placed = ["navigate.see_register=true", "navigate.see.bounds.changed=0.05"] if registered else \
+    # registered, without the hazard cameras: with them, the start's turn that shows the ring leaves the
+    # rover facing 120 deg, and its way to the gate from there may run into tight ground (the truth's
+    # belly margin 6 mm at (-1.19, 0.28)), a dead end it backs out of and goes round the fence from,
+    # never entering the corridor this test closes
+    placed = ["navigate.see_register=true", "navigate.see.bounds.changed=0.05", "drivers.hazcam.cameras=off"] \
+        if registered else \
         ["navigate.see_register=false", "navigate.see.bounds.changed=0", "navigate.see.bounds.disagree=union",
          "navigate.see.chooser.rough_headings=0", "navigate.see.chooser.rough_cost=1"]
     srv = server_factory(["server.scene=quarry", "drivers.ptu.timeout=30", "navigate.see.retreat.retreats=4", *placed])
@@ -95,7 +100,7 @@ def test_a_rover_in_a_cul_de_sac_backs_out_and_reaches_the_goal_round_it(server_
     c, op = srv.client(), srv.client()
     job = c.start_job("navigate -start -2.0,0,0 -goal 2.5,0 -auto -loop see -name pocket")
     assert wait_for(lambda: world.truth()["x"] < -1.5, timeout=60, interval=0.01)
-    assert wait_for(lambda: world.truth()["x"] >= -0.35 and abs(world.truth()["y"]) < 0.25, timeout=1200,
+    assert wait_for(lambda: -0.35 <= world.truth()["x"] < 0.6 and abs(world.truth()["y"]) < 0.25, timeout=1200,
                     interval=0.01), "the rover never drove into the corridor"
     with clock_held(op.request, world):
         r = op.request("sim add-rock -x 0.95 -y 0 -radius 0.24 -height 0.25")
