@@ -93,16 +93,18 @@ from dataclasses import dataclass, field
 from functools import lru_cache
 
 import numpy as np
-from scipy import ndimage
-from scipy.sparse import coo_matrix
-from scipy.sparse.csgraph import dijkstra
 
 from rvs_params import Settings, param
+from rvs_params.deferred import deferred
 
 from ..grid import GridGeometry
 from .arcs import arc_poses, default_curvatures
 from .chance import ChanceParams, Posterior, chance_check
 from .vehicle import LIMITS, VehicleBody, check_poses, densify, reach
+
+ndimage = deferred("scipy.ndimage")
+sparse = deferred("scipy.sparse")
+csgraph = deferred("scipy.sparse.csgraph")
 
 __all__ = ["CandidateParams", "ArcTree", "CostToGo", "Choice", "Failure", "Check", "arc_tree", "coarse_costs",
            "cost_to_go", "bounds_check", "posterior_check", "best_check", "over_rays", "LOOK_GROUND", "crop", "choose", "SAFE", "UNKNOWN", "verdict_name", "UNKNOWN_COST"]
@@ -426,8 +428,8 @@ def cost_to_go(cost: np.ndarray, geom: GridGeometry, goal: tuple[float, float]) 
         vals.append(np.maximum(np.hypot(xs - goal[0], ys - goal[1]), 1e-12))
         source = n
         n += 1
-    graph = coo_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=(n, n)).tocsr()
-    dist = dijkstra(graph, directed=False, indices=source)
+    graph = sparse.coo_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=(n, n)).tocsr()
+    dist = csgraph.dijkstra(graph, directed=False, indices=source)
     return CostToGo(dist[:h * w].reshape(h, w), geom, (float(goal[0]), float(goal[1])))
 
 

@@ -107,13 +107,15 @@ from statistics import NormalDist
 from typing import Any
 
 import numpy as np
-from scipy.ndimage import gaussian_filter, maximum_filter, minimum_filter
-from scipy.special import ndtr
 
 from rvs_params import Settings, param
+from rvs_params.deferred import deferred
 
 from ..grid import GridGeometry
 from .vehicle import LIMITS, PoseChecks, VehicleBody, _pattern, _sample, check_poses
+
+ndimage = deferred("scipy.ndimage")
+special = deferred("scipy.special")
 
 __all__ = ["ChanceParams", "ChanceChecks", "Posterior", "posterior", "chance_check", "surfaces", "SCREEN"]
 
@@ -369,7 +371,7 @@ def relief(top: np.ndarray, geom: GridGeometry) -> np.ndarray:
 def _lowest_top(top: np.ndarray, geom: GridGeometry) -> np.ndarray:
     """The lowest ``top`` within ROCK_WINDOW of each cell (inf where none): the ground its rock stands on."""
     size = 2 * max(1, int(round(ROCK_WINDOW / 2 / geom.cell))) + 1
-    return minimum_filter(np.where(np.isfinite(top), top, np.inf), size=size, mode="nearest")
+    return ndimage.minimum_filter(np.where(np.isfinite(top), top, np.inf), size=size, mode="nearest")
 
 
 def headroom(stats: dict[str, np.ndarray], top: np.ndarray) -> np.ndarray:
@@ -379,7 +381,7 @@ def headroom(stats: dict[str, np.ndarray], top: np.ndarray) -> np.ndarray:
     so does ground behind the cell that only a ray bounds: where the truth differs from the cell's
     top by many sigmas, this is where (``python -m tools.bench.chance --calibrate``)."""
     upper = np.asarray(stats["upper"], np.float64)
-    near = maximum_filter(np.where(np.isfinite(upper), upper, -np.inf), size=3, mode="nearest")
+    near = ndimage.maximum_filter(np.where(np.isfinite(upper), upper, -np.inf), size=3, mode="nearest")
     with np.errstate(invalid="ignore"):
         return np.where(np.isfinite(top), np.maximum(near - top, 0.0), 0.0)
 
@@ -482,7 +484,7 @@ def chance_check(post: Posterior, geom: GridGeometry, poses: np.ndarray, body: V
             m = np.nanmean(finite, axis=0)
             spread = np.nanstd(finite, axis=0, ddof=1)
             z = np.where(spread > 0, m / spread, np.where(m > 0, np.inf, -np.inf))
-        tail = np.nan_to_num(ndtr(z), nan=0.0)
+        tail = np.nan_to_num(special.ndtr(z), nan=0.0)
         per_limit = np.maximum(over.mean(axis=0), tail)
         prob[rest] = per_limit
         zs[rest] = z
@@ -529,7 +531,7 @@ def _under_ray(post: Posterior, geom: GridGeometry, roof: np.ndarray, share: flo
     seen = np.isfinite(post.mean)
     floor = _lowest_top(post.mean, geom)
     near = 2 * max(1, int(round(HIDDEN_BACK / geom.cell))) + 1
-    top = maximum_filter(np.where(seen, post.mean, -np.inf), size=near, mode="nearest")
+    top = ndimage.maximum_filter(np.where(seen, post.mean, -np.inf), size=near, mode="nearest")
     with np.errstate(invalid="ignore"):
         depth = np.where(~seen & np.isfinite(roof) & np.isfinite(floor), np.maximum(roof - floor, 0.0), 0.0)
         # a rock seen within HIDDEN_BACK standing over the middle of that depth may go on under the ray
@@ -542,7 +544,7 @@ def _surface(mu: np.ndarray, sd: np.ndarray, shared: np.ndarray, common: np.ndar
     z, field, once = drawn
     # a cell only a ray bounds: its ground uniformly within ``depth`` under the ray (its own normal,
     # unused there, made uniform)
-    under = roof - depth * ndtr(-z) if np.ndim(depth) else roof
+    under = roof - depth * special.ndtr(-z) if np.ndim(depth) else roof
     return _under_roof(np.where(np.isfinite(mu), mu + sd * z + shared * field + common * once, under), shared,
                        roof).astype(np.float32)
 
@@ -604,7 +606,7 @@ def _field(seed: int, s: int, sigma: float) -> np.ndarray:
     smoothed by a Gaussian of ``sigma`` cells, wrapped round the tile so that it repeats without
     a seam, and scaled to unit variance (each cell's marginal is the posterior's ``shared``)."""
     noise = np.random.default_rng((seed, s, 1)).standard_normal((TILE, TILE))
-    field = gaussian_filter(noise, sigma, mode="wrap") if sigma > 0 else noise
+    field = ndimage.gaussian_filter(noise, sigma, mode="wrap") if sigma > 0 else noise
     field = (field / field.std()).astype(np.float32)
     field.setflags(write=False)
     return field

@@ -25,9 +25,12 @@ import math
 
 import cv2
 import numpy as np
-from scipy import ndimage
+
+from rvs_params.deferred import deferred
 
 from ..grid import Layers
+
+ndimage = deferred("scipy.ndimage")
 
 
 def fillable(defined: np.ndarray, radius_cells: float) -> np.ndarray:

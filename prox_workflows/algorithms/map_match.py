@@ -28,11 +28,13 @@ import time
 from dataclasses import dataclass
 
 import numpy as np
-from scipy import ndimage
 
+from rvs_params.deferred import deferred
 from rvs_params.hazard import UNDEFINED
 
 from ..grid import GridGeometry, Layers
+
+ndimage = deferred("scipy.ndimage")
 
 
 @dataclass(frozen=True)

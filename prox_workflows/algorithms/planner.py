@@ -22,14 +22,16 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
-from scipy import ndimage
 
+from rvs_params.deferred import deferred
 from rvs_params.hazard import HAZARDOUS
 
 from .astar import SQRT2, PlanningError, Search, astar_grid, warm_up
 from .plan_drawing import ortho_figure
 from .plan_maps import NavMaps, PlanningImage, blank_geometry, check_plan_size, planning_image
 from .plan_params import PlannerParams, PlanParams
+
+ndimage = deferred("scipy.ndimage")
 
 # what callers plan with, wherever it is declared
 __all__ = [

@@ -24,10 +24,13 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
-from scipy.ndimage import distance_transform_edt
+
+from rvs_params.deferred import deferred
 
 from .chance import prior_correlation
 from .vehicle import reach
+
+ndimage = deferred("scipy.ndimage")
 
 __all__ = ["RingPlane", "ring_plane", "set_down", "FLOOR", "MIN_CELLS"]
 
@@ -193,7 +196,7 @@ def conditioned(bounds: Any, ring: RingPlane, centre: tuple[float, float], radiu
     todo = ~known & (np.hypot(X - centre[0], Y - centre[1]) <= radius + g.cell)
     fill = np.zeros(window.shape)
     fill[todo] = _harmonic(off, known, todo)
-    dist = distance_transform_edt(~known, sampling=g.cell)
+    dist = ndimage.distance_transform_edt(~known, sampling=g.cell)
 
     def at(x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         col = np.clip(np.floor((np.asarray(x) - g.xmin) / g.cell).astype(np.int64) - c0, 0, c1 - c0 - 1)

@@ -29,7 +29,10 @@ from dataclasses import dataclass, field
 
 import cv2
 import numpy as np
-from scipy import ndimage
+
+from rvs_params.deferred import deferred
+
+ndimage = deferred("scipy.ndimage")
 
 
 @dataclass(frozen=True)

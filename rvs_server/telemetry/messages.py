@@ -47,10 +47,12 @@ from foxglove.messages import (
     Vector2,
     Vector3,
 )
-from scipy.spatial.transform import Rotation
 
 from prox_workflows.algorithms.transforms import HeadCalibration, make_T, rot_y, rot_z
 from prox_workflows.grid import GridGeometry
+from rvs_params.deferred import deferred
+
+transform = deferred("scipy.spatial.transform")
 
 WORLD = "world"
 SENSOR_FRAMES = {"left": "stereo_left", "right": "stereo_right"}  # mount name -> frame id (else the name)
@@ -95,7 +97,7 @@ def _vector(t: Any) -> Vector3:
 
 
 def _quaternion(R: np.ndarray) -> Quaternion:
-    x, y, z, w = Rotation.from_matrix(R).as_quat()
+    x, y, z, w = transform.Rotation.from_matrix(R).as_quat()
     return Quaternion(x=float(x), y=float(y), z=float(z), w=float(w))
 
 

@@ -23,12 +23,14 @@ from typing import Any
 import numpy as np
 from foxglove.messages import LogLevel
 from mcap_ros2._cdr import CdrWriter  # the generic encoder's own writer (the version is pinned: pyproject)
-from scipy.spatial.transform import Rotation
 
 from prox_workflows.grid import GridGeometry
+from rvs_params.deferred import deferred
 
 from . import messages as m
 from .ros2_msgs import encoder, type_name
+
+transform = deferred("scipy.spatial.transform")
 
 # ROS 2's Log levels (rcl_interfaces/msg/Log's constants) by Foxglove's level's value
 ROS_LEVEL = {level.value: ros for level, ros in ((LogLevel.Debug, 10), (LogLevel.Info, 20), (LogLevel.Warning, 30),
@@ -72,7 +74,7 @@ def _xyz(t: Any) -> dict[str, float]:
 
 
 def _quaternion(R: np.ndarray) -> dict[str, float]:
-    x, y, z, w = Rotation.from_matrix(R).as_quat()
+    x, y, z, w = transform.Rotation.from_matrix(R).as_quat()
     return {"x": float(x), "y": float(y), "z": float(z), "w": float(w)}
 
 
