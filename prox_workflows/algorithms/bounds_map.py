@@ -147,7 +147,7 @@ def contact_plane(heading: float, roll: float, pitch: float) -> tuple[float, flo
 # what a cell nothing has bounded holds, per layer (0 where not named)
 _FILLS = {"mean": np.nan, "mean_var": np.nan, "ceiling": np.inf}
 # the layers a frame's bounds are held in (moved by a fix with the cell's ``stamp``)
-_BOUND_LAYERS = ("mean", "mean_var", "rise", "drop", "relief", "shift", "along_var", "spread", "sensors")
+_BOUND_LAYERS = ("mean", "mean_var", "rise", "drop", "relief", "split", "shift", "along_var", "spread", "sensors")
 # every per-cell layer, with its fill (a window's recentring moves them all)
 _LAYERS = tuple((name, _FILLS.get(name, 0)) for name in (*_BOUND_LAYERS, "ceiling", "stamp", "lowered"))
 
@@ -262,6 +262,10 @@ class BoundsMap:
         # rise and drop take the union of both frames' intervals and also hold how far apart the
         # frames put the same ground, which is the frames' error, not the cell's relief
         self.relief = np.zeros(shape, np.float32)
+        # where frames disagreed: how far under the union's top the other frame's top stands (m),
+        # blended away as agreeing frames come: the top is one frame's story or the other's, and a
+        # wheel resting on the higher one lifts the plane over a belly (chance.ChanceParams.stories)
+        self.split = np.zeros(shape, np.float32)
         self.shift = np.zeros(shape, np.float32)  # how far (m) the cell's returns may lie from their ground
         # the fused mean's own horizontal error along the rays (m^2): one return's, averaged over the
         # returns and frames as the mean's height error is (a check weighing the slope's share of
@@ -560,6 +564,7 @@ class BoundsMap:
         self.rise.flat[wheels] = sag
         self.drop.flat[wheels] = sag
         self.relief.flat[wheels] = 2 * sag
+        self.split.flat[wheels] = 0.0
         self.shift.flat[wheels] = 0.0
         self.along_var.flat[wheels] = 0.0
         under = np.setdiff1d(np.unique(flat[inside & belly]), wheels)
@@ -602,6 +607,7 @@ class BoundsMap:
         self.rise[rows, cols] = 0.0
         self.drop[rows, cols] = 0.0
         self.relief[rows, cols] = 0.0
+        self.split[rows, cols] = 0.0
 
     def offset(self, points: np.ndarray, min_cells: int = 100, flat: float = 0.01) -> float | None:
         """How far (m) a frame's returns (global, N x 3), placed at the height its pose gives the
@@ -761,7 +767,7 @@ class BoundsMap:
         self.mean.flat[cells] = np.nan
         self.mean_var.flat[cells] = np.nan
         self.sensors.flat[cells] = 0
-        for layer in (self.rise, self.drop, self.relief, self.shift, self.along_var, *self.spread):
+        for layer in (self.rise, self.drop, self.relief, self.split, self.shift, self.along_var, *self.spread):
             layer.flat[cells] = 0.0
 
     def _agrees(self, cells: np.ndarray, mean: np.ndarray, var: np.ndarray, rise: np.ndarray, drop: np.ndarray
@@ -807,10 +813,15 @@ class BoundsMap:
         agree = self._agrees(cells, mean, var, rise, drop)
         before = self.relief.flat[cells].astype(np.float64)
         self.relief.flat[cells] = before + share * (rise + drop - before)
-        # disagreeing: the union of both intervals, around the fused mean
+        # disagreeing: the union of both intervals, around the fused mean, and how far apart the two
+        # stories' tops stand (agreeing, that fades as the rise does)
         with np.errstate(invalid="ignore"):
-            up = np.maximum(old + old_rise + k * np.sqrt(old_var), mean + rise + k * np.sqrt(var))
+            tops = (old + old_rise + k * np.sqrt(old_var), mean + rise + k * np.sqrt(var))
+            up = np.maximum(*tops)
             lo = np.minimum(old - old_drop - k * np.sqrt(old_var), mean - drop - k * np.sqrt(var))
+            apart = np.nan_to_num(np.abs(tops[0] - tops[1]), nan=0.0, posinf=0.0)
+        before = self.split.flat[cells].astype(np.float64)
+        self.split.flat[cells] = np.where(agree, before * (1.0 - share), apart)
         sd = np.sqrt(fused_var)
         self.mean.flat[cells] = fused
         self.mean_var.flat[cells] = fused_var
@@ -887,13 +898,14 @@ class BoundsMap:
                    ) -> tuple[dict[str, np.ndarray], GridGeometry]:
         """What the bounds are drawn from over a box (copies, clipped to the map), with its grid:
         ``mean``, ``mean_var`` (the fused mean's variance), ``rise``, ``drop``, ``relief`` (the
-        returns' rise plus drop within a frame, averaged: the part of the spread frames agree on), ``shift``,
+        returns' rise plus drop within a frame, averaged: the part of the spread frames agree on),
+        ``split`` (where frames disagreed, how far under the top the other frame's top stands), ``shift``,
         ``along_var`` (the fused mean's horizontal variance along the rays), ``ceiling`` and
         ``framed`` (a frame bounded it; else its mean is a prior's: the set-down's, the wheels'
         contacts) per cell. A check that weighs how likely the ground is rather than its extremes
         reads these (``chance.posterior``), and the bounds drawn from them (``lower``, ``upper``)."""
         sl, sub = self._box(xmin, ymin, xmax, ymax)
-        names = ("mean", "mean_var", "rise", "drop", "relief", "shift", "along_var", "ceiling")
+        names = ("mean", "mean_var", "rise", "drop", "relief", "split", "shift", "along_var", "ceiling")
         if sl is None:
             return {name: np.full((0, 0), np.nan, np.float32) for name in (*names, "lower", "upper")} | \
                 {"framed": np.zeros((0, 0), bool)}, sub

@@ -125,6 +125,7 @@ ROCK_WINDOW = 0.2  # m: the ground round a cell its rock stands on
 # m: a rock's back the mast cannot see goes on this far past its seen cells (dense draw 310: its
 # hidden 20 cm step under rays 2.5-3.5 cm from the seen top, open ground 5-7.5 cm from it)
 HIDDEN_BACK = 0.05
+STORY_SEED = 7919  # the stories' coins are drawn from the seed this far on: a stream of their own
 TILE = 256  # cells: the drawn errors repeat this far apart (6.4 m at 2.5 cm; a body reads less than 1 m)
 _MIN_ELEVATION = 0.05  # tan: a ray grazing flatter than this is taken at it (its horizontal error is bounded by shift)
 
@@ -221,6 +222,12 @@ class ChanceParams(Settings):
                                    "as well, hirise's belly misses rose 2 to 8 (docs/NAVIGATE_BENCH.md). Off: on fresh "
                                    "draws 310-323 it changes no false safe, and marsyard's missions 0-4 and hirise's "
                                    "0 run the same with it")
+    stories: bool = param(False, "where two frames disagreed on a cell (the map's split), each draw takes the "
+                                 "cell's ground as one frame's story or the other's, one story over a patch of "
+                                 "shared_length, for the wheel and the belly alike; off: the union's top, the higher story, on "
+                                 "which a wheel rests as high as either frame read it and lifts the plane over "
+                                 "the belly (dense_fresh 0's false safes: docs/NAVIGATE_BENCH.md, A disagreeing "
+                                 "cell under a wheel)")
 
 
 @dataclass(frozen=True)
@@ -241,6 +248,8 @@ class Posterior:
     common: np.ndarray | float = 0.0
     shared: np.ndarray | float = 0.0
     span: np.ndarray | None = None  # m: how far under its top the cell's ground may lie where a wheel rests
+    # m: where frames disagreed, how far under the top the other frame's story puts it (each draw one)
+    split: np.ndarray | None = None
 
     def best(self) -> np.ndarray:
         """The ground's best estimate: the top where a return bounds the cell, else the lowest ray
@@ -254,7 +263,7 @@ class Posterior:
         def cut(a: np.ndarray | float) -> np.ndarray | float:
             return a if np.ndim(a) == 0 else a[sl]
         return Posterior(self.mean[sl], self.var[sl], self.ceiling[sl], cut(self.common), cut(self.shared),
-                         None if self.span is None else self.span[sl])
+                         None if self.span is None else self.span[sl], None if self.split is None else self.split[sl])
 
 
 @dataclass
@@ -340,7 +349,9 @@ def posterior(stats: dict[str, np.ndarray], geom: GridGeometry, k: float, params
     return Posterior(np.where(seen, mu, np.nan), np.where(seen, var, np.nan), ceiling,
                      np.where(seen, np.hypot(p.edge_sigma * jump, rock_top_sigma(relief(top, geom), p)), 0.0),
                      np.where(prior, np.sqrt(np.maximum((1.0 - p.prior_own) * var0, 0.0)), 0.0),
-                     np.where(seen & ~prior, p.within * within, 0.0) if p.within > 0 else None)
+                     np.where(seen & ~prior, p.within * within, 0.0) if p.within > 0 else None,
+                     np.where(seen, np.asarray(stats["split"], np.float64), 0.0)
+                     if p.stories and "split" in stats else None)
 
 
 
@@ -432,7 +443,9 @@ def chance_check(post: Posterior, geom: GridGeometry, poses: np.ndarray, body: V
     span = None if post.span is None else np.where(seen, post.span, 0.0)
     ks = screen_k(body, step or geom.cell, p.epsilon)
     cell_sd = np.hypot(sd, shared) + common  # each cell's own and its neighbours' errors are one normal
-    lower = np.where(seen, mu - ks * cell_sd - (0.0 if span is None else span), np.nan).astype(np.float32)
+    split = None if post.split is None else np.where(seen, post.split, 0.0)
+    lower = np.where(seen, mu - ks * cell_sd - (0.0 if span is None else span) - (0.0 if split is None else split),
+                     np.nan).astype(np.float32)
     upper = _under_roof(np.where(seen, mu + ks * cell_sd, roof), shared, roof).astype(np.float32)
     wide = check_poses((lower, upper), geom, poses, body, step)
     nominal = _judge(best, seen, span, geom, poses, body, step, p.rest_tops)
@@ -464,7 +477,8 @@ def chance_check(post: Posterior, geom: GridGeometry, poses: np.ndarray, body: V
         for s in range(p.samples):
             if not live.any():
                 continue
-            surface = _surface(mu, sd, shared, common, roof, _draw(p.seed, s, geom, p.shared_length), depth)
+            surface = _surface(mu, sd, shared, common, roof, _draw(p.seed, s, geom, p.shared_length), depth,
+                               _story(split, p.seed, s, geom, p.shared_length))
             excess[s, live] = _judge(surface, seen, span, geom, poses[rest[live]], body, step, p.rest_tops).excess
             if early and s % EARLY == EARLY - 1:
                 # one draw over a limit in ``samples`` is a share of at least 1 / samples, above
@@ -540,8 +554,10 @@ def _under_ray(post: Posterior, geom: GridGeometry, roof: np.ndarray, share: flo
 
 
 def _surface(mu: np.ndarray, sd: np.ndarray, shared: np.ndarray, common: np.ndarray, roof: np.ndarray,
-             drawn: tuple[np.ndarray, np.ndarray, float], depth: np.ndarray | float = 0.0) -> np.ndarray:
+             drawn: tuple[np.ndarray, np.ndarray, float], depth: np.ndarray | float = 0.0,
+             story: np.ndarray | float = 0.0) -> np.ndarray:
     z, field, once = drawn
+    mu = mu - story
     # a cell only a ray bounds: its ground uniformly within ``depth`` under the ray (its own normal,
     # unused there, made uniform)
     under = roof - depth * special.ndtr(-z) if np.ndim(depth) else roof
@@ -563,8 +579,22 @@ def surfaces(post: Posterior, geom: GridGeometry, params: ChanceParams | None = 
     p = params or ChanceParams()
     sd, shared, common, roof = _spreads(post)
     depth = _under_ray(post, geom, roof, p.under_ray)
+    split = None if post.split is None else np.where(np.isfinite(post.mean), post.split, 0.0)
     for s in range(p.samples):
-        yield _surface(post.mean, sd, shared, common, roof, _draw(p.seed, s, geom, p.shared_length), depth)
+        yield _surface(post.mean, sd, shared, common, roof, _draw(p.seed, s, geom, p.shared_length), depth,
+                       _story(split, p.seed, s, geom, p.shared_length))
+
+
+def _story(split: np.ndarray | None, seed: int, s: int, geom: GridGeometry, length: float) -> np.ndarray | float:
+    """How far under its top draw ``s`` puts each cell's ground: its ``split`` where the draw says
+    the other frame's story, else 0. The coin is the sign of a field smoothed over ``length`` m
+    (:func:`_field`, keyed by the cell's place as :func:`_draw`'s errors are): one frame's story
+    holds over a patch, as a frame's error does, so a wheel's few cells take one story together
+    (a coin per cell would find a high one under every wheel) while the body's length may span
+    both."""
+    if split is None:
+        return 0.0
+    return np.where(_field(seed + STORY_SEED, s, _smoothing(length, geom.cell))[_on_tile(geom)] < 0.0, split, 0.0)
 
 
 def _draw(seed: int, s: int, geom: GridGeometry, length: float = 0.0) -> tuple[np.ndarray, np.ndarray, float]:
@@ -577,12 +607,15 @@ def _draw(seed: int, s: int, geom: GridGeometry, length: float = 0.0) -> tuple[n
     cells."""
     tile, once = _tile(seed, s)
     field = _field(seed, s, _smoothing(length, geom.cell))
+    at = _on_tile(geom)
+    return tile[at].astype(np.float64), field[at].astype(np.float64), once
+
+
+def _on_tile(geom: GridGeometry) -> tuple[np.ndarray, np.ndarray]:
+    """Where each cell of ``geom`` reads a tile: its row and column on the grid of cell multiples."""
     r0 = int(round(-geom.ymax / geom.cell))
     c0 = int(round(geom.xmin / geom.cell))
-    rows = (r0 + np.arange(geom.height)) % TILE
-    cols = (c0 + np.arange(geom.width)) % TILE
-    at = np.ix_(rows, cols)
-    return tile[at].astype(np.float64), field[at].astype(np.float64), once
+    return np.ix_((r0 + np.arange(geom.height)) % TILE, (c0 + np.arange(geom.width)) % TILE)
 
 
 def _smoothing(length: float, cell: float) -> float:

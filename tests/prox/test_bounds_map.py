@@ -227,6 +227,25 @@ def test_where_a_pair_and_the_tof_disagree_the_tofs_reading_stands() -> None:
             assert (m.upper[patch] > 0.12).all() and (m.sensors[patch] == 3).all()
 
 
+def test_where_frames_disagree_the_map_keeps_how_far_apart_their_stories_stand() -> None:
+    # a pair reads a patch 12 cm over the ground the ToF read flat: the union's top stands on the
+    # pair's story, and the split says the ToF's stands 12 cm under it; frames that agree since fade it
+    rng = np.random.default_rng(5)
+    patch = _cells(_map(), 1.5, 1.575, 0.0, 0.075)
+    flat = _cells(_map(), 1.05, 1.45, -0.45, -0.05)
+    m = _map()
+    m.fuse(_level(rng, 0.0, 0.004), 0.004)
+    m.fuse(np.vstack([_level(rng, 0.0, 0.0005), _patch(rng, 0.12)]), 0.002, sensor="stereo")
+    assert m.split[patch] == pytest.approx(0.12, abs=0.01) and m.split[flat].max() == 0.0
+    st, _ = m.statistics(1.0, -0.5, 2.0, 0.5)
+    assert st["split"].max() == pytest.approx(m.split[patch].max())
+    before = m.split[patch].copy()
+    for _ in range(3):
+        m.fuse(_level(rng, 0.0, 0.004), 0.004)
+    agreed = m.split[patch] < before
+    assert agreed.any() and (m.split[patch] <= before).all()
+
+
 def test_a_ray_over_a_cell_bounds_it_from_above_only_and_unseen_cells_have_no_bound() -> None:
     m = _map()
     ret = np.array([[2.0, -0.005, 0.0], [2.005, -0.01, 0.0]])  # two returns 2 m out; its ray passes over x 0..1.94, 0.5 m up at 1.17

@@ -717,3 +717,33 @@ def test_ground_under_a_ray_is_drawn_between_the_ground_round_it_and_the_ray() -
     rock = Posterior(mean, post.var, post.ceiling, span=post.span)
     drawn = np.array([s[r, c] for s in surfaces(rock, g, ChanceParams(samples=50, under_ray=1.0))])
     assert np.allclose(drawn, 0.12)
+
+
+def test_a_wheel_on_cells_two_frames_disagree_on_rests_on_either_frame_s_story() -> None:
+    # a rock 5 mm over the clearance under the belly's front, and the front wheels' cells where one
+    # frame read the ground 4 cm high and the other at 0 (the truth): the union's top lifts the
+    # front wheels and the belly clears the rock by 2.8 cm; each frame's story in turn (one story
+    # over a patch) puts a wheel down and the belly into the rock
+    g, X, Y = grid()
+    top = np.zeros(g.shape)
+    rock = (X > 0.05) & (X < 0.2) & (np.abs(Y) < 0.1)
+    top[rock] = BODY.clearance + 0.005
+    wheels = (X > 0.05) & (X < 0.3) & (np.abs(Y) > 0.18) & (np.abs(Y) < 0.32)
+    union = np.where(wheels, 0.04, top)
+    st = spread(union, np.zeros(g.shape, bool), 0.0)
+    st["relief"], st["split"] = np.zeros(g.shape), np.where(wheels, 0.04, 0.0)
+    belly = LIMITS.index("belly")
+    assert check_poses(top.astype(np.float32), g, AT_ORIGIN, BODY).excess[0, belly] == pytest.approx(0.005, abs=0.001)
+    kept = chance_check(posterior(st, g, 2.5, ChanceParams(within=1.0, **BARE)), g, AT_ORIGIN, BODY)
+    assert kept.safe.tolist() == [True] and kept.nominal.excess[0, belly] < -0.02  # the union: a false safe
+    post = posterior(st, g, 2.5, ChanceParams(within=1.0, stories=True, **BARE))
+    assert post.split[wheels] == pytest.approx(0.04) and post.split[~wheels].max() == 0.0
+    told = chance_check(post, g, AT_ORIGIN, BODY)
+    assert told.safe.tolist() == [False] and told.prob[0, belly] > 0.05
+    # without the rock, either story is safe ground: the stories refuse nothing the truth allows
+    st["mean"][rock] = 0.0
+    flat = chance_check(posterior(st, g, 2.5, ChanceParams(within=1.0, stories=True, **BARE)), g, AT_ORIGIN, BODY)
+    assert flat.safe.tolist() == [True]
+    # the draws a trace reads are the check's: some put the wheels' cells on the other story
+    drawn = np.array([s[wheels].mean() for s in surfaces(post, g, ChanceParams(within=1.0, stories=True, **BARE))])
+    assert (drawn < 0.02).any() and (drawn > 0.02).any()
