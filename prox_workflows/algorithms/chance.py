@@ -226,8 +226,10 @@ class ChanceParams(Settings):
                                  "cell's ground as one frame's story or the other's, one story over a patch of "
                                  "shared_length, for the wheel and the belly alike; off: the union's top, the higher story, on "
                                  "which a wheel rests as high as either frame read it and lifts the plane over "
-                                 "the belly (dense_fresh 0's false safes: docs/NAVIGATE_BENCH.md, A disagreeing "
-                                 "cell under a wheel)")
+                                 "the belly (dense_fresh 0's false safes). On dense_fresh 5: 5 false safes in "
+                                 "110,271 judged poses (the union 9 in 70,786), and a safe stop 8.1 m short where "
+                                 "the union reached its goal (docs/NAVIGATE_BENCH.md, A disagreeing cell: either "
+                                 "frame's story)")
 
 
 @dataclass(frozen=True)
