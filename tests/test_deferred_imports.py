@@ -4,6 +4,7 @@ once read."""
 
 from __future__ import annotations
 
+import json
 import subprocess
 import sys
 import threading
@@ -12,9 +13,9 @@ from rvs_params.deferred import deferred
 
 
 def _loaded(code: str) -> list[str]:
-    out = subprocess.run([sys.executable, "-c", code + "\nprint(sorted({m.split('.')[0] for m in sys.modules}))"],
-                         capture_output=True, text=True, timeout=120, check=True).stdout
-    return eval(out.strip().splitlines()[-1])  # noqa: S307 - our own child's printed list
+    out = subprocess.run([sys.executable, "-c", code + "\nimport json\nprint(json.dumps(sorted({m.split('.')[0] "
+                          "for m in sys.modules})))"], capture_output=True, text=True, timeout=120, check=True).stdout
+    return json.loads(out.strip().splitlines()[-1])
 
 
 def test_the_server_and_the_clis_start_without_scipy() -> None:
