@@ -339,8 +339,13 @@ def posterior(stats: dict[str, np.ndarray], geom: GridGeometry, k: float, params
     # plane's and the ground's off it, shared with the cells round it; the frames' averaged noise
     # is each cell's own
     prior = seen & ~np.asarray(stats.get("framed", seen), bool)
-    var = np.where(prior, p.prior_own, 1.0) * var0 + p.top_sigma**2 + (slope * along) ** 2
-    mu = top + p.edge_bias * jump
+    # a wheel's contact the standing body felt is known to its contact sigma: a frame's errors
+    # (a top no return met, a rock's edge and top read low) there tilt every draw's resting plane
+    # by up to a degree, which swung the belly through the ceilings the same body set
+    # (docs/NAVIGATE_BENCH.md, Dense starts that stop cold)
+    framelike = seen & ~np.asarray(stats.get("felt", np.zeros(mean.shape, bool)), bool)
+    var = np.where(prior, p.prior_own, 1.0) * var0 + np.where(framelike, p.top_sigma**2, 0.0) + (slope * along) ** 2
+    mu = np.where(framelike, top + p.edge_bias * jump, top)
     ceiling = np.asarray(stats.get("ceiling", np.full(mean.shape, np.inf)), np.float64)
     # a cell's relief as the frames see it: where frames disagree, rise and drop also hold how far
     # apart they put the same ground (the frames' height error, shared by a wheel and the belly
@@ -349,7 +354,7 @@ def posterior(stats: dict[str, np.ndarray], geom: GridGeometry, k: float, params
     within = np.asarray(stats["relief"], np.float64) if "relief" in stats else \
         np.asarray(stats["rise"], np.float64) + np.asarray(stats["drop"], np.float64)
     return Posterior(np.where(seen, mu, np.nan), np.where(seen, var, np.nan), ceiling,
-                     np.where(seen, np.hypot(p.edge_sigma * jump, rock_top_sigma(relief(top, geom), p)), 0.0),
+                     np.where(framelike, np.hypot(p.edge_sigma * jump, rock_top_sigma(relief(top, geom), p)), 0.0),
                      np.where(prior, np.sqrt(np.maximum((1.0 - p.prior_own) * var0, 0.0)), 0.0),
                      np.where(seen & ~prior, p.within * within, 0.0) if p.within > 0 else None,
                      np.where(seen, np.asarray(stats["split"], np.float64), 0.0)
@@ -501,6 +506,18 @@ def chance_check(post: Posterior, geom: GridGeometry, poses: np.ndarray, body: V
             spread = np.nanstd(finite, axis=0, ddof=1)
             z = np.where(spread > 0, m / spread, np.where(m > 0, np.inf, -np.inf))
         tail = np.nan_to_num(special.ndtr(z), nan=0.0)
+        # the belly's tail where no draw reached it and it alone may decide: ground held under a
+        # ceiling within the screen's sigmas cannot stand over it, which the normal fitted to the
+        # draws does not know
+        with np.errstate(invalid="ignore"):
+            held = (shared > 0) & (roof < mu + ks * cell_sd)
+        rest_tail = tail.sum(axis=1) - tail[:, 1]
+        ask = ~over.any(axis=(0, 2)) & (tail.sum(axis=1) > p.epsilon) & (rest_tail <= p.epsilon) & ~cut[rest]
+        if held.any() and ask.any():
+            capped = _ceiling_z(mu, sd, shared, common, roof, depth, split, held, span, geom, poses[rest[ask]], body,
+                                step, p)
+            z[ask, 1] = np.fmin(z[ask, 1], capped)
+            tail[ask, 1] = np.nan_to_num(special.ndtr(z[ask, 1]), nan=0.0)
         per_limit = np.maximum(over.mean(axis=0), tail)
         prob[rest] = per_limit
         zs[rest] = z
@@ -509,6 +526,34 @@ def chance_check(post: Posterior, geom: GridGeometry, poses: np.ndarray, body: V
         prob[cut], p_any[cut], unknown[cut] = np.nan, np.nan, True
     return ChanceChecks(prob=prob, p_any=p_any, unknown=unknown, screened=screened, nominal=nominal,
                         epsilon=p.epsilon, z=zs)
+
+
+def _ceiling_z(mu: np.ndarray, sd: np.ndarray, shared: np.ndarray, common: np.ndarray, roof: np.ndarray,
+               depth: np.ndarray | float, split: np.ndarray | None, held: np.ndarray, span: np.ndarray | None,
+               geom: GridGeometry, poses: np.ndarray, body: VehicleBody, step: float | None,
+               p: ChanceParams) -> np.ndarray:
+    """The belly's z at ``poses`` over the very draws :func:`chance_check` judged, with the cells
+    ``held`` under a ceiling raised to it and the wheels resting where the draw put them: an upper
+    bound on each draw's intrusion, and so on its probability. A prior's draws stop at the ceiling
+    (the belly the rover stood over that ground with, or a ray), but the normal fitted to the
+    intrusion they give runs on past it: at dense_fresh 0's start it refused the rover's own pose,
+    P 2.1e-3 with no draw of 64 nearer than 1.3 cm, where the truth allowed the whole turn
+    (docs/NAVIGATE_BENCH.md, Dense starts that stop cold). The bound's own spread is the wheels'."""
+    seen = np.isfinite(mu)
+    excess = np.empty((p.samples, len(poses)))
+    for s in range(p.samples):
+        surface = _surface(mu, sd, shared, common, roof, _draw(p.seed, s, geom, p.shared_length), depth,
+                           _story(split, p.seed, s, geom, p.shared_length))
+        high = np.where(held, roof, surface).astype(np.float32)
+        low = surface if span is None else np.where(seen, surface - span, np.nan).astype(np.float32)
+        excess[s] = check_poses((low, high), geom, poses, body, step or geom.cell, cellwise=False, rest_low=True,
+                                rest_tops=p.rest_tops).excess[:, 1]
+    excess = np.where(np.isfinite(excess), excess, np.nan)
+    with np.errstate(invalid="ignore", divide="ignore"), warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        m = np.nanmean(excess, axis=0)
+        spread = np.nanstd(excess, axis=0, ddof=1)
+        return np.where(spread > 0, m / spread, np.where(m > 0, np.inf, -np.inf))
 
 
 def _judge(top: np.ndarray, seen: np.ndarray, span: np.ndarray | None, geom: GridGeometry, poses: np.ndarray,
