@@ -66,7 +66,11 @@ and each is judged by :func:`vehicle.check_poses`, the one definition of the lim
 the limit and a normal tail from their mean and spread, whichever is higher (``samples`` draws
 alone cannot show a probability below about 1 / samples; the tail reaches epsilon, and it is
 measured against the truth by the pose-level statistics). P(any) is the share of samples over
-any limit or the sum of the four tails (the union bound), whichever is higher.
+any limit or the sum of the four tails (the union bound), whichever is higher. A prior's draws
+stop at its ceiling (the belly the rover stood over that ground with, or a ray), and the normal
+fitted to the belly's intrusion does not: where the belly's tail alone decides, it is also fitted
+to the same draws with those cells at their ceilings, an upper bound on each draw's intrusion
+whose spread is the wheels', and the lower of the two counts (:func:`_ceiling_z`).
 
 **Where a wheel rests** (``ChanceParams.within``): a cell's top is
 its highest ground, the right ground for the belly and the wrong one for a wheel whose footprint's

@@ -67,6 +67,7 @@ def _start(server_factory: Any, monkeypatch: pytest.MonkeyPatch, *settings: str)
     return seen
 
 
+@long_test  # a whole start with both pairs (15 s of CPU, the default run's heaviest test): CI's long suite
 @pytest.mark.timeout(900)  # the start renders some 40 ToF and 20 hazcam frames: minutes on a loaded machine
 def test_the_simulated_rover_s_start_turn_shows_its_pairs_the_ring_round_the_body(server_factory, monkeypatch) -> None:
     """The simulated rover carries both pairs (config/drivers.yaml), looking ahead and behind, 90
