@@ -13,8 +13,9 @@ from .errors import ScriptError, WorkflowError
 SCRIPTS_DIR = Path(__file__).resolve().parents[1] / "scripts"
 
 
-class _LineLoader(yaml.SafeLoader):
-    """Keeps the line of every mapping, so validation can say where a mistake is."""
+class _LineLoader(getattr(yaml, "CSafeLoader", yaml.SafeLoader)):  # type: ignore[misc]
+    """Keeps the line of every mapping, so validation can say where a mistake is. On libyaml where
+    PyYAML has it: every server and CLI start loads the scripts, 8x faster so."""
 
 
 def _construct_mapping(loader: _LineLoader, node: yaml.MappingNode) -> dict[str, Any]:
