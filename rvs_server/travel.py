@@ -1,10 +1,12 @@
 """Where the rover has been, where it was last sent and the last move checked: the driven track,
 the last navigate's goal and the last check-move's answer, kept by the server whoever watches (the
 console's map and Foxglove's ``/nav/track`` and ``/nav/check_move`` read them), so a page opened
-after a drive shows the whole of it."""
+after a drive shows the whole of it; and the ground the last navigate's map held round where the
+rover stands, for the next navigate from there."""
 
 from __future__ import annotations
 
+import math
 import threading
 from collections import deque
 from collections.abc import Callable
@@ -13,6 +15,9 @@ from typing import Any
 
 TRACK_POINTS = 5000  # positions kept: at TRACK_STEP apart, 100 m of driving
 TRACK_STEP = 0.02  # m the rover moves (x + y) before the track gets a point
+# where a navigate starts this near the pose the last one left the rover at, it takes that one's map
+STILL_XY = 0.05  # m
+STILL_HEADING = 2.0  # deg
 
 
 @dataclass(frozen=True)
@@ -21,6 +26,20 @@ class Goal:
     y: float
     tolerance: float
     job: int  # the navigate that was sent there
+
+
+@dataclass(frozen=True)
+class KeptGround:
+    """A navigate's bounds map as it ended, the pose the rover stood at then, and the settings the
+    map was made with (``key``: a map made otherwise is not the one the next navigate would make)."""
+    bounds: Any  # prox_workflows.algorithms.bounds_map.BoundsMap
+    pose: tuple[float, float, float]
+    key: Any
+
+    def still(self, pose: tuple[float, float, float]) -> bool:
+        """Whether a rover at ``pose`` still stands where this map was left."""
+        turned = abs((pose[2] - self.pose[2] + 180.0) % 360.0 - 180.0)
+        return math.hypot(pose[0] - self.pose[0], pose[1] - self.pose[1]) <= STILL_XY and turned <= STILL_HEADING
 
 
 @dataclass(frozen=True)
@@ -45,6 +64,7 @@ class Travel:
         self._goal: Goal | None = None
         self._check: CheckedMove | None = None
         self._version = 0  # counts track points added: a reader tells a new track from the one it has
+        self._ground: KeptGround | None = None
 
     def moved(self, x: float, y: float, ground: Callable[[float, float], float]) -> None:
         """The rover is at (x, y): a point once it is TRACK_STEP from the last, at the height
@@ -80,3 +100,23 @@ class Travel:
 
     def checked(self, move: CheckedMove) -> None:
         self._check = move
+
+    def leave(self, ground: KeptGround) -> None:
+        """A navigate ended with the rover at ``ground.pose``: what its map holds round the rover
+        (the ground it saw on the way there, the wheels' contacts it felt) is the next one's start."""
+        with self._lock:
+            self._ground = ground
+
+    def take(self, pose: tuple[float, float, float], key: Any) -> Any:
+        """The bounds map the last navigate left, for a navigate starting at ``pose`` with the
+        settings ``key``; None where the rover has moved since (a GNC's drive, ``-start``
+        elsewhere, ``sim move-rover``) or the settings changed: that navigate starts on a fresh map
+        and the set-down. A map is taken once: two jobs never share one."""
+        with self._lock:
+            ground, self._ground = self._ground, None
+        return ground.bounds if ground is not None and ground.key == key and ground.still(pose) else None
+
+    def forget(self) -> None:
+        """The rover was carried off (``sim move-rover``, another scene): no map holds its ground."""
+        with self._lock:
+            self._ground = None

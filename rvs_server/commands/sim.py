@@ -117,6 +117,7 @@ def sim(ctx: Context, cfg: None) -> Any:
     if verb == "move-rover":
         assert isinstance(opts, SimMoveRoverConfig)
         world.move_rover(opts.dx, opts.dy, opts.dyaw)
+        app.travel.forget()  # carried off: no navigate's map holds the ground it stands on now
         return _truth(world)
     if verb == "drive":
         assert isinstance(opts, SimDriveConfig)
@@ -151,6 +152,7 @@ def sim(ctx: Context, cfg: None) -> Any:
         except (OSError, KeyError, ValueError, TypeError) as exc:
             raise ProtocolError("E_ARG", f"{exc}; give a name from config/scenes/ or the path of a scene "
                                          ".yaml file") from None
+        app.travel.forget()
         return {"scene": world.scene_name, **_truth(world)}
     assert isinstance(opts, SimFaultConfig)
     kind = None if opts.kind == "none" else opts.kind

@@ -157,6 +157,12 @@ class Mission:
 
     # -- the legs ----------------------------------------------------------------------------
     def run(self) -> dict[str, Any]:
+        try:
+            return self._legs()
+        finally:
+            self.strategy.leave()
+
+    def _legs(self) -> dict[str, Any]:
         app, cfg, goal, strategy = self.app, self.cfg, self.goal, self.strategy
         self.track.add((app.pose.x, app.pose.y, app.pose.heading))
         for _ in range(strategy.max_plans):

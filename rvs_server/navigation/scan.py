@@ -132,5 +132,8 @@ class ScanStrategy:
             progress(segments, segments, f"rover {'arrived' if there else 'stopped'} at ({stopped[0]:.2f}, "
                                          f"{stopped[1]:.2f})", "drive")
 
+    def leave(self) -> None:
+        """Nothing is kept: each leg is planned on its own scans."""
+
     def fields(self) -> dict[str, Any]:
         return {"scans": self.mission.scans}

@@ -318,6 +318,9 @@ class Chooser:
         if d.set_down_pending:
             m = self.s.set_down_on_ring()
             self.s.mission.progress(leg, 1, 1, f"set down on {m}", "plan")
+        elif self.s.kept and not self.started:
+            self.s.mission.progress(leg, 1, 1, f"the ground round the rover as the last navigate left it "
+                                               f"({d.bounds.frames} frames), no set-down", "plan")
         if not self.started:  # after the set-down: its prior is what the turn is judged on
             self.started = True
             self._start_turn(leg)

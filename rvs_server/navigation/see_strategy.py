@@ -25,6 +25,7 @@ from prox_workflows.algorithms.set_down import set_down
 from prox_workflows.algorithms.transforms import HeadCalibration
 
 from ..maps import ground_height
+from ..travel import KeptGround
 from .loop_stats import LoopStats
 from .map_legs import MapLegs
 from .sections import GUIDE_CELL, Chooser, window_half
@@ -63,14 +64,27 @@ class SeeStrategy:
         self.cover = [(self.app.pose.x, self.app.pose.y), mission.goal]
         memory = MapMemory.covering(self.cover, self.p.memory, RollingParams().cell) if self.p.memory > 0 else None
         bounds = None
+        # the settings a bounds map is made with: the next navigate takes this one's map only if
+        # it would make it alike (and not where map fixes move its frames: the fixes' count is this job's)
+        self.ground_key: tuple[Any, ...] | None = None
+        self.kept = False  # the bounds map is the one the last navigate left where the rover stands
         if self.p.gate == "bounds" or self.scan_loop:
             head = HeadCalibration.from_dict(self.app.config.get("head").as_dict())
             half = window_half(self.p, mission.rover.body(), head)
-            bounds = BoundsMap.around(self.cover[0], half, GUIDE_CELL, self.p.bounds)
+            if not self.localiser.active:
+                self.ground_key = (self.p.bounds, half, self.p.set_down)
+                pose = self.app.pose
+                bounds = self.app.travel.take((pose.x, pose.y, pose.heading), self.ground_key)
+                self.kept = bounds is not None
+            if bounds is None:
+                bounds = BoundsMap.around(self.cover[0], half, GUIDE_CELL, self.p.bounds)
         self.driver = SeeingDriver(self.job, mission.rover, self.p, self.stats, memory, bounds)
-        if bounds is not None and self.p.set_down == "ring":
+        # a kept map needs no set-down: the ground round the rover is what the last navigate's
+        # frames saw and its wheels felt
+        fresh = bounds is not None and not self.kept
+        if fresh and self.p.set_down == "ring":
             self.driver.set_down_pending = True  # (Chooser.drive_on: after the first look round)
-        elif bounds is not None:
+        elif fresh:
             # the rover was set down here: the ground round the mast's foot, which no tilt shows,
             # and the disc its body turns in are taken as clear, within 1 cm of level or (see_set_down
             # attitude) of the plane the rover's attitude says it stands on: the one place the chooser
@@ -196,6 +210,15 @@ class SeeStrategy:
             return False
         self.reapproached = left > self.cfg.tolerance / 2
         return self.reapproached
+
+    def leave(self) -> None:
+        """The mission ended, however: its bounds map, where the rover stands now, is the next
+        navigate's start (a GNC sends goal after goal; from a fresh map and the set-down's prior
+        each would judge again the ground under and round the rover that this one saw)."""
+        bounds = self.driver.bounds
+        if bounds is not None and self.ground_key is not None:
+            pose = self.app.pose
+            self.app.travel.leave(KeptGround(bounds, (pose.x, pose.y, pose.heading), self.ground_key))
 
     def fields(self) -> dict[str, Any]:
         """The OK line's keys of the see loop."""

@@ -20,5 +20,8 @@ class Strategy(Protocol):
     def scanned(self, leg: int, local: Any) -> None:
         """A 360-degree scan made the maps ``local`` (NavMaps of the scans so far) for leg ``leg``."""
 
+    def leave(self) -> None:
+        """The mission ended (reached, stopped, broken): what the strategy keeps for the next."""
+
     def fields(self) -> dict[str, Any]:
         """The strategy's keys of navigate's OK line."""

@@ -356,3 +356,28 @@ def test_the_scan_loop_on_the_chooser_scans_every_stretch_and_drives_by_the_vehi
     events, checked = _events(srv, world, "stop", (-1.0, -1.5, 3.5, 1.5))
     assert checked > 50
     assert events == [], [e.describe() for e in events]
+
+
+@long_test  # three short navigates on the quarry: CI's long suite; the keeping rules run by default (tests/server/test_travel.py)
+def test_a_navigate_from_where_the_last_one_left_the_rover_starts_on_its_map(server_factory) -> None:
+    """A GNC sends goal after goal. The second navigate starts where the first ended and takes its
+    bounds map (no set-down: the ground round the rover is what the first one's frames saw and its
+    wheels felt); the rover carried off (sim move-rover), the third is set down again."""
+    srv = server_factory(["server.scene=quarry"])
+    srv.app.world.set_target_visible(False)
+    c = srv.client()
+
+    def navigate(line: str) -> list:
+        lines = c.until_final(job=c.start_job(line), timeout=900)
+        assert lines[-1].status == "OK" and lines[-1].fields["reached"] == "true", lines[-1].fields
+        return [r.fields.get("message", "") for r in lines if r.status == "PROGRESS"]
+
+    first = navigate("navigate -start 0,0,0 -goal 1.0,0 -auto -loop see -name a")
+    assert any(m.startswith("set down on") for m in first)
+    second = navigate("navigate -goal 2.0,0 -auto -loop see -name b")
+    assert not any(m.startswith("set down on") for m in second)
+    kept = [m for m in second if m.startswith("the ground round the rover as the last navigate left it")]
+    assert len(kept) == 1 and int(kept[0].split("(")[1].split()[0]) > 0, second
+    assert c.request("sim move-rover -dx 0.3").status == "OK"
+    third = navigate("navigate -goal 3.3,0 -auto -loop see -name c")
+    assert any(m.startswith("set down on") for m in third)
