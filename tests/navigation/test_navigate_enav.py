@@ -358,7 +358,7 @@ def test_the_scan_loop_on_the_chooser_scans_every_stretch_and_drives_by_the_vehi
     assert events == [], [e.describe() for e in events]
 
 
-@long_test  # three short navigates on the quarry: CI's long suite; the keeping rules run by default (tests/server/test_travel.py)
+@long_test  # three short navigates on the quarry: CI's long suite; the keeping rules run by default (tests/server/test_kept_ground.py)
 def test_a_navigate_from_where_the_last_one_left_the_rover_starts_on_its_map(server_factory) -> None:
     """A GNC sends goal after goal. The second navigate starts where the first ended and takes its
     bounds map (no set-down: the ground round the rover is what the first one's frames saw and its
