@@ -319,12 +319,12 @@ class SeeingDriver:
 
     def attitude(self) -> tuple[float, float, float] | None:
         """The IMU's attitude (:meth:`imu`) for the ground under the wheels while driving, or None
-        (``see_set_down level``: the wheels' ground is then the frames' and, where none, level
-        within 5 mm of the datum). With ring, each heading of the start's turn leaves the wheels'
-        contacts felt and the belly's ceiling on the plane the rover stood on there: on a level
-        plane the ceiling stood 3.7 cm off the belly at each end of a body on dense_fresh 0's
-        7 deg start."""
-        return self.imu() if self.p.set_down in ("attitude", "ring") else None
+        (``see_set_down`` other than attitude: the wheels' ground is then the frames' and, where
+        none, level within 5 mm of the datum). Not with ring: the plane goes through the datum,
+        the frames' ground at the rover's centre, which is not where its wheels rest; felt so
+        while driving, the wheels' cells stood 3-4 cm off the frames' cells beside them and tilted
+        the resting plane 3.4 deg over the truth's at hirise_fresh 3 (docs/NAVIGATE_BENCH.md)."""
+        return self.imu() if self.p.set_down == "attitude" else None
 
     def _check_layer(self, pose: tuple[float, float, float]) -> np.ndarray:
         """The traversability the check sweeps: the rolling map's, lowered to 0 where the maps the
