@@ -906,8 +906,9 @@ class BoundsMap:
         ``split`` (where frames disagreed, how far under the top the other frame's top stands), ``shift``,
         ``along_var`` (the fused mean's horizontal variance along the rays), ``ceiling``,
         ``framed`` (a frame bounded it; else its mean is a prior's: the set-down's, the wheels'
-        contacts) and ``felt`` (a standing wheel rested on it and no frame bounded it) per cell. A check that weighs how likely the ground is rather than its extremes
-        reads these (``chance.posterior``), and the bounds drawn from them (``lower``, ``upper``)."""
+        contacts) and ``felt`` (a standing wheel rested on it and no frame bounded it) per cell.
+        A check that weighs how likely the ground is rather than its extremes reads these
+        (``chance.posterior``), and the bounds drawn from them (``lower``, ``upper``)."""
         sl, sub = self._box(xmin, ymin, xmax, ymax)
         names = ("mean", "mean_var", "rise", "drop", "relief", "split", "shift", "along_var", "ceiling")
         if sl is None:

@@ -346,7 +346,7 @@ def posterior(stats: dict[str, np.ndarray], geom: GridGeometry, k: float, params
     # a wheel's contact the standing body felt is known to its contact sigma: a frame's errors
     # (a top no return met, a rock's edge and top read low) there tilt every draw's resting plane
     # by up to a degree, which swung the belly through the ceilings the same body set
-    # (docs/NAVIGATE_BENCH.md, Dense starts that stop cold)
+    # (docs/NAVIGATE_BENCH.md, The belly's tail under the ceiling the rover stood under)
     framelike = seen & ~np.asarray(stats.get("felt", np.zeros(mean.shape, bool)), bool)
     var = np.where(prior, p.prior_own, 1.0) * var0 + np.where(framelike, p.top_sigma**2, 0.0) + (slope * along) ** 2
     mu = np.where(framelike, top + p.edge_bias * jump, top)
