@@ -149,7 +149,7 @@ _FILLS = {"mean": np.nan, "mean_var": np.nan, "ceiling": np.inf}
 # the layers a frame's bounds are held in (moved by a fix with the cell's ``stamp``)
 _BOUND_LAYERS = ("mean", "mean_var", "rise", "drop", "relief", "split", "shift", "along_var", "spread", "sensors")
 # every per-cell layer, with its fill (a window's recentring moves them all)
-_LAYERS = tuple((name, _FILLS.get(name, 0)) for name in (*_BOUND_LAYERS, "ceiling", "stamp", "lowered", "felt"))
+_LAYERS = tuple((name, _FILLS.get(name, 0)) for name in (*_BOUND_LAYERS, "ceiling", "stamp", "lowered"))
 
 ANGLE_BINS = 24  # bearings of a spread's ellipse, 7.5 deg apart: at 4 cells its end is off by at most 0.26 cell
 _KERNELS: dict[int, np.ndarray] = {}
@@ -278,9 +278,6 @@ class BoundsMap:
         self.stamp = np.zeros(shape, np.int32)  # the frame (1, 2, ...) that last touched the cell
         self.lowered = np.zeros(shape, np.int32)  # the frame that last lowered the cell's ceiling
         self.sensors = np.zeros(shape, np.uint8)  # bit i: a frame of SENSORS[i] bounded the cell
-        # ground a standing wheel rested on (:meth:`stood`): known from the body's pose and attitude,
-        # so none of a frame's errors (a top no return met, a rock's edge or top read low) apply
-        self.felt = np.zeros(shape, bool)
         self.frames = 0
         # a window's grid moves in whole multiples of this many cells (:meth:`follow`): its
         # origin stays on the coarse grid the chooser's guidance is kept on
@@ -570,7 +567,6 @@ class BoundsMap:
         self.split.flat[wheels] = 0.0
         self.shift.flat[wheels] = 0.0
         self.along_var.flat[wheels] = 0.0
-        self.felt.flat[wheels] = True
         under = np.setdiff1d(np.unique(flat[inside & belly]), wheels)
         under = under[self.stamp.flat[under] == 0]
         ux = g.xmin + (under % g.width + 0.5) * g.cell
@@ -904,19 +900,17 @@ class BoundsMap:
         ``mean``, ``mean_var`` (the fused mean's variance), ``rise``, ``drop``, ``relief`` (the
         returns' rise plus drop within a frame, averaged: the part of the spread frames agree on),
         ``split`` (where frames disagreed, how far under the top the other frame's top stands), ``shift``,
-        ``along_var`` (the fused mean's horizontal variance along the rays), ``ceiling``,
+        ``along_var`` (the fused mean's horizontal variance along the rays), ``ceiling`` and
         ``framed`` (a frame bounded it; else its mean is a prior's: the set-down's, the wheels'
-        contacts) and ``felt`` (a standing wheel rested on it and no frame bounded it) per cell.
-        A check that weighs how likely the ground is rather than its extremes reads these
-        (``chance.posterior``), and the bounds drawn from them (``lower``, ``upper``)."""
+        contacts) per cell. A check that weighs how likely the ground is rather than its extremes
+        reads these (``chance.posterior``), and the bounds drawn from them (``lower``, ``upper``)."""
         sl, sub = self._box(xmin, ymin, xmax, ymax)
         names = ("mean", "mean_var", "rise", "drop", "relief", "split", "shift", "along_var", "ceiling")
         if sl is None:
             return {name: np.full((0, 0), np.nan, np.float32) for name in (*names, "lower", "upper")} | \
-                {"framed": np.zeros((0, 0), bool), "felt": np.zeros((0, 0), bool)}, sub
+                {"framed": np.zeros((0, 0), bool)}, sub
         out = {name: getattr(self, name)[sl].copy() for name in names}
         out["framed"] = self.stamp[sl] > 0
-        out["felt"] = self.felt[sl] & ~out["framed"]
         out["lower"], out["upper"] = self.bounds(sl)
         return out, sub
 

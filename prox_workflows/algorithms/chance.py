@@ -343,13 +343,8 @@ def posterior(stats: dict[str, np.ndarray], geom: GridGeometry, k: float, params
     # plane's and the ground's off it, shared with the cells round it; the frames' averaged noise
     # is each cell's own
     prior = seen & ~np.asarray(stats.get("framed", seen), bool)
-    # a wheel's contact the standing body felt is known to its contact sigma: a frame's errors
-    # (a top no return met, a rock's edge and top read low) there tilt every draw's resting plane
-    # by up to a degree, which swung the belly through the ceilings the same body set
-    # (docs/NAVIGATE_BENCH.md, The belly's tail under the ceiling the rover stood under)
-    framelike = seen & ~np.asarray(stats.get("felt", np.zeros(mean.shape, bool)), bool)
-    var = np.where(prior, p.prior_own, 1.0) * var0 + np.where(framelike, p.top_sigma**2, 0.0) + (slope * along) ** 2
-    mu = np.where(framelike, top + p.edge_bias * jump, top)
+    var = np.where(prior, p.prior_own, 1.0) * var0 + p.top_sigma**2 + (slope * along) ** 2
+    mu = top + p.edge_bias * jump
     ceiling = np.asarray(stats.get("ceiling", np.full(mean.shape, np.inf)), np.float64)
     # a cell's relief as the frames see it: where frames disagree, rise and drop also hold how far
     # apart they put the same ground (the frames' height error, shared by a wheel and the belly
@@ -358,7 +353,7 @@ def posterior(stats: dict[str, np.ndarray], geom: GridGeometry, k: float, params
     within = np.asarray(stats["relief"], np.float64) if "relief" in stats else \
         np.asarray(stats["rise"], np.float64) + np.asarray(stats["drop"], np.float64)
     return Posterior(np.where(seen, mu, np.nan), np.where(seen, var, np.nan), ceiling,
-                     np.where(framelike, np.hypot(p.edge_sigma * jump, rock_top_sigma(relief(top, geom), p)), 0.0),
+                     np.where(seen, np.hypot(p.edge_sigma * jump, rock_top_sigma(relief(top, geom), p)), 0.0),
                      np.where(prior, np.sqrt(np.maximum((1.0 - p.prior_own) * var0, 0.0)), 0.0),
                      np.where(seen & ~prior, p.within * within, 0.0) if p.within > 0 else None,
                      np.where(seen, np.asarray(stats["split"], np.float64), 0.0)
