@@ -498,12 +498,7 @@ def chance_check(post: Posterior, geom: GridGeometry, poses: np.ndarray, body: V
                     live &= ~past
         excess = np.nan_to_num(excess, nan=-np.inf)  # no resting plane judged: nothing to exceed
         over = excess > 0
-        finite = np.where(np.isfinite(excess), excess, np.nan)
-        with np.errstate(invalid="ignore", divide="ignore"), warnings.catch_warnings():
-            warnings.simplefilter("ignore", RuntimeWarning)  # a limit with no finite sample: no tail
-            m = np.nanmean(finite, axis=0)
-            spread = np.nanstd(finite, axis=0, ddof=1)
-            z = np.where(spread > 0, m / spread, np.where(m > 0, np.inf, -np.inf))
+        z = _fit_z(excess)
         tail = np.nan_to_num(special.ndtr(z), nan=0.0)
         # the belly's tail where no draw reached it and it alone may decide: ground held under a
         # ceiling within the screen's sigmas cannot stand over it, which the normal fitted to the
@@ -547,11 +542,17 @@ def _ceiling_z(mu: np.ndarray, sd: np.ndarray, shared: np.ndarray, common: np.nd
         low = surface if span is None else np.where(seen, surface - span, np.nan).astype(np.float32)
         excess[s] = check_poses((low, high), geom, poses, body, step or geom.cell, cellwise=False, rest_low=True,
                                 rest_tops=p.rest_tops).excess[:, 1]
-    excess = np.where(np.isfinite(excess), excess, np.nan)
+    return _fit_z(excess)
+
+
+def _fit_z(excess: np.ndarray) -> np.ndarray:
+    """The draws' mean excess over their spread (axis 0: the draws), from the finite draws; where
+    none is finite, NaN: a limit with no finite sample has no tail."""
+    finite = np.where(np.isfinite(excess), excess, np.nan)
     with np.errstate(invalid="ignore", divide="ignore"), warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)
-        m = np.nanmean(excess, axis=0)
-        spread = np.nanstd(excess, axis=0, ddof=1)
+        m = np.nanmean(finite, axis=0)
+        spread = np.nanstd(finite, axis=0, ddof=1)
         return np.where(spread > 0, m / spread, np.where(m > 0, np.inf, -np.inf))
 
 
