@@ -17,15 +17,13 @@ from prox_workflows.grid import GridGeometry
 
 
 def polyline_distance(points: np.ndarray, line: np.ndarray) -> np.ndarray:
-    """Distance of each point to a polyline."""
-    best = np.full(len(points), np.inf)
-    for a, b in zip(line[:-1], line[1:], strict=True):
-        ab = b - a
-        t = np.clip(((points - a) @ ab) / max(float(ab @ ab), 1e-300), 0, 1)
-        best = np.minimum(best, np.hypot(*(points - (a + t[:, None] * ab)).T))
+    """Distance of each point to a polyline (every point against every leg at once)."""
     if len(line) == 1:
-        best = np.hypot(*(points - line[0]).T)
-    return best
+        return np.hypot(*(points - line[0]).T)
+    a, ab = line[:-1], np.diff(line, axis=0)  # (M, 2) legs
+    rel = points[:, None, :] - a[None]  # (N, M, 2)
+    t = np.clip(np.einsum("nmk,mk->nm", rel, ab) / np.maximum(np.einsum("mk,mk->m", ab, ab), 1e-300), 0, 1)
+    return np.hypot(*np.moveaxis(rel - t[..., None] * ab[None], -1, 0)).min(axis=1)
 
 
 def densify(line: np.ndarray, step: float) -> np.ndarray:
@@ -75,7 +73,8 @@ def test_simplified_polyline_stays_within_deviation_of_random_walks() -> None:
         poly = path[keep]
         assert keep[0] == 0 and keep[-1] == len(path) - 1
         assert polyline_distance(path, poly).max() <= dev + 1e-9  # every A* point near a leg
-        assert polyline_distance(densify(poly, 0.005), densify(path, 0.005)).max() <= dev + 0.005
+        # the path's legs as they are: densified, they are the same polyline
+        assert polyline_distance(densify(poly, 0.005), path).max() <= dev + 0.005
 
 
 def test_simplification_never_crosses_a_hazard() -> None:
@@ -102,10 +101,9 @@ def test_segment_cells_are_exact() -> None:
     for _ in range(200):
         a, b = rng.uniform(-0.99, 0.99, (2, 2))
         rows, cols = segment_cells(a, b, geom)
-        exact = set(zip(rows.tolist(), cols.tolist(), strict=True))
         t = np.linspace(0, 1, 100001)
         r, c = geom.cell_of(a[0] + t * (b[0] - a[0]), a[1] + t * (b[1] - a[1]))
-        assert exact == set(zip(r.tolist(), c.tolist(), strict=True))
+        np.testing.assert_array_equal(np.unique(rows * geom.width + cols), np.unique(r * geom.width + c))
     # leaving the grid is not clear
     assert not segment_clear(np.array([0.0, 0.0]), np.array([1.5, 0.0]), np.zeros(geom.shape, bool), geom)
 
