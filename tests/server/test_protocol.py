@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from support.marks import LONG, long
 
 from rvs_server.protocol import (
     Fixed,
@@ -24,6 +25,10 @@ from rvs_server.protocol import (
     show_controls,
     valid_stem,
 )
+
+# the default run a quarter of the examples named, RVS_LONG=1 five times them (the round trips of
+# every reply and request shape: the wire's contract)
+SCALE = 5 if LONG else 0.25
 
 
 def opts(line: str) -> list[tuple[str, object]]:
@@ -114,7 +119,8 @@ replies = st.builds(
 )
 
 
-@settings(max_examples=400, deadline=None)
+@long
+@settings(max_examples=int(400 * SCALE), deadline=None)
 @given(replies)
 def test_reply_round_trip(reply: Reply) -> None:
     # text shows control characters in caret notation (^L), JSON carries them exactly
@@ -123,7 +129,8 @@ def test_reply_round_trip(reply: Reply) -> None:
     assert parse_reply(format_reply_json(reply)) == reply
 
 
-@settings(max_examples=1500, deadline=None)
+@long
+@settings(max_examples=int(1500 * SCALE), deadline=None)
 @given(st.binary(max_size=200))
 def test_arbitrary_bytes_only_raise_protocol_errors(data: bytes) -> None:
     text = data.decode("utf-8", "replace")
@@ -135,7 +142,8 @@ def test_arbitrary_bytes_only_raise_protocol_errors(data: bytes) -> None:
         assert req is None or req.command
 
 
-@settings(max_examples=300, deadline=None)
+@long
+@settings(max_examples=int(300 * SCALE), deadline=None)
 @given(st.lists(st.text(st.characters(blacklist_categories=("Cs",), blacklist_characters='"\\\n\r'), max_size=12),
                 min_size=1, max_size=6))
 def test_quoted_values_survive(words: list[str]) -> None:
@@ -162,7 +170,8 @@ def test_splitter_too_long_discards_rest() -> None:
     assert LineSplitter(max_line=4).feed(b"abcd\r\nabcde\n") == [b"abcd", TooLong()]
 
 
-@settings(max_examples=200, deadline=None)
+@long
+@settings(max_examples=int(200 * SCALE), deadline=None)
 @given(st.lists(st.binary(min_size=0, max_size=50).filter(lambda b: b"\n" not in b and b"\xff" not in b),
                 min_size=1, max_size=8), st.integers(1, 7))
 def test_splitter_chunking_does_not_matter(lines: list[bytes], step: int) -> None:
