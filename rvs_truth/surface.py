@@ -199,6 +199,15 @@ def truth_checks(world: World, scene: str, poses: np.ndarray, body: VehicleBody)
         for at, c in parts:
             a[at] = getattr(c, f.name)
         out[f.name] = a
+    # Past the world's terrain the truth has no ground, where the simulated sensors' spread
+    # returns still put some: read there it is a drop, a step of 10-14 cm at a wheel over the
+    # edge that no rover could meet (dense_fresh 0, 0.9 m past its area's west edge). A pose
+    # whose body reaches past it is not judged (``unknown``, its excesses NaN: never unsafe).
+    x0, y0, x1, y1 = world.terrain.bounds
+    r = reach(body) + 0.01  # and the 1 cm sample a bilinear read takes beside it
+    off = ((poses[:, 0] - r < x0) | (poses[:, 0] + r > x1) | (poses[:, 1] - r < y0) | (poses[:, 1] + r > y1))
+    out["unknown"] = out["unknown"] | off
+    out["excess"][off] = np.nan
     return PoseChecks(**out)
 
 

@@ -200,7 +200,8 @@ def test_a_localised_run_matches_on_the_scenes_true_dem_from_orbit(tmp_path: Pat
 def test_the_live_risk_counts_passes_the_truth_refuses_per_judgement_and_per_pose() -> None:
     """Truth: unsafe where x > 1. The chance check passes (2, 0, 10) twice and (2.004, 0, 10.2)
     once (the same pose at 1 cm, 1 deg), refuses (2.5, 0, 0), leaves (3, 0, 0) unknown; the
-    worst-case check's pass at x 2 is not the chance check's; the drive's pass is its own part."""
+    worst-case check's pass at x 2 is not the chance check's; the drive's pass is its own part.
+    The truth cannot judge past x 2.4 (the world's terrain ends): (2.5, 0, 0) counts nowhere."""
     p = np.array([[2.0, 0.0, 10.0], [2.004, 0.0, 10.2], [0.0, 0.0, 0.0], [2.5, 0.0, 0.0], [3.0, 0.0, 0.0]], np.float32)
     judged = [(p, np.array([SAFE, SAFE, SAFE, 2, UNKNOWN], np.int8), "chance", "choose", 4),
               (p[:1], np.array([SAFE], np.int8), "chance", "choose", 5),
@@ -208,16 +209,18 @@ def test_the_live_risk_counts_passes_the_truth_refuses_per_judgement_and_per_pos
               (p[2:3], np.array([SAFE], np.int8), "chance", "drive", 6)]
 
     def truth(poses: np.ndarray) -> SimpleNamespace:
-        return SimpleNamespace(unsafe=poses[:, 0] > 1.0)
+        off = poses[:, 0] > 2.4
+        return SimpleNamespace(unsafe=(poses[:, 0] > 1.0) & ~off, unknown=off)
 
     live = live_risk(judged, truth)
     choose, drive, every = live["choose"], live["drive"], live["all"]
-    assert (choose["judged"], choose["distinct"], choose["passed"], choose["truly_unsafe"]) == (5, 3, 4, 4)
+    assert (choose["judged"], choose["distinct"], choose["passed"], choose["truly_unsafe"]) == (4, 2, 4, 3)
     assert (choose["false_safes"], choose["false_safes_distinct"]) == (3, 1)
     assert choose["misses"] == [{"pose": [2.0, 0.0, 10.0], "choice": 4}]
-    assert choose["bound"] == pytest.approx(clopper_pearson_upper(3, 5))
+    assert choose["bound"] == pytest.approx(clopper_pearson_upper(3, 4))
+    assert choose["bound_distinct"] == pytest.approx(clopper_pearson_upper(1, 2))
     assert (drive["judged"], drive["false_safes"], drive["distinct"]) == (1, 0, 1)
-    assert (every["judged"], every["false_safes"]) == (6, 3)
+    assert (every["judged"], every["false_safes"]) == (5, 3)
     assert summed([live, live])["choose"]["false_safes_distinct"] == 2
 
 

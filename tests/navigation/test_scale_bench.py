@@ -157,3 +157,17 @@ def test_the_sampler_reads_the_mission_the_bus_hands_over() -> None:
     assert sampler.driven == pytest.approx(5.0)
     assert [t[1:] for t in sampler.timings[:3]] == [("cycle", 10.0, 5.0), ("cycle", 20.0, 6.0),
                                                     ("choice", 300.0, 100.0)]
+
+
+def test_a_body_reaching_past_the_world_s_terrain_is_not_judged() -> None:
+    """Dense_fresh's terrain ends at x = -15 m, 1 m past its area. The rover at (-14.656, 0.819)
+    turned to 24.1 deg puts its rear-left wheel's footprint over that edge, where the truth has no
+    ground: read as a drop it was a 12 cm step (an event no rover could have). The truth leaves
+    that pose unjudged, never unsafe; 0.3 m further in, the same heading is judged."""
+    world = World.from_scene("dense_fresh")
+    assert world.terrain.bounds[0] == pytest.approx(-15.0)
+    poses = np.array([[-14.656, 0.819, 24.1], [-14.356, 0.819, 24.1]])
+    judged = truth_checks(world, "dense_fresh", poses, world.body)
+    assert judged.unknown.tolist() == [True, False]
+    assert np.isnan(judged.excess[0]).all() and not judged.unsafe[0]
+    assert np.isfinite(judged.excess[1]).all()

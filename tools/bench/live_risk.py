@@ -106,18 +106,25 @@ def live_risk(judged: list[tuple[np.ndarray, np.ndarray, str, str, int]], truth:
         key = np.column_stack([np.round(poses[:, :2] * 100), np.round(poses[:, 2]) % 360]).astype(np.int64)
         _, first, inverse = np.unique(key, axis=0, return_index=True, return_inverse=True)
         inverse = inverse.ravel()
-        unsafe_distinct = np.zeros(len(first), bool)
+        unsafe_distinct, off = np.zeros(len(first), bool), np.zeros(len(first), bool)
         for a in range(0, len(first), chunk):
-            unsafe_distinct[a:a + chunk] = truth(poses[first[a:a + chunk]].astype(float)).unsafe
+            on_truth = truth(poses[first[a:a + chunk]].astype(float))
+            unsafe_distinct[a:a + chunk], off[a:a + chunk] = on_truth.unsafe, on_truth.unknown
+        # a pose the truth cannot judge (its body past the world's terrain: never unsafe there) is
+        # left out of the counts, as the check's own unknowns are
+        known = ~off[inverse]
         unsafe = unsafe_distinct[inverse]
         passed = codes == SAFE
         false = passed & unsafe
         false_distinct = np.unique(inverse[false])
-        out[part] = {"judged": int(len(codes)), "distinct": int(len(first)), "passed": int(passed.sum()),
+        n, distinct = int(known.sum()), int((~off).sum())
+        if not n:
+            continue
+        out[part] = {"judged": n, "distinct": distinct, "passed": int((passed & known).sum()),
                      "truly_unsafe": int(unsafe.sum()), "false_safes": int(false.sum()),
                      "false_safes_distinct": int(len(false_distinct)),
-                     "bound": clopper_pearson_upper(int(false.sum()), len(codes)),
-                     "bound_distinct": clopper_pearson_upper(len(false_distinct), len(first)),
+                     "bound": clopper_pearson_upper(int(false.sum()), n),
+                     "bound_distinct": clopper_pearson_upper(len(false_distinct), distinct),
                      "misses": [{"pose": [round(float(v), 3) for v in poses[first[d]]],
                                  "choice": int(choice[first[d]])} for d in false_distinct[:50]]}
     return out
