@@ -57,7 +57,9 @@ cell's own (0.1-0.2 between neighbours near the sensor, gone by 7.5-10 cm far; `
 tools.bench.chance --correlation``). So a prior's variance goes ``1 - prior_own`` into a field
 shared by neighbouring cells (``Posterior.shared``: smoothed white noise, correlated 1/e at
 ``shared_length``), the rest its own: drawn apart, a prior known to 3 cm steps 4.3 cm (sd) between
-neighbours and refuses every wheel on it.
+neighbours and refuses every wheel on it. The rock edge and the rock's top are a frame's errors,
+calibrated on frames: a prior's cells carry neither, nor lend their upper bound (the prior's own
+sigma) to a framed neighbour's edge; its plane's slope is no rock.
 
 **The probability** (:func:`chance_check`): surfaces are drawn from the cells' posteriors (seeded,
 every cell's own error independently, the shared field, the common one once per surface;
@@ -338,11 +340,15 @@ def posterior(stats: dict[str, np.ndarray], geom: GridGeometry, k: float, params
         gy, gx = np.gradient(np.where(seen, top, np.nan), c)
         slope = np.hypot(gx, gy)
     slope = np.nan_to_num(slope, nan=0.0)
-    jump = headroom(stats, top)
     # a prior's error (no frame bounded the cell: the set-down's plane, the wheels' contacts) is the
     # plane's and the ground's off it, shared with the cells round it; the frames' averaged noise
-    # is each cell's own
+    # is each cell's own. A rock's edge or top read low is a frame's error, a framed cell's alone:
+    # on a prior's cells it counted the prior's own sigma again as a rock edge and its plane's
+    # slope as a rock's height, and refused the start's turn where the truth left the belly 6 cm
+    # (docs/NAVIGATE_BENCH.md, A prior's cells carry the prior's error alone)
     prior = seen & ~np.asarray(stats.get("framed", seen), bool)
+    framed = seen & ~prior
+    jump = headroom(stats, top, prior)
     var = np.where(prior, p.prior_own, 1.0) * var0 + p.top_sigma**2 + (slope * along) ** 2
     mu = top + p.edge_bias * jump
     ceiling = np.asarray(stats.get("ceiling", np.full(mean.shape, np.inf)), np.float64)
@@ -353,9 +359,9 @@ def posterior(stats: dict[str, np.ndarray], geom: GridGeometry, k: float, params
     within = np.asarray(stats["relief"], np.float64) if "relief" in stats else \
         np.asarray(stats["rise"], np.float64) + np.asarray(stats["drop"], np.float64)
     return Posterior(np.where(seen, mu, np.nan), np.where(seen, var, np.nan), ceiling,
-                     np.where(seen, np.hypot(p.edge_sigma * jump, rock_top_sigma(relief(top, geom), p)), 0.0),
+                     np.where(framed, np.hypot(p.edge_sigma * jump, rock_top_sigma(relief(top, geom), p)), 0.0),
                      np.where(prior, np.sqrt(np.maximum((1.0 - p.prior_own) * var0, 0.0)), 0.0),
-                     np.where(seen & ~prior, p.within * within, 0.0) if p.within > 0 else None,
+                     np.where(framed, p.within * within, 0.0) if p.within > 0 else None,
                      np.where(seen, np.asarray(stats["split"], np.float64), 0.0)
                      if p.stories and "split" in stats else None)
 
@@ -391,16 +397,22 @@ def _lowest_top(top: np.ndarray, geom: GridGeometry) -> np.ndarray:
     return ndimage.minimum_filter(np.where(np.isfinite(top), top, np.inf), size=size, mode="nearest")
 
 
-def headroom(stats: dict[str, np.ndarray], top: np.ndarray) -> np.ndarray:
+def headroom(stats: dict[str, np.ndarray], top: np.ndarray, prior: np.ndarray | None = None) -> np.ndarray:
     """J per cell: how much higher than the cell's ``top`` the worst case allows the ground within
     its 3 x 3 neighbourhood (the map's ``upper`` bound there, 0 where the cell has no top). A rock
     edge beside the cell shows in it (its bounds spread along the returns' horizontal errors), and
     so does ground behind the cell that only a ray bounds: where the truth differs from the cell's
-    top by many sigmas, this is where (``python -m tools.bench.chance --calibrate``)."""
+    top by many sigmas, this is where (``python -m tools.bench.chance --calibrate``, on frames).
+    A ``prior``'s cells neither have nor lend it: a prior's upper bound is its own sigma, which
+    its variance carries, not a rock edge a frame read low."""
     upper = np.asarray(stats["upper"], np.float64)
+    own = np.isfinite(top)
+    if prior is not None:
+        upper = np.where(prior, np.nan, upper)
+        own &= ~prior
     near = ndimage.maximum_filter(np.where(np.isfinite(upper), upper, -np.inf), size=3, mode="nearest")
     with np.errstate(invalid="ignore"):
-        return np.where(np.isfinite(top), np.maximum(near - top, 0.0), 0.0)
+        return np.where(own, np.maximum(near - top, 0.0), 0.0)
 
 
 def screen_k(body: VehicleBody, cell: float, epsilon: float) -> float:

@@ -778,3 +778,54 @@ def test_the_belly_s_tail_does_not_run_past_the_ceiling_the_rover_stood_under() 
     open_sky = Posterior(post.mean, post.var, np.full(post.mean.shape, np.inf), post.common, post.shared)
     assert chance_check(open_sky, sub, np.array([pose]), BODY, p).safe.tolist() == [False]
 
+
+
+def test_a_prior_s_cells_neither_have_nor_lend_a_rock_edge() -> None:
+    """The rock edge (headroom) is a frame's error: a top a frame read low beside ground its bounds
+    allow higher. A prior's upper bound is its own sigma, which its variance already carries; beside
+    framed ground it lends that ground no edge, and it has none of its own. Ground only a ray
+    bounds (no top) still lends its edge."""
+    g = GridGeometry.covering(-0.5, -0.5, 0.5, 0.5, 0.025)
+    xs, ys = g.centers()
+    X, _ = np.meshgrid(xs, ys)
+    top = np.zeros(X.shape)
+    s = stats(top, 0.002, 0.01)
+    framed = X < 0.0
+    s["framed"] = framed
+    s["mean_var"] = np.where(framed, 0.002**2, 0.02**2)  # a prior known to 2 cm beyond x = 0
+    s["upper"] = np.where(framed, top, top + 2.5 * 0.02)
+    p = ChanceParams(rock_sigma=0.0)
+    post = posterior(s, g, 2.5, p)
+    edge = np.abs(X + 0.0125) < 1e-6  # the framed column beside the prior
+    np.testing.assert_allclose(post.mean[edge], 0.0, atol=1e-12)
+    np.testing.assert_allclose(np.broadcast_to(post.common, X.shape)[~framed], 0.0, atol=1e-12)
+    np.testing.assert_allclose(np.broadcast_to(post.common, X.shape)[edge], 0.0, atol=1e-12)
+    # the same 5 cm a ray allows over cells with no top beyond x = 0: an edge the framed cells read low
+    ray = dict(s, framed=np.ones(X.shape, bool), mean=np.where(framed, top, np.nan))
+    ray_post = posterior(ray, g, 2.5, p)
+    assert (ray_post.mean[edge] > 0.0).all() and (np.broadcast_to(ray_post.common, X.shape)[edge] > 0.0).all()
+
+
+def test_a_prior_s_slope_is_no_rock_top() -> None:
+    """On a prior (the set-down's plane, here 10 % steep) a cell's height over the lowest ground
+    round it is the plane's slope, not a rock's top a frame read low: the prior's cells carry their
+    prior's error and the relief no return met, and framed cells on the same slope the rock top's."""
+    g = GridGeometry.covering(-1.0, -1.0, 1.0, 1.0, 0.025)
+    xs, ys = g.centers()
+    X, _ = np.meshgrid(xs, ys)
+    m = BoundsMap(g, BoundsParams())
+    rng = np.random.default_rng(0)
+    pts = np.column_stack([rng.uniform(0.5, 0.95, 8000), rng.uniform(-0.95, 0.95, 8000), np.zeros(8000)])
+    pts[:, 2] = 0.1 * pts[:, 0] + 0.001 * rng.standard_normal(len(pts))
+    m.fuse(pts, 0.001)
+    m.set_down((-0.3, 0.0), 0.6, -0.03, sigma=0.02, plane=(-0.3, 0.0, 0.1, 0.0))
+    s, sub = m.statistics(-1.0, -1.0, 1.0, 1.0)
+    p = ChanceParams()
+    post = posterior(s, sub, m.params.k, p)
+    common = np.broadcast_to(post.common, X.shape)
+    prior = np.isfinite(s["mean"]) & ~s["framed"]
+    assert prior.sum() > 500
+    np.testing.assert_allclose(common[prior], 0.0, atol=1e-12)
+    np.testing.assert_allclose(post.var[prior], p.prior_own * 0.02**2 + p.top_sigma**2, rtol=1e-5)
+    inner = s["framed"] & (X > 0.6) & (X < 0.9)
+    assert (common[inner] > 0).mean() > 0.5  # the slope within ROCK_WINDOW reads as a rock top there

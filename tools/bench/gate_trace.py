@@ -72,6 +72,8 @@ def main() -> None:
     ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="a server setting")
     ap.add_argument("--dump", default="", help="with --detail: also save those choices' maps and poses here (.npz), "
                                                "to judge them again offline")
+    ap.add_argument("--goal", default="", metavar="X,Y", help="the mission's start with this goal instead (the long "
+                                                              "tests drive a mission's first metres)")
     ap.add_argument("--detail", type=int, default=0, help="judge the refusals of the last N choices per limit")
     ap.add_argument("--hang", type=float, default=None, help="bounds_map hang (m) instead of its default")
     ap.add_argument("--readings", default="", metavar="DUMP", help="no mission: the refused poses of a --dump (of "
@@ -117,6 +119,8 @@ def main() -> None:
     sections.choose_from = choosing
 
     start, goal = missions(args.scene, args.mission + 1, 0)[args.mission]
+    if args.goal:
+        goal = tuple(float(v) for v in args.goal.split(","))
     t0 = time.monotonic()
     with rec.installed():
         row = bench.run_mission(args.scene, "see", start, goal, [], tuple(args.set))
