@@ -75,7 +75,7 @@ def test_dem_matches_ground_truth(scan, scene: str) -> None:
     assert int(r.fields["cells"]) == int(np.isfinite(dem).sum())
 
 
-def test_products_open_in_gdal_with_their_geometry(scan) -> None:
+def test_products_open_in_gdal_and_the_recovery_set_loads_them_back(scan, server_factory) -> None:
     srv, c, r = scan("office", name="prod")
     dem_path = srv.data / r.fields["dem"]
     _, g = read_geotiff(dem_path)
@@ -102,6 +102,23 @@ def test_products_open_in_gdal_with_their_geometry(scan) -> None:
     views = list((srv.data / "dem/prod_views").glob("*.tif"))
     assert len(views) == int(r.fields["views"])
     assert (srv.data / "dem/prod_views/prod_images.csv").is_file()
+
+    # a break writes the recovery set: the maps and the pose, which a new server on the same data
+    # directory reports and loads back
+    c.request("pose -x 0.5 -y 0.25 -heading 10")
+    r = c.request("break")
+    rec = srv.data / r.fields["recovery"]
+    assert (rec / "maps" / "prod_dem.tif").is_file() and (rec / "maps" / "prod_traversability.tif").is_file()
+    srv.stop()
+    srv2 = server_factory(["server.scene=office"], data=srv.data)
+    c2 = srv2.client()
+    assert c2.request("status").fields["recovery"] == r.fields["recovery"]
+    assert c2.request("check-move -dx 0.2").fields["code"] == "E_DATA"
+    loaded = c2.request("recover")
+    assert loaded.status == "OK" and loaded.fields["recovery"] == r.fields["recovery"]
+    assert loaded.fields["pose"] == "0.500,0.250,10.00"
+    assert c2.request("check-move -dx 0.2").status == "OK"
+    assert c2.request("recover -set nosuch").fields["code"] == "E_DATA"
 
 
 @long_test  # 7-9 s of scans: CI's long suite runs it; the DEM against the truth runs by default
@@ -177,28 +194,6 @@ def test_break_keeps_views_for_the_next_update(server_factory) -> None:
     r = c.request("dem-update-tof -range 0,20,-50,-40 -name third", timeout=300)
     assert r.status == "OK"
     assert int(r.fields["views"]) >= 3  # the kept views and the new one
-
-
-def test_recovery_set_holds_the_maps_and_loads_back(server_factory, tmp_path) -> None:
-    data = tmp_path / "rec"
-    srv = server_factory(data=data)
-    c = srv.client()
-    assert c.request(f"dem-full-tof -range {RANGE} -name keep", timeout=300).status == "OK"
-    c.request("pose -x 0.5 -y 0.25 -heading 10")
-    r = c.request("break")
-    rec = data / r.fields["recovery"]
-    assert (rec / "maps" / "keep_dem.tif").is_file() and (rec / "maps" / "keep_traversability.tif").is_file()
-    srv.stop()
-    # a new server on the same data directory reports the set, and recover loads it
-    srv2 = server_factory(data=data)
-    c2 = srv2.client()
-    assert c2.request("status").fields["recovery"] == r.fields["recovery"]
-    assert c2.request("check-move -dx 0.2").fields["code"] == "E_DATA"
-    loaded = c2.request("recover")
-    assert loaded.status == "OK" and loaded.fields["recovery"] == r.fields["recovery"]
-    assert loaded.fields["pose"] == "0.500,0.250,10.00"
-    assert c2.request("check-move -dx 0.2").status == "OK"
-    assert c2.request("recover -set nosuch").fields["code"] == "E_DATA"
 
 
 @long_test  # the default run's time; check-move's sweep is tested on maps in tests/prox/test_safety.py
