@@ -12,7 +12,7 @@ from prox_workflows.algorithms.bounds_map import BoundsParams
 from prox_workflows.algorithms.chance import ChanceParams
 from prox_workflows.algorithms.vehicle import PoseChecks, check_poses
 from prox_workflows.grid import GridGeometry
-from tools.bench.gate_trace import chance_spacings, detail, readings, trace_events, turn_trace
+from tools.bench.gate_trace import axis_trace, chance_spacings, detail, readings, trace_events, turn_trace
 
 BODY = RoverBody()
 
@@ -157,3 +157,37 @@ def test_the_chance_check_is_judged_again_at_each_spacing_against_the_truth() ->
     assert set(table) == {"a cell (the check's)", "0.7 of a cell", "the truth's 1 cm"}
     for row in table.values():
         assert row == {"judged": 2, "passed": 1, "false_safe": 0, "false_refusal": 0}, row
+
+
+def test_the_way_out_along_the_body_s_axis_is_named_where_the_turn_sweeps_unseen_ground() -> None:
+    """Flat true ground. The map knows it to 2 mm everywhere but in a band round the rover where it
+    was set down (within 0.45 m, off the body's own lane): there only a prior 4 cm wide, as the
+    set-down's. Along the body's axis the lane is seen, so the straight passes either way, and
+    0.6 m along it the turn's disc is wholly framed and the turn passes all round; 0.3 m along,
+    the disc still reaches the band."""
+    g = GridGeometry.covering(-2.0, -1.0, 2.0, 1.0, 0.025)
+    flat = np.zeros((g.height, g.width), np.float32)
+    xs, ys = g.centers()
+    X, Y = np.meshgrid(xs, ys)
+    band = (np.hypot(X, Y) <= 0.45) & (np.abs(Y) > 0.31)
+    z = np.zeros_like(flat)
+    stats = {"mean": flat, "mean_var": np.where(band, 0.04**2, 0.002**2).astype(np.float32), "rise": z, "drop": z,
+             "relief": z, "shift": z, "along_var": z, "ceiling": np.full(flat.shape, np.inf, np.float32),
+             "framed": ~band, "lower": flat, "upper": flat}
+    way = axis_trace(stats, g, BoundsParams().k, (0.0, 0.0, 0.0), on(flat, g), BODY, ChanceParams())
+    for side in ("ahead", "back"):
+        a = way[side]
+        assert a["passes"] == 1.2 and a["truth"] == 1.2 and a["first_refusal"] is None
+        near, *beyond = a["turns"]
+        assert near["at"] == 0.3 and near["framed"] < 1.0 and near["check"] < near["truth"] == near["headings"]
+        for t in beyond:
+            assert t["framed"] == 1.0 and t["check"] == t["truth"] == t["headings"]
+    # the strip behind the body's end that no pair shows: the straight back is refused where the
+    # rear wheels reach it, and the trace names that pose against the truth's margin there
+    strip = band | ((X > -0.36) & (X < -0.26))
+    stats.update(mean_var=np.where(strip, 0.04**2, 0.002**2).astype(np.float32), framed=~strip)
+    back = axis_trace(stats, g, BoundsParams().k, (0.0, 0.0, 0.0), on(flat, g), BODY, ChanceParams())["back"]
+    first = back["first_refusal"]
+    assert back["passes"] < 0.3 and back["truth"] == 1.2
+    assert first["at"] == round(back["passes"] + 0.02, 3) and first["p"] > ChanceParams().epsilon
+    assert max(first["truth"][:2]) < -0.05  # the truth: each wheel 10 cm under its climb, the belly 8 cm clear

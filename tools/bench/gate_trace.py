@@ -16,7 +16,9 @@ them is far from the truth says what refuses: a wide posterior (the draws), the 
 itself (a step in the map that is not on the ground), or ground under the body not seen. With it,
 the turn on the spot from the last choice's pose (:func:`turn_trace`): how far each way the truth
 allows it, how far the check passes it, and how far with each of the check's terms taken out in
-turn, which names the term that holds the rover where it stands.
+turn, which names the term that holds the rover where it stands; and the way out along the
+body's axis (:func:`axis_trace`): how far straight ahead and back the check and the truth pass,
+and the turn on the spot judged 0.3-1.2 m along it.
 
 ``--readings DUMP`` (no mission run): the refused poses of a ``--dump`` judged again on the
 map's surfaces read several ways (:func:`readings`): the best estimate as the bounds check reads
@@ -148,15 +150,17 @@ def main() -> None:
               f"{e['planned_truth']}; the section's P(any) {e['section_p_any']}"
               + ("" if at is None else f"; at the event's pose the choice's check {'passes' if at['passed'] else 'refuses'} "
                                        f"(P(any) {at['p_any']:.2g}, best estimate's excess {at['best']})"))
-    turn = {}
+    turn: dict[str, Any] = {}
+    way_out: dict[str, Any] = {}
     if args.detail:
         last = next((c for c in reversed(choices) if "map" in c), None)
         if last is not None:
             stats, wg, k = last["map"]
             turn = turn_trace(stats, wg, k, last["pose"], truth, world.body, last["chance"])
+            way_out = axis_trace(stats, wg, k, last["pose"], truth, world.body, last["chance"])
     if args.dump:
         dump(args.dump, choices, refusals, goal)
-    row.update(stop_turn=turn, live_risk=live, refusals=refusals, trace_wall_s=round(time.monotonic() - t0, 1), detailed=detailed,
+    row.update(stop_turn=turn, way_out=way_out, live_risk=live, refusals=refusals, trace_wall_s=round(time.monotonic() - t0, 1), detailed=detailed,
                missed=missed,
                choices=[{k: v for k, v in c.items() if k not in ("map", "chance")} for c in choices])
     if args.out:
@@ -180,6 +184,15 @@ def main() -> None:
         print(f"the turn on the spot {way} from the last choice's pose: truly safe {t['truth']} deg, the check "
               f"passes {t['check']} deg; with one term out: "
               + ", ".join(f"{name} {deg}" for name, deg in t["without"].items()))
+    for way, a in way_out.items():
+        first = a["first_refusal"]
+        print(f"straight {way} from the last choice's pose: the check passes {a['passes']} m, the truth "
+              f"{a['truth']} m" + ("" if first is None else
+                                   f" (first refused at {first['at']} m on the {first['limit']}, P {first['p']:.2g}; "
+                                   f"the truth's excess there {first['truth']})")
+              + "; the turn on the spot " + ", ".join(
+                  f"at {t['at']} m ({t['framed']:.0%} of its disc framed) passes {t['check']} of {t['headings']} "
+                  f"headings, {t['truth']} truly safe" for t in a["turns"]))
     for d in missed:
         print(f"false safe at {d['pose']} ({d['from_rover']} m from the rover, choice {d['choice']}, "
               f"{d['framed']:.0%} of the ground under the body framed): P {max(d['prob']):.2g}; per limit best "
@@ -195,6 +208,8 @@ def main() -> None:
             print(f"  {name}: {(best > 0).sum()} / {((best <= 0) & (dmax > 0)).sum()} / {(true > 0).sum()}; "
                   f"{np.median(best):+.4f} {np.median(dmean):+.4f} {np.median(dmax):+.4f} {np.median(true):+.4f}")
 
+
+AXIS_STANDS = (0.3, 0.6, 0.9, 1.2)  # m along the body's axis where axis_trace judges the turn on the spot
 
 # the check's terms, each taken out in turn (:func:`turn_trace`): a change of the map's statistics
 # or of the check's parameters
@@ -233,6 +248,58 @@ def turn_trace(stats: dict[str, np.ndarray], g: Any, k: float, pose: Any, truth:
                     "check": judged(poses, stats, params),
                     "without": {name: judged(poses, *term(stats, params)) for name, term in TERMS.items()}}
     return out
+
+
+def axis_trace(stats: dict[str, np.ndarray], g: Any, k: float, pose: Any, truth: Truth, body: Any,
+               params: chance.ChanceParams, step: float = 0.02, along: tuple[float, ...] = AXIS_STANDS,
+               heading_step: float = 4.0) -> dict[str, Any]:
+    """The way out along the body's own axis from ``pose``, on the map's ``stats`` over ``g``: how
+    far straight ahead and straight back the chance check passes every pose, ``step`` apart
+    (``passes``, m: up to ``along``'s farthest; -``step``: the pose itself fails), and how far the
+    truth does;
+    and at each of ``along`` (m, either way) the share of the turn's disc (the body's reach) a
+    frame bounded, how many of a turn on the spot's headings (``heading_step`` apart) the check
+    passes there and how many are truly safe. Where the rover was set down every turn sweeps
+    ground no camera shows, and along its axis the body meets only the box it stood over and what
+    the end pairs show: a place along it whose turn disc is framed and whose turn the check
+    passes is a way out the straight's first refusal holds shut (the trace names that pose, its
+    limit and probability, against the truth there)."""
+    post = chance.posterior(stats, g, k, params)
+    x, y, heading = (float(v) for v in pose)
+    c, s = math.cos(math.radians(heading)), math.sin(math.radians(heading))
+    framed = np.asarray(stats.get("framed", np.isfinite(stats["mean"])), bool)
+    xs, ys = g.centers()
+    X, Y = np.meshgrid(xs, ys)
+    r = vehicle.reach(body)
+    out: dict[str, Any] = {}
+    for way, sign in (("ahead", 1.0), ("back", -1.0)):
+        d = sign * np.arange(0.0, max(along) + step / 2, step)
+        poses = np.column_stack([x + d * c, y + d * s, np.full(len(d), heading)])
+        checked = chance.chance_check(post, g, poses, body, params)
+        true = truth(poses)
+        bad = np.flatnonzero(~checked.safe)
+        first = None if not len(bad) else {
+            "at": round(float(abs(d[bad[0]])), 3), "limit": vehicle.LIMITS[int(checked.worst()[0][bad[0]])],
+            "p": float(checked.p_any[bad[0]]), "truth": [round(float(v), 4) for v in true.excess[bad[0]]]}
+        stands = []
+        for a in along:
+            px, py = x + sign * a * c, y + sign * a * s
+            heads = heading + np.arange(0.0, 360.0, heading_step)
+            turn = np.column_stack([np.full(len(heads), px), np.full(len(heads), py), heads])
+            disc = np.hypot(X - px, Y - py) <= r
+            stands.append({"at": a, "framed": round(float(framed[disc].mean()), 3) if disc.any() else 0.0,
+                           "check": int(chance.chance_check(post, g, turn, body, params).safe.sum()),
+                           "truth": int(truth(turn).safe.sum()), "headings": len(heads)})
+        out[way] = {"passes": _passes_to(checked.safe, d), "truth": _passes_to(true.safe, d), "first_refusal": first,
+                    "turns": stands}
+    return out
+
+
+def _passes_to(ok: np.ndarray, d: np.ndarray) -> float:
+    """How far along ``d`` (m from the pose, signed, evenly spaced) every pose passes: the last
+    before the first that fails (minus a spacing: the pose itself fails)."""
+    bad = np.flatnonzero(~ok)
+    return round(float(abs(d[-1]) if not len(bad) else abs(d[bad[0]]) - abs(d[1] - d[0])), 3)
 
 
 def trace_events(events: list[dict[str, Any]], choices: list[dict[str, Any]], truth: Truth, body: Any
