@@ -256,9 +256,8 @@ def axis_trace(stats: dict[str, np.ndarray], g: Any, k: float, pose: Any, truth:
     """The way out along the body's own axis from ``pose``, on the map's ``stats`` over ``g``: how
     far straight ahead and straight back the chance check passes every pose, ``step`` apart
     (``passes``, m: up to ``along``'s farthest; -``step``: the pose itself fails), and how far the
-    truth does;
-    and at each of ``along`` (m, either way) the share of the turn's disc (the body's reach) a
-    frame bounded, how many of a turn on the spot's headings (``heading_step`` apart) the check
+    truth does; and at each of ``along`` (m, either way) the share of the turn's disc (the body's
+    reach) a frame bounded, how many of a turn on the spot's headings (``heading_step`` apart) the check
     passes there and how many are truly safe. Where the rover was set down every turn sweeps
     ground no camera shows, and along its axis the body meets only the box it stood over and what
     the end pairs show: a place along it whose turn disc is framed and whose turn the check
@@ -279,7 +278,8 @@ def axis_trace(stats: dict[str, np.ndarray], g: Any, k: float, pose: Any, truth:
         true = truth(poses)
         bad = np.flatnonzero(~checked.safe)
         first = None if not len(bad) else {
-            "at": round(float(abs(d[bad[0]])), 3), "limit": vehicle.LIMITS[int(checked.worst()[0][bad[0]])],
+            "at": round(float(abs(d[bad[0]])), 3),
+            "limit": "unknown" if checked.unknown[bad[0]] else vehicle.LIMITS[int(checked.worst()[0][bad[0]])],
             "p": float(checked.p_any[bad[0]]), "truth": [round(float(v), 4) for v in true.excess[bad[0]]]}
         stands = []
         for a in along:
