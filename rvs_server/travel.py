@@ -39,7 +39,11 @@ class KeptGround:
     def still(self, pose: tuple[float, float, float]) -> bool:
         """Whether a rover at ``pose`` still stands where this map was left."""
         turned = abs((pose[2] - self.pose[2] + 180.0) % 360.0 - 180.0)
-        return math.hypot(pose[0] - self.pose[0], pose[1] - self.pose[1]) <= STILL_XY and turned <= STILL_HEADING
+        return self.moved(pose) <= STILL_XY and turned <= STILL_HEADING
+
+    def moved(self, pose: tuple[float, float, float]) -> float:
+        """How far (m) a rover at ``pose`` stands from where this map was left."""
+        return math.hypot(pose[0] - self.pose[0], pose[1] - self.pose[1])
 
 
 @dataclass(frozen=True)
@@ -107,14 +111,18 @@ class Travel:
         with self._lock:
             self._ground = ground
 
-    def take(self, pose: tuple[float, float, float], key: Any) -> Any:
-        """The bounds map the last navigate left, for a navigate starting at ``pose`` with the
-        settings ``key``; None where the rover has moved since (a GNC's drive, ``-start``
-        elsewhere, ``sim move-rover``) or the settings changed: that navigate starts on a fresh map
-        and the set-down. A map is taken once: two jobs never share one."""
+    def take(self, pose: tuple[float, float, float], key: Any, within: float = 0.0) -> KeptGround | None:
+        """What the last navigate left, for a navigate starting at ``pose`` with the settings
+        ``key``: where the rover still stands (:meth:`KeptGround.still`), or has moved no farther
+        than ``within`` metres since (a drive of the GNC's own between goals: the map's ground is
+        the world's, and the rover is set down again on it where it stands). None farther, after
+        ``sim move-rover`` (:meth:`forget`), or where the settings changed: that navigate starts on
+        a fresh map and the set-down. A map is taken once: two jobs never share one."""
         with self._lock:
             ground, self._ground = self._ground, None
-        return ground.bounds if ground is not None and ground.key == key and ground.still(pose) else None
+        if ground is None or ground.key != key:
+            return None
+        return ground if ground.still(pose) or 0.0 < within and ground.moved(pose) <= within else None
 
     def forget(self) -> None:
         """The rover was carried off (``sim move-rover``, another scene): no map holds its ground."""

@@ -93,6 +93,13 @@ class SeeConfig(Settings):
                           "about the plane, less near known ground (at least 1 cm), never over the belly's ceiling "
                           "(prox_workflows.algorithms.set_down)", choices=("level", "attitude", "ring"),
                           option=False)
+    keep_moved: float = param(2.0, "see loop with the bounds map: a navigate that starts this near where the last "
+                              "one left the rover (a drive of the GNC's own between goals) takes that one's map and "
+                              "is set down again where it stands, the set-down filling only what the map's frames "
+                              "did not bound: backed out of where it was first set down, the rover turns on ground "
+                              "those frames saw (docs/NAVIGATE_BENCH.md). Within 5 cm and 2 deg it needs no set-down; "
+                              "farther than this, after sim move-rover or with other map settings, a fresh map "
+                              "(0: only where the rover still stands)", unit="m", min=0.0, max=10.0, option=False)
     register: bool = param(True, "see loop with the gate: a rover that has not moved keeps its last frame's "
                            "height, and each frame taken after a move is placed on the ground the bounds map holds "
                            "(the median of its cells' heights less the map's, over well-known flat ground) instead "

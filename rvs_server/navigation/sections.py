@@ -315,12 +315,16 @@ class Chooser:
         self.budget.stand(math.hypot(goal[0] - pose[0], goal[1] - pose[1]))
         if not self.rounds:  # the set-down: the ground round the rover from the blind disc out
             self._look_round(pose)
+        moved = self.s.moved
+        left = "" if moved is None else \
+            f" on the map the last navigate left ({d.bounds.frames} frames), {moved:.2f} m from where it left the rover"
         if d.set_down_pending:
             m = self.s.set_down_on_ring()
-            self.s.mission.progress(leg, 1, 1, f"set down on {m}", "plan")
+            self.s.mission.progress(leg, 1, 1, f"set down on {m}{left}", "plan")
         elif self.s.kept and not self.started:
+            said = "no set-down" if moved is None else f"{moved:.2f} m from where it left the rover, set down again"
             self.s.mission.progress(leg, 1, 1, f"the ground round the rover as the last navigate left it "
-                                               f"({d.bounds.frames} frames), no set-down", "plan")
+                                               f"({d.bounds.frames} frames), {said}", "plan")
         if not self.started:  # after the set-down: its prior is what the turn is judged on
             self.started = True
             self._start_turn(leg)

@@ -67,21 +67,27 @@ class SeeStrategy:
         # the settings a bounds map is made with: the next navigate takes this one's map only if
         # it would make it alike (and not where map fixes move its frames: the fixes' count is this job's)
         self.ground_key: tuple[Any, ...] | None = None
-        self.kept = False  # the bounds map is the one the last navigate left where the rover stands
+        self.kept = False  # the bounds map is the one the last navigate left
+        # with that map, how far (m) the rover stands from where it was left (None: it still stands there)
+        self.moved: float | None = None
         if self.p.gate == "bounds" or self.scan_loop:
             head = HeadCalibration.from_dict(self.app.config.get("head").as_dict())
             half = window_half(self.p, mission.rover.body(), head)
             if not self.localiser.active:
                 self.ground_key = (self.p.bounds, half, self.p.set_down)
                 pose = self.app.pose
-                bounds = self.app.travel.take((pose.x, pose.y, pose.heading), self.ground_key)
-                self.kept = bounds is not None
+                here = (pose.x, pose.y, pose.heading)
+                kept = self.app.travel.take(here, self.ground_key, self.p.keep_moved)
+                if kept is not None:
+                    bounds, self.kept = kept.bounds, True
+                    self.moved = None if kept.still(here) else kept.moved(here)
             if bounds is None:
                 bounds = BoundsMap.around(self.cover[0], half, GUIDE_CELL, self.p.bounds)
         self.driver = SeeingDriver(self.job, mission.rover, self.p, self.stats, memory, bounds)
-        # a kept map needs no set-down: the ground round the rover is what the last navigate's
-        # frames saw and its wheels felt
-        fresh = bounds is not None and not self.kept
+        # a kept map where the rover still stands needs no set-down: the ground round it is what
+        # the last navigate's frames saw and its wheels felt; moved since, it is set down again on
+        # that map (the set-down fills only what no frame bounded)
+        fresh = bounds is not None and (not self.kept or self.moved is not None)
         if fresh and self.p.set_down == "ring":
             self.driver.set_down_pending = True  # (Chooser.drive_on: after the first look round)
         elif fresh:

@@ -49,7 +49,7 @@ def _chooser(script: list[Choice]) -> tuple[Chooser, _Driver, list[tuple[Any, bo
     c.best, c.since_best, c.stood, c.dead_ends, c.retreat = math.inf, 0, [], [], d.p.retreat
     c.budget = RetreatBudget(d.p.retreat)
     said: list[str] = []
-    c.s = SimpleNamespace(job=SimpleNamespace(check=lambda: None), stats=SimpleNamespace(replans=0), kept=False,
+    c.s = SimpleNamespace(job=SimpleNamespace(check=lambda: None), stats=SimpleNamespace(replans=0), kept=False, moved=None,
                           mission=SimpleNamespace(goal=(5.0, 0.0), progress=lambda leg, done, total, message,
                                                   phase="": said.append(message)))
     c.said = said  # type: ignore[attr-defined]

@@ -362,7 +362,8 @@ def test_the_scan_loop_on_the_chooser_scans_every_stretch_and_drives_by_the_vehi
 def test_a_navigate_from_where_the_last_one_left_the_rover_starts_on_its_map(server_factory) -> None:
     """A GNC sends goal after goal. The second navigate starts where the first ended and takes its
     bounds map (no set-down: the ground round the rover is what the first one's frames saw and its
-    wheels felt); the rover carried off (sim move-rover), the third is set down again."""
+    wheels felt). Backed 0.3 m by the GNC's own drive, the third takes that map too and is set down
+    again on it; the rover carried off (sim move-rover), the fourth is set down on a fresh map."""
     srv = server_factory(["server.scene=quarry"])
     srv.app.world.set_target_visible(False)
     c = srv.client()
@@ -378,6 +379,13 @@ def test_a_navigate_from_where_the_last_one_left_the_rover_starts_on_its_map(ser
     assert not any(m.startswith("set down on") for m in second)
     kept = [m for m in second if m.startswith("the ground round the rover as the last navigate left it")]
     assert len(kept) == 1 and int(kept[0].split("(")[1].split()[0]) > 0, second
+    drove = c.request("sim drive -v -0.1 -seconds 3")  # the GNC backs the rover 0.3 m, and says so
+    assert drove.status == "OK"
+    assert c.request(f"pose -x {drove.fields['odom_x']} -y {drove.fields['odom_y']} "
+                     f"-heading {drove.fields['odom_heading']} -stopped true").status == "OK"
+    third = navigate("navigate -goal 2.6,0 -auto -loop see -name c")
+    again = [m for m in third if m.startswith("set down on") and "on the map the last navigate left" in m]
+    assert len(again) == 1 and " 0.30 m from where it left the rover" in again[0], third
     assert c.request("sim move-rover -dx 0.3").status == "OK"
-    third = navigate("navigate -goal 3.3,0 -auto -loop see -name c")
-    assert any(m.startswith("set down on") for m in third)
+    fourth = navigate("navigate -goal 3.9,0 -auto -loop see -name d")
+    assert any(m.startswith("set down on") and "the last navigate left" not in m for m in fourth)
