@@ -97,7 +97,7 @@ class SeeConfig(Settings):
                               "one left the rover (a drive of the GNC's own between goals) takes that one's map and "
                               "is set down again where it stands, the set-down filling only what the map's frames "
                               "did not bound: backed out of where it was first set down, the rover turns on ground "
-                              "those frames saw (docs/NAVIGATE_BENCH.md). Within 5 cm and 2 deg it needs no set-down; "
+                              "those frames saw (docs/NAVIGATE_BENCH.md). Where it still stands it needs no set-down; "
                               "farther than this, after sim move-rover or with other map settings, a fresh map "
                               "(0: only where the rover still stands)", unit="m", min=0.0, max=10.0, option=False)
     register: bool = param(True, "see loop with the gate: a rover that has not moved keeps its last frame's "
