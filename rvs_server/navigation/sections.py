@@ -269,13 +269,28 @@ class Chooser:
         turned = abs((pose[2] - heading + 180.0) % 360.0 - 180.0)
         return arc if math.hypot(pose[0] - x, pose[1] - y) <= TRACK_STILL and turned <= TRACK_TURN else None
 
+    def set_down_hint(self, pose: tuple[float, float, float]) -> str:
+        """What an operator can do about a safe stop where the rover was set down and has not left
+        (its turns sweep the set-down's guess at the ground round the body, which no camera shows):
+        a short straight drive of the GNC's own, and navigate again on this map. Empty elsewhere,
+        on the map the last navigate left where the rover still stands, or with keep_moved 0."""
+        x0, y0 = self.s.cover[0]
+        set_down = not self.s.kept or self.s.moved is not None
+        if not set_down or self.d.p.keep_moved <= 0 or math.hypot(pose[0] - x0, pose[1] - y0) >= reach(self.d.body):
+            return ""
+        return ("; the rover has not left where it was set down, and the ground under and round its body there is "
+                "the set-down's guess, which no camera shows: the GNC may back it straight (about 0.6 m) on its own "
+                "judgement, report its pose and send navigate again, which sets down on this navigate's map "
+                f"(navigate.see_keep_moved, {self.d.p.keep_moved:g} m)")
+
     def _back_out(self, leg: int, pose: tuple[float, float, float], why: str) -> None:
         """A dead end at ``pose`` (``why``: the sentence the safe stop would have said): back out of
         it on the cheapest reverse section that passes, its ground priced for the cost to go; a
         safe stop (E_DATA) once the budget's retreats are made (:class:`RetreatBudget`) or none
         passes."""
         if self.budget.spent:
-            raise ProtocolError("E_DATA", f"{why}; {self.budget} (navigate.see.retreat.retreats)")
+            raise ProtocolError("E_DATA", f"{why}; {self.budget} (navigate.see.retreat.retreats)"
+                                          f"{self.set_down_hint(pose)}")
         bounds = self.d.bounds
         self.dead_ends.append(DeadEnd(pose[0], pose[1], self.retreat.radius, bounds.frames))
         options = reverse_options(pose, self._track_back(pose), self.retreat, self.params.max_curvature,
@@ -293,7 +308,8 @@ class Chooser:
         finally:
             self.s.stats.replanned(t0, c0)
         if choice.status != "drive":
-            raise ProtocolError("E_DATA", f"{why}; backing out: {choice.reason} ({self.budget})")
+            raise ProtocolError("E_DATA", f"{why}; backing out: {choice.reason} ({self.budget})"
+                                          f"{self.set_down_hint(pose)}")
         self.s.stats.retreats += 1
         self.budget.made += 1
         self.s.mission.progress(leg, 1, 1, f"dead end at ({pose[0]:.2f}, {pose[1]:.2f}): backing out "

@@ -10,6 +10,7 @@ from typing import Any
 
 import numpy as np
 
+from drivers.sim.rover import RoverBody
 from prox_workflows.algorithms.candidates import CandidateParams, Choice
 from prox_workflows.algorithms.retreat import RetreatBudget, RetreatParams
 from rvs_server.navigation.sections import Chooser
@@ -24,7 +25,8 @@ class _Driver:
         self.rounds = 0
         self.looked = False
         self.set_down_pending = False
-        self.p = SimpleNamespace(chooser=CandidateParams(), chance=None, retreat=RetreatParams())
+        self.p = SimpleNamespace(chooser=CandidateParams(), chance=None, retreat=RetreatParams(), keep_moved=2.0)
+        self.body = RoverBody()
         self.at = (0.0, 0.0, 0.0)
         self.bounds = SimpleNamespace(frames=3)
 
@@ -50,6 +52,7 @@ def _chooser(script: list[Choice]) -> tuple[Chooser, _Driver, list[tuple[Any, bo
     c.budget = RetreatBudget(d.p.retreat)
     said: list[str] = []
     c.s = SimpleNamespace(job=SimpleNamespace(check=lambda: None), stats=SimpleNamespace(replans=0), kept=False, moved=None,
+                          cover=[(0.0, 0.0), (5.0, 0.0)],
                           mission=SimpleNamespace(goal=(5.0, 0.0), progress=lambda leg, done, total, message,
                                                   phase="": said.append(message)))
     c.said = said  # type: ignore[attr-defined]
@@ -118,3 +121,20 @@ def test_a_section_back_to_where_the_rover_stood_no_closer_leaves_a_dead_end_whe
     assert [(e.x, e.y, e.radius) for e in c.dead_ends] == [(1.5, 0.6, RetreatParams().radius)]
     assert c.said == ["dead end at (1.50, 0.60): the way on leads back to (0.00, 0.00), no closer"]
     assert len(driven) == 4 and c.since_best == 3
+
+
+def test_a_safe_stop_where_the_rover_was_set_down_says_what_the_operator_can_do() -> None:
+    """Stopped where it was set down (fresh, or set down again on a kept map after the GNC moved
+    it), the stop says that the GNC may back it out and navigate take this map; stopped elsewhere,
+    on the kept map where the rover still stands, or with keep_moved 0, it says nothing more."""
+    c, d, _, _ = _chooser([])
+    hint = c.set_down_hint((0.1, 0.0, 0.0))
+    assert "has not left where it was set down" in hint and "navigate.see_keep_moved, 2 m" in hint
+    assert c.set_down_hint((0.5, 0.0, 0.0)) == ""  # past the body's reach: it left
+    c.s.kept, c.s.moved = True, 0.6  # set down again on the last navigate's map, after the GNC's drive
+    assert c.set_down_hint((0.0, 0.0, 0.0)) == hint
+    c.s.moved = None  # on that map where the rover still stands: no set-down to speak of
+    assert c.set_down_hint((0.0, 0.0, 0.0)) == ""
+    c.s.kept = False
+    d.p.keep_moved = 0.0
+    assert c.set_down_hint((0.0, 0.0, 0.0)) == ""
