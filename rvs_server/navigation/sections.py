@@ -275,8 +275,7 @@ class Chooser:
         a short straight drive of the GNC's own, and navigate again on this map. Empty elsewhere,
         on the map the last navigate left where the rover still stands, or with keep_moved 0."""
         x0, y0 = self.s.cover[0]
-        set_down = not self.s.kept or self.s.moved is not None
-        if not set_down or self.d.p.keep_moved <= 0 or math.hypot(pose[0] - x0, pose[1] - y0) >= reach(self.d.body):
+        if not self.s.sets_down or self.d.p.keep_moved <= 0 or math.hypot(pose[0] - x0, pose[1] - y0) >= reach(self.d.body):
             return ""
         return ("; the rover has not left where it was set down, and the ground under and round its body there is "
                 "the set-down's guess, which no camera shows: the GNC may back it straight (about 0.6 m) on its own "

@@ -70,6 +70,7 @@ class SeeStrategy:
         self.kept = False  # the bounds map is the one the last navigate left
         # with that map, how far (m) the rover stands from where it was left (None: it still stands there)
         self.moved: float | None = None
+        self.sets_down = False  # this navigate sets the rover down where it stands (below)
         if self.p.gate == "bounds" or self.scan_loop:
             head = HeadCalibration.from_dict(self.app.config.get("head").as_dict())
             half = window_half(self.p, mission.rover.body(), head)
@@ -87,10 +88,10 @@ class SeeStrategy:
         # a kept map where the rover still stands needs no set-down: the ground round it is what
         # the last navigate's frames saw and its wheels felt; moved since, it is set down again on
         # that map (the set-down fills only what no frame bounded)
-        fresh = bounds is not None and (not self.kept or self.moved is not None)
-        if fresh and self.p.set_down == "ring":
+        self.sets_down = bounds is not None and (not self.kept or self.moved is not None)
+        if self.sets_down and self.p.set_down == "ring":
             self.driver.set_down_pending = True  # (Chooser.drive_on: after the first look round)
-        elif fresh:
+        elif self.sets_down:
             # the rover was set down here: the ground round the mast's foot, which no tilt shows,
             # and the disc its body turns in are taken as clear, within 1 cm of level or (see_set_down
             # attitude) of the plane the rover's attitude says it stands on: the one place the chooser

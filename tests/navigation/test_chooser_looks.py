@@ -52,7 +52,7 @@ def _chooser(script: list[Choice]) -> tuple[Chooser, _Driver, list[tuple[Any, bo
     c.budget = RetreatBudget(d.p.retreat)
     said: list[str] = []
     c.s = SimpleNamespace(job=SimpleNamespace(check=lambda: None), stats=SimpleNamespace(replans=0), kept=False, moved=None,
-                          cover=[(0.0, 0.0), (5.0, 0.0)],
+                          sets_down=True, cover=[(0.0, 0.0), (5.0, 0.0)],
                           mission=SimpleNamespace(goal=(5.0, 0.0), progress=lambda leg, done, total, message,
                                                   phase="": said.append(message)))
     c.said = said  # type: ignore[attr-defined]
@@ -133,8 +133,8 @@ def test_a_safe_stop_where_the_rover_was_set_down_says_what_the_operator_can_do(
     assert c.set_down_hint((0.5, 0.0, 0.0)) == ""  # past the body's reach: it left
     c.s.kept, c.s.moved = True, 0.6  # set down again on the last navigate's map, after the GNC's drive
     assert c.set_down_hint((0.0, 0.0, 0.0)) == hint
-    c.s.moved = None  # on that map where the rover still stands: no set-down to speak of
+    c.s.moved, c.s.sets_down = None, False  # on that map where the rover still stands: no set-down
     assert c.set_down_hint((0.0, 0.0, 0.0)) == ""
-    c.s.kept = False
+    c.s.kept, c.s.sets_down = False, True
     d.p.keep_moved = 0.0
     assert c.set_down_hint((0.0, 0.0, 0.0)) == ""

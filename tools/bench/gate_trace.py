@@ -233,18 +233,16 @@ def turn_trace(stats: dict[str, np.ndarray], g: Any, k: float, pose: Any, truth:
     held by the map, and the term whose removal passes the turn is the one that holds it (taking
     it out is a diagnosis, not a fix: it changes the stated risk)."""
 
-    def passes(ok: np.ndarray) -> float:
-        bad = np.flatnonzero(~ok)
-        return 360.0 if not len(bad) else float(step * (bad[0] - 1))
+    turned = np.arange(0.0, 360.0 + step / 2, step)
 
     def judged(poses: np.ndarray, st: dict[str, np.ndarray], p: chance.ChanceParams) -> float:
-        return passes(chance.chance_check(chance.posterior(st, g, k, p), g, poses, body, p).safe)
+        return _passes_to(chance.chance_check(chance.posterior(st, g, k, p), g, poses, body, p).safe, turned)
 
     out = {}
     for way, sign in (("left", 1.0), ("right", -1.0)):
-        heads = pose[2] + sign * np.arange(0.0, 360.0 + step / 2, step)
+        heads = pose[2] + sign * turned
         poses = np.column_stack([np.full(len(heads), pose[0]), np.full(len(heads), pose[1]), heads])
-        out[way] = {"truth": passes(truth(poses).safe),
+        out[way] = {"truth": _passes_to(truth(poses).safe, turned),
                     "check": judged(poses, stats, params),
                     "without": {name: judged(poses, *term(stats, params)) for name, term in TERMS.items()}}
     return out
@@ -296,8 +294,8 @@ def axis_trace(stats: dict[str, np.ndarray], g: Any, k: float, pose: Any, truth:
 
 
 def _passes_to(ok: np.ndarray, d: np.ndarray) -> float:
-    """How far along ``d`` (m from the pose, signed, evenly spaced) every pose passes: the last
-    before the first that fails (minus a spacing: the pose itself fails)."""
+    """How far along ``d`` (from the pose, signed, evenly spaced: metres or degrees) every pose
+    passes: the last before the first that fails (minus a spacing: the pose itself fails)."""
     bad = np.flatnonzero(~ok)
     return round(float(abs(d[-1]) if not len(bad) else abs(d[bad[0]]) - abs(d[1] - d[0])), 3)
 
