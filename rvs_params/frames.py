@@ -39,6 +39,13 @@ def rpy(roll: float, pitch: float, yaw: float) -> np.ndarray:
     return rot_z(yaw) @ rot_y(pitch) @ rot_x(roll)
 
 
+def rover_rotation(heading: float, roll: float = 0.0, pitch: float = 0.0) -> np.ndarray:
+    """The rover body's orientation in the global frame from its heading and the roll (left side
+    up) and pitch (nose up) an IMU gives: yaw, then pitch, then roll. Along the body's x the
+    ground it stands on rises tan(pitch) per metre, along its y tan(roll) / cos(pitch)."""
+    return rot_z(heading) @ rot_y(-pitch) @ rot_x(roll)
+
+
 def make_T(R: np.ndarray | None = None, t: Any = None) -> np.ndarray:
     """The 4x4 transform of rotation ``R`` (identity if None) then translation ``t`` (zero if None)."""
     T = np.eye(4)

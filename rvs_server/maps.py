@@ -24,6 +24,7 @@ import yaml
 from prox_workflows.grid import Layers, median_near, read_geotiff
 from prox_workflows.products import write_yaml_atomic
 
+from .bus import tapped_call
 from .protocol import Fixed, ProtocolError, valid_stem
 
 if TYPE_CHECKING:
@@ -102,11 +103,16 @@ def ground_height(layers: Layers | None, x: float, y: float) -> float:
     return 0.0 if z is None else z
 
 
-def current_pose(app: App) -> tuple[float, float, float, float]:
-    """x, y, heading and the ground height under the rover (from the current DEM if known): the
-    GNC reports a planar pose, and a scan's points need the height too."""
+def current_pose(app: App) -> tuple[float, float, float, float, float, float]:
+    """x, y, heading, the ground height under the rover (from the current DEM if known), and the
+    roll and pitch its IMU or the GNC's pose report gives (level where neither does): the GNC
+    reports a planar pose, and a scan's points need the height and the body's tilt too."""
     p = app.pose
-    return (p.x, p.y, p.heading, ground_height(app.maps.layers, p.x, p.y))
+    rover = app.devices.devices.get("rover")
+    # a device call like a frame: a recording holds the tilt its scans were placed with
+    attitude = tapped_call(app.bus, rover.attitude) if rover is not None else None
+    roll, pitch = (float(attitude[0]), float(attitude[1])) if attitude is not None else (0.0, 0.0)
+    return (p.x, p.y, p.heading, ground_height(app.maps.layers, p.x, p.y), roll, pitch)
 
 
 # ------------------------------------------------------------------ recovery sets

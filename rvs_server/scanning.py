@@ -63,7 +63,7 @@ DEM_INPUTS = ("fov", "ptu_limits", "ptu_motion", "ptu_start", "scan_order", "pen
               "hazard", "out_dir", "views_dir", "made_by", "parameters")
 
 
-def rover_mask_polygon(app: App, pose: tuple[float, float, float, float]) -> np.ndarray:
+def rover_mask_polygon(app: App, pose: tuple[float, ...]) -> np.ndarray:
     """The rover body's footprint (with margin) in the global frame, to mask it out of scans."""
     head = app.config.get("head")
     half_l = head.rover_length / 2 + head.rover_margin

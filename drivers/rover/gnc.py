@@ -20,6 +20,7 @@ from typing import Any
 from drivers.base import DeviceError, DeviceInterrupted
 
 from .backend import BACKENDS, Attitude, Pilot, Pose, PoseFeed, RoverBody, RoverSettings, Settle, Silent
+from .imu import SimImu
 
 # deg, 1-sigma taken for the roll and pitch a GNC reports (docs/PROTOCOL.md, pose): a rover's IMU
 # levels to about 0.1 deg at rest; twice that covers one that reports while rolling
@@ -35,6 +36,10 @@ class GncRover:
 
     def __init__(self, settings: RoverSettings, world: Any = None, poses: PoseFeed | None = None) -> None:
         self.poses = poses
+        # in the simulator the simulated rover is the GNC's too: its IMU gives the attitude a
+        # report leaves out, as the GNC reading it would (a scan on the default server, whose
+        # operator sends a planar pose, is placed with the body's tilt)
+        self._imu = SimImu(world) if world is not None else None
 
     def open(self) -> None:
         if self.poses is None:
@@ -51,11 +56,12 @@ class GncRover:
 
     def attitude(self) -> Attitude | None:
         """Roll and pitch where the GNC's last pose report gave them (``pose -roll -pitch``), good
-        to :data:`GNC_ATTITUDE_SIGMA`; None when it gave none."""
+        to :data:`GNC_ATTITUDE_SIGMA`; where it gave none, the simulated rover's IMU in the
+        simulator, and None on a real rover."""
         p = self.poses.pose
         roll, pitch = getattr(p, "roll", None), getattr(p, "pitch", None)
         if roll is None or pitch is None:
-            return None
+            return self._imu.read() if self._imu is not None else None
         return float(roll), float(pitch), GNC_ATTITUDE_SIGMA
 
     def body(self) -> RoverBody:

@@ -17,7 +17,7 @@ from typing import Any
 from drivers.base import DeviceError, DeviceInterrupted
 from drivers.replay import Replay, ReplaySettings, open_replay
 
-from .backend import BACKENDS, Pilot, Pose, PoseFeed, Settle
+from .backend import BACKENDS, Attitude, Pilot, Pose, PoseFeed, Settle
 from .gnc import GncRover
 
 STAND_S = 1.0  # recorded seconds without motion that end a drive
@@ -56,6 +56,19 @@ class ReplayRover(GncRover):
             source, sigma, sigma_heading = run.recording.metadata.get("pose_estimate") or ("replay", 0.0, 0.0)
             self.poses.set_pose(*map(float, start), source=str(source), sigma=float(sigma),
                                 sigma_heading=float(sigma_heading))
+
+    def attitude(self) -> Attitude | None:
+        """The recorded run's next read of the rover's roll and pitch (each frame was placed with
+        one): the replayed frames are placed with the tilt the recorded ones were. None where the
+        recording holds no read (a server that placed its frames level, a recording of devices
+        alone)."""
+        run = self._replay
+        if run is None:
+            raise DeviceError("rover", "the replayed rover is not open; run reinit or reset")
+        if not any(c.call == "attitude" for c in run.recording.calls.get("rover", ())):
+            return None
+        result = run.next("rover", ("attitude",), self._timing).result
+        return None if result is None else (float(result[0]), float(result[1]), float(result[2]))
 
     def drive(self, pilot: Pilot, stop: Callable[[], bool], settle: Settle, since: int) -> Pose:
         run = self._replay

@@ -12,12 +12,10 @@ from __future__ import annotations
 from collections.abc import Callable
 from typing import Any
 
-import numpy as np
-
 from drivers.base import DeviceError, DeviceInterrupted
-from drivers.sim.rover import IMU_SIGMA_DEG
 
 from .backend import BACKENDS, Attitude, Motion, Pilot, Pose, PoseFeed, RoverBody, RoverSettings, Settle
+from .imu import SimImu
 
 
 @BACKENDS.backend("sim")
@@ -30,8 +28,7 @@ class SimRover:
     def __init__(self, settings: RoverSettings, world: Any = None, poses: PoseFeed | None = None) -> None:
         self.world = world
         self.poses = poses
-        # the IMU's noise, seeded by the world: a mission is repeatable
-        self._imu = np.random.default_rng([int(getattr(world, "seed", 0) or 0), 11])
+        self._imu = SimImu(world)
 
     def open(self) -> None:
         if self.world is None:
@@ -55,11 +52,7 @@ class SimRover:
         return self.world.body
 
     def attitude(self) -> Attitude:
-        """The true body's roll and pitch on the ground under its wheels, with the IMU's noise
-        (:data:`~drivers.sim.rover.IMU_SIGMA_DEG`)."""
-        roll, pitch = self.world.rover_attitude()
-        noise = self._imu.normal(0.0, IMU_SIGMA_DEG, 2)
-        return roll + float(noise[0]), pitch + float(noise[1]), IMU_SIGMA_DEG
+        return self._imu.read()
 
     def drive(self, pilot: Pilot, stop: Callable[[], bool], settle: Settle, since: int) -> Pose:
         """Ask the pilot for a motion, run it, tell the pilot where the rover got to, again,

@@ -15,7 +15,8 @@ from dataclasses import dataclass, field, fields
 
 import numpy as np
 
-__all__ = ["IMU_SIGMA_DEG", "RoverBody", "RoverDrive", "Slip", "resting_attitude", "step_pose"]
+__all__ = ["IMU_SIGMA_DEG", "RoverBody", "RoverDrive", "Slip", "resting_attitude", "resting_plane", "resting_pose",
+           "step_pose"]
 
 # deg, 1-sigma: the simulated IMU's roll and pitch at rest (an industrial MEMS IMU levels to about
 # 0.05-0.1 deg from gravity); the sim rover's attitude carries this noise and says so
@@ -125,16 +126,18 @@ class RoverBody:
 _TRIPLETS = ((0, 1, 2, 3), (0, 1, 3, 2), (0, 2, 3, 1), (1, 2, 3, 0))  # three wheels a body rests on, the fourth
 
 
-def resting_attitude(body: RoverBody, heights: Callable[[np.ndarray, np.ndarray], np.ndarray],
-                     pose: tuple[float, float, float], step: float = 0.01) -> tuple[float, float]:
-    """Roll (left side up) and pitch (nose up), deg, of ``body`` standing at ``pose`` on the
-    surface ``heights(x, y)``, as its IMU would read them at rest: each wheel rests on the
-    highest ground its circle touches under its footprint, the rigid body on three wheels with
-    the fourth at or below their plane; of the two planes it may rock between, it settles on the
-    one that puts its centre lower. The fourth wheel's ground below that plane no IMU shows."""
+def resting_plane(body: RoverBody, heights: Callable[[np.ndarray, np.ndarray], np.ndarray],
+                  pose: tuple[float, float, float], step: float = 0.01) -> tuple[float, float, float, float]:
+    """The plane ``body`` rests on at ``pose`` on the surface ``heights(x, y)``: its height at
+    the rover's centre, its rise per metre along the body's x and y (level axes turned by the
+    heading), and how far the fourth wheel's ground lies below it (m, <= 0). Each wheel rests on
+    the highest ground its circle touches under its footprint, the rigid body on three wheels
+    with the fourth at or below their plane; of the two planes it may rock between, it settles
+    on the one that puts its centre lower."""
     r, half_w = body.wheel_radius, body.wheel_width / 2
-    dx, dy = (a.ravel() for a in np.meshgrid(np.arange(-r, r + step / 2, step),
-                                             np.arange(-half_w, half_w + step / 2, step)))
+    # odd counts: the samples hold the wheel's lowest point, so it rests on flat ground at its height
+    dx, dy = (a.ravel() for a in np.meshgrid(np.linspace(-r, r, 2 * math.ceil(r / step) + 1),
+                                             np.linspace(-half_w, half_w, 2 * math.ceil(half_w / step) + 1)))
     sag = r - np.sqrt(np.maximum(r * r - dx * dx, 0.0))
     c, s = math.cos(math.radians(pose[2])), math.sin(math.radians(pose[2]))
     hubs = body.wheels
@@ -146,11 +149,27 @@ def resting_attitude(body: RoverBody, heights: Callable[[np.ndarray, np.ndarray]
     rests = []
     for t in _TRIPLETS:
         a, b, k = np.linalg.solve(np.column_stack([hubs[list(t[:3])], np.ones(3)]), contact[list(t[:3])])
-        if contact[t[3]] <= a * hubs[t[3], 0] + b * hubs[t[3], 1] + k + 1e-9:
-            rests.append((k, a, b))
-    _, a, b = min(rests)  # of the two planes it rocks between, it settles on the lower
+        below = contact[t[3]] - (a * hubs[t[3], 0] + b * hubs[t[3], 1] + k)
+        if below <= 1e-9:
+            rests.append((float(k), float(a), float(b), float(below)))
+    return min(rests)  # of the two planes it rocks between, it settles on the lower
+
+
+def resting_pose(body: RoverBody, heights: Callable[[np.ndarray, np.ndarray], np.ndarray],
+                 pose: tuple[float, float, float], step: float = 0.01) -> tuple[float, float, float]:
+    """Height, roll (left side up) and pitch (nose up), deg, of ``body`` resting at ``pose``
+    (:func:`resting_plane`). The height is where the plane meets the rover's centre, the rover
+    frame's origin: its sensors ride on the body, so every frame is taken from this pose. The
+    fourth wheel's ground below the plane no IMU shows."""
+    k, a, b, _ = resting_plane(body, heights, pose, step)
     pitch = math.atan(a)
-    return math.degrees(math.atan(b * math.cos(pitch))), math.degrees(pitch)
+    return k, math.degrees(math.atan(b * math.cos(pitch))), math.degrees(pitch)
+
+
+def resting_attitude(body: RoverBody, heights: Callable[[np.ndarray, np.ndarray], np.ndarray],
+                     pose: tuple[float, float, float], step: float = 0.01) -> tuple[float, float]:
+    """Roll and pitch (deg) of :func:`resting_pose`: what the rover's IMU reads at rest."""
+    return resting_pose(body, heights, pose, step)[1:]
 
 
 @dataclass

@@ -13,6 +13,7 @@ from rvs_params.frames import (  # noqa: F401 - the simulator's modules import t
     rot_x,
     rot_y,
     rot_z,
+    rover_rotation,
     rpy,
 )
 

@@ -26,7 +26,7 @@ from drivers.sim.heightfield import Heightfield
 from drivers.sim.noise import periodic_tile
 from drivers.sim.objects import Rect, SceneObject, checker_albedo
 from drivers.sim.render import Detail, Render, render
-from drivers.sim.rover import RoverBody, RoverDrive, Slip, resting_attitude, step_pose
+from drivers.sim.rover import RoverBody, RoverDrive, Slip, resting_pose, step_pose
 from drivers.sim.scene import (
     CHECKERBOARD_ID,
     FIRST_OBJECT_ID,
@@ -39,7 +39,7 @@ from drivers.sim.settings import AlbedoSettings, OpticsSettings, SceneLook, SunS
 from drivers.sim.shadows import sunlit_map
 from drivers.sim.terrain import add_rock, build_terrain, data_file
 from drivers.sim.trajectory import Trajectory
-from drivers.sim.transforms import invert, make_T, rot_z, transform
+from drivers.sim.transforms import invert, make_T, rot_z, rover_rotation, transform
 from drivers.sim.trigger import TriggerBus
 
 __all__ = ["World", "Render", "CameraTruth", "HeadGeometry"]
@@ -73,6 +73,8 @@ class World:
         self.clock = SimClock(clock_scale)
         self._drive_lock = threading.Lock()  # one drive at a time (navigate -auto or sim drive)
         self._rock_lock = threading.Lock()  # one rock added at a time (add_rock)
+        # the rover's resting pose, held for the (pose, body, terrain) it was found on: rover_rest
+        self._rest: tuple[tuple, tuple[float, float, float]] | None = None
         self._under_way = 0  # a drive loop keeps the rover rolling between its drive calls
         self._pan = 0.0
         self._tilt = 0.0
@@ -201,20 +203,24 @@ class World:
         with self._lock:
             return self._rover
 
+    def rover_rest(self) -> tuple[float, float, float]:
+        """Height, roll and pitch (deg) of the rover's body resting on the terrain under its
+        wheels where it truly stands (:func:`~drivers.sim.rover.resting_pose`): the pose every
+        frame is rendered from, and the attitude its IMU reads. Held until the rover, its body
+        or the terrain change: every frame and every IMU read asks."""
+        with self._lock:
+            key = (self._rover, self.body, self.terrain)
+            if self._rest is None or any(a is not b for a, b in zip(self._rest[0], key, strict=True)):
+                self._rest = (key, resting_pose(self.body, self.terrain.sample, self._rover))
+            return self._rest[1]
+
     def rover_z(self) -> float:
-        """Height of the rover frame origin: the terrain under the rover centre (the rover is
-        kept level; 0 off the map)."""
-        x, y, _ = self.rover_pose()
-        z = float(self.terrain.sample(x, y))
-        return z if np.isfinite(z) else 0.0
+        """Height of the rover frame origin: where its wheels' plane meets its centre."""
+        return self.rover_rest()[0]
 
     def rover_attitude(self) -> tuple[float, float]:
-        """Roll (left side up) and pitch (nose up), deg, of the rover's body resting on the terrain
-        under its wheels where it truly stands (the rendered rover is kept level; this is what
-        its IMU would read)."""
-        with self._lock:
-            pose, body, terrain = self._rover, self.body, self.terrain
-        return resting_attitude(body, terrain.sample, pose)
+        """Roll (left side up) and pitch (nose up), deg, of the resting body: what its IMU reads."""
+        return self.rover_rest()[1:]
 
     def set_rover_pose(self, x: float, y: float, heading_deg: float) -> None:
         """Put the rover there, and its odometry with it (a placement, not a drive)."""
@@ -332,18 +338,22 @@ class World:
                         return dict(terrain.rocks[-1])
 
     def truth(self) -> dict[str, float]:
-        """The true state for ``sim truth``: x, y, z, heading (deg) of the rover in the global
-        frame and the PTU's pan and tilt (deg), read together under the lock; also the
+        """The true state for ``sim truth``: x, y, z, heading, roll and pitch (deg) of the rover in
+        the global frame (:meth:`rover_rest`) and the PTU's pan and tilt (deg), read together under the lock; also the
         dead-reckoned pose (odom_x, odom_y, odom_heading) and the simulated time."""
         with self._lock:
             x, y, h = self._rover
             ox, oy, oh = self._odom
-            return {"x": x, "y": y, "z": self.rover_z(), "heading": h, "pan": self._pan, "tilt": self._tilt,
-                    "odom_x": ox, "odom_y": oy, "odom_heading": oh, "sim_time": self.clock.now()}
+            z, roll, pitch = self.rover_rest()
+            return {"x": x, "y": y, "z": z, "heading": h, "roll": roll, "pitch": pitch, "pan": self._pan,
+                    "tilt": self._tilt, "odom_x": ox, "odom_y": oy, "odom_heading": oh, "sim_time": self.clock.now()}
 
     def T_world_rover(self) -> np.ndarray:
-        x, y, h = self.rover_pose()
-        return make_T(rot_z(h), (x, y, self.rover_z()))
+        """The rover's body as it rests where it stands (:meth:`rover_rest`), tilted with it."""
+        with self._lock:
+            x, y, h = self._rover
+            z, roll, pitch = self.rover_rest()
+        return make_T(rover_rotation(h, roll, pitch), (x, y, z))
 
     def sensor_pose(self, sensor: str) -> np.ndarray:
         """T_world_from_camera (OpenCV optical frame) of "tof", "left" or "right"."""

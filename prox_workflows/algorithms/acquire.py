@@ -149,7 +149,7 @@ def acquire_coord_images(
     positions: list[tuple[float, float]],
     grab: Grab,
     head: HeadCalibration,
-    pose: tuple[float, float, float, float],
+    pose: tuple[float, ...],
     out_dir: Path | None = None,
     stem: str = "view",
     progress: Callable[[int, int, str], None] | None = None,
@@ -158,7 +158,8 @@ def acquire_coord_images(
     scan: dict[str, Any] | None = None,
     move_ahead: Callable[[float, float], None] | None = None,
 ) -> list[View]:
-    """Acquire every pointing; ``pose`` = (x, y, heading, z) of the rover in the global frame.
+    """Acquire every pointing; ``pose`` = (x, y, heading, z[, roll, pitch]) of the rover in the
+    global frame (:func:`~.transforms.T_global_from_rover`).
 
     ``move_ahead(pan, tilt)``, if given, sends the PTU on to the next pointing without waiting
     (the next ``grab`` waits for it): the PTU travels while this view is transformed, its
@@ -172,7 +173,7 @@ def acquire_coord_images(
     goes to ``<stem>_scan.yaml`` with the pointings in the order taken, so the folder alone is
     enough to process the views again and to see how they were taken.
     """
-    T_gr = T_global_from_rover(pose[0], pose[1], pose[2], pose[3])
+    T_gr = T_global_from_rover(*pose)
     if out_dir is not None:
         write_yaml_atomic(Path(out_dir) / f"{stem}_scan.yaml",
                           {"pose": list(pose), "positions": [[float(p), float(t)] for p, t in positions], **(scan or {})})

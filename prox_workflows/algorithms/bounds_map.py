@@ -613,8 +613,9 @@ class BoundsMap:
         """How far (m) a frame's returns (global, N x 3), placed at the height its pose gives the
         rover, stand over the ground the map's earlier frames hold: the median, over the cells both
         bound, of the frame's cell mean less the map's. A frame is placed at a height read off the
-        map round the rover's centre, which is not where the body rests (the simulated rover's
-        camera rides with the ground under its centre point): frames placed 1-4 cm apart that way
+        map round the rover's centre, which is not where the body rests (its camera rides with the
+        plane its wheels rest on, which meets the centre up to 7 cm over the ground there in dense
+        rock): frames placed 1-4 cm apart that way
         disagree on the same ground, and the union the fusion keeps of disagreeing frames reads
         as relief no rock has. Only ground the map knows to ``flat`` (its mean's sigma and the
         relief its frames saw within the cell) is compared, where a height error along the ray moves

@@ -37,6 +37,8 @@ calibration).
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 NOISE_K = 45.0  # m * counts at 30 MHz
@@ -114,6 +116,15 @@ def tof_spread(points: np.ndarray, sensor: np.ndarray, amplitude: np.ndarray | N
     sigma_range = tof_sigma(r, amplitude, frequency_mhz=frequency_mhz, frames=frames).astype(np.float64)
     sigma_z, along, across = ray_spread(points, sensor, sigma_range, lateral_sigma_per_m * r)
     return np.maximum(sigma_z, NOISE_FLOOR), along, across
+
+
+def tilt_spread(points: np.ndarray, centre: np.ndarray, sigma_deg: float) -> np.ndarray:
+    """The height sigma an error of ``sigma_deg`` in the rover's roll and pitch (its IMU's, the
+    GNC's) puts on ground points: the frame turns with the body about its centre, so the error
+    grows with the distance from it (2 m out, 0.1 deg is 3.5 mm)."""
+    pts = np.asarray(points, dtype=np.float64)
+    lever = np.hypot(pts[:, 0] - centre[0], pts[:, 1] - centre[1])
+    return lever * math.tan(math.radians(sigma_deg))
 
 
 def pair_sigmas(points: np.ndarray, sensor: np.ndarray, sigma_range: np.ndarray, focal: float

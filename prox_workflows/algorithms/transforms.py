@@ -23,6 +23,7 @@ from rvs_params.frames import (  # noqa: F401 - the workflows and the server imp
     rot_x,
     rot_y,
     rot_z,
+    rover_rotation,
     rpy,
 )
 
@@ -97,9 +98,12 @@ def in_rover_frame(pose: tuple[float, float, float], x: float, y: float) -> tupl
     return dx * c + dy * s, -dx * s + dy * c
 
 
-def T_global_from_rover(x: float, y: float, heading: float, z: float = 0.0) -> np.ndarray:
-    """The rover pose in the global frame (the rover kept level: heading only)."""
-    return make_T(rot_z(heading), (x, y, z))
+def T_global_from_rover(x: float, y: float, heading: float, z: float = 0.0, roll: float = 0.0,
+                        pitch: float = 0.0) -> np.ndarray:
+    """The rover pose in the global frame, its body tilted by the roll and pitch its IMU or the
+    GNC gives (level without them): the sensors ride on the body, so a frame taken on a 10 deg
+    slope and placed level puts ground 3 m out 0.5 m off."""
+    return make_T(rover_rotation(heading, roll, pitch), (x, y, z))
 
 
 def camera_matrix(K: np.ndarray, T_global_cam: np.ndarray) -> np.ndarray:

@@ -245,8 +245,7 @@ def _prior(cfg: TrackConfig) -> tr.SizePrior:
 
 def _frame(app: App) -> np.ndarray:
     """T_global_from_rover from the server's pose (the ground under the rover from the DEM)."""
-    x, y, heading, z = current_pose(app)
-    return T_global_from_rover(x, y, heading, z)
+    return T_global_from_rover(*current_pose(app))
 
 
 def _sense(app: App, cfg: TrackConfig, pan: float, tilt: float, call: Any

@@ -95,8 +95,9 @@ def _truth(world: Any) -> dict[str, Any]:
     them: with slip the two poses part, and that gap is what a localiser must close."""
     t = world.truth()
     return {"x": Fixed(t["x"], 4), "y": Fixed(t["y"], 4), "z": Fixed(t["z"], 4), "heading": Fixed(t["heading"], 3),
-            "pan": Fixed(t["pan"], 3), "tilt": Fixed(t["tilt"], 3), "odom_x": Fixed(t["odom_x"], 4),
-            "odom_y": Fixed(t["odom_y"], 4), "odom_heading": Fixed(t["odom_heading"], 3),
+            "roll": Fixed(t["roll"], 3), "pitch": Fixed(t["pitch"], 3), "pan": Fixed(t["pan"], 3),
+            "tilt": Fixed(t["tilt"], 3), "odom_x": Fixed(t["odom_x"], 4), "odom_y": Fixed(t["odom_y"], 4),
+            "odom_heading": Fixed(t["odom_heading"], 3),
             "sim_time": Fixed(t["sim_time"], 3)}
 
 

@@ -44,7 +44,7 @@ from prox_workflows.algorithms import looks
 from prox_workflows.algorithms.bounds_map import BoundsMap
 from prox_workflows.algorithms.hazard_monitor import ground_pixels, rover_points
 from prox_workflows.algorithms.looks import BODY_MARGIN, View, on_body
-from prox_workflows.algorithms.noise import pair_sigmas, tof_spread
+from prox_workflows.algorithms.noise import pair_sigmas, tilt_spread, tof_spread
 from prox_workflows.algorithms.planner import NavMaps
 from prox_workflows.algorithms.rolling_map import (
     MapMemory,
@@ -56,6 +56,7 @@ from prox_workflows.algorithms.rolling_map import (
 from prox_workflows.algorithms.safety import in_footprint
 from prox_workflows.algorithms.transforms import HeadCalibration, T_global_from_rover, in_rover_frame
 
+from ..bus import tapped_call
 from ..jobs import device_call
 from ..maps import ground_height
 from ..protocol import Fixed, Reply
@@ -204,7 +205,9 @@ class SeeingDriver:
         pts = rover_points(xyz, T_rc, self.p.subsample, self.p.max_range, amplitude, 0.1)
         ranges = np.linalg.norm(pts - T_rc[:3, 3].astype(np.float32), axis=1)
         standing = self.standing(x, y)
-        T = T_global_from_rover(x, y, heading, self.stand_height(x, y))
+        imu = self.imu()  # one read for the frame: its pairs ride on the same body
+        roll, pitch, tilt_sigma = imu if imu is not None else (0.0, 0.0, 0.0)
+        T = T_global_from_rover(x, y, heading, self.stand_height(x, y), roll, pitch)
         if self.bounds is not None:
             self.bounds.follow(x, y, WINDOW_SLACK)
             # every pixel: a rock's top is read by the few returns on it, which a subsample drops
@@ -225,14 +228,15 @@ class SeeingDriver:
         if self.bounds is not None:
             raw, mhz = tof.noise_amplitude(amplitude[keep][ground], np.linalg.norm(cam[ground], axis=1))
             sigma, along, across = tof_spread(full, origin, raw, frames=frames, frequency_mhz=mhz)
+            sigma = np.hypot(sigma, tilt_spread(full, T[:3, 3], tilt_sigma))
             self.bounds.fuse(full, sigma, origin, self.p.max_range, along, sigma_across=across)
             for camera in (c for c in self.hazcams if c in cameras):
-                frame = self._fuse_hazcam(camera, T)
+                frame = self._fuse_hazcam(camera, T, tilt_sigma)
                 # the pair's capture is the sensor's time, as the ToF frame's is: the cycle starts later by it
                 t1 += frame.capture_s
                 self.cpu1 += frame.capture_cpu_s
             if not self.set_down_pending:
-                self.bounds.stood((x, y, heading), float(T[2, 3]), self.body, self.attitude())
+                self.bounds.stood((x, y, heading), float(T[2, 3]), self.body, self.attitude(imu))
             app.bus.publish("bounds", bounds=self.bounds)  # Foxglove and recordings (their hub throttles)
         self.stats.frame_ms.append((t1 - t0) * 1000)  # the ToF frame's and the pairs' captures
         return (x, y, heading), t1
@@ -269,8 +273,9 @@ class SeeingDriver:
         near = sweep_check(trav, g, along(self.p.blind), self.length, self.width)
         return check, near if near.verdict == "unknown" else None
 
-    def _fuse_hazcam(self, camera: str, T: np.ndarray) -> HazcamFrame:
-        """One body hazard camera's pair into the bounds map (with the rover at ``T``): the ground
+    def _fuse_hazcam(self, camera: str, T: np.ndarray, tilt_sigma: float) -> HazcamFrame:
+        """One body hazard camera's pair into the bounds map (with the rover at ``T``, its attitude
+        good to ``tilt_sigma`` deg): the ground
         from about 0.1 m past the body's end, where the mast never sees. Each point's range sigma
         is the disparity noise's (it grows with the range squared), and the frame is fused as a
         stereo frame: a cell's pixels share the matcher's window, so their errors are one error.
@@ -286,6 +291,7 @@ class SeeingDriver:
         pts = frame.points[ground] @ T[:3, :3].T + T[:3, 3]
         origin = T[:3, :3] @ frame.origin + T[:3, 3]
         sigma, sigma_xy = pair_sigmas(pts, origin, frame.sigma_range[ground], device.rig(camera).focal)
+        sigma = np.hypot(sigma, tilt_spread(pts, T[:3, 3], tilt_sigma))
         self.bounds.fuse(pts, sigma, origin, device.config.max_range, sigma_xy, sensor="stereo")
         return frame
 
@@ -315,16 +321,17 @@ class SeeingDriver:
         """Roll, pitch and their sigma (deg) from the rover's IMU where it stands, or None (the
         rover gives none: a GNC whose pose reports carry no roll and pitch)."""
         attitude = getattr(self.rover, "attitude", None)
-        return attitude() if attitude is not None else None
+        # a device call like a frame: a recording holds the tilt each frame was placed with
+        return tapped_call(self.app.bus, attitude) if attitude is not None else None
 
-    def attitude(self) -> tuple[float, float, float] | None:
-        """The IMU's attitude (:meth:`imu`) for the ground under the wheels while driving, or None
+    def attitude(self, imu: tuple[float, float, float] | None) -> tuple[float, float, float] | None:
+        """The IMU's attitude (``imu``, a read of :meth:`imu`) for the ground under the wheels while driving, or None
         (``see_set_down`` other than attitude: the wheels' ground is then the frames' and, where
         none, level within 5 mm of the datum). Not with ring: the plane goes through the datum,
         the frames' ground at the rover's centre, which is not where its wheels rest; felt so
         while driving, the wheels' cells stood 3-4 cm off the frames' cells beside them and tilted
         the resting plane 3.4 deg over the truth's at hirise_fresh 3 (docs/NAVIGATE_BENCH.md)."""
-        return self.imu() if self.p.set_down == "attitude" else None
+        return imu if self.p.set_down == "attitude" else None
 
     def _check_layer(self, pose: tuple[float, float, float]) -> np.ndarray:
         """The traversability the check sweeps: the rolling map's, lowered to 0 where the maps the

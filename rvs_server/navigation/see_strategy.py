@@ -101,7 +101,7 @@ class SeeStrategy:
             x, y, heading = self.app.pose.x, self.app.pose.y, self.app.pose.heading
             z = ground_height(self.app.maps.layers, x, y)
             fx, fy, radius = self.driver.blind_disc()
-            attitude = self.driver.attitude()
+            attitude = self.driver.attitude(self.driver.imu())
             plane = None if attitude is None else (x, y, *contact_plane(heading, attitude[0], attitude[1]))
             bounds.set_down((fx, fy), radius + BLIND_EDGE, z, plane=plane)
             bounds.set_down((x, y), self.driver.radius, z, plane=plane)

@@ -197,7 +197,7 @@ def test_the_rover_is_a_device_like_the_others(server) -> None:
 def test_the_rovers_attitude_is_its_imus_the_sims_from_the_ground_the_gncs_from_its_pose(server) -> None:
     """The sim rover's IMU reads the tilt of the plane its wheels rest on (within its declared
     noise); the GNC's roll and pitch come with its pose reports (both or neither), and a GNC
-    that sends none leaves the attitude unknown."""
+    that sends none leaves the attitude unknown, but in the simulator, whose IMU stands in."""
     from drivers.sim.rover import IMU_SIGMA_DEG, RoverBody, resting_attitude
 
     world = World.from_scene("office", clock_scale=0.0)
@@ -212,12 +212,18 @@ def test_the_rovers_attitude_is_its_imus_the_sims_from_the_ground_the_gncs_from_
     assert math.tan(math.radians(roll)) / math.cos(math.radians(pitch)) == pytest.approx(-0.1, abs=1e-6)
 
     gnc_rover = server.app.devices.get("rover")
+    real_gnc = create({"backend": "gnc"}, None, server.app)  # the same reports, on a rover with no simulator
+    real_gnc.open()
     gnc = server.client()
     assert gnc.request("pose -x 0.3 -y -0.1 -heading 10").status == "OK"
-    assert gnc_rover.attitude() is None  # this GNC says nothing of its attitude
+    assert real_gnc.attitude() is None  # this GNC says nothing of its attitude
+    # in the simulator the simulated rover's IMU gives what the report left out
+    roll, pitch, sigma = gnc_rover.attitude()
+    true_roll, true_pitch = server.app.world.rover_attitude()
+    assert sigma == IMU_SIGMA_DEG and abs(roll - true_roll) < 5 * sigma and abs(pitch - true_pitch) < 5 * sigma
     r = gnc.request("pose -x 0.3 -y -0.1 -heading 10 -roll 2.5 -pitch -4")
     assert r.status == "OK" and (r.fields["roll"], r.fields["pitch"]) == ("2.50", "-4.00")
-    assert gnc_rover.attitude()[:2] == (2.5, -4.0)
+    assert gnc_rover.attitude()[:2] == (2.5, -4.0) and real_gnc.attitude()[:2] == (2.5, -4.0)
     bad = gnc.request("pose -x 0.3 -roll 2")
     assert bad.status == "ERROR" and bad.fields["code"] == "E_ARG" and "-roll and -pitch" in bad.fields["message"]
     gnc.close()

@@ -219,9 +219,17 @@ def test_truth_reports_pose_and_ptu_together() -> None:
     w.set_ptu(12.5, -7.0)
     t = w.truth()
     assert (t["x"], t["y"], t["heading"], t["pan"], t["tilt"]) == (10.0, 0.0, 45.0, 12.5, -7.0)
-    assert t["z"] == pytest.approx(float(w.terrain.sample(10.0, 0.0)))
+    assert t["z"] == pytest.approx(float(w.terrain.sample(10.0, 0.0)), abs=0.005)  # the wheels' plane there
     assert t["z"] > 1.0
-    assert w.sensor_pose("tof")[2, 3] == pytest.approx(t["z"] + 1.26 - 0.06 * np.sin(np.radians(7.0)))
+    # the body tilts with the slope: heading 45 deg across it, the ground rises ahead and falls
+    # to the left, so the nose is up and the left side down; the mast's top leans with it
+    gx = (w.terrain.sample(10.2, 0.0) - w.terrain.sample(9.8, 0.0)) / 0.4
+    gy = (w.terrain.sample(10.0, 0.2) - w.terrain.sample(10.0, -0.2)) / 0.4
+    assert gx + gy > 0.3 and gy - gx < -0.5
+    assert (t["roll"], t["pitch"]) == w.rover_attitude()
+    assert t["pitch"] > 10.0 and t["roll"] < -15.0
+    mast = w.T_world_rover()[:3, :3] @ np.array([0.16, 0.0, 1.26 - 0.06 * np.sin(np.radians(7.0))])
+    assert w.sensor_pose("tof")[2, 3] == pytest.approx(t["z"] + mast[2], abs=0.01)
 
 
 def test_a_scene_built_again_shares_its_ground_and_a_rock_added_to_one_world_stays_there() -> None:

@@ -4,9 +4,9 @@ shows, on the simulator's true 1 cm surface (docs/NAVIGATE_BENCH.md, "The start'
 Per start of :func:`rvs_truth.surface.missions`: the ring round the mast's blind disc fitted as
 :func:`prox_workflows.algorithms.set_down.ring_plane` fits the map's (its spread about the plane,
 rocks included), how far the disc's ground past the turn stands off that plane (per cell and
-over 10 cm patches, a wheel's), and where the wheels' resting plane meets the rover's centre
-against the ground there (the frames' datum in the simulator, which renders the rover level on
-the ground under its centre), with the wheel a rigid body does not rest on.
+over 10 cm patches, a wheel's), and where the wheels' resting plane meets the rover's centre (the
+rover frame's origin, which the simulator renders every frame from) against the ground there
+(what a map's height at the centre reads), with the wheel a rigid body does not rest on.
 
     python -m tools.bench.set_down --scene dense --missions 8
 """
@@ -16,12 +16,11 @@ from __future__ import annotations
 import argparse
 import math
 from types import SimpleNamespace
-from typing import Any
 
 import numpy as np
 from scipy.ndimage import uniform_filter
 
-from drivers.sim.rover import _TRIPLETS
+from drivers.sim.rover import resting_plane
 from drivers.sim.world import World
 from prox_workflows.algorithms.set_down import ring_plane
 from prox_workflows.algorithms.vehicle import reach
@@ -30,27 +29,6 @@ from rvs_truth.surface import missions, truth_surface
 BLIND = 0.72  # m: the mast's blind disc round its foot (looks.blind_radius of the default head)
 FOOT = 0.10  # m: the pan axis's foot ahead of the rover's centre
 EDGE, WIDTH = 0.1, 0.5  # m: the ring past the disc (see.BLIND_EDGE, see.RING_WIDTH)
-
-
-def resting(body: Any, heights: Any, pose: tuple[float, float, float]) -> tuple[float, float]:
-    """The wheels' resting plane's height at the rover's centre, and how far the fourth wheel's
-    ground lies below it (m), as :func:`drivers.sim.rover.resting_attitude` rests the body."""
-    r, half_w, step = body.wheel_radius, body.wheel_width / 2, 0.01
-    dx, dy = (a.ravel() for a in np.meshgrid(np.arange(-r, r + step / 2, step),
-                                             np.arange(-half_w, half_w + step / 2, step)))
-    sag = r - np.sqrt(np.maximum(r * r - dx * dx, 0.0))
-    c, s = math.cos(math.radians(pose[2])), math.sin(math.radians(pose[2]))
-    hubs, contact = body.wheels, np.zeros(4)
-    for w, (hx, hy) in enumerate(hubs):
-        px, py = hx + dx, hy + dy
-        contact[w] = float(np.nanmax(np.asarray(heights(pose[0] + c * px - s * py, pose[1] + s * px + c * py)) - sag))
-    rests = []
-    for t in _TRIPLETS:
-        a, b, k = np.linalg.solve(np.column_stack([hubs[list(t[:3])], np.ones(3)]), contact[list(t[:3])])
-        below = contact[t[3]] - (a * hubs[t[3], 0] + b * hubs[t[3], 1] + k)
-        if below <= 1e-9:
-            rests.append((k, below))
-    return min(rests)
 
 
 def main() -> None:
@@ -73,7 +51,7 @@ def main() -> None:
         off = fine[r0:r1, c0:c1] - ring.height(X, Y)
         disc = (np.hypot(X - fx, Y - fy) <= BLIND + EDGE) & (np.hypot(X - s[0], Y - s[1]) > turn)
         patch = uniform_filter(off, 10)[disc]
-        centre, hang = resting(world.body, world.terrain.sample, (s[0], s[1], math.degrees(h)))
+        centre, _, _, hang = resting_plane(world.body, world.terrain.sample, (s[0], s[1], math.degrees(h)))
         datum = float(world.terrain.sample(s[0], s[1]))
         print(f"{args.scene} {i}: ring off its plane {ring.spread * 100:.1f} cm (sd); the disc past the turn "
               f"{np.percentile(off[disc], 1) * 100:+.1f} / {np.percentile(off[disc], 99) * 100:+.1f} cm (p1 / p99), "
