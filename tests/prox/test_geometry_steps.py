@@ -60,6 +60,30 @@ def test_transform_chain_points_the_camera_where_pan_and_tilt_say() -> None:
     assert T[:3, 3] == pytest.approx(np.array([0.10, 0, 1.26]) + axis * 0.06, abs=1e-12)
 
 
+@pytest.mark.parametrize("heading,roll,pitch", [(0.0, 0.0, 8.0), (35.0, -6.0, 3.0), (-120.0, 12.0, -9.0)])
+def test_a_tilted_rover_frame_lies_on_the_plane_its_attitude_gives(heading: float, roll: float, pitch: float) -> None:
+    """The frames' rotation and the set-down's wheel plane read roll and pitch one way: the
+    body's x and y axes, and so every wheel hub, lie on the plane contact_plane tips by them, and
+    the nose rises with pitch, the left side with roll."""
+    from drivers.sim.rover import RoverBody, resting_pose
+    from prox_workflows.algorithms.bounds_map import contact_plane
+
+    T = T_global_from_rover(1.0, -2.0, heading, 0.3, roll, pitch)
+    gx, gy = contact_plane(heading, roll, pitch)
+    for axis in (np.array([1.0, 0, 0]), np.array([0, 1.0, 0])):
+        d = T[:3, :3] @ axis
+        assert d[2] == pytest.approx(gx * d[0] + gy * d[1], abs=1e-12)
+    assert np.sign(T[2, 0]) == np.sign(pitch) and np.sign(T[2, 1]) == np.sign(roll)
+    # a rover resting on that plane reads back the same attitude; its origin is where its wheels'
+    # lowest points meet the centre, over the plane by what a round wheel on its uphill edge
+    # stands off a slope
+    body = RoverBody()
+    z, r, p = resting_pose(body, lambda x, y: 0.3 + gx * (x - 1.0) + gy * (y + 2.0), (1.0, -2.0, heading))
+    assert (r, p) == pytest.approx((roll, pitch), abs=1e-6)
+    rise = np.hypot(gx, gy)
+    assert 0.3 <= z <= 0.3 + body.wheel_width / 2 * rise + body.wheel_radius * (np.hypot(1, rise) - 1) + 1e-4
+
+
 def test_camera_matrix_projects_and_cal_round_trips(tmp_path) -> None:
     K = np.array([[200.0, 0, 87.5], [0, 200.0, 71.5], [0, 0, 1]])
     head = HeadCalibration()

@@ -471,7 +471,7 @@ def read_low_budget(scene: str, count: int, seed: int = 0, cells: tuple[float, .
                 heading = math.degrees(math.atan2(goal[1] - start[1], goal[0] - start[0]))
                 world.set_rover_pose(start[0], start[1], heading)
                 srv.request(f"pose -x {start[0]} -y {start[1]} -heading {heading:.2f}")
-                ground = world.rover_z()  # the DEM's heights are over the ground under the rover
+                ground = world.rover_z()  # the DEM's heights are over the rover origin (its wheels' plane)
                 for sensor in sensors:
                     for cell in cells:
                         name = f"{sensor}{k}_{int(round(cell * 1000))}"
