@@ -50,6 +50,11 @@ def scan_scene(scene: str, folder: Path, view_range: str = RANGE) -> Path:
     try:
         with Session(port=srv.port) as session:
             session.connect()
+            # the GNC reports the true pose, its attitude too: the scan's placement is not what
+            # this measures (an IMU's 0.1 deg is 2.6 mm 1.5 m out, common to both sensors)
+            t = srv.app.world.truth()
+            session.request(f"pose -x {t['x']:.4f} -y {t['y']:.4f} -heading {t['heading']:.3f} "
+                            f"-roll {t['roll']:.4f} -pitch {t['pitch']:.4f}")
             r = session.request(f"dem-full -sensor fused -range {view_range} -name fused -mesh false", timeout=1800)
             if not r.ok:
                 raise RuntimeError(r.final.text if r.final else f"dem-full: {r.outcome}")

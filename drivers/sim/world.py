@@ -124,7 +124,7 @@ class World:
             self.scene_name = str(spec.get("name"))
             self.seed = seed
             self.terrain: Heightfield = terrain
-            self.z_shift = float(z0)  # subtracted from the scene's heights (ground under the start at 0)
+            self.z_shift = float(z0)  # subtracted from the scene's heights (the rover's origin at its start at 0)
             self.detail = detail
             self.head = head
             self._objects = objects
@@ -523,7 +523,7 @@ _GROUNDS_LOCK = threading.Lock()
 
 
 def _ground(spec: dict, seed: int, look: SceneLook) -> tuple[Heightfield, float, np.ndarray]:
-    """The scene's terrain (shifted so the ground under the rover's start is z = 0, with its
+    """The scene's terrain (shifted so the rover's origin at its start is z = 0, with its
     shadows), that shift, and the render's detail tile."""
     key = json.dumps([spec, seed], sort_keys=True, default=repr)
     with _GROUNDS_LOCK:
@@ -533,10 +533,13 @@ def _ground(spec: dict, seed: int, look: SceneLook) -> tuple[Heightfield, float,
             return kept
     rng = np.random.default_rng(seed)
     terrain = build_terrain(spec["terrain"], rng, base_dir=spec.get("_dir"), albedo=look.albedo)
-    # The global frame's origin is the ground under the rover's start (x forward at the start
-    # pose, z up from there), as the server assumes; scenes are shifted to it.
-    start_spec = spec.get("rover", {}).get("start", {})
-    z0 = float(terrain.sample(float(start_spec.get("x", 0.0)), float(start_spec.get("y", 0.0))))
+    # The global frame's origin is the rover frame's at its start (where the plane its wheels
+    # rest on meets its centre, z up from there), as the server assumes of a rover with no map
+    # yet; scenes are shifted to it.
+    rover_spec = spec.get("rover", {})
+    start_spec = rover_spec.get("start", {})
+    start = (float(start_spec.get("x", 0.0)), float(start_spec.get("y", 0.0)), float(start_spec.get("heading", 0.0)))
+    z0 = resting_pose(RoverBody.from_spec(rover_spec.get("body")), terrain.sample, start)[0]
     if not np.isfinite(z0):
         z0 = 0.0
     if z0 != 0.0:

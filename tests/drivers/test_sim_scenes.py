@@ -79,7 +79,9 @@ def test_golombek_rock_field_covers_the_model_area_fraction() -> None:
 def test_marsyard_and_quarry_relief() -> None:
     mars = World.from_scene("marsyard")
     dem = mars.true_dem(0.05, (5.0, 0.5, 9.0, 4.5))
-    assert mars.true_dem(0.05, (-0.025, -0.025, 0.025, 0.025))[0, 0] == pytest.approx(0.0, abs=2e-3)  # origin
+    # the origin: the rover's at its start, the plane its wheels rest on, 1.3 cm over the ground there
+    assert mars.rover_z() == pytest.approx(0.0, abs=1e-6)
+    assert mars.true_dem(0.05, (-0.025, -0.025, 0.025, 0.025))[0, 0] == pytest.approx(-0.0131, abs=2e-3)
     assert dem.min() < np.median(dem) - 0.2  # the big crater's floor, 7.0, 2.5
     assert dem[40, 40] == pytest.approx(dem.min(), abs=0.1)
     quarry = World.from_scene("quarry")
