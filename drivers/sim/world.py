@@ -339,8 +339,9 @@ class World:
 
     def truth(self) -> dict[str, float]:
         """The true state for ``sim truth``: x, y, z, heading, roll and pitch (deg) of the rover in
-        the global frame (:meth:`rover_rest`) and the PTU's pan and tilt (deg), read together under the lock; also the
-        dead-reckoned pose (odom_x, odom_y, odom_heading) and the simulated time."""
+        the global frame (:meth:`rover_rest`) and the PTU's pan and tilt (deg), read together
+        under the lock; also the dead-reckoned pose (odom_x, odom_y, odom_heading) and the
+        simulated time."""
         with self._lock:
             x, y, h = self._rover
             ox, oy, oh = self._odom

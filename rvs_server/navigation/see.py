@@ -275,8 +275,8 @@ class SeeingDriver:
 
     def _fuse_hazcam(self, camera: str, T: np.ndarray, tilt_sigma: float) -> HazcamFrame:
         """One body hazard camera's pair into the bounds map (with the rover at ``T``, its attitude
-        good to ``tilt_sigma`` deg): the ground
-        from about 0.1 m past the body's end, where the mast never sees. Each point's range sigma
+        good to ``tilt_sigma`` deg): the ground from about 0.1 m past the body's end, where the
+        mast never sees. Each point's range sigma
         is the disparity noise's (it grows with the range squared), and the frame is fused as a
         stereo frame: a cell's pixels share the matcher's window, so their errors are one error.
         Fused as independent returns, 60 % of the cells' means round the body at mission starts
@@ -325,8 +325,9 @@ class SeeingDriver:
         return tapped_call(self.app.bus, attitude) if attitude is not None else None
 
     def attitude(self, imu: tuple[float, float, float] | None) -> tuple[float, float, float] | None:
-        """The IMU's attitude (``imu``, a read of :meth:`imu`) for the ground under the wheels while driving, or None
-        (``see_set_down`` other than attitude: the wheels' ground is then the frames' and, where
+        """The IMU's attitude (``imu``, a read of :meth:`imu`) for the ground under the wheels
+        while driving, or None (``see_set_down`` other than attitude: the wheels' ground is then
+        the frames' and, where
         none, level within 5 mm of the datum). Not with ring: the plane goes through the datum,
         the frames' ground at the rover's centre, which is not where its wheels rest; felt so
         while driving, the wheels' cells stood 3-4 cm off the frames' cells beside them and tilted
