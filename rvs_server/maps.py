@@ -103,14 +103,20 @@ def ground_height(layers: Layers | None, x: float, y: float) -> float:
     return 0.0 if z is None else z
 
 
-def current_pose(app: App) -> tuple[float, float, float, float, float, float]:
+def current_pose(app: App, call: Callable[..., Any] | None = None
+                 ) -> tuple[float, float, float, float, float, float]:
     """x, y, heading, the ground height under the rover (from the current DEM if known), and the
     roll and pitch its IMU or the GNC's pose report gives (level where neither does): the GNC
-    reports a planar pose, and a scan's points need the height and the body's tilt too."""
+    reports a planar pose, and a scan's points need the height and the body's tilt too.
+
+    ``call`` makes the attitude read (a monitor's or job's device call); by default it is tapped
+    like a frame, so a recording holds the tilt its scans were placed with. A monitor passes its
+    own, so that a replay holds the read back in its recorded turn as it does the frames."""
     p = app.pose
     rover = app.devices.devices.get("rover")
-    # a device call like a frame: a recording holds the tilt its scans were placed with
-    attitude = tapped_call(app.bus, rover.attitude) if rover is not None else None
+    attitude = None
+    if rover is not None:
+        attitude = call(rover.attitude) if call is not None else tapped_call(app.bus, rover.attitude)
     roll, pitch = (float(attitude[0]), float(attitude[1])) if attitude is not None else (0.0, 0.0)
     return (p.x, p.y, p.heading, ground_height(app.maps.layers, p.x, p.y), roll, pitch)
 

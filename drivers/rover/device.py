@@ -94,9 +94,10 @@ class Rover:
         """Forward speed (m/s) and turn rate (deg/s) of the motions the server runs (sim only)."""
         return self.port.speeds()
 
-    def attitude(self) -> Attitude | None:
+    def attitude(self, *, cancel: Cancel = None) -> Attitude | None:
         """Roll, pitch and their 1-sigma (deg) where the rover stands, from its IMU (the simulator's
-        true ground under its wheels; the GNC's pose reports), or None: the backend has none."""
+        true ground under its wheels; the GNC's pose reports), or None: the backend has none.
+        ``cancel`` as every device call takes it: a read is immediate, so nothing waits on it."""
         return self.port.attitude()
 
     def body(self) -> Any:

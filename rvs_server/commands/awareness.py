@@ -243,9 +243,10 @@ def _prior(cfg: TrackConfig) -> tr.SizePrior:
                         width_range=(0.4 * cfg.width, 1.8 * cfg.width))
 
 
-def _frame(app: App) -> np.ndarray:
-    """T_global_from_rover from the server's pose (the ground under the rover from the DEM)."""
-    return T_global_from_rover(*current_pose(app))
+def _frame(app: App, call: Any) -> np.ndarray:
+    """T_global_from_rover from the server's pose (the ground under the rover from the DEM, the
+    attitude read through ``call``)."""
+    return T_global_from_rover(*current_pose(app, call))
 
 
 def _sense(app: App, cfg: TrackConfig, pan: float, tilt: float, call: Any
@@ -254,7 +255,7 @@ def _sense(app: App, cfg: TrackConfig, pan: float, tilt: float, call: Any
     time of the exposure: the start of the acquisition call (the frame is exposed first, then
     read out and transferred, which is most of the call)."""
     head = HeadCalibration.from_dict(app.config.get("head").as_dict())
-    T_gr = _frame(app)
+    T_gr = _frame(app, call)
     t0, w0 = time.monotonic(), time.time()
     if cfg.sensor == "tof":
         xyz, amplitude = call(app.devices.get("tof").grab_xyz, 1, 0.0)
@@ -344,7 +345,7 @@ class TargetTracker(Monitor):
         pred = self.filter.predict(now)
         pan_tilt = self.pointing
         if pred is not None:
-            T_rg = invert(_frame(app))
+            T_rg = invert(_frame(app, self.call))
             aim = T_rg[:3, :3] @ (pred + np.array([0.0, 0.0, cfg.aim])) + T_rg[:3, 3]
             pan, tilt = self.head().look_at(aim)
             lim = _limits(app.devices.get("ptu"))
