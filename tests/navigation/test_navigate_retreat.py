@@ -126,7 +126,7 @@ def test_a_rover_in_a_cul_de_sac_backs_out_and_reaches_the_goal_round_it(server_
 def test_the_gnc_is_sent_a_reverse_section_as_waypoints_with_the_body_s_heading(server_factory) -> None:
     """Without -auto the GNC drives: it turns on the spot where the start's turn asks, then drives
     the rover its own way, straight on toward the corridor whose far end a rock closes (to x -1.0
-    m, then into it), whatever sections it is sent. Where the chooser finds a dead end (before the gate or in the corridor: where the map
+    m, then into it, 10 cm right of the corridor's axis), whatever sections it is sent. Where the chooser finds a dead end (before the gate or in the corridor: where the map
     is ambiguous enough to refuse, run to run) it backs out along the track the GNC reported, and
     the GNC is sent that section as any other, a waiting EVENT's waypoints, with
     ``drive=reverse``: the points run back along the track to where the last section set off while
@@ -138,13 +138,17 @@ def test_the_gnc_is_sent_a_reverse_section_as_waypoints_with_the_body_s_heading(
     # "The simulated rover's hazard cameras")
     srv = server_factory(["server.scene=quarry", "navigate.pose_settle=0.5", "navigate.see.retreat.retreats=4",
                           "drivers.hazcam.cameras=off"])
+    # the GNC's line: on the axis the quarry's own ground reaches the belly of the body resting
+    # there (at x -1.55, -1.25 and -1.0, by up to 0.7 mm), and no check should pass a way back
+    # over it; 10 cm right of it the truth keeps the belly 4.5 cm clear all the way
+    y = -0.10
     world = srv.app.world
     world.set_target_visible(False)
     _pocket(srv)
     c, gnc = srv.client(), srv.client()
     assert c.request("sim add-rock -x 0.95 -y 0 -radius 0.24 -height 0.25").status == "OK"
-    world.set_rover_pose(-2.0, 0.0, 0.0)  # the GNC's rover stands where it says
-    job = c.start_job("navigate -start -2.0,0,0 -goal 2.5,0 -loop see -name gncback")
+    world.set_rover_pose(-2.0, y, 0.0)  # the GNC's rover stands where it says
+    job = c.start_job(f"navigate -start -2.0,{y},0 -goal 2.5,0 -loop see -name gncback")
     events, messages = [], []
     while not any(e.get("drive") for e in events):
         r = c.reply(timeout=600)
@@ -161,12 +165,12 @@ def test_the_gnc_is_sent_a_reverse_section_as_waypoints_with_the_body_s_heading(
             events.append(r.fields)
             if not events[-1].get("drive"):  # the GNC's own way: to x -1.0, then into the corridor, every 5 cm
                 x0, x1 = (-2.0, -1.0) if len(events) == 1 else (-1.0, 0.3)
-                world.set_rover_pose(x0, 0.0, 0.0)  # facing the corridor again, on the spot
-                assert gnc.request(f"pose -x {x0} -y 0 -heading 0").status == "OK"
+                world.set_rover_pose(x0, y, 0.0)  # facing the corridor again, on the spot
+                assert gnc.request(f"pose -x {x0} -y {y} -heading 0").status == "OK"
                 for x in np.arange(x0 + 0.05, x1 + 0.001, 0.05):
-                    world.set_rover_pose(float(x), 0.0, 0.0)
-                    assert gnc.request(f"pose -x {x:.3f} -y 0 -heading 0").status == "OK"
-                assert gnc.request(f"pose -x {x1} -y 0 -heading 0 -stopped true").status == "OK"
+                    world.set_rover_pose(float(x), y, 0.0)
+                    assert gnc.request(f"pose -x {x:.3f} -y {y} -heading 0").status == "OK"
+                assert gnc.request(f"pose -x {x1} -y {y} -heading 0 -stopped true").status == "OK"
     assert c.request("break").status == "OK"
     assert len(events) in (2, 3) and not any(e.get("drive") for e in events[:-1]), events
     back = events[-1]
@@ -175,7 +179,7 @@ def test_the_gnc_is_sent_a_reverse_section_as_waypoints_with_the_body_s_heading(
     stood, set_off = (-1.0, -2.0) if len(events) == 2 else (0.3, -1.0)
     wps = np.array([float(v) for v in back["waypoints"].split(",")]).reshape(-1, 3)
     assert wps[0, 0] == pytest.approx(stood, abs=1e-3) and np.all(np.diff(wps[:, 0]) < 0), wps  # backwards
-    assert wps[-1, 0] == pytest.approx(set_off, abs=0.05) and np.abs(wps[:, 1]).max() < 0.01, wps  # along the track
+    assert wps[-1, 0] == pytest.approx(set_off, abs=0.05) and np.abs(wps[:, 1] - y).max() < 0.01, wps  # along the track
     assert np.abs(wps[:, 2]).max() < 1.0, wps  # the body still faces the rocks
     assert any("backing out (1 of 4) on the track back" in m for m in messages), messages
 
