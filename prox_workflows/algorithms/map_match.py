@@ -12,10 +12,15 @@ Method: height-map correlation over (x, y, yaw), then least squares. The local D
 to block means on a sampling grid (a coarse reference cannot show finer detail, and fewer
 points make the search cheap); each candidate rigid motion about the rover's believed position
 samples the reference bilinearly under the moved points; the unknown height offset (the DEM's
-z is relative to the rover's own ground) is removed by taking the residuals' variance. The best
-candidate of the grid search seeds a robust Gauss-Newton refinement (residuals beyond 3 MADs,
-rocks the orbiter cannot see, are dropped), whose covariance, inflated for residuals that are
-correlated over a reference cell, is the estimate's sigma.
+z is relative to the rover's own ground) and a small tilt are removed by fitting them to the
+residuals. The tilt is there because a rover's DEM is placed with its IMU's attitude, whose
+error at rest is a bias of a tenth of a degree or so shared by the frames of one stand: on a
+slope a tilt mimics a shift, 23 cm of it on the simulated Mars yard from a 0.1 deg bias. The
+tilt is held to that bias by a prior (``tilt_sigma``), so a yaw error on a slope, which turns
+the slope's own gradient, is not absorbed as tilt. The best candidate of the grid search
+seeds a robust Gauss-Newton refinement (residuals beyond 3 MADs, rocks the orbiter cannot see,
+are dropped), whose covariance, inflated for residuals that are correlated over a reference
+cell, is the estimate's sigma.
 
 Pure functions on arrays; the server (``rvs_server.navigation.localiser``) decides when to call them and
 what to do with the answer.
@@ -35,6 +40,11 @@ from rvs_params.hazard import UNDEFINED
 from ..grid import GridGeometry, Layers
 
 ndimage = deferred("scipy.ndimage")
+
+# The prior on the tilt between a rover's DEM and the reference (rise per metre, 0.3 deg): an
+# IMU's bias at rest is a tenth of a degree or two, and a wider prior lets a yaw error on a slope
+# (which turns the slope's gradient) pass as tilt.
+TILT_SIGMA = math.tan(math.radians(0.3))
 
 
 @dataclass(frozen=True)
@@ -57,6 +67,10 @@ class MatchResult:
     ok: bool  # refined inside the search window with a usable sigma
     reason: str = ""
     seconds: float = 0.0
+    # the local DEM's rise over the reference per metre along x and y (from the pivot): the
+    # attitude error its frames were placed with
+    tilt_x: float = 0.0
+    tilt_y: float = 0.0
 
 
 def sample_points(dem: np.ndarray, geom: GridGeometry, pivot: tuple[float, float], radius: float,
@@ -120,19 +134,50 @@ def _moved(pts: np.ndarray, pivot: tuple[float, float], dx: float, dy: float, dy
 
 
 def _cost(pts: np.ndarray, ref: _Reference, pivot: tuple[float, float], dx: float, dy: float, dyaw: float,
-          min_valid: float) -> float:
+          min_valid: float, tilt_sigma: float) -> float:
     x, y = _moved(pts, pivot, dx, dy, dyaw)
     r = pts[:, 2] - ref(x, y)
-    r = r[np.isfinite(r)]
-    if r.size < max(8, min_valid * len(pts)):
+    good = np.isfinite(r)
+    if good.sum() < max(8, min_valid * len(pts)):
         return math.inf
-    return float(np.var(r))
+    return float(_plane_variance(np.where(good, r, 0.0)[None, :], good[None, :], pts, pivot, tilt_sigma)[0])
+
+
+def _plane_variance(R: np.ndarray, good: np.ndarray, pts: np.ndarray, pivot: tuple[float, float],
+                    tilt_sigma: float) -> np.ndarray:
+    """Per candidate (rows of ``R``, the residuals, 0 where not ``good``), the residuals'
+    variance about the offset and tilt that fit them best, the tilt weighed by its prior: with
+    the residuals' own variance s2 about their mean, the MAP estimate of the tilt under a prior of
+    ``tilt_sigma`` (rise per metre) is a ridge regression of weight s2 / tilt_sigma^2. The cost
+    adds that prior's term, so a candidate that needs a steep tilt pays for it. 0: the mean
+    alone, no tilt."""
+    g = good.astype(np.float64)
+    cnt = g.sum(axis=1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        mean = R.sum(axis=1) / cnt
+        s2 = (R * R).sum(axis=1) / cnt - mean * mean
+    if tilt_sigma <= 0:
+        return s2
+    u, v = pts[:, 0] - pivot[0], pts[:, 1] - pivot[1]
+    su, sv, suu, suv, svv = g @ u, g @ v, g @ (u * u), g @ (u * v), g @ (v * v)
+    lam = np.where(np.isfinite(s2), s2, 0.0) / tilt_sigma ** 2
+    N = np.stack([np.stack([cnt, su, sv], -1), np.stack([su, suu + lam, suv], -1),
+                  np.stack([sv, suv, svv + lam], -1)], -2)
+    b = np.stack([R.sum(axis=1), R @ u, R @ v], -1)
+    N[cnt < 3] = np.eye(3)  # no fit: its variance is set apart by the caller's count anyway
+    beta = np.linalg.solve(N, b[..., None])[..., 0]
+    # the residual sum about the fit plus the prior's penalty: sum R^2 - beta . b (the normal
+    # equations with the ridge make the two terms collapse to this)
+    rss = (R * R).sum(axis=1) - (beta * b).sum(axis=1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.maximum(rss, 0.0) / cnt
 
 
 def match_dem(local: np.ndarray, local_geom: GridGeometry, reference: np.ndarray, ref_geom: GridGeometry,
               pivot: tuple[float, float], *, search_xy: float = 1.5, search_yaw: float = 8.0,
               step_xy: float | None = None, step_yaw: float = 1.0, sample: float | None = None,
-              radius: float = 5.0, min_points: int = 50, max_sigma_xy: float = 0.5) -> MatchResult:
+              radius: float = 5.0, min_points: int = 50, max_sigma_xy: float = 0.5,
+              tilt_sigma: float = TILT_SIGMA) -> MatchResult:
     """Where ``local`` lies on ``reference`` (both DEMs in one frame, heights up to an offset),
     searched within ``search_xy`` metres and ``search_yaw`` degrees of where it was placed.
 
@@ -141,13 +186,20 @@ def match_dem(local: np.ndarray, local_geom: GridGeometry, reference: np.ndarray
     0.25 m) the grid search's step. A match whose refinement leaves the window, or whose sigma
     exceeds ``max_sigma_xy`` (flat or featureless ground: the heights do not say where), is
     returned with ``ok`` false, for the caller to keep its own estimate. Near the reference's
-    edge the window narrows (halving ``search_xy``) until enough points stay on it."""
+    edge the window narrows (halving ``search_xy``) until enough points stay on it.
+    ``tilt_sigma`` (rise per metre) is the prior on the tilt between the two (0: none fitted)."""
     t0 = time.perf_counter()
     sample = sample or max(local_geom.cell, min(ref_geom.cell / 4.0, 0.25))
     step_xy = step_xy or min(ref_geom.cell / 2.0, 0.25)
     pts = sample_points(local, local_geom, pivot, radius, sample)
     pts = pts[np.isfinite(pts[:, 2])]
     ref = _Reference(reference, ref_geom)
+    # Residuals are correlated over a reference cell (and over the local DEM's own footprint of a
+    # rock): count independent samples, not points. The tilt's prior, set against the points'
+    # residuals, weighs as much more (without, the match fitted 0.23 deg of tilt the hirise
+    # patch did not have, and moved 2.5 cm off for it).
+    per_cell = max(1.0, (max(ref_geom.cell, sample) / sample) ** 2)
+    tilt_prior = tilt_sigma / math.sqrt(per_cell)
 
     def fail(reason: str, **kw: float) -> MatchResult:
         base = {"dx": 0.0, "dy": 0.0, "dyaw": 0.0, "dz": 0.0, "rms": math.nan, "rms_before": math.nan,
@@ -181,7 +233,7 @@ def match_dem(local: np.ndarray, local_geom: GridGeometry, reference: np.ndarray
         return fail(f"{int(common.sum())} points on ground the reference shows under every motion searched, "
                     f"fewer than {min_points}")
     pts = pts[common]
-    before = _cost(pts, ref, pivot, 0.0, 0.0, 0.0, 0.5)
+    before = _cost(pts, ref, pivot, 0.0, 0.0, 0.0, 0.5, tilt_prior)
     # grid search: every yaw, every offset, vectorised over the points of one yaw at a time
     offs = np.arange(-search_xy, search_xy + 1e-9, step_xy)
     yaws = np.arange(-search_yaw, search_yaw + 1e-9, step_yaw)
@@ -194,10 +246,7 @@ def match_dem(local: np.ndarray, local_geom: GridGeometry, reference: np.ndarray
         R = pts[None, :, 2] - Z
         good = np.isfinite(R)
         cnt = good.sum(axis=1)
-        R0 = np.where(good, R, 0.0)
-        with np.errstate(invalid="ignore", divide="ignore"):
-            mean = R0.sum(axis=1) / cnt
-            var = (R0 ** 2).sum(axis=1) / cnt - mean ** 2
+        var = _plane_variance(np.where(good, R, 0.0), good, pts, pivot, tilt_prior)
         var[cnt < max(8, 0.5 * n)] = np.inf
         i = int(np.argmin(var))
         if var[i] < best[0]:
@@ -206,29 +255,37 @@ def match_dem(local: np.ndarray, local_geom: GridGeometry, reference: np.ndarray
         return fail("the local DEM lies outside the reference", rms_before=math.sqrt(before)
                     if math.isfinite(before) else math.nan)
 
-    # robust Gauss-Newton refinement from the grid's best, with the height offset as a 4th unknown
-    p = np.array([best[1], best[2], best[3], 0.0])
+    # robust Gauss-Newton refinement from the grid's best, with the height offset and the tilt
+    # along x and y as unknowns 4-6 (the tilt's prior as two more residuals, scaled by the
+    # residuals' sigma so that it weighs as in the grid search)
+    p = np.array([best[1], best[2], best[3], 0.0, 0.0, 0.0])
     x, y = _moved(pts, pivot, p[0], p[1], p[2])
     p[3] = float(np.nanmedian(pts[:, 2] - ref(x, y)))
     keep = np.ones(n, bool)
-    scale = 1.0  # yaw in the solver is in units of (deg * scale) to condition it like metres
+    u, v = pts[:, 0] - pivot[0], pts[:, 1] - pivot[1]
+    fit_tilt = tilt_sigma > 0
+    prior_w = math.sqrt(max(best[0], 1e-6)) / tilt_prior if fit_tilt else 0.0
 
     def residuals(q: np.ndarray, idx: np.ndarray) -> np.ndarray:
-        xq, yq = _moved(pts[idx], pivot, q[0], q[1], q[2] / scale)
+        xq, yq = _moved(pts[idx], pivot, q[0], q[1], q[2])
         r = pts[idx, 2] - ref(xq, yq) - q[3]
-        return np.where(np.isfinite(r), r, 0.0)
+        r = np.where(np.isfinite(r), r, 0.0)
+        if not fit_tilt:
+            return r
+        return np.concatenate([r - q[4] * u[idx] - q[5] * v[idx], prior_w * q[4:6]])
 
     # imported here: the server and the CLIs start without scipy.optimize (0.2-0.3 s)
     from scipy import optimize
 
     sol = None
+    unknowns = 6 if fit_tilt else 4
     for _ in range(3):
         idx = np.flatnonzero(keep)
-        q0 = np.array([p[0], p[1], p[2] * scale, p[3]])
-        sol = optimize.least_squares(residuals, q0, args=(idx,), method="lm", x_scale=[0.1, 0.1, 0.5, 0.05])
-        p = np.array([sol.x[0], sol.x[1], sol.x[2] / scale, sol.x[3]])
+        sol = optimize.least_squares(residuals, p[:unknowns], args=(idx,), method="lm",
+                                     x_scale=[0.1, 0.1, 0.5, 0.05, 0.005, 0.005][:unknowns])
+        p[:unknowns] = sol.x
         xa, ya = _moved(pts, pivot, p[0], p[1], p[2])
-        r_all = pts[:, 2] - ref(xa, ya) - p[3]
+        r_all = pts[:, 2] - ref(xa, ya) - p[3] - p[4] * u - p[5] * v
         fin = np.isfinite(r_all)
         med = float(np.median(r_all[fin]))
         mad = 1.4826 * float(np.median(np.abs(r_all[fin] - med))) + 1e-4
@@ -238,27 +295,24 @@ def match_dem(local: np.ndarray, local_geom: GridGeometry, reference: np.ndarray
         keep = new_keep
     assert sol is not None
     idx = np.flatnonzero(keep)
-    r = residuals(sol.x, idx)
     m = len(idx)
+    r = residuals(sol.x, idx)[:m]
     rms = float(np.sqrt(np.mean(r ** 2))) if m else math.nan
     J = sol.jac
     try:
         cov = np.linalg.inv(J.T @ J) * (rms ** 2)
     except np.linalg.LinAlgError:
         return fail("singular match (featureless ground)", rms=rms, rms_before=math.sqrt(before))
-    # Residuals are correlated over a reference cell (and over the local DEM's own footprint of a
-    # rock): count independent samples, not points.
-    per_cell = max(1.0, (max(ref_geom.cell, sample) / sample) ** 2)
-    cov *= per_cell
+    cov *= per_cell  # independent samples, not points (above)
     sigma_xy = float(math.sqrt(max(np.linalg.eigvalsh(cov[:2, :2]).max(), 0.0)))
-    sigma_yaw = float(math.sqrt(max(cov[2, 2], 0.0))) / scale
+    sigma_yaw = float(math.sqrt(max(cov[2, 2], 0.0)))
     # a floor: no match places a DEM of block means better than a fifth of a block (the formal
     # covariance of thousands of points says millimetres, which no neighbour's fusion should trust)
     sigma_xy = max(sigma_xy, 0.2 * sample)
     sigma_yaw = max(sigma_yaw, math.degrees(0.2 * sample / max(radius, 1.0)))
     out = MatchResult(float(p[0]), float(p[1]), float(p[2]), float(p[3]), rms,
                       math.sqrt(before) if math.isfinite(before) else math.nan, sigma_xy, sigma_yaw, m,
-                      ok=True, seconds=time.perf_counter() - t0)
+                      ok=True, seconds=time.perf_counter() - t0, tilt_x=float(p[4]), tilt_y=float(p[5]))
     margin = 0.5 * step_xy
     if abs(p[0]) > search_xy + margin or abs(p[1]) > search_xy + margin or abs(p[2]) > search_yaw + step_yaw:
         return MatchResult(**{**out.__dict__, "ok": False, "reason": "the best match lies outside the search window"})
