@@ -10,7 +10,8 @@ prints the end pose error (believed vs true) and the true distance to the goal; 
 with the matcher's median time per match.
 
     python -m tools.bench.localise [--scene quarry] [--seeds 1 2 3] [--modes none vo map both]
-    python -m tools.bench.localise --matcher 20   (only the matcher on HiRISE: error and time per match)
+    python -m tools.bench.localise --matcher 20 [--tilt 0.1]   (only the matcher on HiRISE: error and time per
+        match, with its tilt term and without, the patches tilted as an IMU bias of that 1-sigma would)
 """
 
 from __future__ import annotations
@@ -62,30 +63,41 @@ def run_mission(srv: Any, start: tuple[float, float], goal: tuple[float, float],
             "fixes": len(fixes), "taken": sum(r.fields.get("found") == "true" for r in fixes)}
 
 
-def matcher_timing(trials: int, seed: int = 0) -> None:
+def matcher_timing(trials: int, tilt: float = 0.0, seed: int = 0) -> None:
     """The map matcher alone: ``trials`` 360-degree DEM patches of the hirise scene (2 cm
     heights with rocks and roughness, the ToF's 1-4.5 m ring, 30 % holes) placed up to 0.6 m and
-    5 deg off, matched on the orbital HiRISE DTM (1.01 m cells): error and time per match."""
+    5 deg off, and tilted as an IMU's bias of ``tilt`` deg (1-sigma per axis) would place them,
+    matched on the orbital HiRISE DTM (1.01 m cells): error and time per match, with the tilt
+    term (the matcher's default) and without it, side by side on the same patches."""
     from drivers.sim.world import World
-    from prox_workflows.algorithms.map_match import match_dem
+    from prox_workflows.algorithms.map_match import TILT_SIGMA, match_dem
 
     world = World.from_scene("hirise", clock_scale=0.0)
     dem, geom, _, _ = scene_dtm("hirise", world)
-    rng = np.random.default_rng(seed)
-    errs, yaws, times, ok = [], [], [], 0
+    rng, tilts = np.random.default_rng(seed), np.random.default_rng([seed, 1])
+    rows: dict[str, dict[str, list[float]]] = {name: {"err": [], "yaw": [], "ms": [], "ok": []}
+                                               for name in ("tilt term", "no tilt term")}
     for _ in range(trials):
         tx, ty = rng.uniform(-8.0, 8.0, 2)
         e = (float(rng.uniform(-0.6, 0.6)), float(rng.uniform(-0.6, 0.6)), float(rng.uniform(-5.0, 5.0)))
         local, lg, pivot = rover_patch(world, (float(tx), float(ty), 0.0), e, rng)
-        m = match_dem(local, lg, dem, geom, pivot)
-        ok += m.ok
-        errs.append(math.hypot(m.dx + e[0], m.dy + e[1]))
-        yaws.append(abs(m.dyaw + e[2]))
-        times.append(m.seconds * 1000.0)
+        a, b = np.tan(np.radians(tilts.normal(0.0, tilt, 2))) if tilt > 0 else (0.0, 0.0)
+        xs, ys = lg.centers()
+        local = local + (a * (xs[None, :] - pivot[0]) + b * (ys[:, None] - pivot[1])).astype(np.float32)
+        for name, sigma in (("tilt term", TILT_SIGMA), ("no tilt term", 0.0)):
+            m = match_dem(local, lg, dem, geom, pivot, tilt_sigma=sigma)
+            r = rows[name]
+            r["ok"].append(m.ok)
+            r["err"].append(math.hypot(m.dx + e[0], m.dy + e[1]))
+            r["yaw"].append(abs(m.dyaw + e[2]))
+            r["ms"].append(m.seconds * 1000.0)
     q = np.percentile
-    print(f"matcher on HiRISE (1.01 m cells), {trials} patches 0-0.85 m / 0-5 deg off: ok {ok}/{trials}; position "
-          f"error median {q(errs, 50):.3f} m, p90 {q(errs, 90):.3f} m; yaw error median {q(yaws, 50):.2f} deg, "
-          f"p90 {q(yaws, 90):.2f} deg; time per match median {q(times, 50):.0f} ms, p90 {q(times, 90):.0f} ms")
+    print(f"matcher on HiRISE (1.01 m cells), {trials} patches 0-0.85 m / 0-5 deg off, tilted {tilt:g} deg (1-sigma "
+          "per axis):")
+    for name, r in rows.items():
+        print(f"  {name:>12}: ok {sum(r['ok'])}/{trials}; position error median {q(r['err'], 50):.3f} m, p90 "
+              f"{q(r['err'], 90):.3f} m, max {max(r['err']):.3f} m; yaw error median {q(r['yaw'], 50):.2f} deg, p90 "
+              f"{q(r['yaw'], 90):.2f} deg; time per match median {q(r['ms'], 50):.0f} ms, p90 {q(r['ms'], 90):.0f} ms")
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -99,9 +111,11 @@ def main(argv: list[str] | None = None) -> int:
                     help="the traverse benchmark's seeded 15-20 m missions (tools.bench.navigate; seed n is its "
                          "mission n) instead of 3.5-5 m ones")
     ap.add_argument("--matcher", type=int, default=0, metavar="N", help="only time the matcher on N HiRISE patches")
+    ap.add_argument("--tilt", type=float, default=0.0, metavar="DEG",
+                    help="with --matcher: tilt each patch as an IMU bias of this 1-sigma (deg per axis) would")
     args = ap.parse_args(argv)
     if args.matcher:
-        matcher_timing(args.matcher)
+        matcher_timing(args.matcher, args.tilt)
         return 0
     rows = []
     far = missions(args.scene, max(args.seeds) + 1) if args.far else []
