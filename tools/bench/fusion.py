@@ -10,7 +10,7 @@ within 3 cells of an object's edge are left out (a cell's height there is a matt
 the cell the edge falls, not of a sensor's noise), as are cells hole filling interpolated.
 
     python -m tools.bench.fusion [--scenes office,quarry,marsyard] [--range -60,60,-50,-20] [--keep DIR]
-    python -m tools.bench.fusion --calibrate      # fit the noise models, scatter and gate: the DemParams defaults
+    python -m tools.bench.fusion --calibrate      # fit the noise models, correlation, scatter and gate: their defaults
 """
 
 from __future__ import annotations
@@ -170,12 +170,14 @@ def calibrate(scans: dict[str, dict[str, Any]]) -> dict[str, float]:
        (a step of the ground the far ToF pixels straddle) the gate passes a ToF cell 5 sigma
        wrong and the mean leans on it; its own map shows it, as a cell off its neighbours.
     4. The gate: the one of :data:`GATES` with the fewest scenes where fusion misses a band.
-    Returns the parameter values (DemParams field names), to be declared as their defaults."""
-    from dataclasses import replace
+    Returns the parameter values (the dem script's parameter names), to be declared as their defaults."""
+    from dataclasses import fields, replace
 
     from prox_workflows.algorithms.dem_mosaik import local_scatter
     from prox_workflows.algorithms.noise import JUMP_CAP, STEREO_TERMS, TOF_TERMS
+    from prox_workflows.engine import parameters_of
     from prox_workflows.parameters import DemParams
+    from prox_workflows.steps.dem import PointCorrelation, SensorFusion
 
     fitted: dict[str, float] = {}
     cellsets = {scene: evaluation_cells(scan) for scene, scan in scans.items()}
@@ -206,7 +208,8 @@ def calibrate(scans: dict[str, dict[str, Any]]) -> dict[str, float]:
             print(f"     {lo}-{lo + 1} m {sel.sum():>8} {1e3 * np.sqrt(np.mean(e**2)):7.2f} "
                   f"{1e3 * np.sqrt(np.mean(e[keep[sel]] ** 2)):7.2f} {1e3 * np.median(np.abs(e)) / 0.6745:7.2f} "
                   f"{1e3 * np.sqrt(np.mean(pred[sel] ** 2)):7.2f}")
-    params = replace(DemParams(), **fitted, tof_cell_correlation=0.0, stereo_cell_correlation=0.0,
+    # the dem script's parameters: the noise models' (DemParams) with its steps' settings
+    params = replace(parameters_of("dem")(), **fitted, tof_cell_correlation=0.0, stereo_cell_correlation=0.0,
                      tof_fuse_scatter=0.0, stereo_fuse_scatter=0.0)
     print("2. cells: sensor-only DEM error vs its predicted sigma (mm), per 1 m band from the rover; 'rms in':")
     print("   the cells within 3 predicted sigma (the rest is the gate's business)")
@@ -298,9 +301,11 @@ def calibrate(scans: dict[str, dict[str, Any]]) -> dict[str, float]:
         print(f"   gate {gate:g}: " + ", ".join(f"{sc} {x:.3f}" for sc, x in zip(scans, ratios, strict=True)))
     fitted["fuse_gate"] = min(worst_of, key=lambda g: worst_of[g])
     print(f"   chosen: gate {fitted['fuse_gate']:g} (fewest scenes with a band missed, then the smallest worst ratio)")
-    print("   the defaults to declare (prox_workflows/parameters.py, DemParams):")
-    for k, v in fitted.items():
-        print(f"     {k} = {v:g}")
+    print("   the defaults to declare, by the class that declares each:")
+    for owner in (DemParams, PointCorrelation, SensorFusion):
+        mine = {f.name for f in fields(owner)}
+        print(f"     {owner.__module__}.{owner.__name__}: "
+              + ", ".join(f"{k} = {v:g}" for k, v in fitted.items() if k in mine))
     return fitted
 
 
