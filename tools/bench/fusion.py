@@ -33,7 +33,7 @@ from rvs_truth.fusion import (
 )
 
 SCENES = ("office", "quarry", "marsyard")
-GATES = (2.0, 2.5, 3.0, 4.0)  # Mahalanobis gates the calibration compares
+GATES = (1.5, 2.0, 2.5, 3.0, 4.0)  # Mahalanobis gates the calibration compares
 COUNT_CLASSES = ((1, 2), (2, 3), (3, 5), (5, 10), (10, 1 << 30))  # points per cell, for the cell correlation
 
 
