@@ -67,6 +67,8 @@ class Telemetry:
         self._bounds: tuple[int, BoundsMap] | None = None  # the see loop's bounds map as last published (live)
         self._bounds_items = 0
         self._offered_calls: set[tuple[str, ...]] = set()  # kinds of call passed on while nobody listened
+        # roll and pitch (deg) of the rover's last attitude read: the tilt its frames were placed with
+        self._attitude: tuple[float, float] | None = None
         self._thread = threading.Thread(target=self._run, name="rvs-telemetry", daemon=True)
         self._thread.start()
         app.bus.subscribe(self.accept)
@@ -87,6 +89,8 @@ class Telemetry:
                 self._log_state()  # here, before the call: the frame tree of its start, stamped before it
             return
         if item.kind == "frame":
+            if (item.data["device"], item.data["call"]) == ("rover", "attitude") and item.data["result"] is not None:
+                self._attitude = (float(item.data["result"][0]), float(item.data["result"][1]))
             link = self._link
             # a call that returns no image (a PTU move) is only for a recording's /raw/calls
             frame = carries_images(item.data["device"], item.data["call"])
@@ -344,16 +348,24 @@ class Telemetry:
 
     # -- sampled state
 
-    def _state(self) -> tuple[tuple[float, float, float, float], tuple[float, float] | None,
-                              tuple[float, float, float] | None]:
-        """The believed pose (x, y, heading, ground z), the PTU and the simulated true pose now."""
+    def _state(self) -> tuple[tuple[float, ...], tuple[float, float] | None, tuple[float, ...] | None]:
+        """The believed pose (x, y, heading, ground z, roll, pitch), the PTU and the simulated true
+        pose (x, y, heading, roll, pitch) now. The roll and pitch are the GNC's where its pose
+        report gave them, else the rover's last attitude read (which the frames were placed
+        with; the hub reads no device itself, so a replay's recorded reads stay the frames'),
+        else level."""
         app = self.app
         pose = app.pose
         truth = None
         if app.world is not None:
             tr = app.world.truth()
-            truth = (float(tr["x"]), float(tr["y"]), float(tr["heading"]))
-        return (pose.x, pose.y, pose.heading, ground_height(app.maps.layers, pose.x, pose.y)), app.ptu_position(), truth
+            truth = tuple(float(tr[k]) for k in ("x", "y", "heading", "roll", "pitch"))
+        if pose.roll is not None and pose.pitch is not None:
+            roll, pitch = pose.roll, pose.pitch
+        else:
+            roll, pitch = self._attitude or (0.0, 0.0)
+        z = ground_height(app.maps.layers, pose.x, pose.y)
+        return (pose.x, pose.y, pose.heading, z, roll, pitch), app.ptu_position(), truth
 
     def _log_state(self) -> None:
         """The frame tree and the poses as they are now, stamped now: from the hub's thread every
@@ -368,7 +380,7 @@ class Telemetry:
             self._log("/tf", t, m.frame_tree, t, head, pose, ptu, truth, body)
             self._log("/rover/pose", t, m.pose_in_world, t, *pose)
             if truth is not None:
-                self._log("/rover/truth", t, m.pose_in_world, t, *truth, pose[3])
+                self._log("/rover/truth", t, m.pose_in_world, t, *truth[:3], pose[3], *truth[3:])
 
     def _body_frames(self) -> list[tuple[str, np.ndarray]]:
         """The optical frames of the hazard camera pairs switched on, in the rover frame, where

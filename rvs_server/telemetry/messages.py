@@ -51,6 +51,7 @@ from foxglove.messages import (
 from prox_workflows.algorithms.transforms import HeadCalibration, make_T, rot_y, rot_z
 from prox_workflows.grid import GridGeometry
 from rvs_params.deferred import deferred
+from rvs_params.frames import rover_rotation
 
 transform = deferred("scipy.spatial.transform")
 
@@ -106,17 +107,20 @@ def _transform(t_ns: int, parent: str, child: str, T: np.ndarray) -> FrameTransf
                           translation=_vector(T[:3, 3]), rotation=_quaternion(T[:3, :3]))
 
 
-def rover_T(x: float, y: float, heading: float, z: float) -> np.ndarray:
-    return make_T(rot_z(heading), (x, y, z))
+def rover_T(x: float, y: float, heading: float, z: float, roll: float = 0.0, pitch: float = 0.0) -> np.ndarray:
+    """The rover frame in the world: tilted by the body's roll and pitch as the server places its
+    frames (:func:`rvs_params.frames.rover_rotation`), so a cloud drawn through it lies where the
+    server put its points."""
+    return make_T(rover_rotation(heading, roll, pitch), (x, y, z))
 
 
-def frame_transforms(head: HeadCalibration, pose: tuple[float, float, float, float], ptu: tuple[float, float] | None,
-                     truth: tuple[float, float, float] | None,
+def frame_transforms(head: HeadCalibration, pose: tuple[float, ...], ptu: tuple[float, float] | None,
+                     truth: tuple[float, ...] | None,
                      body: list[tuple[str, np.ndarray]] | tuple[()] = ()) -> list[tuple[str, str, np.ndarray]]:
     """The whole tree as (parent, child, 4 x 4 pose of the child in the parent): pose (x, y,
-    heading, ground z), PTU (pan, tilt; 0, 0 unknown), the simulated rover's true (x, y,
-    heading) on the same ground height; ``body``: the frames fixed on the rover (frame id, its
-    4 x 4 pose in the rover frame)."""
+    heading, ground z, roll, pitch), PTU (pan, tilt; 0, 0 unknown), the simulated rover's true
+    (x, y, heading, roll, pitch) on the same ground height; ``body``: the frames fixed on the
+    rover (frame id, its 4 x 4 pose in the rover frame)."""
     pan, tilt = ptu or (0.0, 0.0)
     tree = [
         (WORLD, "rover", rover_T(*pose)),
@@ -127,20 +131,22 @@ def frame_transforms(head: HeadCalibration, pose: tuple[float, float, float, flo
     tree += [("ptu_tilt", sensor_frame(name), head.T_tilt_from_sensor(name)) for name in head.mounts]
     tree += [("rover", frame, T) for frame, T in body]
     if truth is not None:
-        tree.append((WORLD, "rover_truth", rover_T(*truth, pose[3])))
+        tree.append((WORLD, "rover_truth", rover_T(*truth[:3], pose[3], *truth[3:])))
     return tree
 
 
-def frame_tree(t_ns: int, head: HeadCalibration, pose: tuple[float, float, float, float],
-               ptu: tuple[float, float] | None, truth: tuple[float, float, float] | None,
+def frame_tree(t_ns: int, head: HeadCalibration, pose: tuple[float, ...],
+               ptu: tuple[float, float] | None, truth: tuple[float, ...] | None,
                body: list[tuple[str, np.ndarray]] | tuple[()] = ()) -> bytes:
     """The whole tree at ``t_ns`` (:func:`frame_transforms`)."""
     return FrameTransforms(transforms=[_transform(t_ns, parent, child, T) for parent, child, T
                                        in frame_transforms(head, pose, ptu, truth, body)]).encode()
 
 
-def pose_in_world(t_ns: int, x: float, y: float, heading: float, z: float) -> bytes:
-    return PoseInFrame(timestamp=stamp(t_ns), frame_id=WORLD, pose=_pose(rover_T(x, y, heading, z))).encode()
+def pose_in_world(t_ns: int, x: float, y: float, heading: float, z: float, roll: float = 0.0,
+                  pitch: float = 0.0) -> bytes:
+    return PoseInFrame(timestamp=stamp(t_ns), frame_id=WORLD,
+                       pose=_pose(rover_T(x, y, heading, z, roll, pitch))).encode()
 
 
 def grid(t_ns: int, g: GridGeometry, layers: dict[str, np.ndarray]) -> bytes:

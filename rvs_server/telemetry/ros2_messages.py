@@ -90,8 +90,9 @@ def frame_tree(t_ns: int, *tree: Any) -> dict[str, Any]:
 
 
 @encodes(m.pose_in_world, "geometry_msgs/PoseStamped")
-def pose_in_world(t_ns: int, x: float, y: float, heading: float, z: float) -> dict[str, Any]:
-    return {"header": header(t_ns, m.WORLD), "pose": _pose(m.rover_T(x, y, heading, z))}
+def pose_in_world(t_ns: int, x: float, y: float, heading: float, z: float, roll: float = 0.0,
+                  pitch: float = 0.0) -> dict[str, Any]:
+    return {"header": header(t_ns, m.WORLD), "pose": _pose(m.rover_T(x, y, heading, z, roll, pitch))}
 
 
 def grid_map_cdr(msg: dict[str, Any]) -> bytes:

@@ -166,7 +166,8 @@ async def connect(port: int, protocols: tuple[str, ...] = (SUBPROTOCOL,)) -> tup
 
 def test_foxglove_client_decodes_grid_cloud_and_frames(server_factory: Any) -> None:
     port = free_port()
-    srv = server_factory([f"server.foxglove_port={port}"])
+    # quarry: the rover stands rolled 0.8 deg and pitched -0.3 deg, which its frames are placed with
+    srv = server_factory([f"server.foxglove_port={port}", "server.scene=quarry"])
     c = srv.client()
     status = c.request("status").fields
     assert status["foxglove"] == "on" and status["foxglove_url"] == f"ws://127.0.0.1:{port}", status
@@ -217,6 +218,13 @@ def test_foxglove_client_decodes_grid_cloud_and_frames(server_factory: Any) -> N
     assert np.degrees(np.arctan2(rover[1, 0], rover[0, 0])) == pytest.approx(pose[2], abs=0.01)
     truth = transform_matrix(next(tf for tf in latest if tf.child_frame_id == "rover_truth"))
     assert truth[:2, 3] == pytest.approx([float(v) for v in st["truth"].split(",")][:2], abs=1e-3)
+    # both lean as the body rests: the truth's attitude, and the IMU's read the frames were placed
+    # with (its error 0.1 deg)
+    true = c.request("sim truth").fields
+    for T, tolerance in ((truth, 1e-3), (rover, 0.35)):
+        R = T[:3, :3]
+        assert np.degrees(np.arcsin(R[2, 0])) == pytest.approx(float(true["pitch"]), abs=tolerance)
+        assert np.degrees(np.arctan2(R[2, 1], R[2, 2])) == pytest.approx(float(true["roll"]), abs=tolerance)
 
     # the cloud, put in the world through the tree of its own time, lies on the DEM made from it
     assert cloud.frame_id == "tof" and cloud.point_stride == 16
@@ -229,7 +237,8 @@ def test_foxglove_client_decodes_grid_cloud_and_frames(server_factory: Any) -> N
     inside = geometry.inside(row, col)
     ground = dem[row[inside], col[inside]]
     err = np.abs(world[inside, 2] - ground)[np.isfinite(ground)]
-    assert len(err) > 0.5 * len(pts) and np.median(err) < 0.03, (len(err), np.median(err))
+    # to the millimetre: the tree leans the rover frame by the attitude the scan placed it with
+    assert len(err) > 0.5 * len(pts) and np.median(err) < 0.005, (len(err), np.median(err))
 
 
 def test_a_client_that_subscribes_late_gets_the_map_and_a_taken_port_costs_only_foxglove(
