@@ -48,10 +48,9 @@ from foxglove.messages import (
     Vector3,
 )
 
-from prox_workflows.algorithms.transforms import HeadCalibration, make_T, rot_y, rot_z
+from prox_workflows.algorithms.transforms import HeadCalibration, T_global_from_rover, make_T, rot_y, rot_z
 from prox_workflows.grid import GridGeometry
 from rvs_params.deferred import deferred
-from rvs_params.frames import rover_rotation
 
 transform = deferred("scipy.spatial.transform")
 
@@ -107,13 +106,6 @@ def _transform(t_ns: int, parent: str, child: str, T: np.ndarray) -> FrameTransf
                           translation=_vector(T[:3, 3]), rotation=_quaternion(T[:3, :3]))
 
 
-def rover_T(x: float, y: float, heading: float, z: float, roll: float = 0.0, pitch: float = 0.0) -> np.ndarray:
-    """The rover frame in the world: tilted by the body's roll and pitch as the server places its
-    frames (:func:`rvs_params.frames.rover_rotation`), so a cloud drawn through it lies where the
-    server put its points."""
-    return make_T(rover_rotation(heading, roll, pitch), (x, y, z))
-
-
 def frame_transforms(head: HeadCalibration, pose: tuple[float, ...], ptu: tuple[float, float] | None,
                      truth: tuple[float, ...] | None,
                      body: list[tuple[str, np.ndarray]] | tuple[()] = ()) -> list[tuple[str, str, np.ndarray]]:
@@ -123,7 +115,7 @@ def frame_transforms(head: HeadCalibration, pose: tuple[float, ...], ptu: tuple[
     rover (frame id, its 4 x 4 pose in the rover frame)."""
     pan, tilt = ptu or (0.0, 0.0)
     tree = [
-        (WORLD, "rover", rover_T(*pose)),
+        (WORLD, "rover", T_global_from_rover(*pose)),
         ("rover", "mast", make_T(None, head.ptu_base)),
         ("mast", "ptu_pan", make_T(rot_z(pan))),
         ("ptu_pan", "ptu_tilt", make_T(rot_y(-tilt), (0.0, 0.0, head.tilt_offset))),
@@ -131,7 +123,7 @@ def frame_transforms(head: HeadCalibration, pose: tuple[float, ...], ptu: tuple[
     tree += [("ptu_tilt", sensor_frame(name), head.T_tilt_from_sensor(name)) for name in head.mounts]
     tree += [("rover", frame, T) for frame, T in body]
     if truth is not None:
-        tree.append((WORLD, "rover_truth", rover_T(*truth[:3], pose[3], *truth[3:])))
+        tree.append((WORLD, "rover_truth", T_global_from_rover(*truth[:3], pose[3], *truth[3:])))
     return tree
 
 
@@ -146,7 +138,7 @@ def frame_tree(t_ns: int, head: HeadCalibration, pose: tuple[float, ...],
 def pose_in_world(t_ns: int, x: float, y: float, heading: float, z: float, roll: float = 0.0,
                   pitch: float = 0.0) -> bytes:
     return PoseInFrame(timestamp=stamp(t_ns), frame_id=WORLD,
-                       pose=_pose(rover_T(x, y, heading, z, roll, pitch))).encode()
+                       pose=_pose(T_global_from_rover(x, y, heading, z, roll, pitch))).encode()
 
 
 def grid(t_ns: int, g: GridGeometry, layers: dict[str, np.ndarray]) -> bytes:
@@ -247,7 +239,7 @@ def _text(x: float, y: float, z: float, text: str) -> TextPrimitive:
 
 def plan(t_ns: int, waypoints: list[tuple[float, float, float]], z: float, leg: Any) -> bytes:
     """A leg's plan: the line through its waypoints and an arrow per waypoint along its heading."""
-    arrows = [ArrowPrimitive(pose=_pose(rover_T(x, y, h, z + 0.05)), shaft_length=0.25, shaft_diameter=0.04,
+    arrows = [ArrowPrimitive(pose=_pose(T_global_from_rover(x, y, h, z + 0.05)), shaft_length=0.25, shaft_diameter=0.04,
                              head_length=0.1, head_diameter=0.1, color=PLAN_COLOUR) for x, y, h in waypoints]
     entity = SceneEntity(timestamp=stamp(t_ns), frame_id=WORLD, id="plan", arrows=arrows,
                          lines=[_line([(x, y, z + 0.05) for x, y, _ in waypoints], PLAN_COLOUR, 3.0)],
@@ -269,7 +261,7 @@ def check_move(t_ns: int, start: tuple[float, float, float], fields: dict[str, A
     end = [float(v) for v in fields["to"]]
     verdict = str(fields.get("verdict"))
     colour = VERDICT_COLOUR.get(verdict, UNKNOWN_COLOUR)
-    box = CubePrimitive(pose=_pose(rover_T(end[0], end[1], end[2], z + 0.1)),
+    box = CubePrimitive(pose=_pose(T_global_from_rover(end[0], end[1], end[2], z + 0.1)),
                         size=Vector3(x=footprint[0], y=footprint[1], z=0.2), color=colour)
     cubes = [box]
     if verdict != "safe" and "worst_x" in fields:

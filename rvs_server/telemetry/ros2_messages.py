@@ -24,6 +24,7 @@ import numpy as np
 from foxglove.messages import LogLevel
 from mcap_ros2._cdr import CdrWriter  # the generic encoder's own writer (the version is pinned: pyproject)
 
+from prox_workflows.algorithms.transforms import T_global_from_rover
 from prox_workflows.grid import GridGeometry
 from rvs_params.deferred import deferred
 
@@ -92,7 +93,7 @@ def frame_tree(t_ns: int, *tree: Any) -> dict[str, Any]:
 @encodes(m.pose_in_world, "geometry_msgs/PoseStamped")
 def pose_in_world(t_ns: int, x: float, y: float, heading: float, z: float, roll: float = 0.0,
                   pitch: float = 0.0) -> dict[str, Any]:
-    return {"header": header(t_ns, m.WORLD), "pose": _pose(m.rover_T(x, y, heading, z, roll, pitch))}
+    return {"header": header(t_ns, m.WORLD), "pose": _pose(T_global_from_rover(x, y, heading, z, roll, pitch))}
 
 
 def grid_map_cdr(msg: dict[str, Any]) -> bytes:
@@ -188,7 +189,7 @@ def _path(t_ns: int, poses: list[np.ndarray]) -> dict[str, Any]:
 @encodes(m.plan, "nav_msgs/Path")
 def plan(t_ns: int, waypoints: list[tuple[float, float, float]], z: float, leg: Any) -> dict[str, Any]:
     """A leg's waypoints with their headings, on the ground."""
-    return _path(t_ns, [m.rover_T(x, y, h, z) for x, y, h in waypoints])
+    return _path(t_ns, [T_global_from_rover(x, y, h, z) for x, y, h in waypoints])
 
 
 @encodes(m.track, "nav_msgs/Path")
