@@ -509,7 +509,8 @@ class BoundsMap:
 
         - Under each wheel the ground is at the wheel's contact. With ``attitude`` (roll, pitch and
           their 1-sigma, deg, as the rover's IMU gives them: :func:`contact_plane`) the body's
-          plane runs through ``z`` tipped by it, and no wheel's ground stands above it by more
+          plane is tipped by it and rests on the ground frames bounded under three or more wheels
+          (:meth:`_rest`), else runs through ``z``; no wheel's ground stands above it by more
           than ``contact_sigma`` and the attitude's error over its lever from the centre (a few
           millimetres: the wheel's circle rests on the highest ground under it). A rigid body
           on four wheels rests on three: the fourth may hang over lower ground, which the IMU
@@ -539,9 +540,16 @@ class BoundsMap:
         wheel_of, belly = np.tile(wheel_of, 4), np.tile(belly, 4)
         inside = g.inside(r, col)
         flat = r * g.width + col
-        wheels = np.unique(flat[inside & (wheel_of >= 0)])
+        on_wheel = inside & (wheel_of >= 0)
+        wheels = np.unique(flat[on_wheel])
         xs = g.xmin + (wheels % g.width + 0.5) * g.cell
         ys = g.ymax - (wheels // g.width + 0.5) * g.cell
+        rest_var = 0.0
+        if attitude is not None:
+            gx, gy = contact_plane(pose[2], attitude[0], attitude[1])
+            rest = self._rest(flat[on_wheel], wheel_of[on_wheel], pose, gx, gy)
+            if rest is not None:
+                z, rest_var = rest
         if attitude is None:
             blank = ~np.isfinite(self.mean.flat[wheels])
             wheels, xs, ys = wheels[blank], xs[blank], ys[blank]
@@ -551,10 +559,9 @@ class BoundsMap:
         else:
             keep = self.stamp.flat[wheels] == 0  # no frame bounded it
             wheels, xs, ys = wheels[keep], xs[keep], ys[keep]
-            gx, gy = contact_plane(pose[2], attitude[0], attitude[1])
             height = z + gx * (xs - pose[0]) + gy * (ys - pose[1])
             lever = np.hypot(xs - pose[0], ys - pose[1])
-            spread = self.params.contact_sigma
+            spread = math.sqrt(self.params.contact_sigma ** 2 + rest_var)
             var = spread ** 2 + (lever * math.tan(math.radians(attitude[2]))) ** 2
         # with the attitude: no higher than the plane (the wheel's circle rests on the highest ground
         # under it), down to ``hang`` below it (the wheel the body does not rest on)
@@ -573,6 +580,36 @@ class BoundsMap:
         uy = g.ymax - (under // g.width + 0.5) * g.cell
         roof = (z + gx * (ux - pose[0]) + gy * (uy - pose[1]) + body.clearance - 3 * k * spread).astype(np.float32)
         self.ceiling.flat[under] = np.minimum(self.ceiling.flat[under], roof)
+
+    def _rest(self, cells: np.ndarray, wheel_of: np.ndarray, pose: tuple[float, float, float], gx: float,
+              gy: float) -> tuple[float, float] | None:
+        """The height at the pose's centre of the plane rising (``gx``, ``gy``) the body rests on,
+        and its variance, from the ground frames bounded under the wheels (``cells``, each read of
+        wheel ``wheel_of``): each wheel's circle rests on the highest ground under it, and a rigid
+        body rests on three of its four, so the plane is at the median of the wheels' tops. None
+        where frames bounded fewer than three wheels' ground: a frame's own height is then all
+        there is, and it stood 7 cm off the truth under a wheel once its registration jumped."""
+        framed = (self.stamp.flat[cells] > 0) & np.isfinite(self.mean.flat[cells])
+        if not framed.any():
+            return None
+        g = self.geometry
+        cells, wheel_of = cells[framed], wheel_of[framed]
+        xs = g.xmin + (cells % g.width + 0.5) * g.cell
+        ys = g.ymax - (cells // g.width + 0.5) * g.cell
+        off = self.mean.flat[cells] - gx * (xs - pose[0]) - gy * (ys - pose[1])
+        tops, var = [], []
+        for w in np.unique(wheel_of):
+            mine = wheel_of == w
+            if np.count_nonzero(mine) < 2:
+                continue
+            top = int(np.argmax(np.where(mine, off, -np.inf)))
+            tops.append(float(off[top]))
+            var.append(float(self.mean_var.flat[cells[top]]))
+        if len(tops) < 3:
+            return None
+        order = np.argsort(tops)
+        middle = order[len(order) // 2 - (1 - len(order) % 2):len(order) // 2 + 1]
+        return float(np.mean(np.asarray(tops)[middle])), float(np.mean(np.asarray(var)[middle]))
 
     def set_down(self, centre: tuple[float, float], radius: float,
                  z: float | Callable[[np.ndarray, np.ndarray], np.ndarray],

@@ -326,13 +326,12 @@ class SeeingDriver:
 
     def attitude(self, imu: tuple[float, float, float] | None) -> tuple[float, float, float] | None:
         """The IMU's attitude (``imu``, a read of :meth:`imu`) for the ground under the wheels
-        while driving, or None (``see_set_down`` other than attitude: the wheels' ground is then
-        the frames' and, where
-        none, level within 5 mm of the datum). Not with ring: the plane goes through the datum,
-        the frames' ground at the rover's centre, which is not where its wheels rest; felt so
-        while driving, the wheels' cells stood 3-4 cm off the frames' cells beside them and tilted
-        the resting plane 3.4 deg over the truth's at hirise_fresh 3 (docs/NAVIGATE_BENCH.md)."""
-        return imu if self.p.set_down == "attitude" else None
+        while driving, or None (``see_set_down level``: the wheels' ground is then the frames' and,
+        where none, level within 5 mm of the frame's height). With an attitude the body rests on
+        the ground frames bounded under its wheels (:meth:`BoundsMap.stood`), not on the frame's
+        height at its centre: taken level through that height, a wheel's unseen ground stood 7 cm
+        over the truth on a slope and the check refused the very pose the rover stood on."""
+        return None if self.p.set_down == "level" else imu
 
     def _check_layer(self, pose: tuple[float, float, float]) -> np.ndarray:
         """The traversability the check sweeps: the rolling map's, lowered to 0 where the maps the
