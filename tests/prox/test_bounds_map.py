@@ -668,7 +668,7 @@ def test_a_driving_rover_rests_its_unseen_wheel_on_the_ground_frames_bounded_und
     the frame's own height at the centre is 7 cm off (its registration jumped). The body rests on
     the seen wheels' ground tipped by the IMU's attitude, so the fourth wheel's ground is put
     within a centimetre of the truth, and the chance check passes the pose the rover stands on.
-    Taken level through the frame's height, as without an attitude, it refuses that pose."""
+    Taken level through the frame's height, as without an attitude, it stands over 5 cm high."""
     from drivers.sim.rover import RoverBody, resting_pose
     from prox_workflows.algorithms.chance import ChanceParams, chance_check, posterior
 
@@ -701,5 +701,44 @@ def test_a_driving_rover_rests_its_unseen_wheel_on_the_ground_frames_bounded_und
     assert m.stamp[r[0], col[0]] == 0 and np.isfinite(m.mean[r[0], col[0]])  # the body's, not a frame's
     assert truth - 0.004 < m.upper[r[0], col[0]] < truth + 0.01
     assert safe
-    level, safe = stood(None)
-    assert level.upper[r[0], col[0]] > truth + 0.05 and not safe
+    level, _ = stood(None)
+    assert level.upper[r[0], col[0]] > truth + 0.05
+
+
+def test_the_ground_under_a_driving_rover_s_box_no_frame_saw_is_the_ground_round_it_below_the_roof() -> None:
+    """The frames never saw the ground under the middle of the box (the rover drove onto it). The
+    body says only that nothing there reaches the belly; left at that roof, the chance check reads
+    the ground just under the belly and refuses the pose the rover stands on. Taken as the framed
+    ground under the body lies about the wheels' plane, within its spread, the pose passes, and
+    the cells keep the roof over them."""
+    from drivers.sim.rover import RoverBody, resting_pose
+    from prox_workflows.algorithms.chance import ChanceParams, chance_check, posterior
+
+    body = RoverBody()
+    pose = (0.3, -0.2, 30.0)
+
+    def surface(x: np.ndarray, y: np.ndarray) -> np.ndarray:  # a 9 % grade, rough to 5 mm
+        x, y = np.asarray(x, float), np.asarray(y, float)
+        return 0.08 * x - 0.05 * y + 0.005 * np.sin(17 * x) * np.cos(13 * y)
+
+    height, roll, pitch = resting_pose(body, surface, pose)
+    rng = np.random.default_rng(6)
+    x, y = rng.uniform(-1.0, 1.0, 200_000), rng.uniform(-1.0, 1.0, 200_000)
+    seen = np.hypot(x - pose[0], y - pose[1]) > 0.08  # no return under the middle of the box
+    pts = np.column_stack([x[seen], y[seen], surface(x[seen], y[seen]) + 0.002 * rng.standard_normal(seen.sum())])
+
+    def stood(fill_under: bool) -> tuple[BoundsMap, bool]:
+        m = BoundsMap.covering([[-1.0, -1.0], [1.0, 1.0]], 0.0)
+        m.fuse(pts, np.full(len(pts), 0.002), np.array([pose[0], pose[1], height + 1.2]))
+        m.stood(pose, height, body, (roll, pitch, 0.1), fill_under=fill_under)
+        st, sub = m.statistics(-1.0, -1.0, 1.0, 1.0)
+        check = chance_check(posterior(st, sub, m.params.k), sub, np.array([pose]), body, ChanceParams())
+        return m, bool(check.safe[0])
+
+    m, safe = stood(True)
+    r, col = m.geometry.cell_of(np.array([pose[0]]), np.array([pose[1]]))
+    truth = float(surface(np.array([pose[0]]), np.array([pose[1]]))[0])
+    assert m.stamp[r[0], col[0]] == 0 and abs(m.mean[r[0], col[0]] - truth) < 0.01
+    assert m.ceiling[r[0], col[0]] < truth + body.clearance and safe
+    bare, safe = stood(False)
+    assert not np.isfinite(bare.mean[r[0], col[0]]) and not safe
