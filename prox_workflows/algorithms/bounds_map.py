@@ -147,6 +147,44 @@ def contact_plane(heading: float, roll: float, pitch: float) -> tuple[float, flo
     return a * c - b * s, a * s + b * c
 
 
+def attitude_at(heading: float, gx: float, gy: float, sigma: float) -> tuple[float, float, float]:
+    """Roll and pitch (deg, and their ``sigma``) of a body facing ``heading`` on the plane rising
+    ``gx``, ``gy`` per metre along global x and y: :func:`contact_plane` inverted."""
+    c, s = math.cos(math.radians(heading)), math.sin(math.radians(heading))
+    pitch = math.atan(gx * c + gy * s)
+    return math.degrees(math.atan((-gx * s + gy * c) * math.cos(pitch))), math.degrees(pitch), sigma
+
+
+SWEEP_STEP = 0.05  # m between the poses a drive's sweep stands the body at (a wheel's footprint is 0.2 m long)
+SWEEP_TURN = 10.0  # deg between them turning (a corner 0.39 m out moves 7 cm)
+SWEEP_MAX = 0.5  # m: a longer move between two stands is a fix or a new set-down, not a drive
+SWEEP_TILT = 1.0  # deg added to the attitude's sigma away from where it was read (the ground's tilt varies)
+
+
+def swept_poses(since: tuple[float, float, float] | None, pose: tuple[float, float, float],
+                attitude: tuple[float, float, float] | None
+                ) -> list[tuple[tuple[float, float, float], tuple[float, float, float] | None]]:
+    """The poses a body passed between ``since`` and ``pose`` (x, y, heading deg; neither end),
+    every :data:`SWEEP_STEP` and :data:`SWEEP_TURN`, each with the attitude it had there on the
+    plane ``attitude`` (read at ``pose``) gives, within :data:`SWEEP_TILT` more. None where it
+    did not drive: set down, or moved further than :data:`SWEEP_MAX` (a fix)."""
+    if since is None:
+        return []
+    dx, dy = pose[0] - since[0], pose[1] - since[1]
+    turn = (pose[2] - since[2] + 180.0) % 360.0 - 180.0
+    run = math.hypot(dx, dy)
+    if run > SWEEP_MAX:
+        return []
+    n = max(math.ceil(run / SWEEP_STEP), math.ceil(abs(turn) / SWEEP_TURN))
+    plane = None if attitude is None else contact_plane(pose[2], attitude[0], attitude[1])
+    out = []
+    for i in range(1, n):
+        f = i / n
+        at = (since[0] + f * dx, since[1] + f * dy, since[2] + f * turn)
+        out.append((at, None if plane is None else attitude_at(at[2], *plane, math.hypot(attitude[2], SWEEP_TILT))))
+    return out
+
+
 # what a cell nothing has bounded holds, per layer (0 where not named)
 _FILLS = {"mean": np.nan, "mean_var": np.nan, "ceiling": np.inf}
 # the layers a frame's bounds are held in (moved by a fix with the cell's ``stamp``)
@@ -506,7 +544,8 @@ class BoundsMap:
 
     def stood(self, pose: tuple[float, float, float], z: float, body: Any,
               attitude: tuple[float, float, float] | None = None, sigma: float = 0.005,
-              tilt: tuple[float, float] = (0.0, 0.0), fill_under: bool = True) -> None:
+              tilt: tuple[float, float] = (0.0, 0.0), fill_under: bool = True,
+              since: tuple[float, float, float] | None = None) -> None:
         """The rover stands at ``pose`` (x, y, heading deg) with its centre's ground at height ``z``:
         its body is a sensor too, for the ground no frame bounded (the mast never sees within
         about 0.7 m of its foot). Frames outrank it: a cell a frame bounded keeps its bounds.
@@ -529,8 +568,18 @@ class BoundsMap:
           not felt), and it does not replace what the set-down assumed there
           (:meth:`set_down`). With ``fill_under`` the cells nothing holds there are taken as the
           framed ground under the body lies about the plane (:meth:`_fill_under`); a set-down
-          fills them from the ring round the blind disc instead."""
+          fills them from the ring round the blind disc instead.
+        - ``since``: the pose the rover stood at for the last call (None: it was set down here).
+          Its body passed over the ground between the two, and so stood on it too: each pose
+          :func:`swept_poses` takes between them, on the plane the attitude gives here. A frame
+          comes every 10 cm of a drive and none during a turn on the spot, so the corners of a
+          turn and of an arc passed over ground no frame or stand held; the mast cannot see it
+          behind the body, and the rays over it, taken as ground, refused every turn but 20 deg
+          of one the truth allowed whole."""
         from .vehicle import _pattern
+
+        for passed, tipped in swept_poses(since, pose, attitude):
+            self.stood(passed, z, body, tipped, sigma, tilt, fill_under)
 
         g, k = self.geometry, self.params.k
         pat = _pattern(body, g.cell / 2)

@@ -135,6 +135,9 @@ class SeeingDriver:
         # (x, y, z) the last frame put the rover frame's origin at: a rover that has not moved since
         # stands at that height, whatever the map round it says now that the frames have filled it
         self.held: tuple[float, float, float] | None = None
+        # the pose of the last frame's stand (BoundsMap.stood): the body passed over the ground
+        # from there to the next (None: set down, where nothing was driven over)
+        self.stood_at: tuple[float, float, float] | None = None
 
     def point_forward(self) -> None:
         """The PTU to pan 0 (the rover's forward), tilted down: the ToF looks where the rover goes."""
@@ -236,7 +239,8 @@ class SeeingDriver:
                 t1 += frame.capture_s
                 self.cpu1 += frame.capture_cpu_s
             if not self.set_down_pending:
-                self.bounds.stood((x, y, heading), float(T[2, 3]), self.body, self.attitude(imu))
+                self.bounds.stood((x, y, heading), float(T[2, 3]), self.body, self.attitude(imu), since=self.stood_at)
+                self.stood_at = (x, y, heading)
             app.bus.publish("bounds", bounds=self.bounds)  # Foxglove and recordings (their hub throttles)
         self.stats.frame_ms.append((t1 - t0) * 1000)  # the ToF frame's and the pairs' captures
         return (x, y, heading), t1

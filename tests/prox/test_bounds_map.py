@@ -742,3 +742,33 @@ def test_the_ground_under_a_driving_rover_s_box_no_frame_saw_is_the_ground_round
     assert m.ceiling[r[0], col[0]] < truth + body.clearance and safe
     bare, safe = stood(False)
     assert not np.isfinite(bare.mean[r[0], col[0]]) and not safe
+
+
+def test_a_turn_on_the_spot_stands_the_body_on_the_ground_it_swept_between_two_frames() -> None:
+    """A frame comes before a turn on the spot and after it, none during it. The body swept the
+    ground between: standing after a 90 deg turn, it stands at the headings between too, as if a
+    frame had come at each, so the turn's corners hold the belly's roof and the ground under it;
+    a jump longer than a drive between two frames (a fix) stands nothing between."""
+    from drivers.sim.rover import RoverBody
+    from prox_workflows.algorithms.bounds_map import attitude_at, contact_plane, swept_poses
+
+    body = RoverBody()
+    assert attitude_at(70.0, *contact_plane(70.0, 3.0, -4.0), 0.2) == pytest.approx((3.0, -4.0, 0.2))
+    rng = np.random.default_rng(2)
+    x, y = rng.uniform(-1.0, 1.0, 100_000), rng.uniform(-1.0, 1.0, 100_000)
+    seen = np.hypot(x, y) > 0.45  # the frames saw none of the disc the body turns in
+    pts = np.column_stack([x[seen], y[seen], 0.002 * rng.standard_normal(seen.sum())])
+
+    def held(headings: list[float], since: tuple[float, float, float] | None = None) -> np.ndarray:
+        m = BoundsMap.covering([[-1.0, -1.0], [1.0, 1.0]], 0.0)
+        m.fuse(pts, np.full(len(pts), 0.002), np.array([0.0, 0.0, 1.2]))
+        for h in headings:
+            m.stood((0.0, 0.0, h), 0.0, body, (0.0, 0.0, 0.1), since=since)
+        return np.isfinite(m.ceiling) & np.isfinite(m.mean)
+
+    ends = held([0.0, 90.0])
+    swept = held([90.0], since=(0.0, 0.0, 0.0))
+    assert swept.sum() > ends.sum() + 20
+    assert np.array_equal(swept, held([10.0, 20.0, 30.0, 40.0, 50.0, 60.0, 70.0, 80.0, 90.0]))
+    assert np.array_equal(held([90.0], since=(-0.8, 0.0, 0.0)), held([90.0]))
+    assert len(swept_poses((0.0, 0.0, 0.0), (0.0, 0.0, 90.0), None)) == 8
