@@ -167,7 +167,7 @@ def swept_poses(since: tuple[float, float, float] | None, pose: tuple[float, flo
     """The poses a body passed between ``since`` and ``pose`` (x, y, heading deg; neither end),
     every :data:`SWEEP_STEP` and :data:`SWEEP_TURN`, each with the attitude it had there on the
     plane ``attitude`` (read at ``pose``) gives, within :data:`SWEEP_TILT` more. None where it
-    did not drive: set down, or moved further than :data:`SWEEP_MAX` (a fix)."""
+    did not drive: set down (``since`` None), or moved further than :data:`SWEEP_MAX` (a fix)."""
     if since is None:
         return []
     dx, dy = pose[0] - since[0], pose[1] - since[1]
@@ -574,12 +574,14 @@ class BoundsMap:
           :func:`swept_poses` takes between them, on the plane the attitude gives here. A frame
           comes every 10 cm of a drive and none during a turn on the spot, so the corners of a
           turn and of an arc passed over ground no frame or stand held; the mast cannot see it
-          behind the body, and the rays over it, taken as ground, refused every turn but 20 deg
-          of one the truth allowed whole."""
+          behind the body, and the rays over it, taken as ground, passed 12 deg left and 4 right
+          of a turn on the spot the truth allowed whole."""
         from .vehicle import _pattern
 
+        gx, gy = tilt if attitude is None else contact_plane(pose[2], attitude[0], attitude[1])
         for passed, tipped in swept_poses(since, pose, attitude):
-            self.stood(passed, z, body, tipped, sigma, tilt, fill_under)
+            self.stood(passed, z + gx * (passed[0] - pose[0]) + gy * (passed[1] - pose[1]), body, tipped, sigma, tilt,
+                       fill_under)
 
         g, k = self.geometry, self.params.k
         pat = _pattern(body, g.cell / 2)
@@ -601,14 +603,12 @@ class BoundsMap:
         ys = g.ymax - (wheels // g.width + 0.5) * g.cell
         rest_var = 0.0
         if attitude is not None:
-            gx, gy = contact_plane(pose[2], attitude[0], attitude[1])
             rest = self._rest(flat[on_wheel], wheel_of[on_wheel], pose, gx, gy)
             if rest is not None:
                 z, rest_var = rest
         if attitude is None:
             blank = ~np.isfinite(self.mean.flat[wheels])
             wheels, xs, ys = wheels[blank], xs[blank], ys[blank]
-            gx, gy = tilt
             height, var = z + gx * (xs - pose[0]) + gy * (ys - pose[1]), np.full(len(wheels), sigma * sigma)
             spread = sigma
         else:

@@ -772,3 +772,20 @@ def test_a_turn_on_the_spot_stands_the_body_on_the_ground_it_swept_between_two_f
     assert np.array_equal(swept, held([10.0, 20.0, 30.0, 40.0, 50.0, 60.0, 70.0, 80.0, 90.0]))
     assert np.array_equal(held([90.0], since=(-0.8, 0.0, 0.0)), held([90.0]))
     assert len(swept_poses((0.0, 0.0, 0.0), (0.0, 0.0, 90.0), None)) == 8
+
+
+def test_the_ground_swept_on_a_grade_is_stood_on_at_the_grade_s_height() -> None:
+    """No frame bounded the ground the body drove over (0.3 m up a 10 % grade): the poses between
+    the two stands take their height from the end's along the plane the attitude gives, so the
+    wheels' ground halfway is on the grade, not level with the end."""
+    from drivers.sim.rover import RoverBody
+    from prox_workflows.algorithms.bounds_map import attitude_at
+
+    body = RoverBody()
+    m = BoundsMap.covering([[-1.0, -1.0], [1.0, 1.0]], 0.0)
+    roll, pitch, _ = attitude_at(0.0, 0.1, 0.0, 0.1)
+    m.stood((0.3, 0.0, 0.0), 0.03, body, (roll, pitch, 0.1), since=(0.0, 0.0, 0.0))
+    # the rear wheels' ground halfway (hubs at x = 0.15 - 0.145), which neither end's wheels cover
+    r, c = m.geometry.cell_of(np.array([0.005]), np.array([0.245]))
+    top = m.mean[r[0], c[0]] + m.rise[r[0], c[0]]
+    assert top == pytest.approx(0.1 * 0.0125, abs=0.002)  # the cell's centre on the grade
