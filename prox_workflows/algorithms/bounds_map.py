@@ -129,6 +129,9 @@ class BoundsParams(Settings):
                                      "a frame shows it again: the new rock's flank the frame did not see (its near "
                                      "rim below the mast's view) kept the ground seen before it came", unit="m",
                                 min=0.0, max=2.0)
+    under_sigma: float = param(0.01, "the ground under a standing rover's box that no frame bounded is taken as the "
+                                     "framed ground under its body lies about its wheels' plane, within that "
+                                     "ground's spread and at least this", unit="m", min=0.0, max=0.5)
     contact_sigma: float = param(0.001, "the ground under a standing wheel off the plane its pose and attitude put "
                                         "the four contacts on: the tyre's give and the grain it rests on (the "
                                         "attitude's own error is added to it)", unit="m", min=0.0, max=0.05)
@@ -144,6 +147,44 @@ def contact_plane(heading: float, roll: float, pitch: float) -> tuple[float, flo
     return a * c - b * s, a * s + b * c
 
 
+def attitude_at(heading: float, gx: float, gy: float, sigma: float) -> tuple[float, float, float]:
+    """Roll and pitch (deg, and their ``sigma``) of a body facing ``heading`` on the plane rising
+    ``gx``, ``gy`` per metre along global x and y: :func:`contact_plane` inverted."""
+    c, s = math.cos(math.radians(heading)), math.sin(math.radians(heading))
+    pitch = math.atan(gx * c + gy * s)
+    return math.degrees(math.atan((-gx * s + gy * c) * math.cos(pitch))), math.degrees(pitch), sigma
+
+
+SWEEP_STEP = 0.05  # m between the poses a drive's sweep stands the body at (a wheel's footprint is 0.2 m long)
+SWEEP_TURN = 10.0  # deg between them turning (a corner 0.39 m out moves 7 cm)
+SWEEP_MAX = 0.5  # m: a longer move between two stands is a fix or a new set-down, not a drive
+SWEEP_TILT = 1.0  # deg added to the attitude's sigma away from where it was read (the ground's tilt varies)
+
+
+def swept_poses(since: tuple[float, float, float] | None, pose: tuple[float, float, float],
+                attitude: tuple[float, float, float] | None
+                ) -> list[tuple[tuple[float, float, float], tuple[float, float, float] | None]]:
+    """The poses a body passed between ``since`` and ``pose`` (x, y, heading deg; neither end),
+    every :data:`SWEEP_STEP` and :data:`SWEEP_TURN`, each with the attitude it had there on the
+    plane ``attitude`` (read at ``pose``) gives, within :data:`SWEEP_TILT` more. None where it
+    did not drive: set down (``since`` None), or moved further than :data:`SWEEP_MAX` (a fix)."""
+    if since is None:
+        return []
+    dx, dy = pose[0] - since[0], pose[1] - since[1]
+    turn = (pose[2] - since[2] + 180.0) % 360.0 - 180.0
+    run = math.hypot(dx, dy)
+    if run > SWEEP_MAX:
+        return []
+    n = max(math.ceil(run / SWEEP_STEP), math.ceil(abs(turn) / SWEEP_TURN))
+    plane = None if attitude is None else contact_plane(pose[2], attitude[0], attitude[1])
+    out = []
+    for i in range(1, n):
+        f = i / n
+        at = (since[0] + f * dx, since[1] + f * dy, since[2] + f * turn)
+        out.append((at, None if plane is None else attitude_at(at[2], *plane, math.hypot(attitude[2], SWEEP_TILT))))
+    return out
+
+
 # what a cell nothing has bounded holds, per layer (0 where not named)
 _FILLS = {"mean": np.nan, "mean_var": np.nan, "ceiling": np.inf}
 # the layers a frame's bounds are held in (moved by a fix with the cell's ``stamp``)
@@ -151,6 +192,7 @@ _BOUND_LAYERS = ("mean", "mean_var", "rise", "drop", "relief", "split", "shift",
 # every per-cell layer, with its fill (a window's recentring moves them all)
 _LAYERS = tuple((name, _FILLS.get(name, 0)) for name in (*_BOUND_LAYERS, "ceiling", "stamp", "lowered"))
 
+MIN_UNDER_CELLS = 20  # framed cells under a standing body that say how its unseen ground lies about its plane
 ANGLE_BINS = 24  # bearings of a spread's ellipse, 7.5 deg apart: at 4 cells its end is off by at most 0.26 cell
 _KERNELS: dict[int, np.ndarray] = {}
 
@@ -502,14 +544,16 @@ class BoundsMap:
 
     def stood(self, pose: tuple[float, float, float], z: float, body: Any,
               attitude: tuple[float, float, float] | None = None, sigma: float = 0.005,
-              tilt: tuple[float, float] = (0.0, 0.0)) -> None:
+              tilt: tuple[float, float] = (0.0, 0.0), fill_under: bool = True,
+              since: tuple[float, float, float] | None = None) -> None:
         """The rover stands at ``pose`` (x, y, heading deg) with its centre's ground at height ``z``:
         its body is a sensor too, for the ground no frame bounded (the mast never sees within
         about 0.7 m of its foot). Frames outrank it: a cell a frame bounded keeps its bounds.
 
         - Under each wheel the ground is at the wheel's contact. With ``attitude`` (roll, pitch and
           their 1-sigma, deg, as the rover's IMU gives them: :func:`contact_plane`) the body's
-          plane runs through ``z`` tipped by it, and no wheel's ground stands above it by more
+          plane is tipped by it and rests on the ground frames bounded under three or more wheels
+          (:meth:`_rest`), else runs through ``z``; no wheel's ground stands above it by more
           than ``contact_sigma`` and the attitude's error over its lever from the centre (a few
           millimetres: the wheel's circle rests on the highest ground under it). A rigid body
           on four wheels rests on three: the fourth may hang over lower ground, which the IMU
@@ -522,8 +566,22 @@ class BoundsMap:
           drawn ``3 k`` contact sigmas lower so that the worst-case check of this very pose, its
           contacts at their extremes, passes. It gives no lower bound (a hole under the box is
           not felt), and it does not replace what the set-down assumed there
-          (:meth:`set_down`)."""
+          (:meth:`set_down`). With ``fill_under`` the cells nothing holds there are taken as the
+          framed ground under the body lies about the plane (:meth:`_fill_under`); a set-down
+          fills them from the ring round the blind disc instead.
+        - ``since``: the pose the rover stood at for the last call (None: it was set down here).
+          Its body passed over the ground between the two, and so stood on it too: each pose
+          :func:`swept_poses` takes between them, on the plane the attitude gives here. A frame
+          comes every 10 cm of a drive and none during a turn on the spot, so the corners of a
+          turn and of an arc passed over ground no frame or stand held; the mast cannot see it
+          behind the body, and the rays over it, taken as ground, passed 12 deg left and 4 right
+          of a turn on the spot the truth allowed whole."""
         from .vehicle import _pattern
+
+        gx, gy = tilt if attitude is None else contact_plane(pose[2], attitude[0], attitude[1])
+        for passed, tipped in swept_poses(since, pose, attitude):
+            self.stood(passed, z + gx * (passed[0] - pose[0]) + gy * (passed[1] - pose[1]), body, tipped, sigma, tilt,
+                       fill_under)
 
         g, k = self.geometry, self.params.k
         pat = _pattern(body, g.cell / 2)
@@ -539,22 +597,26 @@ class BoundsMap:
         wheel_of, belly = np.tile(wheel_of, 4), np.tile(belly, 4)
         inside = g.inside(r, col)
         flat = r * g.width + col
-        wheels = np.unique(flat[inside & (wheel_of >= 0)])
+        on_wheel = inside & (wheel_of >= 0)
+        wheels = np.unique(flat[on_wheel])
         xs = g.xmin + (wheels % g.width + 0.5) * g.cell
         ys = g.ymax - (wheels // g.width + 0.5) * g.cell
+        rest_var = 0.0
+        if attitude is not None:
+            rest = self._rest(flat[on_wheel], wheel_of[on_wheel], pose, gx, gy)
+            if rest is not None:
+                z, rest_var = rest
         if attitude is None:
             blank = ~np.isfinite(self.mean.flat[wheels])
             wheels, xs, ys = wheels[blank], xs[blank], ys[blank]
-            gx, gy = tilt
             height, var = z + gx * (xs - pose[0]) + gy * (ys - pose[1]), np.full(len(wheels), sigma * sigma)
             spread = sigma
         else:
             keep = self.stamp.flat[wheels] == 0  # no frame bounded it
             wheels, xs, ys = wheels[keep], xs[keep], ys[keep]
-            gx, gy = contact_plane(pose[2], attitude[0], attitude[1])
             height = z + gx * (xs - pose[0]) + gy * (ys - pose[1])
             lever = np.hypot(xs - pose[0], ys - pose[1])
-            spread = self.params.contact_sigma
+            spread = math.sqrt(self.params.contact_sigma ** 2 + rest_var)
             var = spread ** 2 + (lever * math.tan(math.radians(attitude[2]))) ** 2
         # with the attitude: no higher than the plane (the wheel's circle rests on the highest ground
         # under it), down to ``hang`` below it (the wheel the body does not rest on)
@@ -571,8 +633,66 @@ class BoundsMap:
         under = under[self.stamp.flat[under] == 0]
         ux = g.xmin + (under % g.width + 0.5) * g.cell
         uy = g.ymax - (under // g.width + 0.5) * g.cell
-        roof = (z + gx * (ux - pose[0]) + gy * (uy - pose[1]) + body.clearance - 3 * k * spread).astype(np.float32)
+        plane = z + gx * (ux - pose[0]) + gy * (uy - pose[1])
+        roof = (plane + body.clearance - 3 * k * spread).astype(np.float32)
         self.ceiling.flat[under] = np.minimum(self.ceiling.flat[under], roof)
+        if fill_under:
+            self._fill_under(under, plane, np.unique(flat[inside]), pose, z, gx, gy)
+
+    def _fill_under(self, under: np.ndarray, plane: np.ndarray, body_cells: np.ndarray,
+                    pose: tuple[float, float, float], z: float, gx: float, gy: float) -> None:
+        """The ground under the box that nothing holds (``under``: no frame, no prior; ``plane``
+        the resting plane over each) is taken as the framed ground under the body (``body_cells``)
+        lies about that plane: offset by its median, within its spread (at least
+        ``under_sigma``), below the belly's roof. Left with the roof alone, a cell reads as
+        ground at the roof (a ceiling with no return), just under the belly, and the chance
+        check refused the pose the rover stood on (P 0.9 on the belly, where the truth kept
+        7 cm under it)."""
+        blank = ~np.isfinite(self.mean.flat[under])
+        under, plane = under[blank], plane[blank]
+        if not len(under):
+            return
+        g = self.geometry
+        seen = body_cells[(self.stamp.flat[body_cells] > 0) & np.isfinite(self.mean.flat[body_cells])]
+        sx = g.xmin + (seen % g.width + 0.5) * g.cell
+        sy = g.ymax - (seen // g.width + 0.5) * g.cell
+        off = self.mean.flat[seen] - (z + gx * (sx - pose[0]) + gy * (sy - pose[1]))
+        enough = len(off) >= MIN_UNDER_CELLS
+        sigma = max(self.params.under_sigma, float(np.std(off)) if enough else 0.0)
+        self.mean.flat[under] = plane + (float(np.median(off)) if enough else 0.0)
+        self.mean_var.flat[under] = sigma * sigma
+        for layer in (self.rise, self.drop, self.relief, self.split, self.shift, self.along_var):
+            layer.flat[under] = 0.0
+
+    def _rest(self, cells: np.ndarray, wheel_of: np.ndarray, pose: tuple[float, float, float], gx: float,
+              gy: float) -> tuple[float, float] | None:
+        """The height at the pose's centre of the plane rising (``gx``, ``gy``) the body rests on,
+        and its variance, from the ground frames bounded under the wheels (``cells``, each read of
+        wheel ``wheel_of``): each wheel's circle rests on the highest ground under it, and a rigid
+        body rests on three of its four, so the plane is at the median of the wheels' tops. None
+        where frames bounded fewer than three wheels' ground: a frame's own height is then all
+        there is, and it stood 7 cm off the truth under a wheel once its registration jumped."""
+        framed = (self.stamp.flat[cells] > 0) & np.isfinite(self.mean.flat[cells])
+        if not framed.any():
+            return None
+        g = self.geometry
+        cells, wheel_of = cells[framed], wheel_of[framed]
+        xs = g.xmin + (cells % g.width + 0.5) * g.cell
+        ys = g.ymax - (cells // g.width + 0.5) * g.cell
+        off = self.mean.flat[cells] - gx * (xs - pose[0]) - gy * (ys - pose[1])
+        tops, var = [], []
+        for w in np.unique(wheel_of):
+            mine = wheel_of == w
+            if np.count_nonzero(mine) < 2:
+                continue
+            top = int(np.argmax(np.where(mine, off, -np.inf)))
+            tops.append(float(off[top]))
+            var.append(float(self.mean_var.flat[cells[top]]))
+        if len(tops) < 3:
+            return None
+        order = np.argsort(tops)
+        middle = order[len(order) // 2 - (1 - len(order) % 2):len(order) // 2 + 1]
+        return float(np.mean(np.asarray(tops)[middle])), float(np.mean(np.asarray(var)[middle]))
 
     def set_down(self, centre: tuple[float, float], radius: float,
                  z: float | Callable[[np.ndarray, np.ndarray], np.ndarray],

@@ -156,7 +156,7 @@ def set_down(bounds: Any, pose: tuple[float, float, float], datum: float, body: 
     ring = ring_plane(bounds, (fx, fy), radius + ring_edge, radius + ring_width, (x, y))
     # the wheels first: the fill takes only blank cells, and meets the wheels' ground without a step
     # (sigma and tilt speak only where no attitude does)
-    bounds.stood(pose, datum, body, attitude, sigma=FLOOR, tilt=(ring.gx, ring.gy))
+    bounds.stood(pose, datum, body, attitude, sigma=FLOOR, tilt=(ring.gx, ring.gy), fill_under=False)
     if ring.known:
         blind = max(radius + ring_edge, math.hypot(x - fx, y - fy) + turn)
         height, sigma = conditioned(bounds, ring, (fx, fy), blind)

@@ -91,7 +91,9 @@ class SeeConfig(Settings):
                           "ground between the wheels included) on the plane fitted to the seen ground just outside it, "
                           "carried continuously into the ground known beside it, within that ground's own spread "
                           "about the plane, less near known ground (at least 1 cm), never over the belly's ceiling "
-                          "(prox_workflows.algorithms.set_down)", choices=("level", "attitude", "ring"),
+                          "(prox_workflows.algorithms.set_down); with attitude and ring, while driving, the body "
+                          "rests on the ground frames bounded under its wheels, tipped by the attitude, over every "
+                          "pose it passed between two frames (BoundsMap.stood)", choices=("level", "attitude", "ring"),
                           option=False)
     keep_moved: float = param(2.0, "see loop with the bounds map: a navigate that starts this near where the last "
                               "one left the rover (a drive of the GNC's own between goals) takes that one's map and "

@@ -135,6 +135,9 @@ class SeeingDriver:
         # (x, y, z) the last frame put the rover frame's origin at: a rover that has not moved since
         # stands at that height, whatever the map round it says now that the frames have filled it
         self.held: tuple[float, float, float] | None = None
+        # the pose of the last frame's stand (BoundsMap.stood): the body passed over the ground
+        # from there to the next (None: set down, where nothing was driven over)
+        self.stood_at: tuple[float, float, float] | None = None
 
     def point_forward(self) -> None:
         """The PTU to pan 0 (the rover's forward), tilted down: the ToF looks where the rover goes."""
@@ -236,7 +239,8 @@ class SeeingDriver:
                 t1 += frame.capture_s
                 self.cpu1 += frame.capture_cpu_s
             if not self.set_down_pending:
-                self.bounds.stood((x, y, heading), float(T[2, 3]), self.body, self.attitude(imu))
+                self.bounds.stood((x, y, heading), float(T[2, 3]), self.body, self.attitude(imu), since=self.stood_at)
+                self.stood_at = (x, y, heading)
             app.bus.publish("bounds", bounds=self.bounds)  # Foxglove and recordings (their hub throttles)
         self.stats.frame_ms.append((t1 - t0) * 1000)  # the ToF frame's and the pairs' captures
         return (x, y, heading), t1
@@ -326,13 +330,12 @@ class SeeingDriver:
 
     def attitude(self, imu: tuple[float, float, float] | None) -> tuple[float, float, float] | None:
         """The IMU's attitude (``imu``, a read of :meth:`imu`) for the ground under the wheels
-        while driving, or None (``see_set_down`` other than attitude: the wheels' ground is then
-        the frames' and, where
-        none, level within 5 mm of the datum). Not with ring: the plane goes through the datum,
-        the frames' ground at the rover's centre, which is not where its wheels rest; felt so
-        while driving, the wheels' cells stood 3-4 cm off the frames' cells beside them and tilted
-        the resting plane 3.4 deg over the truth's at hirise_fresh 3 (docs/NAVIGATE_BENCH.md)."""
-        return imu if self.p.set_down == "attitude" else None
+        while driving, or None (``see_set_down level``: the wheels' ground is then the frames' and,
+        where none, level within 5 mm of the frame's height). With an attitude the body rests on
+        the ground frames bounded under its wheels (:meth:`BoundsMap.stood`), not on the frame's
+        height at its centre: taken level through that height, a wheel's unseen ground stood 7 cm
+        over the truth on a slope and the check refused the very pose the rover stood on."""
+        return None if self.p.set_down == "level" else imu
 
     def _check_layer(self, pose: tuple[float, float, float]) -> np.ndarray:
         """The traversability the check sweeps: the rolling map's, lowered to 0 where the maps the

@@ -661,3 +661,131 @@ def test_a_frame_is_placed_on_the_ground_the_map_holds_and_a_rock_dropped_since_
         assert rise is not None and abs(rise - 0.03) < 0.002
     elsewhere, _sig = _ground(rng, 40_000)
     assert m.offset(elsewhere + np.array([-1.5, 0.0, 0.0])) is None
+
+
+def test_a_driving_rover_rests_its_unseen_wheel_on_the_ground_frames_bounded_under_the_others() -> None:
+    """While driving, the frames bounded the ground under three wheels but not under the fourth;
+    the frame's own height at the centre is 7 cm off (its registration jumped). The body rests on
+    the seen wheels' ground tipped by the IMU's attitude, so the fourth wheel's ground is put
+    within a centimetre of the truth, and the chance check passes the pose the rover stands on.
+    Taken level through the frame's height, as without an attitude, it stands over 5 cm high."""
+    from drivers.sim.rover import RoverBody, resting_pose
+    from prox_workflows.algorithms.chance import ChanceParams, chance_check, posterior
+
+    body = RoverBody()
+    pose = (0.3, -0.2, 30.0)
+
+    def surface(x: np.ndarray, y: np.ndarray) -> np.ndarray:  # a 9 % grade and a 4 cm hummock
+        x, y = np.asarray(x, float), np.asarray(y, float)
+        return 0.08 * x - 0.05 * y + 0.04 * np.exp(-((x + 0.5) ** 2 + (y - 0.6) ** 2) / 0.02)
+
+    height, roll, pitch = resting_pose(body, surface, pose)
+    c, s = np.cos(np.radians(pose[2])), np.sin(np.radians(pose[2]))
+    hub = (pose[0] - c * 0.145 + s * 0.245, pose[1] - s * 0.145 - c * 0.245)  # rear-right
+    rng = np.random.default_rng(5)
+    x, y = rng.uniform(-1.0, 1.0, 200_000), rng.uniform(-1.0, 1.0, 200_000)
+    seen = np.hypot(x - hub[0], y - hub[1]) > 0.15  # no return under the rear-right wheel
+    pts = np.column_stack([x[seen], y[seen], surface(x[seen], y[seen]) + 0.002 * rng.standard_normal(seen.sum())])
+    truth = float(surface(np.array([hub[0]]), np.array([hub[1]]))[0])
+
+    def stood(attitude: tuple[float, float, float] | None) -> tuple[BoundsMap, bool]:
+        m = BoundsMap.covering([[-1.0, -1.0], [1.0, 1.0]], 0.0)
+        m.fuse(pts, np.full(len(pts), 0.002), np.array([pose[0], pose[1], height + 1.2]))
+        m.stood(pose, height + 0.07, body, attitude)
+        st, sub = m.statistics(-1.0, -1.0, 1.0, 1.0)
+        check = chance_check(posterior(st, sub, m.params.k), sub, np.array([pose]), body, ChanceParams())
+        return m, bool(check.safe[0])
+
+    m, safe = stood((roll + 0.1, pitch - 0.1, 0.1))  # the IMU one sigma off
+    r, col = m.geometry.cell_of(np.array([hub[0]]), np.array([hub[1]]))
+    assert m.stamp[r[0], col[0]] == 0 and np.isfinite(m.mean[r[0], col[0]])  # the body's, not a frame's
+    assert truth - 0.004 < m.upper[r[0], col[0]] < truth + 0.01
+    assert safe
+    level, _ = stood(None)
+    assert level.upper[r[0], col[0]] > truth + 0.05
+
+
+def test_the_ground_under_a_driving_rover_s_box_no_frame_saw_is_the_ground_round_it_below_the_roof() -> None:
+    """The frames never saw the ground under the middle of the box (the rover drove onto it). The
+    body says only that nothing there reaches the belly; left at that roof, the chance check reads
+    the ground just under the belly and refuses the pose the rover stands on. Taken as the framed
+    ground under the body lies about the wheels' plane, within its spread, the pose passes, and
+    the cells keep the roof over them."""
+    from drivers.sim.rover import RoverBody, resting_pose
+    from prox_workflows.algorithms.chance import ChanceParams, chance_check, posterior
+
+    body = RoverBody()
+    pose = (0.3, -0.2, 30.0)
+
+    def surface(x: np.ndarray, y: np.ndarray) -> np.ndarray:  # a 9 % grade, rough to 5 mm
+        x, y = np.asarray(x, float), np.asarray(y, float)
+        return 0.08 * x - 0.05 * y + 0.005 * np.sin(17 * x) * np.cos(13 * y)
+
+    height, roll, pitch = resting_pose(body, surface, pose)
+    rng = np.random.default_rng(6)
+    x, y = rng.uniform(-1.0, 1.0, 200_000), rng.uniform(-1.0, 1.0, 200_000)
+    seen = np.hypot(x - pose[0], y - pose[1]) > 0.08  # no return under the middle of the box
+    pts = np.column_stack([x[seen], y[seen], surface(x[seen], y[seen]) + 0.002 * rng.standard_normal(seen.sum())])
+
+    def stood(fill_under: bool) -> tuple[BoundsMap, bool]:
+        m = BoundsMap.covering([[-1.0, -1.0], [1.0, 1.0]], 0.0)
+        m.fuse(pts, np.full(len(pts), 0.002), np.array([pose[0], pose[1], height + 1.2]))
+        m.stood(pose, height, body, (roll, pitch, 0.1), fill_under=fill_under)
+        st, sub = m.statistics(-1.0, -1.0, 1.0, 1.0)
+        check = chance_check(posterior(st, sub, m.params.k), sub, np.array([pose]), body, ChanceParams())
+        return m, bool(check.safe[0])
+
+    m, safe = stood(True)
+    r, col = m.geometry.cell_of(np.array([pose[0]]), np.array([pose[1]]))
+    truth = float(surface(np.array([pose[0]]), np.array([pose[1]]))[0])
+    assert m.stamp[r[0], col[0]] == 0 and abs(m.mean[r[0], col[0]] - truth) < 0.01
+    assert m.ceiling[r[0], col[0]] < truth + body.clearance and safe
+    bare, safe = stood(False)
+    assert not np.isfinite(bare.mean[r[0], col[0]]) and not safe
+
+
+def test_a_turn_on_the_spot_stands_the_body_on_the_ground_it_swept_between_two_frames() -> None:
+    """A frame comes before a turn on the spot and after it, none during it. The body swept the
+    ground between: standing after a 90 deg turn, it stands at the headings between too, as if a
+    frame had come at each, so the turn's corners hold the belly's roof and the ground under it;
+    a jump longer than a drive between two frames (a fix) stands nothing between."""
+    from drivers.sim.rover import RoverBody
+    from prox_workflows.algorithms.bounds_map import attitude_at, contact_plane, swept_poses
+
+    body = RoverBody()
+    assert attitude_at(70.0, *contact_plane(70.0, 3.0, -4.0), 0.2) == pytest.approx((3.0, -4.0, 0.2))
+    rng = np.random.default_rng(2)
+    x, y = rng.uniform(-1.0, 1.0, 100_000), rng.uniform(-1.0, 1.0, 100_000)
+    seen = np.hypot(x, y) > 0.45  # the frames saw none of the disc the body turns in
+    pts = np.column_stack([x[seen], y[seen], 0.002 * rng.standard_normal(seen.sum())])
+
+    def held(headings: list[float], since: tuple[float, float, float] | None = None) -> np.ndarray:
+        m = BoundsMap.covering([[-1.0, -1.0], [1.0, 1.0]], 0.0)
+        m.fuse(pts, np.full(len(pts), 0.002), np.array([0.0, 0.0, 1.2]))
+        for h in headings:
+            m.stood((0.0, 0.0, h), 0.0, body, (0.0, 0.0, 0.1), since=since)
+        return np.isfinite(m.ceiling) & np.isfinite(m.mean)
+
+    ends = held([0.0, 90.0])
+    swept = held([90.0], since=(0.0, 0.0, 0.0))
+    assert swept.sum() > ends.sum() + 20
+    assert np.array_equal(swept, held([10.0, 20.0, 30.0, 40.0, 50.0, 60.0, 70.0, 80.0, 90.0]))
+    assert np.array_equal(held([90.0], since=(-0.8, 0.0, 0.0)), held([90.0]))
+    assert len(swept_poses((0.0, 0.0, 0.0), (0.0, 0.0, 90.0), None)) == 8
+
+
+def test_the_ground_swept_on_a_grade_is_stood_on_at_the_grade_s_height() -> None:
+    """No frame bounded the ground the body drove over (0.3 m up a 10 % grade): the poses between
+    the two stands take their height from the end's along the plane the attitude gives, so the
+    wheels' ground halfway is on the grade, not level with the end."""
+    from drivers.sim.rover import RoverBody
+    from prox_workflows.algorithms.bounds_map import attitude_at
+
+    body = RoverBody()
+    m = BoundsMap.covering([[-1.0, -1.0], [1.0, 1.0]], 0.0)
+    roll, pitch, _ = attitude_at(0.0, 0.1, 0.0, 0.1)
+    m.stood((0.3, 0.0, 0.0), 0.03, body, (roll, pitch, 0.1), since=(0.0, 0.0, 0.0))
+    # the rear wheels' ground halfway (hubs at x = 0.15 - 0.145), which neither end's wheels cover
+    r, c = m.geometry.cell_of(np.array([0.005]), np.array([0.245]))
+    top = m.mean[r[0], c[0]] + m.rise[r[0], c[0]]
+    assert top == pytest.approx(0.1 * 0.0125, abs=0.002)  # the cell's centre on the grade
