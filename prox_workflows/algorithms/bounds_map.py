@@ -558,7 +558,10 @@ class BoundsMap:
           millimetres: the wheel's circle rests on the highest ground under it). A rigid body
           on four wheels rests on three: the fourth may hang over lower ground, which the IMU
           does not show (4.4 cm at marsyard mission 0's start), so the ground under each wheel
-          reaches ``hang`` below the plane. This overrides the set-down's prior there; without
+          reaches ``hang`` below the plane. This overrides the set-down's prior there, but not
+          an earlier stand's reading: back where it stood, a frame's height is off the last one's
+          by the frames' disagreement, and moved with it the wheels' ground sank 1.6 cm under the
+          framed ground between them, which refused the pose the rover stood on. Without
           an attitude the contacts are taken on the plane through ``z`` rising ``tilt`` (per metre
           along x and y; level by default) within ``sigma``, where nothing else bounds them.
         - Under the box between the wheels proprioception says only that nothing reaches the
@@ -618,6 +621,10 @@ class BoundsMap:
             lever = np.hypot(xs - pose[0], ys - pose[1])
             spread = math.sqrt(self.params.contact_sigma ** 2 + rest_var)
             var = spread ** 2 + (lever * math.tan(math.radians(attitude[2]))) ** 2
+            # a stand already there read that ground as well as this one; a prior (twice the sigma
+            # or more) gives way
+            new = ~(self.mean_var.flat[wheels] <= 4 * var)
+            wheels, height, var = wheels[new], height[new], var[new]
         # with the attitude: no higher than the plane (the wheel's circle rests on the highest ground
         # under it), down to ``hang`` below it (the wheel the body does not rest on)
         sag = 0.0 if attitude is None else self.params.hang / 2

@@ -789,3 +789,26 @@ def test_the_ground_swept_on_a_grade_is_stood_on_at_the_grade_s_height() -> None
     r, c = m.geometry.cell_of(np.array([0.005]), np.array([0.245]))
     top = m.mean[r[0], c[0]] + m.rise[r[0], c[0]]
     assert top == pytest.approx(0.1 * 0.0125, abs=0.002)  # the cell's centre on the grade
+
+
+def test_a_rover_back_where_it_stood_keeps_the_wheels_ground_it_read_there_and_a_prior_gives_way() -> None:
+    """The rover stood here once and comes back; this frame's height is 3 cm under the first's
+    (frames placed unregistered disagree by that). The wheels' ground stays where the first stand
+    read it: moved with each frame's height, it lowered the wheels under framed ground beside them
+    and the check refused the pose the rover stood on. A set-down's prior, a centimetre wide, gives
+    way to the first stand."""
+    from drivers.sim.rover import RoverBody
+
+    body = RoverBody()
+    pose = (0.0, 0.0, 40.0)
+    m = BoundsMap.covering([[-1.0, -1.0], [1.0, 1.0]], 0.0)
+    m.set_down((0.0, 0.0), 0.7, 0.02, 0.01)
+    c, s = np.cos(np.radians(pose[2])), np.sin(np.radians(pose[2]))
+    hub = (c * 0.145 - s * 0.245, s * 0.145 + c * 0.245)  # front-left
+    r, col = m.geometry.cell_of(np.array([hub[0]]), np.array([hub[1]]))
+    assert m.mean[r[0], col[0]] == pytest.approx(0.02)
+    m.stood(pose, 0.0, body, (0.0, 0.0, 0.1))
+    first = float(m.upper[r[0], col[0]])
+    assert abs(first) < 0.003  # the prior gave way
+    m.stood(pose, -0.03, body, (0.0, 0.0, 0.1))
+    assert m.upper[r[0], col[0]] == pytest.approx(first)
