@@ -804,7 +804,8 @@ def test_a_rover_back_where_it_stood_keeps_the_wheels_ground_it_read_there_and_a
     m = BoundsMap.covering([[-1.0, -1.0], [1.0, 1.0]], 0.0)
     m.set_down((0.0, 0.0), 0.7, 0.02, 0.01)
     c, s = np.cos(np.radians(pose[2])), np.sin(np.radians(pose[2]))
-    hub = (c * 0.145 - s * 0.245, s * 0.145 + c * 0.245)  # front-left
+    ax, side = body.wheelbase / 2, body.track / 2
+    hub = (c * ax - s * side, s * ax + c * side)  # front-left
     r, col = m.geometry.cell_of(np.array([hub[0]]), np.array([hub[1]]))
     assert m.mean[r[0], col[0]] == pytest.approx(0.02)
     m.stood(pose, 0.0, body, (0.0, 0.0, 0.1))
