@@ -57,8 +57,8 @@ class RetreatParams(Settings):
     retreats: int = param(12, "dead ends the rover may back out of (a reverse section each, then it chooses "
                               "again) before it stands `regain` m closer to the goal than it stood when the count "
                               "began; at the next one, or where no reverse section passes, the mission is a safe "
-                              "stop with the reason (0: no backing out). A retreat costs time, not safety: through "
-                              "dense rock one way on took 9 (docs/NAVIGATE_BENCH.md)", min=0, max=100)
+                              "stop with the reason (0: no backing out). Each reverse section is checked as a forward "
+                              "one; through dense rock one way on took 9 (docs/NAVIGATE_BENCH.md)", min=0, max=100)
     regain: float = param(2.0, "coming this much closer to the goal (straight) than the rover stood when the count "
                                "of retreats began, or half the way there where that is less, starts it again: a "
                                "long traverse through rock meets more pockets than a short one, and progress "
